@@ -1,0 +1,100 @@
+"""The command line of FORMATS.md §4.
+
+One entry point, two ways in: `python -m bodycal_addon <command>` (Blender as a Python module,
+from the repository root) and `blender -b -c bodycal <command>` (registered by the extension
+with `bpy.utils.register_cli_command`). Exit 0 on success, 2 on bad input with one clear line on
+stderr and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable
+
+from .errors import BodyCalError
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+
+METHODS = ("egocentric", "offsets", "rotations")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of exiting, so `blender -c` is not killed by SystemExit."""
+
+    def error(self, message):
+        raise BodyCalError(message, source=self.prog)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="bodycal", description="BodyCal: VR tracker recordings to animation on any humanoid "
+                "avatar, keeping self-contacts.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
+    c.add_argument("recording", metavar="REC", help="recording: .bcrec.json, .csv (+ sidecar .json) or .c3d")
+    c.add_argument("-o", "--output", required=True, metavar="USER.body.json")
+
+    c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
+    c.add_argument("blend", metavar="FILE.blend")
+    c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
+    c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
+
+    c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
+    c.add_argument("recording", metavar="REC")
+    c.add_argument("--user", required=True, metavar="USER.body.json")
+    c.add_argument("--avatar", required=True, metavar="FILE.blend")
+    c.add_argument("--armature", metavar="NAME")
+    c.add_argument("--method", choices=METHODS, default="egocentric")
+    c.add_argument("-o", "--output", required=True, metavar="OUT.blend")
+
+    c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
+    c.add_argument("jobs", metavar="JOBS.toml")
+
+    c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
+    c.add_argument("-o", "--output-dir", default="out", metavar="DIR")
+    return p
+
+
+def _handler(command: str) -> Callable[[argparse.Namespace], int]:
+    """Each command lives in its own module under `commands/`, imported only when run, so that
+    `--help` and argument errors never load Blender."""
+    module_name = "commands." + command.replace("-", "_")
+    try:
+        module = importlib.import_module(f".{module_name}", __package__)
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.endswith(module_name):
+            return _not_implemented(command)
+        raise
+    return module.run
+
+
+def _not_implemented(command: str) -> Callable[[argparse.Namespace], int]:
+    def run(_args):
+        raise BodyCalError("not implemented yet in this version of BodyCal", source=command)
+    return run
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    except BodyCalError as exc:
+        print(f"bodycal: error: {exc.line()}", file=sys.stderr)
+        return EXIT_USAGE
+    if not args.command:
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        return int(_handler(args.command)(args) or 0)
+    except BodyCalError as exc:
+        print(f"bodycal {args.command}: error: {exc.line()}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"bodycal {args.command}: interrupted", file=sys.stderr)
+        return 130

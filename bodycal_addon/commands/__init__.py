@@ -1,0 +1,1 @@
+"""One module per command of FORMATS.md §4, each with `run(args) -> exit code`."""

@@ -1,0 +1,9 @@
+"""Sidebar panels (View3D > Sidebar > BodyCal): thin UI over the operators."""
+
+import bpy
+
+from . import main_panel
+
+CLASSES = main_panel.CLASSES
+
+register, unregister = bpy.utils.register_classes_factory(CLASSES)

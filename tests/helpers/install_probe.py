@@ -1,0 +1,37 @@
+"""Run in a fresh Python process: install the extension zip like a user, report what got
+registered, disable it, report what is left. Prints one JSON line."""
+
+import json
+import os
+import sys
+import tempfile
+
+os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="bodycal-install-")
+
+import bpy  # noqa: E402, I001  (first: addon_utils imports only after it)
+import addon_utils  # noqa: E402
+
+
+def registered():
+    ops = sorted(name for name in dir(bpy.ops.bodycal) if not name.startswith("_"))
+    panels = sorted(name for name in dir(bpy.types) if name.startswith("BODYCAL_PT_"))
+    categories = sorted({getattr(bpy.types, p).bl_category for p in panels})
+    classes = sorted(name for name in dir(bpy.types) if name.startswith("BODYCAL_"))
+    return {"operators": ops, "panels": panels, "categories": categories, "classes": classes}
+
+
+zip_path = sys.argv[1]
+report = {"before": registered()}
+result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
+                                                  enable_on_install=True)
+report["install_result"] = sorted(result)
+report["module_enabled"] = "bl_ext.user_default.bodycal" in bpy.context.preferences.addons
+report["installed"] = registered()
+installed_dir = os.path.join(bpy.utils.user_resource("EXTENSIONS", path="user_default"), "bodycal")
+report["installed_files"] = sorted(os.listdir(installed_dir)) if os.path.isdir(installed_dir) else []
+addon_utils.disable("bl_ext.user_default.bodycal", default_set=True)
+report["after_disable"] = registered()
+report["module_enabled_after"] = "bl_ext.user_default.bodycal" in bpy.context.preferences.addons
+print("REPORT " + json.dumps(report))
+sys.stdout.flush()
+os._exit(0)

@@ -1,0 +1,43 @@
+"""The command line of FORMATS.md §4, both ways in."""
+
+import subprocess
+import sys
+
+from conftest import REPO
+
+from bodycal_addon import cli
+from bodycal_addon.blender import cli_bridge
+
+COMMANDS = ("calibrate-user", "calibrate-avatar", "retarget", "batch", "demo")
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "bodycal_addon", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_help_lists_every_command():
+    out = _run("--help")
+    assert out.returncode == 0
+    for command in COMMANDS:
+        assert command in out.stdout
+
+
+def test_bad_arguments_give_one_line_and_exit_2():
+    out = _run("retarget", "only-a-recording.json")
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--user" in lines[0]
+    assert "Traceback" not in out.stderr
+
+
+def test_unknown_command_exits_2(capsys):
+    assert cli.main(["frobnicate"]) == 2
+    err = capsys.readouterr().err
+    assert "invalid choice" in err and "Traceback" not in err
+
+
+def test_blender_cli_command_handler_runs_the_same_entry_point(capsys):
+    # bpy.utils.register_cli_command cannot be invoked from the module (no `-c`): call the handler.
+    assert cli_bridge.run(["--help"]) == 0
+    assert "calibrate-avatar" in capsys.readouterr().out

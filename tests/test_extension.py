@@ -1,0 +1,62 @@
+"""The extension as users get it: built with Blender's tool, installed from the zip, enabled
+and disabled through Blender's extension machinery."""
+
+import json
+import subprocess
+import sys
+import zipfile
+
+import bpy
+from conftest import REPO
+
+EXPECTED_OPERATORS = {"add_procedural_avatar", "load_sample_avatars"}
+
+
+def test_symlinked_extension_registers_sidebar_tab_and_operators():
+    assert "bl_ext.user_default.bodycal" in bpy.context.preferences.addons
+    ops = {name for name in dir(bpy.ops.bodycal) if not name.startswith("_")}
+    assert EXPECTED_OPERATORS <= ops
+    assert bpy.types.BODYCAL_PT_main.bl_category == "BodyCal"
+    assert bpy.types.BODYCAL_PT_main.bl_region_type == "UI"
+
+
+def test_operators_undo_and_explain_poll():
+    for name in EXPECTED_OPERATORS:
+        cls = bpy.types.Operator.bl_rna_get_subclass_py(f"BODYCAL_OT_{name}")
+        assert cls.bl_idname == f"bodycal.{name}"
+        assert {"REGISTER", "UNDO"} <= set(cls.bl_options)
+
+
+def test_add_procedural_avatar_operator_adds_armature_and_mesh():
+    assert bpy.ops.bodycal.add_procedural_avatar(scale=0.5) == {"FINISHED"}
+    arm = bpy.data.objects["procedural"]
+    mesh = bpy.data.objects["procedural_mesh"]
+    assert arm.type == "ARMATURE" and mesh.parent == arm
+    # Half scale: the head bone's tail (top of the skull bone) is at half of 1.76 m.
+    assert abs(arm.data.bones["head"].tail_local.z - 0.88) < 1e-4
+
+
+def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
+    from bodycal_addon.blender.extension_build import build_zip
+
+    zip_path = build_zip(tmp_path)
+    names = zipfile.ZipFile(zip_path).namelist()
+    assert "blender_manifest.toml" in names and "__init__.py" in names
+    assert any(n.startswith("bodycal_addon/") for n in names)
+    # Left out of the zip by [build] paths_exclude_pattern.
+    assert not any(n.startswith(("tests/", "benchmarks/", ".ci/", ".venv/")) for n in names)
+
+    out = subprocess.run([sys.executable, str(REPO / "tests" / "helpers" / "install_probe.py"), str(zip_path)],
+                         capture_output=True, text=True, timeout=300)
+    line = next((ln for ln in out.stdout.splitlines() if ln.startswith("REPORT ")), None)
+    assert line, out.stdout[-2000:] + out.stderr[-2000:]
+    report = json.loads(line[len("REPORT "):])
+    assert report["before"]["classes"] == []
+    assert report["install_result"] == ["FINISHED"]
+    assert report["module_enabled"]
+    assert EXPECTED_OPERATORS <= set(report["installed"]["operators"])
+    assert report["installed"]["categories"] == ["BodyCal"]
+    assert "bodycal_addon" in report["installed_files"]
+    assert not report["module_enabled_after"]
+    assert report["after_disable"]["classes"] == []
+    assert report["after_disable"]["operators"] == []
