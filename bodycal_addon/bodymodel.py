@@ -1,0 +1,284 @@
+"""`BodyModel`: the output of the user calibration and of the avatar surface calibration
+(FORMATS.md §3, `*.body.json`). One schema for both, so the egocentric mapping is symmetric.
+
+Conventions (this module is their reference):
+- `joints[name].world`: position in the internal world frame (Z up, metres) at `reference_time`
+  (user) or in the avatar's rest pose (avatar).
+- `joints[name].frame` / `.local`: the tracker role (user) or avatar bone name (avatar) the joint
+  rides on, and its position in that frame. For an avatar bone the frame is the bone's rest
+  matrix (head at the origin, +Y along the bone).
+- `bones[name].right`: the bone's local right (flexion axis for hinges) as a world direction at
+  the reference time / in the rest pose; `radius_head` / `radius_tail` are capsule radii.
+- `surface`: elements of types `capsule` (around a bone), `sphere` (`center` local to `bone`),
+  `mesh` (named points, each local to a bone, and triangles over the point names).
+- `offsets` (optional, AvatarGo, paper 004 §3.3): per joint, the tracker role and `v0` (tracker
+  to joint vector, world), `r0_tracker` and `r0_joint` (world rotations, quaternions w, x, y, z)
+  at the T-pose.
+- `extra`: anything else a producer wants to keep (readers keep unknown fields round-trip).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import BodyCalError
+
+FORMAT = "bodycal-body"
+VERSION = 1
+KINDS = ("user", "avatar")
+ELEMENT_TYPES = ("capsule", "sphere", "mesh")
+REQUIRED_USER_JOINTS = ("hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r", "shoulder_l", "shoulder_r",
+                        "elbow_l", "elbow_r", "wrist_l", "wrist_r", "skull_base", "spine_root")
+
+
+def _vec(value, source, field_name, n=3) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise BodyCalError(f"expected {n} numbers, got {value!r:.60}", source=source, field=field_name) from None
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise BodyCalError(f"expected {n} finite numbers, got {value!r:.60}", source=source, field=field_name)
+    return arr
+
+
+def _list(v):
+    return None if v is None else [round(float(x), 7) for x in np.asarray(v).ravel()]
+
+
+@dataclass
+class Joint:
+    world: np.ndarray
+    frame: str | None = None
+    local: np.ndarray | None = None
+
+    def to_dict(self):
+        d = {"world": _list(self.world)}
+        if self.frame is not None:
+            d["frame"] = self.frame
+        if self.local is not None:
+            d["local"] = _list(self.local)
+        return d
+
+
+@dataclass
+class BoneInfo:
+    head: str
+    tail: str
+    length: float
+    right: np.ndarray | None = None
+    radius_head: float | None = None
+    radius_tail: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self):
+        d = {"head": self.head, "tail": self.tail, "length": round(float(self.length), 7)}
+        if self.right is not None:
+            d["right"] = _list(self.right)
+        if self.radius_head is not None:
+            d["radius_head"] = round(float(self.radius_head), 7)
+        if self.radius_tail is not None:
+            d["radius_tail"] = round(float(self.radius_tail), 7)
+        d.update(self.extra)
+        return d
+
+
+@dataclass
+class SurfacePoint:
+    bone: str
+    local: np.ndarray
+
+    def to_dict(self):
+        return {"bone": self.bone, "local": _list(self.local)}
+
+
+@dataclass
+class SurfaceElement:
+    id: str
+    type: str
+    bone: str
+    center: np.ndarray | None = None  # sphere: local to `bone`
+    radius: float | None = None  # sphere
+    points: dict[str, SurfacePoint] = field(default_factory=dict)  # mesh
+    triangles: list[tuple[str, str, str]] = field(default_factory=list)  # mesh
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self):
+        d = {"id": self.id, "type": self.type, "bone": self.bone}
+        if self.center is not None:
+            d["center"] = _list(self.center)
+        if self.radius is not None:
+            d["radius"] = round(float(self.radius), 7)
+        if self.points:
+            d["points"] = {k: p.to_dict() for k, p in self.points.items()}
+        if self.triangles:
+            d["triangles"] = [list(t) for t in self.triangles]
+        d.update(self.extra)
+        return d
+
+
+@dataclass
+class Offset:
+    """AvatarGo exact offset of one joint from its tracker (paper 004, eq. 2-3)."""
+
+    tracker: str
+    v0: np.ndarray  # p0(J) - p0(T), world
+    r0_tracker: np.ndarray  # R0(T), quaternion
+    r0_joint: np.ndarray  # R0(J), quaternion
+
+    def to_dict(self):
+        return {"tracker": self.tracker, "v0": _list(self.v0), "r0_tracker": _list(self.r0_tracker),
+                "r0_joint": _list(self.r0_joint)}
+
+
+@dataclass
+class BodyModel:
+    kind: str
+    name: str
+    joints: dict[str, Joint] = field(default_factory=dict)
+    bones: dict[str, BoneInfo] = field(default_factory=dict)
+    surface: list[SurfaceElement] = field(default_factory=list)
+    reference_time: float | None = None
+    offsets: dict[str, Offset] = field(default_factory=dict)
+    calibration: dict = field(default_factory=lambda: {"steps_used": [], "defaulted": {}, "missing": [],
+                                                       "quality": {}})
+    extra: dict = field(default_factory=dict)
+
+    def world(self, joint: str) -> np.ndarray:
+        try:
+            return self.joints[joint].world
+        except KeyError:
+            raise BodyCalError(f"joint '{joint}' is not in the body model", source=self.name) from None
+
+    def element(self, element_id: str) -> SurfaceElement:
+        for e in self.surface:
+            if e.id == element_id:
+                return e
+        raise BodyCalError(f"surface element '{element_id}' is not in the body model", source=self.name)
+
+    # --- JSON ------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        d = {"format": FORMAT, "version": VERSION, "kind": self.kind, "name": self.name}
+        if self.reference_time is not None:
+            d["reference_time"] = round(float(self.reference_time), 6)
+        d["joints"] = {k: j.to_dict() for k, j in self.joints.items()}
+        d["bones"] = {k: b.to_dict() for k, b in self.bones.items()}
+        d["surface"] = [e.to_dict() for e in self.surface]
+        if self.offsets:
+            d["offsets"] = {k: o.to_dict() for k, o in self.offsets.items()}
+        d["calibration"] = self.calibration
+        d.update(self.extra)
+        return d
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1, allow_nan=False)
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(self.to_json())
+        tmp.replace(path)  # never leave a half-written file where the user's was
+        return path
+
+    @classmethod
+    def load(cls, path) -> BodyModel:
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise BodyCalError(f"cannot read: {exc.strerror}", source=str(path)) from None
+        try:
+            data = json.loads(text)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise BodyCalError(f"not valid JSON ({exc})", source=str(path)) from None
+        return cls.from_dict(data, source=str(path))
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "body model") -> BodyModel:
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise BodyCalError(f"not a body model (format must be '{FORMAT}')", source=source, field="format")
+        if data.get("version") != VERSION:
+            raise BodyCalError(f"unsupported version {data.get('version')!r}, this BodyCal reads {VERSION}",
+                               source=source, field="version")
+        kind = data.get("kind")
+        if kind not in KINDS:
+            raise BodyCalError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}", source=source, field="kind")
+        joints = {}
+        for name, j in _dict(data.get("joints", {}), source, "joints").items():
+            j = _dict(j, source, f"joints.{name}")
+            if "world" not in j:
+                raise BodyCalError("missing 'world'", source=source, field=f"joints.{name}")
+            local = j.get("local")
+            joints[name] = Joint(_vec(j["world"], source, f"joints.{name}.world"), j.get("frame"),
+                                 None if local is None else _vec(local, source, f"joints.{name}.local"))
+        bones = {}
+        for name, b in _dict(data.get("bones", {}), source, "bones").items():
+            b = _dict(b, source, f"bones.{name}")
+            known = {"head", "tail", "length", "right", "radius_head", "radius_tail"}
+            try:
+                bones[name] = BoneInfo(
+                    str(b["head"]), str(b["tail"]), _number(b["length"], source, f"bones.{name}.length"),
+                    None if b.get("right") is None else _vec(b["right"], source, f"bones.{name}.right"),
+                    _opt_number(b.get("radius_head"), source, f"bones.{name}.radius_head"),
+                    _opt_number(b.get("radius_tail"), source, f"bones.{name}.radius_tail"),
+                    {k: v for k, v in b.items() if k not in known})
+            except KeyError as exc:
+                raise BodyCalError(f"missing '{exc.args[0]}'", source=source, field=f"bones.{name}") from None
+        surface = []
+        if not isinstance(data.get("surface", []), list):
+            raise BodyCalError("expected a list", source=source, field="surface")
+        for i, e in enumerate(data.get("surface", [])):
+            e = _dict(e, source, f"surface[{i}]")
+            etype = e.get("type")
+            if etype not in ELEMENT_TYPES:
+                raise BodyCalError(f"type must be one of {', '.join(ELEMENT_TYPES)}, got {etype!r}", source=source,
+                                   field=f"surface[{i}].type")
+            pts = {k: SurfacePoint(str(_dict(p, source, f"surface[{i}].points.{k}").get("bone", e.get("bone"))),
+                                   _vec(p.get("local"), source, f"surface[{i}].points.{k}.local"))
+                   for k, p in _dict(e.get("points", {}), source, f"surface[{i}].points").items()}
+            tris = []
+            for t in e.get("triangles", []):
+                if not (isinstance(t, list) and len(t) == 3 and all(v in pts for v in t)):
+                    raise BodyCalError(f"triangle {t!r:.60} must name three of its points", source=source,
+                                       field=f"surface[{i}].triangles")
+                tris.append(tuple(t))
+            known = {"id", "type", "bone", "center", "radius", "points", "triangles"}
+            surface.append(SurfaceElement(
+                str(e.get("id", f"{etype}:{i}")), etype, str(e.get("bone", "")),
+                None if e.get("center") is None else _vec(e["center"], source, f"surface[{i}].center"),
+                _opt_number(e.get("radius"), source, f"surface[{i}].radius"), pts, tris,
+                {k: v for k, v in e.items() if k not in known}))
+        offsets = {}
+        for name, o in _dict(data.get("offsets", {}), source, "offsets").items():
+            o = _dict(o, source, f"offsets.{name}")
+            offsets[name] = Offset(str(o.get("tracker")), _vec(o.get("v0"), source, f"offsets.{name}.v0"),
+                                   _vec(o.get("r0_tracker"), source, f"offsets.{name}.r0_tracker", 4),
+                                   _vec(o.get("r0_joint"), source, f"offsets.{name}.r0_joint", 4))
+        known_top = {"format", "version", "kind", "name", "reference_time", "joints", "bones", "surface", "offsets",
+                     "calibration"}
+        return cls(kind, str(data.get("name", "")), joints, bones, surface,
+                   _opt_number(data.get("reference_time"), source, "reference_time"), offsets,
+                   data.get("calibration", {"steps_used": [], "defaulted": {}, "missing": [], "quality": {}}),
+                   {k: v for k, v in data.items() if k not in known_top})
+
+
+def _dict(v, source, field_name) -> dict:
+    if not isinstance(v, dict):
+        raise BodyCalError("expected an object", source=source, field=field_name)
+    return v
+
+
+def _number(v, source, field_name) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise BodyCalError(f"expected a finite number, got {v!r:.40}", source=source, field=field_name)
+    return float(v)
+
+
+def _opt_number(v, source, field_name):
+    return None if v is None else _number(v, source, field_name)

@@ -1,0 +1,144 @@
+"""Rotations on numpy arrays with any leading axes (frames first).
+
+Quaternions are `w, x, y, z` (mathutils order, FORMATS.md §1), Hamilton product, active
+rotations: `rotate(q, v)` turns vector v by q. Matrices act on column vectors: `R @ v`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+EPS = 1e-12
+
+
+def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Unit vectors; zero vectors stay zero (never NaN)."""
+    v = np.asarray(v, dtype=float)
+    n = np.linalg.norm(v, axis=axis, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > EPS)
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = np.moveaxis(np.asarray(a, float), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b, float), -1, 0)
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    q = np.asarray(q, float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_normalize(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions with w >= 0 (one of the two covers, for stable comparisons)."""
+    q = normalize(q)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4)."""
+    q = np.asarray(q, float)
+    v = np.asarray(v, float)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    q = np.asarray(q, float)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    m = np.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], axis=-1)
+    return m.reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) to unit quaternions, w >= 0 (Shepperd's method, branch-free
+    over arrays: every candidate is computed and the best conditioned one is picked per item)."""
+    m = np.asarray(m, float)
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    trace = m00 + m11 + m22
+    cands = np.stack([
+        np.stack([1 + trace, m21 - m12, m02 - m20, m10 - m01], -1),
+        np.stack([m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20], -1),
+        np.stack([m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21], -1),
+        np.stack([m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22], -1),
+    ], -2)
+    diag = np.stack([trace, m00, m11, m22], -1)
+    best = np.argmax(diag, axis=-1)
+    q = np.take_along_axis(cands, best[..., None, None], axis=-2)[..., 0, :]
+    return quat_normalize(q)
+
+
+def axis_angle_to_quat(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    axis = normalize(axis)
+    half = 0.5 * np.asarray(angle, float)[..., None]
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+
+
+def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotation taking direction a to direction b; for opposite vectors, a half turn
+    about an axis perpendicular to a."""
+    a, b = normalize(a), normalize(b)
+    a, b = np.broadcast_arrays(a, b)
+    d = (a * b).sum(-1)
+    c = np.cross(a, b)
+    q = np.concatenate([(1.0 + d)[..., None], c], axis=-1)
+    opposite = d < -1.0 + 1e-9
+    if np.any(opposite):
+        perp = np.cross(a, np.array([1.0, 0.0, 0.0]))
+        small = np.linalg.norm(perp, axis=-1, keepdims=True) < 1e-6
+        perp = np.where(small, np.cross(a, np.array([0.0, 1.0, 0.0])), perp)
+        q = np.where(opposite[..., None], np.concatenate([np.zeros(d.shape + (1,)), normalize(perp)], -1), q)
+    return normalize(q)
+
+
+def quat_angle(q: np.ndarray) -> np.ndarray:
+    """Rotation angle in [0, pi]."""
+    q = np.asarray(q, float)
+    return 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))
+
+
+def frame_from_axes(y_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
+    """Rotation matrix whose columns are (x, y, z) with y along `y_axis` and x as close as
+    possible to `x_hint` (Blender's bone convention: a bone points along its local +Y; for hinges
+    local +X is the flexion axis)."""
+    y = normalize(y_axis)
+    x = normalize(x_hint - (x_hint * y).sum(-1, keepdims=True) * y)
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=-1)
+
+
+def transform_points(pos: np.ndarray, rot: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """World positions of `local` points in frames (pos, rot quaternion): p + R local."""
+    return np.asarray(pos, float) + rotate(rot, local)
+
+
+def inverse_transform_points(pos: np.ndarray, rot: np.ndarray, world: np.ndarray) -> np.ndarray:
+    """`world` points expressed in frames (pos, rot quaternion): R^-1 (w - p)."""
+    return rotate(quat_conj(rot), np.asarray(world, float) - pos)
+
+
+def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = (a * b).sum(-1, keepdims=True)
+    b = np.where(d < 0, -b, b)
+    d = np.abs(d)
+    t = np.asarray(t, float)[..., None] if np.ndim(t) else np.asarray(t, float)
+    theta = np.arccos(np.clip(d, -1.0, 1.0))
+    s = np.sin(theta)
+    near = s < 1e-6
+    wa = np.where(near, 1 - t, np.sin((1 - t) * theta) / np.where(near, 1, s))
+    wb = np.where(near, t, np.sin(t * theta) / np.where(near, 1, s))
+    return normalize(wa * a + wb * b)

@@ -1,0 +1,77 @@
+"""The body model schema of FORMATS.md §3: round trip and clear errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, Offset, SurfacePoint, SurfaceElement
+from bodycal_addon.errors import BodyCalError
+
+EXAMPLE = {
+    "format": "bodycal-body", "version": 1, "kind": "user", "name": "session-2026-11-22", "reference_time": 1.25,
+    "joints": {"shoulder_l": {"world": [0.18, 0.02, 1.42], "frame": "upperarm_l", "local": [0.0, -0.03, 0.11]}},
+    "bones": {"forearm_l": {"head": "elbow_l", "tail": "wrist_l", "length": 0.26, "right": [1, 0, 0],
+                            "radius_head": 0.045, "radius_tail": 0.03}},
+    "surface": [
+        {"id": "capsule:forearm_l", "type": "capsule", "bone": "forearm_l"},
+        {"id": "sphere:skull", "type": "sphere", "bone": "head", "center": [0, 0.02, 0.09], "radius": 0.095},
+        {"id": "mesh:torso", "type": "mesh", "bone": "spine_*",
+         "points": {"chest_l": {"bone": "spine_09", "local": [0.1, -0.12, 0.0]},
+                    "sternum": {"bone": "spine_09", "local": [0.0, -0.12, 0.0]},
+                    "belly_ul": {"bone": "spine_04", "local": [0.1, -0.15, 0.0]}},
+         "triangles": [["sternum", "chest_l", "belly_ul"]]},
+    ],
+    "calibration": {"steps_used": ["tpose", "swing_shoulder_l"], "defaulted": {}, "missing": [],
+                    "quality": {"swing_shoulder_l": {"rms_mm": 2.1, "kept": 141, "of": 150}}},
+    "producer_note": "kept",
+}
+
+
+def test_formats_example_round_trips(tmp_path):
+    model = BodyModel.from_dict(EXAMPLE)
+    assert model.joints["shoulder_l"].frame == "upperarm_l"
+    assert model.bones["forearm_l"].radius_tail == 0.03
+    assert model.element("sphere:skull").radius == 0.095
+    path = model.save(tmp_path / "user.body.json")
+    again = json.loads(path.read_text())
+    assert again == EXAMPLE
+
+
+def test_built_model_with_offsets_saves_and_loads(tmp_path):
+    m = BodyModel("avatar", "procedural")
+    m.joints["wrist_l"] = Joint(np.array([0.7, 0, 1.4]), "lowerarm_l", np.array([0, 0.25, 0]))
+    m.bones["forearm_l"] = BoneInfo("elbow_l", "wrist_l", 0.25, np.array([0, 0, 1.0]), 0.04, 0.035)
+    m.surface.append(SurfaceElement("mesh:palm_l", "mesh", "hand_l",
+                                    points={"a": SurfacePoint("hand_l", np.zeros(3))}))
+    m.offsets["ankle_l"] = Offset("foot_l", np.array([0, 0.02, -0.05]), np.array([1.0, 0, 0, 0]),
+                                  np.array([0.0, 1, 0, 0]))
+    back = BodyModel.load(m.save(tmp_path / "a.body.json"))
+    np.testing.assert_allclose(back.world("wrist_l"), [0.7, 0, 1.4])
+    np.testing.assert_allclose(back.offsets["ankle_l"].r0_joint, [0, 1, 0, 0])
+    assert back.element("mesh:palm_l").points["a"].bone == "hand_l"
+
+
+@pytest.mark.parametrize("mutate, field", [
+    (lambda d: d.update(format="other"), "format"),
+    (lambda d: d.update(kind="robot"), "kind"),
+    (lambda d: d["joints"]["shoulder_l"].update(world=[0, "x", 1]), "joints.shoulder_l.world"),
+    (lambda d: d["joints"]["shoulder_l"].update(world=[0, float("nan"), 1]), "joints.shoulder_l.world"),
+    (lambda d: d["bones"]["forearm_l"].pop("length"), "bones.forearm_l"),
+    (lambda d: d["surface"][2].update(triangles=[["sternum", "nope", "chest_l"]]), "surface[2].triangles"),
+    (lambda d: d["surface"][0].update(type="cube"), "surface[0].type"),
+])
+def test_bad_body_models_name_the_field(mutate, field):
+    data = json.loads(json.dumps(EXAMPLE))
+    mutate(data)
+    with pytest.raises(BodyCalError) as err:
+        BodyModel.from_dict(data, source="x.body.json")
+    assert f"x.body.json: {field}" in str(err.value)
+
+
+def test_unreadable_file_is_one_clear_line(tmp_path):
+    bad = tmp_path / "bad.body.json"
+    bad.write_text("{not json")
+    with pytest.raises(BodyCalError) as err:
+        BodyModel.load(bad)
+    assert "not valid JSON" in str(err.value) and "\n" not in str(err.value)
