@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, Offset, SurfacePoint, SurfaceElement
+from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, Offset, SurfaceElement, SurfacePoint
 from bodycal_addon.errors import BodyCalError
 
 EXAMPLE = {
