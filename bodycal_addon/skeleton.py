@@ -68,9 +68,11 @@ def _bones() -> tuple[Bone, ...]:
             Bone(f"upperarm_{s}", f"shoulder_{s}", f"elbow_{s}", f"clavicle_{s}"),
             Bone(f"forearm_{s}", f"elbow_{s}", f"wrist_{s}", f"upperarm_{s}", hinge=True),
         ]
+        # The hand as one rigid body (the hand tracker's / glove's frame), wrist to middle base.
+        bones.append(Bone(f"hand_{s}", f"wrist_{s}", f"mcp_middle_{s}", f"forearm_{s}"))
         for f in FINGERS:
             bones += [
-                Bone(f"metacarpal_{f}_{s}", f"wrist_{s}", f"mcp_{f}_{s}", f"forearm_{s}"),
+                Bone(f"metacarpal_{f}_{s}", f"wrist_{s}", f"mcp_{f}_{s}", f"hand_{s}"),
                 Bone(f"{f}_1_{s}", f"mcp_{f}_{s}", f"pip_{f}_{s}", f"metacarpal_{f}_{s}"),
                 Bone(f"{f}_2_{s}", f"pip_{f}_{s}", f"dip_{f}_{s}", f"{f}_1_{s}", hinge=True),
                 Bone(f"{f}_3_{s}", f"dip_{f}_{s}", f"tip_{f}_{s}", f"{f}_2_{s}", hinge=True),
