@@ -15,6 +15,21 @@ Conventions (this module is their reference):
   to joint vector, world), `r0_tracker` and `r0_joint` (world rotations, quaternions w, x, y, z)
   at the T-pose.
 - `extra`: anything else a producer wants to keep (readers keep unknown fields round-trip).
+
+What a `kind: "user"` model carries for animation (paper 000, appendix D; the user calibration
+produces it, the synthetic performer's ground truth produces the exact same thing, the retargeting
+engine consumes it):
+- `joints[name].frames`: {tracker role: local position} for every tracker the joint is known in
+  (`frame`/`local` repeat the first): wrist, mcp/pip/dip/tip (extended finger) in `hand_<s>`;
+  elbow in `forearm_<s>` (else `hand_<s>`) and `upperarm_<s>`; shoulder in `upperarm_<s>` and the
+  root tracker (`chest`, else `pelvis`); knee in `shin_<s>` (else `foot_<s>`) and `thigh_<s>`; hip
+  in `thigh_<s>` and `pelvis`; ankle and toe in `foot_<s>`; pelvis and spine_root in `pelvis`;
+  skull_base and head in `head`. A joint no tracker carries has only `world`.
+- `bones[hinge].extra`: `right_local` (flexion axis) and `right_frame` (the tracker role it is
+  expressed in) for forearm_<s> and shin_<s>.
+- `extra["tpose"]`: {role: [px, py, pz, qw, qx, qy, qz]} device poses at the reference time;
+  `extra["eye_height"]`; `extra["palm_planes"]`: {`hand_<s>`: {"point", "normal"}} in the hand
+  frame, normal out of the palm.
 """
 
 from __future__ import annotations
@@ -55,6 +70,11 @@ class Joint:
     world: np.ndarray
     frame: str | None = None
     local: np.ndarray | None = None
+    frames: dict[str, np.ndarray] = field(default_factory=dict)  # every tracker the joint is known in
+
+    def __post_init__(self):
+        if self.frame is not None and self.local is not None and self.frame not in self.frames:
+            self.frames = {self.frame: self.local, **self.frames}
 
     def to_dict(self):
         d = {"world": _list(self.world)}
@@ -62,6 +82,8 @@ class Joint:
             d["frame"] = self.frame
         if self.local is not None:
             d["local"] = _list(self.local)
+        if set(self.frames) - {self.frame}:
+            d["frames"] = {k: _list(v) for k, v in self.frames.items()}
         return d
 
 
@@ -215,8 +237,10 @@ class BodyModel:
             if "world" not in j:
                 raise BodyCalError("missing 'world'", source=source, field=f"joints.{name}")
             local = j.get("local")
+            frames = {k: _vec(v, source, f"joints.{name}.frames.{k}")
+                      for k, v in _dict(j.get("frames", {}), source, f"joints.{name}.frames").items()}
             joints[name] = Joint(_vec(j["world"], source, f"joints.{name}.world"), j.get("frame"),
-                                 None if local is None else _vec(local, source, f"joints.{name}.local"))
+                                 None if local is None else _vec(local, source, f"joints.{name}.local"), frames)
         bones = {}
         for name, b in _dict(data.get("bones", {}), source, "bones").items():
             b = _dict(b, source, f"bones.{name}")

@@ -41,6 +41,8 @@ def test_formats_example_round_trips(tmp_path):
 def test_built_model_with_offsets_saves_and_loads(tmp_path):
     m = BodyModel("avatar", "procedural")
     m.joints["wrist_l"] = Joint(np.array([0.7, 0, 1.4]), "lowerarm_l", np.array([0, 0.25, 0]))
+    m.joints["elbow_l"] = Joint(np.array([0.45, 0, 1.4]), "forearm_l", np.array([0, 0.01, 0]),
+                                {"upperarm_l": np.array([0.0, 0.27, 0.01])})
     m.bones["forearm_l"] = BoneInfo("elbow_l", "wrist_l", 0.25, np.array([0, 0, 1.0]), 0.04, 0.035)
     m.surface.append(SurfaceElement("mesh:palm_l", "mesh", "hand_l",
                                     points={"a": SurfacePoint("hand_l", np.zeros(3))}))
@@ -48,6 +50,8 @@ def test_built_model_with_offsets_saves_and_loads(tmp_path):
                                   np.array([0.0, 1, 0, 0]))
     back = BodyModel.load(m.save(tmp_path / "a.body.json"))
     np.testing.assert_allclose(back.world("wrist_l"), [0.7, 0, 1.4])
+    assert list(back.joints["elbow_l"].frames) == ["forearm_l", "upperarm_l"]
+    np.testing.assert_allclose(back.joints["elbow_l"].frames["upperarm_l"], [0, 0.27, 0.01])
     np.testing.assert_allclose(back.offsets["ankle_l"].r0_joint, [0, 1, 0, 0])
     assert back.element("mesh:palm_l").points["a"].bone == "hand_l"
 
