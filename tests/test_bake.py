@@ -1,0 +1,106 @@
+"""Baking an AvatarAnimation: a new action, exact keys, nothing overwritten or left behind."""
+
+import bpy
+import numpy as np
+import pytest
+
+from bodycal_addon import paths
+from bodycal_addon import transforms as tf
+from bodycal_addon.animation import AvatarAnimation
+from bodycal_addon.blender.bake import bake_animation, continuous_quaternions
+from bodycal_addon.errors import BodyCalError
+
+rigs = paths.sample_rigs()
+BONES = ["upperarm_l", "lowerarm_l", "thigh_r", "spine_02", "head"]
+
+
+def _animation(frames=120, seed=0):
+    rng = np.random.default_rng(seed)
+    q = tf.quat_normalize(rng.normal(size=(frames, len(BONES), 4)))
+    return AvatarAnimation("procedural", list(BONES), q, "pelvis", rng.normal(size=(frames, 3)) * 0.1,
+                           np.arange(frames) / 30.0, method="egocentric")
+
+
+def _armature():
+    arm, _mesh, _spec = rigs.build_procedural_avatar()
+    return arm
+
+
+def test_keys_reproduce_the_animation_exactly_in_the_pose():
+    arm = _armature()
+    anim = _animation()
+    bpy.context.scene.render.fps = 30
+    result = bake_animation(anim, arm, action_name="rec|procedural|egocentric")
+    assert arm.animation_data.action == result.action
+    assert result.keys == anim.frame_count * (4 * len(BONES) + 3)
+    q = continuous_quaternions(anim.rotations)
+    for f in (0, 37, 119):
+        bpy.context.scene.frame_set(int(bpy.context.scene.frame_start + f))
+        for b, name in enumerate(BONES):
+            got = np.array(arm.pose.bones[name].rotation_quaternion)
+            np.testing.assert_allclose(got, q[f, b], atol=1e-6)
+        np.testing.assert_allclose(np.array(arm.pose.bones["pelvis"].location), anim.root_location[f], atol=1e-6)
+    # Between keys the curves interpolate linearly (dense samples: no overshoot).
+    fc = next(fc for fc in _fcurves(arm) if fc.data_path.endswith('"lowerarm_l"].rotation_quaternion')
+              and fc.array_index == 2)
+    for f in (10, 64):
+        mid = fc.evaluate(bpy.context.scene.frame_start + f + 0.5)
+        assert abs(mid - (q[f, 1, 2] + q[f + 1, 1, 2]) / 2) < 1e-6
+
+
+def _fcurves(obj):
+    act = obj.animation_data.action
+    if hasattr(act, "fcurves") and len(act.fcurves):
+        return list(act.fcurves)
+    slot = obj.animation_data.action_slot
+    return [fc for layer in act.layers for strip in layer.strips for fc in strip.channelbag(slot).fcurves]
+
+
+def test_existing_action_is_kept_unless_replace_is_asked():
+    arm = _armature()
+    mine = bpy.data.actions.new("rec|procedural|egocentric")
+    mine.use_fake_user = True
+    first = bake_animation(_animation(), arm, action_name="rec|procedural|egocentric")
+    assert first.action.name == "rec|procedural|egocentric.001"
+    assert bpy.data.actions.get("rec|procedural|egocentric") == mine
+    second = bake_animation(_animation(seed=1), arm, action_name="rec|procedural|egocentric", replace=True)
+    assert second.replaced == "rec|procedural|egocentric"
+    assert second.action.name == "rec|procedural|egocentric"
+    assert "rec|procedural|egocentric.001" in bpy.data.actions  # the first bake is the user's now too
+
+
+def test_failure_before_writing_changes_nothing():
+    arm = _armature()
+    previous = bpy.data.actions.new("previous")
+    arm.animation_data_create().action = previous
+    for b in BONES:
+        arm.pose.bones[b].rotation_mode = "XYZ"
+    bad = _animation()
+    bad.rotations[5, 1, 2] = np.nan
+    n_actions = len(bpy.data.actions)
+    with pytest.raises(BodyCalError, match="non-finite"):
+        bake_animation(bad, arm)
+    missing = _animation()
+    missing.bone_names[0] = "no_such_bone"
+    with pytest.raises(BodyCalError, match="no_such_bone"):
+        bake_animation(missing, arm)
+    assert len(bpy.data.actions) == n_actions
+    assert arm.animation_data.action == previous
+    # Validation runs before anything is touched: the bones keep their rotation mode.
+    assert {arm.pose.bones[b].rotation_mode for b in BONES} == {"XYZ"}
+
+
+def test_push_to_nla_leaves_a_strip_and_no_active_action():
+    arm = _armature()
+    result = bake_animation(_animation(), arm, action_name="nla test", push_to_nla=True)
+    assert arm.animation_data.action is None
+    track = arm.animation_data.nla_tracks[result.nla_track]
+    assert track.strips[0].action == result.action
+
+
+def test_quaternion_continuity_removes_sign_flips():
+    q = tf.quat_normalize(np.random.default_rng(2).normal(size=(50, 3, 4)))
+    smooth = np.repeat(q[:1], 50, axis=0) * np.where(np.arange(50) % 2, -1, 1)[:, None, None]
+    out = continuous_quaternions(smooth)
+    assert np.all((out[1:] * out[:-1]).sum(-1) > 0)
+    np.testing.assert_allclose(np.abs((out * smooth).sum(-1)), 1.0)
