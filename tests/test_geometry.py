@@ -1,0 +1,156 @@
+"""Robust fits (bodycal_addon.geometry): exact on exact points, robust to outliers with the 2-sigma
+pass, and a clear BodyCalError on data that cannot determine the fit."""
+
+import numpy as np
+import pytest
+
+from bodycal_addon import geometry as geo
+from bodycal_addon.errors import BodyCalError
+
+rng = np.random.default_rng(3)
+
+
+def _random_rotation():
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def _arc(n, centre, radius, axis_rot, a0=0.0, a1=2.0944):
+    t = np.linspace(a0, a1, n)
+    local = np.column_stack([radius * np.cos(t), radius * np.sin(t), np.zeros(n)])
+    return centre + local @ axis_rot.T
+
+
+def _cap(n, centre, radius, max_polar=1.0472):
+    """Points on a spherical cap (a limb swinging below the horizontal)."""
+    az = rng.uniform(0, 2 * np.pi, n)
+    pol = rng.uniform(0, max_polar, n)
+    d = np.column_stack([np.sin(pol) * np.cos(az), np.sin(pol) * np.sin(az), -np.cos(pol)])
+    return centre + radius * d
+
+
+def test_plane_exact_and_normal():
+    rot = _random_rotation()
+    pts = rng.uniform(-1, 1, (50, 2))
+    p = np.column_stack([pts, np.zeros(50)]) @ rot.T + [1, 2, 3]
+    fit = geo.fit_plane(p)
+    assert fit.rms < 1e-12
+    assert abs(abs(fit.normal @ rot[:, 2]) - 1) < 1e-12
+    assert fit.distance(p).max() < 1e-12
+    assert fit.kept == fit.of == 50
+
+
+def test_plane_rejects_collinear_points():
+    p = np.outer(np.linspace(0, 1, 20), [1, 2, 3])
+    with pytest.raises(BodyCalError, match="line"):
+        geo.fit_plane(p, name="palms_together")
+
+
+def test_circle_exact_on_exact_points():
+    rot = _random_rotation()
+    c = np.array([0.1, -0.2, 1.3])
+    fit = geo.fit_circle(_arc(100, c, 0.25, rot))
+    np.testing.assert_allclose(fit.center, c, atol=1e-9)
+    assert abs(fit.radius - 0.25) < 1e-9
+    assert abs(abs(fit.normal @ rot[:, 2]) - 1) < 1e-9
+    assert fit.rms < 1e-9
+    assert 118 < fit.range_deg < 121
+
+
+def test_circle_two_sigma_pass_removes_outliers():
+    rot = _random_rotation()
+    c = np.array([0.0, 0.0, 1.0])
+    p = _arc(300, c, 0.25, rot) + rng.normal(0, 0.001, (300, 3))
+    bad = rng.choice(300, 30, replace=False)
+    p[bad] += rng.normal(0, 0.08, (30, 3))
+    robust = geo.fit_circle(p)
+    plain = geo.fit_circle(p, robust=False)
+    err_robust = np.linalg.norm(robust.center - c)
+    err_plain = np.linalg.norm(plain.center - c)
+    assert robust.kept < robust.of == 300
+    assert not robust.inliers[bad].all()
+    assert err_robust < 0.003
+    assert err_robust < err_plain
+
+
+def test_circle_too_little_motion_says_how_much():
+    rot = _random_rotation()
+    p = _arc(100, np.zeros(3), 0.25, rot, 0, np.radians(12))
+    with pytest.raises(BodyCalError, match=r"flex_elbow_l: only 12 degrees of motion recorded, at least 40"):
+        geo.fit_circle(p, name="flex_elbow_l")
+
+
+def test_circle_collinear_points():
+    p = np.outer(np.linspace(0, 1, 30), [0, 0, 1])
+    with pytest.raises(BodyCalError, match="line"):
+        geo.fit_circle(p, name="flex_knee_r")
+
+
+def test_sphere_exact_and_four_point_sphere():
+    c = np.array([0.2, 0.1, 1.4])
+    fit = geo.fit_sphere(_cap(200, c, 0.3))
+    np.testing.assert_allclose(fit.center, c, atol=1e-9)
+    assert abs(fit.radius - 0.3) < 1e-9 and fit.rms < 1e-9
+    assert fit.range_deg > 90
+    four = c + 0.09 * np.array([[0, 0, 1], [1, 0, 0], [-1, 0, 0], [0, -1, 0.2]]) / \
+        np.linalg.norm([[0, 0, 1], [1, 0, 0], [-1, 0, 0], [0, -1, 0.2]], axis=1)[:, None]
+    f4 = geo.fit_sphere(four, name="skull")
+    np.testing.assert_allclose(f4.center, c, atol=1e-9)
+    assert abs(f4.radius - 0.09) < 1e-9
+
+
+def test_sphere_two_sigma_pass_beats_plain_fit_with_outliers():
+    c = np.array([0.0, 0.0, 1.4])
+    errs = []
+    for _ in range(5):
+        p = _cap(400, c, 0.3) + rng.normal(0, 0.001, (400, 3))
+        bad = rng.choice(400, 40, replace=False)
+        p[bad] += rng.normal(0, 0.05, (40, 3))
+        robust = geo.fit_sphere(p)
+        plain = geo.fit_sphere(p, robust=False)
+        errs.append((np.linalg.norm(robust.center - c), np.linalg.norm(plain.center - c)))
+    errs = np.array(errs)
+    assert np.median(errs[:, 0]) < 0.003
+    assert np.median(errs[:, 0]) < np.median(errs[:, 1])
+
+
+def test_sphere_too_little_motion_and_planar_swing():
+    c = np.zeros(3)
+    with pytest.raises(BodyCalError, match=r"swing_shoulder_l: only \d+ degrees of motion recorded"):
+        geo.fit_sphere(_cap(200, c, 0.3, np.radians(8)) + rng.normal(0, 1e-4, (200, 3)), name="swing_shoulder_l")
+    rot = _random_rotation()
+    arc = _arc(200, c, 0.3, rot)  # a swing in one plane leaves the centre free along the plane's normal
+    with pytest.raises(BodyCalError, match="plane"):
+        geo.fit_sphere(arc, name="swing_hip_r")
+
+
+def test_nan_points_are_ignored_and_too_few_reported():
+    p = np.full((10, 3), np.nan)
+    with pytest.raises(BodyCalError, match="only 0 usable points"):
+        geo.fit_sphere(p, name="swing_hip_l")
+    rot = _random_rotation()
+    q = _arc(50, np.zeros(3), 0.2, rot)
+    q[::5] = np.nan
+    assert geo.fit_circle(q).of == 40
+
+
+def test_robust_mean_ignores_a_far_point():
+    p = rng.normal(0, 0.001, (40, 3))
+    p[3] = [0.2, 0, 0]
+    m, keep = geo.robust_mean(p)
+    assert not keep[3]
+    assert np.linalg.norm(m) < 0.001
+
+
+def test_repeated_two_sigma_passes_beat_a_single_pass():
+    """DESIGN.md §3 decision: repeat the 2-sigma pass until nothing is dropped."""
+    c = np.array([0.0, 0.0, 1.4])
+    errs = []
+    for _ in range(6):
+        p = _cap(400, c, 0.3) + rng.normal(0, 0.001, (400, 3))
+        bad = rng.choice(400, 40, replace=False)
+        p[bad] += rng.normal(0, 0.05, (40, 3))
+        errs.append((np.linalg.norm(geo.fit_sphere(p).center - c),
+                     np.linalg.norm(geo.fit_sphere(p, passes=1).center - c)))
+    errs = np.array(errs)
+    assert np.median(errs[:, 0]) < np.median(errs[:, 1])
