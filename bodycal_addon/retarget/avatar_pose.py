@@ -1,0 +1,485 @@
+"""Step 2 of the pipeline (DESIGN.md §1) and the conversion every method ends with: canonical bone
+frames in the world -> the avatar's pose-bone rotations (Blender's `matrix_basis`) and back.
+
+Canonical bone frames follow `surface_layout.bone_frame`: origin at the head joint, +Y along the
+bone, +X the bone's right (`canonical_rest_frames` fixes the right of every bone with ONE rule used
+for the user at the reference time and for the avatar at rest, so copying a frame copies the pose).
+
+`AvatarRig` holds the avatar's armature (`BodyModel.extra["rig"]`, written by the avatar
+calibration): bones in armature space (`head`, `tail`, `matrix` = `bone.matrix_local` 3x3), the
+armature's `matrix_world` and the bone map. Each avatar bone is either
+- driven by one canonical bone c: it moves rigidly with it, P_A(t) = W^-1 C_c(t) C_c0^-1 W M_A;
+- a spine/neck chain bone: twisted like the canonical vertebra at its middle and aimed at the
+  canonical spine curve resampled at its tail's arc position (the avatar has fewer vertebrae);
+- undriven (root, toes, breasts, ...): it follows its parent (identity basis).
+Blender's pose rule (rotation part, armature space): P_child = P_parent M_parent^-1 M_child basis,
+so basis = M_child^-1 M_parent P_parent^-1 P_child; the root bone's `location` is in its rest frame.
+Canonical joints ride on avatar bones (`joints[j].frame` + local computed from the rest positions),
+so the joints returned here are exactly what Blender's FK gives for the returned rotations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import skeleton as sk
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+from ..transforms import frame_from_axes, matrix_to_quat, normalize, quat_between, quat_to_matrix
+
+JOINTS = sk.JOINTS
+JI = sk.JOINT_INDEX
+BONES = sk.BONES
+BI = {b.name: i for i, b in enumerate(BONES)}
+SPINE_JOINTS = [sk.spine_joint(k) for k in range(sk.SPINE_COUNT + 1)]  # spine_root, spine_01..12
+SPINE_BONES = [f"spine_{k:02d}" for k in range(1, sk.SPINE_COUNT + 1)]
+HINGES = {f"forearm_{s}" for s in sk.SIDES} | {f"shin_{s}" for s in sk.SIDES} | {
+    f"{f}_{i}_{s}" for s in sk.SIDES for f in sk.FINGERS for i in (2, 3)}
+REQUIRED_JOINTS = ("pelvis", "spine_root", "skull_base", "head", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r",
+                   "wrist_l", "wrist_r", "hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r")
+
+
+def _driver_of_segment(seg: str) -> str | None:
+    """Canonical bone that drives an avatar bone mapped to `seg` (None: follows its parent)."""
+    if seg == "pelvis":
+        return "sacrum"
+    if seg in sk.BONE_BY_NAME and not sk.BONE_BY_NAME[seg].shortcut:
+        return seg
+    return None
+
+
+def _hinge_right(bones: dict, name: str):
+    b = bones.get(name)
+    return None if b is None or b.right is None else np.asarray(b.right, float)
+
+
+def canonical_rest_frames(pos: dict, rights: dict) -> dict[str, np.ndarray]:
+    """Canonical frames (..., 3, 3) of every bone from joint positions `pos` {joint: (..., 3)} and
+    hinge rights {hinge bone: (..., 3)} (forearm, shin, finger phalanges 2-3). One rule for the
+    user and the avatar: the twist of a non-hinge bone is fixed by its child hinge (upper limb
+    bones), the palm's lateral line (hand, metacarpals), the hip line (trunk, head) or the trunk's
+    forward direction (clavicles, hip shortcuts)."""
+    lat = normalize(pos["hip_l"] - pos["hip_r"])
+    up = normalize(pos["skull_base"] - pos["pelvis"])
+    fwd = normalize(np.cross(lat, up))  # +Z of a trunk frame whose X is the performer's left
+    out = {}
+
+    def put(name, head, tail, hint):
+        out[name] = frame_from_axes(pos[tail] - pos[head], hint)
+
+    for b in BONES:
+        if b.name == "sacrum" or b.name.startswith(("spine_", "shortcut_")) or b.name == "head":
+            put(b.name, b.head, b.tail, lat)
+        elif b.name.startswith("clavicle_") or b.name.startswith("hip_"):
+            put(b.name, b.head, b.tail, fwd)
+    for s in sk.SIDES:
+        for limb, hinge in (("upperarm", "forearm"), ("thigh", "shin")):
+            r = rights.get(f"{hinge}_{s}")
+            if r is None:  # T-pose fallback: left arm flexes about -up, right arm about +up; legs about +left
+                r = (-up if s == "l" else up) if limb == "upperarm" else lat
+            bb = sk.BONE_BY_NAME[f"{limb}_{s}"]
+            put(bb.name, bb.head, bb.tail, r)
+            hb = sk.BONE_BY_NAME[f"{hinge}_{s}"]
+            put(hb.name, hb.head, hb.tail, r)
+        put(f"foot_{s}", f"ankle_{s}", f"toe_{s}", rights.get(f"shin_{s}", lat))
+        palm_x = normalize(pos[f"mcp_index_{s}"] - pos[f"mcp_pinky_{s}"])
+        palm_x = np.where(np.linalg.norm(palm_x, axis=-1, keepdims=True) > 0.5, palm_x,
+                          rights.get(f"forearm_{s}", lat))
+        put(f"hand_{s}", f"wrist_{s}", f"mcp_middle_{s}", palm_x)
+        for f in sk.FINGERS:
+            put(f"metacarpal_{f}_{s}", f"wrist_{s}", f"mcp_{f}_{s}", palm_x)
+            r2 = rights.get(f"{f}_2_{s}", palm_x)
+            r3 = rights.get(f"{f}_3_{s}", r2)
+            put(f"{f}_1_{s}", f"mcp_{f}_{s}", f"pip_{f}_{s}", r2)
+            put(f"{f}_2_{s}", f"pip_{f}_{s}", f"dip_{f}_{s}", r2)
+            put(f"{f}_3_{s}", f"dip_{f}_{s}", f"tip_{f}_{s}", r3)
+    return out
+
+
+def model_rest_frames(model: BodyModel, pos: dict | None = None) -> np.ndarray:
+    """(B, 3, 3) canonical frames of a (complete) body model at its reference time / rest pose."""
+    pos = pos or {j: model.joints[j].world for j in JOINTS}
+    rights = {b: r for b in HINGES if (r := _hinge_right(model.bones, b)) is not None}
+    frames = canonical_rest_frames(pos, rights)
+    return np.stack([frames[b.name] for b in BONES])
+
+
+def complete_joints(model: BodyModel, extra_points: dict | None = None) -> dict[str, np.ndarray]:
+    """World position of every canonical joint: the model's own, then what the skeleton implies
+    (a vertebra missing -> resampled between spine_root and skull_base; clavicle joint = spine_05;
+    finger joints missing -> along the hand). Raises BodyCalError naming the first missing
+    required joint."""
+    pos = {j: np.asarray(v.world, float) for j, v in model.joints.items() if j in JI}
+    pos.update(extra_points or {})
+    for j in REQUIRED_JOINTS:
+        if j not in pos:
+            raise BodyCalError(f"joint '{j}' is missing", source=model.name, field=f"joints.{j}",
+                               hint="recalibrate the body model")
+    if any(j not in pos for j in SPINE_JOINTS[1:-1]):
+        curve = np.stack([pos["spine_root"], pos["skull_base"]])
+        res = sk.resample_polyline(curve, sk.SPINE_COUNT)
+        for k, j in enumerate(SPINE_JOINTS):
+            pos.setdefault(j, res[k])
+    pos.setdefault("spine_12", pos["skull_base"])
+    for s in sk.SIDES:
+        pos.setdefault(f"clavicle_{s}", pos[sk.spine_joint(sk.CLAVICLE_VERTEBRA)])
+        if f"toe_{s}" not in pos:
+            ankle = pos[f"ankle_{s}"]
+            fwd = normalize(np.cross(pos["hip_l"] - pos["hip_r"], pos["skull_base"] - pos["pelvis"]))
+            pos[f"toe_{s}"] = np.array([*(ankle[:2] + 0.15 * fwd[:2]), 0.02])
+        w, e = pos[f"wrist_{s}"], pos[f"elbow_{s}"]
+        along = normalize(w - e)
+        side = normalize(np.cross(along, pos["skull_base"] - pos["pelvis"]))
+        for i, f in enumerate(sk.FINGERS):
+            off = (i - 2) * 0.02 * side
+            for k, jn in enumerate(sk.FINGER_JOINTS):
+                pos.setdefault(f"{jn}_{f}_{s}", w + (0.09 + 0.025 * k) * along + off)
+    return pos
+
+
+@dataclass
+class RigPose:
+    basis: np.ndarray  # (F, N, 4) pose-bone rotation_quaternion (matrix_basis), w x y z
+    rotations: np.ndarray  # (F, N, 3, 3) armature-space pose rotations P
+    heads: np.ndarray  # (F, N, 3) armature-space pose heads
+    root_location: np.ndarray  # (F, 3) pose-bone location of the root bone (its rest frame)
+    joints: np.ndarray  # (F, J, 3) canonical joints, world
+    frames: np.ndarray  # (F, B, 3, 3) canonical bone frames, world, as the rig realises them
+
+
+@dataclass
+class AvatarRig:
+    model: BodyModel
+    armature: str
+    names: list[str]
+    parent: np.ndarray  # (N,) int, -1 for none
+    head: np.ndarray  # (N, 3) armature space, rest
+    tail: np.ndarray
+    rest: np.ndarray  # (N, 3, 3)
+    world: np.ndarray  # (4, 4)
+    w_rot: np.ndarray  # (3, 3)
+    w_scale: float
+    root: int
+    driver: list  # per bone: canonical bone index, "chain" or None
+    chain_s: np.ndarray  # (N,) arc position (0..12 vertebrae) of a chain bone's tail
+    chain_vertebra: np.ndarray  # (N,) int vertebra (0-based) whose twist a chain bone takes
+    joint_world: np.ndarray  # (J, 3) rest
+    joint_bone: np.ndarray  # (J,) int
+    joint_local: np.ndarray  # (J, 3) armature units, bone rest frame
+    frames0: np.ndarray  # (B, 3, 3) canonical rest frames, world
+    lengths: np.ndarray  # (B,) canonical bone lengths, world units
+    carrier: np.ndarray  # (B,) avatar bone that carries each canonical bone's frame
+    notes: list[str] = field(default_factory=list)
+
+    # --- construction ------------------------------------------------------------------------
+
+    @classmethod
+    def from_model(cls, model: BodyModel) -> AvatarRig:
+        rig = model.extra.get("rig")
+        src = model.name or "avatar"
+        if not isinstance(rig, dict) or not isinstance(rig.get("bones"), dict) or not rig["bones"]:
+            raise BodyCalError("the avatar body model has no rig (extra.rig.bones)", source=src, field="rig",
+                               hint="calibrate the avatar again")
+        bones = rig["bones"]
+        depth = {}
+
+        def d(n, seen=()):
+            if n in depth:
+                return depth[n]
+            p = bones[n].get("parent") or None
+            if p is not None and p not in bones:
+                raise BodyCalError(f"bone '{n}' has parent '{p}' that is not in the rig", source=src, field="rig.bones")
+            if n in seen:
+                raise BodyCalError(f"bone '{n}' is its own ancestor", source=src, field="rig.bones")
+            depth[n] = 0 if p is None else d(p, seen + (n,)) + 1
+            return depth[n]
+
+        names = sorted(bones, key=lambda n: (d(n), list(bones).index(n)))
+        idx = {n: i for i, n in enumerate(names)}
+        parent = np.array([idx[bones[n]["parent"]] if bones[n].get("parent") else -1 for n in names])
+        try:
+            head = np.array([bones[n]["head"] for n in names], float)
+            tail = np.array([bones[n]["tail"] for n in names], float)
+            rest = np.array([bones[n]["matrix"] for n in names], float).reshape(-1, 3, 3)
+        except (KeyError, ValueError) as exc:
+            raise BodyCalError(f"every rig bone needs head, tail and a 3x3 matrix ({exc})", source=src,
+                               field="rig.bones") from None
+        world = np.asarray(rig.get("matrix_world", np.eye(4)), float).reshape(4, 4)
+        lin = world[:3, :3]
+        scales = np.linalg.norm(lin, axis=0)
+        if np.ptp(scales) > 1e-6 * scales.max() or np.linalg.det(lin) <= 0:
+            raise BodyCalError("the armature's object scale must be uniform and positive", source=src,
+                               field="rig.matrix_world", hint="apply the scale (Ctrl+A) and recalibrate")
+        w_scale = float(scales.mean())
+        w_rot = lin / w_scale
+        bm = sk.BoneMap.from_dict(rig.get("bone_map", {}))
+        seg_of = {}
+        for seg, bn in bm.bones.items():
+            seg_of.setdefault(bn, seg)
+        chain = [b for c in ("spine", "neck") for b in bm.chains.get(c, []) if b in idx]
+        for n in names:
+            seg = bones[n].get("segment")
+            if seg and n not in seg_of and seg not in sk.CHAIN_SEGMENTS:
+                seg_of[n] = seg
+        pelvis_bone = bm.bones.get("pelvis")
+        if pelvis_bone not in idx:
+            raise BodyCalError("no avatar bone is mapped to the pelvis", source=src, field="rig.bone_map",
+                               hint="map the pelvis bone in the bone map panel")
+        driver: list = []
+        for n in names:
+            if n in chain:
+                driver.append("chain")
+            else:
+                c = _driver_of_segment(seg_of.get(n, ""))
+                driver.append(BI[c] if c is not None else None)
+        for seg in ("head", "upperarm_l", "upperarm_r", "forearm_l", "forearm_r", "thigh_l", "thigh_r",
+                    "shin_l", "shin_r"):
+            if seg not in bm.bones or bm.bones[seg] not in idx:
+                raise BodyCalError(f"no avatar bone is mapped to '{seg}'", source=src, field="rig.bone_map",
+                                   hint="map it in the bone map panel")
+
+        self = cls.__new__(cls)
+        self.model, self.armature = model, str(rig.get("armature", model.name))
+        self.names, self.parent, self.head, self.tail, self.rest = names, parent, head, tail, rest
+        self.world, self.w_rot, self.w_scale, self.root = world, w_rot, w_scale, idx[pelvis_bone]
+        self.driver, self.notes = driver, []
+        pos = complete_joints(model)
+        self.joint_world = np.stack([pos[j] for j in JOINTS])
+        self.frames0 = model_rest_frames(model, pos)
+        self.lengths = np.array([np.linalg.norm(pos[b.tail] - pos[b.head]) for b in BONES])
+        # Joints ride on avatar bones: the model's choice, else the bone driven by a canonical bone
+        # that starts (then ends) at the joint, else the pelvis bone.
+        drv_bone = {BONES[c].name: i for i, c in enumerate(driver) if isinstance(c, (int, np.integer))}
+        arm_pts = self.to_armature(self.joint_world)
+        jb = np.empty(len(JOINTS), int)
+        for j, name in enumerate(JOINTS):
+            frame = model.joints[name].frame if name in model.joints else None
+            if frame in idx:
+                jb[j] = idx[frame]
+                continue
+            cands = [drv_bone[b.name] for b in BONES if b.head == name and b.name in drv_bone]
+            cands += [drv_bone[b.name] for b in BONES if b.tail == name and b.name in drv_bone]
+            if not cands and chain:  # a vertebra: the chain bone nearest to it
+                segs = [(np.linalg.norm(_closest_on_segment(arm_pts[j], head[idx[c]], tail[idx[c]]) - arm_pts[j]),
+                         idx[c]) for c in chain]
+                cands = [min(segs)[1]]
+            jb[j] = cands[0] if cands else self.root
+        self.joint_bone = jb
+        self.joint_local = np.einsum("jba,jb->ja", rest[jb], arm_pts - head[jb])
+        # Canonical frames ride on the avatar bone driven by them, else on their parent's carrier.
+        car = np.empty(len(BONES), int)
+        for i, b in enumerate(BONES):
+            if b.name in drv_bone:
+                car[i] = drv_bone[b.name]
+            elif b.name in SPINE_BONES or b.name.startswith("shortcut_"):
+                car[i] = jb[JI[b.head]]
+            elif b.parent is not None:
+                car[i] = car[BI[b.parent]]
+            else:
+                car[i] = self.root
+        self.carrier = car
+        # Chain bones: arc position of their tail on the rest spine curve; twist of the vertebra
+        # at their middle.
+        spine_rest = self.to_armature(np.stack([pos[j] for j in SPINE_JOINTS]))
+        self.chain_s = np.zeros(len(names))
+        self.chain_vertebra = np.zeros(len(names), int)
+        for c in chain:
+            i = idx[c]
+            s_t = _arc_param(spine_rest, tail[i])
+            s_h = _arc_param(spine_rest, head[i])
+            self.chain_s[i] = s_t
+            self.chain_vertebra[i] = int(np.clip(np.floor(0.5 * (s_t + s_h)), 0, sk.SPINE_COUNT - 1))
+        return self
+
+    # --- coordinates ----------------------------------------------------------------------------
+
+    def to_armature(self, p):
+        return np.einsum("ba,...b->...a", self.w_rot, np.asarray(p, float) - self.world[:3, 3]) / self.w_scale
+
+    def to_world(self, p):
+        return np.einsum("ab,...b->...a", self.w_rot, p) * self.w_scale + self.world[:3, 3]
+
+    @property
+    def bone_index(self) -> dict[str, int]:
+        return {n: i for i, n in enumerate(self.names)}
+
+    def leg_length(self) -> float:
+        return _leg_length(self.joint_world)
+
+    # --- canonical frames -> pose ---------------------------------------------------------------
+
+    def solve(self, frames: np.ndarray, pelvis: np.ndarray) -> RigPose:
+        """Pose bones that realise canonical world frames (F, B, 3, 3) with the canonical pelvis
+        joint at `pelvis` (F, 3, world)."""
+        frames = np.asarray(frames, float)
+        nf = frames.shape[0]
+        n = len(self.names)
+        wr = self.w_rot
+        delta = np.einsum("fbij,bkj->fbik", frames, self.frames0)  # C(t) C0^-1, world
+        delta_arm = np.einsum("ji,fbjk,kl->fbil", wr, delta, wr)
+        P = np.empty((nf, n, 3, 3))
+        H = np.empty((nf, n, 3))
+        curve = None
+        pel_local = self.joint_local[JI["pelvis"]]
+        pel_bone = self.joint_bone[JI["pelvis"]]
+        for i in range(n):
+            p = self.parent[i]
+            drv = self.driver[i]
+            if i != self.root:
+                if p < 0:
+                    H[:, i] = self.head[i]
+                else:
+                    off = self.rest[p].T @ (self.head[i] - self.head[p])
+                    H[:, i] = H[:, p] + P[:, p] @ off
+            if drv is None:
+                P[:, i] = self.rest[i] if p < 0 else P[:, p] @ (self.rest[p].T @ self.rest[i])
+            elif drv == "chain":
+                if curve is None:
+                    curve = self._spine_curve(frames, P, H)
+                k = self.chain_vertebra[i]
+                twist = delta_arm[:, BI[SPINE_BONES[k]]] @ self.rest[i]
+                target = _curve_point(curve, self.chain_s[i])
+                q = quat_between(twist[..., :, 1], target - H[:, i])
+                P[:, i] = quat_to_matrix(q) @ twist
+            else:
+                P[:, i] = delta_arm[:, drv] @ self.rest[i]
+            if i == self.root:
+                pel_arm = self.to_armature(pelvis)
+                if pel_bone != i:
+                    # The pelvis joint rides on another bone: place the root so that bone's joint lands.
+                    pel_local = self.rest[i].T @ (self.joint_world_arm(JI["pelvis"]) - self.head[i])
+                H[:, i] = pel_arm - P[:, i] @ pel_local
+        basis = np.empty((nf, n, 3, 3))
+        for i in range(n):
+            p = self.parent[i]
+            rel = self.rest[i].T if p < 0 else self.rest[i].T @ self.rest[p] @ np.swapaxes(P[:, p], -1, -2)
+            basis[:, i] = rel @ P[:, i]
+        root_loc = self._root_location(P, H)
+        return self._finish(matrix_to_quat(basis), P, H, root_loc)
+
+    def joint_world_arm(self, j):
+        return self.to_armature(self.joint_world[j])
+
+    def _root_location(self, P, H):
+        i, p = self.root, self.parent[self.root]
+        if p < 0:
+            return np.einsum("ba,fb->fa", self.rest[i], H[:, i] - self.head[i])
+        rel = np.einsum("ba,bc,fdc,fd->fa", self.rest[i], self.rest[p], P[:, p], H[:, i] - H[:, p])
+        return rel - self.rest[i].T @ (self.head[i] - self.head[p])
+
+    def _spine_curve(self, frames, P, H):
+        """Canonical spine joints (F, 13, 3), armature space: spine_root on its avatar bone, then
+        the canonical vertebrae with the avatar's lengths along the frames' +Y."""
+        j0 = JI["spine_root"]
+        b = self.joint_bone[j0]
+        if self.driver[b] == "chain":  # not posed yet: its head is placed, orient it as at rest
+            p = self.parent[b]
+            rot = self.rest[b] if p < 0 else P[:, p] @ (self.rest[p].T @ self.rest[b])
+        else:
+            rot = P[:, b]
+        start = H[:, b] + rot @ self.joint_local[j0]
+        ys = np.einsum("ji,fbj->fbi", self.w_rot, frames[:, [BI[s] for s in SPINE_BONES]][..., :, 1])
+        steps = ys * (self.lengths[[BI[s] for s in SPINE_BONES]] / self.w_scale)[None, :, None]
+        return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
+
+    def _finish(self, basis, P, H, root_loc) -> RigPose:
+        jb = self.joint_bone
+        joints_arm = H[:, jb] + np.einsum("fjab,jb->fja", P[:, jb], self.joint_local)
+        joints = self.to_world(joints_arm)
+        car = self.carrier
+        # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
+        rel = np.einsum("fcij,ckj,lk,clm->fcim", P[:, car], self.rest[car], self.w_rot, self.frames0)
+        frames = np.einsum("ij,fcjk->fcik", self.w_rot, rel)
+        return RigPose(basis, P, H, root_loc, joints, frames)
+
+    # --- pose -> joints (Blender's FK, for checks and for the offsets method) --------------------
+
+    def fk(self, basis: np.ndarray, root_location: np.ndarray) -> RigPose:
+        """Blender's pose evaluation from pose-bone quaternions (F, N, 4) and the root bone's
+        location (F, 3)."""
+        basis = np.asarray(basis, float)
+        nf, n = basis.shape[:2]
+        B = quat_to_matrix(basis)
+        P = np.empty((nf, n, 3, 3))
+        H = np.empty((nf, n, 3))
+        for i in range(n):
+            p = self.parent[i]
+            loc = root_location if i == self.root else np.zeros((nf, 3))
+            if p < 0:
+                P[:, i] = self.rest[i] @ B[:, i]
+                H[:, i] = self.head[i] + loc @ self.rest[i].T
+            else:
+                rel = self.rest[p].T @ self.rest[i]
+                P[:, i] = P[:, p] @ rel @ B[:, i]
+                H[:, i] = H[:, p] + np.einsum("fab,b->fa", P[:, p], self.rest[p].T @ (self.head[i] - self.head[p])) \
+                    + np.einsum("fab,fb->fa", P[:, p] @ rel, loc)
+        return self._finish(basis, P, H, np.asarray(root_location, float))
+
+
+def _closest_on_segment(p, a, b):
+    ab = b - a
+    t = np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-12), 0.0, 1.0)
+    return a + t * ab
+
+
+def _arc_param(curve: np.ndarray, p: np.ndarray) -> float:
+    """Position of p's projection on the polyline, in segments (0..len-1)."""
+    best = (np.inf, 0.0)
+    for k in range(len(curve) - 1):
+        a, b = curve[k], curve[k + 1]
+        ab = b - a
+        t = float(np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-12), 0.0, 1.0))
+        dist = np.linalg.norm(a + t * ab - p)
+        if dist < best[0] - 1e-9:
+            best = (dist, k + t)
+    return best[1]
+
+
+def _curve_point(curve: np.ndarray, s: float) -> np.ndarray:
+    k = int(np.clip(np.floor(s), 0, curve.shape[1] - 2))
+    t = s - k
+    return (1 - t) * curve[:, k] + t * curve[:, k + 1]
+
+
+def _leg_length(joints: np.ndarray) -> float:
+    """Hip to knee to ankle plus the ankle's height, mean of both sides (joints (J, 3) world)."""
+    out = []
+    for s in sk.SIDES:
+        h, k, a = joints[JI[f"hip_{s}"]], joints[JI[f"knee_{s}"]], joints[JI[f"ankle_{s}"]]
+        out.append(np.linalg.norm(k - h) + np.linalg.norm(a - k) + a[2])
+    return float(np.mean(out))
+
+
+@dataclass
+class AvatarPose:
+    rig: AvatarRig
+    pose: RigPose
+    scale: float  # avatar / user leg-length ratio used for the root
+
+
+def root_scale(user_model: BodyModel, rig: AvatarRig) -> float:
+    user = np.stack([complete_joints(user_model)[j] for j in JOINTS])
+    lu = _leg_length(user)
+    if lu <= 1e-6:
+        raise BodyCalError("the user's legs have no length", source=user_model.name, field="joints")
+    return rig.leg_length() / lu
+
+
+def pose_avatar_fk(user_pose, user_model: BodyModel, avatar: BodyModel | AvatarRig) -> AvatarPose:
+    """Step 2: copy the user's canonical bone frames onto the avatar; the root follows the user's
+    pelvis scaled by the avatar/user leg-length ratio (feet stay on the floor, steps scale with
+    the legs)."""
+    rig = avatar if isinstance(avatar, AvatarRig) else AvatarRig.from_model(avatar)
+    k = root_scale(user_model, rig)
+    pelvis = user_pose.joints[:, JI["pelvis"]] * k
+    return AvatarPose(rig, rig.solve(user_pose.frames, pelvis), k)
+
+
+def frames_from_joints(pos: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """Canonical frames of every bone from joints (F, J, 3), keeping each frame's right as close
+    as possible to `like`'s (F, B, 3, 3) (no twist): used after IK moved joints."""
+    heads = pos[:, [JI[b.head] for b in BONES]]
+    tails = pos[:, [JI[b.tail] for b in BONES]]
+    return frame_from_axes(tails - heads, like[..., :, 0])
