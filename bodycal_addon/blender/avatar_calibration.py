@@ -1,0 +1,360 @@
+"""Avatar surface calibration by raycasting (DESIGN.md §4; paper 000, appendix C: "surface
+measurements are performed using ray cast hit points on the collider mesh of the avatar").
+
+`calibrate_avatar(arm)` measures the evaluated (deformed, modifier-applied) mesh of every object
+skinned to the armature with `mathutils.bvhtree.BVHTree`, in the rest pose as it stands in the
+scene (object transforms, scale and parenting included: rays are cast in world space and moved
+into each mesh object's local space), and returns a `kind: "avatar"` BodyModel with exactly the
+elements of `surface_layout.element_ids()`.
+
+Every ray is documented below. Directions are in the avatar's body frame from `avatar_rig`:
+F = forward, L = towards the avatar's left, U = up. "az" turns F towards L (+) or away from it
+(-) in degrees (180 = straight back), "el" raises (+) or lowers (-) the direction. `h` is a
+height above the pelvis (midpoint of the hips) as a fraction of the shoulders' height above it;
+"spine@h" is the point of the spine curve (pelvis, spine_root .. skull_base) at that height.
+
+| element / point         | origin                                   | direction                       |
+|-------------------------|------------------------------------------|---------------------------------|
+| capsule:<bone>          | axis at t = 0.25, 0.375, .., 0.75        | 12 rays around, ⟂ the bone      |
+| head top (sizes head)   | skull_base + U * spine length            | -U (first hit from outside)     |
+| head centre c           | skull_base + U * (head height / 2)       | -                               |
+| sphere:skull            | c                                        | back (az 180 ± 30, 60) x el 0..60, and U |
+| torso sternum           | spine@0.80                               | F                               |
+| torso chest_l / _r      | spine@0.72                               | az +35 / -35                    |
+| torso belly_ul / _ur    | spine@0.45                               | az +30 / -30                    |
+| torso belly_ll / _lr    | spine@0.15                               | az +30 / -30                    |
+| torso belly_c1..c4      | spine@ height of the bilinear default    | horizontally towards it (*)     |
+| torso back_ul / _ur     | spine@0.72                               | az +145 / -145                  |
+| torso back_low          | spine@0.30                               | az 180                          |
+| jaw ear_l / ear_r       | c                                        | az +90 / -90                    |
+| jaw upper_lip / chin    | c                                        | az 0, el -25 / el -50           |
+| jaw jaw_l / jaw_r       | c                                        | az +40 / -40, el -45            |
+| palm_1..4_<s>           | wrist + 0.85 / 0.85 / 0.3 / 0.3 of the   | hand frame +Z (**)              |
+|                         | way to mcp index / pinky / pinky / index |                                 |
+| sole floor              | ankle, toe joint - U * (leg length + 0.1)| U (first hit from below)        |
+| sole_1..6_<s>           | ankle / 15 % to toe / toe / toe / toe /  | -f / +lat / +lat / +f / -lat /  |
+|                         | 15 %, at 20 % of the ankle's height (***)| -lat                            |
+
+(*) the bilinear default of surface_layout.belly_centre_points from the four measured corners.
+(**) out of the palm: the side the fingers flex to (a positive rotation about a finger's +X).
+(***) f = ankle -> toe on the floor, lat = the avatar's left made orthogonal to f; hits are
+projected onto the floor plane (the lowest of the two floor hits).
+
+Capsule radii (DESIGN.md §4): per station, hit distances beyond 3 scaled MADs of the median are
+rejected; the station radius is the mean of the rest; head/tail radii come from a line through
+the station radii (clamped to their range). Stations stay away from the joints, where the
+neighbouring part (torso, the next phalanx) would be hit first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import skeleton as sk
+from .. import surface_layout as sl
+from ..bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from ..errors import BodyCalError
+from ..surface_fit import linear_radii, robust_keep, sphere_fit
+from . import avatar_rig
+
+CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)
+CAPSULE_RAYS = 12
+MIN_CAPSULE_HITS = 0.5  # fraction of a capsule's rays that must hit
+
+# (height fraction, azimuth degrees): see the table in the module docstring.
+TORSO_RAYS = {
+    "sternum": (0.80, 0.0),
+    "chest_l": (0.72, 35.0), "chest_r": (0.72, -35.0),
+    "belly_ul": (0.45, 30.0), "belly_ur": (0.45, -30.0),
+    "belly_ll": (0.15, 30.0), "belly_lr": (0.15, -30.0),
+    "back_ul": (0.72, 145.0), "back_ur": (0.72, -145.0),
+    "back_low": (0.30, 180.0),
+}
+# (azimuth, elevation) degrees from the head centre.
+JAW_RAYS = {
+    "ear_l": (90.0, 0.0), "ear_r": (-90.0, 0.0),
+    "upper_lip": (0.0, -25.0), "chin": (0.0, -50.0),
+    "jaw_l": (40.0, -45.0), "jaw_r": (-40.0, -45.0),
+}
+SKULL_RAYS = [(180.0 + a, e) for e in (0.0, 20.0, 40.0, 60.0) for a in (-60.0, -30.0, 0.0, 30.0, 60.0)] + [(0.0, 90.0)]
+# Palm ray origins: fraction of the way from the wrist to the index (I) or pinky (P) mcp.
+PALM_RAYS = (("I", 0.85), ("P", 0.85), ("P", 0.30), ("I", 0.30))
+SOLE_HEIGHT = 0.2  # of the ankle's height above the floor
+
+
+def avatar_meshes(arm) -> list:
+    """Mesh objects deformed by the armature (modifier) or parented to it."""
+    out = []
+    for obj in arm.users_scene[0].objects if arm.users_scene else []:
+        if obj.type != "MESH":
+            continue
+        skinned = any(m.type == "ARMATURE" and m.object == arm for m in obj.modifiers)
+        if skinned or obj.parent == arm:
+            out.append(obj)
+    return out
+
+
+class Caster:
+    """First hits of world-space rays on the evaluated meshes (nearest over all meshes)."""
+
+    def __init__(self, meshes, depsgraph):
+        from mathutils import Matrix, Vector
+        from mathutils.bvhtree import BVHTree
+
+        self._Vector = Vector
+        self.trees = []
+        for obj in meshes:
+            m = np.array(obj.evaluated_get(depsgraph).matrix_world, dtype=float)
+            tree = BVHTree.FromObject(obj, depsgraph)
+            inv = np.linalg.inv(m)
+            self.trees.append((tree, m, inv, Matrix(m.tolist())))
+        self.rays = 0
+
+    def cast(self, origin, direction, max_dist: float = 1e4):
+        """(hit world, distance) of the first hit, or None."""
+        best = None
+        o4 = np.append(origin, 1.0)
+        for tree, m, inv, _ in self.trees:
+            ol = inv @ o4
+            dl = inv[:3, :3] @ direction
+            hit = tree.ray_cast(self._Vector(ol[:3]), self._Vector(dl), 1e6)
+            if hit[0] is None:
+                continue
+            w = m[:3, :3] @ np.array(hit[0]) + m[:3, 3]
+            d = float(np.linalg.norm(w - origin))
+            if d <= max_dist and (best is None or d < best[1]):
+                best = (w, d)
+        self.rays += 1
+        return best
+
+    def nearest(self, point):
+        """(closest point world, distance) on the meshes."""
+        best = None
+        for tree, m, inv, _ in self.trees:
+            pl = (inv @ np.append(point, 1.0))[:3]
+            loc = tree.find_nearest(self._Vector(pl))[0]
+            if loc is None:
+                continue
+            w = m[:3, :3] @ np.array(loc) + m[:3, 3]
+            d = float(np.linalg.norm(w - point))
+            if best is None or d < best[1]:
+                best = (w, d)
+        return best
+
+
+def _dir(F, L, U, az: float, el: float = 0.0) -> np.ndarray:
+    a, e = np.radians(az), np.radians(el)
+    return np.cos(e) * (np.cos(a) * F + np.sin(a) * L) + np.sin(e) * U
+
+
+def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) -> BodyModel:
+    """Surface-calibrate the avatar of armature object `arm` (rest pose as it stands)."""
+    import bpy
+
+    rig = avatar_rig.read_rig(arm)
+    meshes = list(meshes) if meshes is not None else avatar_meshes(arm)
+    if not meshes:
+        raise BodyCalError("no mesh is skinned to this armature, nothing to raycast", source=arm.name,
+                           hint="add an Armature modifier pointing at it to the avatar's mesh")
+    depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
+    caster = Caster(meshes, depsgraph)
+    return _calibrate(rig, caster, name or arm.name)
+
+
+def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyModel:
+    model = BodyModel("avatar", name)
+    quality: dict = {}
+    defaulted: dict = {}
+    for miss in rig.missing:
+        if miss.startswith("toe_"):
+            defaulted[miss.split()[0]] = "the foot bone's tail (the rig has no toe bone)"
+    model.calibration = {"method": "raycast", "steps_used": ["raycast"], "defaulted": defaulted,
+                         "missing": [m for m in rig.missing if m.startswith("fingers")], "quality": quality}
+    # Joints: exact rest positions, and where they ride on the avatar's own bones.
+    for j in sk.JOINTS:
+        if j in rig.joints:
+            frame = rig.joint_frames[j]
+            model.joints[j] = Joint(rig.joints[j].copy(), frame, rig.to_local(frame, rig.joints[j]))
+    frames: dict[str, np.ndarray] = {}
+    for b in avatar_rig.canonical_bones(rig):
+        h, t = rig.joints[b.head], rig.joints[b.tail]
+        extra = {}
+        if b.name in rig.bone_map.bones:
+            extra["avatar_bone"] = rig.bone_map.bones[b.name]
+        model.bones[b.name] = BoneInfo(b.head, b.tail, float(np.linalg.norm(t - h)), rig.rights[b.name].copy(),
+                                       extra=extra)
+        frames[b.name] = sl.bone_frame(h, t, rig.rights[b.name])
+    F, L, U = rig.forward, rig.lateral, rig.up
+    J = rig.joints
+
+    def local(bone, p):
+        return frames[bone].T @ (p - J[sk.BONE_BY_NAME[bone].head])
+
+    def hit(point, bone_for_message, origin, direction, max_dist=1e4):
+        r = caster.cast(origin, direction / np.linalg.norm(direction), max_dist)
+        if r is None:
+            raise BodyCalError(f"the ray for {point} (from near bone {bone_for_message}) missed the mesh",
+                               source=rig.armature,
+                               hint="check that the mesh covers this part, or edit the point by hand")
+        return r
+
+    # --- capsules -----------------------------------------------------------------------------
+    angles = np.linspace(0.0, 2 * np.pi, CAPSULE_RAYS, endpoint=False)
+    for bone in sl.CAPSULE_BONES:
+        if bone not in model.bones:
+            continue
+        h, t = J[sk.BONE_BY_NAME[bone].head], J[sk.BONE_BY_NAME[bone].tail]
+        R = frames[bone]
+        length = np.linalg.norm(t - h)
+        station_r, station_t, spreads = [], [], []
+        n_hit = n_rej = 0
+        for st in CAPSULE_STATIONS:
+            o = h + st * (t - h)
+            ds = []
+            for a in angles:
+                r = caster.cast(o, np.cos(a) * R[:, 0] + np.sin(a) * R[:, 2], max_dist=length)
+                if r is not None:
+                    ds.append(r[1])
+            n_hit += len(ds)
+            if len(ds) < 3:
+                continue
+            ds = np.array(ds)
+            keep = robust_keep(ds)
+            n_rej += int((~keep).sum())
+            station_r.append(ds[keep].mean())
+            station_t.append(st)
+            spreads.append(ds[keep] - ds[keep].mean())
+        rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
+        avatar_bone = rig.bone_map.bones.get(bone, bone)
+        if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
+            raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
+                               source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
+        rh, rt = linear_radii(np.array(station_t), np.array(station_r))
+        model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
+        model.surface.append(SurfaceElement(f"capsule:{bone}", "capsule", bone))
+        quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
+                                      "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
+
+    # --- head: size, skull sphere, jaw ----------------------------------------------------------------
+    sb = J["skull_base"]
+    spine_len = float(np.linalg.norm(sb - J["pelvis"]))
+    top, _ = hit("head top", rig.bone_map.bones["head"], sb + U * spine_len, -U)
+    head_h = float(np.dot(top - sb, U))
+    if head_h <= 0:
+        raise BodyCalError("the top of the head is below the skull base", source=rig.armature)
+    c = sb + U * head_h / 2
+    pts = []
+    for az, el in SKULL_RAYS:
+        r = caster.cast(c, _dir(F, L, U, az, el), max_dist=head_h)
+        if r is not None:
+            pts.append(r[0])
+    if len(pts) < 8:
+        raise BodyCalError(f"sphere:skull: only {len(pts)} of {len(SKULL_RAYS)} rays from the head centre "
+                           f"(bone {rig.bone_map.bones['head']}) hit the mesh", source=rig.armature)
+    pts = np.array(pts)
+    centre, radius, keep = sphere_fit(pts)
+    model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=local("head", centre), radius=radius))
+    res = np.linalg.norm(pts[keep] - centre, axis=1) - radius
+    quality["sphere:skull"] = {"rays": len(SKULL_RAYS), "hit": len(pts), "rejected": int((~keep).sum()),
+                               "spread_mm": round(float(res.std() * 1000), 3)}
+    jaw = {}
+    for p, (az, el) in JAW_RAYS.items():
+        jaw[p] = hit(f"mesh:jaw {p}", rig.bone_map.bones["head"], c, _dir(F, L, U, az, el))[0]
+    model.surface.append(SurfaceElement(
+        "mesh:jaw", "mesh", "head", points={p: SurfacePoint("head", local("head", w)) for p, w in jaw.items()},
+        triangles=list(sl.JAW_TRIANGLES)))
+    quality["mesh:jaw"] = {"rays": len(jaw), "hit": len(jaw), "rejected": 0, "spread_mm": 0.0}
+
+    # --- torso ---------------------------------------------------------------------------------------------
+    spine = np.array([J["pelvis"], J["spine_root"]] + [J[sk.spine_joint(k)] for k in range(1, sk.SPINE_COUNT + 1)])
+    spine_joints = spine[1:]
+    heights = (spine - J["pelvis"]) @ U
+    order = np.maximum.accumulate(heights)  # a spine that dips never makes interp non-monotonic
+    shoulder_h = float(np.mean([(J[f"shoulder_{s}"] - J["pelvis"]) @ U for s in sk.SIDES]))
+
+    def spine_at(h):
+        return np.array([np.interp(h, order, spine[:, i]) for i in range(3)])
+
+    torso = {}
+    for p, (frac, az) in TORSO_RAYS.items():
+        o = spine_at(frac * shoulder_h)
+        torso[p] = hit(f"mesh:torso {p}", sl.nearest_vertebra(o, spine_joints), o, _dir(F, L, U, az))[0]
+    for p, guess in sl.belly_centre_points(torso["belly_ul"], torso["belly_ur"], torso["belly_ll"],
+                                           torso["belly_lr"]).items():
+        o = spine_at(float((guess - J["pelvis"]) @ U))
+        d = guess - o
+        d = d - np.dot(d, U) * U
+        torso[p] = hit(f"mesh:torso {p}", sl.nearest_vertebra(o, spine_joints), o, d)[0]
+    points = {}
+    for p in sl.TORSO_POINTS:
+        v = sl.nearest_vertebra(torso[p], spine_joints)
+        points[p] = SurfacePoint(v, local(v, torso[p]))
+    model.surface.append(SurfaceElement("mesh:torso", "mesh", "spine_*", points=points,
+                                        triangles=list(sl.TORSO_TRIANGLES)))
+    quality["mesh:torso"] = {"rays": len(torso), "hit": len(torso), "rejected": 0, "spread_mm": 0.0}
+
+    # --- palms and soles ------------------------------------------------------------------------------------
+    for s in sk.SIDES:
+        hand = f"hand_{s}"
+        if hand in model.bones and f"mcp_index_{s}" in J and f"mcp_pinky_{s}" in J:
+            w = J[f"wrist_{s}"]
+            ends = {"I": J[f"mcp_index_{s}"], "P": J[f"mcp_pinky_{s}"]}
+            n = frames[hand][:, 2]
+            names = sl.palm_points(len(PALM_RAYS), s)
+            hits = [hit(f"mesh:palm_{s} {p}", rig.bone_map.bones[hand], w + f * (ends[k] - w), n)[0]
+                    for p, (k, f) in zip(names, PALM_RAYS)]
+            hits = _wind(hits, n)
+            model.surface.append(SurfaceElement(
+                f"mesh:palm_{s}", "mesh", hand,
+                points={p: SurfacePoint(hand, local(hand, x)) for p, x in zip(names, hits)},
+                triangles=sl.fan_triangles(names)))
+            quality[f"mesh:palm_{s}"] = {"rays": len(names), "hit": len(names), "rejected": 0, "spread_mm": 0.0}
+        else:
+            model.calibration["missing"].append(f"mesh:palm_{s} (no finger bones to place it)")
+        foot = f"foot_{s}"
+        a, toe = J[f"ankle_{s}"], J[f"toe_{s}"]
+        leg = float(np.linalg.norm(J[f"hip_{s}"] - a)) + 0.1
+        floor_hits = [hit(f"mesh:sole_{s} floor", rig.bone_map.bones[foot], p - U * leg, U)[0] for p in (a, toe)]
+        floor = min(float(x @ U) for x in floor_hits)
+        f = toe - a
+        f = f - np.dot(f, U) * U
+        f /= np.linalg.norm(f)
+        lat = L - np.dot(L, f) * f
+        lat /= np.linalg.norm(lat)
+        low = floor + SOLE_HEIGHT * (float(a @ U) - floor)
+
+        def at_low(p, low=low):
+            return p + U * (low - float(p @ U))
+
+        heel_st = at_low(a + 0.15 * (toe - a))
+        rays = [(at_low(a), -f), (heel_st, lat), (at_low(toe), lat), (at_low(toe), f), (at_low(toe), -lat),
+                (heel_st, -lat)]
+        names = sl.sole_points(len(rays), s)
+        outline = [hit(f"mesh:sole_{s} {p}", rig.bone_map.bones[foot], o, d)[0] for p, (o, d) in zip(names, rays)]
+        outline = [x + U * (floor - float(x @ U)) for x in outline]  # on the floor plane
+        outline = _wind(outline, -U)
+        model.surface.append(SurfaceElement(
+            f"mesh:sole_{s}", "mesh", foot,
+            points={p: SurfacePoint(foot, local(foot, x)) for p, x in zip(names, outline)},
+            triangles=sl.fan_triangles(names)))
+        quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2, "hit": len(rays) + 2, "rejected": 0,
+                                     "spread_mm": round(float(np.ptp([x @ U for x in floor_hits]) * 1000), 3)}
+
+    model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
+    model.extra["rig"] = rig.rig_dict()
+    model.extra["rays_cast"] = caster.rays
+    return model
+
+
+_ORDER = {eid: i for i, eid in enumerate(sl.element_ids())}
+
+
+def _wind(points: list[np.ndarray], outward: np.ndarray) -> list[np.ndarray]:
+    """Keep the outline's first point and reverse the rest if the fan's normal is not `outward`."""
+    p = np.array(points)
+    n = np.zeros(3)
+    for i in range(1, len(p) - 1):
+        n += np.cross(p[i] - p[0], p[i + 1] - p[0])
+    if np.dot(n, outward) < 0:
+        return [points[0]] + points[1:][::-1]
+    return points

@@ -1,0 +1,67 @@
+"""Small robust fits for the avatar surface calibration (DESIGN.md §3-4), numpy only.
+
+`geometry.py` owns the user-side fits; these are the few the raycasting needs: a median/MAD
+outlier rejection for hit distances and an algebraic sphere fit with the 2-sigma second pass of
+DESIGN.md §3.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MAD_K = 3.0  # reject beyond 3 scaled MADs (1.4826 MAD estimates sigma for Gaussian noise)
+MIN_MAD = 0.0005  # metres: below half a millimetre of spread, nothing is an outlier
+
+
+def robust_keep(values: np.ndarray) -> np.ndarray:
+    """Boolean mask of the values within MAD_K scaled MADs of the median."""
+    v = np.asarray(values, float)
+    if v.size == 0:
+        return np.zeros(0, bool)
+    med = np.median(v)
+    mad = max(1.4826 * np.median(np.abs(v - med)), MIN_MAD)
+    return np.abs(v - med) <= MAD_K * mad
+
+
+def sphere_fit(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Algebraic least-squares sphere (|p|² = 2 c·p + k), then a second pass without the points
+    farther than 2 standard deviations from the mean distance to the centre (DESIGN.md §3).
+    Returns (centre, radius = mean distance of the kept points, kept mask)."""
+    p = np.asarray(points, float)
+    if len(p) < 4:
+        raise ValueError("a sphere fit needs at least 4 points")
+    keep = np.ones(len(p), bool)
+    for _ in range(2):
+        q = p[keep]
+        a = np.column_stack([2 * q, np.ones(len(q))])
+        sol, *_ = np.linalg.lstsq(a, (q * q).sum(1), rcond=None)
+        c = sol[:3]
+        d = np.linalg.norm(p - c, axis=1)
+        mu, sd = d[keep].mean(), d[keep].std()
+        new = np.abs(d - mu) <= max(2 * sd, 1e-6)
+        if new.sum() < 4 or np.array_equal(new, keep):
+            break
+        keep = new
+    return c, float(np.linalg.norm(p[keep] - c, axis=1).mean()), keep
+
+
+def tilt(direction: np.ndarray, toward: np.ndarray, degrees: float) -> np.ndarray:
+    """Unit `direction` turned by `degrees` towards `toward` (in their common plane)."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    t = np.asarray(toward, float) - np.dot(toward, d) * d
+    t /= np.linalg.norm(t)
+    a = np.radians(degrees)
+    return np.cos(a) * d + np.sin(a) * t
+
+
+def linear_radii(stations: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
+    """Head and tail radius of a capsule from per-station radii: a straight line through them,
+    evaluated at 0 and 1 but clamped to the measured range (no wild extrapolation to joints
+    where the neighbouring part would have interfered)."""
+    t, r = np.asarray(stations, float), np.asarray(radii, float)
+    if len(t) >= 2 and np.ptp(t) > 0:
+        slope, icpt = np.polyfit(t, r, 1)
+    else:
+        slope, icpt = 0.0, float(r.mean())
+    lo, hi = r.min(), r.max()
+    return float(np.clip(icpt, lo, hi)), float(np.clip(icpt + slope, lo, hi))
