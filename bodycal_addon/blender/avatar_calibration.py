@@ -29,7 +29,7 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 | jaw ear_l / ear_r       | c                                        | az +90 / -90                    |
 | jaw upper_lip / chin    | c                                        | az 0, el -25 / el -50           |
 | jaw jaw_l / jaw_r       | c                                        | az +40 / -40, el -45            |
-| palm_1..4_<s>           | wrist + 0.85 / 0.85 / 0.3 / 0.3 of the   | hand frame +Z (**)              |
+| palm_1..4_<s>           | wrist + 0.85 / 0.85 / 0.3 / 0.3 of the   | middle_2 axis x hand dir (**)   |
 |                         | way to mcp index / pinky / pinky / index |                                 |
 | sole floor              | ankle, toe joint - U * (leg length + 0.1)| U (first hit from below)        |
 | sole_1..6_<s>           | ankle / 15 % to toe / toe / toe / toe /  | -f / +lat / +lat / +f / -lat /  |
@@ -299,7 +299,9 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
         if hand in model.bones and f"mcp_index_{s}" in J and f"mcp_pinky_{s}" in J:
             w = J[f"wrist_{s}"]
             ends = {"I": J[f"mcp_index_{s}"], "P": J[f"mcp_pinky_{s}"]}
-            n = frames[hand][:, 2]
+            hand_dir = J[f"mcp_middle_{s}"] - w
+            n = np.cross(rig.hinges.get(f"middle_2_{s}", frames[hand][:, 0]), hand_dir)
+            n /= np.linalg.norm(n)
             names = sl.palm_points(len(PALM_RAYS), s)
             hits = [hit(f"mesh:palm_{s} {p}", rig.bone_map.bones[hand], w + f * (ends[k] - w), n)[0]
                     for p, (k, f) in zip(names, PALM_RAYS)]

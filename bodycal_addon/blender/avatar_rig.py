@@ -10,7 +10,7 @@ Joint rules (rest pose):
 - `pelvis` = midpoint of the hips, on the pelvis bone; `spine_root` = head of the first spine
   bone; `spine_01..spine_12` resampled at equal arc length along the polyline through the heads
   of the spine and neck chain bones up to the head bone's head (= `skull_base` = `spine_12`),
-  each on the chain bone whose stretch of the polyline holds it;
+  each on the chain bone whose stretch of the polyline holds it (`spine_12` on the head bone);
 - `head` = the head bone's tail (top of the head bone), on the head bone;
 - `clavicle_<s>` = clavicle head; shoulder/elbow/wrist = heads of upperarm/forearm/hand;
   mcp/pip/dip = heads of finger bones 1..3, tip = tail of bone 3;
@@ -18,15 +18,12 @@ Joint rules (rest pose):
 `local` is the joint in its bone's rest frame in ARMATURE space (bone head at the origin, axes
 = the columns of bone.matrix_local): world = matrix_world @ (head + R @ local).
 
-Canonical bone `right` (a world direction, orthogonal to the canonical bone), "consistent" for
-the two sides of the egocentric mapping:
-- hinges (forearm, shin, finger bones 2 and 3): the avatar bone's local +X (its flexion axis,
-  FORMATS.md §1), or the per-bone override stored on the armature (`bodycal_hinge_axes`);
-- upperarm / thigh / foot: the hinge axis of the elbow / knee / knee; finger bone 1: the
-  finger's bone 2 axis; hand and metacarpals: the middle / own finger's bone 2 axis (so a hand
-  frame's +Z points out of the palm, the side fingers flex to);
-- trunk, head, clavicles, hips and shortcut bones: the avatar's lateral axis (towards its left),
-  or its forward axis for bones that run within 45 degrees of the lateral axis.
+Canonical bone `right` (a world direction, orthogonal to the canonical bone): hinges (forearm,
+shin, finger bones 2 and 3) take the avatar bone's local +X (its flexion axis, FORMATS.md §1) or
+the per-bone override stored on the armature (`bodycal_hinge_axes`, in the avatar bone's frame);
+every other bone follows `retarget.avatar_pose.canonical_rest_frames`, the one rule shared with
+the user model (upper limb bones take their child hinge's axis, hand and metacarpals the palm's
+lateral line, trunk and head the hip line, clavicles and hips the trunk's forward direction).
 """
 
 from __future__ import annotations
@@ -54,6 +51,7 @@ class AvatarRig:
     joints: dict[str, np.ndarray] = field(default_factory=dict)  # canonical joint -> world
     joint_frames: dict[str, str] = field(default_factory=dict)  # canonical joint -> avatar bone
     rights: dict[str, np.ndarray] = field(default_factory=dict)  # canonical bone -> world right
+    hinges: dict[str, np.ndarray] = field(default_factory=dict)  # hinge bone -> world flexion axis
     rest_pose: str = "T"
     missing: list[str] = field(default_factory=list)  # optional segments the rig lacks (fingers, toes)
 
@@ -107,7 +105,9 @@ class AvatarRig:
             "bones": {n: {"parent": b["parent"], "head": [round(float(x), 9) for x in b["head"]],
                           "tail": [round(float(x), 9) for x in b["tail"]],
                           "matrix": [[round(float(x), 9) for x in row] for row in b["matrix"]],
-                          "segment": b["segment"]} for n, b in self.bones.items()},
+                          "segment": b["segment"],
+                          **({"chain_index": b["chain_index"]} if b["chain_index"] is not None else {})}
+                      for n, b in self.bones.items()},
             "rest_pose": self.rest_pose,
         }
 
@@ -187,8 +187,8 @@ def set_hinge_axis(arm, canonical_bone: str, local_axis) -> None:
 def _segment_of(bm: sk.BoneMap) -> dict[str, str]:
     seg = {bone: s for s, bone in bm.bones.items()}
     for chain, names in bm.chains.items():
-        for i, n in enumerate(names):
-            seg[n] = f"{chain}[{i}]"
+        for n in names:
+            seg[n] = chain
     return seg
 
 
@@ -207,13 +207,15 @@ def read_rig(arm, bone_map: sk.BoneMap | None = None) -> AvatarRig:
     bm = bone_map or bone_map_for(arm)
     check_humanoid(arm, bm)
     seg_of = _segment_of(bm)
+    chain_index = {n: i for names in bm.chains.values() for i, n in enumerate(names)}
     bones = {}
     for b in arm.data.bones:
         m = b.matrix_local
         bones[b.name] = {"parent": b.parent.name if b.parent else None, "head": np.array(b.head_local[:]),
                          "tail": np.array(b.tail_local[:]),
                          "matrix": np.array([m[i][:3] for i in range(3)], dtype=float),
-                         "segment": seg_of.get(b.name)}
+                         "segment": seg_of.get(b.name),
+                         "chain_index": chain_index.get(b.name)}
     rig = AvatarRig(arm.name, np.array([row[:] for row in arm.matrix_world], dtype=float), bm, bones)
     _canonical_joints(rig)
     _rights(rig, hinge_overrides(arm))
@@ -248,9 +250,10 @@ def _canonical_joints(rig: AvatarRig) -> None:
     spine = sk.resample_polyline(poly, sk.SPINE_COUNT)
     cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poly, axis=0), axis=1))])
     targets = np.linspace(0.0, 1.0, sk.SPINE_COUNT + 1) * cum[-1]
-    for k in range(1, sk.SPINE_COUNT + 1):
+    for k in range(1, sk.SPINE_COUNT):
         i = int(np.clip(np.searchsorted(cum, targets[k], side="right") - 1, 0, len(chain) - 1))
         put(sk.spine_joint(k), spine[k], chain[i])
+    put(sk.spine_joint(sk.SPINE_COUNT), head(seg["head"]), seg["head"])  # the top of the spine
     put("skull_base", head(seg["head"]), seg["head"])
     put("head", tail(seg["head"]), seg["head"])
     for s in sk.SIDES:
@@ -274,49 +277,34 @@ def _canonical_joints(rig: AvatarRig) -> None:
             rig.missing.append(f"toe_{s} (foot tail used)")
 
 
-def _ortho(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    a = axis / np.linalg.norm(axis)
-    v = v - np.dot(v, a) * a
-    n = np.linalg.norm(v)
-    if n < 1e-9:
-        raise BodyCalError("a bone's right axis runs along the bone", hint="override its hinge axis")
-    return v / n
-
-
 def canonical_bones(rig: AvatarRig) -> list[sk.Bone]:
     return [b for b in sk.BONES if b.head in rig.joints and b.tail in rig.joints]
 
 
 def _rights(rig: AvatarRig, overrides: dict[str, np.ndarray]) -> None:
+    """Hinge rights from the avatar bones; every other right from the ONE rule the retargeting
+    engine uses for the user and the avatar alike (`retarget.avatar_pose.canonical_rest_frames`),
+    so surface points expressed in these frames mean the same thing on both sides."""
+    from ..bodymodel import BodyModel, Joint
+    from ..retarget.avatar_pose import canonical_rest_frames, complete_joints
+
     seg = rig.bone_map.bones
     hinge_world: dict[str, np.ndarray] = {}
     for name in HINGE_BONES:
         avatar_bone = seg.get(name)
-        if avatar_bone is None:
+        if avatar_bone is None or sk.BONE_BY_NAME[name].tail not in rig.joints:
             continue
         hinge_world[name] = rig.axis_world(avatar_bone, overrides.get(name, (1.0, 0.0, 0.0)))
-    lateral, forward = rig.lateral, rig.forward
+    pos = complete_joints(BodyModel("avatar", rig.armature, {j: Joint(p) for j, p in rig.joints.items()}))
+    rig.hinges = hinge_world
+    frames = canonical_rest_frames(pos, hinge_world)
     for b in canonical_bones(rig):
         d = rig.joints[b.tail] - rig.joints[b.head]
         if np.linalg.norm(d) < 1e-9:
             raise BodyCalError(f"canonical bone {b.name} has zero length", source=rig.armature,
                                hint="check the bone map")
-        n = b.name
-        side = n[-1] if n[-2:] in ("_l", "_r") else None
-        source = None
-        if n in hinge_world:
-            source = hinge_world[n]
-        elif n.startswith("upperarm_"):
-            source = hinge_world.get(f"forearm_{side}")
-        elif n.startswith(("thigh_", "foot_")):
-            source = hinge_world.get(f"shin_{side}")
-        elif n.startswith("hand_"):
-            source = hinge_world.get(f"middle_2_{side}")
-        elif n.startswith("metacarpal_"):
-            source = hinge_world.get(f"{n.split('_')[1]}_2_{side}")
-        elif n.split("_")[0] in sk.FINGERS and n.split("_")[1] == "1":
-            source = hinge_world.get(f"{n.split('_')[0]}_2_{side}")
-        if source is None or abs(np.dot(source, d / np.linalg.norm(d))) > 0.95:
-            u = d / np.linalg.norm(d)
-            source = lateral if abs(np.dot(u, lateral)) < np.cos(np.radians(45)) else forward
-        rig.rights[n] = _ortho(source, d)
+        r = frames[b.name][:, 0]
+        if not np.all(np.isfinite(r)) or np.linalg.norm(r) < 0.5:
+            raise BodyCalError(f"the right axis of {b.name} runs along the bone", source=rig.armature,
+                               hint="override its hinge axis")
+        rig.rights[b.name] = r
