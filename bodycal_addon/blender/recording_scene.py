@@ -1,0 +1,315 @@
+"""A Recording in the Blender scene: one animated empty per device and per marker, timeline
+markers for the calibration steps, and enough custom properties to rebuild the Recording after
+the .blend is saved and reopened (`recording_from_scene`).
+
+Layout:
+- a collection named after the recording, its custom property `bodycal` holding the recording's
+  name, source, notes, device list (name, kind, role), marker names, the time of every frame and
+  the frame mapping (frame = frame_start + (t - t0) * fps);
+- one empty per device (arrows, quaternion rotation) and per marker (small sphere), with custom
+  properties `bodycal_device` / `bodycal_marker` naming what it shows, and a keyed custom property
+  `bodycal_tracked` (1 tracked, 0 not; constant interpolation);
+- keys written with `keyframe_points.add` + `foreach_set` (BLENDER_NOTES.md), portable to slotted
+  actions (4.4+ / 5.0) through `action.fcurve_ensure_for_datablock`;
+- timeline markers `bodycal:<step>[:<point>[:<by>]]` at each segment start, and `bodycal:end` where a
+  segment ends without another one starting; a step ends at the next `bodycal:` marker (FORMATS.md
+  §2.4), so editing the markers edits the steps;
+- `scene["bodycal_recording"]` points at the collection, so later steps find the recording.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import bpy
+import numpy as np
+
+from ..errors import BodyCalError
+from ..recording import STEPS, Device, Recording, Segment
+
+SCENE_KEY = "bodycal_recording"
+META_KEY = "bodycal"
+TIME_KEY = "bodycal_time"
+TRACKED = "bodycal_tracked"
+MARKER_PREFIX = "bodycal:"
+END_LABEL = "bodycal:end"
+_LINEAR, _CONSTANT = 1, 0  # KeyframePoint.interpolation enum values
+
+
+def _scene_of(context_or_scene):
+    if context_or_scene is None:
+        return bpy.context.scene
+    if isinstance(context_or_scene, bpy.types.Scene):
+        return context_or_scene
+    return context_or_scene.scene
+
+
+def frame_mapping(rec: Recording) -> tuple[int, float, float]:
+    """(fps, fps_base, effective fps) for the scene: the recording's mean rate, as an integer fps
+    with fps_base carrying the fraction."""
+    rate = rec.fps if rec.frame_count > 1 else 30.0
+    fps = max(1, int(round(rate)))
+    return fps, fps / rate, rate
+
+
+def _continuous(q: np.ndarray) -> np.ndarray:
+    # q and -q are one rotation, but F-Curves interpolate components: keep neighbours on one hemisphere.
+    q = np.array(q, float)
+    if len(q) < 2:
+        return q
+    dots = (q[1:] * q[:-1]).sum(-1)
+    flips = np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)
+    q[1:] *= flips[..., None]
+    return q
+
+
+def _fcurve(action, obj, path: str, index: int):
+    if hasattr(action, "fcurve_ensure_for_datablock"):  # 4.4+: layered, slotted actions
+        return action.fcurve_ensure_for_datablock(obj, path, index=index)
+    return action.fcurves.new(path, index=index)  # 4.2 / 4.3
+
+
+def _fcurves_of(obj) -> dict:
+    """{(data_path, index): fcurve} of the object's action, whatever the action API."""
+    ad = obj.animation_data
+    if ad is None or ad.action is None:
+        return {}
+    action = ad.action
+    curves = []
+    slot = getattr(ad, "action_slot", None)
+    if hasattr(action, "layers") and slot is not None and len(action.layers):
+        for layer in action.layers:
+            for strip in layer.strips:
+                bag = strip.channelbag(slot)
+                if bag is not None:
+                    curves.extend(bag.fcurves)
+    elif hasattr(action, "fcurves"):
+        curves = list(action.fcurves)
+    return {(fc.data_path, fc.array_index): fc for fc in curves}
+
+
+def _write(fc, frames32, values, interpolation=_LINEAR):
+    n = len(frames32)
+    co = np.empty(2 * n, np.float32)
+    co[0::2] = frames32
+    co[1::2] = values
+    fc.keyframe_points.add(n)
+    fc.keyframe_points.foreach_set("co", co)
+    fc.keyframe_points.foreach_set("interpolation", np.full(n, interpolation, np.int32))
+
+
+def _read(fc) -> tuple[np.ndarray, np.ndarray]:
+    n = len(fc.keyframe_points)
+    co = np.empty(2 * n, np.float32)
+    fc.keyframe_points.foreach_get("co", co)
+    return co[0::2], co[1::2]
+
+
+def _segment_markers(rec: Recording, frame_of) -> list[tuple[str, int]]:
+    out = []
+    segs = sorted(rec.segments, key=lambda s: s.start)
+    for k, s in enumerate(segs):
+        out.append((MARKER_PREFIX + s.label, frame_of(s.start)))
+        nxt = segs[k + 1].start if k + 1 < len(segs) else None
+        end_frame = frame_of(s.end)
+        last_frame = frame_of(rec.time[-1])
+        if (nxt is None and end_frame < last_frame) or (nxt is not None and frame_of(nxt) > end_frame):
+            out.append((END_LABEL, end_frame))
+    return out
+
+
+def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_start: int = 1):
+    """Put `rec` in the scene (see the module docstring); returns the new collection. Everything
+    is computed before the scene is touched."""
+    scene = _scene_of(context_or_scene)
+    f = rec.frame_count
+    if f == 0:
+        raise BodyCalError("the recording has no frames", source=rec.source or rec.name)
+    # --- compute -------------------------------------------------------------------------------
+    fps, fps_base, rate = frame_mapping(rec)
+    t0 = float(rec.time[0])
+    frames32 = (frame_start + (rec.time - t0) * rate).astype(np.float32)
+
+    def frame_of(t):
+        return int(round(frame_start + (float(t) - t0) * rate))
+
+    pos = rec.positions.astype(np.float32)
+    rot = np.stack([_continuous(rec.rotations[:, i]) for i in range(len(rec.devices))], axis=1).astype(np.float32) \
+        if rec.devices else np.zeros((f, 0, 4), np.float32)
+    valid = rec.valid.astype(np.float32)
+    mk = rec.markers.astype(np.float32)
+    mk_valid = rec.marker_valid.astype(np.float32)
+    labels = _segment_markers(rec, frame_of)
+    meta = {
+        "name": rec.name, "source": rec.source, "notes": list(rec.notes),
+        "devices": [{"name": d.name, "kind": d.kind, "role": d.role or ""} for d in rec.devices],
+        "markers": list(rec.marker_names),
+        "t0": t0, "rate": rate, "frame_start": frame_start,
+        "segments": [{"step": s.step, "start": s.start, "end": s.end, "point": s.point or "", "by": s.by or ""}
+                     for s in rec.segments],
+    }
+    # --- write ---------------------------------------------------------------------------------
+    coll = bpy.data.collections.new(rec.name or "recording")
+    scene.collection.children.link(coll)
+    coll[META_KEY] = json.dumps(meta)  # ID properties hold no lists of strings: JSON for the small things
+    coll[TIME_KEY] = rec.time.tolist()  # a double array
+
+    def empty(name, display, size):
+        obj = bpy.data.objects.new(name[:63], None)
+        obj.empty_display_type = display
+        obj.empty_display_size = size
+        coll.objects.link(obj)
+        obj[TRACKED] = 1.0
+        obj.animation_data_create()
+        action = bpy.data.actions.new(f"{obj.name}|tracks")
+        obj.animation_data.action = action
+        return obj, action
+
+    for i, d in enumerate(rec.devices):
+        obj, action = empty(f"{rec.name}.{d.name}", "ARROWS", 0.1)
+        obj["bodycal_device"] = d.name
+        obj["bodycal_kind"] = d.kind
+        obj["bodycal_role"] = d.role or ""
+        obj.rotation_mode = "QUATERNION"
+        for k in range(3):
+            _write(_fcurve(action, obj, "location", k), frames32, pos[:, i, k])
+        for k in range(4):
+            _write(_fcurve(action, obj, "rotation_quaternion", k), frames32, rot[:, i, k])
+        _write(_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, valid[:, i], _CONSTANT)
+    for j, name in enumerate(rec.marker_names):
+        obj, action = empty(f"{rec.name}.{name}", "SPHERE", 0.01)
+        obj["bodycal_marker"] = name
+        for k in range(3):
+            _write(_fcurve(action, obj, "location", k), frames32, mk[:, j, k])
+        _write(_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, mk_valid[:, j], _CONSTANT)
+
+    for m in [m for m in scene.timeline_markers if m.name.startswith(MARKER_PREFIX)]:
+        scene.timeline_markers.remove(m)  # one recording per scene: its steps replace the old ones
+    for label, frame in labels:
+        scene.timeline_markers.new(label, frame=frame)
+    scene.render.fps = fps
+    scene.render.fps_base = fps_base
+    scene.frame_start = frame_start
+    scene.frame_end = max(frame_start, frame_of(rec.time[-1]))
+    scene[SCENE_KEY] = coll
+    return coll
+
+
+def scene_recording_collection(scene):
+    coll = scene.get(SCENE_KEY)
+    if isinstance(coll, bpy.types.Collection) and META_KEY in coll:
+        return coll
+    return None
+
+
+def segments_from_markers(scene, time: np.ndarray, t0: float, rate: float, frame_start: int,
+                          stored: list[dict] | None = None, source: str = "") -> list[Segment]:
+    """Steps from the timeline markers `bodycal:<step>[:<point>[:<by>]]`; each ends at the next
+    `bodycal:` marker (or the end of the recording). A marker left where the import put it keeps
+    the exact stored start/end times."""
+    marks = sorted((m.frame, m.name) for m in scene.timeline_markers if m.name.startswith(MARKER_PREFIX))
+    t_end = float(time[-1])
+    exact = {}
+    for s in stored or []:
+        label = ":".join(p for p in (s["step"], s["point"], s["by"]) if p)
+        exact.setdefault((label, int(round(frame_start + (s["start"] - t0) * rate))), (s["start"], s["end"]))
+    out = []
+    for k, (frame, name) in enumerate(marks):
+        if name == END_LABEL:
+            continue
+        parts = name[len(MARKER_PREFIX):].split(":")
+        step = parts[0]
+        if step not in STEPS:
+            raise BodyCalError(f"timeline marker '{name}' names no step", source=source, field="timeline markers",
+                               where=f"frame {frame}", hint=f"steps: {', '.join(STEPS)}")
+        start = t0 + (frame - frame_start) / rate
+        end = t0 + (marks[k + 1][0] - frame_start) / rate if k + 1 < len(marks) else t_end
+        key = (name[len(MARKER_PREFIX):], frame)
+        if key in exact:
+            s0, e0 = exact[key]
+            start = s0
+            if k + 1 == len(marks) or abs((marks[k + 1][0] - frame_start) / rate + t0 - e0) <= 0.5 / rate + 1e-9:
+                end = e0
+        start, end = max(start, float(time[0])), min(end, t_end)
+        if end <= start:
+            continue
+        out.append(Segment(step=step, start=start, end=end, point=parts[1] if len(parts) > 1 and parts[1] else None,
+                           by=parts[2] if len(parts) > 2 and parts[2] else None))
+    return out
+
+
+def recording_from_scene(context_or_scene=None) -> Recording:
+    """Rebuild the scene's Recording from the empties' animation, their custom properties and the
+    timeline markers (works after saving and reopening the .blend)."""
+    scene = _scene_of(context_or_scene)
+    coll = scene_recording_collection(scene)
+    if coll is None:
+        raise BodyCalError("no recording in this scene", source=scene.name,
+                           hint="File > Import > BodyCal recording")
+    try:
+        meta = json.loads(coll[META_KEY])
+        time = np.asarray(coll[TIME_KEY], float)
+    except (KeyError, TypeError, ValueError):
+        raise BodyCalError("the stored recording is damaged", source=coll.name,
+                           hint="re-import the recording") from None
+    f = len(time)
+    t0, rate, frame_start = float(meta["t0"]), float(meta["rate"]), int(meta["frame_start"])
+    by_device, by_marker = {}, {}
+    for obj in coll.all_objects:
+        if "bodycal_device" in obj:
+            by_device[obj["bodycal_device"]] = obj
+        elif "bodycal_marker" in obj:
+            by_marker[obj["bodycal_marker"]] = obj
+    notes = list(meta.get("notes", []))
+
+    def channels(obj, path, count, what):
+        curves = _fcurves_of(obj)
+        out = np.zeros((f, count), np.float32)
+        for k in range(count):
+            fc = curves.get((path, k))
+            if fc is None:
+                raise BodyCalError(f"{path}[{k}] is not animated", source=obj.name, field=what,
+                                   hint="re-import the recording")
+            _frames, values = _read(fc)
+            if len(values) != f:
+                raise BodyCalError(f"{path}[{k}] has {len(values)} keys, the recording {f} frames", source=obj.name,
+                                   field=what, hint="re-import the recording")
+            out[:, k] = values
+        return out
+
+    devices, pos, rot, valid = [], [], [], []
+    for d in meta["devices"]:
+        obj = by_device.get(d["name"])
+        if obj is None:
+            notes.append(f"device '{d['name']}' has no empty in {coll.name}: left out")
+            continue
+        devices.append(Device(name=d["name"], kind=d["kind"], role=d["role"] or None))
+        pos.append(channels(obj, "location", 3, d["name"]))
+        rot.append(channels(obj, "rotation_quaternion", 4, d["name"]))
+        valid.append(channels(obj, f'["{TRACKED}"]', 1, d["name"])[:, 0] > 0.5)
+    names, mk, mk_valid = [], [], []
+    for name in meta["markers"]:
+        obj = by_marker.get(name)
+        if obj is None:
+            notes.append(f"marker '{name}' has no empty in {coll.name}: left out")
+            continue
+        names.append(name)
+        mk.append(channels(obj, "location", 3, name))
+        mk_valid.append(channels(obj, f'["{TRACKED}"]', 1, name)[:, 0] > 0.5)
+    stack = lambda xs, shape: np.stack(xs, axis=1).astype(float) if xs else np.zeros(shape)  # noqa: E731
+    rotations = stack(rot, (f, 0, 4))
+    if rotations.size:
+        norm = np.linalg.norm(rotations, axis=-1, keepdims=True)
+        rotations = np.divide(rotations, norm, out=np.tile([1.0, 0, 0, 0], rotations.shape[:-1] + (1,)),
+                              where=norm > 1e-9)
+    segments = segments_from_markers(scene, time, t0, rate, frame_start, meta.get("segments", []),
+                                     source=scene.name)
+    rec = Recording(name=str(meta["name"]), time=time, devices=devices, positions=stack(pos, (f, 0, 3)),
+                    rotations=rotations, valid=np.stack(valid, axis=1) if valid else np.zeros((f, 0), bool),
+                    marker_names=names, markers=stack(mk, (f, 0, 3)),
+                    marker_valid=np.stack(mk_valid, axis=1) if mk_valid else np.zeros((f, 0), bool),
+                    segments=segments, source=str(meta.get("source", "")), notes=notes)
+    if not math.isfinite(rate) or rate <= 0:
+        raise BodyCalError("broken frame rate in the stored recording", source=coll.name)
+    return rec
