@@ -1,0 +1,203 @@
+"""Shared state of one user calibration: device poses (vectorised over frames), the reference
+time, robust reference poses and the per-step report. Each step module reads a `Session` and
+writes what it measured into its `State`; `calibrate_user` assembles the body model from it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import transforms as tf
+from ..errors import BodyCalError
+from ..recording import Recording, Segment
+
+REF_HALF_WINDOW = 0.1  # s: device poses at the reference time are robust means over this window
+MIN_STEP_FRAMES = 20  # a motion step (flex / swing) needs at least this many tracked frames
+
+
+def other(side: str) -> str:
+    return "r" if side == "l" else "l"
+
+
+def side_of(name: str) -> str | None:
+    if name.endswith("_l"):
+        return "l"
+    if name.endswith("_r"):
+        return "r"
+    return None
+
+
+@dataclass
+class State:
+    """What the steps measured. Positions are local to a tracker role unless named `world`."""
+
+    local: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # joint -> {role: local}
+    world: dict[str, np.ndarray] = field(default_factory=dict)  # joint -> world at the reference time
+    radii: dict[str, float] = field(default_factory=dict)  # "wrist_l", "elbow_l", "finger_index_l", ...
+    hinge_right: dict[str, tuple[str, np.ndarray]] = field(default_factory=dict)  # bone -> (role, right local)
+    palm_planes: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # hand_s -> (point, normal)
+    palm_points: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # side -> {palm_k_s: local hand}
+    sole_points: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # side -> {sole_k_s: local foot}
+    jaw: dict[str, np.ndarray] = field(default_factory=dict)  # local to head (HMD)
+    skull: tuple[np.ndarray, float] | None = None  # centre local to head (HMD), radius
+    torso_world: dict[str, np.ndarray] = field(default_factory=dict)  # torso points, world at reference
+    extra: dict = field(default_factory=dict)
+
+    def set_local(self, joint: str, role: str, local: np.ndarray):
+        self.local.setdefault(joint, {})[role] = np.asarray(local, float)
+
+
+class Session:
+    """A recording prepared for calibration."""
+
+    def __init__(self, rec: Recording, *, robust: bool = True):
+        self.rec = rec
+        self.source = rec.source or rec.name
+        self.robust = robust
+        self._poses: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._ref: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.quality: dict[str, dict] = {}
+        self.steps_used: list[str] = []
+        self.defaulted: dict[str, str] = {}
+        self.missing: list[str] = []
+        self.reference_time, self.reference_step = self._reference_time()
+
+    # --- devices -------------------------------------------------------------------------------
+
+    def has(self, role: str) -> bool:
+        if self.rec.has_role(role):
+            return True
+        if role.startswith("hand_"):
+            s = role[-1]
+            return all(f"hand_led{k}_{s}" in self.rec.marker_names for k in (1, 2, 3))
+        return False
+
+    def kind(self, role: str) -> str | None:
+        for d in self.rec.devices:
+            if d.role == role:
+                return d.kind
+        return "led_glove" if self.has(role) else None
+
+    def pose(self, role: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (F, 3), rotations (F, 4), valid (F,)) of a tracker role; hands without a
+        device pose are built from the glove's three LEDs (synthetic_api / FORMATS.md §2.1)."""
+        if role not in self._poses:
+            if self.rec.has_role(role):
+                self._poses[role] = self.rec.pose(role)
+            elif self.has(role):
+                self._poses[role] = self._led_hand(role[-1])
+            else:
+                raise BodyCalError(f"the recording has no '{role}' tracker", source=self.source,
+                                   hint=f"assign the role '{role}' to a device or record without this step")
+        return self._poses[role]
+
+    def _led_hand(self, s: str):
+        from ..recording_io import led_hand_frame
+
+        leds = [self.rec.marker(f"hand_led{k}_{s}") for k in (1, 2, 3)]
+        origin, q, ok = led_hand_frame(*(p for p, _ in leds))
+        ok = ok & leds[0][1] & leds[1][1] & leds[2][1]
+        return origin, q, ok
+
+    # --- time ----------------------------------------------------------------------------------
+
+    def _reference_time(self) -> tuple[float, str]:
+        """FORMATS.md §3: the middle of the tpose segment, else of stand."""
+        for step in ("tpose", "stand"):
+            segs = self.rec.segments_of(step)
+            if segs:
+                return 0.5 * (segs[0].start + segs[0].end), step
+        t = self.rec.time
+        return float(0.5 * (t[0] + t[-1])), "middle of the recording"
+
+    def frames(self, segs: list[Segment]) -> np.ndarray:
+        if not segs:
+            return np.zeros(0, int)
+        return np.unique(np.concatenate([self.rec.frames(s.start, s.end) for s in segs]))
+
+    def window(self, t: float, half: float = REF_HALF_WINDOW) -> np.ndarray:
+        idx = self.rec.frames(t - half, t + half)
+        if len(idx) < 3:
+            centre = int(np.clip(np.searchsorted(self.rec.time, t), 0, self.rec.frame_count - 1))
+            idx = np.arange(max(centre - 1, 0), min(centre + 2, self.rec.frame_count))
+        return idx
+
+    def pose_at(self, role: str, t: float, half: float = REF_HALF_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+        """Robust pose of a role around time t: the frames whose position is within 2 cm of the
+        window's median (outlier frames dropped), positions averaged, quaternions averaged
+        after aligning their signs."""
+        pos, rot, valid = self.pose(role)
+        idx = self.window(t, half)
+        idx = idx[valid[idx]]
+        if len(idx) == 0:
+            idx = np.nonzero(valid)[0]
+            if len(idx) == 0:
+                raise BodyCalError(f"the '{role}' tracker is never tracked", source=self.source)
+            idx = idx[np.argsort(np.abs(self.rec.time[idx] - t))[:5]]
+        p, q = pos[idx], rot[idx]
+        med = np.median(p, axis=0)
+        d = np.linalg.norm(p - med, axis=1)
+        keep = d <= max(0.02, 3.0 * np.median(d))
+        p, q = p[keep], q[keep]
+        q = np.where((q @ q[0])[:, None] < 0, -q, q)
+        # rotation outliers: keep quaternions within 10 degrees of the coordinate-wise median
+        qm = tf.normalize(np.median(q, axis=0))
+        close = tf.quat_angle(tf.quat_mul(tf.quat_conj(qm), q)) < np.radians(10)
+        if close.any():
+            p, q = p[close], q[close]
+        return p.mean(axis=0), tf.quat_normalize(q.mean(axis=0))
+
+    def ref_pose(self, role: str) -> tuple[np.ndarray, np.ndarray]:
+        if role not in self._ref:
+            self._ref[role] = self.pose_at(role, self.reference_time)
+        return self._ref[role]
+
+    def to_world(self, role: str, local: np.ndarray) -> np.ndarray:
+        p, q = self.ref_pose(role)
+        return tf.transform_points(p, q, local)
+
+    def to_local(self, role: str, world: np.ndarray) -> np.ndarray:
+        p, q = self.ref_pose(role)
+        return tf.inverse_transform_points(p, q, world)
+
+    # --- motion steps --------------------------------------------------------------------------
+
+    def relative_track(self, step: str, frame_role: str, point_role: str,
+                       idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`point_role`'s origin in `frame_role`'s frame over frames `idx` (tracked in both);
+        returns (points (N, 3), frame indices (N,))."""
+        for role in (frame_role, point_role):
+            if not self.has(role):
+                raise BodyCalError(f"needs the '{role}' tracker, the recording has none", source=self.source,
+                                   field=step, hint=f"assign the role '{role}' to a device, or drop the {step} step")
+        fp, fq, fv = self.pose(frame_role)
+        pp, _, pv = self.pose(point_role)
+        ok = idx[fv[idx] & pv[idx]]
+        if len(ok) < MIN_STEP_FRAMES:
+            raise BodyCalError(f"'{frame_role}' and '{point_role}' are tracked together in only {len(ok)} of "
+                               f"{len(idx)} frames, at least {MIN_STEP_FRAMES} needed", source=self.source,
+                               field=step, hint="keep both trackers visible and record the step again")
+        return tf.inverse_transform_points(fp[ok], fq[ok], pp[ok]), ok
+
+    def carry(self, joint_local: np.ndarray, from_role: str, to_role: str, idx: np.ndarray) -> np.ndarray:
+        """A joint fixed in `from_role`'s frame, expressed in `to_role`'s frame: robust mean over
+        the frames `idx` (the joint is rigid in both when it sits between their two bones)."""
+        from ..geometry import robust_mean
+
+        ap, aq, av = self.pose(from_role)
+        bp, bq, bv = self.pose(to_role)
+        ok = idx[av[idx] & bv[idx]]
+        if len(ok) == 0:
+            ok = np.array([int(np.argmin(np.abs(self.rec.time - self.reference_time)))])
+        w = tf.transform_points(ap[ok], aq[ok], joint_local)
+        return robust_mean(tf.inverse_transform_points(bp[ok], bq[ok], w))[0]
+
+    def use(self, step: str, quality: dict | None = None):
+        if step not in self.steps_used:
+            self.steps_used.append(step)
+        if quality is not None:
+            self.quality[step] = quality
+
+    def default(self, what: str, how: str):
+        self.defaulted[what] = how

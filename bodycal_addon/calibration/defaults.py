@@ -1,0 +1,229 @@
+"""Anthropometric defaults for what a recording does not measure (DESIGN.md §3: "Anything a
+recording lacks is defaulted from anthropometric ratios of the eye height, and the report says
+which"), so a 6-device AvatarGo recording still yields a complete body model.
+
+Ratios are of the stature H = eye height / 0.936 (Drillis & Contini 1966 segment proportions;
+Winter, "Biomechanics and Motor Control of Human Movement", Fig. 4.1). Positions are anchored on
+what is known at the reference time (measured joints, device poses in the T-pose) and fall back to
+a body frame: up = +Z, left `L`, forward `F` = L x up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import skeleton as sk
+from .common import Session, State
+
+EYE_TO_STATURE = 0.936
+R = {  # fractions of the stature
+    "shoulder_height": 0.818, "shoulder_half_width": 0.129, "hip_height": 0.52, "hip_half_width": 0.05,
+    "knee_height": 0.285, "ankle_height": 0.039, "upperarm": 0.186, "forearm": 0.146, "hand": 0.108,
+    "pelvis_forward_of_back_tracker": 0.055, "skull_base_back": 0.05, "skull_base_down": 0.045,
+    "toe_forward": 0.09, "toe_height": 0.015, "wrist_in_from_grip": 0.045, "foot_width": 0.05, "heel_back": 0.03,
+    "skull_radius": 0.055, "skull_up": 0.05,
+}
+RADII = {"shoulder": 0.028, "elbow": 0.022, "wrist": 0.016, "hip": 0.05, "knee": 0.03, "ankle": 0.02,
+         "finger": 0.0048}
+# Finger bases relative to the wrist: (along the hand, across toward the thumb) and the finger
+# length (base to extended tip), fractions of the stature.
+FINGER_LAYOUT = {"thumb": (0.018, 0.022, 0.05), "index": (0.049, 0.012, 0.055), "middle": (0.050, 0.0, 0.06),
+                 "ring": (0.047, -0.011, 0.056), "pinky": (0.043, -0.021, 0.045)}
+# Torso crude mesh: (fraction along spine_root -> skull_base, toward the left, forward) x stature.
+TORSO_LAYOUT = {"sternum": (0.62, 0.0, 0.10), "chest_l": (0.55, 0.06, 0.10), "chest_r": (0.55, -0.06, 0.10),
+                "belly_ul": (0.35, 0.055, 0.095), "belly_ur": (0.35, -0.055, 0.095),
+                "belly_ll": (0.10, 0.05, 0.09), "belly_lr": (0.10, -0.05, 0.09),
+                "back_ul": (0.55, 0.05, -0.03), "back_ur": (0.55, -0.05, -0.03), "back_low": (0.15, 0.0, -0.03)}
+# Jaw crude mesh around the skull base: (left, forward, up) x stature.
+JAW_LAYOUT = {"ear_l": (0.04, 0.02, 0.02), "ear_r": (-0.04, 0.02, 0.02), "upper_lip": (0.0, 0.065, 0.0),
+              "chin": (0.0, 0.06, -0.03), "jaw_l": (0.03, 0.045, -0.015), "jaw_r": (-0.03, 0.045, -0.015)}
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _horizontal(v) -> np.ndarray | None:
+    v = np.array(v, float)
+    v[2] = 0.0
+    n = np.linalg.norm(v)
+    return v / n if n > 1e-6 else None
+
+
+class BodyFrame:
+    """Up, left, forward, centre and stature at the reference time."""
+
+    def __init__(self, session: Session, state: State):
+        self.session, self.state = session, state
+        has = session.has
+        w = state.world
+        left = None
+        how = ""
+        if "hip_l" in w and "hip_r" in w:
+            left, how = _horizontal(w["hip_l"] - w["hip_r"]), "hip line"
+        if left is None and has("hand_l") and has("hand_r") and session.reference_step == "tpose":
+            left, how = _horizontal(session.ref_pose("hand_l")[0] - session.ref_pose("hand_r")[0]), "T-pose hands"
+        if left is None and has("foot_l") and has("foot_r"):
+            left, how = _horizontal(session.ref_pose("foot_l")[0] - session.ref_pose("foot_r")[0]), "feet"
+        if left is None:
+            left, how = np.array([1.0, 0, 0]), "assumed: facing -Y"
+        self.left, self.left_from = left, how
+        self.forward = np.cross(left, UP)
+        if has("head"):
+            self.eye_height = float(session.ref_pose("head")[0][2])
+            self.eye_from = "HMD height"
+        elif "shoulder_l" in w and "shoulder_r" in w:
+            self.eye_height = float(0.5 * (w["shoulder_l"][2] + w["shoulder_r"][2]) / R["shoulder_height"]
+                                    * EYE_TO_STATURE)
+            self.eye_from = "shoulder height"
+        else:
+            self.eye_height, self.eye_from = 1.62, "assumed (no HMD)"
+        self.stature = self.eye_height / EYE_TO_STATURE
+        if "hip_l" in w and "hip_r" in w:
+            c = 0.5 * (w["hip_l"] + w["hip_r"])
+        elif has("pelvis"):
+            c = session.ref_pose("pelvis")[0]
+        elif has("head"):
+            c = session.ref_pose("head")[0]
+        else:
+            c = np.zeros(3)
+        self.centre = np.array([c[0], c[1], 0.0])
+
+    def at(self, height: float, left: float = 0.0, forward: float = 0.0, base=None) -> np.ndarray:
+        base = self.centre if base is None else np.array([base[0], base[1], 0.0])
+        return base + self.left * left + self.forward * forward + UP * height
+
+
+def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str, np.ndarray]:
+    """World positions of every canonical joint the steps did not measure (not spine vertebrae,
+    clavicles or spine_root: the trunk rules place those)."""
+    H = body.stature
+    w = dict(state.world)
+    out: dict[str, np.ndarray] = {}
+    has = session.has
+    sign = {"l": 1.0, "r": -1.0}
+
+    def put(name, value, how):
+        if name not in w:
+            w[name] = out[name] = np.asarray(value, float)
+            session.default(name, how)
+
+    # pelvis and hips
+    if "pelvis" not in w:
+        if "hip_l" in w and "hip_r" in w:
+            put("pelvis", 0.5 * (w["hip_l"] + w["hip_r"]), "midpoint of the hips")
+        elif has("pelvis"):
+            p = session.ref_pose("pelvis")[0]
+            put("pelvis", body.at(R["hip_height"] * H, 0, R["pelvis_forward_of_back_tracker"] * H, p),
+                f"{R['pelvis_forward_of_back_tracker']} H in front of the pelvis tracker, {R['hip_height']} H high")
+        else:
+            put("pelvis", body.at(R["hip_height"] * H), f"{R['hip_height']} H above the floor")
+    for s in sk.SIDES:
+        put(f"hip_{s}", w["pelvis"] + body.left * sign[s] * R["hip_half_width"] * H,
+            f"{R['hip_half_width']} H beside the pelvis")
+    # feet and knees
+    for s in sk.SIDES:
+        if has(f"foot_{s}"):
+            p = session.ref_pose(f"foot_{s}")[0]
+            put(f"ankle_{s}", np.array([p[0], p[1], R["ankle_height"] * H]),
+                f"above the foot tracker, {R['ankle_height']} H high")
+        else:
+            put(f"ankle_{s}", body.at(R["ankle_height"] * H, sign[s] * R["hip_half_width"] * H),
+                f"{R['ankle_height']} H high under the hip")
+        a, h = w[f"ankle_{s}"], w[f"hip_{s}"]
+        t = (h[2] - R["knee_height"] * H) / max(h[2] - a[2], 1e-6)
+        put(f"knee_{s}", h + np.clip(t, 0.3, 0.7) * (a - h), f"on the hip-ankle line at {R['knee_height']} H high")
+        put(f"toe_{s}", body.at(R["toe_height"] * H, 0, R["toe_forward"] * H, w[f"ankle_{s}"]),
+            f"{R['toe_forward']} H in front of the ankle")
+    # arms: in the T-pose the shoulders lie on the line between the hands
+    tpose_hands = session.reference_step == "tpose" and has("hand_l") and has("hand_r")
+    if tpose_hands:
+        hl, hr = session.ref_pose("hand_l")[0], session.ref_pose("hand_r")[0]
+        mid, across = 0.5 * (hl + hr), (hl - hr) / max(np.linalg.norm(hl - hr), 1e-9)
+    for s in sk.SIDES:
+        if tpose_hands:
+            put(f"shoulder_{s}", mid + across * sign[s] * R["shoulder_half_width"] * H,
+                f"on the T-pose hand line, {R['shoulder_half_width']} H from the middle")
+        else:
+            put(f"shoulder_{s}", body.at(R["shoulder_height"] * H, sign[s] * R["shoulder_half_width"] * H),
+                f"{R['shoulder_height']} H high, {R['shoulder_half_width']} H beside the middle")
+        sh = w[f"shoulder_{s}"]
+        if has(f"hand_{s}"):
+            p = session.ref_pose(f"hand_{s}")[0]
+            out_dir = (p - sh) / max(np.linalg.norm(p - sh), 1e-9)
+            put(f"wrist_{s}", p - out_dir * R["wrist_in_from_grip"] * H,
+                f"{R['wrist_in_from_grip']} H from the hand device toward the shoulder")
+        else:
+            put(f"wrist_{s}", sh - UP * (R["upperarm"] + R["forearm"]) * H, "arm hanging straight down")
+        wr = w[f"wrist_{s}"]
+        put(f"elbow_{s}", sh + R["upperarm"] / (R["upperarm"] + R["forearm"]) * (wr - sh),
+            "on the shoulder-wrist line at the upper arm : forearm ratio")
+    # head
+    if "skull_base" not in w:
+        if has("head"):
+            p = session.ref_pose("head")[0]
+            put("skull_base", p - body.forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H,
+                f"{R['skull_base_back']} H behind and {R['skull_base_down']} H below the HMD")
+        else:
+            put("skull_base", body.at(0.87 * H), "0.87 H above the floor")
+    if "head" not in w:
+        if state.skull is not None and has("head"):
+            c = session.to_world("head", state.skull[0])
+            put("head", c + UP * state.skull[1], "top of the skull sphere")
+        else:
+            put("head", np.array([w["skull_base"][0], w["skull_base"][1], H]), "stature above the skull base")
+    # fingers
+    for s in sk.SIDES:
+        along, palm_n, thumb = hand_axes(session, state, body, s, w)
+        for f, (a, c, length) in FINGER_LAYOUT.items():
+            mcp = w[f"wrist_{s}"] + along * a * H + thumb * c * H
+            put(f"mcp_{f}_{s}", mcp, "hand layout ratios of the stature")
+            direction = along if f != "thumb" else (along + thumb) / np.linalg.norm(along + thumb)
+            put(f"tip_{f}_{s}", w[f"mcp_{f}_{s}"] + direction * length * H, "finger length ratio of the stature")
+            from .hands import PHALANX_FRACTIONS
+
+            fa, fb = PHALANX_FRACTIONS[f]
+            m, t = w[f"mcp_{f}_{s}"], w[f"tip_{f}_{s}"]
+            put(f"pip_{f}_{s}", m + fa * (t - m), "phalanx fractions")
+            put(f"dip_{f}_{s}", m + fb * (t - m), "phalanx fractions")
+    return out
+
+
+def hand_axes(session: Session, state: State, body: BodyFrame, s: str, w: dict) -> tuple:
+    """(along the hand toward the fingers, palm normal out of the palm, toward the thumb), world."""
+    plane = state.palm_planes.get(f"hand_{s}")
+    sign = 1.0 if s == "l" else -1.0
+    if f"mcp_middle_{s}" in w and f"wrist_{s}" in w:
+        along = w[f"mcp_middle_{s}"] - w[f"wrist_{s}"]
+    elif session.reference_step == "tpose":
+        along = body.left * sign
+    else:
+        along = -UP
+    along = along / max(np.linalg.norm(along), 1e-9)
+    if plane is not None and session.has(f"hand_{s}"):
+        q = session.ref_pose(f"hand_{s}")[1]
+        from .. import transforms as tf
+
+        n = tf.rotate(q, plane[1])
+    elif session.reference_step == "tpose":
+        n = -UP
+    else:
+        n = -body.left * sign
+    n = n - (n @ along) * along
+    n = n / max(np.linalg.norm(n), 1e-9)
+    # thumb side: palm down with the fingers pointing away from the body, the thumb is forward
+    thumb = np.cross(n, along) * sign
+    if thumb @ body.forward < 0 and plane is None:
+        thumb = -thumb
+    return along, n, thumb
+
+
+def default_radii(state: State, body: BodyFrame, session: Session) -> None:
+    H = body.stature
+    for s in sk.SIDES:
+        for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"):
+            if f"{j}_{s}" not in state.radii:
+                state.radii[f"{j}_{s}"] = RADII[j] * H
+                session.default(f"radius {j}_{s}", f"{RADII[j]} H")
+        for f in sk.FINGERS:
+            if f"finger_{f}_{s}" not in state.radii:
+                state.radii[f"finger_{f}_{s}"] = RADII["finger"] * H
+                session.default(f"radius finger_{f}_{s}", f"{RADII['finger']} H")

@@ -1,0 +1,180 @@
+"""Touch segments (FORMATS.md §2.4): where the `by` fingertip (or palm centre, or controller tip)
+rested on a body point, expressed in the touched body part's tracker frame (paper 000,
+appendix B, Figure 5: every calibration point is stored first, computed later).
+
+A touch is the `by` point's position while it holds still relative to the touched part: the
+longest stretch of the segment where the running-median-filtered position moves slower than
+`STILL_SPEED`. A touch that never stops moving raises an error saying what to redo instead of
+giving a wrong body.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from .. import transforms as tf
+from ..errors import BodyCalError
+from ..geometry import robust_mean
+from ..recording import Segment
+from .common import Session, State, other, side_of
+
+STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still
+STILL_MIN_S = 0.2  # the touch must hold still this long (or half the segment, if shorter)
+MEDIAN_S = 0.15
+# `controller_tip_<s>` when the recording has no marker of that name: a point fixed on the
+# controller, in its frame. Overridable per recording through `rec.notes`-free State.extra.
+CONTROLLER_TIP_LOCAL = np.zeros(3)
+
+TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")
+HEAD_POINTS = ("ear_l", "ear_r", "upper_lip", "chin", "jaw_l", "jaw_r", "skull_top", "skull_left", "skull_right",
+               "skull_back", "skull_base_l", "skull_base_r")
+
+
+@dataclass
+class Touch:
+    point: str
+    by: str
+    role: str  # tracker frame the position is expressed in
+    local: np.ndarray  # (3,)
+    world: np.ndarray  # (3,) mean world position while still
+    frames: np.ndarray  # frame indices used
+    spread_mm: float
+    segment: Segment
+
+
+def touched_role(session: Session, point: str) -> str:
+    """The tracker frame a touched point rides on."""
+    s = side_of(point)
+    has = session.has
+    if point.startswith(("wrist_", "mcp_", "palm_")):
+        return f"hand_{s}"
+    if point.startswith(("sole_", "ankle_")):
+        return f"foot_{s}"
+    if point.startswith("elbow_"):
+        return f"forearm_{s}" if has(f"forearm_{s}") else f"hand_{s}"
+    if point.startswith("knee_"):
+        return f"shin_{s}" if has(f"shin_{s}") else f"foot_{s}"
+    if point.startswith("shoulder_"):
+        return f"upperarm_{s}" if has(f"upperarm_{s}") else ("chest" if has("chest") else "pelvis")
+    if point.startswith("hip_"):
+        return f"thigh_{s}" if has(f"thigh_{s}") else "pelvis"
+    if point in HEAD_POINTS:
+        return "head"
+    if point in TORSO_LOW:
+        return "pelvis" if has("pelvis") else "chest"
+    return "chest" if has("chest") else "pelvis"
+
+
+def default_by(session: Session, point: str) -> str:
+    """FORMATS.md §2.4: the opposite index tip, or the controller tip with controllers only."""
+    s = side_of(point)
+    sides = (other(s),) if s else ("r", "l")
+    names = session.rec.marker_names
+    for t in sides:
+        if f"index_tip_{t}" in names:
+            return f"index_tip_{t}"
+    return f"controller_tip_{sides[0]}"
+
+
+def by_track(session: Session, state: State, by: str) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (F, 3) and validity (F,) of the touching point."""
+    rec = session.rec
+    if by in rec.marker_names:
+        return rec.marker(by)
+    if by.startswith("palm_") and by[-2:] in ("_l", "_r"):
+        s = by[-1]
+        centre = state.extra.get("palm_centre", {}).get(s)
+        if centre is None:
+            raise BodyCalError(f"'{by}' touches need the {s} palm calibrated first", source=session.source,
+                               hint="record palms_together (and palm_*_{s} touches) or touch with a fingertip")
+        p, q, v = session.pose(f"hand_{s}")
+        return tf.transform_points(p, q, centre), v
+    if by.startswith("controller_tip_"):
+        s = by[-1]
+        p, q, v = session.pose(f"hand_{s}")
+        tip = state.extra.get("controller_tip_local", {}).get(s, CONTROLLER_TIP_LOCAL)
+        return tf.transform_points(p, q, tip), v
+    for d in rec.devices:
+        if by in (d.name, d.role):
+            p, _, v = rec.pose(by)
+            return p, v
+    raise BodyCalError(f"the recording has no marker or device '{by}' to touch with", source=session.source,
+                       field="segments.by", hint="name a fingertip marker (index_tip_r) or palm_<s>")
+
+
+def _running_median(x: np.ndarray, w: int) -> np.ndarray:
+    if len(x) < w:
+        return np.repeat(np.median(x, axis=0, keepdims=True), len(x), axis=0)
+    pad = w // 2
+    xp = np.concatenate([np.repeat(x[:1], pad, 0), x, np.repeat(x[-1:], pad, 0)])
+    return np.median(sliding_window_view(xp, w, axis=0), axis=-1)
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int]:
+    if not mask.any():
+        return 0, 0
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    starts, ends = np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]
+    k = int(np.argmax(ends - starts))
+    return int(starts[k]), int(ends[k])
+
+
+def extract(session: Session, state: State, seg: Segment, role: str | None = None) -> Touch:
+    """The touch of one segment, in `role`'s frame (default: the touched body part's)."""
+    point = seg.point
+    by = seg.by or default_by(session, point)
+    role = role or touched_role(session, point)
+    label = f"touch {point} by {by} ({seg.start:.2f}-{seg.end:.2f} s)"
+    if not session.has(role):
+        raise BodyCalError(f"needs the '{role}' tracker the point rides on, the recording has none",
+                           source=session.source, field=label,
+                           hint=f"assign the role '{role}' to a device or drop this touch")
+    bp, bv = by_track(session, state, by)
+    fp, fq, fv = session.pose(role)
+    idx = session.rec.frames(seg.start, seg.end)
+    idx = idx[bv[idx] & fv[idx]]
+    if len(idx) < 3:
+        raise BodyCalError(f"'{by}' and '{role}' are tracked together in only {len(idx)} frames",
+                           source=session.source, field=label, hint="record the touch again with both visible")
+    local = tf.inverse_transform_points(fp[idx], fq[idx], bp[idx])
+    t = session.rec.time[idx]
+    fps = max((len(t) - 1) / max(t[-1] - t[0], 1e-9), 1.0)
+    w = max(3, int(round(MEDIAN_S * fps)) | 1)
+    smooth = _running_median(local, w)
+    k = max(1, w // 2)
+    if len(idx) > 2 * k:
+        speed = np.full(len(idx), np.inf)
+        speed[k:-k] = np.linalg.norm(smooth[2 * k:] - smooth[:-2 * k], axis=1) / np.maximum(t[2 * k:] - t[:-2 * k],
+                                                                                             1e-9)
+        speed[:k], speed[-k:] = speed[k], speed[-k - 1]
+    else:
+        speed = np.full(len(idx), np.linalg.norm(smooth[-1] - smooth[0]) / max(t[-1] - t[0], 1e-9))
+    a, b = _longest_run(speed < STILL_SPEED)
+    need = min(STILL_MIN_S, 0.5 * (seg.end - seg.start))
+    held = (t[b - 1] - t[a]) if b > a else 0.0
+    if b - a < 3 or held < need - 1e-9:
+        slowest = float(np.min(speed)) if np.isfinite(speed).any() else float("nan")
+        raise BodyCalError(f"the touch never stopped moving (slowest {slowest * 1000:.0f} mm/s; it must stay "
+                           f"under {STILL_SPEED * 1000:.0f} mm/s for {need:.2f} s)", source=session.source,
+                           field=label, hint=f"hold {by} still on {point} for half a second and record the touch again")
+    sel = np.arange(a, b)
+    mean, keep = robust_mean(local[sel], name=label)
+    used = idx[sel][keep]
+    world = robust_mean(bp[used], name=label)[0]
+    spread = float(np.sqrt(np.mean(np.sum((local[sel][keep] - mean) ** 2, axis=1))) * 1000.0)
+    return Touch(point, by, role, mean, world, used, spread, seg)
+
+
+def collect(session: Session, state: State, prefix: tuple[str, ...] | None = None) -> dict[str, Touch]:
+    """Every touch segment (optionally only points starting with one of `prefix`), by point name;
+    a point touched twice keeps its last touch."""
+    out = {}
+    for seg in session.rec.segments_of("touch"):
+        if not seg.point or (prefix and not seg.point.startswith(prefix)):
+            continue
+        out[seg.point] = extract(session, state, seg)
+    return out

@@ -1,0 +1,224 @@
+"""User body calibration (bodycal_addon.calibration): each step on small hand-built recordings whose
+answer is known exactly, then whole synthetic sessions against the performer's ground truth."""
+
+import numpy as np
+import pytest
+
+from bodycal_addon import transforms as tf
+from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.calibration import limbs as L
+from bodycal_addon.calibration import touches as T
+from bodycal_addon.calibration.common import Session, State
+from bodycal_addon.errors import BodyCalError
+from bodycal_addon.recording import Device, Recording, Segment
+
+FPS = 90.0
+rng = np.random.default_rng(11)
+
+
+def _random_quat():
+    return tf.quat_normalize(rng.normal(size=4))
+
+
+class Builder:
+    """Devices and markers over time, filled piecewise; poses are (F, 3) + (F, 4)."""
+
+    def __init__(self, seconds):
+        self.time = np.arange(int(seconds * FPS)) / FPS
+        self.devices, self.pos, self.rot = [], [], []
+        self.markers, self.mpos = [], []
+        self.segments = []
+
+    def device(self, role, kind="tracker", pos=(0, 0, 1), rot=(1, 0, 0, 0)):
+        n = len(self.time)
+        self.devices.append(Device(role, kind, role))
+        self.pos.append(np.tile(np.asarray(pos, float), (n, 1)))
+        self.rot.append(np.tile(np.asarray(rot, float), (n, 1)))
+        return len(self.devices) - 1
+
+    def marker(self, name, pos=(0, 0, 0)):
+        self.markers.append(name)
+        self.mpos.append(np.tile(np.asarray(pos, float), (len(self.time), 1)))
+        return len(self.markers) - 1
+
+    def span(self, t0, t1):
+        return (self.time >= t0) & (self.time <= t1)
+
+    def build(self):
+        n = len(self.time)
+        return Recording("hand-built", self.time, self.devices, np.stack(self.pos, 1), np.stack(self.rot, 1),
+                         np.ones((n, len(self.devices)), bool), self.markers,
+                         np.stack(self.mpos, 1) if self.markers else None,
+                         np.ones((n, len(self.markers)), bool) if self.markers else None, self.segments)
+
+
+def _elbow_session(noise=0.0, flex_deg=120.0, touches=True):
+    """Upper arm hanging still, forearm flexing about the elbow axis -X (performer's right), so that
+    flexion brings the hand forward (-Y); returns (recording, truth)."""
+    b = Builder(8.0)
+    elbow = np.array([0.2, 0.0, 1.05])
+    axis = np.array([-1.0, 0.0, 0.0])
+    q_up = _random_quat()
+    ua = b.device("upperarm_l", pos=elbow + [0.04, 0.01, 0.14], rot=q_up)
+    fa = b.device("forearm_l")
+    b.device("head", "hmd", pos=(0, 0, 1.6))
+    tracker_in_bone = np.array([0.035, 0.15, 0.02])  # forearm tracker in the forearm bone frame
+    q_mount = _random_quat()
+    flex = np.zeros(len(b.time))
+    m = b.span(0.5, 5.5)
+    flex[m] = np.radians(flex_deg) * 0.5 * (1 - np.cos(2 * np.pi * 2 * (b.time[m] - 0.5) / 5.0))
+    q_bone0 = tf.matrix_to_quat(tf.frame_from_axes(np.array([0, 0, -1.0]), axis))
+    q_bone = tf.quat_mul(tf.axis_angle_to_quat(axis, flex), q_bone0)
+    b.pos[fa] = elbow + tf.rotate(q_bone, tracker_in_bone)
+    b.rot[fa] = tf.quat_mul(q_bone, q_mount)
+    b.pos[ua] = b.pos[ua] + rng.normal(0, noise, b.pos[ua].shape)
+    b.pos[fa] = b.pos[fa] + rng.normal(0, noise, b.pos[fa].shape)
+    b.segments.append(Segment("flex_elbow_l", 0.5, 5.5))
+    if touches:
+        tip = b.marker("index_tip_r", (0.5, 0.3, 1.0))
+        for name, off, (t0, t1) in (("elbow_in_l", -0.03, (6.0, 6.8)), ("elbow_out_l", 0.03, (7.0, 7.8))):
+            s = b.span(t0, t1)
+            b.mpos[tip][s] = elbow + off * axis  # forearm still (flex = 0) here
+            b.segments.append(Segment("touch", t0, t1, name, "index_tip_r"))
+    rec = b.build()
+    truth = {"elbow_local": tf.inverse_transform_points(b.pos[fa][0], b.rot[fa][0], elbow),
+             "right_local": tf.rotate(tf.quat_conj(b.rot[fa][0]), axis), "elbow": elbow}
+    return rec, truth
+
+
+def test_hinge_axis_sign_position_and_radius_exact():
+    rec, truth = _elbow_session()
+    session, state = Session(rec), State()
+    L.limbs(session, state)
+    np.testing.assert_allclose(state.local["elbow_l"]["forearm_l"], truth["elbow_local"], atol=1e-6)
+    role, right = state.hinge_right["forearm_l"]
+    assert role == "forearm_l"
+    np.testing.assert_allclose(right, truth["right_local"], atol=1e-6)  # the sign, too
+    assert abs(state.radii["elbow_l"] - 0.03) < 1e-6
+    q = session.quality["flex_elbow_l"]
+    assert q["rms_mm"] < 1e-3 and 115 < q["range_deg"] < 125 and q["kept"] <= q["of"]
+    # the same joint carried into the upper arm's frame
+    up_pos, up_rot, _ = rec.pose("upperarm_l")
+    np.testing.assert_allclose(state.local["elbow_l"]["upperarm_l"],
+                               tf.inverse_transform_points(up_pos[0], up_rot[0], truth["elbow"]), atol=1e-6)
+
+
+def test_hinge_sign_holds_with_noise_and_small_range():
+    rec, truth = _elbow_session(noise=0.001, flex_deg=70)
+    session, state = Session(rec), State()
+    L.limbs(session, state)
+    _, right = state.hinge_right["forearm_l"]
+    assert right @ truth["right_local"] > 0.99
+    assert np.linalg.norm(state.local["elbow_l"]["forearm_l"] - truth["elbow_local"]) < 0.004
+
+
+def test_hinge_too_little_motion_is_actionable():
+    rec, _ = _elbow_session(flex_deg=15)
+    with pytest.raises(BodyCalError, match=r"flex_elbow_l: only \d+ degrees of motion recorded, at least 40"):
+        L.limbs(Session(rec), State())
+
+
+def test_hinge_missing_tracker_is_actionable():
+    rec, _ = _elbow_session()
+    rec.devices[0].role = None  # the upper arm tracker is unknown
+    rec.devices[0].name = "LHR-1"
+    with pytest.raises(BodyCalError, match=r"flex_elbow_l: needs the 'upperarm_l' tracker"):
+        L.limbs(Session(rec), State())
+
+
+def _shoulder_session(noise=0.0, outliers=0.0, swing_deg=50.0):
+    b = Builder(6.0)
+    shoulder = np.array([0.18, 0.0, 1.42])
+    chest_q = _random_quat()
+    b.device("chest", pos=shoulder + [-0.18, 0.1, -0.05], rot=chest_q)
+    b.device("head", "hmd", pos=(0, 0, 1.6))
+    ua = b.device("upperarm_l")
+    t = b.time
+    a = np.radians(swing_deg) * np.sin(2 * np.pi * 0.7 * t)
+    c = np.radians(swing_deg) * np.sin(2 * np.pi * 0.45 * t + 1.0)
+    q = tf.quat_mul(tf.axis_angle_to_quat(np.array([1.0, 0, 0]), a), tf.axis_angle_to_quat(np.array([0, 1.0, 0]), c))
+    mount = np.array([0.04, 0.02, -0.12])
+    b.pos[ua] = shoulder + tf.rotate(q, mount)
+    b.rot[ua] = q
+    for i in (0, ua):
+        b.pos[i] = b.pos[i] + rng.normal(0, noise, b.pos[i].shape)
+    if outliers:
+        bad = rng.random(len(t)) < outliers
+        b.pos[ua][bad] += rng.normal(0, 0.05, (bad.sum(), 3))
+    b.segments.append(Segment("swing_shoulder_l", 0.0, 6.0))
+    return b.build(), {"local": mount * 0 + tf.inverse_transform_points(b.pos[ua][0] * 0 + shoulder + tf.rotate(
+        q[0], mount), q[0], shoulder), "shoulder": shoulder}
+
+
+def test_anchor_sphere_fit_exact_and_carried_to_the_chest():
+    rec, truth = _shoulder_session()
+    session, state = Session(rec), State()
+    L.limbs(session, state)
+    np.testing.assert_allclose(state.local["shoulder_l"]["upperarm_l"], truth["local"], atol=1e-6)
+    cp, cq, _ = rec.pose("chest")
+    np.testing.assert_allclose(state.local["shoulder_l"]["chest"],
+                               tf.inverse_transform_points(cp[0], cq[0], truth["shoulder"]), atol=1e-6)
+
+
+def test_anchor_outlier_frames_are_dropped():
+    rec, truth = _shoulder_session(noise=0.001, outliers=0.1)
+    robust, plain = State(), State()
+    L.limbs(Session(rec), robust)
+    L.limbs(Session(rec, robust=False), plain)
+    err_r = np.linalg.norm(robust.local["shoulder_l"]["upperarm_l"] - truth["local"])
+    err_p = np.linalg.norm(plain.local["shoulder_l"]["upperarm_l"] - truth["local"])
+    assert err_r < 0.004
+    assert err_r < err_p
+
+
+def _touch_session(moving=False):
+    b = Builder(2.0)
+    hand_q = _random_quat()
+    b.device("hand_l", "controller", pos=(0.4, 0.0, 1.0), rot=hand_q)
+    b.device("head", "hmd", pos=(0, 0, 1.6))
+    tip = b.marker("index_tip_r", (0.0, -0.2, 1.0))
+    point = np.array([0.42, 0.01, 1.03])
+    s = b.span(0.5, 1.5)
+    b.mpos[tip][s] = point
+    if moving:
+        b.mpos[tip][s] = point + np.outer(b.time[s] - 1.0, [0.15, 0.0, 0.0])  # slides at 15 cm/s
+    b.mpos[tip] += rng.normal(0, 0.001, b.mpos[tip].shape)
+    b.segments.append(Segment("touch", 0.4, 1.6, "wrist_top_l", None))
+    return b.build(), tf.inverse_transform_points(np.array([0.4, 0.0, 1.0]), hand_q, point)
+
+
+def test_touch_position_in_the_touched_frame():
+    rec, local = _touch_session()
+    session = Session(rec)
+    t = T.extract(session, State(), rec.segments[0])
+    assert t.by == "index_tip_r" and t.role == "hand_l"
+    assert np.linalg.norm(t.local - local) < 0.001
+
+
+def test_a_touch_that_never_stops_moving_is_actionable():
+    rec, _ = _touch_session(moving=True)
+    with pytest.raises(BodyCalError, match=r"touch wrist_top_l by index_tip_r .*never stopped moving.*hold"):
+        T.extract(Session(rec), State(), rec.segments[0])
+
+
+def test_touch_point_without_its_tracker():
+    rec, _ = _touch_session()
+    rec.segments[0] = Segment("touch", 0.4, 1.6, "ankle_in_l", None)
+    with pytest.raises(BodyCalError, match="foot_l"):
+        T.extract(Session(rec), State(), rec.segments[0])
+
+
+def test_hand_built_session_yields_a_complete_model_with_defaults_reported():
+    rec, truth = _elbow_session()
+    rec.segments.append(Segment("stand", 6.0, 7.8))  # still: the reference time falls here
+    model = calibrate_user(rec)
+    from bodycal_addon.bodymodel import REQUIRED_USER_JOINTS, BodyModel
+
+    assert set(REQUIRED_USER_JOINTS) <= set(model.joints)
+    assert np.linalg.norm(model.joints["elbow_l"].world - truth["elbow"]) < 1e-6
+    assert "flex_elbow_l" in model.calibration["steps_used"]
+    assert "wrist_l" in model.calibration["defaulted"]
+    assert "swing_hip_r" in model.calibration["missing"]
+    back = BodyModel.from_dict(model.to_dict())
+    np.testing.assert_allclose(back.joints["elbow_l"].world, model.joints["elbow_l"].world, atol=1e-6)
+    assert back.bones["forearm_l"].extra["right_frame"] == "forearm_l"
