@@ -1,0 +1,699 @@
+"""Egocentric self-contact mapping (paper 000, appendix C; DESIGN.md §5), numpy only, vectorised
+over a leading frame axis.
+
+Three steps, each a public function:
+
+1. `pose_surface(model, joints, bone_rotations) -> PosedSurface`: every surface element of a body
+   model placed per frame from the canonical joint positions and bone frames (columns x, y, z as
+   `surface_layout.bone_frame` gives: +Y along the bone, +X its right).
+2. `project(points, surface) -> Projections`: each target point projected on each element
+   (`x_ij`, `v_ij = p_j - x_ij`), with the surface coordinates that re-pose the projection on
+   another body, and the angular factor of the raw weight.
+3. `retarget_points(...)`: the retro-projection of paper 000, eq. 1, with the kinematic
+   normalisation of eq. 2 and the floor singularity.
+
+Example (helper code builds `joints` / `bone_rotations` dicts of (F, 3) / (F, 3, 3) arrays)::
+
+    ids = common_elements(user_model, avatar_model)
+    us = pose_surface(user_model, user_joints, user_rots, element_ids=ids)
+    av = pose_surface(avatar_model, avatar_fk_joints, avatar_fk_rots, element_ids=ids)
+    names = ["wrist_l", "wrist_r", "elbow_l", "elbow_r", "tip_index_l", "skull_base"]
+    pts = np.stack([user_joints[n] for n in names], axis=1)          # (F, P, 3)
+    new = retarget_points(pts, names, us, av)                          # (F, P, 3) avatar targets
+
+Conventions and decisions (each one named in the code where it applies):
+- Element order in a `PosedSurface`: capsules, then spheres, then meshes (`element_ids`). The user
+  and the avatar must be posed with the same `element_ids` (see `common_elements`).
+- A mesh element contributes its closest triangle (per frame and target).
+- Targets are canonical joint names; the elements on a target's own limb chain are excluded
+  (`own_chain_elements`, the single table of exclusions).
+- Kinematic paths run over the simplified tree `GRAPH_BONES`: the limb, hand, finger, foot and
+  head bones plus the shortcut bones (sacrum -> hips, sacrum -> clavicle root, clavicle root ->
+  skull base); the vertebrae are skipped as the paper's Figure 13 does. Each element has one root
+  node (`element_root`); the path runs from that node to the target's own joint, so the paper's
+  extremity term `v.(p_j - e_j)` is the last bone of the path (the target is the tail of its
+  bone). DESIGN.md Decision: absolute values in eq. 2.
+- Floor: `h'_j = h_j tau'/tau` with the path from the supporting (lower) ankle to the target; the
+  "x - r" extremity of that path is the ankle's height above the floor.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from functools import cache, lru_cache
+
+import numpy as np
+
+from .. import skeleton as sk
+from ..errors import BodyCalError
+from ..transforms import frame_from_axes
+
+MIN_DISTANCE = 1e-3  # m: raw weights are capped at 1 / MIN_DISTANCE**2 (a target on a surface)
+PENETRATION_TOLERANCE = 0.01  # m: see _triangle_factor
+TORSO_ROOT = sk.spine_joint(sk.CLAVICLE_VERTEBRA)
+
+# --- kinematic tree ----------------------------------------------------------------------------
+
+# The paper's "trunk's simplified kinematic chain" (appendix C, Figure 13; appendix D, Figure 20):
+# no vertebra, no sacrum, no `hand_<s>` (it duplicates metacarpal_middle); the shortcut bones
+# carry the trunk.
+GRAPH_BONES: tuple[str, ...] = tuple(
+    b.name for b in sk.BONES if b.name != "sacrum" and not b.name.startswith(("spine_", "hand_"))
+)
+GRAPH_INDEX = {name: i for i, name in enumerate(GRAPH_BONES)}
+GRAPH_NODES: tuple[str, ...] = tuple(dict.fromkeys(
+    j for name in GRAPH_BONES for j in (sk.BONE_BY_NAME[name].head, sk.BONE_BY_NAME[name].tail)))
+
+
+@cache
+def _adjacency() -> dict[str, list[tuple[str, int]]]:
+    adj: dict[str, list[tuple[str, int]]] = {n: [] for n in GRAPH_NODES}
+    for i, name in enumerate(GRAPH_BONES):
+        b = sk.BONE_BY_NAME[name]
+        adj[b.head].append((b.tail, i))
+        adj[b.tail].append((b.head, i))
+    return adj
+
+
+@cache
+def kinematic_path(start: str, end: str) -> tuple[int, ...]:
+    """Indices into GRAPH_BONES of the bones between two joints of the simplified tree."""
+    if start not in GRAPH_NODES or end not in GRAPH_NODES:
+        bad = start if start not in GRAPH_NODES else end
+        raise BodyCalError(f"joint '{bad}' is not on the kinematic tree of the egocentric mapping",
+                           hint=f"targets and element roots must be among: {', '.join(GRAPH_NODES)}")
+    adj = _adjacency()
+    prev: dict[str, tuple[str, int] | None] = {start: None}
+    queue = deque([start])
+    while queue:
+        node = queue.popleft()
+        if node == end:
+            break
+        for nxt, bone in adj[node]:
+            if nxt not in prev:
+                prev[nxt] = (node, bone)
+                queue.append(nxt)
+    path = []
+    node = end
+    while prev[node] is not None:
+        node, bone = prev[node]
+        path.append(bone)
+    return tuple(reversed(path))
+
+
+def element_root(element_id: str, bone: str) -> str:
+    """The root joint r_i of a surface element (paper 000, eq. 2): the head of its bone, moved onto
+    the simplified tree. Decision: the torso's root is the clavicle root (`spine_05`), the trunk
+    node closest to both chest and belly."""
+    if element_id == "mesh:torso":
+        return TORSO_ROOT
+    b = sk.BONE_BY_NAME.get(bone)
+    if b is None:
+        return "pelvis"
+    if b.head in GRAPH_NODES:
+        return b.head
+    if b.name.startswith("spine_"):  # a vertebra: nearest trunk node of the simplified chain
+        k = int(b.name.split("_")[1]) - 1
+        return "pelvis" if k < 3 else TORSO_ROOT if k < 9 else "skull_base"
+    return "pelvis"
+
+
+def own_chain_elements(target: str) -> frozenset[str]:
+    """THE exclusion table: surface elements on a target's own limb chain, which carry no contact
+    information about that target (DESIGN.md §5).
+
+    - wrist/elbow/shoulder_<s>: upperarm_<s>, forearm_<s>, every finger capsule of side s, palm_<s>;
+    - finger joints (mcp/pip/dip/tip)_<f>_<s>: the same as the wrist. Decision: the hand's other
+      fingers and its palm ride on the target's own wrist, so they carry the hand's shape, not a
+      contact; kept, they pull a fingertip that touches a bigger avatar's body back to where the
+      avatar's FK-posed fingers are (inside it). Pinches and fists come from the finger pose;
+    - ankle/knee/hip/toe_<s>: thigh_<s>, shin_<s>, sole_<s>;
+    - skull_base/head: the skull sphere and the jaw.
+    """
+    parts = target.split("_")
+    side = parts[-1] if parts[-1] in sk.SIDES else None
+    if target in ("skull_base", "head"):
+        return frozenset({"sphere:skull", "mesh:jaw"})
+    if side is None:
+        return frozenset()
+    if parts[0] in ("wrist", "elbow", "shoulder", "clavicle") or (parts[0] in sk.FINGER_JOINTS and len(parts) == 3):
+        ids = {f"capsule:upperarm_{side}", f"capsule:forearm_{side}", f"mesh:palm_{side}"}
+        ids |= {f"capsule:{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)}
+        return frozenset(ids)
+    if parts[0] in ("ankle", "knee", "hip", "toe"):
+        return frozenset({f"capsule:thigh_{side}", f"capsule:shin_{side}", f"mesh:sole_{side}"})
+    return frozenset()
+
+
+# --- posed surface -----------------------------------------------------------------------------
+
+@dataclass
+class PosedSurface:
+    """A body model's surface elements placed per frame (F frames). Elements are ordered capsules,
+    spheres, meshes; E = C + S + M."""
+
+    element_ids: list[str]
+    element_bones: list[str]  # the bone each element rides on (mesh: the element's `bone`)
+    element_roots: list[str]  # root joint r_i of each element (element_root)
+    caps_head: np.ndarray  # (F, C, 3) segment start (the bone's head joint)
+    caps_tail: np.ndarray  # (F, C, 3)
+    caps_rot: np.ndarray  # (F, C, 3, 3) bone frames
+    caps_radius: np.ndarray  # (C, 2) radius at head, at tail
+    sph_center: np.ndarray  # (F, S, 3)
+    sph_rot: np.ndarray  # (F, S, 3, 3)
+    sph_radius: np.ndarray  # (S,)
+    tri: np.ndarray  # (F, T, 3, 3) triangle corners, outward winding
+    tri_normal: np.ndarray  # (F, T, 3) unit outward normals
+    tri_elem: np.ndarray  # (T,) element index (into element_ids) of each triangle
+    mesh_slices: list[tuple[int, int]]  # per mesh element, its triangle range in `tri`
+    mesh_head: np.ndarray  # (F, M, 3) head joint of each mesh element's bone
+    mesh_rot: np.ndarray  # (F, M, 3, 3) frame of each mesh element's bone
+    mesh_scale: np.ndarray  # (M,) length of each mesh element's bone (re-posing fallback)
+    joints: dict[str, np.ndarray]  # canonical joint -> (F, 3)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def frames(self) -> int:
+        return self.tri.shape[0] if self.tri.size else next(iter(self.joints.values())).shape[0]
+
+    @property
+    def counts(self) -> tuple[int, int, int]:
+        return self.caps_radius.shape[0], self.sph_radius.shape[0], len(self.mesh_slices)
+
+    def take(self, start: int, stop: int) -> PosedSurface:
+        """The frames [start, stop) (views, no copy)."""
+        s = slice(start, stop)
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, self.caps_head[s],
+                            self.caps_tail[s], self.caps_rot[s], self.caps_radius, self.sph_center[s], self.sph_rot[s],
+                            self.sph_radius, self.tri[s], self.tri_normal[s], self.tri_elem, self.mesh_slices,
+                            self.mesh_head[s], self.mesh_rot[s], self.mesh_scale,
+                            {k: v[s] for k, v in self.joints.items()}, self.notes)
+
+
+def common_elements(*models) -> list[str]:
+    """Element ids present in every model (in the first model's order): pose the user and the
+    avatar with these so their elements pair one to one."""
+    ids = [e.id for e in models[0].surface]
+    for m in models[1:]:
+        have = {e.id for e in m.surface}
+        ids = [i for i in ids if i in have]
+    return ids
+
+
+def _frames_of(joints: dict[str, np.ndarray]) -> int:
+    for v in joints.values():
+        return np.asarray(v).shape[0]
+    raise BodyCalError("no joint positions given to pose the surface")
+
+
+def _rotation(bone, joints, bone_rotations, model, frames):
+    if bone in bone_rotations:
+        return np.asarray(bone_rotations[bone], float)
+    info = model.bones.get(bone)
+    b = sk.BONE_BY_NAME.get(bone)
+    if b is None or b.head not in joints or b.tail not in joints:
+        raise BodyCalError(f"no frame for bone '{bone}'", source=model.name,
+                           hint="pass its (F, 3, 3) rotation in bone_rotations")
+    right = info.right if info is not None and info.right is not None else np.array([1.0, 0.0, 0.0])
+    return frame_from_axes(np.asarray(joints[b.tail]) - np.asarray(joints[b.head]), np.broadcast_to(right, (frames, 3)))
+
+
+def _head_of(bone, model) -> str:
+    if bone in sk.BONE_BY_NAME:
+        return sk.BONE_BY_NAME[bone].head
+    info = model.bones.get(bone)
+    if info is None:
+        raise BodyCalError(f"unknown bone '{bone}'", source=model.name)
+    return info.head
+
+
+def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str, np.ndarray],
+                 element_ids: list[str] | None = None) -> PosedSurface:
+    """Place every surface element of `model` per frame.
+
+    `joints`: canonical joint -> (F, 3) world positions; `bone_rotations`: bone -> (F, 3, 3) bone
+    frames (a bone missing here gets frame_from_axes(tail - head, the model's rest `right`)).
+    Capsules run from their bone's head joint to its tail joint; sphere centres and mesh points are
+    local to their bones (origin at the bone's head joint). `element_ids` restricts and orders the
+    elements (default: all of the model's); an element whose joints are missing is left out and
+    named in `notes`."""
+    frames = _frames_of(joints)
+    joints = {k: np.asarray(v, float) for k, v in joints.items()}
+    wanted = element_ids if element_ids is not None else [e.id for e in model.surface]
+    by_id = {e.id: e for e in model.surface}
+    notes = []
+    caps, sphs, meshes = [], [], []
+    for eid in wanted:
+        e = by_id.get(eid)
+        if e is None:
+            raise BodyCalError(f"surface element '{eid}' is not in the body model", source=model.name)
+        if e.type == "capsule":
+            b = sk.BONE_BY_NAME.get(e.bone)
+            info = model.bones.get(e.bone)
+            if b is None or b.head not in joints or b.tail not in joints:
+                notes.append(f"{eid}: joints not posed, element left out")
+                continue
+            if info is None or info.radius_head is None or info.radius_tail is None:
+                notes.append(f"{eid}: no capsule radii, element left out")
+                continue
+            caps.append(e)
+        elif e.type == "sphere":
+            if _head_of(e.bone, model) not in joints or e.center is None or e.radius is None:
+                notes.append(f"{eid}: incomplete sphere, element left out")
+                continue
+            sphs.append(e)
+        else:
+            if not e.triangles or any(_head_of(p.bone, model) not in joints for p in e.points.values()):
+                notes.append(f"{eid}: mesh points not posed, element left out")
+                continue
+            meshes.append(e)
+    ordered = caps + sphs + meshes
+
+    def stack(arrs, shape):
+        return np.stack(arrs, axis=1) if arrs else np.zeros((frames, 0) + shape)
+
+    caps_head = stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
+    caps_tail = stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
+    caps_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in caps], (3, 3))
+    caps_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
+                           float).reshape(-1, 2)
+    sph_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in sphs], (3, 3))
+    sph_origin = stack([joints[_head_of(e.bone, model)] for e in sphs], (3,))
+    sph_local = np.array([e.center for e in sphs], float).reshape(-1, 3)
+    sph_center = sph_origin + np.einsum("fsij,sj->fsi", sph_rot, sph_local)
+    sph_radius = np.array([e.radius for e in sphs], float)
+
+    # Mesh points: one gather over every point of every mesh.
+    point_bones, point_local, tri_rows, tri_elem, slices = [], [], [], [], []
+    rot_cache: dict[str, np.ndarray] = {}
+
+    def rot_of(bone):
+        if bone not in rot_cache:
+            rot_cache[bone] = _rotation(bone, joints, bone_rotations, model, frames)
+        return rot_cache[bone]
+
+    for m, e in enumerate(meshes):
+        names = list(e.points)
+        base = len(point_bones)
+        point_bones += [e.points[n].bone for n in names]
+        point_local += [e.points[n].local for n in names]
+        start = len(tri_rows)
+        tri_rows += [[base + names.index(n) for n in t] for t in e.triangles]
+        tri_elem += [len(caps) + len(sphs) + m] * len(e.triangles)
+        slices.append((start, len(tri_rows)))
+    if point_bones:
+        ubones = list(dict.fromkeys(point_bones))
+        heads = np.stack([joints[_head_of(b, model)] for b in ubones], axis=1)
+        rots = np.stack([rot_of(b) for b in ubones], axis=1)
+        idx = np.array([ubones.index(b) for b in point_bones])
+        world = heads[:, idx] + np.einsum("fpij,pj->fpi", rots[:, idx], np.array(point_local, float))
+        tri = world[:, np.array(tri_rows)]  # (F, T, 3, 3)
+    else:
+        tri = np.zeros((frames, 0, 3, 3))
+    n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
+
+    mesh_head = stack([joints[_head_of(e.bone, model)] if e.bone else np.zeros((frames, 3)) for e in meshes], (3,))
+    mesh_rot = stack([rot_of(e.bone) if e.bone else np.broadcast_to(np.eye(3), (frames, 3, 3)) for e in meshes],
+                     (3, 3))
+    mesh_scale = np.array([model.bones[e.bone].length if e.bone in model.bones else 1.0 for e in meshes], float)
+
+    return PosedSurface(
+        element_ids=[e.id for e in ordered], element_bones=[e.bone for e in ordered],
+        element_roots=[element_root(e.id, e.bone) for e in ordered],
+        caps_head=caps_head, caps_tail=caps_tail, caps_rot=caps_rot, caps_radius=caps_radius,
+        sph_center=sph_center, sph_rot=sph_rot, sph_radius=sph_radius,
+        tri=tri, tri_normal=tri_normal, tri_elem=np.array(tri_elem, int), mesh_slices=slices,
+        mesh_head=mesh_head, mesh_rot=mesh_rot, mesh_scale=mesh_scale, joints=joints, notes=notes)
+
+
+# --- projection --------------------------------------------------------------------------------
+
+@dataclass
+class Projections:
+    """Projections of P target points on the E elements of a PosedSurface, per frame.
+
+    x, v: (F, P, E, 3) closest points and v = p - x; dist: (F, P, E) |v|; factor: (F, P, E) the
+    angular factor of the raw weight (capsule |sin(v, axis)|, sphere 1, triangle max(0, cos(v, n)));
+    surface coordinates: capsules `cap_t` (F, P, C) axial fraction and `cap_dir` (F, P, C, 3) unit
+    direction from the axis in the bone frame; spheres `sph_dir` (F, P, S, 3) in the bone frame;
+    meshes `tri_index` (F, P, M) the closest triangle (index into surface.tri) and `tri_bary`
+    (F, P, M, 3) its barycentric coordinates."""
+
+    x: np.ndarray
+    v: np.ndarray
+    dist: np.ndarray
+    factor: np.ndarray
+    cap_t: np.ndarray
+    cap_dir: np.ndarray
+    sph_dir: np.ndarray
+    tri_index: np.ndarray
+    tri_bary: np.ndarray
+
+
+def _unit(v, fallback):
+    n = np.sqrt(np.einsum("...i,...i->...", v, v))
+    ok = n > 1e-12
+    out = np.divide(v, n[..., None], out=np.broadcast_to(fallback, v.shape).copy(), where=ok[..., None])
+    return out, n
+
+
+def _closest_on_triangles(p, a, ab, ac):
+    """Ericson's closest point on triangle (Real-Time Collision Detection 5.1.5), branch-free over
+    arrays. p: (F, P, 1, 3); a, ab, ac: (F, 1, T, 3). Returns barycentrics (v, w) of b and c."""
+    ap = p - a
+    d1 = np.einsum("...i,...i->...", ab, ap)
+    d2 = np.einsum("...i,...i->...", ac, ap)
+    abab = np.einsum("...i,...i->...", ab, ab)
+    acac = np.einsum("...i,...i->...", ac, ac)
+    abac = np.einsum("...i,...i->...", ab, ac)
+    d3, d4 = d1 - abab, d2 - abac  # (p - b).ab, (p - b).ac
+    d5, d6 = d1 - abac, d2 - acac  # (p - c).ab, (p - c).ac
+    vc = d1 * d4 - d3 * d2
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        inside_v = np.where(denom != 0, vb / np.where(denom != 0, denom, 1), 0.0)
+        inside_w = np.where(denom != 0, vc / np.where(denom != 0, denom, 1), 0.0)
+        e_ab = d1 / np.where(d1 - d3 != 0, d1 - d3, 1)
+        e_ac = d2 / np.where(d2 - d6 != 0, d2 - d6, 1)
+        bc_den = (d4 - d3) + (d5 - d6)
+        e_bc = (d4 - d3) / np.where(bc_den != 0, bc_den, 1)
+    in_a = (d1 <= 0) & (d2 <= 0)
+    in_b = (d3 >= 0) & (d4 <= d3)
+    on_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    in_c = (d6 >= 0) & (d5 <= d6)
+    on_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    on_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    conds = [in_a, in_b, on_ab, in_c, on_ac, on_bc]
+    bv = np.select(conds, [0.0, 1.0, e_ab, 0.0, 0.0, 1 - e_bc], inside_v)
+    bw = np.select(conds, [0.0, 0.0, 0.0, 1.0, e_ac, e_bc], inside_w)
+    return bv, bw
+
+
+def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
+            ) -> Projections:
+    """Project (F, P, 3) points on every element of `surface` (paper 000, appendix C, Figure 12)."""
+    p = np.asarray(points, float)
+    F, P = p.shape[:2]
+    pe = p[:, :, None, :]
+    # Capsules: closest point on the axis segment pushed out by the radius interpolated along it.
+    a = surface.caps_head[:, None]
+    ab = surface.caps_tail[:, None] - a
+    abab = np.maximum(np.einsum("...i,...i->...", ab, ab), 1e-24)
+    t = np.clip(np.einsum("...i,...i->...", pe - a, ab) / abab, 0.0, 1.0)
+    c = a + t[..., None] * ab
+    rot = surface.caps_rot[:, None]
+    d, n = _unit(pe - c, rot[..., 0])  # on the axis: the bone's +X
+    r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
+    cap_x = c + r[..., None] * d
+    cap_v = (n - r)[..., None] * d
+    axis = ab / np.sqrt(abab)[..., None]
+    cos_ax = np.einsum("...i,...i->...", d, axis)  # v is parallel to d, also when v -> 0
+    cap_factor = np.sqrt(np.clip(1.0 - cos_ax * cos_ax, 0.0, 1.0))
+    cap_dir = np.einsum("...ji,...j->...i", rot, d)
+    # Spheres.
+    sc = surface.sph_center[:, None]
+    srot = surface.sph_rot[:, None]
+    sd, sn = _unit(pe - sc, srot[..., 1])
+    sph_x = sc + surface.sph_radius[:, None] * sd if sd.size else np.zeros((F, P, 0, 3))
+    sph_v = (sn - surface.sph_radius)[..., None] * sd
+    sph_dir = np.einsum("...ji,...j->...i", srot, sd)
+    # Meshes: closest triangle of each element.
+    M = len(surface.mesh_slices)
+    if M:
+        ta = surface.tri[:, None, :, 0]
+        tab = surface.tri[:, None, :, 1] - ta
+        tac = surface.tri[:, None, :, 2] - ta
+        bv, bw = _closest_on_triangles(pe, ta, tab, tac)
+        tx = ta + bv[..., None] * tab + bw[..., None] * tac  # (F, P, T, 3)
+        tv = pe - tx
+        td2 = np.einsum("...i,...i->...", tv, tv)
+        sel = np.stack([np.argmin(td2[..., s:e], axis=-1) + s for s, e in surface.mesh_slices], axis=-1)  # (F,P,M)
+        fi = np.arange(F)[:, None, None]
+        pi = np.arange(P)[None, :, None]
+        mesh_x = tx[fi, pi, sel]
+        mesh_v = tv[fi, pi, sel]
+        bv, bw = bv[fi, pi, sel], bw[fi, pi, sel]
+        tri_bary = np.stack([1.0 - bv - bw, bv, bw], axis=-1)
+        normal = surface.tri_normal[fi, sel]
+        mesh_factor = _triangle_factor(mesh_v, normal, penetration_tolerance)
+    else:
+        sel = np.zeros((F, P, 0), int)
+        mesh_x = mesh_v = tri_bary = np.zeros((F, P, 0, 3))
+        mesh_factor = np.zeros((F, P, 0))
+    x = np.concatenate([cap_x, sph_x, mesh_x], axis=2)
+    v = np.concatenate([cap_v, sph_v, mesh_v], axis=2)
+    dist = np.sqrt(np.einsum("...i,...i->...", v, v))
+    factor = np.concatenate([cap_factor, np.ones(sph_x.shape[:3]), mesh_factor], axis=2)
+    return Projections(x, v, dist, factor, t, cap_dir, sph_dir, sel, tri_bary)
+
+
+def _triangle_factor(v, normal, tol):
+    """max(0, cos(v, n)) (paper 000, appendix C, raw contributions). Decision: the angle is taken
+    from the triangle plane shifted `tol` into the body, so a target that sinks a few millimetres
+    into the crude mesh (calibration noise) keeps its contact weight instead of dropping to zero;
+    at v = 0 the factor is 1 (a target on the surface)."""
+    w = v + tol * normal
+    wn = np.sqrt(np.einsum("...i,...i->...", w, w))
+    cos = np.divide(np.einsum("...i,...i->...", w, normal), wn, out=np.ones_like(wn), where=wn > 1e-12)
+    return np.maximum(cos, 0.0)
+
+
+def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
+    """x'_ij: the user's projections re-posed on the avatar's elements from their surface
+    coordinates (capsule: axial fraction + direction in the bone frame; sphere: direction;
+    triangle: barycentric). A mesh whose triangles differ between user and avatar falls back to
+    the element bone's frame, scaled by the bone length ratio. Returns (F, P, E, 3)."""
+    F, P = proj.x.shape[:2]
+    C, S, M = avatar.counts
+    a = avatar.caps_head[:, None]
+    ab = avatar.caps_tail[:, None] - a
+    t = proj.cap_t
+    r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
+    d = np.einsum("...ij,...j->...i", avatar.caps_rot[:, None], proj.cap_dir)
+    cap = a + t[..., None] * ab + r[..., None] * d
+    sph = avatar.sph_center[:, None] + avatar.sph_radius[:, None] * np.einsum(
+        "...ij,...j->...i", avatar.sph_rot[:, None], proj.sph_dir)
+    if M:
+        same = [(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices, avatar.mesh_slices)]
+        # Map the user's triangle index to the avatar's (same position inside the element).
+        offset = np.array([as_ - us for (us, _), (as_, _) in zip(user.mesh_slices, avatar.mesh_slices)])
+        idx = np.where(np.array(same), proj.tri_index + offset, avatar.mesh_slices[0][0])
+        fi = np.arange(F)[:, None, None]
+        tri = avatar.tri[fi, idx]  # (F, P, M, 3, 3)
+        mesh = np.einsum("fpmk,fpmki->fpmi", proj.tri_bary, tri)
+        if not all(same):
+            bad = [m for m, ok in enumerate(same) if not ok]
+            xm = proj.x[:, :, C + S:][:, :, bad]
+            local = np.einsum("fmji,fpmj->fpmi", user.mesh_rot[:, bad], xm - user.mesh_head[:, None, bad])
+            scale = avatar.mesh_scale[bad] / np.maximum(user.mesh_scale[bad], 1e-9)
+            mesh[:, :, bad] = avatar.mesh_head[:, None, bad] + np.einsum(
+                "fmij,fpmj->fpmi", avatar.mesh_rot[:, bad], local * scale[:, None])
+    else:
+        mesh = np.zeros((F, P, 0, 3))
+    return np.concatenate([cap, sph, mesh], axis=2)
+
+
+# --- weights -----------------------------------------------------------------------------------
+
+def raw_weights(proj: Projections, heights: np.ndarray, exclude: np.ndarray | None = None):
+    """Raw contributions Λ (paper 000, appendix C): factor / |v|^2 per element, 1 / h^2 for the
+    floor, each capped at 1 / MIN_DISTANCE^2. `exclude` (P, E) bool zeroes own-chain elements.
+    Returns (Λ (F, P, E), Λ_floor (F, P))."""
+    lam = proj.factor / np.maximum(proj.dist * proj.dist, MIN_DISTANCE ** 2)
+    if exclude is not None:
+        lam = np.where(exclude, 0.0, lam)
+    floor = 1.0 / np.maximum(heights * heights, MIN_DISTANCE ** 2)
+    return lam, floor
+
+
+def normalise(lam: np.ndarray, lam_floor: np.ndarray):
+    """The two normalisations of eq. 1: λ over the elements without the floor, λg with it.
+    Returns (λ (F, P, E), λg (F, P, E), λg_floor (F, P)); λ is 0 where no element has weight."""
+    s = lam.sum(-1)
+    sg = s + lam_floor
+    lam_n = np.divide(lam, s[..., None], out=np.zeros_like(lam), where=s[..., None] > 0)
+    return lam_n, lam / sg[..., None], lam_floor / sg
+
+
+# --- retro-projection ----------------------------------------------------------------------------
+
+@dataclass
+class _Plan:
+    exclude: np.ndarray  # (P, E)
+    chain_p: np.ndarray  # (N,) target index of each chain
+    chain_e: np.ndarray  # (N,) element index
+    chain_root: np.ndarray  # (N,) index into GRAPH_NODES of the element's root
+    entry_bone: np.ndarray  # (K,) GRAPH_BONES index of each path entry, chains concatenated
+    bounds: np.ndarray  # (N + 1,) chain n owns entries bounds[n]:bounds[n+1]
+    floor_bone: list[np.ndarray]  # per side: (K_s,) entries of the paths ankle_s -> target
+    floor_bounds: list[np.ndarray]  # per side: (P + 1,)
+
+
+@lru_cache(maxsize=64)
+def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tuple[str, ...]) -> _Plan:
+    """Everything frame-independent: exclusions and kinematic paths as index arrays (paper 000,
+    appendix C: "chains are pre-computed and stored so that the tree search is not performed in
+    every frame")."""
+    P, E = len(target_names), len(element_ids)
+    exclude = np.zeros((P, E), bool)
+    cp, ce, cr, entries, bounds = [], [], [], [], [0]
+    for p, name in enumerate(target_names):
+        own = own_chain_elements(name)
+        for e, eid in enumerate(element_ids):
+            if eid in own:
+                exclude[p, e] = True
+                continue
+            path = kinematic_path(roots[e], name)
+            cp.append(p)
+            ce.append(e)
+            cr.append(GRAPH_NODES.index(roots[e]))
+            entries += path
+            bounds.append(len(entries))
+    floor_bone, floor_bounds = [], []
+    for s in sk.SIDES:
+        ent, bnd = [], [0]
+        for name in target_names:
+            ent += kinematic_path(f"ankle_{s}", name)
+            bnd.append(len(ent))
+        floor_bone.append(np.array(ent, int))
+        floor_bounds.append(np.array(bnd, int))
+    return _Plan(exclude, np.array(cp, int), np.array(ce, int), np.array(cr, int), np.array(entries, int),
+                 np.array(bounds, int), floor_bone, floor_bounds)
+
+
+def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int) -> np.ndarray:
+    """(F, NB, 3) vectors of GRAPH_BONES (from `bones` if given, else from the surface's joints)."""
+    out = np.zeros((F, len(GRAPH_BONES), 3))
+    for i, name in enumerate(GRAPH_BONES):
+        if bones is not None and name in bones:
+            out[:, i] = bones[name]
+            continue
+        b = sk.BONE_BY_NAME[name]
+        if b.head in surface.joints and b.tail in surface.joints:
+            out[:, i] = surface.joints[b.tail] - surface.joints[b.head]
+    return out
+
+
+def _node_positions(surface: PosedSurface, F: int) -> np.ndarray:
+    out = np.zeros((F, len(GRAPH_NODES), 3))
+    for i, name in enumerate(GRAPH_NODES):
+        if name in surface.joints:
+            out[:, i] = surface.joints[name]
+    return out
+
+
+def _segment_sums(values: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Sums of values[:, bounds[n]:bounds[n+1]] for every n (empty ranges give 0)."""
+    cs = np.zeros((values.shape[0], values.shape[1] + 1))
+    np.cumsum(values, axis=1, out=cs[:, 1:])
+    return cs[:, bounds[1:]] - cs[:, bounds[:-1]]
+
+
+def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
+    need = {GRAPH_NODES[i] for i in np.unique(plan.chain_root)} | {"ankle_l", "ankle_r"}
+    for idx in np.unique(np.concatenate([plan.entry_bone, *plan.floor_bone])):
+        b = sk.BONE_BY_NAME[GRAPH_BONES[idx]]
+        need |= {b.head, b.tail}
+    missing = sorted(need - set(surface.joints))
+    if missing:
+        raise BodyCalError(f"the {who} pose lacks joints needed by the egocentric mapping: {', '.join(missing[:6])}",
+                           hint="pose every joint of the kinematic paths (pose_surface joints)")
+
+
+def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
+                    avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
+                    avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True,
+                    chunk: int = 512, penetration_tolerance: float = PENETRATION_TOLERANCE,
+                    details: dict | None = None) -> np.ndarray:
+    """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
+
+    user_pts: (F, P, 3) the user's target positions, one column per name of `target_names`
+    (canonical joints on the kinematic tree: wrists, elbows, ankles, knees, fingertips, skull base).
+    user_surface / avatar_surface: the two bodies posed for the same F frames with the same
+    element_ids (the avatar posed by FK from the user's bone rotations, DESIGN.md §1 step 2).
+    user_bones / avatar_bones: optional bone -> (F, 3) vectors (tail - head) overriding the ones
+    derived from the posed joints; only the user's directions and the avatar's lengths are used
+    (τ' = the avatar's bone lengths along the user's current bone directions).
+    floor: include the floor contribution (the vertical singularity handled as eq. 1).
+    details: if a dict is given, it receives the weights of the last chunk ("lam", "lam_g",
+    "lam_g_floor") for inspection.
+
+    Returns (F, P, 3): the avatar's targets p'_j. Frames are processed in chunks of `chunk`."""
+    pts = np.asarray(user_pts, float)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] != len(target_names):
+        raise BodyCalError(f"targets must be (F, {len(target_names)}, 3), got {pts.shape}")
+    if user_surface.element_ids != avatar_surface.element_ids:
+        raise BodyCalError("user and avatar surfaces have different elements",
+                           hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+    F = pts.shape[0]
+    if user_surface.frames != F or avatar_surface.frames != F:
+        raise BodyCalError(f"targets have {F} frames, user surface {user_surface.frames}, "
+                           f"avatar surface {avatar_surface.frames}")
+    plan = _plan(tuple(target_names), tuple(user_surface.element_ids), tuple(user_surface.element_roots))
+    _check_joints(user_surface, plan, target_names, "user")
+    _check_joints(avatar_surface, plan, target_names, "avatar")
+    out = np.empty_like(pts)
+    for s in range(0, F, max(1, chunk)):
+        e = min(F, s + max(1, chunk))
+        ub = None if user_bones is None else {k: np.asarray(v)[s:e] for k, v in user_bones.items()}
+        ab = None if avatar_bones is None else {k: np.asarray(v)[s:e] for k, v in avatar_bones.items()}
+        out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e), ub, ab,
+                                   floor, penetration_tolerance, details)
+    return out
+
+
+def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ubones, abones, floor, tol, details):
+    F, P = p.shape[:2]
+    proj = project(p, us, tol)
+    h = p[..., 2]
+    lam_raw, floor_raw = raw_weights(proj, h, plan.exclude)
+    if not floor:
+        floor_raw = np.zeros_like(floor_raw)
+    lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
+    x_av = repose(proj, us, av)
+
+    # Kinematic normalisation τ, τ' (eq. 2, absolute values) for every (target, element) chain.
+    ubv = _bone_vectors(us, ubones, F)
+    ulen = np.sqrt(np.einsum("fbi,fbi->fb", ubv, ubv))
+    udir = np.divide(ubv, ulen[..., None], out=np.zeros_like(ubv), where=ulen[..., None] > 1e-12)
+    abv = _bone_vectors(av, abones, F)
+    alen = np.sqrt(np.einsum("fbi,fbi->fb", abv, abv))
+    vhat, _ = _unit(proj.v[:, plan.chain_p, plan.chain_e], 0.0)  # (F, N, 3)
+    entry_chain = np.repeat(np.arange(len(plan.chain_p)), np.diff(plan.bounds))
+    dots = np.abs(np.einsum("fki,fki->fk", vhat[:, entry_chain], udir[:, plan.entry_bone]))
+    tau = _segment_sums(dots * ulen[:, plan.entry_bone], plan.bounds)
+    tau_a = _segment_sums(dots * alen[:, plan.entry_bone], plan.bounds)
+    un = _node_positions(us, F)[:, plan.chain_root]
+    an = _node_positions(av, F)[:, plan.chain_root]
+    tau += np.abs(np.einsum("fni,fni->fn", vhat, proj.x[:, plan.chain_p, plan.chain_e] - un))
+    tau_a += np.abs(np.einsum("fni,fni->fn", vhat, x_av[:, plan.chain_p, plan.chain_e] - an))
+    ratio = np.ones(lam.shape)
+    ratio[:, plan.chain_p, plan.chain_e] = np.divide(tau_a, tau, out=np.ones_like(tau), where=tau > 1e-12)
+
+    est = x_av + proj.v * ratio[..., None]
+    horizontal = np.einsum("fpe,fpei->fpi", lam, est[..., :2])
+    # No element with weight (all excluded): keep the user's horizontal position.
+    none = lam.sum(-1) <= 0
+    horizontal = np.where(none[..., None], p[..., :2], horizontal)
+    vertical = np.einsum("fpe,fpe->fp", lam_g, est[..., 2])
+    if floor:
+        # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
+        ratios = []
+        for side in range(2):
+            ent, bnd = plan.floor_bone[side], plan.floor_bounds[side]
+            uz = np.abs(udir[:, ent, 2])
+            ankle = sk.SIDES[side]
+            tf = _segment_sums(uz * ulen[:, ent], bnd) + np.abs(us.joints[f"ankle_{ankle}"][:, 2])[:, None]
+            tfa = _segment_sums(uz * alen[:, ent], bnd) + np.abs(av.joints[f"ankle_{ankle}"][:, 2])[:, None]
+            ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
+        left_supports = us.joints["ankle_l"][:, 2] <= us.joints["ankle_r"][:, 2]
+        fratio = np.where(left_supports[:, None], ratios[0], ratios[1])
+        vertical = vertical + h * fratio * lam_gf
+    if details is not None:
+        details.update(lam=lam, lam_g=lam_g, lam_g_floor=lam_gf, ratio=ratio)
+    return np.concatenate([horizontal, vertical[..., None]], axis=-1)

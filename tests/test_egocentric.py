@@ -1,0 +1,152 @@
+"""Egocentric mapping invariants (paper 000, appendix C; DESIGN.md §5)."""
+
+import numpy as np
+import pytest
+import retarget_bodies as rb
+
+from bodycal_addon.errors import BodyCalError
+from bodycal_addon.retarget import egocentric as eg
+
+TARGETS = ["wrist_l", "wrist_r", "elbow_l", "elbow_r", "ankle_l", "ankle_r", "knee_l", "knee_r", "skull_base",
+           "tip_thumb_l", "tip_index_l", "tip_middle_r", "tip_pinky_r"]
+
+
+@pytest.fixture(scope="module")
+def user():
+    return rb.make_body_model()
+
+
+def _posed(model, frames, seed, scale=1.0, noise=0.05):
+    joints, rots = rb.pose_joints(model, frames, np.random.default_rng(seed), noise=noise)
+    return joints, rots
+
+
+def _targets(joints, seed, spread=0.06):
+    rng = np.random.default_rng(seed + 100)
+    pts = np.stack([joints[n] for n in TARGETS], axis=1)
+    return pts + rng.normal(scale=spread, size=pts.shape)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_avatar_equal_to_user_maps_every_target_onto_itself(user, seed):
+    joints, rots = _posed(user, 30, seed)
+    us = eg.pose_surface(user, joints, rots)
+    pts = _targets(joints, seed)
+    out = eg.retarget_points(pts, TARGETS, us, us, chunk=7)
+    np.testing.assert_allclose(out, pts, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("s", [1.35, 0.62])
+def test_uniformly_scaled_avatar_scales_every_target(user, s):
+    joints, rots = _posed(user, 30, 3)
+    avatar = rb.scale_model(user, s)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * s for k, v in joints.items()}, rots)
+    pts = _targets(joints, 3)
+    out = eg.retarget_points(pts, TARGETS, us, av)
+    np.testing.assert_allclose(out, s * pts, atol=1e-9, rtol=0)
+
+
+def test_scaled_avatar_is_not_a_no_op(user):
+    # Guard for the test above: the mapping must actually move the points.
+    joints, rots = _posed(user, 5, 4)
+    avatar = rb.scale_model(user, 1.5)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * 1.5 for k, v in joints.items()}, rots)
+    pts = _targets(joints, 4)
+    assert np.abs(eg.retarget_points(pts, TARGETS, us, av) - pts).max() > 0.1
+
+
+def _hand_on_belly(model, belly_point):
+    """Standing pose with the right hand moved so its middle fingertip is at `belly_point`."""
+    j = {k: v.world.copy() for k, v in model.joints.items()}
+    shift = belly_point - j["tip_middle_r"]
+    for k in list(j):
+        if k.endswith("_r") and (k.startswith(("wrist", "mcp", "pip", "dip", "tip"))):
+            j[k] = j[k] + shift
+    j["elbow_r"] = 0.5 * (j["shoulder_r"] + j["wrist_r"]) + [-0.08, 0.0, -0.05]
+    return j
+
+
+def test_fingertip_on_the_belly_lands_on_a_much_bigger_belly(user):
+    big = rb.make_body_model(belly=0.15)
+    rest = {k: v.world[None] for k, v in user.joints.items()}
+    rights = {b: i.right[None] for b, i in user.bones.items()}
+    us0 = eg.pose_surface(user, rest, rb.bone_frames(rest, rights))
+    tri = us0.tri[0, us0.mesh_slices[0][0] + 3]  # belly_ul, belly_c2, belly_c1
+    target = tri.mean(axis=0)
+    j = {k: v[None] for k, v in _hand_on_belly(user, target).items()}
+    rots = rb.bone_frames(j, rights)
+    us = eg.pose_surface(user, j, rots)
+    av = eg.pose_surface(big, j, rots)  # same skeleton, the avatar's belly 15 cm further forward
+    names = ["tip_middle_r", "wrist_r"]
+    pts = np.stack([j[n] for n in names], axis=1)
+    out = eg.retarget_points(pts, names, us, av)
+    before = eg.project(pts[:, :1], av)
+    after = eg.project(out[:, :1], av)
+    torso = av.element_ids.index("mesh:torso")
+    assert before.dist[0, 0, torso] > 0.1  # without the mapping the fingertip would be deep inside
+    assert after.dist[0, 0, torso] < 1e-3
+
+
+def test_floor_height_target_keeps_its_horizontal_position(user):
+    joints, rots = _posed(user, 4, 5, noise=0.0)
+    s = 1.25
+    avatar = rb.scale_model(user, s)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * s for k, v in joints.items()}, rots)
+    pts = np.stack([joints["ankle_l"], joints["tip_index_r"]], axis=1)
+    pts[:, 0, 2] = 0.0  # exactly on the floor: the floor's weight is at its cap
+    out = eg.retarget_points(pts, ["ankle_l", "tip_index_r"], us, av)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out[:, 0, :2], s * pts[:, 0, :2], atol=1e-9)
+    np.testing.assert_allclose(out[:, 0, 2], 0.0, atol=1e-9)
+    assert np.all(np.linalg.norm(out[:, 0, :2], axis=-1) > 0.05)  # not sent to the origin
+
+
+def test_degenerate_targets_give_finite_results(user):
+    joints, rots = _posed(user, 3, 6, noise=0.0)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(rb.make_body_model(belly=0.05), joints, rots)
+    on_axis = 0.5 * (joints["thigh_l" and "hip_r"] + joints["knee_r"])  # on the right thigh's axis
+    on_surface = us.tri[:, 2].mean(axis=1)  # a torso triangle's centroid
+    pts = np.stack([np.zeros_like(on_axis), on_axis, on_surface, joints["pelvis"]], axis=1)
+    names = ["wrist_l", "wrist_r", "tip_index_l", "skull_base"]
+    out = eg.retarget_points(pts, names, us, av)
+    assert np.all(np.isfinite(out))
+    proj = eg.project(pts, us)
+    assert np.all(np.isfinite(proj.x)) and np.all(np.isfinite(proj.factor))
+
+
+def test_own_chain_elements_get_no_weight(user):
+    joints, rots = _posed(user, 2, 7)
+    us = eg.pose_surface(user, joints, rots)
+    pts = _targets(joints, 7)
+    d = {}
+    eg.retarget_points(pts, TARGETS, us, us, details=d)
+    ids = us.element_ids
+    w = TARGETS.index("wrist_l")
+    assert d["lam"][:, w, ids.index("capsule:forearm_l")].max() == 0.0
+    assert d["lam"][:, w, ids.index("capsule:index_2_l")].max() == 0.0
+    assert d["lam"][:, w, ids.index("capsule:forearm_r")].min() > 0.0
+    t = TARGETS.index("tip_index_l")
+    assert d["lam"][:, t, ids.index("capsule:index_3_l")].max() == 0.0
+    assert d["lam"][:, t, ids.index("capsule:thumb_3_l")].max() == 0.0  # the same hand: its shape, not a contact
+    assert d["lam"][:, t, ids.index("capsule:thumb_3_r")].min() > 0.0
+    np.testing.assert_allclose(d["lam"].sum(-1), 1.0)
+    np.testing.assert_allclose(d["lam_g"].sum(-1) + d["lam_g_floor"], 1.0)
+
+
+def test_kinematic_paths_use_the_shortcut_bones():
+    path = [eg.GRAPH_BONES[i] for i in eg.kinematic_path("shoulder_r", "wrist_l")]
+    assert path == ["clavicle_r", "clavicle_l", "upperarm_l", "forearm_l"]
+    path = [eg.GRAPH_BONES[i] for i in eg.kinematic_path("knee_l", "skull_base")]
+    assert path == ["thigh_l", "hip_l", "shortcut_sacrum_clavicles", "shortcut_clavicles_head"]
+
+
+def test_mismatched_surfaces_are_a_clear_error(user):
+    joints, rots = _posed(user, 2, 8)
+    us = eg.pose_surface(user, joints, rots)
+    part = eg.pose_surface(user, joints, rots, element_ids=us.element_ids[:-1])
+    with pytest.raises(BodyCalError, match="different elements"):
+        eg.retarget_points(np.zeros((2, 1, 3)), ["wrist_l"], us, part)
