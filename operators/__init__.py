@@ -2,9 +2,23 @@
 
 import bpy
 
-from . import sample_avatars
+from . import recording, sample_avatars
 
-_MODULES = (sample_avatars,)
+_MODULES = (sample_avatars, recording)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
-register, unregister = bpy.utils.register_classes_factory(CLASSES)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+
+
+def register():
+    _register_classes()
+    for m in _MODULES:  # menu entries (e.g. File > Import), after the classes they show
+        if hasattr(m, "register_menus"):
+            m.register_menus()
+
+
+def unregister():
+    for m in reversed(_MODULES):
+        if hasattr(m, "unregister_menus"):
+            m.unregister_menus()
+    _unregister_classes()

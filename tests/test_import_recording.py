@@ -1,0 +1,132 @@
+"""Recording -> Blender scene: animated empties written with foreach_set, timeline markers for the
+steps, fps and frame range, the recording stored on the scene and rebuilt after save/reload; the
+File > Import operator and its errors."""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+import numpy as np
+import pytest
+from recording_fixtures import recording_doc, tpose_recording
+
+from bodycal_addon import recording_io as rio
+from bodycal_addon.blender import recording_scene as rs
+from bodycal_addon.errors import BodyCalError
+from bodycal_addon.recording import Segment
+
+
+def _recording():
+    rec = tpose_recording(leds=True, seconds=3.0)
+    rec.valid[40:80, 2] = False  # a long dropout stays untracked
+    rec.marker_valid[100:130, 1] = False
+    # Steps without overlaps (start markers end at the next marker), with a gap before `motion`.
+    rec.segments = [Segment("tpose", 0.2, 1.0), Segment("touch", 1.1, 1.3, point="wrist_top_l", by="index_tip_r"),
+                    Segment("motion", 1.5, 2.9)]
+    return rio.finish_recording(rec, fill_gaps_s=0.0)
+
+
+def _keys(obj, path, index):
+    fc = rs._fcurves_of(obj)[(path, index)]
+    return rs._read(fc)
+
+
+def test_import_builds_animated_empties_markers_and_range():
+    rec = _recording()
+    scene = bpy.context.scene
+    coll = rs.import_recording_to_scene(rec, scene)
+    assert coll.name == rec.name
+    assert len(coll.objects) == len(rec.devices) + len(rec.marker_names)
+    assert scene.render.fps == 90 and scene.render.fps_base == pytest.approx(1.0)
+    assert (scene.frame_start, scene.frame_end) == (1, rec.frame_count)
+    head = next(o for o in coll.objects if o.get("bodycal_device") == rec.devices[0].name)
+    assert head.rotation_mode == "QUATERNION"
+    frames, x = _keys(head, "location", 0)
+    assert len(frames) == rec.frame_count
+    np.testing.assert_allclose(frames, 1 + np.arange(rec.frame_count), atol=1e-3)
+    np.testing.assert_allclose(x, rec.positions[:, 0, 0], atol=1e-6)
+    _, w = _keys(head, "rotation_quaternion", 0)
+    np.testing.assert_allclose(np.abs(w), np.abs(rec.rotations[:, 0, 0]), atol=1e-6)
+    dropped = next(o for o in coll.objects if o.get("bodycal_device") == rec.devices[2].name)
+    _, tracked = _keys(dropped, '["bodycal_tracked"]', 0)
+    assert tracked[:40].all() and not tracked[40:80].any() and tracked[80:].all()
+    # Evaluating the scene at a frame gives the recorded pose.
+    scene.frame_set(200)
+    np.testing.assert_allclose(np.array(head.location), rec.positions[199, 0], atol=1e-5)
+    names = [(m.name, m.frame) for m in sorted(scene.timeline_markers, key=lambda m: m.frame)]
+    assert names[0] == ("bodycal:tpose", 19)
+    assert ("bodycal:touch:wrist_top_l:index_tip_r", 100) in names
+    assert ("bodycal:end", 118) in names
+    assert ("bodycal:motion", 136) in names
+    assert rs.scene_recording_collection(scene) == coll
+
+
+def test_rebuild_after_save_and_reload_is_exact_to_float32(tmp_path):
+    rec = _recording()
+    rs.import_recording_to_scene(rec, bpy.context)
+    path = tmp_path / "rec.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    with pytest.raises(BodyCalError, match="no recording"):
+        rs.recording_from_scene(bpy.context.scene)
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    back = rs.recording_from_scene(bpy.context.scene)
+    assert [d.name for d in back.devices] == [d.name for d in rec.devices]
+    assert [d.role for d in back.devices] == [d.role for d in rec.devices]
+    assert [d.kind for d in back.devices] == [d.kind for d in rec.devices]
+    assert back.marker_names == rec.marker_names
+    np.testing.assert_array_equal(back.time, rec.time)
+    f32 = np.finfo(np.float32).eps
+    np.testing.assert_allclose(back.positions, rec.positions, atol=4 * f32 * 2.0)
+    same_sign = np.sign((back.rotations * rec.rotations).sum(-1, keepdims=True))
+    np.testing.assert_allclose(back.rotations * same_sign, rec.rotations, atol=4 * f32)
+    np.testing.assert_array_equal(back.valid, rec.valid)
+    np.testing.assert_allclose(back.markers, rec.markers, atol=4 * f32 * 2.0)
+    np.testing.assert_array_equal(back.marker_valid, rec.marker_valid)
+    assert [(s.label, s.start, s.end) for s in back.segments] == \
+        [(s.label, s.start, s.end) for s in sorted(rec.segments, key=lambda s: s.start)]
+
+
+def test_edited_timeline_markers_are_the_steps():
+    rec = _recording()
+    scene = bpy.context.scene
+    rs.import_recording_to_scene(rec, scene)
+    tpose = next(m for m in scene.timeline_markers if m.name == "bodycal:tpose")
+    tpose.frame = 10
+    scene.timeline_markers.new("bodycal:stand", frame=50)
+    scene.timeline_markers.new("not ours", frame=60)  # other markers are ignored
+    back = rs.recording_from_scene(scene)
+    tp = back.segments_of("tpose")[0]
+    assert tp.start == pytest.approx(9 / 90) and tp.end == pytest.approx(49 / 90)
+    st = back.segments_of("stand")[0]
+    assert st.start == pytest.approx(49 / 90) and st.end == pytest.approx(90 / 90)  # to the old tpose's end
+    scene.timeline_markers.new("bodycal:dance", frame=70)
+    with pytest.raises(BodyCalError, match="names no step"):
+        rs.recording_from_scene(scene)
+
+
+def test_operator_imports_file_and_menu_entry_exists(tmp_path):
+    rec = tpose_recording(seconds=2.0)
+    path = tmp_path / "session.bcrec.json"
+    path.write_text(json.dumps(recording_doc(rec)))
+    assert bpy.ops.bodycal.import_recording(filepath=str(path), fill_gaps=0.05) == {"FINISHED"}
+    coll = rs.scene_recording_collection(bpy.context.scene)
+    assert coll is not None and len(coll.objects) == len(rec.devices)
+    menu = bpy.types.TOPBAR_MT_file_import._dyn_ui_initialize()
+    assert any(getattr(f, "__name__", "") == "menu_import" for f in menu)
+
+
+def test_operator_error_is_one_line_and_writes_nothing(tmp_path):
+    doc = recording_doc(tpose_recording(seconds=1.0))
+    doc["poses"]["head"][5][3:] = [0.0, 0.0, 0.0, 0.0]
+    path = tmp_path / "bad.bcrec.json"
+    path.write_text(json.dumps(doc))
+    before = (len(bpy.data.objects), len(bpy.data.collections), len(bpy.data.actions))
+    with pytest.raises(RuntimeError) as info:
+        bpy.ops.bodycal.import_recording(filepath=str(path))
+    msg = str(info.value)
+    assert "bad.bcrec.json" in msg and "poses.head" in msg and "frame 5" in msg and "zero" in msg
+    assert "Traceback" not in msg
+    assert (len(bpy.data.objects), len(bpy.data.collections), len(bpy.data.actions)) == before
+    assert rs.scene_recording_collection(bpy.context.scene) is None
