@@ -15,7 +15,7 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 
 | element / point         | origin                                   | direction                       |
 |-------------------------|------------------------------------------|---------------------------------|
-| capsule:<bone>          | axis at t = 0.25, 0.375, .., 0.75        | 12 rays around, ⟂ the bone      |
+| capsule:<bone>          | axis at 5 stations clear of the joints   | 12 rays around, ⟂ the bone      |
 | head top (sizes head)   | skull_base + U * spine length            | -U (first hit from outside)     |
 | head centre c           | skull_base + U * (head height / 2)       | -                               |
 | sphere:skull            | c                                        | back (az 180 ± 30, 60) x el 0..60, and U |
@@ -57,7 +57,7 @@ from ..errors import BodyCalError
 from ..surface_fit import linear_radii, robust_keep, sphere_fit
 from . import avatar_rig
 
-CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)
+CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)  # count; the span adapts (see below)
 CAPSULE_RAYS = 12
 MIN_CAPSULE_HITS = 0.5  # fraction of a capsule's rays that must hit
 
@@ -206,19 +206,28 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
         h, t = J[sk.BONE_BY_NAME[bone].head], J[sk.BONE_BY_NAME[bone].tail]
         R = frames[bone]
         length = np.linalg.norm(t - h)
+        dirs = [np.cos(a) * R[:, 0] + np.sin(a) * R[:, 2] for a in angles]
+
+        def ring(st, h=h, t=t, dirs=dirs, length=length):
+            o = h + st * (t - h)
+            return np.array([r[1] for d in dirs if (r := caster.cast(o, d, max_dist=length)) is not None])
+
+        # Stations keep clear of the joints by 1.6 probe radii: the neighbouring part's surface
+        # (a thicker parent's rounded end, the next phalanx, the torso at the hip) reaches about
+        # that far. A fingertip has no neighbour beyond its tail.
+        probe = ring(0.5)
+        margin = 0.25
+        if len(probe) >= 3:
+            margin = float(np.clip(1.6 * probe[robust_keep(probe)].mean() / length, 0.1, 0.45))
+        tail_margin = min(margin, 0.25) if bone.split("_")[1:2] == ["3"] else margin
+        stations = np.linspace(margin, 1.0 - tail_margin, len(CAPSULE_STATIONS))
         station_r, station_t, spreads = [], [], []
         n_hit = n_rej = 0
-        for st in CAPSULE_STATIONS:
-            o = h + st * (t - h)
-            ds = []
-            for a in angles:
-                r = caster.cast(o, np.cos(a) * R[:, 0] + np.sin(a) * R[:, 2], max_dist=length)
-                if r is not None:
-                    ds.append(r[1])
+        for st in stations:
+            ds = ring(st)
             n_hit += len(ds)
             if len(ds) < 3:
                 continue
-            ds = np.array(ds)
             keep = robust_keep(ds)
             n_rej += int((~keep).sum())
             station_r.append(ds[keep].mean())

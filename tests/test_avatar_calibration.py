@@ -1,0 +1,226 @@
+"""Avatar surface calibration by raycasting (DESIGN.md §4) against known truth: the procedural
+avatar's exact shapes (capsules, torso ellipsoid, skull sphere, palm and sole boxes) and the
+shared MakeHuman avatars."""
+
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+from mathutils import Matrix
+
+from bodycal_addon import skeleton as sk
+from bodycal_addon import surface_layout as sl
+from bodycal_addon.blender import avatar_calibration as ac
+from bodycal_addon.errors import BodyCalError
+from sample_rigs import build_procedural_avatar, load_glb_avatar
+from sample_rigs.procedural import torso_surface_distance
+
+TOL = 0.002  # metres: the issue's "within 2 mm of the known truth"
+CANON = {"forearm": "lowerarm", "shin": "calf"}
+
+
+def _proc_bone(canonical: str) -> str:
+    """Procedural (Unreal-style) bone name of a canonical capsule bone."""
+    parts = canonical.split("_")
+    if parts[0] in sk.FINGERS:
+        return f"{parts[0]}_{int(parts[1]):02d}_{parts[2]}"
+    return f"{CANON.get(parts[0], parts[0])}_{parts[1]}"
+
+
+def _world(model, element_id, point):
+    e = model.element(element_id)
+    p = e.points[point]
+    b = sk.BONE_BY_NAME[p.bone]
+    h, t = model.joints[b.head].world, model.joints[b.tail].world
+    return h + sl.bone_frame(h, t, model.bones[p.bone].right) @ p.local
+
+
+def _skull_world(model):
+    e = model.element("sphere:skull")
+    h, t = model.joints["skull_base"].world, model.joints["head"].world
+    return h + sl.bone_frame(h, t, model.bones["head"].right) @ e.center, e.radius
+
+
+def _check_truth(model, spec, scale=1.0):
+    truth = spec.truth
+    # Capsules: every limb bone and phalanx. thumb_1's head half sits inside the palm box, so the
+    # mesh there is the box, not the capsule: only its tail radius is compared.
+    for bone in sl.CAPSULE_BONES:
+        r = truth["capsules"][_proc_bone(bone)]["radius"] * scale
+        info = model.bones[bone]
+        assert abs(info.radius_tail - r) < TOL, (bone, info.radius_tail, r)
+        if not bone.startswith("thumb_1"):
+            assert abs(info.radius_head - r) < TOL, (bone, info.radius_head, r)
+    centre, radius = _skull_world(model)
+    assert np.linalg.norm(centre - truth["skull"]["center"] * 1) < TOL
+    assert abs(radius - truth["skull"]["radius"]) < TOL
+    torso = np.array([_world(model, "mesh:torso", p) for p in sl.TORSO_POINTS])
+    d = torso_surface_distance(torso, truth["torso"]["center"], truth["torso"]["semi_axes"])
+    assert d.max() < TOL, dict(zip(sl.TORSO_POINTS, d))
+    for s in sk.SIDES:
+        palm = truth["palms"][s]
+        pts = np.array([_world(model, f"mesh:palm_{s}", p) for p in model.element(f"mesh:palm_{s}").points])
+        assert len(pts) >= 4
+        depth = (pts - palm["origin"]) @ palm["normal_down"]
+        assert np.all(np.abs(depth - palm["half_thickness"]) < TOL), depth
+        sole = truth["soles"][s]
+        pts = np.array([_world(model, f"mesh:sole_{s}", p) for p in model.element(f"mesh:sole_{s}").points])
+        assert len(pts) >= 4
+        assert np.all(np.abs(pts[:, 2] - sole["z"]) < TOL)
+        x0, x1 = sorted((sole["x"], sole["x2"]))
+        assert np.all((pts[:, 0] > x0 - TOL) & (pts[:, 0] < x1 + TOL))
+        assert np.all((pts[:, 1] > sole["y"][0] - TOL) & (pts[:, 1] < sole["y"][1] + TOL))
+        # The sole outline spans the box: heel and toe ends and both sides are reached.
+        assert np.ptp(pts[:, 1]) > (sole["y"][1] - sole["y"][0]) - 2 * TOL
+        assert np.ptp(pts[:, 0]) > (x1 - x0) - 2 * TOL
+
+
+def _check_layout(model):
+    assert sorted(e.id for e in model.surface) == sorted(sl.element_ids())
+    for e in model.surface:
+        for a, b, c in e.triangles:
+            assert {a, b, c} <= set(e.points)
+    torso = model.element("mesh:torso")
+    assert set(torso.points) == set(sl.TORSO_POINTS)
+    assert set(model.element("mesh:jaw").points) == set(sl.JAW_POINTS)
+    for s in sk.SIDES:
+        assert len(model.element(f"mesh:palm_{s}").points) >= 4
+        assert len(model.element(f"mesh:sole_{s}").points) >= 4
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"arm_drop_deg": 40.0}, {"belly": 0.12}], ids=["tpose", "apose", "belly"])
+def test_procedural_truth(kwargs):
+    arm, _mesh, spec = build_procedural_avatar(**kwargs)
+    model = ac.calibrate_avatar(arm)
+    _check_layout(model)
+    _check_truth(model, spec)
+    assert model.extra["rig"]["rest_pose"] == ("A" if kwargs.get("arm_drop_deg") else "T")
+    q = model.calibration["quality"]["capsule:forearm_l"]
+    assert q["rays"] == q["hit"] and q["spread_mm"] < 1.0
+
+
+def test_sole_and_palm_winding_points_out_of_the_body():
+    arm, _mesh, spec = build_procedural_avatar()
+    model = ac.calibrate_avatar(arm)
+    for s in sk.SIDES:
+        for part, outward in (("palm", spec.truth["palms"][s]["normal_down"]), ("sole", np.array([0, 0, -1.0]))):
+            e = model.element(f"mesh:{part}_{s}")
+            for a, b, c in e.triangles:
+                pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
+                assert np.dot(np.cross(pb - pa, pc - pa), outward) > 0, (e.id, a, b, c)
+    e = model.element("mesh:torso")
+    for a, b, c in e.triangles[:-1]:  # front triangles face forward (-Y)
+        pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
+        assert np.cross(pb - pa, pc - pa)[1] < 0, (a, b, c)
+
+
+def test_transformed_armature_transforms_the_results():
+    """Rotated + scaled + translated armature (the mesh is its child): joints move with the
+    object, radii scale, local coordinates of surface points scale, nothing else changes."""
+    arm, _mesh, _spec = build_procedural_avatar()
+    ref = ac.calibrate_avatar(arm)
+    s = 1.3
+    m = Matrix.Translation((0.4, -1.2, 0.3)) @ Matrix.Rotation(math.radians(35), 4, "Z") @ \
+        Matrix.Rotation(math.radians(10), 4, "X") @ Matrix.Scale(s, 4)
+    arm.matrix_world = m
+    bpy.context.view_layer.update()
+    moved = ac.calibrate_avatar(arm)
+    mw = np.array(m)
+    for j in ("pelvis", "skull_base", "wrist_l", "tip_index_r", "toe_l", "spine_07"):
+        expect = (mw @ np.append(ref.joints[j].world, 1.0))[:3]
+        assert np.allclose(moved.joints[j].world, expect, atol=1e-5), j
+        assert np.allclose(moved.joints[j].local, ref.joints[j].local, atol=1e-6), j
+    for b in ("upperarm_l", "thigh_r", "index_2_l"):
+        assert moved.bones[b].radius_head == pytest.approx(ref.bones[b].radius_head * s, abs=2e-4)
+        assert np.allclose(moved.bones[b].right, mw[:3, :3] @ ref.bones[b].right / s, atol=1e-5)
+    for eid in ("mesh:torso", "mesh:jaw", "mesh:palm_l", "mesh:sole_r"):
+        for name, p in ref.element(eid).points.items():
+            assert np.allclose(moved.element(eid).points[name].local, p.local * s, atol=2e-4), (eid, name)
+    assert moved.element("sphere:skull").radius == pytest.approx(ref.element("sphere:skull").radius * s, abs=2e-4)
+    assert np.allclose(moved.extra["rig"]["matrix_world"], mw, atol=1e-6)
+    # the rig is stored in armature space: unchanged by the object transform
+    assert moved.extra["rig"]["bones"]["head"] == ref.extra["rig"]["bones"]["head"]
+
+
+def test_parented_mesh_with_its_own_transform():
+    """The mesh unparented and moved by its own object transform (mesh data moved back): the
+    evaluated surface is unchanged, so the measurement is too."""
+    arm, mesh, spec = build_procedural_avatar()
+    ref = ac.calibrate_avatar(arm)
+    mesh.parent = None
+    off = Matrix.Translation((0.0, 0.5, 0.0)) @ Matrix.Rotation(math.radians(90), 4, "Z") @ Matrix.Scale(2.0, 4)
+    mesh.data.transform(off.inverted())
+    mesh.matrix_world = off
+    bpy.context.view_layer.update()
+    model = ac.calibrate_avatar(arm)
+    _check_truth(model, spec)
+    assert model.bones["thigh_l"].radius_head == pytest.approx(ref.bones["thigh_l"].radius_head, abs=1e-4)
+
+
+def test_glb_avatars_every_element_found(avatar_files):
+    for path in avatar_files:
+        bpy.ops.wm.read_homefile(use_empty=True)
+        arm, mesh = load_glb_avatar(path)
+        model = ac.calibrate_avatar(arm)
+        _check_layout(model)
+        assert model.extra["rig"]["rest_pose"] == "A", path.name
+        caster = ac.Caster([mesh], bpy.context.evaluated_depsgraph_get())
+        # every mesh point lies on the skin (they are ray hits, transformed through the frames)
+        for e in model.surface:
+            for name in e.points:
+                w = _world(model, e.id, name)
+                if e.id.startswith("mesh:sole"):
+                    continue  # projected onto the floor plane
+                assert caster.nearest(w)[1] < 1e-4, (path.name, e.id, name)
+        for b in sl.CAPSULE_BONES:
+            info = model.bones[b]
+            assert 0.003 < info.radius_head < 0.12 and 0.003 < info.radius_tail < 0.12, (path.name, b)
+        # limbs are thicker than fingers, thighs than shins (taper measured, not assumed)
+        assert model.bones["thigh_l"].radius_head > model.bones["shin_l"].radius_head > model.bones[
+            "index_1_l"].radius_head
+        centre, radius = _skull_world(model)
+        assert 0.06 < radius < 0.13, path.name
+        q = model.calibration["quality"]
+        assert set(q) == set(sl.element_ids())
+
+
+def test_heavy_belly_centre_points_on_the_belly(data_dir):
+    arm, mesh = load_glb_avatar(data_dir / "avatars" / "mpfb2_variants" / "heavy_belly_male.glb")
+    model = ac.calibrate_avatar(arm)
+    caster = ac.Caster([mesh], bpy.context.evaluated_depsgraph_get())
+    corners = {p: _world(model, "mesh:torso", p) for p in ("belly_ul", "belly_ur", "belly_ll", "belly_lr")}
+    chord = sl.belly_centre_points(**{k.split("_")[1]: v for k, v in corners.items()})
+    for p in sl.BELLY_CENTRE:
+        w = _world(model, "mesh:torso", p)
+        assert caster.nearest(w)[1] < 0.005, p
+        # and they are NOT the chord: the belly bulges out in front of the corners' plane
+        assert np.linalg.norm(w - chord[p]) > 0.005, p
+
+
+def test_mesh_less_armature_is_one_clear_message():
+    arm, mesh, _spec = build_procedural_avatar()
+    bpy.data.objects.remove(mesh)
+    with pytest.raises(BodyCalError, match="no mesh is skinned"):
+        ac.calibrate_avatar(arm)
+
+
+def test_ray_that_misses_names_the_point_and_bone():
+    """Delete the left palm (the hand bone's box): its rays miss, and the message says which."""
+    arm, mesh, spec = build_procedural_avatar()
+    me = mesh.data
+    vg = mesh.vertex_groups["hand_l"].index
+    import bmesh
+
+    bm = bmesh.new()
+    bm.from_mesh(me)
+    deform = bm.verts.layers.deform.active
+    bmesh.ops.delete(bm, geom=[v for v in bm.verts if vg in v[deform]], context="VERTS")
+    bm.to_mesh(me)
+    bm.free()
+    with pytest.raises(BodyCalError) as exc:
+        ac.calibrate_avatar(arm)
+    msg = str(exc.value)
+    assert "palm_1_l" in msg and "hand_l" in msg and "\n" not in msg
