@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import recording, sample_avatars
+from . import calibration, recording, sample_avatars
 
-_MODULES = (sample_avatars, recording)
+_MODULES = (sample_avatars, recording, calibration)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)

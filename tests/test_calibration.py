@@ -209,8 +209,7 @@ def test_touch_point_without_its_tracker():
 
 
 def test_hand_built_session_yields_a_complete_model_with_defaults_reported():
-    rec, truth = _elbow_session()
-    rec.segments.append(Segment("stand", 6.0, 7.8))  # still: the reference time falls here
+    rec, truth = _still_session()
     model = calibrate_user(rec)
     from bodycal_addon.bodymodel import REQUIRED_USER_JOINTS, BodyModel
 
@@ -222,3 +221,66 @@ def test_hand_built_session_yields_a_complete_model_with_defaults_reported():
     back = BodyModel.from_dict(model.to_dict())
     np.testing.assert_allclose(back.joints["elbow_l"].world, model.joints["elbow_l"].world, atol=1e-6)
     assert back.bones["forearm_l"].extra["right_frame"] == "forearm_l"
+
+
+def _still_session():
+    rec, truth = _elbow_session()
+    rec.segments.insert(0, Segment("stand", 0.0, 0.45))  # still, before the flexion (segments never overlap)
+    return rec, truth
+
+
+def test_cli_calibrate_user_writes_the_body_model(tmp_path, capsys):
+    from bodycal_addon import cli
+    from bodycal_addon.bodymodel import BodyModel
+    from bodycal_addon.recording_io import save_recording
+
+    rec, truth = _still_session()
+    path = save_recording(rec, tmp_path / "elbow.bcrec.json")[0]
+    out = tmp_path / "user.body.json"
+    assert cli.main(["calibrate-user", str(path), "-o", str(out)]) == 0
+    model = BodyModel.load(out)
+    assert model.kind == "user"
+    assert np.linalg.norm(model.world("elbow_l") - truth["elbow"]) < 1e-4
+    assert "flex_elbow_l" in capsys.readouterr().out
+
+
+def test_cli_bad_calibration_data_is_one_actionable_line(tmp_path, capsys):
+    from bodycal_addon import cli
+    from bodycal_addon.recording_io import save_recording
+
+    rec, _ = _elbow_session(flex_deg=15)
+    path = save_recording(rec, tmp_path / "small.bcrec.json")[0]
+    assert cli.main(["calibrate-user", str(path), "-o", str(tmp_path / "u.body.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "flex_elbow_l: only" in err and "Traceback" not in err
+    assert not (tmp_path / "u.body.json").exists()
+
+
+def test_operators_store_show_save_and_reload(tmp_path):
+    import bpy
+
+    from bodycal_addon.blender import calibration_scene as cs
+    from bodycal_addon.blender.recording_scene import import_recording_to_scene
+
+    assert not bpy.ops.bodycal.calibrate_user.poll()
+    rec, truth = _still_session()
+    import_recording_to_scene(rec, bpy.context.scene)
+    assert bpy.ops.bodycal.calibrate_user() == {"FINISHED"}
+    model = cs.load_user_model(bpy.context.scene)
+    assert np.linalg.norm(model.world("elbow_l") - truth["elbow"]) < 1e-4
+    coll = bpy.data.collections[cs.COLLECTION]
+    names = {o.name for o in coll.objects}
+    assert {"joint:elbow_l", "sphere:skull", "mesh:torso", "hinge:forearm_l"} <= names
+    np.testing.assert_allclose(bpy.data.objects["joint:elbow_l"].location, truth["elbow"], atol=1e-4)
+    out = tmp_path / "u.body.json"
+    assert bpy.ops.bodycal.save_user_model(filepath=str(out)) == {"FINISHED"}
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert not cs.has_user_model(bpy.context.scene)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    again = cs.load_user_model(bpy.context.scene)
+    np.testing.assert_allclose(again.world("elbow_l"), model.world("elbow_l"), atol=1e-6)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert bpy.ops.bodycal.load_user_model(filepath=str(out)) == {"FINISHED"}
+    assert bpy.ops.bodycal.show_calibration_helpers() == {"FINISHED"}

@@ -1,0 +1,115 @@
+"""The user body model in the Blender scene: stored as JSON in a scene custom property (survives
+save / reload and undo), and shown as helper objects in a collection: one empty per fitted joint,
+sphere empties for the skull and the anchor-joint spheres, circle empties for the hinge axes,
+and the crude meshes (torso, jaw, palms, soles) as mesh objects, all at the reference time."""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+import numpy as np
+
+from .. import surface_layout as sl
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+
+MODEL_PROP = "bodycal_user_model"
+COLLECTION = "BodyCal User Calibration"
+
+
+def store_user_model(scene, model: BodyModel) -> None:
+    scene[MODEL_PROP] = model.to_json()
+
+
+def has_user_model(scene) -> bool:
+    return scene is not None and bool(scene.get(MODEL_PROP))
+
+
+def load_user_model(scene) -> BodyModel:
+    raw = scene.get(MODEL_PROP) if scene is not None else None
+    if not raw:
+        raise BodyCalError("this scene has no user body model yet", source=getattr(scene, "name", "scene"),
+                           hint="run Calibrate User first")
+    try:
+        data = json.loads(raw)
+    except (TypeError, ValueError):
+        raise BodyCalError("the stored user body model is damaged", source=scene.name, field=MODEL_PROP,
+                           hint="calibrate again") from None
+    return BodyModel.from_dict(data, source=f"{scene.name}[{MODEL_PROP}]")
+
+
+def _bone_matrix(model: BodyModel, bone: str) -> tuple[np.ndarray, np.ndarray]:
+    b = model.bones[bone]
+    head, tail = model.world(b.head), model.world(b.tail)
+    right = b.right if b.right is not None else np.array([1.0, 0, 0])
+    return head, sl.bone_frame(head, tail, right)
+
+
+def surface_points_world(model: BodyModel, element) -> dict[str, np.ndarray]:
+    out = {}
+    for k, p in element.points.items():
+        head, rot = _bone_matrix(model, p.bone)
+        out[k] = head + rot @ p.local
+    return out
+
+
+def _clear(coll):
+    for obj in list(coll.objects):
+        data = obj.data
+        bpy.data.objects.remove(obj, do_unlink=True)
+        if data is not None and data.users == 0 and isinstance(data, bpy.types.Mesh):
+            bpy.data.meshes.remove(data)
+
+
+def _empty(coll, name, loc, display="SPHERE", size=0.01, rot=None):
+    obj = bpy.data.objects.new(name, None)
+    obj.empty_display_type = display
+    obj.empty_display_size = size
+    obj.location = [float(x) for x in loc]
+    if rot is not None:
+        obj.rotation_mode = "QUATERNION"
+        from ..transforms import matrix_to_quat
+
+        obj.rotation_quaternion = [float(x) for x in matrix_to_quat(rot)]
+    coll.objects.link(obj)
+    obj["bodycal_helper"] = name
+    return obj
+
+
+def show_helpers(scene, model: BodyModel) -> bpy.types.Collection:
+    """(Re)build the helper collection for `model`; returns it."""
+    coll = bpy.data.collections.get(COLLECTION)
+    if coll is None:
+        coll = bpy.data.collections.new(COLLECTION)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    _clear(coll)
+    fitted = set(model.joints) - {k for k in model.calibration.get("defaulted", {}) if k in model.joints}
+    for name, j in model.joints.items():
+        _empty(coll, f"joint:{name}", j.world, "SPHERE" if name in fitted else "PLAIN_AXES", 0.012)
+    for e in model.surface:
+        if e.type == "sphere":
+            head, rot = _bone_matrix(model, e.bone)
+            _empty(coll, e.id, head + rot @ e.center, "SPHERE", e.radius)
+        elif e.type == "mesh":
+            pts = surface_points_world(model, e)
+            names = list(pts)
+            me = bpy.data.meshes.new(e.id)
+            me.from_pydata([tuple(map(float, pts[n])) for n in names], [],
+                           [tuple(names.index(v) for v in tri) for tri in e.triangles])
+            me.update()
+            obj = bpy.data.objects.new(e.id, me)
+            obj.display_type = "WIRE"
+            obj["bodycal_helper"] = e.id
+            coll.objects.link(obj)
+    for bone in ("forearm_l", "forearm_r", "shin_l", "shin_r"):
+        if bone in model.bones:
+            head, rot = _bone_matrix(model, bone)
+            # the hinge circle lies in the plane normal to the axis: a CIRCLE empty draws in its local XY
+            circle_rot = np.stack([rot[:, 1], rot[:, 2], rot[:, 0]], axis=1)
+            r = model.bones[bone].radius_head or 0.04
+            _empty(coll, f"hinge:{bone}", head, "CIRCLE", 1.5 * r, circle_rot)
+            _empty(coll, f"axis:{bone}", head, "SINGLE_ARROW", 0.1, np.stack([rot[:, 1], rot[:, 2], rot[:, 0]],
+                                                                                 axis=1))
+    return coll

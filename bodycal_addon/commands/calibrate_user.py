@@ -1,0 +1,34 @@
+"""`bodycal calibrate-user REC -o USER.body.json` (FORMATS.md §4): every calibration step the
+recording allows; prints one line per step with its quality, and what was defaulted."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def summary_lines(model) -> list[str]:
+    cal = model.calibration
+    lines = []
+    for step, q in cal.get("quality", {}).items():
+        parts = [f"{k}={v}" for k, v in q.items() if not isinstance(v, dict)]
+        lines.append(f"  {step}: {' '.join(parts)}")
+    if cal.get("defaulted"):
+        lines.append(f"  defaulted ({len(cal['defaulted'])}): {', '.join(sorted(cal['defaulted']))}")
+    if cal.get("missing"):
+        lines.append(f"  missing: {', '.join(cal['missing'])}")
+    return lines
+
+
+def run(args) -> int:
+    from ..calibration import calibrate_user
+    from ..recording_io import load_recording
+
+    rec = load_recording(args.recording)
+    model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
+    out = model.save(args.output)
+    print(f"calibrated {len(model.joints)} joints from {len(model.calibration['steps_used'])} steps "
+          f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s) -> {out}")
+    for line in summary_lines(model):
+        print(line, file=sys.stdout)
+    return 0

@@ -1,0 +1,90 @@
+"""The user-calibration wizard (sidebar sub-panel of BodyCal): the steps found in the scene's
+recording (its `bodycal:<step>...` timeline markers), each with its status and quality from the
+stored user model (residual mm, points kept, motion range), and the run / save / load buttons."""
+
+import json
+
+import bpy
+
+_STEP_ORDER = ("tpose", "stand", "palms_together", "flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r",
+               "swing_shoulder_l", "swing_shoulder_r", "swing_hip_l", "swing_hip_r", "touch")
+_cache = {"raw": None, "cal": {}}
+
+
+def _calibration(scene) -> dict:
+    """The stored model's calibration report, parsed once per change (draw runs often)."""
+    raw = scene.get("bodycal_user_model")
+    if raw != _cache["raw"]:
+        _cache["raw"] = raw
+        try:
+            _cache["cal"] = json.loads(raw).get("calibration", {}) if raw else {}
+        except (TypeError, ValueError):
+            _cache["cal"] = {}
+    return _cache["cal"]
+
+
+def steps_in_scene(scene) -> dict[str, int]:
+    """{step: count} from the timeline markers `bodycal:<step>[:<point>[:<by>]]`."""
+    out = {}
+    for m in scene.timeline_markers:
+        if m.name.startswith("bodycal:") and m.name != "bodycal:end":
+            step = m.name.split(":")[1]
+            out[step] = out.get(step, 0) + 1
+    return out
+
+
+def quality_text(q: dict) -> str:
+    parts = []
+    if "rms_mm" in q:
+        parts.append(f"{q['rms_mm']:.1f} mm")
+    if "kept" in q and "of" in q:
+        parts.append(f"{q['kept']}/{q['of']} pts")
+    if "range_deg" in q:
+        parts.append(f"{q['range_deg']:.0f}°")
+    if "spread_mm" in q and "rms_mm" not in q:
+        parts.append(f"±{q['spread_mm']:.1f} mm")
+    return ", ".join(parts)
+
+
+class BODYCAL_PT_calibration(bpy.types.Panel):
+    bl_idname = "BODYCAL_PT_calibration"
+    bl_label = "User Calibration"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "BodyCal"
+    bl_parent_id = "BODYCAL_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        scene = context.scene
+        found = steps_in_scene(scene)
+        cal = _calibration(scene)
+        quality = cal.get("quality", {})
+        used = set(cal.get("steps_used", []))
+        box = layout.box()
+        if not found:
+            box.label(text="No calibration steps in the recording", icon="INFO")
+        for step in sorted(found, key=lambda s: _STEP_ORDER.index(s) if s in _STEP_ORDER else 99):
+            row = box.row()
+            label = step if step != "touch" else f"touch ({found[step]} points)"
+            if step in quality:
+                row.label(text=label, icon="CHECKMARK")
+                row.label(text=quality_text(quality[step]))
+            elif step in used or (step == "touch" and cal):
+                row.label(text=label, icon="CHECKMARK")
+            elif cal:
+                row.label(text=label, icon="ERROR")
+                row.label(text="not used")
+            else:
+                row.label(text=label, icon="RADIOBUT_OFF")
+        if cal.get("defaulted"):
+            layout.label(text=f"{len(cal['defaulted'])} values defaulted from the eye height", icon="INFO")
+        col = layout.column(align=True)
+        col.operator("bodycal.calibrate_user", icon="PLAY")
+        row = col.row(align=True)
+        row.operator("bodycal.save_user_model", icon="EXPORT", text="Save")
+        row.operator("bodycal.load_user_model", icon="IMPORT", text="Load")
+        col.operator("bodycal.show_calibration_helpers", icon="HIDE_OFF")
+
+
+CLASSES = (BODYCAL_PT_calibration,)
