@@ -60,7 +60,8 @@ def tpose_recording(*, yaw: float = 0.0, profile: str = "full", fps: float = 90.
         rot.append(tf.quat_mul(wobble, q))
     rec = Recording(name="tpose_test", time=time, devices=devices, positions=np.stack(pos, 1),
                     rotations=np.stack(rot, 1), valid=np.ones((f, len(devices)), bool),
-                    segments=[Segment("tpose", 0.2, seconds / 2 - 0.1), Segment("motion", seconds / 2, seconds - 0.1)])
+                    segments=[Segment("tpose", 0.05 * seconds, 0.45 * seconds),
+                              Segment("motion", 0.5 * seconds, 0.975 * seconds)])
     if leds:
         names, pts = [], []
         for s, sign in (("l", 1.0), ("r", -1.0)):
