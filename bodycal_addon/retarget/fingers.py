@@ -1,0 +1,141 @@
+"""Finger animation (paper 000, appendix D "Finger motion capture", eq. 3-4; DESIGN.md §6), numpy
+only, vectorised over frames.
+
+A finger is three phalanges l1, l2, l3 from the base (MCP) joint. Its flexion comes from the
+MCP -> fingertip distance assuming equal flexion at the PIP and DIP joints; then the whole finger
+turns about the MCP (yaw, pitch, within anatomical limits) so the tip points at the target.
+
+Reference frame (per finger, world columns x, y, z): +Y along the finger at rest (the "artificial
+bone linking the wrist to the base joint"), +X the flexion axis; a positive rotation about +X
+flexes, so the finger curls toward +Z (the palm side). Angles follow the paper's Figure 16:
+pitch > 0 extends the finger (toward -Z, the back of the hand), pitch < 0 flexes it; yaw > 0 turns
+it toward +X.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
+X_CLAMP = 0.9999  # eq. 4
+# Appendix D, from [Ari18]: (yaw min, yaw max), (pitch min, pitch max), degrees.
+LIMITS = {"finger": ((-15.0, 15.0), (-85.0, 10.0)), "thumb": ((-30.0, 40.0), (-15.0, 15.0))}
+THUMB_ROLL = np.deg2rad(45.0)
+
+
+def tip_distance(l1, l2, l3, alpha) -> np.ndarray:
+    """MCP -> fingertip distance of a straight-based finger with flexion α at both PIP and DIP:
+    the tip is l1 Y + l2 R(α) Y + l3 R(2α) Y, so
+    d² = l1² + l2² + l3² + 2 l2 (l1 + l3) cos α + 2 l1 l3 cos 2α."""
+    l1, l2, l3, a = (np.asarray(x, float) for x in (l1, l2, l3, alpha))
+    return np.sqrt(l1 * l1 + l2 * l2 + l3 * l3 + 2 * l2 * (l1 + l3) * np.cos(a) + 2 * l1 * l3 * np.cos(2 * a))
+
+
+def flexion_from_distance(l1, l2, l3, d) -> np.ndarray:
+    """Flexion α (radians, PIP = DIP) from the MCP -> fingertip distance d (paper 000, eq. 3-4).
+
+    With cos 2α = 2 cos² α - 1 and x = cos(π - α) = -cos α, tip_distance gives
+    4 l1 l3 x² - 2 l2 (l1 + l3) x + (l1² + l2² + l3² - 2 l1 l3 - d²) = 0, i.e. the paper's
+    a = 4 l1 l3, b = -2 l2 (l1 + l3), c = l1² + l2² + l3² - 2 l1 l3 - d²; the root
+    x = (-b - sqrt(b² - 4ac)) / 2a is the one that gives x = -1 (α = 0) for the straight finger,
+    so the paper's equation checks out as printed. x is clamped to ±0.9999 (eq. 4),
+    α = π - acos(x), then capped at 90° (appendix D). A distance out of range gives the nearest
+    valid flexion (the discriminant is clamped at 0); never NaN."""
+    l1, l2, l3, d = (np.asarray(x, float) for x in (l1, l2, l3, d))
+    a = 4.0 * l1 * l3
+    b = -2.0 * l2 * (l1 + l3)
+    c = l1 * l1 + l2 * l2 + l3 * l3 - 2.0 * l1 * l3 - d * d
+    disc = np.maximum(b * b - 4.0 * a * c, 0.0)
+    x = (-b - np.sqrt(disc)) / np.maximum(2.0 * a, 1e-18)
+    x = np.clip(x, -X_CLAMP, X_CLAMP)
+    return np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
+
+
+def _rx(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def _ry(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+def _rz(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def yaw_pitch(direction) -> tuple[np.ndarray, np.ndarray]:
+    """(yaw, pitch) of directions (..., 3) expressed in the finger's reference frame:
+    direction = Rz(-yaw) Rx(-pitch) +Y."""
+    d = np.asarray(direction, float)
+    yaw = np.arctan2(d[..., 0], d[..., 1])
+    pitch = np.arctan2(-d[..., 2], np.hypot(d[..., 0], d[..., 1]))
+    return yaw, pitch
+
+
+def realign(target_local, flexed_local, thumb: bool = False):
+    """Realignment of a flexed finger toward its fingertip target (appendix D, Figure 16).
+
+    target_local, flexed_local: (F, 3) the target tip and the flexed finger's tip (zero yaw by
+    construction), both in the reference frame centred on the MCP. The target's yaw and pitch are
+    clamped to the limits (fingers: yaw [-15°, 15°], pitch [-85°, 10°]; thumb: yaw [-30°, 40°],
+    pitch [-15°, 15°]); the correction turns the finger by the pitch difference about +X, then by
+    the yaw about +Z. Returns (rotation (F, 3, 3) in the reference frame, yaw, pitch) with the
+    clamped target angles."""
+    (ylo, yhi), (plo, phi) = LIMITS["thumb" if thumb else "finger"]
+    yaw, pitch = yaw_pitch(target_local)
+    yaw = np.clip(yaw, np.deg2rad(ylo), np.deg2rad(yhi))
+    pitch = np.clip(pitch, np.deg2rad(plo), np.deg2rad(phi))
+    _, flexed_pitch = yaw_pitch(flexed_local)
+    rot = _rz(-yaw) @ _rx(-(pitch - flexed_pitch))
+    return rot, yaw, pitch
+
+
+@dataclass
+class FingerPose:
+    joints: np.ndarray  # (F, 4, 3): mcp, pip, dip, tip
+    rotations: np.ndarray  # (F, 3, 3, 3): world frames of phalanges 1, 2, 3 (+Y along, +X flexion axis)
+    flexion: np.ndarray  # (F,) α at PIP and DIP
+    yaw: np.ndarray  # (F,) clamped realignment yaw
+    pitch: np.ndarray  # (F,) clamped realignment pitch
+
+
+def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:
+    """Pose one finger for F frames (appendix D).
+
+    mcp: (F, 3) base joint; ref_rot: (F, 3, 3) the finger's reference frame (module docstring);
+    l1, l2, l3: phalanx lengths; tip_target: (F, 3) where the fingertip should be.
+    thumb: use the thumb's limits and roll its reference frame about +Y by `roll` (default 45°,
+    appendix D; pass -45° for a hand whose frames are mirrored).
+    Flexion from the MCP -> target distance (eq. 3-4, capped at 90°), then the yaw/pitch
+    realignment; the tip reaches the target whenever the distance and angles are within limits."""
+    mcp = np.asarray(mcp, float)
+    ref = np.asarray(ref_rot, float)
+    if thumb:
+        ref = ref @ _ry(np.full(len(mcp), THUMB_ROLL if roll is None else roll))
+    elif roll is not None:
+        ref = ref @ _ry(np.full(len(mcp), roll))
+    n = len(mcp)
+    l1, l2, l3 = (np.broadcast_to(np.asarray(v, float), (n,)) for v in (l1, l2, l3))
+    rel = np.asarray(tip_target, float) - mcp
+    local = np.einsum("fji,fj->fi", ref, rel)
+    alpha = flexion_from_distance(l1, l2, l3, np.linalg.norm(rel, axis=-1))
+    r1 = np.eye(3)
+    r2 = _rx(alpha)
+    r3 = _rx(2 * alpha)
+    y = np.array([0.0, 1.0, 0.0])
+    flexed = l1[:, None] * y + l2[:, None] * r2[..., :, 1] + l3[:, None] * r3[..., :, 1]
+    corr, yaw, pitch = realign(local, flexed, thumb)
+    base = ref @ corr
+    rots = np.stack([base @ r1, base @ r2, base @ r3], axis=1)  # (F, 3, 3, 3)
+    lengths = np.stack([l1, l2, l3], axis=-1)
+    seg = rots[..., :, 1] * lengths[..., None]
+    joints = np.concatenate([mcp[:, None], mcp[:, None] + np.cumsum(seg, axis=1)], axis=1)
+    return FingerPose(joints, rots, alpha, yaw, pitch)

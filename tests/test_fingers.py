@@ -1,0 +1,102 @@
+"""Finger flexion and realignment (paper 000, appendix D, eq. 3-4)."""
+
+import numpy as np
+import pytest
+
+from bodycal_addon.retarget import fingers as fg
+
+LENGTHS = [(0.045, 0.025, 0.02), (0.05, 0.03, 0.022), (0.04, 0.03, 0.025), (0.03, 0.03, 0.03)]
+
+
+@pytest.mark.parametrize("lengths", LENGTHS)
+def test_flexion_round_trips_through_the_tip_distance(lengths):
+    alpha = np.deg2rad(np.linspace(0.0, 90.0, 181))
+    d = fg.tip_distance(*lengths, alpha)
+    back = fg.flexion_from_distance(*lengths, d)
+    # x is clamped to ±0.9999 (eq. 4): below ~0.8° of flexion the result saturates at acos(0.9999).
+    small = alpha < np.arccos(fg.X_CLAMP) + 1e-9
+    np.testing.assert_allclose(back[~small], alpha[~small], atol=1e-9)
+    assert np.all(back[small] <= np.arccos(fg.X_CLAMP) + 1e-9)
+
+
+def test_tip_distance_matches_the_chain_it_describes():
+    l1, l2, l3 = LENGTHS[0]
+    a = np.deg2rad(37.0)
+    tip = (np.array([0, l1, 0]) + l2 * np.array([0, np.cos(a), np.sin(a)])
+           + l3 * np.array([0, np.cos(2 * a), np.sin(2 * a)]))
+    assert fg.tip_distance(l1, l2, l3, a) == pytest.approx(np.linalg.norm(tip), abs=1e-12)
+
+
+def test_flexion_is_capped_and_never_nan():
+    l1, l2, l3 = LENGTHS[1]
+    d = np.array([0.0, 0.001, 0.02, 0.2, np.inf])
+    a = fg.flexion_from_distance(l1, l2, l3, d[:-1])
+    assert np.all(np.isfinite(a))
+    assert np.all(a <= np.pi / 2 + 1e-12) and np.all(a >= 0)
+    assert a[0] == pytest.approx(np.pi / 2)  # a closed fist: capped at 90°
+    assert a[-1] < 0.02  # farther than the finger reaches: straight
+
+
+def _random_frames(rng, n):
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(n, 3, 3)
+
+
+@pytest.mark.parametrize("thumb", [False, True])
+def test_pose_finger_reaches_targets_within_the_limits(thumb):
+    rng = np.random.default_rng(3)
+    n = 200
+    l1, l2, l3 = LENGTHS[0]
+    (ylo, yhi), (plo, phi) = fg.LIMITS["thumb" if thumb else "finger"]
+    alpha = np.deg2rad(rng.uniform(5, 85, n))
+    yaw = np.deg2rad(rng.uniform(ylo, yhi, n))
+    # Tip pitch of the flexed finger plus a realignment that stays within the pitch limits.
+    tip_local = fg.tip_distance(l1, l2, l3, alpha)
+    pitch = np.deg2rad(rng.uniform(plo, phi, n))
+    direction = np.stack([np.sin(yaw) * np.cos(pitch), np.cos(yaw) * np.cos(pitch), -np.sin(pitch)], -1)
+    ref = _random_frames(rng, n)
+    mcp = rng.normal(size=(n, 3))
+    roll = fg.THUMB_ROLL if thumb else 0.0
+    rolled = ref @ fg._ry(np.full(n, roll))
+    target = mcp + np.einsum("fij,fj->fi", rolled, direction * tip_local[:, None])
+    pose = fg.pose_finger(mcp, ref, l1, l2, l3, target, thumb=thumb)
+    np.testing.assert_allclose(pose.joints[:, -1], target, atol=1e-9)
+    np.testing.assert_allclose(pose.flexion, alpha, atol=1e-9)
+    np.testing.assert_allclose(pose.yaw, yaw, atol=1e-9)
+    # Bone frames: orthonormal, +Y along each phalanx, hinges flex about +X only.
+    rots = pose.rotations
+    np.testing.assert_allclose(rots @ np.swapaxes(rots, -1, -2), np.broadcast_to(np.eye(3), rots.shape), atol=1e-9)
+    seg = pose.joints[:, 1:] - pose.joints[:, :-1]
+    np.testing.assert_allclose(seg, rots[..., :, 1] * np.array([l1, l2, l3])[:, None], atol=1e-12)
+    np.testing.assert_allclose(rots[:, 1, :, 0], rots[:, 0, :, 0], atol=1e-12)
+    np.testing.assert_allclose(rots[:, 2, :, 0], rots[:, 0, :, 0], atol=1e-12)
+    cos_flex = np.einsum("fi,fi->f", rots[:, 0, :, 1], rots[:, 1, :, 1])
+    np.testing.assert_allclose(cos_flex, np.cos(alpha), atol=1e-9)
+    assert np.all(np.einsum("fi,fi->f", rots[:, 1, :, 1], rots[:, 0, :, 2]) >= -1e-12)  # curls toward +Z
+
+
+def test_realignment_clamps_to_the_anatomical_limits():
+    ref = np.broadcast_to(np.eye(3), (2, 3, 3))
+    l1, l2, l3 = LENGTHS[0]
+    mcp = np.zeros((2, 3))
+    # Far sideways and bent backwards: yaw 60°, pitch +45° (hyperextension): both clamped.
+    d = np.array([np.sin(np.deg2rad(60)), np.cos(np.deg2rad(60)), 0.0]) * np.cos(np.deg2rad(45))
+    d[2] = -np.sin(np.deg2rad(45))
+    pose = fg.pose_finger(mcp, ref, l1, l2, l3, np.stack([d, d]) * 0.08)
+    assert np.rad2deg(pose.yaw) == pytest.approx([15.0, 15.0])
+    assert np.rad2deg(pose.pitch) == pytest.approx([10.0, 10.0])
+    thumb = fg.pose_finger(mcp, ref, l1, l2, l3, np.stack([d, d]) * 0.08, thumb=True, roll=0.0)
+    assert np.rad2deg(thumb.yaw) == pytest.approx([40.0, 40.0])
+    assert np.rad2deg(thumb.pitch) == pytest.approx([15.0, 15.0])
+
+
+def test_degenerate_targets_are_finite():
+    ref = np.broadcast_to(np.eye(3), (3, 3, 3))
+    mcp = np.zeros((3, 3))
+    target = np.array([[0.0, 0.0, 0.0], [0.0, 5.0, 0.0], [0.0, -0.01, 0.0]])
+    pose = fg.pose_finger(mcp, ref, 0.04, 0.03, 0.02, target)
+    assert np.all(np.isfinite(pose.joints)) and np.all(np.isfinite(pose.rotations))
