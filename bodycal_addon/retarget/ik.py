@@ -1,0 +1,236 @@
+"""Analytical IK of the avatar (paper 000, appendix E; DESIGN.md §6), numpy only, vectorised over
+a leading frame axis.
+
+- `two_bone`: limbs (upperarm/forearm, thigh/shin). Flexion from the root-target distance
+  (eq. 5-6), aligned to the target, swivel about the root-effector axis blended between the
+  swivel through the retargeted intermediate-joint target and the user's swivel (eq. 7-8).
+- `spine`: the trunk. Equal-angle arc whose chord matches the root -> skull-base distance, aimed
+  at the skull base, a second pass that rotates the sacrum about its hip axis to line it up with
+  the first vertebra, and a uniform twist (appendix D, "Trunk animation").
+
+Rotations are world bone frames (columns x, y, z): +Y along the bone, +X its right, which for
+the hinge is the flexion axis; a positive rotation about +X flexes (FORMATS.md §1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
+BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
+
+
+def _dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+def _unit(v, fallback):
+    n = np.sqrt(_dot(v, v))
+    ok = n > 1e-12
+    return np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback), n
+
+
+def _perp_unit(v, axis, fallback):
+    """Unit component of v perpendicular to the unit `axis`; `fallback` where it vanishes."""
+    w = v - _dot(v, axis)[..., None] * axis
+    return _unit(w, fallback)
+
+
+def _any_perpendicular(axis):
+    """A unit vector perpendicular to each unit axis (deterministic, no NaN)."""
+    ref = np.where((np.abs(axis[..., 0]) < 0.9)[..., None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    return _perp_unit(ref, axis, np.array([0.0, 0.0, 1.0]))[0]
+
+
+def swivel_blend(r) -> np.ndarray:
+    """Eq. 7: t = 0 if r <= 0.05 m, (r - 0.05) * 10 in between, 1 from 0.15 m."""
+    return np.clip((np.asarray(r, float) - BLEND_START) / BLEND_WIDTH, 0.0, 1.0)
+
+
+def flexion_angle(l1, l2, d) -> np.ndarray:
+    """Eq. 5-6: flexion α = π - acos((l1² + l2² - d²) / (2 l1 l2)), clamped to [0, π]
+    (0 = straight: unreachable targets; π = folded)."""
+    l1, l2, d = (np.asarray(x, float) for x in (l1, l2, d))
+    c = (l1 * l1 + l2 * l2 - d * d) / np.maximum(2.0 * l1 * l2, 1e-12)
+    return np.pi - np.arccos(np.clip(c, -1.0, 1.0))
+
+
+@dataclass
+class TwoBoneResult:
+    mid: np.ndarray  # (F, 3) intermediate joint (elbow / knee)
+    end: np.ndarray  # (F, 3) effector joint (wrist / ankle)
+    rot1: np.ndarray  # (F, 3, 3) world frame of the first bone (+Y root -> mid, +X flexion axis)
+    rot2: np.ndarray  # (F, 3, 3) world frame of the second bone (+Y mid -> end, same +X)
+    flexion: np.ndarray  # (F,) α, radians
+    blend: np.ndarray  # (F,) t of eq. 7
+    swivel_dir: np.ndarray  # (F, 3) unit direction from the root-effector axis to the mid joint
+    reached: np.ndarray  # (F,) bool: the target was within reach
+
+
+def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None) -> TwoBoneResult:
+    """Two-bone analytical IK (paper 000, appendix E).
+
+    root, target: (F, 3); l1, l2: bone lengths (scalars or (F,)).
+    pole_target: (F, 3) the retargeted intermediate joint (elbow/knee) or None; its distance r from
+      the root-target axis sets the blend t of eq. 7 and its direction gives the swivel β.
+    user_swivel_dir: (F, 3) the user's swivel γ as a direction from the user's root-effector axis
+      toward the user's intermediate joint (only its part perpendicular to the avatar's axis is
+      used); where it vanishes (a straight user limb) or is None, `flex_axis_hint`, the user's
+      hinge axis (forearm/shin +X, world), gives it: swivel = axis x hint.
+    Returns TwoBoneResult. Unreachable targets: the limb fully extended toward the target; too
+    close (d < |l1 - l2|): folded as far as possible toward it; target on the root: the axis is
+    taken toward the pole target (else straight down). Never NaN.
+
+    The mid joint lies in the half-plane through the axis and `swivel_dir`; the hinge axis is
+    `swivel_dir x axis`, so the flexion is positive about +X of both bones (rot2 = rot1 Rx(α))."""
+    root = np.asarray(root, float)
+    target = np.asarray(target, float)
+    F = root.shape[0]
+    l1 = np.broadcast_to(np.asarray(l1, float), (F,))
+    l2 = np.broadcast_to(np.asarray(l2, float), (F,))
+    down = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (F, 3))
+    fallback_axis = down
+    if pole_target is not None:
+        fallback_axis = _unit(np.asarray(pole_target, float) - root, down)[0]
+    axis, dist = _unit(target - root, fallback_axis)
+    d = np.clip(dist, np.abs(l1 - l2), l1 + l2)
+    reached = (dist >= np.abs(l1 - l2) - 1e-9) & (dist <= l1 + l2 + 1e-9)
+    alpha = flexion_angle(l1, l2, d)
+
+    # γ: the user's swivel direction, perpendicular to this axis.
+    any_perp = _any_perpendicular(axis)
+    hint_dir = any_perp
+    if flex_axis_hint is not None:
+        hint_dir = _unit(np.cross(axis, np.asarray(flex_axis_hint, float)), any_perp)[0]
+    gamma_dir = hint_dir
+    if user_swivel_dir is not None:
+        gamma_dir, gn = _perp_unit(np.asarray(user_swivel_dir, float), axis, hint_dir)
+        gamma_dir = np.where((gn > 1e-6)[..., None], gamma_dir, hint_dir)
+    # β: the swivel through the pole target; t from its distance to the axis (eq. 7-8).
+    if pole_target is not None:
+        rel = np.asarray(pole_target, float) - root
+        beta_dir, r = _perp_unit(rel, axis, gamma_dir)
+        t = swivel_blend(r)
+    else:
+        beta_dir, t = gamma_dir, np.zeros(F)
+    # δ = t β + (1 - t) γ as angles about the axis, measured from γ (shortest way round).
+    delta = t * np.arctan2(_dot(np.cross(gamma_dir, beta_dir), axis), _dot(gamma_dir, beta_dir))
+    ortho = np.cross(axis, gamma_dir)
+    swivel = np.cos(delta)[..., None] * gamma_dir + np.sin(delta)[..., None] * ortho
+
+    a = (l1 * l1 - l2 * l2 + d * d) / np.maximum(2.0 * d, 1e-12)
+    a = np.where(d > 1e-12, a, 0.0)
+    h = np.sqrt(np.maximum(l1 * l1 - a * a, 0.0))
+    mid = root + a[..., None] * axis + h[..., None] * swivel
+    end = root + d[..., None] * axis
+    x = np.cross(swivel, axis)
+    y1 = _unit(mid - root, axis)[0]
+    y2 = _unit(end - mid, axis)[0]
+    rot1 = np.stack([x, y1, np.cross(x, y1)], axis=-1)
+    rot2 = np.stack([x, y2, np.cross(x, y2)], axis=-1)
+    return TwoBoneResult(mid, end, rot1, rot2, alpha, t, swivel, reached)
+
+
+# --- spine ----------------------------------------------------------------------------------------
+
+@dataclass
+class SpineResult:
+    joints: np.ndarray  # (F, n + 1, 3): the spine root, then the top of every vertebra
+    rotations: np.ndarray  # (F, n, 3, 3) vertebra frames (+Y along, +X the twisted hip axis)
+    sacrum_rot: np.ndarray  # (F, 3, 3) the sacrum's frame after the second pass
+    bend: np.ndarray  # (F,) the angle between consecutive vertebrae, radians
+
+
+def _arc_chord(lengths, theta):
+    """Chord (along, across) of a planar chain whose k-th segment turns by k θ from the first.
+    lengths (n,), theta (F,) -> (F, 2) in the frame of the first segment."""
+    k = np.arange(len(lengths))
+    ang = theta[:, None] * k
+    return np.stack([(lengths * np.cos(ang)).sum(-1), (lengths * np.sin(ang)).sum(-1)], axis=-1)
+
+
+def _solve_arc(lengths, chord, iterations=48):
+    """θ >= 0 with |chord(θ)| = chord (bisection; the chord shrinks monotonically while the arc
+    turns less than a full circle). Out of range: straight (θ = 0) or the tightest arc."""
+    n = len(lengths)
+    lo = np.zeros_like(chord)
+    hi = np.full_like(chord, 2.0 * np.pi / max(n, 1) * 0.999)
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        c = np.linalg.norm(_arc_chord(lengths, mid), axis=-1)
+        longer = c > chord
+        lo = np.where(longer, mid, lo)
+        hi = np.where(longer, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _place_arc(start, lengths, target, bend_dir):
+    """Equal-angle arc from `start` whose chord points at `target` (clamped to the chain's length),
+    its first segment leaning toward `bend_dir`. Returns joints (F, n+1, 3) and θ (F,)."""
+    lengths = np.asarray(lengths, float)
+    chord_vec = target - start
+    chord_dir, chord_len = _unit(chord_vec, np.array([0.0, 0.0, 1.0]))
+    theta = _solve_arc(lengths, np.minimum(chord_len, lengths.sum()))
+    side = _perp_unit(bend_dir, chord_dir, _any_perpendicular(chord_dir))[0]
+    local = _arc_chord(lengths, theta)  # the chord seen from the first segment
+    phi = np.arctan2(local[:, 1], local[:, 0])
+    k = np.arange(len(lengths))
+    # In the (chord_dir, side) plane segment k is at φ - kθ: the first leans φ toward `side`, the
+    # chain curls back and its chord lies along chord_dir.
+    ang = phi[:, None] - theta[:, None] * k
+    seg = (np.cos(ang)[..., None] * chord_dir[:, None] + np.sin(ang)[..., None] * side[:, None]) * lengths[:, None]
+    joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(seg, axis=1)], axis=1)
+    return joints, theta
+
+
+def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None, two_pass=True) -> SpineResult:
+    """Trunk IK (paper 000, appendix D, "Trunk animation"; DESIGN.md §6).
+
+    pelvis: (F, 3) sacrum origin; sacrum_rot: (F, 3, 3) the sacrum frame (+Y pelvis -> spine root,
+    +X the hip axis, rigid on the pelvis tracker); sacrum_length: pelvis -> spine root distance;
+    lengths: (n,) vertebra lengths bottom-up; skull_base: (F, 3) the spine's target;
+    top_right: (F, 3) the right direction wanted at the top (head/shoulders), for the twist.
+
+    Pass 1: equal-angle arc from the spine root whose chord matches the distance to the skull
+    base, aimed at it, its first vertebra leaning toward the sacrum's +Y. Pass 2 (two_pass): the
+    sacrum turns about its hip axis (+X) to line its +Y up with that first vertebra, which moves
+    the spine root, and the arc is solved again. Twist: the hip axis turns uniformly about the
+    chord up to `top_right`, vertebra by vertebra."""
+    pelvis = np.asarray(pelvis, float)
+    sacrum_rot = np.asarray(sacrum_rot, float)
+    target = np.asarray(skull_base, float)
+    lengths = np.asarray(lengths, float)
+    start = pelvis + sacrum_length * sacrum_rot[..., 1]
+    joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1])
+    if two_pass:
+        x = sacrum_rot[..., 0]
+        first = _unit(joints[:, 1] - joints[:, 0], sacrum_rot[..., 1])[0]
+        y0 = sacrum_rot[..., 1]
+        fp = _perp_unit(first, x, y0)[0]
+        ang = np.arctan2(_dot(np.cross(y0, fp), x), _dot(y0, fp))
+        c, s = np.cos(ang)[..., None], np.sin(ang)[..., None]
+
+        def turn(v):  # Rodrigues about x (v perpendicular parts only matter for frame columns)
+            return v * c + np.cross(x, v) * s + x * _dot(x, v)[..., None] * (1 - c)
+
+        sacrum_rot = np.stack([x, turn(sacrum_rot[..., 1]), turn(sacrum_rot[..., 2])], axis=-1)
+        start = pelvis + sacrum_length * sacrum_rot[..., 1]
+        joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1])
+    # Uniform twist from the hip axis to the top's right, about the chord.
+    chord = _unit(joints[:, -1] - joints[:, 0], sacrum_rot[..., 1])[0]
+    hip = _perp_unit(sacrum_rot[..., 0], chord, _any_perpendicular(chord))[0]
+    total = np.zeros(len(pelvis))
+    if top_right is not None:
+        top = _perp_unit(np.asarray(top_right, float), chord, hip)[0]
+        total = np.arctan2(_dot(np.cross(hip, top), chord), _dot(hip, top))
+    n = len(lengths)
+    frac = (np.arange(n) + 1.0) / n
+    ang = total[:, None] * frac
+    other = np.cross(chord, hip)
+    right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
+    y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
+    xk = _perp_unit(right, y, _any_perpendicular(y))[0]
+    rotations = np.stack([xk, y, np.cross(xk, y)], axis=-1)
+    return SpineResult(joints, rotations, sacrum_rot, theta)

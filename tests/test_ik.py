@@ -1,0 +1,146 @@
+"""Avatar IK (paper 000, appendix E; DESIGN.md §6)."""
+
+import numpy as np
+import pytest
+
+from bodycal_addon.retarget import ik
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _perp(v, axis):
+    return _unit(v - np.einsum("fi,fi->f", v, axis)[:, None] * axis)
+
+
+def _check_frames(rot):
+    np.testing.assert_allclose(rot @ np.swapaxes(rot, -1, -2), np.broadcast_to(np.eye(3), rot.shape), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-9)
+
+
+def test_two_bone_reaches_every_reachable_target_and_keeps_the_swivel():
+    rng = np.random.default_rng(0)
+    n = 500
+    l1, l2 = 0.30, 0.26
+    root = rng.normal(size=(n, 3))
+    direction = _unit(rng.normal(size=(n, 3)))
+    dist = rng.uniform(abs(l1 - l2) + 1e-3, l1 + l2 - 1e-4, n)
+    target = root + direction * dist[:, None]
+    swivel = rng.normal(size=(n, 3))
+    res = ik.two_bone(root, l1, l2, target, user_swivel_dir=swivel)
+    assert np.linalg.norm(res.end - target, axis=-1).max() < 1e-4  # 0.1 mm
+    np.testing.assert_allclose(np.linalg.norm(res.mid - root, axis=-1), l1, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(res.end - res.mid, axis=-1), l2, atol=1e-9)
+    assert res.reached.all()
+    # The mid joint lies in the half-plane of the requested swivel (pole None: t = 0, δ = γ).
+    got = _perp(res.mid - root, direction)
+    np.testing.assert_allclose(got, _perp(swivel, direction), atol=1e-9)
+    # Flexion (eq. 5-6) and the hinge: both bones share +X, the second is the first turned about it.
+    cos_alpha = (l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2)
+    np.testing.assert_allclose(res.flexion, np.pi - np.arccos(cos_alpha), atol=1e-9)
+    _check_frames(res.rot1)
+    _check_frames(res.rot2)
+    np.testing.assert_allclose(res.rot1[..., 0], res.rot2[..., 0], atol=1e-12)
+    np.testing.assert_allclose(res.rot1[..., 1], _unit(res.mid - root), atol=1e-12)
+    np.testing.assert_allclose(res.rot2[..., 1], _unit(res.end - res.mid), atol=1e-12)
+    # Positive flexion about +X: rot2 = rot1 Rx(α).
+    c, s = np.cos(res.flexion), np.sin(res.flexion)
+    y2 = c[:, None] * res.rot1[..., 1] + s[:, None] * res.rot1[..., 2]
+    np.testing.assert_allclose(res.rot2[..., 1], y2, atol=1e-9)
+
+
+def test_swivel_follows_the_pole_target_with_the_blend_of_eq_7():
+    n = 7
+    root = np.zeros((n, 3))
+    target = np.tile([0.0, 0.0, -0.45], (n, 1))
+    r = np.array([0.0, 0.03, 0.05, 0.08, 0.10, 0.15, 0.4])
+    # Pole at 90° from the user's swivel, at distance r from the axis.
+    pole = np.stack([np.zeros(n), r, np.full(n, -0.2)], -1)
+    user = np.tile([1.0, 0.0, 0.0], (n, 1))
+    res = ik.two_bone(root, 0.3, 0.26, target, pole_target=pole, user_swivel_dir=user)
+    t = np.clip((r - 0.05) * 10, 0, 1)
+    np.testing.assert_allclose(res.blend, t, atol=1e-12)
+    np.testing.assert_allclose(ik.swivel_blend(r), t)
+    angle = np.arctan2(res.swivel_dir[:, 1], res.swivel_dir[:, 0])
+    np.testing.assert_allclose(angle, t * np.pi / 2, atol=1e-9)  # δ = t β + (1 - t) γ, β = 90°, γ = 0
+    np.testing.assert_allclose(np.linalg.norm(res.end - target, axis=-1), 0, atol=1e-9)
+
+
+def test_degenerate_targets_never_give_nan():
+    l1, l2 = 0.3, 0.25
+    root = np.zeros((6, 3))
+    target = np.array([[0, 0, 0], [0, 0, -2.0], [0, 0, -0.01], [0, 0, -0.55], [0, 0, 1e-15], [0, 0, -0.3]], float)
+    pole = np.array([[0, 0, -0.2]] * 5 + [[0, 0, -0.1]], float)  # on the root-effector axis
+    for kw in ({}, {"pole_target": pole}, {"user_swivel_dir": np.tile([0, 0, 1.0], (6, 1))},
+               {"user_swivel_dir": np.zeros((6, 3)), "flex_axis_hint": np.tile([1.0, 0, 0], (6, 1))}):
+        res = ik.two_bone(root, l1, l2, target, **kw)
+        for arr in (res.mid, res.end, res.rot1, res.rot2, res.flexion, res.blend):
+            assert np.all(np.isfinite(arr)), kw
+        _check_frames(res.rot1)
+        _check_frames(res.rot2)
+        np.testing.assert_allclose(np.linalg.norm(res.mid - root, axis=-1), l1, atol=1e-9)
+        np.testing.assert_allclose(np.linalg.norm(res.end - res.mid, axis=-1), l2, atol=1e-9)
+    res = ik.two_bone(root, l1, l2, target, user_swivel_dir=np.tile([1.0, 0, 0], (6, 1)))
+    # Unreachable: fully extended toward the target.
+    np.testing.assert_allclose(res.end[1], [0, 0, -(l1 + l2)], atol=1e-12)
+    assert res.flexion[1] == pytest.approx(0.0, abs=1e-7)
+    assert not res.reached[1] and not res.reached[2] and res.reached[5]
+    # Too close: folded as far as the bones allow, toward the target.
+    np.testing.assert_allclose(res.end[2], [0, 0, -(l1 - l2)], atol=1e-12)
+
+
+def test_flex_axis_hint_sets_the_swivel_of_a_straight_user_limb():
+    n = 3
+    root = np.zeros((n, 3))
+    target = np.tile([0.0, 0.0, -0.4], (n, 1))
+    hint = np.tile([1.0, 0.0, 0.0], (n, 1))  # the user's hinge axis
+    res = ik.two_bone(root, 0.3, 0.26, target, user_swivel_dir=np.tile([0, 0, -1.0], (n, 1)), flex_axis_hint=hint)
+    np.testing.assert_allclose(res.rot1[..., 0], hint, atol=1e-12)  # the avatar's hinge = the user's
+
+
+def test_spine_arc_reaches_the_skull_base_with_equal_angles():
+    n = 5
+    rng = np.random.default_rng(1)
+    lengths = np.full(12, 0.05)
+    pelvis = np.zeros((n, 3))
+    rot = np.broadcast_to(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), (n, 3, 3)).copy()  # +Y = world +Z
+    skull = np.stack([np.zeros(n), rng.uniform(-0.15, 0.15, n), rng.uniform(0.4, 0.5, n)], -1) + [0, 0, 0.1]
+    kink = {}
+    for two_pass in (False, True):
+        res = ik.spine(pelvis, rot, 0.1, lengths, skull, two_pass=two_pass)
+        first = _unit(res.joints[:, 1] - res.joints[:, 0])
+        kink[two_pass] = np.arccos(np.clip(np.einsum("fi,fi->f", first, res.sacrum_rot[..., 1]), -1, 1))
+        np.testing.assert_allclose(res.joints[:, -1], skull, atol=1e-6)
+        seg = np.diff(res.joints, axis=1)
+        np.testing.assert_allclose(np.linalg.norm(seg, axis=-1), 0.05, atol=1e-12)
+        u = seg / 0.05
+        turn = np.arccos(np.clip(np.einsum("fki,fki->fk", u[:, 1:], u[:, :-1]), -1, 1))
+        np.testing.assert_allclose(turn, np.broadcast_to(turn[:, :1], turn.shape), atol=1e-6)
+        _check_frames(res.rotations)
+        _check_frames(res.sacrum_rot)
+    # Second pass: turning the sacrum toward the first vertebra shrinks the sacrum-vertebra kink
+    # (it does not cancel it: the moved spine root changes the chord and the arc is solved again).
+    assert np.all(kink[True] < kink[False] - 0.05)
+    np.testing.assert_allclose(res.sacrum_rot[..., 0], rot[..., 0], atol=1e-12)  # about the hip axis
+
+
+def test_spine_twist_is_uniform_and_reaches_the_top_right():
+    n = 2
+    lengths = np.full(12, 0.05)
+    rot = np.broadcast_to(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), (n, 3, 3)).copy()
+    skull = np.tile([0.0, 0.0, 0.1 + 0.6], (n, 1))  # straight: the twist alone turns the frames
+    top = np.tile([np.cos(0.6), np.sin(0.6), 0.0], (n, 1))
+    res = ik.spine(np.zeros((n, 3)), rot, 0.1, lengths, skull, top_right=top)
+    x = res.rotations[..., 0]
+    ang = np.arctan2(x[..., 1], x[..., 0])
+    np.testing.assert_allclose(ang, np.broadcast_to(0.6 * np.arange(1, 13) / 12, ang.shape), atol=1e-9)
+
+
+def test_spine_out_of_reach_is_straight_and_finite():
+    n = 2
+    rot = np.broadcast_to(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), (n, 3, 3)).copy()
+    skull = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 0.1]])  # too far; on the spine root
+    res = ik.spine(np.zeros((n, 3)), rot, 0.1, np.full(12, 0.05), skull)
+    assert np.all(np.isfinite(res.joints)) and np.all(np.isfinite(res.rotations))
+    np.testing.assert_allclose(res.joints[0, -1], [0, 0, 0.1 + 0.6], atol=1e-6)
