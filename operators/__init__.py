@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import calibration, recording, sample_avatars
+from . import avatar, calibration, recording, sample_avatars
 
-_MODULES = (sample_avatars, recording, calibration)
+_MODULES = (sample_avatars, recording, calibration, avatar)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)

@@ -127,11 +127,17 @@ def load_overrides(arm) -> dict[str, str]:
 
 
 def set_override(arm, segment: str, bone: str | None) -> None:
-    """Map `segment` to avatar bone `bone` (None/"" marks it unmapped); saved with the armature."""
+    """Map `segment` to avatar bone `bone` (None/"" marks it unmapped; the spine and neck chains
+    take a comma-separated list, bottom-up); saved with the armature."""
     if segment not in sk.SEGMENTS and segment not in sk.CHAIN_SEGMENTS:
         raise BodyCalError(f"'{segment}' is not a body segment", source=arm.name)
-    if bone and bone not in arm.data.bones:
-        raise BodyCalError(f"armature has no bone '{bone}'", source=arm.name, field=segment)
+    names = [b.strip() for b in (bone or "").split(",") if b.strip()]
+    if len(names) > 1 and segment not in sk.CHAIN_SEGMENTS:
+        raise BodyCalError("only the spine and neck take several bones", source=arm.name, field=segment)
+    for b in names:
+        if b not in arm.data.bones:
+            raise BodyCalError(f"armature has no bone '{b}'", source=arm.name, field=segment)
+    bone = ",".join(names)
     ov = load_overrides(arm)
     ov[segment] = bone or ""
     arm[BONE_MAP_PROP] = json.dumps(ov)

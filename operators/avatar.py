@@ -1,0 +1,262 @@
+"""Avatar operators (DESIGN.md §4): bone map, surface calibration, authoring, import/export."""
+
+import bpy
+from bpy_extras.io_utils import ExportHelper, ImportHelper
+
+from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, surface_helpers
+from ..bodycal_addon.bodymodel import BodyModel
+from ..bodycal_addon.errors import BodyCalError
+
+
+def context_armature(context):
+    """The armature the avatar operators act on: the active armature, the armature deforming the
+    active mesh, or the armature whose surface helper is active."""
+    obj = context.active_object
+    if obj is None:
+        return None
+    if obj.type == "ARMATURE":
+        return obj
+    if obj.type == "MESH":
+        for m in obj.modifiers:
+            if m.type == "ARMATURE" and m.object is not None:
+                return m.object
+        if obj.parent is not None and obj.parent.type == "ARMATURE":
+            return obj.parent
+    name = obj.get(surface_helpers.ARMATURE_PROP)
+    if name:
+        arm = bpy.data.objects.get(name)
+        if arm is not None and arm.type == "ARMATURE":
+            return arm
+    return None
+
+
+def _poll_armature(cls, context, need_model=False, object_mode=True):
+    arm = context_armature(context)
+    if arm is None:
+        cls.poll_message_set("Select the avatar's armature (or its mesh)")
+        return False
+    if object_mode and context.mode != "OBJECT":
+        cls.poll_message_set("Switch to Object Mode first")
+        return False
+    if need_model and not avatar_storage.has_model(arm):
+        cls.poll_message_set(f"{arm.name} has no avatar model yet: run Calibrate Avatar")
+        return False
+    return True
+
+
+class BODYCAL_OT_detect_bone_map(bpy.types.Operator):
+    """Map the armature's bones to the canonical skeleton from their names (Unreal, Rigify,
+    Mixamo, VRM); your manual assignments are kept unless Reset is on"""
+
+    bl_idname = "bodycal.detect_bone_map"
+    bl_label = "Detect Bone Map"
+    bl_options = {"REGISTER", "UNDO"}
+
+    reset: bpy.props.BoolProperty(name="Reset", default=False, description="Forget manual assignments")
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context, object_mode=False)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        if self.reset:
+            avatar_rig.clear_overrides(arm)
+        try:
+            bm = avatar_rig.bone_map_for(arm)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        missing = bm.missing()
+        mapped = len(bm.bones) + sum(1 for c in bm.chains.values() if c)
+        if missing:
+            self.report({"WARNING"}, f"{arm.name}: {bm.scheme} names, {mapped} segments mapped; "
+                        f"missing {', '.join(missing)}: assign them in the Avatar panel")
+        else:
+            self.report({"INFO"}, f"{arm.name}: {bm.scheme} names, {mapped} segments mapped, nothing missing")
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_assign_bone(bpy.types.Operator):
+    """Map a body segment to a bone of the armature (the active bone unless a name is given);
+    saved with the armature"""
+
+    bl_idname = "bodycal.assign_bone"
+    bl_label = "Assign Bone"
+    bl_options = {"REGISTER", "UNDO"}
+
+    segment: bpy.props.StringProperty(name="Segment")
+    bone: bpy.props.StringProperty(name="Bone", description="Bone name (spine/neck: comma-separated, bottom-up); "
+                                   "empty = the active bone")
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context, object_mode=False)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        bone = self.bone or (arm.data.bones.active.name if arm.data.bones.active else "")
+        if not bone:
+            self.report({"ERROR"}, "No bone given and no active bone: select a bone in Pose Mode")
+            return {"CANCELLED"}
+        try:
+            avatar_rig.set_override(arm, self.segment, bone)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{self.segment} -> {bone}")
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
+    """Measure the avatar's surface by raycasting onto its mesh (capsules, torso, jaw, skull,
+    palms, soles) and store the body model on the armature"""
+
+    bl_idname = "bodycal.calibrate_avatar"
+    bl_label = "Calibrate Avatar"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        wm = context.window_manager
+        wm.progress_begin(0, 1)
+        try:
+            model = avatar_calibration.calibrate_avatar(arm, depsgraph=context.evaluated_depsgraph_get())
+            avatar_storage.store_model(arm, model)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        finally:
+            wm.progress_end()
+        q = model.calibration["quality"]
+        rejected = sum(v["rejected"] for v in q.values())
+        note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""
+        self.report({"INFO"}, f"{arm.name}: {len(model.surface)} surface elements, "
+                    f"{sum(v['hit'] for v in q.values())} ray hits ({rejected} rejected), "
+                    f"{model.extra['rig']['rest_pose']}-pose rest{note}")
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_edit_surface(bpy.types.Operator):
+    """Show every surface point and element of the stored avatar model as helper empties you
+    can move (points, skull) and scale (capsule ends, skull)"""
+
+    bl_idname = "bodycal.edit_surface"
+    bl_label = "Edit Surface"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context, need_model=True)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        try:
+            coll = surface_helpers.edit_surface(arm, context)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{len(coll.objects)} helpers in '{coll.name}': move or scale them, then Apply Edits")
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_apply_surface_edits(bpy.types.Operator):
+    """Read the surface helpers back into the avatar model stored on the armature"""
+
+    bl_idname = "bodycal.apply_surface_edits"
+    bl_label = "Apply Surface Edits"
+    bl_options = {"REGISTER", "UNDO"}
+
+    remove_helpers: bpy.props.BoolProperty(name="Remove Helpers", default=False,
+                                           description="Delete the helper empties once read")
+
+    @classmethod
+    def poll(cls, context):
+        if not _poll_armature(cls, context, need_model=True):
+            return False
+        if surface_helpers.helper_collection(context_armature(context)) is None:
+            cls.poll_message_set("No surface helpers: press Edit Surface first")
+            return False
+        return True
+
+    def execute(self, context):
+        arm = context_armature(context)
+        try:
+            changed = surface_helpers.apply_surface_edits(arm, remove=self.remove_helpers)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{arm.name}: {len(changed)} elements changed"
+                    + (f" ({', '.join(changed[:6])}{', ...' if len(changed) > 6 else ''})" if changed else ""))
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_export_avatar_model(bpy.types.Operator, ExportHelper):
+    """Write the avatar body model stored on the armature as a *.body.json file"""
+
+    bl_idname = "bodycal.export_avatar_model"
+    bl_label = "Export Avatar Model"
+    bl_options = {"REGISTER"}
+
+    filename_ext = ".json"
+    filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context, need_model=True, object_mode=False)
+
+    def invoke(self, context, event):
+        self.filepath = bpy.path.clean_name(context_armature(context).name) + ".body.json"
+        return super().invoke(context, event)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        try:
+            path = avatar_storage.load_model(arm).save(self.filepath)
+        except (BodyCalError, OSError) as exc:
+            self.report({"ERROR"}, exc.line() if isinstance(exc, BodyCalError) else f"{self.filepath}: {exc}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Wrote {path}")
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
+    """Read a *.body.json avatar model (an authored configuration) onto the active armature"""
+
+    bl_idname = "bodycal.import_avatar_model"
+    bl_label = "Import Avatar Model"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filename_ext = ".json"
+    filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context, object_mode=False)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        try:
+            model = BodyModel.load(self.filepath)
+            if model.kind != "avatar":
+                raise BodyCalError(f"a '{model.kind}' body model, not an avatar model", source=self.filepath,
+                                   field="kind")
+            avatar_storage.store_model(arm, model)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        rig_name = model.extra.get("rig", {}).get("armature")
+        if rig_name and rig_name != arm.name:
+            self.report({"WARNING"}, f"Stored on {arm.name}; the model was calibrated on '{rig_name}'")
+        else:
+            self.report({"INFO"}, f"Stored the avatar model on {arm.name}")
+        return {"FINISHED"}
+
+
+CLASSES = (BODYCAL_OT_detect_bone_map, BODYCAL_OT_assign_bone, BODYCAL_OT_calibrate_avatar,
+           BODYCAL_OT_edit_surface, BODYCAL_OT_apply_surface_edits, BODYCAL_OT_export_avatar_model,
+           BODYCAL_OT_import_avatar_model)
