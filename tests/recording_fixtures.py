@@ -61,7 +61,7 @@ def tpose_recording(*, yaw: float = 0.0, profile: str = "full", fps: float = 90.
     rec = Recording(name="tpose_test", time=time, devices=devices, positions=np.stack(pos, 1),
                     rotations=np.stack(rot, 1), valid=np.ones((f, len(devices)), bool),
                     segments=[Segment("tpose", 0.05 * seconds, 0.45 * seconds),
-                              Segment("motion", 0.5 * seconds, 0.975 * seconds)])
+                              Segment("motion", 0.5 * seconds, float(time[-1]))])
     if leds:
         names, pts = [], []
         for s, sign in (("l", 1.0), ("r", -1.0)):
