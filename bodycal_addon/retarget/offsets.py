@@ -1,0 +1,189 @@
+"""The `offsets` method: AvatarGo's exact tracker-to-joint offsets (paper 004, §3.3-3.4) + IK.
+
+At the T-pose (the user model's reference time) the avatar, scaled uniformly by the eye-height
+ratio and placed in the user's T-pose, gives for every tracked joint J and its tracker T the offset
+v0(TJ) = p0(J) - p0(T) and the rotations R0(T), R0(J). Then, per frame:
+    p_t(J) = p_t(T) + R_t(T) R_0(T)^-1 v_0(TJ)        (eq. 2)
+    R_t(J) = R_t(T) R_0(T)^-1 R_0(J)                  (eq. 3)
+for the root (pelvis tracker -> sacrum), the ankles (foot trackers -> feet), the wrists (hand
+devices -> hands: the controller stays under the palm because the offset was taken with the
+controller in the hand) and the head (HMD). The spine bends by the angle between w0 and w_t (root
+to head, eq. 1, 4); limbs reach their effectors by two-bone IK; fingers close on the controller by
+gradient descent of the capsule SDF (eq. 5-7). Positions are computed at the user's scale and then
+brought back to the avatar's own size (divided by the eye-height ratio).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import skeleton as sk
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+from ..transforms import normalize, quat_between, quat_to_matrix
+from .avatar_pose import BI, JI, SPINE_BONES, AvatarRig, complete_joints
+from .user_animation import _axis_angle_matrix
+
+TRACKED = {  # joint -> (tracker role, canonical bone whose rotation follows eq. 3)
+    "pelvis": ("pelvis", "sacrum"),
+    "skull_base": ("head", "head"),
+    "wrist_l": ("hand_l", "hand_l"), "wrist_r": ("hand_r", "hand_r"),
+    "ankle_l": ("foot_l", "foot_l"), "ankle_r": ("foot_r", "foot_r"),
+}
+
+# Controller as a capsule in the avatar's hand frame (paper 004, eq. 5): along the palm's lateral
+# axis, under the palm centre. Metres at the avatar's scale are derived from its hand length.
+CONTROLLER_RADIUS_OF_HAND = 0.22  # radius / hand length (wrist -> middle base)
+CONTROLLER_LENGTH_OF_HAND = 1.0
+FINGER_ITERATIONS = 24
+FINGER_RATE = 0.5
+PENALTY_INSIDE = 4.0
+
+
+def eye_height(model: BodyModel) -> float:
+    eh = model.extra.get("eye_height")
+    if eh:
+        return float(eh)
+    pos = complete_joints(model)
+    # eyes ~ 0.6 of the way from the skull base to the top of the head joint
+    return float(pos["skull_base"][2] + 0.6 * (pos["head"][2] - pos["skull_base"][2]))
+
+
+@dataclass
+class OffsetsSetup:
+    scale: float  # user eye height / avatar eye height
+    v0: dict[str, np.ndarray]  # joint -> (3,) world, user scale
+    r0_tracker: dict[str, np.ndarray]  # role -> (3, 3)
+    r0_joint: dict[str, np.ndarray]  # canonical bone -> (3, 3)
+    w0: np.ndarray  # (3,) root -> head at the T-pose (tracker positions)
+    spine0: np.ndarray  # (12, 3, 3) vertebra frames at the T-pose
+    pelvis0: np.ndarray  # (3,) avatar pelvis at the T-pose (user scale)
+
+
+def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: dict[str, tuple]) -> OffsetsSetup:
+    """Offsets at the T-pose: `ref_frames` (B, 3, 3) the user's canonical frames at the reference
+    time (the avatar is posed with them), `tpose` {role: (position (3,), rotation (3, 3))}."""
+    for role, _ in TRACKED.values():
+        if role not in tpose:
+            raise BodyCalError(f"no T-pose for the '{role}' device", source=user_model.name, field="extra.tpose",
+                               hint="calibrate the user from a recording with a tpose step")
+    s = eye_height(user_model) / eye_height(rig.model)
+    user_pos = complete_joints(user_model)
+    # The avatar in the user's T-pose: the user's reference frames, pelvis over the user's pelvis,
+    # feet on the floor at the avatar's own scale; then scaled by s about the origin.
+    rest_pel = rig.joint_world[JI["pelvis"]]
+    pel = np.array([user_pos["pelvis"][0] / s, user_pos["pelvis"][1] / s, rest_pel[2]])
+    pose = rig.solve(ref_frames[None], pel[None])
+    joints0 = pose.joints[0] * s
+    frames0 = pose.frames[0]
+    v0, r0t, r0j = {}, {}, {}
+    for j, (role, bone) in TRACKED.items():
+        p_t, r_t = tpose[role]
+        v0[j] = joints0[JI[j]] - p_t
+        r0t[role] = r_t
+        r0j[bone] = frames0[BI[bone]]
+    w0 = tpose["head"][0] - tpose["pelvis"][0]
+    spine0 = frames0[[BI[b] for b in SPINE_BONES]]
+    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]])
+
+
+def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
+    """Eq. 2-3 per frame: ({joint: (F, 3) at the AVATAR's scale}, {bone: (F, 3, 3)})."""
+    p, r = {}, {}
+    for j, (role, bone) in TRACKED.items():
+        rel = rot[role] @ st.r0_tracker[role].T  # R_t(T) R_0(T)^-1
+        p[j] = (pos[role] + rel @ st.v0[j]) / st.scale
+        r[bone] = rel @ st.r0_joint[bone]
+    return p, r
+
+
+def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarray) -> np.ndarray:
+    """Vertebra frames (F, 12, 3, 3): the T-pose spine turned with the sacrum, then bent by the
+    angle between w0 and w_t (eq. 4), spread evenly over the vertebrae."""
+    d_sac = sacrum @ st.r0_joint["sacrum"].T
+    w0 = np.einsum("fij,j->fi", d_sac, st.w0)
+    wt = pos["head"] - pos["pelvis"]
+    q = quat_between(w0, wt)
+    angle = 2 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), q[..., 0])
+    axis = normalize(q[..., 1:])
+    n = len(SPINE_BONES)
+    out = np.empty(sacrum.shape[:1] + (n, 3, 3))
+    for k in range(n):
+        frac = (k + 1) / n
+        half = 0.5 * angle * frac
+        qk = np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], -1)
+        out[:, k] = quat_to_matrix(qk) @ d_sac @ st.spine0[k]
+    return out
+
+
+def capsule_sdf(p, s, e, r):
+    """Paper 004, eq. 5: |v1 - v2 h| - r, h = clamp(v1.v2 / v2.v2, 0, 1)."""
+    v1, v2 = p - s, e - s
+    h = np.clip((v1 * v2).sum(-1) / np.maximum((v2 * v2).sum(-1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(v1 - v2 * h[..., None], axis=-1) - r
+
+
+def grip_fingers(rig: AvatarRig, side: str) -> dict[str, np.ndarray]:
+    """Closed-on-the-controller finger frames in the HAND frame (canonical bone -> (3, 3)),
+    by gradient descent on the interpolation factors t in [0, 1] between the open (rest) and the
+    closed (90° per joint) finger (paper 004, eq. 6-7, numerical gradient, penalty inside). The
+    controller is rigid in the hand, so one solve serves every frame."""
+    pos = {j: rig.joint_world[JI[j]] for j in sk.JOINTS}
+    f0 = rig.frames0
+    hand = f0[BI[f"hand_{side}"]]
+    wrist = pos[f"wrist_{side}"]
+    hand_len = np.linalg.norm(pos[f"mcp_middle_{side}"] - wrist)
+    # Palm side: the fingers flex about +X toward +Z of their frames.
+    palm_dir = f0[BI[f"middle_1_{side}"]][:, 2]
+    r = CONTROLLER_RADIUS_OF_HAND * hand_len
+    centre = wrist + 0.6 * (pos[f"mcp_middle_{side}"] - wrist) + palm_dir * (r + 0.02 * hand_len)
+    lat = hand[:, 0] * CONTROLLER_LENGTH_OF_HAND * hand_len / 2
+    s_, e_ = centre - lat, centre + lat
+    fingers = list(sk.FINGERS)
+    chains = []
+    for f in fingers:
+        names = [f"{j}_{f}_{side}" for j in sk.FINGER_JOINTS]
+        lens = np.array([np.linalg.norm(pos[names[i + 1]] - pos[names[i]]) for i in range(3)])
+        frames = np.stack([f0[BI[f"{f}_{i}_{side}"]] for i in (1, 2, 3)])
+        chains.append((pos[names[0]], lens, frames))
+    mcp = np.stack([c[0] for c in chains])  # (5, 3)
+    lens = np.stack([c[1] for c in chains])  # (5, 3)
+    fr = np.stack([c[2] for c in chains])  # (5, 3, 3, 3)
+
+    def finger_points(t):  # t (..., 5, 3) -> joint points (..., 5, 3, 3) and frames
+        rot = np.broadcast_to(np.eye(3), t.shape[:-1] + (3, 3))
+        p = np.broadcast_to(mcp, t.shape[:-1] + (3,))
+        pts, frames = [], []
+        for i in range(3):
+            axis = fr[:, i, :, 0]
+            ang = t[..., i] * (np.pi / 2)
+            rot = _axis_angle_matrix(np.broadcast_to(axis, ang.shape + (3,)), ang) @ rot
+            f_i = rot @ fr[:, i]
+            frames.append(f_i)
+            p = p + f_i[..., :, 1] * lens[..., i:i + 1]
+            pts.append(p)
+        return np.stack(pts, -2), np.stack(frames, -3)
+
+    def cost(t):
+        pts, _ = finger_points(t)
+        d = capsule_sdf(pts, s_, e_, r)
+        return np.where(d < 0, -PENALTY_INSIDE * d, d).sum(-1)  # (..., 5)
+
+    t = np.zeros((5, 3))
+    eps = 1e-3
+    for _ in range(FINGER_ITERATIONS):
+        grad = np.empty_like(t)
+        base = cost(t)
+        for i in range(3):
+            tp = t.copy()
+            tp[:, i] += eps
+            grad[:, i] = (cost(tp) - base) / eps
+        t = np.clip(t - FINGER_RATE * grad / max(hand_len, 1e-6), 0.0, 1.0)
+    _, frames = finger_points(t)
+    out = {}
+    for fi, f in enumerate(fingers):
+        for i in (1, 2, 3):
+            out[f"{f}_{i}_{side}"] = hand.T @ frames[fi, i - 1]  # in the hand frame
+    return out

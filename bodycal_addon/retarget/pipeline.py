@@ -1,0 +1,262 @@
+"""The per-frame retargeting pipeline (DESIGN.md §1 steps 1-4) for the three methods, in chunks
+of frames, with progress and cancel callbacks for the modal bake operator.
+
+- `egocentric` (paper 000, the default): animate the user (step 1), pose the avatar by copying the
+  user's bone frames (step 2), map the targets (wrists, ankles, elbows, knees, fingertips, skull
+  base) through the two posed surfaces (step 3, `egocentric.retarget_points`), then avatar IK
+  (step 4): spine aimed at the skull base, two-bone limbs with the swivel blend, fingers.
+- `offsets` (paper 004): exact tracker-to-joint offsets for root, feet, hands and head, spine bent
+  by the root-to-head angle, limbs by IK, fingers closed on the controller (`offsets.py`).
+- `rotations`: step 2 only, the baseline.
+
+The result is an `AvatarAnimation` whose `rotations` / `root_location` are pose-bone values for
+the armature (`avatar_pose.AvatarRig.solve`) and whose `joints_world` are the canonical joints
+those values put in the world (Blender's FK, armature matrix_world included).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .. import skeleton as sk
+from ..animation import AvatarAnimation
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError, Cancelled
+from ..recording import Recording
+from ..surface_layout import bone_frame
+from ..transforms import normalize, quat_to_matrix
+from . import ik
+from . import offsets as ofs
+from .avatar_pose import BI, BONES, JI, JOINTS, SPINE_BONES, AvatarRig, complete_joints, model_rest_frames, root_scale
+from .user_animation import _trackers, animate_user, pose_finger_chain
+
+METHODS = ("egocentric", "offsets", "rotations")
+TARGETS = tuple(
+    [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
+    + [f"tip_{f}_{s}" for s in sk.SIDES for f in sk.FINGERS] + ["skull_base"])
+LIMBS = {  # limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
+    "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
+    "leg": ("hip", "knee", "ankle", "thigh", "shin"),
+}
+
+
+def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.ndarray:
+    """(B, 3, 3) C0^-1 C_model0: the model's surface points are local to `bone_frame` with the
+    model's own `right`; the engine's frames fix the right by one rule. Posing with C(t) corr
+    places them as the model defined them."""
+    out = np.broadcast_to(np.eye(3), (len(BONES), 3, 3)).copy()
+    for i, b in enumerate(BONES):
+        info = model.bones.get(b.name)
+        if info is None or info.right is None:
+            continue
+        cm = bone_frame(pos[b.head], pos[b.tail], np.asarray(info.right, float))
+        if np.isfinite(cm).all() and abs(np.linalg.det(cm) - 1) < 1e-3:
+            out[i] = frames0[i].T @ cm
+    return out
+
+
+class _Run:
+    """Everything computed once per (user, avatar, method)."""
+
+    def __init__(self, recording: Recording, user: BodyModel, avatar: BodyModel, method: str):
+        if method not in METHODS:
+            raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
+        if user.kind != "user":
+            raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
+        if avatar.kind != "avatar":
+            raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
+                               field="kind")
+        if recording.frame_count == 0:
+            raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
+        self.rec, self.user, self.avatar, self.method = recording, user, avatar, method
+        self.rig = AvatarRig.from_model(avatar)
+        self.k = root_scale(user, self.rig)
+        self.user_pos = complete_joints(user)
+        self.user_frames0 = model_rest_frames(user, self.user_pos)
+        self.notes: list[str] = []
+        bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+        self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
+                            for s in sk.SIDES}
+        if method == "egocentric":
+            from . import egocentric as ego
+
+            self.ego = ego
+            self.ids = ego.common_elements(user, avatar)
+            if not self.ids:
+                raise BodyCalError("the user and the avatar share no surface elements", source=avatar.name,
+                                   field="surface", hint="calibrate the avatar's surface")
+            self.ucorr = surface_correction(user, self.user_frames0, self.user_pos)
+            self.acorr = surface_correction(avatar, self.rig.frames0, complete_joints(avatar))
+            have = {e.id for e in user.surface}
+            self.targets = [t for t in TARGETS if not t.startswith("tip_") or
+                            any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have)]
+        elif method == "offsets":
+            tpose = {}
+            raw = user.extra.get("tpose") or {}
+            tr0 = None
+            for role in ("pelvis", "head", "hand_l", "hand_r", "foot_l", "foot_r"):
+                if role in raw:
+                    v = np.asarray(raw[role], float)
+                    tpose[role] = (v[:3], quat_to_matrix(v[3:7] / np.linalg.norm(v[3:7])))
+                else:
+                    if tr0 is None and user.reference_time is not None:
+                        f0 = int(np.clip(np.searchsorted(recording.time, user.reference_time), 0,
+                                         recording.frame_count - 1))
+                        tr0 = _trackers(recording, user, f0, f0 + 1)
+                    if tr0 is not None and role in tr0.pos:
+                        tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
+            self.ofs = ofs.setup(user, self.rig, self.user_frames0, tpose)
+            self.grip = {s: ofs.grip_fingers(self.rig, s) for s in sk.SIDES if self.has_fingers[s]}
+
+    # --- one chunk of frames ------------------------------------------------------------------
+
+    def chunk(self, start: int, stop: int):
+        up = animate_user(self.rec, self.user, start, stop)
+        for n in up.notes:
+            if n not in self.notes:
+                self.notes.append(n)
+        pelvis = up.joints[:, JI["pelvis"]] * self.k
+        fk = self.rig.solve(up.frames, pelvis)
+        if self.method == "rotations":
+            return fk, {}
+        if self.method == "egocentric":
+            return self._egocentric(up, fk, pelvis)
+        return self._offsets(up, fk, start, stop)
+
+    def _egocentric(self, up, fk, pelvis):
+        ego = self.ego
+        us = ego.pose_surface(self.user, _jd(up.joints), _fd(up.frames, self.ucorr), self.ids)
+        av = ego.pose_surface(self.avatar, _jd(fk.joints), _fd(fk.frames, self.acorr), self.ids)
+        names = self.targets
+        pts = up.joints[:, [JI[n] for n in names]]
+        tg = ego.retarget_points(pts, list(names), us, av)
+        targets = {n: tg[:, i] for i, n in enumerate(names)}
+        frames = self._ik(up, fk, pelvis, targets)
+        return self.rig.solve(frames, pelvis), targets
+
+    def _ik(self, up, fk, pelvis, targets, hands=None):
+        rig = self.rig
+        frames = up.frames.copy()
+        # Spine aimed at the skull base (appendix D: the same two-pass solver as the user's); the
+        # clavicles keep their pose relative to vertebra 5.
+        if "skull_base" in targets:
+            spine_idx = [BI[b] for b in SPINE_BONES]
+            res = ik.spine(fk.joints[:, JI["pelvis"]], fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
+                           rig.lengths[spine_idx], targets["skull_base"],
+                           top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]))
+            frames[:, BI["sacrum"]] = res.sacrum_rot
+            frames[:, spine_idx] = res.rotations
+            v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
+            for s in sk.SIDES:
+                c = BI[f"clavicle_{s}"]
+                frames[:, c] = res.rotations[:, sk.CLAVICLE_VERTEBRA - 1] @ np.swapaxes(up.frames[:, v5], -1, -2) \
+                    @ up.frames[:, c]
+        trunk = rig.solve(frames, pelvis)
+        wrist_pos = {}
+        for s in sk.SIDES:
+            for limb, (a, m, e, ab, mb) in LIMBS.items():
+                eff = targets.get(f"{e}_{s}")
+                if eff is None:
+                    continue
+                root = trunk.joints[:, JI[f"{a}_{s}"]]
+                l1, l2 = rig.lengths[BI[f"{ab}_{s}"]], rig.lengths[BI[f"{mb}_{s}"]]
+                # Appendix E: swivel blended between the mapped intermediate target and the user's.
+                tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"),
+                                 up.joints[:, JI[f"{m}_{s}"]] - up.joints[:, JI[f"{a}_{s}"]],
+                                 up.frames[:, BI[f"{ab}_{s}"]][..., :, 0])
+                frames[:, BI[f"{ab}_{s}"]] = tb.rot1
+                frames[:, BI[f"{mb}_{s}"]] = tb.rot2
+                reached = tb.end
+                if limb == "arm":
+                    wrist_pos[s] = reached
+            if hands is not None and s in hands:
+                for b, fr in hands[s].items():
+                    frames[:, BI[b]] = frames[:, BI[f"hand_{s}"]] @ fr
+            elif s in wrist_pos and self.has_fingers[s]:
+                self._fingers(frames, s, wrist_pos[s], targets)
+        return frames
+
+    def _fingers(self, frames, s, wrist, targets):
+        rig = self.rig
+        hand = frames[:, BI[f"hand_{s}"]]
+        c0h = rig.frames0[BI[f"hand_{s}"]]
+        w0 = rig.joint_world[JI[f"wrist_{s}"]]
+        for f in sk.FINGERS:
+            tip = targets.get(f"tip_{f}_{s}")
+            if tip is None:
+                continue
+            names = [f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS]
+            p0 = [rig.joint_world[JI[n]] for n in names]
+            lens = np.array([np.linalg.norm(p0[i + 1] - p0[i]) for i in range(3)])
+            mcp = wrist + np.einsum("fij,j->fi", hand, c0h.T @ (p0[0] - w0))
+            rest = [hand @ (c0h.T @ rig.frames0[BI[f"{f}_{i}_{s}"]]) for i in (1, 2, 3)]
+            _, fr = pose_finger_chain(mcp, tip, lens, rest, thumb=f == "thumb")
+            for i in (1, 2, 3):
+                frames[:, BI[f"{f}_{i}_{s}"]] = fr[i - 1]
+
+    def _offsets(self, up, fk, start, stop):
+        st = self.ofs
+        tr = _trackers(self.rec, self.user, start, stop)
+        p, r = ofs.effector_targets(st, tr.pos, tr.rot)
+        frames = up.frames.copy()
+        for bone, fr in r.items():
+            frames[:, BI[bone]] = fr
+        sf = ofs.spine_frames(st, tr.pos, r["sacrum"])
+        frames[:, [BI[b] for b in SPINE_BONES]] = sf
+        v5 = sk.CLAVICLE_VERTEBRA - 1
+        for s in sk.SIDES:
+            c = BI[f"clavicle_{s}"]
+            frames[:, c] = sf[:, v5] @ (st.spine0[v5].T @ self.user_frames0[c])
+        targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
+        pelvis = p["pelvis"]
+        up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
+        frames = self._ik(up2, fk, pelvis, targets, hands=self.grip)
+        targets["skull_base"] = p["skull_base"]
+        return self.rig.solve(frames, pelvis), targets
+
+
+def _jd(joints: np.ndarray) -> dict[str, np.ndarray]:
+    return {j: joints[:, i] for i, j in enumerate(JOINTS)}
+
+
+def _fd(frames: np.ndarray, corr: np.ndarray) -> dict[str, np.ndarray]:
+    fr = frames @ corr
+    return {b.name: fr[:, i] for i, b in enumerate(BONES)}
+
+
+def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyModel, method: str = "egocentric", *,
+             chunk_frames: int = 2000, progress: Callable[[float], None] | None = None,
+             cancel: Callable[[], bool] | None = None) -> AvatarAnimation:
+    """Retarget `recording` of the user (`user_model`) onto the avatar (`avatar_model`, kind
+    "avatar" with `extra["rig"]`). Frames are processed `chunk_frames` at a time; `progress(f)` is
+    called with the fraction done after each chunk and `cancel()` before each one (True raises
+    `errors.Cancelled`). Bad inputs raise one `BodyCalError`."""
+    run = _Run(recording, user_model, avatar_model, method)
+    nf = recording.frame_count
+    rig = run.rig
+    nb = len(rig.names)
+    rotations = np.empty((nf, nb, 4))
+    root_loc = np.empty((nf, 3))
+    joints = np.empty((nf, len(JOINTS), 3), np.float32)
+    targets: dict[str, np.ndarray] = {}
+    chunk_frames = max(1, int(chunk_frames))
+    for start in range(0, nf, chunk_frames):
+        if cancel is not None and cancel():
+            raise Cancelled(f"retargeting cancelled at frame {start} of {nf}")
+        stop = min(nf, start + chunk_frames)
+        pose, tg = run.chunk(start, stop)
+        rotations[start:stop] = pose.basis
+        root_loc[start:stop] = pose.root_location
+        joints[start:stop] = pose.joints
+        for n, v in tg.items():
+            targets.setdefault(n, np.empty((nf, 3), np.float32))[start:stop] = v
+        if progress is not None:
+            progress(stop / nf)
+    if not (np.isfinite(rotations).all() and np.isfinite(root_loc).all()):
+        raise BodyCalError("the retargeted animation has non-finite values", source=recording.source or recording.name,
+                           hint="check the recording for broken device poses")
+    return AvatarAnimation(rig.armature, list(rig.names), rotations, rig.names[rig.root], root_loc,
+                           np.asarray(recording.time, float), method,
+                           {j: joints[:, i] for i, j in enumerate(JOINTS)}, targets, run.notes)

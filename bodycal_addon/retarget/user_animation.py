@@ -1,0 +1,317 @@
+"""Step 1 of the pipeline (DESIGN.md §1, §6; paper 000, appendix D): the user's canonical skeleton
+animated from the trackers, vectorised over frames.
+
+- Limbs: every joint from its calibrated locals in each tracker it is known in
+  (`Joint.frames`); the intermediate joint (elbow, knee) is the mean of its positions from both
+  adjacent trackers; the effector (wrist, ankle) only from its own frame; the anchored and
+  intermediate bones then simply join these points (they are "scaled to meet") and keep the hinge's
+  local right (`bones[hinge].extra["right_local"]` in `right_frame`), so they never twist.
+- Fingers: from the fingertip markers (`<finger>_tip_<s>`) with the flexion equation and the
+  yaw/pitch realignment (`fingers.pose_finger`); without markers the fingers stay as calibrated.
+- Trunk: sacrum rigid on the pelvis tracker, its lateral direction and origin averaged with the hip
+  line (appendix D "Trunk animation"); spine aimed at the skull base carried by the HMD
+  (`ik.spine`); clavicles from vertebra 5 to the shoulders; head rigid on the HMD.
+- Dropouts: a device's invalid frames hold its last valid pose (forward fill; leading gaps take
+  the first valid pose) and `UserPose.valid` says which frames had every device.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import skeleton as sk
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+from ..recording import Recording
+from ..transforms import frame_from_axes, normalize, quat_between, quat_normalize, quat_to_matrix
+from . import fingers, ik
+from .avatar_pose import BI, BONES, JI, JOINTS, SPINE_BONES, SPINE_JOINTS, complete_joints, model_rest_frames
+
+LIMB_SEGMENTS = {  # side-less limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
+    "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
+    "leg": ("hip", "knee", "ankle", "thigh", "shin"),
+}
+
+
+@dataclass
+class UserPose:
+    time: np.ndarray  # (F,)
+    joints: np.ndarray  # (F, J, 3) canonical joints (skeleton.JOINTS order), world
+    frames: np.ndarray  # (F, B, 3, 3) canonical bone frames (skeleton.BONES order), world
+    valid: np.ndarray  # (F,) every device used was tracked this frame
+    notes: list[str] = field(default_factory=list)
+
+    def joint(self, name: str) -> np.ndarray:
+        return self.joints[:, JI[name]]
+
+    def take(self, start: int, stop: int) -> UserPose:
+        s = slice(start, stop)
+        return UserPose(self.time[s], self.joints[s], self.frames[s], self.valid[s], self.notes)
+
+
+def forward_fill(valid: np.ndarray) -> np.ndarray:
+    """(F,) index of the frame whose value to use: the last valid one (leading gaps: the first)."""
+    f = len(valid)
+    idx = np.where(valid, np.arange(f), -1)
+    idx = np.maximum.accumulate(idx)
+    first = int(np.argmax(valid)) if valid.any() else 0
+    return np.where(idx < 0, first, idx)
+
+
+@dataclass
+class _Trackers:
+    pos: dict[str, np.ndarray]  # role -> (F, 3)
+    rot: dict[str, np.ndarray]  # role -> (F, 3, 3)
+    ref_rot: dict[str, np.ndarray]  # role -> (3, 3) at the reference time
+    valid: np.ndarray  # (F,)
+    notes: list[str]
+
+
+def _trackers(recording: Recording, model: BodyModel, start: int = 0, stop: int | None = None) -> _Trackers:
+    stop = recording.frame_count if stop is None else stop
+    pos, rot, ref_rot, notes = {}, {}, {}, []
+    valid_all = np.ones(stop - start, bool)
+    tpose = model.extra.get("tpose") or {}
+    ref_frame = None
+    if model.reference_time is not None and recording.frame_count:
+        ref_frame = int(np.clip(np.searchsorted(recording.time, model.reference_time), 0, recording.frame_count - 1))
+    for d_i, dev in enumerate(recording.devices):
+        role = dev.role
+        if role is None or role in pos:
+            continue
+        v_full = recording.valid[:, d_i]
+        if not v_full.any():
+            notes.append(f"{role}: never tracked, ignored")
+            continue
+        idx_full = forward_fill(v_full)
+        idx = idx_full[start:stop]
+        v = v_full[start:stop]
+        p = recording.positions[idx, d_i]
+        q = quat_normalize(recording.rotations[idx, d_i])
+        pos[role], rot[role] = p, quat_to_matrix(q)
+        valid_all &= v
+        if (~v).any():
+            notes.append(f"{role}: {int((~v).sum())} frames without tracking held at the last valid pose")
+        if role in tpose:
+            ref_rot[role] = quat_to_matrix(quat_normalize(np.asarray(tpose[role][3:7], float)))
+        elif ref_frame is not None:
+            ref_rot[role] = quat_to_matrix(quat_normalize(recording.rotations[idx_full[ref_frame], d_i]))
+    return _Trackers(pos, rot, ref_rot, valid_all, notes)
+
+
+def _joint_from(model: BodyModel, tr: _Trackers, joint: str, roles: list[str] | None = None):
+    """Mean position of `joint` over the trackers it is known in (restricted to `roles`)."""
+    j = model.joints.get(joint)
+    if j is None:
+        return None
+    ests = [tr.pos[r] + tr.rot[r] @ np.asarray(loc, float) for r, loc in j.frames.items()
+            if r in tr.pos and (roles is None or r in roles)]
+    if not ests:
+        return None
+    return ests[0] if len(ests) == 1 else np.mean(ests, axis=0)
+
+
+def _own_frame(model: BodyModel, joint: str, tr: _Trackers):
+    """Position of an effector joint from its own (first) tracker only."""
+    j = model.joints.get(joint)
+    if j is None:
+        return None
+    for r in j.frames:
+        if r in tr.pos:
+            return _joint_from(model, tr, joint, [r])
+    return None
+
+
+def _rigid(tr: _Trackers, role: str, frame0: np.ndarray):
+    """A bone frame rigid on a tracker: R_T(t) R_T0^-1 C0."""
+    return tr.rot[role] @ (tr.ref_rot[role].T @ frame0)
+
+
+def _hinge_right(model: BodyModel, tr: _Trackers, bone: str, fallback: np.ndarray) -> np.ndarray:
+    info = model.bones.get(bone)
+    ex = info.extra if info is not None else {}
+    role = ex.get("right_frame")
+    if role in tr.rot and ex.get("right_local") is not None:
+        return tr.rot[role] @ normalize(np.asarray(ex["right_local"], float))
+    for r in ("forearm", "shin", "hand", "foot"):  # the rest right carried by the intermediate tracker
+        role = f"{r}_{bone.rsplit('_', 1)[-1]}"
+        if role in tr.rot and role in tr.ref_rot and info is not None and info.right is not None:
+            return tr.rot[role] @ (tr.ref_rot[role].T @ info.right)
+    return fallback
+
+
+def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, stop: int | None = None) -> UserPose:
+    """Animate the user's canonical skeleton over frames [start, stop) of `recording`."""
+    if user_model.kind != "user":
+        raise BodyCalError(f"expected a user body model, got kind '{user_model.kind}'", source=user_model.name)
+    stop = recording.frame_count if stop is None else stop
+    tr = _trackers(recording, user_model, start, stop)
+    src = recording.source or recording.name
+    for role in ("head", "pelvis", "hand_l", "hand_r", "foot_l", "foot_r"):
+        if role not in tr.pos:
+            raise BodyCalError(f"no tracked device with role '{role}'", source=src, field="devices",
+                               hint="assign device roles or record with the HMD, both hands, pelvis and both feet")
+        if role not in tr.ref_rot:
+            raise BodyCalError(f"no reference pose for '{role}' (body model extra.tpose)", source=user_model.name,
+                               field="extra.tpose", hint="calibrate the user from this recording")
+    nf = stop - start
+    rest_pos = complete_joints(user_model)
+    C0 = model_rest_frames(user_model, rest_pos)
+    P = {}
+    Fr = np.empty((nf, len(BONES), 3, 3))
+
+    def need(joint, value):
+        if value is None:
+            raise BodyCalError(f"joint '{joint}' is not known in any tracked device", source=user_model.name,
+                               field=f"joints.{joint}.frames", hint="calibrate the user with these trackers")
+        return value
+
+    # --- head (rigid on the HMD) and sacrum (rigid on the pelvis tracker) ---------------------
+    for j in ("skull_base", "head"):
+        P[j] = need(j, _joint_from(user_model, tr, j, ["head"]))
+    Fr[:, BI["head"]] = _rigid(tr, "head", C0[BI["head"]])
+    sac = _rigid(tr, "pelvis", C0[BI["sacrum"]])
+    pel_rigid = need("pelvis", _joint_from(user_model, tr, "pelvis", ["pelvis"]))
+    # --- limbs -------------------------------------------------------------------------------
+    for s in sk.SIDES:
+        for limb, (a, m, e, ab, mb) in LIMB_SEGMENTS.items():
+            eff_role = "hand" if limb == "arm" else "foot"
+            # The anchor rides on its limb's tracker (the root tracker's estimate ignores the
+            # clavicle / pelvis-side motion); the root tracker only when the limb has none.
+            anchor = _joint_from(user_model, tr, f"{a}_{s}", [f"{ab}_{s}"])
+            P[f"{a}_{s}"] = need(f"{a}_{s}", anchor if anchor is not None else
+                                 _joint_from(user_model, tr, f"{a}_{s}"))
+            P[f"{e}_{s}"] = need(f"{e}_{s}", _own_frame(user_model, f"{e}_{s}", tr))
+            mid = _joint_from(user_model, tr, f"{m}_{s}")
+            right = _hinge_right(user_model, tr, f"{mb}_{s}",
+                                 _rigid(tr, f"{eff_role}_{s}", C0[BI[f"{mb}_{s}"]])[..., :, 0])
+            if mid is None:  # no tracker carries it (minimal profile): two-bone from the user's lengths
+                mid = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], rest_pos, a, m, e, s, right)
+            P[f"{m}_{s}"] = mid
+            Fr[:, BI[f"{ab}_{s}"]] = frame_from_axes(P[f"{m}_{s}"] - P[f"{a}_{s}"], right)
+            Fr[:, BI[f"{mb}_{s}"]] = frame_from_axes(P[f"{e}_{s}"] - P[f"{m}_{s}"], right)
+        P[f"toe_{s}"] = _own_frame(user_model, f"toe_{s}", tr)
+        if P[f"toe_{s}"] is None:
+            P[f"toe_{s}"] = P[f"ankle_{s}"] + _rigid(tr, f"foot_{s}", np.eye(3)) @ (rest_pos[f"toe_{s}"] -
+                                                                                   rest_pos[f"ankle_{s}"])
+        Fr[:, BI[f"foot_{s}"]] = _rigid(tr, f"foot_{s}", C0[BI[f"foot_{s}"]])
+        Fr[:, BI[f"hand_{s}"]] = _rigid(tr, f"hand_{s}", C0[BI[f"hand_{s}"]])
+    # --- sacrum: lateral and origin averaged with the hip line (appendix D) ----------------------
+    lat_hips = normalize(P["hip_l"] - P["hip_r"])
+    x_rigid = sac[..., :, 0]
+    fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + lat_hips)))
+    sac = fix @ sac
+    hipmid0 = 0.5 * (rest_pos["hip_l"] + rest_pos["hip_r"])
+    from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + sac @ (C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
+    P["pelvis"] = 0.5 * (pel_rigid + from_hips)
+    # --- spine aimed at the skull base, twist shared hips -> shoulders -> head ----------------
+    lengths = np.array([np.linalg.norm(rest_pos[SPINE_JOINTS[k + 1]] - rest_pos[SPINE_JOINTS[k]])
+                        for k in range(sk.SPINE_COUNT)])
+    sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
+    res = ik.spine(P["pelvis"], sac, sac_len, lengths, P["skull_base"],
+                   top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False)
+    Fr[:, BI["sacrum"]] = res.sacrum_rot
+    for k, j in enumerate(SPINE_JOINTS):
+        P[j] = res.joints[:, k]
+    for k, b in enumerate(SPINE_BONES):
+        Fr[:, BI[b]] = res.rotations[:, k]
+    v5 = Fr[:, BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]]
+    for s in sk.SIDES:
+        P[f"clavicle_{s}"] = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
+        Fr[:, BI[f"clavicle_{s}"]] = frame_from_axes(P[f"shoulder_{s}"] - P[f"clavicle_{s}"], v5[..., :, 2])
+    # --- hands and fingers -------------------------------------------------------------------
+    for s in sk.SIDES:
+        hand = Fr[:, BI[f"hand_{s}"]]
+        c0h = C0[BI[f"hand_{s}"]]
+        for f in sk.FINGERS:
+            for jn in sk.FINGER_JOINTS:
+                name = f"{jn}_{f}_{s}"
+                P[name] = P[f"wrist_{s}"] + hand @ (c0h.T @ (rest_pos[name] - rest_pos[f"wrist_{s}"]))
+            mb = f"metacarpal_{f}_{s}"
+            Fr[:, BI[mb]] = hand @ (c0h.T @ C0[BI[mb]])
+            for i in (1, 2, 3):
+                b = f"{f}_{i}_{s}"
+                Fr[:, BI[b]] = hand @ (c0h.T @ C0[BI[b]])
+            tip_name = f"{f}_tip_{s}"
+            if tip_name in recording.marker_names:
+                m, mv = recording.marker(tip_name)
+                idx = forward_fill(mv)[start:stop]
+                if mv.any():
+                    pose_user_finger(P, Fr, f, s, m[idx], rest_pos, C0, hand, user_model.bones)
+    # --- shortcut bones and hips (rigid in the sacrum for the mapping's kinematic paths) ---------
+    pos = np.stack([P[j] for j in JOINTS], axis=1)
+    for b in BONES:
+        if b.shortcut:
+            Fr[:, BI[b.name]] = frame_from_axes(P[b.tail] - P[b.head], Fr[:, BI["sacrum"]][..., :, 0])
+    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(Fr)):
+        raise BodyCalError("the user animation has non-finite values", source=src,
+                           hint="check the recording for broken device poses")
+    return UserPose(recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
+
+
+def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
+    l1 = np.linalg.norm(rest_pos[f"{m}_{s}"] - rest_pos[f"{a}_{s}"])
+    l2 = np.linalg.norm(rest_pos[f"{e}_{s}"] - rest_pos[f"{m}_{s}"])
+    # Swivel: the hinge axis carried by the effector's tracker fixes the bending plane.
+    axis = normalize(eff - root)
+    pole = normalize(np.cross(right, axis))
+    return ik_mid(root, axis, np.linalg.norm(eff - root, axis=-1), l1, l2, pole)
+
+
+def ik_mid(root, axis, d, l1, l2, pole):
+    """Intermediate joint of a two-bone chain of lengths l1, l2 whose effector is at distance d
+    along `axis`, bent toward `pole` (law of cosines, DESIGN.md §6)."""
+    d = np.clip(d, abs(l1 - l2) + 1e-9, l1 + l2 - 1e-9)
+    cos_a = np.clip((l1 * l1 + d * d - l2 * l2) / (2 * l1 * d), -1.0, 1.0)
+    sin_a = np.sqrt(1 - cos_a * cos_a)
+    pole = normalize(pole - (pole * axis).sum(-1, keepdims=True) * axis)
+    return root + l1 * (cos_a[..., None] * axis + sin_a[..., None] * pole)
+
+
+def pose_user_finger(P, Fr, f, s, tip, rest_pos, C0, hand, model_bones):
+    """Finger joints and phalanx frames from a fingertip marker (appendix D, eq. 3-4 and the
+    yaw/pitch realignment), through `fingers.pose_finger`; a plain equal-flexion stand-in
+    (flexion from the distance, then the whole finger turned about the MCP toward the tip) runs
+    until it exists."""
+    names = [f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS]
+    lens = np.array([np.linalg.norm(rest_pos[names[i + 1]] - rest_pos[names[i]]) for i in range(3)])
+    mcp = P[names[0]]
+    bones = [f"{f}_{i}_{s}" for i in (1, 2, 3)]
+    c0h = C0[BI[f"hand_{s}"]]
+    rest_frames = [hand @ (c0h.T @ C0[BI[b]]) for b in bones]
+    thumb = f == "thumb"
+    pts, frames = pose_finger_chain(mcp, tip, lens, rest_frames, thumb=thumb)
+    # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
+    # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
+    info = model_bones.get(bones[2])
+    radius = info.radius_tail if info is not None and info.radius_tail else 0.0
+    if radius:
+        pts, frames = pose_finger_chain(mcp, tip + radius * frames[2][..., :, 2], lens, rest_frames, thumb=thumb)
+    for i, j in enumerate(names[1:]):
+        P[j] = pts[:, i + 1]
+    for i, b in enumerate(bones):
+        Fr[:, BI[b]] = frames[i]
+
+
+def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
+    """`fingers.pose_finger` with the first phalanx's rest frame (moved with the hand) as the
+    reference: a finger at rest has zero yaw and pitch, so the anatomical limits bound the motion
+    away from the calibrated pose. The thumb's own frame already carries its roll (roll 0).
+    Returns (points (F, 4, 3), [3 frames (F, 3, 3)])."""
+    fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
+                             roll=0.0 if thumb else None)
+    return fp.joints, [fp.rotations[:, i] for i in range(3)]
+
+
+def _axis_angle_matrix(axis, angle):
+    axis = normalize(axis)
+    x, y, z = np.moveaxis(axis, -1, 0)
+    c, s_ = np.cos(angle), np.sin(angle)
+    C = 1 - c
+    return np.stack([
+        np.stack([c + x * x * C, x * y * C - z * s_, x * z * C + y * s_], -1),
+        np.stack([y * x * C + z * s_, c + y * y * C, y * z * C - x * s_], -1),
+        np.stack([z * x * C - y * s_, z * y * C + x * s_, c + z * z * C], -1),
+    ], -2)
