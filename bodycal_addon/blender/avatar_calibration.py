@@ -26,9 +26,9 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 | torso belly_c1..c4      | spine@ height of the bilinear default    | horizontally towards it (*)     |
 | torso back_ul / _ur     | spine@0.72                               | az +145 / -145                  |
 | torso back_low          | spine@0.30                               | az 180                          |
-| jaw ear_l / ear_r       | c                                        | az +90 / -90                    |
-| jaw upper_lip / chin    | c                                        | az 0, el -25 / el -50           |
-| jaw jaw_l / jaw_r       | c                                        | az +40 / -40, el -45            |
+| jaw ear_l / ear_r       | c + D * 2 head heights, D = az +90 / -90 | -D (towards c, from outside)    |
+| jaw upper_lip / chin    | same, D = az 0, el -35 / el -60          | -D                              |
+| jaw jaw_l / jaw_r       | same, D = az +40 / -40, el -45           | -D                              |
 | palm_1..4_<s>           | wrist + 0.85 / 0.85 / 0.3 / 0.3 of the   | middle_2 axis x hand dir (**)   |
 |                         | way to mcp index / pinky / pinky / index |                                 |
 | sole floor              | ankle, toe joint - U * (leg length + 0.1)| U (first hit from below)        |
@@ -73,7 +73,7 @@ TORSO_RAYS = {
 # (azimuth, elevation) degrees from the head centre.
 JAW_RAYS = {
     "ear_l": (90.0, 0.0), "ear_r": (-90.0, 0.0),
-    "upper_lip": (0.0, -25.0), "chin": (0.0, -50.0),
+    "upper_lip": (0.0, -35.0), "chin": (0.0, -60.0),
     "jaw_l": (40.0, -45.0), "jaw_r": (-40.0, -45.0),
 }
 SKULL_RAYS = [(180.0 + a, e) for e in (0.0, 20.0, 40.0, 60.0) for a in (-60.0, -30.0, 0.0, 30.0, 60.0)] + [(0.0, 90.0)]
@@ -268,7 +268,10 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
                                "spread_mm": round(float(res.std() * 1000), 3)}
     jaw = {}
     for p, (az, el) in JAW_RAYS.items():
-        jaw[p] = hit(f"mesh:jaw {p}", rig.bone_map.bones["head"], c, _dir(F, L, U, az, el))[0]
+        # From outside towards the head centre: the first hit is the skin, never the mouth's
+        # inside or teeth that a ray from the centre would meet first.
+        d = _dir(F, L, U, az, el)
+        jaw[p] = hit(f"mesh:jaw {p}", rig.bone_map.bones["head"], c + d * 2 * head_h, -d)[0]
     model.surface.append(SurfaceElement(
         "mesh:jaw", "mesh", "head", points={p: SurfacePoint("head", local("head", w)) for p, w in jaw.items()},
         triangles=list(sl.JAW_TRIANGLES)))
