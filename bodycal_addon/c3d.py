@@ -17,6 +17,7 @@ or float), for tests.
 
 from __future__ import annotations
 
+import math
 import re
 import struct
 from dataclasses import dataclass, field
@@ -149,7 +150,8 @@ def _parse_parameters(r: _Reader, start: int, nblocks: int) -> dict:
             ndim = r.u8(body + 1)
             dims = [r.u8(body + 2 + k) for k in range(ndim)]
             data_off = body + 2 + ndim
-            count = int(np.prod(dims)) if dims else 1
+            count = math.prod(dims)  # exact (np.prod of many dimensions would overflow)
+            r.need(data_off, count * max(abs(dtype), 1), "parameter section")
             if dtype == -1:
                 r.need(data_off, count, "parameter section")
                 raw = r.data[data_off:data_off + count]
@@ -169,7 +171,7 @@ def _parse_parameters(r: _Reader, start: int, nblocks: int) -> dict:
             else:
                 raise r.err(f"parameter {name} has an unknown data type {dtype}", field="parameters",
                             where=f"byte {off}")
-            if dtype != -1 and ndim > 1:
+            if dtype != -1 and ndim > 1 and count > 0:
                 value = value.reshape(dims[::-1])
             pending.append((gid, name, value))
         if nxt == 0:

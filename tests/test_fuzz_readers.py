@@ -8,7 +8,7 @@ import pathlib
 import tempfile
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from recording_fixtures import recording_doc, tpose_recording
 
@@ -158,6 +158,7 @@ def test_mutated_sidecar(edits):
 
 @FUZZ
 @given(edits=EDITS)
+@example(edits=[(0, 190533527, 22)])  # found by a long run: a parameter with a zero and many 255 dimensions
 def test_mutated_c3d(edits):
     _load("mut.c3d", _mutate_bytes(VALID_C3D, edits))
 
