@@ -317,8 +317,9 @@ class AvatarRig:
         nf = frames.shape[0]
         n = len(self.names)
         wr = self.w_rot
-        delta = np.einsum("fbij,bkj->fbik", frames, self.frames0)  # C(t) C0^-1, world
-        delta_arm = np.einsum("ji,fbjk,kl->fbil", wr, delta, wr)
+        # C(t) C0^-1 in armature space: W^-1 C(t) C0^-1 W (only the driving bones are needed).
+        delta_arm = np.einsum("ij,fbjk,bkl->fbil", wr.T, frames, np.swapaxes(self.frames0, -1, -2) @ wr,
+                              optimize=True)
         P = np.empty((nf, n, 3, 3))
         H = np.empty((nf, n, 3))
         curve = None
@@ -332,30 +333,32 @@ class AvatarRig:
                     H[:, i] = self.head[i]
                 else:
                     off = self.rest[p].T @ (self.head[i] - self.head[p])
-                    H[:, i] = H[:, p] + P[:, p] @ off
+                    H[:, i] = H[:, p] + _mv(P[:, p], off)
             if drv is None:
-                P[:, i] = self.rest[i] if p < 0 else P[:, p] @ (self.rest[p].T @ self.rest[i])
+                P[:, i] = self.rest[i] if p < 0 else _rm(P[:, p], self.rest[p].T @ self.rest[i])
             elif drv == "chain":
                 if curve is None:
                     curve = self._spine_curve(frames, P, H)
                 k = self.chain_vertebra[i]
-                twist = delta_arm[:, BI[SPINE_BONES[k]]] @ self.rest[i]
+                twist = _rm(delta_arm[:, BI[SPINE_BONES[k]]], self.rest[i])
                 target = _curve_point(curve, self.chain_s[i])
                 q = quat_between(twist[..., :, 1], target - H[:, i])
                 P[:, i] = quat_to_matrix(q) @ twist
             else:
-                P[:, i] = delta_arm[:, drv] @ self.rest[i]
+                P[:, i] = _rm(delta_arm[:, drv], self.rest[i])
             if i == self.root:
                 pel_arm = self.to_armature(pelvis)
                 if pel_bone != i:
                     # The pelvis joint rides on another bone: place the root so that bone's joint lands.
                     pel_local = self.rest[i].T @ (self.joint_world_arm(JI["pelvis"]) - self.head[i])
-                H[:, i] = pel_arm - P[:, i] @ pel_local
+                H[:, i] = pel_arm - _mv(P[:, i], pel_local)
         basis = np.empty((nf, n, 3, 3))
         for i in range(n):
             p = self.parent[i]
-            rel = self.rest[i].T if p < 0 else self.rest[i].T @ self.rest[p] @ np.swapaxes(P[:, p], -1, -2)
-            basis[:, i] = rel @ P[:, i]
+            if p < 0:
+                basis[:, i] = _lm(self.rest[i].T, P[:, i])
+            else:
+                basis[:, i] = _lm(self.rest[i].T @ self.rest[p], np.swapaxes(P[:, p], -1, -2) @ P[:, i])
         root_loc = self._root_location(P, H)
         return self._finish(matrix_to_quat(basis), P, H, root_loc)
 
@@ -366,7 +369,8 @@ class AvatarRig:
         i, p = self.root, self.parent[self.root]
         if p < 0:
             return np.einsum("ba,fb->fa", self.rest[i], H[:, i] - self.head[i])
-        rel = np.einsum("ba,bc,fdc,fd->fa", self.rest[i], self.rest[p], P[:, p], H[:, i] - H[:, p])
+        local = (np.swapaxes(P[:, p], -1, -2) @ (H[:, i] - H[:, p])[..., None])[..., 0]
+        rel = local @ (self.rest[i].T @ self.rest[p]).T
         return rel - self.rest[i].T @ (self.head[i] - self.head[p])
 
     def _spine_curve(self, frames, P, H):
@@ -386,13 +390,18 @@ class AvatarRig:
 
     def _finish(self, basis, P, H, root_loc) -> RigPose:
         jb = self.joint_bone
-        joints_arm = H[:, jb] + np.einsum("fjab,jb->fja", P[:, jb], self.joint_local)
-        joints = self.to_world(joints_arm)
-        car = self.carrier
+        joints_arm = H[:, jb] + (P[:, jb] @ self.joint_local[..., None])[..., 0]
+        joints = joints_arm @ (self.w_rot.T * self.w_scale) + self.world[:3, 3]
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
-        rel = np.einsum("fcij,ckj,lk,clm->fcim", P[:, car], self.rest[car], self.w_rot, self.frames0)
-        frames = np.einsum("ij,fcjk->fcik", self.w_rot, rel)
+        frames = self.w_rot @ (P[:, self.carrier] @ self._carrier_rel)
         return RigPose(basis, P, H, root_loc, joints, frames)
+
+    @property
+    def _carrier_rel(self):
+        if getattr(self, "_car_rel", None) is None:
+            car = self.carrier
+            self._car_rel = np.swapaxes(self.rest[car], -1, -2) @ self.w_rot.T @ self.frames0
+        return self._car_rel
 
     # --- pose -> joints (Blender's FK, for checks and for the offsets method) --------------------
 
@@ -416,6 +425,21 @@ class AvatarRig:
                 H[:, i] = H[:, p] + np.einsum("fab,b->fa", P[:, p], self.rest[p].T @ (self.head[i] - self.head[p])) \
                     + np.einsum("fab,fb->fa", P[:, p] @ rel, loc)
         return self._finish(basis, P, H, np.asarray(root_location, float))
+
+
+def _rm(a, m):
+    """a @ m for a stack of 3x3 matrices a (..., 3, 3) and one 3x3 m (one BLAS call)."""
+    return (a.reshape(-1, 3) @ m).reshape(a.shape)
+
+
+def _lm(m, a):
+    """m @ a for one 3x3 m and a stack a (..., 3, 3)."""
+    return np.swapaxes(_rm(np.swapaxes(a, -1, -2), m.T), -1, -2)
+
+
+def _mv(a, v):
+    """a @ v for a stack of 3x3 matrices and one vector."""
+    return (a.reshape(-1, 3) @ v).reshape(a.shape[:-1])
 
 
 def _closest_on_segment(p, a, b):

@@ -16,6 +16,7 @@ those values put in the world (Blender's FK, armature matrix_world included).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 
 import numpy as np
@@ -83,10 +84,17 @@ class _Run:
             from . import egocentric as ego
 
             self.ego = ego
+            self.user_s, self.avatar_s = _surface_bones(user), _surface_bones(avatar)
             self.ids = ego.common_elements(user, avatar)
             if not self.ids:
                 raise BodyCalError("the user and the avatar share no surface elements", source=avatar.name,
                                    field="surface", hint="calibrate the avatar's surface")
+            self.graph_bones = list(ego.GRAPH_BONES)
+            self.bone_heads = [JI[sk.BONE_BY_NAME[b].head] for b in self.graph_bones]
+            self.bone_tails = [JI[sk.BONE_BY_NAME[b].tail] for b in self.graph_bones]
+            self.user_lengths = np.array([np.linalg.norm(self.user_pos[sk.BONE_BY_NAME[b].tail] -
+                                                         self.user_pos[sk.BONE_BY_NAME[b].head])
+                                          for b in self.graph_bones])
             self.ucorr = surface_correction(user, self.user_frames0, self.user_pos)
             self.acorr = surface_correction(avatar, self.rig.frames0, complete_joints(avatar))
             have = {e.id for e in user.surface}
@@ -127,11 +135,18 @@ class _Run:
 
     def _egocentric(self, up, fk, pelvis):
         ego = self.ego
-        us = ego.pose_surface(self.user, _jd(up.joints), _fd(up.frames, self.ucorr), self.ids)
-        av = ego.pose_surface(self.avatar, _jd(fk.joints), _fd(fk.frames, self.acorr), self.ids)
+        us = ego.pose_surface(self.user_s, _jd(up.joints), _fd(up.frames, self.ucorr), self.ids)
+        av = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.acorr), self.ids)
         names = self.targets
         pts = up.joints[:, [JI[n] for n in names]]
-        tg = ego.retarget_points(pts, list(names), us, av)
+        # τ over the user's calibrated bone lengths along the current directions: the stretch of
+        # the user's bones between trackers is tracking error, not body shape (and avatar == user
+        # then maps every target onto itself exactly).
+        heads = up.joints[:, self.bone_heads]
+        tails = up.joints[:, self.bone_tails]
+        vec = normalize(tails - heads) * self.user_lengths[:, None]
+        ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
+        tg = ego.retarget_points(pts, list(names), us, av, user_bones=ub)
         targets = {n: tg[:, i] for i, n in enumerate(names)}
         frames = self._ik(up, fk, pelvis, targets)
         return self.rig.solve(frames, pelvis), targets
@@ -145,7 +160,8 @@ class _Run:
             spine_idx = [BI[b] for b in SPINE_BONES]
             res = ik.spine(fk.joints[:, JI["pelvis"]], fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
                            rig.lengths[spine_idx], targets["skull_base"],
-                           top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]))
+                           top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]),
+                           two_pass=False)
             frames[:, BI["sacrum"]] = res.sacrum_rot
             frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
@@ -215,6 +231,24 @@ class _Run:
         frames = self._ik(up2, fk, pelvis, targets, hands=self.grip)
         targets["skull_base"] = p["skull_base"]
         return self.rig.solve(frames, pelvis), targets
+
+
+def _surface_bones(model: BodyModel) -> BodyModel:
+    """The model with every mesh element's `bone` a canonical bone (FORMATS.md allows a pattern such
+    as "spine_*" for the torso, whose points each name their own vertebra)."""
+    fixed = []
+    changed = False
+    for e in model.surface:
+        if e.type == "mesh" and e.bone not in sk.BONE_BY_NAME and e.points:
+            e = copy.copy(e)
+            e.bone = next(iter(e.points.values())).bone
+            changed = True
+        fixed.append(e)
+    if not changed:
+        return model
+    out = copy.copy(model)
+    out.surface = fixed
+    return out
 
 
 def _jd(joints: np.ndarray) -> dict[str, np.ndarray]:

@@ -62,7 +62,8 @@ def avatar_from_user(user: BodyModel, scale: float = 1.0, matrix_world=None, nam
     bones = {}
     for b in BONES:
         ub = user.bones.get(b.name)
-        right = frames0[BI[b.name]][:, 0]
+        # Keep the user's own rights: the copied surface points are local to frames built with them.
+        right = ub.right if ub is not None and ub.right is not None else frames0[BI[b.name]][:, 0]
         bones[b.name] = BoneInfo(b.head, b.tail, float(np.linalg.norm(pos[b.tail] - pos[b.head])), right,
                                  None if ub is None or ub.radius_head is None else ub.radius_head * scale,
                                  None if ub is None or ub.radius_tail is None else ub.radius_tail * scale)
