@@ -1,0 +1,103 @@
+"""Step 1: the user's skeleton animated from the trackers (paper 000, appendix D), against the
+synthetic performer's true joint tracks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bodycal_addon import synthetic
+from bodycal_addon.errors import BodyCalError
+from bodycal_addon.recording import Recording
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import user_animation as ua
+
+TRACKED_JOINTS = ("pelvis", "skull_base", "head", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r", "wrist_l",
+                  "wrist_r", "hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r", "toe_l", "toe_r")
+
+
+@pytest.fixture(scope="module")
+def exact():
+    perf = synthetic.make_performer(seed=0)
+    rec, truth = synthetic.record_session(perf, motions=("hand_on_belly", "clap"), calibration=False,
+                                          motion_seconds=1.5, noise_mm=0.0, wobble_mm=0.0)
+    return rec, truth, truth.body_model()
+
+
+def _err_mm(up, truth, joint):
+    return np.linalg.norm(up.joints[:, ap.JI[joint]] - truth.joint_tracks[joint], axis=-1) * 1e3
+
+
+def test_tracked_joints_follow_the_trackers_exactly(exact):
+    rec, truth, model = exact
+    up = ua.animate_user(rec, model)
+    assert up.joints.shape == (rec.frame_count, len(ap.JOINTS), 3)
+    assert up.frames.shape == (rec.frame_count, len(ap.BONES), 3, 3)
+    for j in TRACKED_JOINTS:
+        assert _err_mm(up, truth, j).max() < 0.5, j
+
+
+def test_limb_bones_keep_the_hinge_right_and_join(exact):
+    rec, truth, model = exact
+    up = ua.animate_user(rec, model)
+    for s in ("l", "r"):
+        for a, m, e, ab, mb in (("shoulder", "elbow", "wrist", "upperarm", "forearm"),
+                                ("hip", "knee", "ankle", "thigh", "shin")):
+            upper, lower = up.frames[:, ap.BI[f"{ab}_{s}"]], up.frames[:, ap.BI[f"{mb}_{s}"]]
+            # Same +X on both bones: the limb flexes about the hinge axis only, no twist.
+            np.testing.assert_allclose(upper[..., :, 0], lower[..., :, 0], atol=1e-6)
+            # +Y runs from the anchor to the intermediate joint and on to the effector.
+            d1 = up.joint(f"{m}_{s}") - up.joint(f"{a}_{s}")
+            d2 = up.joint(f"{e}_{s}") - up.joint(f"{m}_{s}")
+            np.testing.assert_allclose(upper[..., :, 1], d1 / np.linalg.norm(d1, axis=-1, keepdims=True), atol=1e-9)
+            np.testing.assert_allclose(lower[..., :, 1], d2 / np.linalg.norm(d2, axis=-1, keepdims=True), atol=1e-9)
+    det = np.linalg.det(up.frames)
+    np.testing.assert_allclose(det, 1.0, atol=1e-9)
+
+
+def test_fingertips_from_markers(exact):
+    rec, truth, model = exact
+    up = ua.animate_user(rec, model)
+    for s in ("l", "r"):
+        for f in ("thumb", "index", "middle", "ring", "pinky"):
+            assert np.median(_err_mm(up, truth, f"tip_{f}_{s}")) < 2.0, (f, s)
+
+
+def test_spine_reaches_the_skull_base(exact):
+    rec, truth, model = exact
+    up = ua.animate_user(rec, model)
+    np.testing.assert_allclose(up.joint("spine_12"), up.joint("skull_base"), atol=1e-6)
+    np.testing.assert_allclose(up.joint("spine_root"), truth.joint_tracks["spine_root"], atol=1e-3)
+
+
+def test_forward_fill_holds_the_last_valid_frame():
+    valid = np.array([False, False, True, False, False, True, True, False])
+    np.testing.assert_array_equal(ua.forward_fill(valid), [2, 2, 2, 2, 2, 5, 6, 6])
+
+
+def test_dropouts_hold_the_last_pose_and_never_nan():
+    perf = synthetic.make_performer(seed=1)
+    rec, truth = synthetic.record_session(perf, motions=("clap",), calibration=False, motion_seconds=1.0,
+                                          dropout_rate=0.05, seed=3)
+    assert not rec.valid.all()
+    # Readers may have filled the gaps; put NaNs where the devices dropped out to be sure the
+    # animation never reads them.
+    rec.positions = np.where(rec.valid[..., None], rec.positions, np.nan)
+    rec.rotations = np.where(rec.valid[..., None], rec.rotations, np.nan)
+    up = ua.animate_user(rec, truth.body_model())
+    assert np.isfinite(up.joints).all() and np.isfinite(up.frames).all()
+    assert (~up.valid).any() and up.notes
+    hand = rec.device_index("hand_l")
+    bad = np.flatnonzero(~rec.valid[:, hand] & (np.arange(rec.frame_count) > np.argmax(rec.valid[:, hand])))
+    if len(bad):
+        f = bad[0]
+        np.testing.assert_allclose(up.joint("wrist_l")[f], up.joint("wrist_l")[f - 1])
+
+
+def test_missing_device_is_one_clear_error(exact):
+    rec, truth, model = exact
+    keep = [i for i, d in enumerate(rec.devices) if d.role != "pelvis"]
+    cut = Recording(rec.name, rec.time, [rec.devices[i] for i in keep], rec.positions[:, keep],
+                    rec.rotations[:, keep], rec.valid[:, keep], source="cut.bcrec.json")
+    with pytest.raises(BodyCalError, match="pelvis"):
+        ua.animate_user(cut, model)
