@@ -3,10 +3,10 @@ location of all tracking devices, to then automatically identify each tracker's 
 their relative location on the plane").
 
 In a T-pose every device lies near the performer's frontal plane. The plane's normal (made
-horizontal) is the facing axis; its sign comes from the HMD, which looks along its local -Z
-(OpenXR view space, which is also Blender's camera convention; see recording_io for how device
-frames are converted). Without a usable HMD orientation the sign comes from geometry: the HMD sits
-in front of the plane through the other devices. Left = up x forward. Then, on the plane:
+horizontal) is the facing axis. Its sign: the HMD (in front of the face) and the foot trackers (on
+top of the feet) lie ahead of the plane; when that margin is too small to trust, an upright HMD's
+view direction decides (local -Z: OpenXR view space, also Blender's camera convention; see
+recording_io for how device frames are converted). Left = up x forward. Then, on the plane:
 highest = head, the two far lateral = hands, lowest per side = feet, and the rest by height and
 lateral distance: central devices are pelvis (waist) and chest (above), lateral ones above the
 waist are upper arm (nearer) and forearm (farther), below it thigh (higher) and shin (lower).
@@ -19,8 +19,11 @@ import numpy as np
 from .errors import BodyCalError
 from .geometry import fit_plane
 from .recording import Recording
+from .transforms import rotate
 
 HMD_FORWARD_LOCAL = np.array([0.0, 0.0, -1.0])
+HMD_UP_LOCAL = np.array([0.0, 1.0, 0.0])
+GEOMETRY_MARGIN = 0.03  # metres: HMD offset + mean foot offset ahead of the T-pose plane
 UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -46,27 +49,36 @@ def tpose_positions(rec: Recording) -> tuple[np.ndarray, np.ndarray, dict]:
 
 def _facing(rec: Recording, pos: np.ndarray, tracked: np.ndarray, normal: np.ndarray, head: int,
             frames: np.ndarray) -> tuple[np.ndarray, str]:
+    """Forward (horizontal unit vector) and how it was decided.
+
+    Geometry first: the HMD sits in front of the face and foot trackers on top of the feet, so both
+    are ahead of the plane through the devices (a few cm each; `GEOMETRY_MARGIN` in total). When that
+    is unclear, an upright HMD (local +Y within 45 degrees of up) looks along its local -Z."""
     fwd = normal - (normal @ UP) * UP
     if np.linalg.norm(fwd) < 1e-6:
         raise BodyCalError("the devices do not span a vertical plane in the tpose segment",
                            source=rec.source or rec.name, field="segments",
                            hint="stand in a T-pose with arms spread")
     fwd /= np.linalg.norm(fwd)
-    d = rec.devices[head]
-    if d.kind == "hmd":
+    idx = np.flatnonzero(tracked)
+    centre = pos[idx].mean(axis=0)
+    offset = (pos - centre) @ fwd
+    others = [i for i in idx if i != head]
+    feet = sorted(others, key=lambda i: pos[i, 2])[:2] if len(others) >= 4 else []
+    cue = offset[head] + (float(np.mean(offset[feet])) if feet else 0.0)
+    if abs(cue) >= GEOMETRY_MARGIN:
+        return (fwd if cue > 0 else -fwd), "HMD and feet ahead of the body plane"
+    if rec.devices[head].kind == "hmd":
         ok = rec.valid[frames, head]
         if ok.any():
-            from .transforms import rotate
-
-            look = rotate(rec.rotations[frames[ok], head], HMD_FORWARD_LOCAL).mean(axis=0)
-            look = look - (look @ UP) * UP
-            if np.linalg.norm(look) > 0.3 and abs(look @ fwd) > 0.5 * np.linalg.norm(look):
-                return (fwd if look @ fwd > 0 else -fwd), "HMD view direction"
-    others = tracked.copy()
-    others[head] = False
-    centre = pos[others].mean(axis=0) if others.any() else pos[head]
-    ahead = (pos[head] - centre) @ fwd
-    return (fwd if ahead >= 0 else -fwd), "HMD in front of the body plane"
+            q = rec.rotations[frames[ok], head]
+            look = rotate(q, HMD_FORWARD_LOCAL).mean(axis=0)
+            up_axis = rotate(q, HMD_UP_LOCAL).mean(axis=0)
+            look_h = look - (look @ UP) * UP
+            upright = up_axis @ UP > np.cos(np.radians(45)) * np.linalg.norm(up_axis)
+            if upright and abs(look_h @ fwd) > 0.5 * np.linalg.norm(look):
+                return (fwd if look_h @ fwd > 0 else -fwd), "HMD view direction"
+    return (fwd if cue >= 0 else -fwd), "HMD and feet ahead of the body plane (weak)"
 
 
 def identify_roles(rec: Recording) -> dict[str, str]:

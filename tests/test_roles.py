@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from recording_fixtures import recording_doc, tpose_recording
+from recording_fixtures import body_axes, recording_doc, tpose_recording
 
 from bodycal_addon import recording_io as rio
 from bodycal_addon import roles
@@ -36,7 +36,7 @@ def test_load_applies_roles_and_reports_them(tmp_path):
     rec = rio.load_recording(path)
     assert {d.name: d.role for d in rec.devices} == _truth(**kw)
     note = next(n for n in rec.notes if n.startswith("roles identified"))
-    assert "paper 004" in note and "HMD view direction" in note and "=head" in note
+    assert "paper 004" in note and "ahead of the body plane" in note and "=head" in note
 
 
 @pytest.mark.parametrize("coords", [("Y", "right", "m"), ("Y", "left", "cm"), ("Z", "left", "mm")])
@@ -65,7 +65,7 @@ def test_given_roles_are_kept_and_not_reused():
     assert found[next(n for n, r in truth.items() if r == "hand_r")] == "hand_r"
 
 
-def test_facing_from_geometry_when_the_hmd_looks_up():
+def test_facing_from_geometry_even_when_the_hmd_looks_up():
     kw = dict(yaw=2.0, profile="full", shuffle=True, seed=11)
     rec = tpose_recording(roles=False, **kw)
     h = next(i for i, d in enumerate(rec.devices) if d.kind == "hmd")
@@ -78,7 +78,29 @@ def test_facing_from_geometry_when_the_hmd_looks_up():
     rec2.notes = []
     assert roles.identify_roles(rec) == _truth(**kw)
     roles.apply_roles(rec2)
-    assert "in front of the body plane" in rec2.notes[-1]
+    assert "HMD and feet ahead of the body plane" in rec2.notes[-1]
+
+
+def _flatten_onto_body_plane(rec, yaw):
+    """Every device moved into the frontal plane: geometry can no longer tell front from back."""
+    _left, fwd, _up = body_axes(yaw)
+    rec.positions -= ((rec.positions - rec.positions[:1].mean(axis=1, keepdims=True)) @ fwd)[..., None] * fwd
+
+
+def test_upright_hmd_view_decides_when_geometry_cannot():
+    kw = dict(yaw=0.4, profile="full", shuffle=True, seed=2)
+    rec = tpose_recording(roles=False, **kw)
+    _flatten_onto_body_plane(rec, 0.4)
+    assert roles.identify_roles(rec) == _truth(**kw)
+    roles.apply_roles(rec)
+    assert "HMD view direction" in rec.notes[-1]
+    # The same devices with the HMD turned round (still upright): left and right swap.
+    back = tpose_recording(roles=False, **kw)
+    _flatten_onto_body_plane(back, 0.4)
+    h = next(i for i, d in enumerate(back.devices) if d.kind == "hmd")
+    back.rotations[:, h] = tf.quat_mul(tf.axis_angle_to_quat(np.array([0, 0, 1.0]), np.pi), back.rotations[:, h])
+    mirrored = {n: r.replace("_l", "_X").replace("_r", "_l").replace("_X", "_r") for n, r in _truth(**kw).items()}
+    assert roles.identify_roles(back) == mirrored
 
 
 def test_no_tpose_or_too_few_devices(tmp_path):
@@ -94,3 +116,20 @@ def test_no_tpose_or_too_few_devices(tmp_path):
     rec.valid[:, 1:4] = False
     with pytest.raises(BodyCalError, match="only 3 devices tracked"):
         roles.identify_roles(rec)
+
+
+@pytest.mark.parametrize("profile", ["full", "minimal"])
+@pytest.mark.parametrize("build, seed", [("child", 1), ("average", 0), ("heavy", 3), ("long_arms", 2)])
+def test_roles_of_the_synthetic_performer(profile, build, seed):
+    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    perf = synthetic.make_performer(build=build, seed=seed)
+    rec, _truth_ = synthetic.record_session(perf, profile=profile, calibration=["tpose"], motions=(), seed=seed)
+    truth = {d.name: d.role for d in rec.devices}
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(rec.devices))  # shuffled names, no roles
+    rec.devices = [rec.devices[i] for i in order]
+    rec.positions, rec.rotations, rec.valid = rec.positions[:, order], rec.rotations[:, order], rec.valid[:, order]
+    for k, d in enumerate(rec.devices):
+        truth[f"dev{k}"] = truth.pop(d.name)
+        d.name, d.role = f"dev{k}", None
+    assert roles.identify_roles(rec) == truth
