@@ -353,114 +353,200 @@ class Projections:
     tri_bary: np.ndarray
 
 
+def _comp(a) -> np.ndarray:
+    """(..., 3) -> (3, ...) contiguous. The hot path keeps vector components first, so every
+    operation runs over contiguous arrays (numpy is several times slower on a trailing axis of 3)."""
+    return np.ascontiguousarray(np.moveaxis(np.asarray(a, float), -1, 0))
+
+
+def _rot_comp(rot) -> np.ndarray:
+    """(F, X, 3, 3) -> (3, 3, F, 1, X): R_ij as contiguous (F, 1, X) arrays (1 = the target axis)."""
+    return np.ascontiguousarray(np.asarray(rot, float).transpose(2, 3, 0, 1))[:, :, :, None, :]
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _normalised(v, fallback):
+    """Unit vectors of (3, ...) `v` and their norms; `fallback` where v vanishes (never NaN)."""
+    n = np.sqrt(_dot(v, v))
+    ok = n > 1e-12
+    u = v / np.where(ok, n, 1.0)
+    if not ok.all():
+        u = np.where(ok, u, fallback)
+    return u, n
+
+
+def _apply(rc, v):
+    """R v for (3, 3, ...) rotation components and (3, ...) vectors."""
+    return np.stack([rc[i, 0] * v[0] + rc[i, 1] * v[1] + rc[i, 2] * v[2] for i in range(3)])
+
+
+def _apply_t(rc, v):
+    """R^T v (world -> bone frame)."""
+    return np.stack([rc[0, i] * v[0] + rc[1, i] * v[1] + rc[2, i] * v[2] for i in range(3)])
+
+
 def _unit(v, fallback):
+    """Trailing-axis unit vectors (..., 3) and norms; `fallback` where v vanishes."""
     n = np.sqrt(np.einsum("...i,...i->...", v, v))
     ok = n > 1e-12
     out = np.divide(v, n[..., None], out=np.broadcast_to(fallback, v.shape).copy(), where=ok[..., None])
     return out, n
 
 
-def _closest_on_triangles(p, a, ab, ac):
-    """Ericson's closest point on triangle (Real-Time Collision Detection 5.1.5), branch-free over
-    arrays. p: (F, P, 1, 3); a, ab, ac: (F, 1, T, 3). Returns barycentrics (v, w) of b and c."""
-    ap = p - a
-    d1 = np.einsum("...i,...i->...", ab, ap)
-    d2 = np.einsum("...i,...i->...", ac, ap)
-    abab = np.einsum("...i,...i->...", ab, ab)
-    acac = np.einsum("...i,...i->...", ac, ac)
-    abac = np.einsum("...i,...i->...", ab, ac)
+def _closest_on_triangles(ap, ab, ac):
+    """Ericson's closest point on a triangle (Real-Time Collision Detection 5.1.5), branch-free
+    over arrays in components-first layout: ap = p - a (3, F, P, T), ab, ac (3, F, 1, T).
+    Returns the barycentric weights (v, w) of b and c, (F, P, T)."""
+    d1 = _dot(ab, ap)
+    d2 = _dot(ac, ap)
+    abab = _dot(ab, ab)
+    acac = _dot(ac, ac)
+    abac = _dot(ab, ac)
     d3, d4 = d1 - abab, d2 - abac  # (p - b).ab, (p - b).ac
     d5, d6 = d1 - abac, d2 - acac  # (p - c).ab, (p - c).ac
     vc = d1 * d4 - d3 * d2
     vb = d5 * d2 - d1 * d6
     va = d3 * d6 - d5 * d4
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        inside_v = np.where(denom != 0, vb / np.where(denom != 0, denom, 1), 0.0)
-        inside_w = np.where(denom != 0, vc / np.where(denom != 0, denom, 1), 0.0)
-        e_ab = d1 / np.where(d1 - d3 != 0, d1 - d3, 1)
-        e_ac = d2 / np.where(d2 - d6 != 0, d2 - d6, 1)
-        bc_den = (d4 - d3) + (d5 - d6)
-        e_bc = (d4 - d3) / np.where(bc_den != 0, bc_den, 1)
-    in_a = (d1 <= 0) & (d2 <= 0)
-    in_b = (d3 >= 0) & (d4 <= d3)
-    on_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    in_c = (d6 >= 0) & (d5 <= d6)
-    on_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    on_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-    conds = [in_a, in_b, on_ab, in_c, on_ac, on_bc]
+
+    def safe(num, den):
+        return num / np.where(den != 0, den, 1.0)
+
+    denom = va + vb + vc
+    inside_v, inside_w = safe(vb, denom), safe(vc, denom)
+    e_ab = safe(d1, d1 - d3)
+    e_ac = safe(d2, d2 - d6)
+    e_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
+    conds = [(d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+             (d6 >= 0) & (d5 <= d6), (vb <= 0) & (d2 >= 0) & (d6 <= 0), (va <= 0) & (d4 >= d3) & (d5 >= d6)]
     bv = np.select(conds, [0.0, 1.0, e_ab, 0.0, 0.0, 1 - e_bc], inside_v)
     bw = np.select(conds, [0.0, 0.0, 0.0, 1.0, e_ac, e_bc], inside_w)
     return bv, bw
 
 
+@dataclass
+class _Proj:
+    """Projections in components-first layout (the hot path); see Projections for the meaning."""
+
+    x: np.ndarray  # (3, F, P, E)
+    v: np.ndarray  # (3, F, P, E)
+    dist: np.ndarray  # (F, P, E)
+    factor: np.ndarray  # (F, P, E)
+    cap_t: np.ndarray  # (F, P, C)
+    cap_dir: np.ndarray  # (3, F, P, C)
+    sph_dir: np.ndarray  # (3, F, P, S)
+    tri_index: np.ndarray  # (F, P, M)
+    tri_bary: np.ndarray  # (3, F, P, M)
+
+    def public(self) -> Projections:
+        m = np.moveaxis
+        return Projections(m(self.x, 0, -1), m(self.v, 0, -1), self.dist, self.factor, self.cap_t,
+                           m(self.cap_dir, 0, -1), m(self.sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
+
+
+def _project(p, surface: PosedSurface, tol: float) -> _Proj:
+    F, P = p.shape[:2]
+    pc = _comp(p)[..., None]  # (3, F, P, 1)
+    C, S, M = surface.counts
+    # Capsules: closest point on the axis segment pushed out by the radius interpolated along it.
+    a = _comp(surface.caps_head)[:, :, None, :]
+    ab = _comp(surface.caps_tail)[:, :, None, :] - a
+    abab = np.maximum(_dot(ab, ab), 1e-24)
+    ap = pc - a
+    t = np.clip(_dot(ap, ab) / abab, 0.0, 1.0)
+    rc = _rot_comp(surface.caps_rot)
+    d, n = _normalised(ap - t * ab, rc[:, 0])  # on the axis: the bone's +X
+    r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
+    cap_v = (n - r) * d
+    cos_ax = _dot(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
+    cap_factor = np.sqrt(np.clip(1.0 - cos_ax * cos_ax, 0.0, 1.0))
+    cap_dir = _apply_t(rc, d)
+    # Spheres.
+    sc = _comp(surface.sph_center)[:, :, None, :]
+    src = _rot_comp(surface.sph_rot)
+    sd, sn = _normalised(pc - sc, src[:, 1])
+    sph_v = (sn - surface.sph_radius) * sd
+    sph_dir = _apply_t(src, sd)
+    # Meshes: the closest triangle of each element.
+    if M:
+        ta = _comp(surface.tri[:, :, 0])[:, :, None, :]
+        tab = _comp(surface.tri[:, :, 1])[:, :, None, :] - ta
+        tac = _comp(surface.tri[:, :, 2])[:, :, None, :] - ta
+        tap = pc - ta
+        bv, bw = _closest_on_triangles(tap, tab, tac)
+        tv = tap - bv * tab - bw * tac  # p - x
+        td2 = _dot(tv, tv)
+        sel = np.stack([np.argmin(td2[..., s:e], axis=-1) + s for s, e in surface.mesh_slices], axis=-1)
+        mesh_v = np.stack([np.take_along_axis(tv[i], sel, axis=2) for i in range(3)])
+        bv, bw = np.take_along_axis(bv, sel, axis=2), np.take_along_axis(bw, sel, axis=2)
+        tri_bary = np.stack([1.0 - bv - bw, bv, bw])
+        fi = np.arange(F)[:, None, None]
+        nc = _comp(surface.tri_normal)
+        normal = np.stack([nc[i][fi, sel] for i in range(3)])
+        mesh_factor = _triangle_factor(mesh_v, normal, tol)
+    else:
+        sel = np.zeros((F, P, 0), int)
+        mesh_v = tri_bary = np.zeros((3, F, P, 0))
+        mesh_factor = np.zeros((F, P, 0))
+    v = np.concatenate([cap_v, sph_v, mesh_v], axis=-1)
+    x = pc - v
+    dist = np.sqrt(_dot(v, v))
+    factor = np.concatenate([cap_factor, np.ones((F, P, S)), mesh_factor], axis=-1)
+    return _Proj(x, v, dist, factor, t, cap_dir, sph_dir, sel, tri_bary)
+
+
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
             ) -> Projections:
     """Project (F, P, 3) points on every element of `surface` (paper 000, appendix C, Figure 12)."""
-    p = np.asarray(points, float)
-    F, P = p.shape[:2]
-    pe = p[:, :, None, :]
-    # Capsules: closest point on the axis segment pushed out by the radius interpolated along it.
-    a = surface.caps_head[:, None]
-    ab = surface.caps_tail[:, None] - a
-    abab = np.maximum(np.einsum("...i,...i->...", ab, ab), 1e-24)
-    t = np.clip(np.einsum("...i,...i->...", pe - a, ab) / abab, 0.0, 1.0)
-    c = a + t[..., None] * ab
-    rot = surface.caps_rot[:, None]
-    d, n = _unit(pe - c, rot[..., 0])  # on the axis: the bone's +X
-    r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
-    cap_x = c + r[..., None] * d
-    cap_v = (n - r)[..., None] * d
-    axis = ab / np.sqrt(abab)[..., None]
-    cos_ax = np.einsum("...i,...i->...", d, axis)  # v is parallel to d, also when v -> 0
-    cap_factor = np.sqrt(np.clip(1.0 - cos_ax * cos_ax, 0.0, 1.0))
-    cap_dir = np.einsum("...ji,...j->...i", rot, d)
-    # Spheres.
-    sc = surface.sph_center[:, None]
-    srot = surface.sph_rot[:, None]
-    sd, sn = _unit(pe - sc, srot[..., 1])
-    sph_x = sc + surface.sph_radius[:, None] * sd if sd.size else np.zeros((F, P, 0, 3))
-    sph_v = (sn - surface.sph_radius)[..., None] * sd
-    sph_dir = np.einsum("...ji,...j->...i", srot, sd)
-    # Meshes: closest triangle of each element.
-    M = len(surface.mesh_slices)
-    if M:
-        ta = surface.tri[:, None, :, 0]
-        tab = surface.tri[:, None, :, 1] - ta
-        tac = surface.tri[:, None, :, 2] - ta
-        bv, bw = _closest_on_triangles(pe, ta, tab, tac)
-        tx = ta + bv[..., None] * tab + bw[..., None] * tac  # (F, P, T, 3)
-        tv = pe - tx
-        td2 = np.einsum("...i,...i->...", tv, tv)
-        sel = np.stack([np.argmin(td2[..., s:e], axis=-1) + s for s, e in surface.mesh_slices], axis=-1)  # (F,P,M)
-        fi = np.arange(F)[:, None, None]
-        pi = np.arange(P)[None, :, None]
-        mesh_x = tx[fi, pi, sel]
-        mesh_v = tv[fi, pi, sel]
-        bv, bw = bv[fi, pi, sel], bw[fi, pi, sel]
-        tri_bary = np.stack([1.0 - bv - bw, bv, bw], axis=-1)
-        normal = surface.tri_normal[fi, sel]
-        mesh_factor = _triangle_factor(mesh_v, normal, penetration_tolerance)
-    else:
-        sel = np.zeros((F, P, 0), int)
-        mesh_x = mesh_v = tri_bary = np.zeros((F, P, 0, 3))
-        mesh_factor = np.zeros((F, P, 0))
-    x = np.concatenate([cap_x, sph_x, mesh_x], axis=2)
-    v = np.concatenate([cap_v, sph_v, mesh_v], axis=2)
-    dist = np.sqrt(np.einsum("...i,...i->...", v, v))
-    factor = np.concatenate([cap_factor, np.ones(sph_x.shape[:3]), mesh_factor], axis=2)
-    return Projections(x, v, dist, factor, t, cap_dir, sph_dir, sel, tri_bary)
+    return _project(np.asarray(points, float), surface, penetration_tolerance).public()
 
 
 def _triangle_factor(v, normal, tol):
-    """max(0, cos(v, n)) (paper 000, appendix C, raw contributions). Decision: the angle is taken
-    from the triangle plane shifted `tol` into the body, so a target that sinks a few millimetres
-    into the crude mesh (calibration noise) keeps its contact weight instead of dropping to zero;
-    at v = 0 the factor is 1 (a target on the surface)."""
+    """max(0, cos(v, n)) (paper 000, appendix C, raw contributions), components first. Decision:
+    the angle is taken from the triangle plane shifted `tol` into the body, so a target that sinks
+    a few millimetres into the crude mesh (calibration noise) keeps its contact weight instead of
+    dropping to zero; at v = 0 the factor is 1 (a target on the surface)."""
     w = v + tol * normal
-    wn = np.sqrt(np.einsum("...i,...i->...", w, w))
-    cos = np.divide(np.einsum("...i,...i->...", w, normal), wn, out=np.ones_like(wn), where=wn > 1e-12)
+    wn = np.sqrt(_dot(w, w))
+    cos = np.divide(_dot(w, normal), wn, out=np.ones_like(wn), where=wn > 1e-12)
     return np.maximum(cos, 0.0)
+
+
+def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
+    F, P = pr.dist.shape[:2]
+    C, S, M = avatar.counts
+    a = _comp(avatar.caps_head)[:, :, None, :]
+    ab = _comp(avatar.caps_tail)[:, :, None, :] - a
+    t = pr.cap_t
+    r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
+    cap = a + t * ab + r * _apply(_rot_comp(avatar.caps_rot), pr.cap_dir)
+    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(_rot_comp(avatar.sph_rot), pr.sph_dir)
+    if M:
+        same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices,
+                                                                                 avatar.mesh_slices)])
+        # The user's triangle index -> the avatar's (same position inside the element).
+        offset = np.array([as_ - us for (us, _), (as_, _) in zip(user.mesh_slices, avatar.mesh_slices)])
+        idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
+        fi = np.arange(F)[:, None, None]
+        mesh = np.zeros((3, F, P, M))
+        for k in range(3):
+            corner = _comp(avatar.tri[:, :, k])
+            for i in range(3):
+                mesh[i] += pr.tri_bary[k] * corner[i][fi, idx]
+        if not same.all():
+            # Different triangles (e.g. palms with other point counts): the element bone's frame,
+            # scaled by the bone length ratio.
+            bad = np.flatnonzero(~same)
+            xm = pr.x[:, :, :, C + S + bad]
+            local = _apply_t(_rot_comp(user.mesh_rot[:, bad]), xm - _comp(user.mesh_head[:, bad])[:, :, None, :])
+            scale = avatar.mesh_scale[bad] / np.maximum(user.mesh_scale[bad], 1e-9)
+            mesh[:, :, :, bad] = (_comp(avatar.mesh_head[:, bad])[:, :, None, :]
+                                  + _apply(_rot_comp(avatar.mesh_rot[:, bad]), local * scale))
+    else:
+        mesh = np.zeros((3, F, P, 0))
+    return np.concatenate([cap, sph, mesh], axis=-1)
 
 
 def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
@@ -468,34 +554,10 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
     coordinates (capsule: axial fraction + direction in the bone frame; sphere: direction;
     triangle: barycentric). A mesh whose triangles differ between user and avatar falls back to
     the element bone's frame, scaled by the bone length ratio. Returns (F, P, E, 3)."""
-    F, P = proj.x.shape[:2]
-    C, S, M = avatar.counts
-    a = avatar.caps_head[:, None]
-    ab = avatar.caps_tail[:, None] - a
-    t = proj.cap_t
-    r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
-    d = np.einsum("...ij,...j->...i", avatar.caps_rot[:, None], proj.cap_dir)
-    cap = a + t[..., None] * ab + r[..., None] * d
-    sph = avatar.sph_center[:, None] + avatar.sph_radius[:, None] * np.einsum(
-        "...ij,...j->...i", avatar.sph_rot[:, None], proj.sph_dir)
-    if M:
-        same = [(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices, avatar.mesh_slices)]
-        # Map the user's triangle index to the avatar's (same position inside the element).
-        offset = np.array([as_ - us for (us, _), (as_, _) in zip(user.mesh_slices, avatar.mesh_slices)])
-        idx = np.where(np.array(same), proj.tri_index + offset, avatar.mesh_slices[0][0])
-        fi = np.arange(F)[:, None, None]
-        tri = avatar.tri[fi, idx]  # (F, P, M, 3, 3)
-        mesh = np.einsum("fpmk,fpmki->fpmi", proj.tri_bary, tri)
-        if not all(same):
-            bad = [m for m, ok in enumerate(same) if not ok]
-            xm = proj.x[:, :, C + S:][:, :, bad]
-            local = np.einsum("fmji,fpmj->fpmi", user.mesh_rot[:, bad], xm - user.mesh_head[:, None, bad])
-            scale = avatar.mesh_scale[bad] / np.maximum(user.mesh_scale[bad], 1e-9)
-            mesh[:, :, bad] = avatar.mesh_head[:, None, bad] + np.einsum(
-                "fmij,fpmj->fpmi", avatar.mesh_rot[:, bad], local * scale[:, None])
-    else:
-        mesh = np.zeros((F, P, 0, 3))
-    return np.concatenate([cap, sph, mesh], axis=2)
+    m = np.moveaxis
+    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, m(proj.cap_dir, -1, 0),
+               m(proj.sph_dir, -1, 0), proj.tri_index, m(proj.tri_bary, -1, 0))
+    return m(_repose(pr, user, avatar), 0, -1)
 
 
 # --- weights -----------------------------------------------------------------------------------
@@ -522,81 +584,83 @@ def normalise(lam: np.ndarray, lam_floor: np.ndarray):
 
 # --- retro-projection ----------------------------------------------------------------------------
 
+ZERO_BONE = len(GRAPH_BONES)  # a zero vector: the one entry of an empty path
+
+
 @dataclass
 class _Plan:
     exclude: np.ndarray  # (P, E)
-    chain_p: np.ndarray  # (N,) target index of each chain
-    chain_e: np.ndarray  # (N,) element index
+    chain_pe: np.ndarray  # (N,) flat (target, element) index p * E + e of each chain
     chain_root: np.ndarray  # (N,) index into GRAPH_NODES of the element's root
-    entry_bone: np.ndarray  # (K,) GRAPH_BONES index of each path entry, chains concatenated
-    bounds: np.ndarray  # (N + 1,) chain n owns entries bounds[n]:bounds[n+1]
-    floor_bone: list[np.ndarray]  # per side: (K_s,) entries of the paths ankle_s -> target
-    floor_bounds: list[np.ndarray]  # per side: (P + 1,)
+    entry_chain: np.ndarray  # (K,) chain of each path entry (chains concatenated, none empty)
+    entry_bone: np.ndarray  # (K,) GRAPH_BONES index of each entry (ZERO_BONE pads an empty path)
+    starts: np.ndarray  # (N,) first entry of each chain (np.add.reduceat)
+    floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
+    floor_starts: list[np.ndarray]  # per side: (P,)
+
+
+def _entries(paths):
+    bones, starts = [], []
+    for path in paths:
+        starts.append(len(bones))
+        bones += list(path) or [ZERO_BONE]
+    return np.array(bones, int), np.array(starts, int)
 
 
 @lru_cache(maxsize=64)
 def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tuple[str, ...]) -> _Plan:
     """Everything frame-independent: exclusions and kinematic paths as index arrays (paper 000,
     appendix C: "chains are pre-computed and stored so that the tree search is not performed in
-    every frame")."""
+    every frame"). Excluded (own-chain) pairs have no chain at all: their weight is zero."""
     P, E = len(target_names), len(element_ids)
     exclude = np.zeros((P, E), bool)
-    cp, ce, cr, entries, bounds = [], [], [], [], [0]
+    pe, cr, paths = [], [], []
     for p, name in enumerate(target_names):
         own = own_chain_elements(name)
         for e, eid in enumerate(element_ids):
             if eid in own:
                 exclude[p, e] = True
                 continue
-            path = kinematic_path(roots[e], name)
-            cp.append(p)
-            ce.append(e)
+            paths.append(kinematic_path(roots[e], name))
+            pe.append(p * E + e)
             cr.append(GRAPH_NODES.index(roots[e]))
-            entries += path
-            bounds.append(len(entries))
-    floor_bone, floor_bounds = [], []
+    bones, starts = _entries(paths)
+    chain = np.repeat(np.arange(len(paths)), np.diff(np.append(starts, len(bones))))
+    floor_bone, floor_starts = [], []
     for s in sk.SIDES:
-        ent, bnd = [], [0]
-        for name in target_names:
-            ent += kinematic_path(f"ankle_{s}", name)
-            bnd.append(len(ent))
-        floor_bone.append(np.array(ent, int))
-        floor_bounds.append(np.array(bnd, int))
-    return _Plan(exclude, np.array(cp, int), np.array(ce, int), np.array(cr, int), np.array(entries, int),
-                 np.array(bounds, int), floor_bone, floor_bounds)
+        b, st = _entries([kinematic_path(f"ankle_{s}", name) for name in target_names])
+        floor_bone.append(b)
+        floor_starts.append(st)
+    return _Plan(exclude, np.array(pe, int), np.array(cr, int), chain, bones, starts, floor_bone, floor_starts)
 
 
 def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int) -> np.ndarray:
-    """(F, NB, 3) vectors of GRAPH_BONES (from `bones` if given, else from the surface's joints)."""
-    out = np.zeros((F, len(GRAPH_BONES), 3))
+    """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given, else from the surface's
+    joints), plus the zero bone."""
+    out = np.zeros((3, F, len(GRAPH_BONES) + 1))
     for i, name in enumerate(GRAPH_BONES):
         if bones is not None and name in bones:
-            out[:, i] = bones[name]
+            out[:, :, i] = np.asarray(bones[name], float).T
             continue
         b = sk.BONE_BY_NAME[name]
         if b.head in surface.joints and b.tail in surface.joints:
-            out[:, i] = surface.joints[b.tail] - surface.joints[b.head]
+            out[:, :, i] = (surface.joints[b.tail] - surface.joints[b.head]).T
     return out
 
 
 def _node_positions(surface: PosedSurface, F: int) -> np.ndarray:
-    out = np.zeros((F, len(GRAPH_NODES), 3))
+    out = np.zeros((3, F, len(GRAPH_NODES)))
     for i, name in enumerate(GRAPH_NODES):
         if name in surface.joints:
-            out[:, i] = surface.joints[name]
+            out[:, :, i] = surface.joints[name].T
     return out
-
-
-def _segment_sums(values: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    """Sums of values[:, bounds[n]:bounds[n+1]] for every n (empty ranges give 0)."""
-    cs = np.zeros((values.shape[0], values.shape[1] + 1))
-    np.cumsum(values, axis=1, out=cs[:, 1:])
-    return cs[:, bounds[1:]] - cs[:, bounds[:-1]]
 
 
 def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
     need = {GRAPH_NODES[i] for i in np.unique(plan.chain_root)} | {"ankle_l", "ankle_r"}
     for idx in np.unique(np.concatenate([plan.entry_bone, *plan.floor_bone])):
+        if idx == ZERO_BONE:
+            continue
         b = sk.BONE_BY_NAME[GRAPH_BONES[idx]]
         need |= {b.head, b.tail}
     missing = sorted(need - set(surface.joints))
@@ -608,7 +672,7 @@ def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
 def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
                     avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True,
-                    chunk: int = 512, penetration_tolerance: float = PENETRATION_TOLERANCE,
+                    chunk: int = 32, penetration_tolerance: float = PENETRATION_TOLERANCE,
                     details: dict | None = None) -> np.ndarray:
     """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
 
@@ -621,9 +685,10 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     (τ' = the avatar's bone lengths along the user's current bone directions).
     floor: include the floor contribution (the vertical singularity handled as eq. 1).
     details: if a dict is given, it receives the weights of the last chunk ("lam", "lam_g",
-    "lam_g_floor") for inspection.
+    "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
 
-    Returns (F, P, 3): the avatar's targets p'_j. Frames are processed in chunks of `chunk`."""
+    Returns (F, P, 3): the avatar's targets p'_j. Frames are processed in chunks of `chunk`
+    (32: the temporaries stay in the CPU caches)."""
     pts = np.asarray(user_pts, float)
     if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] != len(target_names):
         raise BodyCalError(f"targets must be (F, {len(target_names)}, 3), got {pts.shape}")
@@ -637,59 +702,64 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     plan = _plan(tuple(target_names), tuple(user_surface.element_ids), tuple(user_surface.element_roots))
     _check_joints(user_surface, plan, target_names, "user")
     _check_joints(avatar_surface, plan, target_names, "avatar")
+    # Frame-dependent but element-independent arrays, once for all chunks.
+    ub = _bone_vectors(user_surface, user_bones, F)
+    ab = _bone_vectors(avatar_surface, avatar_bones, F)
+    ulen = np.sqrt(_dot(ub, ub))
+    lratio = np.divide(np.sqrt(_dot(ab, ab)), ulen, out=np.ones_like(ulen), where=ulen > 1e-12)
+    nodes_u = np.take(_node_positions(user_surface, F), plan.chain_root, axis=2)
+    nodes_a = np.take(_node_positions(avatar_surface, F), plan.chain_root, axis=2)
     out = np.empty_like(pts)
-    for s in range(0, F, max(1, chunk)):
-        e = min(F, s + max(1, chunk))
-        ub = None if user_bones is None else {k: np.asarray(v)[s:e] for k, v in user_bones.items()}
-        ab = None if avatar_bones is None else {k: np.asarray(v)[s:e] for k, v in avatar_bones.items()}
-        out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e), ub, ab,
+    step = max(1, int(chunk))
+    for s in range(0, F, step):
+        e = min(F, s + step)
+        out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e),
+                                   ub[:, s:e], lratio[s:e], nodes_u[:, s:e], nodes_a[:, s:e],
                                    floor, penetration_tolerance, details)
     return out
 
 
-def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ubones, abones, floor, tol, details):
+def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lratio, nodes_u, nodes_a, floor, tol,
+                    details):
     F, P = p.shape[:2]
-    proj = project(p, us, tol)
+    pr = _project(p, us, tol)
+    E = pr.dist.shape[2]
     h = p[..., 2]
-    lam_raw, floor_raw = raw_weights(proj, h, plan.exclude)
+    lam_raw, floor_raw = raw_weights(pr, h, plan.exclude)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
     lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
-    x_av = repose(proj, us, av)
+    x_av = _repose(pr, us, av)  # (3, F, P, E)
 
-    # Kinematic normalisation τ, τ' (eq. 2, absolute values) for every (target, element) chain.
-    ubv = _bone_vectors(us, ubones, F)
-    ulen = np.sqrt(np.einsum("fbi,fbi->fb", ubv, ubv))
-    udir = np.divide(ubv, ulen[..., None], out=np.zeros_like(ubv), where=ulen[..., None] > 1e-12)
-    abv = _bone_vectors(av, abones, F)
-    alen = np.sqrt(np.einsum("fbi,fbi->fb", abv, abv))
-    vhat, _ = _unit(proj.v[:, plan.chain_p, plan.chain_e], 0.0)  # (F, N, 3)
-    entry_chain = np.repeat(np.arange(len(plan.chain_p)), np.diff(plan.bounds))
-    dots = np.abs(np.einsum("fki,fki->fk", vhat[:, entry_chain], udir[:, plan.entry_bone]))
-    tau = _segment_sums(dots * ulen[:, plan.entry_bone], plan.bounds)
-    tau_a = _segment_sums(dots * alen[:, plan.entry_bone], plan.bounds)
-    un = _node_positions(us, F)[:, plan.chain_root]
-    an = _node_positions(av, F)[:, plan.chain_root]
-    tau += np.abs(np.einsum("fni,fni->fn", vhat, proj.x[:, plan.chain_p, plan.chain_e] - un))
-    tau_a += np.abs(np.einsum("fni,fni->fn", vhat, x_av[:, plan.chain_p, plan.chain_e] - an))
-    ratio = np.ones(lam.shape)
-    ratio[:, plan.chain_p, plan.chain_e] = np.divide(tau_a, tau, out=np.ones_like(tau), where=tau > 1e-12)
+    # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values) for every chain:
+    # τ = Σ_k |v̂·b_k| + |v̂·(x - r)|, τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|.
+    v = pr.v.reshape(3, F, P * E)[:, :, plan.chain_pe]  # (3, F, N)
+    vhat, _ = _normalised(v, 0.0)
+    dots = np.abs(_dot(np.take(vhat, plan.entry_chain, axis=2), np.take(ub, plan.entry_bone, axis=2)))  # (F, K)
+    tau = np.add.reduceat(dots, plan.starts, axis=1)
+    tau_a = np.add.reduceat(dots * np.take(lratio, plan.entry_bone, axis=1), plan.starts, axis=1)
+    tau += np.abs(_dot(vhat, pr.x.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_u))
+    tau_a += np.abs(_dot(vhat, x_av.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_a))
+    ratio = np.ones((F, P * E))
+    ratio[:, plan.chain_pe] = np.divide(tau_a, tau, out=np.ones_like(tau), where=tau > 1e-12)
+    ratio = ratio.reshape(F, P, E)
 
-    est = x_av + proj.v * ratio[..., None]
-    horizontal = np.einsum("fpe,fpei->fpi", lam, est[..., :2])
+    est = x_av + pr.v * ratio  # (3, F, P, E)
+    horizontal = np.stack([(est[i] * lam).sum(-1) for i in range(2)], axis=-1)
     # No element with weight (all excluded): keep the user's horizontal position.
     none = lam.sum(-1) <= 0
-    horizontal = np.where(none[..., None], p[..., :2], horizontal)
-    vertical = np.einsum("fpe,fpe->fp", lam_g, est[..., 2])
+    if none.any():
+        horizontal = np.where(none[..., None], p[..., :2], horizontal)
+    vertical = (est[2] * lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
         ratios = []
-        for side in range(2):
-            ent, bnd = plan.floor_bone[side], plan.floor_bounds[side]
-            uz = np.abs(udir[:, ent, 2])
-            ankle = sk.SIDES[side]
-            tf = _segment_sums(uz * ulen[:, ent], bnd) + np.abs(us.joints[f"ankle_{ankle}"][:, 2])[:, None]
-            tfa = _segment_sums(uz * alen[:, ent], bnd) + np.abs(av.joints[f"ankle_{ankle}"][:, 2])[:, None]
+        for side, name in enumerate(sk.SIDES):
+            ent, st = plan.floor_bone[side], plan.floor_starts[side]
+            uz = np.abs(np.take(ub[2], ent, axis=1))
+            tf = np.add.reduceat(uz, st, axis=1) + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
+            tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=1), st, axis=1)
+            tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
         left_supports = us.joints["ankle_l"][:, 2] <= us.joints["ankle_r"][:, 2]
         fratio = np.where(left_supports[:, None], ratios[0], ratios[1])
