@@ -224,3 +224,22 @@ def test_ray_that_misses_names_the_point_and_bone():
         ac.calibrate_avatar(arm)
     msg = str(exc.value)
     assert "palm_1_l" in msg and "hand_l" in msg and "\n" not in msg
+
+
+def test_fbx_style_y_up_armature_under_a_rotated_object():
+    """Bones stored Y-up in armature space under an object rotated +90 degrees about X (how FBX
+    rigs arrive): the avatar stands exactly where it stood, so the measurement is the same."""
+    arm, mesh, spec = build_procedural_avatar()
+    ref = ac.calibrate_avatar(arm)
+    rx = Matrix.Rotation(math.radians(90), 4, "X")
+    arm.data.transform(rx.inverted())
+    arm.matrix_world = rx
+    mesh.matrix_parent_inverse = rx.inverted()
+    bpy.context.view_layer.update()
+    model = ac.calibrate_avatar(arm)
+    _check_truth(model, spec)
+    for j in ("pelvis", "skull_base", "wrist_l", "toe_r"):
+        assert np.allclose(model.joints[j].world, ref.joints[j].world, atol=1e-5), j
+    for eid in ("mesh:torso", "mesh:sole_l", "mesh:jaw"):
+        for name in ref.element(eid).points:
+            assert np.allclose(_world(model, eid, name), _world(ref, eid, name), atol=1e-4), (eid, name)

@@ -104,8 +104,11 @@ class Caster:
         self._Vector = Vector
         self.trees = []
         for obj in meshes:
-            m = np.array(obj.evaluated_get(depsgraph).matrix_world, dtype=float)
-            tree = BVHTree.FromObject(obj, depsgraph)
+            try:
+                m = np.array(obj.evaluated_get(depsgraph).matrix_world, dtype=float)
+                tree = BVHTree.FromObject(obj, depsgraph)
+            except (RuntimeError, ValueError):  # not in the view layer (excluded, other scene)
+                continue
             inv = np.linalg.inv(m)
             self.trees.append((tree, m, inv, Matrix(m.tolist())))
         self.rays = 0
@@ -158,6 +161,9 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
                            hint="add an Armature modifier pointing at it to the avatar's mesh")
     depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
     caster = Caster(meshes, depsgraph)
+    if not caster.trees:
+        raise BodyCalError(f"none of the meshes skinned to it ({', '.join(o.name for o in meshes)}) is in the "
+                           "view layer", source=arm.name, hint="include the avatar's collection in the view layer")
     return _calibrate(rig, caster, name or arm.name)
 
 

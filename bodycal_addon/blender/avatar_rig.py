@@ -79,8 +79,13 @@ class AvatarRig:
 
     @property
     def up(self) -> np.ndarray:
-        """The avatar's up: the armature object's +Z in world (Blender rigs stand along +Z)."""
-        v = self.matrix_world[:3, 2]
+        """The avatar's up: the armature-space axis (+-X, +-Y, +-Z) closest to its spine, in world.
+        Blender rigs stand along +Z; FBX-style rigs keep Y-up bones under an object rotated 90
+        degrees. Either way it turns exactly with the armature object."""
+        lin = self.matrix_world[:3, :3]
+        spine = np.linalg.solve(lin, self.joints["skull_base"] - self.joints["pelvis"])
+        k = int(np.argmax(np.abs(spine)))
+        v = lin[:, k] * np.sign(spine[k])
         return v / np.linalg.norm(v)
 
     @property
