@@ -20,11 +20,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import BodyCalError
+from .transforms import matrix_to_quat, quat_angle, quat_conj, quat_mul, quat_normalize
 
 MIN_ARC_DEG = 40.0  # circle: arc a hinge must sweep for its axis to be trusted
 MIN_SWING_DEG = 40.0  # sphere: main swing of an anchor joint
 MIN_SWING_MINOR_DEG = 15.0  # sphere: the swing across it (an arc alone leaves the centre free along its axis)
 COLLINEAR = 1e-3  # sqrt(λ2/λ1) below this: points on a line
+RESIDUAL_GATE = 0.25  # a circle / sphere whose residual RMS exceeds this fraction of its radius is rejected
 
 
 @dataclass
@@ -192,7 +194,7 @@ def fit_circle(points, *, name: str = "circle", robust: bool = True, passes: int
     if arc < min_arc_deg:
         raise BodyCalError(f"only {arc:.0f} degrees of motion recorded, at least {min_arc_deg:.0f} needed",
                            source=name, hint="flex the joint through a wider range and record the step again")
-    if r > 0 and rms > 0.25 * r:
+    if r > 0 and rms > RESIDUAL_GATE * r:
         raise BodyCalError(f"the points do not lie on a circle (residual {rms * 1000:.0f} mm for a radius of "
                            f"{r * 1000:.0f} mm)", source=name,
                            hint="keep the other joints still while flexing and record the step again")
@@ -264,7 +266,7 @@ def fit_sphere(points, *, name: str = "sphere", robust: bool = True, passes: int
             raise BodyCalError(f"the motion stays in one plane ({minor:.0f} degrees across it, at least "
                                f"{min_minor_deg:.0f} needed)", source=name,
                                hint="swing the limb sideways as well as forward and back")
-        if rms > 0.25 * r:
+        if rms > RESIDUAL_GATE * r:
             raise BodyCalError(f"the points do not lie on a sphere (residual {rms * 1000:.0f} mm for a radius of "
                                f"{r * 1000:.0f} mm)", source=name,
                                hint="keep the body still while swinging the limb and record the step again")
@@ -272,6 +274,62 @@ def fit_sphere(points, *, name: str = "sphere", robust: bool = True, passes: int
         raise BodyCalError("the four points lie in one plane: no sphere through them", source=name,
                            hint="touch points that are not on one circle")
     return fit
+
+
+@dataclass
+class RigidPointFit(Fit):
+    local_a: np.ndarray = None  # the point in frame A
+    local_b: np.ndarray = None  # the same point in frame B
+
+
+def fit_rigid_point(rot_a, pos_a, rot_b, pos_b, *, name: str = "joint", robust: bool = True,
+                    passes: int = 8) -> RigidPointFit:
+    """The point fixed in two moving frames (a ball joint between two tracked bones): least squares
+    of R_a(t) a + p_a(t) = R_b(t) b + p_b(t) over frames t (the "symmetrical centre of rotation
+    estimation", Ehrig et al. 2006), with the same repeated 2-sigma pass on the per-frame misfit.
+    `rot_*` are (F, 3, 3) matrices, `pos_*` (F, 3). Unlike a sphere fit of one tracker's origin
+    in the other's frame, it uses both trackers' rotations, so a short swing arc or tracker
+    wobble does not trade the centre against the radius.
+
+    `conditioning` = smallest / largest singular value of the system (0: the frames never rotated
+    relative to each other); `range_deg` = the largest relative rotation from the mean pose."""
+    ra, pa, rb, pb = (np.asarray(x, float) for x in (rot_a, pos_a, rot_b, pos_b))
+    ok = np.all(np.isfinite(pa), 1) & np.all(np.isfinite(pb), 1) & np.all(np.isfinite(ra), (1, 2)) & \
+        np.all(np.isfinite(rb), (1, 2))
+    ra, pa, rb, pb = ra[ok], pa[ok], rb[ok], pb[ok]
+    if len(pa) < 10:
+        raise BodyCalError(f"only {len(pa)} usable frames, at least 10 needed", source=name,
+                           hint="record the step again with both trackers visible")
+
+    def solve(k):
+        a = np.concatenate([ra[k], -rb[k]], axis=2).reshape(-1, 6)
+        y = (pb[k] - pa[k]).reshape(-1)
+        x, _, _, sv = np.linalg.lstsq(a, y, rcond=None)
+        return x, float(sv[-1] / sv[0]) if sv[0] > 0 else 0.0
+
+    def misfit(x):
+        return np.linalg.norm(np.einsum("fij,j->fi", ra, x[:3]) + pa - np.einsum("fij,j->fi", rb, x[3:]) - pb, axis=1)
+
+    keep = np.ones(len(pa), bool)
+    x, cond = solve(keep)
+    for _ in range(passes if robust else 0):
+        res = misfit(x)
+        new = keep & (res <= res[keep].mean() + 2.0 * res[keep].std() + 1e-12)
+        if new.sum() < 10 or new.sum() == keep.sum():
+            break
+        keep = new
+        x, cond = solve(keep)
+    res = misfit(x)[keep]
+    rel = np.einsum("fji,fjk->fik", rb[keep], ra[keep])  # R_b^T R_a
+    q = matrix_to_quat(rel)
+    q = np.where((q @ q[0])[:, None] < 0, -q, q)
+    mean = quat_normalize(q.mean(axis=0))
+    rng_deg = float(np.degrees(np.percentile(quat_angle(quat_mul(quat_conj(mean), q)), 98)) * 2.0)
+    if cond < 1e-4 or rng_deg < 10.0:
+        raise BodyCalError(f"only {rng_deg:.0f} degrees of motion recorded between the two trackers",
+                           source=name, hint="move the limb through a wider range and record the step again")
+    return RigidPointFit("rigid_point", float(np.sqrt(np.mean(res ** 2))), int(keep.sum()), len(pa), cond,
+                         keep, rng_deg, local_a=x[:3], local_b=x[3:])
 
 
 def robust_mean(points, *, name: str = "points", minimum: int = 1) -> tuple[np.ndarray, np.ndarray]:

@@ -100,8 +100,8 @@ def _measured_world(session: Session, state: State) -> None:
 
 
 def _soles_toe(session: Session, state: State) -> None:
-    """Toe joint (ball of the foot) from the sole outline: 3/4 of the way from heel to front,
-    just above the floor, in the foot tracker's frame."""
+    """Toe joint (ball of the foot): in the sole outline's direction from the ankle, at the
+    anthropometric distance, just above the floor, in the foot tracker's frame."""
     for s in sk.SIDES:
         pts = state.sole_points.get(s)
         if not pts or f"ankle_{s}" not in state.world:
@@ -111,13 +111,13 @@ def _soles_toe(session: Session, state: State) -> None:
         fwd = w.mean(axis=0) - ank
         fwd[2] = 0.0
         fwd /= max(np.linalg.norm(fwd), 1e-9)
-        along = (w - ank) @ fwd
-        heel, front = along.min(), along.max()
-        toe = ank + fwd * (heel + 0.75 * (front - heel))
-        toe[2] = defaults.R["toe_height"] * 1.7
+        stature = float(session.ref_pose("head")[0][2]) / defaults.EYE_TO_STATURE
+        toe = ank + fwd * defaults.R["toe_forward"] * stature
+        toe[2] = defaults.R["toe_height"] * stature
         state.world[f"toe_{s}"] = toe
         state.set_local(f"toe_{s}", f"foot_{s}", session.to_local(f"foot_{s}", toe))
-        session.default(f"toe_{s}", "3/4 of the sole outline from the heel, 25 mm above the floor")
+        session.default(f"toe_{s}", f"{defaults.R['toe_forward']} H from the ankle toward the sole's front, "
+                        f"{defaults.R['toe_height']} H high")
 
 
 def _bone_rights(session: Session, state: State, body: defaults.BodyFrame, w: dict) -> dict[str, np.ndarray]:
@@ -200,14 +200,12 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
         head_w, tail_w = w[b.head], w[b.tail]
         info = BoneInfo(b.head, b.tail, float(np.linalg.norm(tail_w - head_w)), rights[b.name])
         s = b.name[-1]
-        if b.name in (f"upperarm_{s}",):
-            info.radius_head = info.radius_tail = 0.5 * (rad[f"shoulder_{s}"] + rad[f"elbow_{s}"])
-        elif b.name == f"forearm_{s}":  # paper 000: mean of the joint's radius and the effector's
-            info.radius_head = info.radius_tail = 0.5 * (rad[f"elbow_{s}"] + rad[f"wrist_{s}"])
-        elif b.name == f"thigh_{s}":
-            info.radius_head = info.radius_tail = 0.5 * (rad[f"hip_{s}"] + rad[f"knee_{s}"])
-        elif b.name == f"shin_{s}":
-            info.radius_head = info.radius_tail = 0.5 * (rad[f"knee_{s}"] + rad[f"ankle_{s}"])
+        # Limb capsules taper from the radius measured at one joint to the next: the paper's single
+        # radius of the intermediate bone (mean of the joint's and the effector's) is their mean.
+        limb = {"upperarm": ("shoulder", "elbow"), "forearm": ("elbow", "wrist"), "thigh": ("hip", "knee"),
+                "shin": ("knee", "ankle")}.get(b.name[:-2])
+        if limb is not None and b.name[-2:] in ("_l", "_r"):
+            info.radius_head, info.radius_tail = rad[f"{limb[0]}_{s}"], rad[f"{limb[1]}_{s}"]
         else:
             for f in sk.FINGERS:
                 if b.name.startswith(f + "_") and b.name.endswith(f"_{s}"):

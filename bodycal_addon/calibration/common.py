@@ -13,6 +13,8 @@ from ..errors import BodyCalError
 from ..recording import Recording, Segment
 
 REF_HALF_WINDOW = 0.1  # s: device poses at the reference time are robust means over this window
+SPIKE_WINDOW_S = 0.07  # running median window for glitch detection
+SPIKE_M = 0.015  # a device farther than this from its running median is a glitch frame
 MIN_STEP_FRAMES = 20  # a motion step (flex / swing) needs at least this many tracked frames
 
 
@@ -26,6 +28,31 @@ def side_of(name: str) -> str | None:
     if name.endswith("_r"):
         return "r"
     return None
+
+
+def running_median(x: np.ndarray, w: int) -> np.ndarray:
+    """Centred running median over the leading axis (edges padded with the end values)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    if len(x) < w:
+        return np.repeat(np.median(x, axis=0, keepdims=True), len(x), axis=0)
+    pad = w // 2
+    xp = np.concatenate([np.repeat(x[:1], pad, 0), x, np.repeat(x[-1:], pad, 0)])
+    return np.median(sliding_window_view(xp, w, axis=0), axis=-1)
+
+
+def glitch_frames(pos: np.ndarray, valid: np.ndarray, fps: float) -> np.ndarray:
+    """Frames where a device jumps away from its own running median (tracking glitches). A smooth
+    trajectory is its own running median on monotonic stretches, so only isolated jumps (and
+    violent turns) stand out; they are dropped before any fit, the 2-sigma passes handle the rest."""
+    w = max(3, int(round(SPIKE_WINDOW_S * max(fps, 1.0))) | 1)
+    idx = np.nonzero(valid)[0]
+    out = np.zeros(len(pos), bool)
+    if len(idx) < w:
+        return out
+    p = pos[idx]
+    out[idx] = np.linalg.norm(p - running_median(p, w), axis=1) > SPIKE_M
+    return out
 
 
 @dataclass
@@ -51,10 +78,12 @@ class State:
 class Session:
     """A recording prepared for calibration."""
 
-    def __init__(self, rec: Recording, *, robust: bool = True):
+    def __init__(self, rec: Recording, *, robust: bool = True, despike: bool = True):
         self.rec = rec
         self.source = rec.source or rec.name
         self.robust = robust
+        self.despike = despike
+        self.spikes: dict[str, int] = {}
         self._poses: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._ref: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.quality: dict[str, dict] = {}
@@ -84,12 +113,17 @@ class Session:
         device pose are built from the glove's three LEDs (synthetic_api / FORMATS.md §2.1)."""
         if role not in self._poses:
             if self.rec.has_role(role):
-                self._poses[role] = self.rec.pose(role)
+                pos, rot, valid = self.rec.pose(role)
             elif self.has(role):
-                self._poses[role] = self._led_hand(role[-1])
+                pos, rot, valid = self._led_hand(role[-1])
             else:
                 raise BodyCalError(f"the recording has no '{role}' tracker", source=self.source,
                                    hint=f"assign the role '{role}' to a device or record without this step")
+            if self.despike:
+                spikes = glitch_frames(pos, valid, self.rec.fps)
+                self.spikes[role] = int(spikes.sum())
+                valid = valid & ~spikes
+            self._poses[role] = (pos, rot, valid)
         return self._poses[role]
 
     def _led_hand(self, s: str):
@@ -149,8 +183,15 @@ class Session:
         return p.mean(axis=0), tf.quat_normalize(q.mean(axis=0))
 
     def ref_pose(self, role: str) -> tuple[np.ndarray, np.ndarray]:
+        """Pose at the reference time. The performer holds the reference pose (T-pose / stand)
+        still, so the pose is averaged over the middle half of that segment: soft-tissue wobble
+        (0.2-1.5 Hz) averages out over a second or more, not over a few frames."""
         if role not in self._ref:
-            self._ref[role] = self.pose_at(role, self.reference_time)
+            half = REF_HALF_WINDOW
+            segs = self.rec.segments_of(self.reference_step) if self.reference_step in ("tpose", "stand") else []
+            if segs:
+                half = max(REF_HALF_WINDOW, 0.25 * (segs[0].end - segs[0].start))
+            self._ref[role] = self.pose_at(role, self.reference_time, half)
         return self._ref[role]
 
     def to_world(self, role: str, local: np.ndarray) -> np.ndarray:

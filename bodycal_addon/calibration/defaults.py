@@ -15,13 +15,13 @@ import numpy as np
 from .. import skeleton as sk
 from .common import Session, State
 
-EYE_TO_STATURE = 0.936
-R = {  # fractions of the stature
-    "shoulder_height": 0.818, "shoulder_half_width": 0.129, "hip_height": 0.52, "hip_half_width": 0.05,
-    "knee_height": 0.285, "ankle_height": 0.039, "upperarm": 0.186, "forearm": 0.146, "hand": 0.108,
-    "pelvis_forward_of_back_tracker": 0.055, "skull_base_back": 0.05, "skull_base_down": 0.045,
-    "toe_forward": 0.09, "toe_height": 0.015, "wrist_in_from_grip": 0.045, "foot_width": 0.05, "heel_back": 0.03,
-    "skull_radius": 0.055, "skull_up": 0.05,
+EYE_TO_STATURE = 0.93
+R = {  # fractions of the stature (joint centres, so the shoulders are narrower than the biacromial width)
+    "shoulder_height": 0.818, "shoulder_half_width": 0.1025, "hip_height": 0.53, "hip_half_width": 0.05,
+    "knee_height": 0.285, "ankle_height": 0.045, "upperarm": 0.186, "forearm": 0.146, "hand": 0.108,
+    "pelvis_forward_of_back_tracker": 0.055, "skull_base_back": 0.049, "skull_base_down": 0.034,
+    "toe_forward": 0.08, "toe_height": 0.012, "wrist_in_from_grip": 0.029, "foot_width": 0.05, "heel_back": 0.03,
+    "skull_radius": 0.051, "skull_up": 0.043, "head_above_skull_base": 0.057,
 }
 RADII = {"shoulder": 0.028, "elbow": 0.022, "wrist": 0.016, "hip": 0.05, "knee": 0.03, "ankle": 0.02,
          "finger": 0.0048}
@@ -103,6 +103,10 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
 
     def put(name, value, how):
         if name not in w:
+            est = state.extra.get("touch_estimates", {}).get(name)
+            if est is not None:
+                value = session.to_world(est[0], est[1])
+                how = f"mean of its two touches, in the {est[0]} tracker's frame (not rigid)"
             w[name] = out[name] = np.asarray(value, float)
             session.default(name, how)
 
@@ -164,12 +168,8 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
                 f"{R['skull_base_back']} H behind and {R['skull_base_down']} H below the HMD")
         else:
             put("skull_base", body.at(0.87 * H), "0.87 H above the floor")
-    if "head" not in w:
-        if state.skull is not None and has("head"):
-            c = session.to_world("head", state.skull[0])
-            put("head", c + UP * state.skull[1], "top of the skull sphere")
-        else:
-            put("head", np.array([w["skull_base"][0], w["skull_base"][1], H]), "stature above the skull base")
+    put("head", w["skull_base"] + UP * R["head_above_skull_base"] * H,
+        f"{R['head_above_skull_base']} H above the skull base (the head bone's tip)")
     # fingers
     for s in sk.SIDES:
         along, palm_n, thumb = hand_axes(session, state, body, s, w)

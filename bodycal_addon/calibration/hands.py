@@ -58,7 +58,8 @@ def palms_together(session: Session, state: State) -> None:
         if session.robust and keep.sum() >= 3 and not keep.all():
             plane = fit_plane(pts[keep], name=f"palms_together ({s} palm plane)")
         normal = plane.normal if plane.distance(np.zeros(3)) < 0 else -plane.normal  # out of the palm
-        point = (plane.point @ normal) * normal  # the hand frame's origin projected on the plane
+        # the hand frame's origin projected on the plane: the palm centre (`by: palm_<s>` touches)
+        point = (plane.point @ normal) * normal
         state.palm_planes[f"hand_{s}"] = (point, normal)
         state.extra.setdefault("palm_centre", {})[s] = point
         quality[s] = {"rms_mm": round(plane.rms * 1000, 3), "kept": int(keep.sum()), "of": int(len(pts))}
@@ -111,7 +112,6 @@ def hand_touches(session: Session, state: State) -> None:
                 point, normal = plane
                 pts = {k: v - ((v - point) @ normal) * normal for k, v in pts.items()}
             state.palm_points[s] = pts
-            state.extra.setdefault("palm_centre", {})[s] = np.mean(list(pts.values()), axis=0)
             session.use(f"palm_{s}")
 
 

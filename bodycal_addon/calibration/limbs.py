@@ -13,6 +13,19 @@ Anchor joints (`swing_shoulder_<s>`, `swing_hip_<s>`): the root tracker (chest, 
 shoulders; pelvis for hips) recorded in the limb tracker's frame lies on a sphere whose centre is
 the joint (2-sigma pass in geometry.fit_sphere). The anchored limb's radius comes from the
 diametric `<joint>_front` / `_back` touches.
+
+**Decision** (DESIGN.md §3, anchor joints): the sphere fit is kept as the paper's check (its
+residual, range and the distance of its centre are reported), but the joint centre comes from
+`geometry.fit_rigid_point`, the point fixed in both trackers' frames, which also uses the two
+trackers' rotations. With soft-tissue wobble the sphere of a 60-90° hip swing trades its centre
+against its radius (a 5 cm error on one hip of the average synthetic performer); the rigid-point
+fit stays within 2-4 mm (test_calibration.test_anchor_rigid_point_beats_the_sphere_under_wobble,
+benchmarks/bench_calibration.py).
+
+**Decision** (hinge position): with both `<joint>_in` / `_out` touches the joint is their mean
+(paper 000: "calibrate its position as the average position between both points"); the circle
+gives the axis, and the distance of the touches' mean from it is reported (`touch_off_axis_mm`) as
+a consistency check. Without the touches the circle centre is used and the default is reported.
 """
 
 from __future__ import annotations
@@ -20,7 +33,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import skeleton as sk
-from ..geometry import fit_circle, fit_sphere
+from .. import transforms as tf
+from ..geometry import fit_circle, fit_rigid_point, fit_sphere
 from . import touches as T
 from .common import Session, State
 
@@ -61,9 +75,9 @@ def hinge(session: Session, state: State, side: str, joint: str, touches: dict) 
     centre = fit.center
     t_in, t_out = touches.get(f"{joint}_in_{side}"), touches.get(f"{joint}_out_{side}")
     q = fit.quality()
-    if t_in and t_out and t_in.role == frame_role and t_out.role == frame_role:
+    if t_in and t_out and t_in.role == frame_role and t_out.role == frame_role and t_in.rigid:
         mid = 0.5 * (t_in.local + t_out.local)
-        pos = centre + ((mid - centre) @ right) * right  # along the axis, from the touches
+        pos = mid
         state.radii[f"{joint}_{side}"] = 0.5 * float(np.linalg.norm(t_in.local - t_out.local))
         q["radius_mm"] = round(state.radii[f"{joint}_{side}"] * 1000, 1)
         q["touch_off_axis_mm"] = round(float(np.linalg.norm((mid - centre) - ((mid - centre) @ right) * right))
@@ -92,14 +106,43 @@ def anchor(session: Session, state: State, side: str, joint: str, touches: dict)
     idx = session.frames(segs)
     pts, used = session.relative_track(step, limb_role, root, idx)
     fit = fit_sphere(pts, name=step, robust=session.robust)
-    state.set_local(f"{joint}_{side}", limb_role, fit.center)
-    state.set_local(f"{joint}_{side}", root, session.carry(fit.center, limb_role, root, used))
     q = fit.quality()
+    lp, lq, _ = session.pose(limb_role)
+    rp, rq, _ = session.pose(root)
+    rigid = fit_rigid_point(tf.quat_to_matrix(lq[used]), lp[used], tf.quat_to_matrix(rq[used]), rp[used],
+                            name=step, robust=session.robust)
+    state.set_local(f"{joint}_{side}", limb_role, rigid.local_a)
+    state.set_local(f"{joint}_{side}", root, rigid.local_b)
+    q.update({"rigid_rms_mm": round(rigid.rms * 1000, 3), "rigid_kept": rigid.kept,
+              "sphere_centre_mm": round(float(np.linalg.norm(fit.center - rigid.local_a)) * 1000, 1)})
     front, back = touches.get(f"{joint}_front_{side}"), touches.get(f"{joint}_back_{side}")
     if front and back:
         state.radii[f"{joint}_{side}"] = 0.5 * float(np.linalg.norm(front.local - back.local))
         q["radius_mm"] = round(state.radii[f"{joint}_{side}"] * 1000, 1)
     session.use(step, q)
+
+
+def touch_only(session: Session, state: State, side: str, joint: str, touches: dict) -> None:
+    """A limb joint without its motion step: the diametric touches still give the radius, and
+    the joint itself when they were taken in a frame the joint rides on (e.g. the hips in the
+    pelvis tracker's frame in a 6-device AvatarGo recording)."""
+    if f"{joint}_{side}" in state.local:
+        return
+    a, b = (("in", "out") if joint in HINGES else ("front", "back"))
+    ta, tb = touches.get(f"{joint}_{a}_{side}"), touches.get(f"{joint}_{b}_{side}")
+    if not (ta and tb) or ta.role != tb.role:
+        return
+    if f"{joint}_{side}" not in state.radii:
+        state.radii[f"{joint}_{side}"] = 0.5 * float(np.linalg.norm(ta.local - tb.local))
+    q = {"radius_mm": round(state.radii[f"{joint}_{side}"] * 1000, 1)}
+    if ta.rigid and tb.rigid:
+        state.set_local(f"{joint}_{side}", ta.role, 0.5 * (ta.local + tb.local))
+        q["frame"] = ta.role
+    elif joint == "shoulder":
+        # Not rigid in that frame (the spine bends), but the performer stands at the
+        # touch as in the reference pose: a better guess than body ratios (defaults.py uses it).
+        state.extra.setdefault("touch_estimates", {})[f"{joint}_{side}"] = (ta.role, 0.5 * (ta.local + tb.local))
+    session.use(f"{joint}_{side} touches", q)
 
 
 def limbs(session: Session, state: State) -> None:
@@ -109,3 +152,5 @@ def limbs(session: Session, state: State) -> None:
             hinge(session, state, s, j, touches)
         for j in ANCHORS:
             anchor(session, state, s, j, touches)
+        for j in (*HINGES, *ANCHORS):
+            touch_only(session, state, s, j, touches)

@@ -13,13 +13,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from .. import transforms as tf
 from ..errors import BodyCalError
 from ..geometry import robust_mean
 from ..recording import Segment
-from .common import Session, State, other, side_of
+from .common import Session, State, other, running_median, side_of
 
 STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still
 STILL_MIN_S = 0.2  # the touch must hold still this long (or half the segment, if shorter)
@@ -43,6 +42,18 @@ class Touch:
     frames: np.ndarray  # frame indices used
     spread_mm: float
     segment: Segment
+    rigid: bool = True  # False: `role` is a fallback frame the point does not ride on rigidly
+
+
+def is_rigid(point: str, role: str) -> bool:
+    """Whether a touched point is fixed in `role`'s frame (its own bone's tracker, or the pelvis
+    for the hips); otherwise only distances between touches (radii) are meaningful."""
+    s = side_of(point)
+    natural = {"elbow_": f"forearm_{s}", "knee_": f"shin_{s}", "shoulder_": f"upperarm_{s}", "hip_": f"thigh_{s}"}
+    for prefix, own in natural.items():
+        if point.startswith(prefix):
+            return role == own or (prefix == "hip_" and role == "pelvis")
+    return True
 
 
 def touched_role(session: Session, point: str) -> str:
@@ -105,12 +116,16 @@ def by_track(session: Session, state: State, by: str) -> tuple[np.ndarray, np.nd
                        field="segments.by", hint="name a fingertip marker (index_tip_r) or palm_<s>")
 
 
-def _running_median(x: np.ndarray, w: int) -> np.ndarray:
-    if len(x) < w:
-        return np.repeat(np.median(x, axis=0, keepdims=True), len(x), axis=0)
-    pad = w // 2
-    xp = np.concatenate([np.repeat(x[:1], pad, 0), x, np.repeat(x[-1:], pad, 0)])
-    return np.median(sliding_window_view(xp, w, axis=0), axis=-1)
+def _speed(track: np.ndarray, t: np.ndarray, w: int) -> np.ndarray:
+    """Speed (m/s) of the running-median-filtered track, per frame."""
+    smooth = running_median(track, w)
+    k = max(1, w // 2)
+    if len(t) <= 2 * k:
+        return np.full(len(t), np.linalg.norm(smooth[-1] - smooth[0]) / max(t[-1] - t[0], 1e-9))
+    speed = np.empty(len(t))
+    speed[k:-k] = np.linalg.norm(smooth[2 * k:] - smooth[:-2 * k], axis=1) / np.maximum(t[2 * k:] - t[:-2 * k], 1e-9)
+    speed[:k], speed[-k:] = speed[k], speed[-k - 1]
+    return speed
 
 
 def _longest_run(mask: np.ndarray) -> tuple[int, int]:
@@ -141,18 +156,14 @@ def extract(session: Session, state: State, seg: Segment, role: str | None = Non
         raise BodyCalError(f"'{by}' and '{role}' are tracked together in only {len(idx)} frames",
                            source=session.source, field=label, hint="record the touch again with both visible")
     local = tf.inverse_transform_points(fp[idx], fq[idx], bp[idx])
+    rigid = is_rigid(point, role)
     t = session.rec.time[idx]
     fps = max((len(t) - 1) / max(t[-1] - t[0], 1e-9), 1.0)
     w = max(3, int(round(MEDIAN_S * fps)) | 1)
-    smooth = _running_median(local, w)
-    k = max(1, w // 2)
-    if len(idx) > 2 * k:
-        speed = np.full(len(idx), np.inf)
-        speed[k:-k] = np.linalg.norm(smooth[2 * k:] - smooth[:-2 * k], axis=1) / np.maximum(t[2 * k:] - t[:-2 * k],
-                                                                                             1e-9)
-        speed[:k], speed[-k:] = speed[k], speed[-k - 1]
-    else:
-        speed = np.full(len(idx), np.linalg.norm(smooth[-1] - smooth[0]) / max(t[-1] - t[0], 1e-9))
+    # Still relative to the touched part or to the room, whichever is slower: the tracker's
+    # soft-tissue wobble turns the part's frame by a degree or so, which over a long lever (a
+    # sternum seen from the pelvis tracker) looks like motion although the finger rests.
+    speed = np.minimum(_speed(local, t, w), _speed(bp[idx], t, w))
     a, b = _longest_run(speed < STILL_SPEED)
     need = min(STILL_MIN_S, 0.5 * (seg.end - seg.start))
     held = (t[b - 1] - t[a]) if b > a else 0.0
@@ -166,7 +177,7 @@ def extract(session: Session, state: State, seg: Segment, role: str | None = Non
     used = idx[sel][keep]
     world = robust_mean(bp[used], name=label)[0]
     spread = float(np.sqrt(np.mean(np.sum((local[sel][keep] - mean) ** 2, axis=1))) * 1000.0)
-    return Touch(point, by, role, mean, world, used, spread, seg)
+    return Touch(point, by, role, mean, world, used, spread, seg, rigid)
 
 
 def collect(session: Session, state: State, prefix: tuple[str, ...] | None = None) -> dict[str, Touch]:
