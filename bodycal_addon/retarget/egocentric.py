@@ -592,9 +592,10 @@ class _Plan:
     exclude: np.ndarray  # (P, E)
     chain_pe: np.ndarray  # (N,) flat (target, element) index p * E + e of each chain
     chain_root: np.ndarray  # (N,) index into GRAPH_NODES of the element's root
-    entry_chain: np.ndarray  # (K,) chain of each path entry (chains concatenated, none empty)
-    entry_bone: np.ndarray  # (K,) GRAPH_BONES index of each entry (ZERO_BONE pads an empty path)
-    starts: np.ndarray  # (N,) first entry of each chain (np.add.reduceat)
+    entry_bone: np.ndarray  # (K,) every GRAPH_BONES index used (for the joint check)
+    # Paths by position: chains are sorted by decreasing path length, so the chains with a j-th
+    # bone are a prefix; slot_bones[j] lists those j-th bones. No gather of v̂ is needed.
+    slot_bones: list[np.ndarray]
     floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
     floor_starts: list[np.ndarray]  # per side: (P,)
 
@@ -624,14 +625,19 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
             paths.append(kinematic_path(roots[e], name))
             pe.append(p * E + e)
             cr.append(GRAPH_NODES.index(roots[e]))
-    bones, starts = _entries(paths)
-    chain = np.repeat(np.arange(len(paths)), np.diff(np.append(starts, len(bones))))
+    order = sorted(range(len(paths)), key=lambda i: -len(paths[i]))
+    paths = [paths[i] for i in order]
+    pe = [pe[i] for i in order]
+    cr = [cr[i] for i in order]
+    longest = len(paths[0]) if paths else 0
+    slots = [np.array([path[j] for path in paths if len(path) > j], int) for j in range(longest)]
+    bones = np.array(sorted({b for path in paths for b in path}), int)
     floor_bone, floor_starts = [], []
     for s in sk.SIDES:
         b, st = _entries([kinematic_path(f"ankle_{s}", name) for name in target_names])
         floor_bone.append(b)
         floor_starts.append(st)
-    return _Plan(exclude, np.array(pe, int), np.array(cr, int), chain, bones, starts, floor_bone, floor_starts)
+    return _Plan(exclude, np.array(pe, int), np.array(cr, int), bones, slots, floor_bone, floor_starts)
 
 
 def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int) -> np.ndarray:
@@ -735,9 +741,13 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
     # τ = Σ_k |v̂·b_k| + |v̂·(x - r)|, τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|.
     v = pr.v.reshape(3, F, P * E)[:, :, plan.chain_pe]  # (3, F, N)
     vhat, _ = _normalised(v, 0.0)
-    dots = np.abs(_dot(np.take(vhat, plan.entry_chain, axis=2), np.take(ub, plan.entry_bone, axis=2)))  # (F, K)
-    tau = np.add.reduceat(dots, plan.starts, axis=1)
-    tau_a = np.add.reduceat(dots * np.take(lratio, plan.entry_bone, axis=1), plan.starts, axis=1)
+    tau = np.zeros(vhat.shape[1:])
+    tau_a = np.zeros(vhat.shape[1:])
+    for bones in plan.slot_bones:
+        n = len(bones)
+        dots = np.abs(_dot(vhat[:, :, :n], np.take(ub, bones, axis=2)))
+        tau[:, :n] += dots
+        tau_a[:, :n] += dots * np.take(lratio, bones, axis=1)
     tau += np.abs(_dot(vhat, pr.x.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_u))
     tau_a += np.abs(_dot(vhat, x_av.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_a))
     ratio = np.ones((F, P * E))
