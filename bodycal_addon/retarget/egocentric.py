@@ -713,6 +713,8 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     ab = _bone_vectors(avatar_surface, avatar_bones, F)
     ulen = np.sqrt(_dot(ub, ub))
     lratio = np.divide(np.sqrt(_dot(ab, ab)), ulen, out=np.ones_like(ulen), where=ulen > 1e-12)
+    ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the slot gathers
+    lrt = np.ascontiguousarray(lratio.T)
     nodes_u = np.take(_node_positions(user_surface, F), plan.chain_root, axis=2)
     nodes_a = np.take(_node_positions(avatar_surface, F), plan.chain_root, axis=2)
     out = np.empty_like(pts)
@@ -720,7 +722,7 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     for s in range(0, F, step):
         e = min(F, s + step)
         out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e),
-                                   ub[:, s:e], lratio[s:e], nodes_u[:, s:e], nodes_a[:, s:e],
+                                   ubt[:, :, s:e], lrt[:, s:e], nodes_u[:, s:e], nodes_a[:, s:e],
                                    floor, penetration_tolerance, details)
     return out
 
@@ -741,13 +743,16 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
     # τ = Σ_k |v̂·b_k| + |v̂·(x - r)|, τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|.
     v = pr.v.reshape(3, F, P * E)[:, :, plan.chain_pe]  # (3, F, N)
     vhat, _ = _normalised(v, 0.0)
-    tau = np.zeros(vhat.shape[1:])
-    tau_a = np.zeros(vhat.shape[1:])
+    # Chains first, frames last: each path slot is a prefix of contiguous rows.
+    vt = np.ascontiguousarray(vhat.transpose(0, 2, 1))  # (3, N, F)
+    tau = np.zeros(vt.shape[1:])
+    tau_a = np.zeros(vt.shape[1:])
     for bones in plan.slot_bones:
         n = len(bones)
-        dots = np.abs(_dot(vhat[:, :, :n], np.take(ub, bones, axis=2)))
-        tau[:, :n] += dots
-        tau_a[:, :n] += dots * np.take(lratio, bones, axis=1)
+        dots = np.abs(_dot(vt[:, :n], np.take(ub, bones, axis=1)))
+        tau[:n] += dots
+        tau_a[:n] += dots * np.take(lratio, bones, axis=0)
+    tau, tau_a = tau.T, tau_a.T
     tau += np.abs(_dot(vhat, pr.x.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_u))
     tau_a += np.abs(_dot(vhat, x_av.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_a))
     ratio = np.ones((F, P * E))
@@ -766,9 +771,9 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
         ratios = []
         for side, name in enumerate(sk.SIDES):
             ent, st = plan.floor_bone[side], plan.floor_starts[side]
-            uz = np.abs(np.take(ub[2], ent, axis=1))
-            tf = np.add.reduceat(uz, st, axis=1) + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
-            tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=1), st, axis=1)
+            uz = np.abs(np.take(ub[2], ent, axis=0))  # (K, F)
+            tf = np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
+            tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=0), st, axis=0).T
             tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
         left_supports = us.joints["ankle_l"][:, 2] <= us.joints["ankle_r"][:, 2]
