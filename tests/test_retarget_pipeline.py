@@ -1,0 +1,160 @@
+"""The retargeting pipeline's invariants (DESIGN.md §1, §5, §6) on the synthetic performer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bodycal_addon import synthetic
+from bodycal_addon.errors import BodyCalError, Cancelled
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget import testing as rt
+from bodycal_addon.retarget import user_animation as ua
+
+LIMB_TARGETS = ("wrist_l", "wrist_r", "ankle_l", "ankle_r")
+TIPS = tuple(f"tip_{f}_{s}" for s in ("l", "r") for f in ("thumb", "index", "middle", "ring", "pinky"))
+DRIVEN = ("sacrum", "head", "clavicle_l", "upperarm_l", "forearm_l", "hand_l", "upperarm_r", "forearm_r", "hand_r",
+          "thigh_l", "shin_l", "foot_l", "thigh_r", "shin_r", "foot_r", "index_1_l", "index_2_l", "thumb_3_r")
+
+
+@pytest.fixture(scope="module")
+def session():
+    perf = synthetic.make_performer(seed=0)
+    rec, truth = synthetic.record_session(perf, motions=("hand_on_belly", "clap"), calibration=False,
+                                          motion_seconds=1.0, noise_mm=0.0, wobble_mm=0.0)
+    user = truth.body_model()
+    return rec, truth, user, ua.animate_user(rec, user)
+
+
+def _mm(a, b):
+    return np.linalg.norm(np.asarray(a, float) - np.asarray(b, float), axis=-1) * 1e3
+
+
+def test_rotations_copies_the_bone_frames_exactly(session):
+    rec, _, user, up = session
+    avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2), arm_drop_deg=30.0)
+    anim = pl.retarget(rec, user, avatar, "rotations")
+    rig = ap.AvatarRig.from_model(avatar)
+    pose = rig.fk(anim.rotations, anim.root_location)
+    for b in DRIVEN:
+        np.testing.assert_allclose(pose.frames[:, ap.BI[b]], up.frames[:, ap.BI[b]], atol=1e-9, err_msg=b)
+    assert np.isfinite(anim.rotations).all()
+    np.testing.assert_allclose(np.linalg.norm(anim.rotations, axis=-1), 1.0, atol=1e-9)
+
+
+def test_self_avatar_rotations_reproduce_the_user(session):
+    rec, _, user, up = session
+    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations")
+    for j in ("pelvis", "hip_l", "knee_r", "ankle_l", "skull_base", "head"):
+        assert _mm(anim.joints_world[j], up.joint(j)).max() < 0.1, j
+
+
+def test_self_avatar_egocentric_maps_targets_onto_themselves(session):
+    """avatar == user gives p' = p. Exact wherever the user's skeleton is rigid; the clavicle, which
+    joins the modelled spine to the tracked shoulder, stretches by a few millimetres in some
+    frames, and the avatar (rigid bones) cannot follow that: bounded, not zero."""
+    rec, _, user, up = session
+    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "egocentric")
+    for name, tg in anim.targets.items():
+        e = _mm(tg, up.joint(name))
+        assert np.median(e) < 0.1 and e.max() < 3.0, name
+    for name in LIMB_TARGETS + TIPS + ("skull_base",):
+        e = _mm(anim.joints_world[name], anim.targets[name])
+        assert np.median(e) < 0.01 and e.max() < 0.5, name
+
+
+@pytest.mark.parametrize("scale", [0.8, 1.25])
+def test_scaled_avatar_gives_scaled_positions(session, scale):
+    rec, _, user, up = session
+    avatar = rt.avatar_from_user(user, scale)
+    rot = pl.retarget(rec, user, avatar, "rotations")
+    base = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations")
+    for j in ap.JOINTS:
+        np.testing.assert_allclose(rot.joints_world[j], scale * base.joints_world[j], atol=1e-4, err_msg=j)
+    ego = pl.retarget(rec, user, avatar, "egocentric")
+    for name, tg in ego.targets.items():
+        e = _mm(tg, scale * up.joint(name))
+        assert np.median(e) < 0.05 and e.max() < 3.0 * scale, name
+
+
+def test_offsets_put_the_tracked_joints_on_the_user_at_the_tpose(session):
+    """AvatarGo eq. 2-3 at t = 0: the avatar (here the user's own body) in the user's T-pose has
+    its root, wrists, ankles and head exactly where the user's are."""
+    rec, truth, user, _ = session
+    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "offsets")
+    f0 = int(np.argmin(np.abs(rec.time - user.reference_time)))
+    for j in ("pelvis", "wrist_l", "wrist_r", "ankle_l", "ankle_r"):
+        assert _mm(anim.joints_world[j][f0], truth.joint_tracks[j][f0]) < 0.1, j
+    assert _mm(anim.targets["skull_base"][f0], truth.joint_tracks["skull_base"][f0]) < 0.1
+    # Fingers close on the controller: every finger flexes.
+    flex = [np.linalg.norm(anim.joints_world[f"tip_{f}_l"][f0] - anim.joints_world[f"mcp_{f}_l"][f0])
+            for f in ("index", "middle", "ring", "pinky")]
+    ext = [np.linalg.norm(user.joints[f"tip_{f}_l"].world - user.joints[f"mcp_{f}_l"].world)
+           for f in ("index", "middle", "ring", "pinky")]
+    assert all(a < 0.95 * b for a, b in zip(flex, ext))
+
+
+def test_offsets_on_a_minimal_recording():
+    perf = synthetic.make_performer(seed=4, build="tall")
+    rec, truth = synthetic.record_session(perf, profile="minimal", motions=("hand_on_head",), calibration=False,
+                                          motion_seconds=1.0)
+    anim = pl.retarget(rec, truth.body_model(), rt.procedural_avatar(), "offsets")
+    assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
+    for j in ("wrist_l", "ankle_r"):
+        assert np.median(_mm(anim.joints_world[j], anim.targets[j])) < 1.0
+
+
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_no_nan_with_dropouts_and_noise(method):
+    perf = synthetic.make_performer(seed=5, build="child")
+    rec, truth = synthetic.record_session(perf, motions=("clap", "hands_on_thighs"), calibration=False,
+                                          motion_seconds=0.8, dropout_rate=0.08, noise_mm=2.0, seed=7)
+    rec.positions = np.where(rec.valid[..., None], rec.positions, np.nan)
+    rec.rotations = np.where(rec.valid[..., None], rec.rotations, np.nan)
+    anim = pl.retarget(rec, truth.body_model(), rt.procedural_avatar(belly=0.05), method, chunk_frames=97)
+    assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
+    assert all(np.isfinite(v).all() for v in anim.joints_world.values())
+    assert any("held" in n for n in anim.notes)
+
+
+def test_chunking_does_not_change_the_result(session):
+    rec, _, user, _ = session
+    avatar = rt.procedural_avatar()
+    a = pl.retarget(rec, user, avatar, "egocentric", chunk_frames=10_000)
+    b = pl.retarget(rec, user, avatar, "egocentric", chunk_frames=53)
+    np.testing.assert_allclose(a.rotations, b.rotations, atol=1e-9)
+
+
+def test_progress_and_cancel(session):
+    rec, _, user, _ = session
+    seen = []
+    pl.retarget(rec, user, rt.procedural_avatar(), "rotations", chunk_frames=100, progress=seen.append)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == -(-rec.frame_count // 100)
+    calls = []
+
+    def cancel():
+        calls.append(1)
+        return len(calls) > 2
+
+    with pytest.raises(Cancelled):
+        pl.retarget(rec, user, rt.procedural_avatar(), "egocentric", chunk_frames=100, cancel=cancel)
+    assert len(calls) == 3
+
+
+def test_bad_inputs_are_one_clear_error(session):
+    rec, _, user, _ = session
+    avatar = rt.procedural_avatar()
+    with pytest.raises(BodyCalError, match="method"):
+        pl.retarget(rec, user, avatar, "magic")
+    with pytest.raises(BodyCalError, match="avatar body model"):
+        pl.retarget(rec, user, user, "rotations")
+    with pytest.raises(BodyCalError, match="user body model"):
+        pl.retarget(rec, avatar, avatar, "rotations")
+    no_surface = rt.procedural_avatar()
+    no_surface.surface = []
+    with pytest.raises(BodyCalError, match="surface"):
+        pl.retarget(rec, user, no_surface, "egocentric")
+    with pytest.raises(BodyCalError) as info:
+        pl.retarget(rec, user, no_surface, "egocentric")
+    assert "\n" not in str(info.value)
