@@ -315,14 +315,17 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
     nn = np.linalg.norm(n, axis=-1, keepdims=True)
     tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
 
-    mesh_head = stack([joints[_head_of(e.bone, model)] if e.bone else np.zeros((frames, 3)) for e in meshes], (3,))
-    mesh_rot = stack([rot_of(e.bone) if e.bone else np.broadcast_to(np.eye(3), (frames, 3, 3)) for e in meshes],
-                     (3, 3))
-    mesh_scale = np.array([model.bones[e.bone].length if e.bone in model.bones else 1.0 for e in meshes], float)
+    # A mesh's own bone (its frame is the re-posing fallback); an element that names no single
+    # bone (e.g. "spine_*") takes its first point's.
+    mesh_bones = [e.bone if e.bone in model.bones or e.bone in sk.BONE_BY_NAME else next(iter(e.points.values())).bone
+                  for e in meshes]
+    mesh_head = stack([joints[_head_of(b, model)] for b in mesh_bones], (3,))
+    mesh_rot = stack([rot_of(b) for b in mesh_bones], (3, 3))
+    mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
 
     return PosedSurface(
-        element_ids=[e.id for e in ordered], element_bones=[e.bone for e in ordered],
-        element_roots=[element_root(e.id, e.bone) for e in ordered],
+        element_ids=[e.id for e in ordered], element_bones=[e.bone for e in caps + sphs] + mesh_bones,
+        element_roots=[element_root(e.id, b) for e, b in zip(ordered, [e.bone for e in caps + sphs] + mesh_bones)],
         caps_head=caps_head, caps_tail=caps_tail, caps_rot=caps_rot, caps_radius=caps_radius,
         sph_center=sph_center, sph_rot=sph_rot, sph_radius=sph_radius,
         tri=tri, tri_normal=tri_normal, tri_elem=np.array(tri_elem, int), mesh_slices=slices,

@@ -68,6 +68,10 @@ class TwoBoneResult:
     swivel_dir: np.ndarray  # (F, 3) unit direction from the root-effector axis to the mid joint
     reached: np.ndarray  # (F,) bool: the target was within reach
 
+    def __iter__(self):
+        """`mid, end, rot1, rot2 = two_bone(...)` unpacks the joints and the bone frames."""
+        return iter((self.mid, self.end, self.rot1, self.rot2))
+
 
 def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None) -> TwoBoneResult:
     """Two-bone analytical IK (paper 000, appendix E).
