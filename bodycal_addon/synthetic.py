@@ -47,6 +47,7 @@ are frames where a device (not a marker) jumps 3-8 cm and a few degrees while st
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -159,15 +160,6 @@ def _mv(m, v) -> np.ndarray:
 def _smooth(t) -> np.ndarray:
     t = np.clip(t, 0.0, 1.0)
     return t * t * (3 - 2 * t)
-
-
-def _slerp_m(a, b, w) -> np.ndarray:
-    """Rotation interpolation between matrices a and b (3, 3) with weights w (n,)."""
-    d = a.T @ b
-    q = matrix_to_quat(d)
-    ang = 2 * np.arctan2(np.linalg.norm(q[1:]), q[0])
-    axis = q[1:] if ang > 1e-12 else np.array([1.0, 0.0, 0.0])
-    return a @ _rot(axis, np.asarray(w, float) * ang)
 
 
 # --- the performer ----------------------------------------------------------------------------------
@@ -547,8 +539,9 @@ def _fk(perf: Performer, root_pos, root_rot, local: dict[str, np.ndarray]):
             g = root_rot @ R[i]
             h = root_pos
         else:
-            g = G[:, p] @ (R[p].T @ R[i])
-            h = Hd[:, p] + _mv(G[:, p], R[p].T @ (Hr[i] - Hr[p]))
+            # One BLAS product for all frames: (n * 3, 3) @ (3, 3).
+            g = (G[:, p].reshape(-1, 3) @ (R[p].T @ R[i])).reshape(n, 3, 3)
+            h = Hd[:, p] + G[:, p] @ (R[p].T @ (Hr[i] - Hr[p]))
         q = local.get(name)
         if q is not None:
             g = g @ q
@@ -620,7 +613,7 @@ def _stand_locals(perf: Performer, n: int, *, arms="down", fingers="relaxed") ->
         for side, ss in SIDE_SIGN.items():
             loc[f"upperarm_{side}"] = _const(_rest_local(perf, f"upperarm_{side}",
                                                          _rot([0, 1.0, 0], ss * math.radians(80))), n)
-            loc[f"forearm_{side}"] = _const(_rx(0.15), n)
+            loc[f"forearm_{side}"] = _const(_rx_const(0.15), n)
     for side in sk.SIDES:
         for f in sk.FINGERS:
             if fingers == "relaxed":
@@ -632,8 +625,13 @@ def _stand_locals(perf: Performer, n: int, *, arms="down", fingers="relaxed") ->
             else:
                 continue
             for k in range(3):
-                loc[f"{f}_{k + 1}_{side}"] = _const(_rx(a[k]), n)
+                loc[f"{f}_{k + 1}_{side}"] = _const(_rx_const(a[k]), n)
     return loc
+
+
+@functools.lru_cache(maxsize=256)
+def _rx_const(angle: float) -> np.ndarray:
+    return _rx(angle)
 
 
 def _posture(perf: Performer, n: int, k: float = 0.0, *, fingers="relaxed", arms="down", twist=0.0) -> _Clip:
@@ -703,11 +701,13 @@ def _two_bone(S, T, L1, L2, pole):
     return np.stack([x1, y1, z1], -1), theta, np.abs(D - Dc)
 
 
-def _arm_ik(perf: Performer, clip: _Clip, side: str, target, hand_rot, eff_local, pole=None, exact=None) -> None:
+def _arm_ik(perf: Performer, clip: _Clip, side: str, target, hand_rot, eff_local, pole=None, exact=None,
+            fk=None) -> None:
     """Place the point `eff_local` (hand bone frame) at `target` (n, 3) with the hand's world frame
     `hand_rot` (n, 3, 3): two-bone IK for the arm, the hand's rotation relative to the forearm."""
     n = clip.n
-    G, Hd = _fk(perf, clip.root_pos, clip.root_rot, clip.local)
+    # `fk`: the body's frames when they are the same on every frame (one row broadcasts).
+    G, Hd = fk if fk is not None else _fk(perf, clip.root_pos, clip.root_rot, clip.local)
     ss = SIDE_SIGN[side]
     wrist = target - _mv(hand_rot, eff_local)
     S = _joints_of(perf, G, Hd, f"shoulder_{side}")
@@ -798,15 +798,19 @@ def _touch_clip(perf: Performer, profile: str, point: str, fps: float) -> _Clip:
         _, toucher, chosen = best
         by = _by(profile, torso, toucher)
         eff_bone, eff_local = _effector(perf, profile, by)
-    clip = _posture(perf, n, chosen[0], fingers=fingers, twist=chosen[1])
+    # The body holds still during a touch: pose it once, then only the touching arm moves.
+    clip = _posture(perf, 1, chosen[0], fingers=fingers, twist=chosen[1])
     _touched_limb(perf, clip, point, side)
     G, Hd = _fk(perf, clip.root_pos, clip.root_rot, clip.local)
     tgt = _point(G, Hd, bone, local)
     nw = _world_dir(G, bone, nrm)
     R = _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, torso and profile == "full", eff_local)
+    clip = _Clip(n, np.repeat(clip.root_pos, n, 0), np.repeat(clip.root_rot, n, 0),
+                 {k: np.repeat(v, n, 0) for k, v in clip.local.items()}, np.ones((n, 2), bool))
     # The approach path: along the surface normal, 8 cm away, easing in and out.
     w = np.concatenate([1 - _smooth(np.linspace(0, 1, na)), np.zeros(nh), _smooth(np.linspace(0, 1, na))])
-    _arm_ik(perf, clip, toucher, tgt + nw * (0.08 * w)[:, None], R, eff_local, exact=w == 0.0)
+    _arm_ik(perf, clip, toucher, tgt + nw * (0.08 * w)[:, None], np.repeat(R, n, 0), eff_local, exact=w == 0.0,
+            fk=(G, Hd))
     clip.segments.append(("touch", na, na + nh - 1, point, by))
     clip.touches.append((point, bone, local, na, na + nh - 1))
     return clip
@@ -1078,15 +1082,19 @@ def _thigh_reach(perf: Performer, profile: str, fingers: str) -> float:
 
 
 def _transition(a: _Clip, b: _Clip, n: int) -> _Clip:
-    """Ease from a's last frame to b's first frame (rotations interpolated per bone)."""
+    """Ease from a's last frame to b's first frame (rotations interpolated per bone, all bones at
+    once: a @ exp(w log(a^T b)))."""
     w = _smooth(np.linspace(0, 1, n + 2)[1:-1])
     root = a.root_pos[-1] + (b.root_pos[0] - a.root_pos[-1]) * w[:, None]
-    rr = _slerp_m(a.root_rot[-1], b.root_rot[0], w)
-    loc = {}
-    for name in set(a.local) | set(b.local):
-        qa = a.local[name][-1] if name in a.local else np.eye(3)
-        qb = b.local[name][0] if name in b.local else np.eye(3)
-        loc[name] = _slerp_m(qa, qb, w)
+    names = sorted(set(a.local) | set(b.local))
+    qa = np.stack([a.root_rot[-1]] + [a.local[k][-1] if k in a.local else np.eye(3) for k in names])
+    qb = np.stack([b.root_rot[0]] + [b.local[k][0] if k in b.local else np.eye(3) for k in names])
+    q = matrix_to_quat(np.swapaxes(qa, -1, -2) @ qb)
+    ang = 2 * np.arctan2(np.linalg.norm(q[:, 1:], axis=-1), q[:, 0])
+    axis = np.where(ang[:, None] > 1e-12, q[:, 1:], np.array([1.0, 0.0, 0.0]))
+    mats = qa[None] @ _rot(np.broadcast_to(axis, (n,) + axis.shape), w[:, None] * ang[None])
+    rr = mats[:, 0].copy()
+    loc = {k: mats[:, i + 1].copy() for i, k in enumerate(names)}
     planted = np.broadcast_to(a.planted[-1] & b.planted[0], (n, 2)).copy()
     return _Clip(n, root, rr, loc, planted)
 
@@ -1115,7 +1123,7 @@ class _ClipResult:
     n: int
     joints: np.ndarray  # (n, J, 3)
     pos: np.ndarray  # (n, D, 3) true device poses
-    rot: np.ndarray  # (n, D, 3, 3)
+    quat: np.ndarray  # (n, D, 4)
     markers: np.ndarray  # (n, M, 3) true markers
     planted: np.ndarray
     segments: list
@@ -1165,7 +1173,8 @@ def _evaluate(perf: Performer, clip: _Clip, profile: str, roles, marker_names) -
     for motion, eff, (eb, el), target, (tb, tl), mask in clip.contacts:
         contacts.append((motion, eff, target, _point(G, Hd, eb, el), _point(G, Hd, tb, tl), mask))
     touches = [(p, f0, f1, _point(G[f0:f1 + 1], Hd[f0:f1 + 1], b, lc)) for p, b, lc, f0, f1 in clip.touches]
-    return _ClipResult(n, joints, pos, rot, markers, clip.planted, clip.segments, contacts, clip.miss, touches)
+    return _ClipResult(n, joints, pos, matrix_to_quat(rot), markers, clip.planted, clip.segments, contacts,
+                       clip.miss, touches)
 
 
 def record_session(performer: Performer, profile: str = "full", motions=MOTIONS, calibration=True, fps: float = 90.0,
@@ -1311,7 +1320,7 @@ def _assemble(perf, profile, roles, marker_names, results, seq, tpose_clip, fps,
     time = np.arange(F) / fps
     joints = np.concatenate([p.joints for p in parts])
     pos_true = np.concatenate([p.pos for p in parts])
-    rot_true = np.concatenate([p.rot for p in parts])
+    q_true = np.concatenate([p.quat for p in parts])
     mk_true = np.concatenate([p.markers for p in parts])
     planted_arr = np.concatenate([p.planted for p in parts])
     segments, contacts = [], []
@@ -1346,71 +1355,65 @@ def _assemble(perf, profile, roles, marker_names, results, seq, tpose_clip, fps,
                        {k: v[sl_] for k, v in tpose_clip.local.items()})
     rng = np.random.default_rng([int(seed), 104729])
 
-    # Devices: wobble in the device's own frame, then noise, outliers, dropouts.
+    # Devices, one at a time (memory stays ~ a few (F, 3, 3) arrays): wobble in the device's own
+    # frame, white noise, outliers; gloves are rebuilt from their noisy LEDs.
     D = len(roles)
-    pos = pos_true.copy()
-    rot = rot_true.copy()
-    wob_m, noise_m = wobble_mm / 1000.0, noise_mm / 1000.0
-    glove_w = {}
-    for d, role in enumerate(roles):
-        w = _smooth_noise(rng, F, fps, 3, wob_m)
-        a = _smooth_noise(rng, F, fps, 3, wob_m / 0.1)
-        Rw = _rot(np.where(np.linalg.norm(a, axis=-1, keepdims=True) > 0, a, [1.0, 0, 0]),
-                  np.linalg.norm(a, axis=-1))
-        if profile == "full" and role.startswith("hand_"):
-            glove_w[role[-1]] = (d, w, Rw)
-            continue
-        pos[:, d] = pos_true[:, d] + _mv(rot_true[:, d], w)
-        rot[:, d] = rot_true[:, d] @ Rw
+    pos = np.empty((F, D, 3))
+    quat = np.empty((F, D, 4))
+    valid = np.ones((F, D), bool)
     markers = mk_true.copy()
-    if profile == "full":
-        for side, (d, w, Rw) in glove_w.items():
-            origin, R = pos_true[:, d], rot_true[:, d]
-            for k in (1, 2, 3):
-                m = marker_names.index(f"hand_led{k}_{side}")
+    wob_m, noise_m = wobble_mm / 1000.0, noise_mm / 1000.0
+
+    def small_rot(vec):
+        ang = np.linalg.norm(vec, axis=-1)
+        return _rot(np.where(ang[:, None] > 0, vec, [1.0, 0.0, 0.0]), ang)
+
+    for d, role in enumerate(roles):
+        R = quat_to_matrix(q_true[:, d])
+        w = _smooth_noise(rng, F, fps, 3, wob_m)
+        Rw = small_rot(_smooth_noise(rng, F, fps, 3, wob_m / 0.1))
+        if profile == "full" and role.startswith("hand_"):
+            # The glove is a rigid LED body: wobble moves its three LEDs together.
+            side, origin = role[-1], pos_true[:, d]
+            idx = [marker_names.index(f"hand_led{k}_{side}") for k in (1, 2, 3)]
+            for m in idx:
                 local = _mv(np.swapaxes(R, -1, -2), mk_true[:, m] - origin)
                 markers[:, m] = origin + _mv(R, _mv(Rw, local) + w)
-    markers = markers + rng.normal(0.0, noise_m, markers.shape) if noise_m > 0 else markers
-    if profile == "full":
-        for side in sk.SIDES:  # the glove's pose from its (noisy) LEDs, per the synthetic API rule
-            d = roles.index(f"hand_{side}")
-            leds = [markers[:, marker_names.index(f"hand_led{k}_{side}")] for k in (1, 2, 3)]
-            pos[:, d], rot[:, d] = _led_frame(*leds)
-    else:
-        pos = pos + rng.normal(0.0, noise_m, pos.shape) if noise_m > 0 else pos
-    if profile == "full":
-        others = [d for d, r in enumerate(roles) if not r.startswith("hand_")]
-        if noise_m > 0:
-            pos[:, others] += rng.normal(0.0, noise_m, (F, len(others), 3))
-    if noise_m > 0:
-        ang = rng.normal(0.0, noise_m / 0.1, (F, D, 3))
-        if profile == "full":
-            ang[:, [roles.index("hand_l"), roles.index("hand_r")]] = 0.0  # already noisy through the LEDs
-        rot = rot @ _rot(np.where(np.linalg.norm(ang, axis=-1, keepdims=True) > 0, ang, [1.0, 0, 0]),
-                         np.linalg.norm(ang, axis=-1))
-    valid = np.ones((F, D), bool)
+                if noise_m > 0:
+                    markers[:, m] += rng.normal(0.0, noise_m, (F, 3))
+            p, Rn = _led_frame(*(markers[:, m] for m in idx))
+        else:
+            p = pos_true[:, d] + _mv(R, w)
+            Rn = R @ Rw
+            if noise_m > 0:
+                p = p + rng.normal(0.0, noise_m, (F, 3))
+                Rn = Rn @ small_rot(rng.normal(0.0, noise_m / 0.1, (F, 3)))
+        if outlier_rate > 0:
+            hit = rng.random(F) < outlier_rate
+            hit[ref] = False
+            k = int(hit.sum())
+            p[hit] += normalize(rng.normal(size=(k, 3))) * rng.uniform(0.03, 0.08, (k, 1))
+            Rn[hit] = Rn[hit] @ _rot(normalize(rng.normal(size=(k, 3))), rng.uniform(0.05, 0.2, k))
+        pos[:, d] = p
+        quat[:, d] = matrix_to_quat(Rn)
+    fingertips = [m for m, name in enumerate(marker_names) if not name.startswith("hand_led")]
+    if noise_m > 0 and fingertips:
+        markers[:, fingertips] += rng.normal(0.0, noise_m, (F, len(fingertips), 3))
     mvalid = np.ones((F, len(marker_names)), bool)
-    if outlier_rate > 0:
-        hit = rng.random((F, D)) < outlier_rate
-        hit[ref] = False
-        k = int(hit.sum())
-        jump = normalize(rng.normal(size=(k, 3))) * rng.uniform(0.03, 0.08, (k, 1))
-        pos[hit] += jump
-        rot[hit] = rot[hit] @ _rot(normalize(rng.normal(size=(k, 3))), rng.uniform(0.05, 0.2, k))
     if dropout_rate > 0:
         valid = _dropouts(rng, F, D, dropout_rate, ref)
         mvalid = _dropouts(rng, F, len(marker_names), dropout_rate, ref)
         pos = _hold(pos, valid)
-        rot = _hold(rot, valid)
+        quat = _hold(quat, valid)
         markers = _hold(markers, mvalid)
     rec = Recording(
         name=f"synthetic-{perf.build}-{profile}-{seed}", time=time,
         devices=[_device(role, profile) for role in roles], positions=pos,
-        rotations=matrix_to_quat(rot), valid=valid, marker_names=list(marker_names), markers=markers,
+        rotations=quat, valid=valid, marker_names=list(marker_names), markers=markers,
         marker_valid=mvalid, segments=segments, source="synthetic",
         notes=[f"synthetic performer {perf.build}, {perf.height:.2f} m, seed {perf.seed}"])
     planted = {"foot_l": planted_arr[:, 0].copy(), "foot_r": planted_arr[:, 1].copy()}
-    truth = GroundTruth(perf, profile, list(roles), list(marker_names), time, ref, joints, pos_true, rot_true,
+    truth = GroundTruth(perf, profile, list(roles), list(marker_names), time, ref, joints, pos_true, q_true,
                         mk_true, contacts, planted, segments, eff_tracks, float(miss), gen, touch_tracks, G_ref[0],
                         H_ref[0])
     return rec, truth
@@ -1476,7 +1479,7 @@ class GroundTruth:
     ref_frame: int
     joints: np.ndarray  # (F, J, 3) in sk.JOINTS order
     device_positions: np.ndarray  # (F, D, 3) noise-free, wobble-free
-    device_rotations: np.ndarray  # (F, D, 3, 3)
+    device_rotations: np.ndarray  # (F, D, 4) quaternions w, x, y, z
     markers: np.ndarray  # (F, M, 3) noise-free
     contacts: list[dict]
     planted: dict[str, np.ndarray]
@@ -1504,7 +1507,7 @@ class GroundTruth:
         """True (position, rotation matrix) of a device at a frame (default the reference)."""
         f = self.ref_frame if frame is None else frame
         d = self.roles.index(role)
-        return self.device_positions[f, d], self.device_rotations[f, d]
+        return self.device_positions[f, d], quat_to_matrix(self.device_rotations[f, d])
 
     def touch_world(self, point: str) -> np.ndarray:
         """True world position of a surface / touch point at the reference time."""
