@@ -150,3 +150,25 @@ def test_mismatched_surfaces_are_a_clear_error(user):
     part = eg.pose_surface(user, joints, rots, element_ids=us.element_ids[:-1])
     with pytest.raises(BodyCalError, match="different elements"):
         eg.retarget_points(np.zeros((2, 1, 3)), ["wrist_l"], us, part)
+
+
+def test_mesh_with_other_triangles_falls_back_to_its_bone_frame(user):
+    # The avatar's left palm has five outline points instead of four: no triangle pairs up, the
+    # projection is carried in the hand bone's frame scaled by the bone length ratio.
+    from bodycal_addon.bodymodel import SurfacePoint
+
+    s = 1.2
+    avatar = rb.scale_model(user, s)
+    palm = avatar.element("mesh:palm_l")
+    names = list(palm.points)
+    a, b = palm.points[names[0]].local, palm.points[names[1]].local
+    palm.points["palm_5_l"] = SurfacePoint("hand_l", 0.5 * (a + b))
+    palm.triangles = [(names[0], "palm_5_l", names[1]), (names[0], names[1], names[2]), (names[0], names[2], names[3])]
+    joints, rots = _posed(user, 6, 9)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * s for k, v in joints.items()}, rots)
+    m = us.element_ids.index("mesh:palm_l") - sum(us.counts[:2])
+    assert us.mesh_slices[m][1] - us.mesh_slices[m][0] != av.mesh_slices[m][1] - av.mesh_slices[m][0]
+    pts = np.stack([joints["wrist_r"], joints["tip_index_r"]], axis=1)
+    out = eg.retarget_points(pts, ["wrist_r", "tip_index_r"], us, av)
+    np.testing.assert_allclose(out, s * pts, atol=1e-9)
