@@ -4,9 +4,12 @@ Synthetic part: >= 6 performers (child to tall, thin to heavy) x 3 tracker noise
 2 mm, with soft-tissue wobble and 10% outlier frames), full calibration profile. Per joint group,
 median and 95th percentile of the joint-centre error (mm) at the reference time for
 - `calibrated`: calibrate_user as shipped (repeated 2-sigma passes),
-- `no_2sigma`: the same fits without the 2-sigma passes,
-- `fixed_offsets`: one fixed tracker-to-joint offset per joint for everybody (the offsets of the
-  average performer), i.e. what AvatarGo's exact offsets replace.
+- `no_2sigma`: the same fits without the 2-sigma passes (and without the residual gate),
+- `no_robust`: neither the 2-sigma passes nor the glitch-frame rejection,
+- `sphere_anchors`: the anchor joints from the paper's sphere fit instead of the rigid point,
+- `fixed_offsets`: one fixed tracker-to-joint offset per joint for everybody (the average
+  performer's T-pose offsets in body axes: left, forward, up), i.e. what AvatarGo's exact offsets
+  replace.
 Targets at 1 mm noise: median <= 5 mm for shoulders, hips, elbows, knees; <= 3 mm for wrists and
 MCP joints.
 
@@ -31,6 +34,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from bodycal_addon import geometry  # noqa: E402
 from bodycal_addon import transforms as tf  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
 from bodycal_addon.errors import BodyCalError  # noqa: E402
@@ -55,18 +59,29 @@ def _stats(errors: list[float]) -> dict:
     return {"median": round(float(np.median(e)), 2), "p95": round(float(np.percentile(e, 95)), 2), "n": int(e.size)}
 
 
-def _fixed_offset_model(truth_model, session_rec):
-    """World joints from fixed offsets: the reference performer's joint locals in each tracker,
-    applied to this performer's trackers at the reference time."""
-    from bodycal_addon.calibration.common import Session
+def _body_axes(rec):
+    from bodycal_addon.calibration.common import Session, State
+    from bodycal_addon.calibration.defaults import BodyFrame
 
-    s = Session(session_rec)
+    session = Session(rec)
+    body = BodyFrame(session, State())
+    return session, np.stack([body.left, body.forward, np.array([0.0, 0.0, 1.0])], axis=1)
+
+
+def fixed_offsets_from(ref_rec, ref_truth) -> dict[str, tuple[str, np.ndarray]]:
+    """The reference performer's tracker-to-joint vectors at its T-pose, in body axes (left,
+    forward, up): the one-size-fits-all offsets a system without calibration assumes."""
+    session, axes = _body_axes(ref_rec)
     out = {}
-    for name, j in truth_model.joints.items():
-        if j.frame is None or not s.has(j.frame):
-            continue
-        out[name] = s.to_world(j.frame, j.local)
+    for name, j in ref_truth.body_model().joints.items():
+        if j.frame is not None and session.has(j.frame):
+            out[name] = (j.frame, axes.T @ (ref_truth.joints_world[name] - session.ref_pose(j.frame)[0]))
     return out
+
+
+def _fixed_offset_model(offsets, rec) -> dict[str, np.ndarray]:
+    session, axes = _body_axes(rec)
+    return {name: session.ref_pose(role)[0] + axes @ v for name, (role, v) in offsets.items() if session.has(role)}
 
 
 def synthetic_part(quick: bool = False) -> dict:
@@ -78,22 +93,30 @@ def synthetic_part(quick: bool = False) -> dict:
     ref_perf = synthetic.make_performer(height=1.75, build="average", seed=100)
     ref_rec, ref_truth = synthetic.record_session(ref_perf, profile="full", motions=(), noise_mm=0.0, wobble_mm=0.0,
                                                   seed=100)
-    ref_model = ref_truth.body_model()
+    offsets = fixed_offsets_from(ref_rec, ref_truth)
     results, failures = {}, []
     for noise in NOISES:
-        errs = {m: {g: [] for g in GROUPS} for m in ("calibrated", "no_2sigma", "fixed_offsets")}
+        errs = {m: {g: [] for g in GROUPS} for m in ("calibrated", "no_2sigma", "no_robust", "sphere_anchors",
+                                                     "fixed_offsets")}
         for k, (build, height) in enumerate(performers):
             perf = synthetic.make_performer(height=height, build=build, seed=k)
             rec, truth = synthetic.record_session(perf, profile="full", motions=(), noise_mm=noise, wobble_mm=2.0,
                                                   outlier_rate=0.10, seed=10 * k + int(noise * 10))
             worlds = {}
-            for method, robust in (("calibrated", True), ("no_2sigma", False)):
+            variants = (("calibrated", {}), ("no_2sigma", {"robust": False}),
+                        ("no_robust", {"robust": False, "despike": False}), ("sphere_anchors", {"anchor": "sphere"}))
+            for method, kw in variants:
+                gate = geometry.RESIDUAL_GATE
+                if not kw.get("robust", True):
+                    geometry.RESIDUAL_GATE = float("inf")
                 try:
-                    model = calibrate_user(rec, robust=robust)
+                    model = calibrate_user(rec, **kw)
                     worlds[method] = {n: j.world for n, j in model.joints.items()}
                 except BodyCalError as exc:
                     failures.append(f"{build} {noise} mm {method}: {exc.line()}")
-            worlds["fixed_offsets"] = _fixed_offset_model(ref_model, rec)
+                finally:
+                    geometry.RESIDUAL_GATE = gate
+            worlds["fixed_offsets"] = _fixed_offset_model(offsets, rec)
             for method, w in worlds.items():
                 for g, names in GROUPS.items():
                     for n in names:

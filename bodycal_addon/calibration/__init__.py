@@ -62,13 +62,15 @@ def _run(step_name: str, fn, *args):
                            hint="record the step again") from None
 
 
-def calibrate_user(recording: Recording, *, robust: bool = True, name: str | None = None) -> BodyModel:
+def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool = True, anchor: str = "rigid",
+                   name: str | None = None) -> BodyModel:
     """The user's body model from a calibration recording (FORMATS.md §3, kind "user").
 
-    `robust=False` skips the 2-sigma passes (for the benchmark's comparison)."""
+    For the benchmark's comparisons: `robust=False` skips the 2-sigma passes, `despike=False` keeps
+    tracking-glitch frames, `anchor="sphere"` takes the anchor joints from the paper's sphere fit."""
     if recording.frame_count == 0:
         raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
-    session = Session(recording, robust=robust)
+    session = Session(recording, robust=robust, despike=despike, anchor=anchor)
     state = State()
     tpose.identify_roles(session)
     if not session.has("head"):

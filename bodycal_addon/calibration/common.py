@@ -78,11 +78,12 @@ class State:
 class Session:
     """A recording prepared for calibration."""
 
-    def __init__(self, rec: Recording, *, robust: bool = True, despike: bool = True):
+    def __init__(self, rec: Recording, *, robust: bool = True, despike: bool = True, anchor: str = "rigid"):
         self.rec = rec
         self.source = rec.source or rec.name
         self.robust = robust
         self.despike = despike
+        self.anchor = anchor  # "rigid" (limbs.py decision) or "sphere" (paper 000 as written)
         self.spikes: dict[str, int] = {}
         self._poses: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._ref: dict[str, tuple[np.ndarray, np.ndarray]] = {}

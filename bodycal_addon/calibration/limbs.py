@@ -111,8 +111,12 @@ def anchor(session: Session, state: State, side: str, joint: str, touches: dict)
     rp, rq, _ = session.pose(root)
     rigid = fit_rigid_point(tf.quat_to_matrix(lq[used]), lp[used], tf.quat_to_matrix(rq[used]), rp[used],
                             name=step, robust=session.robust)
-    state.set_local(f"{joint}_{side}", limb_role, rigid.local_a)
-    state.set_local(f"{joint}_{side}", root, rigid.local_b)
+    if session.anchor == "sphere":
+        state.set_local(f"{joint}_{side}", limb_role, fit.center)
+        state.set_local(f"{joint}_{side}", root, session.carry(fit.center, limb_role, root, used))
+    else:
+        state.set_local(f"{joint}_{side}", limb_role, rigid.local_a)
+        state.set_local(f"{joint}_{side}", root, rigid.local_b)
     q.update({"rigid_rms_mm": round(rigid.rms * 1000, 3), "rigid_kept": rigid.kept,
               "sphere_centre_mm": round(float(np.linalg.norm(fit.center - rigid.local_a)) * 1000, 1)})
     front, back = touches.get(f"{joint}_front_{side}"), touches.get(f"{joint}_back_{side}")
