@@ -451,3 +451,20 @@ def test_bad_synthetic_data_gets_an_actionable_message(full_session):
     moving.markers[idx, k] += np.outer(rec.time[idx] - rec.time[idx[0]], [0.2, 0.0, 0.0])  # slides at 20 cm/s
     with pytest.raises(BodyCalError, match=r"touch wrist_top_l by index_tip_r .* never stopped moving"):
         calibrate_user(moving)
+
+
+def test_wizard_lists_the_steps_of_the_timeline_with_their_quality():
+    import bpy
+
+    from bodycal_addon.blender.recording_scene import import_recording_to_scene
+
+    panels = __import__("bl_ext.user_default.bodycal.panels.calibration_panel", fromlist=["x"])
+    rec, _ = _still_session()
+    import_recording_to_scene(rec, bpy.context.scene)
+    found = panels.steps_in_scene(bpy.context.scene)
+    assert found == {"stand": 1, "flex_elbow_l": 1, "touch": 2}
+    assert bpy.ops.bodycal.calibrate_user() == {"FINISHED"}
+    quality = panels._calibration(bpy.context.scene)["quality"]
+    text = panels.quality_text(quality["flex_elbow_l"])
+    assert "mm" in text and "pts" in text and "°" in text
+    assert hasattr(bpy.types, "BODYCAL_PT_calibration")
