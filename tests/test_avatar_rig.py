@@ -14,7 +14,7 @@ from bodycal_addon import skeleton as sk
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.blender import avatar_rig
 from bodycal_addon.errors import BodyCalError
-from sample_rigs import build_procedural_avatar
+from sample_rigs import build_procedural_avatar, load_glb_avatar
 
 MIXAMO = {"pelvis": "Hips", "spine_01": "Spine", "spine_02": "Spine1", "spine_03": "Spine2", "neck_01": "Neck",
           "head": "Head"}
@@ -170,3 +170,27 @@ def test_rigify_metarig_maps_and_reads():
     assert all(j in rig.joints for j in sk.JOINTS)
     assert rig.joints["head"][2] > rig.joints["skull_base"][2] > rig.joints["spine_root"][2] > rig.joints["knee_l"][2]
     assert rig.joints["shoulder_l"][0] > 0 > rig.joints["shoulder_r"][0]
+
+
+def test_model_is_what_the_retargeting_engine_reads(avatar_files):
+    """Contract with the retargeting engine (retarget.avatar_pose): it reads the calibrated model
+    of a real rig and its canonical frames carry the model's rights; on the procedural A-pose
+    avatar, solving for the rest frames gives the rest pose back (identity pose bones, joints in
+    place)."""
+    from bodycal_addon.retarget import avatar_pose as ap
+
+    arm, _mesh = load_glb_avatar(avatar_files[0])
+    model = ac.calibrate_avatar(arm)
+    ap.AvatarRig.from_model(model)
+    frames = ap.model_rest_frames(model)
+    for i, b in enumerate(sk.BONES):
+        if b.name in model.bones:
+            assert np.allclose(frames[i][:, 0], model.bones[b.name].right, atol=1e-6), b.name
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, _spec = build_procedural_avatar(arm_drop_deg=30)
+    model = ac.calibrate_avatar(arm)
+    rig = ap.AvatarRig.from_model(model)
+    pose = rig.solve(rig.frames0[None], model.joints["pelvis"].world[None])
+    assert np.allclose(np.abs(pose.basis[0, :, 0]), 1.0, atol=1e-6)
+    joints = np.array([model.joints[j].world for j in sk.JOINTS])
+    assert np.allclose(pose.joints[0], joints, atol=1e-5)
