@@ -718,8 +718,8 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     lratio = np.divide(np.sqrt(_dot(ab, ab)), ulen, out=np.ones_like(ulen), where=ulen > 1e-12)
     ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the slot gathers
     lrt = np.ascontiguousarray(lratio.T)
-    nodes_u = np.take(_node_positions(user_surface, F), plan.chain_root, axis=2)
-    nodes_a = np.take(_node_positions(avatar_surface, F), plan.chain_root, axis=2)
+    nodes_u = _node_positions(user_surface, F)
+    nodes_a = _node_positions(avatar_surface, F)
     out = np.empty_like(pts)
     step = max(1, int(chunk))
     for s in range(0, F, step):
@@ -756,6 +756,8 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
         tau[:n] += dots
         tau_a[:n] += dots * np.take(lratio, bones, axis=0)
     tau, tau_a = tau.T, tau_a.T
+    nodes_u = np.take(nodes_u, plan.chain_root, axis=2)
+    nodes_a = np.take(nodes_a, plan.chain_root, axis=2)
     tau += np.abs(_dot(vhat, pr.x.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_u))
     tau_a += np.abs(_dot(vhat, x_av.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_a))
     ratio = np.ones((F, P * E))
