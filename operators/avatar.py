@@ -108,6 +108,39 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
         return {"FINISHED"}
 
 
+_HINGE_ITEMS = [(b, b, f"Flexion axis of {b}") for b in avatar_rig.HINGE_BONES]
+_AXES = {"X": (1.0, 0.0, 0.0), "-X": (-1.0, 0.0, 0.0), "Z": (0.0, 0.0, 1.0), "-Z": (0.0, 0.0, -1.0)}
+
+
+class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
+    """Choose which local axis of the avatar's bone its hinge flexes about (default +X, Blender's
+    convention); saved with the armature, used at the next calibration"""
+
+    bl_idname = "bodycal.set_hinge_axis"
+    bl_label = "Set Hinge Axis"
+    bl_options = {"REGISTER", "UNDO"}
+
+    bone: bpy.props.EnumProperty(name="Hinge", items=_HINGE_ITEMS)
+    axis: bpy.props.EnumProperty(name="Axis", items=[(k, k, f"The bone's local {k}") for k in _AXES], default="X")
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_armature(cls, context, object_mode=False)
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def execute(self, context):
+        arm = context_armature(context)
+        try:
+            avatar_rig.set_hinge_axis(arm, self.bone, _AXES[self.axis])
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{self.bone} flexes about its bone's local {self.axis}: calibrate again to apply")
+        return {"FINISHED"}
+
+
 class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
     """Measure the avatar's surface by raycasting onto its mesh (capsules, torso, jaw, skull,
     palms, soles) and store the body model on the armature"""
@@ -257,6 +290,6 @@ class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
 
-CLASSES = (BODYCAL_OT_detect_bone_map, BODYCAL_OT_assign_bone, BODYCAL_OT_calibrate_avatar,
+CLASSES = (BODYCAL_OT_detect_bone_map, BODYCAL_OT_assign_bone, BODYCAL_OT_set_hinge_axis, BODYCAL_OT_calibrate_avatar,
            BODYCAL_OT_edit_surface, BODYCAL_OT_apply_surface_edits, BODYCAL_OT_export_avatar_model,
            BODYCAL_OT_import_avatar_model)

@@ -60,6 +60,7 @@ class BODYCAL_PT_avatar(bpy.types.Panel):
                 op.bone = ""
             if missing and not active:
                 box.label(text="Select the bone in Pose Mode, then assign", icon="INFO")
+            box.operator("bodycal.set_hinge_axis", icon="CON_ROTLIKE")
         col = layout.column(align=True)
         col.operator("bodycal.calibrate_avatar", icon="MOD_MESHDEFORM")
         if avatar_storage.has_model(arm):

@@ -142,6 +142,17 @@ def test_undo_restores_the_stored_model():
     assert np.allclose(undone, before, atol=1e-6)
 
 
+def test_hinge_axis_operator_and_panel_registered():
+    arm, _mesh, _spec = build_procedural_avatar()
+    _activate(arm)
+    assert bpy.ops.bodycal.set_hinge_axis(bone="shin_l", axis="-X") == {"FINISHED"}
+    assert bpy.ops.bodycal.calibrate_avatar() == {"FINISHED"}
+    model = avatar_storage.load_model(arm)
+    x = np.array(arm.data.bones["calf_l"].matrix_local)[:3, 0]
+    assert np.allclose(model.bones["shin_l"].right, -x, atol=1e-6)
+    assert bpy.types.BODYCAL_PT_avatar.bl_parent_id == "BODYCAL_PT_main"
+
+
 def test_operator_poll_explains_without_armature():
     bpy.ops.object.empty_add()
     assert not bpy.ops.bodycal.calibrate_avatar.poll()
