@@ -243,3 +243,22 @@ def test_fbx_style_y_up_armature_under_a_rotated_object():
     for eid in ("mesh:torso", "mesh:sole_l", "mesh:jaw"):
         for name in ref.element(eid).points:
             assert np.allclose(_world(model, eid, name), _world(ref, eid, name), atol=1e-4), (eid, name)
+
+
+def test_rig_without_fingers_and_toes_is_calibrated_with_a_report():
+    """Fingers and toes are optional: the model says what it lacks and what it defaulted."""
+    arm, _mesh, _spec = build_procedural_avatar()
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    for eb in list(arm.data.edit_bones):
+        if eb.name.split("_")[0] in sk.FINGERS or eb.name.startswith("ball_"):
+            arm.data.edit_bones.remove(eb)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    model = ac.calibrate_avatar(arm)
+    cal = model.calibration
+    assert "toe_l" in cal["defaulted"] and "toe_r" in cal["defaulted"]
+    assert any("index_l" in m for m in cal["missing"]) and any("mesh:palm_r" in m for m in cal["missing"])
+    assert np.allclose(model.joints["toe_l"].world, np.array(arm.data.bones["foot_l"].tail_local), atol=1e-6)
+    ids = {e.id for e in model.surface}
+    assert "capsule:index_1_l" not in ids and "mesh:palm_l" not in ids
+    assert {"capsule:forearm_l", "mesh:torso", "mesh:sole_r", "sphere:skull", "mesh:jaw"} <= ids
