@@ -1081,7 +1081,7 @@ def _thigh_reach(perf: Performer, profile: str, fingers: str) -> float:
     return float(ks[np.argmax(ok)]) if ok.any() else float(ks[-1])
 
 
-def _transition(a: _Clip, b: _Clip, n: int) -> _Clip:
+def _transition(perf: Performer, a: _Clip, b: _Clip, n: int) -> _Clip:
     """Ease from a's last frame to b's first frame (rotations interpolated per bone, all bones at
     once: a @ exp(w log(a^T b)))."""
     w = _smooth(np.linspace(0, 1, n + 2)[1:-1])
@@ -1096,7 +1096,10 @@ def _transition(a: _Clip, b: _Clip, n: int) -> _Clip:
     rr = mats[:, 0].copy()
     loc = {k: mats[:, i + 1].copy() for i, k in enumerate(names)}
     planted = np.broadcast_to(a.planted[-1] & b.planted[0], (n, 2)).copy()
-    return _Clip(n, root, rr, loc, planted)
+    clip = _Clip(n, root, rr, loc, planted)
+    # Feet planted at both ends stay planted in between (leg IK on the interpolated body).
+    _plant_feet(perf, clip, sides=[s for i, s in enumerate(sk.SIDES) if planted[0, i]])
+    return clip
 
 
 # --- the session ---------------------------------------------------------------------------------------
@@ -1265,7 +1268,7 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
         if i > 0:
             tkey = ("trans", clips[i - 1], key)
             if tkey not in results:
-                results[tkey] = _evaluate(perf, _transition(cache[clips[i - 1]], cache[key], n_trans), profile,
+                results[tkey] = _evaluate(perf, _transition(perf, cache[clips[i - 1]], cache[key], n_trans), profile,
                                           roles, marker_names)
             seq.append(tkey)
         if key not in results:
@@ -1642,7 +1645,7 @@ def _body_model(truth: GroundTruth, name: str) -> BodyModel:
         n_world = G[hb][:, 2]
         pt = R.T @ (pt_world - p)
         nrm = R.T @ n_world
-        pt = pt - (pt @ nrm) * nrm  # the plane point nearest the device origin: the palm centre
+        pt = (pt @ nrm) * nrm  # the device origin projected onto the plane: the palm centre
         extra["palm_planes"][role] = {"point": [round(float(x), 7) for x in pt],
                                       "normal": [round(float(x), 7) for x in nrm]}
     model = BodyModel("user", name, joints, bones, surface, truth.reference_time, {},
