@@ -183,6 +183,16 @@ def test_glb_avatars_every_element_found(avatar_files):
             "index_1_l"].radius_head
         centre, radius = _skull_world(model)
         assert 0.06 < radius < 0.13, path.name
+        for side in sk.SIDES:
+            # the palm is on the side the (slightly curled) rest fingers bend to
+            J = {k: v.world for k, v in model.joints.items()}
+            w, mcp, tip = J[f"wrist_{side}"], J[f"mcp_middle_{side}"], J[f"tip_middle_{side}"]
+            d = (mcp - w) / np.linalg.norm(mcp - w)
+            curl = (tip - mcp) - np.dot(tip - mcp, d) * d
+            pc = np.mean([_world(model, f"mesh:palm_{side}", n) for n in model.element(f"mesh:palm_{side}").points],
+                         axis=0)
+            off = (pc - w) - np.dot(pc - w, d) * d
+            assert np.dot(curl, off) / np.linalg.norm(curl) / np.linalg.norm(off) > 0.8, (path.name, side)
         q = model.calibration["quality"]
         assert set(q) == set(sl.element_ids())
 
