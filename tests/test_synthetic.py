@@ -364,3 +364,37 @@ def test_session_has_the_whole_protocol(perf):
     assert truth.ik_miss < 1e-9
     for arr in (rec.positions, rec.rotations, rec.markers, truth.joints):
         assert np.all(np.isfinite(arr))
+
+
+def test_write_session_round_trips_through_the_reader(tmp_path, perf):
+    from bodycal_addon import recording_io
+
+    rec, truth = sy.record_session(perf, fps=30.0, calibration=["stand"], touch_points=None, motions=("clap",),
+                                   dropout_rate=0.02, seed=4)
+    rec_path, truth_path = sy.write_session(tmp_path, "s", rec, truth)
+    assert rec_path.name == "s.bcrec.json" and truth_path.name == "s.truth.json"
+    back = recording_io.load_recording(rec_path, fill_gaps_s=0.0)
+    np.testing.assert_allclose(back.time, rec.time, atol=1e-8)
+    np.testing.assert_array_equal(back.valid, rec.valid)
+    ok = rec.valid
+    np.testing.assert_allclose(back.positions[ok], rec.positions[ok], atol=1e-6)
+    np.testing.assert_allclose(back.markers[rec.marker_valid], rec.markers[rec.marker_valid], atol=1e-6)
+    assert [(s.step, s.point) for s in back.segments] == [(s.step, s.point) for s in rec.segments]
+    assert {d.role for d in back.devices} == set(sy.FULL_ROLES)
+    data = json.loads(truth_path.read_text())
+    assert data["body_model"]["kind"] == "user" and data["generator"]["seed"] == 4
+
+
+def test_noise_free_recording_equals_the_true_device_poses(clean):
+    """Gloves are rebuilt from their LEDs with the synthetic API rule: without noise they are the
+    true hand frames, like every other device."""
+    rec, truth = clean
+    np.testing.assert_allclose(rec.positions, truth.device_positions, atol=1e-9)
+    dots = np.abs(np.sum(rec.rotations * truth.device_rotations, axis=-1))
+    assert np.min(dots) > 1 - 1e-12
+    for s in sk.SIDES:  # Z of the LED frame out of the back of the hand: away from the palm centre
+        pos, rot = _dev(truth, f"hand_{s}", truth.ref_frame)
+        plane = truth.body_model().extra["palm_planes"][f"hand_{s}"]
+        assert np.dot(plane["normal"], [0, 0, 1]) < -0.99
+        led = [rec.marker(f"hand_led{k}_{s}")[0][truth.ref_frame] for k in (1, 2, 3)]
+        assert np.dot(np.cross(led[1] - led[0], led[2] - led[0]), rot[:, 2]) > 0
