@@ -172,3 +172,17 @@ def test_mesh_with_other_triangles_falls_back_to_its_bone_frame(user):
     pts = np.stack([joints["wrist_r"], joints["tip_index_r"]], axis=1)
     out = eg.retarget_points(pts, ["wrist_r", "tip_index_r"], us, av)
     np.testing.assert_allclose(out, s * pts, atol=1e-9)
+
+
+def test_public_projection_coordinates_re_pose_exactly(user):
+    # project -> repose through the public (F, P, E, 3) API: on the same body the projections come
+    # back unchanged, and every projection lies on its element (|v| = distance to the surface).
+    joints, rots = _posed(user, 4, 10)
+    us = eg.pose_surface(user, joints, rots)
+    pts = _targets(joints, 10)
+    proj = eg.project(pts, us)
+    np.testing.assert_allclose(eg.repose(proj, us, us), proj.x, atol=1e-12)
+    np.testing.assert_allclose(proj.x + proj.v, np.broadcast_to(pts[:, :, None], proj.x.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(proj.cap_dir, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(proj.tri_bary.sum(-1), 1.0, atol=1e-12)
+    assert proj.tri_bary.min() >= -1e-12

@@ -422,10 +422,17 @@ def _closest_on_triangles(ap, ab, ac):
     e_ab = safe(d1, d1 - d3)
     e_ac = safe(d2, d2 - d6)
     e_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
-    conds = [(d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (vc <= 0) & (d1 >= 0) & (d3 <= 0),
-             (d6 >= 0) & (d5 <= d6), (vb <= 0) & (d2 >= 0) & (d6 <= 0), (va <= 0) & (d4 >= d3) & (d5 >= d6)]
-    bv = np.select(conds, [0.0, 1.0, e_ab, 0.0, 0.0, 1 - e_bc], inside_v)
-    bw = np.select(conds, [0.0, 0.0, 0.0, 1.0, e_ac, e_bc], inside_w)
+    # Ericson's early returns in order A, B, AB, C, AC, BC, inside: applied in reverse so the
+    # first region that holds wins.
+    bv, bw = inside_v, inside_w
+    for cond, cv, cw in (((va <= 0) & (d4 >= d3) & (d5 >= d6), 1 - e_bc, e_bc),
+                         ((vb <= 0) & (d2 >= 0) & (d6 <= 0), 0.0, e_ac),
+                         ((d6 >= 0) & (d5 <= d6), 0.0, 1.0),
+                         ((vc <= 0) & (d1 >= 0) & (d3 <= 0), e_ab, 0.0),
+                         ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),
+                         ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):
+        bv = np.where(cond, cv, bv)
+        bw = np.where(cond, cw, bw)
     return bv, bw
 
 
@@ -438,15 +445,17 @@ class _Proj:
     dist: np.ndarray  # (F, P, E)
     factor: np.ndarray  # (F, P, E)
     cap_t: np.ndarray  # (F, P, C)
-    cap_dir: np.ndarray  # (3, F, P, C)
-    sph_dir: np.ndarray  # (3, F, P, S)
+    cap_dir: np.ndarray  # (3, F, P, C) unit direction from the axis, world (bone frame in Projections)
+    sph_dir: np.ndarray  # (3, F, P, S) world
     tri_index: np.ndarray  # (F, P, M)
     tri_bary: np.ndarray  # (3, F, P, M)
 
-    def public(self) -> Projections:
+    def public(self, surface: PosedSurface) -> Projections:
         m = np.moveaxis
+        cap_dir = _apply_t(_rot_comp(surface.caps_rot), self.cap_dir)
+        sph_dir = _apply_t(_rot_comp(surface.sph_rot), self.sph_dir)
         return Projections(m(self.x, 0, -1), m(self.v, 0, -1), self.dist, self.factor, self.cap_t,
-                           m(self.cap_dir, 0, -1), m(self.sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
+                           m(cap_dir, 0, -1), m(sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
 
 
 def _project(p, surface: PosedSurface, tol: float) -> _Proj:
@@ -465,13 +474,11 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     cap_v = (n - r) * d
     cos_ax = _dot(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
     cap_factor = np.sqrt(np.clip(1.0 - cos_ax * cos_ax, 0.0, 1.0))
-    cap_dir = _apply_t(rc, d)
     # Spheres.
     sc = _comp(surface.sph_center)[:, :, None, :]
     src = _rot_comp(surface.sph_rot)
     sd, sn = _normalised(pc - sc, src[:, 1])
     sph_v = (sn - surface.sph_radius) * sd
-    sph_dir = _apply_t(src, sd)
     # Meshes: the closest triangle of each element.
     if M:
         ta = _comp(surface.tri[:, :, 0])[:, :, None, :]
@@ -497,13 +504,13 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     x = pc - v
     dist = np.sqrt(_dot(v, v))
     factor = np.concatenate([cap_factor, np.ones((F, P, S)), mesh_factor], axis=-1)
-    return _Proj(x, v, dist, factor, t, cap_dir, sph_dir, sel, tri_bary)
+    return _Proj(x, v, dist, factor, t, d, sd, sel, tri_bary)
 
 
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
             ) -> Projections:
     """Project (F, P, 3) points on every element of `surface` (paper 000, appendix C, Figure 12)."""
-    return _project(np.asarray(points, float), surface, penetration_tolerance).public()
+    return _project(np.asarray(points, float), surface, penetration_tolerance).public(surface)
 
 
 def _triangle_factor(v, normal, tol):
@@ -524,8 +531,11 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
     ab = _comp(avatar.caps_tail)[:, :, None, :] - a
     t = pr.cap_t
     r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
-    cap = a + t * ab + r * _apply(_rot_comp(avatar.caps_rot), pr.cap_dir)
-    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(_rot_comp(avatar.sph_rot), pr.sph_dir)
+    # The same direction in the bone frame: turned by R' R^T, frame by frame.
+    rel = avatar.caps_rot @ np.swapaxes(user.caps_rot, -1, -2)
+    cap = a + t * ab + r * _apply(_rot_comp(rel), pr.cap_dir)
+    rel = avatar.sph_rot @ np.swapaxes(user.sph_rot, -1, -2)
+    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(_rot_comp(rel), pr.sph_dir)
     if M:
         same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices,
                                                                                  avatar.mesh_slices)])
@@ -558,8 +568,10 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
     triangle: barycentric). A mesh whose triangles differ between user and avatar falls back to
     the element bone's frame, scaled by the bone length ratio. Returns (F, P, E, 3)."""
     m = np.moveaxis
-    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, m(proj.cap_dir, -1, 0),
-               m(proj.sph_dir, -1, 0), proj.tri_index, m(proj.tri_bary, -1, 0))
+    cap_dir = _apply(_rot_comp(user.caps_rot), m(proj.cap_dir, -1, 0))
+    sph_dir = _apply(_rot_comp(user.sph_rot), m(proj.sph_dir, -1, 0))
+    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, cap_dir, sph_dir,
+               proj.tri_index, m(proj.tri_bary, -1, 0))
     return m(_repose(pr, user, avatar), 0, -1)
 
 
