@@ -102,7 +102,7 @@ def test_procedural_truth(kwargs):
     assert q["rays"] == q["hit"] and q["spread_mm"] < 1.0
 
 
-def test_sole_and_palm_winding_points_out_of_the_body():
+def test_palm_sole_jaw_torso_winding_points_out_of_the_body():
     arm, _mesh, spec = build_procedural_avatar()
     model = ac.calibrate_avatar(arm)
     for s in sk.SIDES:
@@ -111,6 +111,10 @@ def test_sole_and_palm_winding_points_out_of_the_body():
             for a, b, c in e.triangles:
                 pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
                 assert np.dot(np.cross(pb - pa, pc - pa), outward) > 0, (e.id, a, b, c)
+    e = model.element("mesh:jaw")
+    for a, b, c in e.triangles:  # away from the skull base
+        pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
+        assert np.dot(np.cross(pb - pa, pc - pa), (pa + pb + pc) / 3 - model.joints["skull_base"].world) > 0
     e = model.element("mesh:torso")
     for a, b, c in e.triangles[:-1]:  # front triangles face forward (-Y)
         pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
