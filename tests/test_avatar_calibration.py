@@ -119,6 +119,8 @@ def test_palm_sole_jaw_torso_winding_points_out_of_the_body():
     for a, b, c in e.triangles[:-1]:  # front triangles face forward (-Y)
         pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
         assert np.cross(pb - pa, pc - pa)[1] < 0, (a, b, c)
+    pa, pb, pc = (_world(model, e.id, n) for n in e.triangles[-1])  # the back triangle faces back (+Y)
+    assert np.cross(pb - pa, pc - pa)[1] > 0
 
 
 def test_transformed_armature_transforms_the_results():
