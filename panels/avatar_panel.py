@@ -11,7 +11,7 @@ _cache: dict = {}
 
 def _bone_map(arm):
     """Detection runs regexes over every bone: cache it per armature state for redraws."""
-    key = (arm.name, len(arm.data.bones), str(arm.get(avatar_rig.BONE_MAP_PROP, "")))
+    key = (arm.name, hash(tuple(b.name for b in arm.data.bones)), str(arm.get(avatar_rig.BONE_MAP_PROP, "")))
     if _cache.get("key") != key:
         try:
             _cache.update(key=key, value=avatar_rig.bone_map_for(arm), error=None)

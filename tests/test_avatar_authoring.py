@@ -153,6 +153,34 @@ def test_hinge_axis_operator_and_panel_registered():
     assert bpy.types.BODYCAL_PT_avatar.bl_parent_id == "BODYCAL_PT_main"
 
 
+class _Layout:
+    """Stands in for a UI layout in background mode: records labels, accepts everything else."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def label(self, text="", **_kw):
+        self.log.append(text)
+
+    def __getattr__(self, name):
+        return lambda *a, **k: _Layout(self.log)
+
+
+def test_avatar_panel_draws_status_and_missing_segments():
+    arm, _mesh, _spec = build_procedural_avatar()
+    arm.data.bones["calf_l"].name = "LegLower_Left"
+    _activate(arm)
+    log = []
+    panel = type("P", (), {"layout": _Layout(log)})()
+    bpy.types.BODYCAL_PT_avatar.draw(panel, bpy.context)
+    assert "procedural" in log and "shin_l" in log
+    arm.data.bones["LegLower_Left"].name = "calf_l"
+    bpy.ops.bodycal.calibrate_avatar()
+    log.clear()
+    bpy.types.BODYCAL_PT_avatar.draw(panel, bpy.context)
+    assert "Avatar model stored on the armature" in log and "shin_l" not in log
+
+
 def test_operator_poll_explains_without_armature():
     bpy.ops.object.empty_add()
     assert not bpy.ops.bodycal.calibrate_avatar.poll()
