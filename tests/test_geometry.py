@@ -154,3 +154,41 @@ def test_repeated_two_sigma_passes_beat_a_single_pass():
                      np.linalg.norm(geo.fit_sphere(p, passes=1).center - c)))
     errs = np.array(errs)
     assert np.median(errs[:, 0]) < np.median(errs[:, 1])
+
+
+def _rigid_pair(n, swing=1.0, noise=0.0, b_swing=0.2):
+    """Frame B fixed-ish, frame A swinging about a joint J: J = R_a a + p_a = R_b b + p_b."""
+    from bodycal_addon import transforms as tf
+
+    j = np.array([0.1, 0.2, 1.3])
+    a, b = np.array([0.02, -0.12, 0.03]), np.array([0.15, 0.05, -0.1])
+    t = np.linspace(0, 6, n)
+    qa = tf.quat_mul(tf.axis_angle_to_quat(np.array([1.0, 0, 0]), swing * np.sin(1.3 * t)),
+                     tf.axis_angle_to_quat(np.array([0, 1.0, 0]), swing * np.sin(0.7 * t + 1)))
+    qb = tf.axis_angle_to_quat(np.array([0, 0, 1.0]), b_swing * np.sin(0.5 * t))
+    ra, rb = tf.quat_to_matrix(qa), tf.quat_to_matrix(qb)
+    pa = j - ra @ a + rng.normal(0, noise, (n, 3))
+    pb = j - rb @ b + rng.normal(0, noise, (n, 3))
+    return ra, pa, rb, pb, a, b
+
+
+def test_rigid_point_exact_and_robust():
+    ra, pa, rb, pb, a, b = _rigid_pair(300)
+    fit = geo.fit_rigid_point(ra, pa, rb, pb)
+    np.testing.assert_allclose(fit.local_a, a, atol=1e-9)
+    np.testing.assert_allclose(fit.local_b, b, atol=1e-9)
+    assert fit.rms < 1e-9 and fit.range_deg > 40
+    ra, pa, rb, pb, a, b = _rigid_pair(300, noise=0.001)
+    bad = rng.choice(300, 30, replace=False)
+    pa[bad] += rng.normal(0, 0.05, (30, 3))
+    robust = geo.fit_rigid_point(ra, pa, rb, pb)
+    plain = geo.fit_rigid_point(ra, pa, rb, pb, robust=False)
+    assert robust.kept < 300
+    assert np.linalg.norm(robust.local_a - a) < 0.003
+    assert np.linalg.norm(robust.local_a - a) < np.linalg.norm(plain.local_a - a)
+
+
+def test_rigid_point_without_relative_motion_is_actionable():
+    ra, pa, rb, pb, _, _ = _rigid_pair(100, swing=0.02, b_swing=0.0)
+    with pytest.raises(BodyCalError, match=r"swing_hip_l: only \d+ degrees of motion recorded between"):
+        geo.fit_rigid_point(ra, pa, rb, pb, name="swing_hip_l")
