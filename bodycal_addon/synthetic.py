@@ -1183,11 +1183,13 @@ def _evaluate(perf: Performer, clip: _Clip, profile: str, roles, marker_names) -
 def record_session(performer: Performer, profile: str = "full", motions=MOTIONS, calibration=True, fps: float = 90.0,
                    noise_mm: float = 1.0, wobble_mm: float = 2.0, dropout_rate: float = 0.0,
                    outlier_rate: float = 0.0, seed: int = 0, motion_seconds: float | None = None,
-                   touch_points=None):
+                   touch_points=None, pace: float = 1.0):
     """Perform the calibration protocol (FORMATS.md §2.4) and the motions; returns
     (Recording in the internal frame, GroundTruth). `calibration` may be True, False or a list of
     step names to perform; `touch_points` restricts the touches (default: every one the profile
-    allows, see calibration_touch_points). `motion_seconds` repeats the motions to fill that time."""
+    allows, see calibration_touch_points). `motion_seconds` repeats the motions to fill that time.
+    `pace` < 1 performs the calibration steps faster (a compact demo file); 1 is the protocol's
+    natural pace (touches hold 0.6 s, flex / swing steps last 4.5-5 s)."""
     if profile not in PROFILES:
         raise BodyCalError(f"unknown profile '{profile}'", field="profile", hint="use 'full' or 'minimal'")
     if not fps > 0:
@@ -1209,37 +1211,40 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
             cache[key] = make()
         clips.append(key)
 
-    t_trans = 0.5
-    n_trans = max(int(round(t_trans * fps)), 2)
-    add("stand0", lambda: _posture(perf, max(int(round(0.6 * fps)), 2), 0.0, fingers="relaxed"))
+    if not 0.2 <= pace <= 5.0:
+        raise BodyCalError(f"pace {pace} is outside 0.2-5", field="pace")
+    cf = fps * pace  # calibration clips are built at this rate and played at fps
+    n_trans = max(int(round(0.5 * cf)), 2)
+    add("stand0", lambda: _posture(perf, max(int(round(0.6 * cf)), 2), 0.0, fingers="relaxed"))
     if "tpose" in steps:
         def make_tpose():
-            c = _tpose_clip(perf, max(int(round(2.0 * fps)), 5), profile)
+            c = _tpose_clip(perf, max(int(round(2.0 * cf)), 5), profile)
             c.segments.append(("tpose", 0, c.n - 1, None, None))
             return c
         add("tpose", make_tpose)
     if "stand" in steps:
         def make_stand():
-            c = _posture(perf, max(int(round(1.5 * fps)), 5), 0.0, fingers="grip" if profile == "minimal"
+            c = _posture(perf, max(int(round(1.5 * cf)), 5), 0.0, fingers="grip" if profile == "minimal"
                          else "relaxed")
             c.segments.append(("stand", 0, c.n - 1, None, None))
             return c
         add("stand", make_stand)
     if "palms_together" in steps:
-        add("palms", lambda: _palms_together_clip(perf, max(int(round(2.0 * fps)), 20), fps))
+        add("palms", lambda: _palms_together_clip(perf, max(int(round(2.0 * cf)), 20), cf))
+    min_steps = 160 if pace >= 1.0 else 40  # circle / sphere fits want 150+ frames; a brisk demo fewer
     for step in ("flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r"):
         if step in steps:
-            add(step, lambda step=step: _flex_clip(perf, max(int(round(4.5 * fps)), 160), fps, step))
+            add(step, lambda step=step: _flex_clip(perf, max(int(round(4.5 * cf)), min_steps), cf, step))
     for step in ("swing_shoulder_l", "swing_shoulder_r", "swing_hip_l", "swing_hip_r"):
         if step in steps:
-            add(step, lambda step=step: _swing_clip(perf, max(int(round(5.0 * fps)), 160), fps, step))
+            add(step, lambda step=step: _swing_clip(perf, max(int(round(5.0 * cf)), min_steps), cf, step))
     if "touch" in steps:
         allowed = calibration_touch_points(profile)
         chosen = allowed if touch_points is None else list(touch_points)
         for p in chosen:
             if p not in perf.surface_points or p not in allowed:
                 raise BodyCalError(f"unknown touch point '{p}' for the {profile} profile", field="touch_points")
-            add(("touch", p), lambda p=p: _touch_clip(perf, profile, p, fps))
+            add(("touch", p), lambda p=p: _touch_clip(perf, profile, p, cf))
     motion_list = list(motions or ())
     if motion_list:
         for m in motion_list:
@@ -1259,7 +1264,7 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
                 break
             if target is not None and total >= target:
                 break
-    add("stand_end", lambda: _posture(perf, max(int(round(0.6 * fps)), 2), 0.0, fingers="relaxed"))
+    add("stand_end", lambda: _posture(perf, max(int(round(0.6 * cf)), 2), 0.0, fingers="relaxed"))
 
     # Evaluate each distinct clip and transition once; repeats share the arrays.
     results: dict = {}
@@ -1276,7 +1281,8 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
         seq.append(key)
     gen = dict(profile=profile, motions=list(motion_list), calibration=calibration, fps=fps, noise_mm=noise_mm,
                wobble_mm=wobble_mm, dropout_rate=dropout_rate, outlier_rate=outlier_rate, seed=seed,
-               motion_seconds=motion_seconds, touch_points=None if touch_points is None else list(touch_points))
+               motion_seconds=motion_seconds, touch_points=None if touch_points is None else list(touch_points),
+               pace=pace)
     return _assemble(perf, profile, roles, marker_names, results, seq, cache["tpose"], fps, noise_mm, wobble_mm,
                      dropout_rate, outlier_rate, seed, gen)
 

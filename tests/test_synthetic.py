@@ -355,6 +355,7 @@ def test_body_model_is_consistent_and_round_trips(tmp_path, clean):
     assert data["contacts"][0]["frames"][0][0] >= 0
 
 
+@pytest.mark.slow
 def test_session_has_the_whole_protocol(perf):
     """Every calibration step of FORMATS.md §2.4 and every touch point the full profile allows."""
     rec, truth = sy.record_session(perf, fps=20.0, noise_mm=0.5, wobble_mm=1.0, motions=("walk_in_place",))
