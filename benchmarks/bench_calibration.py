@@ -149,9 +149,9 @@ def _hinge_from_markers(point, frame_pos, frame_rot, out_marker, width, other_si
 
 
 def walk_part() -> dict:
-    """Knee centres on the real walk.c3d. The thigh frame is built from its three raw markers (THI,
-    THI2, KNE: a rigid body like a thigh tracker); the shank marker ANK is recorded in it (the
-    circle is the same whichever of the two bones carries the frame). The file's KJC is the
+    """Knee centres on the real walk.c3d. The shank marker ANK is recorded in a thigh frame (the
+    circle is the same whichever of the two bones carries the frame): either the three raw thigh
+    markers (THI, THI2, KNE) as a rigid body, or the model's femur axes. The file's KJC is the
     reference. The ankle is not evaluated: our ankle is the mean of the two malleolus touches and
     the file has only the lateral malleolus marker (its AJC is built from the ankle width the same
     way, so comparing would be circular)."""
@@ -176,25 +176,34 @@ def walk_part() -> dict:
     for S in ("L", "R"):
         other = "R" if S == "L" else "L"
         knee_w = float(np.ravel(d.param(f"PROCESSING:{S}KNEEWIDTH"))[0]) * scale
-        a, b, c = m(f"{S}THI"), m(f"{S}THI2"), m(f"{S}KNE")
-        rot = tf.matrix_to_quat(tf.frame_from_axes(b - c, a - c))
         flex = np.ptp(m(f"{S}KneeAngles")[:, 0] / scale) if f"{S}KneeAngles" in d.labels else None
-        try:
-            local, fit = _hinge_from_markers(m(f"{S}ANK"), c, rot, c, knee_w, m(f"{other}KNE"))
-        except BodyCalError as exc:
-            out[f"knee_{S.lower()}"] = {"error": exc.line()}
-            continue
-        est = tf.transform_points(c, rot, local)
-        err = 1000.0 * np.linalg.norm(est - m(f"{S}KJC"), axis=1)
-        ref_local = tf.inverse_transform_points(c, rot, m(f"{S}KJC"))
-        off = ref_local - fit.center
-        off = off - (off @ fit.normal)[:, None] * fit.normal
-        out[f"knee_{S.lower()}"] = {
-            "median_mm": round(float(np.median(err)), 1), "p95_mm": round(float(np.percentile(err, 95)), 1),
-            "ref_to_axis_mm": round(float(np.median(np.linalg.norm(off, axis=1)) * 1000), 1),
-            "fit_rms_mm": round(fit.rms * 1000, 2), "kept": fit.kept, "of": fit.of,
-            "fit_arc_deg": round(float(fit.range_deg), 1), "fit_radius_mm": round(fit.radius * 1000, 1),
-            "vicon_knee_flexion_range_deg": None if flex is None else round(float(flex), 1)}
+        a, b, c = m(f"{S}THI"), m(f"{S}THI2"), m(f"{S}KNE")
+        frames = {
+            # three raw thigh markers as a rigid body, like a thigh tracker (10-16 cm apart)
+            "raw_cluster": (c, tf.matrix_to_quat(tf.frame_from_axes(b - c, a - c))),
+            # the Plug-in Gait femur axes (hip to knee, a long lever) carried by the thigh marker;
+            # rigid with the femur, so the fitted axis is still the physical one
+            "femur_axes": (a, tf.matrix_to_quat(tf.frame_from_axes(m(f"{S}FEP") - m(f"{S}FEO"),
+                                                                   m(f"{S}FEL") - m(f"{S}FEO")))),
+        }
+        res = {"vicon_knee_flexion_range_deg": None if flex is None else round(float(flex), 1)}
+        for label, (pos, rot) in frames.items():
+            try:
+                local, fit = _hinge_from_markers(m(f"{S}ANK"), pos, rot, c, knee_w, m(f"{other}KNE"))
+            except BodyCalError as exc:
+                res[label] = {"error": exc.line()}
+                continue
+            est = tf.transform_points(pos, rot, local)
+            err = 1000.0 * np.linalg.norm(est - m(f"{S}KJC"), axis=1)
+            ref_local = tf.inverse_transform_points(pos, rot, m(f"{S}KJC"))
+            off = ref_local - fit.center
+            off = off - (off @ fit.normal)[:, None] * fit.normal
+            res[label] = {
+                "median_mm": round(float(np.median(err)), 1), "p95_mm": round(float(np.percentile(err, 95)), 1),
+                "ref_to_axis_mm": round(float(np.median(np.linalg.norm(off, axis=1)) * 1000), 1),
+                "fit_rms_mm": round(fit.rms * 1000, 2), "kept": fit.kept, "of": fit.of,
+                "fit_arc_deg": round(float(fit.range_deg), 1), "fit_radius_mm": round(fit.radius * 1000, 1)}
+        out[f"knee_{S.lower()}"] = res
     return out
 
 
