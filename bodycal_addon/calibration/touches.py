@@ -23,9 +23,10 @@ from .common import Session, State, other, running_median, side_of
 STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still
 STILL_MIN_S = 0.2  # the touch must hold still this long (or half the segment, if shorter)
 MEDIAN_S = 0.15
-# `controller_tip_<s>` when the recording has no marker of that name: a point fixed on the
-# controller, in its frame. Overridable per recording through `rec.notes`-free State.extra.
-CONTROLLER_TIP_LOCAL = np.zeros(3)
+# `controller_tip_<s>` when the recording has no marker of that name: the point 9 cm along the
+# controller's +Y (the convention of synthetic.CONTROLLER_TIP_LOCAL); a recording that knows its
+# controller's tip records it as a marker, which always wins.
+CONTROLLER_TIP_LOCAL = np.array([0.0, 0.09, 0.0])
 
 TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")
 HEAD_POINTS = ("ear_l", "ear_r", "upper_lip", "chin", "jaw_l", "jaw_r", "skull_top", "skull_left", "skull_right",
