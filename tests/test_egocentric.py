@@ -36,14 +36,14 @@ def test_avatar_equal_to_user_maps_every_target_onto_itself(user, seed):
     np.testing.assert_allclose(out, pts, atol=1e-9, rtol=0)
 
 
-@pytest.mark.parametrize("s", [1.35, 0.62])
-def test_uniformly_scaled_avatar_scales_every_target(user, s):
+@pytest.mark.parametrize("s, falloff", [(1.35, 2.0), (0.62, 2.0), (1.2, 4.0)])
+def test_uniformly_scaled_avatar_scales_every_target(user, s, falloff):
     joints, rots = _posed(user, 30, 3)
     avatar = rb.scale_model(user, s)
     us = eg.pose_surface(user, joints, rots)
     av = eg.pose_surface(avatar, {k: v * s for k, v in joints.items()}, rots)
     pts = _targets(joints, 3)
-    out = eg.retarget_points(pts, TARGETS, us, av)
+    out = eg.retarget_points(pts, TARGETS, us, av, falloff=falloff)
     np.testing.assert_allclose(out, s * pts, atol=1e-9, rtol=0)
 
 
@@ -186,3 +186,13 @@ def test_public_projection_coordinates_re_pose_exactly(user):
     np.testing.assert_allclose(np.linalg.norm(proj.cap_dir, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(proj.tri_bary.sum(-1), 1.0, atol=1e-12)
     assert proj.tri_bary.min() >= -1e-12
+
+
+def test_triangle_weight_survives_a_shallow_penetration():
+    # max(0, cos(v, n)) would drop a target 3 mm inside the crude mesh to zero weight; the plane is
+    # shifted by the penetration tolerance (1 cm) first.
+    n = np.array([0.0, -1.0, 0.0])[:, None]
+    inside = eg._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
+    deep = eg._triangle_factor(np.array([0.0, 0.02, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
+    plain = eg._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, 0.0)
+    assert inside[0] == pytest.approx(1.0) and deep[0] == 0.0 and plain[0] == 0.0

@@ -577,14 +577,20 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
 
 # --- weights -----------------------------------------------------------------------------------
 
-def raw_weights(proj: Projections, heights: np.ndarray, exclude: np.ndarray | None = None):
+def raw_weights(proj: Projections, heights: np.ndarray, exclude: np.ndarray | None = None,
+                falloff: float = 2.0):
     """Raw contributions Λ (paper 000, appendix C): factor / |v|^2 per element, 1 / h^2 for the
-    floor, each capped at 1 / MIN_DISTANCE^2. `exclude` (P, E) bool zeroes own-chain elements.
+    floor, distances floored at MIN_DISTANCE. `exclude` (P, E) bool zeroes own-chain elements.
+    `falloff` is the exponent (the paper's 2; larger favours the closest element more).
     Returns (Λ (F, P, E), Λ_floor (F, P))."""
-    lam = proj.factor / np.maximum(proj.dist * proj.dist, MIN_DISTANCE ** 2)
+    if falloff == 2.0:
+        lam = proj.factor / np.maximum(proj.dist * proj.dist, MIN_DISTANCE ** 2)
+        floor = 1.0 / np.maximum(heights * heights, MIN_DISTANCE ** 2)
+    else:
+        lam = proj.factor / np.maximum(proj.dist, MIN_DISTANCE) ** falloff
+        floor = 1.0 / np.maximum(np.abs(heights), MIN_DISTANCE) ** falloff
     if exclude is not None:
         lam = np.where(exclude, 0.0, lam)
-    floor = 1.0 / np.maximum(heights * heights, MIN_DISTANCE ** 2)
     return lam, floor
 
 
@@ -692,7 +698,7 @@ def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
 
 def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
-                    avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True,
+                    avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
                     chunk: int = 32, penetration_tolerance: float = PENETRATION_TOLERANCE,
                     details: dict | None = None) -> np.ndarray:
     """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
@@ -705,6 +711,7 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     derived from the posed joints; only the user's directions and the avatar's lengths are used
     (τ' = the avatar's bone lengths along the user's current bone directions).
     floor: include the floor contribution (the vertical singularity handled as eq. 1).
+    falloff: exponent of the raw weights' distance law (paper: 2); the invariants hold for any.
     details: if a dict is given, it receives the weights of the last chunk ("lam", "lam_g",
     "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
 
@@ -738,17 +745,17 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
         e = min(F, s + step)
         out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e),
                                    ubt[:, :, s:e], lrt[:, s:e], nodes_u[:, s:e], nodes_a[:, s:e],
-                                   floor, penetration_tolerance, details)
+                                   floor, penetration_tolerance, details, falloff)
     return out
 
 
 def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lratio, nodes_u, nodes_a, floor, tol,
-                    details):
+                    details, falloff=2.0):
     F, P = p.shape[:2]
     pr = _project(p, us, tol)
     E = pr.dist.shape[2]
     h = p[..., 2]
-    lam_raw, floor_raw = raw_weights(pr, h, plan.exclude)
+    lam_raw, floor_raw = raw_weights(pr, h, plan.exclude, falloff)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
     lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
