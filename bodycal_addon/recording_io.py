@@ -26,9 +26,11 @@ reported in `Recording.notes`.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -591,23 +593,15 @@ def read_csv(path) -> Recording:
         raise BodyCalError(f"missing column '{missing[0]}'", source=source, where="line 1",
                            hint="columns are time,name,px,py,pz,qw,qx,qy,qz")
     body = lines[1:]
-    # Keep the line numbers of the file (1-based; the header is line 1), skip blank lines.
-    line_no = np.array([k + 2 for k, ln in enumerate(body) if ln.strip()], dtype=np.int64)
-    rows = [ln.split(",") for ln in body if ln.strip()]
-    if not rows:
-        raise BodyCalError("no data rows after the header", source=source, where="line 2")
-    ncol = len(cols)
-    lens = np.fromiter((len(r) for r in rows), dtype=np.int64, count=len(rows))
-    bad = np.flatnonzero(lens != ncol)
-    if bad.size:
-        k = bad[0]
-        raise BodyCalError(f"{lens[k]} fields, the header has {ncol}", source=source, where=f"line {line_no[k]}")
-    columns = dict(zip(cols, zip(*rows)))
-    names = np.array([s.strip() for s in columns["name"]])
-    empty_name = np.flatnonzero(names == "")
-    if empty_name.size:
-        raise BodyCalError("empty name", source=source, field="name", where=f"line {line_no[empty_name[0]]}")
-    t_rows = _csv_floats(columns["time"], source, "time", line_no, allow_empty=False)[0]
+    parsed = _csv_fast(body, cols) if all(has_q) else None
+    if parsed is None:
+        parsed = _csv_slow(body, cols, has_q, source)
+    line_no, names, t_rows, p_vals, p_set, q_vals, q_set = parsed
+    uniq, name_idx = _factorize(names)
+    empty_name = [k for k, u in enumerate(uniq) if u == ""]
+    if empty_name:
+        k = int(np.flatnonzero(name_idx == empty_name[0])[0])
+        raise BodyCalError("empty name", source=source, field="name", where=f"line {line_no[k]}")
     bad = np.flatnonzero(~np.isfinite(t_rows))
     if bad.size:
         raise BodyCalError("not a finite number", source=source, field="time", where=f"line {line_no[bad[0]]}")
@@ -620,16 +614,6 @@ def read_csv(path) -> Recording:
     frame_of_row = np.cumsum(new_frame) - 1
     time = t_rows[new_frame]
     f = len(time)
-    xyz = [_csv_floats(columns[c], source, c, line_no) for c in ("px", "py", "pz")]
-    p_vals = np.stack([v for v, _ in xyz], axis=1)
-    p_set = np.stack([s for _, s in xyz], axis=1)
-    if all(has_q):
-        qs = [_csv_floats(columns[c], source, c, line_no) for c in ("qw", "qx", "qy", "qz")]
-        q_vals = np.stack([v for v, _ in qs], axis=1)
-        q_set = np.stack([s for _, s in qs], axis=1)
-    else:
-        q_vals = np.full((len(rows), 4), np.nan)
-        q_set = np.zeros((len(rows), 4), bool)
     partial_p = p_set.any(1) & ~p_set.all(1)
     partial_q = q_set.any(1) & ~q_set.all(1)
     bad = np.flatnonzero(partial_p | partial_q)
@@ -645,34 +629,30 @@ def read_csv(path) -> Recording:
         raise BodyCalError("NaN or infinite value", source=source, where=f"line {line_no[bad[0]]}",
                            hint="leave the fields empty for an untracked frame")
 
-    uniq, name_idx = np.unique(names, return_inverse=True)
     is_pose_row = q_set.all(1)
     if header["devices"] is None:  # no sidecar: names with a quaternion anywhere are trackers
         dev_mask = np.zeros(len(uniq), bool)
         dev_mask[name_idx[is_pose_row]] = True
-        first_row = np.full(len(uniq), len(rows))
-        np.minimum.at(first_row, name_idx, np.arange(len(rows)))
-        order = np.argsort(first_row)  # names in order of first appearance
-        devices = [Device(name=str(uniq[k]), kind="tracker", role=None) for k in order if dev_mask[k]]
-        marker_names = [str(uniq[k]) for k in order if not dev_mask[k]]
+        devices = [Device(name=u, kind="tracker", role=None) for k, u in enumerate(uniq) if dev_mask[k]]
+        marker_names = [u for k, u in enumerate(uniq) if not dev_mask[k]]
         header = dict(header, devices=devices, marker_names=marker_names)
     devices, marker_names = header["devices"], header["marker_names"]
     slot = {d.name: ("d", i) for i, d in enumerate(devices)}
     slot.update({n: ("m", j) for j, n in enumerate(marker_names)})
-    kind_of = np.array([slot.get(str(n), ("?", -1))[0] for n in uniq])
-    index_of = np.array([slot.get(str(n), ("?", -1))[1] for n in uniq], dtype=np.int64)
+    kind_of = np.array([slot.get(u, ("?", -1))[0] for u in uniq])
+    index_of = np.array([slot.get(u, ("?", -1))[1] for u in uniq], dtype=np.int64)
     row_kind = kind_of[name_idx]
     bad = np.flatnonzero(row_kind == "?")
     if bad.size:
-        raise BodyCalError(f"unknown name '{names[bad[0]]}'", source=source, field="name",
+        raise BodyCalError(f"unknown name '{uniq[name_idx[bad[0]]]}'", source=source, field="name",
                            where=f"line {line_no[bad[0]]}", hint=f"declare it in {sidecar.name}")
     bad = np.flatnonzero((row_kind == "d") & p_set.all(1) & ~q_set.all(1))
     if bad.size:
-        raise BodyCalError(f"device '{names[bad[0]]}' has no quaternion", source=source,
+        raise BodyCalError(f"device '{uniq[name_idx[bad[0]]]}' has no quaternion", source=source,
                            where=f"line {line_no[bad[0]]}")
     bad = np.flatnonzero((row_kind == "m") & q_set.any(1))
     if bad.size:
-        raise BodyCalError(f"marker '{names[bad[0]]}' has a quaternion", source=source,
+        raise BodyCalError(f"marker '{uniq[name_idx[bad[0]]]}' has a quaternion", source=source,
                            where=f"line {line_no[bad[0]]}", hint="marker rows leave qw,qx,qy,qz empty")
     # One row per name and frame.
     key = frame_of_row * len(uniq) + name_idx
@@ -680,7 +660,7 @@ def read_csv(path) -> Recording:
     dup = np.flatnonzero(np.diff(key[order]) == 0)
     if dup.size:
         k = order[dup[0] + 1]
-        raise BodyCalError(f"second row for '{names[k]}' at time {t_rows[k]}", source=source,
+        raise BodyCalError(f"second row for '{uniq[name_idx[k]]}' at time {t_rows[k]}", source=source,
                            where=f"line {line_no[k]}")
 
     row_index = index_of[name_idx]
@@ -710,6 +690,77 @@ def read_csv(path) -> Recording:
         rec.notes.append(f"no sidecar {sidecar.name}: assumed Y up, right-handed, metres, "
                          f"{len(devices)} trackers without roles, {len(marker_names)} markers, no segments")
     return rec
+
+
+def _factorize(names: list[str]) -> tuple[list[str], np.ndarray]:
+    """(unique names in order of first appearance, index of each row's name); names are stripped."""
+    raw = list(dict.fromkeys(names))
+    uniq = list(dict.fromkeys(r.strip() for r in raw))
+    pos = {u: k for k, u in enumerate(uniq)}
+    lookup = {r: pos[r.strip()] for r in raw}
+    return uniq, np.fromiter(map(lookup.__getitem__, names), dtype=np.int64, count=len(names))
+
+
+_NAME_CELL = re.compile(r"^[^,\n]*,([^,\n]*),", re.M)
+
+
+def _csv_fast(body: list[str], cols: list[str]):
+    """The common case at C speed (numpy's loadtxt parser): standard column order, no blank lines,
+    no written nan/inf. Returns None whenever anything is unusual; the careful path then finds it."""
+    if cols != list(_CSV_COLUMNS) or not body or not all(body):
+        return None
+    n = len(body)
+    text = "\n".join(body)
+    if text.count(",") != (len(cols) - 1) * n:
+        return None
+    low = text.lower()
+    if "nan" in low or "inf" in low or "#" in text:
+        return None  # written nan / inf are errors, told apart from empty cells by the careful path
+    filled = text.replace(",,", ",nan,").replace(",,", ",nan,").replace(",\n", ",nan\n")
+    if filled.endswith(","):
+        filled += "nan"
+    if filled.startswith(",") or "\n," in filled:
+        return None  # an empty time
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            vals = np.loadtxt(io.StringIO(filled), delimiter=",", usecols=(0, 2, 3, 4, 5, 6, 7, 8), dtype=float,
+                              comments=None, ndmin=2)
+    except (ValueError, TypeError, OverflowError):
+        return None
+    names = _NAME_CELL.findall(text)
+    if vals.shape != (n, 8) or len(names) != n:
+        return None
+    is_set = ~np.isnan(vals)
+    line_no = np.arange(2, n + 2, dtype=np.int64)
+    return line_no, names, vals[:, 0], vals[:, 1:4], is_set[:, 1:4], vals[:, 4:8], is_set[:, 4:8]
+
+
+def _csv_slow(body: list[str], cols: list[str], has_q: list[bool], source: str):
+    # Keep the line numbers of the file (1-based; the header is line 1), skip blank lines.
+    line_no = np.array([k + 2 for k, ln in enumerate(body) if ln.strip()], dtype=np.int64)
+    rows = [ln.split(",") for ln in body if ln.strip()]
+    if not rows:
+        raise BodyCalError("no data rows after the header", source=source, where="line 2")
+    ncol = len(cols)
+    lens = np.fromiter((len(r) for r in rows), dtype=np.int64, count=len(rows))
+    bad = np.flatnonzero(lens != ncol)
+    if bad.size:
+        k = bad[0]
+        raise BodyCalError(f"{lens[k]} fields, the header has {ncol}", source=source, where=f"line {line_no[k]}")
+    columns = dict(zip(cols, zip(*rows)))
+    t_rows = _csv_floats(columns["time"], source, "time", line_no, allow_empty=False)[0]
+    xyz = [_csv_floats(columns[c], source, c, line_no) for c in ("px", "py", "pz")]
+    p_vals = np.stack([v for v, _ in xyz], axis=1)
+    p_set = np.stack([s for _, s in xyz], axis=1)
+    if all(has_q):
+        qs = [_csv_floats(columns[c], source, c, line_no) for c in ("qw", "qx", "qy", "qz")]
+        q_vals = np.stack([v for v, _ in qs], axis=1)
+        q_set = np.stack([s for _, s in qs], axis=1)
+    else:
+        q_vals = np.full((len(rows), 4), np.nan)
+        q_set = np.zeros((len(rows), 4), bool)
+    return line_no, [c.strip() for c in columns["name"]], t_rows, p_vals, p_set, q_vals, q_set
 
 
 def _assemble_converted(header, source, time, devices, positions, rotations, valid, marker_names, markers,

@@ -170,3 +170,37 @@ def test_mutated_c3d_header_and_parameters(pos, values):
     buf = bytearray(VALID_C3D)
     buf[pos:pos + len(values)] = values
     _load("hdr.c3d", bytes(buf[:len(VALID_C3D)]))
+
+
+def _paths_agree(text: str):
+    lines = text.splitlines()
+    cols = [c.strip().lower() for c in lines[0].split(",")]
+    fast = rio._csv_fast(lines[1:], cols)
+    if fast is None:
+        return None
+    try:
+        slow = rio._csv_slow(lines[1:], cols, [True] * 4, "x.csv")
+    except BodyCalError:
+        raise AssertionError("the fast CSV path accepted what the careful path rejects") from None
+    np.testing.assert_array_equal(fast[0], slow[0])
+    assert [n.strip() for n in fast[1]] == slow[1]
+    for a, b in zip(fast[2:], slow[2:]):
+        np.testing.assert_array_equal(a, b)
+    return fast
+
+
+def test_fast_csv_path_is_taken_for_clean_files():
+    assert _paths_agree(VALID_CSV.decode()) is not None
+
+
+@FUZZ
+@given(line=st.integers(1, 200), col=st.integers(0, 8),
+       cell=st.sampled_from(["", " ", "nan", "NaN", "+inf", "1e999", "x", "0", "-5", "1.5e-3", " 3 ", "1.2.3", "0x10",
+                             "1_000", "--1", "1e", ".5", "5.", "∞", "١"]))
+def test_fast_csv_path_agrees_with_the_careful_one(line, col, cell):
+    lines = VALID_CSV.decode().splitlines()
+    k = line % len(lines[1:]) + 1
+    cells = lines[k].split(",")
+    cells[col % len(cells)] = cell
+    lines[k] = ",".join(cells)
+    _paths_agree("\n".join(lines) + "\n")
