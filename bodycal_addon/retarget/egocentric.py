@@ -35,6 +35,17 @@ Conventions and decisions (each one named in the code where it applies):
   bone). DESIGN.md Decision: absolute values in eq. 2.
 - Floor: `h'_j = h_j tau'/tau` with the path from the supporting (lower) ankle to the target; the
   "x - r" extremity of that path is the ankle's height above the floor.
+- Raw weights: distances are floored at MIN_DISTANCE (1 mm), so a target on a surface takes (almost)
+  all the weight of that element and nothing divides by zero; the triangle's cos(v, n) is taken
+  from the plane shifted PENETRATION_TOLERANCE into the body (see _triangle_factor).
+- Chains with zero weight are skipped: own-chain pairs have no chain at all (paper: "when the
+  associated lambda for a kinematic chain is null, the computation ... is skipped").
+- A mesh whose triangles differ between user and avatar (e.g. palms with other point counts) is
+  re-posed in its bone's frame scaled by the bone length ratio instead of by barycentrics.
+
+Speed: the hot path keeps vector components first ((3, F, P, E) arrays) and runs chunks of 32
+frames so the temporaries stay in the CPU caches; everything frame-independent (exclusions,
+kinematic paths as index arrays sorted by length) is computed once per target/element set.
 """
 
 from __future__ import annotations
@@ -389,14 +400,6 @@ def _apply(rc, v):
 def _apply_t(rc, v):
     """R^T v (world -> bone frame)."""
     return np.stack([rc[0, i] * v[0] + rc[1, i] * v[1] + rc[2, i] * v[2] for i in range(3)])
-
-
-def _unit(v, fallback):
-    """Trailing-axis unit vectors (..., 3) and norms; `fallback` where v vanishes."""
-    n = np.sqrt(np.einsum("...i,...i->...", v, v))
-    ok = n > 1e-12
-    out = np.divide(v, n[..., None], out=np.broadcast_to(fallback, v.shape).copy(), where=ok[..., None])
-    return out, n
 
 
 def _closest_on_triangles(ap, ab, ac):
