@@ -196,3 +196,41 @@ def test_triangle_weight_survives_a_shallow_penetration():
     deep = eg._triangle_factor(np.array([0.0, 0.02, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
     plain = eg._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, 0.0)
     assert inside[0] == pytest.approx(1.0) and deep[0] == 0.0 and plain[0] == 0.0
+
+
+def _reach_forward(joints, k):
+    """The right arm straight forward, upper arm and forearm scaled by k, the hand carried along."""
+    j = {n: v.copy() for n, v in joints.items()}
+    sh = j["shoulder_r"]
+    ua, fa = np.linalg.norm(j["elbow_r"] - sh), np.linalg.norm(j["wrist_r"] - j["elbow_r"])
+    fwd = np.array([0.0, -1.0, 0.0])
+    elbow, wrist = sh + fwd * ua * k, sh + fwd * (ua + fa) * k
+    turn = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # arm-down hand offsets -> pointing forward
+    for n in list(j):
+        if n.endswith("_r") and n.split("_")[0] in ("mcp", "pip", "dip", "tip"):
+            j[n] = wrist + turn @ (j[n] - j["wrist_r"])
+    j["elbow_r"], j["wrist_r"] = elbow, wrist
+    return j
+
+
+def test_kinematic_normalisation_stretches_a_reach_with_longer_arms():
+    # Paper 000, Figure 14: an avatar with 1.5x longer arms reaching forward like the user should
+    # reach further; with τ'/τ = 1 the wrist would stay at the user's reach from the chest.
+    base = rb.standing_joints()
+    user, avatar = rb.make_body_model(_reach_forward(base, 1.0)), rb.make_body_model(_reach_forward(base, 1.5))
+
+    def posed(m):
+        j = {k: v.world[None] for k, v in m.joints.items()}
+        return eg.pose_surface(m, j, rb.bone_frames(j, {b: i.right[None] for b, i in m.bones.items()})), j
+
+    (us, uj), (av, aj) = posed(user), posed(avatar)
+    pts = uj["wrist_r"][:, None]
+    out = eg.retarget_points(pts, ["wrist_r"], us, av)
+    reach_user = np.linalg.norm(uj["wrist_r"] - uj["shoulder_r"])
+    reach_avatar = np.linalg.norm(aj["wrist_r"] - aj["shoulder_r"])
+    got = np.linalg.norm(out[0, 0] - aj["shoulder_r"][0])
+    d = {}
+    eg.retarget_points(pts, ["wrist_r"], us, av, details=d)
+    torso = us.element_ids.index("mesh:torso")
+    assert d["ratio"][0, 0, torso] > 1.2  # the arm's share of the chain grew by 1.5
+    assert 1.15 * reach_user < got < reach_avatar
