@@ -144,3 +144,13 @@ def test_spine_out_of_reach_is_straight_and_finite():
     res = ik.spine(np.zeros((n, 3)), rot, 0.1, np.full(12, 0.05), skull)
     assert np.all(np.isfinite(res.joints)) and np.all(np.isfinite(res.rotations))
     np.testing.assert_allclose(res.joints[0, -1], [0, 0, 0.1 + 0.6], atol=1e-6)
+
+
+def test_spine_straight_above_but_too_close_bends_in_the_sagittal_plane():
+    n = 1
+    rot = np.broadcast_to(np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), (n, 3, 3)).copy()  # Z = -Y world
+    skull = np.array([[0.0, 0.0, 0.1 + 0.5]])  # straight above the spine root, chain 0.6 m long
+    res = ik.spine(np.zeros((n, 3)), rot, 0.1, np.full(12, 0.05), skull, two_pass=False)
+    np.testing.assert_allclose(res.joints[:, -1], skull, atol=1e-6)
+    np.testing.assert_allclose(res.joints[..., 0], 0.0, atol=1e-9)  # no lateral bend
+    assert res.joints[0, 1, 1] > 0  # the first vertebra leans toward the sacrum's -Z (world +Y)
