@@ -170,14 +170,15 @@ def _solve_arc(lengths, chord, iterations=48):
     return 0.5 * (lo + hi)
 
 
-def _place_arc(start, lengths, target, bend_dir):
+def _place_arc(start, lengths, target, bend_dir, fallback_side):
     """Equal-angle arc from `start` whose chord points at `target` (clamped to the chain's length),
     its first segment leaning toward `bend_dir`. Returns joints (F, n+1, 3) and θ (F,)."""
     lengths = np.asarray(lengths, float)
     chord_vec = target - start
     chord_dir, chord_len = _unit(chord_vec, np.array([0.0, 0.0, 1.0]))
     theta = _solve_arc(lengths, np.minimum(chord_len, lengths.sum()))
-    side = _perp_unit(bend_dir, chord_dir, _any_perpendicular(chord_dir))[0]
+    fallback = _perp_unit(fallback_side, chord_dir, _any_perpendicular(chord_dir))[0]
+    side = _perp_unit(bend_dir, chord_dir, fallback)[0]
     local = _arc_chord(lengths, theta)  # the chord seen from the first segment
     phi = np.arctan2(local[:, 1], local[:, 0])
     k = np.arange(len(lengths))
@@ -201,13 +202,15 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     base, aimed at it, its first vertebra leaning toward the sacrum's +Y. Pass 2 (two_pass): the
     sacrum turns about its hip axis (+X) to line its +Y up with that first vertebra, which moves
     the spine root, and the arc is solved again. Twist: the hip axis turns uniformly about the
-    chord up to `top_right`, vertebra by vertebra."""
+    chord up to `top_right`, vertebra by vertebra. When the skull base is straight above the
+    sacrum's +Y but closer than the spine's length, the first vertebra leans toward the sacrum's
+    -Z (backward for a sacrum whose +X is the performer's left)."""
     pelvis = np.asarray(pelvis, float)
     sacrum_rot = np.asarray(sacrum_rot, float)
     target = np.asarray(skull_base, float)
     lengths = np.asarray(lengths, float)
     start = pelvis + sacrum_length * sacrum_rot[..., 1]
-    joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1])
+    joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1], -sacrum_rot[..., 2])
     if two_pass:
         x = sacrum_rot[..., 0]
         first = _unit(joints[:, 1] - joints[:, 0], sacrum_rot[..., 1])[0]
@@ -221,7 +224,7 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
 
         sacrum_rot = np.stack([x, turn(sacrum_rot[..., 1]), turn(sacrum_rot[..., 2])], axis=-1)
         start = pelvis + sacrum_length * sacrum_rot[..., 1]
-        joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1])
+        joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1], -sacrum_rot[..., 2])
     # Uniform twist from the hip axis to the top's right, about the chord.
     chord = _unit(joints[:, -1] - joints[:, 0], sacrum_rot[..., 1])[0]
     hip = _perp_unit(sacrum_rot[..., 0], chord, _any_perpendicular(chord))[0]
