@@ -18,6 +18,8 @@ from the lateral malleolus marker in a thigh frame built from raw markers (walk_
 along the axis from the lateral knee marker and the measured knee width (the `knee_in` /
 `knee_out` touches of our protocol); the reference is the file's LKJC / RKJC.
 
+Also, for information: the minimal (AvatarGo, 6-device) profile at 1 mm noise.
+
 Prints ONE JSON line.
 """
 
@@ -131,6 +133,30 @@ def synthetic_part(quick: bool = False) -> dict:
             "outlier_rate": 0.10, "results": results, "targets_1mm": targets, "failures": failures}
 
 
+def minimal_part(quick: bool = False) -> dict:
+    """The 6-device AvatarGo profile (HMD, controllers, pelvis and feet trackers) at 1 mm noise:
+    what the T-pose, the touches and the anthropometric defaults give (for information)."""
+    try:
+        from bodycal_addon import synthetic
+    except ImportError:
+        return {"skipped": "bodycal_addon.synthetic is not available"}
+    errs = {g: [] for g in GROUPS}
+    failures = []
+    for k, (build, height) in enumerate(PERFORMERS[:2] if quick else PERFORMERS):
+        perf = synthetic.make_performer(height=height, build=build, seed=k)
+        rec, truth = synthetic.record_session(perf, profile="minimal", motions=(), noise_mm=1.0, wobble_mm=2.0,
+                                              outlier_rate=0.10, seed=10 * k + 7)
+        try:
+            model = calibrate_user(rec)
+        except BodyCalError as exc:
+            failures.append(f"{build}: {exc.line()}")
+            continue
+        for g, names in GROUPS.items():
+            for n in names:
+                errs[g].append(1000.0 * float(np.linalg.norm(model.world(n) - truth.joints_world[n])))
+    return {"noise_mm": 1.0, "calibrated": {g: _stats(v) for g, v in errs.items()}, "failures": failures}
+
+
 # --- walk.c3d ---------------------------------------------------------------------------------
 
 
@@ -210,7 +236,8 @@ def walk_part() -> dict:
 def main() -> int:
     t0 = time.perf_counter()
     quick = "--quick" in sys.argv
-    report = {"benchmark": "calibration", "synthetic": synthetic_part(quick), "walk_c3d": walk_part()}
+    report = {"benchmark": "calibration", "synthetic": synthetic_part(quick), "minimal_profile": minimal_part(quick),
+              "walk_c3d": walk_part()}
     report["seconds"] = round(time.perf_counter() - t0, 1)
     print(json.dumps(report, separators=(",", ":")))
     return 0
