@@ -86,6 +86,13 @@ class _Run:
             self.ego = ego
             self.user_s, self.avatar_s = _surface_bones(user), _surface_bones(avatar)
             self.ids = ego.common_elements(user, avatar)
+            # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
+            # against the body without the arms: arm, hand and finger elements are moved by the IK
+            # afterwards, and a hand resting on the head would otherwise drag the head toward where
+            # the FK copy happened to put the avatar's hand.
+            arm_parts = ("capsule:upperarm_", "capsule:forearm_", "mesh:palm_") + tuple(
+                f"capsule:{f}_" for f in sk.FINGERS)
+            self.trunk_ids = [i for i in self.ids if not i.startswith(arm_parts)]
             if not self.ids:
                 raise BodyCalError("the user and the avatar share no surface elements", source=avatar.name,
                                    field="surface", hint="calibrate the avatar's surface")
@@ -137,17 +144,19 @@ class _Run:
         ego = self.ego
         us = ego.pose_surface(self.user_s, _jd(up.joints), _fd(up.frames, self.ucorr), self.ids)
         av = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.acorr), self.ids)
-        names = self.targets
+        names = [n for n in self.targets if n != "skull_base"]
         pts = up.joints[:, [JI[n] for n in names]]
-        # τ over the user's calibrated bone lengths along the current directions: the stretch of
-        # the user's bones between trackers is tracking error, not body shape (and avatar == user
-        # then maps every target onto itself exactly).
         heads = up.joints[:, self.bone_heads]
         tails = up.joints[:, self.bone_tails]
         vec = normalize(tails - heads) * self.user_lengths[:, None]
         ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
         tg = ego.retarget_points(pts, list(names), us, av, user_bones=ub)
         targets = {n: tg[:, i] for i, n in enumerate(names)}
+        if self.trunk_ids:
+            ust = ego.pose_surface(self.user_s, _jd(up.joints), _fd(up.frames, self.ucorr), self.trunk_ids)
+            avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.acorr), self.trunk_ids)
+            targets["skull_base"] = ego.retarget_points(up.joints[:, [JI["skull_base"]]], ["skull_base"], ust, avt,
+                                                        user_bones=ub)[:, 0]
         frames = self._ik(up, fk, pelvis, targets)
         return self.rig.solve(frames, pelvis), targets
 

@@ -1,0 +1,206 @@
+"""Contact gap against the avatar's EVALUATED mesh (DESIGN.md §7): the armature is posed from an
+`AvatarAnimation` (pose-bone `rotation_quaternion` = the animation's rotations, the root bone's
+`location`), the depsgraph is updated, the skinned mesh is evaluated, and each effector point's
+nearest point on the touched body part is found with `mathutils.bvhtree.BVHTree.find_nearest`,
+signed by the face normal (negative inside).
+
+The touched body part is the set of faces whose vertices are all dominated (largest vertex-group
+weight) by the avatar bones of the target element's segments (torso -> pelvis and spine bones,
+skull/jaw -> head and neck, capsule:<bone> -> that limb bone, palm -> hand and fingers), so the
+effector's own hand never counts as the surface it touches.
+
+The armature's pose and action are restored afterwards.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from mathutils.bvhtree import BVHTree
+
+from .. import skeleton as sk
+from ..animation import AvatarAnimation
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+from ..retarget.avatar_pose import BI, AvatarRig, complete_joints
+from ..retarget.pipeline import surface_correction
+
+
+def target_segments(target: str) -> list[str]:
+    """Canonical segments whose skin is the touched element `target` ("mesh:torso/belly_c2",
+    "capsule:thigh_l", "sphere:skull", "mesh:palm_r/palm_2_r", ...)."""
+    element = target.split("/", 1)[0]
+    kind, _, name = element.partition(":")
+    if name == "torso":
+        return ["pelvis", "spine", "breast_l", "breast_r"]
+    if name in ("skull", "jaw"):
+        return ["head", "neck"]
+    if name.startswith(("palm_", "sole_")):
+        side = name[-1]
+        if name.startswith("palm_"):
+            return [f"hand_{side}"] + [f"{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)]
+        return [f"foot_{side}", f"toe_{side}"]
+    if kind == "capsule":
+        return [name]
+    raise BodyCalError(f"unknown contact target '{target}'", field="target")
+
+
+def _segment_bones(bone_map: sk.BoneMap, segments) -> set[str]:
+    out = set()
+    for seg in segments:
+        if seg in bone_map.chains:
+            out |= set(bone_map.chains[seg])
+        elif seg in bone_map.bones:
+            out.add(bone_map.bones[seg])
+    return out
+
+
+def effector_points(avatar: BodyModel, rig: AvatarRig, anim: AvatarAnimation, effector: str):
+    """(F, 3) world points of the avatar's effector and its skin offset (m): "palm_<s>" is the
+    centre of the avatar's palm surface (on the skin, offset 0); a joint (wrist, fingertip) lies
+    inside its limb, offset = that limb's radius at the joint."""
+    if effector.startswith("palm_"):
+        side = effector[-1]
+        el = avatar.element(f"mesh:palm_{side}")
+        pose = rig.fk(anim.rotations, anim.root_location)
+        # Palm points are local to the model's own hand frame (its `right`): correct the engine's.
+        corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"hand_{side}"]]
+        frame = pose.frames[:, BI[f"hand_{side}"]] @ corr
+        wrist = pose.joints[:, sk.JOINT_INDEX[f"wrist_{side}"]]
+        local = np.mean([p.local for p in el.points.values()], axis=0)
+        return wrist + frame @ local, 0.0
+    if effector not in anim.joints_world:
+        raise BodyCalError(f"unknown effector '{effector}'", field="effector")
+    radius = 0.0
+    for b in sk.BONES:
+        if b.tail == effector and b.name in avatar.bones and not b.shortcut:
+            radius = avatar.bones[b.name].radius_tail or 0.0
+            break
+    return np.asarray(anim.joints_world[effector], float), float(radius)
+
+
+class EvaluatedMesh:
+    """The skinned meshes of an armature, with the dominant bone of every triangle."""
+
+    def __init__(self, arm, meshes=None):
+        self.arm = arm
+        if meshes is None:
+            meshes = [o for o in bpy.data.objects if o.type == "MESH" and any(
+                m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
+        if not meshes:
+            raise BodyCalError("no mesh is skinned to this armature", source=arm.name)
+        self.meshes = meshes
+        self.tri_bone = {}
+        for obj in meshes:
+            me = obj.data
+            me.calc_loop_triangles()
+            tris = np.empty(len(me.loop_triangles) * 3, np.int32)
+            me.loop_triangles.foreach_get("vertices", tris)
+            tris = tris.reshape(-1, 3)
+            groups = {g.index: g.name for g in obj.vertex_groups}
+            dom = np.full(len(me.vertices), "", dtype=object)
+            for v in me.vertices:
+                best = max(v.groups, key=lambda g: g.weight, default=None)
+                if best is not None:
+                    dom[v.index] = groups.get(best.group, "")
+            self.tri_bone[obj.name] = (tris, dom[tris])
+
+    def triangles_of(self, bones: set[str]):
+        """{mesh name: triangle indices (T, 3)} whose three vertices belong to `bones`."""
+        out = {}
+        for name, (tris, owners) in self.tri_bone.items():
+            keep = np.isin(owners, list(bones)).all(axis=1)
+            if keep.any():
+                out[name] = tris[keep]
+        return out
+
+
+def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict, np.ndarray]],
+                mesh: EvaluatedMesh | None = None) -> list[np.ndarray]:
+    """Pose the armature at frames and measure signed distances (m) to selected skin.
+
+    queries: [(frame indices (n,), {mesh name: triangles}, points (n, 3) world)]; returns one (n,)
+    array per query. Frames shared by several queries are posed once."""
+    mesh = mesh or EvaluatedMesh(arm)
+    pbs = [arm.pose.bones[n] for n in anim.bone_names]
+    root = arm.pose.bones[anim.root_bone]
+    saved = [(pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location)) for pb in arm.pose.bones]
+    ad = arm.animation_data
+    saved_action = ad.action if ad is not None else None
+    if ad is not None:
+        ad.action = None
+    by_frame: dict[int, list[tuple[int, int]]] = {}
+    for qi, (frames, _, _) in enumerate(queries):
+        for k, f in enumerate(np.asarray(frames, int)):
+            by_frame.setdefault(int(f), []).append((qi, k))
+    out = [np.full(len(q[0]), np.nan) for q in queries]
+    view_layer = bpy.context.view_layer
+    try:
+        for pb in pbs:
+            pb.rotation_mode = "QUATERNION"
+        for f, items in sorted(by_frame.items()):
+            for b, pb in enumerate(pbs):
+                pb.rotation_quaternion = anim.rotations[f, b]
+            root.location = anim.root_location[f]
+            view_layer.update()
+            dg = bpy.context.evaluated_depsgraph_get()
+            world_verts = {}
+            for obj in mesh.meshes:
+                ev = obj.evaluated_get(dg)
+                me = ev.to_mesh()
+                co = np.empty(len(me.vertices) * 3)
+                me.vertices.foreach_get("co", co)
+                ev.to_mesh_clear()
+                m = np.array(obj.matrix_world)
+                world_verts[obj.name] = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+            for qi, k in items:
+                _, tris_by_mesh, points = queries[qi]
+                verts, tris, off = [], [], 0
+                for name, tri in tris_by_mesh.items():
+                    v = world_verts[name]
+                    verts.append(v)
+                    tris.append(tri + off)
+                    off += len(v)
+                if not verts:
+                    continue
+                tree = BVHTree.FromPolygons(np.concatenate(verts).tolist(), np.concatenate(tris).tolist())
+                p = points[k]
+                loc, normal, _, dist = tree.find_nearest(p.tolist())
+                if loc is None:
+                    continue
+                sign = 1.0 if np.dot(np.asarray(p) - np.asarray(loc), np.asarray(normal)) >= 0 else -1.0
+                out[qi][k] = sign * dist
+    finally:
+        for pb, (mode, q, loc) in zip(arm.pose.bones, saved):
+            pb.rotation_quaternion = q
+            pb.location = loc
+            pb.rotation_mode = mode
+        if ad is not None:
+            ad.action = saved_action
+        view_layer.update()
+    return out
+
+
+def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[dict], max_frames: int = 12,
+                 mesh: EvaluatedMesh | None = None) -> list[np.ndarray]:
+    """Signed contact gap (m, negative inside) per contact of the synthetic ground truth
+    (`{"effector", "target", "frames" (F,) bool}`), measured on up to `max_frames` evenly spaced
+    contact frames each: distance from the avatar's effector skin to the evaluated skin of the
+    touched body part."""
+    rig = AvatarRig.from_model(avatar)
+    bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+    mesh = mesh or EvaluatedMesh(arm)
+    queries, offsets = [], []
+    for c in contacts:
+        idx = np.flatnonzero(np.asarray(c["frames"], bool)[:anim.frame_count])
+        if len(idx) == 0:
+            queries.append((idx, {}, np.zeros((0, 3))))
+            offsets.append(0.0)
+            continue
+        idx = idx[np.linspace(0, len(idx) - 1, min(max_frames, len(idx))).astype(int)]
+        pts, off = effector_points(avatar, rig, anim, c["effector"])
+        tris = mesh.triangles_of(_segment_bones(bm, target_segments(c["target"])))
+        queries.append((idx, tris, pts[idx]))
+        offsets.append(off)
+    gaps = signed_gaps(arm, anim, queries, mesh)
+    return [g - o for g, o in zip(gaps, offsets)]
