@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import avatar, calibration, recording, sample_avatars
+from . import avatar, calibration, recording, retarget, sample_avatars
 
-_MODULES = (sample_avatars, recording, calibration, avatar)
+_MODULES = (sample_avatars, recording, calibration, avatar, retarget)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
@@ -12,6 +12,9 @@ _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLAS
 
 def register():
     _register_classes()
+    for m in _MODULES:  # scene properties, after their PropertyGroup classes
+        if hasattr(m, "register_properties"):
+            m.register_properties()
     for m in _MODULES:  # menu entries (e.g. File > Import), after the classes they show
         if hasattr(m, "register_menus"):
             m.register_menus()
@@ -21,4 +24,7 @@ def unregister():
     for m in reversed(_MODULES):
         if hasattr(m, "unregister_menus"):
             m.unregister_menus()
+    for m in reversed(_MODULES):
+        if hasattr(m, "unregister_properties"):
+            m.unregister_properties()
     _unregister_classes()

@@ -2,8 +2,8 @@
 
 import bpy
 
-from . import avatar_panel, calibration_panel, main_panel
+from . import avatar_panel, calibration_panel, main_panel, retarget_panel
 
-CLASSES = main_panel.CLASSES + calibration_panel.CLASSES + avatar_panel.CLASSES
+CLASSES = main_panel.CLASSES + calibration_panel.CLASSES + avatar_panel.CLASSES + retarget_panel.CLASSES
 
 register, unregister = bpy.utils.register_classes_factory(CLASSES)

@@ -9,7 +9,8 @@ import zipfile
 import bpy
 from conftest import REPO
 
-EXPECTED_OPERATORS = {"add_procedural_avatar", "load_sample_avatars"}
+EXPECTED_OPERATORS = {"add_procedural_avatar", "load_sample_avatars", "import_recording", "calibrate_user",
+                      "calibrate_avatar", "retarget_bake"}
 
 
 def test_symlinked_extension_registers_sidebar_tab_and_operators():

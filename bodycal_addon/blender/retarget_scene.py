@@ -1,0 +1,162 @@
+"""Retarget and bake inside Blender: gather the inputs the earlier steps left in the scene, run
+the numpy pipeline (`retarget.pipeline.retarget`), bake the result and measure it.
+
+The operator, the `retarget` command and the demo all go through here, so they behave the same:
+compute first (nothing in the scene changes), write last (one new action).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import metrics
+from ..animation import AvatarAnimation
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+from ..recording import Recording
+from ..retarget.pipeline import retarget
+from . import avatar_storage, bake, calibration_scene, recording_scene
+from .avatar_calibration import calibrate_avatar
+
+
+@dataclass
+class RetargetInputs:
+    recording: Recording
+    user: BodyModel
+    avatar: BodyModel
+    armature: object  # bpy.types.Object
+    method: str
+    avatar_calibrated_now: bool = False  # store the avatar model with the bake
+
+
+@dataclass
+class RetargetSummary:
+    action: str
+    method: str
+    frames: int
+    keys: int
+    compute_s: float
+    bake_s: float
+    figures: dict = field(default_factory=dict)
+
+    def line(self) -> str:
+        fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
+        return (f"Baked '{self.action}' ({self.method}): {self.frames} frames, {self.keys} keys in "
+                f"{self.compute_s + self.bake_s:.1f} s" + (f"; {fig}" if fig else ""))
+
+
+def missing_inputs(scene) -> str | None:
+    """Why the scene cannot be retargeted yet, as an instruction; None when it can."""
+    if recording_scene.scene_recording_collection(scene) is None:
+        return "Import a recording first (File > Import > BodyCal recording)"
+    if not calibration_scene.has_user_model(scene):
+        return "Calibrate the performer first (BodyCal tab > Calibration)"
+    return None
+
+
+def avatar_model_for(arm) -> tuple[BodyModel, bool]:
+    """The armature's stored avatar model, or a fresh surface calibration (not stored yet)."""
+    if avatar_storage.has_model(arm):
+        return avatar_storage.load_model(arm), False
+    return calibrate_avatar(arm), True
+
+
+def gather_inputs(scene, arm, method: str, recording: Recording | None = None,
+                  user: BodyModel | None = None) -> RetargetInputs:
+    if arm is None or getattr(arm, "type", None) != "ARMATURE":
+        raise BodyCalError("pick an avatar armature", source=getattr(arm, "name", "no object"))
+    recording = recording if recording is not None else recording_scene.recording_from_scene(scene)
+    user = user if user is not None else calibration_scene.load_user_model(scene)
+    avatar, fresh = avatar_model_for(arm)
+    return RetargetInputs(recording, user, avatar, arm, method, fresh)
+
+
+def compute(inputs: RetargetInputs, progress=None, cancel=None) -> AvatarAnimation:
+    """Pure numpy: safe to run in a worker thread."""
+    t0 = time.perf_counter()
+    anim = retarget(inputs.recording, inputs.user, inputs.avatar, inputs.method, progress=progress, cancel=cancel)
+    anim.notes.append(f"compute_s={time.perf_counter() - t0:.3f}")
+    return anim
+
+
+def quality_figures(anim: AvatarAnimation) -> dict[str, float]:
+    """Figures shown after a bake (mm): how far the IK left the effectors from their retargeted
+    targets, and how far the lowest ankle is from its standing height."""
+    figures = {}
+    reach = [metrics.reach_error(anim.joints_world[j], anim.targets[j]) for j in anim.targets
+             if j in anim.joints_world]
+    if reach:
+        figures["reach p95"] = float(np.percentile(np.concatenate([np.ravel(r) for r in reach]), 95) * 1000)
+    return figures
+
+
+def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: bool = False,
+                     push_to_nla: bool = False, action_name: str | None = None,
+                     set_scene_rate: bool = False) -> RetargetSummary:
+    """Bake one key per recording sample, at the frames the recording import uses (frame =
+    frame_start + (t - t0) x rate). `set_scene_rate` makes the scene play at the recording's rate
+    (the import already does it in the UI flow; the command line starts from the avatar's file)."""
+    import bpy
+
+    name = action_name or bake.default_action_name(inputs.recording.name, inputs.armature.name, inputs.method)
+    fps, fps_base, rate = recording_scene.frame_mapping(inputs.recording)
+    t0 = time.perf_counter()
+    if set_scene_rate:
+        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
+    result = bake.bake_animation(anim, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
+                                 fps=rate)
+    if inputs.avatar_calibrated_now:
+        avatar_storage.store_model(inputs.armature, inputs.avatar)
+    bake_s = time.perf_counter() - t0
+    compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
+    return RetargetSummary(result.action.name, inputs.method, anim.frame_count, result.keys, compute_s, bake_s,
+                           quality_figures(anim))
+
+
+def find_armature(name: str | None = None, source: str = "scene"):
+    """The armature named `name`, else the only armature in the file."""
+    import bpy
+
+    if name:
+        obj = bpy.data.objects.get(name)
+        if obj is None or obj.type != "ARMATURE":
+            have = sorted(o.name for o in bpy.data.objects if o.type == "ARMATURE")
+            raise BodyCalError(f"no armature named '{name}'", source=source,
+                               hint=f"armatures here: {', '.join(have) or 'none'}")
+        return obj
+    arms = [o for o in bpy.data.objects if o.type == "ARMATURE"]
+    if len(arms) != 1:
+        raise BodyCalError(f"{'no' if not arms else len(arms)} armatures in the file", source=source,
+                           hint="name one with --armature" if arms else "the avatar file needs an armature")
+    return arms[0]
+
+
+def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, armature: str | None = None,
+                   method: str = "egocentric", log=print) -> RetargetSummary:
+    """`bodycal retarget`: everything from paths, nothing from a running session."""
+    from pathlib import Path
+
+    import bpy
+
+    from ..recording_io import load_recording
+
+    avatar_blend, output_blend = Path(avatar_blend), Path(output_blend)
+    recording = load_recording(recording_path)  # validate every input before opening anything
+    user = BodyModel.load(user_path)
+    if user.kind != "user":
+        raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
+    if not avatar_blend.is_file():
+        raise BodyCalError("no such file", source=str(avatar_blend))
+    bpy.ops.wm.open_mainfile(filepath=str(avatar_blend.resolve()), load_ui=False)
+    arm = find_armature(armature, source=str(avatar_blend))
+    inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user)
+    anim = compute(inputs)
+    summary = bake_and_measure(inputs, anim, set_scene_rate=True)
+    output_blend.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(output_blend.resolve()), copy=False)
+    log(summary.line())
+    log(f"saved {output_blend}")
+    return summary

@@ -1,0 +1,153 @@
+"""Retarget and bake: the last step of the sidebar flow.
+
+The numpy pipeline runs in a worker thread (it never touches bpy) while a modal timer shows
+progress and listens for Esc; the bake (the only scene write) runs on the main thread once the
+arrays are ready. From scripts and in background mode `execute` runs the same steps synchronously.
+"""
+
+import threading
+
+import bpy
+
+from ..bodycal_addon.blender import retarget_scene
+from ..bodycal_addon.errors import BodyCalError, Cancelled
+
+METHOD_ITEMS = [
+    ("egocentric", "Egocentric", "Keep self-contacts: egocentric mapping onto the avatar's surface + IK (paper 000)"),
+    ("offsets", "Exact Offsets", "AvatarGo: exact tracker-to-joint offsets from the T-pose + IK (paper 004)"),
+    ("rotations", "Rotation Copy", "Copy the performer's bone rotations (the usual retargeting baseline)"),
+]
+
+
+class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
+    method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="egocentric")
+    armature: bpy.props.PointerProperty(
+        name="Avatar", type=bpy.types.Object, poll=lambda _self, obj: obj.type == "ARMATURE",
+        description="Armature to animate (default: the active armature)")
+    replace: bpy.props.BoolProperty(
+        name="Replace Action", default=False,
+        description="Overwrite an existing action of the same name instead of creating a new one")
+    push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
+                                        description="Put the baked action on a new NLA track")
+    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+
+
+def _target_armature(context):
+    settings = context.scene.bodycal_retarget
+    if settings.armature is not None:
+        return settings.armature
+    obj = context.active_object
+    return obj if obj is not None and obj.type == "ARMATURE" else None
+
+
+class BODYCAL_OT_retarget_bake(bpy.types.Operator):
+    """Retarget the scene's recording onto the avatar with the chosen method and bake a new action"""
+
+    bl_idname = "bodycal.retarget_bake"
+    bl_label = "Retarget and Bake"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if context.mode not in {"OBJECT", "POSE"}:
+            cls.poll_message_set("Switch to Object or Pose Mode to bake")
+            return False
+        if _target_armature(context) is None:
+            cls.poll_message_set("Pick an avatar armature in the BodyCal tab (or make one active)")
+            return False
+        problem = retarget_scene.missing_inputs(context.scene)
+        if problem:
+            cls.poll_message_set(problem)
+            return False
+        return True
+
+    def _inputs(self, context):
+        arm = _target_armature(context)
+        return retarget_scene.gather_inputs(context.scene, arm, context.scene.bodycal_retarget.method)
+
+    def _finish(self, context, inputs, anim):
+        settings = context.scene.bodycal_retarget
+        summary = retarget_scene.bake_and_measure(inputs, anim, replace=settings.replace,
+                                                  push_to_nla=settings.push_to_nla)
+        settings.last_result = summary.line()
+        self.report({"INFO"}, summary.line())
+        return {"FINISHED"}
+
+    def execute(self, context):
+        try:
+            inputs = self._inputs(context)
+            anim = retarget_scene.compute(inputs)
+            return self._finish(context, inputs, anim)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+
+    # --- modal: compute in a worker thread, Esc cancels, bake on the main thread --------------
+
+    def invoke(self, context, _event):
+        try:
+            self._inputs_cache = self._inputs(context)
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+        self._progress = 0.0
+        self._cancel = threading.Event()
+        self._result = {}
+
+        def work():
+            try:
+                self._result["anim"] = retarget_scene.compute(
+                    self._inputs_cache, progress=lambda f: setattr(self, "_progress", f),
+                    cancel=self._cancel.is_set)
+            except BaseException as exc:  # reported on the main thread
+                self._result["error"] = exc
+
+        self._thread = threading.Thread(target=work, name="bodycal-retarget", daemon=True)
+        self._thread.start()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.modal_handler_add(self)
+        context.workspace.status_text_set("BodyCal: retargeting... (Esc to cancel)")
+        return {"RUNNING_MODAL"}
+
+    def _cleanup(self, context):
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self._cancel.set()
+        if event.type != "TIMER":
+            return {"RUNNING_MODAL"}
+        context.window_manager.progress_update(int(100 * self._progress))
+        if self._thread.is_alive():
+            return {"RUNNING_MODAL"}
+        self._cleanup(context)
+        error = self._result.get("error")
+        if isinstance(error, Cancelled):
+            self.report({"WARNING"}, "Retargeting cancelled: nothing was written")
+            return {"CANCELLED"}
+        if isinstance(error, BodyCalError):
+            self.report({"ERROR"}, error.line())
+            return {"CANCELLED"}
+        if error is not None:
+            raise error
+        try:
+            return self._finish(context, self._inputs_cache, self._result["anim"])
+        except BodyCalError as exc:
+            self.report({"ERROR"}, exc.line())
+            return {"CANCELLED"}
+
+
+CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake)
+
+
+def register_properties():
+    bpy.types.Scene.bodycal_retarget = bpy.props.PointerProperty(type=BODYCAL_PG_retarget_settings)
+
+
+def unregister_properties():
+    del bpy.types.Scene.bodycal_retarget

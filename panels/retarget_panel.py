@@ -1,0 +1,30 @@
+"""Sidebar: pick the avatar and the method, retarget and bake, see the result's figures."""
+
+import bpy
+
+
+class BODYCAL_PT_retarget(bpy.types.Panel):
+    bl_idname = "BODYCAL_PT_retarget"
+    bl_label = "Retarget and Bake"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "BodyCal"
+    bl_parent_id = "BODYCAL_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.bodycal_retarget
+        col = layout.column()
+        col.prop(settings, "armature")
+        col.prop(settings, "method")
+        row = col.row(align=True)
+        row.prop(settings, "replace", toggle=True)
+        row.prop(settings, "push_to_nla", toggle=True)
+        col.operator("bodycal.retarget_bake", icon="ACTION")
+        if settings.last_result:
+            box = layout.box()
+            for part in settings.last_result.split("; "):
+                box.label(text=part)
+
+
+CLASSES = (BODYCAL_PT_retarget,)

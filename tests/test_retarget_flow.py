@@ -1,0 +1,103 @@
+"""The last step as users run it: the sidebar's Retarget and Bake operator, and the `retarget`
+command on files, end to end (issue 7)."""
+
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+from conftest import REPO
+
+from bodycal_addon import paths, synthetic
+from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene
+from bodycal_addon.bodymodel import BodyModel
+from bodycal_addon.retarget.pipeline import retarget
+
+rigs = paths.sample_rigs()
+
+
+@pytest.fixture(scope="module")
+def belly_session():
+    performer = synthetic.make_performer(seed=3)
+    rec, truth = synthetic.record_session(performer, profile="full", motions=("hand_on_belly",),
+                                          calibration=["tpose"], seed=3)
+    rec.name = "belly"
+    return rec, truth
+
+
+def _scene_ready(rec, truth):
+    arm, _mesh, _spec = rigs.build_procedural_avatar()
+    recording_scene.import_recording_to_scene(rec, bpy.context.scene)
+    calibration_scene.store_user_model(bpy.context.scene, truth.body_model())
+    bpy.context.scene.bodycal_retarget.armature = arm
+    return arm
+
+
+def test_poll_says_what_is_missing_first():
+    arm, _mesh, _spec = rigs.build_procedural_avatar()
+    bpy.context.view_layer.objects.active = arm
+    assert not bpy.ops.bodycal.retarget_bake.poll()
+    from bodycal_addon.blender.retarget_scene import missing_inputs
+
+    assert "Import a recording" in missing_inputs(bpy.context.scene)
+
+
+def test_operator_bakes_a_new_action_and_reports_figures(belly_session):
+    rec, truth = belly_session
+    arm = _scene_ready(rec, truth)
+    user_action = bpy.data.actions.new("belly|procedural|egocentric")  # the user's own work, same name
+    assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
+    action = arm.animation_data.action
+    assert action is not None and action != user_action
+    assert action.name.startswith("belly|procedural|egocentric")
+    assert bpy.data.actions.get("belly|procedural|egocentric") == user_action  # kept
+    assert avatar_storage.has_model(arm)  # calibrated on the fly, stored with the bake
+    settings = bpy.context.scene.bodycal_retarget
+    assert f"{rec.frame_count} frames" in settings.last_result and "reach p95" in settings.last_result
+
+
+def test_operator_error_is_one_line_and_changes_nothing(belly_session):
+    rec, truth = belly_session
+    arm = _scene_ready(rec, truth)
+    broken = truth.body_model()
+    del broken.joints["wrist_r"]
+    calibration_scene.store_user_model(bpy.context.scene, broken)
+    n_actions = len(bpy.data.actions)
+    with pytest.raises(RuntimeError) as err:  # an ERROR report makes bpy.ops raise
+        bpy.ops.bodycal.retarget_bake()
+    assert "wrist_r" in str(err.value)
+    assert len(bpy.data.actions) == n_actions and arm.animation_data is None
+
+
+@pytest.mark.slow
+def test_retarget_command_end_to_end_keeps_the_hand_on_the_belly(tmp_path, belly_session, avatar_files):
+    rec, truth = belly_session
+    rec_path, _truth_path = synthetic.write_session(tmp_path, "belly", rec, truth)
+    user_path = truth.body_model().save(tmp_path / "performer.body.json")
+    avatar_path = next(p for p in avatar_files if p.stem == "heavy_belly_male")
+    arm, _mesh = rigs.load_glb_avatar(avatar_path)
+    avatar_blend = tmp_path / "heavy_belly_male.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(avatar_blend))
+    out_blend = tmp_path / "out.blend"
+    out = subprocess.run([sys.executable, "-m", "bodycal_addon", "retarget", str(rec_path), "--user", str(user_path),
+                          "--avatar", str(avatar_blend), "-o", str(out_blend)], cwd=REPO, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "Baked 'belly|heavy_belly_male|egocentric'" in out.stdout
+
+    bpy.ops.wm.open_mainfile(filepath=str(out_blend))
+    arm = bpy.data.objects["heavy_belly_male"]
+    assert arm.animation_data.action.name == "belly|heavy_belly_male|egocentric"
+    avatar = avatar_storage.load_model(arm)
+    # Reading the keys back through Blender: the evaluated pose in the belly-contact frames puts the
+    # avatar's palm on its evaluated belly.
+    anim = retarget(rec, BodyModel.load(user_path), avatar, "egocentric")
+    (contact,) = [c for c in truth.contacts if c["target"].startswith("mesh:torso")]
+    gaps = mesh_metrics.contact_gaps(arm, avatar, anim, [contact], max_frames=6)[0]
+    assert np.all(np.abs(gaps) < 0.010), gaps  # within the quality target (issue 6: p95 <= 10 mm)
+    frame = int(bpy.context.scene.frame_start + np.flatnonzero(contact["frames"])[0])
+    bpy.context.scene.frame_set(frame)
+    baked = np.array(arm.pose.bones["hand_r"].rotation_quaternion)
+    want = anim.rotations[frame - bpy.context.scene.frame_start, anim.bone_names.index("hand_r")]
+    assert abs(abs(float(baked @ want)) - 1) < 1e-5  # the .blend's keys are the engine's pose
