@@ -310,16 +310,19 @@ class AvatarRig:
 
     # --- canonical frames -> pose ---------------------------------------------------------------
 
-    def solve(self, frames: np.ndarray, pelvis: np.ndarray) -> RigPose:
+    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised: bool = True) -> RigPose:
         """Pose bones that realise canonical world frames (F, B, 3, 3) with the canonical pelvis
-        joint at `pelvis` (F, 3, world)."""
+        joint at `pelvis` (F, 3, world). `basis=False` skips the pose-bone quaternions and root
+        location, `realised=False` the realised canonical frames (RigPose fields left None)."""
         frames = np.asarray(frames, float)
         nf = frames.shape[0]
         n = len(self.names)
         wr = self.w_rot
         # C(t) C0^-1 in armature space: W^-1 C(t) C0^-1 W (only the driving bones are needed).
-        delta_arm = np.einsum("ij,fbjk,bkl->fbil", wr.T, frames, np.swapaxes(self.frames0, -1, -2) @ wr,
-                              optimize=True)
+        used = self._used_drivers
+        delta_arm = np.empty(frames.shape[:1] + (len(BONES), 3, 3))
+        delta_arm[:, used] = np.einsum("ij,fbjk,bkl->fbil", wr.T, frames[:, used],
+                                       np.swapaxes(self.frames0[used], -1, -2) @ wr, optimize=True)
         P = np.empty((nf, n, 3, 3))
         H = np.empty((nf, n, 3))
         curve = None
@@ -352,6 +355,8 @@ class AvatarRig:
                     # The pelvis joint rides on another bone: place the root so that bone's joint lands.
                     pel_local = self.rest[i].T @ (self.joint_world_arm(JI["pelvis"]) - self.head[i])
                 H[:, i] = pel_arm - _mv(P[:, i], pel_local)
+        if not basis:
+            return self._finish(None, P, H, None, realised)
         basis = np.empty((nf, n, 3, 3))
         for i in range(n):
             p = self.parent[i]
@@ -360,7 +365,7 @@ class AvatarRig:
             else:
                 basis[:, i] = _lm(self.rest[i].T @ self.rest[p], np.swapaxes(P[:, p], -1, -2) @ P[:, i])
         root_loc = self._root_location(P, H)
-        return self._finish(matrix_to_quat(basis), P, H, root_loc)
+        return self._finish(matrix_to_quat(basis), P, H, root_loc, realised)
 
     def joint_world_arm(self, j):
         return self.to_armature(self.joint_world[j])
@@ -388,12 +393,20 @@ class AvatarRig:
         steps = ys * (self.lengths[[BI[s] for s in SPINE_BONES]] / self.w_scale)[None, :, None]
         return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
 
-    def _finish(self, basis, P, H, root_loc) -> RigPose:
+    @property
+    def _used_drivers(self) -> np.ndarray:
+        if getattr(self, "_used", None) is None:
+            used = {d for d in self.driver if isinstance(d, (int, np.integer))}
+            used |= {BI[SPINE_BONES[k]] for k, d in zip(self.chain_vertebra, self.driver) if d == "chain"}
+            self._used = np.array(sorted(used), int)
+        return self._used
+
+    def _finish(self, basis, P, H, root_loc, realised: bool = True) -> RigPose:
         jb = self.joint_bone
         joints_arm = H[:, jb] + (P[:, jb] @ self.joint_local[..., None])[..., 0]
         joints = joints_arm @ (self.w_rot.T * self.w_scale) + self.world[:3, 3]
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
-        frames = self.w_rot @ (P[:, self.carrier] @ self._carrier_rel)
+        frames = self.w_rot @ (P[:, self.carrier] @ self._carrier_rel) if realised else None
         return RigPose(basis, P, H, root_loc, joints, frames)
 
     @property

@@ -102,6 +102,7 @@ class _Run:
             self.user_lengths = np.array([np.linalg.norm(self.user_pos[sk.BONE_BY_NAME[b].tail] -
                                                          self.user_pos[sk.BONE_BY_NAME[b].head])
                                           for b in self.graph_bones])
+            self.sbones = surface_bone_indices(self.user_s, self.avatar_s)
             self.ucorr = surface_correction(user, self.user_frames0, self.user_pos)
             self.acorr = surface_correction(avatar, self.rig.frames0, complete_joints(avatar))
             have = {e.id for e in user.surface}
@@ -133,7 +134,8 @@ class _Run:
             if n not in self.notes:
                 self.notes.append(n)
         pelvis = up.joints[:, JI["pelvis"]] * self.k
-        fk = self.rig.solve(up.frames, pelvis)
+        fk = self.rig.solve(up.frames, pelvis, basis=self.method == "rotations",
+                            realised=self.method == "egocentric")
         if self.method == "rotations":
             return fk, {}
         if self.method == "egocentric":
@@ -142,8 +144,10 @@ class _Run:
 
     def _egocentric(self, up, fk, pelvis):
         ego = self.ego
-        us = ego.pose_surface(self.user_s, _jd(up.joints), _fd(up.frames, self.ucorr), self.ids)
-        av = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.acorr), self.ids)
+        uj, uf = _jd(up.joints), _fd(up.frames, self.ucorr, self.sbones)
+        aj, af = _jd(fk.joints), _fd(fk.frames, self.acorr, self.sbones)
+        us = ego.pose_surface(self.user_s, uj, uf, self.ids)
+        av = ego.pose_surface(self.avatar_s, aj, af, self.ids)
         names = [n for n in self.targets if n != "skull_base"]
         pts = up.joints[:, [JI[n] for n in names]]
         heads = up.joints[:, self.bone_heads]
@@ -153,12 +157,12 @@ class _Run:
         tg = ego.retarget_points(pts, list(names), us, av, user_bones=ub)
         targets = {n: tg[:, i] for i, n in enumerate(names)}
         if self.trunk_ids:
-            ust = ego.pose_surface(self.user_s, _jd(up.joints), _fd(up.frames, self.ucorr), self.trunk_ids)
-            avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.acorr), self.trunk_ids)
+            ust = ego.pose_surface(self.user_s, uj, uf, self.trunk_ids)
+            avt = ego.pose_surface(self.avatar_s, aj, af, self.trunk_ids)
             targets["skull_base"] = ego.retarget_points(up.joints[:, [JI["skull_base"]]], ["skull_base"], ust, avt,
                                                         user_bones=ub)[:, 0]
         frames = self._ik(up, fk, pelvis, targets)
-        return self.rig.solve(frames, pelvis), targets
+        return self.rig.solve(frames, pelvis, realised=False), targets
 
     def _ik(self, up, fk, pelvis, targets, hands=None):
         rig = self.rig
@@ -178,7 +182,7 @@ class _Run:
                 c = BI[f"clavicle_{s}"]
                 frames[:, c] = res.rotations[:, sk.CLAVICLE_VERTEBRA - 1] @ np.swapaxes(up.frames[:, v5], -1, -2) \
                     @ up.frames[:, c]
-        trunk = rig.solve(frames, pelvis)
+        trunk = rig.solve(frames, pelvis, basis=False, realised=False)
         wrist_pos = {}
         for s in sk.SIDES:
             for limb, (a, m, e, ab, mb) in LIMBS.items():
@@ -239,7 +243,7 @@ class _Run:
         up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
         frames = self._ik(up2, fk, pelvis, targets, hands=self.grip)
         targets["skull_base"] = p["skull_base"]
-        return self.rig.solve(frames, pelvis), targets
+        return self.rig.solve(frames, pelvis, realised=False), targets
 
 
 def _surface_bones(model: BodyModel) -> BodyModel:
@@ -264,9 +268,19 @@ def _jd(joints: np.ndarray) -> dict[str, np.ndarray]:
     return {j: joints[:, i] for i, j in enumerate(JOINTS)}
 
 
-def _fd(frames: np.ndarray, corr: np.ndarray) -> dict[str, np.ndarray]:
-    fr = frames @ corr
-    return {b.name: fr[:, i] for i, b in enumerate(BONES)}
+def _fd(frames: np.ndarray, corr: np.ndarray, bones: list[int]) -> dict[str, np.ndarray]:
+    """The frames of the bones a surface rides on, as the model's own bone frames."""
+    fr = frames[:, bones] @ corr[bones]
+    return {BONES[b].name: fr[:, i] for i, b in enumerate(bones)}
+
+
+def surface_bone_indices(*models: BodyModel) -> list[int]:
+    names = set()
+    for m in models:
+        for e in m.surface:
+            names.add(e.bone)
+            names |= {p.bone for p in e.points.values()}
+    return sorted(BI[n] for n in names if n in BI)
 
 
 def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyModel, method: str = "egocentric", *,
