@@ -704,6 +704,10 @@ def _factorize(names: list[str]) -> tuple[list[str], np.ndarray]:
 _NAME_CELL = re.compile(r"^[^,\n]*,([^,\n]*),", re.M)
 
 
+_CSV_NAME_WIDTH = 128
+_CSV_DTYPE = np.dtype([(c, f"U{_CSV_NAME_WIDTH}" if c == "name" else "f8") for c in _CSV_COLUMNS])
+
+
 def _csv_fast(body: list[str], cols: list[str]):
     """The common case at C speed (numpy's loadtxt parser): standard column order, no blank lines,
     no written nan/inf. Returns None whenever anything is unusual; the careful path then finds it."""
@@ -724,13 +728,15 @@ def _csv_fast(body: list[str], cols: list[str]):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            vals = np.loadtxt(io.StringIO(filled), delimiter=",", usecols=(0, 2, 3, 4, 5, 6, 7, 8), dtype=float,
-                              comments=None, ndmin=2)
+            table = np.loadtxt(io.StringIO(filled), delimiter=",", dtype=_CSV_DTYPE, comments=None, ndmin=1)
     except (ValueError, TypeError, OverflowError):
         return None
-    names = _NAME_CELL.findall(text)
-    if vals.shape != (n, 8) or len(names) != n:
+    if table.shape != (n,):
         return None
+    names = table["name"].tolist()
+    if max(map(len, names)) >= _CSV_NAME_WIDTH or "nan" in set(names):
+        return None  # possibly cut, or an empty name cell filled above: the careful path reports it
+    vals = np.stack([table[c] for c in _CSV_COLUMNS if c != "name"], axis=1)
     is_set = ~np.isnan(vals)
     line_no = np.arange(2, n + 2, dtype=np.int64)
     return line_no, names, vals[:, 0], vals[:, 1:4], is_set[:, 1:4], vals[:, 4:8], is_set[:, 4:8]
