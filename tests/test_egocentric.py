@@ -34,16 +34,18 @@ def test_avatar_equal_to_user_maps_every_target_onto_itself(user, seed):
     pts = _targets(joints, seed)
     out = eg.retarget_points(pts, TARGETS, us, us, chunk=7)
     np.testing.assert_allclose(out, pts, atol=1e-9, rtol=0)
+    out = eg.retarget_points(pts, TARGETS, us, us, turn_v=True)
+    np.testing.assert_allclose(out, pts, atol=1e-9, rtol=0)
 
 
-@pytest.mark.parametrize("s, falloff", [(1.35, 2.0), (0.62, 2.0), (1.2, 4.0)])
-def test_uniformly_scaled_avatar_scales_every_target(user, s, falloff):
+@pytest.mark.parametrize("s, falloff, turn_v", [(1.35, 2.0, False), (0.62, 2.0, False), (1.2, 4.0, True)])
+def test_uniformly_scaled_avatar_scales_every_target(user, s, falloff, turn_v):
     joints, rots = _posed(user, 30, 3)
     avatar = rb.scale_model(user, s)
     us = eg.pose_surface(user, joints, rots)
     av = eg.pose_surface(avatar, {k: v * s for k, v in joints.items()}, rots)
     pts = _targets(joints, 3)
-    out = eg.retarget_points(pts, TARGETS, us, av, falloff=falloff)
+    out = eg.retarget_points(pts, TARGETS, us, av, falloff=falloff, turn_v=turn_v)
     np.testing.assert_allclose(out, s * pts, atol=1e-9, rtol=0)
 
 
@@ -234,3 +236,23 @@ def test_kinematic_normalisation_stretches_a_reach_with_longer_arms():
     torso = us.element_ids.index("mesh:torso")
     assert d["ratio"][0, 0, torso] > 1.2  # the arm's share of the chain grew by 1.5
     assert 1.15 * reach_user < got < reach_avatar
+
+
+def test_turned_contribution_keeps_its_angle_to_a_tilted_surface(user):
+    # A target 3 cm straight out of a torso triangle: on an avatar whose belly is pushed forward
+    # (triangles tilted), turn_v carries v along the avatar triangle's normal, so the mapped point
+    # stays 3 cm out of it along its normal; the world v of eq. 1 keeps the user's direction.
+    big = rb.make_body_model(belly=0.15)
+    rest = {k: v.world[None] for k, v in user.joints.items()}
+    rights = {b: i.right[None] for b, i in user.bones.items()}
+    rots = rb.bone_frames(rest, rights)
+    us, av = eg.pose_surface(user, rest, rots), eg.pose_surface(big, rest, rots)
+    t = us.mesh_slices[0][0] + 4
+    target = us.tri[:, t].mean(axis=1) + 0.03 * us.tri_normal[:, t]
+    pr = eg._project(target[:, None], us, 0.0)
+    x, v = eg._repose(pr, us, av, turn_v=True)
+    torso = us.element_ids.index("mesh:torso")
+    np.testing.assert_allclose(v[:, 0, 0, torso], 0.03 * av.tri_normal[0, t], atol=1e-12)
+    _, v_world = eg._repose(pr, us, av)
+    np.testing.assert_allclose(v_world[:, 0, 0, torso], 0.03 * us.tri_normal[0, t], atol=1e-12)
+    assert np.dot(us.tri_normal[0, t], av.tri_normal[0, t]) < 0.999  # the triangle did tilt

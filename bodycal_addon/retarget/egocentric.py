@@ -527,7 +527,17 @@ def _triangle_factor(v, normal, tol):
     return np.maximum(cos, 0.0)
 
 
-def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
+def _triangle_frames(tri, normal):
+    """(F, T, 3, 3) frames of triangles: columns first edge, normal x edge, normal."""
+    e1 = tri[:, :, 1] - tri[:, :, 0]
+    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-15)
+    return np.stack([e1, np.cross(normal, e1), normal], axis=-1)
+
+
+def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
+    """(x', v'): x' re-posed on the avatar (see `repose`); v' = v, or with `turn_v` the user's v
+    carried by each element's local frame onto the avatar's (bone frame for capsules and spheres,
+    triangle frame for meshes), so it keeps its angle to the avatar's surface."""
     F, P = pr.dist.shape[:2]
     C, S, M = avatar.counts
     a = _comp(avatar.caps_head)[:, :, None, :]
@@ -535,10 +545,11 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
     t = pr.cap_t
     r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
     # The same direction in the bone frame: turned by R' R^T, frame by frame.
-    rel = avatar.caps_rot @ np.swapaxes(user.caps_rot, -1, -2)
-    cap = a + t * ab + r * _apply(_rot_comp(rel), pr.cap_dir)
-    rel = avatar.sph_rot @ np.swapaxes(user.sph_rot, -1, -2)
-    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(_rot_comp(rel), pr.sph_dir)
+    cap_rel = _rot_comp(avatar.caps_rot @ np.swapaxes(user.caps_rot, -1, -2))
+    cap = a + t * ab + r * _apply(cap_rel, pr.cap_dir)
+    sph_rel = _rot_comp(avatar.sph_rot @ np.swapaxes(user.sph_rot, -1, -2))
+    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(sph_rel, pr.sph_dir)
+    v_parts = [_apply(cap_rel, pr.v[..., :C]), _apply(sph_rel, pr.v[..., C:C + S])] if turn_v else None
     if M:
         same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices,
                                                                                  avatar.mesh_slices)])
@@ -551,6 +562,13 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
             corner = _comp(avatar.tri[:, :, k])
             for i in range(3):
                 mesh[i] += pr.tri_bary[k] * corner[i][fi, idx]
+        if turn_v:
+            to_avatar = np.concatenate([np.arange(us, ue) + (as_ - us) if ok else np.full(ue - us, as_)
+                                        for (us, ue), (as_, _), ok in zip(user.mesh_slices, avatar.mesh_slices, same)])
+            rel = (_triangle_frames(avatar.tri, avatar.tri_normal)[:, to_avatar]
+                   @ np.swapaxes(_triangle_frames(user.tri, user.tri_normal), -1, -2))  # (F, T, 3, 3)
+            rel = np.ascontiguousarray(rel.transpose(2, 3, 0, 1))[:, :, fi, pr.tri_index]  # (3, 3, F, P, M)
+            mesh_v = _apply(rel, pr.v[..., C + S:])
         if not same.all():
             # Different triangles (e.g. palms with other point counts): the element bone's frame,
             # scaled by the bone length ratio.
@@ -558,11 +576,19 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
             xm = pr.x[:, :, :, C + S + bad]
             local = _apply_t(_rot_comp(user.mesh_rot[:, bad]), xm - _comp(user.mesh_head[:, bad])[:, :, None, :])
             scale = avatar.mesh_scale[bad] / np.maximum(user.mesh_scale[bad], 1e-9)
+            bone_rel = _rot_comp(avatar.mesh_rot[:, bad] @ np.swapaxes(user.mesh_rot[:, bad], -1, -2))
             mesh[:, :, :, bad] = (_comp(avatar.mesh_head[:, bad])[:, :, None, :]
                                   + _apply(_rot_comp(avatar.mesh_rot[:, bad]), local * scale))
+            if turn_v:
+                mesh_v[:, :, :, bad] = _apply(bone_rel, pr.v[..., C + S + bad])
+        if turn_v:
+            v_parts.append(mesh_v)
     else:
         mesh = np.zeros((3, F, P, 0))
-    return np.concatenate([cap, sph, mesh], axis=-1)
+        if turn_v:
+            v_parts.append(np.zeros((3, F, P, 0)))
+    x = np.concatenate([cap, sph, mesh], axis=-1)
+    return x, (np.concatenate(v_parts, axis=-1) if turn_v else pr.v)
 
 
 def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
@@ -575,7 +601,7 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
     sph_dir = _apply(_rot_comp(user.sph_rot), m(proj.sph_dir, -1, 0))
     pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, cap_dir, sph_dir,
                proj.tri_index, m(proj.tri_bary, -1, 0))
-    return m(_repose(pr, user, avatar), 0, -1)
+    return m(_repose(pr, user, avatar)[0], 0, -1)
 
 
 # --- weights -----------------------------------------------------------------------------------
@@ -702,6 +728,7 @@ def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
 def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
                     avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
+                    turn_v: bool = False,
                     chunk: int = 32, penetration_tolerance: float = PENETRATION_TOLERANCE,
                     details: dict | None = None) -> np.ndarray:
     """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
@@ -715,6 +742,8 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     (τ' = the avatar's bone lengths along the user's current bone directions).
     floor: include the floor contribution (the vertical singularity handled as eq. 1).
     falloff: exponent of the raw weights' distance law (paper: 2); the invariants hold for any.
+    turn_v: carry each v_ij by its element's local frame (bone / triangle frame) onto the avatar's
+    instead of adding it as a world vector (eq. 1 as printed); see _repose.
     details: if a dict is given, it receives the weights of the last chunk ("lam", "lam_g",
     "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
 
@@ -748,12 +777,12 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
         e = min(F, s + step)
         out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e),
                                    ubt[:, :, s:e], lrt[:, s:e], nodes_u[:, s:e], nodes_a[:, s:e],
-                                   floor, penetration_tolerance, details, falloff)
+                                   floor, penetration_tolerance, details, falloff, turn_v)
     return out
 
 
 def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lratio, nodes_u, nodes_a, floor, tol,
-                    details, falloff=2.0):
+                    details, falloff=2.0, turn_v=False):
     F, P = p.shape[:2]
     pr = _project(p, us, tol)
     E = pr.dist.shape[2]
@@ -762,7 +791,7 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
     lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
-    x_av = _repose(pr, us, av)  # (3, F, P, E)
+    x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
 
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values) for every chain:
     # τ = Σ_k |v̂·b_k| + |v̂·(x - r)|, τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|.
@@ -786,7 +815,7 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
     ratio[:, plan.chain_pe] = np.divide(tau_a, tau, out=np.ones_like(tau), where=tau > 1e-12)
     ratio = ratio.reshape(F, P, E)
 
-    est = x_av + pr.v * ratio  # (3, F, P, E)
+    est = x_av + v_av * ratio  # (3, F, P, E)
     horizontal = np.stack([(est[i] * lam).sum(-1) for i in range(2)], axis=-1)
     # No element with weight (all excluded): keep the user's horizontal position.
     none = lam.sum(-1) <= 0
