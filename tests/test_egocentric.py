@@ -256,3 +256,15 @@ def test_turned_contribution_keeps_its_angle_to_a_tilted_surface(user):
     _, v_world = eg._repose(pr, us, av)
     np.testing.assert_allclose(v_world[:, 0, 0, torso], 0.03 * us.tri_normal[0, t], atol=1e-12)
     assert np.dot(us.tri_normal[0, t], av.tri_normal[0, t]) < 0.999  # the triangle did tilt
+
+
+def test_empty_inputs_and_unknown_targets(user):
+    joints, rots = _posed(user, 3, 11)
+    us = eg.pose_surface(user, joints, rots)
+    assert eg.retarget_points(np.zeros((3, 0, 3)), [], us, us).shape == (3, 0, 3)
+    none = eg.pose_surface(user, {k: v[:0] for k, v in joints.items()}, {k: v[:0] for k, v in rots.items()})
+    assert eg.retarget_points(np.zeros((0, 2, 3)), ["wrist_l", "knee_r"], none, none).shape == (0, 2, 3)
+    with pytest.raises(BodyCalError, match="not on the kinematic tree"):
+        eg.retarget_points(np.zeros((3, 1, 3)), ["spine_07"], us, us)
+    with pytest.raises(BodyCalError, match="targets must be"):
+        eg.retarget_points(np.zeros((3, 2, 3)), ["wrist_l"], us, us)

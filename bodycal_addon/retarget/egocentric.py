@@ -93,7 +93,7 @@ def kinematic_path(start: str, end: str) -> tuple[int, ...]:
     if start not in GRAPH_NODES or end not in GRAPH_NODES:
         bad = start if start not in GRAPH_NODES else end
         raise BodyCalError(f"joint '{bad}' is not on the kinematic tree of the egocentric mapping",
-                           hint=f"targets and element roots must be among: {', '.join(GRAPH_NODES)}")
+                           hint="use limb, hand, finger or foot joints, pelvis, spine_05, skull_base or head")
     adj = _adjacency()
     prev: dict[str, tuple[str, int] | None] = {start: None}
     queue = deque([start])
