@@ -154,3 +154,20 @@ def test_spine_straight_above_but_too_close_bends_in_the_sagittal_plane():
     np.testing.assert_allclose(res.joints[:, -1], skull, atol=1e-6)
     np.testing.assert_allclose(res.joints[..., 0], 0.0, atol=1e-9)  # no lateral bend
     assert res.joints[0, 1, 1] > 0  # the first vertebra leans toward the sacrum's -Z (world +Y)
+
+
+def test_hinge_hint_takes_over_when_the_user_limb_is_straight():
+    rng = np.random.default_rng(4)
+    n = 50
+    root = np.zeros((n, 3))
+    target = np.tile([0.0, 0.0, -0.45], (n, 1))
+    hint = np.tile([1.0, 0.0, 0.0], (n, 1))
+    expected = np.cross(_unit(target - root), hint)  # swivel = axis x hint
+    # A straight user arm: its elbow sits on the axis up to 0.1 mm of noise.
+    straight = np.tile([0.0, 0.0, -0.3], (n, 1)) + rng.normal(scale=1e-4, size=(n, 3))
+    res = ik.two_bone(root, 0.3, 0.26, target, user_swivel_dir=straight, flex_axis_hint=hint)
+    assert np.degrees(np.arccos(np.clip(np.einsum("fi,fi->f", res.swivel_dir, expected), -1, 1))).max() < 1.5
+    # A bent user arm agreeing with its hinge keeps exactly that swivel.
+    bent = np.tile([0.0, 0.0, -0.2], (n, 1)) + 0.1 * expected
+    res = ik.two_bone(root, 0.3, 0.26, target, user_swivel_dir=bent, flex_axis_hint=hint)
+    np.testing.assert_allclose(res.swivel_dir, expected, atol=1e-12)

@@ -20,6 +20,7 @@ import numpy as np
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
+SWIVEL_HINT_WEIGHT = 0.01  # m: see two_bone
 
 
 def _dot(a, b):
@@ -81,8 +82,9 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
       the root-target axis sets the blend t of eq. 7 and its direction gives the swivel β.
     user_swivel_dir: (F, 3) the user's swivel γ as a direction from the user's root-effector axis
       toward the user's intermediate joint (only its part perpendicular to the avatar's axis is
-      used); where it vanishes (a straight user limb) or is None, `flex_axis_hint`, the user's
-      hinge axis (forearm/shin +X, world), gives it: swivel = axis x hint.
+      used). `flex_axis_hint`: the user's hinge axis (forearm/shin +X, world), whose swivel is
+      axis x hint; with both, the hint is added with the weight of a 1 cm offset, so it takes
+      over smoothly as the user's limb straightens; with the hint alone it is the swivel.
     Returns TwoBoneResult. Unreachable targets: the limb fully extended toward the target; too
     close (d < |l1 - l2|): folded as far as possible toward it; target on the root: the axis is
     taken toward the pole target (else straight down). Never NaN.
@@ -110,8 +112,13 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
         hint_dir = _unit(np.cross(axis, np.asarray(flex_axis_hint, float)), any_perp)[0]
     gamma_dir = hint_dir
     if user_swivel_dir is not None:
-        gamma_dir, gn = _perp_unit(np.asarray(user_swivel_dir, float), axis, hint_dir)
-        gamma_dir = np.where((gn > 1e-6)[..., None], gamma_dir, hint_dir)
+        w = np.asarray(user_swivel_dir, float)
+        w = w - _dot(w, axis)[..., None] * axis
+        if flex_axis_hint is not None:
+            # The hinge axis takes over smoothly as the user's limb straightens (its mid joint then
+            # says nothing about the swivel): a 1 cm offset weighs as much as the hint.
+            w = w + SWIVEL_HINT_WEIGHT * hint_dir
+        gamma_dir = _unit(w, hint_dir)[0]
     # β: the swivel through the pole target; t from its distance to the axis (eq. 7-8).
     if pole_target is not None:
         rel = np.asarray(pole_target, float) - root
