@@ -756,60 +756,76 @@ def _world_dir(G, bone: str, d_local) -> np.ndarray:
     return _mv(G[:, _BONE_INDEX[bone]], np.asarray(d_local, float))
 
 
-def _touch_clip(perf: Performer, profile: str, point: str, fps: float) -> _Clip:
+def _touch_plan(perf: Performer, profile: str, points) -> tuple[str, float, float]:
+    """(toucher side, crouch k, trunk twist) for touching every point of `points` (one point, or a
+    foot's sole outline, which then shares one posture so the hand moves little between them).
+
+    The opposite hand by default (FORMATS.md §2.4); the same-side hand only where the opposite one
+    cannot reach (the far side of the foot). Among postures, the least crouched and least turned
+    one from which the hand reaches with a margin (evaluated in one batch)."""
+    side = _point_side(points[0])
+    torso = points[0] in sl.TORSO_POINTS
+    first = (side or "r") if torso and points[0].startswith("back_") else (OTHER[side] if side else "r")
+    fingers = "grip" if profile == "minimal" else "point"
+    best = None
+    for toucher in (first, OTHER[first]) if side else (first,):
+        _, eff_local = _effector(perf, profile, _by(profile, torso, toucher))
+        turns = (0.0, 0.35, 0.7) if side and side != toucher else (0.0, 0.35, -0.35, 0.7, -0.7)
+        tw_sign = -SIDE_SIGN[toucher] if side and side != toucher else 1.0
+        grid = [(float(k), tw_sign * tw) for k in np.linspace(0.0, 1.3, 14) for tw in turns]
+        K, TW = np.array(grid).T
+        bad = np.zeros(len(grid))
+        for point in points:
+            bone, local, nrm = perf.surface_points[point]
+            clip = _posture(perf, len(grid), K, fingers=fingers, twist=TW)
+            _touched_limb(perf, clip, point, side)
+            G, Hd = _fk(perf, clip.root_pos, clip.root_rot, clip.local)
+            tgt = _point(G, Hd, bone, local)
+            nw = _world_dir(G, bone, nrm)
+            R = _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, torso and profile == "full", eff_local,
+                                floor=point.startswith("sole_") and profile == "full")
+            wrist = tgt - _mv(R, eff_local)
+            S = _joints_of(perf, G, Hd, f"shoulder_{toucher}")
+            L1 = perf.length[_BONE_INDEX[f"upperarm_{toucher}"]]
+            L2 = perf.length[_BONE_INDEX[f"forearm_{toucher}"]]
+            dist = np.linalg.norm(wrist - S, axis=-1)
+            bad = np.maximum(bad, np.maximum(dist - (L1 + L2 - 0.02), abs(L1 - L2) + 0.02 - dist))
+        bad = np.maximum(bad, 0.0)
+        ok = np.flatnonzero(bad == 0.0)
+        if len(ok):
+            return (toucher,) + grid[ok[0]]
+        if best is None or bad.min() < best[0]:
+            best = (bad.min(), (toucher,) + grid[int(np.argmin(bad))])
+    return best[1]  # nothing reaches with a margin: the closest (ik_miss reports any shortfall)
+
+
+def _touch_clip(perf: Performer, profile: str, point: str, fps: float, plan=None) -> _Clip:
     """Approach, hold still on the true surface point, retreat (one `touch` segment = the hold)."""
     side = _point_side(point)
     torso = point in sl.TORSO_POINTS
-    first = (side or "r") if torso and point.startswith("back_") else (OTHER[side] if side else "r")
     fingers = "grip" if profile == "minimal" else "point"
     t_app, t_hold = 0.45, 0.6
     na, nh = max(int(round(t_app * fps)), 2), max(int(round(t_hold * fps)), 3)
     n = 2 * na + nh
     bone, local, nrm = perf.surface_points[point]
-    chosen, best = None, None
-    # The opposite hand by default (FORMATS.md §2.4); the same-side hand only where the opposite
-    # one cannot reach (the far side of the foot). Among postures, the least crouched and least
-    # turned one from which the hand reaches with a margin (evaluated in one batch).
-    for toucher in (first, OTHER[first]) if side else (first,):
-        by = _by(profile, torso, toucher)
-        eff_bone, eff_local = _effector(perf, profile, by)
-        turns = (0.0, 0.35, 0.7) if side and side != toucher else (0.0, 0.35, -0.35, 0.7, -0.7)
-        tw_sign = -SIDE_SIGN[toucher] if side and side != toucher else 1.0
-        grid = [(float(k), tw_sign * tw) for k in np.linspace(0.0, 1.3, 14) for tw in turns]
-        K, TW = np.array(grid).T
-        clip = _posture(perf, len(grid), K, fingers=fingers, twist=TW)
-        _touched_limb(perf, clip, point, side)
-        G, Hd = _fk(perf, clip.root_pos, clip.root_rot, clip.local)
-        tgt = _point(G, Hd, bone, local)
-        nw = _world_dir(G, bone, nrm)
-        R = _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, torso and profile == "full", eff_local)
-        wrist = tgt - _mv(R, eff_local)
-        S = _joints_of(perf, G, Hd, f"shoulder_{toucher}")
-        L1, L2 = perf.length[_BONE_INDEX[f"upperarm_{toucher}"]], perf.length[_BONE_INDEX[f"forearm_{toucher}"]]
-        dist = np.linalg.norm(wrist - S, axis=-1)
-        bad = np.maximum(np.maximum(dist - (L1 + L2 - 0.02), abs(L1 - L2) + 0.02 - dist), 0.0)
-        ok = np.flatnonzero(bad == 0.0)
-        if len(ok):
-            chosen = grid[ok[0]]
-            break
-        if best is None or bad.min() < best[0]:
-            best = (bad.min(), toucher, grid[int(np.argmin(bad))])
-    if chosen is None:  # nothing reaches with a margin: the closest (ik_miss reports any shortfall)
-        _, toucher, chosen = best
-        by = _by(profile, torso, toucher)
-        eff_bone, eff_local = _effector(perf, profile, by)
+    toucher, *chosen = plan or _touch_plan(perf, profile, [point])
+    by = _by(profile, torso, toucher)
+    eff_bone, eff_local = _effector(perf, profile, by)
     # The body holds still during a touch: pose it once, then only the touching arm moves.
     clip = _posture(perf, 1, chosen[0], fingers=fingers, twist=chosen[1])
     _touched_limb(perf, clip, point, side)
     G, Hd = _fk(perf, clip.root_pos, clip.root_rot, clip.local)
     tgt = _point(G, Hd, bone, local)
     nw = _world_dir(G, bone, nrm)
-    R = _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, torso and profile == "full", eff_local)
+    R = _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, torso and profile == "full", eff_local,
+                        floor=point.startswith("sole_") and profile == "full")
     clip = _Clip(n, np.repeat(clip.root_pos, n, 0), np.repeat(clip.root_rot, n, 0),
                  {k: np.repeat(v, n, 0) for k, v in clip.local.items()}, np.ones((n, 2), bool))
-    # The approach path: along the surface normal, 8 cm away, easing in and out.
+    # The approach path: along the surface normal, 8 cm away, easing in and out; on the floor from
+    # 15 cm straight above (the hand never dips below the floor between touches).
     w = np.concatenate([1 - _smooth(np.linspace(0, 1, na)), np.zeros(nh), _smooth(np.linspace(0, 1, na))])
-    _arm_ik(perf, clip, toucher, tgt + nw * (0.08 * w)[:, None], np.repeat(R, n, 0), eff_local, exact=w == 0.0,
+    away = np.array([0.0, 0.0, 0.15]) if point.startswith("sole_") else 0.08 * nw
+    _arm_ik(perf, clip, toucher, tgt + away * w[:, None], np.repeat(R, n, 0), eff_local, exact=w == 0.0,
             fk=(G, Hd))
     clip.segments.append(("touch", na, na + nh - 1, point, by))
     clip.touches.append((point, bone, local, na, na + nh - 1))
@@ -828,7 +844,7 @@ def _point_side(point: str) -> str | None:
     return None
 
 
-def _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, palm: bool, eff_local) -> np.ndarray:
+def _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, palm: bool, eff_local, floor: bool = False) -> np.ndarray:
     n = len(tgt)
     S = _joints_of(perf, G, Hd, f"shoulder_{toucher}")
     up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (n, 3))
@@ -840,6 +856,12 @@ def _touch_hand_rot(perf, G, Hd, toucher, tgt, nw, palm: bool, eff_local) -> np.
     # Pointing: the effector's direction from the wrist goes into the surface, away from the shoulder.
     away = normalize(tgt - S)
     a = normalize(-0.5 * nw + away)
+    if floor:
+        # On the floor (sole outline): the hand flat, palm up, coming in horizontally, so the
+        # fingertip LED (nail side) touches the floor and the finger stays above it.
+        flat = np.array([1.0, 1.0, 0.0])
+        a = normalize(normalize(-nw * flat) + 0.5 * normalize(away * flat))
+        return _orient(normalize(eff_local * flat), np.array([0.0, 0.0, 1.0]), a, up)
     down = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (n, 3))
     b = np.where(np.abs((a * down).sum(-1, keepdims=True)) > 0.9,
                  np.broadcast_to(np.array([0.0, -1.0, 0.0]), (n, 3)), down)
@@ -1099,7 +1121,36 @@ def _transition(perf: Performer, a: _Clip, b: _Clip, n: int) -> _Clip:
     clip = _Clip(n, root, rr, loc, planted)
     # Feet planted at both ends stay planted in between (leg IK on the interpolated body).
     _plant_feet(perf, clip, sides=[s for i, s in enumerate(sk.SIDES) if planted[0, i]])
+    _keep_hands_above_floor(perf, clip)
     return clip
+
+
+_HAND_JOINTS = {s: np.array([sk.JOINT_INDEX[j] for j in sk.JOINTS
+                             if j == f"wrist_{s}" or (j.endswith(f"_{s}") and j.split("_")[0] in sk.FINGER_JOINTS)])
+                for s in sk.SIDES}
+
+
+def _keep_hands_above_floor(perf: Performer, clip: _Clip) -> None:
+    """Interpolating between two crouched reaching poses can sweep a hand through the floor: lift
+    the hand (same orientation, same elbow swivel) by what it dips, smoothly, with arm IK."""
+    G, Hd = _fk(perf, clip.root_pos, clip.root_rot, clip.local)
+    J = _joints(perf, G, Hd)
+    for side in sk.SIDES:
+        dip = np.maximum(-J[:, _HAND_JOINTS[side], 2].min(1) + 0.005, 0.0)
+        dip[[0, -1]] = 0.0
+        if dip.max() <= 0.005:
+            continue
+        k = max(clip.n // 6, 1)
+        pad = np.pad(dip, k, mode="edge")
+        env = np.max(np.lib.stride_tricks.sliding_window_view(pad, 2 * k + 1), axis=1)
+        env = np.convolve(np.pad(env, k, mode="edge"), np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
+        env *= np.sin(np.linspace(0.0, np.pi, clip.n)) ** 0.5  # zero at both ends: continuous
+        wrist = J[:, sk.JOINT_INDEX[f"wrist_{side}"]]
+        elbow = J[:, sk.JOINT_INDEX[f"elbow_{side}"]]
+        shoulder = J[:, sk.JOINT_INDEX[f"shoulder_{side}"]]
+        lift = np.stack([0 * env, 0 * env, env], -1)
+        _arm_ik(perf, clip, side, wrist + lift, G[:, _BONE_INDEX[f"hand_{side}"]], np.zeros(3),
+                pole=elbow - shoulder, fk=(G, Hd))
 
 
 # --- the session ---------------------------------------------------------------------------------------
@@ -1241,10 +1292,16 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
     if "touch" in steps:
         allowed = calibration_touch_points(profile)
         chosen = allowed if touch_points is None else list(touch_points)
+        plans = {}
+        for side in sk.SIDES:  # a foot's sole outline is touched from one posture, with one hand
+            soles = [p for p in chosen if p.startswith("sole_") and p.endswith(side)]
+            if soles:
+                plan = _touch_plan(perf, profile, soles)
+                plans.update({p: plan for p in soles})
         for p in chosen:
             if p not in perf.surface_points or p not in allowed:
                 raise BodyCalError(f"unknown touch point '{p}' for the {profile} profile", field="touch_points")
-            add(("touch", p), lambda p=p: _touch_clip(perf, profile, p, cf))
+            add(("touch", p), lambda p=p: _touch_clip(perf, profile, p, cf, plans.get(p)))
     motion_list = list(motions or ())
     if motion_list:
         for m in motion_list:

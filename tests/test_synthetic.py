@@ -399,3 +399,24 @@ def test_noise_free_recording_equals_the_true_device_poses(clean):
         assert np.dot(plane["normal"], [0, 0, 1]) < -0.99
         led = [rec.marker(f"hand_led{k}_{s}")[0][truth.ref_frame] for k in (1, 2, 3)]
         assert np.dot(np.cross(led[1] - led[0], led[2] - led[0]), rot[:, 2]) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("build,profile", [("child", "full"), ("tall", "full"), ("long_arms", "full"),
+                                           ("heavy", "minimal"), ("thin", "minimal"), ("child", "minimal")])
+def test_every_build_reaches_every_touch_above_the_floor(build, profile):
+    perf = sy.make_performer(build=build, seed=1)
+    rec, truth = sy.record_session(perf, profile=profile, fps=10.0, noise_mm=0.0, wobble_mm=0.0,
+                                   motions=sy.MOTIONS)
+    assert truth.ik_miss < 1e-9
+    # Nothing below the floor during any step or motion (between steps, a hand sweeping from one
+    # deep-crouch touch to the next is lifted by IK; at this low frame rate a few mm may remain).
+    for seg in rec.segments:
+        f = rec.frames(seg.start, seg.end)
+        assert truth.joints[f, :, 2].min() > -1e-9, seg.label
+    assert truth.joints[..., 2].min() > -0.03
+    assert {s.point for s in rec.segments_of("touch")} == set(sy.calibration_touch_points(profile))
+    for seg in rec.segments_of("touch"):
+        frames, world = truth.touch_tracks[seg.point]
+        if seg.by in rec.marker_names:
+            assert np.max(np.linalg.norm(rec.marker(seg.by)[0][frames] - world, axis=1)) < 1e-9, seg.point
