@@ -204,3 +204,16 @@ def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[d
         offsets.append(off)
     gaps = signed_gaps(arm, anim, queries, mesh)
     return [g - o for g, o in zip(gaps, offsets)]
+
+
+def sole_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> np.ndarray:
+    """World positions (F, N, 3) of the avatar's sole outline (`mesh:sole_<side>`) in the baked
+    pose: the floor-error measurement of DESIGN.md §7."""
+    rig = AvatarRig.from_model(avatar)
+    el = avatar.element(f"mesh:sole_{side}")
+    pose = rig.fk(anim.rotations, anim.root_location)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"foot_{side}"]]
+    frame = pose.frames[:, BI[f"foot_{side}"]] @ corr
+    ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
+    local = np.stack([p.local for p in el.points.values()])
+    return ankle[:, None] + np.einsum("fij,kj->fki", frame, local)
