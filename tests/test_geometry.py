@@ -192,3 +192,19 @@ def test_rigid_point_without_relative_motion_is_actionable():
     ra, pa, rb, pb, _, _ = _rigid_pair(100, swing=0.02, b_swing=0.0)
     with pytest.raises(BodyCalError, match=r"swing_hip_l: only \d+ degrees of motion recorded between"):
         geo.fit_rigid_point(ra, pa, rb, pb, name="swing_hip_l")
+
+
+def test_rotation_axis_exact():
+    from bodycal_addon import transforms as tf
+
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    base = tf.quat_to_matrix(_random_quat_g())
+    rel = tf.quat_to_matrix(tf.axis_angle_to_quat(axis, np.linspace(0, 2.0, 50))) @ base
+    found, swept = geo.fit_rotation_axis(rel)
+    assert abs(abs(found @ axis) - 1) < 1e-9
+    assert 110 < swept < 120
+
+
+def _random_quat_g():
+    q = rng.normal(size=4)
+    return q / np.linalg.norm(q)

@@ -22,6 +22,11 @@ against its radius (a 5 cm error on one hip of the average synthetic performer);
 fit stays within 2-4 mm (test_calibration.test_anchor_rigid_point_beats_the_sphere_under_wobble,
 benchmarks/bench_calibration.py).
 
+**Decision** (hinge axis): the circle's plane normal (paper 000) wobbles by several degrees with
+the trackers' soft-tissue motion over the 20-30 cm lever; the axis is taken from the two trackers'
+relative rotations instead (geometry.fit_rotation_axis), typically within 1° (the angle between
+the two is reported as `circle_axis_deg`; test_calibration.test_hinge_axis_from_rotations_...).
+
 **Decision** (hinge position): with both `<joint>_in` / `_out` touches the joint is their mean
 (paper 000: "calibrate its position as the average position between both points"); the circle
 gives the axis, and the distance of the touches' mean from it is reported (`touch_off_axis_mm`) as
@@ -34,7 +39,7 @@ import numpy as np
 
 from .. import skeleton as sk
 from .. import transforms as tf
-from ..geometry import fit_circle, fit_rigid_point, fit_sphere
+from ..geometry import fit_circle, fit_rigid_point, fit_rotation_axis, fit_sphere
 from . import touches as T
 from .common import Session, State
 
@@ -71,10 +76,17 @@ def hinge(session: Session, state: State, side: str, joint: str, touches: dict) 
     pts, used = session.relative_track(step, frame_role, anch_role, idx)
     fit = fit_circle(pts, name=step, robust=session.robust)
     kept = pts[fit.inliers]
-    right = hinge_right_sign(kept, fit.center, fit.normal)
+    # Decision (module docstring): the axis from the trackers' relative rotations, on the frames
+    # the circle's 2-sigma passes kept; the circle still gives the side of the articular limit.
+    _, fq, _ = session.pose(frame_role)
+    _, aq, _ = session.pose(anch_role)
+    rel = tf.quat_to_matrix(tf.quat_mul(tf.quat_conj(fq[used]), aq[used]))[fit.inliers]
+    axis, _ = fit_rotation_axis(rel, name=step)
+    right = hinge_right_sign(kept, fit.center, axis)
     centre = fit.center
     t_in, t_out = touches.get(f"{joint}_in_{side}"), touches.get(f"{joint}_out_{side}")
     q = fit.quality()
+    q["circle_axis_deg"] = round(float(np.degrees(np.arccos(min(1.0, abs(float(fit.normal @ axis)))))), 2)
     if t_in and t_out and t_in.role == frame_role and t_out.role == frame_role and t_in.rigid:
         mid = 0.5 * (t_in.local + t_out.local)
         pos = mid
