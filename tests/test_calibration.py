@@ -270,7 +270,7 @@ def test_operators_store_show_save_and_reload(tmp_path):
     assert np.linalg.norm(model.world("elbow_l") - truth["elbow"]) < 1e-4
     coll = bpy.data.collections[cs.COLLECTION]
     names = {o.name for o in coll.objects}
-    assert {"joint:elbow_l", "sphere:skull", "mesh:torso", "hinge:forearm_l"} <= names
+    assert {"joint:elbow_l", "sphere:skull", "mesh:torso", "hinge:forearm_l", "anchor:hip_r", "mesh:palm_l"} <= names
     np.testing.assert_allclose(bpy.data.objects["joint:elbow_l"].location, truth["elbow"], atol=1e-4)
     out = tmp_path / "u.body.json"
     assert bpy.ops.bodycal.save_user_model(filepath=str(out)) == {"FINISHED"}

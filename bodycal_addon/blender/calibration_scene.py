@@ -103,6 +103,10 @@ def show_helpers(scene, model: BodyModel) -> bpy.types.Collection:
             obj.display_type = "WIRE"
             obj["bodycal_helper"] = e.id
             coll.objects.link(obj)
+    radii = model.extra.get("joint_radii", {}) if isinstance(model.extra, dict) else {}
+    for joint in ("shoulder_l", "shoulder_r", "hip_l", "hip_r"):  # the anchor joints' spheres
+        if joint in model.joints and radii.get(joint):
+            _empty(coll, f"anchor:{joint}", model.world(joint), "SPHERE", float(radii[joint]))
     for bone in ("forearm_l", "forearm_r", "shin_l", "shin_r"):
         if bone in model.bones:
             head, rot = _bone_matrix(model, bone)
