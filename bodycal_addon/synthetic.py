@@ -291,9 +291,8 @@ def _build_geometry(perf: Performer) -> None:
         for f in sk.FINGERS:
             u, y = _MCP_UY[f]
             rf = radius[f"finger_{f}_{side}"]
-            mcp[f] = np.array([m * u * s, y * s * (1.0 if f != "middle" else 1.0), zp - rf])
+            mcp[f] = np.array([m * u * s, y * s, zp - rf])  # one finger radius behind the palm plane
             dirs[f] = normalize(np.array([m * 0.6, 0.8, 0.0])) if f == "thumb" else np.array([0.0, 1.0, 0.0])
-        mcp["middle"] = np.array([0.0, _MCP_UY["middle"][1] * s, 0.0])  # the hand bone's tail
         g["mcp"], g["dir"] = mcp, dirs
         zl = zp - thick - 0.006
         g["leds"] = np.array([[0.0, 0.015 * s, zl], [0.0, 0.070 * s, zl], [0.025 * s, 0.045 * s, zl]])
@@ -381,14 +380,7 @@ def _torso_geometry(perf: Performer, s: float, ts: float):
         yc = spine_y(z) + back_off - D / 2
         return np.array([u, yc + D / 2 * math.sqrt(max(1 - (u / A) ** 2, 0.0)), z])
 
-    def normal(fun, u, z, sign):
-        e = 1e-4
-        du = fun(u + e, z) - fun(u - e, z)
-        dz = fun(u, z + e) - fun(u, z - e)
-        n = normalize(np.cross(du, dz))
-        return n * sign if n[1] * sign < 0 or True else n
-
-    return zr, front, back, normal
+    return zr, front, back
 
 
 def _surface_points(perf: Performer, s: float, ts: float, hs: float) -> None:
@@ -400,7 +392,7 @@ def _surface_points(perf: Performer, s: float, ts: float, hs: float) -> None:
         return bone, rot[i].T @ (world - head[i]), rot[i].T @ normalize(n_world)
 
     # Torso: rest world points, stored in the nearest vertebra's frame (paper 000, appendix B).
-    zr, front, back, _ = _torso_geometry(perf, s, ts)
+    zr, front, back = _torso_geometry(perf, s, ts)
     spine = np.array([perf.rest[sk.spine_joint(k)] for k in range(sk.SPINE_COUNT + 1)])
     lat = 0.085 * s * ts
     spec = {"sternum": (front, 0.0, 0.32), "chest_l": (front, lat, 0.36), "chest_r": (front, -lat, 0.36),
@@ -505,7 +497,7 @@ def _mounts(perf: Performer, s: float, ts: float) -> None:
         b = f"foot_{side}"
         mounts[b] = (b, np.array([0.0, 0.5 * L[_BONE_INDEX[b]], -0.045 * s]))
     mounts["pelvis"] = ("sacrum", np.array([0.0, 0.06, -(0.12 * s * ts + 0.02)]))
-    zr, front, back, _ = _torso_geometry(perf, s, ts)
+    _, front, _ = _torso_geometry(perf, s, ts)
     i8 = _BONE_INDEX["spine_08"]
     p = front(0.0, perf.rest_head[i8][2]) + np.array([0.0, -0.02, 0.0])
     mounts["chest"] = ("spine_08", perf.rest_rot[i8].T @ (p - perf.rest_head[i8]))

@@ -420,3 +420,28 @@ def test_every_build_reaches_every_touch_above_the_floor(build, profile):
         frames, world = truth.touch_tracks[seg.point]
         if seg.by in rec.marker_names:
             assert np.max(np.linalg.norm(rec.marker(seg.by)[0][frames] - world, axis=1)) < 1e-9, seg.point
+
+
+def test_mesh_triangles_are_wound_outward(clean):
+    _, truth = clean
+    bm = truth.body_model()
+    J = truth.joints_world
+
+    def normals(element):
+        out = []
+        for a, b, c in element.triangles:
+            pa, pb, pc = (truth.touch_world(k) for k in (a, b, c))
+            out.append((np.cross(pb - pa, pc - pa), (pa + pb + pc) / 3))
+        return out
+
+    for s in sk.SIDES:
+        palm_n = truth.ref_bone_rot[sy._BONE_INDEX[f"hand_{s}"]][:, 2]  # out of the palm
+        assert all(n @ palm_n > 0 for n, _ in normals(bm.element(f"mesh:palm_{s}")))
+        assert all(n[2] < 0 for n, _ in normals(bm.element(f"mesh:sole_{s}")))
+    axis = J["skull_base"] - J["spine_root"]
+    for n, c in normals(bm.element("mesh:torso")):
+        r = c - J["spine_root"]
+        r -= (r @ axis) / (axis @ axis) * axis
+        assert n @ r > 0  # away from the spine
+    head = truth.touch_world("skull_top") - np.array([0, 0, truth.performer.skull_radius])
+    assert all(n @ (c - head) > 0 for n, c in normals(bm.element("mesh:jaw")))
