@@ -382,3 +382,49 @@ def test_csv_with_sidecar_checks_names_and_kinds(tmp_path):
     (tmp_path / "take.csv").write_text(text)
     with pytest.raises(BodyCalError, match=r"take.json: devices\[0\].kind: unknown kind 'wand'"):
         rio.load_recording(tmp_path / "take.csv")
+
+
+# ---------------------------------------------------------------------------------------------
+# The synthetic performer (bodycal_addon.synthetic) through the readers
+
+
+def _synthetic_session(**kw):
+    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    perf = synthetic.make_performer(build="average", seed=1)
+    return synthetic, synthetic.record_session(perf, calibration=["tpose", "palms_together"], motions=("clap",),
+                                               seed=1, **kw)
+
+
+def test_synthetic_session_round_trip_with_dropouts(tmp_path):
+    synthetic, (rec, truth) = _synthetic_session(profile="full", dropout_rate=0.02)
+    assert not rec.valid.all()  # dropouts happened
+    rec_path, _ = synthetic.write_session(tmp_path, "s", rec, truth)
+    back = rio.load_recording(rec_path, fill_gaps_s=0.0)
+    assert [(d.name, d.kind, d.role) for d in back.devices] == [(d.name, d.kind, d.role) for d in rec.devices]
+    np.testing.assert_array_equal(back.valid, rec.valid)
+    np.testing.assert_allclose(back.positions[rec.valid], rec.positions[rec.valid], atol=1e-6)
+    same = np.sign((back.rotations * rec.rotations).sum(-1, keepdims=True))
+    np.testing.assert_allclose((back.rotations * same)[rec.valid], rec.rotations[rec.valid], atol=1e-6)
+    assert [s.label for s in back.segments] == [s.label for s in rec.segments]
+    filled = rio.load_recording(rec_path)  # default: gaps under 0.1 s filled
+    assert filled.valid.sum() > rec.valid.sum() and any("filled" in n for n in filled.notes)
+
+
+def test_synthetic_glove_frames_rebuilt_from_leds(tmp_path):
+    _synthetic, (rec, _truth) = _synthetic_session(profile="full", noise_mm=0.0, wobble_mm=0.0)
+    gloves = [i for i, d in enumerate(rec.devices) if d.role in ("hand_l", "hand_r")]
+    keep = [i for i in range(len(rec.devices)) if i not in gloves]
+    doc = recording_doc(rec)
+    for i in gloves:
+        del doc["poses"][rec.devices[i].name]
+    doc["devices"] = [doc["devices"][i] for i in keep]
+    path = tmp_path / "no_gloves.bcrec.json"
+    path.write_text(json.dumps(doc))
+    back = rio.load_recording(path)
+    for i in gloves:
+        role = rec.devices[i].role
+        p, q, ok = back.pose(role)
+        assert back.devices[back.device_index(role)].kind == "rigid_body" and ok.all()
+        np.testing.assert_allclose(p, rec.positions[:, i], atol=1e-9)
+        np.testing.assert_allclose(np.degrees(tf.quat_angle(tf.quat_mul(tf.quat_conj(q), rec.rotations[:, i]))), 0,
+                                   atol=1e-5)
