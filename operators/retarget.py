@@ -23,7 +23,7 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="egocentric")
     armature: bpy.props.PointerProperty(
         name="Avatar", type=bpy.types.Object, poll=lambda _self, obj: obj.type == "ARMATURE",
-        description="Armature to animate (default: the active armature)")
+        description="Armature to animate (default: the selected armatures)")
     replace: bpy.props.BoolProperty(
         name="Replace Action", default=False,
         description="Overwrite an existing action of the same name instead of creating a new one")
@@ -32,16 +32,19 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 
 
-def _target_armature(context):
+def _target_armatures(context) -> list:
+    """The avatar picked in the panel, else every selected armature (the active one first)."""
     settings = context.scene.bodycal_retarget
     if settings.armature is not None:
-        return settings.armature
-    obj = context.active_object
-    return obj if obj is not None and obj.type == "ARMATURE" else None
+        return [settings.armature]
+    active = context.active_object
+    selected = [o for o in context.selected_objects if o.type == "ARMATURE" and o != active]
+    return ([active] if active is not None and active.type == "ARMATURE" else []) + selected
 
 
 class BODYCAL_OT_retarget_bake(bpy.types.Operator):
-    """Retarget the scene's recording onto the avatar with the chosen method and bake a new action"""
+    """Retarget the scene's recording onto the avatar(s) with the chosen method and bake a new action
+on each"""
 
     bl_idname = "bodycal.retarget_bake"
     bl_label = "Retarget and Bake"
@@ -52,8 +55,8 @@ class BODYCAL_OT_retarget_bake(bpy.types.Operator):
         if context.mode not in {"OBJECT", "POSE"}:
             cls.poll_message_set("Switch to Object or Pose Mode to bake")
             return False
-        if _target_armature(context) is None:
-            cls.poll_message_set("Pick an avatar armature in the BodyCal tab (or make one active)")
+        if not _target_armatures(context):
+            cls.poll_message_set("Pick an avatar armature in the BodyCal tab (or select armatures)")
             return False
         problem = retarget_scene.missing_inputs(context.scene)
         if problem:
@@ -61,23 +64,25 @@ class BODYCAL_OT_retarget_bake(bpy.types.Operator):
             return False
         return True
 
-    def _inputs(self, context):
-        arm = _target_armature(context)
-        return retarget_scene.gather_inputs(context.scene, arm, context.scene.bodycal_retarget.method)
+    def _inputs(self, context) -> list:
+        method = context.scene.bodycal_retarget.method
+        return [retarget_scene.gather_inputs(context.scene, arm, method) for arm in _target_armatures(context)]
 
-    def _finish(self, context, inputs, anim):
+    def _finish(self, context, inputs: list, anims: list):
+        """Bake every avatar's animation: only once all of them were computed."""
         settings = context.scene.bodycal_retarget
-        summary = retarget_scene.bake_and_measure(inputs, anim, replace=settings.replace,
-                                                  push_to_nla=settings.push_to_nla)
-        settings.last_result = summary.line()
-        self.report({"INFO"}, summary.line())
+        lines = [retarget_scene.bake_and_measure(i, a, replace=settings.replace, push_to_nla=settings.push_to_nla
+                                                 ).line() for i, a in zip(inputs, anims)]
+        settings.last_result = "; ".join(lines)
+        for line in lines:
+            self.report({"INFO"}, line)
         return {"FINISHED"}
 
     def execute(self, context):
         try:
             inputs = self._inputs(context)
-            anim = retarget_scene.compute(inputs)
-            return self._finish(context, inputs, anim)
+            anims = [retarget_scene.compute(i) for i in inputs]
+            return self._finish(context, inputs, anims)
         except BodyCalError as exc:
             self.report({"ERROR"}, exc.line())
             return {"CANCELLED"}
@@ -95,10 +100,11 @@ class BODYCAL_OT_retarget_bake(bpy.types.Operator):
         self._result = {}
 
         def work():
+            n = len(self._inputs_cache)
             try:
-                self._result["anim"] = retarget_scene.compute(
-                    self._inputs_cache, progress=lambda f: setattr(self, "_progress", f),
-                    cancel=self._cancel.is_set)
+                self._result["anims"] = [retarget_scene.compute(
+                    inputs, progress=lambda f, k=k: setattr(self, "_progress", (k + f) / n),
+                    cancel=self._cancel.is_set) for k, inputs in enumerate(self._inputs_cache)]
             except BaseException as exc:  # reported on the main thread
                 self._result["error"] = exc
 
@@ -136,7 +142,7 @@ class BODYCAL_OT_retarget_bake(bpy.types.Operator):
         if error is not None:
             raise error
         try:
-            return self._finish(context, self._inputs_cache, self._result["anim"])
+            return self._finish(context, self._inputs_cache, self._result["anims"])
         except BodyCalError as exc:
             self.report({"ERROR"}, exc.line())
             return {"CANCELLED"}

@@ -144,11 +144,11 @@ def build_spec(name: str = "procedural", scale: float = 1.0, arm_drop_deg: float
         hand_end = wrist + 0.09 * out
         palm_down = -up - np.dot(-up, out) * out  # straight down, made perpendicular to the arm
         palm_down /= np.linalg.norm(palm_down)
-        bone(f"clavicle_{side}", [sx * 0.02, 0, 1.42], shoulder / s, "spine_03", fwd)
+        bone(f"clavicle_{side}", [sx * 0.02, 0, 1.42], shoulder, "spine_03", fwd)
         # Elbow flexion brings the hand forward: local +Z forward makes +X the flexion axis.
-        bone(f"upperarm_{side}", shoulder / s, elbow / s, f"clavicle_{side}", fwd)
-        bone(f"lowerarm_{side}", elbow / s, wrist / s, f"upperarm_{side}", fwd)
-        bone(f"hand_{side}", wrist / s, hand_end / s, f"lowerarm_{side}", palm_down)
+        bone(f"upperarm_{side}", shoulder, elbow, f"clavicle_{side}", fwd)
+        bone(f"lowerarm_{side}", elbow, wrist, f"upperarm_{side}", fwd)
+        bone(f"hand_{side}", wrist, hand_end, f"lowerarm_{side}", palm_down)
         finger_y = {"index": -0.030, "middle": -0.010, "ring": 0.010, "pinky": 0.028}
         lengths = {"index": (0.045, 0.027, 0.022), "middle": (0.050, 0.030, 0.024),
                    "ring": (0.046, 0.028, 0.022), "pinky": (0.036, 0.022, 0.019),
@@ -166,7 +166,7 @@ def build_spec(name: str = "procedural", scale: float = 1.0, arm_drop_deg: float
                 tail = head + length * direction
                 parent = f"hand_{side}" if i == 1 else f"{f}_{i - 1:02d}_{side}"
                 # Fingers curl toward the palm: local +Z toward the palm side.
-                bone(f"{f}_{i:02d}_{side}", head / s, tail / s, parent, palm_down)
+                bone(f"{f}_{i:02d}_{side}", head, tail, parent, palm_down)
                 head = tail
         capsule(f"upperarm_{side}", 0.050)
         capsule(f"lowerarm_{side}", 0.040)

@@ -57,6 +57,21 @@ def test_operator_bakes_a_new_action_and_reports_figures(belly_session):
     assert f"{rec.frame_count} frames" in settings.last_result and "reach p95" in settings.last_result
 
 
+def test_operator_bakes_every_selected_armature(belly_session):
+    rec, truth = belly_session
+    first = _scene_ready(rec, truth)
+    bpy.context.scene.bodycal_retarget.armature = None
+    second, _mesh, _spec = rigs.build_procedural_avatar(scale=0.7)
+    for arm in (first, second):
+        arm.select_set(True)
+    bpy.context.view_layer.objects.active = second
+    bpy.context.scene.bodycal_retarget.method = "rotations"
+    assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
+    assert first.animation_data.action.name == "belly|procedural|rotations"
+    assert second.animation_data.action.name == f"belly|{second.name}|rotations"
+    assert bpy.context.scene.bodycal_retarget.last_result.count("Baked") == 2
+
+
 def test_operator_error_is_one_line_and_changes_nothing(belly_session):
     rec, truth = belly_session
     arm = _scene_ready(rec, truth)

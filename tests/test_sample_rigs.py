@@ -76,3 +76,12 @@ def test_a_pose_lowers_the_arms():
     b = spec.bones["lowerarm_l"]
     d = (b.tail - b.head) / np.linalg.norm(b.tail - b.head)
     np.testing.assert_allclose(d, [np.cos(np.pi / 4), 0, -np.sin(np.pi / 4)], atol=1e-9)
+
+
+def test_procedural_scale_scales_every_bone_and_surface():
+    one, half = procedural.build_spec(scale=1.0), procedural.build_spec(scale=0.5)
+    for name, b in one.bones.items():
+        np.testing.assert_allclose(half.bones[name].head, 0.5 * b.head, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(half.bones[name].tail, 0.5 * b.tail, atol=1e-12, err_msg=name)
+    for p1, p2 in zip(one.parts, half.parts):
+        np.testing.assert_allclose(p2.vertices, 0.5 * p1.vertices, atol=1e-12, err_msg=p1.name)
