@@ -843,10 +843,14 @@ def finish_recording(rec: Recording, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S
     hold_untracked(rec.positions, rec.valid, rec.rotations)
     hold_untracked(rec.markers, rec.marker_valid)
     add_led_hand_frames(rec)
-    if identify_roles and any(d.role is None for d in rec.devices) and rec.segments_of("tpose"):
+    unknown = [d.name for d in rec.devices if d.role is None]
+    if identify_roles and unknown and rec.segments_of("tpose"):
         from .roles import apply_roles
 
         apply_roles(rec)
+    elif unknown:
+        rec.notes.append(f"no role for {', '.join(unknown)} and no tpose segment to identify them from "
+                         "(mark the T-pose on the timeline or give roles in the file)")
     return rec
 
 

@@ -110,8 +110,9 @@ def test_no_tpose_or_too_few_devices(tmp_path):
         roles.identify_roles(rec)
     path = tmp_path / "r.bcrec.json"
     path.write_text(json.dumps(recording_doc(rec)))
-    loaded = rio.load_recording(path)  # no tpose: roles stay unknown, no error at load
+    loaded = rio.load_recording(path)  # no tpose: roles stay unknown, no error at load, a note says so
     assert all(d.role is None for d in loaded.devices)
+    assert any("no tpose segment" in n for n in loaded.notes)
     rec = tpose_recording(roles=False, profile="minimal")
     rec.valid[:, 1:4] = False
     with pytest.raises(BodyCalError, match="only 3 devices tracked"):
