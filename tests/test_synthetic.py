@@ -445,3 +445,14 @@ def test_mesh_triangles_are_wound_outward(clean):
         assert n @ r > 0  # away from the spine
     head = truth.touch_world("skull_top") - np.array([0, 0, truth.performer.skull_radius])
     assert all(n @ (c - head) > 0 for n, c in normals(bm.element("mesh:jaw")))
+
+
+def test_touch_markers_are_on_the_surface_within_noise(perf):
+    rec, truth = sy.record_session(perf, fps=FPS, noise_mm=1.0, wobble_mm=3.0, calibration=["touch"],
+                                   touch_points=["knee_out_l", "jaw_r", "wrist_top_l"], motions=(), seed=8)
+    for seg in rec.segments_of("touch"):
+        frames, world = truth.touch_tracks[seg.point]
+        d = rec.marker(seg.by)[0][frames] - world
+        rms_mm = 1000 * np.sqrt(np.mean(np.sum(d * d, axis=1)))
+        assert rms_mm == pytest.approx(np.sqrt(3.0), rel=0.5), seg.point  # white noise only: LEDs on the nail
+        assert 1000 * np.linalg.norm(d.mean(0)) < 1.0
