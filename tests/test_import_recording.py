@@ -130,3 +130,22 @@ def test_operator_error_is_one_line_and_writes_nothing(tmp_path):
     assert "Traceback" not in msg
     assert (len(bpy.data.objects), len(bpy.data.collections), len(bpy.data.actions)) == before
     assert rs.scene_recording_collection(bpy.context.scene) is None
+
+
+def test_synthetic_session_survives_the_scene(tmp_path):
+    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    perf = synthetic.make_performer(build="thin", seed=4)
+    rec, _truth = synthetic.record_session(perf, profile="minimal", motions=("hand_on_head",), seed=4,
+                                           dropout_rate=0.01, calibration=["tpose", "stand", "touch"],
+                                           touch_points=["chin", "wrist_top_l"])
+    assert any(s.step == "touch" for s in rec.segments)
+    rs.import_recording_to_scene(rec, bpy.context)
+    path = tmp_path / "synthetic.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    back = rs.recording_from_scene(bpy.context.scene)
+    assert [(s.label, s.start, s.end) for s in back.segments] == \
+        [(s.label, s.start, s.end) for s in sorted(rec.segments, key=lambda s: s.start)]
+    np.testing.assert_array_equal(back.valid, rec.valid)
+    np.testing.assert_allclose(back.positions, rec.positions, atol=1e-5)
+    np.testing.assert_allclose(back.markers, rec.markers, atol=1e-5)
