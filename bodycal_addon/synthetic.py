@@ -1237,6 +1237,12 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
         raise BodyCalError(f"unknown profile '{profile}'", field="profile", hint="use 'full' or 'minimal'")
     if not fps > 0:
         raise BodyCalError("fps must be positive", field="fps")
+    for name, value, lo, hi in (("noise_mm", noise_mm, 0.0, 50.0), ("wobble_mm", wobble_mm, 0.0, 50.0),
+                                ("dropout_rate", dropout_rate, 0.0, 0.5), ("outlier_rate", outlier_rate, 0.0, 0.5)):
+        if not lo <= value <= hi:
+            raise BodyCalError(f"{name} must be within {lo:g}-{hi:g}, got {value!r}", field=name)
+    if motion_seconds is not None and not motion_seconds >= 0:
+        raise BodyCalError(f"motion_seconds must be >= 0, got {motion_seconds!r}", field="motion_seconds")
     perf = performer
     roles = FULL_ROLES if profile == "full" else MINIMAL_ROLES
     if profile == "full":

@@ -456,3 +456,10 @@ def test_touch_markers_are_on_the_surface_within_noise(perf):
         rms_mm = 1000 * np.sqrt(np.mean(np.sum(d * d, axis=1)))
         assert rms_mm == pytest.approx(np.sqrt(3.0), rel=0.5), seg.point  # white noise only: LEDs on the nail
         assert 1000 * np.linalg.norm(d.mean(0)) < 1.0
+
+
+@pytest.mark.parametrize("kw", [dict(profile="vr"), dict(noise_mm=-1.0), dict(dropout_rate=0.9), dict(fps=0.0),
+                                dict(motions=("dance",)), dict(touch_points=["nose"]), dict(calibration=["yoga"])])
+def test_bad_arguments_raise_one_clear_error(perf, kw):
+    with pytest.raises(sy.BodyCalError):
+        sy.record_session(perf, **kw)
