@@ -1230,7 +1230,9 @@ def record_session(performer: Performer, profile: str = "full", motions=MOTIONS,
     """Perform the calibration protocol (FORMATS.md §2.4) and the motions; returns
     (Recording in the internal frame, GroundTruth). `calibration` may be True, False or a list of
     step names to perform; `touch_points` restricts the touches (default: every one the profile
-    allows, see calibration_touch_points). `motion_seconds` repeats the motions to fill that time.
+    allows, see calibration_touch_points). `motion_seconds` repeats the motion list (whole motions,
+    each 5-6 s, with 0.5 s transitions) until at least that much motion time is recorded; None
+    performs each motion once.
     `pace` < 1 performs the calibration steps faster (a compact demo file); 1 is the protocol's
     natural pace (touches hold 0.6 s, flex / swing steps last 4.5-5 s)."""
     if profile not in PROFILES:
