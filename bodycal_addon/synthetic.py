@@ -1419,6 +1419,8 @@ def _assemble(perf, profile, roles, marker_names, results, seq, tpose_clip, fps,
     sl_ = slice(mid, mid + 1)
     G_ref, H_ref = _fk(perf, tpose_clip.root_pos[sl_], tpose_clip.root_rot[sl_],
                        {k: v[sl_] for k, v in tpose_clip.local.items()})
+    del parts
+    results.clear()  # the per-clip arrays are all copied by now: free them before the noise stage
     rng = np.random.default_rng([int(seed), 104729])
 
     # Devices, one at a time (memory stays ~ a few (F, 3, 3) arrays): wobble in the device's own
