@@ -37,6 +37,7 @@ METHODS = ("egocentric", "offsets", "rotations")
 TARGETS = tuple(
     [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
     + [f"tip_{f}_{s}" for s in sk.SIDES for f in sk.FINGERS] + ["skull_base"])
+ARM_PASSES = 2  # arm mappings per chunk (the second sees the arms where the first put them)
 LIMBS = {  # limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
     "leg": ("hip", "knee", "ankle", "thigh", "shin"),
@@ -84,7 +85,11 @@ class _Run:
             from . import egocentric as ego
 
             self.ego = ego
-            self.user_s, self.avatar_s = _surface_bones(user), _surface_bones(avatar)
+            # Both surfaces re-expressed in the engine's canonical bone frames: the mapping's surface
+            # coordinates (capsule angles, sphere directions) must mean the same side of the body
+            # on the user and on the avatar, whatever `right` each model's producer chose.
+            self.user_s = canonical_surface(_surface_bones(user), self.user_frames0, self.user_pos)
+            self.avatar_s = canonical_surface(_surface_bones(avatar), self.rig.frames0, complete_joints(avatar))
             self.ids = ego.common_elements(user, avatar)
             # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
             # against the body without the arms: arm, hand and finger elements are moved by the IK
@@ -103,9 +108,14 @@ class _Run:
                                                          self.user_pos[sk.BONE_BY_NAME[b].head])
                                           for b in self.graph_bones])
             self.sbones = surface_bone_indices(self.user_s, self.avatar_s)
-            self.ucorr = surface_correction(user, self.user_frames0, self.user_pos)
-            self.acorr = surface_correction(avatar, self.rig.frames0, complete_joints(avatar))
             have = {e.id for e in user.surface}
+            self.palm_local = {}  # side -> (user, avatar) palm centre in the canonical hand frame
+            for s in sk.SIDES:
+                eid = f"mesh:palm_{s}"
+                if eid in self.ids:
+                    self.palm_local[s] = tuple(
+                        np.mean([p.local for p in m.element(eid).points.values()], axis=0)
+                        for m in (self.user_s, self.avatar_s))
             self.targets = [t for t in TARGETS if not t.startswith("tip_") or
                             any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have)]
         elif method == "offsets":
@@ -143,30 +153,63 @@ class _Run:
         return self._offsets(up, fk, start, stop)
 
     def _egocentric(self, up, fk, pelvis):
+        """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
+        without the arms and solved; then the arms and fingers, mapped against the body with the
+        trunk and legs already where the IK put them. Targets are mapped relative to the posed
+        avatar, so a hand resting on a thigh must be mapped against the thigh where it ends up,
+        not where the rotation copy had put it; and arm elements, which the IK moves last, must not
+        pull the head or the feet."""
         ego = self.ego
-        uj, uf = _jd(up.joints), _fd(up.frames, self.ucorr, self.sbones)
-        aj, af = _jd(fk.joints), _fd(fk.frames, self.acorr, self.sbones)
-        us = ego.pose_surface(self.user_s, uj, uf, self.ids)
-        av = ego.pose_surface(self.avatar_s, aj, af, self.ids)
-        names = [n for n in self.targets if n != "skull_base"]
-        pts = up.joints[:, [JI[n] for n in names]]
+        uj, uf = _jd(up.joints), _fd(up.frames, self.sbones)
         heads = up.joints[:, self.bone_heads]
         tails = up.joints[:, self.bone_tails]
         vec = normalize(tails - heads) * self.user_lengths[:, None]
         ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
-        tg = ego.retarget_points(pts, list(names), us, av, user_bones=ub)
-        targets = {n: tg[:, i] for i, n in enumerate(names)}
+        lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
+        upper = [n for n in self.targets if n not in lower]
+        targets = {}
         if self.trunk_ids:
             ust = ego.pose_surface(self.user_s, uj, uf, self.trunk_ids)
-            avt = ego.pose_surface(self.avatar_s, aj, af, self.trunk_ids)
-            targets["skull_base"] = ego.retarget_points(up.joints[:, [JI["skull_base"]]], ["skull_base"], ust, avt,
-                                                        user_bones=ub)[:, 0]
+            avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.sbones), self.trunk_ids)
+            tg = ego.retarget_points(up.joints[:, [JI[n] for n in lower]], lower, ust, avt, user_bones=ub)
+            targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         frames = self._ik(up, fk, pelvis, targets)
+        mid = self.rig.solve(frames, pelvis, basis=False)
+        us = ego.pose_surface(self.user_s, uj, uf, self.ids)
+        pts = up.joints[:, [JI[n] for n in upper]].copy()
+        # Decision: the hand is mapped through the centre of its palm, the part that touches, and
+        # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
+        # is copied): wrist and palm are a hand's size apart, and hands differ.
+        for s, (u_loc, _) in self.palm_local.items():
+            pts[:, upper.index(f"wrist_{s}")] += up.frames[:, BI[f"hand_{s}"]] @ u_loc
+        arm_frames = frames
+        pose = mid
+        previous = None
+        for _ in range(ARM_PASSES):
+            # Each pass maps the arms against the avatar as the previous pass left it, so a hand
+            # touching the other hand (or arm) meets it where that one ends up. Both hands move
+            # toward each other at once, so later passes go half way (no overshoot).
+            av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
+            tg = ego.retarget_points(pts, upper, us, av, user_bones=ub)
+            if previous is not None:
+                tg = 0.5 * (tg + previous)
+            previous = tg
+            arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
+            for s, (_, a_loc) in self.palm_local.items():
+                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - mid.frames[:, BI[f"hand_{s}"]] @ a_loc
+            arm_frames = self._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
+            pose = self.rig.solve(arm_frames, pelvis, basis=False)
+        frames = arm_frames
+        targets.update(arm_targets)
         return self.rig.solve(frames, pelvis, realised=False), targets
 
-    def _ik(self, up, fk, pelvis, targets, hands=None):
+    def _ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
+        """Avatar IK (appendix E, DESIGN.md §6) toward the targets present: the spine when there is
+        a skull-base target, then each limb whose effector has a target, then the fingers.
+        `frames` (default: the user's, copied) are updated; `trunk` is the rig pose the limbs
+        start from (default: solved here after the spine)."""
         rig = self.rig
-        frames = up.frames.copy()
+        frames = up.frames.copy() if frames is None else frames
         # Spine aimed at the skull base (appendix D: the same two-pass solver as the user's); the
         # clavicles keep their pose relative to vertebra 5.
         if "skull_base" in targets:
@@ -182,7 +225,8 @@ class _Run:
                 c = BI[f"clavicle_{s}"]
                 frames[:, c] = res.rotations[:, sk.CLAVICLE_VERTEBRA - 1] @ np.swapaxes(up.frames[:, v5], -1, -2) \
                     @ up.frames[:, c]
-        trunk = rig.solve(frames, pelvis, basis=False, realised=False)
+        if trunk is None:
+            trunk = rig.solve(frames, pelvis, basis=False, realised=False)
         wrist_pos = {}
         for s in sk.SIDES:
             for limb, (a, m, e, ab, mb) in LIMBS.items():
@@ -268,10 +312,30 @@ def _jd(joints: np.ndarray) -> dict[str, np.ndarray]:
     return {j: joints[:, i] for i, j in enumerate(JOINTS)}
 
 
-def _fd(frames: np.ndarray, corr: np.ndarray, bones: list[int]) -> dict[str, np.ndarray]:
-    """The frames of the bones a surface rides on, as the model's own bone frames."""
-    fr = frames[:, bones] @ corr[bones]
-    return {BONES[b].name: fr[:, i] for i, b in enumerate(bones)}
+def _fd(frames: np.ndarray, bones: list[int]) -> dict[str, np.ndarray]:
+    """The frames of the bones a surface rides on."""
+    return {BONES[b].name: frames[:, b] for b in bones}
+
+
+def canonical_surface(model: BodyModel, frames0: np.ndarray, pos: dict) -> BodyModel:
+    """A copy of `model` whose sphere centres and mesh points are local to the engine's canonical
+    rest frames `frames0` (and whose bones' `right` are those frames' +X)."""
+    corr = surface_correction(model, frames0, pos)
+    out = copy.copy(model)
+    out.bones = {k: copy.copy(v) for k, v in model.bones.items()}
+    for name, b in out.bones.items():
+        if name in BI:
+            b.right = frames0[BI[name]][:, 0].copy()
+    out.surface = []
+    for e in model.surface:
+        e = copy.deepcopy(e)
+        if e.center is not None and e.bone in BI:
+            e.center = corr[BI[e.bone]] @ e.center
+        for p in e.points.values():
+            if p.bone in BI:
+                p.local = corr[BI[p.bone]] @ p.local
+        out.surface.append(e)
+    return out
 
 
 def surface_bone_indices(*models: BodyModel) -> list[int]:
