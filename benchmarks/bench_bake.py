@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 from bodycal_addon import transforms as tf  # noqa: E402
 from bodycal_addon.animation import AvatarAnimation  # noqa: E402
 from bodycal_addon.blender.bake import bake_animation  # noqa: E402
+from bodycal_addon.blender.fcurves import object_fcurves  # noqa: E402
 
 BONES = 60
 FRAMES = 5000
@@ -98,16 +99,8 @@ def bench_nla_bake(source, names):
                      clear_constraints=False, bake_types={"POSE"}, channel_types={"ROTATION"})
     elapsed = time.perf_counter() - t0
     bpy.ops.object.mode_set(mode="OBJECT")
-    keys = sum(len(fc.keyframe_points) for fc in _fcurves(rig))
+    keys = sum(len(fc.keyframe_points) for fc in object_fcurves(rig).values())
     return keys, elapsed
-
-
-def _fcurves(obj):
-    act = obj.animation_data.action
-    if hasattr(act, "fcurves") and len(act.fcurves):
-        return list(act.fcurves)
-    slot = obj.animation_data.action_slot
-    return [fc for layer in act.layers for strip in layer.strips for fc in strip.channelbag(slot).fcurves]
 
 
 def main():

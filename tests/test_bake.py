@@ -7,7 +7,8 @@ import pytest
 from bodycal_addon import paths
 from bodycal_addon import transforms as tf
 from bodycal_addon.animation import AvatarAnimation
-from bodycal_addon.blender.bake import bake_animation, continuous_quaternions
+from bodycal_addon.blender.bake import bake_animation
+from bodycal_addon.blender.fcurves import continuous_quaternions, object_fcurves
 from bodycal_addon.errors import BodyCalError
 
 rigs = paths.sample_rigs()
@@ -41,19 +42,11 @@ def test_keys_reproduce_the_animation_exactly_in_the_pose():
             np.testing.assert_allclose(got, q[f, b], atol=1e-6)
         np.testing.assert_allclose(np.array(arm.pose.bones["pelvis"].location), anim.root_location[f], atol=1e-6)
     # Between keys the curves interpolate linearly (dense samples: no overshoot).
-    fc = next(fc for fc in _fcurves(arm) if fc.data_path.endswith('"lowerarm_l"].rotation_quaternion')
+    fc = next(fc for fc in object_fcurves(arm).values() if fc.data_path.endswith('"lowerarm_l"].rotation_quaternion')
               and fc.array_index == 2)
     for f in (10, 64):
         mid = fc.evaluate(bpy.context.scene.frame_start + f + 0.5)
         assert abs(mid - (q[f, 1, 2] + q[f + 1, 1, 2]) / 2) < 1e-6
-
-
-def _fcurves(obj):
-    act = obj.animation_data.action
-    if hasattr(act, "fcurves") and len(act.fcurves):
-        return list(act.fcurves)
-    slot = obj.animation_data.action_slot
-    return [fc for layer in act.layers for strip in layer.strips for fc in strip.channelbag(slot).fcurves]
 
 
 def test_existing_action_is_kept_unless_replace_is_asked():

@@ -13,6 +13,7 @@ from recording_fixtures import recording_doc, tpose_recording
 
 from bodycal_addon import recording_io as rio
 from bodycal_addon.blender import recording_scene as rs
+from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 from bodycal_addon.errors import BodyCalError
 from bodycal_addon.recording import Segment
 
@@ -28,8 +29,8 @@ def _recording():
 
 
 def _keys(obj, path, index):
-    fc = rs._fcurves_of(obj)[(path, index)]
-    return rs._read(fc)
+    fc = object_fcurves(obj)[(path, index)]
+    return read_keys(fc)
 
 
 def test_import_builds_animated_empties_markers_and_range():

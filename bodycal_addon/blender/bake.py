@@ -16,8 +16,7 @@ import numpy as np
 
 from ..animation import AvatarAnimation
 from ..errors import BodyCalError
-
-_LINEAR = 1  # KeyframePoint.interpolation enum: CONSTANT=0, LINEAR=1, BEZIER=2
+from .fcurves import continuous_quaternions, new_fcurve, write_keys
 
 
 @dataclass
@@ -34,53 +33,8 @@ def default_action_name(recording: str, avatar: str, method: str) -> str:
     return f"{recording}|{avatar}|{method}"
 
 
-def continuous_quaternions(q: np.ndarray) -> np.ndarray:
-    """Flip signs along the frame axis so consecutive keys are on the same hemisphere: q and -q
-    are the same rotation, but F-Curves interpolate components and would swing through a
-    half turn between them."""
-    q = np.array(q, dtype=float, copy=True)
-    dots = (q[1:] * q[:-1]).sum(-1)
-    flips = np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)
-    q[1:] *= flips[..., None]
-    return q
-
-
 def key_frames(time: np.ndarray, fps: float, frame_start: float) -> np.ndarray:
     return frame_start + (np.asarray(time, float) - float(time[0])) * fps
-
-
-def _new_fcurve(action, obj, data_path: str, index: int, group: str):
-    if hasattr(action, "fcurve_ensure_for_datablock"):  # Blender 4.4+: layered, slotted actions
-        fc = action.fcurve_ensure_for_datablock(obj, data_path, index=index)
-        bag = _channelbag(action, obj)
-        if bag is not None:
-            grp = bag.groups.get(group) or bag.groups.new(group)
-            fc.group = grp
-        return fc
-    return action.fcurves.new(data_path, index=index, action_group=group)  # Blender 4.2 / 4.3
-
-
-def _channelbag(action, obj):
-    slot = obj.animation_data.action_slot if obj.animation_data else None
-    if slot is None or not action.layers:
-        return None
-    for strip in action.layers[0].strips:
-        bag = strip.channelbag(slot)
-        if bag is not None:
-            return bag
-    return None
-
-
-def _write_keys(fc, frames32: np.ndarray, values: np.ndarray):
-    n = len(frames32)
-    co = np.empty(2 * n, dtype=np.float32)
-    co[0::2] = frames32
-    co[1::2] = values
-    fc.keyframe_points.add(n)
-    fc.keyframe_points.foreach_set("co", co)
-    # Linear interpolation between dense samples: exact at the keys, and no handles to compute
-    # (FCurve.update() would recalculate Bézier handles and costs more than writing the keys).
-    fc.keyframe_points.foreach_set("interpolation", np.full(n, _LINEAR, dtype=np.int32))
 
 
 def validate(anim: AvatarAnimation, obj) -> None:
@@ -129,11 +83,11 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
             pb.rotation_mode = "QUATERNION"
             path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].rotation_quaternion'
             for i in range(4):
-                _write_keys(_new_fcurve(action, obj, path, i, bone_name), frames32, rotations[:, b, i])
+                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32, rotations[:, b, i])
                 fcurves += 1
         path = f'pose.bones["{bpy.utils.escape_identifier(anim.root_bone)}"].location'
         for i in range(3):
-            _write_keys(_new_fcurve(action, obj, path, i, anim.root_bone), frames32, root_location[:, i])
+            write_keys(new_fcurve(action, obj, path, i, anim.root_bone), frames32, root_location[:, i])
             fcurves += 1
     except Exception:
         if had_animation_data:

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import BodyCalError
 from ..recording import STEPS, Device, Recording, Segment
+from .fcurves import CONSTANT, continuous_quaternions, new_fcurve, object_fcurves, read_keys, write_keys
 
 SCENE_KEY = "bodycal_recording"
 META_KEY = "bodycal"
@@ -34,7 +35,6 @@ TIME_KEY = "bodycal_time"
 TRACKED = "bodycal_tracked"
 MARKER_PREFIX = "bodycal:"
 END_LABEL = "bodycal:end"
-_LINEAR, _CONSTANT = 1, 0  # KeyframePoint.interpolation enum values
 
 
 def _scene_of(context_or_scene):
@@ -51,59 +51,6 @@ def frame_mapping(rec: Recording) -> tuple[int, float, float]:
     rate = rec.fps if rec.frame_count > 1 else 30.0
     fps = max(1, int(round(rate)))
     return fps, fps / rate, rate
-
-
-def _continuous(q: np.ndarray) -> np.ndarray:
-    # q and -q are one rotation, but F-Curves interpolate components: keep neighbours on one hemisphere.
-    q = np.array(q, float)
-    if len(q) < 2:
-        return q
-    dots = (q[1:] * q[:-1]).sum(-1)
-    flips = np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)
-    q[1:] *= flips[..., None]
-    return q
-
-
-def _fcurve(action, obj, path: str, index: int):
-    if hasattr(action, "fcurve_ensure_for_datablock"):  # 4.4+: layered, slotted actions
-        return action.fcurve_ensure_for_datablock(obj, path, index=index)
-    return action.fcurves.new(path, index=index)  # 4.2 / 4.3
-
-
-def _fcurves_of(obj) -> dict:
-    """{(data_path, index): fcurve} of the object's action, whatever the action API."""
-    ad = obj.animation_data
-    if ad is None or ad.action is None:
-        return {}
-    action = ad.action
-    curves = []
-    slot = getattr(ad, "action_slot", None)
-    if hasattr(action, "layers") and slot is not None and len(action.layers):
-        for layer in action.layers:
-            for strip in layer.strips:
-                bag = strip.channelbag(slot)
-                if bag is not None:
-                    curves.extend(bag.fcurves)
-    elif hasattr(action, "fcurves"):
-        curves = list(action.fcurves)
-    return {(fc.data_path, fc.array_index): fc for fc in curves}
-
-
-def _write(fc, frames32, values, interpolation=_LINEAR):
-    n = len(frames32)
-    co = np.empty(2 * n, np.float32)
-    co[0::2] = frames32
-    co[1::2] = values
-    fc.keyframe_points.add(n)
-    fc.keyframe_points.foreach_set("co", co)
-    fc.keyframe_points.foreach_set("interpolation", np.full(n, interpolation, np.int32))
-
-
-def _read(fc) -> tuple[np.ndarray, np.ndarray]:
-    n = len(fc.keyframe_points)
-    co = np.empty(2 * n, np.float32)
-    fc.keyframe_points.foreach_get("co", co)
-    return co[0::2], co[1::2]
 
 
 def _segment_markers(rec: Recording, frame_of) -> list[tuple[str, int]]:
@@ -135,8 +82,7 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         return int(round(frame_start + (float(t) - t0) * rate))
 
     pos = rec.positions.astype(np.float32)
-    rot = np.stack([_continuous(rec.rotations[:, i]) for i in range(len(rec.devices))], axis=1).astype(np.float32) \
-        if rec.devices else np.zeros((f, 0, 4), np.float32)
+    rot = continuous_quaternions(rec.rotations).astype(np.float32)  # per device, along the frame axis
     valid = rec.valid.astype(np.float32)
     mk = rec.markers.astype(np.float32)
     mk_valid = rec.marker_valid.astype(np.float32)
@@ -173,16 +119,16 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         obj["bodycal_role"] = d.role or ""
         obj.rotation_mode = "QUATERNION"
         for k in range(3):
-            _write(_fcurve(action, obj, "location", k), frames32, pos[:, i, k])
+            write_keys(new_fcurve(action, obj, "location", k), frames32, pos[:, i, k])
         for k in range(4):
-            _write(_fcurve(action, obj, "rotation_quaternion", k), frames32, rot[:, i, k])
-        _write(_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, valid[:, i], _CONSTANT)
+            write_keys(new_fcurve(action, obj, "rotation_quaternion", k), frames32, rot[:, i, k])
+        write_keys(new_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, valid[:, i], CONSTANT)
     for j, name in enumerate(rec.marker_names):
         obj, action = empty(f"{rec.name}.{name}", "SPHERE", 0.01)
         obj["bodycal_marker"] = name
         for k in range(3):
-            _write(_fcurve(action, obj, "location", k), frames32, mk[:, j, k])
-        _write(_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, mk_valid[:, j], _CONSTANT)
+            write_keys(new_fcurve(action, obj, "location", k), frames32, mk[:, j, k])
+        write_keys(new_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, mk_valid[:, j], CONSTANT)
 
     for m in [m for m in scene.timeline_markers if m.name.startswith(MARKER_PREFIX)]:
         scene.timeline_markers.remove(m)  # one recording per scene: its steps replace the old ones
@@ -264,14 +210,14 @@ def recording_from_scene(context_or_scene=None) -> Recording:
     notes = list(meta.get("notes", []))
 
     def channels(obj, path, count, what):
-        curves = _fcurves_of(obj)
+        curves = object_fcurves(obj)
         out = np.zeros((f, count), np.float32)
         for k in range(count):
             fc = curves.get((path, k))
             if fc is None:
                 raise BodyCalError(f"{path}[{k}] is not animated", source=obj.name, field=what,
                                    hint="re-import the recording")
-            _frames, values = _read(fc)
+            _frames, values = read_keys(fc)
             if len(values) != f:
                 raise BodyCalError(f"{path}[{k}] has {len(values)} keys, the recording {f} frames", source=obj.name,
                                    field=what, hint="re-import the recording")
