@@ -67,7 +67,7 @@ PROFILES = ("full", "minimal")
 MOTIONS = ("squat", "arm_raise", "clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "walk_in_place")
 SIDE_SIGN = {"l": 1.0, "r": -1.0}
 OTHER = {"l": "r", "r": "l"}
-CONTROLLER_TIP_LOCAL = np.array([0.0, 0.10, 0.0])  # in the controller's device frame, metres
+CONTROLLER_TIP_LOCAL = np.array([0.0, 0.09, 0.0])  # in the controller's device frame, metres
 FULL_ROLES = ("head", "hand_l", "hand_r", "pelvis", "chest", "upperarm_l", "upperarm_r", "forearm_l", "forearm_r",
               "thigh_l", "thigh_r", "shin_l", "shin_r", "foot_l", "foot_r")
 MINIMAL_ROLES = ("head", "hand_l", "hand_r", "pelvis", "foot_l", "foot_r")
@@ -306,7 +306,7 @@ def _build_geometry(perf: Performer) -> None:
         hand[side] = g
         # Controller held in the fist: origin in the grip, its axis pointing forward out of the fist
         # (along the hand, a little toward the thumb and the palm).
-        ctrl_p = np.array([0.0, 0.05 * s, zp + 0.025 * s])
+        ctrl_p = np.array([0.0, 0.06 * s, zp + 0.025 * s])
         ctrl_r = _frame(np.array([m, 0.0, 0.0]), np.array([m * 0.3, 1.0, 0.4]))
         perf.controller[side] = (ctrl_p, ctrl_r)
     perf.hand = hand
