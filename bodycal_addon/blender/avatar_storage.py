@@ -12,28 +12,43 @@ from ..errors import BodyCalError
 MODEL_PROP = "bodycal_avatar_model"
 
 
+def store_json_model(owner, key: str, model: BodyModel) -> None:
+    """Keep `model` as `*.body.json` text in a custom property of `owner` (an object or a scene):
+    saved with the .blend and covered by undo."""
+    owner[key] = model.to_json()
+
+
+def has_json_model(owner, key: str) -> bool:
+    return owner is not None and bool(owner.get(key))
+
+
+def load_json_model(owner, key: str, *, what: str, redo: str) -> BodyModel:
+    """The model stored by `store_json_model`; `what` names it and `redo` says how to make it."""
+    raw = owner.get(key) if owner is not None else None
+    name = getattr(owner, "name", "?")
+    if not raw:
+        raise BodyCalError(f"no {what} yet", source=name, hint=redo)
+    try:
+        data = json.loads(raw)
+    except (TypeError, ValueError):
+        raise BodyCalError(f"the stored {what} is damaged", source=name, field=key, hint=redo) from None
+    return BodyModel.from_dict(data, source=f"{name}[{key}]")
+
+
 def store_model(arm, model: BodyModel) -> None:
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("the avatar model can only be stored on an armature object",
                            source=getattr(arm, "name", "object"))
-    arm[MODEL_PROP] = model.to_json()
+    store_json_model(arm, MODEL_PROP, model)
 
 
 def has_model(arm) -> bool:
-    return arm is not None and bool(arm.get(MODEL_PROP))
+    return has_json_model(arm, MODEL_PROP)
 
 
 def load_model(arm) -> BodyModel:
-    raw = arm.get(MODEL_PROP) if arm is not None else None
-    if not raw:
-        raise BodyCalError("this armature has no avatar body model yet", source=getattr(arm, "name", "armature"),
-                           hint="run Calibrate Avatar first")
-    try:
-        data = json.loads(raw)
-    except (TypeError, ValueError):
-        raise BodyCalError("the stored avatar body model is damaged", source=arm.name, field=MODEL_PROP,
-                           hint="calibrate the avatar again") from None
-    return BodyModel.from_dict(data, source=f"{arm.name}[{MODEL_PROP}]")
+    return load_json_model(arm, MODEL_PROP, what="avatar body model",
+                           redo="run Calibrate Avatar first")
 
 
 def clear_model(arm) -> None:

@@ -5,38 +5,27 @@ and the crude meshes (torso, jaw, palms, soles) as mesh objects, all at the refe
 
 from __future__ import annotations
 
-import json
-
 import bpy
 import numpy as np
 
 from .. import surface_layout as sl
 from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from .avatar_storage import has_json_model, load_json_model, store_json_model
 
 MODEL_PROP = "bodycal_user_model"
 COLLECTION = "BodyCal User Calibration"
 
 
 def store_user_model(scene, model: BodyModel) -> None:
-    scene[MODEL_PROP] = model.to_json()
+    store_json_model(scene, MODEL_PROP, model)
 
 
 def has_user_model(scene) -> bool:
-    return scene is not None and bool(scene.get(MODEL_PROP))
+    return has_json_model(scene, MODEL_PROP)
 
 
 def load_user_model(scene) -> BodyModel:
-    raw = scene.get(MODEL_PROP) if scene is not None else None
-    if not raw:
-        raise BodyCalError("this scene has no user body model yet", source=getattr(scene, "name", "scene"),
-                           hint="run Calibrate User first")
-    try:
-        data = json.loads(raw)
-    except (TypeError, ValueError):
-        raise BodyCalError("the stored user body model is damaged", source=scene.name, field=MODEL_PROP,
-                           hint="calibrate again") from None
-    return BodyModel.from_dict(data, source=f"{scene.name}[{MODEL_PROP}]")
+    return load_json_model(scene, MODEL_PROP, what="user body model", redo="run Calibrate User first")
 
 
 def _bone_matrix(model: BodyModel, bone: str) -> tuple[np.ndarray, np.ndarray]:
