@@ -113,7 +113,7 @@ def test_wobble_moves_trackers_by_about_wobble_mm(perf):
     loc = _to_local(pos, quat_to_matrix(q), _jt(truth, "elbow_l"))
     dev = np.linalg.norm(loc - loc.mean(0), axis=1)
     rms_mm = 1000 * np.sqrt(np.mean(dev ** 2))
-    assert 1.5 < rms_mm < 12.0  # the elbow sits ~15 cm from the tracker: rotation wobble adds to 4 mm
+    assert 12.0 > rms_mm > 1.5  # the elbow sits ~15 cm from the tracker: rotation wobble adds to 4 mm
     # Position wobble alone (the device origin against its true pose) has the requested RMS.
     d = truth.roles.index("forearm_l")
     err = np.linalg.norm(rec.positions[:, d] - truth.device_positions[:, d], axis=1)

@@ -1,7 +1,7 @@
 """Writing and reading F-Curve keys in bulk, portable across Blender 4.2 (`action.fcurves`) and
 the layered, slotted actions of 4.4+ / 5.0 (`action.fcurve_ensure_for_datablock`, channelbags).
 
-Keys go in with `keyframe_points.add(n)` + `foreach_set`, never one `keyframe_insert` per key
+Keys go in with `keyframe_points.add(n)` + `foreach_set`, never one insertion call per key
 (BLENDER_NOTES.md: 5.8 M keys/s against 11.7 k/s).
 """
 

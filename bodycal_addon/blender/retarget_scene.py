@@ -116,24 +116,6 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
                            quality_figures(anim))
 
 
-def find_armature(name: str | None = None, source: str = "scene"):
-    """The armature named `name`, else the only armature in the file."""
-    import bpy
-
-    if name:
-        obj = bpy.data.objects.get(name)
-        if obj is None or obj.type != "ARMATURE":
-            have = sorted(o.name for o in bpy.data.objects if o.type == "ARMATURE")
-            raise BodyCalError(f"no armature named '{name}'", source=source,
-                               hint=f"armatures here: {', '.join(have) or 'none'}")
-        return obj
-    arms = [o for o in bpy.data.objects if o.type == "ARMATURE"]
-    if len(arms) != 1:
-        raise BodyCalError(f"{'no' if not arms else len(arms)} armatures in the file", source=source,
-                           hint="name one with --armature" if arms else "the avatar file needs an armature")
-    return arms[0]
-
-
 def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, armature: str | None = None,
                    method: str = "egocentric", log=print) -> RetargetSummary:
     """`bodycal retarget`: everything from paths, nothing from a running session."""
@@ -142,16 +124,15 @@ def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, arm
     import bpy
 
     from ..recording_io import load_recording
+    from .blendfile import find_armature, open_blend
 
     avatar_blend, output_blend = Path(avatar_blend), Path(output_blend)
     recording = load_recording(recording_path)  # validate every input before opening anything
     user = BodyModel.load(user_path)
     if user.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
-    if not avatar_blend.is_file():
-        raise BodyCalError("no such file", source=str(avatar_blend))
-    bpy.ops.wm.open_mainfile(filepath=str(avatar_blend.resolve()), load_ui=False)
-    arm = find_armature(armature, source=str(avatar_blend))
+    open_blend(avatar_blend)
+    arm = find_armature(armature, str(avatar_blend))
     inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user)
     anim = compute(inputs)
     summary = bake_and_measure(inputs, anim, set_scene_rate=True)

@@ -4,44 +4,14 @@ surface calibration by raycasting onto the avatar's mesh. The .blend is read, ne
 from __future__ import annotations
 
 import sys
-from pathlib import Path
-
-from ..errors import BodyCalError
-
-
-def pick_armature(name: str | None, source: str):
-    import bpy
-
-    armatures = [o for o in bpy.data.objects if o.type == "ARMATURE"]
-    if name:
-        arm = bpy.data.objects.get(name)
-        if arm is None or arm.type != "ARMATURE":
-            have = ", ".join(sorted(o.name for o in armatures)) or "none"
-            raise BodyCalError(f"no armature named '{name}' (armatures in the file: {have})", source=source,
-                               field="--armature")
-        return arm
-    if not armatures:
-        raise BodyCalError("the file has no armature", source=source)
-    if len(armatures) > 1:
-        raise BodyCalError(f"several armatures ({', '.join(sorted(o.name for o in armatures))}): pick one",
-                           source=source, hint="use --armature NAME")
-    return armatures[0]
 
 
 def run(args) -> int:
-    path = Path(args.blend)
-    if not path.is_file():
-        raise BodyCalError("no such file", source=str(path))
-    import bpy
-
     from ..blender.avatar_calibration import calibrate_avatar
+    from ..blender.blendfile import find_armature, open_blend
 
-    try:
-        bpy.ops.wm.open_mainfile(filepath=str(path.resolve()), load_ui=False)
-    except RuntimeError as exc:
-        raise BodyCalError(f"Blender cannot open it ({str(exc).strip().splitlines()[-1][:120]})",
-                           source=str(path)) from None
-    arm = pick_armature(args.armature, str(path))
+    open_blend(args.blend)
+    arm = find_armature(args.armature, str(args.blend))
     model = calibrate_avatar(arm)
     out = model.save(args.output)
     q = model.calibration["quality"]
