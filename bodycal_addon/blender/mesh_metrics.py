@@ -45,6 +45,15 @@ def target_segments(target: str) -> list[str]:
     raise BodyCalError(f"unknown contact target '{target}'", field="target")
 
 
+def effector_segments(effector: str) -> list[str]:
+    """The effector's own arm (or leg): skin it always touches, left out of its contact gap."""
+    side = effector[-1]
+    if effector.startswith(("ankle_", "toe_", "sole_")):
+        return [f"thigh_{side}", f"shin_{side}", f"foot_{side}", f"toe_{side}"]
+    return [f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"] + [
+        f"{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)] + [f"metacarpal_{f}_{side}" for f in sk.FINGERS]
+
+
 def _segment_bones(bone_map: sk.BoneMap, segments) -> set[str]:
     out = set()
     for seg in segments:
@@ -104,6 +113,15 @@ class EvaluatedMesh:
                 if best is not None:
                     dom[v.index] = groups.get(best.group, "")
             self.tri_bone[obj.name] = (tris, dom[tris])
+
+    def triangles_without(self, bones: set[str]):
+        """{mesh name: triangles (T, 3)} with at least one vertex NOT dominated by `bones`."""
+        out = {}
+        for name, (tris, owners) in self.tri_bone.items():
+            keep = ~np.isin(owners, list(bones)).all(axis=1)
+            if keep.any():
+                out[name] = tris[keep]
+        return out
 
     def triangles_of(self, bones: set[str]):
         """{mesh name: triangle indices (T, 3)} whose three vertices belong to `bones`."""
@@ -182,11 +200,12 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
 
 
 def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[dict], max_frames: int = 12,
-                 mesh: EvaluatedMesh | None = None) -> list[np.ndarray]:
+                 mesh: EvaluatedMesh | None = None, against: str = "body") -> list[np.ndarray]:
     """Signed contact gap (m, negative inside) per contact of the synthetic ground truth
     (`{"effector", "target", "frames" (F,) bool}`), measured on up to `max_frames` evenly spaced
     contact frames each: distance from the avatar's effector skin to the evaluated skin of the
-    touched body part."""
+    body without the effector's own arm (`against="body"`, DESIGN.md §7), or of the touched body
+    part only (`against="target"`)."""
     rig = AvatarRig.from_model(avatar)
     bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
     mesh = mesh or EvaluatedMesh(arm)
@@ -199,7 +218,10 @@ def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[d
             continue
         idx = idx[np.linspace(0, len(idx) - 1, min(max_frames, len(idx))).astype(int)]
         pts, off = effector_points(avatar, rig, anim, c["effector"])
-        tris = mesh.triangles_of(_segment_bones(bm, target_segments(c["target"])))
+        if against == "target":
+            tris = mesh.triangles_of(_segment_bones(bm, target_segments(c["target"])))
+        else:  # the whole skin but the effector's own arm
+            tris = mesh.triangles_without(_segment_bones(bm, effector_segments(c["effector"])))
         queries.append((idx, tris, pts[idx]))
         offsets.append(off)
     gaps = signed_gaps(arm, anim, queries, mesh)
