@@ -182,23 +182,25 @@ class _Run:
         # is copied): wrist and palm are a hand's size apart, and hands differ.
         for s, (u_loc, _) in self.palm_local.items():
             pts[:, upper.index(f"wrist_{s}")] += up.frames[:, BI[f"hand_{s}"]] @ u_loc
-        arm_frames = frames
-        pose = mid
-        previous = None
-        for _ in range(ARM_PASSES):
-            # Each pass maps the arms against the avatar as the previous pass left it, so a hand
-            # touching the other hand (or arm) meets it where that one ends up. Both hands move
-            # toward each other at once, so later passes go half way (no overshoot).
+        # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
+        # passes re-map the wrists only, against the arms where the previous pass put them, so a
+        # hand touching the other hand (or arm) meets it where that one ends up; both hands move
+        # toward each other at once, so those passes go half way (no overshoot).
+        wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
+        pose, tg = mid, None
+        for k in range(ARM_PASSES):
             av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
-            tg = ego.retarget_points(pts, upper, us, av, user_bones=ub)
-            if previous is not None:
-                tg = 0.5 * (tg + previous)
-            previous = tg
+            if tg is None:
+                tg = ego.retarget_points(pts, upper, us, av, user_bones=ub)
+            elif wrists:
+                tw = ego.retarget_points(pts[:, wrists], [upper[i] for i in wrists], us, av, user_bones=ub)
+                tg[:, wrists] = 0.5 * (tg[:, wrists] + tw)
             arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
             for s, (_, a_loc) in self.palm_local.items():
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - mid.frames[:, BI[f"hand_{s}"]] @ a_loc
             arm_frames = self._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
-            pose = self.rig.solve(arm_frames, pelvis, basis=False)
+            if k + 1 < ARM_PASSES:
+                pose = self.rig.solve(arm_frames, pelvis, basis=False)
         frames = arm_frames
         targets.update(arm_targets)
         return self.rig.solve(frames, pelvis, realised=False), targets
