@@ -62,6 +62,10 @@ def test_self_avatar_egocentric_maps_targets_onto_themselves(session):
     for name, tg in anim.targets.items():
         e = _mm(tg, up.joint(name))
         lower = name.startswith(("ankle_", "knee_", "skull_base"))
+        if name.startswith("elbow_"):  # rides on the shoulder, which the trunk solve shifted
+            shift = _mm(anim.joints_world[f"shoulder_{name[-1]}"], up.joint(f"shoulder_{name[-1]}"))
+            assert np.median(e) < np.median(shift) + 1.0 and e.max() < 10.0, name
+            continue
         assert np.median(e) < (0.5 if lower else 3.0) and e.max() < (3.0 if lower else 10.0), name
     for name in LIMB_TARGETS + TIPS:
         e = _mm(anim.joints_world[name], anim.targets[name])
@@ -88,6 +92,10 @@ def test_scaled_avatar_gives_scaled_positions(session, scale):
     for name, tg in ego.targets.items():
         e = _mm(tg, scale * up.joint(name))
         lower = name.startswith(("ankle_", "knee_", "skull_base"))
+        if name.startswith("elbow_"):  # rides on the shoulder, which the trunk solve shifted
+            shift = _mm(ego.joints_world[f"shoulder_{name[-1]}"], scale * up.joint(f"shoulder_{name[-1]}"))
+            assert np.median(e) < np.median(shift) + 1.0 * scale and e.max() < 10.0 * scale, name
+            continue
         assert np.median(e) < (0.5 if lower else 3.0) * scale and e.max() < (3.0 if lower else 10.0) * scale, name
 
 
