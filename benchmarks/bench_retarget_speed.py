@@ -4,8 +4,8 @@ capture, on one core; and the peak memory of a 10-minute capture (54,000 frames)
 in chunks.
 
 One core: BLAS threads are pinned to 1 before numpy is imported. Peak memory is the process's
-maximum resident set (resource.getrusage) and the Python allocations' peak (tracemalloc) during
-the 10-minute run. Target: >= 20x real time.
+maximum resident set (resource.getrusage, no tracing overhead on the timing) after the 10-minute
+run. Target: >= 20x real time.
 
 Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_retarget_speed.py [--quick]
 """
@@ -21,7 +21,6 @@ import json  # noqa: E402
 import resource  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-import tracemalloc  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,18 +69,14 @@ def main(quick: bool = False):
     long_frames = int((60 if quick else 600) * CAPTURE_HZ)
     long = _tile(rec, long_frames)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    tracemalloc.start()
     t = time.perf_counter()
     anim = pl.retarget(long, user, avatar, "egocentric")
     elapsed = time.perf_counter() - t
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
     rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     out.update({
         "long_capture_minutes": round(long_frames / CAPTURE_HZ / 60, 1),
         "long_capture_seconds": round(elapsed, 1),
         "long_capture_x_realtime": round(long_frames / CAPTURE_HZ / elapsed, 2),
-        "peak_python_alloc_mb": round(peak / 2**20, 1),
         "peak_rss_mb": round(rss1 / 1024, 1),
         "rss_growth_mb": round((rss1 - rss0) / 1024, 1),
         "output_arrays_mb": round((anim.rotations.nbytes + anim.root_location.nbytes
