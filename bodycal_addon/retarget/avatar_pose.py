@@ -310,10 +310,11 @@ class AvatarRig:
 
     # --- canonical frames -> pose ---------------------------------------------------------------
 
-    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised: bool = True) -> RigPose:
+    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised=True) -> RigPose:
         """Pose bones that realise canonical world frames (F, B, 3, 3) with the canonical pelvis
         joint at `pelvis` (F, 3, world). `basis=False` skips the pose-bone quaternions and root
-        location, `realised=False` the realised canonical frames (RigPose fields left None)."""
+        location, `realised=False` the realised canonical frames (RigPose fields left None); a list
+        of canonical bone indices realises only those (the other frames are left NaN)."""
         frames = np.asarray(frames, float)
         nf = frames.shape[0]
         n = len(self.names)
@@ -401,12 +402,19 @@ class AvatarRig:
             self._used = np.array(sorted(used), int)
         return self._used
 
-    def _finish(self, basis, P, H, root_loc, realised: bool = True) -> RigPose:
+    def _finish(self, basis, P, H, root_loc, realised=True) -> RigPose:
         jb = self.joint_bone
         joints_arm = H[:, jb] + (P[:, jb] @ self.joint_local[..., None])[..., 0]
         joints = joints_arm @ (self.w_rot.T * self.w_scale) + self.world[:3, 3]
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
-        frames = self.w_rot @ (P[:, self.carrier] @ self._carrier_rel) if realised else None
+        if realised is True:
+            frames = self.w_rot @ (P[:, self.carrier] @ self._carrier_rel)
+        elif realised is False or realised is None:
+            frames = None
+        else:
+            idx = np.asarray(realised, int)
+            frames = np.full(P.shape[:1] + (len(BONES), 3, 3), np.nan)
+            frames[:, idx] = self.w_rot @ (P[:, self.carrier[idx]] @ self._carrier_rel[idx])
         return RigPose(basis, P, H, root_loc, joints, frames)
 
     @property

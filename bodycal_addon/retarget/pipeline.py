@@ -108,6 +108,8 @@ class _Run:
                                                          self.user_pos[sk.BONE_BY_NAME[b].head])
                                           for b in self.graph_bones])
             self.sbones = surface_bone_indices(self.user_s, self.avatar_s)
+            # The frames the avatar's posed surface and the IK read (the rest stay unrealised).
+            self.realise = sorted(set(self.sbones) | {BI["sacrum"]} | {BI[f"hand_{s}"] for s in sk.SIDES})
             have = {e.id for e in user.surface}
             self.palm_local = {}  # side -> (user, avatar) palm centre in the canonical hand frame
             for s in sk.SIDES:
@@ -145,7 +147,7 @@ class _Run:
                 self.notes.append(n)
         pelvis = up.joints[:, JI["pelvis"]] * self.k
         fk = self.rig.solve(up.frames, pelvis, basis=self.method == "rotations",
-                            realised=self.method == "egocentric")
+                            realised=self.realise if self.method == "egocentric" else False)
         if self.method == "rotations":
             return fk, {}
         if self.method == "egocentric":
@@ -174,7 +176,7 @@ class _Run:
             tg = ego.retarget_points(up.joints[:, [JI[n] for n in lower]], lower, ust, avt, user_bones=ub)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         frames = self._ik(up, fk, pelvis, targets)
-        mid = self.rig.solve(frames, pelvis, basis=False)
+        mid = self.rig.solve(frames, pelvis, basis=False, realised=self.realise)
         us = ego.pose_surface(self.user_s, uj, uf, self.ids)
         pts = up.joints[:, [JI[n] for n in upper]].copy()
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
@@ -200,7 +202,7 @@ class _Run:
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - mid.frames[:, BI[f"hand_{s}"]] @ a_loc
             arm_frames = self._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
             if k + 1 < ARM_PASSES:
-                pose = self.rig.solve(arm_frames, pelvis, basis=False)
+                pose = self.rig.solve(arm_frames, pelvis, basis=False, realised=self.realise)
         frames = arm_frames
         targets.update(arm_targets)
         return self.rig.solve(frames, pelvis, realised=False), targets
