@@ -185,18 +185,23 @@ class _Run:
         for s, (u_loc, _) in self.palm_local.items():
             pts[:, upper.index(f"wrist_{s}")] += up.frames[:, BI[f"hand_{s}"]] @ u_loc
         # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
-        # passes re-map the wrists only, against the arms where the previous pass put them, so a
+        # passes re-map the wrists, against the arms where the previous pass put them, so a
         # hand touching the other hand (or arm) meets it where that one ends up; both hands move
         # toward each other at once, so those passes go half way (no overshoot).
+        # The fingertips are re-mapped in full: their nearest elements are mostly their own hand's
+        # palm and fingers, which pass 1 saw where the rotation copy had put the hand.
         wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
+        again = wrists + [i for i, n in enumerate(upper) if n.startswith("tip_")]
         pose, tg = mid, None
         for k in range(ARM_PASSES):
             av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
             if tg is None:
                 tg = ego.retarget_points(pts, upper, us, av, user_bones=ub)
-            elif wrists:
-                tw = ego.retarget_points(pts[:, wrists], [upper[i] for i in wrists], us, av, user_bones=ub)
-                tg[:, wrists] = 0.5 * (tg[:, wrists] + tw)
+            elif again:
+                ta = ego.retarget_points(pts[:, again], [upper[i] for i in again], us, av, user_bones=ub)
+                nw = len(wrists)
+                tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, :nw])
+                tg[:, again[nw:]] = ta[:, nw:]
             arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
             for s, (_, a_loc) in self.palm_local.items():
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - mid.frames[:, BI[f"hand_{s}"]] @ a_loc
