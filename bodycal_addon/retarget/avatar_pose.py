@@ -163,7 +163,9 @@ class AvatarRig:
     w_scale: float
     root: int
     driver: list  # per bone: canonical bone index, "chain" or None
-    chain_s: np.ndarray  # (N,) arc position (0..12 vertebrae) of a chain bone's tail
+    chain_s: np.ndarray  # (N,) arc position (0..12 vertebrae) of a chain bone's aim point
+    chain_aim: np.ndarray  # (N, 3) a chain bone's aim point in its rest frame
+    chain_off: np.ndarray  # (N, 3) the aim point's offset from the rest spine curve (armature)
     chain_vertebra: np.ndarray  # (N,) int vertebra (0-based) whose twist a chain bone takes
     joint_world: np.ndarray  # (J, 3) rest
     joint_bone: np.ndarray  # (J,) int
@@ -280,16 +282,27 @@ class AvatarRig:
             else:
                 car[i] = self.root
         self.carrier = car
-        # Chain bones: arc position of their tail on the rest spine curve; twist of the vertebra
-        # at their middle.
+        # Chain bones aim their "aim point" at the canonical spine curve: the head of their child
+        # up the spine (chain bone or head bone) when they have one (rig chains need not be
+        # connected: a tail may sit off the spine), else their tail; its arc position on the rest
+        # curve and its place in the bone's rest frame (so the rest pose aims at itself). Twist:
+        # the canonical vertebra at the bone's middle.
         spine_rest = self.to_armature(np.stack([pos[j] for j in SPINE_JOINTS]))
         self.chain_s = np.zeros(len(names))
+        self.chain_aim = np.zeros((len(names), 3))
+        self.chain_off = np.zeros((len(names), 3))
         self.chain_vertebra = np.zeros(len(names), int)
+        up_spine = set(chain) | {bm.bones.get("head")}
         for c in chain:
             i = idx[c]
-            s_t = _arc_param(spine_rest, tail[i])
+            kids = [j for j in range(len(names)) if parent[j] == i and names[j] in up_spine]
+            aim = head[kids[0]] if kids else tail[i]
+            s_t = _arc_param(spine_rest, aim)
             s_h = _arc_param(spine_rest, head[i])
             self.chain_s[i] = s_t
+            self.chain_aim[i] = rest[i].T @ (aim - head[i])
+            # where the aim point sits off the curve, carried by the vertebra: the rest pose aims at itself
+            self.chain_off[i] = aim - _curve_point(spine_rest[None], s_t)[0]
             self.chain_vertebra[i] = int(np.clip(np.floor(0.5 * (s_t + s_h)), 0, sk.SPINE_COUNT - 1))
         return self
 
@@ -345,8 +358,9 @@ class AvatarRig:
                     curve = self._spine_curve(frames, P, H)
                 k = self.chain_vertebra[i]
                 twist = _rm(delta_arm[:, BI[SPINE_BONES[k]]], self.rest[i])
-                target = _curve_point(curve, self.chain_s[i])
-                q = quat_between(twist[..., :, 1], target - H[:, i])
+                target = _curve_point(curve, self.chain_s[i]) + _mv(delta_arm[:, BI[SPINE_BONES[k]]],
+                                                                     self.chain_off[i])
+                q = quat_between(_mv(twist, self.chain_aim[i]), target - H[:, i])
                 P[:, i] = quat_to_matrix(q) @ twist
             else:
                 P[:, i] = _rm(delta_arm[:, drv], self.rest[i])
@@ -512,6 +526,22 @@ def root_scale(user_model: BodyModel, rig: AvatarRig) -> float:
     return rig.leg_length() / lu
 
 
+# Bones whose canonical frame depends on where each calibration put the trunk's joints (spine root
+# behind the sacrum, resampled vertebrae, clavicle root): the avatar takes the user's rotation
+# since the reference pose, not the user's orientation, so both stand as they were calibrated.
+DELTA_COPY = tuple(BI[b] for b in ["sacrum", "head", *SPINE_BONES, "clavicle_l", "clavicle_r"])
+
+
+def copy_frames(user_frames: np.ndarray, user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndarray:
+    """Step 2's copy: limb, hand, foot and finger frames are copied as they are (anatomical axes,
+    whatever the avatar's rest pose); trunk frames (DELTA_COPY) as the rotation since the user's
+    reference pose applied to the avatar's rest: C_u(t) C_u0^-1 C_a0."""
+    out = np.array(user_frames, float, copy=True)
+    idx = list(DELTA_COPY)
+    out[:, idx] = out[:, idx] @ (np.swapaxes(user_frames0[idx], -1, -2) @ avatar_frames0[idx])
+    return out
+
+
 def pose_avatar_fk(user_pose, user_model: BodyModel, avatar: BodyModel | AvatarRig) -> AvatarPose:
     """Step 2: copy the user's canonical bone frames onto the avatar; the root follows the user's
     pelvis scaled by the avatar/user leg-length ratio (feet stay on the floor, steps scale with
@@ -519,7 +549,8 @@ def pose_avatar_fk(user_pose, user_model: BodyModel, avatar: BodyModel | AvatarR
     rig = avatar if isinstance(avatar, AvatarRig) else AvatarRig.from_model(avatar)
     k = root_scale(user_model, rig)
     pelvis = user_pose.joints[:, JI["pelvis"]] * k
-    return AvatarPose(rig, rig.solve(user_pose.frames, pelvis), k)
+    frames = copy_frames(user_pose.frames, model_rest_frames(user_model), rig.frames0)
+    return AvatarPose(rig, rig.solve(frames, pelvis), k)
 
 
 def frames_from_joints(pos: np.ndarray, like: np.ndarray) -> np.ndarray:

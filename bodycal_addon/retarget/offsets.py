@@ -23,7 +23,7 @@ from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
 from ..transforms import normalize, quat_between, quat_to_matrix
-from .avatar_pose import BI, JI, SPINE_BONES, AvatarRig, complete_joints
+from .avatar_pose import BI, JI, SPINE_BONES, AvatarRig, complete_joints, copy_frames
 from .user_animation import _axis_angle_matrix
 
 TRACKED = {  # joint -> (tracker role, canonical bone whose rotation follows eq. 3)
@@ -60,6 +60,7 @@ class OffsetsSetup:
     w0: np.ndarray  # (3,) root -> head at the T-pose (tracker positions)
     spine0: np.ndarray  # (12, 3, 3) vertebra frames at the T-pose
     pelvis0: np.ndarray  # (3,) avatar pelvis at the T-pose (user scale)
+    ref_frames: np.ndarray  # (B, 3, 3) the canonical frames copied onto the avatar at the T-pose
 
 
 def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: dict[str, tuple]) -> OffsetsSetup:
@@ -75,7 +76,8 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
     # feet on the floor at the avatar's own scale; then scaled by s about the origin.
     rest_pel = rig.joint_world[JI["pelvis"]]
     pel = np.array([user_pos["pelvis"][0] / s, user_pos["pelvis"][1] / s, rest_pel[2]])
-    pose = rig.solve(ref_frames[None], pel[None])
+    ref = copy_frames(ref_frames[None], ref_frames, rig.frames0)[0]  # step 2's copy at the T-pose
+    pose = rig.solve(ref[None], pel[None])
     joints0 = pose.joints[0] * s
     frames0 = pose.frames[0]
     v0, r0t, r0j = {}, {}, {}
@@ -86,7 +88,7 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
         r0j[bone] = frames0[BI[bone]]
     w0 = tpose["head"][0] - tpose["pelvis"][0]
     spine0 = frames0[[BI[b] for b in SPINE_BONES]]
-    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]])
+    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]], ref)
 
 
 def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):

@@ -30,7 +30,18 @@ from ..surface_layout import bone_frame
 from ..transforms import normalize, quat_to_matrix
 from . import ik
 from . import offsets as ofs
-from .avatar_pose import BI, BONES, JI, JOINTS, SPINE_BONES, AvatarRig, complete_joints, model_rest_frames, root_scale
+from .avatar_pose import (
+    BI,
+    BONES,
+    JI,
+    JOINTS,
+    SPINE_BONES,
+    AvatarRig,
+    complete_joints,
+    copy_frames,
+    model_rest_frames,
+    root_scale,
+)
 from .user_animation import _trackers, animate_user, pose_finger_chain
 
 METHODS = ("egocentric", "offsets", "rotations")
@@ -146,15 +157,19 @@ class _Run:
             if n not in self.notes:
                 self.notes.append(n)
         pelvis = up.joints[:, JI["pelvis"]] * self.k
+        # From here on the user's frames are the ones copied onto the avatar (step 2).
+        user_frames = up.frames
+        up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
+                      up.notes)
         fk = self.rig.solve(up.frames, pelvis, basis=self.method == "rotations",
                             realised=self.realise if self.method == "egocentric" else False)
         if self.method == "rotations":
             return fk, {}
         if self.method == "egocentric":
-            return self._egocentric(up, fk, pelvis)
+            return self._egocentric(up, fk, pelvis, user_frames)
         return self._offsets(up, fk, start, stop)
 
-    def _egocentric(self, up, fk, pelvis):
+    def _egocentric(self, up, fk, pelvis, user_frames):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
         without the arms and solved; then the arms and fingers, mapped against the body with the
         trunk and legs already where the IK put them. Targets are mapped relative to the posed
@@ -162,7 +177,7 @@ class _Run:
         not where the rotation copy had put it; and arm elements, which the IK moves last, must not
         pull the head or the feet."""
         ego = self.ego
-        uj, uf = _jd(up.joints), _fd(up.frames, self.sbones)
+        uj, uf = _jd(up.joints), _fd(user_frames, self.sbones)
         heads = up.joints[:, self.bone_heads]
         tails = up.joints[:, self.bone_tails]
         vec = normalize(tails - heads) * self.user_lengths[:, None]
@@ -183,7 +198,7 @@ class _Run:
         # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
         # is copied): wrist and palm are a hand's size apart, and hands differ.
         for s, (u_loc, _) in self.palm_local.items():
-            pts[:, upper.index(f"wrist_{s}")] += up.frames[:, BI[f"hand_{s}"]] @ u_loc
+            pts[:, upper.index(f"wrist_{s}")] += user_frames[:, BI[f"hand_{s}"]] @ u_loc
         # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
         # passes re-map the wrists, against the arms where the previous pass put them, so a
         # hand touching the other hand (or arm) meets it where that one ends up; both hands move
@@ -290,7 +305,7 @@ class _Run:
         v5 = sk.CLAVICLE_VERTEBRA - 1
         for s in sk.SIDES:
             c = BI[f"clavicle_{s}"]
-            frames[:, c] = sf[:, v5] @ (st.spine0[v5].T @ self.user_frames0[c])
+            frames[:, c] = sf[:, v5] @ (st.spine0[v5].T @ st.ref_frames[c])
         targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
         pelvis = p["pelvis"]
         up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
