@@ -171,3 +171,65 @@ def test_hinge_hint_takes_over_when_the_user_limb_is_straight():
     bent = np.tile([0.0, 0.0, -0.2], (n, 1)) + 0.1 * expected
     res = ik.two_bone(root, 0.3, 0.26, target, user_swivel_dir=bent, flex_axis_hint=hint)
     np.testing.assert_allclose(res.swivel_dir, expected, atol=1e-12)
+
+
+def _bent_chain(rest_segments, delta):
+    """The rest chain (sacrum frame = world) with segment k turned by (k + 1) δ about +X."""
+    k = np.arange(1, len(rest_segments) + 1)
+    c, s = np.cos(delta * k), np.sin(delta * k)
+    rx = np.stack([np.stack([np.ones_like(c), 0 * c, 0 * c], -1), np.stack([0 * c, c, -s], -1),
+                   np.stack([0 * c, s, c], -1)], -2)
+    seg = np.einsum("kij,kj->ki", rx, rest_segments)
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(seg, axis=0)])
+
+
+def test_spine_from_the_rest_shape_gives_the_rest_shape_back_at_the_rest_chord():
+    ang = np.linspace(0.1, -0.25, 12)  # a curved rest spine (lordosis then kyphosis), in the y-z plane
+    rest = np.stack([np.zeros(12), 0.045 * np.cos(ang), 0.045 * np.sin(ang)], -1) * np.linspace(1.2, 0.8, 12)[:, None]
+    joints0 = np.concatenate([np.zeros((1, 3)), np.cumsum(rest, axis=0)])
+    rot = np.broadcast_to(np.eye(3), (1, 3, 3)).copy()
+    res = ik.spine(np.zeros((1, 3)) - [0, 0.1, 0], rot, 0.1, None, joints0[-1][None], rest_segments=rest)
+    np.testing.assert_allclose(res.joints[0], joints0, atol=1e-9)
+    assert abs(res.bend[0]) < 1e-9
+
+
+def test_spine_from_a_straight_rest_recovers_a_uniform_bend_exactly():
+    rest = np.tile([0.0, 0.045, 0.0], (12, 1))
+    deltas = np.array([0.0, 0.01, -0.03, 0.08])
+    truth = np.stack([_bent_chain(rest, d) for d in deltas])
+    rot = np.broadcast_to(np.eye(3), (len(deltas), 3, 3)).copy()
+    res = ik.spine(np.zeros((len(deltas), 3)) - [0, 0.1, 0], rot, 0.1, None, truth[:, -1], rest_segments=rest)
+    np.testing.assert_allclose(res.joints, truth, atol=1e-9)
+    np.testing.assert_allclose(res.bend, np.abs(deltas), atol=1e-9)  # the axis carries the sign
+    _check_frames(res.rotations)
+
+
+def test_spine_from_the_rest_shape_shrugs_off_skull_base_noise_the_chord_length_cannot():
+    # A near-straight spine bent 6° in all: 3 mm of noise on the skull base moves its middle by a
+    # few mm; the chord-length arc reads the same noise as a bend of tens of degrees.
+    rng = np.random.default_rng(7)
+    ang = np.linspace(0.05, -0.05, 12)
+    rest = np.stack([np.zeros(12), 0.045 * np.cos(ang), 0.045 * np.sin(ang)], -1)
+    n = 200
+    truth = np.stack([_bent_chain(rest, d) for d in np.full(n, np.radians(0.5))])
+    noisy = truth[:, -1] + rng.normal(0, 0.003, (n, 3))
+    rot = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    start = np.zeros((n, 3)) - [0, 0.1, 0]
+    new = ik.spine(start, rot, 0.1, None, noisy, rest_segments=rest)
+    arc = ik.spine(start, rot, 0.1, np.linalg.norm(rest, axis=-1), noisy, two_pass=False)
+    mid_new = np.linalg.norm(new.joints[:, 6] - truth[:, 6], axis=-1)
+    mid_arc = np.linalg.norm(arc.joints[:, 6] - truth[:, 6], axis=-1)
+    assert np.percentile(mid_new, 95) < 0.004, np.percentile(mid_new, 95)
+    assert np.percentile(mid_arc, 95) > 3 * np.percentile(mid_new, 95)
+    np.testing.assert_allclose(new.joints[:, -1], noisy, atol=1e-9)  # the top still lands on the target
+
+
+def test_spine_from_the_rest_shape_is_finite_on_the_root_and_short_out_of_reach():
+    rest = np.tile([0.0, 0.045, 0.0], (12, 1))
+    rot = np.broadcast_to(np.eye(3), (3, 3, 3)).copy()
+    start = np.zeros((3, 3))
+    skull = np.array([[0.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, -0.54, 0.0]])  # on the root; too far; behind
+    res = ik.spine(start - [0, 0.1, 0], rot, 0.1, None, skull, rest_segments=rest)
+    assert np.all(np.isfinite(res.joints)) and np.all(np.isfinite(res.rotations))
+    np.testing.assert_allclose(res.joints[1, -1], [0, 0.54 * ik.MAX_SPINE_STRETCH, 0], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(np.diff(res.joints, axis=1), axis=-1)[0], 0.045 * ik.MIN_SPINE_STRETCH)

@@ -61,9 +61,8 @@ def test_self_avatar_egocentric_maps_targets_onto_themselves(session):
     """avatar == user gives p' = p (the mapping's own invariant is pinned by the egocentric
     module's tests). End to end it is close, not exact: the user's clavicles stretch between the
     modelled spine and the tracked shoulders and the user's hips ride on the thigh trackers, the
-    avatar's bones are rigid; the trunk is solved first and the equal-angle spine turns a
-    sub-millimetre change of the skull-base target into a few millimetres at the shoulders, which
-    the arms (mapped second, against the solved trunk) inherit."""
+    avatar's bones are rigid; the trunk is solved first, and the shoulders it moves by a
+    millimetre or two carry the arms (mapped second, against the solved trunk)."""
     rec, _, user, up = session
     anim = pl.retarget(rec, user, rt.avatar_from_user(user), "egocentric")
     for name, tg in anim.targets.items():
@@ -83,9 +82,11 @@ def test_self_avatar_egocentric_maps_targets_onto_themselves(session):
         assert np.median(e) < 0.01, name
         tip = name.startswith("tip_")
         assert np.percentile(e, 95) < (2.0 if tip else 0.5) and e.max() < (5.0 if tip else 0.5), name
-    # The spine reaches the skull base unless the target is beyond the spine's length (straight).
+    # The spine aims at the skull base; its bend comes from the target's direction (ik.bend_rest_spine),
+    # and the avatar's vertebrae are rigid, so the top lands short or long by the few tenths of a
+    # millimetre the user's tracked spine stretched.
     e = _mm(anim.joints_world["skull_base"], anim.targets["skull_base"])
-    assert np.median(e) < 0.01 and e.max() < 3.0
+    assert np.median(e) < 0.5 and e.max() < 3.0, (np.median(e), e.max())
 
 
 @pytest.mark.parametrize("scale", [0.8, 1.25])

@@ -197,7 +197,49 @@ def _place_arc(start, lengths, target, bend_dir, fallback_side):
     return joints, theta
 
 
-def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None, two_pass=True) -> SpineResult:
+MAX_SPINE_STRETCH = 1.05  # the spine reaches a skull base at most this much farther than its rest chord
+MIN_SPINE_STRETCH = 0.85
+
+
+def _rodrigues(v, axis, angle):
+    """v (..., 3) turned by `angle` (...) about the unit `axis` (..., 3)."""
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    return v * c + np.cross(axis, v) * s + axis * _dot(axis, v)[..., None] * (1 - c)
+
+
+def bend_rest_spine(start, sacrum_rot, rest_segments, target):
+    """The rest spine bent by one equal angle per vertebra so that its chord points at `target`
+    (Decision, replacing the equal-angle arc's chord-LENGTH match of appendix D when the rest
+    shape is known): a spine near straight barely shortens as it bends (a 20° bend shortens a
+    0.54 m chord by 2.7 mm, the size of the trackers' noise), so the length says little about the
+    bend, while the chord's direction in the sacrum says it to a fraction of a degree. Segment k
+    turns by (k + 1) δ about the axis that carries the rest chord to the current one, δ chosen so
+    a straight chain's chord turns by that angle; a last rigid turn and a uniform stretch (within
+    MIN/MAX_SPINE_STRETCH) put the top on the target. At the rest chord the rest shape comes back
+    exactly. start (F, 3), sacrum_rot (F, 3, 3), rest_segments (n, 3) in the sacrum's frame,
+    target (F, 3) -> joints (F, n + 1, 3), δ (F,)."""
+    lengths = np.linalg.norm(rest_segments, axis=-1)
+    seg0 = rest_segments / np.maximum(lengths, 1e-12)[:, None]
+    u0 = _unit(rest_segments.sum(0), np.array([0.0, 1.0, 0.0]))[0]
+    local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
+    ut, reach = _unit(local, u0)
+    axis, sin_phi = _unit(np.cross(u0, ut), _any_perpendicular(np.broadcast_to(u0, ut.shape)))
+    phi = np.arctan2(sin_phi, _dot(u0, ut))
+    k = np.arange(1, len(lengths) + 1)
+    delta = phi * lengths.sum() / (lengths * k).sum()
+    seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
+    chord = (seg * lengths[:, None]).sum(1)
+    cdir, clen = _unit(chord, ut)
+    turn_axis, sin_t = _unit(np.cross(cdir, ut), axis)
+    seg = _rodrigues(seg, turn_axis[:, None], np.arctan2(sin_t, _dot(cdir, ut))[:, None])
+    stretch = np.clip(reach / np.maximum(clen, 1e-12), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    world = np.einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
+    joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
+    return joints, delta
+
+
+def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None, two_pass=True,
+          rest_segments=None) -> SpineResult:
     """Trunk IK (paper 000, appendix D, "Trunk animation"; DESIGN.md §6).
 
     pelvis: (F, 3) sacrum origin; sacrum_rot: (F, 3, 3) the sacrum frame (+Y pelvis -> spine root,
@@ -211,13 +253,20 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     the spine root, and the arc is solved again. Twist: the hip axis turns uniformly about the
     chord up to `top_right`, vertebra by vertebra. When the skull base is straight above the
     sacrum's +Y but closer than the spine's length, the first vertebra leans toward the sacrum's
-    -Z (backward for a sacrum whose +X is the performer's left)."""
+    -Z (backward for a sacrum whose +X is the performer's left).
+
+    rest_segments: (n, 3) the vertebrae at rest in the sacrum's frame. When given (Decision), the
+    bend comes from the chord's DIRECTION in the sacrum instead of its length (`bend_rest_spine`),
+    and `lengths` / `two_pass` are not used."""
     pelvis = np.asarray(pelvis, float)
     sacrum_rot = np.asarray(sacrum_rot, float)
     target = np.asarray(skull_base, float)
-    lengths = np.asarray(lengths, float)
     start = pelvis + sacrum_length * sacrum_rot[..., 1]
-    joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1], -sacrum_rot[..., 2])
+    if rest_segments is not None:
+        joints, theta = bend_rest_spine(start, sacrum_rot, np.asarray(rest_segments, float), target)
+        two_pass = False
+    else:
+        joints, theta = _place_arc(start, np.asarray(lengths, float), target, sacrum_rot[..., 1], -sacrum_rot[..., 2])
     if two_pass:
         x = sacrum_rot[..., 0]
         first = _unit(joints[:, 1] - joints[:, 0], sacrum_rot[..., 1])[0]
@@ -239,7 +288,7 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     if top_right is not None:
         top = _perp_unit(np.asarray(top_right, float), chord, hip)[0]
         total = np.arctan2(_dot(np.cross(hip, top), chord), _dot(hip, top))
-    n = len(lengths)
+    n = joints.shape[1] - 1
     frac = (np.arange(n) + 1.0) / n
     ang = total[:, None] * frac
     other = np.cross(chord, hip)

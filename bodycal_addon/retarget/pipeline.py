@@ -36,6 +36,7 @@ from .avatar_pose import (
     JI,
     JOINTS,
     SPINE_BONES,
+    SPINE_JOINTS,
     AvatarRig,
     complete_joints,
     copy_frames,
@@ -88,6 +89,10 @@ class _Run:
         self.k = root_scale(user, self.rig)
         self.user_pos = complete_joints(user)
         self.user_frames0 = model_rest_frames(user, self.user_pos)
+        avatar_pos = complete_joints(avatar)
+        # The avatar's vertebrae at rest in its sacrum's frame: the spine IK bends that shape.
+        self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
+            self.rig.frames0[BI["sacrum"]]
         self.notes: list[str] = []
         bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
         self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
@@ -241,7 +246,7 @@ class _Run:
             res = ik.spine(fk.joints[:, JI["pelvis"]], fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
                            rig.lengths[spine_idx], targets["skull_base"],
                            top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]),
-                           two_pass=False)
+                           two_pass=False, rest_segments=self.rest_spine)
             frames[:, BI["sacrum"]] = res.sacrum_rot
             frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
