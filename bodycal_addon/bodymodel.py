@@ -10,7 +10,10 @@ Conventions (this module is their reference):
 - `bones[name].right`: the bone's local right (flexion axis for hinges) as a world direction at
   the reference time / in the rest pose; `radius_head` / `radius_tail` are capsule radii.
 - `surface`: elements of types `capsule` (around a bone), `sphere` (`center` local to `bone`),
-  `mesh` (named points, each local to a bone, and triangles over the point names).
+  `mesh` (named points, each local to a bone, and triangles over the point names). A capsule may
+  carry `axis_head` / `axis_tail` (extension of FORMATS.md §3, kept in `extra`): where its axis
+  starts and ends relative to the bone's head and tail joints, in the bone's frame (m); absent,
+  the axis runs joint to joint. A thigh's femur runs well behind the middle of the thigh.
 - `offsets` (optional, AvatarGo, paper 004 §3.3): per joint, the tracker role and `v0` (tracker
   to joint vector, world), `r0_tracker` and `r0_joint` (world rotations, quaternions w, x, y, z)
   at the T-pose.
@@ -141,6 +144,16 @@ class SurfaceElement:
             d["triangles"] = [list(t) for t in self.triangles]
         d.update(self.extra)
         return d
+
+    def axis_offsets(self) -> np.ndarray:
+        """(2, 3) capsule axis offsets at the head and tail joints, in the bone's frame (zeros when
+        the axis runs joint to joint)."""
+        return np.array([self.extra.get("axis_head", (0.0, 0.0, 0.0)), self.extra.get("axis_tail", (0.0, 0.0, 0.0))],
+                        float)
+
+    def set_axis_offsets(self, head, tail) -> None:
+        self.extra["axis_head"] = _list(np.asarray(head, float))
+        self.extra["axis_tail"] = _list(np.asarray(tail, float))
 
 
 @dataclass
@@ -273,6 +286,9 @@ class BodyModel:
                                        field=f"surface[{i}].triangles")
                 tris.append(tuple(t))
             known = {"id", "type", "bone", "center", "radius", "points", "triangles"}
+            for end in ("axis_head", "axis_tail"):
+                if end in e:  # checked here so a bad offset fails on load, not mid-retarget
+                    e[end] = _list(_vec(e[end], source, f"surface[{i}].{end}"))
             surface.append(SurfaceElement(
                 str(e.get("id", f"{etype}:{i}")), etype, str(e.get("bone", "")),
                 None if e.get("center") is None else _vec(e["center"], source, f"surface[{i}].center"),

@@ -1,8 +1,8 @@
 """Small robust fits for the avatar surface calibration (DESIGN.md §3-4), numpy only.
 
 `geometry.py` owns the user-side fits; these are the few the raycasting needs: a median/MAD
-outlier rejection for hit distances and an algebraic sphere fit with the 2-sigma second pass of
-DESIGN.md §3.
+outlier rejection for hit distances, an algebraic sphere fit with the 2-sigma second pass of
+DESIGN.md §3, and the circle of a limb's cross-section.
 """
 
 from __future__ import annotations
@@ -65,3 +65,50 @@ def linear_radii(stations: np.ndarray, radii: np.ndarray) -> tuple[float, float]
         slope, icpt = 0.0, float(r.mean())
     lo, hi = r.min(), r.max()
     return float(np.clip(icpt, lo, hi)), float(np.clip(icpt + slope, lo, hi))
+
+
+MAX_AXIS_OFFSET = 0.75  # of the radius: the bone stays inside its capsule
+
+
+def _weighted_circle(p, w):
+    a = np.column_stack([2 * p, np.ones(len(p))]) * w[:, None]
+    sol, *_ = np.linalg.lstsq(a, (p * p).sum(1) * w, rcond=None)
+    c = sol[:2]
+    return c, np.sqrt(max(sol[2] + c @ c, 0.0))
+
+
+def cross_section(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Circle through a limb's cross-section (K, 2) hit points around the bone (at the origin):
+    algebraic fit, re-weighted (Cauchy) so a stray hit cannot drag it, then the hits beyond MAD_K
+    scaled MADs of the residual are dropped and the circle fitted again. The centre is pulled
+    back toward the bone to at most MAX_AXIS_OFFSET of the radius (a few hits on one side must
+    not move the capsule off its bone). Returns (centre (2,), radius = mean distance of the kept
+    points, kept mask)."""
+    p = np.asarray(points, float)
+    w = np.ones(len(p))
+    c, r = _weighted_circle(p, w)
+    for _ in range(8):
+        res = np.linalg.norm(p - c, axis=1) - r
+        scale = max(1.4826 * np.median(np.abs(res - np.median(res))), MIN_MAD)
+        w = 1.0 / (1.0 + (res / scale) ** 2)
+        c, r = _weighted_circle(p, w)
+    res = np.linalg.norm(p - c, axis=1) - r
+    keep = robust_keep(res)
+    if keep.sum() >= 3:
+        c, r = _weighted_circle(p[keep], np.ones(int(keep.sum())))
+    else:
+        keep = np.ones(len(p), bool)
+    r = float(np.linalg.norm(p[keep] - c, axis=1).mean())
+    off = float(np.linalg.norm(c))
+    if off > MAX_AXIS_OFFSET * r:
+        c = c * (MAX_AXIS_OFFSET * r / off)
+        r = float(np.linalg.norm(p[keep] - c, axis=1).mean())
+    return c, r, keep
+
+
+def linear_offsets(stations: np.ndarray, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis offsets at the head (0) and tail (1) from per-station cross-section centres (K, D): a
+    straight line through them per component, clamped to the measured range like linear_radii."""
+    c = np.asarray(centres, float)
+    head, tail = zip(*(linear_radii(stations, c[:, k]) for k in range(c.shape[1])))
+    return np.array(head), np.array(tail)

@@ -71,13 +71,19 @@ def test_helpers_round_trip_moves_point_and_radius():
     cap.scale = (1.5, 1.5, 1.5)
     skull = bpy.data.objects[f"{arm.name}:sphere:skull"]
     skull.location += Vector((0.0, 0.0, 0.02))
+    thigh_end = bpy.data.objects[f"{arm.name}:capsule:thigh_l:tail"]
+    thigh_end.location += Vector((0.0, -0.015, 0.0))  # the capsule's axis moved forward at the knee
     changed = surface_helpers.apply_surface_edits(arm)
-    assert changed == ["capsule:forearm_l", "mesh:torso", "sphere:skull"]
+    assert changed == ["capsule:forearm_l", "capsule:thigh_l", "mesh:torso", "sphere:skull"]
     after_model = avatar_storage.load_model(arm)
     after = _point_world(after_model, "mesh:torso", "belly_c2")
     assert np.allclose(after - before, [0.0, -0.03, 0.01], atol=1e-6)
     assert after_model.bones["forearm_l"].radius_head == pytest.approx(1.5 * model.bones["forearm_l"].radius_head)
     assert after_model.bones["forearm_l"].radius_tail == pytest.approx(model.bones["forearm_l"].radius_tail)
+    thigh = model.bones["thigh_l"]
+    thigh_rot = sl.bone_frame(model.joints[thigh.head].world, model.joints[thigh.tail].world, thigh.right)
+    moved = after_model.element("capsule:thigh_l").axis_offsets() - model.element("capsule:thigh_l").axis_offsets()
+    assert np.allclose(thigh_rot @ moved[1], [0.0, -0.015, 0.0], atol=1e-6) and np.allclose(moved[0], 0.0)
     r0, r1 = model.element("sphere:skull"), after_model.element("sphere:skull")
     h, t = model.joints["skull_base"].world, model.joints["head"].world
     rot = sl.bone_frame(h, t, model.bones["head"].right)

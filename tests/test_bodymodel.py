@@ -64,6 +64,7 @@ def test_built_model_with_offsets_saves_and_loads(tmp_path):
     (lambda d: d["bones"]["forearm_l"].pop("length"), "bones.forearm_l"),
     (lambda d: d["surface"][2].update(triangles=[["sternum", "nope", "chest_l"]]), "surface[2].triangles"),
     (lambda d: d["surface"][0].update(type="cube"), "surface[0].type"),
+    (lambda d: d["surface"][0].update(axis_head=[0, 0.01]), "surface[0].axis_head"),
 ])
 def test_bad_body_models_name_the_field(mutate, field):
     data = json.loads(json.dumps(EXAMPLE))
@@ -79,3 +80,13 @@ def test_unreadable_file_is_one_clear_line(tmp_path):
     with pytest.raises(BodyCalError) as err:
         BodyModel.load(bad)
     assert "not valid JSON" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_capsule_axis_offsets_round_trip(tmp_path):
+    data = json.loads(json.dumps(EXAMPLE))
+    model = BodyModel.from_dict(data)
+    cap = model.element("capsule:forearm_l")
+    np.testing.assert_allclose(cap.axis_offsets(), 0.0)  # absent: the axis runs joint to joint
+    cap.set_axis_offsets([0.001, 0.0, -0.02], [0.0, 0.0, -0.015])
+    back = BodyModel.load(model.save(tmp_path / "m.body.json"))
+    np.testing.assert_allclose(back.element("capsule:forearm_l").axis_offsets(), [[0.001, 0, -0.02], [0, 0, -0.015]])

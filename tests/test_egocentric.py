@@ -268,3 +268,20 @@ def test_empty_inputs_and_unknown_targets(user):
         eg.retarget_points(np.zeros((3, 1, 3)), ["spine_07"], us, us)
     with pytest.raises(BodyCalError, match="targets must be"):
         eg.retarget_points(np.zeros((3, 2, 3)), ["wrist_l"], us, us)
+
+
+def test_capsule_axis_offsets_move_the_posed_capsule_in_its_bone_frame(user):
+    import copy
+
+    joints, rots = _posed(user, 4, 5)
+    cap = next(e for e in user.surface if e.type == "capsule")
+    shifted = copy.deepcopy(user)
+    shifted.element(cap.id).set_axis_offsets([0.01, 0.0, -0.02], [0.0, 0.0, 0.03])
+    a = eg.pose_surface(user, joints, rots, [cap.id])
+    b = eg.pose_surface(shifted, joints, rots, [cap.id])
+    np.testing.assert_allclose(b.caps_head - a.caps_head, a.caps_rot @ np.array([0.01, 0.0, -0.02]), atol=1e-12)
+    np.testing.assert_allclose(b.caps_tail - a.caps_tail, a.caps_rot @ np.array([0.0, 0.0, 0.03]), atol=1e-12)
+    # a target on the shifted capsule's surface maps to the same surface point of an identical avatar
+    p = (b.caps_head + b.caps_tail)[:, :, None] / 2 + (b.caps_rot[..., 0] * 0.2)[:, :, None]
+    out = eg.retarget_points(p[:, 0], ["skull_base"], b, b)
+    np.testing.assert_allclose(out, p[:, 0], atol=1e-9)

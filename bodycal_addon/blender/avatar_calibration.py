@@ -40,9 +40,11 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 (***) f = ankle -> toe on the floor, lat = the avatar's left made orthogonal to f; hits are
 projected onto the floor plane (the lowest of the two floor hits).
 
-Capsule radii (DESIGN.md §4): per station, hit distances beyond 3 scaled MADs of the median are
-rejected; the station radius is the mean of the rest; head/tail radii come from a line through
-the station radii (clamped to their range). Stations stay away from the joints, where the
+Capsule radii (DESIGN.md §4): per station, a circle is fitted to the ring's hits in the plane
+across the bone (hits beyond 3 scaled MADs of the radius rejected, `surface_fit.cross_section`);
+the station radius is the mean distance of the rest to its centre; head/tail radii and the axis
+offsets (`axis_head` / `axis_tail`: the centres' line, in the bone's frame) come from lines
+through the stations (clamped to their range). Stations stay away from the joints, where the
 neighbouring part (torso, the next phalanx) would be hit first.
 """
 
@@ -54,7 +56,7 @@ from .. import skeleton as sk
 from .. import surface_layout as sl
 from ..bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
 from ..errors import BodyCalError
-from ..surface_fit import linear_radii, robust_keep, sphere_fit
+from ..surface_fit import cross_section, linear_offsets, linear_radii, robust_keep, sphere_fit
 from . import avatar_rig
 
 CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)  # count; the span adapts (see below)
@@ -218,6 +220,16 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
             o = h + st * (t - h)
             return np.array([r[1] for d in dirs if (r := caster.cast(o, d, max_dist=length)) is not None])
 
+        def section(st, h=h, t=t, length=length, R=R):
+            """Hit points of a station's ring in the bone's (x, z) plane."""
+            o = h + st * (t - h)
+            out = []
+            for a in angles:
+                r = caster.cast(o, np.cos(a) * R[:, 0] + np.sin(a) * R[:, 2], max_dist=length)
+                if r is not None:
+                    out.append((np.cos(a) * r[1], np.sin(a) * r[1]))
+            return np.array(out).reshape(-1, 2)
+
         # Stations keep clear of the joints by 1.6 probe radii: the neighbouring part's surface
         # (a thicker parent's rounded end, the next phalanx, the torso at the hip) reaches about
         # that far. A fingertip has no neighbour beyond its tail.
@@ -227,18 +239,23 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
             margin = float(np.clip(1.6 * probe[robust_keep(probe)].mean() / length, 0.1, 0.45))
         tail_margin = min(margin, 0.25) if bone.split("_")[1:2] == ["3"] else margin
         stations = np.linspace(margin, 1.0 - tail_margin, len(CAPSULE_STATIONS))
-        station_r, station_t, spreads = [], [], []
+        station_r, station_t, station_c, spreads = [], [], [], []
         n_hit = n_rej = 0
         for st in stations:
-            ds = ring(st)
-            n_hit += len(ds)
-            if len(ds) < 3:
+            pts = section(st)
+            n_hit += len(pts)
+            if len(pts) < 3:
                 continue
-            keep = robust_keep(ds)
+            # Decision (beyond paper 000's bone-centred capsules): the capsule's axis goes through
+            # the middle of the cross-section, not along the bone; a femur runs ~25 mm behind the
+            # middle of an adult thigh, and a hand resting on the thigh sank that far into it.
+            centre, radius, keep = cross_section(pts)
             n_rej += int((~keep).sum())
-            station_r.append(ds[keep].mean())
+            station_r.append(radius)
             station_t.append(st)
-            spreads.append(ds[keep] - ds[keep].mean())
+            station_c.append(centre)
+            d = np.linalg.norm(pts[keep] - centre, axis=1)
+            spreads.append(d - d.mean())
         rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
         avatar_bone = rig.bone_map.bones.get(bone, bone)
         if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
@@ -246,7 +263,10 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
                                source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
         rh, rt = linear_radii(np.array(station_t), np.array(station_r))
         model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
-        model.surface.append(SurfaceElement(f"capsule:{bone}", "capsule", bone))
+        element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
+        ch, ct = linear_offsets(np.array(station_t), np.array(station_c))
+        element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
+        model.surface.append(element)
         quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
                                       "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
 

@@ -3,11 +3,12 @@ calibrated manually once for the targeted avatars"): the stored avatar model sho
 helper empties, and read back.
 
 `edit_surface(arm)` puts one empty per surface point (torso, jaw, palms, soles), one per capsule
-end (a sphere whose size is the radius: scale it to change the radius; its location is the joint
-and is locked) and one for the skull sphere (move it, scale it) into the collection
-"BodyCal Surface <armature>". The helpers are children of the armature with a parent inverse
-that cancels the armature's transform at calibration time, so they follow the armature if it is
-moved later. `apply_surface_edits(arm)` reads them back into the model stored on the armature.
+end (a sphere whose size is the radius: scale it to change the radius; its location is the end
+of the capsule's axis, at or near the joint: move it to shift the axis) and one for the skull
+sphere (move it, scale it) into the collection "BodyCal Surface <armature>". The helpers are
+children of the armature with a parent inverse that cancels the armature's transform at
+calibration time, so they follow the armature if it is moved later. `apply_surface_edits(arm)`
+reads them back into the model stored on the armature.
 """
 
 from __future__ import annotations
@@ -81,9 +82,10 @@ def edit_surface(arm, context=None) -> object:
     for e in model.surface:
         if e.type == "capsule":
             b = model.bones[e.bone]
-            for end, joint, r in (("head", b.head, b.radius_head), ("tail", b.tail, b.radius_tail)):
-                o = add(f"{e.id}:{end}", e.id, end, model.joints[joint].world, float(r or POINT_SIZE))
-                o.lock_location = (True, True, True)
+            rot = frames[e.bone][1] if e.bone in frames else np.eye(3)
+            for (end, joint, r), off in zip((("head", b.head, b.radius_head), ("tail", b.tail, b.radius_tail)),
+                                            e.axis_offsets()):
+                add(f"{e.id}:{end}", e.id, end, model.joints[joint].world + rot @ off, float(r or POINT_SIZE))
         elif e.type == "sphere":
             h, rot = frames[e.bone]
             add(e.id, e.id, "center", h + rot @ e.center, float(e.radius))
@@ -131,6 +133,14 @@ def apply_surface_edits(arm, remove: bool = False) -> list[str]:
             if not np.isclose(getattr(b, attr) or 0.0, size, atol=1e-7):
                 setattr(b, attr, size)
                 changed.add(eid)
+            if e.bone in frames:
+                end = 0 if point == "head" else 1
+                offsets = e.axis_offsets()
+                off = frames[e.bone][1].T @ (world - model.joints[b.head if end == 0 else b.tail].world)
+                if not np.allclose(off, offsets[end], atol=1e-6):
+                    offsets[end] = off
+                    e.set_axis_offsets(*offsets)
+                    changed.add(eid)
         elif e.type == "sphere":
             h, rot = frames[e.bone]
             c = rot.T @ (world - h)

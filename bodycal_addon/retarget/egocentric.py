@@ -245,7 +245,8 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
 
     `joints`: canonical joint -> (F, 3) world positions; `bone_rotations`: bone -> (F, 3, 3) bone
     frames (a bone missing here gets frame_from_axes(tail - head, the model's rest `right`)).
-    Capsules run from their bone's head joint to its tail joint; sphere centres and mesh points are
+    Capsules run from their bone's head joint to its tail joint (plus the element's axis offsets,
+    in the bone's frame); sphere centres and mesh points are
     local to their bones (origin at the bone's head joint). `element_ids` restricts and orders the
     elements (default: all of the model's); an element whose joints are missing is left out and
     named in `notes`."""
@@ -284,9 +285,13 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
     def stack(arrs, shape):
         return np.stack(arrs, axis=1) if arrs else np.zeros((frames, 0) + shape)
 
+    caps_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in caps], (3, 3))
+    caps_off = np.array([e.axis_offsets() for e in caps], float).reshape(-1, 2, 3)
     caps_head = stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
     caps_tail = stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
-    caps_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in caps], (3, 3))
+    if np.any(caps_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
+        caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
+        caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
     caps_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
                            float).reshape(-1, 2)
     sph_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in sphs], (3, 3))

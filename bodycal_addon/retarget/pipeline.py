@@ -347,8 +347,8 @@ def _fd(frames: np.ndarray, bones: list[int]) -> dict[str, np.ndarray]:
 
 
 def canonical_surface(model: BodyModel, frames0: np.ndarray, pos: dict) -> BodyModel:
-    """A copy of `model` whose sphere centres and mesh points are local to the engine's canonical
-    rest frames `frames0` (and whose bones' `right` are those frames' +X)."""
+    """A copy of `model` whose sphere centres, capsule axis offsets and mesh points are local to the
+    engine's canonical rest frames `frames0` (and whose bones' `right` are those frames' +X)."""
     corr = surface_correction(model, frames0, pos)
     out = copy.copy(model)
     out.bones = {k: copy.copy(v) for k, v in model.bones.items()}
@@ -360,6 +360,8 @@ def canonical_surface(model: BodyModel, frames0: np.ndarray, pos: dict) -> BodyM
         e = copy.deepcopy(e)
         if e.center is not None and e.bone in BI:
             e.center = corr[BI[e.bone]] @ e.center
+        if e.type == "capsule" and e.bone in BI and ("axis_head" in e.extra or "axis_tail" in e.extra):
+            e.set_axis_offsets(*(corr[BI[e.bone]] @ e.axis_offsets().T).T)
         for p in e.points.values():
             if p.bone in BI:
                 p.local = corr[BI[p.bone]] @ p.local

@@ -1,0 +1,31 @@
+"""The avatar calibration's small fits (bodycal_addon/surface_fit.py) on exact data."""
+
+import numpy as np
+
+from bodycal_addon import surface_fit as sf
+
+
+def _ring(centre, radius, n=12):
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.asarray(centre) + radius * np.stack([np.cos(a), np.sin(a)], -1)
+
+
+def test_cross_section_finds_an_off_bone_centre_and_rejects_a_stray_hit():
+    pts = _ring([0.0, -0.022], 0.08)
+    pts[3] *= 1.6  # a ray that went through a gap and hit the other leg
+    c, r, keep = sf.cross_section(pts)
+    np.testing.assert_allclose(c, [0.0, -0.022], atol=1e-9)
+    assert abs(r - 0.08) < 1e-9 and not keep[3] and keep.sum() == 11
+
+
+def test_cross_section_keeps_the_bone_inside_its_capsule():
+    c, r, _ = sf.cross_section(_ring([0.05, 0.0], 0.04))  # a fit that would leave the bone outside
+    assert np.linalg.norm(c) <= sf.MAX_AXIS_OFFSET * 0.04 + 1e-12 and r > 0.04
+
+
+def test_linear_offsets_interpolate_and_clamp_like_the_radii():
+    t = np.array([0.3, 0.5, 0.7])
+    centres = np.array([[0.0, -0.01], [0.0, -0.02], [0.0, -0.03]])
+    head, tail = sf.linear_offsets(t, centres)
+    np.testing.assert_allclose(head, [0.0, -0.01], atol=1e-12)  # clamped to the measured range
+    np.testing.assert_allclose(tail, [0.0, -0.03], atol=1e-12)
