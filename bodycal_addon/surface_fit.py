@@ -54,17 +54,38 @@ def tilt(direction: np.ndarray, toward: np.ndarray, degrees: float) -> np.ndarra
     return np.cos(a) * d + np.sin(a) * t
 
 
-def linear_radii(stations: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
-    """Head and tail radius of a capsule from per-station radii: a straight line through them,
-    evaluated at 0 and 1 but clamped to the measured range (no wild extrapolation to joints
-    where the neighbouring part would have interfered)."""
-    t, r = np.asarray(stations, float), np.asarray(radii, float)
+def _line_ends(stations, values, extend: float = 0.0) -> tuple[float, float]:
+    """A least-squares line through per-station values, evaluated at 0 (head) and 1 (tail),
+    clamped to the measured range widened by `extend` times its width on each side (0: no
+    extrapolation beyond the stations)."""
+    t, v = np.asarray(stations, float), np.asarray(values, float)
     if len(t) >= 2 and np.ptp(t) > 0:
-        slope, icpt = np.polyfit(t, r, 1)
+        slope, icpt = np.polyfit(t, v, 1)
     else:
-        slope, icpt = 0.0, float(r.mean())
-    lo, hi = r.min(), r.max()
-    return float(np.clip(icpt, lo, hi)), float(np.clip(icpt + slope, lo, hi))
+        slope, icpt = 0.0, float(v.mean())
+    lo, hi = v.min(), v.max()
+    w = extend * (hi - lo)
+    return float(np.clip(icpt, lo - w, hi + w)), float(np.clip(icpt + slope, lo - w, hi + w))
+
+
+def linear_radii(stations: np.ndarray, radii: np.ndarray, extend: float = 0.0) -> tuple[float, float]:
+    """Head and tail radius of a capsule from per-station radii (stations clear of the joints): a
+    straight line through them at the joints, within the measured range (`extend` = 0: a
+    phalanx's stations are close together and its neighbours interfere, so no wild
+    extrapolation) or beyond it by `extend` times its width (a limb: the contacts land between
+    the stations, and a thigh line clamped to the stations' range was ~9 mm under its middle),
+    never under half the thinnest station."""
+    head, tail = _line_ends(stations, radii, extend)
+    floor = 0.5 * float(np.min(radii))
+    return max(head, floor), max(tail, floor)
+
+
+def linear_offsets(stations: np.ndarray, centres: np.ndarray, extend: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Axis offsets at the head (0) and tail (1) from per-station cross-section centres (K, D): a
+    straight line through them per component, bounded like linear_radii."""
+    c = np.asarray(centres, float)
+    head, tail = zip(*(_line_ends(stations, c[:, k], extend) for k in range(c.shape[1])))
+    return np.array(head), np.array(tail)
 
 
 MAX_AXIS_OFFSET = 0.75  # of the radius: the bone stays inside its capsule
@@ -105,10 +126,3 @@ def cross_section(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         r = float(np.linalg.norm(p[keep] - c, axis=1).mean())
     return c, r, keep
 
-
-def linear_offsets(stations: np.ndarray, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Axis offsets at the head (0) and tail (1) from per-station cross-section centres (K, D): a
-    straight line through them per component, clamped to the measured range like linear_radii."""
-    c = np.asarray(centres, float)
-    head, tail = zip(*(linear_radii(stations, c[:, k]) for k in range(c.shape[1])))
-    return np.array(head), np.array(tail)

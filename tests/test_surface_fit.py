@@ -23,9 +23,17 @@ def test_cross_section_keeps_the_bone_inside_its_capsule():
     assert np.linalg.norm(c) <= sf.MAX_AXIS_OFFSET * 0.04 + 1e-12 and r > 0.04
 
 
-def test_linear_offsets_interpolate_and_clamp_like_the_radii():
+def test_line_ends_carry_a_taper_to_the_joints_but_not_a_wild_slope():
     t = np.array([0.3, 0.5, 0.7])
     centres = np.array([[0.0, -0.01], [0.0, -0.02], [0.0, -0.03]])
-    head, tail = sf.linear_offsets(t, centres)
-    np.testing.assert_allclose(head, [0.0, -0.01], atol=1e-12)  # clamped to the measured range
-    np.testing.assert_allclose(tail, [0.0, -0.03], atol=1e-12)
+    head, tail = sf.linear_offsets(t, centres, extend=1.0)
+    np.testing.assert_allclose(head, [0.0, 0.005], atol=1e-12)  # the line, at the joints
+    np.testing.assert_allclose(tail, [0.0, -0.045], atol=1e-12)
+    rh, rt = sf.linear_radii(t, np.array([0.082, 0.077, 0.065]), extend=1.0)  # a thigh tapering to the knee
+    assert rh > 0.082 and rt < 0.065
+    # two close stations a few mm apart would extrapolate to a huge slope: bounded by their spread
+    rh, rt = sf.linear_radii(np.array([0.45, 0.55]), np.array([0.010, 0.012]), extend=1.0)
+    assert rh == 0.008 and rt == 0.014
+    assert sf.linear_radii(np.array([0.3, 0.7]), np.array([0.01, 0.03]), extend=1.0)[0] >= 0.005  # never under half
+    # a phalanx (extend 0): clamped to the stations' range
+    assert sf.linear_radii(t, np.array([0.012, 0.010, 0.008])) == (0.012, 0.008)
