@@ -31,7 +31,7 @@ from bodycal_addon import metrics, paths, synthetic  # noqa: E402
 from bodycal_addon import skeleton as sk  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
-from bodycal_addon.retarget.avatar_pose import BI, AvatarRig, complete_joints  # noqa: E402
+from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
 
 CONTACT_MOTIONS = ("clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "squat")
 PERFORMERS = (("average", 1.75), ("heavy", 1.70), ("child", 1.35))
@@ -63,16 +63,6 @@ def _avatars():
         arm, _, _ = build_procedural_avatar(spec)
         out.append(("procedural", arm, procedural_avatar(spec)))
     return out, notes
-
-
-def _sole_points(avatar, rig: AvatarRig, anim, side):
-    el = avatar.element(f"mesh:sole_{side}")
-    pose = rig.fk(anim.rotations, anim.root_location)
-    corr = pl.surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"foot_{side}"]]
-    frame = pose.frames[:, BI[f"foot_{side}"]] @ corr
-    ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
-    local = np.stack([p.local for p in el.points.values()])
-    return ankle[:, None] + np.einsum("fij,kj->fki", frame, local)
 
 
 def _model_gaps(avatar, rig: AvatarRig, anim, contacts):
@@ -131,7 +121,7 @@ def main(quick: bool = False):
                     gaps.append(g)
                 model_gaps += _model_gaps(avatar, rig, anim, contacts)
                 for s in sk.SIDES:
-                    soles = _sole_points(avatar, rig, anim, s)
+                    soles = mesh_metrics.sole_points(avatar, anim, s)
                     floors.append(metrics.floor_error(soles, truth.planted[f"foot_{s}"]))
                 for n, tg in anim.targets.items():
                     if n.split("_")[0] in ("wrist", "ankle", "tip"):

@@ -218,11 +218,6 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
         h, t = J[sk.BONE_BY_NAME[bone].head], J[sk.BONE_BY_NAME[bone].tail]
         R = frames[bone]
         length = np.linalg.norm(t - h)
-        dirs = [np.cos(a) * R[:, 0] + np.sin(a) * R[:, 2] for a in angles]
-
-        def ring(st, h=h, t=t, dirs=dirs, length=length):
-            o = h + st * (t - h)
-            return np.array([r[1] for d in dirs if (r := caster.cast(o, d, max_dist=length)) is not None])
 
         def section(st, h=h, t=t, length=length, R=R):
             """Hit points of a station's ring in the bone's (x, z) plane."""
@@ -237,7 +232,7 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
         # Stations keep clear of the joints by 1.6 probe radii: the neighbouring part's surface
         # (a thicker parent's rounded end, the next phalanx, the torso at the hip) reaches about
         # that far. A fingertip has no neighbour beyond its tail.
-        probe = ring(0.5)
+        probe = np.linalg.norm(section(0.5), axis=1)
         margin = 0.25
         if len(probe) >= 3:
             margin = float(np.clip(1.6 * probe[robust_keep(probe)].mean() / length, 0.1, 0.45))

@@ -207,11 +207,9 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
     from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + sac @ (C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
     P["pelvis"] = 0.5 * (pel_rigid + from_hips)
     # --- spine aimed at the skull base, twist shared hips -> shoulders -> head ----------------
-    lengths = np.array([np.linalg.norm(rest_pos[SPINE_JOINTS[k + 1]] - rest_pos[SPINE_JOINTS[k]])
-                        for k in range(sk.SPINE_COUNT)])
     sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
     rest_spine = np.stack([rest_pos[j] for j in SPINE_JOINTS])
-    res = ik.spine(P["pelvis"], sac, sac_len, lengths, P["skull_base"],
+    res = ik.spine(P["pelvis"], sac, sac_len, None, P["skull_base"],
                    top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False,
                    rest_segments=np.diff(rest_spine, axis=0) @ C0[BI["sacrum"]])
     Fr[:, BI["sacrum"]] = res.sacrum_rot
