@@ -91,38 +91,74 @@ def linear_offsets(stations: np.ndarray, centres: np.ndarray, extend: float = 0.
 MAX_AXIS_OFFSET = 0.75  # of the radius: the bone stays inside its capsule
 
 
-def _weighted_circle(p, w):
-    a = np.column_stack([2 * p, np.ones(len(p))]) * w[:, None]
-    sol, *_ = np.linalg.lstsq(a, (p * p).sum(1) * w, rcond=None)
-    c = sol[:2]
-    return c, np.sqrt(max(sol[2] + c @ c, 0.0))
+def _weighted_circles(q, w):
+    """Algebraic circles |p|² = 2 c·p + k per station, least squares with weights w (S, K):
+    3x3 normal equations, batched. Returns centres (S, 2) and radii (S,)."""
+    a = np.concatenate([2 * q, np.ones(q.shape[:2] + (1,))], axis=-1)
+    aw = a * (w * w)[..., None]
+    m = np.einsum("ski,skj->sij", aw, a)
+    empty = (w > 0).sum(axis=1) < 3  # kept solvable; the caller discards these stations
+    m[empty] += np.eye(3)
+    sol = np.linalg.solve(m, np.einsum("ski,sk->si", aw, (q * q).sum(-1))[..., None])[..., 0]
+    c = sol[:, :2]
+    return c, np.sqrt(np.maximum(sol[:, 2] + (c * c).sum(-1), 0.0))
+
+
+def _row_median(v, mask):
+    """Median of each row's entries where `mask` (0 for a row without any), (S, 1)."""
+    srt = np.sort(np.where(mask, v, np.inf), axis=1)
+    n = mask.sum(axis=1)
+    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[:, None], axis=1)
+    hi = np.take_along_axis(srt, (n // 2)[:, None], axis=1)
+    return np.where((n == 0)[:, None], 0.0, 0.5 * (lo + hi))
+
+
+def _median_scale(res, mask):
+    """Per-station median and scaled MAD (at least MIN_MAD) of the residuals where `mask`."""
+    med = _row_median(res, mask)
+    return med, np.maximum(1.4826 * _row_median(np.abs(res - med), mask), MIN_MAD)
+
+
+def cross_sections(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Circles through a limb's cross-sections, all stations at once: (S, K, 2) hit points around
+    the bone (at the origin), NaN where a ray missed. Algebraic fit, re-weighted (Cauchy) so a
+    stray hit cannot drag it, then the hits beyond MAD_K scaled MADs of the residual are dropped
+    and the circle fitted again. The centre is pulled back toward the bone to at most
+    MAX_AXIS_OFFSET of the radius (a few hits on one side must not move the capsule off its
+    bone). Returns centres (S, 2), radii (S,) = mean distance of the kept points, kept (S, K);
+    NaN centre and radius for a station with fewer than 3 hits."""
+    p = np.asarray(points, float)
+    valid = np.isfinite(p).all(axis=-1)
+    q = np.where(valid[..., None], p, 0.0)
+    enough = valid.sum(axis=1) >= 3
+    w = valid.astype(float)
+    c, r = _weighted_circles(q, w)
+    for _ in range(8):
+        res = np.linalg.norm(q - c[:, None], axis=-1) - r[:, None]
+        w = valid / (1.0 + (res / _median_scale(res, valid)[1]) ** 2)
+        c_new, r_new = _weighted_circles(q, w)
+        done = np.all(np.abs(c_new - c)[enough] < 1e-5) and np.all(np.abs(r_new - r)[enough] < 1e-5)  # 0.01 mm
+        c, r = c_new, r_new
+        if done:
+            break
+    res = np.linalg.norm(q - c[:, None], axis=-1) - r[:, None]
+    med, scale = _median_scale(res, valid)
+    keep = valid & (np.abs(res - med) <= MAD_K * scale)
+    keep = np.where((keep.sum(axis=1) < 3)[:, None], valid, keep)
+    c, _ = _weighted_circles(q, keep.astype(float))
+    n = np.maximum(keep.sum(axis=1), 1)
+    r = (np.linalg.norm(q - c[:, None], axis=-1) * keep).sum(axis=1) / n
+    off = np.linalg.norm(c, axis=1)
+    pull = off > MAX_AXIS_OFFSET * r
+    if pull.any():
+        c[pull] *= (MAX_AXIS_OFFSET * r[pull] / off[pull])[:, None]
+        r = (np.linalg.norm(q - c[:, None], axis=-1) * keep).sum(axis=1) / n
+    c[~enough], r[~enough] = np.nan, np.nan
+    return c, r, keep & enough[:, None]
 
 
 def cross_section(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """Circle through a limb's cross-section (K, 2) hit points around the bone (at the origin):
-    algebraic fit, re-weighted (Cauchy) so a stray hit cannot drag it, then the hits beyond MAD_K
-    scaled MADs of the residual are dropped and the circle fitted again. The centre is pulled
-    back toward the bone to at most MAX_AXIS_OFFSET of the radius (a few hits on one side must
-    not move the capsule off its bone). Returns (centre (2,), radius = mean distance of the kept
-    points, kept mask)."""
-    p = np.asarray(points, float)
-    w = np.ones(len(p))
-    c, r = _weighted_circle(p, w)
-    for _ in range(8):
-        res = np.linalg.norm(p - c, axis=1) - r
-        scale = max(1.4826 * np.median(np.abs(res - np.median(res))), MIN_MAD)
-        w = 1.0 / (1.0 + (res / scale) ** 2)
-        c, r = _weighted_circle(p, w)
-    res = np.linalg.norm(p - c, axis=1) - r
-    keep = robust_keep(res)
-    if keep.sum() >= 3:
-        c, r = _weighted_circle(p[keep], np.ones(int(keep.sum())))
-    else:
-        keep = np.ones(len(p), bool)
-    r = float(np.linalg.norm(p[keep] - c, axis=1).mean())
-    off = float(np.linalg.norm(c))
-    if off > MAX_AXIS_OFFSET * r:
-        c = c * (MAX_AXIS_OFFSET * r / off)
-        r = float(np.linalg.norm(p[keep] - c, axis=1).mean())
-    return c, r, keep
+    """One station of `cross_sections`: (K, 2) hits -> (centre (2,), radius, kept (K,))."""
+    c, r, keep = cross_sections(np.asarray(points, float)[None])
+    return c[0], float(r[0]), keep[0]
 

@@ -59,7 +59,7 @@ from .. import skeleton as sk
 from .. import surface_layout as sl
 from ..bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
 from ..errors import BodyCalError
-from ..surface_fit import cross_section, linear_offsets, linear_radii, robust_keep, sphere_fit
+from ..surface_fit import cross_sections, linear_offsets, linear_radii, robust_keep, sphere_fit
 from . import avatar_rig
 
 CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)  # count; the span adapts (see below)
@@ -212,6 +212,7 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
 
     # --- capsules -----------------------------------------------------------------------------
     angles = np.linspace(0.0, 2 * np.pi, CAPSULE_RAYS, endpoint=False)
+    ring_2d = np.stack([np.cos(angles), np.sin(angles)], axis=-1)  # (rays, 2): bone x, z
     for bone in sl.CAPSULE_BONES:
         if bone not in model.bones:
             continue
@@ -219,52 +220,49 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
         R = frames[bone]
         length = np.linalg.norm(t - h)
 
-        def section(st, h=h, t=t, length=length, R=R):
-            """Hit points of a station's ring in the bone's (x, z) plane."""
+        dirs = ring_2d @ np.stack([R[:, 0], R[:, 2]])  # (rays, 3) world directions
+
+        def section(st, h=h, t=t, length=length, dirs=dirs):
+            """(CAPSULE_RAYS, 2) hit points of a station's ring in the bone's (x, z) plane, NaN
+            where a ray missed."""
             o = h + st * (t - h)
-            out = []
-            for a in angles:
-                r = caster.cast(o, np.cos(a) * R[:, 0] + np.sin(a) * R[:, 2], max_dist=length)
+            dist = np.full(len(dirs), np.nan)
+            for k, d in enumerate(dirs):
+                r = caster.cast(o, d, max_dist=length)
                 if r is not None:
-                    out.append((np.cos(a) * r[1], np.sin(a) * r[1]))
-            return np.array(out).reshape(-1, 2)
+                    dist[k] = r[1]
+            return ring_2d * dist[:, None]
 
         # Stations keep clear of the joints by 1.6 probe radii: the neighbouring part's surface
         # (a thicker parent's rounded end, the next phalanx, the torso at the hip) reaches about
         # that far. A fingertip has no neighbour beyond its tail.
         probe = np.linalg.norm(section(0.5), axis=1)
+        probe = probe[np.isfinite(probe)]
         margin = 0.25
         if len(probe) >= 3:
             margin = float(np.clip(1.6 * probe[robust_keep(probe)].mean() / length, 0.1, 0.45))
         tail_margin = min(margin, 0.25) if bone.split("_")[1:2] == ["3"] else margin
         stations = np.linspace(margin, 1.0 - tail_margin, len(CAPSULE_STATIONS))
-        station_r, station_t, station_c, spreads = [], [], [], []
-        n_hit = n_rej = 0
-        for st in stations:
-            pts = section(st)
-            n_hit += len(pts)
-            if len(pts) < 3:
-                continue
-            # Decision (beyond paper 000's bone-centred capsules): the capsule's axis goes through
-            # the middle of the cross-section, not along the bone; a femur runs ~25 mm behind the
-            # middle of an adult thigh, and a hand resting on the thigh sank that far into it.
-            centre, radius, keep = cross_section(pts)
-            n_rej += int((~keep).sum())
-            station_r.append(radius)
-            station_t.append(st)
-            station_c.append(centre)
-            d = np.linalg.norm(pts[keep] - centre, axis=1)
-            spreads.append(d - d.mean())
+        pts = np.stack([section(st) for st in stations])
+        hits = np.isfinite(pts).all(axis=-1)
+        # Decision (beyond paper 000's bone-centred capsules): the capsule's axis goes through
+        # the middle of the cross-section, not along the bone; a femur runs ~25 mm behind the
+        # middle of an adult thigh, and a hand resting on the thigh sank that far into it.
+        centres, radii, keep = cross_sections(pts)
+        used = np.isfinite(radii)
+        n_hit, n_rej = int(hits.sum()), int((hits & ~keep)[used].sum())
+        station_t, station_r, station_c = stations[used], radii[used], centres[used]
+        spreads = [np.linalg.norm(pts[i][keep[i]] - centres[i], axis=1) - radii[i] for i in np.flatnonzero(used)]
         rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
         avatar_bone = rig.bone_map.bones.get(bone, bone)
         if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
             raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
                                source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
         extend = LIMB_EXTRAPOLATION if bone in sl.LIMB_CAPSULE_BONES else 0.0
-        rh, rt = linear_radii(np.array(station_t), np.array(station_r), extend)
+        rh, rt = linear_radii(station_t, station_r, extend)
         model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
         element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
-        ch, ct = linear_offsets(np.array(station_t), np.array(station_c), extend)
+        ch, ct = linear_offsets(station_t, station_c, extend)
         element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
         model.surface.append(element)
         quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
