@@ -232,4 +232,6 @@ def test_spine_from_the_rest_shape_is_finite_on_the_root_and_short_out_of_reach(
     res = ik.spine(start - [0, 0.1, 0], rot, 0.1, None, skull, rest_segments=rest)
     assert np.all(np.isfinite(res.joints)) and np.all(np.isfinite(res.rotations))
     np.testing.assert_allclose(res.joints[1, -1], [0, 0.54 * ik.MAX_SPINE_STRETCH, 0], atol=1e-9)
+    flat = ik.spine(start - [0, 0.1, 0], rot, 0.1, None, skull, rest_segments=np.zeros((12, 3)))  # no spine
+    assert np.all(np.isfinite(flat.joints)) and np.all(np.isfinite(flat.rotations))
     np.testing.assert_allclose(np.linalg.norm(np.diff(res.joints, axis=1), axis=-1)[0], 0.045 * ik.MIN_SPINE_STRETCH)

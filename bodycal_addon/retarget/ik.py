@@ -226,7 +226,7 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     axis, sin_phi = _unit(np.cross(u0, ut), _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
     k = np.arange(1, len(lengths) + 1)
-    delta = phi * lengths.sum() / (lengths * k).sum()
+    delta = phi * lengths.sum() / max(float((lengths * k).sum()), 1e-12)
     seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
     chord = (seg * lengths[:, None]).sum(1)
     cdir, clen = _unit(chord, ut)
