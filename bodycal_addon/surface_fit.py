@@ -18,9 +18,7 @@ def robust_keep(values: np.ndarray) -> np.ndarray:
     v = np.asarray(values, float)
     if v.size == 0:
         return np.zeros(0, bool)
-    med = np.median(v)
-    mad = max(1.4826 * np.median(np.abs(v - med)), MIN_MAD)
-    return np.abs(v - med) <= MAD_K * mad
+    return _keep_rows(v[None], np.ones((1, v.size), bool))[0]
 
 
 def sphere_fit(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -119,6 +117,12 @@ def _median_scale(res, mask):
     return med, np.maximum(1.4826 * _row_median(np.abs(res - med), mask), MIN_MAD)
 
 
+def _keep_rows(v, mask):
+    """Per row, the entries where `mask` within MAD_K scaled MADs of that row's median."""
+    med, scale = _median_scale(v, mask)
+    return mask & (np.abs(v - med) <= MAD_K * scale)
+
+
 def cross_sections(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Circles through a limb's cross-sections, all stations at once: (S, K, 2) hit points around
     the bone (at the origin), NaN where a ray missed. Algebraic fit, re-weighted (Cauchy) so a
@@ -142,8 +146,7 @@ def cross_sections(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
         if done:
             break
     res = np.linalg.norm(q - c[:, None], axis=-1) - r[:, None]
-    med, scale = _median_scale(res, valid)
-    keep = valid & (np.abs(res - med) <= MAD_K * scale)
+    keep = _keep_rows(res, valid)
     keep = np.where((keep.sum(axis=1) < 3)[:, None], valid, keep)
     c, _ = _weighted_circles(q, keep.astype(float))
     n = np.maximum(keep.sum(axis=1), 1)
@@ -155,10 +158,4 @@ def cross_sections(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
         r = (np.linalg.norm(q - c[:, None], axis=-1) * keep).sum(axis=1) / n
     c[~enough], r[~enough] = np.nan, np.nan
     return c, r, keep & enough[:, None]
-
-
-def cross_section(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """One station of `cross_sections`: (K, 2) hits -> (centre (2,), radius, kept (K,))."""
-    c, r, keep = cross_sections(np.asarray(points, float)[None])
-    return c[0], float(r[0]), keep[0]
 

@@ -13,13 +13,13 @@ def _ring(centre, radius, n=12):
 def test_cross_section_finds_an_off_bone_centre_and_rejects_a_stray_hit():
     pts = _ring([0.0, -0.022], 0.08)
     pts[3] *= 1.6  # a ray that went through a gap and hit the other leg
-    c, r, keep = sf.cross_section(pts)
+    (c,), (r,), (keep,) = sf.cross_sections(pts[None])
     np.testing.assert_allclose(c, [0.0, -0.022], atol=1e-9)
     assert abs(r - 0.08) < 1e-9 and not keep[3] and keep.sum() == 11
 
 
 def test_cross_section_keeps_the_bone_inside_its_capsule():
-    c, r, _ = sf.cross_section(_ring([0.05, 0.0], 0.04))  # a fit that would leave the bone outside
+    (c,), (r,), _ = sf.cross_sections(_ring([0.05, 0.0], 0.04)[None])  # a fit that would leave the bone outside
     assert np.linalg.norm(c) <= sf.MAX_AXIS_OFFSET * 0.04 + 1e-12 and r > 0.04
 
 

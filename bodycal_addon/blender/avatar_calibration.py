@@ -41,7 +41,7 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 projected onto the floor plane (the lowest of the two floor hits).
 
 Capsule radii (DESIGN.md §4): per station, a circle is fitted to the ring's hits in the plane
-across the bone (hits beyond 3 scaled MADs of the radius rejected, `surface_fit.cross_section`);
+across the bone (hits beyond 3 scaled MADs of the radius rejected, `surface_fit.cross_sections`);
 the station radius is the mean distance of the rest to its centre; head/tail radii and the axis
 offsets (`axis_head` / `axis_tail`: the centres' line, in the bone's frame) come from lines
 through the stations (limbs: extrapolated to the joints within bounds, `surface_fit.linear_radii`;

@@ -105,7 +105,7 @@ class _Run:
             # coordinates (capsule angles, sphere directions) must mean the same side of the body
             # on the user and on the avatar, whatever `right` each model's producer chose.
             self.user_s = canonical_surface(_surface_bones(user), self.user_frames0, self.user_pos)
-            self.avatar_s = canonical_surface(_surface_bones(avatar), self.rig.frames0, complete_joints(avatar))
+            self.avatar_s = canonical_surface(_surface_bones(avatar), self.rig.frames0, avatar_pos)
             self.ids = ego.common_elements(user, avatar)
             # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
             # against the body without the arms: arm, hand and finger elements are moved by the IK
@@ -244,7 +244,7 @@ class _Run:
         if "skull_base" in targets:
             spine_idx = [BI[b] for b in SPINE_BONES]
             res = ik.spine(fk.joints[:, JI["pelvis"]], fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
-                           rig.lengths[spine_idx], targets["skull_base"],
+                           None, targets["skull_base"],
                            top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]),
                            two_pass=False, rest_segments=self.rest_spine)
             frames[:, BI["sacrum"]] = res.sacrum_rot
