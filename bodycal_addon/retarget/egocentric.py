@@ -202,6 +202,25 @@ class PosedSurface:
                             {k: v[s] for k, v in self.joints.items()}, self.notes)
 
 
+    def select(self, keep) -> PosedSurface:
+        """The elements at indices `keep` (ascending: capsules, spheres, meshes stay in order)."""
+        keep = np.asarray(keep, int)
+        C, S, _ = self.counts
+        ci, si, mi = keep[keep < C], keep[(keep >= C) & (keep < C + S)] - C, keep[keep >= C + S] - C - S
+        rows, elem, slices = [], [], []
+        for k, m in enumerate(mi):
+            a, b = self.mesh_slices[m]
+            slices.append((len(rows), len(rows) + b - a))
+            rows += range(a, b)
+            elem += [len(ci) + len(si) + k] * (b - a)
+        rows = np.array(rows, int)
+        return PosedSurface([self.element_ids[k] for k in keep], [self.element_bones[k] for k in keep],
+                            [self.element_roots[k] for k in keep], self.caps_head[:, ci], self.caps_tail[:, ci],
+                            self.caps_rot[:, ci], self.caps_radius[ci], self.sph_center[:, si], self.sph_rot[:, si],
+                            self.sph_radius[si], self.tri[:, rows], self.tri_normal[:, rows], np.array(elem, int),
+                            slices, self.mesh_head[:, mi], self.mesh_rot[:, mi], self.mesh_scale[mi], self.joints,
+                            self.notes)
+
 def common_elements(*models) -> list[str]:
     """Element ids present in every model (in the first model's order): pose the user and the
     avatar with these so their elements pair one to one."""
@@ -453,17 +472,15 @@ class _Proj:
     dist: np.ndarray  # (F, P, E)
     factor: np.ndarray  # (F, P, E)
     cap_t: np.ndarray  # (F, P, C)
-    cap_dir: np.ndarray  # (3, F, P, C) unit direction from the axis, world (bone frame in Projections)
-    sph_dir: np.ndarray  # (3, F, P, S) world
+    cap_dir: np.ndarray  # (3, F, P, C) unit direction from the axis, in the bone frame
+    sph_dir: np.ndarray  # (3, F, P, S) in the bone frame
     tri_index: np.ndarray  # (F, P, M)
     tri_bary: np.ndarray  # (3, F, P, M)
 
     def public(self, surface: PosedSurface) -> Projections:
         m = np.moveaxis
-        cap_dir = _apply_t(_rot_comp(surface.caps_rot), self.cap_dir)
-        sph_dir = _apply_t(_rot_comp(surface.sph_rot), self.sph_dir)
         return Projections(m(self.x, 0, -1), m(self.v, 0, -1), self.dist, self.factor, self.cap_t,
-                           m(cap_dir, 0, -1), m(sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
+                           m(self.cap_dir, 0, -1), m(self.sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
 
 
 def _project(p, surface: PosedSurface, tol: float) -> _Proj:
@@ -512,7 +529,8 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     x = pc - v
     dist = np.sqrt(_dot(v, v))
     factor = np.concatenate([cap_factor, np.ones((F, P, S)), mesh_factor], axis=-1)
-    return _Proj(x, v, dist, factor, t, d, sd, sel, tri_bary)
+    # Surface coordinates in the bone frames: what re-poses the projection on another body.
+    return _Proj(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
 
 
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
@@ -543,18 +561,20 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
     """(x', v'): x' re-posed on the avatar (see `repose`); v' = v, or with `turn_v` the user's v
     carried by each element's local frame onto the avatar's (bone frame for capsules and spheres,
     triangle frame for meshes), so it keeps its angle to the avatar's surface."""
-    F, P = pr.dist.shape[:2]
+    F, P = pr.v.shape[1:3]
     C, S, M = avatar.counts
     a = _comp(avatar.caps_head)[:, :, None, :]
     ab = _comp(avatar.caps_tail)[:, :, None, :] - a
     t = pr.cap_t
     r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
-    # The same direction in the bone frame: turned by R' R^T, frame by frame.
-    cap_rel = _rot_comp(avatar.caps_rot @ np.swapaxes(user.caps_rot, -1, -2))
-    cap = a + t * ab + r * _apply(cap_rel, pr.cap_dir)
-    sph_rel = _rot_comp(avatar.sph_rot @ np.swapaxes(user.sph_rot, -1, -2))
-    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(sph_rel, pr.sph_dir)
-    v_parts = [_apply(cap_rel, pr.v[..., :C]), _apply(sph_rel, pr.v[..., C:C + S])] if turn_v else None
+    # The same direction in the avatar's bone frame.
+    cap_rot, sph_rot = _rot_comp(avatar.caps_rot), _rot_comp(avatar.sph_rot)
+    cap = a + t * ab + r * _apply(cap_rot, pr.cap_dir)
+    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(sph_rot, pr.sph_dir)
+    v_parts = None
+    if turn_v:  # v turned by R' R^T
+        v_parts = [_apply(cap_rot, _apply_t(_rot_comp(user.caps_rot), pr.v[..., :C])),
+                   _apply(sph_rot, _apply_t(_rot_comp(user.sph_rot), pr.v[..., C:C + S]))]
     if M:
         same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices,
                                                                                  avatar.mesh_slices)])
@@ -602,10 +622,8 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
     triangle: barycentric). A mesh whose triangles differ between user and avatar falls back to
     the element bone's frame, scaled by the bone length ratio. Returns (F, P, E, 3)."""
     m = np.moveaxis
-    cap_dir = _apply(_rot_comp(user.caps_rot), m(proj.cap_dir, -1, 0))
-    sph_dir = _apply(_rot_comp(user.sph_rot), m(proj.sph_dir, -1, 0))
-    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, cap_dir, sph_dir,
-               proj.tri_index, m(proj.tri_bary, -1, 0))
+    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, m(proj.cap_dir, -1, 0),
+               m(proj.sph_dir, -1, 0), proj.tri_index, m(proj.tri_bary, -1, 0))
     return m(_repose(pr, user, avatar)[0], 0, -1)
 
 
@@ -645,12 +663,15 @@ ZERO_BONE = len(GRAPH_BONES)  # a zero vector: the one entry of an empty path
 @dataclass
 class _Plan:
     exclude: np.ndarray  # (P, E)
-    chain_pe: np.ndarray  # (N,) flat (target, element) index p * E + e of each chain
+    chain_pe: np.ndarray  # (N,) flat (target, element) index p * E + e of each chain, ascending
+    dense: bool  # every pair has a chain (chain_pe is 0..P*E-1: no gather needed)
     chain_root: np.ndarray  # (N,) index into GRAPH_NODES of the element's root
-    entry_bone: np.ndarray  # (K,) every GRAPH_BONES index used (for the joint check)
-    # Paths by position: chains are sorted by decreasing path length, so the chains with a j-th
-    # bone are a prefix; slot_bones[j] lists those j-th bones. No gather of v̂ is needed.
-    slot_bones: list[np.ndarray]
+    # The chains' bones one after the other (an empty path: ZERO_BONE), chain c's from
+    # chain_starts[c]: a sum over every chain's bones is one np.add.reduceat.
+    chain_bones: np.ndarray  # (K,)
+    chain_of_entry: np.ndarray  # (K,)
+    chain_starts: np.ndarray  # (N,)
+    entry_bone: np.ndarray  # every GRAPH_BONES index used (for the joint check)
     floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
     floor_starts: list[np.ndarray]  # per side: (P,)
 
@@ -680,19 +701,17 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
             paths.append(kinematic_path(roots[e], name))
             pe.append(p * E + e)
             cr.append(GRAPH_NODES.index(roots[e]))
-    order = sorted(range(len(paths)), key=lambda i: -len(paths[i]))
-    paths = [paths[i] for i in order]
-    pe = [pe[i] for i in order]
-    cr = [cr[i] for i in order]
-    longest = len(paths[0]) if paths else 0
-    slots = [np.array([path[j] for path in paths if len(path) > j], int) for j in range(longest)]
-    bones = np.array(sorted({b for path in paths for b in path}), int)
+    bones, starts = _entries(paths)
+    of_entry = np.repeat(np.arange(len(paths)), np.diff(np.append(starts, len(bones)))) if paths else \
+        np.zeros(0, int)
+    used = np.array(sorted({b for path in paths for b in path}), int)
     floor_bone, floor_starts = [], []
     for s in sk.SIDES:
         b, st = _entries([kinematic_path(f"ankle_{s}", name) for name in target_names])
         floor_bone.append(b)
         floor_starts.append(st)
-    return _Plan(exclude, np.array(pe, int), np.array(cr, int), bones, slots, floor_bone, floor_starts)
+    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), bones, of_entry, starts, used,
+                 floor_bone, floor_starts)
 
 
 def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int) -> np.ndarray:
@@ -733,9 +752,8 @@ def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
 def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
                     avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
-                    turn_v: bool = False,
-                    chunk: int = 32, penetration_tolerance: float = PENETRATION_TOLERANCE,
-                    details: dict | None = None) -> np.ndarray:
+                    turn_v: bool = False, chunk: int | None = None,
+                    penetration_tolerance: float = PENETRATION_TOLERANCE, details: dict | None = None) -> np.ndarray:
     """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
 
     user_pts: (F, P, 3) the user's target positions, one column per name of `target_names`
@@ -749,84 +767,198 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     falloff: exponent of the raw weights' distance law (paper: 2); the invariants hold for any.
     turn_v: carry each v_ij by its element's local frame (bone / triangle frame) onto the avatar's
     instead of adding it as a world vector (eq. 1 as printed); see _repose.
-    details: if a dict is given, it receives the weights of the last chunk ("lam", "lam_g",
+    details: if a dict is given, it receives the weights of every frame ("lam", "lam_g",
     "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
+    chunk: frames per block (default: sized so a block's temporaries stay in the CPU caches).
 
-    Returns (F, P, 3): the avatar's targets p'_j. Frames are processed in chunks of `chunk`
-    (32: the temporaries stay in the CPU caches)."""
+    Returns (F, P, 3): the avatar's targets p'_j. Equivalent to
+    `prepare_targets(...).map(avatar_surface, ...)`, which maps the same user targets onto
+    several avatar poses without projecting them on the user again."""
+    prepared = prepare_targets(user_pts, target_names, user_surface, user_bones, floor=floor, falloff=falloff,
+                               chunk=chunk, penetration_tolerance=penetration_tolerance)
+    return prepared.map(avatar_surface, avatar_bones, turn_v=turn_v, details=details)
+
+
+BLOCK_PAIRS = 20_000  # frames x targets x elements per block: its temporaries stay in the L2 cache
+
+
+@dataclass
+class _UserBlock:
+    """The user's side of one block of frames of one target group (see PreparedTargets)."""
+
+    start: int
+    stop: int
+    p: np.ndarray  # (F, P, 3) the targets
+    us: PosedSurface  # the user's surface for these frames and the group's elements
+    pr: _Proj
+    lam: np.ndarray  # (F, P, E) λ
+    lam_g: np.ndarray  # (F, P, E) λg
+    lam_gf: np.ndarray  # (F, P) λg of the floor
+    vhat: np.ndarray  # (3, F, N) unit v of each chain
+    tau: np.ndarray  # (F, N) τ
+    dots: np.ndarray  # (K, F) |v̂·b_k| per chain entry (τ' weighs them by the avatar's bone length ratios)
+
+
+@dataclass
+class _Group:
+    """Targets that exclude the same elements (own_chain_elements), mapped on the others only:
+    an excluded pair has no weight, so projecting on it is wasted work."""
+
+    targets: np.ndarray  # indices into the target names
+    names: tuple[str, ...]
+    elements: np.ndarray | None  # indices of the elements kept (None: all)
+    plan: _Plan
+    blocks: list[_UserBlock]
+
+
+class PreparedTargets:
+    """The user's side of the egocentric mapping (paper 000, appendix C) of F frames of targets:
+    their projections on the user's surface, the weights of eq. 1 and the user's τ of eq. 2,
+    which do not depend on the avatar. `map` finishes the mapping against an avatar pose; the
+    pipeline maps the arms twice (against the arms where the first pass put them) and pays for
+    the user's side once. Built by `prepare_targets`."""
+
+    def __init__(self, pts, names, user_surface, ub, floor, groups):
+        self.pts, self.names, self.user_surface, self.floor, self.groups = pts, names, user_surface, floor, groups
+        self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
+        self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the slot gathers
+
+    @property
+    def frames(self) -> int:
+        return self.pts.shape[0]
+
+    def map(self, avatar_surface: PosedSurface, avatar_bones: dict[str, np.ndarray] | None = None, *,
+            turn_v: bool = False, details: dict | None = None) -> np.ndarray:
+        """The avatar's targets (F, P, 3) for the avatar posed as `avatar_surface` (same frames and
+        element_ids as the user's surface); see retarget_points."""
+        us = self.user_surface
+        if us.element_ids != avatar_surface.element_ids:
+            raise BodyCalError("user and avatar surfaces have different elements",
+                               hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+        F = self.frames
+        if avatar_surface.frames != F:
+            raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
+        for g in self.groups:
+            _check_joints(avatar_surface, g.plan, g.names, "avatar")
+        ab = _bone_vectors(avatar_surface, avatar_bones, F)
+        lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > 1e-12)
+        lrt = np.ascontiguousarray(lratio.T)
+        nodes_a = _node_positions(avatar_surface, F)
+        out = np.empty_like(self.pts)
+        if details is not None:
+            E = len(us.element_ids)
+            P = len(self.names)
+            details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
+                           ratio=np.ones((F, P, E)))
+        for g in self.groups:
+            av = avatar_surface if g.elements is None else avatar_surface.select(g.elements)
+            for b in g.blocks:
+                s, e = b.start, b.stop
+                res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
+                                        nodes_a[:, s:e], self.floor, turn_v)
+                out[s:e, g.targets] = res
+                if details is not None:
+                    cols = slice(None) if g.elements is None else g.elements
+                    rows = np.ix_(np.arange(s, e), g.targets, np.arange(E)[cols])
+                    details["lam"][rows] = b.lam
+                    details["lam_g"][rows] = b.lam_g
+                    details["ratio"][rows] = ratio
+                    details["lam_g_floor"][np.ix_(np.arange(s, e), g.targets)] = b.lam_gf
+        return out
+
+
+def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
+                    user_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
+                    chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE
+                    ) -> PreparedTargets:
+    """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses."""
     pts = np.asarray(user_pts, float)
     if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] != len(target_names):
         raise BodyCalError(f"targets must be (F, {len(target_names)}, 3), got {pts.shape}")
-    if user_surface.element_ids != avatar_surface.element_ids:
-        raise BodyCalError("user and avatar surfaces have different elements",
-                           hint="pose both with element_ids=common_elements(user_model, avatar_model)")
     F = pts.shape[0]
-    if user_surface.frames != F or avatar_surface.frames != F:
-        raise BodyCalError(f"targets have {F} frames, user surface {user_surface.frames}, "
-                           f"avatar surface {avatar_surface.frames}")
-    plan = _plan(tuple(target_names), tuple(user_surface.element_ids), tuple(user_surface.element_roots))
-    _check_joints(user_surface, plan, target_names, "user")
-    _check_joints(avatar_surface, plan, target_names, "avatar")
-    # Frame-dependent but element-independent arrays, once for all chunks.
+    if user_surface.frames != F:
+        raise BodyCalError(f"targets have {F} frames, user surface {user_surface.frames}")
     ub = _bone_vectors(user_surface, user_bones, F)
-    ab = _bone_vectors(avatar_surface, avatar_bones, F)
-    ulen = np.sqrt(_dot(ub, ub))
-    lratio = np.divide(np.sqrt(_dot(ab, ab)), ulen, out=np.ones_like(ulen), where=ulen > 1e-12)
-    ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the slot gathers
-    lrt = np.ascontiguousarray(lratio.T)
+    ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))
     nodes_u = _node_positions(user_surface, F)
-    nodes_a = _node_positions(avatar_surface, F)
-    out = np.empty_like(pts)
-    step = max(1, int(chunk))
-    for s in range(0, F, step):
-        e = min(F, s + step)
-        out[s:e] = _retarget_chunk(pts[s:e], plan, user_surface.take(s, e), avatar_surface.take(s, e),
-                                   ubt[:, :, s:e], lrt[:, s:e], nodes_u[:, s:e], nodes_a[:, s:e],
-                                   floor, penetration_tolerance, details, falloff, turn_v)
-    return out
+    ids = user_surface.element_ids
+    rows: dict[frozenset, list[int]] = {}
+    for i, name in enumerate(target_names):
+        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
+    groups = []
+    for excluded, members in rows.items():
+        keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
+        # Decision: a target with every element excluded keeps them all (all weights zero: the
+        # user's horizontal position, the floor's vertical one, as before grouping).
+        sub = user_surface if not excluded or not len(keep) else user_surface.select(keep)
+        names = tuple(target_names[i] for i in members)
+        plan = _plan(names, tuple(sub.element_ids), tuple(sub.element_roots))
+        _check_joints(sub, plan, names, "user")
+        step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
+        step = max(1, step)
+        blocks = []
+        for s in range(0, F, step):
+            e = min(F, s + step)
+            blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
+                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff))
+        groups.append(_Group(np.array(members, int), names, None if sub is user_surface else keep, plan, blocks))
+    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
 
 
-def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lratio, nodes_u, nodes_a, floor, tol,
-                    details, falloff=2.0, turn_v=False):
+def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff) -> _UserBlock:
     F, P = p.shape[:2]
     pr = _project(p, us, tol)
     E = pr.dist.shape[2]
-    h = p[..., 2]
-    lam_raw, floor_raw = raw_weights(pr, h, plan.exclude, falloff)
+    lam_raw, floor_raw = raw_weights(pr, p[..., 2], plan.exclude, falloff)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
     lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
-    x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
-
-    # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values) for every chain:
-    # τ = Σ_k |v̂·b_k| + |v̂·(x - r)|, τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|.
-    v = pr.v.reshape(3, F, P * E)[:, :, plan.chain_pe]  # (3, F, N)
-    vhat, _ = _normalised(v, 0.0)
-    # Chains first, frames last: each path slot is a prefix of contiguous rows.
+    # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
+    # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
+    vhat, _ = _normalised(_chains(pr.v, plan), 0.0)  # (3, F, N)
+    N = vhat.shape[2]
     vt = np.ascontiguousarray(vhat.transpose(0, 2, 1))  # (3, N, F)
-    tau = np.zeros(vt.shape[1:])
-    tau_a = np.zeros(vt.shape[1:])
-    for bones in plan.slot_bones:
-        n = len(bones)
-        dots = np.abs(_dot(vt[:, :n], np.take(ub, bones, axis=1)))
-        tau[:n] += dots
-        tau_a[:n] += dots * np.take(lratio, bones, axis=0)
-    tau, tau_a = tau.T, tau_a.T
-    nodes_u = np.take(nodes_u, plan.chain_root, axis=2)
-    nodes_a = np.take(nodes_a, plan.chain_root, axis=2)
-    tau += np.abs(_dot(vhat, pr.x.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_u))
-    tau_a += np.abs(_dot(vhat, x_av.reshape(3, F, P * E)[:, :, plan.chain_pe] - nodes_a))
-    ratio = np.ones((F, P * E))
-    ratio[:, plan.chain_pe] = np.divide(tau_a, tau, out=np.ones_like(tau), where=tau > 1e-12)
-    ratio = ratio.reshape(F, P, E)
+    dots = np.abs(_dot(np.take(vt, plan.chain_of_entry, axis=1), np.take(ub, plan.chain_bones, axis=1)))  # (K, F)
+    tau = np.add.reduceat(dots, plan.chain_starts, axis=0).T if N else np.zeros((F, 0))
+    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - np.take(nodes_u, plan.chain_root, axis=2)))
+    pr.dist = pr.factor = None  # spent on the weights
+    return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
+
+
+def _chains(a, plan: _Plan):
+    """(3, F, P, E) -> (3, F, N): the pairs that have a chain (a view when all do)."""
+    flat = a.reshape(a.shape[:2] + (-1,))
+    return flat if plan.dense else flat[:, :, plan.chain_pe]
+
+
+def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, nodes_a, floor, turn_v):
+    """One block of frames against the avatar: eq. 1 with τ'/τ of eq. 2. Returns ((F, P, 3), ratio)."""
+    p, us, pr = b.p, b.us, b.pr
+    F, P = p.shape[:2]
+    E = pr.v.shape[-1]
+    x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
+    # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
+    if b.tau.shape[1]:
+        tau_a = np.add.reduceat(b.dots * np.take(lratio, plan.chain_bones, axis=0), plan.chain_starts, axis=0).T
+    else:
+        tau_a = np.zeros((F, 0))
+    tau_a += np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
+    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > 1e-12)
+    if plan.dense:
+        ratio = chain_ratio.reshape(F, P, E)
+    else:
+        ratio = np.ones((F, P * E))
+        ratio[:, plan.chain_pe] = chain_ratio
+        ratio = ratio.reshape(F, P, E)
 
     est = x_av + v_av * ratio  # (3, F, P, E)
+    lam = b.lam
     horizontal = np.stack([(est[i] * lam).sum(-1) for i in range(2)], axis=-1)
     # No element with weight (all excluded): keep the user's horizontal position.
     none = lam.sum(-1) <= 0
     if none.any():
         horizontal = np.where(none[..., None], p[..., :2], horizontal)
-    vertical = (est[2] * lam_g).sum(-1)
+    vertical = (est[2] * b.lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
         ratios = []
@@ -839,7 +971,5 @@ def _retarget_chunk(p, plan: _Plan, us: PosedSurface, av: PosedSurface, ub, lrat
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
         left_supports = us.joints["ankle_l"][:, 2] <= us.joints["ankle_r"][:, 2]
         fratio = np.where(left_supports[:, None], ratios[0], ratios[1])
-        vertical = vertical + h * fratio * lam_gf
-    if details is not None:
-        details.update(lam=lam, lam_g=lam_g, lam_g_floor=lam_gf, ratio=ratio)
-    return np.concatenate([horizontal, vertical[..., None]], axis=-1)
+        vertical = vertical + p[..., 2] * fratio * b.lam_gf
+    return np.concatenate([horizontal, vertical[..., None]], axis=-1), ratio

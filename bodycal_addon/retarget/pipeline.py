@@ -211,17 +211,17 @@ class _Run:
         # The fingertips are re-mapped in full: their nearest elements are mostly their own hand's
         # palm and fingers, which pass 1 saw where the rotation copy had put the hand.
         wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
-        again = wrists + [i for i, n in enumerate(upper) if n.startswith("tip_")]
+        tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
+        user_side = ego.prepare_targets(pts, upper, us, user_bones=ub)  # the same for every pass
         pose, tg = mid, None
         for k in range(ARM_PASSES):
             av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
+            ta = user_side.map(av)
             if tg is None:
-                tg = ego.retarget_points(pts, upper, us, av, user_bones=ub)
-            elif again:
-                ta = ego.retarget_points(pts[:, again], [upper[i] for i in again], us, av, user_bones=ub)
-                nw = len(wrists)
-                tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, :nw])
-                tg[:, again[nw:]] = ta[:, nw:]
+                tg = ta
+            else:
+                tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, wrists])
+                tg[:, tips] = ta[:, tips]
             arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
             for s, (_, a_loc) in self.palm_local.items():
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - mid.frames[:, BI[f"hand_{s}"]] @ a_loc
