@@ -214,12 +214,16 @@ class PosedSurface:
             rows += range(a, b)
             elem += [len(ci) + len(si) + k] * (b - a)
         rows = np.array(rows, int)
+
+        def cols(a, idx):  # np.take along an inner axis is ~2x faster than fancy indexing
+            return np.take(a, idx, axis=1)
+
         return PosedSurface([self.element_ids[k] for k in keep], [self.element_bones[k] for k in keep],
-                            [self.element_roots[k] for k in keep], self.caps_head[:, ci], self.caps_tail[:, ci],
-                            self.caps_rot[:, ci], self.caps_radius[ci], self.sph_center[:, si], self.sph_rot[:, si],
-                            self.sph_radius[si], self.tri[:, rows], self.tri_normal[:, rows], np.array(elem, int),
-                            slices, self.mesh_head[:, mi], self.mesh_rot[:, mi], self.mesh_scale[mi], self.joints,
-                            self.notes)
+                            [self.element_roots[k] for k in keep], cols(self.caps_head, ci), cols(self.caps_tail, ci),
+                            cols(self.caps_rot, ci), self.caps_radius[ci], cols(self.sph_center, si),
+                            cols(self.sph_rot, si), self.sph_radius[si], cols(self.tri, rows),
+                            cols(self.tri_normal, rows), np.array(elem, int), slices, cols(self.mesh_head, mi),
+                            cols(self.mesh_rot, mi), self.mesh_scale[mi], self.joints, self.notes)
 
 def common_elements(*models) -> list[str]:
     """Element ids present in every model (in the first model's order): pose the user and the
@@ -842,7 +846,10 @@ class PreparedTargets:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         ab = _bone_vectors(avatar_surface, avatar_bones, F)
         lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > 1e-12)
-        lrt = np.ascontiguousarray(lratio.T)
+        if F and np.ptp(lratio, axis=0).max() <= 1e-9 * lratio.max():
+            lrt = np.ascontiguousarray(lratio[:1].T)  # rigid bones (the usual case): one ratio per bone
+        else:
+            lrt = np.ascontiguousarray(lratio.T)
         nodes_a = _node_positions(avatar_surface, F)
         out = np.empty_like(self.pts)
         if details is not None:
@@ -854,7 +861,8 @@ class PreparedTargets:
             av = avatar_surface if g.elements is None else avatar_surface.select(g.elements)
             for b in g.blocks:
                 s, e = b.start, b.stop
-                res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
+                lr = lrt if lrt.shape[1] == 1 else lrt[:, s:e]
+                res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lr,
                                         nodes_a[:, s:e], self.floor, turn_v)
                 out[s:e, g.targets] = res
                 if details is not None:
@@ -908,7 +916,6 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
 def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff) -> _UserBlock:
     F, P = p.shape[:2]
     pr = _project(p, us, tol)
-    E = pr.dist.shape[2]
     lam_raw, floor_raw = raw_weights(pr, p[..., 2], plan.exclude, falloff)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
