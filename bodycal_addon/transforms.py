@@ -62,23 +62,29 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) to unit quaternions, w >= 0 (Shepperd's method, branch-free
-    over arrays: every candidate is computed and the best conditioned one is picked per item)."""
+    """Rotation matrices (..., 3, 3) to unit quaternions, w >= 0 (Shepperd's method: per item, the
+    best conditioned of the four candidates, computed for the items that pick it only)."""
     m = np.asarray(m, float)
-    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    trace = m00 + m11 + m22
-    cands = np.stack([
-        np.stack([1 + trace, m21 - m12, m02 - m20, m10 - m01], -1),
-        np.stack([m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20], -1),
-        np.stack([m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21], -1),
-        np.stack([m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22], -1),
-    ], -2)
-    diag = np.stack([trace, m00, m11, m22], -1)
-    best = np.argmax(diag, axis=-1)
-    q = np.take_along_axis(cands, best[..., None, None], axis=-2)[..., 0, :]
-    return quat_normalize(q)
+    comp = np.ascontiguousarray(m.reshape(-1, 9).T)  # (9, N): every operation on contiguous rows
+    trace = comp[0] + comp[4] + comp[8]
+    best = np.argmax(np.stack([trace, comp[0], comp[4], comp[8]]), axis=0)
+    q = np.empty((4, comp.shape[1]))
+    for k in range(4):
+        cols = np.flatnonzero(best == k)
+        if not len(cols):
+            continue
+        if len(cols) == len(best):
+            cols = slice(None)
+        m00, m01, m02, m10, m11, m12, m20, m21, m22 = comp[:, cols]
+        q[:, cols] = [
+            (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
+            (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20),
+            (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21),
+            (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22),
+        ][k]
+    q /= np.sqrt((q * q).sum(0))
+    q *= np.where(q[0] < 0, -1.0, 1.0)
+    return q.T.reshape(m.shape[:-2] + (4,))
 
 
 def axis_angle_to_quat(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
