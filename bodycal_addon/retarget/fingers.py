@@ -53,22 +53,10 @@ def flexion_from_distance(l1, l2, l3, d) -> np.ndarray:
     return np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
 
 
-def _rx(angle):
-    c, s = np.cos(angle), np.sin(angle)
-    z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
-
-
 def _ry(angle):
     c, s = np.cos(angle), np.sin(angle)
     z, o = np.zeros_like(c), np.ones_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
-
-
-def _rz(angle):
-    c, s = np.cos(angle), np.sin(angle)
-    z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
 
 
 def yaw_pitch(direction) -> tuple[np.ndarray, np.ndarray]:
@@ -94,8 +82,17 @@ def realign(target_local, flexed_local, thumb: bool = False):
     yaw = np.clip(yaw, np.deg2rad(ylo), np.deg2rad(yhi))
     pitch = np.clip(pitch, np.deg2rad(plo), np.deg2rad(phi))
     _, flexed_pitch = yaw_pitch(flexed_local)
-    rot = _rz(-yaw) @ _rx(-(pitch - flexed_pitch))
-    return rot, yaw, pitch
+    return _rz_rx(-yaw, -(pitch - flexed_pitch)), yaw, pitch
+
+
+def _rz_rx(a, b):
+    """Rz(a) Rx(b), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
+    ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+    out = np.empty(np.shape(a) + (3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = ca, -sa * cb, sa * sb
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = sa, ca * cb, -ca * sb
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 0.0, sb, cb
+    return out
 
 
 @dataclass
@@ -127,15 +124,19 @@ def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll:
     rel = np.asarray(tip_target, float) - mcp
     local = np.einsum("fji,fj->fi", ref, rel)
     alpha = flexion_from_distance(l1, l2, l3, np.linalg.norm(rel, axis=-1))
-    r1 = np.eye(3)
-    r2 = _rx(alpha)
-    r3 = _rx(2 * alpha)
-    y = np.array([0.0, 1.0, 0.0])
-    flexed = l1[:, None] * y + l2[:, None] * r2[..., :, 1] + l3[:, None] * r3[..., :, 1]
+    # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
+    # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
+    c1, s1, c2, s2 = np.cos(alpha), np.sin(alpha), np.cos(2 * alpha), np.sin(2 * alpha)
+    flexed = np.stack([np.zeros(n), l1 + l2 * c1 + l3 * c2, l2 * s1 + l3 * s2], axis=-1)
     corr, yaw, pitch = realign(local, flexed, thumb)
     base = ref @ corr
-    rots = np.stack([base @ r1, base @ r2, base @ r3], axis=1)  # (F, 3, 3, 3)
-    lengths = np.stack([l1, l2, l3], axis=-1)
-    seg = rots[..., :, 1] * lengths[..., None]
+    bx, by, bz = base[..., 0], base[..., 1], base[..., 2]
+    rots = np.empty((n, 3, 3, 3))
+    rots[:, 0] = base
+    for k, (c, s) in enumerate(((c1, s1), (c2, s2)), start=1):
+        rots[:, k, :, 0] = bx
+        rots[:, k, :, 1] = c[:, None] * by + s[:, None] * bz
+        rots[:, k, :, 2] = c[:, None] * bz - s[:, None] * by
+    seg = rots[..., :, 1] * np.stack([l1, l2, l3], axis=-1)[..., None]
     joints = np.concatenate([mcp[:, None], mcp[:, None] + np.cumsum(seg, axis=1)], axis=1)
     return FingerPose(joints, rots, alpha, yaw, pitch)
