@@ -285,3 +285,67 @@ def test_capsule_axis_offsets_move_the_posed_capsule_in_its_bone_frame(user):
     p = (b.caps_head + b.caps_tail)[:, :, None] / 2 + (b.caps_rot[..., 0] * 0.2)[:, :, None]
     out = eg.retarget_points(p[:, 0], ["skull_base"], b, b)
     np.testing.assert_allclose(out, p[:, 0], atol=1e-9)
+
+
+def _rest(model):
+    joints = {k: v.world[None] for k, v in model.joints.items()}
+    return joints, rb.bone_frames(joints, {b: i.right[None] for b, i in model.bones.items()})
+
+
+def test_a_target_off_a_mesh_edge_keeps_its_weight_whichever_triangle_is_named(user):
+    # Outside a convex edge, both triangles' closest point is the edge point: their distances tie
+    # and rounding picks one. Their normals differ, so the angular factor must not depend on the
+    # pick (it did: a 1e-12 nudge moved the weights by several percent, the targets by mm).
+    joints, rots = _rest(user)
+    us = eg.pose_surface(user, joints, rots)
+    n = 40
+    us_n = eg.pose_surface(user, {k: np.repeat(v, n, 0) for k, v in joints.items()},
+                           {k: np.repeat(v, n, 0) for k, v in rots.items()})
+    first_mesh = us.counts[0] + us.counts[1]
+    tested = 0
+    for e, (s, t) in enumerate(us.mesh_slices, start=first_mesh):
+        tri, nrm = us.tri[0, s:t], us.tri_normal[0, s:t]
+        for a in range(len(tri)):
+            for b in range(a + 1, len(tri)):
+                shared = [p for p in tri[a] if np.isclose(p, tri[b]).all(-1).any()]
+                if len(shared) != 2 or nrm[a] @ nrm[b] > 0.95:
+                    continue
+                edge_mid = 0.5 * (shared[0] + shared[1])
+                out = edge_mid + 0.03 * (0.7 * nrm[a] + 0.3 * nrm[b]) / np.linalg.norm(0.7 * nrm[a] + 0.3 * nrm[b])
+                pts = out + np.random.default_rng(a).normal(scale=1e-12, size=(n, 1, 3))
+                proj = eg.project(pts, us_n)
+                if not np.allclose(proj.x[:, 0, e], edge_mid, atol=1e-9):
+                    continue  # a concave edge, or another part of the mesh is closer
+                own = [max(0.0, (out - edge_mid) @ m / np.linalg.norm(out - edge_mid)) for m in (nrm[a], nrm[b])]
+                assert abs(own[0] - own[1]) > 0.01  # the two triangles' factors differ: the pick would matter
+                assert np.ptp(proj.factor[:, 0, e]) < 1e-9, us.element_ids[e]
+                d = {}
+                eg.retarget_points(pts, ["wrist_l"], us_n, us_n, details=d)
+                assert np.ptp(d["lam"][:, 0, e]) < 1e-9, us.element_ids[e]
+                tested += 1
+    assert tested
+
+
+def test_both_feet_down_the_floor_term_does_not_flip_between_them(user):
+    # Standing on both feet, which ankle is lower is noise. With the user's left knee bent and an
+    # avatar with longer legs, the two feet's tau'/tau differ, and picking the lower ankle flipped
+    # every target's height between them. Nudging the ankles by a micrometre must move nothing.
+    aj = rb.standing_joints()
+    for k in aj:
+        if not k.startswith(("knee_", "ankle_", "toe_")):
+            aj[k] = aj[k] + [0.0, 0.0, 0.12]
+        elif k.startswith("knee_"):
+            aj[k] = aj[k] + [0.0, 0.0, 0.06]
+    av = eg.pose_surface(rb.make_body_model(aj, kind="avatar"), *_rest(rb.make_body_model(aj, kind="avatar")))
+    joints, _ = _rest(user)
+    joints["knee_l"] = joints["knee_l"] + [0.0, -0.15, 0.0]
+    names = ["wrist_l", "skull_base", "knee_r"]
+    outs = []
+    for dz in (1e-6, -1e-6, 0.05, -0.05):
+        j = {k: v.copy() for k, v in joints.items()}
+        j["ankle_l"][:, 2] += dz
+        rots = rb.bone_frames(j, {b: i.right[None] for b, i in user.bones.items()})
+        outs.append(eg.retarget_points(np.stack([j[n] for n in names], axis=1), names,
+                                       eg.pose_surface(user, j, rots), av))
+    assert np.abs(outs[0] - outs[1]).max() < 1e-5
+    assert np.abs(outs[2] - outs[3]).max() > 1e-3  # guard: which foot supports does matter here

@@ -34,7 +34,8 @@ Conventions and decisions (each one named in the code where it applies):
   extremity term `v.(p_j - e_j)` is the last bone of the path (the target is the tail of its
   bone). DESIGN.md Decision: absolute values in eq. 2.
 - Floor: `h'_j = h_j tau'/tau` with the path from the supporting (lower) ankle to the target; the
-  "x - r" extremity of that path is the ankle's height above the floor.
+  "x - r" extremity of that path is the ankle's height above the floor. Decision: with both feet
+  down, the two feet's ratios are blended (SUPPORT_BLEND), so the choice never flips on noise.
 - Raw weights: distances are floored at MIN_DISTANCE (1 mm), so a target on a surface takes (almost)
   all the weight of that element and nothing divides by zero; the triangle's cos(v, n) is taken
   from the plane shifted PENETRATION_TOLERANCE into the body (see _triangle_factor).
@@ -62,6 +63,8 @@ from ..transforms import frame_from_axes
 
 MIN_DISTANCE = 1e-3  # m: raw weights are capped at 1 / MIN_DISTANCE**2 (a target on a surface)
 PENETRATION_TOLERANCE = 0.01  # m: see _triangle_factor
+TIE = 1e-9  # relative (and, squared, absolute m²) tolerance of equal distances to a mesh's triangles
+SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
 TORSO_ROOT = sk.spine_joint(sk.CLAVICLE_VERTEBRA)
 
 # --- kinematic tree ----------------------------------------------------------------------------
@@ -521,10 +524,14 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         mesh_v = np.stack([np.take_along_axis(tv[i], sel, axis=2) for i in range(3)])
         bv, bw = np.take_along_axis(bv, sel, axis=2), np.take_along_axis(bw, sel, axis=2)
         tri_bary = np.stack([1.0 - bv - bw, bv, bw])
-        fi = np.arange(F)[:, None, None]
-        nc = _comp(surface.tri_normal)
-        normal = np.stack([nc[i][fi, sel] for i in range(3)])
-        mesh_factor = _triangle_factor(mesh_v, normal, tol)
+        # Decision: a closest point on an edge or a corner is the closest point of every triangle
+        # that shares it, and which one argmin names is decided by rounding; their normals differ,
+        # so the factor takes the best of the tied triangles (1 where the point leaves the edge
+        # for a face's region, where v meets that face's normal): the weight stays continuous.
+        tri_factor = _triangle_factor(tv, _comp(surface.tri_normal)[:, :, None, :], tol)  # (F, P, T)
+        mesh_factor = np.stack([
+            np.where(td2[..., s:e] <= np.min(td2[..., s:e], axis=-1, keepdims=True) * (1 + TIE) + TIE ** 2,
+                     tri_factor[..., s:e], 0.0).max(axis=-1) for s, e in surface.mesh_slices], axis=-1)
     else:
         sel = np.zeros((F, P, 0), int)
         mesh_v = tri_bary = np.zeros((3, F, P, 0))
@@ -976,7 +983,10 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, nodes_a
             tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=0), st, axis=0).T
             tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
-        left_supports = us.joints["ankle_l"][:, 2] <= us.joints["ankle_r"][:, 2]
-        fratio = np.where(left_supports[:, None], ratios[0], ratios[1])
+        # Decision: the two feet's ratios blended by which ankle is lower (SUPPORT_BLEND): with
+        # both feet on the floor, picking the lower ankle flips with millimetres of noise, and
+        # each flip moved every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm.
+        w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
+        fratio = ratios[1] + w_left[:, None] * (ratios[0] - ratios[1])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
     return np.concatenate([horizontal, vertical[..., None]], axis=-1), ratio
