@@ -57,6 +57,18 @@ def test_solve_then_fk_reproduces_joints_and_frames(world, drop):
                                atol=1e-9)
 
 
+@pytest.mark.parametrize("world", [None, rt.rigid_matrix_world(35.0, 1.4)])
+def test_joint_positions_of_a_few_joints_match_the_full_solve(world):
+    # The IK poses only the bones the limb roots hang from; they must land where the full solve puts them.
+    rig = ap.AvatarRig.from_model(rt.procedural_avatar(matrix_world=world, arm_drop_deg=30.0))
+    frames = _random_frames(rig, 6, seed=5)
+    pelvis = rig.joint_world[ap.JI["pelvis"]] + np.linspace(0, 0.2, 6)[:, None]
+    names = ["shoulder_l", "hip_r", "skull_base", "tip_index_l"]
+    full = rig.solve(frames, pelvis, basis=False, realised=False).joints
+    np.testing.assert_allclose(rig.joint_positions(frames, pelvis, names), full[:, [ap.JI[j] for j in names]],
+                               atol=1e-12)
+
+
 def test_rest_frames_give_the_identity_pose():
     rig = ap.AvatarRig.from_model(rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(20.0, 0.8)))
     pose = rig.solve(rig.frames0[None], rig.joint_world[ap.JI["pelvis"]][None])

@@ -27,7 +27,16 @@ import numpy as np
 from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
-from ..transforms import frame_from_axes, matrix_to_quat, normalize, quat_between, quat_to_matrix
+from ..transforms import (
+    frame_from_axes,
+    matrix_to_quat,
+    mul_stack,
+    normalize,
+    quat_between,
+    quat_to_matrix,
+    stack_apply,
+    stack_mul,
+)
 
 JOINTS = sk.JOINTS
 JI = sk.JOINT_INDEX
@@ -332,7 +341,36 @@ class AvatarRig:
         Speed: the pose is built bone by bone in a bones-first layout, and every product is a
         stack of 3x3 matrices times ONE fixed matrix, which is one BLAS call on the stack seen as
         (3F, 3) rows (numpy's stacked matmul makes one call per 3x3 product, ~10x slower)."""
+        P, H = self._pose(np.asarray(frames, float), pelvis)
+        if not basis:
+            return self._finish(None, P, H, None, realised)
+        return self._finish(self._basis(P), P, H, self._root_location(P, H), realised)
+
+    def joint_positions(self, frames: np.ndarray, pelvis: np.ndarray, joints: list[str]) -> np.ndarray:
+        """(F, len(joints), 3) world positions of a few canonical joints for the pose `solve` would
+        give, posing only the bones they hang from (the IK's limb roots need the trunk only)."""
         frames = np.asarray(frames, float)
+        jidx = [JI[j] for j in joints]
+        need = set()
+        for b in self.joint_bone[jidx]:
+            while b >= 0 and b not in need:
+                need.add(int(b))
+                b = self.parent[b]
+        if any(self.driver[b] == "chain" for b in need):  # the chain aims at the spine curve
+            b = self.joint_bone[JI["spine_root"]]
+            while b >= 0 and b not in need:
+                need.add(int(b))
+                b = self.parent[b]
+        P, H = self._pose(frames, pelvis, sorted(need))
+        out = np.empty((frames.shape[0], len(jidx), 3))
+        for k, j in enumerate(jidx):
+            b = self.joint_bone[j]
+            out[:, k] = H[b] + stack_apply(P[b], self.joint_local[j])
+        return (out.reshape(-1, 3) @ (self.w_rot.T * self.w_scale)).reshape(out.shape) + self.world[:3, 3]
+
+    def _pose(self, frames, pelvis, bones=None):
+        """Bones-first armature-space pose rotations P (N, F, 3, 3) and heads H (N, F, 3) of
+        `bones` (ascending; default all, the others left unset)."""
         nf = frames.shape[0]
         n = len(self.names)
         P = np.empty((n, nf, 3, 3))
@@ -342,28 +380,28 @@ class AvatarRig:
         if self.joint_bone[JI["pelvis"]] != self.root:
             # The pelvis joint rides on another bone: place the root so that bone's joint lands.
             pel_local = self.rest[self.root].T @ (self.joint_world_arm(JI["pelvis"]) - self.head[self.root])
-        for i, (p, drv, offset, fixed) in enumerate(self._bone_plan):
+        plan = self._bone_plan
+        for i in range(n) if bones is None else bones:
+            p, drv, offset, fixed = plan[i]
             if i != self.root:
-                H[i] = self.head[i] if p < 0 else H[p] + _mv(P[p], offset)
+                H[i] = self.head[i] if p < 0 else H[p] + stack_apply(P[p], offset)
             if drv is None:
-                P[i] = self.rest[i] if p < 0 else _rm(P[p], fixed)
+                P[i] = self.rest[i] if p < 0 else stack_mul(P[p], fixed)
             elif drv == "chain":
                 if curve is None:
                     curve = self._spine_curve(frames, P, H)
                 c = BI[SPINE_BONES[self.chain_vertebra[i]]]
-                delta = self._from_world(_rm(frames[:, c], self.frames0[c].T @ self.w_rot))
-                twist = _rm(delta, self.rest[i])
-                target = _curve_point(curve, self.chain_s[i]) + _mv(delta, self.chain_off[i])
-                q = quat_between(_mv(twist, self.chain_aim[i]), target - H[i])
+                delta = self._from_world(stack_mul(frames[:, c], self.frames0[c].T @ self.w_rot))
+                twist = stack_mul(delta, self.rest[i])
+                target = _curve_point(curve, self.chain_s[i]) + stack_apply(delta, self.chain_off[i])
+                q = quat_between(stack_apply(twist, self.chain_aim[i]), target - H[i])
                 P[i] = quat_to_matrix(q) @ twist
             else:
                 # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-                P[i] = self._from_world(_rm(frames[:, drv], fixed))
+                P[i] = self._from_world(stack_mul(frames[:, drv], fixed))
             if i == self.root:
-                H[i] = self.to_armature(pelvis) - _mv(P[i], pel_local)
-        if not basis:
-            return self._finish(None, P, H, None, realised)
-        return self._finish(self._basis(P), P, H, self._root_location(P, H), realised)
+                H[i] = self.to_armature(pelvis) - stack_apply(P[i], pel_local)
+        return P, H
 
     @property
     def _bone_plan(self) -> list[tuple]:
@@ -386,11 +424,11 @@ class AvatarRig:
 
     def _from_world(self, m):
         """W^-1 m for a stack of 3x3 matrices (the armature's rotation is usually the identity)."""
-        return m if self._w_identity else _lm(self.w_rot.T, m)
+        return m if self._w_identity else mul_stack(self.w_rot.T, m)
 
     def _to_world_rot(self, m):
         """W m for a stack of 3x3 matrices."""
-        return m if self._w_identity else _lm(self.w_rot, m)
+        return m if self._w_identity else mul_stack(self.w_rot, m)
 
     @property
     def _w_identity(self) -> bool:
@@ -405,9 +443,9 @@ class AvatarRig:
         basis = np.empty(P.shape)
         for i, p in enumerate(self.parent):
             if p < 0:
-                basis[i] = _lm(rel_t[i], P[i])
+                basis[i] = mul_stack(rel_t[i], P[i])
             else:
-                basis[i] = _lm(rel_t[i] @ self.rest[p], np.swapaxes(P[p], -1, -2) @ P[i])
+                basis[i] = mul_stack(rel_t[i] @ self.rest[p], np.swapaxes(P[p], -1, -2) @ P[i])
         return matrix_to_quat(np.swapaxes(basis, 0, 1))
 
     def joint_world_arm(self, j):
@@ -442,7 +480,8 @@ class AvatarRig:
         nf = P.shape[1]
         joints = np.empty((nf, len(JOINTS), 3))
         for b, js, local in self._joint_groups:
-            joints[:, js] = H[b][:, None, :] + np.swapaxes((P[b].reshape(-1, 3) @ local.T).reshape(nf, 3, -1), 1, 2)
+            rel = (P[b].reshape(-1, 3) @ local.T).reshape(nf, 3, len(js))
+            joints[:, js] = H[b][:, None, :] + np.swapaxes(rel, 1, 2)
         joints = (joints.reshape(-1, 3) @ (self.w_rot.T * self.w_scale)).reshape(joints.shape) + self.world[:3, 3]
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
@@ -451,7 +490,7 @@ class AvatarRig:
             idx = range(len(BONES)) if realised is True else np.asarray(realised, int)
             frames = np.full((nf, len(BONES), 3, 3), np.nan)
             for c in idx:
-                frames[:, c] = self._to_world_rot(_rm(P[self.carrier[c]], self._carrier_rel[c]))
+                frames[:, c] = self._to_world_rot(stack_mul(P[self.carrier[c]], self._carrier_rel[c]))
         return RigPose(basis, np.swapaxes(P, 0, 1), np.swapaxes(H, 0, 1), root_loc, joints, frames)
 
     @property
@@ -483,30 +522,15 @@ class AvatarRig:
             p = self.parent[i]
             loc = root_location if i == self.root else np.zeros((nf, 3))
             if p < 0:
-                P[i] = _lm(self.rest[i], B[i])
+                P[i] = mul_stack(self.rest[i], B[i])
                 H[i] = self.head[i] + loc @ self.rest[i].T
             else:
                 rel = self.rest[p].T @ self.rest[i]
-                pr = _rm(P[p], rel)
+                pr = stack_mul(P[p], rel)
                 P[i] = pr @ B[i]
-                H[i] = H[p] + _mv(P[p], self.rest[p].T @ (self.head[i] - self.head[p])) \
+                H[i] = H[p] + stack_apply(P[p], self.rest[p].T @ (self.head[i] - self.head[p])) \
                     + (pr @ loc[..., None])[..., 0]
         return self._finish(basis, P, H, np.asarray(root_location, float))
-
-
-def _rm(a, m):
-    """a @ m for a stack of 3x3 matrices a (..., 3, 3) and one 3x3 m (one BLAS call)."""
-    return (a.reshape(-1, 3) @ m).reshape(a.shape)
-
-
-def _lm(m, a):
-    """m @ a for one 3x3 m and a stack a (..., 3, 3)."""
-    return np.swapaxes(_rm(np.swapaxes(a, -1, -2), m.T), -1, -2)
-
-
-def _mv(a, v):
-    """a @ v for a stack of 3x3 matrices and one vector."""
-    return (a.reshape(-1, 3) @ v).reshape(a.shape[:-1])
 
 
 def _closest_on_segment(p, a, b):

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..transforms import stack_mul
+
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4
 # Appendix D, from [Ari18]: (yaw min, yaw max), (pitch min, pitch max), degrees.
@@ -116,9 +118,9 @@ def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll:
     mcp = np.asarray(mcp, float)
     ref = np.asarray(ref_rot, float)
     if thumb:
-        ref = ref @ _ry(np.full(len(mcp), THUMB_ROLL if roll is None else roll))
+        ref = stack_mul(ref, _ry(THUMB_ROLL if roll is None else roll))
     elif roll is not None:
-        ref = ref @ _ry(np.full(len(mcp), roll))
+        ref = stack_mul(ref, _ry(roll))
     n = len(mcp)
     l1, l2, l3 = (np.broadcast_to(np.asarray(v, float), (n,)) for v in (l1, l2, l3))
     rel = np.asarray(tip_target, float) - mcp

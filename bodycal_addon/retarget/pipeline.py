@@ -27,7 +27,7 @@ from ..bodymodel import BodyModel
 from ..errors import BodyCalError, Cancelled
 from ..recording import Recording
 from ..surface_layout import bone_frame
-from ..transforms import normalize, quat_to_matrix
+from ..transforms import normalize, quat_to_matrix, stack_apply, stack_mul
 from . import ik
 from . import offsets as ofs
 from .avatar_pose import (
@@ -183,8 +183,8 @@ class _Run:
         pull the head or the feet."""
         ego = self.ego
         uj, uf = _jd(up.joints), _fd(user_frames, self.sbones)
-        heads = up.joints[:, self.bone_heads]
-        tails = up.joints[:, self.bone_tails]
+        heads = np.take(up.joints, self.bone_heads, axis=1)
+        tails = np.take(up.joints, self.bone_tails, axis=1)
         vec = normalize(tails - heads) * self.user_lengths[:, None]
         ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
         lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
@@ -193,17 +193,18 @@ class _Run:
         if self.trunk_ids:
             ust = ego.pose_surface(self.user_s, uj, uf, self.trunk_ids)
             avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.sbones), self.trunk_ids)
-            tg = ego.retarget_points(up.joints[:, [JI[n] for n in lower]], lower, ust, avt, user_bones=ub)
+            tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
+                                     user_bones=ub)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         frames = self._ik(up, fk, pelvis, targets)
         mid = self.rig.solve(frames, pelvis, basis=False, realised=self.realise)
         us = ego.pose_surface(self.user_s, uj, uf, self.ids)
-        pts = up.joints[:, [JI[n] for n in upper]].copy()
+        pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
         # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
         # is copied): wrist and palm are a hand's size apart, and hands differ.
         for s, (u_loc, _) in self.palm_local.items():
-            pts[:, upper.index(f"wrist_{s}")] += user_frames[:, BI[f"hand_{s}"]] @ u_loc
+            pts[:, upper.index(f"wrist_{s}")] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
         # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
         # passes re-map the wrists, against the arms where the previous pass put them, so a
         # hand touching the other hand (or arm) meets it where that one ends up; both hands move
@@ -224,7 +225,8 @@ class _Run:
                 tg[:, tips] = ta[:, tips]
             arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
             for s, (_, a_loc) in self.palm_local.items():
-                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - mid.frames[:, BI[f"hand_{s}"]] @ a_loc
+                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
+                                                                                    a_loc)
             arm_frames = self._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
             if k + 1 < ARM_PASSES:
                 pose = self.rig.solve(arm_frames, pelvis, basis=False, realised=self.realise)
@@ -254,15 +256,20 @@ class _Run:
                 c = BI[f"clavicle_{s}"]
                 frames[:, c] = res.rotations[:, sk.CLAVICLE_VERTEBRA - 1] @ np.swapaxes(up.frames[:, v5], -1, -2) \
                     @ up.frames[:, c]
+        # The limbs hang from the trunk as solved now (or as given).
+        roots = [f"{a}_{s}" for s in sk.SIDES for a, _, e, _, _ in LIMBS.values() if f"{e}_{s}" in targets]
         if trunk is None:
-            trunk = rig.solve(frames, pelvis, basis=False, realised=False)
+            at = rig.joint_positions(frames, pelvis, roots)
+            roots = {j: at[:, k] for k, j in enumerate(roots)}
+        else:
+            roots = {j: trunk.joints[:, JI[j]] for j in roots}
         wrist_pos = {}
         for s in sk.SIDES:
             for limb, (a, m, e, ab, mb) in LIMBS.items():
                 eff = targets.get(f"{e}_{s}")
                 if eff is None:
                     continue
-                root = trunk.joints[:, JI[f"{a}_{s}"]]
+                root = roots[f"{a}_{s}"]
                 l1, l2 = rig.lengths[BI[f"{ab}_{s}"]], rig.lengths[BI[f"{mb}_{s}"]]
                 # Appendix E: swivel blended between the mapped intermediate target and the user's.
                 tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"),
@@ -292,8 +299,8 @@ class _Run:
             names = [f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS]
             p0 = [rig.joint_world[JI[n]] for n in names]
             lens = np.array([np.linalg.norm(p0[i + 1] - p0[i]) for i in range(3)])
-            mcp = wrist + np.einsum("fij,j->fi", hand, c0h.T @ (p0[0] - w0))
-            rest = [hand @ (c0h.T @ rig.frames0[BI[f"{f}_{i}_{s}"]]) for i in (1, 2, 3)]
+            mcp = wrist + stack_apply(hand, c0h.T @ (p0[0] - w0))
+            rest = [stack_mul(hand, c0h.T @ rig.frames0[BI[f"{f}_{i}_{s}"]]) for i in (1, 2, 3)]
             _, fr = pose_finger_chain(mcp, tip, lens, rest, thumb=f == "thumb")
             for i in (1, 2, 3):
                 frames[:, BI[f"{f}_{i}_{s}"]] = fr[i - 1]
@@ -310,7 +317,7 @@ class _Run:
         v5 = sk.CLAVICLE_VERTEBRA - 1
         for s in sk.SIDES:
             c = BI[f"clavicle_{s}"]
-            frames[:, c] = sf[:, v5] @ (st.spine0[v5].T @ st.ref_frames[c])
+            frames[:, c] = stack_mul(sf[:, v5], st.spine0[v5].T @ st.ref_frames[c])
         targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
         pelvis = p["pelvis"]
         up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)

@@ -25,7 +25,15 @@ from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
 from ..recording import Recording
-from ..transforms import frame_from_axes, normalize, quat_between, quat_normalize, quat_to_matrix
+from ..transforms import (
+    frame_from_axes,
+    normalize,
+    quat_between,
+    quat_normalize,
+    quat_to_matrix,
+    stack_apply,
+    stack_mul,
+)
 from . import fingers, ik
 from .avatar_pose import BI, BONES, JI, JOINTS, SPINE_BONES, SPINE_JOINTS, complete_joints, model_rest_frames
 
@@ -106,7 +114,7 @@ def _joint_from(model: BodyModel, tr: _Trackers, joint: str, roles: list[str] | 
     j = model.joints.get(joint)
     if j is None:
         return None
-    ests = [tr.pos[r] + tr.rot[r] @ np.asarray(loc, float) for r, loc in j.frames.items()
+    ests = [tr.pos[r] + stack_apply(tr.rot[r], np.asarray(loc, float)) for r, loc in j.frames.items()
             if r in tr.pos and (roles is None or r in roles)]
     if not ests:
         return None
@@ -126,7 +134,7 @@ def _own_frame(model: BodyModel, joint: str, tr: _Trackers):
 
 def _rigid(tr: _Trackers, role: str, frame0: np.ndarray):
     """A bone frame rigid on a tracker: R_T(t) R_T0^-1 C0."""
-    return tr.rot[role] @ (tr.ref_rot[role].T @ frame0)
+    return stack_mul(tr.rot[role], tr.ref_rot[role].T @ frame0)
 
 
 def _hinge_right(model: BodyModel, tr: _Trackers, bone: str, fallback: np.ndarray) -> np.ndarray:
@@ -134,11 +142,11 @@ def _hinge_right(model: BodyModel, tr: _Trackers, bone: str, fallback: np.ndarra
     ex = info.extra if info is not None else {}
     role = ex.get("right_frame")
     if role in tr.rot and ex.get("right_local") is not None:
-        return tr.rot[role] @ normalize(np.asarray(ex["right_local"], float))
+        return stack_apply(tr.rot[role], normalize(np.asarray(ex["right_local"], float)))
     for r in ("forearm", "shin", "hand", "foot"):  # the rest right carried by the intermediate tracker
         role = f"{r}_{bone.rsplit('_', 1)[-1]}"
         if role in tr.rot and role in tr.ref_rot and info is not None and info.right is not None:
-            return tr.rot[role] @ (tr.ref_rot[role].T @ info.right)
+            return stack_apply(tr.rot[role], tr.ref_rot[role].T @ info.right)
     return fallback
 
 
@@ -194,8 +202,8 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
             Fr[:, BI[f"{mb}_{s}"]] = frame_from_axes(P[f"{e}_{s}"] - P[f"{m}_{s}"], right)
         P[f"toe_{s}"] = _own_frame(user_model, f"toe_{s}", tr)
         if P[f"toe_{s}"] is None:
-            P[f"toe_{s}"] = P[f"ankle_{s}"] + _rigid(tr, f"foot_{s}", np.eye(3)) @ (rest_pos[f"toe_{s}"] -
-                                                                                   rest_pos[f"ankle_{s}"])
+            P[f"toe_{s}"] = P[f"ankle_{s}"] + stack_apply(_rigid(tr, f"foot_{s}", np.eye(3)),
+                                                          rest_pos[f"toe_{s}"] - rest_pos[f"ankle_{s}"])
         Fr[:, BI[f"foot_{s}"]] = _rigid(tr, f"foot_{s}", C0[BI[f"foot_{s}"]])
         Fr[:, BI[f"hand_{s}"]] = _rigid(tr, f"hand_{s}", C0[BI[f"hand_{s}"]])
     # --- sacrum: lateral and origin averaged with the hip line (appendix D) ----------------------
@@ -204,7 +212,7 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
     fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + lat_hips)))
     sac = fix @ sac
     hipmid0 = 0.5 * (rest_pos["hip_l"] + rest_pos["hip_r"])
-    from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + sac @ (C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
+    from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
     P["pelvis"] = 0.5 * (pel_rigid + from_hips)
     # --- spine aimed at the skull base, twist shared hips -> shoulders -> head ----------------
     sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
@@ -228,12 +236,12 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
         for f in sk.FINGERS:
             for jn in sk.FINGER_JOINTS:
                 name = f"{jn}_{f}_{s}"
-                P[name] = P[f"wrist_{s}"] + hand @ (c0h.T @ (rest_pos[name] - rest_pos[f"wrist_{s}"]))
+                P[name] = P[f"wrist_{s}"] + stack_apply(hand, c0h.T @ (rest_pos[name] - rest_pos[f"wrist_{s}"]))
             mb = f"metacarpal_{f}_{s}"
-            Fr[:, BI[mb]] = hand @ (c0h.T @ C0[BI[mb]])
+            Fr[:, BI[mb]] = stack_mul(hand, c0h.T @ C0[BI[mb]])
             for i in (1, 2, 3):
                 b = f"{f}_{i}_{s}"
-                Fr[:, BI[b]] = hand @ (c0h.T @ C0[BI[b]])
+                Fr[:, BI[b]] = stack_mul(hand, c0h.T @ C0[BI[b]])
             tip_name = f"{f}_tip_{s}"
             if tip_name in recording.marker_names:
                 m, mv = recording.marker(tip_name)
@@ -280,7 +288,7 @@ def pose_user_finger(P, Fr, f, s, tip, rest_pos, C0, hand, model_bones):
     mcp = P[names[0]]
     bones = [f"{f}_{i}_{s}" for i in (1, 2, 3)]
     c0h = C0[BI[f"hand_{s}"]]
-    rest_frames = [hand @ (c0h.T @ C0[BI[b]]) for b in bones]
+    rest_frames = [stack_mul(hand, c0h.T @ C0[BI[b]]) for b in bones]
     thumb = f == "thumb"
     pts, frames = pose_finger_chain(mcp, tip, lens, rest_frames, thumb=thumb)
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
