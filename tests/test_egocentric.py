@@ -349,3 +349,16 @@ def test_both_feet_down_the_floor_term_does_not_flip_between_them(user):
                                        eg.pose_surface(user, j, rots), av))
     assert np.abs(outs[0] - outs[1]).max() < 1e-5
     assert np.abs(outs[2] - outs[3]).max() > 1e-3  # guard: which foot supports does matter here
+
+
+def test_one_prepared_user_side_maps_onto_several_avatars(user):
+    # The pipeline prepares the user's side once and maps it onto several avatar poses; a
+    # prepared mapping must give each avatar its own answer (no state carried from the last one).
+    joints, rots = _posed(user, 12, 6)
+    us = eg.pose_surface(user, joints, rots)
+    pts = _targets(joints, 6)
+    prepared = eg.prepare_targets(pts, TARGETS, us)
+    for s in (1.35, 0.62, 1.35):
+        av = eg.pose_surface(rb.scale_model(user, s), {k: v * s for k, v in joints.items()}, rots)
+        np.testing.assert_allclose(prepared.map(av), s * pts, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(prepared.map(av), eg.retarget_points(pts, TARGETS, us, av), atol=1e-12, rtol=0)

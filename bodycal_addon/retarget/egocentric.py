@@ -345,12 +345,15 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
         tri_elem += [len(caps) + len(sphs) + m] * len(e.triangles)
         slices.append((start, len(tri_rows)))
     if point_bones:
-        ubones = list(dict.fromkeys(point_bones))
-        heads = np.stack([joints[_head_of(b, model)] for b in ubones], axis=1)
-        rots = np.stack([rot_of(b) for b in ubones], axis=1)
-        idx = np.array([ubones.index(b) for b in point_bones])
-        world = heads[:, idx] + np.einsum("fpij,pj->fpi", rots[:, idx], np.array(point_local, float))
-        tri = world[:, np.array(tri_rows)]  # (F, T, 3, 3)
+        # Per bone, its points in one BLAS call (frames stay the outer axis: C order throughout).
+        world = np.empty((frames, len(point_bones), 3))
+        local = np.array(point_local, float)
+        for b in dict.fromkeys(point_bones):
+            rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
+            rot = np.ascontiguousarray(rot_of(b))
+            world[:, rows] = joints[_head_of(b, model)][:, None, :] + np.swapaxes(
+                (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
+        tri = np.take(world, np.array(tri_rows), axis=1)  # (F, T, 3, 3), C order (world[:, rows] is not)
     else:
         tri = np.zeros((frames, 0, 3, 3))
     n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
@@ -425,12 +428,24 @@ def _normalised(v, fallback):
 
 def _apply(rc, v):
     """R v for (3, 3, ...) rotation components and (3, ...) vectors."""
-    return np.stack([rc[i, 0] * v[0] + rc[i, 1] * v[1] + rc[i, 2] * v[2] for i in range(3)])
+    return _rows_dot(rc, v, transpose=False)
 
 
 def _apply_t(rc, v):
     """R^T v (world -> bone frame)."""
-    return np.stack([rc[0, i] * v[0] + rc[1, i] * v[1] + rc[2, i] * v[2] for i in range(3)])
+    return _rows_dot(rc, v, transpose=True)
+
+
+def _rows_dot(rc, v, transpose):
+    out = np.empty((3,) + np.broadcast_shapes(rc.shape[2:], v.shape[1:]), np.result_type(rc, v))
+    tmp = np.empty(out.shape[1:], out.dtype)
+    for i in range(3):
+        r = rc[:, i] if transpose else rc[i]
+        np.multiply(r[0], v[0], out=out[i])
+        for k in (1, 2):  # in place: no temporaries beyond one
+            np.multiply(r[k], v[k], out=tmp)
+            out[i] += tmp
+    return out
 
 
 def _closest_on_triangles(ap, ab, ac):
@@ -521,6 +536,8 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         tv = tap - bv * tab - bw * tac  # p - x
         td2 = _dot(tv, tv)
         sel = np.stack([np.argmin(td2[..., s:e], axis=-1) + s for s, e in surface.mesh_slices], axis=-1)
+        starts = np.array([s for s, _ in surface.mesh_slices])
+        of_tri = np.repeat(np.arange(M), [e - s for s, e in surface.mesh_slices])
         mesh_v = np.stack([np.take_along_axis(tv[i], sel, axis=2) for i in range(3)])
         bv, bw = np.take_along_axis(bv, sel, axis=2), np.take_along_axis(bw, sel, axis=2)
         tri_bary = np.stack([1.0 - bv - bw, bv, bw])
@@ -529,9 +546,9 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         # so the factor takes the best of the tied triangles (1 where the point leaves the edge
         # for a face's region, where v meets that face's normal): the weight stays continuous.
         tri_factor = _triangle_factor(tv, _comp(surface.tri_normal)[:, :, None, :], tol)  # (F, P, T)
-        mesh_factor = np.stack([
-            np.where(td2[..., s:e] <= np.min(td2[..., s:e], axis=-1, keepdims=True) * (1 + TIE) + TIE ** 2,
-                     tri_factor[..., s:e], 0.0).max(axis=-1) for s, e in surface.mesh_slices], axis=-1)
+        closest = np.take(np.take_along_axis(td2, sel, axis=2), of_tri, axis=2)  # (F, P, T) its mesh's min
+        tied = td2 <= closest * (1 + TIE) + TIE ** 2
+        mesh_factor = np.maximum.reduceat(np.where(tied, tri_factor, 0.0), starts, axis=2)
     else:
         sel = np.zeros((F, P, 0), int)
         mesh_v = tri_bary = np.zeros((3, F, P, 0))
@@ -677,11 +694,12 @@ class _Plan:
     chain_pe: np.ndarray  # (N,) flat (target, element) index p * E + e of each chain, ascending
     dense: bool  # every pair has a chain (chain_pe is 0..P*E-1: no gather needed)
     chain_root: np.ndarray  # (N,) index into GRAPH_NODES of the element's root
-    # The chains' bones one after the other (an empty path: ZERO_BONE), chain c's from
-    # chain_starts[c]: a sum over every chain's bones is one np.add.reduceat.
-    chain_bones: np.ndarray  # (K,)
-    chain_of_entry: np.ndarray  # (K,)
-    chain_starts: np.ndarray  # (N,)
+    # Paths by position: with the chains in `order` (longest path first), the chains that have a
+    # j-th bone are a prefix, and slot_bones[j] lists those j-th bones: a sum over every chain's
+    # bones is a few prefix additions, with no gather of v̂ per bone.
+    order: np.ndarray  # (N,)
+    unorder: np.ndarray  # (N,) its inverse
+    slot_bones: list[np.ndarray]
     entry_bone: np.ndarray  # every GRAPH_BONES index used (for the joint check)
     floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
     floor_starts: list[np.ndarray]  # per side: (P,)
@@ -712,17 +730,17 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
             paths.append(kinematic_path(roots[e], name))
             pe.append(p * E + e)
             cr.append(GRAPH_NODES.index(roots[e]))
-    bones, starts = _entries(paths)
-    of_entry = np.repeat(np.arange(len(paths)), np.diff(np.append(starts, len(bones)))) if paths else \
-        np.zeros(0, int)
+    order = np.array(sorted(range(len(paths)), key=lambda i: -len(paths[i])), int)
+    longest = len(paths[order[0]]) if paths else 0
+    slots = [np.array([paths[i][j] for i in order if len(paths[i]) > j], int) for j in range(longest)]
     used = np.array(sorted({b for path in paths for b in path}), int)
     floor_bone, floor_starts = [], []
     for s in sk.SIDES:
         b, st = _entries([kinematic_path(f"ankle_{s}", name) for name in target_names])
         floor_bone.append(b)
         floor_starts.append(st)
-    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), bones, of_entry, starts, used,
-                 floor_bone, floor_starts)
+    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
+                 used, floor_bone, floor_starts)
 
 
 def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int) -> np.ndarray:
@@ -807,7 +825,7 @@ class _UserBlock:
     lam_gf: np.ndarray  # (F, P) λg of the floor
     vhat: np.ndarray  # (3, F, N) unit v of each chain
     tau: np.ndarray  # (F, N) τ
-    dots: np.ndarray  # (K, F) |v̂·b_k| per chain entry (τ' weighs them by the avatar's bone length ratios)
+    dots: list  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone length ratios)
 
 
 @dataclass
@@ -832,7 +850,8 @@ class PreparedTargets:
     def __init__(self, pts, names, user_surface, ub, floor, groups):
         self.pts, self.names, self.user_surface, self.floor, self.groups = pts, names, user_surface, floor, groups
         self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
-        self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the slot gathers
+        self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the gathers
+        self._bone_tau_a = None  # (length ratios, {(group, block): τ' over the bones}) of the last map
 
     @property
     def frames(self) -> int:
@@ -853,10 +872,13 @@ class PreparedTargets:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         ab = _bone_vectors(avatar_surface, avatar_bones, F)
         lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > 1e-12)
-        if F and np.ptp(lratio, axis=0).max() <= 1e-9 * lratio.max():
-            lrt = np.ascontiguousarray(lratio[:1].T)  # rigid bones (the usual case): one ratio per bone
-        else:
-            lrt = np.ascontiguousarray(lratio.T)
+        lrt = np.ascontiguousarray(lratio.T)
+        # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
+        # differ by rotations (the pipeline's arm passes), so it is kept for the next call.
+        cached = self._bone_tau_a if self._bone_tau_a is not None and np.allclose(
+            self._bone_tau_a[0], lrt, rtol=1e-12, atol=0.0) else None
+        bone_tau_a = (lrt, cached[1] if cached else {})
+        self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F)
         out = np.empty_like(self.pts)
         if details is not None:
@@ -864,13 +886,14 @@ class PreparedTargets:
             P = len(self.names)
             details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
                            ratio=np.ones((F, P, E)))
-        for g in self.groups:
+        for gi, g in enumerate(self.groups):
             av = avatar_surface if g.elements is None else avatar_surface.select(g.elements)
-            for b in g.blocks:
+            for bi, b in enumerate(g.blocks):
                 s, e = b.start, b.stop
-                lr = lrt if lrt.shape[1] == 1 else lrt[:, s:e]
-                res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lr,
-                                        nodes_a[:, s:e], self.floor, turn_v)
+                if (gi, bi) not in bone_tau_a[1]:
+                    bone_tau_a[1][gi, bi] = _bone_tau(b, g.plan, lrt[:, s:e])
+                res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
+                                        bone_tau_a[1][gi, bi], nodes_a[:, s:e], self.floor, turn_v)
                 out[s:e, g.targets] = res
                 if details is not None:
                     cols = slice(None) if g.elements is None else g.elements
@@ -930,10 +953,14 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = _normalised(_chains(pr.v, plan), 0.0)  # (3, F, N)
-    N = vhat.shape[2]
-    vt = np.ascontiguousarray(vhat.transpose(0, 2, 1))  # (3, N, F)
-    dots = np.abs(_dot(np.take(vt, plan.chain_of_entry, axis=1), np.take(ub, plan.chain_bones, axis=1)))  # (K, F)
-    tau = np.add.reduceat(dots, plan.chain_starts, axis=0).T if N else np.zeros((F, 0))
+    vt = np.ascontiguousarray(np.take(vhat, plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
+    tau = np.zeros(vt.shape[1:])
+    dots = []
+    for bones in plan.slot_bones:
+        n = len(bones)
+        dots.append(np.abs(_dot(vt[:, :n], np.take(ub, bones, axis=1))))
+        tau[:n] += dots[-1]
+    tau = np.take(tau, plan.unorder, axis=0).T
     tau += np.abs(_dot(vhat, _chains(pr.x, plan) - np.take(nodes_u, plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
     return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
@@ -942,21 +969,26 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
 def _chains(a, plan: _Plan):
     """(3, F, P, E) -> (3, F, N): the pairs that have a chain (a view when all do)."""
     flat = a.reshape(a.shape[:2] + (-1,))
-    return flat if plan.dense else flat[:, :, plan.chain_pe]
+    return flat if plan.dense else np.take(flat, plan.chain_pe, axis=2)
 
 
-def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, nodes_a, floor, turn_v):
-    """One block of frames against the avatar: eq. 1 with τ'/τ of eq. 2. Returns ((F, P, 3), ratio)."""
+def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
+    """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
+    out = np.zeros(b.tau.shape[::-1])
+    for bones, d in zip(plan.slot_bones, b.dots):
+        out[:len(bones)] += d * np.take(lratio, bones, axis=0)
+    return np.take(out, plan.unorder, axis=0).T
+
+
+def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v):
+    """One block of frames against the avatar: eq. 1 with τ'/τ of eq. 2 (`bone_tau_a`: `_bone_tau`).
+    Returns ((F, P, 3), ratio)."""
     p, us, pr = b.p, b.us, b.pr
     F, P = p.shape[:2]
     E = pr.v.shape[-1]
     x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
-    if b.tau.shape[1]:
-        tau_a = np.add.reduceat(b.dots * np.take(lratio, plan.chain_bones, axis=0), plan.chain_starts, axis=0).T
-    else:
-        tau_a = np.zeros((F, 0))
-    tau_a += np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
+    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > 1e-12)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
