@@ -575,7 +575,8 @@ class AvatarPose:
 
 
 def root_scale(user_model: BodyModel, rig: AvatarRig) -> float:
-    user = np.stack([complete_joints(user_model)[j] for j in JOINTS])
+    pos = complete_joints(user_model)
+    user = np.stack([pos[j] for j in JOINTS])
     lu = _leg_length(user)
     if lu <= 1e-6:
         raise BodyCalError("the user's legs have no length", source=user_model.name, field="joints")

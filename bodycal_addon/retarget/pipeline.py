@@ -157,7 +157,7 @@ class _Run:
     # --- one chunk of frames ------------------------------------------------------------------
 
     def chunk(self, start: int, stop: int):
-        up = animate_user(self.rec, self.user, start, stop)
+        up = animate_user(self.rec, self.user, start, stop, rest=(self.user_pos, self.user_frames0))
         for n in up.notes:
             if n not in self.notes:
                 self.notes.append(n)

@@ -150,8 +150,10 @@ def _hinge_right(model: BodyModel, tr: _Trackers, bone: str, fallback: np.ndarra
     return fallback
 
 
-def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, stop: int | None = None) -> UserPose:
-    """Animate the user's canonical skeleton over frames [start, stop) of `recording`."""
+def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, stop: int | None = None, *,
+                 rest: tuple[dict, np.ndarray] | None = None) -> UserPose:
+    """Animate the user's canonical skeleton over frames [start, stop) of `recording`. `rest`: the
+    model's (complete_joints, model_rest_frames), when the caller animates it chunk by chunk."""
     if user_model.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user_model.kind}'", source=user_model.name)
     stop = recording.frame_count if stop is None else stop
@@ -165,8 +167,10 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
             raise BodyCalError(f"no reference pose for '{role}' (body model extra.tpose)", source=user_model.name,
                                field="extra.tpose", hint="calibrate the user from this recording")
     nf = stop - start
-    rest_pos = complete_joints(user_model)
-    C0 = model_rest_frames(user_model, rest_pos)
+    if rest is None:
+        rest_pos = complete_joints(user_model)
+        rest = rest_pos, model_rest_frames(user_model, rest_pos)
+    rest_pos, C0 = rest
     P = {}
     Fr = np.empty((nf, len(BONES), 3, 3))
 
