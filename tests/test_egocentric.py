@@ -27,26 +27,34 @@ def _targets(joints, seed, spread=0.06):
     return pts + rng.normal(scale=spread, size=pts.shape)
 
 
+# The mapping in float64, and in float32 (the pipeline's) to its precision: ~100 last bits of a
+# coordinate of a metre or two.
+PRECISION = [(np.float64, 1e-9), (np.float32, 2e-5)]
+
+
+@pytest.mark.parametrize("dtype, atol", PRECISION)
 @pytest.mark.parametrize("seed", [1, 2])
-def test_avatar_equal_to_user_maps_every_target_onto_itself(user, seed):
+def test_avatar_equal_to_user_maps_every_target_onto_itself(user, seed, dtype, atol):
     joints, rots = _posed(user, 30, seed)
     us = eg.pose_surface(user, joints, rots)
     pts = _targets(joints, seed)
-    out = eg.retarget_points(pts, TARGETS, us, us, chunk=7)
-    np.testing.assert_allclose(out, pts, atol=1e-9, rtol=0)
-    out = eg.retarget_points(pts, TARGETS, us, us, turn_v=True)
-    np.testing.assert_allclose(out, pts, atol=1e-9, rtol=0)
+    out = eg.retarget_points(pts, TARGETS, us, us, chunk=7, dtype=dtype)
+    assert out.dtype == dtype
+    np.testing.assert_allclose(out, pts, atol=atol, rtol=0)
+    out = eg.retarget_points(pts, TARGETS, us, us, turn_v=True, dtype=dtype)
+    np.testing.assert_allclose(out, pts, atol=atol, rtol=0)
 
 
+@pytest.mark.parametrize("dtype, atol", PRECISION)
 @pytest.mark.parametrize("s, falloff, turn_v", [(1.35, 2.0, False), (0.62, 2.0, False), (1.2, 4.0, True)])
-def test_uniformly_scaled_avatar_scales_every_target(user, s, falloff, turn_v):
+def test_uniformly_scaled_avatar_scales_every_target(user, s, falloff, turn_v, dtype, atol):
     joints, rots = _posed(user, 30, 3)
     avatar = rb.scale_model(user, s)
     us = eg.pose_surface(user, joints, rots)
     av = eg.pose_surface(avatar, {k: v * s for k, v in joints.items()}, rots)
     pts = _targets(joints, 3)
-    out = eg.retarget_points(pts, TARGETS, us, av, falloff=falloff, turn_v=turn_v)
-    np.testing.assert_allclose(out, s * pts, atol=1e-9, rtol=0)
+    out = eg.retarget_points(pts, TARGETS, us, av, falloff=falloff, turn_v=turn_v, dtype=dtype)
+    np.testing.assert_allclose(out, s * pts, atol=atol, rtol=0)
 
 
 def test_scaled_avatar_is_not_a_no_op(user):
@@ -322,6 +330,10 @@ def test_a_target_off_a_mesh_edge_keeps_its_weight_whichever_triangle_is_named(u
                 d = {}
                 eg.retarget_points(pts, ["wrist_l"], us_n, us_n, details=d)
                 assert np.ptp(d["lam"][:, 0, e]) < 1e-9, us.element_ids[e]
+                # float32: nudges of a few last bits; the weight moves by as little
+                pts32 = out + np.random.default_rng(a).normal(scale=3e-7, size=(n, 1, 3))
+                eg.retarget_points(pts32, ["wrist_l"], us_n, us_n, details=d, dtype=np.float32)
+                assert np.ptp(d["lam"][:, 0, e]) < 1e-4 * d["lam"][:, 0, e].mean(), us.element_ids[e]
                 tested += 1
     assert tested
 

@@ -205,6 +205,16 @@ class PosedSurface:
                             {k: v[s] for k, v in self.joints.items()}, self.notes)
 
 
+    def astype(self, dtype) -> PosedSurface:
+        """The surface with its placed geometry in `dtype` (itself if already; joints unchanged)."""
+        if self.caps_head.dtype == dtype:
+            return self
+        c = [np.asarray(a, dtype) for a in (self.caps_head, self.caps_tail, self.caps_rot, self.caps_radius,
+                                            self.sph_center, self.sph_rot, self.sph_radius, self.tri, self.tri_normal)]
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, *c, self.tri_elem,
+                            self.mesh_slices, np.asarray(self.mesh_head, dtype), np.asarray(self.mesh_rot, dtype),
+                            np.asarray(self.mesh_scale, dtype), self.joints, self.notes)
+
     def select(self, keep) -> PosedSurface:
         """The elements at indices `keep` (ascending: capsules, spheres, meshes stay in order)."""
         keep = np.asarray(keep, int)
@@ -404,12 +414,18 @@ class Projections:
 def _comp(a) -> np.ndarray:
     """(..., 3) -> (3, ...) contiguous. The hot path keeps vector components first, so every
     operation runs over contiguous arrays (numpy is several times slower on a trailing axis of 3)."""
-    return np.ascontiguousarray(np.moveaxis(np.asarray(a, float), -1, 0))
+    return np.ascontiguousarray(np.moveaxis(_floating(a), -1, 0))
 
 
 def _rot_comp(rot) -> np.ndarray:
     """(F, X, 3, 3) -> (3, 3, F, 1, X): R_ij as contiguous (F, 1, X) arrays (1 = the target axis)."""
-    return np.ascontiguousarray(np.asarray(rot, float).transpose(2, 3, 0, 1))[:, :, :, None, :]
+    return np.ascontiguousarray(_floating(rot).transpose(2, 3, 0, 1))[:, :, :, None, :]
+
+
+def _floating(a) -> np.ndarray:
+    """float32 stays float32 (the pipeline maps in single precision); anything else is float64."""
+    a = np.asarray(a)
+    return a if a.dtype == np.float32 else a.astype(float, copy=False)
 
 
 def _dot(a, b):
@@ -547,16 +563,17 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         # for a face's region, where v meets that face's normal): the weight stays continuous.
         tri_factor = _triangle_factor(tv, _comp(surface.tri_normal)[:, :, None, :], tol)  # (F, P, T)
         closest = np.take(np.take_along_axis(td2, sel, axis=2), of_tri, axis=2)  # (F, P, T) its mesh's min
-        tied = td2 <= closest * (1 + TIE) + TIE ** 2
+        tie = max(TIE, 64 * np.finfo(td2.dtype).eps)  # above the rounding of the dtype
+        tied = td2 <= closest * (1 + tie) + tie ** 2
         mesh_factor = np.maximum.reduceat(np.where(tied, tri_factor, 0.0), starts, axis=2)
     else:
         sel = np.zeros((F, P, 0), int)
-        mesh_v = tri_bary = np.zeros((3, F, P, 0))
-        mesh_factor = np.zeros((F, P, 0))
+        mesh_v = tri_bary = np.zeros((3, F, P, 0), pc.dtype)
+        mesh_factor = np.zeros((F, P, 0), pc.dtype)
     v = np.concatenate([cap_v, sph_v, mesh_v], axis=-1)
     x = pc - v
     dist = np.sqrt(_dot(v, v))
-    factor = np.concatenate([cap_factor, np.ones((F, P, S)), mesh_factor], axis=-1)
+    factor = np.concatenate([cap_factor, np.ones((F, P, S), pc.dtype), mesh_factor], axis=-1)
     # Surface coordinates in the bone frames: what re-poses the projection on another body.
     return _Proj(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
 
@@ -564,7 +581,7 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
             ) -> Projections:
     """Project (F, P, 3) points on every element of `surface` (paper 000, appendix C, Figure 12)."""
-    return _project(np.asarray(points, float), surface, penetration_tolerance).public(surface)
+    return _project(_floating(points), surface, penetration_tolerance).public(surface)
 
 
 def _triangle_factor(v, normal, tol):
@@ -610,7 +627,7 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
         offset = np.array([as_ - us for (us, _), (as_, _) in zip(user.mesh_slices, avatar.mesh_slices)])
         idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
         fi = np.arange(F)[:, None, None]
-        mesh = np.zeros((3, F, P, M))
+        mesh = np.zeros((3, F, P, M), pr.v.dtype)
         for k in range(3):
             corner = _comp(avatar.tri[:, :, k])
             for i in range(3):
@@ -637,9 +654,9 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
         if turn_v:
             v_parts.append(mesh_v)
     else:
-        mesh = np.zeros((3, F, P, 0))
+        mesh = np.zeros((3, F, P, 0), pr.v.dtype)
         if turn_v:
-            v_parts.append(np.zeros((3, F, P, 0)))
+            v_parts.append(np.zeros((3, F, P, 0), pr.v.dtype))
     x = np.concatenate([cap, sph, mesh], axis=-1)
     return x, (np.concatenate(v_parts, axis=-1) if turn_v else pr.v)
 
@@ -743,10 +760,10 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
                  used, floor_bone, floor_starts)
 
 
-def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int) -> np.ndarray:
+def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int, dtype=float) -> np.ndarray:
     """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given, else from the surface's
     joints), plus the zero bone."""
-    out = np.zeros((3, F, len(GRAPH_BONES) + 1))
+    out = np.zeros((3, F, len(GRAPH_BONES) + 1), dtype)
     for i, name in enumerate(GRAPH_BONES):
         if bones is not None and name in bones:
             out[:, :, i] = np.asarray(bones[name], float).T
@@ -757,8 +774,8 @@ def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F:
     return out
 
 
-def _node_positions(surface: PosedSurface, F: int) -> np.ndarray:
-    out = np.zeros((3, F, len(GRAPH_NODES)))
+def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
+    out = np.zeros((3, F, len(GRAPH_NODES)), dtype)
     for i, name in enumerate(GRAPH_NODES):
         if name in surface.joints:
             out[:, :, i] = surface.joints[name].T
@@ -782,7 +799,8 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
                     avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
                     avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
                     turn_v: bool = False, chunk: int | None = None,
-                    penetration_tolerance: float = PENETRATION_TOLERANCE, details: dict | None = None) -> np.ndarray:
+                    penetration_tolerance: float = PENETRATION_TOLERANCE, details: dict | None = None,
+                    dtype=np.float64) -> np.ndarray:
     """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
 
     user_pts: (F, P, 3) the user's target positions, one column per name of `target_names`
@@ -799,12 +817,13 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     details: if a dict is given, it receives the weights of every frame ("lam", "lam_g",
     "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
     chunk: frames per block (default: sized so a block's temporaries stay in the CPU caches).
+    dtype: float64, or float32 (see prepare_targets); the result has this dtype.
 
     Returns (F, P, 3): the avatar's targets p'_j. Equivalent to
     `prepare_targets(...).map(avatar_surface, ...)`, which maps the same user targets onto
     several avatar poses without projecting them on the user again."""
     prepared = prepare_targets(user_pts, target_names, user_surface, user_bones, floor=floor, falloff=falloff,
-                               chunk=chunk, penetration_tolerance=penetration_tolerance)
+                               chunk=chunk, penetration_tolerance=penetration_tolerance, dtype=dtype)
     return prepared.map(avatar_surface, avatar_bones, turn_v=turn_v, details=details)
 
 
@@ -870,7 +889,8 @@ class PreparedTargets:
             raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
         for g in self.groups:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
-        ab = _bone_vectors(avatar_surface, avatar_bones, F)
+        dtype = self.pts.dtype
+        ab = _bone_vectors(avatar_surface, avatar_bones, F, dtype)
         lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > 1e-12)
         lrt = np.ascontiguousarray(lratio.T)
         # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
@@ -879,7 +899,8 @@ class PreparedTargets:
             self._bone_tau_a[0], lrt, rtol=1e-12, atol=0.0) else None
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
-        nodes_a = _node_positions(avatar_surface, F)
+        nodes_a = _node_positions(avatar_surface, F, dtype)
+        avatar_surface = avatar_surface.astype(dtype)
         out = np.empty_like(self.pts)
         if details is not None:
             E = len(us.element_ids)
@@ -907,18 +928,24 @@ class PreparedTargets:
 
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     user_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
-                    chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE
-                    ) -> PreparedTargets:
-    """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses."""
-    pts = np.asarray(user_pts, float)
+                    chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE,
+                    dtype=np.float64) -> PreparedTargets:
+    """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses.
+    `dtype` float32 maps in single precision (about twice as fast; positions agree with float64
+    to a few micrometres, the pipeline's choice)."""
+    dtype = np.dtype(dtype)
+    if dtype not in (np.float32, np.float64):
+        raise BodyCalError(f"the mapping computes in float32 or float64, not {dtype}")
+    pts = np.asarray(user_pts, dtype)
     if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] != len(target_names):
         raise BodyCalError(f"targets must be (F, {len(target_names)}, 3), got {pts.shape}")
     F = pts.shape[0]
     if user_surface.frames != F:
         raise BodyCalError(f"targets have {F} frames, user surface {user_surface.frames}")
-    ub = _bone_vectors(user_surface, user_bones, F)
+    ub = _bone_vectors(user_surface, user_bones, F, dtype)
     ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))
-    nodes_u = _node_positions(user_surface, F)
+    nodes_u = _node_positions(user_surface, F, dtype)
+    user_surface = user_surface.astype(dtype)
     ids = user_surface.element_ids
     rows: dict[frozenset, list[int]] = {}
     for i, name in enumerate(target_names):
@@ -954,7 +981,7 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = _normalised(_chains(pr.v, plan), 0.0)  # (3, F, N)
     vt = np.ascontiguousarray(np.take(vhat, plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
-    tau = np.zeros(vt.shape[1:])
+    tau = np.zeros(vt.shape[1:], vt.dtype)
     dots = []
     for bones in plan.slot_bones:
         n = len(bones)
@@ -974,7 +1001,7 @@ def _chains(a, plan: _Plan):
 
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
     """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
-    out = np.zeros(b.tau.shape[::-1])
+    out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
     for bones, d in zip(plan.slot_bones, b.dots):
         out[:len(bones)] += d * np.take(lratio, bones, axis=0)
     return np.take(out, plan.unorder, axis=0).T
@@ -993,7 +1020,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
     else:
-        ratio = np.ones((F, P * E))
+        ratio = np.ones((F, P * E), chain_ratio.dtype)
         ratio[:, plan.chain_pe] = chain_ratio
         ratio = ratio.reshape(F, P, E)
 
