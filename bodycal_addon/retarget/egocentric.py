@@ -24,7 +24,10 @@ Example (helper code builds `joints` / `bone_rotations` dicts of (F, 3) / (F, 3,
 Conventions and decisions (each one named in the code where it applies):
 - Element order in a `PosedSurface`: capsules, then spheres, then meshes (`element_ids`). The user
   and the avatar must be posed with the same `element_ids` (see `common_elements`).
-- A mesh element contributes its closest triangle (per frame and target).
+- A mesh element contributes its closest triangle (per frame and target); its angular factor is
+  the best of the triangles tied at that distance (an edge or corner point), so rounding never
+  picks the weight. Known limit: where two separate parts of a mesh are equally near (beside
+  the crude torso, front and back), the closest point itself jumps; the step is ~1 mm.
 - Targets are canonical joint names; the elements on a target's own limb chain are excluded
   (`own_chain_elements`, the single table of exclusions).
 - Kinematic paths run over the simplified tree `GRAPH_BONES`: the limb, hand, finger, foot and
@@ -44,9 +47,12 @@ Conventions and decisions (each one named in the code where it applies):
 - A mesh whose triangles differ between user and avatar (e.g. palms with other point counts) is
   re-posed in its bone's frame scaled by the bone length ratio instead of by barycentrics.
 
-Speed: the hot path keeps vector components first ((3, F, P, E) arrays) and runs chunks of 32
-frames so the temporaries stay in the CPU caches; everything frame-independent (exclusions,
-kinematic paths as index arrays sorted by length) is computed once per target/element set.
+Speed: the hot path keeps vector components first ((3, F, P, E) arrays) and runs blocks of
+BLOCK_PAIRS frames x targets x elements so the temporaries stay in the CPU caches; everything
+frame-independent (exclusions, kinematic paths as index arrays sorted by length) is computed once
+per target/element set; targets that exclude the same elements are mapped on the others only;
+the user's side is prepared once (`prepare_targets`) and mapped onto each avatar pose; the
+pipeline computes it in float32 (`dtype`).
 """
 
 from __future__ import annotations
@@ -204,7 +210,6 @@ class PosedSurface:
                             self.mesh_head[s], self.mesh_rot[s], self.mesh_scale,
                             {k: v[s] for k, v in self.joints.items()}, self.notes)
 
-
     def astype(self, dtype) -> PosedSurface:
         """The surface with its placed geometry in `dtype` (itself if already; joints unchanged)."""
         if self.caps_head.dtype == dtype:
@@ -237,6 +242,7 @@ class PosedSurface:
                             cols(self.sph_rot, si), self.sph_radius[si], cols(self.tri, rows),
                             cols(self.tri_normal, rows), np.array(elem, int), slices, cols(self.mesh_head, mi),
                             cols(self.mesh_rot, mi), self.mesh_scale[mi], self.joints, self.notes)
+
 
 def common_elements(*models) -> list[str]:
     """Element ids present in every model (in the first model's order): pose the user and the
