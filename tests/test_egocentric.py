@@ -348,7 +348,8 @@ def test_both_feet_down_the_floor_term_does_not_flip_between_them(user):
             aj[k] = aj[k] + [0.0, 0.0, 0.12]
         elif k.startswith("knee_"):
             aj[k] = aj[k] + [0.0, 0.0, 0.06]
-    av = eg.pose_surface(rb.make_body_model(aj, kind="avatar"), *_rest(rb.make_body_model(aj, kind="avatar")))
+    avatar = rb.make_body_model(aj, kind="avatar")
+    av = eg.pose_surface(avatar, *_rest(avatar))
     joints, _ = _rest(user)
     joints["knee_l"] = joints["knee_l"] + [0.0, -0.15, 0.0]
     names = ["wrist_l", "skull_base", "knee_r"]
