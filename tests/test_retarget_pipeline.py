@@ -10,6 +10,7 @@ import pytest
 from bodycal_addon import synthetic
 from bodycal_addon.errors import BodyCalError, Cancelled
 from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget import testing as rt
 from bodycal_addon.retarget import user_animation as ua
@@ -167,6 +168,38 @@ def test_a_rounding_sized_change_of_the_input_moves_the_output_by_as_little(sess
         assert np.abs(a.targets[name].astype(float) - b.targets[name]).max() < bound, name
     assert np.abs(a.root_location - b.root_location).max() < bound
     assert np.minimum(np.abs(a.rotations - b.rotations), np.abs(a.rotations + b.rotations)).max() < bound
+
+
+def test_a_target_sweeping_beside_the_crude_torso_moves_continuously(session):
+    # Beside the calibrated (crude) torso the closest point leaves a corner for an edge; the
+    # corner's other triangles used to drop out of the angular factor at once, and 0.3 mm of
+    # motion moved the mapped target by up to 11 mm. Continuity, not smallness: a sweep 100 times
+    # finer around the largest step must shrink it about as much (a jump would stay).
+    rec, _, user, _ = session
+    run = pl._Run(rec, user, rt.procedural_avatar(belly=0.06), "egocentric")
+    rest = {j: run.user_pos[j] for j in ap.JOINTS}
+    n = 801
+
+    def posed(joints, frames0, model):
+        return eg.pose_surface(model, {j: np.repeat(np.asarray(joints[j])[None], n, 0) for j in ap.JOINTS},
+                               {b.name: np.repeat(frames0[i][None], n, 0) for i, b in enumerate(ap.BONES)}, run.ids)
+
+    us = posed(rest, run.user_frames0, run.user_s)
+    av = posed(dict(zip(ap.JOINTS, run.rig.joint_world)), run.rig.frames0, run.avatar_s)
+    torso = us.element_ids.index("mesh:torso") - us.counts[0] - us.counts[1]
+    tri = us.tri[0, slice(*us.mesh_slices[torso])]
+
+    def largest_step(x, y0, y1, z):  # of the mapped wrist along a sweep from front to back
+        ys = np.linspace(y0, y1, n)
+        out = eg.retarget_points(np.stack([np.full(n, x), ys, np.full(n, z)], -1)[:, None], ["wrist_l"], us, av)
+        steps = np.linalg.norm(np.diff(out[:, 0], axis=0), axis=1)
+        return steps.max(), ys[np.argmax(steps)]
+
+    for lateral, z in ((0.08, 1.198), (0.03, 1.102), (0.15, 1.198)):
+        x = tri[..., 0].min() - lateral
+        coarse, y = largest_step(x, tri[..., 1].min() - 0.05, tri[..., 1].max() + 0.05, z)  # 0.3 mm apart
+        fine, _ = largest_step(x, y - 1.2e-3, y + 1.2e-3, z)  # 3 micrometres apart
+        assert fine < 0.05 * coarse, (lateral, z, coarse, fine)
 
 
 def test_chunking_does_not_change_the_result(session):
