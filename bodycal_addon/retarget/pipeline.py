@@ -260,12 +260,9 @@ class _Run:
                 frames[:, c] = res.rotations[:, sk.CLAVICLE_VERTEBRA - 1] @ np.swapaxes(up.frames[:, v5], -1, -2) \
                     @ up.frames[:, c]
         # The limbs hang from the trunk as solved now (or as given).
-        roots = [f"{a}_{s}" for s in sk.SIDES for a, _, e, _, _ in LIMBS.values() if f"{e}_{s}" in targets]
-        if trunk is None:
-            at = rig.joint_positions(frames, pelvis, roots)
-            roots = {j: at[:, k] for k, j in enumerate(roots)}
-        else:
-            roots = {j: trunk.joints[:, JI[j]] for j in roots}
+        names = [f"{a}_{s}" for s in sk.SIDES for a, _, e, _, _ in LIMBS.values() if f"{e}_{s}" in targets]
+        at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
+        roots = {j: at[:, k] for k, j in enumerate(names)}
         wrist_pos = {}
         for s in sk.SIDES:
             for limb, (a, m, e, ab, mb) in LIMBS.items():
