@@ -1,0 +1,198 @@
+"""Real human motion through the whole pipeline, as an outside tool would record it (issue 11).
+
+Each CMU BVH clip (../shared/data/motion/cmu_bvh, plus any given with --clips) becomes a FORMATS.md
+recording through `evaluation/` (code that shares nothing with synthetic.py): the calibration
+steps performed by the clip's own skeleton, then the clip; trackers at random mounting rotations
+and offsets, the performer at a random facing and place in the play area, the file written Y up
+(SteamVR) or Z up; tracker noise 0.5 mm / 0.3 degrees, soft-tissue motion 1.5 mm, dropouts. Two
+profiles: `full` (15 devices) and `six` (HMD, controllers, pelvis and feet). The file goes through
+the public reader, `calibrate_user` (no touch steps) and `retarget` onto shared avatars calibrated
+in Blender, with every method.
+
+Figures, per clip x profile (calibration) and per method x avatar x clip x profile (motion only):
+- joint-centre error (mm) at the reference time, per joint;
+- sole height during the source's stance (mm): median and worst of the avatar's lowest sole point;
+- foot slide (mm per 90 Hz frame, p95) of the avatar's ankle over the source's stance frames, with
+  the source's own;
+- wrist / ankle acceleration p95 over the source's (scaled by the avatar / source leg ratio);
+- hip-line angle (degrees, p95 and max) between the avatar's and the source's.
+Targets (issue 11) are checked in `targets`.
+
+Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_real_motion.py [--quick] [--clips F ...]
+[--avatars NAME ...] [--filter]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+import bpy  # noqa: E402
+import numpy as np  # noqa: E402
+
+from bodycal_addon import paths, recording_io  # noqa: E402
+from bodycal_addon.blender import mesh_metrics  # noqa: E402
+from bodycal_addon.calibration import calibrate_user  # noqa: E402
+from bodycal_addon.errors import BodyCalError  # noqa: E402
+from bodycal_addon.retarget import pipeline as pl  # noqa: E402
+from bodycal_addon.retarget.avatar_pose import AvatarRig  # noqa: E402
+from evaluation import bvh, capture, measure, performer, session  # noqa: E402
+
+AVATARS = ("child_10y", "long_arms_male")
+PROFILES = ("full", "six")
+FPS = 90.0
+JOINT_TARGETS = {  # issue 11, without touch steps: (profile, joints, mm)
+    "knees_elbows_full": ("full", ("knee_l", "knee_r", "elbow_l", "elbow_r"), 15.0),
+    "ankles_full": ("full", ("ankle_l", "ankle_r"), 20.0),
+    "wrists_full": ("full", ("wrist_l", "wrist_r"), 10.0),
+    "hips_shoulders_knees_elbows_six": ("six", ("hip_l", "hip_r", "shoulder_l", "shoulder_r", "knee_l", "knee_r",
+                                                "elbow_l", "elbow_r"), 25.0),
+}
+
+
+def _clips(extra: list[str]) -> list[Path]:
+    d = paths.data_dir()
+    found = sorted((d / "motion" / "cmu_bvh").glob("*.bvh")) if d else []
+    return found + [Path(p) for p in extra]
+
+
+def _avatars(names):
+    from bodycal_addon.blender.avatar_calibration import calibrate_avatar
+    from sample_rigs import load_glb_avatar
+
+    out = []
+    for n in names:
+        f = next((p for p in paths.shared_avatar_files() if p.name.startswith(n)), None)
+        if f is None:
+            continue
+        with contextlib.redirect_stdout(io.StringIO()):  # the glTF importer talks: one JSON line only
+            arm, _ = load_glb_avatar(f)
+        out.append((n, arm, calibrate_avatar(arm)))
+    return out
+
+
+def motion_figures(anim, avatar, truth, k: float) -> dict:
+    a, b = truth["motion"]
+    fps = truth["fps"]
+    names = truth["joints"]
+    T = truth["positions"][a:b]
+    J = {n: i for i, n in enumerate(names)}
+    out = {"sole_height_mm": {}, "slide_mm": {}, "source_slide_mm": {}, "accel_ratio": {}}
+    for s in ("l", "r"):
+        st = truth["stance"][s][a:b]
+        soles = mesh_metrics.sole_points(avatar, anim, s)[a:b]
+        out["sole_height_mm"][s] = measure.sole_height_mm(soles, st)
+        out["slide_mm"][s] = measure.slide_mm_per_90hz(anim.joints_world[f"ankle_{s}"][a:b].astype(float), st, fps)
+        out["source_slide_mm"][s] = measure.slide_mm_per_90hz(T[:, J[f"ankle_{s}"]], st, fps)
+        for j in ("wrist", "ankle"):
+            av = measure.accel_p95(anim.joints_world[f"{j}_{s}"][a:b].astype(float), fps)
+            src = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k
+            out["accel_ratio"][f"{j}_{s}"] = round(av / max(src, 1e-9), 2)
+    out["hip_line_deg"] = measure.hip_line_deg(anim.joints_world["hip_l"][a:b], anim.joints_world["hip_r"][a:b],
+                                               T[:, J["hip_l"]], T[:, J["hip_r"]])
+    return out
+
+
+def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS, filter_devices: bool = False):
+    t0 = time.time()
+    clips = _clips(list(clips_extra))
+    if quick:
+        clips = clips[:1]
+    avatars = _avatars(avatar_names[:1] if quick else avatar_names)
+    workdir = Path(tempfile.mkdtemp(prefix="bodycal-real-"))
+    calib, motion, notes = {}, {}, []
+    for ci, clip_path in enumerate(clips):
+        clip = bvh.read(clip_path).resampled(FPS)
+        perf = performer.Performer(clip)
+        sess = session.build_session(perf, seed=ci)
+        for profile in PROFILES:
+            cap = capture.capture(sess, perf, profile, seed=ci)
+            up = "Y" if ci % 2 == 0 else "Z"
+            path = cap.write(workdir / f"{clip.name}_{profile}.bcrec.json", up=up)
+            truth = cap.truth()
+            rec = recording_io.load_recording(path)
+            key = f"{clip.name}/{profile}"
+            try:
+                kw = {"filter_devices": True} if filter_devices else {}
+                user = calibrate_user(rec, **kw)
+            except BodyCalError as exc:
+                calib[key] = {"error": str(exc)}
+                continue
+            ref = int(round(user.reference_time * FPS))
+            calib[key] = {"joint_error_mm": measure.joint_errors_mm({j: v.world for j, v in user.joints.items()},
+                                                                    truth["joints"], truth["positions"][ref]),
+                          "yaw_deg": round(float(np.degrees(truth["yaw"])), 1), "file_up": up,
+                          "warnings": user.calibration.get("warnings", [])}
+            for name, _arm, avatar in avatars:
+                k = AvatarRig.from_model(avatar).leg_length() / _source_leg(truth, ref)
+                for method in pl.METHODS:
+                    try:
+                        anim = pl.retarget(rec, user, avatar, method)
+                    except BodyCalError as exc:
+                        motion[f"{method}/{name}/{key}"] = {"error": str(exc)}
+                        continue
+                    motion[f"{method}/{name}/{key}"] = motion_figures(anim, avatar, truth, k)
+    out = {"bench": "real_motion", "clips": [p.stem for p in clips], "avatars": [a for a, *_ in avatars],
+           "profiles": list(PROFILES), "noise": {"mm": 0.5, "deg": 0.3, "wobble_mm": 1.5},
+           "calibration": calib, "targets": _targets(calib, motion), "motion": motion, "notes": notes,
+           "seconds": round(time.time() - t0, 1)}
+    print(json.dumps(out))
+    return out
+
+
+def _source_leg(truth, frame: int) -> float:
+    """Hip to knee to ankle plus the ankle's height, as `AvatarRig.leg_length` measures an avatar."""
+    p = dict(zip(truth["joints"], truth["positions"][frame]))
+    return float(np.mean([np.linalg.norm(p[f"knee_{s}"] - p[f"hip_{s}"])
+                          + np.linalg.norm(p[f"ankle_{s}"] - p[f"knee_{s}"]) + p[f"ankle_{s}"][2] for s in "lr"]))
+
+
+def _targets(calib, motion) -> dict:
+    out = {}
+    for tname, (profile, joints, limit) in JOINT_TARGETS.items():
+        worst = [max(c["joint_error_mm"].get(j, np.inf) for j in joints) for key, c in calib.items()
+                 if key.endswith(f"/{profile}") and "joint_error_mm" in c]
+        failed = [key for key, c in calib.items() if key.endswith(f"/{profile}") and "error" in c]
+        out[tname] = {"worst_mm": max(worst) if worst else None, "limit_mm": limit,
+                      "met": bool(worst) and max(worst) <= limit and not failed}
+    ok = [m for m in motion.values() if "error" not in m]
+    hip = [m["hip_line_deg"]["max"] for m in ok]
+    med = [m["sole_height_mm"][s]["median"] for m in ok for s in "lr" if m["sole_height_mm"][s]["median"] is not None]
+    worst = [m["sole_height_mm"][s]["worst"] for m in ok for s in "lr" if m["sole_height_mm"][s]["worst"] is not None]
+    slide = [m["slide_mm"][s] for m in ok for s in "lr" if m["slide_mm"][s] is not None]
+    acc = [v for m in ok for v in m["accel_ratio"].values()]
+    out["hip_line_le_5deg"] = {"worst_deg": max(hip) if hip else None, "met": bool(hip) and max(hip) <= 5.0}
+    out["sole_median_within_5mm"] = {"range_mm": [min(med), max(med)] if med else None,
+                                     "met": bool(med) and max(abs(v) for v in med) <= 5.0}
+    out["sole_worst_ge_minus_10mm"] = {"worst_mm": min(worst) if worst else None,
+                                       "met": bool(worst) and min(worst) >= -10.0}
+    out["slide_p95_le_2mm"] = {"worst_mm": max(slide) if slide else None, "met": bool(slide) and max(slide) <= 2.0}
+    out["accel_le_1_3x_source"] = {"worst_ratio": max(acc) if acc else None, "met": bool(acc) and max(acc) <= 1.3}
+    out["runs_failed"] = [k for k, m in motion.items() if "error" in m]
+    return out
+
+
+if __name__ == "__main__":
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    args = sys.argv[1:]
+
+    def values(flag):
+        if flag not in args:
+            return []
+        i = args.index(flag) + 1
+        out = []
+        while i < len(args) and not args[i].startswith("--"):
+            out.append(args[i])
+            i += 1
+        return out
+
+    main(quick="--quick" in args, clips_extra=values("--clips"),
+         avatar_names=tuple(values("--avatars")) or AVATARS, filter_devices="--filter" in args)

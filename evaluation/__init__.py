@@ -1,0 +1,17 @@
+"""An outside tool's view of BodyCal: tracker recordings made from real motion capture.
+
+Every recording the engine's own tests used to see came from `bodycal_addon/synthetic.py`, whose
+performer always faces -Y and wears its trackers the way the engine assumes. This package is
+deliberately written as another tool would write it, sharing no code with the engine (it does not
+import `bodycal_addon` at all): its own BVH reader, its own rotation helpers, its own anatomy and
+its own FORMATS.md writer. It turns a real clip (CMU BVH) into a FORMATS.md recording of a person
+wearing an HMD, controllers and trackers strapped at random angles and offsets, standing anywhere
+in the play area and facing any way, with the calibration motions performed by the clip's own
+skeleton; the BVH joints are the truth.
+
+- `bvh`: read a BVH file, forward kinematics, resampling.
+- `performer`: the clip's skeleton as a body (joint centres, hinge axes, calibration poses).
+- `capture`: devices strapped on the body, noise and dropouts, the recording file and its truth.
+
+Not part of the extension (excluded from the zip); used by tests and `benchmarks/bench_real_motion.py`.
+"""

@@ -1,0 +1,53 @@
+"""Figures of a retargeted animation against the source clip it was recorded from (lab frame =
+the engine's internal frame: Z up, metres, floor at z = 0). Numpy only; every input is an array
+with a leading frame axis restricted by the caller to the frames that count (the clip).
+
+- joint-centre error: a calibrated joint's world position at the reference time vs the clip's;
+- sole height during stance: the avatar's lowest sole point in the source's stance frames;
+- foot slide: horizontal motion of the avatar's ankle between consecutive source-stance frames,
+  in mm per 90 Hz frame (the source's own is given for comparison);
+- acceleration p95 of wrists and ankles, the avatar's against the source's times the avatar /
+  source size ratio (same timing, lengths scaled);
+- hip-line angle: the horizontal angle between the avatar's hip line and the source's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def joint_errors_mm(model_joints: dict, truth_names: list[str], truth_at_ref: np.ndarray) -> dict[str, float]:
+    out = {}
+    for k, name in enumerate(truth_names):
+        if name in model_joints:
+            out[name] = round(float(np.linalg.norm(np.asarray(model_joints[name]) - truth_at_ref[k])) * 1000, 1)
+    return out
+
+
+def sole_height_mm(sole_points: np.ndarray, stance: np.ndarray) -> dict:
+    """sole_points (F, K, 3); stance (F,) bool."""
+    low = sole_points[..., 2].min(axis=-1)[stance] * 1000
+    if low.size == 0:
+        return {"median": None, "worst": None}
+    return {"median": round(float(np.median(low)), 1), "worst": round(float(low.min()), 1),
+            "p5": round(float(np.percentile(low, 5)), 1)}
+
+
+def slide_mm_per_90hz(point: np.ndarray, stance: np.ndarray, fps: float) -> float | None:
+    both = stance[1:] & stance[:-1]
+    step = np.linalg.norm(np.diff(point[:, :2], axis=0), axis=-1)[both] * 1000 * fps / 90.0
+    return None if step.size == 0 else round(float(np.percentile(step, 95)), 2)
+
+
+def accel_p95(point: np.ndarray, fps: float) -> float:
+    a = (point[2:] - 2 * point[1:-1] + point[:-2]) * fps * fps
+    return float(np.percentile(np.linalg.norm(a, axis=-1), 95))
+
+
+def hip_line_deg(avatar_l, avatar_r, source_l, source_r) -> dict:
+    def yaw(v):
+        return np.arctan2(v[:, 1], v[:, 0])
+
+    d = yaw(avatar_l - avatar_r) - yaw(source_l - source_r)
+    d = np.degrees(np.abs((d + np.pi) % (2 * np.pi) - np.pi))
+    return {"p95": round(float(np.percentile(d, 95)), 1), "max": round(float(d.max()), 1)}
