@@ -47,8 +47,12 @@ def test_rotations_copies_the_bone_frames_exactly(session):
         np.testing.assert_allclose(pose.frames[:, ap.BI[b]], want[:, ap.BI[b]], atol=1e-9, err_msg=b)
         if ap.BI[b] not in ap.DELTA_COPY:
             np.testing.assert_allclose(pose.frames[:, ap.BI[b]], up.frames[:, ap.BI[b]], atol=1e-9, err_msg=b)
+    # At the reference time the trunk stands as the avatar's rest, turned to face as the user
+    # faced (this avatar's armature is turned 30 degrees: its rest faces elsewhere).
     f0 = int(np.argmin(np.abs(rec.time - user.reference_time)))
-    np.testing.assert_allclose(pose.frames[f0, ap.BI["sacrum"]], rig.frames0[ap.BI["sacrum"]], atol=0.05)
+    turn = ap.facing_turn(ap.model_rest_frames(user), rig.frames0)
+    assert abs(np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))) > 20.0
+    np.testing.assert_allclose(pose.frames[f0, ap.BI["sacrum"]], turn @ rig.frames0[ap.BI["sacrum"]], atol=0.05)
     assert np.isfinite(anim.rotations).all()
     np.testing.assert_allclose(np.linalg.norm(anim.rotations, axis=-1), 1.0, atol=1e-9)
 
@@ -94,18 +98,21 @@ def test_self_avatar_egocentric_maps_targets_onto_themselves(session):
 
 @pytest.mark.parametrize("scale", [0.8, 1.25])
 def test_scaled_avatar_gives_scaled_positions(session, scale):
+    """The user's body scaled by s gives the user's motion scaled by s about the floor point where
+    the user stood at the reference time (avatar_pose.root_centre), not about the world origin."""
     rec, _, user, up = session
     avatar = rt.avatar_from_user(user, scale)
+    c = ap.root_centre(user)
     rot = pl.retarget(rec, user, avatar, "rotations")
     base = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations")
     for j in ap.JOINTS:
-        np.testing.assert_allclose(rot.joints_world[j], scale * base.joints_world[j], atol=1e-4, err_msg=j)
+        np.testing.assert_allclose(rot.joints_world[j], c + scale * (base.joints_world[j] - c), atol=1e-4, err_msg=j)
     ego = pl.retarget(rec, user, avatar, "egocentric")
     for name, tg in ego.targets.items():
-        e = _mm(tg, scale * up.joint(name))
+        e = _mm(tg, c + scale * (up.joint(name) - c))
         lower = name.startswith(("ankle_", "knee_", "skull_base"))
         if name.startswith("elbow_"):  # rides on the shoulder, which the trunk solve shifted
-            shift = _mm(ego.joints_world[f"shoulder_{name[-1]}"], scale * up.joint(f"shoulder_{name[-1]}"))
+            shift = _mm(ego.joints_world[f"shoulder_{name[-1]}"], c + scale * (up.joint(f"shoulder_{name[-1]}") - c))
             assert np.median(e) < np.median(shift) + 1.0 * scale and e.max() < 10.0 * scale, name
             continue
         assert np.median(e) < (0.5 if lower else 3.0) * scale and e.max() < (3.0 if lower else 10.0) * scale, name

@@ -585,29 +585,57 @@ def root_scale(user_model: BodyModel, rig: AvatarRig) -> float:
     return rig.leg_length() / lu
 
 
+def root_centre(user_model: BodyModel) -> np.ndarray:
+    """(3,) the floor point under the user's pelvis at the reference time: the avatar's root
+    motion is the user's scaled about it (steps scale with the legs), so the avatar starts where
+    the performer stood and the whole result moves with the recording (no world origin involved)."""
+    pel = complete_joints(user_model)["pelvis"]
+    return np.array([pel[0], pel[1], 0.0])
+
+
+def root_positions(user_pelvis: np.ndarray, k: float, centre: np.ndarray) -> np.ndarray:
+    """(F, 3) the avatar's pelvis: the user's, scaled by `k` about `centre` (`root_centre`)."""
+    return centre + (np.asarray(user_pelvis, float) - centre) * k
+
+
 # Bones whose canonical frame depends on where each calibration put the trunk's joints (spine root
 # behind the sacrum, resampled vertebrae, clavicle root): the avatar takes the user's rotation
 # since the reference pose, not the user's orientation, so both stand as they were calibrated.
 DELTA_COPY = tuple(BI[b] for b in ["sacrum", "head", *SPINE_BONES, "clavicle_l", "clavicle_r"])
 
 
+def facing_turn(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndarray:
+    """(3, 3) the turn about the vertical that carries the avatar's rest facing (its hip line)
+    onto the user's facing at the reference time. Step 2 compares the two bodies in this frame of
+    reference: a performer may face any way in the room, the avatar's rest faces wherever its rig
+    was built to face."""
+    a = avatar_frames0[BI["sacrum"]][:, 0]
+    u = user_frames0[BI["sacrum"]][:, 0]
+    ang = np.arctan2(u[1], u[0]) - np.arctan2(a[1], a[0])
+    c, s = np.cos(ang), np.sin(ang)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def copy_frames(user_frames: np.ndarray, user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndarray:
     """Step 2's copy: limb, hand, foot and finger frames are copied as they are (anatomical axes,
     whatever the avatar's rest pose); trunk frames (DELTA_COPY) as the rotation since the user's
-    reference pose applied to the avatar's rest: C_u(t) C_u0^-1 C_a0."""
+    reference pose applied to the avatar's rest turned to face as the user did (`facing_turn` Y):
+    C_u(t) C_u0^-1 Y C_a0. Without Y a performer who faced anywhere but the avatar's rest facing
+    got a trunk turned against the limbs (legs crossed, issue 11)."""
     out = np.array(user_frames, float, copy=True)
     idx = list(DELTA_COPY)
-    out[:, idx] = out[:, idx] @ (np.swapaxes(user_frames0[idx], -1, -2) @ avatar_frames0[idx])
+    turn = facing_turn(user_frames0, avatar_frames0)
+    out[:, idx] = out[:, idx] @ (np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx]))
     return out
 
 
 def pose_avatar_fk(user_pose, user_model: BodyModel, avatar: BodyModel | AvatarRig) -> AvatarPose:
     """Step 2: copy the user's canonical bone frames onto the avatar; the root follows the user's
-    pelvis scaled by the avatar/user leg-length ratio (feet stay on the floor, steps scale with
-    the legs)."""
+    pelvis scaled by the avatar/user leg-length ratio about where the user stood (feet stay on the
+    floor, steps scale with the legs)."""
     rig = avatar if isinstance(avatar, AvatarRig) else AvatarRig.from_model(avatar)
     k = root_scale(user_model, rig)
-    pelvis = user_pose.joints[:, JI["pelvis"]] * k
+    pelvis = root_positions(user_pose.joints[:, JI["pelvis"]], k, root_centre(user_model))
     frames = copy_frames(user_pose.frames, model_rest_frames(user_model), rig.frames0)
     return AvatarPose(rig, rig.solve(frames, pelvis), k)
 

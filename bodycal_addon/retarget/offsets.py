@@ -10,7 +10,9 @@ devices -> hands: the controller stays under the palm because the offset was tak
 controller in the hand) and the head (HMD). The spine bends by the angle between w0 and w_t (root
 to head, eq. 1, 4); limbs reach their effectors by two-bone IK; fingers close on the controller by
 gradient descent of the capsule SDF (eq. 5-7). Positions are computed at the user's scale and then
-brought back to the avatar's own size (divided by the eye-height ratio).
+brought back to the avatar's own size (divided by the eye-height ratio) about the floor point
+where the user stood at the T-pose (`avatar_pose.root_centre`), so the result moves with the
+recording.
 """
 
 from __future__ import annotations
@@ -61,11 +63,14 @@ class OffsetsSetup:
     spine0: np.ndarray  # (12, 3, 3) vertebra frames at the T-pose
     pelvis0: np.ndarray  # (3,) avatar pelvis at the T-pose (user scale)
     ref_frames: np.ndarray  # (B, 3, 3) the canonical frames copied onto the avatar at the T-pose
+    centre: np.ndarray  # (3,) the floor point the user-scale positions are scaled about
 
 
-def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: dict[str, tuple]) -> OffsetsSetup:
+def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: dict[str, tuple],
+          centre: np.ndarray) -> OffsetsSetup:
     """Offsets at the T-pose: `ref_frames` (B, 3, 3) the user's canonical frames at the reference
-    time (the avatar is posed with them), `tpose` {role: (position (3,), rotation (3, 3))}."""
+    time (the avatar is posed with them), `tpose` {role: (position (3,), rotation (3, 3))},
+    `centre` the floor point the scaling is about."""
     for role, _ in TRACKED.values():
         if role not in tpose:
             raise BodyCalError(f"no T-pose for the '{role}' device", source=user_model.name, field="extra.tpose",
@@ -73,12 +78,13 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
     s = eye_height(user_model) / eye_height(rig.model)
     user_pos = complete_joints(user_model)
     # The avatar in the user's T-pose: the user's reference frames, pelvis over the user's pelvis,
-    # feet on the floor at the avatar's own scale; then scaled by s about the origin.
+    # feet on the floor at the avatar's own scale; then scaled by s about the centre.
+    centre = np.asarray(centre, float)
     rest_pel = rig.joint_world[JI["pelvis"]]
-    pel = np.array([user_pos["pelvis"][0] / s, user_pos["pelvis"][1] / s, rest_pel[2]])
+    pel = np.array([*(centre[:2] + (user_pos["pelvis"][:2] - centre[:2]) / s), rest_pel[2]])
     ref = copy_frames(ref_frames[None], ref_frames, rig.frames0)[0]  # step 2's copy at the T-pose
     pose = rig.solve(ref[None], pel[None])
-    joints0 = pose.joints[0] * s
+    joints0 = centre + (pose.joints[0] - centre) * s
     frames0 = pose.frames[0]
     v0, r0t, r0j = {}, {}, {}
     for j, (role, bone) in TRACKED.items():
@@ -88,7 +94,7 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
         r0j[bone] = frames0[BI[bone]]
     w0 = tpose["head"][0] - tpose["pelvis"][0]
     spine0 = frames0[[BI[b] for b in SPINE_BONES]]
-    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]], ref)
+    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]], ref, centre)
 
 
 def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
@@ -96,7 +102,7 @@ def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str
     p, r = {}, {}
     for j, (role, bone) in TRACKED.items():
         rel = rot[role] @ st.r0_tracker[role].T  # R_t(T) R_0(T)^-1
-        p[j] = (pos[role] + rel @ st.v0[j]) / st.scale
+        p[j] = st.centre + (pos[role] + rel @ st.v0[j] - st.centre) / st.scale
         r[bone] = rel @ st.r0_joint[bone]
     return p, r
 

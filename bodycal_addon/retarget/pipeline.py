@@ -41,6 +41,8 @@ from .avatar_pose import (
     complete_joints,
     copy_frames,
     model_rest_frames,
+    root_centre,
+    root_positions,
     root_scale,
 )
 from .user_animation import _trackers, animate_user, pose_finger_chain
@@ -90,6 +92,7 @@ class _Run:
         self.rec, self.user, self.avatar, self.method = recording, user, avatar, method
         self.rig = AvatarRig.from_model(avatar)
         self.k = root_scale(user, self.rig)
+        self.centre = root_centre(user)
         self.user_pos = complete_joints(user)
         self.user_frames0 = model_rest_frames(user, self.user_pos)
         avatar_pos = complete_joints(avatar)
@@ -154,7 +157,7 @@ class _Run:
                         tr0 = _trackers(recording, user, f0, f0 + 1)
                     if tr0 is not None and role in tr0.pos:
                         tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
-            self.ofs = ofs.setup(user, self.rig, self.user_frames0, tpose)
+            self.ofs = ofs.setup(user, self.rig, self.user_frames0, tpose, self.centre)
             self.grip = {s: ofs.grip_fingers(self.rig, s) for s in sk.SIDES if self.has_fingers[s]}
 
     # --- one chunk of frames ------------------------------------------------------------------
@@ -164,7 +167,7 @@ class _Run:
         for n in up.notes:
             if n not in self.notes:
                 self.notes.append(n)
-        pelvis = up.joints[:, JI["pelvis"]] * self.k
+        pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
         # From here on the user's frames are the ones copied onto the avatar (step 2).
         user_frames = up.frames
         up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,

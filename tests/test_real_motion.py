@@ -1,0 +1,84 @@
+"""Recordings of real human motion as an outside tool writes them (`evaluation/`: a CMU clip, the
+calibration steps performed by its own skeleton, trackers strapped at random angles and offsets,
+any facing): what a real session asks of the engine beyond the synthetic performer (issue 11)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from bodycal_addon import recording_io
+from bodycal_addon import transforms as tf
+from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.recording import Recording
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget import testing as rt
+from evaluation import bvh, capture, performer, session
+
+WALK = "02_01_walk.bvh"
+
+
+@pytest.fixture(scope="module")
+def walker(data_dir):
+    clip = bvh.read(data_dir / "motion" / "cmu_bvh" / WALK).resampled(90.0)
+    return performer.Performer(clip)
+
+
+def outside_recording(perf, tmp_path, profile: str = "full", seed: int = 0, up: str = "Y", **kw) -> tuple:
+    sess = session.build_session(perf, seed=seed, **kw)
+    cap = capture.capture(sess, perf, profile, seed=seed)
+    path = cap.write(tmp_path / f"outside_{profile}_{seed}.bcrec.json", up=up)
+    return recording_io.load_recording(path), cap.truth()
+
+
+def moved(rec: Recording, yaw_deg: float, offset) -> Recording:
+    """The same recording with the whole room turned about the vertical and moved on the floor."""
+    a = np.radians(yaw_deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    q = tf.matrix_to_quat(R)
+    out = copy.copy(rec)
+    out.positions = rec.positions @ R.T + offset
+    out.rotations = tf.quat_mul(q, rec.rotations)
+    out.markers = rec.markers @ R.T + offset
+    out.devices = [copy.copy(d) for d in rec.devices]
+    return out, R, np.asarray(offset, float)
+
+
+@pytest.fixture(scope="module")
+def walk_full(walker, tmp_path_factory):
+    return outside_recording(walker, tmp_path_factory.mktemp("outside"), "full", seed=0, yaw=np.radians(90.0))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_turning_and_moving_the_room_turns_and_moves_the_animation(walk_full, method):
+    """Issue 11: the same recording rotated by any yaw and moved anywhere on the floor gives the
+    same animation up to that rigid motion (<= 1 mm), whichever way the performer faced."""
+    rec, _ = walk_full
+    other, R, t = moved(rec, 137.0, (1.3, -0.8, 0.0))
+    avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.1))
+    a = pl.retarget(rec, calibrate_user(rec), avatar, method)
+    b = pl.retarget(other, calibrate_user(other), avatar, method)
+    worst = {j: float(np.max(np.linalg.norm(b.joints_world[j] - (a.joints_world[j] @ R.T + t), axis=-1)))
+             for j in a.joints_world}
+    assert max(worst.values()) < 1e-3, sorted(worst.items(), key=lambda kv: -kv[1])[:5]
+
+
+@pytest.mark.slow
+def test_a_performer_facing_forward_keeps_the_pelvis_with_the_legs(walker, tmp_path):
+    """Issue 11 item 1: facing FORMATS.md's forward (internal +Y) the pelvis turned 180 degrees
+    against the torso and the legs crossed. The avatar's hip line follows the source's."""
+    rec, truth = outside_recording(walker, tmp_path, "full", seed=1, yaw=np.radians(180.0))
+    user = calibrate_user(rec)
+    avatar = rt.procedural_avatar()
+    a, b = truth["motion"]
+    J = {n: i for i, n in enumerate(truth["joints"])}
+    src = truth["positions"][a:b, J["hip_l"]] - truth["positions"][a:b, J["hip_r"]]
+    for method in pl.METHODS:
+        anim = pl.retarget(rec, user, avatar, method)
+        hip = anim.joints_world["hip_l"][a:b] - anim.joints_world["hip_r"][a:b]
+        d = np.degrees(np.arctan2(hip[:, 1], hip[:, 0]) - np.arctan2(src[:, 1], src[:, 0]))
+        d = np.abs((d + 180.0) % 360.0 - 180.0)
+        assert d.max() < 5.0, (method, d.max())
