@@ -9,7 +9,10 @@ on the body surface where people strap them (sizes of an adult scaled by the per
 the pelvis tracker on the lower back, the chest tracker on the sternum, limb trackers part way
 down the limb a limb's radius off its axis, foot trackers on the instep (in front of the ankle,
 on top of the foot), the controller's grip centre in the closed hand, the HMD's origin at the
-eyes, its axes the OpenXR view's (x right, y up, -z forward) within a few degrees.
+eyes, its axes the OpenXR view's (x right, y up, -z forward) within a few degrees. The places
+come from anatomy, not from the engine; the engine's defaults for what a recording does not
+measure (bodycal_addon/calibration/defaults.py) rest on the same anatomy, so where the two agree
+it says the defaults are consistent with it, not that they fit every body or controller.
 
 Noise: white noise on every pose (`noise_mm` per axis, `noise_deg` RMS angle), soft-tissue motion
 of strapped trackers (band-limited, `wobble_mm` RMS and a degree per 4 mm of it), and dropouts
@@ -140,7 +143,9 @@ def mounts_for(perf: Performer, profile: str, rng) -> list[Mount]:
             j = perf.j(f"wrist_{s}")
             along = rot.unit(perf.child_offset(j))
             palm = perf.palm_normal_rest(s)
-            off = (along * rng.uniform(0.065, 0.085) + palm * rng.uniform(0.028, 0.040)
+            # OpenXR's grip pose: the centre of the closed fist, part way along the palm and inside
+            # the fist on the palm side (adult sizes; the wrist joint is ~1.5 cm above the crease)
+            off = (along * rng.uniform(0.055, 0.070) + palm * rng.uniform(0.022, 0.032)
                    + np.cross(along, palm) * rng.uniform(-0.01, 0.01)) * k
             out.append(Mount(role, j, off, R, "controller", f"ctrl_{s.upper()}"))
             continue

@@ -72,6 +72,36 @@ def _scheme(names: list[str]) -> dict[str, int]:
     raise ValueError("not a CMU skeleton this tool knows (joint names)")
 
 
+MAX_TURN_DEG_PER_S = 1500.0  # faster than a wrist's or ankle's fastest real turn: a solver's glitch
+
+
+def repair_glitches(clip: Clip) -> Clip:
+    """The clip with its rotation glitches bridged: a joint whose local rotation turns faster than
+    MAX_TURN_DEG_PER_S between two frames (131_01's right wrist turns 65 degrees in 1/120 s, an
+    Euler flip or a marker swap of the original solve, not a motion) is interpolated, frame by
+    frame, across the run of glitching frames from the last good frame to the next."""
+    local = clip.local.copy()
+    limit = np.radians(MAX_TURN_DEG_PER_S) / clip.fps
+    for j in range(len(clip.joints)):
+        bad = np.zeros(len(local), bool)
+        for grow in range(1, 12):  # a glitch lasting several frames: widen until it is bridged
+            turn = np.linalg.norm(rot.log(np.swapaxes(local[:-1, j], -1, -2) @ local[1:, j]), axis=-1)
+            jumps = np.flatnonzero(turn > limit)
+            if not len(jumps):
+                break
+            for d in range(-grow + 1, grow + 1):
+                bad[np.clip(jumps + d, 0, len(local) - 1)] = True
+            good = np.flatnonzero(~bad)
+            if len(good) < 2:
+                break
+            idx = np.flatnonzero(bad)
+            k = np.clip(np.searchsorted(good, idx) - 1, 0, len(good) - 2)
+            a, b = good[k], good[k + 1]
+            frac = np.clip((idx - a) / np.maximum(b - a, 1), 0.0, 1.0)
+            local[idx, j] = rot.interpolate(clip.local[a, j], clip.local[b, j], frac)
+    return Clip(clip.name, clip.joints, clip.parents, clip.offsets, local, clip.root, clip.fps)
+
+
 def _rigid_pelvis(clip: Clip, hips: list[int]) -> Clip:
     """The clip with a rigid pelvis. Some CMU conversions (02_01) turn the `LHipJoint` /
     `RHipJoint` bones between the root and the hips by 5-13 degrees per frame, which moves a hip
@@ -105,7 +135,7 @@ class Performer:
 
     def __init__(self, clip: Clip):
         self.parts = _scheme(clip.joints)
-        clip = _rigid_pelvis(clip, [self.parts["hip_l"], self.parts["hip_r"]])
+        clip = _rigid_pelvis(repair_glitches(clip), [self.parts["hip_l"], self.parts["hip_r"]])
         self.clip = clip
         self.parents = clip.parents
         self.offsets = clip.offsets
@@ -207,10 +237,13 @@ class Performer:
         return rot.basis(np.broadcast_to(d0, np.shape(direction)), np.broadcast_to(axis0, np.shape(direction)),
                          direction, a)
 
-    def pose(self, n: int, *, arm=None, leg=None, root_offset=None, rng=None, sway_mm: float = 3.0) -> Pose:
+    def pose(self, n: int, *, arm=None, leg=None, root_offset=None, rng=None, sway_mm: float = 3.0,
+             wobble_deg: float = 4.0, stance_deg: float = 0.0, bends_deg=(5.0, 3.0)) -> Pose:
         """A pose held or moving over n frames. `arm` / `leg`: {side: (direction (n, 3) of the
         upper arm / thigh, flexion direction (n, 3), hinge angle (n,) radians)}; defaults: T-pose
-        arms, straight legs under the hips."""
+        arms, straight legs `stance_deg` out from under the hips, elbows and knees bent by
+        `bends_deg`. With `rng`, the body sways and the hands and feet wander `wobble_deg` at the
+        wrists and ankles (nobody holds them still)."""
         J = len(self.parents)
         G = np.empty((n, J, 3, 3))
         fixed = {}
@@ -218,9 +251,10 @@ class Performer:
         leg = dict(leg or {})
         for s in SIDES:
             arm.setdefault(s, (np.broadcast_to(LEFT * (1 if s == "l" else -1), (n, 3)),
-                               np.broadcast_to(FORWARD, (n, 3)), np.full(n, np.radians(5.0))))
-            leg.setdefault(s, (np.broadcast_to(-UP, (n, 3)), np.broadcast_to(-FORWARD, (n, 3)),
-                               np.full(n, np.radians(3.0))))
+                               np.broadcast_to(FORWARD, (n, 3)), np.full(n, np.radians(bends_deg[0]))))
+            out = np.radians(stance_deg) * (1 if s == "l" else -1)
+            leg.setdefault(s, (np.broadcast_to(-UP * np.cos(out) + LEFT * np.sin(out), (n, 3)),
+                               np.broadcast_to(-FORWARD, (n, 3)), np.full(n, np.radians(bends_deg[1]))))
         for s in SIDES:
             for limb, (prox, dist, end) in (("arm", ("shoulder", "elbow", "wrist")), ("leg", ("hip", "knee",
                                                                                             "ankle"))):
@@ -230,10 +264,11 @@ class Performer:
                 g2 = g1 @ rot.axis_angle(axis0, angle)
                 fixed[self.j(f"{prox}_{s}")] = g1
                 fixed[self.j(f"{dist}_{s}")] = g2
-                if limb == "arm":
-                    fixed[self.j(f"{end}_{s}")] = g2 @ self.wrist_twist(s)
-                else:
-                    fixed[self.j(f"{end}_{s}")] = g2 @ self.ankle_rest(s)
+                wander = np.broadcast_to(np.eye(3), (n, 3, 3))
+                if rng is not None and wobble_deg:
+                    wander = rot.exp(_smooth_noise(rng, n, self.clip.fps, 3, np.radians(wobble_deg), 0.2, 1.0))
+                rest = self.wrist_twist(s) if limb == "arm" else self.ankle_rest(s)
+                fixed[self.j(f"{end}_{s}")] = g2 @ rest @ wander
         for j, p in enumerate(self.parents):
             if j in fixed:
                 G[:, j] = fixed[j]

@@ -64,6 +64,8 @@ def calibration_poses(perf: Performer, rng, fps: float) -> list[tuple[str, Pose]
     h = perf.standing_root_height()
     lift = np.array([0.0, 0.0, h])
     out = []
+    stance = rng.uniform(0.0, 4.0)  # feet a little apart, not under the hips
+    bends = (rng.uniform(2.0, 10.0), rng.uniform(0.0, 6.0))  # nobody locks elbows and knees straight
 
     def n_of(step):
         return int(round(STEP_SECONDS[step] * fps))
@@ -74,9 +76,10 @@ def calibration_poses(perf: Performer, rng, fps: float) -> list[tuple[str, Pose]
         return d, f, np.radians(10.0) + _smooth_noise(rng, n, fps, 1, np.radians(3.0))[:, 0]
 
     n = n_of("tpose")
-    out.append(("tpose", perf.pose(n, root_offset=lift, rng=rng)))
+    out.append(("tpose", perf.pose(n, root_offset=lift, rng=rng, stance_deg=stance, bends_deg=bends)))
     n = n_of("stand")
-    out.append(("stand", perf.pose(n, arm={s: arm_down(n, s, rng) for s in SIDES}, root_offset=lift, rng=rng)))
+    out.append(("stand", perf.pose(n, arm={s: arm_down(n, s, rng) for s in SIDES}, root_offset=lift, rng=rng,
+                                   stance_deg=stance, bends_deg=bends)))
     for s in SIDES:
         n = n_of("flex_elbow")
         wob = _smooth_noise(rng, n, fps, 2, np.radians(3.0))
@@ -103,8 +106,8 @@ def calibration_poses(perf: Performer, rng, fps: float) -> list[tuple[str, Pose]
     for s in SIDES:
         n = n_of("swing_hip")
         t = np.arange(n) / fps
-        theta = np.radians(22.0 + 16.0 * np.sin(2 * np.pi * 0.3 * t))
-        alpha = np.radians(60.0 + 90.0 * np.sin(2 * np.pi * 0.21 * t + 0.5))
+        theta = np.radians(25.0 + 15.0 * np.sin(2 * np.pi * 0.5 * t))
+        alpha = np.radians(60.0 + 100.0 * np.sin(2 * np.pi * 0.33 * t + 0.5))
         d, f = _hanging(theta, alpha, s, -FORWARD)
         bend = np.radians(8.0) + _smooth_noise(rng, n, fps, 1, np.radians(4.0))[:, 0]
         arms = {a: arm_down(n, a, rng) for a in SIDES}

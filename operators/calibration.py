@@ -49,8 +49,11 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
         if self.show_helpers:
             cs.show_helpers(context.scene, model)
         cal = model.calibration
+        for line in cal.get("warnings", []):
+            self.report({"WARNING"}, line)
         self.report({"INFO"}, f"Calibrated {len(model.joints)} joints from {len(cal['steps_used'])} steps; "
-                              f"{len(cal['defaulted'])} defaulted, {len(cal['missing'])} steps missing")
+                              f"{len(cal['defaulted'])} defaulted, {len(cal['missing'])} steps missing"
+                              + (f", {len(cal['warnings'])} not usable (see the panel)" if cal.get("warnings") else ""))
         return {"FINISHED"}
 
 

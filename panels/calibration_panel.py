@@ -77,6 +77,8 @@ class BODYCAL_PT_calibration(bpy.types.Panel):
                 row.label(text="not used")
             else:
                 row.label(text=label, icon="RADIOBUT_OFF")
+        for line in cal.get("warnings", []):
+            layout.label(text=line, icon="ERROR")
         if cal.get("defaulted"):
             layout.label(text=f"{len(cal['defaulted'])} values defaulted from the eye height", icon="INFO")
         col = layout.column(align=True)

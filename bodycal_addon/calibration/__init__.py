@@ -3,8 +3,10 @@
 `calibrate_user(recording) -> BodyModel` runs every step the recording allows, in the paper's
 order (extremities first, then limbs toward the trunk, then the trunk), defaults what is missing
 from anthropometric ratios of the eye height, and reports per step in `model.calibration`:
-`steps_used`, `defaulted` {what: how}, `missing`, and `quality` {step: {rms_mm, kept, of,
-range_deg, ...}}. The output follows the user-model contract in bodymodel.py's docstring.
+`steps_used`, `defaulted` {what: how}, `missing`, `warnings` (one line per step or touch whose
+data could not be used, and why: such a step is left out and defaulted, never fatal) and
+`quality` {step: {rms_mm, kept, of, range_deg, ...}}. The output follows the user-model contract
+in bodymodel.py's docstring.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from .. import transforms as tf
 from ..bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
 from ..errors import BodyCalError
 from ..recording import Recording
-from . import defaults, feet, hands, head, limbs, tpose, trunk
+from . import defaults, effectors, feet, hands, head, limbs, tpose, trunk
 from .common import Session, State
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -29,16 +31,18 @@ __all__ = ["calibrate_user", "natural_roles", "CALIBRATION_STEPS"]
 
 def natural_roles(joint: str, has) -> list[str]:
     """Tracker roles a joint is carried by (bodymodel.py contract), the primary first; only the
-    roles the recording has."""
+    roles the recording has. An elbow or knee is carried only by the limb's own trackers: the hand
+    and the foot bend at the wrist and the ankle, so without limb trackers the animation places
+    it from the two bone lengths (user_animation)."""
     s = joint[-1]
     if joint.startswith(("wrist_", "mcp_", "pip_", "dip_", "tip_")):
         cands = [f"hand_{s}"]
     elif joint.startswith("elbow_"):
-        cands = [f"forearm_{s}" if has(f"forearm_{s}") else f"hand_{s}", f"upperarm_{s}"]
+        cands = [f"forearm_{s}", f"upperarm_{s}"]
     elif joint.startswith("shoulder_"):
         cands = [f"upperarm_{s}", "chest" if has("chest") else "pelvis"]
     elif joint.startswith("knee_"):
-        cands = [f"shin_{s}" if has(f"shin_{s}") else f"foot_{s}", f"thigh_{s}"]
+        cands = [f"shin_{s}", f"thigh_{s}"]
     elif joint.startswith("hip_"):
         cands = [f"thigh_{s}", "pelvis"]
     elif joint.startswith(("ankle_", "toe_")):
@@ -82,6 +86,7 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
     _run("feet", feet.feet, session, state)
     _run("head", head.head, session, state)
     _run("limbs", limbs.limbs, session, state)
+    _run("wrists and ankles", effectors.effectors, session, state)
     _run("digits", hands.digits, session, state)
     _run("trunk", trunk.sacrum, session, state)
     _run("torso", trunk.torso_touches, session, state)
@@ -329,6 +334,7 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
         "steps_used": list(session.steps_used),
         "defaulted": dict(session.defaulted),
         "missing": list(session.missing),
+        "warnings": list(session.warnings),
         "quality": session.quality,
         "reference": session.reference_step,
     }

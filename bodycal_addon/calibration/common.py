@@ -91,6 +91,7 @@ class Session:
         self.steps_used: list[str] = []
         self.defaulted: dict[str, str] = {}
         self.missing: list[str] = []
+        self.warnings: list[str] = []  # steps left out and why, one line each
         self.reference_time, self.reference_step = self._reference_time()
 
     # --- devices -------------------------------------------------------------------------------
@@ -159,9 +160,11 @@ class Session:
         return idx
 
     def pose_at(self, role: str, t: float, half: float = REF_HALF_WINDOW) -> tuple[np.ndarray, np.ndarray]:
-        """Robust pose of a role around time t: the frames whose position is within 2 cm of the
-        window's median (outlier frames dropped), positions averaged, quaternions averaged
-        after aligning their signs."""
+        """Robust pose of a role around time t: the frames whose position is within 2 cm (or three
+        times the typical spread) of the window's mean and whose rotation is within 10 degrees of
+        the mean rotation (outlier frames dropped), positions averaged, quaternions averaged after
+        aligning their signs. Means, not coordinate-wise medians: the reference pose must turn and
+        move with the recording (a median per axis does not, by a tenth of a millimetre)."""
         pos, rot, valid = self.pose(role)
         idx = self.window(t, half)
         idx = idx[valid[idx]]
@@ -171,13 +174,12 @@ class Session:
                 raise BodyCalError(f"the '{role}' tracker is never tracked", source=self.source)
             idx = idx[np.argsort(np.abs(self.rec.time[idx] - t))[:5]]
         p, q = pos[idx], rot[idx]
-        med = np.median(p, axis=0)
-        d = np.linalg.norm(p - med, axis=1)
+        d = np.linalg.norm(p - p.mean(axis=0), axis=1)
         keep = d <= max(0.02, 3.0 * np.median(d))
         p, q = p[keep], q[keep]
         q = np.where((q @ q[0])[:, None] < 0, -q, q)
-        # rotation outliers: keep quaternions within 10 degrees of the coordinate-wise median
-        qm = tf.normalize(np.median(q, axis=0))
+        # rotation outliers: keep quaternions within 10 degrees of the mean rotation
+        qm = tf.normalize(q.mean(axis=0))
         close = tf.quat_angle(tf.quat_mul(tf.quat_conj(qm), q)) < np.radians(10)
         if close.any():
             p, q = p[close], q[close]
@@ -243,3 +245,7 @@ class Session:
 
     def default(self, what: str, how: str):
         self.defaulted[what] = how
+
+    def warn(self, line: str):
+        if line not in self.warnings:
+            self.warnings.append(line)

@@ -6,6 +6,17 @@ Ratios are of the stature H = eye height / 0.936 (Drillis & Contini 1966 segment
 Winter, "Biomechanics and Motor Control of Human Movement", Fig. 4.1). Positions are anchored on
 what is known at the reference time (measured joints, device poses in the T-pose) and fall back to
 a body frame: up = +Z, left `L`, forward `F` = L x up.
+
+Where the devices sit on the body (checked against the CMU subjects of `evaluation/`, issue 11):
+- the foot tracker is strapped on the instep, in front of the ankle (the top of the navicular and
+  cuneiforms, about a quarter of the foot's length, 0.035 H, ahead of the joint), along the foot,
+  which points 10° out from the body's forward (the foot progression angle, 7-13° in adults);
+  the ankle joint centre stands 0.045 H above the floor barefoot and 0.059-0.072 H in shoes (the
+  CMU subjects): 0.060 H;
+- the HMD's origin is at the eyes, about 0.049 H in front of and 0.020 H above the skull base
+  (the atlanto-occipital joint lies just below the ear canal, which is level with the eyes);
+- a controller's grip (OpenXR's grip pose) is the centre of the closed fist: 0.037 H along the
+  hand from the wrist and 0.016 H to the palm side (palms down in the T-pose).
 """
 
 from __future__ import annotations
@@ -18,9 +29,11 @@ from .common import Session, State
 EYE_TO_STATURE = 0.93
 R = {  # fractions of the stature (joint centres, so the shoulders are narrower than the biacromial width)
     "shoulder_height": 0.818, "shoulder_half_width": 0.1025, "hip_height": 0.53, "hip_half_width": 0.05,
-    "knee_height": 0.285, "ankle_height": 0.045, "upperarm": 0.186, "forearm": 0.146, "hand": 0.108,
-    "pelvis_forward_of_back_tracker": 0.055, "skull_base_back": 0.049, "skull_base_down": 0.034,
-    "toe_forward": 0.08, "toe_height": 0.012, "wrist_in_from_grip": 0.029, "foot_width": 0.05, "heel_back": 0.03,
+    "thigh": 0.245, "shin": 0.246, "ankle_height": 0.060, "upperarm": 0.186, "forearm": 0.146, "hand": 0.108,
+    "pelvis_forward_of_back_tracker": 0.055, "skull_base_back": 0.049, "skull_base_down": 0.020,
+    "toe_forward": 0.08, "toe_height": 0.012, "wrist_in_from_grip": 0.037, "wrist_above_grip": 0.016,
+    "ankle_behind_foot_tracker": 0.035, "foot_toe_out_deg": 10.0, "reference_bend_deg": 5.0,
+    "foot_width": 0.05, "heel_back": 0.03,
     "skull_radius": 0.051, "skull_up": 0.043, "head_above_skull_base": 0.057,
 }
 RADII = {"shoulder": 0.028, "elbow": 0.022, "wrist": 0.016, "hip": 0.05, "knee": 0.03, "ankle": 0.02,
@@ -126,15 +139,22 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
     # feet and knees
     for s in sk.SIDES:
         if has(f"foot_{s}"):
+            # On the instep the tracker is ahead of the ankle along the foot; the height is the
+            # ankle's above the floor, whatever the tracker's.
             p = session.ref_pose(f"foot_{s}")[0]
-            put(f"ankle_{s}", np.array([p[0], p[1], R["ankle_height"] * H]),
-                f"above the foot tracker, {R['ankle_height']} H high")
+            toe_out = np.radians(R["foot_toe_out_deg"])
+            along = body.forward * np.cos(toe_out) + body.left * sign[s] * np.sin(toe_out)
+            back = p - along * R["ankle_behind_foot_tracker"] * H
+            put(f"ankle_{s}", np.array([back[0], back[1], R["ankle_height"] * H]),
+                f"{R['ankle_height']} H above the floor, {R['ankle_behind_foot_tracker']} H behind the foot "
+                f"tracker along the foot")
         else:
             put(f"ankle_{s}", body.at(R["ankle_height"] * H, sign[s] * R["hip_half_width"] * H),
                 f"{R['ankle_height']} H high under the hip")
         a, h = w[f"ankle_{s}"], w[f"hip_{s}"]
-        t = (h[2] - R["knee_height"] * H) / max(h[2] - a[2], 1e-6)
-        put(f"knee_{s}", h + np.clip(t, 0.3, 0.7) * (a - h), f"on the hip-ankle line at {R['knee_height']} H high")
+        put(f"knee_{s}", _relaxed_mid(session, state, h, a, R["thigh"] * H, R["shin"] * H, f"shin_{s}"),
+            f"between the hip and the ankle at the thigh : shin ratio, bent {R['reference_bend_deg']:.0f}° "
+            f"(standing, nobody locks the knee straight)")
         put(f"toe_{s}", body.at(R["toe_height"] * H, 0, R["toe_forward"] * H, w[f"ankle_{s}"]),
             f"{R['toe_forward']} H in front of the ankle")
     # arms: in the T-pose the shoulders lie on the line between the hands
@@ -153,13 +173,18 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
         if has(f"hand_{s}"):
             p = session.ref_pose(f"hand_{s}")[0]
             out_dir = (p - sh) / max(np.linalg.norm(p - sh), 1e-9)
-            put(f"wrist_{s}", p - out_dir * R["wrist_in_from_grip"] * H,
-                f"{R['wrist_in_from_grip']} H from the hand device toward the shoulder")
+            wrist = p - out_dir * R["wrist_in_from_grip"] * H
+            how = f"{R['wrist_in_from_grip']} H from the hand device toward the shoulder"
+            if session.reference_step == "tpose":  # palms down: the fist's centre is below the wrist
+                wrist = wrist + UP * R["wrist_above_grip"] * H
+                how += f", {R['wrist_above_grip']} H above it"
+            put(f"wrist_{s}", wrist, how)
         else:
             put(f"wrist_{s}", sh - UP * (R["upperarm"] + R["forearm"]) * H, "arm hanging straight down")
         wr = w[f"wrist_{s}"]
-        put(f"elbow_{s}", sh + R["upperarm"] / (R["upperarm"] + R["forearm"]) * (wr - sh),
-            "on the shoulder-wrist line at the upper arm : forearm ratio")
+        put(f"elbow_{s}", _relaxed_mid(session, state, sh, wr, R["upperarm"] * H, R["forearm"] * H, f"forearm_{s}"),
+            f"between the shoulder and the wrist at the upper arm : forearm ratio, bent "
+            f"{R['reference_bend_deg']:.0f}° (nobody locks the elbow straight)")
     # head
     if "skull_base" not in w:
         if has("head"):
@@ -185,6 +210,31 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
             put(f"pip_{f}_{s}", m + fa * (t - m), "phalanx fractions")
             put(f"dip_{f}_{s}", m + fb * (t - m), "phalanx fractions")
     return out
+
+
+def _relaxed_mid(session: Session, state: State, root, effector, l1: float, l2: float, hinge_bone: str):
+    """A hinge joint the recording does not measure, at the reference time: on the root-effector
+    line in the ratio l1 : l2, moved off it as a limb bent by R["reference_bend_deg"] is, toward
+    the side the measured hinge axis gives (a flex step seen through the hand / foot device, limbs.py);
+    on the line when no axis was measured. A standing person's elbows and knees are not locked
+    straight: 2-10° in a T-pose (the CMU subjects' walks never straighten them past 2°)."""
+    from .. import transforms as tf
+
+    root, effector = np.asarray(root, float), np.asarray(effector, float)
+    d = effector - root
+    mid = root + l1 / max(l1 + l2, 1e-9) * d
+    hinge = state.hinge_right.get(hinge_bone)
+    if hinge is None:
+        return mid
+    right = tf.rotate(session.ref_pose(hinge[0])[1], hinge[1])
+    away = np.cross(d, right)  # a positive turn about +right flexes: the joint sits on this side
+    away -= (away @ d) / max(d @ d, 1e-12) * d
+    n = np.linalg.norm(away)
+    if n < 1e-9:
+        return mid
+    bend = np.radians(R["reference_bend_deg"])
+    offset = l1 * l2 * np.sin(bend) / max(np.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * np.cos(bend)), 1e-9)
+    return mid + away / n * offset
 
 
 def hand_axes(session: Session, state: State, body: BodyFrame, s: str, w: dict) -> tuple:

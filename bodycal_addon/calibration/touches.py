@@ -4,8 +4,11 @@ appendix B, Figure 5: every calibration point is stored first, computed later).
 
 A touch is the `by` point's position while it holds still relative to the touched part: the
 longest stretch of the segment where the running-median-filtered position moves slower than
-`STILL_SPEED`. A touch that never stops moving raises an error saying what to redo instead of
-giving a wrong body.
+`STILL_SPEED` for at least `STILL_MIN_S`, each still sample counting one frame interval (so the
+times' rounding in a file cannot turn a touch held exactly that long into one held a nanosecond
+short: the first and last samples' times no longer decide it). A touch that never stops
+moving is not used: `extract` raises an error saying what to redo, and `collect` reports it as a
+warning and leaves the point to its default rather than giving a wrong body or aborting.
 """
 
 from __future__ import annotations
@@ -167,8 +170,8 @@ def extract(session: Session, state: State, seg: Segment, role: str | None = Non
     speed = np.minimum(_speed(local, t, w), _speed(bp[idx], t, w))
     a, b = _longest_run(speed < STILL_SPEED)
     need = min(STILL_MIN_S, 0.5 * (seg.end - seg.start))
-    held = (t[b - 1] - t[a]) if b > a else 0.0
-    if b - a < 3 or held < need - 1e-9:
+    held = (b - a) / fps  # each sample stands for one frame interval
+    if b - a < 3 or held < need - 1e-6:
         slowest = float(np.min(speed)) if np.isfinite(speed).any() else float("nan")
         raise BodyCalError(f"the touch never stopped moving (slowest {slowest * 1000:.0f} mm/s; it must stay "
                            f"under {STILL_SPEED * 1000:.0f} mm/s for {need:.2f} s)", source=session.source,
@@ -182,11 +185,16 @@ def extract(session: Session, state: State, seg: Segment, role: str | None = Non
 
 
 def collect(session: Session, state: State, prefix: tuple[str, ...] | None = None) -> dict[str, Touch]:
-    """Every touch segment (optionally only points starting with one of `prefix`), by point name;
-    a point touched twice keeps its last touch."""
+    """Every usable touch segment (optionally only points starting with one of `prefix`), by point
+    name; a point touched twice keeps its last usable touch. A touch that cannot be used (it never
+    settled, its tracker is missing) is reported in the session's warnings and left out."""
     out = {}
     for seg in session.rec.segments_of("touch"):
         if not seg.point or (prefix and not seg.point.startswith(prefix)):
             continue
-        out[seg.point] = extract(session, state, seg)
+        try:
+            out[seg.point] = extract(session, state, seg)
+        except BodyCalError as exc:
+            what = exc.field or f"touch {seg.point}"
+            session.warn(f"{what} not used: {exc.message}" + (f" ({exc.hint})" if exc.hint else ""))
     return out

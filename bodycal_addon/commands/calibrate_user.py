@@ -1,5 +1,6 @@
 """`bodycal calibrate-user REC -o USER.body.json` (FORMATS.md §4): every calibration step the
-recording allows; prints one line per step with its quality, and what was defaulted."""
+recording allows; prints one line per step with its quality, what was defaulted, and one
+`warning:` line per step or touch whose data could not be used (left out, never fatal)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ def summary_lines(model) -> list[str]:
         lines.append(f"  defaulted ({len(cal['defaulted'])}): {', '.join(sorted(cal['defaulted']))}")
     if cal.get("missing"):
         lines.append(f"  missing: {', '.join(cal['missing'])}")
+    for w in cal.get("warnings", []):
+        lines.append(f"  warning: {w}")
     return lines
 
 

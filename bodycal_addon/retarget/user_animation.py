@@ -24,6 +24,7 @@ import numpy as np
 from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
+from ..geometry import two_bone_mid
 from ..recording import Recording
 from ..transforms import (
     frame_from_axes,
@@ -264,22 +265,13 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
 
 
 def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
+    """The intermediate joint from the user's two bone lengths, bent about the hinge axis `right`
+    the effector's device carries (six devices: no tracker on the limb)."""
     l1 = np.linalg.norm(rest_pos[f"{m}_{s}"] - rest_pos[f"{a}_{s}"])
     l2 = np.linalg.norm(rest_pos[f"{e}_{s}"] - rest_pos[f"{m}_{s}"])
-    # Swivel: the hinge axis carried by the effector's tracker fixes the bending plane.
-    axis = normalize(eff - root)
-    pole = normalize(np.cross(right, axis))
-    return ik_mid(root, axis, np.linalg.norm(eff - root, axis=-1), l1, l2, pole)
-
-
-def ik_mid(root, axis, d, l1, l2, pole):
-    """Intermediate joint of a two-bone chain of lengths l1, l2 whose effector is at distance d
-    along `axis`, bent toward `pole` (law of cosines, DESIGN.md §6)."""
-    d = np.clip(d, abs(l1 - l2) + 1e-9, l1 + l2 - 1e-9)
-    cos_a = np.clip((l1 * l1 + d * d - l2 * l2) / (2 * l1 * d), -1.0, 1.0)
-    sin_a = np.sqrt(1 - cos_a * cos_a)
-    pole = normalize(pole - (pole * axis).sum(-1, keepdims=True) * axis)
-    return root + l1 * (cos_a[..., None] * axis + sin_a[..., None] * pole)
+    # A positive turn about the hinge's +X flexes the distal bone toward +Z = X x Y, so the joint
+    # itself lies on the other side of the root-effector line: along (effector - root) x right.
+    return two_bone_mid(root, eff, l1, l2, np.cross(eff - root, right))
 
 
 def pose_user_finger(P, Fr, f, s, tip, rest_pos, C0, hand, model_bones):
