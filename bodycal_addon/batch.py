@@ -11,6 +11,8 @@ JOBS.toml:
     output_dir = "out/batch"    # relative to the JOBS.toml folder
     workers = 2                 # parallel worker processes (default: CPU count)
     runner = "python"           # or "blender": `blender -b -c bodycal ...` (needs the extension installed)
+    filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
+    plant_feet = true           # optional: false lets the feet follow the method
 
     [[recordings]]
     path = "takes/take1.bcrec.json"
@@ -51,12 +53,18 @@ class Job:
     armature: str | None
     method: str
     output: Path
+    filter: str | None = None
+    plant_feet: bool = True
 
     def argv(self) -> list[str]:
         args = ["retarget", str(self.recording), "--user", str(self.user), "--avatar", str(self.avatar),
                 "--method", self.method, "-o", str(self.output)]
         if self.armature:
             args += ["--armature", self.armature]
+        if self.filter is not None:
+            args += ["--filter", self.filter]
+        if not self.plant_feet:
+            args += ["--no-plant-feet"]
         return args
 
 
@@ -83,6 +91,21 @@ def load_jobs(path) -> tuple[list[Job], dict]:
             raise BodyCalError(f"unknown method {m!r}; use one of {', '.join(METHODS)}", source=str(path),
                                field="defaults.method")
     out_dir = base / defaults.get("output_dir", "out/batch")
+    filt = defaults.get("filter", False)
+    if filt is True:
+        filt = "on"
+    elif filt is False:
+        filt = None
+    elif not isinstance(filt, str):
+        raise BodyCalError("filter must be true, false or \"MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]\"", source=str(path),
+                           field="defaults.filter")
+    if filt is not None:
+        from .filters import OneEuro
+
+        OneEuro.parse(filt)  # a bad value is reported here, before any job starts
+    plant = defaults.get("plant_feet", True)
+    if not isinstance(plant, bool):
+        raise BodyCalError("plant_feet must be true or false", source=str(path), field="defaults.plant_feet")
     recordings, avatars = data.get("recordings", []), data.get("avatars", [])
     if not recordings or not avatars:
         raise BodyCalError("needs at least one [[recordings]] and one [[avatars]] entry", source=str(path))
@@ -97,7 +120,8 @@ def load_jobs(path) -> tuple[list[Job], dict]:
             for m in methods:
                 rp, ap = base / rec["path"], base / av["blend"]
                 name = f"{_stem(rp)}__{av.get('armature') or _stem(ap)}__{m}"
-                jobs.append(Job(name, rp, base / rec["user"], ap, av.get("armature"), m, out_dir / f"{name}.blend"))
+                jobs.append(Job(name, rp, base / rec["user"], ap, av.get("armature"), m, out_dir / f"{name}.blend",
+                                filt, plant))
     settings = {"workers": int(defaults.get("workers", os.cpu_count() or 1)),
                 "runner": defaults.get("runner", "python"), "output_dir": out_dir}
     if settings["runner"] not in ("python", "blender"):

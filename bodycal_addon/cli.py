@@ -48,6 +48,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--avatar", required=True, metavar="FILE.blend")
     c.add_argument("--armature", metavar="NAME")
     c.add_argument("--method", choices=METHODS, default="egocentric")
+    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
+                   help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
+                        "Hz, Hz per m/s, Hz, Hz per rad/s)")
+    c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
+                   help="let the feet follow the method (default: feet planted while the performer stands on them)")
     c.add_argument("-o", "--output", required=True, metavar="OUT.blend")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")

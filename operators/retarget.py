@@ -11,6 +11,7 @@ import bpy
 
 from ..bodycal_addon.blender import retarget_scene
 from ..bodycal_addon.errors import BodyCalError, Cancelled
+from ..bodycal_addon.filters import OneEuro
 
 METHOD_ITEMS = [
     ("egocentric", "Egocentric", "Keep self-contacts: egocentric mapping onto the avatar's surface + IK (paper 000)"),
@@ -29,6 +30,24 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
         description="Overwrite an existing action of the same name instead of creating a new one")
     push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
                                         description="Put the baked action on a new NLA track")
+    plant_feet: bpy.props.BoolProperty(
+        name="Plant Feet", default=True,
+        description="Hold each foot still and on the floor while the performer stands on it (every method)")
+    use_filter: bpy.props.BoolProperty(
+        name="Smooth Devices", default=False,
+        description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
+    filter_min_cutoff: bpy.props.FloatProperty(
+        name="Min Cutoff", default=OneEuro.min_cutoff, min=0.01, soft_max=20.0,
+        description="Cutoff (Hz) of a still device's position: lower smooths more")
+    filter_beta: bpy.props.FloatProperty(
+        name="Beta", default=OneEuro.beta, min=0.0, soft_max=50.0,
+        description="How fast the position's cutoff rises with speed (Hz per m/s): higher follows quick moves")
+    filter_rot_min_cutoff: bpy.props.FloatProperty(
+        name="Rotation Min Cutoff", default=OneEuro.rot_min_cutoff, min=0.01, soft_max=20.0,
+        description="Cutoff (Hz) of a still device's rotation")
+    filter_rot_beta: bpy.props.FloatProperty(
+        name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
+        description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 
 
@@ -65,8 +84,11 @@ on each"""
         return True
 
     def _inputs(self, context) -> list:
-        method = context.scene.bodycal_retarget.method
-        return [retarget_scene.gather_inputs(context.scene, arm, method) for arm in _target_armatures(context)]
+        st = context.scene.bodycal_retarget
+        cfg = OneEuro(st.filter_min_cutoff, st.filter_beta, st.filter_rot_min_cutoff, st.filter_rot_beta) \
+            if st.use_filter else None
+        return [retarget_scene.gather_inputs(context.scene, arm, st.method, filter=cfg, plant_feet=st.plant_feet)
+                for arm in _target_armatures(context)]
 
     def _finish(self, context, inputs: list, anims: list):
         """Bake every avatar's animation: only once all of them were computed."""

@@ -20,6 +20,14 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
         row = col.row(align=True)
         row.prop(settings, "replace", toggle=True)
         row.prop(settings, "push_to_nla", toggle=True)
+        col.prop(settings, "plant_feet")
+        col.prop(settings, "use_filter")
+        if settings.use_filter:
+            sub = col.column(align=True)
+            sub.prop(settings, "filter_min_cutoff")
+            sub.prop(settings, "filter_beta")
+            sub.prop(settings, "filter_rot_min_cutoff")
+            sub.prop(settings, "filter_rot_beta")
         col.operator("bodycal.retarget_bake", icon="ACTION")
         if settings.last_result:
             box = layout.box()

@@ -82,3 +82,66 @@ def test_a_performer_facing_forward_keeps_the_pelvis_with_the_legs(walker, tmp_p
         d = np.degrees(np.arctan2(hip[:, 1], hip[:, 0]) - np.arctan2(src[:, 1], src[:, 0]))
         d = np.abs((d + 180.0) % 360.0 - 180.0)
         assert d.max() < 5.0, (method, d.max())
+
+
+def _joint_errors_mm(user, truth) -> dict[str, float]:
+    ref = int(round(user.reference_time * truth["fps"]))
+    return {n: 1000 * float(np.linalg.norm(user.joints[n].world - truth["positions"][ref, k]))
+            for k, n in enumerate(truth["joints"]) if n in user.joints}
+
+
+@pytest.fixture(scope="module")
+def walk_six(walker, tmp_path_factory):
+    return outside_recording(walker, tmp_path_factory.mktemp("outside_six"), "six", seed=0, up="Z")
+
+
+@pytest.mark.slow
+def test_six_devices_calibrate_every_step_from_the_devices_there(walk_six):
+    """Issue 11: HMD, controllers, pelvis and feet only. The swing and flex steps are fitted from
+    the devices that are there (the report names which, in which frame) and nothing aborts; hips,
+    shoulders, knees and elbows land within 25 mm of the clip's joints."""
+    rec, truth = walk_six
+    user = calibrate_user(rec)
+    cal = user.calibration
+    assert not cal["warnings"], cal["warnings"]
+    for s in ("l", "r"):
+        assert cal["quality"][f"swing_shoulder_{s}"]["frames"].startswith(f"hand_{s} in ")
+        assert cal["quality"][f"swing_hip_{s}"]["frames"] == f"foot_{s} in pelvis"
+        assert cal["quality"][f"flex_elbow_{s}"]["frames"].startswith(f"hand_{s} in ")
+        assert cal["quality"][f"flex_knee_{s}"]["frames"] == f"foot_{s} in pelvis"
+        # the knee / elbow is not carried by the foot / hand (they bend at the ankle / wrist)
+        assert set(user.joints[f"knee_{s}"].frames) <= {"pelvis"}
+        assert user.bones[f"shin_{s}"].extra["right_frame"] == f"foot_{s}"
+    err = _joint_errors_mm(user, truth)
+    worst = {j: err[j] for j in ("hip_l", "hip_r", "shoulder_l", "shoulder_r", "knee_l", "knee_r", "elbow_l",
+                                 "elbow_r") if err[j] > 25.0}
+    assert not worst, worst
+
+
+@pytest.mark.slow
+def test_full_profile_without_touches_places_the_joints(walk_full):
+    """Issue 11 targets without touch steps: knees and elbows within 15 mm (their place along the
+    hinge axis from the anchor's flexion plane), ankles within 20 mm and wrists within 10 mm
+    (fitted from the motion between the limb tracker and the hand / foot device)."""
+    rec, truth = walk_full
+    user = calibrate_user(rec)
+    err = _joint_errors_mm(user, truth)
+    limits = {"knee": 15.0, "elbow": 15.0, "ankle": 20.0, "wrist": 10.0, "hip": 10.0, "shoulder": 10.0}
+    bad = {j: round(e, 1) for j, e in err.items() if j.split("_")[0] in limits and e > limits[j.split("_")[0]]}
+    assert not bad, bad
+    q = user.calibration["quality"]
+    assert q["flex_knee_l"]["along_axis"] == "hip_l flexion plane"
+    assert "ankle_r from the motion" in q and "wrist_l from the motion" in q
+
+
+@pytest.mark.slow
+def test_a_csv_round_trip_gives_the_same_body_model_as_the_json(walk_six, tmp_path):
+    from bodycal_addon.recording_io import save_recording
+
+    rec, _ = walk_six
+    models = [calibrate_user(recording_io.load_recording(save_recording(rec, tmp_path / name)[0]))
+              for name in ("take.bcrec.json", "take.csv")]
+    a, b = (m.to_dict() for m in models)
+    assert a["calibration"] == b["calibration"]
+    for j in a["joints"]:
+        np.testing.assert_allclose(a["joints"][j]["world"], b["joints"][j]["world"], atol=1e-9, err_msg=j)

@@ -16,6 +16,7 @@ from .. import metrics
 from ..animation import AvatarAnimation
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
+from ..filters import OneEuro, filter_recording
 from ..recording import Recording
 from ..retarget.pipeline import retarget
 from . import avatar_storage, bake, calibration_scene, recording_scene
@@ -30,6 +31,8 @@ class RetargetInputs:
     armature: object  # bpy.types.Object
     method: str
     avatar_calibrated_now: bool = False  # store the avatar model with the bake
+    filter: OneEuro | None = None  # One Euro filter on the devices before retargeting
+    plant_feet: bool = True
 
 
 @dataclass
@@ -65,19 +68,23 @@ def avatar_model_for(arm) -> tuple[BodyModel, bool]:
 
 
 def gather_inputs(scene, arm, method: str, recording: Recording | None = None,
-                  user: BodyModel | None = None) -> RetargetInputs:
+                  user: BodyModel | None = None, *, filter: OneEuro | None = None,
+                  plant_feet: bool = True) -> RetargetInputs:
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("pick an avatar armature", source=getattr(arm, "name", "no object"))
     recording = recording if recording is not None else recording_scene.recording_from_scene(scene)
     user = user if user is not None else calibration_scene.load_user_model(scene)
     avatar, fresh = avatar_model_for(arm)
-    return RetargetInputs(recording, user, avatar, arm, method, fresh)
+    return RetargetInputs(recording, user, avatar, arm, method, fresh, filter, plant_feet)
 
 
 def compute(inputs: RetargetInputs, progress=None, cancel=None) -> AvatarAnimation:
-    """Pure numpy: safe to run in a worker thread."""
+    """Pure numpy: safe to run in a worker thread. The filter, when asked, works on a copy of the
+    recording (the scene's and the file's stay as they are)."""
     t0 = time.perf_counter()
-    anim = retarget(inputs.recording, inputs.user, inputs.avatar, inputs.method, progress=progress, cancel=cancel)
+    rec = inputs.recording if inputs.filter is None else filter_recording(inputs.recording, inputs.filter)
+    anim = retarget(rec, inputs.user, inputs.avatar, inputs.method, progress=progress, cancel=cancel,
+                    plant_feet=inputs.plant_feet)
     anim.notes.append(f"compute_s={time.perf_counter() - t0:.3f}")
     return anim
 
@@ -117,7 +124,8 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
 
 
 def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, armature: str | None = None,
-                   method: str = "egocentric", log=print) -> RetargetSummary:
+                   method: str = "egocentric", filter: OneEuro | None = None, plant_feet: bool = True,
+                   log=print) -> RetargetSummary:
     """`bodycal retarget`: everything from paths, nothing from a running session."""
     from pathlib import Path
 
@@ -133,7 +141,8 @@ def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, arm
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
     open_blend(avatar_blend)
     arm = find_armature(armature, str(avatar_blend))
-    inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user)
+    inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user, filter=filter,
+                           plant_feet=plant_feet)
     anim = compute(inputs)
     summary = bake_and_measure(inputs, anim, set_scene_rate=True)
     output_blend.parent.mkdir(parents=True, exist_ok=True)

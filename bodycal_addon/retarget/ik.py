@@ -20,7 +20,13 @@ import numpy as np
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
-SWIVEL_HINT_WEIGHT = 0.01  # m: see two_bone
+# m: the hinge axis weighs as much as this offset of the user's joint from the root-effector line.
+# Decision: a measured hinge axis (a rotation, good to a degree) fixes the bending plane far better
+# than the joint's offset while the limb is nearly straight, where a standing knee's 1-2 cm offset
+# is mostly tracker noise: at 1 cm the swivel of straight limbs turned by tens of degrees from one
+# frame to the next (a standing knee jumped 7-11 mm, the egocentric wrists' acceleration tripled on
+# real clips). At 5 cm the user's own joint takes over from about 20° of flexion.
+SWIVEL_HINT_WEIGHT = 0.05
 
 
 def _dot(a, b):
@@ -83,8 +89,8 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     user_swivel_dir: (F, 3) the user's swivel γ as a direction from the user's root-effector axis
       toward the user's intermediate joint (only its part perpendicular to the avatar's axis is
       used). `flex_axis_hint`: the user's hinge axis (forearm/shin +X, world), whose swivel is
-      axis x hint; with both, the hint is added with the weight of a 1 cm offset, so it takes
-      over smoothly as the user's limb straightens; with the hint alone it is the swivel.
+      axis x hint; with both, the hint is added with the weight of a SWIVEL_HINT_WEIGHT offset, so
+      it takes over smoothly as the user's limb straightens; with the hint alone it is the swivel.
     Returns TwoBoneResult. Unreachable targets: the limb fully extended toward the target; too
     close (d < |l1 - l2|): folded as far as possible toward it; target on the root: the axis is
     taken toward the pole target (else straight down). Never NaN.
@@ -116,7 +122,7 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
         w = w - _dot(w, axis)[..., None] * axis
         if flex_axis_hint is not None:
             # The hinge axis takes over smoothly as the user's limb straightens (its mid joint then
-            # says nothing about the swivel): a 1 cm offset weighs as much as the hint.
+            # says nothing about the swivel): a SWIVEL_HINT_WEIGHT offset weighs as much as the hint.
             w = w + SWIVEL_HINT_WEIGHT * hint_dir
         gamma_dir = _unit(w, hint_dir)[0]
     # β: the swivel through the pole target; t from its distance to the axis (eq. 7-8).

@@ -28,7 +28,7 @@ from ..errors import BodyCalError, Cancelled
 from ..recording import Recording
 from ..surface_layout import bone_frame
 from ..transforms import normalize, quat_to_matrix, stack_apply, stack_mul
-from . import ik
+from . import feet, ik
 from . import offsets as ofs
 from .avatar_pose import (
     BI,
@@ -45,7 +45,7 @@ from .avatar_pose import (
     root_positions,
     root_scale,
 )
-from .user_animation import _trackers, animate_user, pose_finger_chain
+from .user_animation import _joint_from, _trackers, animate_user, pose_finger_chain
 
 METHODS = ("egocentric", "offsets", "rotations")
 TARGETS = tuple(
@@ -79,7 +79,8 @@ def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.n
 class _Run:
     """Everything computed once per (user, avatar, method)."""
 
-    def __init__(self, recording: Recording, user: BodyModel, avatar: BodyModel, method: str):
+    def __init__(self, recording: Recording, user: BodyModel, avatar: BodyModel, method: str,
+                 plant_feet: bool = True):
         if method not in METHODS:
             raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
         if user.kind != "user":
@@ -159,6 +160,65 @@ class _Run:
                         tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
             self.ofs = ofs.setup(user, self.rig, self.user_frames0, tpose, self.centre)
             self.grip = {s: ofs.grip_fingers(self.rig, s) for s in sk.SIDES if self.has_fingers[s]}
+        self.feet = self._plan_feet(avatar, avatar_pos) if plant_feet else None
+
+    def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> dict:
+        """The stances of the whole recording from the user's foot trackers and, per stance, where the
+        avatar's foot is planted (feet.py): {side: (weight (F,), planted xy (F, 2))}, plus the sole
+        points of the avatar's feet in the canonical foot frames."""
+        tr = _trackers(self.rec, self.user)
+        out = {}
+        ref = complete_joints(self.user)
+        if self.method == "offsets":
+            placed, _ = ofs.effector_targets(self.ofs, tr.pos, tr.rot)
+        corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
+        for s in sk.SIDES:
+            user_ankle = _joint_from(self.user, tr, f"ankle_{s}", [f"foot_{s}"])
+            if user_ankle is None:
+                continue
+            stance = feet.detect(user_ankle, self.rec.time, float(ref[f"ankle_{s}"][2]))
+            reference = (placed[f"ankle_{s}"] if self.method == "offsets"
+                         else root_positions(user_ankle, self.k, self.centre))
+            eid = f"mesh:sole_{s}"
+            if eid in {e.id for e in avatar.surface}:
+                sole = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
+            else:  # no sole measured: the ankle stands at its rest height
+                sole = np.array([[0.0, 0.0, 0.0]]) - np.array([0.0, 0.0, avatar_pos[f"ankle_{s}"][2]]) @ \
+                    self.rig.frames0[BI[f"foot_{s}"]]
+            out[s] = (stance.weight, feet.planted_xy(reference, stance), sole)
+        return out
+
+    def _planted(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
+                 ankles: dict | None = None):
+        """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
+        onto the planted places, and the pelvis lowered where a planted foot is out of reach. Returns
+        (targets, pelvis, whether anything is planted in these frames)."""
+        if not self.feet:
+            return targets, pelvis, False
+        rig = self.rig
+        targets = dict(targets)
+        weights, aims, sides = [], [], []
+        for s, (weight, planted, sole) in self.feet.items():
+            w = weight[start:stop]
+            if not w.any():
+                continue
+            name = f"ankle_{s}"
+            base = targets[name] if name in targets else ankles[name]
+            targets[name] = feet.lock(base, planted[start:stop], w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
+            weights.append(w)
+            aims.append(targets[name])
+            sides.append(s)
+        if not sides:
+            return targets, pelvis, False
+        hips = rig.joint_positions(frames, pelvis, [f"hip_{s}" for s in sides])
+        lengths = np.array([rig.lengths[BI[f"thigh_{s}"]] + rig.lengths[BI[f"shin_{s}"]] for s in sides])
+        drop = feet.pelvis_drop(hips, np.stack(aims, axis=1), lengths, np.stack(weights, axis=1))
+        if drop.any():
+            down = drop[:, None] * np.array([0.0, 0.0, 1.0])
+            pelvis = pelvis - down
+            if "skull_base" in targets:  # the whole body comes down, the head with it
+                targets["skull_base"] = targets["skull_base"] - down
+        return targets, pelvis, True
 
     # --- one chunk of frames ------------------------------------------------------------------
 
@@ -175,12 +235,19 @@ class _Run:
         fk = self.rig.solve(up.frames, pelvis, basis=self.method == "rotations",
                             realised=self.realise if self.method == "egocentric" else False)
         if self.method == "rotations":
-            return fk, {}
+            ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
+            targets, pelvis, planted = self._planted({}, up.frames, pelvis, start, stop, ankles)
+            if not planted:
+                return fk, {}
+            # The legs reach their planted feet (and only the legs: the rest stays a rotation copy).
+            legs = {n: v for n, v in targets.items() if n.startswith("ankle_")}
+            frames = self._ik(up, fk, pelvis, legs)
+            return self.rig.solve(frames, pelvis, realised=False), legs
         if self.method == "egocentric":
-            return self._egocentric(up, fk, pelvis, user_frames)
+            return self._egocentric(up, fk, pelvis, user_frames, start, stop)
         return self._offsets(up, fk, start, stop)
 
-    def _egocentric(self, up, fk, pelvis, user_frames):
+    def _egocentric(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
         without the arms and solved; then the arms and fingers, mapped against the body with the
         trunk and legs already where the IK put them. Targets are mapped relative to the posed
@@ -202,6 +269,8 @@ class _Run:
             tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
                                      user_bones=ub, dtype=MAPPING_DTYPE)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
+        ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
+        targets, pelvis, _ = self._planted(targets, up.frames, pelvis, start, stop, ankles)
         frames = self._ik(up, fk, pelvis, targets)
         mid = self.rig.solve(frames, pelvis, basis=False, realised=self.realise)
         us = ego.pose_surface(self.user_s, uj, uf, self.ids)
@@ -251,7 +320,7 @@ class _Run:
         # clavicles keep their pose relative to vertebra 5.
         if "skull_base" in targets:
             spine_idx = [BI[b] for b in SPINE_BONES]
-            res = ik.spine(fk.joints[:, JI["pelvis"]], fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
+            res = ik.spine(pelvis, fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
                            None, targets["skull_base"],
                            top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]),
                            two_pass=False, rest_segments=self.rest_spine)
@@ -322,7 +391,8 @@ class _Run:
             c = BI[f"clavicle_{s}"]
             frames[:, c] = stack_mul(sf[:, v5], st.spine0[v5].T @ st.ref_frames[c])
         targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
-        pelvis = p["pelvis"]
+        # AvatarGo stands its avatar on the floor: planted feet on it, the pelvis lowered to reach.
+        targets, pelvis, _ = self._planted(targets, frames, p["pelvis"], start, stop)
         up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
         frames = self._ik(up2, fk, pelvis, targets, hands=self.grip)
         targets["skull_base"] = p["skull_base"]
@@ -390,12 +460,13 @@ def surface_bone_indices(*models: BodyModel) -> list[int]:
 
 def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyModel, method: str = "egocentric", *,
              chunk_frames: int = 2000, progress: Callable[[float], None] | None = None,
-             cancel: Callable[[], bool] | None = None) -> AvatarAnimation:
+             cancel: Callable[[], bool] | None = None, plant_feet: bool = True) -> AvatarAnimation:
     """Retarget `recording` of the user (`user_model`) onto the avatar (`avatar_model`, kind
     "avatar" with `extra["rig"]`). Frames are processed `chunk_frames` at a time; `progress(f)` is
     called with the fraction done after each chunk and `cancel()` before each one (True raises
-    `errors.Cancelled`). Bad inputs raise one `BodyCalError`."""
-    run = _Run(recording, user_model, avatar_model, method)
+    `errors.Cancelled`). `plant_feet` holds the feet still and on the floor while the performer
+    stands on them (feet.py), in every method. Bad inputs raise one `BodyCalError`."""
+    run = _Run(recording, user_model, avatar_model, method, plant_feet)
     nf = recording.frame_count
     rig = run.rig
     nb = len(rig.names)
