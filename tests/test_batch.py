@@ -80,3 +80,19 @@ def test_each_job_is_a_self_contained_command(tmp_path):
     assert cmd[4:] == ["retarget", str(tmp_path / "t.bcrec.json"), "--user", str(tmp_path / "u.body.json"),
                        "--avatar", str(tmp_path / "a.blend"), "--method", "egocentric", "-o",
                        str(tmp_path / "out" / "batch" / "t__Rig__egocentric.blend"), "--armature", "Rig"]
+
+
+def test_filter_and_feet_settings_reach_every_job(tmp_path):
+    (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = "2,6"\nplant_feet = false\n'
+                                        '[[recordings]]\npath="t.bcrec.json"\nuser="u.body.json"\n'
+                                        '[[avatars]]\nblend="a.blend"\n')
+    (job,), _settings = load_jobs(tmp_path / "jobs.toml")
+    assert job.argv()[-3:] == ["--filter", "2,6", "--no-plant-feet"]
+    (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = true\n[[recordings]]\npath="t"\nuser="u"\n'
+                                        '[[avatars]]\nblend="a"\n')
+    (job,), _settings = load_jobs(tmp_path / "jobs.toml")
+    assert job.argv()[-2:] == ["--filter", "on"]
+    (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = "soft"\n[[recordings]]\npath="t"\nuser="u"\n'
+                                        '[[avatars]]\nblend="a"\n')
+    with pytest.raises(BodyCalError, match="--filter"):
+        load_jobs(tmp_path / "jobs.toml")

@@ -41,3 +41,11 @@ def test_blender_cli_command_handler_runs_the_same_entry_point(capsys):
     # bpy.utils.register_cli_command cannot be invoked from the module (no `-c`): call the handler.
     assert cli_bridge.run(["--help"]) == 0
     assert "calibrate-avatar" in capsys.readouterr().out
+
+
+def test_a_bad_filter_is_one_line_before_anything_is_read(tmp_path):
+    out = _run("retarget", "missing.bcrec.json", "--user", "u.body.json", "--avatar", "a.blend", "--filter", "1,2,3",
+               "-o", str(tmp_path / "o.blend"))
+    assert out.returncode == 2
+    (line,) = out.stderr.strip().splitlines()
+    assert "--filter" in line and "expected 2 or 4 numbers" in line and "Traceback" not in out.stderr

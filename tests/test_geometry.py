@@ -208,3 +208,77 @@ def test_rotation_axis_exact():
 def _random_quat_g():
     q = rng.normal(size=4)
     return q / np.linalg.norm(q)
+
+
+def _hinge_pair(n, point_a, axis, angles):
+    """Frames A and B joined by a hinge about `axis` (A's frame) through `point_a`: B turns by
+    `angles` about it; both move together by random rigid motions."""
+    Rab = _axis_rot(axis, angles)  # B in A
+    pb_local = point_a - np.einsum("fij,j->fi", Rab, point_a)  # keeps the hinge point fixed
+    ra = np.stack([_random_rotation() for _ in range(n)])
+    pa = rng.normal(size=(n, 3))
+    rb = ra @ Rab
+    pb = pa + np.einsum("fij,fj->fi", ra, pb_local)
+    return ra, pa, rb, pb
+
+
+def _axis_rot(axis, angles):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    x, y, z = axis
+    c, s = np.cos(angles), np.sin(angles)
+    t = 1 - c
+    return np.stack([np.stack([c + x * x * t, x * y * t - z * s, x * z * t + y * s], -1),
+                     np.stack([y * x * t + z * s, c + y * y * t, y * z * t - x * s], -1),
+                     np.stack([z * x * t - y * s, z * y * t + x * s, c + z * z * t], -1)], -2)
+
+
+def test_rigid_point_on_a_hinge_takes_the_given_coordinate_along_its_axis():
+    """An ankle that only flexes leaves its centre free along the hinge axis; the fit puts it at
+    the coordinate of a given point (the knee) along the axis, and elsewhere exactly."""
+    point, axis = np.array([0.02, -0.4, 0.05]), np.array([1.0, 0.1, 0.0])
+    ra, pa, rb, pb = _hinge_pair(200, point, axis, np.linspace(-0.4, 0.5, 200))
+    u = axis / np.linalg.norm(axis)
+    knee = point + 0.07 * u + np.array([0.0, 0.3, 0.0]) - (np.array([0.0, 0.3, 0.0]) @ u) * u  # same axial coord
+    knee = knee - 0.07 * u  # ... and exactly the hinge point's coordinate along the axis
+    fit = geo.fit_rigid_point(ra, pa, rb, pb, along_axis_as=knee)
+    assert fit.weak_axis
+    np.testing.assert_allclose(fit.local_a, point, atol=1e-6)
+    # a joint that turns about two axes is determined by the motion itself, the hint unused
+    ra, pa, rb, pb, a, _ = _rigid_pair(300)
+    fit = geo.fit_rigid_point(ra, pa, rb, pb, along_axis_as=a + np.array([0.1, 0.1, 0.1]))
+    assert not fit.weak_axis
+    np.testing.assert_allclose(fit.local_a, a, atol=1e-9)
+
+
+def test_geometric_fit_removes_the_algebraic_short_arc_bias():
+    """Kåsa's algebraic circle shrinks a short noisy arc (and its centre follows toward the points);
+    the geometric refinement does not."""
+    radius, kasa, geometric = 0.45, [], []
+    for _ in range(60):
+        pts = _arc(150, np.zeros(3), radius, np.eye(3), 0.0, np.radians(60)) + rng.normal(0, 0.005, (150, 3)) \
+            * np.array([1, 1, 0])
+        kasa.append(geo._kasa_2d(pts[:, :2])[1])
+        geometric.append(geo.fit_circle(pts, robust=False, min_arc_deg=30).radius)
+    assert abs(np.mean(kasa) - radius) > 0.01  # the bias this guards against
+    assert abs(np.mean(geometric) - radius) < 0.003
+
+
+def test_moving_point_sphere_sees_through_a_wandering_joint():
+    """A foot tracker 7 cm in front of an ankle that wanders a few degrees while the straight leg
+    swings about the hip: the tracker's own sphere is off by centimetres, the sphere of the point
+    that keeps its distance is not."""
+    n, hip, leg = 600, np.array([0.1, 0.05, -0.08]), 0.8
+    t = np.linspace(0, 6, n)
+    theta = np.radians(25 + 15 * np.sin(2 * np.pi * 0.5 * t))
+    alpha = np.radians(60 + 100 * np.sin(2 * np.pi * 0.33 * t + 0.5))
+    d = np.column_stack([np.sin(theta) * np.cos(alpha), np.sin(theta) * np.sin(alpha), -np.cos(theta)])
+    ankle = hip + leg * d
+    wander = _axis_rot(np.array([1.0, 0.0, 0.0]), np.radians(6) * np.sin(2 * np.pi * 0.7 * t)) @ \
+        _axis_rot(np.array([0.0, 1.0, 0.0]), np.radians(5) * np.sin(2 * np.pi * 0.45 * t + 1))
+    mount = _random_rotation()  # the tracker's axes on the foot
+    rot = wander @ mount
+    device = ankle + np.einsum("fij,j->fi", rot, mount.T @ np.array([0.0, 0.07, 0.02]))
+    plain = geo.fit_sphere(device)
+    moving = geo.fit_sphere_moving_point(device, rot)
+    assert np.linalg.norm(plain.center - hip) > 0.01
+    assert np.linalg.norm(moving.center - hip) < 0.003

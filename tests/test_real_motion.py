@@ -145,3 +145,32 @@ def test_a_csv_round_trip_gives_the_same_body_model_as_the_json(walk_six, tmp_pa
     assert a["calibration"] == b["calibration"]
     for j in a["joints"]:
         np.testing.assert_allclose(a["joints"][j]["world"], b["joints"][j]["world"], atol=1e-9, err_msg=j)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_planted_feet_hold_still_on_the_floor(walk_full, method):
+    """Issue 11 item 4: during the source's stance the avatar's foot neither slides nor sinks nor
+    floats, whatever the method; without planting it does (the test can fail)."""
+    from bodycal_addon.blender import mesh_metrics
+
+    rec, truth = walk_full
+    user = calibrate_user(rec)
+    avatar = rt.procedural_avatar()
+    a, b = truth["motion"]
+    figures = {}
+    for plant in (True, False):
+        anim = pl.retarget(rec, user, avatar, method, plant_feet=plant)
+        slide, low = [], []
+        for s in ("l", "r"):
+            st = truth["stance"][s][a:b]
+            both = st[1:] & st[:-1]
+            ankle = anim.joints_world[f"ankle_{s}"][a:b].astype(float)
+            slide.append(np.linalg.norm(np.diff(ankle[:, :2], axis=0), axis=1)[both])
+            low.append(mesh_metrics.sole_points(avatar, anim, s)[a:b][..., 2].min(axis=1)[st])
+        figures[plant] = (np.percentile(np.concatenate(slide), 95) * 1000, np.concatenate(low) * 1000)
+    slide_mm, low_mm = figures[True]
+    assert slide_mm < 0.5, slide_mm
+    assert abs(np.median(low_mm)) < 1.0 and low_mm.min() > -1.0, (np.median(low_mm), low_mm.min())
+    unplanted_slide, unplanted_low = figures[False]
+    assert unplanted_slide > 1.0 or abs(np.median(unplanted_low)) > 5.0, (unplanted_slide, np.median(unplanted_low))

@@ -116,3 +116,27 @@ def test_retarget_command_end_to_end_keeps_the_hand_on_the_belly(tmp_path, belly
     baked = np.array(arm.pose.bones["hand_r"].rotation_quaternion)
     want = anim.rotations[frame - bpy.context.scene.frame_start, anim.bone_names.index("hand_r")]
     assert abs(abs(float(baked @ want)) - 1) < 1e-5  # the .blend's keys are the engine's pose
+
+
+def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(belly_session):
+    """Issue 11: the One Euro filter is a panel option; it works on a copy (the scene's recording
+    keeps its samples) and changes the bake; feet can be left to the method."""
+    from bodycal_addon.blender.fcurves import object_fcurves, read_keys
+
+    rec, truth = belly_session
+    arm = _scene_ready(rec, truth)
+    settings = bpy.context.scene.bodycal_retarget
+    settings.method = "rotations"
+    samples = recording_scene.recording_from_scene(bpy.context.scene).positions.copy()
+    keys = {}
+    for smooth in (False, True):
+        settings.use_filter = smooth
+        settings.plant_feet = not smooth
+        assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
+        fcurves = object_fcurves(arm)
+        keys[smooth] = np.stack([read_keys(fc)[1] for (path, _i), fc in sorted(fcurves.items())
+                                 if "upperarm" in path and "rotation_quaternion" in path])
+    np.testing.assert_array_equal(recording_scene.recording_from_scene(bpy.context.scene).positions, samples)
+    assert keys[True].shape == keys[False].shape
+    change = np.abs(keys[True] - keys[False]).max()
+    assert 1e-4 < change < 0.2, change  # smoothed, not another motion

@@ -11,7 +11,7 @@ method:
 2. A weight per frame (`Stance.weight`): 1 throughout a stance, easing in over the BLEND_S before
    it and out over the BLEND_S after it (smoothstep), so nothing pops and the easing happens while
    the foot still moves (a bake sees the whole take: it can look ahead).
-3. The planted place (`planted_xy`): per stance, the weighted mean of where the method puts the
+3. The planted place (`planted_xy`): per stance, the mean over its frames of where the method puts the
    ankle (the rotation copy's and the mapping's: the user's ankle scaled like the root; AvatarGo's:
    its own eq. 2 target); the height: the ankle's height above its lowest sole point in the foot's
    current orientation (`sole_lift`), so the sole touches the floor whatever the foot does.
@@ -128,7 +128,7 @@ def planted_xy(reference: np.ndarray, stance: Stance) -> np.ndarray:
         return out
     inside = stance.label >= 0
     lab = stance.label[inside]
-    w = stance.weight[inside] ** 4 + 1e-9  # the stance itself counts, its easings hardly
+    w = (stance.weight[inside] >= 1.0) + 1e-9  # the stance itself; its easings only where it has no frame
     total = np.bincount(lab, w, stance.count)
     for k in range(2):
         mean = np.bincount(lab, w * reference[inside, k], stance.count) / total
