@@ -1,6 +1,6 @@
 """Real human motion through the whole pipeline, as an outside tool would record it (issue 11).
 
-Each CMU BVH clip (../shared/data/motion/cmu_bvh, plus any given with --clips) becomes a FORMATS.md
+Each CMU BVH clip (motion/cmu_bvh of the sample data, plus any given with --clips) becomes a FORMATS.md
 recording through `evaluation/` (code that shares nothing with synthetic.py): the calibration
 steps performed by the clip's own skeleton, then the clip; trackers at random mounting rotations
 and offsets, the performer at a random facing and place in the play area, the file written Y up

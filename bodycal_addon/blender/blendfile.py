@@ -14,7 +14,8 @@ def open_blend(path) -> None:
     if not path.is_file():
         raise BodyCalError("no such file", source=str(path))
     try:
-        bpy.ops.wm.open_mainfile(filepath=str(path.resolve()), load_ui=False)
+        # A user's file may hold scripts (drivers, registered text blocks): none of them runs here.
+        bpy.ops.wm.open_mainfile(filepath=str(path.resolve()), load_ui=False, use_scripts=False)
     except RuntimeError as exc:
         raise BodyCalError(f"Blender cannot open it ({str(exc).strip().splitlines()[-1][:120]})",
                            source=str(path)) from None
