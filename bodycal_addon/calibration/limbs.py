@@ -168,12 +168,12 @@ def _anchor_from_end_device(session: Session, state: State, side: str, joint: st
     if not session.has(device):
         raise BodyCalError(f"needs the '{ANCHORS[joint][0]}_{side}' tracker or the '{device}' device",
                            source=session.source, field=step, hint="record the step with those devices tracked")
-    _, frame, fit, _pts, used = _best_fit(session, step, list(TRUNK_FRAMES[joint]), device, idx,
-                                          lambda p: fit_sphere(p, name=step, robust=session.robust))
+    _, frame, fit, pts, used = _best_fit(session, step, list(TRUNK_FRAMES[joint]), device, idx,
+                                         lambda p: fit_sphere(p, name=step, robust=session.robust))
     _, fq, _ = session.pose(frame)
     _, dq, _ = session.pose(device)
     rel = tf.quat_to_matrix(tf.quat_mul(tf.quat_conj(fq[used]), dq[used]))  # the device seen from the frame
-    moving = fit_sphere_moving_point(_pts, rel, name=step, robust=session.robust)
+    moving = fit_sphere_moving_point(pts, rel, name=step, robust=session.robust)
     name = f"{joint}_{side}"
     _place_anchor(session, state, name, frame, moving.center, used)
     q = fit.quality()
@@ -184,7 +184,6 @@ def _anchor_from_end_device(session: Session, state: State, side: str, joint: st
 
 
 def _place_anchor(session: Session, state: State, name: str, frame: str, centre, used) -> None:
-    state.local.get(name, {}).clear()
     state.set_local(name, frame, centre)
     # The animation carries the anchor on the trunk tracker nearest to it.
     for other in (("chest", "pelvis") if name.startswith("shoulder") else ("pelvis",)):
@@ -274,8 +273,7 @@ def _hinge_from_end_device(session: Session, state: State, side: str, joint: str
                            field=step, hint="record the step with those devices tracked")
     anchor_joint = f"{ANCHOR_OF[joint]}_{side}"
     known = state.local.get(anchor_joint, {})
-    frames = sorted(TRUNK_FRAMES[joint], key=lambda r: r not in known)
-    _, frame, fit, pts, used = _best_fit(session, step, frames, device, idx,
+    _, frame, fit, pts, used = _best_fit(session, step, list(TRUNK_FRAMES[joint]), device, idx,
                                          lambda p: fit_circle(p, name=step, robust=session.robust),
                                          prefer=lambda f: f in known)
     _, fq, _ = session.pose(frame)

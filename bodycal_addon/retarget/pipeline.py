@@ -164,8 +164,8 @@ class _Run:
 
     def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> dict:
         """The stances of the whole recording from the user's foot trackers and, per stance, where the
-        avatar's foot is planted (feet.py): {side: (weight (F,), planted xy (F, 2))}, plus the sole
-        points of the avatar's feet in the canonical foot frames."""
+        avatar's foot is planted (feet.py): {side: (weight (F,), planted xy (F, 2), the avatar's sole
+        points (K, 3) in its canonical foot frame)}."""
         tr = _trackers(self.rec, self.user)
         out = {}
         ref = complete_joints(self.user)
@@ -182,9 +182,8 @@ class _Run:
             eid = f"mesh:sole_{s}"
             if eid in {e.id for e in avatar.surface}:
                 sole = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
-            else:  # no sole measured: the ankle stands at its rest height
-                sole = np.array([[0.0, 0.0, 0.0]]) - np.array([0.0, 0.0, avatar_pos[f"ankle_{s}"][2]]) @ \
-                    self.rig.frames0[BI[f"foot_{s}"]]
+            else:  # no sole measured: one point under the ankle, as deep as the ankle stands at rest
+                sole = (np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]]) @ self.rig.frames0[BI[f"foot_{s}"]])[None]
             out[s] = (stance.weight, feet.planted_xy(reference, stance), sole)
         return out
 
