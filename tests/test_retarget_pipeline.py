@@ -122,13 +122,24 @@ def test_scaled_avatar_gives_scaled_positions(session, scale):
 
 def test_offsets_put_the_tracked_joints_on_the_user_at_the_tpose(session):
     """AvatarGo eq. 2-3 at t = 0: the avatar (here the user's own body) in the user's T-pose has
-    its root, wrists, ankles and head exactly where the user's are."""
+    its root, ankles and head exactly where the user's are; its wrists are where the controller's
+    centre sits under the avatar's palm (§3.4, Hands), whatever the T-pose offset."""
+    from bodycal_addon.retarget import offsets as ofs
+
     rec, truth, user, _ = session
-    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "offsets", plant_feet=False)
+    avatar = rt.avatar_from_user(user)
+    anim = pl.retarget(rec, user, avatar, "offsets", plant_feet=False)
     f0 = int(np.argmin(np.abs(rec.time - user.reference_time)))
-    for j in ("pelvis", "wrist_l", "wrist_r", "ankle_l", "ankle_r"):
+    for j in ("pelvis", "ankle_l", "ankle_r"):
         assert _mm(anim.joints_world[j][f0], truth.joint_tracks[j][f0]) < 0.1, j
     assert _mm(anim.targets["skull_base"][f0], truth.joint_tracks["skull_base"][f0]) < 0.1
+    rig = ap.AvatarRig.from_model(avatar)
+    pose = rig.fk(anim.rotations, anim.root_location)
+    for s in ("l", "r"):
+        hand = pose.frames[:, ap.BI[f"hand_{s}"]]
+        held = anim.joints_world[f"wrist_{s}"] + np.einsum("fij,j->fi", hand, ofs.controller_in_hand(rig, s))
+        device, _, _ = rec.pose(f"hand_{s}")
+        assert _mm(held, device).max() < 0.1, s  # the controller in the palm, in every frame
     # Fingers close on the controller: every finger flexes.
     flex = [np.linalg.norm(anim.joints_world[f"tip_{f}_l"][f0] - anim.joints_world[f"mcp_{f}_l"][f0])
             for f in ("index", "middle", "ring", "pinky")]
@@ -141,10 +152,21 @@ def test_offsets_on_a_minimal_recording():
     perf = synthetic.make_performer(seed=4, build="tall")
     rec, truth = synthetic.record_session(perf, profile="minimal", motions=("hand_on_head",), calibration=False,
                                           motion_seconds=1.0)
-    anim = pl.retarget(rec, truth.body_model(), rt.procedural_avatar(), "offsets")
+    avatar = rt.procedural_avatar()
+    anim = pl.retarget(rec, truth.body_model(), avatar, "offsets")
     assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
-    for j in ("wrist_l", "ankle_r"):
-        assert np.median(_mm(anim.joints_world[j], anim.targets[j])) < 1.0
+    assert np.median(_mm(anim.joints_world["ankle_r"], anim.targets["ankle_r"])) < 1.0
+    # The hand holds the controller where the arm reaches it (paper 004 §3.4: a shorter arm
+    # cannot always); where it cannot, the arm is stretched straight toward it.
+    rig = ap.AvatarRig.from_model(avatar)
+    reach = rig.lengths[ap.BI["upperarm_l"]] + rig.lengths[ap.BI["forearm_l"]]
+    sh, wr = (anim.joints_world[j].astype(float) for j in ("shoulder_l", "wrist_l"))
+    tg = anim.targets["wrist_l"].astype(float)
+    missed = _mm(wr, tg) > 1.0
+    assert np.all(np.abs(np.linalg.norm(wr[missed] - sh[missed], axis=1) - reach) < 1e-3)
+    aim = np.einsum("fi,fi->f", *(x / np.linalg.norm(x, axis=1, keepdims=True)
+                                  for x in (wr[missed] - sh[missed], tg[missed] - sh[missed])))
+    assert np.all(aim > 0.999)
 
 
 @pytest.mark.parametrize("method", pl.METHODS)

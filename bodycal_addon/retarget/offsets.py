@@ -5,9 +5,14 @@ ratio and placed in the user's T-pose, gives for every tracked joint J and its t
 v0(TJ) = p0(J) - p0(T) and the rotations R0(T), R0(J). Then, per frame:
     p_t(J) = p_t(T) + R_t(T) R_0(T)^-1 v_0(TJ)        (eq. 2)
     R_t(J) = R_t(T) R_0(T)^-1 R_0(J)                  (eq. 3)
-for the root (pelvis tracker -> sacrum), the ankles (foot trackers -> feet), the wrists (hand
-devices -> hands: the controller stays under the palm because the offset was taken with the
-controller in the hand) and the head (HMD). The spine bends by the angle between w0 and w_t (root
+for the root (pelvis tracker -> sacrum), the ankles (foot trackers -> feet) and the head (HMD).
+Hands (§3.4, "Hands"): "the wrist joint is computed so that the center of the controller always
+appears under the palm (keeping an exact offset between the palm and the wrist joint)": the hand
+turns by eq. 3 and the wrist is the controller minus the palm's offset in that hand, the
+controller's centre being where the finger grip below models it (`controller_capsule`). Not the
+T-pose offset of eq. 2: that one carries the avatar's and the user's arm length difference, which
+swings the wrist on a lever far longer than the hand at every turn of the controller (it put the
+controller beyond a long-armed avatar's fingers). The spine bends by the angle between w0 and w_t (root
 to head, eq. 1, 4); limbs reach their effectors by two-bone IK; fingers close on the controller by
 gradient descent of the capsule SDF (eq. 5-7). Positions are computed at the user's scale and then
 brought back to the avatar's own size (divided by the eye-height ratio) about the floor point
@@ -24,7 +29,7 @@ import numpy as np
 from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
-from ..transforms import normalize, quat_between, quat_to_matrix
+from ..transforms import normalize, quat_between, quat_to_matrix, stack_apply
 from .avatar_pose import BI, JI, SPINE_BONES, AvatarRig, complete_joints, copy_frames
 from .user_animation import _axis_angle_matrix
 
@@ -64,6 +69,7 @@ class OffsetsSetup:
     pelvis0: np.ndarray  # (3,) avatar pelvis at the T-pose (user scale)
     ref_frames: np.ndarray  # (B, 3, 3) the canonical frames copied onto the avatar at the T-pose
     centre: np.ndarray  # (3,) the floor point the user-scale positions are scaled about
+    palm: dict[str, np.ndarray]  # wrist -> (3,) the controller's centre from the wrist, canonical hand frame
 
 
 def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: dict[str, tuple],
@@ -94,7 +100,8 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
         r0j[bone] = frames0[BI[bone]]
     w0 = tpose["head"][0] - tpose["pelvis"][0]
     spine0 = frames0[[BI[b] for b in SPINE_BONES]]
-    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]], ref, centre)
+    palm = {f"wrist_{side}": controller_in_hand(rig, side) for side in sk.SIDES}
+    return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]], ref, centre, palm)
 
 
 def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
@@ -102,8 +109,11 @@ def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str
     p, r = {}, {}
     for j, (role, bone) in TRACKED.items():
         rel = rot[role] @ st.r0_tracker[role].T  # R_t(T) R_0(T)^-1
-        p[j] = st.centre + (pos[role] + rel @ st.v0[j] - st.centre) / st.scale
         r[bone] = rel @ st.r0_joint[bone]
+        if j in st.palm:  # §3.4 Hands: the controller's centre under the palm
+            p[j] = st.centre + (pos[role] - st.centre) / st.scale - stack_apply(r[bone], st.palm[j])
+        else:
+            p[j] = st.centre + (pos[role] + rel @ st.v0[j] - st.centre) / st.scale
     return p, r
 
 
@@ -133,6 +143,26 @@ def capsule_sdf(p, s, e, r):
     return np.linalg.norm(v1 - v2 * h[..., None], axis=-1) - r
 
 
+def controller_capsule(rig: AvatarRig, side: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """The controller held in the avatar's hand at rest (paper 004, eq. 5): (centre (3,), half its
+    axis (3,), radius), world: across the palm, under it, sized by the hand (wrist -> middle base)."""
+    pos = {j: rig.joint_world[JI[j]] for j in (f"wrist_{side}", f"mcp_middle_{side}")}
+    f0 = rig.frames0
+    wrist = pos[f"wrist_{side}"]
+    hand_len = np.linalg.norm(pos[f"mcp_middle_{side}"] - wrist)
+    # Palm side: the fingers flex about +X toward +Z of their frames.
+    palm_dir = f0[BI[f"middle_1_{side}"]][:, 2]
+    r = CONTROLLER_RADIUS_OF_HAND * hand_len
+    centre = wrist + 0.6 * (pos[f"mcp_middle_{side}"] - wrist) + palm_dir * (r + 0.02 * hand_len)
+    return centre, f0[BI[f"hand_{side}"]][:, 0] * CONTROLLER_LENGTH_OF_HAND * hand_len / 2, float(r)
+
+
+def controller_in_hand(rig: AvatarRig, side: str) -> np.ndarray:
+    """(3,) the controller's centre from the wrist, in the canonical hand frame."""
+    centre, _, _ = controller_capsule(rig, side)
+    return rig.frames0[BI[f"hand_{side}"]].T @ (centre - rig.joint_world[JI[f"wrist_{side}"]])
+
+
 def grip_fingers(rig: AvatarRig, side: str) -> dict[str, np.ndarray]:
     """Closed-on-the-controller finger frames in the HAND frame (canonical bone -> (3, 3)),
     by gradient descent on the interpolation factors t in [0, 1] between the open (rest) and the
@@ -141,13 +171,8 @@ def grip_fingers(rig: AvatarRig, side: str) -> dict[str, np.ndarray]:
     pos = {j: rig.joint_world[JI[j]] for j in sk.JOINTS}
     f0 = rig.frames0
     hand = f0[BI[f"hand_{side}"]]
-    wrist = pos[f"wrist_{side}"]
-    hand_len = np.linalg.norm(pos[f"mcp_middle_{side}"] - wrist)
-    # Palm side: the fingers flex about +X toward +Z of their frames.
-    palm_dir = f0[BI[f"middle_1_{side}"]][:, 2]
-    r = CONTROLLER_RADIUS_OF_HAND * hand_len
-    centre = wrist + 0.6 * (pos[f"mcp_middle_{side}"] - wrist) + palm_dir * (r + 0.02 * hand_len)
-    lat = hand[:, 0] * CONTROLLER_LENGTH_OF_HAND * hand_len / 2
+    hand_len = np.linalg.norm(pos[f"mcp_middle_{side}"] - pos[f"wrist_{side}"])
+    centre, lat, r = controller_capsule(rig, side)
     s_, e_ = centre - lat, centre + lat
     fingers = list(sk.FINGERS)
     chains = []
