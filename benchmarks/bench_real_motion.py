@@ -14,8 +14,9 @@ Figures, per clip x profile (calibration) and per method x avatar x clip x profi
 - sole height during the source's stance (mm): median and worst of the avatar's lowest sole point;
 - foot slide (mm per 90 Hz frame, p95) of the avatar's ankle over the source's stance frames, with
   the source's own;
-- wrist / ankle acceleration p95 over the source's (scaled by the avatar / source leg ratio), and
-  over the user's own joint as the trackers give it (`pipeline_gain`: what the pipeline adds);
+- wrist / ankle acceleration p95 over the source's (scaled by the avatar / source arm and leg
+  ratios: the same motion moves a longer limb's end faster), and over the user's own joint as the
+  trackers give it, scaled alike (`pipeline_gain`: what the pipeline adds);
 - hip-line angle (degrees, p95 and max) between the avatar's and the source's.
 Every retarget runs twice: on the recording as read (`raw`) and with the One Euro filter's defaults
 on the devices (`filtered`): 0.5 mm of tracker noise alone puts the raw controller at 1.5-2x the
@@ -85,7 +86,7 @@ def _avatars(names):
     return out
 
 
-def motion_figures(anim, avatar, truth, k: float, user_pose) -> dict:
+def motion_figures(anim, avatar, truth, k: dict, user_pose) -> dict:
     a, b = truth["motion"]
     fps = truth["fps"]
     names = truth["joints"]
@@ -100,10 +101,10 @@ def motion_figures(anim, avatar, truth, k: float, user_pose) -> dict:
         out["source_slide_mm"][s] = measure.slide_mm_per_90hz(T[:, J[f"ankle_{s}"]], st, fps)
         for j in ("wrist", "ankle"):
             av = measure.accel_p95(anim.joints_world[f"{j}_{s}"][a:b].astype(float), fps)
-            src = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k
+            src = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k[j]
             out["accel_ratio"][f"{j}_{s}"] = round(av / max(src, 1e-9), 2)
             # against the user's own joint, as the trackers give it (scaled): what the pipeline adds
-            usr = measure.accel_p95(user_pose.joint(f"{j}_{s}")[a:b], fps) * k
+            usr = measure.accel_p95(user_pose.joint(f"{j}_{s}")[a:b], fps) * k[j]
             out["pipeline_gain"][f"{j}_{s}"] = round(av / max(usr, 1e-9), 2)
     out["hip_line_deg"] = measure.hip_line_deg(anim.joints_world["hip_l"][a:b], anim.joints_world["hip_r"][a:b],
                                                T[:, J["hip_l"]], T[:, J["hip_r"]])
@@ -142,7 +143,7 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
             filtered = filter_recording(rec, OneEuro())
             user_poses = {"raw": animate_user(rec, user), "filtered": animate_user(filtered, user)}
             for name, _arm, avatar in avatars:
-                k = AvatarRig.from_model(avatar).leg_length() / _source_leg(truth, ref)
+                k = _size_ratios(AvatarRig.from_model(avatar), truth, ref)
                 for method in pl.METHODS:
                     for variant, take in (("raw", rec), ("filtered", filtered)):
                         try:
@@ -160,11 +161,23 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
     return out
 
 
-def _source_leg(truth, frame: int) -> float:
-    """Hip to knee to ankle plus the ankle's height, as `AvatarRig.leg_length` measures an avatar."""
+def _size_ratios(rig, truth, frame: int) -> dict[str, float]:
+    """How much larger the avatar's limbs are than the source's: the same motion moves a joint
+    proportionally faster. Ankles: hip to knee to ankle plus the ankle's height (the root's scale,
+    `AvatarRig.leg_length`); wrists: shoulder to elbow to wrist."""
+    from bodycal_addon.skeleton import JOINT_INDEX as JI
+
     p = dict(zip(truth["joints"], truth["positions"][frame]))
-    return float(np.mean([np.linalg.norm(p[f"knee_{s}"] - p[f"hip_{s}"])
-                          + np.linalg.norm(p[f"ankle_{s}"] - p[f"knee_{s}"]) + p[f"ankle_{s}"][2] for s in "lr"]))
+    a = rig.joint_world
+
+    def chain(get, names):
+        return float(np.mean([sum(np.linalg.norm(get(f"{y}_{s}") - get(f"{x}_{s}")) for x, y in zip(names, names[1:]))
+                              for s in "lr"]))
+
+    leg_src = chain(lambda n: p[n], ("hip", "knee", "ankle")) + float(np.mean([p[f"ankle_{s}"][2] for s in "lr"]))
+    arm_src = chain(lambda n: p[n], ("shoulder", "elbow", "wrist"))
+    arm_avatar = chain(lambda n: a[JI[n]], ("shoulder", "elbow", "wrist"))
+    return {"ankle": rig.leg_length() / leg_src, "wrist": arm_avatar / arm_src}
 
 
 def _targets(calib, motion) -> dict:
