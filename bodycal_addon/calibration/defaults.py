@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import skeleton as sk
+from .. import transforms as tf
 from .common import Session, State
 
 EYE_TO_STATURE = 0.93
@@ -218,8 +219,6 @@ def _relaxed_mid(session: Session, state: State, root, effector, l1: float, l2: 
     the side the measured hinge axis gives (a flex step seen through the hand / foot device, limbs.py);
     on the line when no axis was measured. A standing person's elbows and knees are not locked
     straight: 2-10° in a T-pose (the CMU subjects' walks never straighten them past 2°)."""
-    from .. import transforms as tf
-
     root, effector = np.asarray(root, float), np.asarray(effector, float)
     d = effector - root
     mid = root + l1 / max(l1 + l2, 1e-9) * d
@@ -250,8 +249,6 @@ def hand_axes(session: Session, state: State, body: BodyFrame, s: str, w: dict) 
     along = along / max(np.linalg.norm(along), 1e-9)
     if plane is not None and session.has(f"hand_{s}"):
         q = session.ref_pose(f"hand_{s}")[1]
-        from .. import transforms as tf
-
         n = tf.rotate(q, plane[1])
     elif session.reference_step == "tpose":
         n = -UP

@@ -168,7 +168,7 @@ class _Run:
         points (K, 3) in its canonical foot frame)}."""
         tr = _trackers(self.rec, self.user)
         out = {}
-        ref = complete_joints(self.user)
+        ref = self.user_pos
         if self.method == "offsets":
             placed, _ = ofs.effector_targets(self.ofs, tr.pos, tr.rot)
         corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
