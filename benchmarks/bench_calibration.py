@@ -37,7 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bodycal_addon import geometry  # noqa: E402
+from bodycal_addon import geometry, paths  # noqa: E402
 from bodycal_addon import transforms as tf  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
 from bodycal_addon.errors import BodyCalError  # noqa: E402
@@ -191,7 +191,7 @@ def walk_part() -> dict:
     way, so comparing would be circular)."""
     from bodycal_addon.c3d import read_c3d
 
-    z = REPO.parent / "shared" / "data" / "markers" / "kineticstoolkit" / "walk.c3d.zip"
+    z = paths.data_dir() / "markers" / "kineticstoolkit" / "walk.c3d.zip"
     if not z.exists():
         return {"skipped": f"{z} not found"}
     tmp = Path("/tmp/bodycal_bench_walk")

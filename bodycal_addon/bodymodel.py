@@ -14,12 +14,12 @@ Conventions (this module is their reference):
   carry `axis_head` / `axis_tail` (extension of FORMATS.md §3, kept in `extra`): where its axis
   starts and ends relative to the bone's head and tail joints, in the bone's frame (m); absent,
   the axis runs joint to joint. A thigh's femur runs well behind the middle of the thigh.
-- `offsets` (optional, AvatarGo, paper 004 §3.3): per joint, the tracker role and `v0` (tracker
+- `offsets` (optional, AvatarGo §3.3): per joint, the tracker role and `v0` (tracker
   to joint vector, world), `r0_tracker` and `r0_joint` (world rotations, quaternions w, x, y, z)
   at the T-pose.
 - `extra`: anything else a producer wants to keep (readers keep unknown fields round-trip).
 
-What a `kind: "user"` model carries for animation (paper 000, appendix D; the user calibration
+What a `kind: "user"` model carries for animation (Delahaye 2023, appendix D; the user calibration
 produces it, the synthetic performer's ground truth produces the exact same thing, the retargeting
 engine consumes it):
 - `joints[name].frames`: {tracker role: local position} for every tracker the joint is known in
@@ -158,7 +158,7 @@ class SurfaceElement:
 
 @dataclass
 class Offset:
-    """AvatarGo exact offset of one joint from its tracker (paper 004, eq. 2-3)."""
+    """AvatarGo exact offset of one joint from its tracker (AvatarGo, eq. 2-3)."""
 
     tracker: str
     v0: np.ndarray  # p0(J) - p0(T), world

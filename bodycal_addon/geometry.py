@@ -1,10 +1,10 @@
-"""Robust geometric fits for the user calibration (DESIGN.md §3; paper 000, appendix B).
+"""Robust geometric fits for the user calibration (DESIGN.md §3; Delahaye 2023, appendix B).
 
 - `fit_plane`: centroid + principal directions of the centred scatter matrix (the two largest
   eigenvalues span the plane, the third eigenvector is the normal).
 - `fit_circle`: plane fit, projection, algebraic (Kåsa) circle fit in 2D refined to the geometric
   least squares; second pass without the points farther than 2 standard deviations from the mean
-  distance to the centre (paper 000, appendix B, "Intermediate Joint and Bone Calibration").
+  distance to the centre (Delahaye 2023, appendix B, "Intermediate Joint and Bone Calibration").
 - `fit_sphere`: algebraic least-squares sphere refined the same way, same 2-sigma second pass;
   radius = mean distance to the centre ("Anchor Joint and Bone Calibration").
 
@@ -286,7 +286,7 @@ def fit_sphere(points, *, name: str = "sphere", robust: bool = True, passes: int
     q = p[keep]
     dist = np.linalg.norm(q - centre, axis=1)
     if len(q) > 4:
-        r = float(dist.mean())  # paper 000: radius = mean distance to the centre
+        r = float(dist.mean())  # Delahaye 2023: radius = mean distance to the centre
     rms = float(np.sqrt(np.mean((dist - r) ** 2)))
     major, minor = _swing_deg(q - centre) if len(q) > 4 else (None, None)
     fit = SphereFit("sphere", rms, int(keep.sum()), len(p), inv_cond, keep, major, center=centre, radius=r)
@@ -327,7 +327,7 @@ def fit_sphere_moving_point(positions, rotations, *, name: str = "sphere", robus
     prior of `spread` metres against position errors of `noise`. positions (N, 3) and rotations
     (N, 3, 3) are the device's, in the frame the centre is fixed in.
 
-    One 2-sigma pass by default (paper 000's): what is left after the moving point is smooth (a
+    One 2-sigma pass by default (Delahaye 2023's): what is left after the moving point is smooth (a
     knee bending a little), and repeated passes peel the cap's rim away a band at a time, which
     weakens the very direction that is weak (on real clips they dropped 30-40% of the swing and
     doubled the worst hip error, 20 -> 29 mm)."""

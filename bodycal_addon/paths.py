@@ -1,4 +1,4 @@
-"""Where things are: the extension root, the shared sample data, the sample rigs package."""
+"""Where things are: the extension root, the sample data, the sample rigs package."""
 
 from __future__ import annotations
 
@@ -11,11 +11,12 @@ ROOT_DIR = PACKAGE_DIR.parent  # the repository / extension root
 
 
 def data_dir() -> Path | None:
-    """The shared sample data (avatars, mocap, C3D files): $BODYCAL_DATA, else `../shared/data`
-    beside the repository. None when neither exists (an installed extension has no samples)."""
+    """The sample data (avatars, mocap, C3D files; sources and licences in its README):
+    $BODYCAL_DATA when set, else the repository's `sample_data/`. None when neither exists (the
+    extension zip does not carry the samples)."""
     env = os.environ.get("BODYCAL_DATA")
     candidates = [Path(env)] if env else []
-    candidates.append(ROOT_DIR.parent / "shared" / "data")
+    candidates.append(ROOT_DIR / "sample_data")
     return next((c for c in candidates if (c / "avatars").is_dir()), None)
 
 

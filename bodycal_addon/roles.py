@@ -1,4 +1,4 @@
-"""Identify tracker roles from the T-pose (AvatarGo, paper 004 §3.2: "fitting a plane through the
+"""Identify tracker roles from the T-pose (AvatarGo §3.2: "fitting a plane through the
 location of all tracking devices, to then automatically identify each tracker's role based on
 their relative location on the plane").
 
@@ -82,7 +82,7 @@ def _facing(rec: Recording, pos: np.ndarray, tracked: np.ndarray, normal: np.nda
 
 
 def identify_roles(rec: Recording) -> dict[str, str]:
-    """Role of every device (name -> role) from the tpose segment, paper 004 §3.2. Devices already
+    """Role of every device (name -> role) from the tpose segment, AvatarGo §3.2. Devices already
     holding a role keep it; their roles are not given to others. Raises BodyCalError when the
     T-pose cannot be read (no segment, fewer than 4 tracked devices, no vertical plane)."""
     return _classify(rec)[0]
@@ -123,7 +123,7 @@ def _classify(rec: Recording) -> tuple[dict[str, str], str]:
     def side_of(i):
         return "l" if u[i] > 0 else "r"
 
-    # Hands: farthest to each side (controllers / gloves first), paper 004: "the two far lateral".
+    # Hands: farthest to each side (controllers / gloves first), AvatarGo: "the two far lateral".
     for s, sign in (("l", 1.0), ("r", -1.0)):
         if f"hand_{s}" in fixed:
             continue
@@ -182,7 +182,7 @@ def apply_roles(rec: Recording) -> dict[str, str]:
             assigned[d.name] = d.role
     missing = [d.name for d in rec.devices if d.role is None]
     text = ", ".join(f"{n}={r}" for n, r in assigned.items()) or "none"
-    note = f"roles identified from the tpose segment (paper 004 §3.2, {how}): {text}"
+    note = f"roles identified from the tpose segment (AvatarGo §3.2, {how}): {text}"
     if missing:
         note += f"; no role for {', '.join(missing)}"
     rec.notes.append(note)

@@ -4,7 +4,7 @@ Joints are points; bones link a head joint to a tail joint. Every user body mode
 avatar body model names its joints and bones this way, so the egocentric mapping can pair the
 user's surface elements with the avatar's one to one.
 
-Spine (paper 000, appendix B "Trunk calibration"): the user model has 12 vertebrae of equal
+Spine (Delahaye 2023, appendix B "Trunk calibration"): the user model has 12 vertebrae of equal
 length from `spine_root` up to `skull_base`. Vertebra bone `spine_k` runs from joint
 `spine_{k-1}` (`spine_root` for k = 1) to joint `spine_k`; joint `spine_12` is the top of the
 spine and coincides with `skull_base`. Clavicles start at joint `spine_05`, the top of the fifth
@@ -83,7 +83,7 @@ def _bones() -> tuple[Bone, ...]:
             Bone(f"shin_{s}", f"knee_{s}", f"ankle_{s}", f"thigh_{s}", hinge=True),
             Bone(f"foot_{s}", f"ankle_{s}", f"toe_{s}", f"shin_{s}"),
         ]
-    # Shortcut bones of paper 000, appendix D "Trunk animation": sacrum to the clavicle root,
+    # Shortcut bones of Delahaye 2023, appendix D "Trunk animation": sacrum to the clavicle root,
     # clavicle root to the head. They carry no twist: only their axis is used (τ, DESIGN.md §5).
     bones += [
         Bone("shortcut_sacrum_clavicles", "pelvis", spine_joint(CLAVICLE_VERTEBRA), "sacrum", shortcut=True),

@@ -1,4 +1,4 @@
-"""The canonical surface topology shared by the user and every avatar (paper 000, appendix C,
+"""The canonical surface topology shared by the user and every avatar (Delahaye 2023, appendix C,
 Figure 11): the same element ids, point names and triangles on both sides, so that each user
 element has exactly one avatar counterpart for the egocentric mapping (DESIGN.md §5).
 
@@ -39,7 +39,7 @@ TORSO_POINTS = TORSO_FRONT + BELLY_CENTRE + TORSO_BACK
 JAW_POINTS = ("ear_l", "ear_r", "upper_lip", "chin", "jaw_l", "jaw_r")
 SKULL_POINTS = ("skull_top", "skull_left", "skull_right", "skull_back")
 
-# Bilinear coordinates (a, b) of the four belly centre points inside the belly quad (paper 000,
+# Bilinear coordinates (a, b) of the four belly centre points inside the belly quad (Delahaye 2023,
 # appendix C, Figure 11a); see belly_centre_points.
 BELLY_CENTRE_UV = {"belly_c1": (1 / 3, 1 / 3), "belly_c2": (2 / 3, 1 / 3),
                    "belly_c3": (1 / 3, 2 / 3), "belly_c4": (2 / 3, 2 / 3)}

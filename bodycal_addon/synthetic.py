@@ -22,7 +22,7 @@ Definitions the ground truth relies on (also written into the truth file):
   Z = (led2 - led1) x (led3 - led1) out of the back of the hand, X = Y x Z).
 - Fingertip LEDs (`<finger>_tip_<s>`) sit on top (nail side) of the fingertip, one finger radius
   from the `tip_<finger>_<s>` joint; with the fingers extended flat on the palm plane they lie two
-  finger radii from it (paper 000, appendix B: "finger radius = half the distance between the LED
+  finger radii from it (Delahaye 2023, appendix B: "finger radius = half the distance between the LED
   and its projection on the palm plane").
 - Palm centre (the effector of `by: palm_<s>` touches and of palm contacts) = the hand device
   frame's origin (LED centroid, or the controller origin) projected onto the palm plane.
@@ -246,7 +246,7 @@ def _build_geometry(perf: Performer) -> None:
     hip_h = 0.53 * H * P["leg_scale"]
     hip_w = 0.10 * H
     j["pelvis"] = np.array([0.0, 0.0, hip_h])
-    # Spine root 0.10 m above and 0.05 m behind the sacrum origin (paper 000, appendix B "Trunk").
+    # Spine root 0.10 m above and 0.05 m behind the sacrum origin (Delahaye 2023, appendix B "Trunk").
     j["spine_root"] = j["pelvis"] + np.array([0.0, 0.05, 0.10])
     skull_base = np.array([0.0, 0.04 * s, 0.895 * H])
     for k in range(1, sk.SPINE_COUNT + 1):
@@ -391,7 +391,7 @@ def _surface_points(perf: Performer, s: float, ts: float, hs: float) -> None:
         i = _BONE_INDEX[bone]
         return bone, rot[i].T @ (world - head[i]), rot[i].T @ normalize(n_world)
 
-    # Torso: rest world points, stored in the nearest vertebra's frame (paper 000, appendix B).
+    # Torso: rest world points, stored in the nearest vertebra's frame (Delahaye 2023, appendix B).
     zr, front, back = _torso_geometry(perf, s, ts)
     spine = np.array([perf.rest[sk.spine_joint(k)] for k in range(sk.SPINE_COUNT + 1)])
     lat = 0.085 * s * ts

@@ -14,7 +14,7 @@ def _has_recording(context) -> bool:
 
 
 class BODYCAL_OT_calibrate_user(bpy.types.Operator):
-    """Run every calibration step the scene's recording allows (paper 000, appendix B) and store the
+    """Run every calibration step the scene's recording allows (Delahaye 2023, appendix B) and store the
     user body model on the scene"""
 
     bl_idname = "bodycal.calibrate_user"

@@ -1,6 +1,6 @@
 """Sample avatars for tests, benchmarks and the demo.
 
-- `load_glb_avatar`: imports one of the shared MakeHuman avatars (../shared/data/avatars) into
+- `load_glb_avatar`: imports one of the MakeHuman sample avatars (sample_data/avatars) into
   the scene: an armature and its skinned mesh, in a collection named after the file.
 - `build_procedural_avatar`: builds the procedural avatar of `procedural.py`, whose true surface
   dimensions are known exactly.

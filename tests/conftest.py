@@ -1,4 +1,4 @@
-"""Tests run inside Blender (the `bpy` module, background mode), per ../shared/BLENDER_NOTES.md:
+"""Tests run inside Blender (the `bpy` module, background mode), per docs/BLENDER_NOTES.md:
 an isolated user folder, the extension enabled through Blender's own extension machinery, the
 scene reset before every test, and an exit that cannot hang."""
 
@@ -76,7 +76,7 @@ def data_dir() -> pathlib.Path:
     from bodycal_addon import paths
 
     d = paths.data_dir()
-    assert d is not None, "shared sample data not found: set BODYCAL_DATA or keep ../shared/data beside the repo"
+    assert d is not None, "sample data not found: the repository's sample_data/ is missing (or BODYCAL_DATA points elsewhere)"
     return d
 
 

@@ -1,4 +1,4 @@
-"""C3D reader (pure numpy) on the real files in ../shared/data/markers and on files written in
+"""C3D reader (pure numpy) on the real files in sample_data/markers and on files written in
 every processor format, with physical checks that can fail."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ def markers_dir():
     from bodycal_addon import paths
 
     d = paths.data_dir()
-    assert d is not None, "shared data missing"
+    assert d is not None, "sample_data/ missing"
     return d / "markers"
 
 

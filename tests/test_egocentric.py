@@ -1,4 +1,4 @@
-"""Egocentric mapping invariants (paper 000, appendix C; DESIGN.md §5)."""
+"""Egocentric mapping invariants (Delahaye 2023, appendix C; DESIGN.md §5)."""
 
 import numpy as np
 import pytest

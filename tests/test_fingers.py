@@ -1,4 +1,4 @@
-"""Finger flexion and realignment (paper 000, appendix D, eq. 3-4)."""
+"""Finger flexion and realignment (Delahaye 2023, appendix D, eq. 3-4)."""
 
 import numpy as np
 import pytest

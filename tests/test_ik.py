@@ -1,4 +1,4 @@
-"""Avatar IK (paper 000, appendix E; DESIGN.md §6)."""
+"""Avatar IK (Delahaye 2023, appendix E; DESIGN.md §6)."""
 
 import numpy as np
 import pytest

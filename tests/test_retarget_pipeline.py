@@ -156,7 +156,7 @@ def test_offsets_on_a_minimal_recording():
     anim = pl.retarget(rec, truth.body_model(), avatar, "offsets")
     assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
     assert np.median(_mm(anim.joints_world["ankle_r"], anim.targets["ankle_r"])) < 1.0
-    # The hand holds the controller where the arm reaches it (paper 004 §3.4: a shorter arm
+    # The hand holds the controller where the arm reaches it (AvatarGo §3.4: a shorter arm
     # cannot always); where it cannot, the arm is stretched straight toward it.
     rig = ap.AvatarRig.from_model(avatar)
     reach = rig.lengths[ap.BI["upperarm_l"]] + rig.lengths[ap.BI["forearm_l"]]

@@ -1,4 +1,4 @@
-"""Role identification from the T-pose (AvatarGo, paper 004 §3.2): shuffled device names, null
+"""Role identification from the T-pose (AvatarGo §3.2): shuffled device names, null
 roles, any facing direction, both profiles, and through every file convention."""
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def test_load_applies_roles_and_reports_them(tmp_path):
     rec = rio.load_recording(path)
     assert {d.name: d.role for d in rec.devices} == _truth(**kw)
     note = next(n for n in rec.notes if n.startswith("roles identified"))
-    assert "paper 004" in note and "ahead of the body plane" in note and "=head" in note
+    assert "AvatarGo" in note and "ahead of the body plane" in note and "=head" in note
 
 
 @pytest.mark.parametrize("coords", [("Y", "right", "m"), ("Y", "left", "cm"), ("Z", "left", "mm")])

@@ -204,7 +204,7 @@ def test_palms_together_leds_and_fingertips(perf, clean):
         plane = bm.extra["palm_planes"][role]
         pt, n = np.array(plane["point"]), np.array(plane["normal"])
         pos, rot = _dev(truth, role, f)
-        # Midpoints of opposite LEDs lie on each hand's palm plane (paper 000, appendix B, Hands).
+        # Midpoints of opposite LEDs lie on each hand's palm plane (Delahaye 2023, appendix B, Hands).
         for k in (1, 2, 3):
             mid = 0.5 * (rec.marker(f"hand_led{k}_l")[0][f] + rec.marker(f"hand_led{k}_r")[0][f])
             assert np.max(np.abs((_to_local(pos, rot, mid) - pt) @ n)) < 1e-9

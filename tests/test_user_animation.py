@@ -1,4 +1,4 @@
-"""Step 1: the user's skeleton animated from the trackers (paper 000, appendix D), against the
+"""Step 1: the user's skeleton animated from the trackers (Delahaye 2023, appendix D), against the
 synthetic performer's true joint tracks."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Avatar surface calibration by raycasting (DESIGN.md §4; paper 000, appendix C: "surface
+"""Avatar surface calibration by raycasting (DESIGN.md §4; Delahaye 2023, appendix C: "surface
 measurements are performed using ray cast hit points on the collider mesh of the avatar").
 
 `calibrate_avatar(arm)` measures the evaluated (deformed, modifier-applied) mesh of every object
@@ -245,7 +245,7 @@ def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyMode
         stations = np.linspace(margin, 1.0 - tail_margin, len(CAPSULE_STATIONS))
         pts = np.stack([section(st) for st in stations])
         hits = np.isfinite(pts).all(axis=-1)
-        # Decision (beyond paper 000's bone-centred capsules): the capsule's axis goes through
+        # Decision (beyond Delahaye 2023's bone-centred capsules): the capsule's axis goes through
         # the middle of the cross-section, not along the bone; a femur runs ~25 mm behind the
         # middle of an adult thigh, and a hand resting on the thigh sank that far into it.
         centres, radii, keep = cross_sections(pts)

@@ -1,4 +1,4 @@
-"""Read an avatar's armature into canonical terms (DESIGN.md §2, §4; paper 000, appendix C:
+"""Read an avatar's armature into canonical terms (DESIGN.md §2, §4; Delahaye 2023, appendix C:
 "the calibration of skeleton bones is direct through the skeleton's rig of the avatar; only the
 local right directions for knees, elbows, and fingers must be specified").
 

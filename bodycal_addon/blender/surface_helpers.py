@@ -1,4 +1,4 @@
-"""Per-avatar configuration authoring (DESIGN.md §4; paper 000, appendix C: "these points remain
+"""Per-avatar configuration authoring (DESIGN.md §4; Delahaye 2023, appendix C: "these points remain
 calibrated manually once for the targeted avatars"): the stored avatar model shown as editable
 helper empties, and read back.
 

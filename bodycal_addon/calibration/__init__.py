@@ -1,4 +1,4 @@
-"""User body calibration (DESIGN.md §3; paper 000, appendix B; paper 004 §3.2-3.3).
+"""User body calibration (DESIGN.md §3; Delahaye 2023, appendix B; AvatarGo §3.2-3.3).
 
 `calibrate_user(recording) -> BodyModel` runs every step the recording allows, in the paper's
 order (extremities first, then limbs toward the trunk, then the trunk), defaults what is missing
@@ -318,7 +318,7 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
             palm_planes[f"hand_{s}"] = {"point": [round(float(x), 7) for x in point],
                                         "normal": [round(float(x), 7) for x in tf.rotate(tf.quat_conj(q), n)]}
 
-    # AvatarGo offsets (paper 004 §3.3): the rotation of the bone a joint starts (else ends).
+    # AvatarGo offsets (AvatarGo §3.3): the rotation of the bone a joint starts (else ends).
     bone_quats = {b: tf.matrix_to_quat(m) for b, m in frames_world.items()}
     joint_bone = {}
     for b in sk.BONES:

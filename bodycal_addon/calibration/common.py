@@ -83,7 +83,7 @@ class Session:
         self.source = rec.source or rec.name
         self.robust = robust
         self.despike = despike
-        self.anchor = anchor  # "rigid" (limbs.py decision) or "sphere" (paper 000 as written)
+        self.anchor = anchor  # "rigid" (limbs.py decision) or "sphere" (Delahaye 2023 as written)
         self.spikes: dict[str, int] = {}
         self._poses: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._ref: dict[str, tuple[np.ndarray, np.ndarray]] = {}

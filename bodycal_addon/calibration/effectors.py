@@ -1,4 +1,4 @@
-"""Wrists and ankles from the recording's own motion (beyond paper 000, whose wrists and ankles come
+"""Wrists and ankles from the recording's own motion (beyond Delahaye 2023, whose wrists and ankles come
 from touches only): with a tracker on the forearm (shin) and the hand device (foot tracker), the
 wrist (ankle) is the point fixed in both frames over every frame the two are tracked together,
 the performance included (`geometry.fit_rigid_point`). The touches, when recorded, win.

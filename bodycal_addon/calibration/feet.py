@@ -1,4 +1,4 @@
-"""Feet (paper 000, appendix B, "Feet calibration", Figure 7): sole points = the touches projected
+"""Feet (Delahaye 2023, appendix B, "Feet calibration", Figure 7): sole points = the touches projected
 to the floor (z = 0) and stored in the foot tracker's frame; ankle = mean of the `ankle_in` /
 `ankle_out` touches; ankle radius = half their distance."""
 

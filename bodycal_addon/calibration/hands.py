@@ -1,4 +1,4 @@
-"""Hands and fingers (paper 000, appendix B, "Hands and Fingers calibration"; DESIGN.md §3).
+"""Hands and fingers (Delahaye 2023, appendix B, "Hands and Fingers calibration"; DESIGN.md §3).
 
 - `palms_together`: each palm plane = plane through the midpoints of opposite LEDs (the three
   back-of-hand LEDs and the five fingertip LEDs of one hand with their mirror on the other hand),

@@ -1,4 +1,4 @@
-"""Head (paper 000, appendix B, "Head Calibration", Figure 9), all in the HMD frame (`head`):
+"""Head (Delahaye 2023, appendix B, "Head Calibration", Figure 9), all in the HMD frame (`head`):
 jaw crude mesh from the six jaw touches; skull-back sphere through the four skull touches (with
 exactly four points the sphere is exact); skull base = mean of the two skull-base touches."""
 

@@ -1,4 +1,4 @@
-"""Limbs (paper 000, appendix B, "Limb calibration"; DESIGN.md §3).
+"""Limbs (Delahaye 2023, appendix B, "Limb calibration"; DESIGN.md §3).
 
 Anchor joints (`swing_shoulder_<s>`, `swing_hip_<s>`) are fitted first, then the hinges, whose
 place along their axis comes from the anchor (see below).
@@ -28,13 +28,13 @@ against its radius (a 5 cm error on one hip of the average synthetic performer);
 fit stays within 2-4 mm (test_calibration.test_anchor_rigid_point_beats_the_sphere_under_wobble,
 benchmarks/bench_calibration.py).
 
-**Decision** (hinge axis): the circle's plane normal (paper 000) wobbles by several degrees with
+**Decision** (hinge axis): the circle's plane normal (Delahaye 2023) wobbles by several degrees with
 the trackers' soft-tissue motion over the 20-30 cm lever; the axis is taken from the two trackers'
 relative rotations instead (geometry.fit_rotation_axis), typically within 1° (the angle between
 the two is reported as `circle_axis_deg`; test_calibration.test_hinge_axis_from_rotations_...).
 
 **Decision** (hinge position along its axis): with both `<joint>_in` / `_out` touches the joint is
-their mean (paper 000). Without them, the circle's centre is where the axis meets the plane of the
+their mean (Delahaye 2023). Without them, the circle's centre is where the axis meets the plane of the
 anchored TRACKER's circle, which sits wherever it was strapped (47-50 mm off on real captures);
 instead the joint is put where the axis meets the limb's flexion plane, the plane through the
 anchor joint (shoulder / hip) perpendicular to the axis: the upper arm and the thigh run from the

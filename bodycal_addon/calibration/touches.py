@@ -1,5 +1,5 @@
 """Touch segments (FORMATS.md §2.4): where the `by` fingertip (or palm centre, or controller tip)
-rested on a body point, expressed in the touched body part's tracker frame (paper 000,
+rested on a body point, expressed in the touched body part's tracker frame (Delahaye 2023,
 appendix B, Figure 5: every calibration point is stored first, computed later).
 
 A touch is the `by` point's position while it holds still relative to the touched part: the

@@ -1,4 +1,4 @@
-"""T-pose (AvatarGo, paper 004 §3.2-3.3): device roles from the T-pose when the recording leaves
+"""T-pose (AvatarGo §3.2-3.3): device roles from the T-pose when the recording leaves
 them unset, eye height = HMD height, and the exact offsets v0(TJ) = p0(J) - p0(T), R0(T), R0(J)
 for every tracker / joint pair at the reference time (eq. 2-3 use them to animate)."""
 

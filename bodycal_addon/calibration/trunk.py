@@ -1,4 +1,4 @@
-"""Trunk (paper 000, appendix B, "Trunk Calibration"; DESIGN.md §3), from the `stand` step.
+"""Trunk (Delahaye 2023, appendix B, "Trunk Calibration"; DESIGN.md §3), from the `stand` step.
 
 Sacrum: origin = midpoint of the hips (both hips symmetric about it), width = hip distance. The
 spine root sits 0.10 m above the sacrum origin and 0.05 m behind it (sacrum height 10.9-11.4 cm,

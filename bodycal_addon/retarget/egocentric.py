@@ -1,4 +1,4 @@
-"""Egocentric self-contact mapping (paper 000, appendix C; DESIGN.md §5), numpy only, vectorised
+"""Egocentric self-contact mapping (Delahaye 2023, appendix C; DESIGN.md §5), numpy only, vectorised
 over a leading frame axis.
 
 Three steps, each a public function:
@@ -9,7 +9,7 @@ Three steps, each a public function:
 2. `project(points, surface) -> Projections`: each target point projected on each element
    (`x_ij`, `v_ij = p_j - x_ij`), with the surface coordinates that re-pose the projection on
    another body, and the angular factor of the raw weight.
-3. `retarget_points(...)`: the retro-projection of paper 000, eq. 1, with the kinematic
+3. `retarget_points(...)`: the retro-projection of Delahaye 2023, eq. 1, with the kinematic
    normalisation of eq. 2 and the floor singularity.
 
 Example (helper code builds `joints` / `bone_rotations` dicts of (F, 3) / (F, 3, 3) arrays)::
@@ -124,7 +124,7 @@ def kinematic_path(start: str, end: str) -> tuple[int, ...]:
 
 
 def element_root(element_id: str, bone: str) -> str:
-    """The root joint r_i of a surface element (paper 000, eq. 2): the head of its bone, moved onto
+    """The root joint r_i of a surface element (Delahaye 2023, eq. 2): the head of its bone, moved onto
     the simplified tree. Decision: the torso's root is the clavicle root (`spine_05`), the trunk
     node closest to both chest and belly."""
     if element_id == "mesh:torso":
@@ -590,12 +590,12 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
 
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
             ) -> Projections:
-    """Project (F, P, 3) points on every element of `surface` (paper 000, appendix C, Figure 12)."""
+    """Project (F, P, 3) points on every element of `surface` (Delahaye 2023, appendix C, Figure 12)."""
     return _project(_floating(points), surface, penetration_tolerance).public(surface)
 
 
 def _triangle_factor(v, normal, tol):
-    """max(0, cos(v, n)) (paper 000, appendix C, raw contributions), components first. Decision:
+    """max(0, cos(v, n)) (Delahaye 2023, appendix C, raw contributions), components first. Decision:
     the angle is taken from the triangle plane shifted `tol` into the body, so a target that sinks
     a few millimetres into the crude mesh (calibration noise) keeps its contact weight instead of
     dropping to zero; at v = 0 the factor is 1 (a target on the surface)."""
@@ -686,7 +686,7 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
 
 def raw_weights(proj: Projections, heights: np.ndarray, exclude: np.ndarray | None = None,
                 falloff: float = 2.0):
-    """Raw contributions Λ (paper 000, appendix C): factor / |v|^2 per element, 1 / h^2 for the
+    """Raw contributions Λ (Delahaye 2023, appendix C): factor / |v|^2 per element, 1 / h^2 for the
     floor, distances floored at MIN_DISTANCE. `exclude` (P, E) bool zeroes own-chain elements.
     `falloff` is the exponent (the paper's 2; larger favours the closest element more).
     Returns (Λ (F, P, E), Λ_floor (F, P))."""
@@ -742,7 +742,7 @@ def _entries(paths):
 
 @lru_cache(maxsize=64)
 def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tuple[str, ...]) -> _Plan:
-    """Everything frame-independent: exclusions and kinematic paths as index arrays (paper 000,
+    """Everything frame-independent: exclusions and kinematic paths as index arrays (Delahaye 2023,
     appendix C: "chains are pre-computed and stored so that the tree search is not performed in
     every frame"). Excluded (own-chain) pairs have no chain at all: their weight is zero."""
     P, E = len(target_names), len(element_ids)
@@ -811,7 +811,7 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
                     turn_v: bool = False, chunk: int | None = None,
                     penetration_tolerance: float = PENETRATION_TOLERANCE, details: dict | None = None,
                     dtype=np.float64) -> np.ndarray:
-    """Retro-project the user's targets onto the avatar (paper 000, appendix C, eq. 1 and 2).
+    """Retro-project the user's targets onto the avatar (Delahaye 2023, appendix C, eq. 1 and 2).
 
     user_pts: (F, P, 3) the user's target positions, one column per name of `target_names`
     (canonical joints on the kinematic tree: wrists, elbows, ankles, knees, fingertips, skull base).
@@ -870,7 +870,7 @@ class _Group:
 
 
 class PreparedTargets:
-    """The user's side of the egocentric mapping (paper 000, appendix C) of F frames of targets:
+    """The user's side of the egocentric mapping (Delahaye 2023, appendix C) of F frames of targets:
     their projections on the user's surface, the weights of eq. 1 and the user's τ of eq. 2,
     which do not depend on the avatar. `map` finishes the mapping against an avatar pose; the
     pipeline maps the arms twice (against the arms where the first pass put them) and pays for

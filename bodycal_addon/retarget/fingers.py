@@ -1,4 +1,4 @@
-"""Finger animation (paper 000, appendix D "Finger motion capture", eq. 3-4; DESIGN.md §6), numpy
+"""Finger animation (Delahaye 2023, appendix D "Finger motion capture", eq. 3-4; DESIGN.md §6), numpy
 only, vectorised over frames.
 
 A finger is three phalanges l1, l2, l3 from the base (MCP) joint. Its flexion comes from the
@@ -36,7 +36,7 @@ def tip_distance(l1, l2, l3, alpha) -> np.ndarray:
 
 
 def flexion_from_distance(l1, l2, l3, d) -> np.ndarray:
-    """Flexion α (radians, PIP = DIP) from the MCP -> fingertip distance d (paper 000, eq. 3-4).
+    """Flexion α (radians, PIP = DIP) from the MCP -> fingertip distance d (Delahaye 2023, eq. 3-4).
 
     With cos 2α = 2 cos² α - 1 and x = cos(π - α) = -cos α, tip_distance gives
     4 l1 l3 x² - 2 l2 (l1 + l3) x + (l1² + l2² + l3² - 2 l1 l3 - d²) = 0, i.e. the paper's

@@ -1,4 +1,4 @@
-"""Analytical IK of the avatar (paper 000, appendix E; DESIGN.md §6), numpy only, vectorised over
+"""Analytical IK of the avatar (Delahaye 2023, appendix E; DESIGN.md §6), numpy only, vectorised over
 a leading frame axis.
 
 - `two_bone`: limbs (upperarm/forearm, thigh/shin). Flexion from the root-target distance
@@ -81,7 +81,7 @@ class TwoBoneResult:
 
 
 def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None) -> TwoBoneResult:
-    """Two-bone analytical IK (paper 000, appendix E).
+    """Two-bone analytical IK (Delahaye 2023, appendix E).
 
     root, target: (F, 3); l1, l2: bone lengths (scalars or (F,)).
     pole_target: (F, 3) the retargeted intermediate joint (elbow/knee) or None; its distance r from
@@ -246,7 +246,7 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
 
 def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None, two_pass=True,
           rest_segments=None) -> SpineResult:
-    """Trunk IK (paper 000, appendix D, "Trunk animation"; DESIGN.md §6).
+    """Trunk IK (Delahaye 2023, appendix D, "Trunk animation"; DESIGN.md §6).
 
     pelvis: (F, 3) sacrum origin; sacrum_rot: (F, 3, 3) the sacrum frame (+Y pelvis -> spine root,
     +X the hip axis, rigid on the pelvis tracker); sacrum_length: pelvis -> spine root distance;

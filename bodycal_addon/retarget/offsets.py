@@ -1,4 +1,4 @@
-"""The `offsets` method: AvatarGo's exact tracker-to-joint offsets (paper 004, §3.3-3.4) + IK.
+"""The `offsets` method: AvatarGo's exact tracker-to-joint offsets (AvatarGo, §3.3-3.4) + IK.
 
 At the T-pose (the user model's reference time) the avatar, scaled uniformly by the eye-height
 ratio and placed in the user's T-pose, gives for every tracked joint J and its tracker T the offset
@@ -40,7 +40,7 @@ TRACKED = {  # joint -> (tracker role, canonical bone whose rotation follows eq.
     "ankle_l": ("foot_l", "foot_l"), "ankle_r": ("foot_r", "foot_r"),
 }
 
-# Controller as a capsule in the avatar's hand frame (paper 004, eq. 5): along the palm's lateral
+# Controller as a capsule in the avatar's hand frame (AvatarGo, eq. 5): along the palm's lateral
 # axis, under the palm centre. Metres at the avatar's scale are derived from its hand length.
 CONTROLLER_RADIUS_OF_HAND = 0.22  # radius / hand length (wrist -> middle base)
 CONTROLLER_LENGTH_OF_HAND = 1.0
@@ -144,7 +144,7 @@ def capsule_sdf(p, s, e, r):
 
 
 def controller_capsule(rig: AvatarRig, side: str) -> tuple[np.ndarray, np.ndarray, float]:
-    """The controller held in the avatar's hand at rest (paper 004, eq. 5): (centre (3,), half its
+    """The controller held in the avatar's hand at rest (AvatarGo, eq. 5): (centre (3,), half its
     axis (3,), radius), world: across the palm, under it, sized by the hand (wrist -> middle base)."""
     pos = {j: rig.joint_world[JI[j]] for j in (f"wrist_{side}", f"mcp_middle_{side}")}
     f0 = rig.frames0
@@ -166,7 +166,7 @@ def controller_in_hand(rig: AvatarRig, side: str) -> np.ndarray:
 def grip_fingers(rig: AvatarRig, side: str) -> dict[str, np.ndarray]:
     """Closed-on-the-controller finger frames in the HAND frame (canonical bone -> (3, 3)),
     by gradient descent on the interpolation factors t in [0, 1] between the open (rest) and the
-    closed (90° per joint) finger (paper 004, eq. 6-7, numerical gradient, penalty inside). The
+    closed (90° per joint) finger (AvatarGo, eq. 6-7, numerical gradient, penalty inside). The
     controller is rigid in the hand, so one solve serves every frame."""
     pos = {j: rig.joint_world[JI[j]] for j in sk.JOINTS}
     f0 = rig.frames0

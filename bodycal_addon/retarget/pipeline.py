@@ -1,11 +1,11 @@
 """The per-frame retargeting pipeline (DESIGN.md §1 steps 1-4) for the three methods, in chunks
 of frames, with progress and cancel callbacks for the modal bake operator.
 
-- `egocentric` (paper 000, the default): animate the user (step 1), pose the avatar by copying the
+- `egocentric` (Delahaye 2023, the default): animate the user (step 1), pose the avatar by copying the
   user's bone frames (step 2), map the targets (wrists, ankles, elbows, knees, fingertips, skull
   base) through the two posed surfaces (step 3, `egocentric.retarget_points`), then avatar IK
   (step 4): spine aimed at the skull base, two-bone limbs with the swivel blend, fingers.
-- `offsets` (paper 004): exact tracker-to-joint offsets for root, feet, hands and head, spine bent
+- `offsets` (AvatarGo): exact tracker-to-joint offsets for root, feet, hands and head, spine bent
   by the root-to-head angle, limbs by IK, fingers closed on the controller (`offsets.py`).
 - `rotations`: step 2 only, the baseline.
 

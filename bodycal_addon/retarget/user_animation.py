@@ -1,4 +1,4 @@
-"""Step 1 of the pipeline (DESIGN.md §1, §6; paper 000, appendix D): the user's canonical skeleton
+"""Step 1 of the pipeline (DESIGN.md §1, §6; Delahaye 2023, appendix D): the user's canonical skeleton
 animated from the trackers, vectorised over frames.
 
 - Limbs: every joint from its calibrated locals in each tracker it is known in
