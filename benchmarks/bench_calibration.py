@@ -88,10 +88,8 @@ def _fixed_offset_model(offsets, rec) -> dict[str, np.ndarray]:
 
 
 def synthetic_part(quick: bool = False) -> dict:
-    try:
-        from bodycal_addon import synthetic
-    except ImportError:
-        return {"skipped": "bodycal_addon.synthetic is not available"}
+    from bodycal_dev import synthetic
+
     performers = PERFORMERS[:2] if quick else PERFORMERS
     ref_perf = synthetic.make_performer(height=1.75, build="average", seed=100)
     ref_rec, ref_truth = synthetic.record_session(ref_perf, profile="full", motions=(), noise_mm=0.0, wobble_mm=0.0,
@@ -144,10 +142,8 @@ def synthetic_part(quick: bool = False) -> dict:
 def minimal_part(quick: bool = False) -> dict:
     """The 6-device AvatarGo profile (HMD, controllers, pelvis and feet trackers) at 1 mm noise:
     what the T-pose, the touches and the anthropometric defaults give (for information)."""
-    try:
-        from bodycal_addon import synthetic
-    except ImportError:
-        return {"skipped": "bodycal_addon.synthetic is not available"}
+    from bodycal_dev import synthetic
+
     errs = {g: [] for g in GROUPS}
     failures = []
     for k, (build, height) in enumerate(PERFORMERS[:2] if quick else PERFORMERS):

@@ -27,11 +27,12 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import metrics, paths, synthetic  # noqa: E402
+from bodycal_addon import metrics, paths  # noqa: E402
 from bodycal_addon import skeleton as sk  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
+from bodycal_dev import synthetic  # noqa: E402
 
 CONTACT_MOTIONS = ("clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "squat")
 PERFORMERS = (("average", 1.75), ("heavy", 1.70), ("child", 1.35))
@@ -56,7 +57,7 @@ def _avatars():
         except Exception as exc:  # report, keep measuring the others
             notes.append(f"{Path(f).name}: {exc}")
     if not out:
-        from bodycal_addon.retarget.testing import procedural_avatar
+        from bodycal_dev.retarget_fixtures import procedural_avatar
         from sample_rigs import procedural
 
         spec = procedural.build_spec()

@@ -11,8 +11,7 @@ residual word marks a point as invalid.
 DEC floats are VAX F-floats: 16-bit words swapped relative to IEEE little-endian, exponent bias
 128 with a 0.1f mantissa, i.e. the IEEE reading of the swapped bytes is 4 times too large.
 
-`write_c3d` writes the same subset (points, labels, units, rate, events; Intel, DEC or MIPS; int
-or float), for tests.
+The writer of the same subset, for tests, is `bodycal_dev.c3d_writer` (not shipped).
 """
 
 from __future__ import annotations
@@ -69,11 +68,6 @@ def _dec_to_ieee(raw: np.ndarray) -> np.ndarray:
     """uint8 (..., 4) VAX F-floats -> float32."""
     swapped = raw[..., [2, 3, 0, 1]].copy()
     return swapped.view("<f4")[..., 0] / np.float32(4.0)
-
-
-def _ieee_to_dec(values: np.ndarray) -> np.ndarray:
-    raw = (np.asarray(values, "<f4") * np.float32(4.0)).astype("<f4")[..., None].view(np.uint8)
-    return raw[..., [2, 3, 0, 1]].copy()
 
 
 class _Reader:
@@ -398,91 +392,3 @@ def read_c3d_recording(path) -> Recording:
 # ----------------------------------------------------------------------------------------------
 # Writer (tests)
 
-
-def write_c3d(path, points: np.ndarray, labels: list[str], rate: float, *, units: str = "mm",
-              valid: np.ndarray | None = None, events: list[tuple[str, float]] = (), processor: int = INTEL,
-              integer: bool = False, scale: float = 0.1, first_frame: int = 1, y_screen: str = "+Z") -> Path:
-    """Write points (F, N, 3) in `units` as a C3D file (no analog data)."""
-    path = Path(path)
-    pts = np.asarray(points, float)
-    f, n = pts.shape[:2]
-    valid = np.ones((f, n), bool) if valid is None else np.asarray(valid, bool)
-    endian = ">" if processor == MIPS else "<"
-
-    def i16(v):
-        return struct.pack(endian + "h", int(v))
-
-    def f32(values):
-        values = np.atleast_1d(np.asarray(values, float))
-        if processor == DEC:
-            return _ieee_to_dec(values).tobytes()
-        return values.astype(endian + "f4").tobytes()
-
-    records = []
-
-    def group(gid, name):
-        body = b"\x00"  # empty description
-        records.append(struct.pack("bb", len(name), -gid) + name.encode() + i16(2 + len(body)) + body)
-
-    def param(gid, name, dtype, dims, payload):
-        body = struct.pack("bB", dtype, len(dims)) + bytes(dims) + payload + b"\x00"
-        records.append(struct.pack("bb", len(name), gid) + name.encode() + i16(2 + len(body)) + body)
-
-    def chars(gid, name, strings):
-        width = max([len(s) for s in strings] + [1])
-        payload = b"".join(s.ljust(width).encode("latin-1") for s in strings)
-        param(gid, name, -1, [width, len(strings)], payload)
-
-    group(1, "POINT")
-    group(2, "EVENT")
-    group(3, "ANALOG")
-    param(1, "USED", 2, [], i16(n))
-    param(1, "SCALE", 4, [], f32([scale if integer else -abs(scale)]))
-    param(1, "RATE", 4, [], f32([rate]))
-    param(1, "FRAMES", 2, [], i16(min(f, 32767)))
-    param(1, "UNITS", -1, [len(units)], units.encode())
-    param(1, "Y_SCREEN", -1, [2], y_screen.encode())
-    chars(1, "LABELS", list(labels[:255]))
-    if len(labels) > 255:
-        chars(1, "LABELS2", list(labels[255:]))
-    param(3, "USED", 2, [], i16(0))
-    param(2, "USED", 2, [], i16(len(events)))
-    if events:
-        chars(2, "LABELS", [e[0] for e in events])
-        chars(2, "CONTEXTS", ["General"] * len(events))
-        times = np.array([[t // 60, t % 60] for _, t in events], float)
-        param(2, "TIMES", 4, [2, len(events)], f32(times.ravel()))
-    pbody = b"".join(records) + b"\x00\x00"
-
-    def data_start_record(block):
-        return struct.pack("bb", 10, 1) + b"DATA_START" + i16(7) + struct.pack("bB", 2, 0) + i16(block) + b"\x00"
-
-    nblocks = (4 + len(pbody) + len(data_start_record(0)) + 511) // 512
-    data_start = 2 + nblocks
-    pbody = data_start_record(data_start) + pbody
-    psection = bytes([1, 80, nblocks, processor]) + pbody
-    psection = psection.ljust(nblocks * 512, b"\x00")
-
-    header = bytearray(512)
-    header[0], header[1] = 2, 0x50
-    header[2:4] = i16(n)
-    header[4:6] = i16(0)
-    header[6:8] = i16(first_frame)
-    header[8:10] = struct.pack(endian + "H", first_frame + f - 1)
-    header[10:12] = i16(0)
-    header[12:16] = f32([scale if integer else -abs(scale)])
-    header[16:18] = i16(data_start)
-    header[18:20] = i16(0)
-    header[20:24] = f32([rate])
-
-    block = np.zeros((f, n, 4))
-    block[..., :3] = np.where(valid[..., None], pts, 0.0)
-    block[..., 3] = np.where(valid, 0.0, -1.0)
-    if integer:
-        ints = block.copy()
-        ints[..., :3] = np.round(block[..., :3] / scale)
-        body = ints.astype(endian + "i2").tobytes()
-    else:
-        body = f32(block.ravel())
-    path.write_bytes(bytes(header) + psection + body)
-    return path

@@ -1,6 +1,6 @@
 """An outside tool's view of BodyCal: tracker recordings made from real motion capture.
 
-Every recording the engine's own tests used to see came from `bodycal_addon/synthetic.py`, whose
+Every recording the engine's own tests used to see came from `bodycal_dev/synthetic.py`, whose
 performer always faces -Y and wears its trackers the way the engine assumes. This package is
 deliberately written as another tool would write it, sharing no code with the engine (it does not
 import `bodycal_addon` at all): its own BVH reader, its own rotation helpers, its own anatomy and

@@ -14,8 +14,8 @@ from ..bodycal_addon.errors import BodyCalError, Cancelled
 from ..bodycal_addon.filters import OneEuro
 
 METHOD_ITEMS = [
-    ("egocentric", "Egocentric", "Keep self-contacts: egocentric mapping onto the avatar's surface + IK (Delahaye 2023)"),
-    ("offsets", "Exact Offsets", "AvatarGo: exact tracker-to-joint offsets from the T-pose + IK (AvatarGo)"),
+    ("egocentric", "Egocentric", "Keep self-contacts: egocentric mapping onto the avatar's surface + IK"),
+    ("offsets", "Exact Offsets", "AvatarGo: exact tracker-to-joint offsets from the T-pose + IK"),
     ("rotations", "Rotation Copy", "Copy the performer's bone rotations (the usual retargeting baseline)"),
 ]
 

@@ -48,7 +48,8 @@ class BODYCAL_OT_load_sample_avatars(bpy.types.Operator):
             cls.poll_message_set("Switch to Object Mode to load avatars")
             return False
         if not paths.shared_avatar_files():
-            cls.poll_message_set("No sample avatars: they come with the source repository (sample_data/); or set BODYCAL_DATA")
+            cls.poll_message_set("No sample avatars: they come with the source repository (sample_data/), "
+                                 "or set BODYCAL_DATA")
             return False
         return True
 

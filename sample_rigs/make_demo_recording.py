@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bodycal_addon import synthetic  # noqa: E402
+from bodycal_dev import synthetic  # noqa: E402
 
 FPS = 22.0
 PACE = 0.5

@@ -76,7 +76,7 @@ def data_dir() -> pathlib.Path:
     from bodycal_addon import paths
 
     d = paths.data_dir()
-    assert d is not None, "sample data not found: the repository's sample_data/ is missing (or BODYCAL_DATA points elsewhere)"
+    assert d is not None, "sample data not found: sample_data/ is missing (or BODYCAL_DATA points elsewhere)"
     return d
 
 

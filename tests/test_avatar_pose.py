@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from bodycal_addon import synthetic
 from bodycal_addon.blender.bake import bake_animation
 from bodycal_addon.errors import BodyCalError
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget import testing as rt
 from bodycal_addon.transforms import normalize, quat_to_matrix
+from bodycal_dev import retarget_fixtures as rt
+from bodycal_dev import synthetic
 from sample_rigs import build_procedural_avatar, procedural
 
 # canonical joint -> (procedural bone, "head" | "tail"): read straight off Blender's pose bones.

@@ -8,9 +8,10 @@ import bpy
 import pytest
 from conftest import REPO
 
-from bodycal_addon import paths, synthetic
+from bodycal_addon import paths
 from bodycal_addon.batch import command_line, load_jobs
 from bodycal_addon.errors import BodyCalError
+from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
 

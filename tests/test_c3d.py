@@ -11,6 +11,7 @@ import pytest
 from bodycal_addon import c3d
 from bodycal_addon import recording_io as rio
 from bodycal_addon.errors import BodyCalError
+from bodycal_dev import c3d_writer
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +116,7 @@ def test_dec_float_known_value():
     assert c3d._dec_to_ieee(np.array([[0x80, 0x40, 0, 0]], np.uint8))[0] == 1.0
     assert c3d._dec_to_ieee(np.array([[0x80, 0xC0, 0, 0]], np.uint8))[0] == -1.0
     x = np.array([0.5, -3.25, 1234.5678, 1e-3], np.float32)
-    np.testing.assert_array_equal(c3d._dec_to_ieee(c3d._ieee_to_dec(x)), x)
+    np.testing.assert_array_equal(c3d._dec_to_ieee(c3d_writer.ieee_to_dec(x)), x)
 
 
 @pytest.mark.parametrize("processor", [c3d.INTEL, c3d.DEC, c3d.MIPS])
@@ -124,7 +125,7 @@ def test_processor_formats_round_trip(tmp_path, processor, integer):
     pts = _points()
     valid = np.ones(pts.shape[:2], bool)
     valid[5:9, 2] = False
-    path = c3d.write_c3d(tmp_path / "t.c3d", pts, ["A", "B", "C", "D"], 120.0, valid=valid, processor=processor,
+    path = c3d_writer.write_c3d(tmp_path / "t.c3d", pts, ["A", "B", "C", "D"], 120.0, valid=valid, processor=processor,
                          integer=integer, scale=0.05)
     raw = c3d.read_c3d(path)
     assert raw.processor == c3d.PROCESSORS[processor] and raw.is_float is not integer
@@ -139,7 +140,7 @@ def test_marker_names_events_and_units(tmp_path):
     pts = _points(f=300, n=5)
     labels = ["Bob:Index_Tip_R", "bob:HAND_LED1_l", "Bob:RASI", "Other:RASI", "  "]
     events = [("tpose", 0.5), ("Foot Strike", 0.7), ("touch:wrist_top_l:index_tip_r", 1.0), ("bodycal:motion", 1.5)]
-    path = c3d.write_c3d(tmp_path / "s.c3d", pts / 10, labels, 100.0, units="cm", events=events)
+    path = c3d_writer.write_c3d(tmp_path / "s.c3d", pts / 10, labels, 100.0, units="cm", events=events)
     rec = rio.load_recording(path)
     assert rec.marker_names == ["index_tip_r", "hand_led1_l", "RASI", "Other:RASI", "point_4"]
     np.testing.assert_allclose(rec.markers[:, 2], pts[:, 2] / 1000, atol=1e-6)  # cm -> m, Z up unchanged
@@ -151,14 +152,14 @@ def test_marker_names_events_and_units(tmp_path):
 def test_y_up_files_and_many_labels(tmp_path):
     pts = _points(f=10, n=300)
     labels = [f"m{k}" for k in range(300)]
-    path = c3d.write_c3d(tmp_path / "y.c3d", pts, labels, 60.0, units="m", y_screen="+Y")
+    path = c3d_writer.write_c3d(tmp_path / "y.c3d", pts, labels, 60.0, units="m", y_screen="+Y")
     rec = rio.load_recording(path)
     assert rec.marker_names == labels  # LABELS2 holds the labels after 255
     np.testing.assert_allclose(rec.markers[0, 0], [pts[0, 0, 0], -pts[0, 0, 2], pts[0, 0, 1]], atol=1e-4)
 
 
 def test_broken_files_raise_one_line(tmp_path):
-    good = c3d.write_c3d(tmp_path / "g.c3d", _points(), list("ABCD"), 100.0)
+    good = c3d_writer.write_c3d(tmp_path / "g.c3d", _points(), list("ABCD"), 100.0)
     data = good.read_bytes()
     cases = {
         "short.c3d": (data[:300], "not a C3D file"),
@@ -171,9 +172,9 @@ def test_broken_files_raise_one_line(tmp_path):
         with pytest.raises(BodyCalError) as info:
             rio.load_recording(tmp_path / name)
         assert str(info.value).startswith(name) and words in str(info.value), str(info.value)
-    path = c3d.write_c3d(tmp_path / "units.c3d", _points(), list("ABCD"), 100.0, units="ft")
+    path = c3d_writer.write_c3d(tmp_path / "units.c3d", _points(), list("ABCD"), 100.0, units="ft")
     with pytest.raises(BodyCalError, match="units.c3d: POINT:UNITS: unknown units 'ft'"):
         rio.load_recording(path)
-    path = c3d.write_c3d(tmp_path / "ev.c3d", _points(), list("ABCD"), 100.0, events=[("touch:nose", 0.1)])
+    path = c3d_writer.write_c3d(tmp_path / "ev.c3d", _points(), list("ABCD"), 100.0, events=[("touch:nose", 0.1)])
     with pytest.raises(BodyCalError, match=r"ev.c3d: segments\[0\].point: unknown touch point 'nose'"):
         rio.load_recording(path)

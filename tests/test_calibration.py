@@ -240,8 +240,8 @@ def test_a_touch_that_never_stops_moving_is_actionable():
 def test_a_borderline_touch_never_aborts_and_json_and_csv_agree(tmp_path):
     """Issue 11 item 6: the project's own compact clap session (22 fps, half pace) was rejected on
     one touch, and its CSV failed where the JSON passed. Every format now gives the same model."""
-    synthetic = pytest.importorskip("bodycal_addon.synthetic")
     from bodycal_addon.recording_io import load_recording, save_recording
+    from bodycal_dev import synthetic
 
     rec, _ = synthetic.record_session(synthetic.make_performer(seed=0), motions=("clap",), fps=22, pace=0.5)
     models = [calibrate_user(rec)] + [calibrate_user(load_recording(save_recording(rec, tmp_path / name)[0]))
@@ -367,7 +367,7 @@ GROUP_TOL_MM = {"shoulder": 8.0, "hip": 8.0, "elbow": 8.0, "knee": 8.0, "wrist":
 
 @pytest.fixture(scope="module")
 def full_session():
-    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    from bodycal_dev import synthetic
     perf = synthetic.make_performer(height=1.68, build="heavy", seed=4)
     rec, truth = synthetic.record_session(perf, profile="full", motions=(), noise_mm=1.0, wobble_mm=2.0,
                                           outlier_rate=0.1, seed=21)
@@ -485,8 +485,8 @@ def test_body_model_contract_matches_the_ground_truth_structure(full_session, fu
 
 @pytest.mark.slow
 def test_minimal_profile_yields_a_complete_model_with_defaults_reported():
-    synthetic = pytest.importorskip("bodycal_addon.synthetic")
     from bodycal_addon.bodymodel import REQUIRED_USER_JOINTS
+    from bodycal_dev import synthetic
 
     perf = synthetic.make_performer(height=1.80, build="average", seed=2)
     rec, truth = synthetic.record_session(perf, profile="minimal", motions=(), noise_mm=1.0, wobble_mm=2.0,

@@ -12,9 +12,9 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from recording_fixtures import recording_doc, tpose_recording
 
-from bodycal_addon import c3d
 from bodycal_addon import recording_io as rio
 from bodycal_addon.errors import BodyCalError
+from bodycal_dev import c3d_writer
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 _DIR = pathlib.Path(tempfile.mkdtemp(prefix="bodycal-fuzz-"))
@@ -35,7 +35,7 @@ _csv_rec = tpose_recording(seconds=0.1, profile="minimal", leds=True)
 rio.save_recording(_csv_rec, _DIR / "base.csv")
 VALID_CSV = (_DIR / "base.csv").read_bytes()
 VALID_SIDECAR = (_DIR / "base.json").read_bytes()
-VALID_C3D = c3d.write_c3d(_DIR / "base.c3d", np.random.default_rng(0).uniform(-1e3, 1e3, (12, 3, 3)),
+VALID_C3D = c3d_writer.write_c3d(_DIR / "base.c3d", np.random.default_rng(0).uniform(-1e3, 1e3, (12, 3, 3)),
                           ["index_tip_r", "Bob:hand_led1_l", "X"], 100.0,
                           events=[("tpose", 0.01), ("motion", 0.05)]).read_bytes()
 

@@ -134,7 +134,7 @@ def test_operator_error_is_one_line_and_writes_nothing(tmp_path):
 
 
 def test_synthetic_session_survives_the_scene(tmp_path):
-    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    from bodycal_dev import synthetic
     perf = synthetic.make_performer(build="thin", seed=4)
     rec, _truth = synthetic.record_session(perf, profile="minimal", motions=("hand_on_head",), seed=4,
                                            dropout_rate=0.01, calibration=["tpose", "stand", "touch"],

@@ -14,7 +14,7 @@ from bodycal_addon import transforms as tf
 from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.recording import Recording
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget import testing as rt
+from bodycal_dev import retarget_fixtures as rt
 from evaluation import bvh, capture, performer, session
 
 WALK = "02_01_walk.bvh"

@@ -385,11 +385,11 @@ def test_csv_with_sidecar_checks_names_and_kinds(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# The synthetic performer (bodycal_addon.synthetic) through the readers
+# The synthetic performer (bodycal_dev.synthetic) through the readers
 
 
 def _synthetic_session(**kw):
-    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    from bodycal_dev import synthetic
     perf = synthetic.make_performer(build="average", seed=1)
     return synthetic, synthetic.record_session(perf, calibration=["tpose", "palms_together"], motions=("clap",),
                                                seed=1, **kw)

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from bodycal_addon import paths, synthetic
+from bodycal_addon import paths
 from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene
 from bodycal_addon.bodymodel import BodyModel
 from bodycal_addon.retarget.pipeline import retarget
+from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
 

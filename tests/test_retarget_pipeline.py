@@ -9,13 +9,13 @@ import copy
 import numpy as np
 import pytest
 
-from bodycal_addon import synthetic
 from bodycal_addon.errors import BodyCalError, Cancelled
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget import testing as rt
 from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import retarget_fixtures as rt
+from bodycal_dev import synthetic
 
 LIMB_TARGETS = ("wrist_l", "wrist_r", "ankle_l", "ankle_r")
 TIPS = tuple(f"tip_{f}_{s}" for s in ("l", "r") for f in ("thumb", "index", "middle", "ring", "pinky"))

@@ -122,7 +122,7 @@ def test_no_tpose_or_too_few_devices(tmp_path):
 @pytest.mark.parametrize("profile", ["full", "minimal"])
 @pytest.mark.parametrize("build, seed", [("child", 1), ("average", 0), ("heavy", 3), ("long_arms", 2)])
 def test_roles_of_the_synthetic_performer(profile, build, seed):
-    synthetic = pytest.importorskip("bodycal_addon.synthetic")
+    from bodycal_dev import synthetic
     perf = synthetic.make_performer(build=build, seed=seed)
     rec, _truth_ = synthetic.record_session(perf, profile=profile, calibration=["tpose"], motions=(), seed=seed)
     truth = {d.name: d.role for d in rec.devices}

@@ -11,9 +11,9 @@ import pytest
 
 from bodycal_addon import skeleton as sk
 from bodycal_addon import surface_layout as sl
-from bodycal_addon import synthetic as sy
 from bodycal_addon.bodymodel import BodyModel
 from bodycal_addon.transforms import quat_to_matrix
+from bodycal_dev import synthetic as sy
 
 FPS = 45.0
 TOUCHES = ["elbow_in_l", "elbow_out_l", "wrist_top_r", "wrist_bottom_r", "mcp_index_r", "knee_in_r", "knee_out_r",

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bodycal_addon import synthetic
 from bodycal_addon.errors import BodyCalError
 from bodycal_addon.recording import Recording
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import synthetic
 
 TRACKED_JOINTS = ("pelvis", "skull_base", "head", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r", "wrist_l",
                   "wrist_r", "hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r", "toe_l", "toe_r")

@@ -13,11 +13,19 @@ import copy
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import surface_layout as sl
-from ..bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
-from ..transforms import normalize
-from .avatar_pose import BI, BONES, HINGES, JOINTS, SPINE_JOINTS, complete_joints, model_rest_frames
+from bodycal_addon import skeleton as sk
+from bodycal_addon import surface_layout as sl
+from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from bodycal_addon.retarget.avatar_pose import (
+    BI,
+    BONES,
+    HINGES,
+    JOINTS,
+    SPINE_JOINTS,
+    complete_joints,
+    model_rest_frames,
+)
+from bodycal_addon.transforms import normalize
 
 
 def _rig_dict(name, bones, matrix_world, bone_map, rest_pose="T"):

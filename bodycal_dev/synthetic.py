@@ -1,5 +1,15 @@
 """A virtual performer with exact ground truth: the reference of every calibration and retargeting
-test and benchmark (issue 3). Numpy only; every stage is vectorised over frames.
+test and benchmark (issue 3). Numpy only; every stage is vectorised over frames. Development only
+(the `bodycal_dev` package is not in the extension zip).
+
+It is an independent truth generator, not a client of the engine: it poses its bones with its own
+rotation helpers (Rodrigues rotations; quaternions from matrices by the eigenvector of Bar-Itzhack's
+K matrix where the engine uses Shepperd's method) and places its limbs with its own two-bone IK rather than the engine's
+`transforms` and `retarget.ik`, so that a bug in the engine's math cannot appear on both sides of a
+test and cancel out. It shares only data definitions with the engine (the canonical skeleton's
+names and topology, the surface layout's element list, the file formats). Its anatomical
+assumptions (where a tracker sits, how a joint moves) are the engine's, which is why every stage is
+also tested on recordings that `evaluation/` makes from real motion capture.
 
 The performer is a kinematic human on the canonical skeleton (skeleton.py): facing -Y, left at +X,
 Z up, floor at z = 0, metres. Bones are posed by local rotations (FK); hinge bones (forearm, shin,
@@ -55,12 +65,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import skeleton as sk
-from . import surface_layout as sl
-from .bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
-from .errors import BodyCalError
-from .recording import Device, Recording, Segment
-from .transforms import matrix_to_quat, normalize, quat_to_matrix
+from bodycal_addon import skeleton as sk
+from bodycal_addon import surface_layout as sl
+from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from bodycal_addon.errors import BodyCalError
+from bodycal_addon.recording import Device, Recording, Segment
 
 BUILDS = ("child", "thin", "average", "heavy", "tall", "long_arms")
 PROFILES = ("full", "minimal")
@@ -108,6 +117,38 @@ _PARENT = np.array([_BONE_INDEX[b.parent] if b.parent else -1 for b in sk.BONES]
 
 
 # --- small rotation helpers (matrices act on column vectors, leading frame axes) -------------------
+
+def normalize(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 1e-12)
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """Unit quaternions (..., 4) (w, x, y, z) to matrices, as R = (w^2 - v.v) I + 2 v v^T + 2 w [v]x."""
+    q = np.asarray(q, float)
+    w, v = q[..., 0, None, None], q[..., 1:]
+    cross = np.zeros(q.shape[:-1] + (3, 3))
+    cross[..., 0, 1], cross[..., 0, 2], cross[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    cross = cross - np.swapaxes(cross, -1, -2)
+    vv = (v * v).sum(-1)[..., None, None]
+    return (w * w - vv) * np.eye(3) + 2.0 * v[..., :, None] * v[..., None, :] + 2.0 * w * cross
+
+
+def matrix_to_quat(m) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) to unit quaternions with w >= 0: the eigenvector of the largest
+    eigenvalue of Bar-Itzhack's symmetric 4x4 K (exact for a rotation, robust near 180 degrees)."""
+    m = np.asarray(m, float)
+    a = lambda i, j: m[..., i, j]  # noqa: E731
+    k = np.stack([
+        np.stack([a(0, 0) + a(1, 1) + a(2, 2), a(2, 1) - a(1, 2), a(0, 2) - a(2, 0), a(1, 0) - a(0, 1)], -1),
+        np.stack([a(2, 1) - a(1, 2), a(0, 0) - a(1, 1) - a(2, 2), a(0, 1) + a(1, 0), a(0, 2) + a(2, 0)], -1),
+        np.stack([a(0, 2) - a(2, 0), a(0, 1) + a(1, 0), a(1, 1) - a(0, 0) - a(2, 2), a(1, 2) + a(2, 1)], -1),
+        np.stack([a(1, 0) - a(0, 1), a(0, 2) + a(2, 0), a(1, 2) + a(2, 1), a(2, 2) - a(0, 0) - a(1, 1)], -1),
+    ], -2)
+    q = np.linalg.eigh(k)[1][..., :, -1]
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+
 
 def _rot(axis, angle) -> np.ndarray:
     """Rotation matrices about `axis` (3,) or (n, 3) by `angle` (scalar or (n,)), Rodrigues."""
@@ -1720,7 +1761,7 @@ def _body_model(truth: GroundTruth, name: str) -> BodyModel:
 
 def write_session(directory, name: str, rec: Recording, truth: GroundTruth) -> tuple[Path, Path]:
     """Write `<name>.bcrec.json` (FORMATS.md §2.1, via recording_io) and `<name>.truth.json`."""
-    from . import recording_io
+    from bodycal_addon import recording_io
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
