@@ -6,6 +6,7 @@ import retarget_bodies as rb
 
 from bodycal_addon.errors import BodyCalError
 from bodycal_addon.retarget import egocentric as eg
+from bodycal_addon.retarget.egocentric import projection as egp
 
 TARGETS = ["wrist_l", "wrist_r", "elbow_l", "elbow_r", "ankle_l", "ankle_r", "knee_l", "knee_r", "skull_base",
            "tip_thumb_l", "tip_index_l", "tip_middle_r", "tip_pinky_r"]
@@ -202,9 +203,9 @@ def test_triangle_weight_survives_a_shallow_penetration():
     # max(0, cos(v, n)) would drop a target 3 mm inside the crude mesh to zero weight; the plane is
     # shifted by the penetration tolerance (1 cm) first.
     n = np.array([0.0, -1.0, 0.0])[:, None]
-    inside = eg._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
-    deep = eg._triangle_factor(np.array([0.0, 0.02, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
-    plain = eg._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, 0.0)
+    inside = egp._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
+    deep = egp._triangle_factor(np.array([0.0, 0.02, 0.0])[:, None], n, eg.PENETRATION_TOLERANCE)
+    plain = egp._triangle_factor(np.array([0.0, 0.003, 0.0])[:, None], n, 0.0)
     assert inside[0] == pytest.approx(1.0) and deep[0] == 0.0 and plain[0] == 0.0
 
 
@@ -257,11 +258,11 @@ def test_turned_contribution_keeps_its_angle_to_a_tilted_surface(user):
     us, av = eg.pose_surface(user, rest, rots), eg.pose_surface(big, rest, rots)
     t = us.mesh_slices[0][0] + 4
     target = us.tri[:, t].mean(axis=1) + 0.03 * us.tri_normal[:, t]
-    pr = eg._project(target[:, None], us, 0.0)
-    x, v = eg._repose(pr, us, av, turn_v=True)
+    pr = egp._project(target[:, None], us, 0.0)
+    x, v = egp._repose(pr, us, av, turn_v=True)
     torso = us.element_ids.index("mesh:torso")
     np.testing.assert_allclose(v[:, 0, 0, torso], 0.03 * av.tri_normal[0, t], atol=1e-12)
-    _, v_world = eg._repose(pr, us, av)
+    _, v_world = egp._repose(pr, us, av)
     np.testing.assert_allclose(v_world[:, 0, 0, torso], 0.03 * us.tri_normal[0, t], atol=1e-12)
     assert np.dot(us.tri_normal[0, t], av.tri_normal[0, t]) < 0.999  # the triangle did tilt
 

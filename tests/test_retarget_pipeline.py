@@ -213,10 +213,11 @@ def test_a_target_sweeping_beside_the_crude_torso_moves_continuously(session):
 
     def posed(joints, frames0, model):
         return eg.pose_surface(model, {j: np.repeat(np.asarray(joints[j])[None], n, 0) for j in ap.JOINTS},
-                               {b.name: np.repeat(frames0[i][None], n, 0) for i, b in enumerate(ap.BONES)}, run.ids)
+                               {b.name: np.repeat(frames0[i][None], n, 0) for i, b in enumerate(ap.BONES)},
+                               run.impl.ids)
 
-    us = posed(rest, run.user_frames0, run.user_s)
-    av = posed(dict(zip(ap.JOINTS, run.rig.joint_world)), run.rig.frames0, run.avatar_s)
+    us = posed(rest, run.user_frames0, run.impl.user_s)
+    av = posed(dict(zip(ap.JOINTS, run.rig.joint_world)), run.rig.frames0, run.impl.avatar_s)
     torso = us.element_ids.index("mesh:torso") - us.counts[0] - us.counts[1]
     tri = us.tri[0, slice(*us.mesh_slices[torso])]
 

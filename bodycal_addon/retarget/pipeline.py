@@ -28,6 +28,7 @@ from ..errors import BodyCalError, Cancelled
 from ..recording import Recording
 from ..surface_layout import bone_frame
 from ..transforms import normalize, quat_to_matrix, stack_apply, stack_mul
+from . import egocentric as ego
 from . import feet, ik
 from . import offsets as ofs
 from .avatar_pose import (
@@ -81,7 +82,7 @@ class _Run:
 
     def __init__(self, recording: Recording, user: BodyModel, avatar: BodyModel, method: str,
                  plant_feet: bool = True):
-        if method not in METHODS:
+        if method not in METHOD_CLASSES:
             raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
         if user.kind != "user":
             raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
@@ -104,62 +105,7 @@ class _Run:
         bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
         self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
                             for s in sk.SIDES}
-        if method == "egocentric":
-            from . import egocentric as ego
-
-            self.ego = ego
-            # Both surfaces re-expressed in the engine's canonical bone frames: the mapping's surface
-            # coordinates (capsule angles, sphere directions) must mean the same side of the body
-            # on the user and on the avatar, whatever `right` each model's producer chose.
-            self.user_s = canonical_surface(_surface_bones(user), self.user_frames0, self.user_pos)
-            self.avatar_s = canonical_surface(_surface_bones(avatar), self.rig.frames0, avatar_pos)
-            self.ids = ego.common_elements(user, avatar)
-            # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
-            # against the body without the arms: arm, hand and finger elements are moved by the IK
-            # afterwards, and a hand resting on the head would otherwise drag the head toward where
-            # the FK copy happened to put the avatar's hand.
-            arm_parts = ("capsule:upperarm_", "capsule:forearm_", "mesh:palm_") + tuple(
-                f"capsule:{f}_" for f in sk.FINGERS)
-            self.trunk_ids = [i for i in self.ids if not i.startswith(arm_parts)]
-            if not self.ids:
-                raise BodyCalError("the user and the avatar share no surface elements", source=avatar.name,
-                                   field="surface", hint="calibrate the avatar's surface")
-            self.graph_bones = list(ego.GRAPH_BONES)
-            self.bone_heads = [JI[sk.BONE_BY_NAME[b].head] for b in self.graph_bones]
-            self.bone_tails = [JI[sk.BONE_BY_NAME[b].tail] for b in self.graph_bones]
-            self.user_lengths = np.array([np.linalg.norm(self.user_pos[sk.BONE_BY_NAME[b].tail] -
-                                                         self.user_pos[sk.BONE_BY_NAME[b].head])
-                                          for b in self.graph_bones])
-            self.sbones = surface_bone_indices(self.user_s, self.avatar_s)
-            # The frames the avatar's posed surface and the IK read (the rest stay unrealised).
-            self.realise = sorted(set(self.sbones) | {BI["sacrum"]} | {BI[f"hand_{s}"] for s in sk.SIDES})
-            have = {e.id for e in user.surface}
-            self.palm_local = {}  # side -> (user, avatar) palm centre in the canonical hand frame
-            for s in sk.SIDES:
-                eid = f"mesh:palm_{s}"
-                if eid in self.ids:
-                    self.palm_local[s] = tuple(
-                        np.mean([p.local for p in m.element(eid).points.values()], axis=0)
-                        for m in (self.user_s, self.avatar_s))
-            self.targets = [t for t in TARGETS if not t.startswith("tip_") or
-                            any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have)]
-        elif method == "offsets":
-            tpose = {}
-            raw = user.extra.get("tpose") or {}
-            tr0 = None
-            for role in ("pelvis", "head", "hand_l", "hand_r", "foot_l", "foot_r"):
-                if role in raw:
-                    v = np.asarray(raw[role], float)
-                    tpose[role] = (v[:3], quat_to_matrix(v[3:7] / np.linalg.norm(v[3:7])))
-                else:
-                    if tr0 is None and user.reference_time is not None:
-                        f0 = int(np.clip(np.searchsorted(recording.time, user.reference_time), 0,
-                                         recording.frame_count - 1))
-                        tr0 = _trackers(recording, user, f0, f0 + 1)
-                    if tr0 is not None and role in tr0.pos:
-                        tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
-            self.ofs = ofs.setup(user, self.rig, self.user_frames0, tpose, self.centre)
-            self.grip = {s: ofs.grip_fingers(self.rig, s) for s in sk.SIDES if self.has_fingers[s]}
+        self.impl = METHOD_CLASSES[method](self, avatar_pos)
         self.feet = self._plan_feet(avatar, avatar_pos) if plant_feet else None
 
     def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> dict:
@@ -169,15 +115,14 @@ class _Run:
         tr = _trackers(self.rec, self.user)
         out = {}
         ref = self.user_pos
-        if self.method == "offsets":
-            placed, _ = ofs.effector_targets(self.ofs, tr.pos, tr.rot)
+        placed = self.impl.ankle_places(tr)
         corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
         for s in sk.SIDES:
             user_ankle = _joint_from(self.user, tr, f"ankle_{s}", [f"foot_{s}"])
             if user_ankle is None:
                 continue
             stance = feet.detect(user_ankle, self.rec.time, float(ref[f"ankle_{s}"][2]))
-            reference = (placed[f"ankle_{s}"] if self.method == "offsets"
+            reference = (placed[f"ankle_{s}"] if placed is not None
                          else root_positions(user_ankle, self.k, self.centre))
             eid = f"mesh:sole_{s}"
             if eid in {e.id for e in avatar.surface}:
@@ -231,82 +176,8 @@ class _Run:
         user_frames = up.frames
         up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
                       up.notes)
-        fk = self.rig.solve(up.frames, pelvis, basis=self.method == "rotations",
-                            realised=self.realise if self.method == "egocentric" else False)
-        if self.method == "rotations":
-            ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
-            targets, pelvis, planted = self._planted({}, up.frames, pelvis, start, stop, ankles)
-            if not planted:
-                return fk, {}
-            # The legs reach their planted feet (and only the legs: the rest stays a rotation copy).
-            legs = {n: v for n, v in targets.items() if n.startswith("ankle_")}
-            frames = self._ik(up, fk, pelvis, legs)
-            return self.rig.solve(frames, pelvis, realised=False), legs
-        if self.method == "egocentric":
-            return self._egocentric(up, fk, pelvis, user_frames, start, stop)
-        return self._offsets(up, fk, start, stop)
-
-    def _egocentric(self, up, fk, pelvis, user_frames, start, stop):
-        """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
-        without the arms and solved; then the arms and fingers, mapped against the body with the
-        trunk and legs already where the IK put them. Targets are mapped relative to the posed
-        avatar, so a hand resting on a thigh must be mapped against the thigh where it ends up,
-        not where the rotation copy had put it; and arm elements, which the IK moves last, must not
-        pull the head or the feet."""
-        ego = self.ego
-        uj, uf = _jd(up.joints), _fd(user_frames, self.sbones)
-        heads = np.take(up.joints, self.bone_heads, axis=1)
-        tails = np.take(up.joints, self.bone_tails, axis=1)
-        vec = normalize(tails - heads) * self.user_lengths[:, None]
-        ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
-        lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
-        upper = [n for n in self.targets if n not in lower]
-        targets = {}
-        if self.trunk_ids:
-            ust = ego.pose_surface(self.user_s, uj, uf, self.trunk_ids)
-            avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.sbones), self.trunk_ids)
-            tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
-                                     user_bones=ub, dtype=MAPPING_DTYPE)
-            targets.update({n: tg[:, i] for i, n in enumerate(lower)})
-        ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
-        targets, pelvis, _ = self._planted(targets, up.frames, pelvis, start, stop, ankles)
-        frames = self._ik(up, fk, pelvis, targets)
-        mid = self.rig.solve(frames, pelvis, basis=False, realised=self.realise)
-        us = ego.pose_surface(self.user_s, uj, uf, self.ids)
-        pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
-        # Decision: the hand is mapped through the centre of its palm, the part that touches, and
-        # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
-        # is copied): wrist and palm are a hand's size apart, and hands differ.
-        for s, (u_loc, _) in self.palm_local.items():
-            pts[:, upper.index(f"wrist_{s}")] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
-        # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
-        # passes re-map the wrists, against the arms where the previous pass put them, so a
-        # hand touching the other hand (or arm) meets it where that one ends up; both hands move
-        # toward each other at once, so those passes go half way (no overshoot).
-        # The fingertips are re-mapped in full: their nearest elements are mostly their own hand's
-        # palm and fingers, which pass 1 saw where the rotation copy had put the hand.
-        wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
-        tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
-        user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
-        pose, tg = mid, None
-        for k in range(ARM_PASSES):
-            av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
-            ta = user_side.map(av)
-            if tg is None:
-                tg = ta
-            else:
-                tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, wrists])
-                tg[:, tips] = ta[:, tips]
-            arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
-            for s, (_, a_loc) in self.palm_local.items():
-                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
-                                                                                    a_loc)
-            arm_frames = self._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
-            if k + 1 < ARM_PASSES:
-                pose = self.rig.solve(arm_frames, pelvis, basis=False, realised=self.realise)
-        frames = arm_frames
-        targets.update(arm_targets)
-        return self.rig.solve(frames, pelvis, realised=False), targets
+        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
+        return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
 
     def _ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
         """Avatar IK (appendix E, DESIGN.md §6) toward the targets present: the spine when there is
@@ -376,9 +247,186 @@ class _Run:
             for i in (1, 2, 3):
                 frames[:, BI[f"{f}_{i}_{s}"]] = fr[i - 1]
 
-    def _offsets(self, up, fk, start, stop):
+
+# --- the methods: one class each, the same stages -------------------------------------------------
+
+class Method:
+    """A retargeting method: what it computes once (`__init__`, on the run's shared state) and per
+    chunk of frames (`chunk`: the avatar pose and the targets it aimed at). `fk_basis` and
+    `realised` say how the run's rotation copy (step 2) is solved for it; `ankle_places` gives
+    the ankles the feet plan holds (None: the user's, scaled about the root)."""
+
+    name = ""
+    fk_basis = False
+    realised: bool | list[int] = False
+
+    def __init__(self, run: _Run, avatar_pos: dict):
+        self.run = run
+
+    def ankle_places(self, trackers) -> dict | None:
+        return None
+
+    def chunk(self, up, fk, pelvis, user_frames, start: int, stop: int):
+        raise NotImplementedError
+
+
+class RotationCopy(Method):
+    """Step 2 only, the baseline every other tool does; the legs reach their planted feet."""
+
+    name = "rotations"
+    fk_basis = True
+
+    def chunk(self, up, fk, pelvis, user_frames, start, stop):
+        run = self.run
+        ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
+        targets, pelvis, planted = run._planted({}, up.frames, pelvis, start, stop, ankles)
+        if not planted:
+            return fk, {}
+        # The legs reach their planted feet (and only the legs: the rest stays a rotation copy).
+        legs = {n: v for n, v in targets.items() if n.startswith("ankle_")}
+        frames = run._ik(up, fk, pelvis, legs)
+        return run.rig.solve(frames, pelvis, realised=False), legs
+
+
+class Egocentric(Method):
+    """Delahaye 2023: the targets mapped through the user's and the avatar's posed surfaces, then IK."""
+
+    name = "egocentric"
+
+    def __init__(self, run: _Run, avatar_pos: dict):
+        super().__init__(run, avatar_pos)
+        # Both surfaces re-expressed in the engine's canonical bone frames: the mapping's surface
+        # coordinates (capsule angles, sphere directions) must mean the same side of the body
+        # on the user and on the avatar, whatever `right` each model's producer chose.
+        self.user_s = canonical_surface(_surface_bones(run.user), run.user_frames0, run.user_pos)
+        self.avatar_s = canonical_surface(_surface_bones(run.avatar), run.rig.frames0, avatar_pos)
+        self.ids = ego.common_elements(run.user, run.avatar)
+        # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
+        # against the body without the arms: arm, hand and finger elements are moved by the IK
+        # afterwards, and a hand resting on the head would otherwise drag the head toward where
+        # the FK copy happened to put the avatar's hand.
+        arm_parts = ("capsule:upperarm_", "capsule:forearm_", "mesh:palm_") + tuple(
+            f"capsule:{f}_" for f in sk.FINGERS)
+        self.trunk_ids = [i for i in self.ids if not i.startswith(arm_parts)]
+        if not self.ids:
+            raise BodyCalError("the user and the avatar share no surface elements", source=run.avatar.name,
+                               field="surface", hint="calibrate the avatar's surface")
+        self.graph_bones = list(ego.GRAPH_BONES)
+        self.bone_heads = [JI[sk.BONE_BY_NAME[b].head] for b in self.graph_bones]
+        self.bone_tails = [JI[sk.BONE_BY_NAME[b].tail] for b in self.graph_bones]
+        self.user_lengths = np.array([np.linalg.norm(run.user_pos[sk.BONE_BY_NAME[b].tail] -
+                                                     run.user_pos[sk.BONE_BY_NAME[b].head])
+                                      for b in self.graph_bones])
+        self.sbones = surface_bone_indices(self.user_s, self.avatar_s)
+        # The frames the avatar's posed surface and the IK read (the rest stay unrealised).
+        self.realised = sorted(set(self.sbones) | {BI["sacrum"]} | {BI[f"hand_{s}"] for s in sk.SIDES})
+        have = {e.id for e in run.user.surface}
+        self.palm_local = {}  # side -> (user, avatar) palm centre in the canonical hand frame
+        for s in sk.SIDES:
+            eid = f"mesh:palm_{s}"
+            if eid in self.ids:
+                self.palm_local[s] = tuple(
+                    np.mean([p.local for p in m.element(eid).points.values()], axis=0)
+                    for m in (self.user_s, self.avatar_s))
+        self.targets = [t for t in TARGETS if not t.startswith("tip_") or
+                        any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have)]
+
+    def chunk(self, up, fk, pelvis, user_frames, start, stop):
+        """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
+        without the arms and solved; then the arms and fingers, mapped against the body with the
+        trunk and legs already where the IK put them. Targets are mapped relative to the posed
+        avatar, so a hand resting on a thigh must be mapped against the thigh where it ends up,
+        not where the rotation copy had put it; and arm elements, which the IK moves last, must not
+        pull the head or the feet."""
+        run = self.run
+        uj, uf = _jd(up.joints), _fd(user_frames, self.sbones)
+        heads = np.take(up.joints, self.bone_heads, axis=1)
+        tails = np.take(up.joints, self.bone_tails, axis=1)
+        vec = normalize(tails - heads) * self.user_lengths[:, None]
+        ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
+        lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
+        upper = [n for n in self.targets if n not in lower]
+        targets = {}
+        if self.trunk_ids:
+            ust = ego.pose_surface(self.user_s, uj, uf, self.trunk_ids)
+            avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.sbones), self.trunk_ids)
+            tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
+                                     user_bones=ub, dtype=MAPPING_DTYPE)
+            targets.update({n: tg[:, i] for i, n in enumerate(lower)})
+        ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
+        targets, pelvis, _ = run._planted(targets, up.frames, pelvis, start, stop, ankles)
+        frames = run._ik(up, fk, pelvis, targets)
+        mid = run.rig.solve(frames, pelvis, basis=False, realised=self.realised)
+        us = ego.pose_surface(self.user_s, uj, uf, self.ids)
+        pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
+        # Decision: the hand is mapped through the centre of its palm, the part that touches, and
+        # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
+        # is copied): wrist and palm are a hand's size apart, and hands differ.
+        for s, (u_loc, _) in self.palm_local.items():
+            pts[:, upper.index(f"wrist_{s}")] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
+        # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
+        # passes re-map the wrists, against the arms where the previous pass put them, so a
+        # hand touching the other hand (or arm) meets it where that one ends up; both hands move
+        # toward each other at once, so those passes go half way (no overshoot).
+        # The fingertips are re-mapped in full: their nearest elements are mostly their own hand's
+        # palm and fingers, which pass 1 saw where the rotation copy had put the hand.
+        wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
+        tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
+        user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
+        pose, tg = mid, None
+        for k in range(ARM_PASSES):
+            av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
+            ta = user_side.map(av)
+            if tg is None:
+                tg = ta
+            else:
+                tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, wrists])
+                tg[:, tips] = ta[:, tips]
+            arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
+            for s, (_, a_loc) in self.palm_local.items():
+                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
+                                                                                    a_loc)
+            arm_frames = run._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
+            if k + 1 < ARM_PASSES:
+                pose = run.rig.solve(arm_frames, pelvis, basis=False, realised=self.realised)
+        frames = arm_frames
+        targets.update(arm_targets)
+        return run.rig.solve(frames, pelvis, realised=False), targets
+
+
+class ExactOffsets(Method):
+    """AvatarGo: exact tracker-to-joint offsets from the T-pose, the spine bent by the root-to-head
+    vector, limbs by IK, fingers closed on the controller (offsets.py)."""
+
+    name = "offsets"
+
+    def __init__(self, run: _Run, avatar_pos: dict):
+        super().__init__(run, avatar_pos)
+        tpose = {}
+        raw = run.user.extra.get("tpose") or {}
+        tr0 = None
+        for role in ("pelvis", "head", "hand_l", "hand_r", "foot_l", "foot_r"):
+            if role in raw:
+                v = np.asarray(raw[role], float)
+                tpose[role] = (v[:3], quat_to_matrix(v[3:7] / np.linalg.norm(v[3:7])))
+            else:
+                if tr0 is None and run.user.reference_time is not None:
+                    f0 = int(np.clip(np.searchsorted(run.rec.time, run.user.reference_time), 0,
+                                     run.rec.frame_count - 1))
+                    tr0 = _trackers(run.rec, run.user, f0, f0 + 1)
+                if tr0 is not None and role in tr0.pos:
+                    tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
+        self.ofs = ofs.setup(run.user, run.rig, run.user_frames0, tpose, run.centre)
+        self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
+
+    def ankle_places(self, trackers) -> dict:
+        placed, _ = ofs.effector_targets(self.ofs, trackers.pos, trackers.rot)
+        return placed
+
+    def chunk(self, up, fk, pelvis, user_frames, start, stop):
+        run = self.run
         st = self.ofs
-        tr = _trackers(self.rec, self.user, start, stop)
+        tr = _trackers(run.rec, run.user, start, stop)
         p, r = ofs.effector_targets(st, tr.pos, tr.rot)
         frames = up.frames.copy()
         for bone, fr in r.items():
@@ -391,11 +439,15 @@ class _Run:
             frames[:, c] = stack_mul(sf[:, v5], st.spine0[v5].T @ st.ref_frames[c])
         targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
         # AvatarGo stands its avatar on the floor: planted feet on it, the pelvis lowered to reach.
-        targets, pelvis, _ = self._planted(targets, frames, p["pelvis"], start, stop)
+        targets, pelvis, _ = run._planted(targets, frames, p["pelvis"], start, stop)
         up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
-        frames = self._ik(up2, fk, pelvis, targets, hands=self.grip)
+        frames = run._ik(up2, fk, pelvis, targets, hands=self.grip)
         targets["skull_base"] = p["skull_base"]
-        return self.rig.solve(frames, pelvis, realised=False), targets
+        return run.rig.solve(frames, pelvis, realised=False), targets
+
+
+METHOD_CLASSES: dict[str, type[Method]] = {m.name: m for m in (Egocentric, ExactOffsets, RotationCopy)}
+METHODS = tuple(METHOD_CLASSES)  # the method names, the default first
 
 
 def _surface_bones(model: BodyModel) -> BodyModel:

@@ -1,0 +1,366 @@
+"""Planning and mapping: the retro-projection of Delahaye 2023, eq. 1, with the kinematic
+normalisation of eq. 2 and the floor singularity, blocked over frames x targets x elements."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from ... import skeleton as sk
+from ...errors import BodyCalError
+from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
+from .projection import PENETRATION_TOLERANCE, _dot, _normalised, _Proj, _project, _repose
+from .surface import PosedSurface
+from .weights import normalise, raw_weights
+
+SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
+
+ZERO_BONE = len(GRAPH_BONES)  # a zero vector: the one entry of an empty path
+
+
+@dataclass
+class _Plan:
+    exclude: np.ndarray  # (P, E)
+    chain_pe: np.ndarray  # (N,) flat (target, element) index p * E + e of each chain, ascending
+    dense: bool  # every pair has a chain (chain_pe is 0..P*E-1: no gather needed)
+    chain_root: np.ndarray  # (N,) index into GRAPH_NODES of the element's root
+    # Paths by position: with the chains in `order` (longest path first), the chains that have a
+    # j-th bone are a prefix, and slot_bones[j] lists those j-th bones: a sum over every chain's
+    # bones is a few prefix additions, with no gather of v̂ per bone.
+    order: np.ndarray  # (N,)
+    unorder: np.ndarray  # (N,) its inverse
+    slot_bones: list[np.ndarray]
+    entry_bone: np.ndarray  # every GRAPH_BONES index used (for the joint check)
+    floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
+    floor_starts: list[np.ndarray]  # per side: (P,)
+
+
+def _entries(paths):
+    bones, starts = [], []
+    for path in paths:
+        starts.append(len(bones))
+        bones += list(path) or [ZERO_BONE]
+    return np.array(bones, int), np.array(starts, int)
+
+
+@lru_cache(maxsize=64)
+def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tuple[str, ...]) -> _Plan:
+    """Everything frame-independent: exclusions and kinematic paths as index arrays (Delahaye 2023,
+    appendix C: "chains are pre-computed and stored so that the tree search is not performed in
+    every frame"). Excluded (own-chain) pairs have no chain at all: their weight is zero."""
+    P, E = len(target_names), len(element_ids)
+    exclude = np.zeros((P, E), bool)
+    pe, cr, paths = [], [], []
+    for p, name in enumerate(target_names):
+        own = own_chain_elements(name)
+        for e, eid in enumerate(element_ids):
+            if eid in own:
+                exclude[p, e] = True
+                continue
+            paths.append(kinematic_path(roots[e], name))
+            pe.append(p * E + e)
+            cr.append(GRAPH_NODES.index(roots[e]))
+    order = np.array(sorted(range(len(paths)), key=lambda i: -len(paths[i])), int)
+    longest = len(paths[order[0]]) if paths else 0
+    slots = [np.array([paths[i][j] for i in order if len(paths[i]) > j], int) for j in range(longest)]
+    used = np.array(sorted({b for path in paths for b in path}), int)
+    floor_bone, floor_starts = [], []
+    for s in sk.SIDES:
+        b, st = _entries([kinematic_path(f"ankle_{s}", name) for name in target_names])
+        floor_bone.append(b)
+        floor_starts.append(st)
+    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
+                 used, floor_bone, floor_starts)
+
+
+def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int, dtype=float) -> np.ndarray:
+    """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given, else from the surface's
+    joints), plus the zero bone."""
+    out = np.zeros((3, F, len(GRAPH_BONES) + 1), dtype)
+    for i, name in enumerate(GRAPH_BONES):
+        if bones is not None and name in bones:
+            out[:, :, i] = np.asarray(bones[name], float).T
+            continue
+        b = sk.BONE_BY_NAME[name]
+        if b.head in surface.joints and b.tail in surface.joints:
+            out[:, :, i] = (surface.joints[b.tail] - surface.joints[b.head]).T
+    return out
+
+
+def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
+    out = np.zeros((3, F, len(GRAPH_NODES)), dtype)
+    for i, name in enumerate(GRAPH_NODES):
+        if name in surface.joints:
+            out[:, :, i] = surface.joints[name].T
+    return out
+
+
+def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
+    need = {GRAPH_NODES[i] for i in np.unique(plan.chain_root)} | {"ankle_l", "ankle_r"}
+    for idx in np.unique(np.concatenate([plan.entry_bone, *plan.floor_bone])):
+        if idx == ZERO_BONE:
+            continue
+        b = sk.BONE_BY_NAME[GRAPH_BONES[idx]]
+        need |= {b.head, b.tail}
+    missing = sorted(need - set(surface.joints))
+    if missing:
+        raise BodyCalError(f"the {who} pose lacks joints needed by the egocentric mapping: {', '.join(missing[:6])}",
+                           hint="pose every joint of the kinematic paths (pose_surface joints)")
+
+
+def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
+                    avatar_surface: PosedSurface, user_bones: dict[str, np.ndarray] | None = None,
+                    avatar_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
+                    turn_v: bool = False, chunk: int | None = None,
+                    penetration_tolerance: float = PENETRATION_TOLERANCE, details: dict | None = None,
+                    dtype=np.float64) -> np.ndarray:
+    """Retro-project the user's targets onto the avatar (Delahaye 2023, appendix C, eq. 1 and 2).
+
+    user_pts: (F, P, 3) the user's target positions, one column per name of `target_names`
+    (canonical joints on the kinematic tree: wrists, elbows, ankles, knees, fingertips, skull base).
+    user_surface / avatar_surface: the two bodies posed for the same F frames with the same
+    element_ids (the avatar posed by FK from the user's bone rotations, DESIGN.md §1 step 2).
+    user_bones / avatar_bones: optional bone -> (F, 3) vectors (tail - head) overriding the ones
+    derived from the posed joints; only the user's directions and the avatar's lengths are used
+    (τ' = the avatar's bone lengths along the user's current bone directions).
+    floor: include the floor contribution (the vertical singularity handled as eq. 1).
+    falloff: exponent of the raw weights' distance law (paper: 2); the invariants hold for any.
+    turn_v: carry each v_ij by its element's local frame (bone / triangle frame) onto the avatar's
+    instead of adding it as a world vector (eq. 1 as printed); see _repose.
+    details: if a dict is given, it receives the weights of every frame ("lam", "lam_g",
+    "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
+    chunk: frames per block (default: sized so a block's temporaries stay in the CPU caches).
+    dtype: float64, or float32 (see prepare_targets); the result has this dtype.
+
+    Returns (F, P, 3): the avatar's targets p'_j. Equivalent to
+    `prepare_targets(...).map(avatar_surface, ...)`, which maps the same user targets onto
+    several avatar poses without projecting them on the user again."""
+    prepared = prepare_targets(user_pts, target_names, user_surface, user_bones, floor=floor, falloff=falloff,
+                               chunk=chunk, penetration_tolerance=penetration_tolerance, dtype=dtype)
+    return prepared.map(avatar_surface, avatar_bones, turn_v=turn_v, details=details)
+
+
+BLOCK_PAIRS = 20_000  # frames x targets x elements per block: its temporaries stay in the L2 cache
+
+
+@dataclass
+class _UserBlock:
+    """The user's side of one block of frames of one target group (see PreparedTargets)."""
+
+    start: int
+    stop: int
+    p: np.ndarray  # (F, P, 3) the targets
+    us: PosedSurface  # the user's surface for these frames and the group's elements
+    pr: _Proj
+    lam: np.ndarray  # (F, P, E) λ
+    lam_g: np.ndarray  # (F, P, E) λg
+    lam_gf: np.ndarray  # (F, P) λg of the floor
+    vhat: np.ndarray  # (3, F, N) unit v of each chain
+    tau: np.ndarray  # (F, N) τ
+    dots: list  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone length ratios)
+
+
+@dataclass
+class _Group:
+    """Targets that exclude the same elements (own_chain_elements), mapped on the others only:
+    an excluded pair has no weight, so projecting on it is wasted work."""
+
+    targets: np.ndarray  # indices into the target names
+    names: tuple[str, ...]
+    elements: np.ndarray | None  # indices of the elements kept (None: all)
+    plan: _Plan
+    blocks: list[_UserBlock]
+
+
+class PreparedTargets:
+    """The user's side of the egocentric mapping (Delahaye 2023, appendix C) of F frames of targets:
+    their projections on the user's surface, the weights of eq. 1 and the user's τ of eq. 2,
+    which do not depend on the avatar. `map` finishes the mapping against an avatar pose; the
+    pipeline maps the arms twice (against the arms where the first pass put them) and pays for
+    the user's side once. Built by `prepare_targets`."""
+
+    def __init__(self, pts, names, user_surface, ub, floor, groups):
+        self.pts, self.names, self.user_surface, self.floor, self.groups = pts, names, user_surface, floor, groups
+        self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
+        self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the gathers
+        self._bone_tau_a = None  # (length ratios, {(group, block): τ' over the bones}) of the last map
+
+    @property
+    def frames(self) -> int:
+        return self.pts.shape[0]
+
+    def map(self, avatar_surface: PosedSurface, avatar_bones: dict[str, np.ndarray] | None = None, *,
+            turn_v: bool = False, details: dict | None = None) -> np.ndarray:
+        """The avatar's targets (F, P, 3) for the avatar posed as `avatar_surface` (same frames and
+        element_ids as the user's surface); see retarget_points."""
+        us = self.user_surface
+        if us.element_ids != avatar_surface.element_ids:
+            raise BodyCalError("user and avatar surfaces have different elements",
+                               hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+        F = self.frames
+        if avatar_surface.frames != F:
+            raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
+        for g in self.groups:
+            _check_joints(avatar_surface, g.plan, g.names, "avatar")
+        dtype = self.pts.dtype
+        ab = _bone_vectors(avatar_surface, avatar_bones, F, dtype)
+        lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > 1e-12)
+        lrt = np.ascontiguousarray(lratio.T)
+        # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
+        # differ by rotations (the pipeline's arm passes), so it is kept for the next call.
+        cached = self._bone_tau_a if self._bone_tau_a is not None and np.allclose(
+            self._bone_tau_a[0], lrt, rtol=1e-12, atol=0.0) else None
+        bone_tau_a = (lrt, cached[1] if cached else {})
+        self._bone_tau_a = bone_tau_a
+        nodes_a = _node_positions(avatar_surface, F, dtype)
+        avatar_surface = avatar_surface.astype(dtype)
+        out = np.empty_like(self.pts)
+        if details is not None:
+            E = len(us.element_ids)
+            P = len(self.names)
+            details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
+                           ratio=np.ones((F, P, E)))
+        for gi, g in enumerate(self.groups):
+            av = avatar_surface if g.elements is None else avatar_surface.select(g.elements)
+            for bi, b in enumerate(g.blocks):
+                s, e = b.start, b.stop
+                if (gi, bi) not in bone_tau_a[1]:
+                    bone_tau_a[1][gi, bi] = _bone_tau(b, g.plan, lrt[:, s:e])
+                res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
+                                        bone_tau_a[1][gi, bi], nodes_a[:, s:e], self.floor, turn_v)
+                out[s:e, g.targets] = res
+                if details is not None:
+                    cols = slice(None) if g.elements is None else g.elements
+                    rows = np.ix_(np.arange(s, e), g.targets, np.arange(E)[cols])
+                    details["lam"][rows] = b.lam
+                    details["lam_g"][rows] = b.lam_g
+                    details["ratio"][rows] = ratio
+                    details["lam_g_floor"][np.ix_(np.arange(s, e), g.targets)] = b.lam_gf
+        return out
+
+
+def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
+                    user_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
+                    chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE,
+                    dtype=np.float64) -> PreparedTargets:
+    """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses.
+    `dtype` float32 maps in single precision (about twice as fast; positions agree with float64
+    to a few micrometres, the pipeline's choice)."""
+    dtype = np.dtype(dtype)
+    if dtype not in (np.float32, np.float64):
+        raise BodyCalError(f"the mapping computes in float32 or float64, not {dtype}")
+    pts = np.asarray(user_pts, dtype)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] != len(target_names):
+        raise BodyCalError(f"targets must be (F, {len(target_names)}, 3), got {pts.shape}")
+    F = pts.shape[0]
+    if user_surface.frames != F:
+        raise BodyCalError(f"targets have {F} frames, user surface {user_surface.frames}")
+    ub = _bone_vectors(user_surface, user_bones, F, dtype)
+    ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))
+    nodes_u = _node_positions(user_surface, F, dtype)
+    user_surface = user_surface.astype(dtype)
+    ids = user_surface.element_ids
+    rows: dict[frozenset, list[int]] = {}
+    for i, name in enumerate(target_names):
+        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
+    groups = []
+    for excluded, members in rows.items():
+        keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
+        # Decision: a target with every element excluded keeps them all (all weights zero: the
+        # user's horizontal position, the floor's vertical one, as before grouping).
+        sub = user_surface if not excluded or not len(keep) else user_surface.select(keep)
+        names = tuple(target_names[i] for i in members)
+        plan = _plan(names, tuple(sub.element_ids), tuple(sub.element_roots))
+        _check_joints(sub, plan, names, "user")
+        step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
+        step = max(1, step)
+        blocks = []
+        for s in range(0, F, step):
+            e = min(F, s + step)
+            blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
+                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff))
+        groups.append(_Group(np.array(members, int), names, None if sub is user_surface else keep, plan, blocks))
+    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
+
+
+def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff) -> _UserBlock:
+    F, P = p.shape[:2]
+    pr = _project(p, us, tol)
+    lam_raw, floor_raw = raw_weights(pr, p[..., 2], plan.exclude, falloff)
+    if not floor:
+        floor_raw = np.zeros_like(floor_raw)
+    lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
+    # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
+    # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
+    vhat, _ = _normalised(_chains(pr.v, plan), 0.0)  # (3, F, N)
+    vt = np.ascontiguousarray(np.take(vhat, plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
+    tau = np.zeros(vt.shape[1:], vt.dtype)
+    dots = []
+    for bones in plan.slot_bones:
+        n = len(bones)
+        dots.append(np.abs(_dot(vt[:, :n], np.take(ub, bones, axis=1))))
+        tau[:n] += dots[-1]
+    tau = np.take(tau, plan.unorder, axis=0).T
+    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - np.take(nodes_u, plan.chain_root, axis=2)))
+    pr.dist = pr.factor = None  # spent on the weights
+    return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
+
+
+def _chains(a, plan: _Plan):
+    """(3, F, P, E) -> (3, F, N): the pairs that have a chain (a view when all do)."""
+    flat = a.reshape(a.shape[:2] + (-1,))
+    return flat if plan.dense else np.take(flat, plan.chain_pe, axis=2)
+
+
+def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
+    """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
+    out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
+    for bones, d in zip(plan.slot_bones, b.dots):
+        out[:len(bones)] += d * np.take(lratio, bones, axis=0)
+    return np.take(out, plan.unorder, axis=0).T
+
+
+def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v):
+    """One block of frames against the avatar: eq. 1 with τ'/τ of eq. 2 (`bone_tau_a`: `_bone_tau`).
+    Returns ((F, P, 3), ratio)."""
+    p, us, pr = b.p, b.us, b.pr
+    F, P = p.shape[:2]
+    E = pr.v.shape[-1]
+    x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
+    # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
+    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
+    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > 1e-12)
+    if plan.dense:
+        ratio = chain_ratio.reshape(F, P, E)
+    else:
+        ratio = np.ones((F, P * E), chain_ratio.dtype)
+        ratio[:, plan.chain_pe] = chain_ratio
+        ratio = ratio.reshape(F, P, E)
+
+    est = x_av + v_av * ratio  # (3, F, P, E)
+    lam = b.lam
+    horizontal = np.stack([(est[i] * lam).sum(-1) for i in range(2)], axis=-1)
+    # No element with weight (all excluded): keep the user's horizontal position.
+    none = lam.sum(-1) <= 0
+    if none.any():
+        horizontal = np.where(none[..., None], p[..., :2], horizontal)
+    vertical = (est[2] * b.lam_g).sum(-1)
+    if floor:
+        # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
+        ratios = []
+        for side, name in enumerate(sk.SIDES):
+            ent, st = plan.floor_bone[side], plan.floor_starts[side]
+            uz = np.abs(np.take(ub[2], ent, axis=0))  # (K, F)
+            tf = np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
+            tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=0), st, axis=0).T
+            tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
+            ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
+        # Decision: the two feet's ratios blended by which ankle is lower (SUPPORT_BLEND): with
+        # both feet on the floor, picking the lower ankle flips with millimetres of noise, and
+        # each flip moved every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm.
+        w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
+        fratio = ratios[1] + w_left[:, None] * (ratios[0] - ratios[1])
+        vertical = vertical + p[..., 2] * fratio * b.lam_gf
+    return np.concatenate([horizontal, vertical[..., None]], axis=-1), ratio

@@ -1,0 +1,299 @@
+"""Projection kernels: each target point projected on each surface element, with the surface
+coordinates that re-pose the projection on another body and the angular factor of its weight
+(Delahaye 2023, appendix D)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .surface import PosedSurface
+
+FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)
+PENETRATION_TOLERANCE = 0.01  # m: see _triangle_factor
+
+@dataclass
+class Projections:
+    """Projections of P target points on the E elements of a PosedSurface, per frame.
+
+    x, v: (F, P, E, 3) closest points and v = p - x; dist: (F, P, E) |v|; factor: (F, P, E) the
+    angular factor of the raw weight (capsule |sin(v, axis)|, sphere 1, triangle max(0, cos(v, n)));
+    surface coordinates: capsules `cap_t` (F, P, C) axial fraction and `cap_dir` (F, P, C, 3) unit
+    direction from the axis in the bone frame; spheres `sph_dir` (F, P, S, 3) in the bone frame;
+    meshes `tri_index` (F, P, M) the closest triangle (index into surface.tri) and `tri_bary`
+    (F, P, M, 3) its barycentric coordinates."""
+
+    x: np.ndarray
+    v: np.ndarray
+    dist: np.ndarray
+    factor: np.ndarray
+    cap_t: np.ndarray
+    cap_dir: np.ndarray
+    sph_dir: np.ndarray
+    tri_index: np.ndarray
+    tri_bary: np.ndarray
+
+
+def _comp(a) -> np.ndarray:
+    """(..., 3) -> (3, ...) contiguous. The hot path keeps vector components first, so every
+    operation runs over contiguous arrays (numpy is several times slower on a trailing axis of 3)."""
+    return np.ascontiguousarray(np.moveaxis(_floating(a), -1, 0))
+
+
+def _rot_comp(rot) -> np.ndarray:
+    """(F, X, 3, 3) -> (3, 3, F, 1, X): R_ij as contiguous (F, 1, X) arrays (1 = the target axis)."""
+    return np.ascontiguousarray(_floating(rot).transpose(2, 3, 0, 1))[:, :, :, None, :]
+
+
+def _floating(a) -> np.ndarray:
+    """float32 stays float32 (the pipeline maps in single precision); anything else is float64."""
+    a = np.asarray(a)
+    return a if a.dtype == np.float32 else a.astype(float, copy=False)
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _normalised(v, fallback):
+    """Unit vectors of (3, ...) `v` and their norms; `fallback` where v vanishes (never NaN)."""
+    n = np.sqrt(_dot(v, v))
+    ok = n > 1e-12
+    u = v / np.where(ok, n, 1.0)
+    if not ok.all():
+        u = np.where(ok, u, fallback)
+    return u, n
+
+
+def _apply(rc, v):
+    """R v for (3, 3, ...) rotation components and (3, ...) vectors."""
+    return _rows_dot(rc, v, transpose=False)
+
+
+def _apply_t(rc, v):
+    """R^T v (world -> bone frame)."""
+    return _rows_dot(rc, v, transpose=True)
+
+
+def _rows_dot(rc, v, transpose):
+    out = np.empty((3,) + np.broadcast_shapes(rc.shape[2:], v.shape[1:]), np.result_type(rc, v))
+    tmp = np.empty(out.shape[1:], out.dtype)
+    for i in range(3):
+        r = rc[:, i] if transpose else rc[i]
+        np.multiply(r[0], v[0], out=out[i])
+        for k in (1, 2):  # in place: no temporaries beyond one
+            np.multiply(r[k], v[k], out=tmp)
+            out[i] += tmp
+    return out
+
+
+def _closest_on_triangles(ap, ab, ac):
+    """Ericson's closest point on a triangle (Real-Time Collision Detection 5.1.5), branch-free
+    over arrays in components-first layout: ap = p - a (3, F, P, T), ab, ac (3, F, 1, T).
+    Returns the barycentric weights (v, w) of b and c, (F, P, T)."""
+    d1 = _dot(ab, ap)
+    d2 = _dot(ac, ap)
+    abab = _dot(ab, ab)
+    acac = _dot(ac, ac)
+    abac = _dot(ab, ac)
+    d3, d4 = d1 - abab, d2 - abac  # (p - b).ab, (p - b).ac
+    d5, d6 = d1 - abac, d2 - acac  # (p - c).ab, (p - c).ac
+    vc = d1 * d4 - d3 * d2
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+
+    def safe(num, den):
+        return num / np.where(den != 0, den, 1.0)
+
+    denom = va + vb + vc
+    inside_v, inside_w = safe(vb, denom), safe(vc, denom)
+    e_ab = safe(d1, d1 - d3)
+    e_ac = safe(d2, d2 - d6)
+    e_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
+    # Ericson's early returns in order A, B, AB, C, AC, BC, inside: applied in reverse so the
+    # first region that holds wins.
+    bv, bw = inside_v, inside_w
+    for cond, cv, cw in (((va <= 0) & (d4 >= d3) & (d5 >= d6), 1 - e_bc, e_bc),
+                         ((vb <= 0) & (d2 >= 0) & (d6 <= 0), 0.0, e_ac),
+                         ((d6 >= 0) & (d5 <= d6), 0.0, 1.0),
+                         ((vc <= 0) & (d1 >= 0) & (d3 <= 0), e_ab, 0.0),
+                         ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),
+                         ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):
+        bv = np.where(cond, cv, bv)
+        bw = np.where(cond, cw, bw)
+    return bv, bw
+
+
+@dataclass
+class _Proj:
+    """Projections in components-first layout (the hot path); see Projections for the meaning."""
+
+    x: np.ndarray  # (3, F, P, E)
+    v: np.ndarray  # (3, F, P, E)
+    dist: np.ndarray  # (F, P, E)
+    factor: np.ndarray  # (F, P, E)
+    cap_t: np.ndarray  # (F, P, C)
+    cap_dir: np.ndarray  # (3, F, P, C) unit direction from the axis, in the bone frame
+    sph_dir: np.ndarray  # (3, F, P, S) in the bone frame
+    tri_index: np.ndarray  # (F, P, M)
+    tri_bary: np.ndarray  # (3, F, P, M)
+
+    def public(self, surface: PosedSurface) -> Projections:
+        m = np.moveaxis
+        return Projections(m(self.x, 0, -1), m(self.v, 0, -1), self.dist, self.factor, self.cap_t,
+                           m(self.cap_dir, 0, -1), m(self.sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
+
+
+def _project(p, surface: PosedSurface, tol: float) -> _Proj:
+    F, P = p.shape[:2]
+    pc = _comp(p)[..., None]  # (3, F, P, 1)
+    C, S, M = surface.counts
+    # Capsules: closest point on the axis segment pushed out by the radius interpolated along it.
+    a = _comp(surface.caps_head)[:, :, None, :]
+    ab = _comp(surface.caps_tail)[:, :, None, :] - a
+    abab = np.maximum(_dot(ab, ab), 1e-24)
+    ap = pc - a
+    t = np.clip(_dot(ap, ab) / abab, 0.0, 1.0)
+    rc = _rot_comp(surface.caps_rot)
+    d, n = _normalised(ap - t * ab, rc[:, 0])  # on the axis: the bone's +X
+    r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
+    cap_v = (n - r) * d
+    cos_ax = _dot(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
+    cap_factor = np.sqrt(np.clip(1.0 - cos_ax * cos_ax, 0.0, 1.0))
+    # Spheres.
+    sc = _comp(surface.sph_center)[:, :, None, :]
+    src = _rot_comp(surface.sph_rot)
+    sd, sn = _normalised(pc - sc, src[:, 1])
+    sph_v = (sn - surface.sph_radius) * sd
+    # Meshes: the closest triangle of each element.
+    if M:
+        ta = _comp(surface.tri[:, :, 0])[:, :, None, :]
+        tab = _comp(surface.tri[:, :, 1])[:, :, None, :] - ta
+        tac = _comp(surface.tri[:, :, 2])[:, :, None, :] - ta
+        tap = pc - ta
+        bv, bw = _closest_on_triangles(tap, tab, tac)
+        tv = tap - bv * tab - bw * tac  # p - x
+        td2 = _dot(tv, tv)
+        sel = np.stack([np.argmin(td2[..., s:e], axis=-1) + s for s, e in surface.mesh_slices], axis=-1)
+        starts = np.array([s for s, _ in surface.mesh_slices])
+        of_tri = np.repeat(np.arange(M), [e - s for s, e in surface.mesh_slices])
+        mesh_v = np.stack([np.take_along_axis(tv[i], sel, axis=2) for i in range(3)])
+        bv, bw = np.take_along_axis(bv, sel, axis=2), np.take_along_axis(bw, sel, axis=2)
+        tri_bary = np.stack([1.0 - bv - bw, bv, bw])
+        # Decision: the angular factor is every triangle's own, weighted by how close the triangle
+        # is to being the nearest (exp(-(d_t - d_min) / FACTOR_BLEND)). A closest point on an
+        # edge or a corner is the closest point of every triangle that shares it, whose normals
+        # differ: taking the nearest triangle's factor let rounding pick it, and a point leaving a
+        # corner for an edge dropped the corner's other triangles at once (steps of 1 cm in the
+        # mapped target for 0.3 mm of motion beside the crude torso). Each triangle's factor and
+        # distance move continuously, so the blend does.
+        tri_factor = _triangle_factor(tv, _comp(surface.tri_normal)[:, :, None, :], tol)  # (F, P, T)
+        td = np.sqrt(td2)
+        closest = np.take(np.take_along_axis(td, sel, axis=2), of_tri, axis=2)  # (F, P, T) its mesh's min
+        near = np.exp((closest - td) * (1.0 / FACTOR_BLEND))
+        mesh_factor = np.add.reduceat(near * tri_factor, starts, axis=2) / np.add.reduceat(near, starts, axis=2)
+    else:
+        sel = np.zeros((F, P, 0), int)
+        mesh_v = tri_bary = np.zeros((3, F, P, 0), pc.dtype)
+        mesh_factor = np.zeros((F, P, 0), pc.dtype)
+    v = np.concatenate([cap_v, sph_v, mesh_v], axis=-1)
+    x = pc - v
+    dist = np.sqrt(_dot(v, v))
+    factor = np.concatenate([cap_factor, np.ones((F, P, S), pc.dtype), mesh_factor], axis=-1)
+    # Surface coordinates in the bone frames: what re-poses the projection on another body.
+    return _Proj(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
+
+
+def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
+            ) -> Projections:
+    """Project (F, P, 3) points on every element of `surface` (Delahaye 2023, appendix C, Figure 12)."""
+    return _project(_floating(points), surface, penetration_tolerance).public(surface)
+
+
+def _triangle_factor(v, normal, tol):
+    """max(0, cos(v, n)) (Delahaye 2023, appendix C, raw contributions), components first. Decision:
+    the angle is taken from the triangle plane shifted `tol` into the body, so a target that sinks
+    a few millimetres into the crude mesh (calibration noise) keeps its contact weight instead of
+    dropping to zero; at v = 0 the factor is 1 (a target on the surface)."""
+    w = v + tol * normal
+    wn = np.sqrt(_dot(w, w))
+    cos = np.divide(_dot(w, normal), wn, out=np.ones_like(wn), where=wn > 1e-12)
+    return np.maximum(cos, 0.0)
+
+
+def _triangle_frames(tri, normal):
+    """(F, T, 3, 3) frames of triangles: columns first edge, normal x edge, normal."""
+    e1 = tri[:, :, 1] - tri[:, :, 0]
+    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-15)
+    return np.stack([e1, np.cross(normal, e1), normal], axis=-1)
+
+
+def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
+    """(x', v'): x' re-posed on the avatar (see `repose`); v' = v, or with `turn_v` the user's v
+    carried by each element's local frame onto the avatar's (bone frame for capsules and spheres,
+    triangle frame for meshes), so it keeps its angle to the avatar's surface."""
+    F, P = pr.v.shape[1:3]
+    C, S, M = avatar.counts
+    a = _comp(avatar.caps_head)[:, :, None, :]
+    ab = _comp(avatar.caps_tail)[:, :, None, :] - a
+    t = pr.cap_t
+    r = avatar.caps_radius[:, 0] + t * (avatar.caps_radius[:, 1] - avatar.caps_radius[:, 0])
+    # The same direction in the avatar's bone frame.
+    cap_rot, sph_rot = _rot_comp(avatar.caps_rot), _rot_comp(avatar.sph_rot)
+    cap = a + t * ab + r * _apply(cap_rot, pr.cap_dir)
+    sph = _comp(avatar.sph_center)[:, :, None, :] + avatar.sph_radius * _apply(sph_rot, pr.sph_dir)
+    v_parts = None
+    if turn_v:  # v turned by R' R^T
+        v_parts = [_apply(cap_rot, _apply_t(_rot_comp(user.caps_rot), pr.v[..., :C])),
+                   _apply(sph_rot, _apply_t(_rot_comp(user.sph_rot), pr.v[..., C:C + S]))]
+    if M:
+        same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices,
+                                                                                 avatar.mesh_slices)])
+        # The user's triangle index -> the avatar's (same position inside the element).
+        offset = np.array([as_ - us for (us, _), (as_, _) in zip(user.mesh_slices, avatar.mesh_slices)])
+        idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
+        fi = np.arange(F)[:, None, None]
+        mesh = np.zeros((3, F, P, M), pr.v.dtype)
+        for k in range(3):
+            corner = _comp(avatar.tri[:, :, k])
+            for i in range(3):
+                mesh[i] += pr.tri_bary[k] * corner[i][fi, idx]
+        if turn_v:
+            to_avatar = np.concatenate([np.arange(us, ue) + (as_ - us) if ok else np.full(ue - us, as_)
+                                        for (us, ue), (as_, _), ok in zip(user.mesh_slices, avatar.mesh_slices, same)])
+            rel = (_triangle_frames(avatar.tri, avatar.tri_normal)[:, to_avatar]
+                   @ np.swapaxes(_triangle_frames(user.tri, user.tri_normal), -1, -2))  # (F, T, 3, 3)
+            rel = np.ascontiguousarray(rel.transpose(2, 3, 0, 1))[:, :, fi, pr.tri_index]  # (3, 3, F, P, M)
+            mesh_v = _apply(rel, pr.v[..., C + S:])
+        if not same.all():
+            # Different triangles (e.g. palms with other point counts): the element bone's frame,
+            # scaled by the bone length ratio.
+            bad = np.flatnonzero(~same)
+            xm = pr.x[:, :, :, C + S + bad]
+            local = _apply_t(_rot_comp(user.mesh_rot[:, bad]), xm - _comp(user.mesh_head[:, bad])[:, :, None, :])
+            scale = avatar.mesh_scale[bad] / np.maximum(user.mesh_scale[bad], 1e-9)
+            bone_rel = _rot_comp(avatar.mesh_rot[:, bad] @ np.swapaxes(user.mesh_rot[:, bad], -1, -2))
+            mesh[:, :, :, bad] = (_comp(avatar.mesh_head[:, bad])[:, :, None, :]
+                                  + _apply(_rot_comp(avatar.mesh_rot[:, bad]), local * scale))
+            if turn_v:
+                mesh_v[:, :, :, bad] = _apply(bone_rel, pr.v[..., C + S + bad])
+        if turn_v:
+            v_parts.append(mesh_v)
+    else:
+        mesh = np.zeros((3, F, P, 0), pr.v.dtype)
+        if turn_v:
+            v_parts.append(np.zeros((3, F, P, 0), pr.v.dtype))
+    x = np.concatenate([cap, sph, mesh], axis=-1)
+    return x, (np.concatenate(v_parts, axis=-1) if turn_v else pr.v)
+
+
+def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.ndarray:
+    """x'_ij: the user's projections re-posed on the avatar's elements from their surface
+    coordinates (capsule: axial fraction + direction in the bone frame; sphere: direction;
+    triangle: barycentric). A mesh whose triangles differ between user and avatar falls back to
+    the element bone's frame, scaled by the bone length ratio. Returns (F, P, E, 3)."""
+    m = np.moveaxis
+    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, m(proj.cap_dir, -1, 0),
+               m(proj.sph_dir, -1, 0), proj.tri_index, m(proj.tri_bary, -1, 0))
+    return m(_repose(pr, user, avatar)[0], 0, -1)

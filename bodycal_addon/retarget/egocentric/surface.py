@@ -1,0 +1,238 @@
+"""The posed surface: every surface element of a body model placed per frame from the canonical joint
+positions and bone frames (Delahaye 2023, appendix C)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ... import skeleton as sk
+from ...errors import BodyCalError
+from ...transforms import frame_from_axes
+from .graph import element_root
+
+
+@dataclass
+class PosedSurface:
+    """A body model's surface elements placed per frame (F frames). Elements are ordered capsules,
+    spheres, meshes; E = C + S + M."""
+
+    element_ids: list[str]
+    element_bones: list[str]  # the bone each element rides on (mesh: the element's `bone`)
+    element_roots: list[str]  # root joint r_i of each element (element_root)
+    caps_head: np.ndarray  # (F, C, 3) segment start (the bone's head joint)
+    caps_tail: np.ndarray  # (F, C, 3)
+    caps_rot: np.ndarray  # (F, C, 3, 3) bone frames
+    caps_radius: np.ndarray  # (C, 2) radius at head, at tail
+    sph_center: np.ndarray  # (F, S, 3)
+    sph_rot: np.ndarray  # (F, S, 3, 3)
+    sph_radius: np.ndarray  # (S,)
+    tri: np.ndarray  # (F, T, 3, 3) triangle corners, outward winding
+    tri_normal: np.ndarray  # (F, T, 3) unit outward normals
+    tri_elem: np.ndarray  # (T,) element index (into element_ids) of each triangle
+    mesh_slices: list[tuple[int, int]]  # per mesh element, its triangle range in `tri`
+    mesh_head: np.ndarray  # (F, M, 3) head joint of each mesh element's bone
+    mesh_rot: np.ndarray  # (F, M, 3, 3) frame of each mesh element's bone
+    mesh_scale: np.ndarray  # (M,) length of each mesh element's bone (re-posing fallback)
+    joints: dict[str, np.ndarray]  # canonical joint -> (F, 3)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def frames(self) -> int:
+        return self.tri.shape[0] if self.tri.size else next(iter(self.joints.values())).shape[0]
+
+    @property
+    def counts(self) -> tuple[int, int, int]:
+        return self.caps_radius.shape[0], self.sph_radius.shape[0], len(self.mesh_slices)
+
+    def take(self, start: int, stop: int) -> PosedSurface:
+        """The frames [start, stop) (views, no copy)."""
+        s = slice(start, stop)
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, self.caps_head[s],
+                            self.caps_tail[s], self.caps_rot[s], self.caps_radius, self.sph_center[s], self.sph_rot[s],
+                            self.sph_radius, self.tri[s], self.tri_normal[s], self.tri_elem, self.mesh_slices,
+                            self.mesh_head[s], self.mesh_rot[s], self.mesh_scale,
+                            {k: v[s] for k, v in self.joints.items()}, self.notes)
+
+    def astype(self, dtype) -> PosedSurface:
+        """The surface with its placed geometry in `dtype` (itself if already; joints unchanged)."""
+        if self.caps_head.dtype == dtype:
+            return self
+        c = [np.asarray(a, dtype) for a in (self.caps_head, self.caps_tail, self.caps_rot, self.caps_radius,
+                                            self.sph_center, self.sph_rot, self.sph_radius, self.tri, self.tri_normal)]
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, *c, self.tri_elem,
+                            self.mesh_slices, np.asarray(self.mesh_head, dtype), np.asarray(self.mesh_rot, dtype),
+                            np.asarray(self.mesh_scale, dtype), self.joints, self.notes)
+
+    def select(self, keep) -> PosedSurface:
+        """The elements at indices `keep` (ascending: capsules, spheres, meshes stay in order)."""
+        keep = np.asarray(keep, int)
+        C, S, _ = self.counts
+        ci, si, mi = keep[keep < C], keep[(keep >= C) & (keep < C + S)] - C, keep[keep >= C + S] - C - S
+        rows, elem, slices = [], [], []
+        for k, m in enumerate(mi):
+            a, b = self.mesh_slices[m]
+            slices.append((len(rows), len(rows) + b - a))
+            rows += range(a, b)
+            elem += [len(ci) + len(si) + k] * (b - a)
+        rows = np.array(rows, int)
+
+        def cols(a, idx):  # np.take along an inner axis is ~2x faster than fancy indexing
+            return np.take(a, idx, axis=1)
+
+        return PosedSurface([self.element_ids[k] for k in keep], [self.element_bones[k] for k in keep],
+                            [self.element_roots[k] for k in keep], cols(self.caps_head, ci), cols(self.caps_tail, ci),
+                            cols(self.caps_rot, ci), self.caps_radius[ci], cols(self.sph_center, si),
+                            cols(self.sph_rot, si), self.sph_radius[si], cols(self.tri, rows),
+                            cols(self.tri_normal, rows), np.array(elem, int), slices, cols(self.mesh_head, mi),
+                            cols(self.mesh_rot, mi), self.mesh_scale[mi], self.joints, self.notes)
+
+
+def common_elements(*models) -> list[str]:
+    """Element ids present in every model (in the first model's order): pose the user and the
+    avatar with these so their elements pair one to one."""
+    ids = [e.id for e in models[0].surface]
+    for m in models[1:]:
+        have = {e.id for e in m.surface}
+        ids = [i for i in ids if i in have]
+    return ids
+
+
+def _frames_of(joints: dict[str, np.ndarray]) -> int:
+    for v in joints.values():
+        return np.asarray(v).shape[0]
+    raise BodyCalError("no joint positions given to pose the surface")
+
+
+def _rotation(bone, joints, bone_rotations, model, frames):
+    if bone in bone_rotations:
+        return np.asarray(bone_rotations[bone], float)
+    info = model.bones.get(bone)
+    b = sk.BONE_BY_NAME.get(bone)
+    if b is None or b.head not in joints or b.tail not in joints:
+        raise BodyCalError(f"no frame for bone '{bone}'", source=model.name,
+                           hint="pass its (F, 3, 3) rotation in bone_rotations")
+    right = info.right if info is not None and info.right is not None else np.array([1.0, 0.0, 0.0])
+    return frame_from_axes(np.asarray(joints[b.tail]) - np.asarray(joints[b.head]), np.broadcast_to(right, (frames, 3)))
+
+
+def _head_of(bone, model) -> str:
+    if bone in sk.BONE_BY_NAME:
+        return sk.BONE_BY_NAME[bone].head
+    info = model.bones.get(bone)
+    if info is None:
+        raise BodyCalError(f"unknown bone '{bone}'", source=model.name)
+    return info.head
+
+
+def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str, np.ndarray],
+                 element_ids: list[str] | None = None) -> PosedSurface:
+    """Place every surface element of `model` per frame.
+
+    `joints`: canonical joint -> (F, 3) world positions; `bone_rotations`: bone -> (F, 3, 3) bone
+    frames (a bone missing here gets frame_from_axes(tail - head, the model's rest `right`)).
+    Capsules run from their bone's head joint to its tail joint (plus the element's axis offsets,
+    in the bone's frame); sphere centres and mesh points are
+    local to their bones (origin at the bone's head joint). `element_ids` restricts and orders the
+    elements (default: all of the model's); an element whose joints are missing is left out and
+    named in `notes`."""
+    frames = _frames_of(joints)
+    joints = {k: np.asarray(v, float) for k, v in joints.items()}
+    wanted = element_ids if element_ids is not None else [e.id for e in model.surface]
+    by_id = {e.id: e for e in model.surface}
+    notes = []
+    caps, sphs, meshes = [], [], []
+    for eid in wanted:
+        e = by_id.get(eid)
+        if e is None:
+            raise BodyCalError(f"surface element '{eid}' is not in the body model", source=model.name)
+        if e.type == "capsule":
+            b = sk.BONE_BY_NAME.get(e.bone)
+            info = model.bones.get(e.bone)
+            if b is None or b.head not in joints or b.tail not in joints:
+                notes.append(f"{eid}: joints not posed, element left out")
+                continue
+            if info is None or info.radius_head is None or info.radius_tail is None:
+                notes.append(f"{eid}: no capsule radii, element left out")
+                continue
+            caps.append(e)
+        elif e.type == "sphere":
+            if _head_of(e.bone, model) not in joints or e.center is None or e.radius is None:
+                notes.append(f"{eid}: incomplete sphere, element left out")
+                continue
+            sphs.append(e)
+        else:
+            if not e.triangles or any(_head_of(p.bone, model) not in joints for p in e.points.values()):
+                notes.append(f"{eid}: mesh points not posed, element left out")
+                continue
+            meshes.append(e)
+    ordered = caps + sphs + meshes
+
+    def stack(arrs, shape):
+        return np.stack(arrs, axis=1) if arrs else np.zeros((frames, 0) + shape)
+
+    caps_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in caps], (3, 3))
+    caps_off = np.array([e.axis_offsets() for e in caps], float).reshape(-1, 2, 3)
+    caps_head = stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
+    caps_tail = stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
+    if np.any(caps_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
+        caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
+        caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
+    caps_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
+                           float).reshape(-1, 2)
+    sph_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in sphs], (3, 3))
+    sph_origin = stack([joints[_head_of(e.bone, model)] for e in sphs], (3,))
+    sph_local = np.array([e.center for e in sphs], float).reshape(-1, 3)
+    sph_center = sph_origin + np.einsum("fsij,sj->fsi", sph_rot, sph_local)
+    sph_radius = np.array([e.radius for e in sphs], float)
+
+    # Mesh points: one gather over every point of every mesh.
+    point_bones, point_local, tri_rows, tri_elem, slices = [], [], [], [], []
+    rot_cache: dict[str, np.ndarray] = {}
+
+    def rot_of(bone):
+        if bone not in rot_cache:
+            rot_cache[bone] = _rotation(bone, joints, bone_rotations, model, frames)
+        return rot_cache[bone]
+
+    for m, e in enumerate(meshes):
+        names = list(e.points)
+        base = len(point_bones)
+        point_bones += [e.points[n].bone for n in names]
+        point_local += [e.points[n].local for n in names]
+        start = len(tri_rows)
+        tri_rows += [[base + names.index(n) for n in t] for t in e.triangles]
+        tri_elem += [len(caps) + len(sphs) + m] * len(e.triangles)
+        slices.append((start, len(tri_rows)))
+    if point_bones:
+        # Per bone, its points in one BLAS call (frames stay the outer axis: C order throughout).
+        world = np.empty((frames, len(point_bones), 3))
+        local = np.array(point_local, float)
+        for b in dict.fromkeys(point_bones):
+            rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
+            rot = np.ascontiguousarray(rot_of(b))
+            world[:, rows] = joints[_head_of(b, model)][:, None, :] + np.swapaxes(
+                (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
+        tri = np.take(world, np.array(tri_rows), axis=1)  # (F, T, 3, 3), C order (world[:, rows] is not)
+    else:
+        tri = np.zeros((frames, 0, 3, 3))
+    n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
+
+    # A mesh's own bone (its frame is the re-posing fallback); an element that names no single
+    # bone (e.g. "spine_*") takes its first point's.
+    mesh_bones = [e.bone if e.bone in model.bones or e.bone in sk.BONE_BY_NAME else next(iter(e.points.values())).bone
+                  for e in meshes]
+    mesh_head = stack([joints[_head_of(b, model)] for b in mesh_bones], (3,))
+    mesh_rot = stack([rot_of(b) for b in mesh_bones], (3, 3))
+    mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
+
+    return PosedSurface(
+        element_ids=[e.id for e in ordered], element_bones=[e.bone for e in caps + sphs] + mesh_bones,
+        element_roots=[element_root(e.id, b) for e, b in zip(ordered, [e.bone for e in caps + sphs] + mesh_bones)],
+        caps_head=caps_head, caps_tail=caps_tail, caps_rot=caps_rot, caps_radius=caps_radius,
+        sph_center=sph_center, sph_rot=sph_rot, sph_radius=sph_radius,
+        tri=tri, tri_normal=tri_normal, tri_elem=np.array(tri_elem, int), mesh_slices=slices,
+        mesh_head=mesh_head, mesh_rot=mesh_rot, mesh_scale=mesh_scale, joints=joints, notes=notes)
