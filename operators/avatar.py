@@ -6,6 +6,7 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper
 from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, surface_helpers
 from ..bodycal_addon.bodymodel import BodyModel
 from ..bodycal_addon.errors import BodyCalError
+from .reporting import reports_errors
 
 
 def context_armature(context):
@@ -58,15 +59,12 @@ class BODYCAL_OT_detect_bone_map(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context, object_mode=False)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
         if self.reset:
             avatar_rig.clear_overrides(arm)
-        try:
-            bm = avatar_rig.bone_map_for(arm)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        bm = avatar_rig.bone_map_for(arm)
         missing = bm.missing()
         mapped = len(bm.bones) + sum(1 for c in bm.chains.values() if c)
         if missing:
@@ -93,17 +91,14 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context, object_mode=False)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
         bone = self.bone or (arm.data.bones.active.name if arm.data.bones.active else "")
         if not bone:
             self.report({"ERROR"}, "No bone given and no active bone: select a bone in Pose Mode")
             return {"CANCELLED"}
-        try:
-            avatar_rig.set_override(arm, self.segment, bone)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        avatar_rig.set_override(arm, self.segment, bone)
         self.report({"INFO"}, f"{self.segment} -> {bone}")
         return {"FINISHED"}
 
@@ -127,16 +122,14 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context, object_mode=False)
 
+    @reports_errors
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        try:
-            avatar_rig.set_hinge_axis(arm, self.bone, _AXES[self.axis])
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        avatar_rig.set_hinge_axis(arm, self.bone, _AXES[self.axis])
         self.report({"INFO"}, f"{self.bone} flexes about its bone's local {self.axis}: calibrate again to apply")
         return {"FINISHED"}
 
@@ -153,6 +146,7 @@ class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
         wm = context.window_manager
@@ -160,9 +154,6 @@ class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
         try:
             model = avatar_calibration.calibrate_avatar(arm, depsgraph=context.evaluated_depsgraph_get())
             avatar_storage.store_model(arm, model)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
         finally:
             wm.progress_end()
         q = model.calibration["quality"]
@@ -186,13 +177,10 @@ class BODYCAL_OT_edit_surface(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context, need_model=True)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        try:
-            coll = surface_helpers.edit_surface(arm, context)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        coll = surface_helpers.edit_surface(arm, context)
         self.report({"INFO"}, f"{len(coll.objects)} helpers in '{coll.name}': move or scale them, then Apply Edits")
         return {"FINISHED"}
 
@@ -216,13 +204,10 @@ class BODYCAL_OT_apply_surface_edits(bpy.types.Operator):
             return False
         return True
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        try:
-            changed = surface_helpers.apply_surface_edits(arm, remove=self.remove_helpers)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        changed = surface_helpers.apply_surface_edits(arm, remove=self.remove_helpers)
         self.report({"INFO"}, f"{arm.name}: {len(changed)} elements changed"
                     + (f" ({', '.join(changed[:6])}{', ...' if len(changed) > 6 else ''})" if changed else ""))
         return {"FINISHED"}
@@ -242,17 +227,15 @@ class BODYCAL_OT_export_avatar_model(bpy.types.Operator, ExportHelper):
     def poll(cls, context):
         return _poll_armature(cls, context, need_model=True, object_mode=False)
 
+    @reports_errors
     def invoke(self, context, event):
         self.filepath = bpy.path.clean_name(context_armature(context).name) + ".body.json"
         return super().invoke(context, event)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        try:
-            path = avatar_storage.load_model(arm).save(self.filepath)
-        except (BodyCalError, OSError) as exc:
-            self.report({"ERROR"}, exc.line() if isinstance(exc, BodyCalError) else f"{self.filepath}: {exc}")
-            return {"CANCELLED"}
+        path = avatar_storage.load_model(arm).save(self.filepath)
         self.report({"INFO"}, f"Wrote {path}")
         return {"FINISHED"}
 
@@ -271,17 +254,14 @@ class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
     def poll(cls, context):
         return _poll_armature(cls, context, object_mode=False)
 
+    @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        try:
-            model = BodyModel.load(self.filepath)
-            if model.kind != "avatar":
-                raise BodyCalError(f"a '{model.kind}' body model, not an avatar model", source=self.filepath,
-                                   field="kind")
-            avatar_storage.store_model(arm, model)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        model = BodyModel.load(self.filepath)
+        if model.kind != "avatar":
+            raise BodyCalError(f"a '{model.kind}' body model, not an avatar model", source=self.filepath,
+                               field="kind")
+        avatar_storage.store_model(arm, model)
         rig_name = model.extra.get("rig", {}).get("armature")
         if rig_name and rig_name != arm.name:
             self.report({"WARNING"}, f"Stored on {arm.name}; the model was calibrated on '{rig_name}'")

@@ -5,6 +5,7 @@ import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..bodycal_addon.errors import BodyCalError
+from .reporting import reports_errors
 
 
 def _has_recording(context) -> bool:
@@ -34,17 +35,14 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
             return False
         return True
 
+    @reports_errors
     def execute(self, context):
         from ..bodycal_addon.blender import calibration_scene as cs
         from ..bodycal_addon.blender.recording_scene import recording_from_scene
         from ..bodycal_addon.calibration import calibrate_user
 
-        try:
-            rec = recording_from_scene(context.scene)
-            model = calibrate_user(rec)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        rec = recording_from_scene(context.scene)
+        model = calibrate_user(rec)
         cs.store_user_model(context.scene, model)
         if self.show_helpers:
             cs.show_helpers(context.scene, model)
@@ -74,14 +72,11 @@ class BODYCAL_OT_save_user_model(bpy.types.Operator, ExportHelper):
             return False
         return True
 
+    @reports_errors
     def execute(self, context):
         from ..bodycal_addon.blender.calibration_scene import load_user_model
 
-        try:
-            path = load_user_model(context.scene).save(self.filepath)
-        except (BodyCalError, OSError) as exc:
-            self.report({"ERROR"}, exc.line() if isinstance(exc, BodyCalError) else str(exc))
-            return {"CANCELLED"}
+        path = load_user_model(context.scene).save(self.filepath)
         self.report({"INFO"}, f"Saved {path}")
         return {"FINISHED"}
 
@@ -102,17 +97,14 @@ class BODYCAL_OT_load_user_model(bpy.types.Operator, ImportHelper):
             return False
         return True
 
+    @reports_errors
     def execute(self, context):
         from ..bodycal_addon.blender import calibration_scene as cs
         from ..bodycal_addon.bodymodel import BodyModel
 
-        try:
-            model = BodyModel.load(self.filepath)
-            if model.kind != "user":
-                raise BodyCalError(f"this is an {model.kind} body model, not a user one", source=self.filepath)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        model = BodyModel.load(self.filepath)
+        if model.kind != "user":
+            raise BodyCalError(f"this is an {model.kind} body model, not a user one", source=self.filepath)
         cs.store_user_model(context.scene, model)
         self.report({"INFO"}, f"Loaded user model '{model.name}' ({len(model.joints)} joints)")
         return {"FINISHED"}
@@ -137,14 +129,11 @@ class BODYCAL_OT_show_calibration_helpers(bpy.types.Operator):
             return False
         return True
 
+    @reports_errors
     def execute(self, context):
         from ..bodycal_addon.blender import calibration_scene as cs
 
-        try:
-            coll = cs.show_helpers(context.scene, cs.load_user_model(context.scene))
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        coll = cs.show_helpers(context.scene, cs.load_user_model(context.scene))
         self.report({"INFO"}, f"{len(coll.objects)} helper objects in '{coll.name}'")
         return {"FINISHED"}
 

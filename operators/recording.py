@@ -5,7 +5,7 @@ from bpy_extras.io_utils import ImportHelper
 
 from ..bodycal_addon import recording_io
 from ..bodycal_addon.blender import recording_scene
-from ..bodycal_addon.errors import BodyCalError
+from .reporting import reports_errors
 
 
 class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
@@ -31,14 +31,11 @@ class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
             return False
         return True
 
+    @reports_errors
     def execute(self, context):
         # Compute first (read + validate), write last: on error the scene is untouched.
-        try:
-            rec = recording_io.load_recording(self.filepath, fill_gaps_s=self.fill_gaps)
-            coll = recording_scene.import_recording_to_scene(rec, context)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        rec = recording_io.load_recording(self.filepath, fill_gaps_s=self.fill_gaps)
+        coll = recording_scene.import_recording_to_scene(rec, context)
         summary = f"Imported {coll.name}: {len(rec.devices)} devices, {len(rec.marker_names)} markers, " \
                   f"{rec.frame_count} frames at {rec.fps:.4g} Hz, {len(rec.segments)} steps"
         for note in rec.notes:

@@ -10,8 +10,9 @@ import threading
 import bpy
 
 from ..bodycal_addon.blender import retarget_scene
-from ..bodycal_addon.errors import BodyCalError, Cancelled
+from ..bodycal_addon.errors import Cancelled
 from ..bodycal_addon.filters import OneEuro
+from .reporting import reports_errors
 
 METHOD_ITEMS = [
     ("egocentric", "Egocentric", "Keep self-contacts: egocentric mapping onto the avatar's surface + IK"),
@@ -100,23 +101,17 @@ on each"""
             self.report({"INFO"}, line)
         return {"FINISHED"}
 
+    @reports_errors
     def execute(self, context):
-        try:
-            inputs = self._inputs(context)
-            anims = [retarget_scene.compute(i) for i in inputs]
-            return self._finish(context, inputs, anims)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        inputs = self._inputs(context)
+        anims = [retarget_scene.compute(i) for i in inputs]
+        return self._finish(context, inputs, anims)
 
     # --- modal: compute in a worker thread, Esc cancels, bake on the main thread --------------
 
+    @reports_errors
     def invoke(self, context, _event):
-        try:
-            self._inputs_cache = self._inputs(context)
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+        self._inputs_cache = self._inputs(context)
         self._progress = 0.0
         self._cancel = threading.Event()
         self._result = {}
@@ -145,6 +140,7 @@ on each"""
         wm.progress_end()
         context.workspace.status_text_set(None)
 
+    @reports_errors
     def modal(self, context, event):
         if event.type == "ESC":
             self._cancel.set()
@@ -158,16 +154,9 @@ on each"""
         if isinstance(error, Cancelled):
             self.report({"WARNING"}, "Retargeting cancelled: nothing was written")
             return {"CANCELLED"}
-        if isinstance(error, BodyCalError):
-            self.report({"ERROR"}, error.line())
-            return {"CANCELLED"}
         if error is not None:
-            raise error
-        try:
-            return self._finish(context, self._inputs_cache, self._result["anims"])
-        except BodyCalError as exc:
-            self.report({"ERROR"}, exc.line())
-            return {"CANCELLED"}
+            raise error  # bad input becomes one line (reports_errors); anything else is a bug
+        return self._finish(context, self._inputs_cache, self._result["anims"])
 
 
 CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake)

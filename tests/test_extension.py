@@ -1,12 +1,14 @@
 """The extension as users get it: built with Blender's tool, installed from the zip, enabled
 and disabled through Blender's extension machinery."""
 
+import importlib
 import json
 import subprocess
 import sys
 import zipfile
 
 import bpy
+import pytest
 from conftest import REPO
 
 EXPECTED_OPERATORS = {"add_procedural_avatar", "load_sample_avatars", "import_recording", "calibrate_user",
@@ -61,3 +63,40 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     assert not report["module_enabled_after"]
     assert report["after_disable"]["classes"] == []
     assert report["after_disable"]["operators"] == []
+
+
+def test_operator_failures_become_one_status_line_and_bugs_still_raise():
+    pkg = "bl_ext.user_default.bodycal"
+    reporting = importlib.import_module(f"{pkg}.operators.reporting")
+    errors = importlib.import_module(f"{pkg}.bodycal_addon.errors")
+
+    class Operator:
+        def __init__(self):
+            self.reports = []
+
+        def report(self, kind, text):
+            self.reports.append((kind, text))
+
+    raised = []
+
+    @reporting.reports_errors
+    def execute(self, context):
+        raise raised[-1]
+
+    for exc, expected in ((errors.BodyCalError("bad\nvalue", source="a.json", field="x"), "a.json: x: bad value"),
+                          (FileNotFoundError(2, "No such file or directory", "/nope/a.json"),
+                           "/nope/a.json: No such file or directory")):
+        op = Operator()
+        raised.append(exc)
+        assert execute(op, None) == {"CANCELLED"}
+        assert op.reports == [({"ERROR"}, expected)]
+    raised.append(ZeroDivisionError())
+    with pytest.raises(ZeroDivisionError):  # a bug is not dressed up as bad input
+        execute(Operator(), None)
+
+
+def test_a_real_operator_on_a_missing_file_reports_one_line(tmp_path):
+    # In background mode Blender raises an operator's ERROR report as a RuntimeError.
+    with pytest.raises(RuntimeError, match=r"missing\.body\.json: cannot read") as info:
+        bpy.ops.bodycal.load_user_model(filepath=str(tmp_path / "missing.body.json"))
+    assert "\n" not in str(info.value).strip()
