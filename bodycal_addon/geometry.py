@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import BodyCalError
-from .transforms import matrix_to_quat, quat_angle, quat_conj, quat_mul, quat_normalize
+from .transforms import EPS, matrix_to_quat, quat_angle, quat_conj, quat_mul, quat_normalize
 
 MIN_ARC_DEG = 40.0  # circle: arc a hinge must sweep for its axis to be trusted
 MIN_SWING_DEG = 40.0  # sphere: main swing of an anchor joint
@@ -116,7 +116,7 @@ def fit_plane(points, *, name: str = "plane") -> PlaneFit:
 def _kasa_2d(xy: np.ndarray) -> tuple[np.ndarray, float]:
     """Algebraic circle x² + y² = 2 a x + 2 b y + k, centred and scaled for conditioning."""
     m = xy.mean(axis=0)
-    s = max(float(np.sqrt(((xy - m) ** 2).sum(1).mean())), 1e-12)
+    s = max(float(np.sqrt(((xy - m) ** 2).sum(1).mean())), EPS)
     q = (xy - m) / s
     a = np.column_stack([2 * q, np.ones(len(q))])
     b = (q ** 2).sum(1)
@@ -141,7 +141,7 @@ def _geometric(p: np.ndarray, centre: np.ndarray, radius: float, iterations: int
     for _ in range(iterations):
         d = p - c
         dist = np.linalg.norm(d, axis=1)
-        if np.any(dist < 1e-12):
+        if np.any(dist < EPS):
             break
         jac = np.column_stack([-d / dist[:, None], -np.ones(len(p))])
         step, *_ = np.linalg.lstsq(jac, -(dist - r), rcond=None)
@@ -234,7 +234,7 @@ def _sphere_lsq(p: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Algebraic sphere |x|² = 2 c·x + k (centred and scaled); returns centre, radius and the
     inverse condition number of the design matrix."""
     m = p.mean(axis=0)
-    s = max(float(np.sqrt(((p - m) ** 2).sum(1).mean())), 1e-12)
+    s = max(float(np.sqrt(((p - m) ** 2).sum(1).mean())), EPS)
     q = (p - m) / s
     a = np.column_stack([2 * q, np.ones(len(q))])
     b = (q ** 2).sum(1)
@@ -251,9 +251,9 @@ def _sphere_lsq(p: np.ndarray) -> tuple[np.ndarray, float, float]:
 def _swing_deg(rel: np.ndarray) -> tuple[float, float]:
     """Angular extent of directions from a centre along their two principal tangent directions
     (major, minor), from the 2nd to the 98th percentile so single outliers do not count."""
-    u = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-12)
+    u = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), EPS)
     mean = u.mean(axis=0)
-    mean /= max(np.linalg.norm(mean), 1e-12)
+    mean /= max(np.linalg.norm(mean), EPS)
     t = u - (u @ mean)[:, None] * mean
     _, w, v = _principal(t)
     out = []
@@ -342,7 +342,7 @@ def fit_sphere_moving_point(positions, rotations, *, name: str = "sphere", robus
         for _ in range(30):
             v = c - pk - np.einsum("nij,j->ni", Rk, a)
             d = np.linalg.norm(v, axis=1)
-            u = v / np.maximum(d, 1e-12)[:, None]
+            u = v / np.maximum(d, EPS)[:, None]
             jac = np.zeros((len(pk) + 3, 7))
             jac[:len(pk), :3] = u / noise
             jac[:len(pk), 3:6] = -np.einsum("ni,nij->nj", u, Rk) / noise
@@ -417,7 +417,7 @@ def fit_rigid_point(rot_a, pos_a, rot_b, pos_b, *, name: str = "joint", robust: 
         x = vt[:n].T @ ((u[:, :n].T @ y) / sv[:n])
         if weak[0]:  # slide along the free direction to the given point's coordinate on the axis
             w = vt[-1]
-            x = x + w * (((np.asarray(along_axis_as, float) - x[:3]) @ w[:3]) / max(w[:3] @ w[:3], 1e-12))
+            x = x + w * (((np.asarray(along_axis_as, float) - x[:3]) @ w[:3]) / max(w[:3] @ w[:3], EPS))
         return x, cond
 
     def misfit(x):
@@ -427,7 +427,7 @@ def fit_rigid_point(rot_a, pos_a, rot_b, pos_b, *, name: str = "joint", robust: 
     x, cond = solve(keep)
     for _ in range(passes if robust else 0):
         res = misfit(x)
-        new = keep & (res <= res[keep].mean() + 2.0 * res[keep].std() + 1e-12)
+        new = keep & (res <= res[keep].mean() + 2.0 * res[keep].std() + EPS)
         if new.sum() < 10 or new.sum() == keep.sum():
             break
         keep = new
@@ -468,7 +468,7 @@ def fit_rotation_axis(rotations, *, name: str = "hinge") -> tuple[np.ndarray, fl
     k = int(np.argmin(np.abs(axis @ r.mean(axis=0))))
     u = r[:, :, k] - np.outer(r[:, :, k] @ axis, axis)
     e1 = u.mean(axis=0)
-    e1 /= max(np.linalg.norm(e1), 1e-12)
+    e1 /= max(np.linalg.norm(e1), EPS)
     e2 = np.cross(axis, e1)
     return axis, _arc_deg(np.arctan2(u @ e2, u @ e1))
 
@@ -480,11 +480,11 @@ def two_bone_mid(root, effector, l1, l2, swivel) -> np.ndarray:
     root, effector, swivel = (np.asarray(x, float) for x in (root, effector, swivel))
     v = effector - root
     d = np.linalg.norm(v, axis=-1)
-    axis = v / np.maximum(d, 1e-12)[..., None]
+    axis = v / np.maximum(d, EPS)[..., None]
     d = np.clip(d, abs(l1 - l2) + 1e-9, l1 + l2 - 1e-9)
     cos_a = np.clip((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0, 1.0)
     pole = swivel - np.sum(swivel * axis, axis=-1, keepdims=True) * axis
-    pole = pole / np.maximum(np.linalg.norm(pole, axis=-1, keepdims=True), 1e-12)
+    pole = pole / np.maximum(np.linalg.norm(pole, axis=-1, keepdims=True), EPS)
     return root + l1 * (cos_a[..., None] * axis + np.sqrt(1.0 - cos_a * cos_a)[..., None] * pole)
 
 

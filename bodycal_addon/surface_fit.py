@@ -43,15 +43,6 @@ def sphere_fit(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     return c, float(np.linalg.norm(p[keep] - c, axis=1).mean()), keep
 
 
-def tilt(direction: np.ndarray, toward: np.ndarray, degrees: float) -> np.ndarray:
-    """Unit `direction` turned by `degrees` towards `toward` (in their common plane)."""
-    d = np.asarray(direction, float) / np.linalg.norm(direction)
-    t = np.asarray(toward, float) - np.dot(toward, d) * d
-    t /= np.linalg.norm(t)
-    a = np.radians(degrees)
-    return np.cos(a) * d + np.sin(a) * t
-
-
 def _line_ends(stations, values, extend: float = 0.0) -> tuple[float, float]:
     """A least-squares line through per-station values, evaluated at 0 (head) and 1 (tail),
     clamped to the measured range widened by `extend` times its width on each side (0: no

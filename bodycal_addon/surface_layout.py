@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import skeleton as sk
-from .transforms import frame_from_axes
+from .transforms import EPS, frame_from_axes
 
 LIMB_CAPSULE_BONES = tuple(f"{b}_{s}" for s in sk.SIDES for b in ("upperarm", "forearm", "thigh", "shin"))
 FINGER_CAPSULE_BONES = tuple(f"{f}_{i}_{s}" for s in sk.SIDES for f in sk.FINGERS for i in (1, 2, 3))
@@ -115,6 +115,6 @@ def nearest_vertebra(point: np.ndarray, spine_joints: np.ndarray) -> str:
     `spine_joints` is (13, 3): spine_root, spine_01..spine_12."""
     a, b = spine_joints[:-1], spine_joints[1:]
     ab = b - a
-    t = np.clip(((point - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0, 1)
+    t = np.clip(((point - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), EPS), 0, 1)
     d = np.linalg.norm(point - (a + t[:, None] * ab), axis=-1)
     return f"spine_{int(np.argmin(d)) + 1:02d}"

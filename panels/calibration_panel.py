@@ -6,14 +6,16 @@ import json
 
 import bpy
 
-_STEP_ORDER = ("tpose", "stand", "palms_together", "flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r",
-               "swing_shoulder_l", "swing_shoulder_r", "swing_hip_l", "swing_hip_r", "touch")
+from ..bodycal_addon.blender.calibration_scene import MODEL_PROP
+from ..bodycal_addon.calibration import CALIBRATION_STEPS
+
+_STEP_ORDER = (*CALIBRATION_STEPS, "touch")
 _cache = {"raw": None, "cal": {}}
 
 
 def _calibration(scene) -> dict:
     """The stored model's calibration report, parsed once per change (draw runs often)."""
-    raw = scene.get("bodycal_user_model")
+    raw = scene.get(MODEL_PROP)
     if raw != _cache["raw"]:
         _cache["raw"] = raw
         try:

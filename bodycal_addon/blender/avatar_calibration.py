@@ -173,7 +173,7 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
     return _calibrate(rig, caster, name or arm.name)
 
 
-def _calibrate(rig: avatar_rig.AvatarRig, caster: Caster, name: str) -> BodyModel:
+def _calibrate(rig: avatar_rig.ArmatureReading, caster: Caster, name: str) -> BodyModel:
     model = BodyModel("avatar", name)
     quality: dict = {}
     defaulted: dict = {}

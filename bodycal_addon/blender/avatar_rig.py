@@ -2,7 +2,7 @@
 "the calibration of skeleton bones is direct through the skeleton's rig of the avatar; only the
 local right directions for knees, elbows, and fingers must be specified").
 
-`read_rig(arm)` returns an `AvatarRig`: the bone map (auto-detected, plus the user's overrides
+`read_rig(arm)` returns an `ArmatureReading`: the bone map (auto-detected, plus the user's overrides
 stored on the armature object), the rest pose of every avatar bone (armature space, exact), and
 every canonical joint the rig allows in world space with the avatar bone it rides on.
 
@@ -43,7 +43,7 @@ A_POSE_DEG = 20.0  # an upper arm further than this below horizontal makes the r
 
 
 @dataclass
-class AvatarRig:
+class ArmatureReading:
     armature: str
     matrix_world: np.ndarray  # (4, 4)
     bone_map: sk.BoneMap
@@ -211,7 +211,7 @@ def check_humanoid(arm, bm: sk.BoneMap) -> None:
             hint="map these segments in the BodyCal panel (Avatar > Bone Map) or pick another armature")
 
 
-def read_rig(arm, bone_map: sk.BoneMap | None = None) -> AvatarRig:
+def read_rig(arm, bone_map: sk.BoneMap | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature in its rest pose."""
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
@@ -227,7 +227,7 @@ def read_rig(arm, bone_map: sk.BoneMap | None = None) -> AvatarRig:
                          "matrix": np.array([m[i][:3] for i in range(3)], dtype=float),
                          "segment": seg_of.get(b.name),
                          "chain_index": chain_index.get(b.name)}
-    rig = AvatarRig(arm.name, np.array([row[:] for row in arm.matrix_world], dtype=float), bm, bones)
+    rig = ArmatureReading(arm.name, np.array([row[:] for row in arm.matrix_world], dtype=float), bm, bones)
     _canonical_joints(rig)
     _rights(rig, hinge_overrides(arm))
     up_arm = rig.joints["elbow_l"] - rig.joints["shoulder_l"]
@@ -236,7 +236,7 @@ def read_rig(arm, bone_map: sk.BoneMap | None = None) -> AvatarRig:
     return rig
 
 
-def _canonical_joints(rig: AvatarRig) -> None:
+def _canonical_joints(rig: ArmatureReading) -> None:
     bm, bones = rig.bone_map, rig.bones
 
     def head(bone):
@@ -288,11 +288,11 @@ def _canonical_joints(rig: AvatarRig) -> None:
             rig.missing.append(f"toe_{s} (foot tail used)")
 
 
-def canonical_bones(rig: AvatarRig) -> list[sk.Bone]:
+def canonical_bones(rig: ArmatureReading) -> list[sk.Bone]:
     return [b for b in sk.BONES if b.head in rig.joints and b.tail in rig.joints]
 
 
-def _rights(rig: AvatarRig, overrides: dict[str, np.ndarray]) -> None:
+def _rights(rig: ArmatureReading, overrides: dict[str, np.ndarray]) -> None:
     """Hinge rights from the avatar bones; every other right from the ONE rule the retargeting
     engine uses for the user and the avatar alike (`retarget.avatar_pose.canonical_rest_frames`),
     so surface points expressed in these frames mean the same thing on both sides."""

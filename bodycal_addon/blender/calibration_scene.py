@@ -13,6 +13,7 @@ from ..bodymodel import BodyModel
 from .avatar_storage import has_json_model, load_json_model, store_json_model
 
 MODEL_PROP = "bodycal_user_model"
+HELPER_PROP = "bodycal_helper"  # on a helper object: the joint or element it shows
 COLLECTION = "BodyCal User Calibration"
 
 
@@ -62,7 +63,7 @@ def _empty(coll, name, loc, display="SPHERE", size=0.01, rot=None):
 
         obj.rotation_quaternion = [float(x) for x in matrix_to_quat(rot)]
     coll.objects.link(obj)
-    obj["bodycal_helper"] = name
+    obj[HELPER_PROP] = name
     return obj
 
 
@@ -90,7 +91,7 @@ def show_helpers(scene, model: BodyModel) -> bpy.types.Collection:
             me.update()
             obj = bpy.data.objects.new(e.id, me)
             obj.display_type = "WIRE"
-            obj["bodycal_helper"] = e.id
+            obj[HELPER_PROP] = e.id
             coll.objects.link(obj)
     radii = model.extra.get("joint_radii", {}) if isinstance(model.extra, dict) else {}
     for joint in ("shoulder_l", "shoulder_r", "hip_l", "hip_r"):  # the anchor joints' spheres

@@ -30,6 +30,8 @@ from ..recording import STEPS, Device, Recording, Segment
 from .fcurves import CONSTANT, continuous_quaternions, new_fcurve, object_fcurves, read_keys, write_keys
 
 SCENE_KEY = "bodycal_recording"
+DEVICE_PROP = "bodycal_device"  # on a device empty: the device name
+MARKER_PROP = "bodycal_marker"  # on a marker empty: the marker name
 META_KEY = "bodycal"
 TIME_KEY = "bodycal_time"
 TRACKED = "bodycal_tracked"
@@ -114,7 +116,7 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
 
     for i, d in enumerate(rec.devices):
         obj, action = empty(f"{rec.name}.{d.name}", "ARROWS", 0.1)
-        obj["bodycal_device"] = d.name
+        obj[DEVICE_PROP] = d.name
         obj["bodycal_kind"] = d.kind
         obj["bodycal_role"] = d.role or ""
         obj.rotation_mode = "QUATERNION"
@@ -125,7 +127,7 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         write_keys(new_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, valid[:, i], CONSTANT)
     for j, name in enumerate(rec.marker_names):
         obj, action = empty(f"{rec.name}.{name}", "SPHERE", 0.01)
-        obj["bodycal_marker"] = name
+        obj[MARKER_PROP] = name
         for k in range(3):
             write_keys(new_fcurve(action, obj, "location", k), frames32, mk[:, j, k])
         write_keys(new_fcurve(action, obj, f'["{TRACKED}"]', 0), frames32, mk_valid[:, j], CONSTANT)
@@ -203,10 +205,10 @@ def recording_from_scene(context_or_scene=None) -> Recording:
     t0, rate, frame_start = float(meta["t0"]), float(meta["rate"]), int(meta["frame_start"])
     by_device, by_marker = {}, {}
     for obj in coll.all_objects:
-        if "bodycal_device" in obj:
-            by_device[obj["bodycal_device"]] = obj
-        elif "bodycal_marker" in obj:
-            by_marker[obj["bodycal_marker"]] = obj
+        if DEVICE_PROP in obj:
+            by_device[obj[DEVICE_PROP]] = obj
+        elif MARKER_PROP in obj:
+            by_marker[obj[MARKER_PROP]] = obj
     notes = list(meta.get("notes", []))
 
     def channels(obj, path, count, what):

@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import skeleton as sk
 from .. import transforms as tf
+from ..transforms import EPS
 from .common import Session, State
 
 EYE_TO_STATURE = 0.93
@@ -227,7 +228,7 @@ def _relaxed_mid(session: Session, state: State, root, effector, l1: float, l2: 
         return mid
     right = tf.rotate(session.ref_pose(hinge[0])[1], hinge[1])
     away = np.cross(d, right)  # a positive turn about +right flexes: the joint sits on this side
-    away -= (away @ d) / max(d @ d, 1e-12) * d
+    away -= (away @ d) / max(d @ d, EPS) * d
     n = np.linalg.norm(away)
     if n < 1e-9:
         return mid

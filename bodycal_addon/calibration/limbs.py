@@ -54,6 +54,7 @@ from .. import skeleton as sk
 from .. import transforms as tf
 from ..errors import BodyCalError
 from ..geometry import fit_circle, fit_rigid_point, fit_rotation_axis, fit_sphere, fit_sphere_moving_point
+from ..transforms import EPS
 from . import touches as T
 from .common import Session, State
 
@@ -79,7 +80,7 @@ def hinge_right_sign(points: np.ndarray, centre: np.ndarray, normal: np.ndarray)
     if np.linalg.norm(d) < 1e-9:
         d = points.mean(axis=0) - centre
         d = d - (d @ normal) * normal
-    y = -d / max(np.linalg.norm(d), 1e-12)
+    y = -d / max(np.linalg.norm(d), EPS)
     m = points.mean(axis=0) - centre
     return normal if m @ np.cross(normal, y) > 0 else -normal
 

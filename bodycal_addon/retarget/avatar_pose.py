@@ -28,6 +28,7 @@ from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
 from ..transforms import (
+    EPS,
     frame_from_axes,
     matrix_to_quat,
     mul_stack,
@@ -435,7 +436,7 @@ class AvatarRig:
     @property
     def _w_identity(self) -> bool:
         if getattr(self, "_w_id", None) is None:
-            self._w_id = bool(np.allclose(self.w_rot, np.eye(3), atol=1e-12))
+            self._w_id = bool(np.allclose(self.w_rot, np.eye(3), atol=EPS))
         return self._w_id
 
     def _basis(self, P):
@@ -537,7 +538,7 @@ class AvatarRig:
 
 def _closest_on_segment(p, a, b):
     ab = b - a
-    t = np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-12), 0.0, 1.0)
+    t = np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), EPS), 0.0, 1.0)
     return a + t * ab
 
 
@@ -547,7 +548,7 @@ def _arc_param(curve: np.ndarray, p: np.ndarray) -> float:
     for k in range(len(curve) - 1):
         a, b = curve[k], curve[k + 1]
         ab = b - a
-        t = float(np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-12), 0.0, 1.0))
+        t = float(np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), EPS), 0.0, 1.0))
         dist = np.linalg.norm(a + t * ab - p)
         if dist < best[0] - 1e-9:
             best = (dist, k + t)
@@ -567,13 +568,6 @@ def _leg_length(joints: np.ndarray) -> float:
         h, k, a = joints[JI[f"hip_{s}"]], joints[JI[f"knee_{s}"]], joints[JI[f"ankle_{s}"]]
         out.append(np.linalg.norm(k - h) + np.linalg.norm(a - k) + a[2])
     return float(np.mean(out))
-
-
-@dataclass
-class AvatarPose:
-    rig: AvatarRig
-    pose: RigPose
-    scale: float  # avatar / user leg-length ratio used for the root
 
 
 def root_scale(user_model: BodyModel, rig: AvatarRig) -> float:
@@ -627,22 +621,3 @@ def copy_frames(user_frames: np.ndarray, user_frames0: np.ndarray, avatar_frames
     turn = facing_turn(user_frames0, avatar_frames0)
     out[:, idx] = out[:, idx] @ (np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx]))
     return out
-
-
-def pose_avatar_fk(user_pose, user_model: BodyModel, avatar: BodyModel | AvatarRig) -> AvatarPose:
-    """Step 2: copy the user's canonical bone frames onto the avatar; the root follows the user's
-    pelvis scaled by the avatar/user leg-length ratio about where the user stood (feet stay on the
-    floor, steps scale with the legs)."""
-    rig = avatar if isinstance(avatar, AvatarRig) else AvatarRig.from_model(avatar)
-    k = root_scale(user_model, rig)
-    pelvis = root_positions(user_pose.joints[:, JI["pelvis"]], k, root_centre(user_model))
-    frames = copy_frames(user_pose.frames, model_rest_frames(user_model), rig.frames0)
-    return AvatarPose(rig, rig.solve(frames, pelvis), k)
-
-
-def frames_from_joints(pos: np.ndarray, like: np.ndarray) -> np.ndarray:
-    """Canonical frames of every bone from joints (F, J, 3), keeping each frame's right as close
-    as possible to `like`'s (F, B, 3, 3) (no twist): used after IK moved joints."""
-    heads = pos[:, [JI[b.head] for b in BONES]]
-    tails = pos[:, [JI[b.tail] for b in BONES]]
-    return frame_from_axes(tails - heads, like[..., :, 0])

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..transforms import EPS
+
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
 # m: the hinge axis weighs as much as this offset of the user's joint from the root-effector line.
@@ -35,7 +37,7 @@ def _dot(a, b):
 
 def _unit(v, fallback):
     n = np.sqrt(_dot(v, v))
-    ok = n > 1e-12
+    ok = n > EPS
     return np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback), n
 
 
@@ -60,7 +62,7 @@ def flexion_angle(l1, l2, d) -> np.ndarray:
     """Eq. 5-6: flexion α = π - acos((l1² + l2² - d²) / (2 l1 l2)), clamped to [0, π]
     (0 = straight: unreachable targets; π = folded)."""
     l1, l2, d = (np.asarray(x, float) for x in (l1, l2, d))
-    c = (l1 * l1 + l2 * l2 - d * d) / np.maximum(2.0 * l1 * l2, 1e-12)
+    c = (l1 * l1 + l2 * l2 - d * d) / np.maximum(2.0 * l1 * l2, EPS)
     return np.pi - np.arccos(np.clip(c, -1.0, 1.0))
 
 
@@ -137,8 +139,8 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     ortho = np.cross(axis, gamma_dir)
     swivel = np.cos(delta)[..., None] * gamma_dir + np.sin(delta)[..., None] * ortho
 
-    a = (l1 * l1 - l2 * l2 + d * d) / np.maximum(2.0 * d, 1e-12)
-    a = np.where(d > 1e-12, a, 0.0)
+    a = (l1 * l1 - l2 * l2 + d * d) / np.maximum(2.0 * d, EPS)
+    a = np.where(d > EPS, a, 0.0)
     h = np.sqrt(np.maximum(l1 * l1 - a * a, 0.0))
     mid = root + a[..., None] * axis + h[..., None] * swivel
     end = root + d[..., None] * axis
@@ -225,20 +227,20 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     exactly. start (F, 3), sacrum_rot (F, 3, 3), rest_segments (n, 3) in the sacrum's frame,
     target (F, 3) -> joints (F, n + 1, 3), δ (F,)."""
     lengths = np.linalg.norm(rest_segments, axis=-1)
-    seg0 = rest_segments / np.maximum(lengths, 1e-12)[:, None]
+    seg0 = rest_segments / np.maximum(lengths, EPS)[:, None]
     u0 = _unit(rest_segments.sum(0), np.array([0.0, 1.0, 0.0]))[0]
     local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
     ut, reach = _unit(local, u0)
     axis, sin_phi = _unit(np.cross(u0, ut), _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
     k = np.arange(1, len(lengths) + 1)
-    delta = phi * lengths.sum() / max(float((lengths * k).sum()), 1e-12)
+    delta = phi * lengths.sum() / max(float((lengths * k).sum()), EPS)
     seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
     chord = (seg * lengths[:, None]).sum(1)
     cdir, clen = _unit(chord, ut)
     turn_axis, sin_t = _unit(np.cross(cdir, ut), axis)
     seg = _rodrigues(seg, turn_axis[:, None], np.arctan2(sin_t, _dot(cdir, ut))[:, None])
-    stretch = np.clip(reach / np.maximum(clen, 1e-12), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
     world = np.einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
     joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
     return joints, delta

@@ -29,7 +29,7 @@ import numpy as np
 from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
-from ..transforms import normalize, quat_between, quat_to_matrix, stack_apply
+from ..transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
 from .avatar_pose import BI, JI, SPINE_BONES, AvatarRig, complete_joints, copy_frames
 from .user_animation import _axis_angle_matrix
 
@@ -139,7 +139,7 @@ def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarra
 def capsule_sdf(p, s, e, r):
     """Paper 004, eq. 5: |v1 - v2 h| - r, h = clamp(v1.v2 / v2.v2, 0, 1)."""
     v1, v2 = p - s, e - s
-    h = np.clip((v1 * v2).sum(-1) / np.maximum((v2 * v2).sum(-1), 1e-12), 0.0, 1.0)
+    h = np.clip((v1 * v2).sum(-1) / np.maximum((v2 * v2).sum(-1), EPS), 0.0, 1.0)
     return np.linalg.norm(v1 - v2 * h[..., None], axis=-1) - r
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from ... import skeleton as sk
 from ...errors import BodyCalError
+from ...transforms import EPS
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _normalised, _Proj, _project, _repose
 from .surface import PosedSurface
@@ -206,12 +207,12 @@ class PreparedTargets:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         dtype = self.pts.dtype
         ab = _bone_vectors(avatar_surface, avatar_bones, F, dtype)
-        lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > 1e-12)
+        lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > EPS)
         lrt = np.ascontiguousarray(lratio.T)
         # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
         # differ by rotations (the pipeline's arm passes), so it is kept for the next call.
         cached = self._bone_tau_a if self._bone_tau_a is not None and np.allclose(
-            self._bone_tau_a[0], lrt, rtol=1e-12, atol=0.0) else None
+            self._bone_tau_a[0], lrt, rtol=EPS, atol=0.0) else None
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F, dtype)
@@ -331,7 +332,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
     tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
-    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > 1e-12)
+    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > EPS)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
     else:
@@ -356,7 +357,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
             tf = np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
             tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=0), st, axis=0).T
             tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
-            ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > 1e-12))
+            ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS))
         # Decision: the two feet's ratios blended by which ankle is lower (SUPPORT_BLEND): with
         # both feet on the floor, picking the lower ankle flips with millimetres of noise, and
         # each flip moved every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm.

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...transforms import EPS
 from .surface import PosedSurface
 
 FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)
@@ -59,7 +60,7 @@ def _dot(a, b):
 def _normalised(v, fallback):
     """Unit vectors of (3, ...) `v` and their norms; `fallback` where v vanishes (never NaN)."""
     n = np.sqrt(_dot(v, v))
-    ok = n > 1e-12
+    ok = n > EPS
     u = v / np.where(ok, n, 1.0)
     if not ok.all():
         u = np.where(ok, u, fallback)
@@ -218,7 +219,7 @@ def _triangle_factor(v, normal, tol):
     dropping to zero; at v = 0 the factor is 1 (a target on the surface)."""
     w = v + tol * normal
     wn = np.sqrt(_dot(w, w))
-    cos = np.divide(_dot(w, normal), wn, out=np.ones_like(wn), where=wn > 1e-12)
+    cos = np.divide(_dot(w, normal), wn, out=np.ones_like(wn), where=wn > EPS)
     return np.maximum(cos, 0.0)
 
 
