@@ -1,7 +1,7 @@
 """File > Import > BodyCal recording: read a tracker recording and put it in the scene."""
 
 import bpy
-from bpy_extras.io_utils import ImportHelper
+from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 
 from ..bodycal_addon import recording_io
 from ..bodycal_addon.blender import recording_scene
@@ -44,6 +44,19 @@ class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
 
+class BODYCAL_FH_recording(bpy.types.FileHandler):
+    """Drop a recording file on the 3D viewport or the outliner to import it (Blender 4.1+)."""
+
+    bl_idname = "BODYCAL_FH_recording"
+    bl_label = "BodyCal recording"
+    bl_import_operator = BODYCAL_OT_import_recording.bl_idname
+    bl_file_extensions = ".bcrec.json;.csv;.c3d"
+
+    @classmethod
+    def poll_drop(cls, context):
+        return poll_file_object_drop(context)
+
+
 def menu_import(self, context):
     self.layout.operator(BODYCAL_OT_import_recording.bl_idname, text="BodyCal recording (.bcrec.json, .csv, .c3d)")
 
@@ -56,4 +69,4 @@ def unregister_menus():
     bpy.types.TOPBAR_MT_file_import.remove(menu_import)
 
 
-CLASSES = (BODYCAL_OT_import_recording,)
+CLASSES = (BODYCAL_OT_import_recording, BODYCAL_FH_recording)

@@ -100,3 +100,10 @@ def test_a_real_operator_on_a_missing_file_reports_one_line(tmp_path):
     with pytest.raises(RuntimeError, match=r"missing\.body\.json: cannot read") as info:
         bpy.ops.bodycal.load_user_model(filepath=str(tmp_path / "missing.body.json"))
     assert "\n" not in str(info.value).strip()
+
+
+def test_recordings_can_be_dropped_on_the_viewport():
+    handler = bpy.types.FileHandler.bl_rna_get_subclass_py("BODYCAL_FH_recording")
+    assert handler.bl_import_operator == "bodycal.import_recording"
+    assert set(handler.bl_file_extensions.split(";")) == {".bcrec.json", ".csv", ".c3d"}
+    assert not handler.poll_drop(bpy.context)  # background mode: no area to drop on
