@@ -9,6 +9,7 @@ import math
 import bpy
 import numpy as np
 import pytest
+import truth_checks as tc
 from mathutils import Matrix
 
 from bodycal_addon import skeleton as sk
@@ -16,89 +17,14 @@ from bodycal_addon import surface_layout as sl
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.errors import BodyCalError
 from sample_rigs import build_procedural_avatar, load_glb_avatar
-from sample_rigs.procedural import torso_surface_distance
-
-TOL = 0.002  # metres: the issue's "within 2 mm of the known truth"
-CANON = {"forearm": "lowerarm", "shin": "calf"}
-
-
-def _proc_bone(canonical: str) -> str:
-    """Procedural (Unreal-style) bone name of a canonical capsule bone."""
-    parts = canonical.split("_")
-    if parts[0] in sk.FINGERS:
-        return f"{parts[0]}_{int(parts[1]):02d}_{parts[2]}"
-    return f"{CANON.get(parts[0], parts[0])}_{parts[1]}"
-
-
-def _world(model, element_id, point):
-    e = model.element(element_id)
-    p = e.points[point]
-    b = sk.BONE_BY_NAME[p.bone]
-    h, t = model.joints[b.head].world, model.joints[b.tail].world
-    return h + sl.bone_frame(h, t, model.bones[p.bone].right) @ p.local
-
-
-def _skull_world(model):
-    e = model.element("sphere:skull")
-    h, t = model.joints["skull_base"].world, model.joints["head"].world
-    return h + sl.bone_frame(h, t, model.bones["head"].right) @ e.center, e.radius
-
-
-def _check_truth(model, spec, scale=1.0):
-    truth = spec.truth
-    # Capsules: every limb bone and phalanx. thumb_1's head half sits inside the palm box, so the
-    # mesh there is the box, not the capsule: only its tail radius is compared.
-    for bone in sl.CAPSULE_BONES:
-        r = truth["capsules"][_proc_bone(bone)]["radius"] * scale
-        info = model.bones[bone]
-        assert abs(info.radius_tail - r) < TOL, (bone, info.radius_tail, r)
-        if not bone.startswith("thumb_1"):
-            assert abs(info.radius_head - r) < TOL, (bone, info.radius_head, r)
-            # the procedural capsules are centred on their bones: no axis offset is measured
-            assert np.abs(model.element(f"capsule:{bone}").axis_offsets()).max() < TOL, bone
-    centre, radius = _skull_world(model)
-    assert np.linalg.norm(centre - truth["skull"]["center"] * 1) < TOL
-    assert abs(radius - truth["skull"]["radius"]) < TOL
-    torso = np.array([_world(model, "mesh:torso", p) for p in sl.TORSO_POINTS])
-    d = torso_surface_distance(torso, truth["torso"]["center"], truth["torso"]["semi_axes"])
-    assert d.max() < TOL, dict(zip(sl.TORSO_POINTS, d))
-    for s in sk.SIDES:
-        palm = truth["palms"][s]
-        pts = np.array([_world(model, f"mesh:palm_{s}", p) for p in model.element(f"mesh:palm_{s}").points])
-        assert len(pts) >= 4
-        depth = (pts - palm["origin"]) @ palm["normal_down"]
-        assert np.all(np.abs(depth - palm["half_thickness"]) < TOL), depth
-        sole = truth["soles"][s]
-        pts = np.array([_world(model, f"mesh:sole_{s}", p) for p in model.element(f"mesh:sole_{s}").points])
-        assert len(pts) >= 4
-        assert np.all(np.abs(pts[:, 2] - sole["z"]) < TOL)
-        x0, x1 = sorted((sole["x"], sole["x2"]))
-        assert np.all((pts[:, 0] > x0 - TOL) & (pts[:, 0] < x1 + TOL))
-        assert np.all((pts[:, 1] > sole["y"][0] - TOL) & (pts[:, 1] < sole["y"][1] + TOL))
-        # The sole outline spans the box: heel and toe ends and both sides are reached.
-        assert np.ptp(pts[:, 1]) > (sole["y"][1] - sole["y"][0]) - 2 * TOL
-        assert np.ptp(pts[:, 0]) > (x1 - x0) - 2 * TOL
-
-
-def _check_layout(model):
-    assert sorted(e.id for e in model.surface) == sorted(sl.element_ids())
-    for e in model.surface:
-        for a, b, c in e.triangles:
-            assert {a, b, c} <= set(e.points)
-    torso = model.element("mesh:torso")
-    assert set(torso.points) == set(sl.TORSO_POINTS)
-    assert set(model.element("mesh:jaw").points) == set(sl.JAW_POINTS)
-    for s in sk.SIDES:
-        assert len(model.element(f"mesh:palm_{s}").points) >= 4
-        assert len(model.element(f"mesh:sole_{s}").points) >= 4
 
 
 @pytest.mark.parametrize("kwargs", [{}, {"arm_drop_deg": 40.0}, {"belly": 0.12}], ids=["tpose", "apose", "belly"])
 def test_procedural_truth(kwargs):
     arm, _mesh, spec = build_procedural_avatar(**kwargs)
     model = ac.calibrate_avatar(arm)
-    _check_layout(model)
-    _check_truth(model, spec)
+    tc.check_layout(model)
+    tc.check_truth(model, spec)
     assert model.extra["rig"]["rest_pose"] == ("A" if kwargs.get("arm_drop_deg") else "T")
     q = model.calibration["quality"]["capsule:forearm_l"]
     assert q["rays"] == q["hit"] and q["spread_mm"] < 1.0
@@ -111,17 +37,17 @@ def test_palm_sole_jaw_torso_winding_points_out_of_the_body():
         for part, outward in (("palm", spec.truth["palms"][s]["normal_down"]), ("sole", np.array([0, 0, -1.0]))):
             e = model.element(f"mesh:{part}_{s}")
             for a, b, c in e.triangles:
-                pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
+                pa, pb, pc = (tc.point_world(model, e.id, n) for n in (a, b, c))
                 assert np.dot(np.cross(pb - pa, pc - pa), outward) > 0, (e.id, a, b, c)
     e = model.element("mesh:jaw")
     for a, b, c in e.triangles:  # away from the skull base
-        pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
+        pa, pb, pc = (tc.point_world(model, e.id, n) for n in (a, b, c))
         assert np.dot(np.cross(pb - pa, pc - pa), (pa + pb + pc) / 3 - model.joints["skull_base"].world) > 0
     e = model.element("mesh:torso")
     for a, b, c in e.triangles[:-1]:  # front triangles face forward (-Y)
-        pa, pb, pc = (_world(model, e.id, n) for n in (a, b, c))
+        pa, pb, pc = (tc.point_world(model, e.id, n) for n in (a, b, c))
         assert np.cross(pb - pa, pc - pa)[1] < 0, (a, b, c)
-    pa, pb, pc = (_world(model, e.id, n) for n in e.triangles[-1])  # the back triangle faces back (+Y)
+    pa, pb, pc = (tc.point_world(model, e.id, n) for n in e.triangles[-1])  # the back triangle faces back (+Y)
     assert np.cross(pb - pa, pc - pa)[1] > 0
 
 
@@ -164,7 +90,7 @@ def test_parented_mesh_with_its_own_transform():
     mesh.matrix_world = off
     bpy.context.view_layer.update()
     model = ac.calibrate_avatar(arm)
-    _check_truth(model, spec)
+    tc.check_truth(model, spec)
     assert model.bones["thigh_l"].radius_head == pytest.approx(ref.bones["thigh_l"].radius_head, abs=1e-4)
 
 
@@ -173,13 +99,13 @@ def test_glb_avatars_every_element_found(avatar_files):
         bpy.ops.wm.read_homefile(use_empty=True)
         arm, mesh = load_glb_avatar(path)
         model = ac.calibrate_avatar(arm)
-        _check_layout(model)
+        tc.check_layout(model)
         assert model.extra["rig"]["rest_pose"] == "A", path.name
         caster = ac.Caster([mesh], bpy.context.evaluated_depsgraph_get())
         # every mesh point lies on the skin (they are ray hits, transformed through the frames)
         for e in model.surface:
             for name in e.points:
-                w = _world(model, e.id, name)
+                w = tc.point_world(model, e.id, name)
                 if e.id.startswith("mesh:sole"):
                     continue  # projected onto the floor plane
                 assert caster.nearest(w)[1] < 1e-4, (path.name, e.id, name)
@@ -189,7 +115,7 @@ def test_glb_avatars_every_element_found(avatar_files):
         # limbs are thicker than fingers, thighs than shins (taper measured, not assumed)
         assert model.bones["thigh_l"].radius_head > model.bones["shin_l"].radius_head > model.bones[
             "index_1_l"].radius_head
-        centre, radius = _skull_world(model)
+        centre, radius = tc.skull_world(model)
         assert 0.06 < radius < 0.13, path.name
         # The capsule's surface follows the skin all around, front included, though the femur
         # runs behind the middle of the thigh: median within 6 mm (bone-centred capsules: 10-17 mm,
@@ -203,8 +129,8 @@ def test_glb_avatars_every_element_found(avatar_files):
             w, mcp, tip = J[f"wrist_{side}"], J[f"mcp_middle_{side}"], J[f"tip_middle_{side}"]
             d = (mcp - w) / np.linalg.norm(mcp - w)
             curl = (tip - mcp) - np.dot(tip - mcp, d) * d
-            pc = np.mean([_world(model, f"mesh:palm_{side}", n) for n in model.element(f"mesh:palm_{side}").points],
-                         axis=0)
+            palm = f"mesh:palm_{side}"
+            pc = np.mean([tc.point_world(model, palm, n) for n in model.element(palm).points], axis=0)
             off = (pc - w) - np.dot(pc - w, d) * d
             assert np.dot(curl, off) / np.linalg.norm(curl) / np.linalg.norm(off) > 0.8, (path.name, side)
         q = model.calibration["quality"]
@@ -229,10 +155,10 @@ def test_heavy_belly_centre_points_on_the_belly(data_dir):
     arm, mesh = load_glb_avatar(data_dir / "avatars" / "mpfb2_variants" / "heavy_belly_male.glb")
     model = ac.calibrate_avatar(arm)
     caster = ac.Caster([mesh], bpy.context.evaluated_depsgraph_get())
-    corners = {p: _world(model, "mesh:torso", p) for p in ("belly_ul", "belly_ur", "belly_ll", "belly_lr")}
+    corners = {p: tc.point_world(model, "mesh:torso", p) for p in ("belly_ul", "belly_ur", "belly_ll", "belly_lr")}
     chord = sl.belly_centre_points(**{k.split("_")[1]: v for k, v in corners.items()})
     for p in sl.BELLY_CENTRE:
-        w = _world(model, "mesh:torso", p)
+        w = tc.point_world(model, "mesh:torso", p)
         assert caster.nearest(w)[1] < 0.005, p
         # and they are NOT the chord: the belly bulges out in front of the corners' plane
         assert np.linalg.norm(w - chord[p]) > 0.005, p
@@ -275,12 +201,12 @@ def test_fbx_style_y_up_armature_under_a_rotated_object():
     mesh.matrix_parent_inverse = rx.inverted()
     bpy.context.view_layer.update()
     model = ac.calibrate_avatar(arm)
-    _check_truth(model, spec)
+    tc.check_truth(model, spec)
     for j in ("pelvis", "skull_base", "wrist_l", "toe_r"):
         assert np.allclose(model.joints[j].world, ref.joints[j].world, atol=1e-5), j
     for eid in ("mesh:torso", "mesh:sole_l", "mesh:jaw"):
         for name in ref.element(eid).points:
-            assert np.allclose(_world(model, eid, name), _world(ref, eid, name), atol=1e-4), (eid, name)
+            assert np.allclose(tc.point_world(model, eid, name), tc.point_world(ref, eid, name), atol=1e-4), (eid, name)
 
 
 def test_rig_without_fingers_and_toes_is_calibrated_with_a_report():
