@@ -1,15 +1,21 @@
 """`bodycal batch`: recordings x avatars in worker processes; a failed job does not stop the others."""
 
+import hashlib
 import json
+import os
 import subprocess
 import sys
+import unicodedata
+from pathlib import Path
 
 import bpy
 import pytest
 from conftest import REPO
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bodycal_addon import paths
-from bodycal_addon.batch import command_line, load_jobs
+from bodycal_addon.batch import command_line, load_jobs, output_names
 from bodycal_addon.errors import BodyCalError
 from bodycal_dev import synthetic
 
@@ -97,3 +103,155 @@ def test_filter_and_feet_settings_reach_every_job(tmp_path):
                                         '[[avatars]]\nblend="a"\n')
     with pytest.raises(BodyCalError, match="--filter"):
         load_jobs(tmp_path / "jobs.toml")
+
+
+def _jobs_file(tmp_path, defaults="", recordings=(("t.bcrec.json", "u.body.json"),), avatars=(("a.blend", None),)):
+    text = f"[defaults]\n{defaults}\n"
+    for path, user in recordings:
+        text += f"[[recordings]]\npath = {json.dumps(path)}\nuser = {json.dumps(user)}\n"
+    for blend, armature in avatars:
+        text += f"[[avatars]]\nblend = {json.dumps(blend)}\n"
+        text += f"armature = {json.dumps(armature)}\n" if armature is not None else ""
+    (tmp_path / "jobs.toml").write_text(text)
+    return tmp_path / "jobs.toml"
+
+
+def test_same_stem_recordings_in_two_folders_get_distinct_outputs(tmp_path):
+    jobs, settings_ = load_jobs(_jobs_file(tmp_path, recordings=(("monday/take.bcrec.json", "u.body.json"),
+                                                                  ("tuesday/take.csv", "u.body.json"),
+                                                                  ("other.bcrec.json", "u.body.json"))))
+    assert [j.output.name for j in jobs] == ["monday-take__a__egocentric.blend", "tuesday-take__a__egocentric.blend",
+                                             "other__a__egocentric.blend"]  # a name without a clash is unchanged
+    assert all(j.output.parent == settings_["output_dir"] for j in jobs)
+
+
+def test_a_clash_the_folder_cannot_settle_gets_a_stable_hash(tmp_path):
+    # the same recording for two performers: same folder, same stem
+    recs = (("takes/take.bcrec.json", "anna.body.json"), ("takes/take.bcrec.json", "ben.body.json"))
+    jobs, _ = load_jobs(_jobs_file(tmp_path, recordings=recs))
+    names = [j.name for j in jobs]
+    assert len(set(names)) == 2 and all(n.startswith("takes-take__a__egocentric__") for n in names)
+    identity = [str(tmp_path / "takes" / "take.bcrec.json"), str(tmp_path / "anna.body.json"),
+                str(tmp_path / "a.blend"), None, "egocentric"]  # the documented rule, computed independently
+    assert names[0].endswith("__" + hashlib.sha256(json.dumps(identity).encode()).hexdigest()[:8])
+    again, _ = load_jobs(tmp_path / "jobs.toml")
+    assert [j.name for j in again] == names  # deterministic
+    # letter case is ignored when looking for clashes (macOS and Windows file systems)
+    jobs, _ = load_jobs(_jobs_file(tmp_path, recordings=(("x/Take.csv", "u"), ("y/take.csv", "u"))))
+    assert [j.name for j in jobs] == ["x-Take__a__egocentric", "y-take__a__egocentric"]
+
+
+def test_a_malicious_armature_name_stays_inside_output_dir(tmp_path):
+    jobs, settings_ = load_jobs(_jobs_file(tmp_path, avatars=(("a.blend", "x/../../../ESCAPED"),
+                                                              ("b.blend", "..\\..\\win"), ("c.blend", "../.."))))
+    out = settings_["output_dir"].resolve()
+    for job in jobs:
+        assert job.output.resolve().parent == out
+        assert "/" not in job.name and "\\" not in job.name and ".." not in job.name
+    assert jobs[0].armature == "x/../../../ESCAPED"  # the armature itself is still looked up by its real name
+    assert len({j.name for j in jobs}) == 3
+
+
+def test_repeated_entries_are_an_error_not_a_lost_result(tmp_path):
+    with pytest.raises(BodyCalError, match=r"recordings\[1\]: same path and user as recordings\[0\]"):
+        load_jobs(_jobs_file(tmp_path, recordings=(("t.csv", "u"), ("./t.csv", "u"))))
+    with pytest.raises(BodyCalError, match=r"avatars\[1\]: same blend and armature as avatars\[0\]"):
+        load_jobs(_jobs_file(tmp_path, avatars=(("a.blend", "R"), ("a.blend", "R"))))
+
+
+_names = st.text(st.characters(blacklist_categories=("Cs",)), min_size=0, max_size=30)
+
+
+@settings(max_examples=200, deadline=None)
+@given(entries=st.lists(st.tuples(_names, _names, st.one_of(st.none(), _names), st.sampled_from(("a", "b"))),
+                        min_size=1, max_size=6))
+def test_any_names_give_unique_safe_outputs_inside_output_dir(entries):
+    out_dir = Path("/batch/out")
+    specs, seen = [], set()
+    for folder, stem, armature, avatar in entries:
+        rp = Path("/takes") / (folder.replace("/", "_") or "f") / ((stem.replace("/", "_") or "s") + ".csv")
+        key = (str(rp), avatar, armature)
+        if key not in seen:  # load_jobs rejects repeated entries before naming
+            seen.add(key)
+            specs.append((rp, Path("/u.body.json"), Path(f"/{avatar}.blend"), armature, "egocentric"))
+    names = output_names(specs)
+    assert len({n.casefold() for n in names}) == len(names)
+    assert output_names(specs) == names
+    for n in names:
+        assert n and "/" not in n and "\\" not in n and ".." not in n and not n.startswith((".", "-"))
+        assert not any(unicodedata.category(c).startswith("C") for c in n)
+        assert len((n + ".blend").encode()) < 255
+        assert os.path.normpath(out_dir / f"{n}.blend").startswith(str(out_dir) + os.sep)
+
+
+BAD_DEFAULTS = [
+    ('workers = "abc"', "defaults.workers", "whole number"),
+    ("workers = 0", "defaults.workers", "whole number"),
+    ("workers = true", "defaults.workers", "whole number"),
+    ("method = 5", "defaults.method", "egocentric"),
+    ("method = []", "defaults.method", "non-empty"),
+    ('method = ["rotations", "rotations"]', "defaults.method", "twice"),
+    ("output_dir = 5", "defaults.output_dir", "folder"),
+    ('output_dir = ""', "defaults.output_dir", "folder"),
+    ('output_dir = "a\\u0000b"', "defaults.output_dir", "control character"),
+    ("runner = 5", "defaults.runner", '"python" or "blender"'),
+    ("filter = 3", "defaults.filter", "true, false"),
+    ('plant_feet = "no"', "defaults.plant_feet", "true or false"),
+    ("plant_foot = false", "defaults", "unknown key"),
+]
+
+
+def _cli(jobs, env=None):
+    return subprocess.run([sys.executable, "-m", "bodycal_addon", "batch", str(jobs)], cwd=REPO, capture_output=True,
+                          text=True, timeout=120, env=env)
+
+
+def _assert_one_line(out, jobs, field, words):
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in out.stderr
+    assert str(jobs) in lines[0] and f"{field}:" in lines[0] and words in lines[0]
+
+
+@pytest.mark.parametrize("defaults, field, words", BAD_DEFAULTS)
+def test_each_bad_defaults_field_is_one_line(tmp_path, defaults, field, words):
+    jobs = _jobs_file(tmp_path, defaults)
+    _assert_one_line(_cli(jobs), jobs, field, words)
+    assert not (tmp_path / "out").exists()  # nothing started
+
+
+@pytest.mark.parametrize("avatars, recordings, field, words", [
+    ((("a.blend", 5),), (("t", "u"),), "avatars[0].armature", "armature name"),
+    ((("a.blend", "R\n"),), (("t", "u"),), "avatars[0].armature", "control character"),
+    ((("a.blend", None),), (("t", ""),), "recordings[0].user", "non-empty"),
+])
+def test_each_bad_entry_field_is_one_line(tmp_path, avatars, recordings, field, words):
+    jobs = _jobs_file(tmp_path, recordings=recordings, avatars=avatars)
+    _assert_one_line(_cli(jobs), jobs, field, words)
+
+
+def test_structure_errors_are_one_line(tmp_path):
+    jobs = tmp_path / "jobs.toml"
+    for text, field, words in [('recordings = "t"\n[[avatars]]\nblend="a"\n', "recordings", "[[recordings]]"),
+                               ('[[recordings]]\npath="t"\nuser="u"\nspeed=2\n[[avatars]]\nblend="a"\n',
+                                "recordings[0]", "unknown key"),
+                               ("[[defaults]]\nworkers=1\n", "defaults", "table")]:
+        jobs.write_text(text)
+        _assert_one_line(_cli(jobs), jobs, field, words)
+
+
+def test_runner_blender_without_blender_on_the_path_is_one_line(tmp_path):
+    jobs = _jobs_file(tmp_path, 'runner = "blender"')
+    env = {**os.environ, "PATH": str(tmp_path / "empty_bin")}  # a folder that does not exist: no blender
+    _assert_one_line(_cli(jobs, env), jobs, "defaults.runner", "PATH")
+
+
+@pytest.mark.parametrize("text", ["a = " + "[" * 100_000 + "]" * 100_000,
+                                  "a = " + "{b = " * 100_000 + "1" + "}" * 100_000,
+                                  '{"a": ' * 100_000 + "1" + "}" * 100_000])
+def test_deeply_nested_jobs_file_is_one_line(tmp_path, text):
+    jobs = tmp_path / "jobs.toml"
+    jobs.write_text(text)
+    out = _cli(jobs)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1 and "Traceback" not in out.stderr
+    assert str(jobs) in out.stderr and "not valid TOML" in out.stderr
