@@ -37,6 +37,13 @@ two jobs would get the same name (letter case ignored), those jobs' recording pa
 the SHA-256 of `json.dumps([recording, user, avatar, armature or None, method])` with absolute,
 normalised paths. The names depend only on the jobs file and where it is, and every output is
 directly inside output_dir.
+
+Stopping: on SIGINT (Ctrl-C) or SIGTERM no new job starts, running workers are sent SIGTERM and,
+after GRACE_SECONDS, SIGKILL (a second signal kills at once); the summary lists what finished and
+what was cancelled (status "cancelled"), and `bodycal batch` exits 130 (SIGINT) or 143 (SIGTERM).
+A worker that fails or is ended can leave Blender's temporary save file `<output>@`; it is removed
+and said in that job's error line. One left by an earlier killed batch is removed before the jobs
+start and listed in the summary (`removed_stale`).
 """
 
 from __future__ import annotations
@@ -46,13 +53,14 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import tempfile
 import time
 import tomllib
 import unicodedata
-from collections import defaultdict
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from collections import defaultdict, deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,6 +70,8 @@ from .paths import ROOT_DIR
 METHODS = ("egocentric", "offsets", "rotations")
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
+GRACE_SECONDS = 3.0  # between SIGTERM and SIGKILL for a running worker when the batch is stopped
+EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal number, as shells do
 
 _KEYS = {
     "": ("defaults", "recordings", "avatars"),
@@ -322,6 +332,7 @@ def output_names(specs: list[tuple[Path, Path, Path, str | None, str]]) -> list[
                 level[k] = min(level[k] + 1, 2)
 
 
+# ---- running ---------------------------------------------------------------------------------------
 
 def command_line(job: Job, runner: str) -> list[str]:
     """The self-contained command for one job: what a farm worker runs."""
@@ -330,34 +341,186 @@ def command_line(job: Job, runner: str) -> list[str]:
     return [sys.executable, "-m", "bodycal_addon", *job.argv()]
 
 
-def run_job(job: Job, runner: str) -> dict:
-    job.output.parent.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
+class _Stop:
+    """Signal handler: the first SIGINT/SIGTERM stops the batch, a second one kills at once."""
+
+    def __init__(self):
+        self.signum: int | None = None
+        self.force = False
+
+    def __call__(self, signum, _frame):
+        if self.signum is None:
+            self.signum = signum
+        else:
+            self.force = True
+
+    def install(self) -> dict:
+        previous = {}
+        for sig in EXIT_ON_SIGNAL:
+            try:
+                previous[sig] = signal.signal(sig, self)
+            except ValueError:  # not the main thread: Ctrl-C reaches the caller as KeyboardInterrupt
+                pass
+        return previous
+
+    @staticmethod
+    def restore(previous: dict):
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@dataclass
+class _Running:
+    job: Job
+    proc: subprocess.Popen
+    stderr: object
+    t0: float
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+def _remove_partial(job: Job) -> bool:
+    try:
+        job.partial.unlink()
+        return True
+    except FileNotFoundError:
+        return False
+    except OSError:  # e.g. no permission: left in place, and the job is not said to have removed it
+        return False
+
+
+def _start(job: Job, runner: str) -> _Running | dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT_DIR), env.get("PYTHONPATH", "")) if p)
-    proc = subprocess.run(command_line(job, runner), capture_output=True, text=True, cwd=ROOT_DIR, env=env)
-    err = proc.stderr.strip().splitlines()
-    return {"job": job.name, "ok": proc.returncode == 0, "exit_code": proc.returncode,
-            "seconds": round(time.perf_counter() - t0, 2), "output": str(job.output) if proc.returncode == 0 else None,
-            "error": (err[-1] if err else f"exit code {proc.returncode}") if proc.returncode else None}
+    err = tempfile.TemporaryFile()  # a file, not a pipe: a chatty worker can never block on it
+    t0 = time.perf_counter()
+    try:
+        # Its own session (POSIX): the terminal's Ctrl-C reaches only the batch, which ends the
+        # worker and everything it started (os.killpg).
+        proc = subprocess.Popen(command_line(job, runner), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=err, cwd=ROOT_DIR, env=env, start_new_session=os.name == "posix")
+    except OSError as exc:
+        err.close()
+        return _result(job, "failed", None, 0.0, f"cannot start the worker: {exc.strerror or exc}")
+    return _Running(job, proc, err, t0)
 
 
-def run_batch(jobs_file, log=print) -> dict:
+def _send(run: _Running, sig: int):
+    if run.proc.poll() is not None:
+        return
+    try:
+        if os.name == "posix":
+            os.killpg(run.proc.pid, sig)
+        elif sig == signal.SIGTERM:
+            run.proc.terminate()
+        else:
+            run.proc.kill()
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _result(job: Job, status: str, code: int | None, seconds: float, error: str | None) -> dict:
+    return {"job": job.name, "status": status, "ok": status == "ok", "exit_code": code, "seconds": round(seconds, 2),
+            "output": str(job.output) if status == "ok" else None,
+            "error": " ".join(error.split()) if error else None}
+
+
+def _finish(run: _Running, stopped_by: str | None = None) -> dict:
+    job, code = run.job, run.proc.wait()
+    seconds = time.perf_counter() - run.t0
+    run.stderr.seek(0)
+    lines = [ln for ln in run.stderr.read().decode("utf-8", errors="replace").splitlines() if ln.strip()]
+    run.stderr.close()
+    removed = _remove_partial(job)
+    if code == 0:
+        error = f"removed a temporary save file {job.partial.name} the worker left" if removed else None
+        return {**_result(job, "ok", code, seconds, None), **({"note": error} if error else {})}
+    if stopped_by:
+        status, error = "cancelled", f"cancelled by {stopped_by} while running"
+    else:
+        status = "failed"
+        if code < 0:
+            error = f"the worker was killed by {_signal_name(-code)}"
+        else:
+            error = lines[-1] if lines else f"the worker ended with exit code {code}"
+    if removed:
+        error += f"; removed its partial save {job.partial.name}"
+    return _result(job, status, code, seconds, error)
+
+
+def _stop_running(running: list[_Running], stop: _Stop, grace: float):
+    for run in running:
+        _send(run, signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    while any(r.proc.poll() is None for r in running) and time.monotonic() < deadline and not stop.force:
+        time.sleep(0.05)
+    for run in running:
+        _send(run, signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM)
+
+
+def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
     jobs, settings = load_jobs(jobs_file)
-    results = []
+    out_dir = Path(settings["output_dir"])
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BodyCalError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}", source=str(jobs_file),
+                           field="defaults.output_dir") from None
+    stale = [str(job.partial) for job in jobs if _remove_partial(job)]
+    for name in stale:
+        log(f"removed {name}, a partial save left by an earlier batch that was killed")
     workers = max(1, min(settings["workers"], len(jobs)))
-    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one worker process
-        futures = {pool.submit(run_job, job, settings["runner"]): job for job in jobs}
-        for done, fut in enumerate(as_completed(futures), start=1):
-            r = fut.result()
-            results.append(r)
-            status = "ok" if r["ok"] else f"FAILED: {r['error']}"
-            log(f"[{done}/{len(jobs)}] {r['job']}: {status} ({r['seconds']} s)")
+    results: list[dict] = []
+    pending, running = deque(jobs), []
+    stop = _Stop()
+    previous = stop.install()
+
+    def report(r):
+        results.append(r)
+        status = {"ok": "ok", "cancelled": r["error"]}.get(r["status"], f"FAILED: {r['error']}")
+        log(f"[{len(results)}/{len(jobs)}] {r['job']}: {status} ({r['seconds']} s)")
+
+    try:
+        try:
+            while (pending or running) and stop.signum is None:
+                while pending and len(running) < workers and stop.signum is None:
+                    started = _start(pending.popleft(), settings["runner"])
+                    if isinstance(started, dict):
+                        report(started)
+                    else:
+                        running.append(started)
+                time.sleep(0.05)
+                for run in [r for r in running if r.proc.poll() is not None]:
+                    running.remove(run)
+                    report(_finish(run))
+        except KeyboardInterrupt:  # handlers could not be installed (not the main thread)
+            stop.signum = signal.SIGINT
+        if stop.signum is not None:
+            name = _signal_name(stop.signum)
+            _stop_running(running, stop, grace)
+            for run in running:
+                report(_finish(run, stopped_by=name))
+            for job in pending:
+                report(_result(job, "cancelled", None, 0.0, f"cancelled by {name} before it started"))
+    finally:
+        _Stop.restore(previous)
+        for run in running:  # only if something above raised: never leave a worker behind
+            _send(run, signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM)
+
     results.sort(key=lambda r: r["job"])
-    summary = {"jobs": len(jobs), "ok": sum(r["ok"] for r in results),
-               "failed": sum(not r["ok"] for r in results), "results": results}
-    summary_path = Path(settings["output_dir"]) / "summary.json"
-    summary_path.parent.mkdir(parents=True, exist_ok=True)
-    summary_path.write_text(json.dumps(summary, indent=1))
+    summary = {"jobs": len(jobs), "ok": sum(r["status"] == "ok" for r in results),
+               "failed": sum(r["status"] == "failed" for r in results),
+               "cancelled": sum(r["status"] == "cancelled" for r in results),
+               "interrupted": _signal_name(stop.signum) if stop.signum is not None else None,
+               "removed_stale": stale, "results": results}
+    summary_path = out_dir / "summary.json"
+    tmp = summary_path.with_name(summary_path.name + ".tmp")
+    tmp.write_text(json.dumps(summary, indent=1))
+    os.replace(tmp, summary_path)  # a summary is whole or absent, even if the batch is killed now
     summary["summary_file"] = str(summary_path)
     return summary

@@ -3,8 +3,12 @@
 import hashlib
 import json
 import os
+import shutil
+import signal
 import subprocess
 import sys
+import threading
+import time
 import unicodedata
 from pathlib import Path
 
@@ -14,7 +18,7 @@ from conftest import REPO
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bodycal_addon import paths
+from bodycal_addon import batch, paths
 from bodycal_addon.batch import command_line, load_jobs, output_names
 from bodycal_addon.errors import BodyCalError
 from bodycal_dev import synthetic
@@ -255,3 +259,175 @@ def test_deeply_nested_jobs_file_is_one_line(tmp_path, text):
     out = _cli(jobs)
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1 and "Traceback" not in out.stderr
     assert str(jobs) in out.stderr and "not valid TOML" in out.stderr
+
+
+# ---- stopping and partial saves: fake workers stand in for `retarget` (command_line replaced) -----
+
+FAKE_WORKER = r"""
+import os, signal, sys, time
+out = sys.argv[sys.argv.index("-o") + 1]
+name = os.path.basename(out)
+open(os.path.join(os.environ["FAKE_PIDS"], str(os.getpid())), "w").close()
+if name.startswith("fast"):
+    open(out, "wb").write(b"blend")
+elif name.startswith("crash"):  # killed while Blender saves: its temporary file stays
+    open(out + "@", "wb").write(b"half a blend")
+    os.kill(os.getpid(), signal.SIGKILL)
+else:  # slow, and deaf to SIGTERM: only SIGKILL ends it
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    open(out + "@", "wb").write(b"half a blend")
+    time.sleep(600)
+"""
+
+DRIVER = r"""
+import sys
+import bodycal_addon.batch as batch
+from bodycal_addon.cli import main
+batch.command_line = lambda job, runner: [sys.executable, sys.argv[1], *job.argv()]
+sys.exit(main(["batch", sys.argv[2]]))
+"""
+
+
+def _fake_setup(tmp_path, recordings, workers=2):
+    (tmp_path / "fake_worker.py").write_text(FAKE_WORKER)
+    (tmp_path / "pids").mkdir()
+    return _jobs_file(tmp_path, f'output_dir = "results"\nworkers = {workers}',
+                      recordings=[(f"{r}.bcrec.json", "u.body.json") for r in recordings])
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_a_worker_killed_while_saving_leaves_nothing_and_is_one_failure(tmp_path, monkeypatch):
+    jobs = _fake_setup(tmp_path, ["crash", "fast"])
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "fast__a__egocentric.blend@").write_text("left by a batch killed yesterday")
+    monkeypatch.setenv("FAKE_PIDS", str(tmp_path / "pids"))
+    monkeypatch.setattr(batch, "command_line", lambda job, runner: [sys.executable, str(tmp_path / "fake_worker.py"),
+                                                                    *job.argv()])
+    lines = []
+    summary = batch.run_batch(jobs, log=lines.append)
+    assert (summary["ok"], summary["failed"], summary["cancelled"], summary["interrupted"]) == (1, 1, 0, None)
+    crash = next(r for r in summary["results"] if r["job"].startswith("crash"))
+    assert crash["status"] == "failed" and "killed by SIGKILL" in crash["error"]
+    assert "removed its partial save crash__a__egocentric.blend@" in crash["error"]
+    assert summary["removed_stale"] == [str(tmp_path / "results" / "fast__a__egocentric.blend@")]
+    assert any("fast__a__egocentric.blend@" in ln and "earlier batch" in ln for ln in lines)
+    assert not list((tmp_path / "results").glob("*@"))
+    assert (tmp_path / "results" / "fast__a__egocentric.blend").read_bytes() == b"blend"
+    assert json.loads((tmp_path / "results" / "summary.json").read_text())["failed"] == 1
+
+
+def test_sigterm_stops_the_batch_ends_deaf_workers_and_writes_the_summary(tmp_path):
+    jobs = _fake_setup(tmp_path, ["fast", "slow1", "slow2", "slow3"])
+    (tmp_path / "driver.py").write_text(DRIVER)
+    env = {**os.environ, "FAKE_PIDS": str(tmp_path / "pids"), "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "driver.py"), str(tmp_path / "fake_worker.py"), str(jobs)],
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stdout.readline()
+        assert first.startswith("[1/4] fast__a__egocentric: ok")
+        # the freed slot starts slow2 at once; wait until both slow workers hold their partial saves
+        for _ in range(600):
+            if len(list((tmp_path / "results").glob("slow*@"))) == 2:
+                break
+            subprocess.run(["sleep", "0.05"])
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143
+    assert len(err.strip().splitlines()) == 1 and "stopped by SIGTERM" in err and "Traceback" not in err
+    summary = json.loads((tmp_path / "results" / "summary.json").read_text())
+    status = {r["job"]: r["status"] for r in summary["results"]}
+    assert status == {"fast__a__egocentric": "ok", "slow1__a__egocentric": "cancelled",
+                      "slow2__a__egocentric": "cancelled", "slow3__a__egocentric": "cancelled"}
+    assert summary["interrupted"] == "SIGTERM" and summary["cancelled"] == 3
+    errors = {r["job"]: r["error"] for r in summary["results"]}
+    assert "while running" in errors["slow1__a__egocentric"] and "removed its partial save" in errors[
+        "slow1__a__egocentric"]
+    assert "before it started" in errors["slow3__a__egocentric"]
+    pids = [int(p.name) for p in (tmp_path / "pids").iterdir()]
+    assert len(pids) == 3  # slow3 never started
+    assert not any(_alive(pid) for pid in pids)  # the SIGTERM-deaf workers were killed, not left behind
+    assert not list((tmp_path / "results").glob("*@"))
+    assert len([ln for ln in out.splitlines() if ln.startswith("[")]) == 3  # + the first: one line per job
+
+
+def _children(pid: int) -> set[int]:
+    """The live child processes of pid (Linux /proc)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds worker processes through /proc")
+def test_ctrl_c_stops_real_workers_and_writes_the_summary(tmp_path):
+    _write_inputs(tmp_path)
+    jobs = _jobs_file(tmp_path, 'output_dir = "results"\nworkers = 1\nmethod = ["egocentric", "offsets", "rotations"]',
+                      recordings=[("takes/clap.bcrec.json", "takes/performer.body.json")],
+                      avatars=[("procedural.blend", None)])
+    proc = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "batch", str(jobs)], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    workers = set()
+
+    def watch():  # every worker the batch starts, noted while it runs
+        while proc.poll() is None:
+            workers.update(_children(proc.pid))
+            time.sleep(0.02)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        line = proc.stdout.readline()  # one real job at a time: this comes when the first has finished
+        assert line.startswith("[1/3] clap__procedural__") and ": ok" in line
+        # the first worker was reaped before its line was printed, so a worker now is the next job's
+        for _ in range(1200):
+            if _children(proc.pid):
+                break
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130
+    assert len(err.strip().splitlines()) == 1 and "stopped by SIGINT" in err and "Traceback" not in err
+    summary = json.loads((tmp_path / "results" / "summary.json").read_text())
+    assert (summary["jobs"], summary["ok"], summary["cancelled"], summary["interrupted"]) == (3, 1, 2, "SIGINT")
+    for r in summary["results"]:
+        assert r["status"] in ("ok", "cancelled")
+        assert (tmp_path / "results" / f"{r['job']}.blend").is_file() == (r["status"] == "ok")
+    watcher.join(timeout=10)
+    assert len(workers) >= 2 and not any(_alive(pid) for pid in workers)
+    assert not list((tmp_path / "results").glob("*@"))
+
+
+@pytest.mark.slow
+def test_same_stem_takes_in_two_folders_both_arrive(tmp_path):
+    _write_inputs(tmp_path)
+    for folder in ("monday", "tuesday"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(tmp_path / "takes" / "clap.bcrec.json", tmp_path / folder / "clap.bcrec.json")
+    jobs = _jobs_file(tmp_path, 'output_dir = "results"\nworkers = 2',
+                      recordings=[("monday/clap.bcrec.json", "takes/performer.body.json"),
+                                  ("tuesday/clap.bcrec.json", "takes/performer.body.json")],
+                      avatars=[("procedural.blend", None)])
+    out = _cli(jobs)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads((tmp_path / "results" / "summary.json").read_text())
+    assert sorted(r["output"] for r in summary["results"]) == [
+        str(tmp_path / "results" / "monday-clap__procedural__egocentric.blend"),
+        str(tmp_path / "results" / "tuesday-clap__procedural__egocentric.blend")]
+    assert all(Path(r["output"]).is_file() for r in summary["results"])
