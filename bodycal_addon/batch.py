@@ -2,14 +2,14 @@
 
 Each job is one self-contained `retarget` command line (the same one a person would type), so the
 same jobs run unchanged on a render farm that runs `blender -b` commands (see README, "Batch jobs
-on a render farm"). A failed job is reported and the others finish.
+and render farms"). A failed job is reported and the others finish.
 
 JOBS.toml:
 
     [defaults]                  # optional
     method = "egocentric"       # or a list: ["egocentric", "rotations"]
     output_dir = "out/batch"    # relative to the JOBS.toml folder
-    workers = 2                 # parallel worker processes (default: CPU count)
+    workers = 2                 # parallel worker processes, 1..1024 (default: CPU count)
     runner = "python"           # or "blender": `blender -b -c bodycal ...` (needs the extension installed)
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
@@ -23,18 +23,44 @@ JOBS.toml:
     armature = "Ogre"           # optional
 
 Every recording is retargeted onto every avatar with every method. Paths are relative to the
-JOBS.toml folder. Output: `<output_dir>/<recording>__<avatar>__<method>.blend`.
+JOBS.toml folder. Every field is checked before any job starts (its type and allowed values; an
+unknown key, a repeated entry or method, a control character in a string are errors); a bad one
+is one line naming the file and the field.
+
+Output names (docs/FORMATS.md §4.1): `<output_dir>/<recording>__<avatar>__<method>.blend`, where
+<recording> is the recording's file name up to its first dot and <avatar> the armature name, else
+the avatar file's name up to its first dot. Each part is made a safe file name: every character
+other than a letter, digit, `.`, `+`, `-` or `_` becomes `_`, runs of `_` become one, `..` becomes
+`_`, leading dots and dashes are dropped, and it is cut to 64 UTF-8 bytes (empty: `unnamed`). When
+two jobs would get the same name (letter case ignored), those jobs' recording part becomes
+`<recording folder>-<recording>`; any still clashing get `__<8 hex digits>` appended: the start of
+the SHA-256 of `json.dumps([recording, user, avatar, armature or None, method])` with absolute,
+normalised paths. The names depend only on the jobs file and where it is, and every output is
+directly inside output_dir.
+
+Stopping: on SIGINT (Ctrl-C) or SIGTERM no new job starts, running workers are sent SIGTERM and,
+after GRACE_SECONDS, SIGKILL (a second signal kills at once); the summary lists what finished and
+what was cancelled (status "cancelled"), and `bodycal batch` exits 130 (SIGINT) or 143 (SIGTERM).
+A worker that fails or is ended can leave Blender's temporary save file `<output>@`; it is removed
+and said in that job's error line. One left by an earlier killed batch is removed before the jobs
+start and listed in the summary (`removed_stale`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
+import shutil
+import signal
 import subprocess
 import sys
+import tempfile
 import time
 import tomllib
-from concurrent.futures import ThreadPoolExecutor, as_completed
+import unicodedata
+from collections import defaultdict, deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +68,20 @@ from .errors import BodyCalError
 from .paths import ROOT_DIR
 
 METHODS = ("egocentric", "offsets", "rotations")
+RUNNERS = ("python", "blender")
+MAX_WORKERS = 1024
+GRACE_SECONDS = 3.0  # between SIGTERM and SIGKILL for a running worker when the batch is stopped
+EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal number, as shells do
+
+_KEYS = {
+    "": ("defaults", "recordings", "avatars"),
+    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet"),
+    "recordings": ("path", "user"),
+    "avatars": ("blend", "armature"),
+}
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_UNSAFE = re.compile(r"[^\w.+-]")  # \w: letters and digits of any script, and _
+PART_BYTES = 64
 
 
 @dataclass
@@ -67,67 +107,232 @@ class Job:
             args += ["--no-plant-feet"]
         return args
 
+    @property
+    def partial(self) -> Path:
+        """Blender's temporary save file: it writes `<output>@`, then renames it to the output."""
+        return self.output.with_name(self.output.name + "@")
+
+
+# ---- the jobs file --------------------------------------------------------------------------------
+
+def _describe(value) -> str:
+    """A short, safe description of a value for an error line (never the repr of a deep structure)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        text = value if len(value) <= 40 else value[:37] + "..."
+        return json.dumps(text)
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return "a list" if value else "an empty list"
+    return f"a {type(value).__name__}"
+
+
+class _Checker:
+    def __init__(self, path: Path):
+        self.source = str(path)
+
+    def error(self, field: str | None, message: str) -> BodyCalError:
+        return BodyCalError(message, source=self.source, field=field)
+
+    def table(self, value, field: str, keys: tuple[str, ...], what: str) -> dict:
+        if not isinstance(value, dict):
+            raise self.error(field, f"must be {what}, got {_describe(value)}")
+        for key in value:
+            if key not in keys:
+                raise self.error(field, f"unknown key {_describe(key)}; allowed: {', '.join(keys)}")
+        return value
+
+    def text(self, value, field: str, what: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(field, f"must be {what} (a non-empty string), got {_describe(value)}")
+        if _CONTROL.search(value):
+            raise self.error(field, "contains a control character (such as a newline or NUL); remove it")
+        return value
+
+
+def _parse(path: Path) -> dict:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise BodyCalError(f"cannot read: {exc.strerror or exc}", source=str(path)) from None
+    except UnicodeDecodeError:
+        raise BodyCalError("not valid TOML (not UTF-8 text)", source=str(path)) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise BodyCalError(f"not valid TOML ({exc})", source=str(path)) from None
+    except RecursionError:
+        raise BodyCalError("not valid TOML (nested too deeply); a jobs file needs only tables of strings, "
+                           "numbers and lists", source=str(path)) from None
+
+
+def _methods(check: _Checker, value) -> list[str]:
+    field, allowed = "defaults.method", ", ".join(METHODS)
+    methods = [value] if isinstance(value, str) else value
+    if not isinstance(methods, list) or not methods:
+        raise check.error(field, f"must be a method or a non-empty list of methods ({allowed}), "
+                                 f"got {_describe(value)}")
+    for m in methods:
+        if m not in METHODS:
+            raise check.error(field, f"unknown method {_describe(m)}; use one of {allowed}")
+    if len(set(methods)) != len(methods):
+        raise check.error(field, "lists a method twice; list each once")
+    return methods
+
+
+def _workers(check: _Checker, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_WORKERS:
+        raise check.error("defaults.workers", f"must be a whole number from 1 to {MAX_WORKERS} "
+                                              f"(parallel worker processes), got {_describe(value)}")
+    return value
+
+
+def _runner(check: _Checker, value) -> str:
+    if value not in RUNNERS:
+        raise check.error("defaults.runner", f"must be \"python\" or \"blender\", got {_describe(value)}")
+    if value == "blender" and shutil.which("blender") is None:
+        raise check.error("defaults.runner", "\"blender\" needs the blender program on the PATH; put it there "
+                                             "or use runner = \"python\"")
+    return value
+
+
+def _filter(check: _Checker, value) -> str | None:
+    what = "true, false or \"MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]\" (as retarget --filter)"
+    if value is True:
+        return "on"
+    if value is False:
+        return None
+    if not isinstance(value, str):
+        raise check.error("defaults.filter", f"must be {what}, got {_describe(value)}")
+    from .filters import OneEuro
+
+    try:
+        OneEuro.parse(value)  # a bad value is reported here, before any job starts
+    except BodyCalError as exc:
+        raise check.error("defaults.filter", f"{exc.message}; use {what}") from None
+    return value
+
+
+def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
+    what = {"recordings": "[[recordings]] tables with path and user",
+            "avatars": "[[avatars]] tables with blend (and optionally armature)"}[key]
+    entries = data.get(key, [])
+    if not isinstance(entries, list):
+        raise check.error(key, f"must be {what}, got {_describe(entries)}")
+    return [check.table(e, f"{key}[{i}]", _KEYS[key], f"a table ({what})") for i, e in enumerate(entries)]
+
+
+def _abs(path: Path) -> str:
+    return os.path.normpath(os.path.abspath(path))
+
+
+def load_jobs(path) -> tuple[list[Job], dict]:
+    path = Path(path)
+    check = _Checker(path)
+    data = _parse(path)
+    check.table(data, None, _KEYS[""], "a TOML document")
+    base = path.parent
+    defaults = check.table(data.get("defaults", {}), "defaults", _KEYS["defaults"], "a table ([defaults])")
+    methods = _methods(check, defaults.get("method", "egocentric"))
+    out_dir = base / check.text(defaults.get("output_dir", "out/batch"), "defaults.output_dir", "a folder")
+    workers = _workers(check, defaults.get("workers", os.cpu_count() or 1))
+    filt = _filter(check, defaults.get("filter", False))
+    plant = defaults.get("plant_feet", True)
+    if not isinstance(plant, bool):
+        raise check.error("defaults.plant_feet", f"must be true or false, got {_describe(plant)}")
+    runner = _runner(check, defaults.get("runner", "python"))
+    recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
+    if not recordings or not avatars:
+        raise check.error(None, "needs at least one [[recordings]] and one [[avatars]] entry")
+
+    recs, seen = [], {}
+    for i, rec in enumerate(recordings):
+        if "path" not in rec or "user" not in rec:
+            raise check.error(f"recordings[{i}]", f"missing '{'path' if 'path' not in rec else 'user'}'")
+        rp = base / check.text(rec["path"], f"recordings[{i}].path", "a recording file")
+        up = base / check.text(rec["user"], f"recordings[{i}].user", "a user body model file")
+        identity = (_abs(rp), _abs(up))
+        if identity in seen:
+            raise check.error(f"recordings[{i}]", f"same path and user as recordings[{seen[identity]}]; remove one")
+        seen[identity] = i
+        recs.append((rp, up))
+    avs, seen = [], {}
+    for j, av in enumerate(avatars):
+        if "blend" not in av:
+            raise check.error(f"avatars[{j}]", "missing 'blend'")
+        ap = base / check.text(av["blend"], f"avatars[{j}].blend", "a .blend file")
+        arm = check.text(av["armature"], f"avatars[{j}].armature", "an armature name") if "armature" in av else None
+        identity = (_abs(ap), arm)
+        if identity in seen:
+            raise check.error(f"avatars[{j}]", f"same blend and armature as avatars[{seen[identity]}]; remove one")
+        seen[identity] = j
+        avs.append((ap, arm))
+
+    specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm in avs for m in methods]
+    names = output_names(specs)
+    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.blend", filt, plant)
+            for name, (rp, up, ap, arm, m) in zip(names, specs)]
+    # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
+    if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):
+        raise check.error(None, "internal error: output names are not unique inside output_dir; please report it")
+    return jobs, {"workers": workers, "runner": runner, "output_dir": out_dir}
+
+
+# ---- output names ----------------------------------------------------------------------------------
 
 def _stem(path: Path) -> str:
     return path.name.split(".")[0]
 
 
-def load_jobs(path) -> tuple[list[Job], dict]:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise BodyCalError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise BodyCalError(f"not valid TOML ({exc})", source=str(path)) from None
-    base = path.parent
-    defaults = data.get("defaults", {})
-    if not isinstance(defaults, dict):
-        raise BodyCalError("expected a table", source=str(path), field="defaults")
-    methods = defaults.get("method", "egocentric")
-    methods = [methods] if isinstance(methods, str) else list(methods)
-    for m in methods:
-        if m not in METHODS:
-            raise BodyCalError(f"unknown method {m!r}; use one of {', '.join(METHODS)}", source=str(path),
-                               field="defaults.method")
-    out_dir = base / defaults.get("output_dir", "out/batch")
-    filt = defaults.get("filter", False)
-    if filt is True:
-        filt = "on"
-    elif filt is False:
-        filt = None
-    elif not isinstance(filt, str):
-        raise BodyCalError("filter must be true, false or \"MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]\"", source=str(path),
-                           field="defaults.filter")
-    if filt is not None:
-        from .filters import OneEuro
+def safe_part(text: str) -> str:
+    """One part of an output file name: no path separator, no `..`, no control or other special
+    character, at most PART_BYTES bytes of UTF-8, never empty (module docstring, "Output names")."""
+    s = _UNSAFE.sub("_", unicodedata.normalize("NFC", text))
+    s = re.sub(r"\.{2,}", "_", s)
+    s = re.sub(r"_{2,}", "_", s).lstrip(".-")
+    s = s.encode("utf-8")[:PART_BYTES].decode("utf-8", errors="ignore").rstrip(".")
+    return s or "unnamed"
 
-        OneEuro.parse(filt)  # a bad value is reported here, before any job starts
-    plant = defaults.get("plant_feet", True)
-    if not isinstance(plant, bool):
-        raise BodyCalError("plant_feet must be true or false", source=str(path), field="defaults.plant_feet")
-    recordings, avatars = data.get("recordings", []), data.get("avatars", [])
-    if not recordings or not avatars:
-        raise BodyCalError("needs at least one [[recordings]] and one [[avatars]] entry", source=str(path))
-    jobs = []
-    for i, rec in enumerate(recordings):
-        for key in ("path", "user"):
-            if not isinstance(rec, dict) or not isinstance(rec.get(key), str):
-                raise BodyCalError(f"missing '{key}'", source=str(path), field=f"recordings[{i}]")
-        for j, av in enumerate(avatars):
-            if not isinstance(av, dict) or not isinstance(av.get("blend"), str):
-                raise BodyCalError("missing 'blend'", source=str(path), field=f"avatars[{j}]")
-            for m in methods:
-                rp, ap = base / rec["path"], base / av["blend"]
-                name = f"{_stem(rp)}__{av.get('armature') or _stem(ap)}__{m}"
-                jobs.append(Job(name, rp, base / rec["user"], ap, av.get("armature"), m, out_dir / f"{name}.blend",
-                                filt, plant))
-    settings = {"workers": int(defaults.get("workers", os.cpu_count() or 1)),
-                "runner": defaults.get("runner", "python"), "output_dir": out_dir}
-    if settings["runner"] not in ("python", "blender"):
-        raise BodyCalError("runner must be 'python' or 'blender'", source=str(path), field="defaults.runner")
-    return jobs, settings
 
+def _hash(rp: Path, up: Path, ap: Path, arm: str | None, method: str) -> str:
+    text = json.dumps([_abs(rp), _abs(up), _abs(ap), arm, method])  # ASCII: \uXXXX escapes
+    return hashlib.sha256(text.encode("ascii")).hexdigest()[:8]
+
+
+def output_names(specs: list[tuple[Path, Path, Path, str | None, str]]) -> list[str]:
+    """Unique (letter case ignored) file-name stems for jobs given as (recording, user, avatar,
+    armature, method); the rule is in the module docstring, "Output names"."""
+    parts = []
+    for rp, up, ap, arm, m in specs:
+        rec = safe_part(_stem(rp))
+        parts.append((rec, f"{safe_part(rp.parent.name)}-{rec}", safe_part(arm or _stem(ap)), m,
+                      _hash(rp, up, ap, arm, m)))
+    level = [0] * len(specs)
+
+    def name(k: int) -> str:
+        rec, rec_in_folder, avatar, method, digest = parts[k]
+        text = f"{rec if level[k] == 0 else rec_in_folder}__{avatar}__{method}"
+        return f"{text}__{digest}" if level[k] == 2 else text
+
+    while True:
+        groups = defaultdict(list)
+        for k in range(len(specs)):
+            groups[name(k).casefold()].append(k)
+        clashes = [ks for ks in groups.values() if len(ks) > 1]
+        if not clashes:
+            return [name(k) for k in range(len(specs))]
+        for ks in clashes:
+            if all(level[k] == 2 for k in ks):  # same hash for different inputs: never seen, but never silent
+                raise BodyCalError(f"two jobs get the same output name {name(ks[0])!r}; rename one input")
+            for k in ks:
+                level[k] = min(level[k] + 1, 2)
+
+
+# ---- running ---------------------------------------------------------------------------------------
 
 def command_line(job: Job, runner: str) -> list[str]:
     """The self-contained command for one job: what a farm worker runs."""
@@ -136,34 +341,186 @@ def command_line(job: Job, runner: str) -> list[str]:
     return [sys.executable, "-m", "bodycal_addon", *job.argv()]
 
 
-def run_job(job: Job, runner: str) -> dict:
-    job.output.parent.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
+class _Stop:
+    """Signal handler: the first SIGINT/SIGTERM stops the batch, a second one kills at once."""
+
+    def __init__(self):
+        self.signum: int | None = None
+        self.force = False
+
+    def __call__(self, signum, _frame):
+        if self.signum is None:
+            self.signum = signum
+        else:
+            self.force = True
+
+    def install(self) -> dict:
+        previous = {}
+        for sig in EXIT_ON_SIGNAL:
+            try:
+                previous[sig] = signal.signal(sig, self)
+            except ValueError:  # not the main thread: Ctrl-C reaches the caller as KeyboardInterrupt
+                pass
+        return previous
+
+    @staticmethod
+    def restore(previous: dict):
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@dataclass
+class _Running:
+    job: Job
+    proc: subprocess.Popen
+    stderr: object
+    t0: float
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+def _remove_partial(job: Job) -> bool:
+    try:
+        job.partial.unlink()
+        return True
+    except FileNotFoundError:
+        return False
+    except OSError:  # e.g. no permission: left in place, and the job is not said to have removed it
+        return False
+
+
+def _start(job: Job, runner: str) -> _Running | dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT_DIR), env.get("PYTHONPATH", "")) if p)
-    proc = subprocess.run(command_line(job, runner), capture_output=True, text=True, cwd=ROOT_DIR, env=env)
-    err = proc.stderr.strip().splitlines()
-    return {"job": job.name, "ok": proc.returncode == 0, "exit_code": proc.returncode,
-            "seconds": round(time.perf_counter() - t0, 2), "output": str(job.output) if proc.returncode == 0 else None,
-            "error": (err[-1] if err else f"exit code {proc.returncode}") if proc.returncode else None}
+    err = tempfile.TemporaryFile()  # a file, not a pipe: a chatty worker can never block on it
+    t0 = time.perf_counter()
+    try:
+        # Its own session (POSIX): the terminal's Ctrl-C reaches only the batch, which ends the
+        # worker and everything it started (os.killpg).
+        proc = subprocess.Popen(command_line(job, runner), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=err, cwd=ROOT_DIR, env=env, start_new_session=os.name == "posix")
+    except OSError as exc:
+        err.close()
+        return _result(job, "failed", None, 0.0, f"cannot start the worker: {exc.strerror or exc}")
+    return _Running(job, proc, err, t0)
 
 
-def run_batch(jobs_file, log=print) -> dict:
+def _send(run: _Running, sig: int):
+    if run.proc.poll() is not None:
+        return
+    try:
+        if os.name == "posix":
+            os.killpg(run.proc.pid, sig)
+        elif sig == signal.SIGTERM:
+            run.proc.terminate()
+        else:
+            run.proc.kill()
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _result(job: Job, status: str, code: int | None, seconds: float, error: str | None) -> dict:
+    return {"job": job.name, "status": status, "ok": status == "ok", "exit_code": code, "seconds": round(seconds, 2),
+            "output": str(job.output) if status == "ok" else None,
+            "error": " ".join(error.split()) if error else None}
+
+
+def _finish(run: _Running, stopped_by: str | None = None) -> dict:
+    job, code = run.job, run.proc.wait()
+    seconds = time.perf_counter() - run.t0
+    run.stderr.seek(0)
+    lines = [ln for ln in run.stderr.read().decode("utf-8", errors="replace").splitlines() if ln.strip()]
+    run.stderr.close()
+    removed = _remove_partial(job)
+    if code == 0:
+        error = f"removed a temporary save file {job.partial.name} the worker left" if removed else None
+        return {**_result(job, "ok", code, seconds, None), **({"note": error} if error else {})}
+    if stopped_by:
+        status, error = "cancelled", f"cancelled by {stopped_by} while running"
+    else:
+        status = "failed"
+        if code < 0:
+            error = f"the worker was killed by {_signal_name(-code)}"
+        else:
+            error = lines[-1] if lines else f"the worker ended with exit code {code}"
+    if removed:
+        error += f"; removed its partial save {job.partial.name}"
+    return _result(job, status, code, seconds, error)
+
+
+def _stop_running(running: list[_Running], stop: _Stop, grace: float):
+    for run in running:
+        _send(run, signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    while any(r.proc.poll() is None for r in running) and time.monotonic() < deadline and not stop.force:
+        time.sleep(0.05)
+    for run in running:
+        _send(run, signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM)
+
+
+def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
     jobs, settings = load_jobs(jobs_file)
-    results = []
+    out_dir = Path(settings["output_dir"])
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BodyCalError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}", source=str(jobs_file),
+                           field="defaults.output_dir") from None
+    stale = [str(job.partial) for job in jobs if _remove_partial(job)]
+    for name in stale:
+        log(f"removed {name}, a partial save left by an earlier batch that was killed")
     workers = max(1, min(settings["workers"], len(jobs)))
-    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one worker process
-        futures = {pool.submit(run_job, job, settings["runner"]): job for job in jobs}
-        for done, fut in enumerate(as_completed(futures), start=1):
-            r = fut.result()
-            results.append(r)
-            status = "ok" if r["ok"] else f"FAILED: {r['error']}"
-            log(f"[{done}/{len(jobs)}] {r['job']}: {status} ({r['seconds']} s)")
+    results: list[dict] = []
+    pending, running = deque(jobs), []
+    stop = _Stop()
+    previous = stop.install()
+
+    def report(r):
+        results.append(r)
+        status = {"ok": "ok", "cancelled": r["error"]}.get(r["status"], f"FAILED: {r['error']}")
+        log(f"[{len(results)}/{len(jobs)}] {r['job']}: {status} ({r['seconds']} s)")
+
+    try:
+        try:
+            while (pending or running) and stop.signum is None:
+                while pending and len(running) < workers and stop.signum is None:
+                    started = _start(pending.popleft(), settings["runner"])
+                    if isinstance(started, dict):
+                        report(started)
+                    else:
+                        running.append(started)
+                time.sleep(0.05)
+                for run in [r for r in running if r.proc.poll() is not None]:
+                    running.remove(run)
+                    report(_finish(run))
+        except KeyboardInterrupt:  # handlers could not be installed (not the main thread)
+            stop.signum = signal.SIGINT
+        if stop.signum is not None:
+            name = _signal_name(stop.signum)
+            _stop_running(running, stop, grace)
+            for run in running:
+                report(_finish(run, stopped_by=name))
+            for job in pending:
+                report(_result(job, "cancelled", None, 0.0, f"cancelled by {name} before it started"))
+    finally:
+        _Stop.restore(previous)
+        for run in running:  # only if something above raised: never leave a worker behind
+            _send(run, signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM)
+
     results.sort(key=lambda r: r["job"])
-    summary = {"jobs": len(jobs), "ok": sum(r["ok"] for r in results),
-               "failed": sum(not r["ok"] for r in results), "results": results}
-    summary_path = Path(settings["output_dir"]) / "summary.json"
-    summary_path.parent.mkdir(parents=True, exist_ok=True)
-    summary_path.write_text(json.dumps(summary, indent=1))
+    summary = {"jobs": len(jobs), "ok": sum(r["status"] == "ok" for r in results),
+               "failed": sum(r["status"] == "failed" for r in results),
+               "cancelled": sum(r["status"] == "cancelled" for r in results),
+               "interrupted": _signal_name(stop.signum) if stop.signum is not None else None,
+               "removed_stale": stale, "results": results}
+    summary_path = out_dir / "summary.json"
+    tmp = summary_path.with_name(summary_path.name + ".tmp")
+    tmp.write_text(json.dumps(summary, indent=1))
+    os.replace(tmp, summary_path)  # a summary is whole or absent, even if the batch is killed now
     summary["summary_file"] = str(summary_path)
     return summary
