@@ -66,8 +66,8 @@ from pathlib import Path
 
 from .errors import BodyCalError
 from .paths import ROOT_DIR
+from .retarget.pipeline import METHODS
 
-METHODS = ("egocentric", "offsets", "rotations")
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
 GRACE_SECONDS = 3.0  # between SIGTERM and SIGKILL for a running worker when the batch is stopped
