@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 PYTEST_ARGS ?=
 
-.PHONY: test demo lint bench zip clean
+.PHONY: test test-fast demo lint bench zip clean
 
 $(STAMP): requirements-dev.txt
 	@test -n "$(PYTHON311)" || { echo "BodyCal needs python3.11 (Blender's bpy module requires it)"; exit 2; }
@@ -14,8 +14,13 @@ $(STAMP): requirements-dev.txt
 	$(PY) -m pip install -q --disable-pip-version-check -r requirements-dev.txt
 	touch $@
 
-test: $(STAMP)
-	$(PY) -m pytest -c tests/pytest.ini $(PYTEST_ARGS)
+# Two lanes: tests/engine (plain pytest, Blender blocked: the numpy engine) and tests/blender (inside
+# Blender: the extension, operators, baking, raycasting, the command line end to end).
+test: test-fast
+	$(PY) -m pytest -c tests/pytest.ini $(PYTEST_ARGS) tests/blender
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -c tests/pytest.ini $(PYTEST_ARGS) tests/engine
 
 demo: $(STAMP)
 	$(PY) -m bodycal_addon demo -o out

@@ -9,7 +9,7 @@ import zipfile
 
 import bpy
 import pytest
-from conftest import REPO
+from repo_paths import REPO
 
 EXPECTED_OPERATORS = {"add_procedural_avatar", "load_sample_avatars", "import_recording", "calibrate_user",
                       "calibrate_avatar", "retarget_bake"}

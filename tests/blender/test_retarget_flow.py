@@ -7,7 +7,7 @@ import sys
 import bpy
 import numpy as np
 import pytest
-from conftest import REPO
+from repo_paths import REPO
 
 from bodycal_addon import paths
 from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import bpy
 import pytest
-from conftest import REPO
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from repo_paths import REPO
 
 from bodycal_addon import batch, paths
 from bodycal_addon.batch import command_line, load_jobs, output_names

@@ -3,7 +3,7 @@
 import subprocess
 import sys
 
-from conftest import REPO
+from repo_paths import REPO
 
 from bodycal_addon import cli
 from bodycal_addon.blender import cli_bridge
