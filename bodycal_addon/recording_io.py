@@ -45,6 +45,7 @@ UPS = ("Y", "Z")
 HANDEDNESS = ("right", "left")
 QUAT_TOLERANCE = 1e-3  # FORMATS.md §1: renormalise within 1e-3, reject beyond
 DEFAULT_FILL_GAPS_S = 0.1
+MAX_POSITION_M = 1e4  # FORMATS.md §1: a position 10 km or more from the origin is a damaged value
 
 _AXIS_MAPS = {
     ("Y", "right"): np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
@@ -140,6 +141,22 @@ def _convert_rotations(q: np.ndarray, a: np.ndarray, p: np.ndarray) -> np.ndarra
     if np.allclose(a, np.eye(3)):
         return q
     return tf.quat_mul(tf.matrix_to_quat(a), q)
+
+
+def check_positions(values: np.ndarray, valid: np.ndarray, unit_scale: float, source: str, fields, where_of) -> None:
+    """Refuse a tracked position (file units, (F, N, 3)) at MAX_POSITION_M or more from the origin
+    once in metres: one line naming the file, `fields[n]` and `where_of(frame, n)`. Compared in the
+    file's units, so no arithmetic ever runs on the absurd value (no overflow warnings)."""
+    if values.size == 0:
+        return
+    limit = MAX_POSITION_M / unit_scale
+    with np.errstate(invalid="ignore"):
+        bad = valid & ~(np.abs(values) < limit).all(axis=-1)
+    if bad.any():
+        f, i = (int(x) for x in np.argwhere(bad)[0])
+        raise BodyCalError(f"position {_short(values[f, i].tolist())} is {MAX_POSITION_M:g} m or more from the origin",
+                           source=source, field=fields[i], where=where_of(f, i),
+                           hint="positions are in the declared units from the room's origin; the value is damaged")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -252,7 +269,9 @@ _TOP_FIELDS = {"format", "version", "coords", "devices", "markers", "time", "pos
 _SIDECAR_FIELDS = _TOP_FIELDS - {"time", "poses", "points"}
 
 
-def _load_json_file(path: Path, source: str):
+def _load_json_file(path: Path, source: str, report_bools: bool = False):
+    """The parsed document (and, with `report_bools`, whether the text holds `true` / `false` at all:
+    only then do the per-frame arrays need the slower look for booleans posing as numbers)."""
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -260,12 +279,15 @@ def _load_json_file(path: Path, source: str):
     except OSError as exc:
         raise BodyCalError(f"cannot read: {exc.strerror}", source=source) from None
     try:
-        return json.loads(text)
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise BodyCalError(f"invalid JSON: {exc.msg}", source=source, where=f"line {exc.lineno} column {exc.colno}",
                            hint="is the file complete?") from None
     except RecursionError:
         raise BodyCalError("invalid JSON: nested too deeply", source=source) from None
+    if report_bools:
+        return doc, "true" in text or "false" in text
+    return doc
 
 
 def read_json(path) -> Recording:
@@ -273,9 +295,9 @@ def read_json(path) -> Recording:
     gap-filled or role-identified (see `finish_recording`)."""
     path = Path(path)
     source = path.name
-    doc = _load_json_file(path, source)
+    doc, has_bools = _load_json_file(path, source, report_bools=True)
     header = _parse_header(doc, source, _TOP_FIELDS, require_frames=True)
-    time = _parse_time(doc.get("time"), source)
+    time = _parse_time(doc.get("time"), source, has_bools)
     f = len(time)
     devices, marker_names = header["devices"], header["marker_names"]
     poses = doc.get("poses")
@@ -290,12 +312,16 @@ def read_json(path) -> Recording:
     rotations = np.zeros((f, len(devices), 4))
     valid = np.zeros((f, len(devices)), bool)
     for i, d in enumerate(devices):
-        arr, ok = _parse_frames(poses[d.name], 7, f, source, f"poses.{d.name}")
+        arr, ok = _parse_frames(poses[d.name], 7, f, source, f"poses.{d.name}", has_bools)
         positions[:, i], rotations[:, i], valid[:, i] = arr[:, :3], arr[:, 3:], ok
     markers = np.zeros((f, len(marker_names), 3))
     marker_valid = np.zeros((f, len(marker_names)), bool)
     for j, name in enumerate(marker_names):
-        markers[:, j], marker_valid[:, j] = _parse_frames(points[name], 3, f, source, f"points.{name}")
+        markers[:, j], marker_valid[:, j] = _parse_frames(points[name], 3, f, source, f"points.{name}", has_bools)
+    scale = UNITS[header["coords"][2]]
+    check_positions(positions, valid, scale, source, [f"poses.{d.name}" for d in devices], lambda k, _i: f"frame {k}")
+    check_positions(markers, marker_valid, scale, source, [f"points.{n}" for n in marker_names],
+                    lambda k, _i: f"frame {k}")
     return _assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers,
                      marker_valid)
 
@@ -347,7 +373,7 @@ def _parse_header(doc, source: str, allowed: set, require_frames: bool) -> dict:
 def _parse_devices(items, source: str) -> list[Device]:
     if not isinstance(items, list):
         raise BodyCalError("must be a list of {name, kind, role}", source=source, field="devices")
-    devices, roles = [], {}
+    devices, roles, seen = [], {}, set()
     for k, item in enumerate(items):
         fld = f"devices[{k}]"
         if not isinstance(item, dict):
@@ -364,13 +390,14 @@ def _parse_devices(items, source: str) -> list[Device]:
         if role is not None and role not in ROLES:
             raise BodyCalError(f"unknown role {role!r}", source=source, field=f"{fld}.role",
                                hint=f"use null or one of {', '.join(ROLES)}")
-        if any(d.name == name for d in devices):
+        if name in seen:
             raise BodyCalError(f"duplicate device name '{name}'", source=source, field=f"{fld}.name")
         if role is not None and role in roles:
             raise BodyCalError(f"role '{role}' is given to both '{roles[role]}' and '{name}'", source=source,
                                field=f"{fld}.role")
         if role is not None:
             roles[role] = name
+        seen.add(name)
         devices.append(Device(name=name, kind=kind, role=role))
     return devices
 
@@ -378,7 +405,7 @@ def _parse_devices(items, source: str) -> list[Device]:
 def _parse_markers(items, source: str) -> list[str]:
     if not isinstance(items, list):
         raise BodyCalError("must be a list of {name}", source=source, field="markers")
-    names = []
+    names, seen = [], set()
     for k, item in enumerate(items):
         fld = f"markers[{k}]"
         if not isinstance(item, dict):
@@ -389,14 +416,16 @@ def _parse_markers(items, source: str) -> list[str]:
         name = item.get("name")
         if not isinstance(name, str) or not name.strip():
             raise BodyCalError("missing or empty name", source=source, field=f"{fld}.name")
-        if name in names:
+        if name in seen:
             raise BodyCalError(f"duplicate marker name '{name}'", source=source, field=f"{fld}.name")
+        seen.add(name)
         names.append(name)
     return names
 
 
 def _check_keys(obj: dict, expected: list[str], source: str, fld: str, what: str) -> None:
-    extra = [k for k in obj if k not in expected]
+    wanted = set(expected)  # a set: a list made this quadratic in the number of devices
+    extra = [k for k in obj if k not in wanted]
     if extra:
         raise BodyCalError(f"unknown {what} '{extra[0]}'", source=source, field=fld,
                            hint=f"declare it in \"{what}s\"")
@@ -406,9 +435,11 @@ def _check_keys(obj: dict, expected: list[str], source: str, fld: str, what: str
                            hint="give one entry per frame (null when untracked)")
 
 
-def _parse_time(values, source: str) -> np.ndarray:
+def _parse_time(values, source: str, has_bools: bool = True) -> np.ndarray:
     if not isinstance(values, list) or not values:
         raise BodyCalError("missing or empty (one time in seconds per frame)", source=source, field="time")
+    if has_bools:
+        _refuse_bools(values, source, "time")
     t = _numeric(values, source, "time")
     if t.ndim != 1:
         raise BodyCalError("must be a flat list of numbers", source=source, field="time")
@@ -442,13 +473,25 @@ def _numeric(values, source: str, fld: str) -> np.ndarray:
     return arr.astype(float)
 
 
-def _parse_frames(values, width: int, frames: int, source: str, fld: str) -> tuple[np.ndarray, np.ndarray]:
+def _refuse_bools(values: list, source: str, fld: str) -> None:
+    """numpy reads JSON true / false as 1 / 0 inside a list of numbers: refuse them by name."""
+    for k, v in enumerate(values):
+        row = v if isinstance(v, list) else (v,)
+        if any(x is True or x is False for x in row):
+            raise BodyCalError(f"not a number: {_short(v)}", source=source, field=fld, where=f"frame {k}",
+                               hint="true / false are not numbers")
+
+
+def _parse_frames(values, width: int, frames: int, source: str, fld: str,
+                  has_bools: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(F, width) floats and (F,) tracked mask from a per-frame list of [numbers] or null."""
     if not isinstance(values, list):
         raise BodyCalError("must be a list with one entry per frame", source=source, field=fld)
     if len(values) != frames:
         raise BodyCalError(f"has {len(values)} entries but time has {frames}", source=source, field=fld,
                            hint="one entry per frame, null when untracked")
+    if has_bools:
+        _refuse_bools(values, source, fld)
     arr = _try_block(values, width)
     if arr is None:  # dropouts (null) or bad entries: replace nulls, then locate the culprit if still bad
         nan_row = [math.nan] * width
@@ -504,8 +547,9 @@ def _check_quaternions(rotations, valid, time, devices, source, unit="frame", wh
     """Renormalise quaternions within QUAT_TOLERANCE of unit length, reject the others (in place)."""
     if rotations.size == 0:
         return
-    norm = np.linalg.norm(rotations, axis=-1)
-    bad = valid & (np.abs(norm - 1.0) > QUAT_TOLERANCE)
+    with np.errstate(over="ignore", invalid="ignore"):  # a damaged 1e300 component: refused below, no warning
+        norm = np.linalg.norm(rotations, axis=-1)
+        bad = valid & ~(np.abs(norm - 1.0) <= QUAT_TOLERANCE)
     if bad.any():
         f, i = (int(x) for x in np.argwhere(bad)[0])
         what = "zero" if norm[f, i] < 1e-9 else f"not unit length (|q| = {norm[f, i]:.6g})"
@@ -632,6 +676,8 @@ def read_csv(path) -> Recording:
     if bad.size:
         raise BodyCalError("NaN or infinite value", source=source, where=f"line {line_no[bad[0]]}",
                            hint="leave the fields empty for an untracked frame")
+    check_positions(p_vals[:, None], p_set.all(1)[:, None], UNITS[header["coords"][2]], source,
+                    ["px,py,pz"], lambda k, _i: f"line {line_no[k]}")
 
     is_pose_row = q_set.all(1)
     if header["devices"] is None:  # no sidecar: names with a quaternion anywhere are trackers
