@@ -617,11 +617,8 @@ def read_csv(path) -> Recording:
     else:
         header = {"name": None, "coords": ("Y", "right", "m"), "devices": None, "marker_names": None,
                   "segments_raw": []}
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise BodyCalError(f"not UTF-8 text (byte {exc.start})", source=source) from None
-    lines = text.splitlines()
+    chunks = _csv_chunks(path, source)
+    lines = next(chunks, [])
     if not lines or not lines[0].strip():
         raise BodyCalError("empty file; the header line time,name,px,py,pz,qw,qx,qy,qz is required", source=source,
                            where="line 1")
@@ -640,12 +637,9 @@ def read_csv(path) -> Recording:
     if missing:
         raise BodyCalError(f"missing column '{missing[0]}'", source=source, where="line 1",
                            hint="columns are time,name,px,py,pz,qw,qx,qy,qz")
-    body = lines[1:]
-    parsed = _csv_fast(body, cols) if all(has_q) else None
-    if parsed is None:
-        parsed = _csv_slow(body, cols, has_q, source)
-    line_no, names, t_rows, p_vals, p_set, q_vals, q_set = parsed
-    uniq, name_idx = _factorize(names)
+    line_no, uniq, name_idx, t_rows, p_vals, q_vals = _csv_rows(path, lines, chunks, cols, has_q, source)
+    del lines
+    p_set, q_set = ~np.isnan(p_vals), ~np.isnan(q_vals)  # empty cells; written nan / inf were refused
     empty_name = [k for k, u in enumerate(uniq) if u == ""]
     if empty_name:
         k = int(np.flatnonzero(name_idx == empty_name[0])[0])
@@ -677,7 +671,7 @@ def read_csv(path) -> Recording:
         raise BodyCalError("NaN or infinite value", source=source, where=f"line {line_no[bad[0]]}",
                            hint="leave the fields empty for an untracked frame")
     check_positions(p_vals[:, None], p_set.all(1)[:, None], UNITS[header["coords"][2]], source,
-                    ["px,py,pz"], lambda k, _i: f"line {line_no[k]}")
+                    ["px,py,pz"], lambda k, _i, lines=line_no: f"line {lines[k]}")
 
     is_pose_row = q_set.all(1)
     if header["devices"] is None:  # no sidecar: names with a quaternion anywhere are trackers
@@ -689,18 +683,18 @@ def read_csv(path) -> Recording:
     devices, marker_names = header["devices"], header["marker_names"]
     slot = {d.name: ("d", i) for i, d in enumerate(devices)}
     slot.update({n: ("m", j) for j, n in enumerate(marker_names)})
-    kind_of = np.array([slot.get(u, ("?", -1))[0] for u in uniq])
+    kind_of = np.array([{"d": 0, "m": 1, "?": 2}[slot.get(u, ("?", -1))[0]] for u in uniq], np.int8)
     index_of = np.array([slot.get(u, ("?", -1))[1] for u in uniq], dtype=np.int64)
-    row_kind = kind_of[name_idx]
-    bad = np.flatnonzero(row_kind == "?")
+    row_kind = kind_of[name_idx]  # one byte a row: 0 device, 1 marker, 2 undeclared
+    bad = np.flatnonzero(row_kind == 2)
     if bad.size:
         raise BodyCalError(f"unknown name '{uniq[name_idx[bad[0]]]}'", source=source, field="name",
                            where=f"line {line_no[bad[0]]}", hint=f"declare it in {sidecar.name}")
-    bad = np.flatnonzero((row_kind == "d") & p_set.all(1) & ~q_set.all(1))
+    bad = np.flatnonzero((row_kind == 0) & p_set.all(1) & ~q_set.all(1))
     if bad.size:
         raise BodyCalError(f"device '{uniq[name_idx[bad[0]]]}' has no quaternion", source=source,
                            where=f"line {line_no[bad[0]]}")
-    bad = np.flatnonzero((row_kind == "m") & q_set.any(1))
+    bad = np.flatnonzero((row_kind == 1) & q_set.any(1))
     if bad.size:
         raise BodyCalError(f"marker '{uniq[name_idx[bad[0]]]}' has a quaternion", source=source,
                            where=f"line {line_no[bad[0]]}", hint="marker rows leave qw,qx,qy,qz empty")
@@ -712,26 +706,31 @@ def read_csv(path) -> Recording:
         k = order[dup[0] + 1]
         raise BodyCalError(f"second row for '{uniq[name_idx[k]]}' at time {t_rows[k]}", source=source,
                            where=f"line {line_no[k]}")
+    del key, order, dup
 
     row_index = index_of[name_idx]
     positions = np.zeros((f, len(devices), 3))
     rotations = np.tile(np.array([1.0, 0, 0, 0]), (f, len(devices), 1))
     valid = np.zeros((f, len(devices)), bool)
-    d_rows = (row_kind == "d") & is_pose_row
+    d_rows = (row_kind == 0) & is_pose_row
     positions[frame_of_row[d_rows], row_index[d_rows]] = p_vals[d_rows]
     rotations[frame_of_row[d_rows], row_index[d_rows]] = q_vals[d_rows]
     valid[frame_of_row[d_rows], row_index[d_rows]] = True
     markers = np.zeros((f, len(marker_names), 3))
     marker_valid = np.zeros((f, len(marker_names)), bool)
-    m_rows = (row_kind == "m") & p_set.all(1)
+    m_rows = (row_kind == 1) & p_set.all(1)
     markers[frame_of_row[m_rows], row_index[m_rows]] = p_vals[m_rows]
     marker_valid[frame_of_row[m_rows], row_index[m_rows]] = True
-
+    # The line of each device's row per frame (4 bytes a row); the per-row arrays go before the
+    # conversion so that they and its copies are never all held at once.
     frame_lines = line_no[new_frame]
+    dev_line = np.zeros((f, len(devices)), np.int32)
+    dev_line[frame_of_row[d_rows], row_index[d_rows]] = line_no[d_rows]
+    del line_no, name_idx, t_rows, p_vals, q_vals, p_set, q_set, row_kind, row_index, frame_of_row, d_rows, m_rows
+    del new_frame, is_pose_row, partial_p, partial_q, finite, bad
 
     def where_of(frame, dev):
-        rows_here = np.flatnonzero(d_rows & (frame_of_row == frame) & (row_index == dev))
-        return f"line {line_no[rows_here[0]]}" if rows_here.size else f"line {frame_lines[frame]}"
+        return f"line {dev_line[frame, dev] or frame_lines[frame]}"
 
     _check_quaternions(rotations, valid, time, devices, source, where_of=where_of)
     rec = _assemble_converted(header, source, time, devices, positions, rotations, valid, marker_names, markers,
@@ -742,31 +741,87 @@ def read_csv(path) -> Recording:
     return rec
 
 
-def _factorize(names: list[str]) -> tuple[list[str], np.ndarray]:
-    """(unique names in order of first appearance, index of each row's name); names are stripped."""
-    raw = list(dict.fromkeys(names))
-    uniq = list(dict.fromkeys(r.strip() for r in raw))
-    pos = {u: k for k, u in enumerate(uniq)}
-    lookup = {r: pos[r.strip()] for r in raw}
-    return uniq, np.fromiter(map(lookup.__getitem__, names), dtype=np.int64, count=len(names))
+_CSV_CHUNK_BYTES = 1 << 20  # text parsed at a time: the file is never held whole, as bytes or as text
 
 
-_NAME_CELL = re.compile(r"^[^,\n]*,([^,\n]*),", re.M)
+def _csv_chunks(path: Path, source: str):
+    """The file's lines (str.splitlines, as for the whole text), a chunk of about _CSV_CHUNK_BYTES at
+    a time; chunks end at a \\n, which is a line break however the lines are counted."""
+    offset = 0
+    with path.open("rb") as fh:
+        while True:
+            blob = b"".join(fh.readlines(_CSV_CHUNK_BYTES))
+            if not blob:
+                return
+            try:
+                text = blob.decode("utf-8-sig" if offset == 0 else "utf-8")
+            except UnicodeDecodeError as exc:
+                raise BodyCalError(f"not UTF-8 text (byte {offset + exc.start})", source=source) from None
+            offset += len(blob)
+            del blob
+            yield text.splitlines()
 
 
-_CSV_NAME_WIDTH = 128
-_CSV_DTYPE = np.dtype([(c, f"U{_CSV_NAME_WIDTH}" if c == "name" else "f8") for c in _CSV_COLUMNS])
+def _count_lines(path: Path) -> int:
+    n = 1
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(_CSV_CHUNK_BYTES), b""):
+            n += block.count(b"\n")
+    return n
 
 
-def _csv_fast(body: list[str], cols: list[str]):
+def _csv_rows(path: Path, first: list[str], chunks, cols: list[str], has_q: list[bool], source: str):
+    """Parse every data row, chunk by chunk, into arrays allocated once for the file's line count:
+    (line numbers, unique stripped names, name index per row, time, positions, quaternions), empty
+    cells NaN. Per row 72 bytes, less than the row's text; names are held once each."""
+    n_max = _count_lines(path)
+    line_no = np.empty(n_max, np.int32 if n_max < 2 ** 31 else np.int64)
+    name_idx = np.empty(n_max, np.int32)
+    t_rows = np.empty(n_max)
+    p_vals = np.empty((n_max, 3))
+    q_vals = np.empty((n_max, 4))
+    uniq: list[str] = []
+    slot: dict[str, int] = {}  # stripped name -> index in uniq
+    lookup: dict[str, int] = {}  # name as written -> index in uniq
+    rows, body, first_line = 0, first[1:], 2
+    while True:
+        parsed = _csv_fast(body, cols, first_line) if all(has_q) else None
+        if parsed is None:
+            parsed = _csv_slow(body, cols, has_q, source, first_line)
+        ln, names, t, p, _p_set, q, _q_set = parsed
+        for raw in dict.fromkeys(names):  # in order of first appearance (the devices' order without a sidecar)
+            if raw not in lookup:
+                lookup[raw] = slot.setdefault(raw.strip(), len(slot))
+                if lookup[raw] == len(uniq):
+                    uniq.append(raw.strip())
+        k = len(ln)
+        if rows + k > n_max:  # cannot happen (splitlines finds at least the \n breaks); never silently
+            raise BodyCalError("more rows than lines", source=source)
+        line_no[rows:rows + k] = ln
+        name_idx[rows:rows + k] = np.fromiter(map(lookup.__getitem__, names), np.int32, count=k)
+        t_rows[rows:rows + k], p_vals[rows:rows + k], q_vals[rows:rows + k] = t, p, q
+        rows += k
+        first_line += len(body)
+        body = next(chunks, None)
+        if body is None:
+            break
+    if rows == 0:
+        raise BodyCalError("no data rows after the header", source=source, where="line 2")
+    return line_no[:rows], uniq, name_idx[:rows], t_rows[:rows], p_vals[:rows], q_vals[:rows]
+
+
+def _csv_fast(body: list[str], cols: list[str], first_line: int = 2):
     """The common case at C speed (numpy's loadtxt parser): standard column order, no blank lines,
-    no written nan/inf. Returns None whenever anything is unusual; the careful path then finds it."""
+    no written nan/inf. Returns None whenever anything is unusual; the careful path then finds it.
+    The name column is split off in Python (a fixed-width numpy string column cost 512 bytes a
+    row); loadtxt reads only the numbers."""
     if cols != list(_CSV_COLUMNS) or not body or not all(body):
         return None
     n = len(body)
-    text = "\n".join(body)
-    if text.count(",") != (len(cols) - 1) * n:
+    commas = len(cols) - 1
+    if not all(ln.count(",") == commas for ln in body):  # loadtxt with usecols would let a row differ
         return None
+    text = "\n".join(body)
     low = text.lower()
     if "nan" in low or "inf" in low or "#" in text:
         return None  # written nan / inf are errors, told apart from empty cells by the careful path
@@ -778,26 +833,28 @@ def _csv_fast(body: list[str], cols: list[str]):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            table = np.loadtxt(io.StringIO(filled), delimiter=",", dtype=_CSV_DTYPE, comments=None, ndmin=1)
+            vals = np.loadtxt(io.StringIO(filled), delimiter=",", dtype=float, comments=None, ndmin=2,
+                              usecols=(0, 2, 3, 4, 5, 6, 7, 8), quotechar=None)
     except (ValueError, TypeError, OverflowError):
         return None
-    if table.shape != (n,):
+    del filled, low, text
+    if vals.shape != (n, 8):
         return None
-    names = table["name"].tolist()
-    if max(map(len, names)) >= _CSV_NAME_WIDTH or "nan" in set(names):
-        return None  # possibly cut, or an empty name cell filled above: the careful path reports it
-    vals = np.stack([table[c] for c in _CSV_COLUMNS if c != "name"], axis=1)
+    names = [ln.split(",", 2)[1] for ln in body]
+    if "" in names:
+        return None  # an empty name cell: the careful path reports it
     is_set = ~np.isnan(vals)
-    line_no = np.arange(2, n + 2, dtype=np.int64)
+    line_no = np.arange(first_line, first_line + n, dtype=np.int64)
     return line_no, names, vals[:, 0], vals[:, 1:4], is_set[:, 1:4], vals[:, 4:8], is_set[:, 4:8]
 
 
-def _csv_slow(body: list[str], cols: list[str], has_q: list[bool], source: str):
+def _csv_slow(body: list[str], cols: list[str], has_q: list[bool], source: str, first_line: int = 2):
     # Keep the line numbers of the file (1-based; the header is line 1), skip blank lines.
-    line_no = np.array([k + 2 for k, ln in enumerate(body) if ln.strip()], dtype=np.int64)
+    line_no = np.array([k + first_line for k, ln in enumerate(body) if ln.strip()], dtype=np.int64)
     rows = [ln.split(",") for ln in body if ln.strip()]
-    if not rows:
-        raise BodyCalError("no data rows after the header", source=source, where="line 2")
+    if not rows:  # blank lines only in this chunk; a file without any row is refused by the caller
+        empty = np.zeros((0, 3)), np.zeros((0, 3), bool), np.zeros((0, 4)), np.zeros((0, 4), bool)
+        return line_no, [], np.zeros(0), *empty
     ncol = len(cols)
     lens = np.fromiter((len(r) for r in rows), dtype=np.int64, count=len(rows))
     bad = np.flatnonzero(lens != ncol)

@@ -438,3 +438,46 @@ def test_device_and_marker_parsing_is_linear(n):
     rio._check_keys({nm: None for nm in markers}, markers, "x.bcrec.json", "points", "marker")
     assert len(devices) == n and len(markers) == n
     assert _CountingName.compares <= 8 * n, f"{_CountingName.compares} name comparisons for {n} names"
+
+
+def _csv_outcome(path):
+    try:
+        rec = rio.load_recording(path)
+    except BodyCalError as exc:
+        return str(exc)
+    return rec.time, rec.positions, rec.rotations, rec.valid, rec.markers, rec.marker_valid, \
+        [d.name for d in rec.devices], rec.marker_names
+
+
+@FUZZ
+@given(chunk=st.integers(1, 600), line=st.integers(1, 200), col=st.integers(0, 8),
+       cell=st.sampled_from(["", "nan", "x", "1e999", "5", "hmd", "LHR-00", "1e5"]), blank=st.integers(0, 200),
+       sidecar=st.booleans())
+def test_csv_read_in_chunks_is_the_same_as_at_once(chunk, line, col, cell, blank, sidecar):
+    # The CSV is parsed a chunk at a time (memory, issue 13): whatever the chunk size, a file loads
+    # to the same arrays or fails with the same line as when read at once.
+    lines = VALID_CSV.decode().splitlines()
+    k = 1 + line % (len(lines) - 1)
+    cells = lines[k].split(",")
+    cells[col % len(cells)] = cell
+    lines[k] = ",".join(cells)
+    lines.insert(1 + blank % (len(lines) - 1), "")
+    path = _DIR / "chunks.csv"
+    path.write_text("\r\n".join(lines) + "\r\n")
+    if sidecar:
+        (_DIR / "chunks.json").write_bytes(VALID_SIDECAR)
+    else:
+        (_DIR / "chunks.json").unlink(missing_ok=True)
+    whole = _csv_outcome(path)
+    default = rio._CSV_CHUNK_BYTES
+    try:
+        rio._CSV_CHUNK_BYTES = chunk
+        chunked = _csv_outcome(path)
+    finally:
+        rio._CSV_CHUNK_BYTES = default
+    if isinstance(whole, str):
+        assert chunked == whole
+    else:
+        assert not isinstance(chunked, str), chunked
+        for a, b in zip(whole, chunked):
+            np.testing.assert_array_equal(a, b)
