@@ -27,15 +27,26 @@ from bodycal_addon.recording import Device, Recording  # noqa: E402
 
 _MEASURE = """
 import sys, resource
+
+
+def peak_rss():
+    # VmHWM: this process's own high-water mark (ru_maxrss carries the parent's across fork / exec).
+    try:
+        with open("/proc/self/status") as fh:
+            return next(int(ln.split()[1]) for ln in fh if ln.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
 sys.path.insert(0, {root!r})
 from bodycal_addon import recording_io
 traced = {traced!r}
 if traced:
     import tracemalloc
     tracemalloc.start()
-rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+rss0 = peak_rss()
 rec = recording_io.load_recording({path!r})
-rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+rss1 = peak_rss()
 peak = tracemalloc.get_traced_memory()[1] if traced else 0
 print(peak, (rss1 - rss0) * 1024, rec.frame_count, len(rec.devices))
 """
