@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,17 +51,27 @@ FORMAT = "bodycal-body"
 VERSION = 1
 KINDS = ("user", "avatar")
 ELEMENT_TYPES = ("capsule", "sphere", "mesh")
+MAX_COORD_M = 1e4  # a position or offset 10 km or more from its origin is a damaged value
+MAX_NESTING = 64  # deeper JSON is not a body model (and would exhaust Python's recursion)
 REQUIRED_USER_JOINTS = ("hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r", "shoulder_l", "shoulder_r",
                         "elbow_l", "elbow_r", "wrist_l", "wrist_r", "skull_base", "spine_root")
 
 
+def _is_number(x) -> bool:
+    """A JSON number: not true / false (Python's bool is an int) and not a numeric string."""
+    return isinstance(x, numbers.Real) and not isinstance(x, bool | np.bool_)
+
+
 def _vec(value, source, field_name, n=3) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise BodyCalError(f"expected {n} numbers, got {value!r:.60}", source=source, field=field_name) from None
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise BodyCalError(f"expected {n} finite numbers, got {value!r:.60}", source=source, field=field_name)
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, list | tuple) or len(value) != n or not all(_is_number(x) for x in value):
+        raise BodyCalError(f"expected a list of {n} numbers, got {value!r:.60}", source=source, field=field_name)
+    arr = np.array(value, dtype=float)
+    with np.errstate(invalid="ignore"):
+        if not (np.abs(arr) < MAX_COORD_M).all():
+            raise BodyCalError(f"expected {n} finite numbers below {MAX_COORD_M:g} in size, got {value!r:.60}",
+                               source=source, field=field_name)
     return arr
 
 
@@ -223,21 +234,36 @@ class BodyModel:
 
     @classmethod
     def load(cls, path) -> BodyModel:
+        """Read a *.body.json. Whatever the bytes (binary, a .blend, not UTF-8, JSON nested beyond
+        Python's recursion), the outcome is a model or a one-line BodyCalError naming the file."""
         path = Path(path)
+        source = str(path)
+        hint = "give the *.body.json written by calibrate-user or calibrate-avatar"
         try:
-            text = path.read_text()
+            raw = path.read_bytes()
         except OSError as exc:
-            raise BodyCalError(f"cannot read: {exc.strerror}", source=str(path)) from None
+            raise BodyCalError(f"cannot read: {exc.strerror}", source=source) from None
+        if raw.startswith(b"BLENDER") or raw[:4] in (b"\x28\xb5\x2f\xfd", b"\x1f\x8b\x08\x00"):
+            raise BodyCalError("is a .blend file, not a body model", source=source, hint=hint)
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise BodyCalError(f"not UTF-8 text (byte {exc.start}): not a body model", source=source,
+                               hint=hint) from None
         try:
             data = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise BodyCalError(f"not valid JSON ({exc})", source=str(path)) from None
-        return cls.from_dict(data, source=str(path))
+        except json.JSONDecodeError as exc:
+            raise BodyCalError(f"not valid JSON ({exc.msg})", source=source,
+                               where=f"line {exc.lineno} column {exc.colno}", hint=hint) from None
+        except RecursionError:
+            raise BodyCalError("not valid JSON (nested too deeply)", source=source, hint=hint) from None
+        return cls.from_dict(data, source=source)
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "body model") -> BodyModel:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise BodyCalError(f"not a body model (format must be '{FORMAT}')", source=source, field="format")
+        _check_tree(data, source)
         if data.get("version") != VERSION:
             raise BodyCalError(f"unsupported version {data.get('version')!r}, this BodyCal reads {VERSION}",
                                source=source, field="version")
@@ -250,6 +276,9 @@ class BodyModel:
             if "world" not in j:
                 raise BodyCalError("missing 'world'", source=source, field=f"joints.{name}")
             local = j.get("local")
+            if j.get("frame") is not None and not isinstance(j.get("frame"), str):
+                raise BodyCalError(f"expected a tracker or bone name, got {j.get('frame')!r:.40}", source=source,
+                                   field=f"joints.{name}.frame")
             frames = {k: _vec(v, source, f"joints.{name}.frames.{k}")
                       for k, v in _dict(j.get("frames", {}), source, f"joints.{name}.frames").items()}
             joints[name] = Joint(_vec(j["world"], source, f"joints.{name}.world"), j.get("frame"),
@@ -260,13 +289,15 @@ class BodyModel:
             known = {"head", "tail", "length", "right", "radius_head", "radius_tail"}
             try:
                 bones[name] = BoneInfo(
-                    str(b["head"]), str(b["tail"]), _number(b["length"], source, f"bones.{name}.length"),
+                    str(b["head"]), str(b["tail"]), _positive(b["length"], source, f"bones.{name}.length"),
                     None if b.get("right") is None else _vec(b["right"], source, f"bones.{name}.right"),
-                    _opt_number(b.get("radius_head"), source, f"bones.{name}.radius_head"),
-                    _opt_number(b.get("radius_tail"), source, f"bones.{name}.radius_tail"),
+                    _opt_radius(b.get("radius_head"), source, f"bones.{name}.radius_head"),
+                    _opt_radius(b.get("radius_tail"), source, f"bones.{name}.radius_tail"),
                     {k: v for k, v in b.items() if k not in known})
             except KeyError as exc:
                 raise BodyCalError(f"missing '{exc.args[0]}'", source=source, field=f"bones.{name}") from None
+            if b.get("right_local") is not None:  # used by the retargeting: checked here, not mid-bake
+                _vec(b["right_local"], source, f"bones.{name}.right_local")
         surface = []
         if not isinstance(data.get("surface", []), list):
             raise BodyCalError("expected a list", source=source, field="surface")
@@ -292,7 +323,7 @@ class BodyModel:
             surface.append(SurfaceElement(
                 str(e.get("id", f"{etype}:{i}")), etype, str(e.get("bone", "")),
                 None if e.get("center") is None else _vec(e["center"], source, f"surface[{i}].center"),
-                _opt_number(e.get("radius"), source, f"surface[{i}].radius"), pts, tris,
+                _opt_radius(e.get("radius"), source, f"surface[{i}].radius"), pts, tris,
                 {k: v for k, v in e.items() if k not in known}))
         offsets = {}
         for name, o in _dict(data.get("offsets", {}), source, "offsets").items():
@@ -300,12 +331,14 @@ class BodyModel:
             offsets[name] = Offset(str(o.get("tracker")), _vec(o.get("v0"), source, f"offsets.{name}.v0"),
                                    _vec(o.get("r0_tracker"), source, f"offsets.{name}.r0_tracker", 4),
                                    _vec(o.get("r0_joint"), source, f"offsets.{name}.r0_joint", 4))
+        _check_known_extras(data, source)
+        calibration = data.get("calibration", {"steps_used": [], "defaulted": {}, "missing": [], "quality": {}})
+        _dict(calibration, source, "calibration")
         known_top = {"format", "version", "kind", "name", "reference_time", "joints", "bones", "surface", "offsets",
                      "calibration"}
         return cls(kind, str(data.get("name", "")), joints, bones, surface,
                    _opt_number(data.get("reference_time"), source, "reference_time"), offsets,
-                   data.get("calibration", {"steps_used": [], "defaulted": {}, "missing": [], "quality": {}}),
-                   {k: v for k, v in data.items() if k not in known_top})
+                   calibration, {k: v for k, v in data.items() if k not in known_top})
 
 
 def _dict(v, source, field_name) -> dict:
@@ -315,10 +348,63 @@ def _dict(v, source, field_name) -> dict:
 
 
 def _number(v, source, field_name) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+    if not _is_number(v) or not math.isfinite(v):
         raise BodyCalError(f"expected a finite number, got {v!r:.40}", source=source, field=field_name)
     return float(v)
 
 
 def _opt_number(v, source, field_name):
     return None if v is None else _number(v, source, field_name)
+
+
+def _positive(v, source, field_name) -> float:
+    x = _number(v, source, field_name)
+    if not 0 < x < MAX_COORD_M:
+        raise BodyCalError(f"must be a positive length in metres, got {v!r:.40}", source=source, field=field_name,
+                           hint="recalibrate: a bone's head and tail joints coincide or are swapped")
+    return x
+
+
+def _opt_radius(v, source, field_name):
+    x = _opt_number(v, source, field_name)
+    if x is not None and not 0 <= x < MAX_COORD_M:
+        raise BodyCalError(f"must be a radius in metres (0 or more), got {v!r:.40}", source=source, field=field_name)
+    return x
+
+
+def _check_tree(data, source) -> None:
+    """Walk the whole document (iteratively: depth is what is being checked) once: refuse nesting
+    deeper than MAX_NESTING and any NaN / Infinity (JSON extensions Python reads) or overflowing
+    number like 1e999, naming its field, so that a non-finite value anywhere, extras included, is
+    blamed on the body file rather than on the recording it is later used with."""
+    stack = [(data, "", 0)]
+    while stack:
+        value, where, depth = stack.pop()
+        if depth > MAX_NESTING:
+            raise BodyCalError(f"nested more than {MAX_NESTING} levels deep", source=source, field=where or None,
+                               hint="not a body model")
+        if isinstance(value, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in value.items())
+        elif isinstance(value, list | tuple):
+            stack.extend((v, f"{where}[{k}]", depth + 1) for k, v in enumerate(value))
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise BodyCalError(f"{value} is not a finite number", source=source, field=where or None,
+                               hint="write finite numbers (JSON has no NaN or Infinity)")
+
+
+def _check_known_extras(data, source) -> None:
+    """The extras the retargeting reads (module docstring), checked on load like the schema."""
+    tpose = data.get("tpose")
+    if tpose is not None:
+        for role, pose in _dict(tpose, source, "tpose").items():
+            _vec(pose, source, f"tpose.{role}", 7)
+    for key in ("eye_height", "sacrum_width"):
+        if data.get(key) is not None:
+            _positive(data[key], source, key)
+    planes = data.get("palm_planes")
+    if planes is not None:
+        for hand, plane in _dict(planes, source, "palm_planes").items():
+            plane = _dict(plane, source, f"palm_planes.{hand}")
+            for k in ("point", "normal"):
+                if k in plane:
+                    _vec(plane[k], source, f"palm_planes.{hand}.{k}")

@@ -30,6 +30,7 @@ from .recording import STEPS, Recording
 INTEL, DEC, MIPS = 84, 85, 86
 PROCESSORS = {INTEL: "Intel", DEC: "DEC", MIPS: "MIPS"}
 UNIT_SCALE = {"mm": 0.001, "cm": 0.01, "m": 1.0}
+MAX_RATE_HZ = 1e6  # a sample rate beyond this is a damaged field, not a capture system
 MARKER_RE = re.compile(r"^(?:(?:thumb|index|middle|ring|pinky)_tip|hand_led[123])_[lr]$")
 
 
@@ -186,6 +187,28 @@ def _scalar(params, key, default=None):
     return v[0].item() if v.size else default
 
 
+def _count(r: _Reader, params, key, default):
+    """A count or block number (16-bit, unsigned as in C3D's int16 words): refused with one line when
+    the file stores it as a non-finite, fractional or out-of-range number."""
+    v = _scalar(params, key, default)
+    if v is None:
+        return None
+    if isinstance(v, float) and not (math.isfinite(v) and v == round(v) and -32768 <= v <= 65535):
+        raise r.err(f"{v:g} is not a count", field=key, hint="a whole number from 0 to 65535; the file is damaged")
+    return int(v) & 0xFFFF
+
+
+def _real(r: _Reader, params, key, default):
+    """A real-valued scalar parameter; NaN or infinite is refused with one line naming it."""
+    v = _scalar(params, key, default)
+    if v is None:
+        return None
+    v = float(v)
+    if not math.isfinite(v):
+        raise r.err(f"{v} is not a finite number", field=key, hint="the file is damaged")
+    return v
+
+
 def _labels(params, n: int) -> list[str]:
     labels: list[str] = []
     for key in ["POINT:LABELS"] + [f"POINT:LABELS{k}" for k in range(2, 100)]:
@@ -232,16 +255,22 @@ def read_c3d(path) -> C3DData:
     scale = r.f32(12)
     data_block = r.u16(16)
     rate = r.f32(20)
-    n_points = int(_scalar(params, "POINT:USED", n_points)) & 0xFFFF
-    scale = float(_scalar(params, "POINT:SCALE", scale))
-    rate = float(_scalar(params, "POINT:RATE", rate))
-    data_block = int(_scalar(params, "POINT:DATA_START", data_block)) & 0xFFFF
-    analog_used = _scalar(params, "ANALOG:USED")
-    analog_rate = _scalar(params, "ANALOG:RATE")
-    if analog_used is not None and analog_rate is not None and rate > 0 and analog_used > 0:
+    n_points = _count(r, params, "POINT:USED", n_points)
+    scale = _real(r, params, "POINT:SCALE", scale)
+    rate = _real(r, params, "POINT:RATE", rate)
+    data_block = _count(r, params, "POINT:DATA_START", data_block)
+    analog_used = _count(r, params, "ANALOG:USED", None)
+    analog_rate = _real(r, params, "ANALOG:RATE", None)
+    if analog_used and analog_rate is not None and math.isfinite(rate) and rate > 0:
+        if not 0 < analog_rate <= MAX_RATE_HZ:
+            raise r.err(f"analog rate {analog_rate:g} Hz is not usable", field="ANALOG:RATE",
+                        hint=f"a positive rate up to {MAX_RATE_HZ:g} Hz")
         analog = int(round(analog_used * analog_rate / rate))
     if not np.isfinite(rate) or rate <= 0:
         raise r.err(f"frame rate {rate} is not positive", field="POINT:RATE")
+    if rate > MAX_RATE_HZ:
+        raise r.err(f"frame rate {rate:g} Hz is not plausible", field="POINT:RATE",
+                    hint=f"at most {MAX_RATE_HZ:g} Hz")
     if not np.isfinite(scale) or scale == 0:
         raise r.err(f"point scale {scale} is not usable", field="POINT:SCALE")
     n_frames = last - first + 1
@@ -293,7 +322,7 @@ def read_c3d(path) -> C3DData:
         units = units[0] if isinstance(units, list) and units else "mm"
     units = units.strip().lower() or "mm"
     events = []
-    used = int(_scalar(params, "EVENT:USED", 0) or 0)
+    used = _count(r, params, "EVENT:USED", 0)
     if used > 0:
         labels = params.get("EVENT:LABELS", [])
         labels = [labels] if isinstance(labels, str) else list(labels)
@@ -348,7 +377,7 @@ def event_segments(events, t_end: float) -> list[dict]:
 
 def read_c3d_recording(path) -> Recording:
     """A marker-only Recording from a C3D file, in the internal frame (metres, Z up)."""
-    from .recording_io import _parse_segments, to_internal
+    from .recording_io import _parse_segments, check_positions, to_internal
 
     c = read_c3d(path)
     if c.units not in UNIT_SCALE:
@@ -361,18 +390,21 @@ def read_c3d_recording(path) -> Recording:
         v = c.param(key)
         not_points.update([v] if isinstance(v, str) else (v if isinstance(v, list) else []))
     keep = [k for k, label in enumerate(c.labels) if label not in not_points]
-    names, notes = [], []
+    names, notes, taken = [], [], set()
     if len(keep) < len(c.labels):
         notes.append(f"left out {len(c.labels) - len(keep)} model outputs stored as points (angles, forces, ...)")
     for k in keep:
         label = c.labels[k]
         name = match_marker_name(label)
-        if name in names:
+        if name in taken:  # a set: a list made this quadratic in the number of labels
             name = label.strip()
-            while name in names:
+            while name in taken:
                 name = f"{name}_{k}"
             notes.append(f"marker label '{label}' repeats: kept as '{name}'")
+        taken.add(name)
         names.append(name)
+    check_positions(c.points[:, keep], c.valid[:, keep], UNIT_SCALE[c.units], c.source,
+                    [f"marker {c.labels[k]!r}" for k in keep], lambda f, _i: f"frame {c.first_frame + f}")
     pts, _ = to_internal(c.points[:, keep], None, up, "right", c.units)
     time = c.time
     segs = _parse_segments(event_segments(c.events, float(time[-1])), time, c.source, [], names)

@@ -45,6 +45,7 @@ UPS = ("Y", "Z")
 HANDEDNESS = ("right", "left")
 QUAT_TOLERANCE = 1e-3  # FORMATS.md §1: renormalise within 1e-3, reject beyond
 DEFAULT_FILL_GAPS_S = 0.1
+MAX_POSITION_M = 1e4  # FORMATS.md §1: a position 10 km or more from the origin is a damaged value
 
 _AXIS_MAPS = {
     ("Y", "right"): np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
@@ -140,6 +141,22 @@ def _convert_rotations(q: np.ndarray, a: np.ndarray, p: np.ndarray) -> np.ndarra
     if np.allclose(a, np.eye(3)):
         return q
     return tf.quat_mul(tf.matrix_to_quat(a), q)
+
+
+def check_positions(values: np.ndarray, valid: np.ndarray, unit_scale: float, source: str, fields, where_of) -> None:
+    """Refuse a tracked position (file units, (F, N, 3)) at MAX_POSITION_M or more from the origin
+    once in metres: one line naming the file, `fields[n]` and `where_of(frame, n)`. Compared in the
+    file's units, so no arithmetic ever runs on the absurd value (no overflow warnings)."""
+    if values.size == 0:
+        return
+    limit = MAX_POSITION_M / unit_scale
+    with np.errstate(invalid="ignore"):
+        bad = valid & ~(np.abs(values) < limit).all(axis=-1)
+    if bad.any():
+        f, i = (int(x) for x in np.argwhere(bad)[0])
+        raise BodyCalError(f"position {_short(values[f, i].tolist())} is {MAX_POSITION_M:g} m or more from the origin",
+                           source=source, field=fields[i], where=where_of(f, i),
+                           hint="positions are in the declared units from the room's origin; the value is damaged")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -252,7 +269,9 @@ _TOP_FIELDS = {"format", "version", "coords", "devices", "markers", "time", "pos
 _SIDECAR_FIELDS = _TOP_FIELDS - {"time", "poses", "points"}
 
 
-def _load_json_file(path: Path, source: str):
+def _load_json_file(path: Path, source: str, report_bools: bool = False):
+    """The parsed document (and, with `report_bools`, whether the text holds `true` / `false` at all:
+    only then do the per-frame arrays need the slower look for booleans posing as numbers)."""
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -260,12 +279,15 @@ def _load_json_file(path: Path, source: str):
     except OSError as exc:
         raise BodyCalError(f"cannot read: {exc.strerror}", source=source) from None
     try:
-        return json.loads(text)
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise BodyCalError(f"invalid JSON: {exc.msg}", source=source, where=f"line {exc.lineno} column {exc.colno}",
                            hint="is the file complete?") from None
     except RecursionError:
         raise BodyCalError("invalid JSON: nested too deeply", source=source) from None
+    if report_bools:
+        return doc, "true" in text or "false" in text
+    return doc
 
 
 def read_json(path) -> Recording:
@@ -273,9 +295,9 @@ def read_json(path) -> Recording:
     gap-filled or role-identified (see `finish_recording`)."""
     path = Path(path)
     source = path.name
-    doc = _load_json_file(path, source)
+    doc, has_bools = _load_json_file(path, source, report_bools=True)
     header = _parse_header(doc, source, _TOP_FIELDS, require_frames=True)
-    time = _parse_time(doc.get("time"), source)
+    time = _parse_time(doc.get("time"), source, has_bools)
     f = len(time)
     devices, marker_names = header["devices"], header["marker_names"]
     poses = doc.get("poses")
@@ -290,12 +312,16 @@ def read_json(path) -> Recording:
     rotations = np.zeros((f, len(devices), 4))
     valid = np.zeros((f, len(devices)), bool)
     for i, d in enumerate(devices):
-        arr, ok = _parse_frames(poses[d.name], 7, f, source, f"poses.{d.name}")
+        arr, ok = _parse_frames(poses[d.name], 7, f, source, f"poses.{d.name}", has_bools)
         positions[:, i], rotations[:, i], valid[:, i] = arr[:, :3], arr[:, 3:], ok
     markers = np.zeros((f, len(marker_names), 3))
     marker_valid = np.zeros((f, len(marker_names)), bool)
     for j, name in enumerate(marker_names):
-        markers[:, j], marker_valid[:, j] = _parse_frames(points[name], 3, f, source, f"points.{name}")
+        markers[:, j], marker_valid[:, j] = _parse_frames(points[name], 3, f, source, f"points.{name}", has_bools)
+    scale = UNITS[header["coords"][2]]
+    check_positions(positions, valid, scale, source, [f"poses.{d.name}" for d in devices], lambda k, _i: f"frame {k}")
+    check_positions(markers, marker_valid, scale, source, [f"points.{n}" for n in marker_names],
+                    lambda k, _i: f"frame {k}")
     return _assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers,
                      marker_valid)
 
@@ -347,7 +373,7 @@ def _parse_header(doc, source: str, allowed: set, require_frames: bool) -> dict:
 def _parse_devices(items, source: str) -> list[Device]:
     if not isinstance(items, list):
         raise BodyCalError("must be a list of {name, kind, role}", source=source, field="devices")
-    devices, roles = [], {}
+    devices, roles, seen = [], {}, set()
     for k, item in enumerate(items):
         fld = f"devices[{k}]"
         if not isinstance(item, dict):
@@ -364,13 +390,14 @@ def _parse_devices(items, source: str) -> list[Device]:
         if role is not None and role not in ROLES:
             raise BodyCalError(f"unknown role {role!r}", source=source, field=f"{fld}.role",
                                hint=f"use null or one of {', '.join(ROLES)}")
-        if any(d.name == name for d in devices):
+        if name in seen:
             raise BodyCalError(f"duplicate device name '{name}'", source=source, field=f"{fld}.name")
         if role is not None and role in roles:
             raise BodyCalError(f"role '{role}' is given to both '{roles[role]}' and '{name}'", source=source,
                                field=f"{fld}.role")
         if role is not None:
             roles[role] = name
+        seen.add(name)
         devices.append(Device(name=name, kind=kind, role=role))
     return devices
 
@@ -378,7 +405,7 @@ def _parse_devices(items, source: str) -> list[Device]:
 def _parse_markers(items, source: str) -> list[str]:
     if not isinstance(items, list):
         raise BodyCalError("must be a list of {name}", source=source, field="markers")
-    names = []
+    names, seen = [], set()
     for k, item in enumerate(items):
         fld = f"markers[{k}]"
         if not isinstance(item, dict):
@@ -389,14 +416,16 @@ def _parse_markers(items, source: str) -> list[str]:
         name = item.get("name")
         if not isinstance(name, str) or not name.strip():
             raise BodyCalError("missing or empty name", source=source, field=f"{fld}.name")
-        if name in names:
+        if name in seen:
             raise BodyCalError(f"duplicate marker name '{name}'", source=source, field=f"{fld}.name")
+        seen.add(name)
         names.append(name)
     return names
 
 
 def _check_keys(obj: dict, expected: list[str], source: str, fld: str, what: str) -> None:
-    extra = [k for k in obj if k not in expected]
+    wanted = set(expected)  # a set: a list made this quadratic in the number of devices
+    extra = [k for k in obj if k not in wanted]
     if extra:
         raise BodyCalError(f"unknown {what} '{extra[0]}'", source=source, field=fld,
                            hint=f"declare it in \"{what}s\"")
@@ -406,9 +435,11 @@ def _check_keys(obj: dict, expected: list[str], source: str, fld: str, what: str
                            hint="give one entry per frame (null when untracked)")
 
 
-def _parse_time(values, source: str) -> np.ndarray:
+def _parse_time(values, source: str, has_bools: bool = True) -> np.ndarray:
     if not isinstance(values, list) or not values:
         raise BodyCalError("missing or empty (one time in seconds per frame)", source=source, field="time")
+    if has_bools:
+        _refuse_bools(values, source, "time")
     t = _numeric(values, source, "time")
     if t.ndim != 1:
         raise BodyCalError("must be a flat list of numbers", source=source, field="time")
@@ -442,13 +473,25 @@ def _numeric(values, source: str, fld: str) -> np.ndarray:
     return arr.astype(float)
 
 
-def _parse_frames(values, width: int, frames: int, source: str, fld: str) -> tuple[np.ndarray, np.ndarray]:
+def _refuse_bools(values: list, source: str, fld: str) -> None:
+    """numpy reads JSON true / false as 1 / 0 inside a list of numbers: refuse them by name."""
+    for k, v in enumerate(values):
+        row = v if isinstance(v, list) else (v,)
+        if any(x is True or x is False for x in row):
+            raise BodyCalError(f"not a number: {_short(v)}", source=source, field=fld, where=f"frame {k}",
+                               hint="true / false are not numbers")
+
+
+def _parse_frames(values, width: int, frames: int, source: str, fld: str,
+                  has_bools: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(F, width) floats and (F,) tracked mask from a per-frame list of [numbers] or null."""
     if not isinstance(values, list):
         raise BodyCalError("must be a list with one entry per frame", source=source, field=fld)
     if len(values) != frames:
         raise BodyCalError(f"has {len(values)} entries but time has {frames}", source=source, field=fld,
                            hint="one entry per frame, null when untracked")
+    if has_bools:
+        _refuse_bools(values, source, fld)
     arr = _try_block(values, width)
     if arr is None:  # dropouts (null) or bad entries: replace nulls, then locate the culprit if still bad
         nan_row = [math.nan] * width
@@ -504,8 +547,9 @@ def _check_quaternions(rotations, valid, time, devices, source, unit="frame", wh
     """Renormalise quaternions within QUAT_TOLERANCE of unit length, reject the others (in place)."""
     if rotations.size == 0:
         return
-    norm = np.linalg.norm(rotations, axis=-1)
-    bad = valid & (np.abs(norm - 1.0) > QUAT_TOLERANCE)
+    with np.errstate(over="ignore", invalid="ignore"):  # a damaged 1e300 component: refused below, no warning
+        norm = np.linalg.norm(rotations, axis=-1)
+        bad = valid & ~(np.abs(norm - 1.0) <= QUAT_TOLERANCE)
     if bad.any():
         f, i = (int(x) for x in np.argwhere(bad)[0])
         what = "zero" if norm[f, i] < 1e-9 else f"not unit length (|q| = {norm[f, i]:.6g})"
@@ -573,11 +617,8 @@ def read_csv(path) -> Recording:
     else:
         header = {"name": None, "coords": ("Y", "right", "m"), "devices": None, "marker_names": None,
                   "segments_raw": []}
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise BodyCalError(f"not UTF-8 text (byte {exc.start})", source=source) from None
-    lines = text.splitlines()
+    chunks = _csv_chunks(path, source)
+    lines = next(chunks, [])
     if not lines or not lines[0].strip():
         raise BodyCalError("empty file; the header line time,name,px,py,pz,qw,qx,qy,qz is required", source=source,
                            where="line 1")
@@ -596,12 +637,9 @@ def read_csv(path) -> Recording:
     if missing:
         raise BodyCalError(f"missing column '{missing[0]}'", source=source, where="line 1",
                            hint="columns are time,name,px,py,pz,qw,qx,qy,qz")
-    body = lines[1:]
-    parsed = _csv_fast(body, cols) if all(has_q) else None
-    if parsed is None:
-        parsed = _csv_slow(body, cols, has_q, source)
-    line_no, names, t_rows, p_vals, p_set, q_vals, q_set = parsed
-    uniq, name_idx = _factorize(names)
+    line_no, uniq, name_idx, t_rows, p_vals, q_vals = _csv_rows(path, lines, chunks, cols, has_q, source)
+    del lines
+    p_set, q_set = ~np.isnan(p_vals), ~np.isnan(q_vals)  # empty cells; written nan / inf were refused
     empty_name = [k for k, u in enumerate(uniq) if u == ""]
     if empty_name:
         k = int(np.flatnonzero(name_idx == empty_name[0])[0])
@@ -632,6 +670,8 @@ def read_csv(path) -> Recording:
     if bad.size:
         raise BodyCalError("NaN or infinite value", source=source, where=f"line {line_no[bad[0]]}",
                            hint="leave the fields empty for an untracked frame")
+    check_positions(p_vals[:, None], p_set.all(1)[:, None], UNITS[header["coords"][2]], source,
+                    ["px,py,pz"], lambda k, _i, lines=line_no: f"line {lines[k]}")
 
     is_pose_row = q_set.all(1)
     if header["devices"] is None:  # no sidecar: names with a quaternion anywhere are trackers
@@ -643,18 +683,18 @@ def read_csv(path) -> Recording:
     devices, marker_names = header["devices"], header["marker_names"]
     slot = {d.name: ("d", i) for i, d in enumerate(devices)}
     slot.update({n: ("m", j) for j, n in enumerate(marker_names)})
-    kind_of = np.array([slot.get(u, ("?", -1))[0] for u in uniq])
+    kind_of = np.array([{"d": 0, "m": 1, "?": 2}[slot.get(u, ("?", -1))[0]] for u in uniq], np.int8)
     index_of = np.array([slot.get(u, ("?", -1))[1] for u in uniq], dtype=np.int64)
-    row_kind = kind_of[name_idx]
-    bad = np.flatnonzero(row_kind == "?")
+    row_kind = kind_of[name_idx]  # one byte a row: 0 device, 1 marker, 2 undeclared
+    bad = np.flatnonzero(row_kind == 2)
     if bad.size:
         raise BodyCalError(f"unknown name '{uniq[name_idx[bad[0]]]}'", source=source, field="name",
                            where=f"line {line_no[bad[0]]}", hint=f"declare it in {sidecar.name}")
-    bad = np.flatnonzero((row_kind == "d") & p_set.all(1) & ~q_set.all(1))
+    bad = np.flatnonzero((row_kind == 0) & p_set.all(1) & ~q_set.all(1))
     if bad.size:
         raise BodyCalError(f"device '{uniq[name_idx[bad[0]]]}' has no quaternion", source=source,
                            where=f"line {line_no[bad[0]]}")
-    bad = np.flatnonzero((row_kind == "m") & q_set.any(1))
+    bad = np.flatnonzero((row_kind == 1) & q_set.any(1))
     if bad.size:
         raise BodyCalError(f"marker '{uniq[name_idx[bad[0]]]}' has a quaternion", source=source,
                            where=f"line {line_no[bad[0]]}", hint="marker rows leave qw,qx,qy,qz empty")
@@ -666,26 +706,31 @@ def read_csv(path) -> Recording:
         k = order[dup[0] + 1]
         raise BodyCalError(f"second row for '{uniq[name_idx[k]]}' at time {t_rows[k]}", source=source,
                            where=f"line {line_no[k]}")
+    del key, order, dup
 
     row_index = index_of[name_idx]
     positions = np.zeros((f, len(devices), 3))
     rotations = np.tile(np.array([1.0, 0, 0, 0]), (f, len(devices), 1))
     valid = np.zeros((f, len(devices)), bool)
-    d_rows = (row_kind == "d") & is_pose_row
+    d_rows = (row_kind == 0) & is_pose_row
     positions[frame_of_row[d_rows], row_index[d_rows]] = p_vals[d_rows]
     rotations[frame_of_row[d_rows], row_index[d_rows]] = q_vals[d_rows]
     valid[frame_of_row[d_rows], row_index[d_rows]] = True
     markers = np.zeros((f, len(marker_names), 3))
     marker_valid = np.zeros((f, len(marker_names)), bool)
-    m_rows = (row_kind == "m") & p_set.all(1)
+    m_rows = (row_kind == 1) & p_set.all(1)
     markers[frame_of_row[m_rows], row_index[m_rows]] = p_vals[m_rows]
     marker_valid[frame_of_row[m_rows], row_index[m_rows]] = True
-
+    # The line of each device's row per frame (4 bytes a row); the per-row arrays go before the
+    # conversion so that they and its copies are never all held at once.
     frame_lines = line_no[new_frame]
+    dev_line = np.zeros((f, len(devices)), np.int32)
+    dev_line[frame_of_row[d_rows], row_index[d_rows]] = line_no[d_rows]
+    del line_no, name_idx, t_rows, p_vals, q_vals, p_set, q_set, row_kind, row_index, frame_of_row, d_rows, m_rows
+    del new_frame, is_pose_row, partial_p, partial_q, finite, bad
 
     def where_of(frame, dev):
-        rows_here = np.flatnonzero(d_rows & (frame_of_row == frame) & (row_index == dev))
-        return f"line {line_no[rows_here[0]]}" if rows_here.size else f"line {frame_lines[frame]}"
+        return f"line {dev_line[frame, dev] or frame_lines[frame]}"
 
     _check_quaternions(rotations, valid, time, devices, source, where_of=where_of)
     rec = _assemble_converted(header, source, time, devices, positions, rotations, valid, marker_names, markers,
@@ -696,31 +741,87 @@ def read_csv(path) -> Recording:
     return rec
 
 
-def _factorize(names: list[str]) -> tuple[list[str], np.ndarray]:
-    """(unique names in order of first appearance, index of each row's name); names are stripped."""
-    raw = list(dict.fromkeys(names))
-    uniq = list(dict.fromkeys(r.strip() for r in raw))
-    pos = {u: k for k, u in enumerate(uniq)}
-    lookup = {r: pos[r.strip()] for r in raw}
-    return uniq, np.fromiter(map(lookup.__getitem__, names), dtype=np.int64, count=len(names))
+_CSV_CHUNK_BYTES = 1 << 20  # text parsed at a time: the file is never held whole, as bytes or as text
 
 
-_NAME_CELL = re.compile(r"^[^,\n]*,([^,\n]*),", re.M)
+def _csv_chunks(path: Path, source: str):
+    """The file's lines (str.splitlines, as for the whole text), a chunk of about _CSV_CHUNK_BYTES at
+    a time; chunks end at a \\n, which is a line break however the lines are counted."""
+    offset = 0
+    with path.open("rb") as fh:
+        while True:
+            blob = b"".join(fh.readlines(_CSV_CHUNK_BYTES))
+            if not blob:
+                return
+            try:
+                text = blob.decode("utf-8-sig" if offset == 0 else "utf-8")
+            except UnicodeDecodeError as exc:
+                raise BodyCalError(f"not UTF-8 text (byte {offset + exc.start})", source=source) from None
+            offset += len(blob)
+            del blob
+            yield text.splitlines()
 
 
-_CSV_NAME_WIDTH = 128
-_CSV_DTYPE = np.dtype([(c, f"U{_CSV_NAME_WIDTH}" if c == "name" else "f8") for c in _CSV_COLUMNS])
+def _count_lines(path: Path) -> int:
+    n = 1
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(_CSV_CHUNK_BYTES), b""):
+            n += block.count(b"\n")
+    return n
 
 
-def _csv_fast(body: list[str], cols: list[str]):
+def _csv_rows(path: Path, first: list[str], chunks, cols: list[str], has_q: list[bool], source: str):
+    """Parse every data row, chunk by chunk, into arrays allocated once for the file's line count:
+    (line numbers, unique stripped names, name index per row, time, positions, quaternions), empty
+    cells NaN. Per row 72 bytes, less than the row's text; names are held once each."""
+    n_max = _count_lines(path)
+    line_no = np.empty(n_max, np.int32 if n_max < 2 ** 31 else np.int64)
+    name_idx = np.empty(n_max, np.int32)
+    t_rows = np.empty(n_max)
+    p_vals = np.empty((n_max, 3))
+    q_vals = np.empty((n_max, 4))
+    uniq: list[str] = []
+    slot: dict[str, int] = {}  # stripped name -> index in uniq
+    lookup: dict[str, int] = {}  # name as written -> index in uniq
+    rows, body, first_line = 0, first[1:], 2
+    while True:
+        parsed = _csv_fast(body, cols, first_line) if all(has_q) else None
+        if parsed is None:
+            parsed = _csv_slow(body, cols, has_q, source, first_line)
+        ln, names, t, p, _p_set, q, _q_set = parsed
+        for raw in dict.fromkeys(names):  # in order of first appearance (the devices' order without a sidecar)
+            if raw not in lookup:
+                lookup[raw] = slot.setdefault(raw.strip(), len(slot))
+                if lookup[raw] == len(uniq):
+                    uniq.append(raw.strip())
+        k = len(ln)
+        if rows + k > n_max:  # cannot happen (splitlines finds at least the \n breaks); never silently
+            raise BodyCalError("more rows than lines", source=source)
+        line_no[rows:rows + k] = ln
+        name_idx[rows:rows + k] = np.fromiter(map(lookup.__getitem__, names), np.int32, count=k)
+        t_rows[rows:rows + k], p_vals[rows:rows + k], q_vals[rows:rows + k] = t, p, q
+        rows += k
+        first_line += len(body)
+        body = next(chunks, None)
+        if body is None:
+            break
+    if rows == 0:
+        raise BodyCalError("no data rows after the header", source=source, where="line 2")
+    return line_no[:rows], uniq, name_idx[:rows], t_rows[:rows], p_vals[:rows], q_vals[:rows]
+
+
+def _csv_fast(body: list[str], cols: list[str], first_line: int = 2):
     """The common case at C speed (numpy's loadtxt parser): standard column order, no blank lines,
-    no written nan/inf. Returns None whenever anything is unusual; the careful path then finds it."""
+    no written nan/inf. Returns None whenever anything is unusual; the careful path then finds it.
+    The name column is split off in Python (a fixed-width numpy string column cost 512 bytes a
+    row); loadtxt reads only the numbers."""
     if cols != list(_CSV_COLUMNS) or not body or not all(body):
         return None
     n = len(body)
-    text = "\n".join(body)
-    if text.count(",") != (len(cols) - 1) * n:
+    commas = len(cols) - 1
+    if not all(ln.count(",") == commas for ln in body):  # loadtxt with usecols would let a row differ
         return None
+    text = "\n".join(body)
     low = text.lower()
     if "nan" in low or "inf" in low or "#" in text:
         return None  # written nan / inf are errors, told apart from empty cells by the careful path
@@ -732,26 +833,28 @@ def _csv_fast(body: list[str], cols: list[str]):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            table = np.loadtxt(io.StringIO(filled), delimiter=",", dtype=_CSV_DTYPE, comments=None, ndmin=1)
+            vals = np.loadtxt(io.StringIO(filled), delimiter=",", dtype=float, comments=None, ndmin=2,
+                              usecols=(0, 2, 3, 4, 5, 6, 7, 8), quotechar=None)
     except (ValueError, TypeError, OverflowError):
         return None
-    if table.shape != (n,):
+    del filled, low, text
+    if vals.shape != (n, 8):
         return None
-    names = table["name"].tolist()
-    if max(map(len, names)) >= _CSV_NAME_WIDTH or "nan" in set(names):
-        return None  # possibly cut, or an empty name cell filled above: the careful path reports it
-    vals = np.stack([table[c] for c in _CSV_COLUMNS if c != "name"], axis=1)
+    names = [ln.split(",", 2)[1] for ln in body]
+    if "" in names:
+        return None  # an empty name cell: the careful path reports it
     is_set = ~np.isnan(vals)
-    line_no = np.arange(2, n + 2, dtype=np.int64)
+    line_no = np.arange(first_line, first_line + n, dtype=np.int64)
     return line_no, names, vals[:, 0], vals[:, 1:4], is_set[:, 1:4], vals[:, 4:8], is_set[:, 4:8]
 
 
-def _csv_slow(body: list[str], cols: list[str], has_q: list[bool], source: str):
+def _csv_slow(body: list[str], cols: list[str], has_q: list[bool], source: str, first_line: int = 2):
     # Keep the line numbers of the file (1-based; the header is line 1), skip blank lines.
-    line_no = np.array([k + 2 for k, ln in enumerate(body) if ln.strip()], dtype=np.int64)
+    line_no = np.array([k + first_line for k, ln in enumerate(body) if ln.strip()], dtype=np.int64)
     rows = [ln.split(",") for ln in body if ln.strip()]
-    if not rows:
-        raise BodyCalError("no data rows after the header", source=source, where="line 2")
+    if not rows:  # blank lines only in this chunk; a file without any row is refused by the caller
+        empty = np.zeros((0, 3)), np.zeros((0, 3), bool), np.zeros((0, 4)), np.zeros((0, 4), bool)
+        return line_no, [], np.zeros(0), *empty
     ncol = len(cols)
     lens = np.fromiter((len(r) for r in rows), dtype=np.int64, count=len(rows))
     bad = np.flatnonzero(lens != ncol)

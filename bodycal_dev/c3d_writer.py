@@ -19,8 +19,14 @@ def ieee_to_dec(values: np.ndarray) -> np.ndarray:
 
 def write_c3d(path, points: np.ndarray, labels: list[str], rate: float, *, units: str = "mm",
               valid: np.ndarray | None = None, events: list[tuple[str, float]] = (), processor: int = INTEL,
-              integer: bool = False, scale: float = 0.1, first_frame: int = 1, y_screen: str = "+Z") -> Path:
-    """Write points (F, N, 3) in `units` as a C3D file (no analog data)."""
+              integer: bool = False, scale: float = 0.1, first_frame: int = 1, y_screen: str = "+Z",
+              float_params: dict[str, float] | None = None) -> Path:
+    """Write points (F, N, 3) in `units` as a C3D file (no analog data).
+
+    `float_params` ({"GROUP:NAME": value}) writes those parameters as a float32 scalar instead of
+    their usual value (or adds them: `ANALOG:RATE`), any value, NaN and infinities included, so the
+    reader's tests can feed it what a broken exporter writes. `POINT:DATA_START` written so still
+    holds a usable block when its value is finite."""
     path = Path(path)
     pts = np.asarray(points, float)
     f, n = pts.shape[:2]
@@ -37,12 +43,18 @@ def write_c3d(path, points: np.ndarray, labels: list[str], rate: float, *, units
         return values.astype(endian + "f4").tobytes()
 
     records = []
+    float_params = {k.upper(): v for k, v in (float_params or {}).items()}
 
     def group(gid, name):
         body = b"\x00"  # empty description
         records.append(struct.pack("bb", len(name), -gid) + name.encode() + i16(2 + len(body)) + body)
 
+    group_ids = {1: "POINT", 2: "EVENT", 3: "ANALOG"}
+
     def param(gid, name, dtype, dims, payload):
+        key = f"{group_ids[gid]}:{name}"
+        if key in float_params:
+            dtype, dims, payload = 4, [], f32([float_params.pop(key)])
         body = struct.pack("bB", dtype, len(dims)) + bytes(dims) + payload + b"\x00"
         records.append(struct.pack("bb", len(name), gid) + name.encode() + i16(2 + len(body)) + body)
 
@@ -70,9 +82,16 @@ def write_c3d(path, points: np.ndarray, labels: list[str], rate: float, *, units
         chars(2, "CONTEXTS", ["General"] * len(events))
         times = np.array([[t // 60, t % 60] for _, t in events], float)
         param(2, "TIMES", 4, [2, len(events)], f32(times.ravel()))
+    for key in [k for k in float_params if k != "POINT:DATA_START"]:
+        gid = {v: k for k, v in group_ids.items()}[key.split(":")[0]]
+        param(gid, key.split(":")[1], 4, [], b"")
     pbody = b"".join(records) + b"\x00\x00"
 
     def data_start_record(block):
+        if "POINT:DATA_START" in float_params:
+            value = float_params["POINT:DATA_START"]
+            return (struct.pack("bb", 10, 1) + b"DATA_START" + i16(9) + struct.pack("bB", 4, 0) + f32([value])
+                    + b"\x00")
         return struct.pack("bb", 10, 1) + b"DATA_START" + i16(7) + struct.pack("bB", 2, 0) + i16(block) + b"\x00"
 
     nblocks = (4 + len(pbody) + len(data_start_record(0)) + 511) // 512

@@ -90,3 +90,70 @@ def test_capsule_axis_offsets_round_trip(tmp_path):
     cap.set_axis_offsets([0.001, 0.0, -0.02], [0.0, 0.0, -0.015])
     back = BodyModel.load(model.save(tmp_path / "m.body.json"))
     np.testing.assert_allclose(back.element("capsule:forearm_l").axis_offsets(), [[0.001, 0, -0.02], [0, 0, -0.015]])
+
+
+# Issue 13: every bad body.json gets one line naming the file and the field.
+
+@pytest.mark.parametrize("mutate, field, words", [
+    (lambda d: d["bones"]["forearm_l"].update(length=0), "bones.forearm_l.length", "positive length"),
+    (lambda d: d["bones"]["forearm_l"].update(length=-0.26), "bones.forearm_l.length", "positive length"),
+    (lambda d: d["bones"]["forearm_l"].update(length=True), "bones.forearm_l.length", "finite number"),
+    (lambda d: d["bones"]["forearm_l"].update(length="0.26"), "bones.forearm_l.length", "finite number"),
+    (lambda d: d["bones"]["forearm_l"].update(radius_tail=-0.03), "bones.forearm_l.radius_tail", "radius"),
+    (lambda d: d["joints"]["shoulder_l"].update(world=[0, True, 1]), "joints.shoulder_l.world", "3 numbers"),
+    (lambda d: d["joints"]["shoulder_l"].update(world=["0.18", "0.02", "1.42"]), "joints.shoulder_l.world",
+     "3 numbers"),
+    (lambda d: d["joints"]["shoulder_l"].update(world=[1e308, 0, 1]), "joints.shoulder_l.world", "below 10000"),
+    (lambda d: d.update(tpose={"head": [0, 0, 1.6, 1, 0, 0, float("nan")]}), "tpose.head[6]", "not a finite"),
+    (lambda d: d.update(eye_height=float("inf")), "eye_height", "not a finite"),
+    (lambda d: d["calibration"]["quality"]["swing_shoulder_l"].update(rms_mm=float("nan")),
+     "calibration.quality.swing_shoulder_l.rms_mm", "not a finite"),
+])
+def test_lax_values_refused_naming_file_and_field(mutate, field, words):
+    data = json.loads(json.dumps(EXAMPLE))
+    mutate(data)
+    with pytest.raises(BodyCalError) as err:
+        BodyModel.from_dict(data, source="x.body.json")
+    text = str(err.value)
+    assert text.startswith(f"x.body.json: {field}: ") and words in text and "\n" not in text, text
+
+
+@pytest.mark.parametrize("blob, words", [
+    (b"BLENDER-v405RENDH\x00\x00\x00" + bytes(range(256)), "is a .blend file"),
+    (b"\x28\xb5\x2f\xfd" + bytes(range(256)), "is a .blend file"),  # zstd-compressed .blend
+    ("{\"name\": \"caf\u00e9\"}".encode("latin-1"), "not UTF-8 text (byte 13)"),
+    (b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+    (b'{"format": "bodycal-body", "version": 1, "kind": "user", "x": ' + b"[" * 500 + b"]" * 500 + b"}",
+     "x" + "[0]" * 64 + ": nested more than 64 levels deep"),
+    (b'{"format": "bodycal-body", "version": 1, "kind": "user", "reference_time": NaN}',
+     "reference_time: nan is not a finite number"),
+])
+def test_unreadable_body_files_are_one_line(tmp_path, blob, words):
+    path = tmp_path / "u.body.json"
+    path.write_bytes(blob)
+    with pytest.raises(BodyCalError) as err:
+        BodyModel.load(path)
+    text = str(err.value)
+    assert text.startswith(str(path)) and words in text and "\n" not in text, text
+
+
+def test_cli_retarget_with_a_random_bytes_body_is_one_line(tmp_path):
+    # End to end (issue 13): exit 2 and exactly one line on stderr, naming the body file.
+    import pathlib
+    import subprocess
+    import sys
+
+    from recording_fixtures import tpose_recording
+
+    from bodycal_addon import recording_io as rio
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    rec = rio.save_recording(tpose_recording(seconds=0.5), tmp_path / "rec.bcrec.json")[0]
+    body = tmp_path / "user.body.json"
+    body.write_bytes(np.random.default_rng(13).integers(0, 256, 3000, dtype=np.uint8).tobytes())
+    out = subprocess.run([sys.executable, "-m", "bodycal_addon", "retarget", str(rec), "--user", str(body),
+                          "--avatar", str(tmp_path / "avatar.blend"), "-o", str(tmp_path / "out.blend")],
+                         cwd=root, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.splitlines()
+    assert len(lines) == 1 and str(body) in lines[0] and "not a body model" in lines[0], out.stderr

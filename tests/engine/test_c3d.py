@@ -178,3 +178,38 @@ def test_broken_files_raise_one_line(tmp_path):
     path = c3d_writer.write_c3d(tmp_path / "ev.c3d", _points(), list("ABCD"), 100.0, events=[("touch:nose", 0.1)])
     with pytest.raises(BodyCalError, match=r"ev.c3d: segments\[0\].point: unknown touch point 'nose'"):
         rio.load_recording(path)
+
+
+@pytest.mark.parametrize("key, value, extra, words", [
+    ("POINT:USED", float("nan"), {}, "POINT:USED: nan is not a count"),
+    ("POINT:DATA_START", float("inf"), {}, "POINT:DATA_START: inf is not a count"),
+    ("EVENT:USED", float("-inf"), {}, "EVENT:USED: -inf is not a count"),
+    ("EVENT:USED", 2.5, {}, "EVENT:USED: 2.5 is not a count"),
+    ("ANALOG:RATE", float("nan"), {"ANALOG:USED": 2.0}, "ANALOG:RATE: nan is not a finite number"),
+    ("ANALOG:RATE", -1000.0, {"ANALOG:USED": 2.0}, "ANALOG:RATE: analog rate -1000 Hz is not usable"),
+    ("POINT:RATE", 1e30, {}, "POINT:RATE: frame rate 1e+30 Hz is not plausible"),
+])
+def test_non_finite_parameters_are_one_line(tmp_path, key, value, extra, words):
+    # Used to escape as ValueError / OverflowError from int(nan) / int(inf) (issue 13).
+    path = c3d_writer.write_c3d(tmp_path / "p.c3d", _points(), list("ABCD"), 100.0, events=[("tpose", 0.1)],
+                                float_params={key: value, **extra})
+    with pytest.raises(BodyCalError) as info:
+        rio.load_recording(path)
+    text = str(info.value)
+    assert text.startswith(f"p.c3d: {words}") and "\n" not in text, text
+
+
+def test_float_parameters_that_are_counts_still_read(tmp_path):
+    # Some exporters write counts as floats: a whole finite value is taken as the count.
+    path = c3d_writer.write_c3d(tmp_path / "f.c3d", _points(), list("ABCD"), 100.0, events=[("tpose", 0.1)],
+                                float_params={"POINT:USED": 4.0, "EVENT:USED": 1.0})
+    raw = c3d.read_c3d(path)
+    assert raw.labels == list("ABCD") and len(raw.events) == 1
+
+
+def test_far_marker_positions_refused(tmp_path):
+    pts = _points()
+    pts[7, 2] = [0.0, 1e38, 0.0]  # float32 holds it; 1e35 m is no marker in a room
+    path = c3d_writer.write_c3d(tmp_path / "far.c3d", pts, list("ABCD"), 100.0)
+    with pytest.raises(BodyCalError, match=r"^far.c3d: marker 'C': frame 8: position .* 10000 m or more"):
+        rio.load_recording(path)

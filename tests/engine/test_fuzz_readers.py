@@ -1,18 +1,24 @@
-"""Fuzzing the readers: random bytes and mutated valid files (JSON, CSV, C3D) either load or raise
-BodyCalError with one line; nothing else ever escapes."""
+"""Fuzzing the readers: random bytes and mutated valid files (JSON, CSV, C3D, body.json) either load
+or raise BodyCalError with one line naming the file; nothing else ever escapes, and numpy never
+warns on the way (a warning would print lines before the error's one line)."""
 
 from __future__ import annotations
 
 import json
+import math
 import pathlib
+import re
 import tempfile
+import warnings
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from recording_fixtures import recording_doc, tpose_recording
 
 from bodycal_addon import recording_io as rio
+from bodycal_addon.bodymodel import BodyModel
 from bodycal_addon.errors import BodyCalError
 from bodycal_dev import c3d_writer
 
@@ -50,9 +56,11 @@ def _load(name: str, data: bytes, sidecar: bytes | None = None):
         else:
             side.write_bytes(sidecar)
     try:
-        rec = rio.load_recording(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)  # numpy's overflow / invalid value warnings
+            rec = rio.load_recording(path)
     except BodyCalError as exc:
-        assert "\n" not in str(exc) and str(exc)
+        _one_line(exc, name.split(".")[0])  # the CSV or its sidecar
         return None
     # Whatever loads is well formed.
     f = rec.frame_count
@@ -60,6 +68,15 @@ def _load(name: str, data: bytes, sidecar: bytes | None = None):
     assert np.isfinite(rec.positions).all() and np.isfinite(rec.markers).all()
     assert np.allclose(np.linalg.norm(rec.rotations, axis=-1), 1.0, atol=1e-6) if rec.rotations.size else True
     return rec
+
+
+def _one_line(exc: BodyCalError, name: str, field: str | None = None) -> str:
+    text = str(exc)
+    assert text and "\n" not in text, text
+    assert name in text, f"the message does not name the file {name}: {text}"
+    if field is not None:
+        assert field in text, f"the message does not name the field {field}: {text}"
+    return text
 
 
 def _mutate_bytes(data: bytes, edits) -> bytes:
@@ -204,3 +221,263 @@ def test_fast_csv_path_agrees_with_the_careful_one(line, col, cell):
     cells[col % len(cells)] = cell
     lines[k] = ",".join(cells)
     _paths_agree("\n".join(lines) + "\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# Issue 13: every bad input gets one line naming the file (and the field)
+
+C3D_PARAMS = {  # parameter -> what else the file needs for it to be read
+    "POINT:USED": {}, "POINT:DATA_START": {}, "POINT:RATE": {}, "POINT:SCALE": {}, "EVENT:USED": {},
+    "ANALOG:USED": {"ANALOG:RATE": 1000.0}, "ANALOG:RATE": {"ANALOG:USED": 1.0},
+}
+_C3D_POINTS = np.random.default_rng(1).uniform(-1e3, 1e3, (12, 3, 3))
+
+
+@FUZZ
+@given(key=st.sampled_from(sorted(C3D_PARAMS)), value=st.sampled_from([math.nan, math.inf, -math.inf]))
+def test_c3d_non_finite_parameters_are_one_line(key, value):
+    path = c3d_writer.write_c3d(_DIR / "nonfinite.c3d", _C3D_POINTS, ["a", "b", "c"], 100.0,
+                                events=[("tpose", 0.01)], float_params={key: value, **C3D_PARAMS[key]})
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            rio.load_recording(path)
+    except BodyCalError as exc:
+        _one_line(exc, "nonfinite.c3d", key)
+    else:
+        raise AssertionError(f"{key} = {value} was accepted")
+
+
+@FUZZ
+@given(key=st.sampled_from(sorted(C3D_PARAMS)), value=st.floats(allow_nan=False, allow_infinity=False, width=32))
+def test_c3d_any_float_parameter_loads_or_is_one_line(key, value):
+    path = c3d_writer.write_c3d(_DIR / "anyfloat.c3d", _C3D_POINTS, ["a", "b", "c"], 100.0,
+                                events=[("tpose", 0.01)], float_params={key: value, **C3D_PARAMS[key]})
+    _load("anyfloat.c3d", path.read_bytes())
+
+
+def _body_load(name: str, data: bytes):
+    path = _DIR / name
+    path.write_bytes(data)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            return BodyModel.load(path)
+    except BodyCalError as exc:
+        _one_line(exc, name)
+        return None
+
+
+@FUZZ
+@given(data=st.binary(max_size=4096))
+@example(data=b"BLENDER-v405REND" + bytes(range(256)))  # a .blend's first bytes
+@example(data="\u00e9t\u00e9".encode("latin-1"))  # not UTF-8
+@example(data=b'{"format": "bodycal-body", "version": 1, "kind": "user", "name": "\xff"}')
+def test_body_json_random_bytes_are_one_line(data):
+    _body_load("random.body.json", data)
+
+
+@FUZZ
+@given(depth=st.integers(1, 120_000), kind=st.sampled_from(["list", "object", "extra"]))
+@example(depth=100_000, kind="list")
+@example(depth=100_000, kind="object")
+@example(depth=100_000, kind="extra")
+def test_body_json_any_nesting_depth_is_one_line(depth, kind):
+    if kind == "list":
+        text = "[" * depth + "]" * depth
+    elif kind == "object":
+        text = '{"a":' * depth + "1" + "}" * depth
+    else:  # a valid model carrying a deep extra field
+        text = ('{"format": "bodycal-body", "version": 1, "kind": "user", "name": "n", "deep": '
+                + "[" * depth + "]" * depth + "}")
+    model = _body_load("deep.body.json", text.encode())
+    assert model is None or kind == "extra" and depth <= 64
+
+
+VALID_BODY = {
+    "format": "bodycal-body", "version": 1, "kind": "user", "name": "s", "reference_time": 1.25,
+    "joints": {"shoulder_l": {"world": [0.18, 0.02, 1.42], "frame": "upperarm_l", "local": [0.0, -0.03, 0.11]}},
+    "bones": {"forearm_l": {"head": "elbow_l", "tail": "wrist_l", "length": 0.26, "right": [1, 0, 0],
+                            "radius_head": 0.045, "radius_tail": 0.03, "right_local": [1, 0, 0],
+                            "right_frame": "forearm_l"}},
+    "surface": [{"id": "sphere:skull", "type": "sphere", "bone": "head", "center": [0, 0.02, 0.09], "radius": 0.095}],
+    "offsets": {"wrist_l": {"tracker": "hand_l", "v0": [0, 0, 0.1], "r0_tracker": [1, 0, 0, 0],
+                            "r0_joint": [1, 0, 0, 0]}},
+    "calibration": {"steps_used": ["tpose"], "quality": {"tpose": {"rms_mm": 2.1}}},
+    "tpose": {"head": [0, 0, 1.6, 1, 0, 0, 0]}, "eye_height": 1.6,
+    "palm_planes": {"hand_l": {"point": [0, 0, 0], "normal": [0, 0, 1]}},
+}
+
+
+def _number_paths(doc, prefix=""):
+    if isinstance(doc, dict):
+        return [p for k, v in doc.items() for p in _number_paths(v, f"{prefix}.{k}" if prefix else k)]
+    if isinstance(doc, list):
+        return [p for k, v in enumerate(doc) for p in _number_paths(v, f"{prefix}[{k}]")]
+    return [prefix] if isinstance(doc, int | float) and not isinstance(doc, bool) and prefix != "version" else []
+
+
+BODY_NUMBERS = _number_paths(VALID_BODY)
+
+
+def _set_path(doc, path: str, value):
+    keys = [int(k) if k.isdigit() else k for k in path.replace("[", ".").replace("]", "").split(".")]
+    target = doc
+    for k in keys[:-1]:
+        target = target[k]
+    target[keys[-1]] = value
+
+
+def test_valid_body_loads():
+    path = _DIR / "ok.body.json"
+    path.write_text(json.dumps(VALID_BODY))
+    assert BodyModel.load(path).bones["forearm_l"].length == 0.26
+
+
+@FUZZ
+@given(path=st.sampled_from(BODY_NUMBERS), token=st.sampled_from(["NaN", "Infinity", "-Infinity", "1e999", "-1e999"]))
+def test_body_json_non_finite_anywhere_names_the_body_file_and_field(path, token):
+    doc = json.loads(json.dumps(VALID_BODY))
+    _set_path(doc, path, "@@")
+    text = json.dumps(doc).replace('"@@"', token)
+    (_DIR / "nonfinite.body.json").write_text(text)
+    with pytest.raises(BodyCalError) as info:
+        BodyModel.load(_DIR / "nonfinite.body.json")
+    _one_line(info.value, "nonfinite.body.json", path)
+
+
+@FUZZ
+@given(path=st.sampled_from(BODY_NUMBERS), value=st.sampled_from([True, False, "1", "0.5", "1e3", 1e308, -1e308]))
+def test_body_json_lax_numbers_refused(path, value):
+    # true / false and numeric strings are not numbers; 1e308 m is no position, offset or length.
+    if isinstance(value, float) and path in ("reference_time",) or path.startswith("calibration"):
+        return  # a time (any finite value) and the free-form calibration report are not bounded
+    doc = json.loads(json.dumps(VALID_BODY))
+    _set_path(doc, path, value)
+    (_DIR / "lax.body.json").write_text(json.dumps(doc))
+    with pytest.raises(BodyCalError) as info:
+        BodyModel.load(_DIR / "lax.body.json")
+    _one_line(info.value, "lax.body.json", re.sub(r"\[\d+\]$", "", path))  # a vector is named whole
+
+
+@FUZZ
+@given(frame=st.integers(0, 20), col=st.integers(0, 6), value=st.sampled_from([1e308, -1e308, 1e4, -2e4, True, False]),
+       fmt=st.sampled_from(["json", "csv"]))
+def test_recording_lax_values_refused(frame, col, value, fmt):
+    # 1e308 (or 10 km and more) is no position in a room; JSON true / false are not numbers.
+    if fmt == "json":
+        doc = json.loads(VALID_JSON)
+        name = next(iter(doc["poses"]))
+        rows = doc["poses"][name]
+        k = next(k % len(rows) for k in range(frame, frame + len(rows)) if rows[k % len(rows)] is not None)
+        rows[k][col if isinstance(value, bool) else col % 3] = value
+        path = _DIR / "lax.bcrec.json"
+        path.write_text(json.dumps(doc))
+        field = f"poses.{name}"
+    else:
+        if isinstance(value, bool):
+            return  # CSV cells are text: "True" is simply not a number (covered by the cell fuzz)
+        lines = VALID_CSV.decode().splitlines()
+        k = 1 + frame % (len(lines) - 1)
+        cells = lines[k].split(",")
+        cells[2 + col % 3] = repr(value)
+        lines[k] = ",".join(cells)
+        path = _DIR / "lax.csv"
+        path.write_text("\n".join(lines) + "\n")
+        (_DIR / "lax.json").write_bytes(VALID_SIDECAR)
+        field = f"line {k + 1}"
+    with pytest.raises(BodyCalError) as info:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            rio.load_recording(path)
+    _one_line(info.value, path.name, field)
+
+
+def test_recording_time_true_refused():
+    doc = json.loads(VALID_JSON)
+    assert doc["time"][0] == 0
+    doc["time"][0] = False  # numpy reads it as 0.0: the old reader accepted it
+    (_DIR / "booltime.bcrec.json").write_text(json.dumps(doc))
+    with pytest.raises(BodyCalError) as info:
+        rio.load_recording(_DIR / "booltime.bcrec.json")
+    _one_line(info.value, "booltime.bcrec.json", "time")
+
+
+def test_c3d_far_positions_refused():
+    pts = _C3D_POINTS.copy()
+    pts[4, 1] = [2e7, 0, 0]  # 20 km in mm
+    path = c3d_writer.write_c3d(_DIR / "far.c3d", pts, ["a", "b", "c"], 100.0)
+    with pytest.raises(BodyCalError) as info:
+        rio.load_recording(path)
+    _one_line(info.value, "far.c3d", "marker 'b'")
+    assert "frame 5" in str(info.value)
+
+
+class _CountingName(str):
+    """A device / marker name that counts its equality comparisons (hash lookups compare only on a
+    hash match; scanning a list compares with every earlier name)."""
+
+    compares = 0
+
+    def __eq__(self, other):
+        type(self).compares += 1
+        return str.__eq__(self, other)
+
+    __hash__ = str.__hash__
+
+
+@pytest.mark.parametrize("n", [2000])
+def test_device_and_marker_parsing_is_linear(n):
+    # Structural, not timed: the name checks compare each name with O(1) others, not with all
+    # earlier ones (the quadratic scan took 55 s for 40k devices).
+    names = [_CountingName(f"LHR-{k:05d}") for k in range(n)]
+    _CountingName.compares = 0
+    devices = rio._parse_devices([{"name": nm, "kind": "tracker", "role": None} for nm in names], "x.bcrec.json")
+    markers = rio._parse_markers([{"name": _CountingName(f"m{k}")} for k in range(n)], "x.bcrec.json")
+    rio._check_keys({nm: None for nm in names}, [d.name for d in devices], "x.bcrec.json", "poses", "device")
+    rio._check_keys({nm: None for nm in markers}, markers, "x.bcrec.json", "points", "marker")
+    assert len(devices) == n and len(markers) == n
+    assert _CountingName.compares <= 8 * n, f"{_CountingName.compares} name comparisons for {n} names"
+
+
+def _csv_outcome(path):
+    try:
+        rec = rio.load_recording(path)
+    except BodyCalError as exc:
+        return str(exc)
+    return rec.time, rec.positions, rec.rotations, rec.valid, rec.markers, rec.marker_valid, \
+        [d.name for d in rec.devices], rec.marker_names
+
+
+@FUZZ
+@given(chunk=st.integers(1, 600), line=st.integers(1, 200), col=st.integers(0, 8),
+       cell=st.sampled_from(["", "nan", "x", "1e999", "5", "hmd", "LHR-00", "1e5"]), blank=st.integers(0, 200),
+       sidecar=st.booleans())
+def test_csv_read_in_chunks_is_the_same_as_at_once(chunk, line, col, cell, blank, sidecar):
+    # The CSV is parsed a chunk at a time (memory, issue 13): whatever the chunk size, a file loads
+    # to the same arrays or fails with the same line as when read at once.
+    lines = VALID_CSV.decode().splitlines()
+    k = 1 + line % (len(lines) - 1)
+    cells = lines[k].split(",")
+    cells[col % len(cells)] = cell
+    lines[k] = ",".join(cells)
+    lines.insert(1 + blank % (len(lines) - 1), "")
+    path = _DIR / "chunks.csv"
+    path.write_text("\r\n".join(lines) + "\r\n")
+    if sidecar:
+        (_DIR / "chunks.json").write_bytes(VALID_SIDECAR)
+    else:
+        (_DIR / "chunks.json").unlink(missing_ok=True)
+    whole = _csv_outcome(path)
+    default = rio._CSV_CHUNK_BYTES
+    try:
+        rio._CSV_CHUNK_BYTES = chunk
+        chunked = _csv_outcome(path)
+    finally:
+        rio._CSV_CHUNK_BYTES = default
+    if isinstance(whole, str):
+        assert chunked == whole
+    else:
+        assert not isinstance(chunked, str), chunked
+        for a, b in zip(whole, chunked):
+            np.testing.assert_array_equal(a, b)
