@@ -139,21 +139,20 @@ def test_unreadable_body_files_are_one_line(tmp_path, blob, words):
 
 def test_cli_retarget_with_a_random_bytes_body_is_one_line(tmp_path):
     # End to end (issue 13): exit 2 and exactly one line on stderr, naming the body file.
-    import pathlib
     import subprocess
     import sys
 
     from recording_fixtures import tpose_recording
+    from repo_paths import REPO
 
     from bodycal_addon import recording_io as rio
 
-    root = pathlib.Path(__file__).resolve().parents[1]
     rec = rio.save_recording(tpose_recording(seconds=0.5), tmp_path / "rec.bcrec.json")[0]
     body = tmp_path / "user.body.json"
     body.write_bytes(np.random.default_rng(13).integers(0, 256, 3000, dtype=np.uint8).tobytes())
     out = subprocess.run([sys.executable, "-m", "bodycal_addon", "retarget", str(rec), "--user", str(body),
                           "--avatar", str(tmp_path / "avatar.blend"), "-o", str(tmp_path / "out.blend")],
-                         cwd=root, capture_output=True, text=True, timeout=300)
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
     assert out.returncode == 2, out.stderr
     lines = out.stderr.splitlines()
     assert len(lines) == 1 and str(body) in lines[0] and "not a body model" in lines[0], out.stderr
