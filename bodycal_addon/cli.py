@@ -14,6 +14,7 @@ import sys
 from collections.abc import Callable
 
 from .errors import BodyCalError
+from .outputs import describe_os_error
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -36,11 +37,13 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
     c.add_argument("recording", metavar="REC", help="recording: .bcrec.json, .csv (+ sidecar .json) or .c3d")
     c.add_argument("-o", "--output", required=True, metavar="USER.body.json")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
     c.add_argument("blend", metavar="FILE.blend")
     c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
     c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
     c.add_argument("recording", metavar="REC")
@@ -54,6 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: feet planted while the performer stands on them)")
     c.add_argument("-o", "--output", required=True, metavar="OUT.blend")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
     c.add_argument("jobs", metavar="JOBS.toml")
@@ -99,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(_handler(args.command)(args) or 0)
     except BodyCalError as exc:
         print(f"bodycal {args.command}: error: {exc.line()}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # a file the checks could not foresee (vanished, disk full, permissions changed)
+        print(f"bodycal {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"bodycal {args.command}: interrupted", file=sys.stderr)
