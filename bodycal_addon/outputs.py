@@ -141,9 +141,10 @@ def _umask() -> int:
 
 
 def write_text(path, text: str, **checks) -> Path:
-    """Write `text` to `path` through `replacing` (same keyword arguments)."""
+    """Write `text` to `path` as UTF-8 (JSON's encoding, whatever the locale) through `replacing`
+    (same keyword arguments)."""
     with replacing(path, **checks) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
     return Path(path)
 
 
