@@ -13,6 +13,7 @@ JOBS.toml:
     runner = "python"           # or "blender": `blender -b -c bodycal ...` (needs the extension installed)
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
+    overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
 
     [[recordings]]
     path = "takes/take1.bcrec.json"
@@ -75,7 +76,7 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 
 _KEYS = {
     "": ("defaults", "recordings", "avatars"),
-    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet"),
+    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "overwrite"),
     "recordings": ("path", "user"),
     "avatars": ("blend", "armature"),
 }
@@ -95,6 +96,7 @@ class Job:
     output: Path
     filter: str | None = None
     plant_feet: bool = True
+    overwrite: bool = False
 
     def argv(self) -> list[str]:
         args = ["retarget", str(self.recording), "--user", str(self.user), "--avatar", str(self.avatar),
@@ -105,6 +107,8 @@ class Job:
             args += ["--filter", self.filter]
         if not self.plant_feet:
             args += ["--no-plant-feet"]
+        if self.overwrite:
+            args += ["--overwrite"]
         return args
 
     @property
@@ -244,6 +248,9 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     plant = defaults.get("plant_feet", True)
     if not isinstance(plant, bool):
         raise check.error("defaults.plant_feet", f"must be true or false, got {_describe(plant)}")
+    overwrite = defaults.get("overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise check.error("defaults.overwrite", f"must be true or false, got {_describe(overwrite)}")
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     if not recordings or not avatars:
@@ -274,7 +281,7 @@ def load_jobs(path) -> tuple[list[Job], dict]:
 
     specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm in avs for m in methods]
     names = output_names(specs)
-    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.blend", filt, plant)
+    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.blend", filt, plant, overwrite)
             for name, (rp, up, ap, arm, m) in zip(names, specs)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):

@@ -224,13 +224,14 @@ class BodyModel:
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1, allow_nan=False)
 
-    def save(self, path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(self.to_json())
-        tmp.replace(path)  # never leave a half-written file where the user's was
-        return path
+    def save(self, path, *, overwrite: bool = True, inputs=(), field: str = "-o") -> Path:
+        """Write the model to `path` (folders created). Never half-written, never over a symlink,
+        a device or one of `inputs` ((what, path) pairs); an existing file is replaced only with
+        `overwrite` (the file browser has already asked; the command line asks for --overwrite)."""
+        from . import outputs
+
+        text = self.to_json()  # a model that cannot be written (NaN) fails before the target is touched
+        return outputs.write_text(path, text, overwrite=overwrite, inputs=inputs, field=field)
 
     @classmethod
     def load(cls, path) -> BodyModel:

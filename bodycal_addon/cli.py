@@ -14,11 +14,11 @@ import sys
 from collections.abc import Callable
 
 from .errors import BodyCalError
+from .outputs import describe_os_error
+from .retarget.pipeline import METHODS
 
 EXIT_OK = 0
 EXIT_USAGE = 2
-
-METHODS = ("egocentric", "offsets", "rotations")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -36,11 +36,13 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
     c.add_argument("recording", metavar="REC", help="recording: .bcrec.json, .csv (+ sidecar .json) or .c3d")
     c.add_argument("-o", "--output", required=True, metavar="USER.body.json")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
     c.add_argument("blend", metavar="FILE.blend")
     c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
     c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
     c.add_argument("recording", metavar="REC")
@@ -54,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: feet planted while the performer stands on them)")
     c.add_argument("-o", "--output", required=True, metavar="OUT.blend")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
     c.add_argument("jobs", metavar="JOBS.toml")
@@ -67,19 +70,7 @@ def _handler(command: str) -> Callable[[argparse.Namespace], int]:
     """Each command lives in its own module under `commands/`, imported only when run, so that
     `--help` and argument errors never load Blender."""
     module_name = "commands." + command.replace("-", "_")
-    try:
-        module = importlib.import_module(f".{module_name}", __package__)
-    except ModuleNotFoundError as exc:
-        if exc.name and exc.name.endswith(module_name):
-            return _not_implemented(command)
-        raise
-    return module.run
-
-
-def _not_implemented(command: str) -> Callable[[argparse.Namespace], int]:
-    def run(_args):
-        raise BodyCalError("not implemented yet in this version of BodyCal", source=command)
-    return run
+    return importlib.import_module(f".{module_name}", __package__).run
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -99,6 +90,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(_handler(args.command)(args) or 0)
     except BodyCalError as exc:
         print(f"bodycal {args.command}: error: {exc.line()}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # a file the checks could not foresee (vanished, disk full, permissions changed)
+        print(f"bodycal {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"bodycal {args.command}: interrupted", file=sys.stderr)

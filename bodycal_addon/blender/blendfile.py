@@ -1,4 +1,5 @@
-"""Opening a user's .blend from the command line and finding the avatar's armature in it."""
+"""Opening a user's .blend from the command line, finding the avatar's armature in it, and
+saving the result without risking any file the user has."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from pathlib import Path
 
 import bpy
 
+from .. import outputs
 from ..errors import BodyCalError
 
 
@@ -37,3 +39,17 @@ def find_armature(name: str | None, source: str):
         raise BodyCalError(f"several armatures ({', '.join(sorted(o.name for o in armatures))}): pick one",
                            source=source, hint="use --armature NAME")
     return armatures[0]
+
+
+def save_blend(path, *, overwrite: bool = True, inputs=(), field: str = "-o") -> Path:
+    """Save the open file as `path` through `outputs.replacing`: Blender writes a temporary file
+    beside it, renamed over `path` only once complete; a symlink, a device or one of `inputs` is
+    refused. The session keeps its own file path (`copy=True`), so nothing points at the temp."""
+    with outputs.replacing(path, inputs=inputs, overwrite=overwrite, field=field) as tmp:
+        tmp.unlink()  # else Blender keeps the empty placeholder as a `.blend1` backup
+        try:
+            bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True)
+        except RuntimeError as exc:
+            raise BodyCalError(f"Blender cannot save it ({str(exc).strip().splitlines()[-1][:120]})",
+                               source=str(path), field=field, hint="check the disk space and the folder") from None
+    return Path(path)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import metrics
+from .. import metrics, outputs
 from ..animation import AvatarAnimation
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
@@ -123,18 +123,28 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
                            quality_figures(anim))
 
 
+def output_inputs(recording_path, user_path, avatar_blend) -> list[tuple[str, object]]:
+    """What `retarget` reads, named for the message when its output would be one of them."""
+    return [*outputs.recording_inputs(recording_path), ("the user file (--user)", user_path),
+            ("the avatar .blend (--avatar)", avatar_blend)]
+
+
 def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, armature: str | None = None,
                    method: str = "egocentric", filter: OneEuro | None = None, plant_feet: bool = True,
-                   log=print) -> RetargetSummary:
-    """`bodycal retarget`: everything from paths, nothing from a running session."""
+                   overwrite: bool = True, log=print) -> RetargetSummary:
+    """`bodycal retarget`: everything from paths, nothing from a running session. The output is
+    checked first (not an input, not a link or device, replaced only with `overwrite`), so a bad
+    path costs nothing; it is written last, all at once."""
     from pathlib import Path
 
     import bpy
 
     from ..recording_io import load_recording
-    from .blendfile import find_armature, open_blend
+    from .blendfile import find_armature, open_blend, save_blend
 
     avatar_blend, output_blend = Path(avatar_blend), Path(output_blend)
+    files_read = output_inputs(recording_path, user_path, avatar_blend)
+    outputs.check_output(output_blend, inputs=files_read, overwrite=overwrite)
     recording = load_recording(recording_path)  # validate every input before opening anything
     user = BodyModel.load(user_path)
     if user.kind != "user":
@@ -145,8 +155,7 @@ def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, arm
                            plant_feet=plant_feet)
     anim = compute(inputs)
     summary = bake_and_measure(inputs, anim, set_scene_rate=True)
-    output_blend.parent.mkdir(parents=True, exist_ok=True)
-    bpy.ops.wm.save_as_mainfile(filepath=str(output_blend.resolve()), copy=False)
+    save_blend(output_blend, inputs=files_read, overwrite=overwrite)
     log(summary.line())
     log(f"saved {output_blend}")
     return summary

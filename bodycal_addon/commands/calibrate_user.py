@@ -25,11 +25,15 @@ def summary_lines(model) -> list[str]:
 
 def run(args) -> int:
     from ..calibration import calibrate_user
+    from ..outputs import check_output, recording_inputs
     from ..recording_io import load_recording
 
+    files_read = recording_inputs(args.recording)
+    overwrite = getattr(args, "overwrite", False)
+    check_output(args.output, inputs=files_read, overwrite=overwrite)  # before any work
     rec = load_recording(args.recording)
     model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
-    out = model.save(args.output)
+    out = model.save(args.output, inputs=files_read, overwrite=overwrite)
     print(f"calibrated {len(model.joints)} joints from {len(model.calibration['steps_used'])} steps "
           f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s) -> {out}")
     for line in summary_lines(model):

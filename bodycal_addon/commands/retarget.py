@@ -1,5 +1,5 @@
 """`bodycal retarget REC --user USER.body.json --avatar FILE.blend [--armature NAME] [--method M]
-[--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]] [--no-plant-feet] -o OUT.blend`."""
+[--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]] [--no-plant-feet] -o OUT.blend [--overwrite]`."""
 
 
 def run(args) -> int:
@@ -8,5 +8,6 @@ def run(args) -> int:
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
     retarget_files(args.recording, args.user, args.avatar, args.output, armature=args.armature, method=args.method,
-                   filter=cfg, plant_feet=getattr(args, "plant_feet", True))
+                   filter=cfg, plant_feet=getattr(args, "plant_feet", True),
+                   overwrite=getattr(args, "overwrite", False))
     return 0

@@ -195,9 +195,10 @@ def test_cli_calibrate_avatar(tmp_path, capsys):
     assert model.kind == "avatar"
     assert sorted(e.id for e in model.surface) == sorted(sl.element_ids())
     capsys.readouterr()
-    assert cli.main(["calibrate-avatar", str(blend), "--armature", "nope", "-o", str(out)]) == 2
+    # --overwrite: the existing output is allowed, so the input's own error is the one reported
+    assert cli.main(["calibrate-avatar", str(blend), "--armature", "nope", "-o", str(out), "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "no armature named 'nope'" in err and "procedural" in err
-    assert cli.main(["calibrate-avatar", str(tmp_path / "missing.blend"), "-o", str(out)]) == 2
+    assert cli.main(["calibrate-avatar", str(tmp_path / "missing.blend"), "-o", str(out), "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "no such file" in err

@@ -98,7 +98,11 @@ def test_filter_and_feet_settings_reach_every_job(tmp_path):
                                         '[[recordings]]\npath="t.bcrec.json"\nuser="u.body.json"\n'
                                         '[[avatars]]\nblend="a.blend"\n')
     (job,), _settings = load_jobs(tmp_path / "jobs.toml")
-    assert job.argv()[-3:] == ["--filter", "2,6", "--no-plant-feet"]
+    assert job.argv()[-3:] == ["--filter", "2,6", "--no-plant-feet"] and "--overwrite" not in job.argv()
+    (tmp_path / "jobs.toml").write_text('[defaults]\noverwrite = true\n[[recordings]]\npath="t"\nuser="u"\n'
+                                        '[[avatars]]\nblend="a"\n')
+    (job,), _settings = load_jobs(tmp_path / "jobs.toml")
+    assert job.argv()[-1] == "--overwrite"
     (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = true\n[[recordings]]\npath="t"\nuser="u"\n'
                                         '[[avatars]]\nblend="a"\n')
     (job,), _settings = load_jobs(tmp_path / "jobs.toml")
@@ -201,6 +205,7 @@ BAD_DEFAULTS = [
     ("runner = 5", "defaults.runner", '"python" or "blender"'),
     ("filter = 3", "defaults.filter", "true, false"),
     ('plant_feet = "no"', "defaults.plant_feet", "true or false"),
+    ("overwrite = 1", "defaults.overwrite", "true or false"),
     ("plant_foot = false", "defaults", "unknown key"),
 ]
 
