@@ -24,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .coords import check_positions, to_internal
 from .errors import BodyCalError
 from .recording import STEPS, Recording
+from .segments import parse_segments
 
 INTEL, DEC, MIPS = 84, 85, 86
 PROCESSORS = {INTEL: "Intel", DEC: "DEC", MIPS: "MIPS"}
@@ -377,8 +379,6 @@ def event_segments(events, t_end: float) -> list[dict]:
 
 def read_c3d_recording(path) -> Recording:
     """A marker-only Recording from a C3D file, in the internal frame (metres, Z up)."""
-    from .recording_io import _parse_segments, check_positions, to_internal
-
     c = read_c3d(path)
     if c.units not in UNIT_SCALE:
         raise BodyCalError(f"unknown units '{c.units}'", source=c.source, field="POINT:UNITS", hint="mm, cm or m")
@@ -407,7 +407,7 @@ def read_c3d_recording(path) -> Recording:
                     [f"marker {c.labels[k]!r}" for k in keep], lambda f, _i: f"frame {c.first_frame + f}")
     pts, _ = to_internal(c.points[:, keep], None, up, "right", c.units)
     time = c.time
-    segs = _parse_segments(event_segments(c.events, float(time[-1])), time, c.source, [], names)
+    segs = parse_segments(event_segments(c.events, float(time[-1])), time, c.source, [], names)
     n = c.frame_count
     rec = Recording(name=Path(c.source).stem, time=time, devices=[], positions=np.zeros((n, 0, 3)),
                     rotations=np.zeros((n, 0, 4)), valid=np.zeros((n, 0), bool), marker_names=names,

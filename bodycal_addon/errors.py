@@ -28,5 +28,11 @@ class BodyCalError(Exception):
         return " ".join(text.split())  # always one line
 
 
+def short_repr(v) -> str:
+    """`repr(v)`, cut to 40 characters: a damaged value quoted in a one-line message."""
+    s = repr(v)
+    return s if len(s) <= 40 else s[:37] + "..."
+
+
 class Cancelled(Exception):
     """The user pressed Esc during long work; nothing was written."""

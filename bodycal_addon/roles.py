@@ -6,7 +6,7 @@ In a T-pose every device lies near the performer's frontal plane. The plane's no
 horizontal) is the facing axis. Its sign: the HMD (in front of the face) and the foot trackers (on
 top of the feet) lie ahead of the plane; when that margin is too small to trust, an upright HMD's
 view direction decides (local -Z: OpenXR view space, also Blender's camera convention; see
-recording_io for how device frames are converted). Left = up x forward. Then, on the plane:
+coords.py for how device frames are converted). Left = up x forward. Then, on the plane:
 highest = head, the two far lateral = hands, lowest per side = feet, and the rest by height and
 lateral distance: central devices are pelvis (waist) and chest (above), lateral ones above the
 waist are upper arm (nearer) and forearm (farther), below it thigh (higher) and shin (lower).

@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import transforms as tf
 from ..errors import BodyCalError
+from ..led_gloves import led_hand_frame
 from ..recording import Recording, Segment
 
 REF_HALF_WINDOW = 0.1  # s: device poses at the reference time are robust means over this window
@@ -129,8 +130,6 @@ class Session:
         return self._poses[role]
 
     def _led_hand(self, s: str):
-        from ..recording_io import led_hand_frame
-
         leds = [self.rec.marker(f"hand_led{k}_{s}") for k in (1, 2, 3)]
         origin, q, ok = led_hand_frame(*(p for p, _ in leds))
         ok = ok & leds[0][1] & leds[1][1] & leds[2][1]

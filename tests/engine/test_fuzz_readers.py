@@ -20,6 +20,7 @@ from recording_fixtures import recording_doc, tpose_recording
 from bodycal_addon import recording_io as rio
 from bodycal_addon.bodymodel import BodyModel
 from bodycal_addon.errors import BodyCalError
+from bodycal_addon.recording_io import csv_format, header, json_format
 from bodycal_dev import c3d_writer
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -192,11 +193,11 @@ def test_mutated_c3d_header_and_parameters(pos, values):
 def _paths_agree(text: str):
     lines = text.splitlines()
     cols = [c.strip().lower() for c in lines[0].split(",")]
-    fast = rio._csv_fast(lines[1:], cols)
+    fast = csv_format._csv_fast(lines[1:], cols)
     if fast is None:
         return None
     try:
-        slow = rio._csv_slow(lines[1:], cols, [True] * 4, "x.csv")
+        slow = csv_format._csv_slow(lines[1:], cols, [True] * 4, "x.csv")
     except BodyCalError:
         raise AssertionError("the fast CSV path accepted what the careful path rejects") from None
     np.testing.assert_array_equal(fast[0], slow[0])
@@ -432,10 +433,10 @@ def test_device_and_marker_parsing_is_linear(n):
     # earlier ones (the quadratic scan took 55 s for 40k devices).
     names = [_CountingName(f"LHR-{k:05d}") for k in range(n)]
     _CountingName.compares = 0
-    devices = rio._parse_devices([{"name": nm, "kind": "tracker", "role": None} for nm in names], "x.bcrec.json")
-    markers = rio._parse_markers([{"name": _CountingName(f"m{k}")} for k in range(n)], "x.bcrec.json")
-    rio._check_keys({nm: None for nm in names}, [d.name for d in devices], "x.bcrec.json", "poses", "device")
-    rio._check_keys({nm: None for nm in markers}, markers, "x.bcrec.json", "points", "marker")
+    devices = header._parse_devices([{"name": nm, "kind": "tracker", "role": None} for nm in names], "x.bcrec.json")
+    markers = header._parse_markers([{"name": _CountingName(f"m{k}")} for k in range(n)], "x.bcrec.json")
+    json_format._check_keys({nm: None for nm in names}, [d.name for d in devices], "x.bcrec.json", "poses", "device")
+    json_format._check_keys({nm: None for nm in markers}, markers, "x.bcrec.json", "points", "marker")
     assert len(devices) == n and len(markers) == n
     assert _CountingName.compares <= 8 * n, f"{_CountingName.compares} name comparisons for {n} names"
 
@@ -469,12 +470,12 @@ def test_csv_read_in_chunks_is_the_same_as_at_once(chunk, line, col, cell, blank
     else:
         (_DIR / "chunks.json").unlink(missing_ok=True)
     whole = _csv_outcome(path)
-    default = rio._CSV_CHUNK_BYTES
+    default = csv_format._CSV_CHUNK_BYTES
     try:
-        rio._CSV_CHUNK_BYTES = chunk
+        csv_format._CSV_CHUNK_BYTES = chunk
         chunked = _csv_outcome(path)
     finally:
-        rio._CSV_CHUNK_BYTES = default
+        csv_format._CSV_CHUNK_BYTES = default
     if isinstance(whole, str):
         assert chunked == whole
     else:
