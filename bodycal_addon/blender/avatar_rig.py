@@ -11,7 +11,7 @@ import json
 import numpy as np
 
 from .. import skeleton as sk
-from ..armature import HINGE_BONES, ArmatureReading, check_humanoid, read_armature
+from ..armature import HINGE_BONES, ArmatureReading, read_armature
 from ..errors import BodyCalError
 
 BONE_MAP_PROP = "bodycal_bone_map"  # JSON {segment: avatar bone ("" = unmapped)}: user overrides
@@ -102,7 +102,6 @@ def read_rig(arm, bone_map: sk.BoneMap | None = None) -> ArmatureReading:
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
     bm = bone_map or bone_map_for(arm)
-    check_humanoid(arm.name, bm)
     rest = {b.name: {"parent": b.parent.name if b.parent else None, "head": np.array(b.head_local[:]),
                      "tail": np.array(b.tail_local[:]),
                      "matrix": np.array([b.matrix_local[i][:3] for i in range(3)], dtype=float)}

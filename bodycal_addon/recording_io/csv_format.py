@@ -10,11 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..coords import UNITS, check_positions, check_quaternions, to_internal
+from ..coords import UNITS, check_positions, check_quaternions
 from ..errors import BodyCalError, short_repr
 from ..recording import Device, Recording
-from ..segments import parse_segments
-from .header import _SIDECAR_FIELDS, _load_json_file, _parse_header
+from .header import _SIDECAR_FIELDS, _load_json_file, _parse_header, assemble
 
 _CSV_COLUMNS = ("time", "name", "px", "py", "pz", "qw", "qx", "qy", "qz")
 
@@ -146,8 +145,8 @@ def read_csv(path) -> Recording:
         return f"line {dev_line[frame, dev] or frame_lines[frame]}"
 
     check_quaternions(rotations, valid, time, devices, source, where_of=where_of)
-    rec = _assemble_converted(header, source, time, devices, positions, rotations, valid, marker_names, markers,
-                              marker_valid)
+    rec = assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers,
+                   marker_valid, quaternions_checked=True)
     if not sidecar.is_file():
         rec.notes.append(f"no sidecar {sidecar.name}: assumed Y up, right-handed, metres, "
                          f"{len(devices)} trackers without roles, {len(marker_names)} markers, no segments")
@@ -287,21 +286,6 @@ def _csv_slow(body: list[str], cols: list[str], has_q: list[bool], source: str, 
         q_vals = np.full((len(rows), 4), np.nan)
         q_set = np.zeros((len(rows), 4), bool)
     return line_no, [c.strip() for c in columns["name"]], t_rows, p_vals, p_set, q_vals, q_set
-
-
-def _assemble_converted(header, source, time, devices, positions, rotations, valid, marker_names, markers,
-                        marker_valid):
-    # Quaternions were already checked (with CSV line numbers); skip the second check.
-    up, hand, units = header["coords"]
-    positions, rotations = to_internal(positions, rotations, up, hand, units)
-    markers, _ = to_internal(markers, None, up, hand, units)
-    segments = parse_segments(header["segments_raw"], time, source, devices, marker_names)
-    rec = Recording(name=header["name"] or Path(source).name.split(".")[0], time=time, devices=devices,
-                    positions=positions, rotations=rotations, valid=valid, marker_names=marker_names,
-                    markers=markers, marker_valid=marker_valid, segments=segments, source=source)
-    if (up, hand, units) != ("Z", "right", "m"):
-        rec.notes.append(f"converted from {up} up, {hand}-handed, {units} to Z up, right-handed, metres")
-    return rec
 
 
 def _csv_floats(cells, source, fld, line_no, allow_empty=True) -> tuple[np.ndarray, np.ndarray]:

@@ -6,9 +6,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..coords import check_coords
+from ..coords import check_coords, check_quaternions, to_internal
 from ..errors import BodyCalError
-from ..recording import DEVICE_KINDS, ROLES, Device
+from ..recording import DEVICE_KINDS, ROLES, Device, Recording
+from ..segments import parse_segments
 
 FORMAT_NAME = "bodycal-recording"
 
@@ -119,3 +120,22 @@ def _parse_markers(items, source: str) -> list[str]:
         seen.add(name)
         names.append(name)
     return names
+
+
+def assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers, marker_valid,
+             quaternions_checked: bool = False) -> Recording:
+    """The Recording from parsed arrays in the file's coordinates: quaternions checked (unless the
+    reader already did, with its own line numbers), converted to Z up, right-handed metres, the
+    segments parsed, and a note when a conversion happened."""
+    up, hand, units = header["coords"]
+    if not quaternions_checked:
+        check_quaternions(rotations, valid, time, devices, source)
+    positions, rotations = to_internal(positions, rotations, up, hand, units)
+    markers, _ = to_internal(markers, None, up, hand, units)
+    segments = parse_segments(header["segments_raw"], time, source, devices, marker_names)
+    rec = Recording(name=header["name"] or Path(source).name.split(".")[0], time=time, devices=devices,
+                    positions=positions, rotations=rotations, valid=valid, marker_names=marker_names,
+                    markers=markers, marker_valid=marker_valid, segments=segments, source=source)
+    if (up, hand, units) != ("Z", "right", "m"):
+        rec.notes.append(f"converted from {up} up, {hand}-handed, {units} to Z up, right-handed, metres")
+    return rec

@@ -8,11 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..coords import UNITS, check_positions, check_quaternions, to_internal
+from ..coords import UNITS, check_positions
 from ..errors import BodyCalError, short_repr
 from ..recording import Recording
-from ..segments import parse_segments
-from .header import _TOP_FIELDS, _load_json_file, _parse_header
+from .header import _TOP_FIELDS, _load_json_file, _parse_header, assemble
 
 
 def read_json(path) -> Recording:
@@ -47,22 +46,8 @@ def read_json(path) -> Recording:
     check_positions(positions, valid, scale, source, [f"poses.{d.name}" for d in devices], lambda k, _i: f"frame {k}")
     check_positions(markers, marker_valid, scale, source, [f"points.{n}" for n in marker_names],
                     lambda k, _i: f"frame {k}")
-    return _assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers,
-                     marker_valid)
-
-
-def _assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers, marker_valid):
-    up, hand, units = header["coords"]
-    check_quaternions(rotations, valid, time, devices, source)
-    positions, rotations = to_internal(positions, rotations, up, hand, units)
-    markers, _ = to_internal(markers, None, up, hand, units)
-    segments = parse_segments(header["segments_raw"], time, source, devices, marker_names)
-    rec = Recording(name=header["name"] or Path(source).name.split(".")[0], time=time, devices=devices,
-                    positions=positions, rotations=rotations, valid=valid, marker_names=marker_names,
-                    markers=markers, marker_valid=marker_valid, segments=segments, source=source)
-    if (up, hand, units) != ("Z", "right", "m"):
-        rec.notes.append(f"converted from {up} up, {hand}-handed, {units} to Z up, right-handed, metres")
-    return rec
+    return assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers,
+                    marker_valid)
 
 
 def _check_keys(obj: dict, expected: list[str], source: str, fld: str, what: str) -> None:

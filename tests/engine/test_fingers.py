@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from retarget_bodies import random_rotations
 
 from bodycal_addon.retarget import fingers as fg
 
@@ -37,15 +38,6 @@ def test_flexion_is_capped_and_never_nan():
     assert a[-1] < 0.02  # farther than the finger reaches: straight
 
 
-def _random_frames(rng, n):
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(n, 3, 3)
-
-
 @pytest.mark.parametrize("thumb", [False, True])
 def test_pose_finger_reaches_targets_within_the_limits(thumb):
     rng = np.random.default_rng(3)
@@ -58,7 +50,7 @@ def test_pose_finger_reaches_targets_within_the_limits(thumb):
     tip_local = fg.tip_distance(l1, l2, l3, alpha)
     pitch = np.deg2rad(rng.uniform(plo, phi, n))
     direction = np.stack([np.sin(yaw) * np.cos(pitch), np.cos(yaw) * np.cos(pitch), -np.sin(pitch)], -1)
-    ref = _random_frames(rng, n)
+    ref = random_rotations(rng, n)
     mcp = rng.normal(size=(n, 3))
     roll = fg.THUMB_ROLL if thumb else 0.0
     rolled = ref @ fg._ry(np.full(n, roll))
