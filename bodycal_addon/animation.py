@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .transforms import slerp
+
 
 @dataclass
 class AvatarAnimation:
@@ -37,3 +39,30 @@ class AvatarAnimation:
     @property
     def frame_count(self) -> int:
         return len(self.time)
+
+
+def resample(anim: AvatarAnimation, fps: float) -> AvatarAnimation:
+    """`anim` sampled every 1/fps s from its first sample to its last (the duration is kept: a
+    90 Hz take resampled at 30 fps lasts as long). Rotations are slerped, the root location and
+    the measured joints and targets interpolated linearly."""
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be positive, got {fps}")
+    time = np.asarray(anim.time, float)
+    if len(time) < 2:
+        return anim
+    n = int(np.floor((time[-1] - time[0]) * fps + 1e-6)) + 1
+    t_out = time[0] + np.arange(n) / fps
+    i = np.clip(np.searchsorted(time, t_out, side="right") - 1, 0, len(time) - 2)
+    u = np.clip((t_out - time[i]) / np.maximum(time[i + 1] - time[i], 1e-12), 0.0, 1.0)
+
+    def lerp(a):
+        a = np.asarray(a, float)
+        w = u.reshape((-1,) + (1,) * (a.ndim - 1))
+        return a[i] * (1.0 - w) + a[i + 1] * w
+
+    rotations = slerp(anim.rotations[i], anim.rotations[i + 1], u[:, None])
+    return AvatarAnimation(anim.armature, list(anim.bone_names), rotations, anim.root_bone,
+                           lerp(anim.root_location), t_out, anim.method,
+                           {k: lerp(v) for k, v in anim.joints_world.items()},
+                           {k: lerp(v) for k, v in anim.targets.items()},
+                           [*anim.notes, f"resampled to {fps:g} fps from {len(time)} samples"])

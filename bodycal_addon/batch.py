@@ -14,6 +14,9 @@ JOBS.toml:
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
     overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
+    tolerance = 0.1             # optional: key reduction, degrees (as retarget --tolerance; 0 keys every sample)
+    fps = 30                    # optional: output frame rate (as retarget --fps; default the recording's)
+    export = ["blend", "fbx"]   # optional: the files each job writes (blend, fbx, glb, gltf, bvh)
 
     [[recordings]]
     path = "takes/take1.bcrec.json"
@@ -76,13 +79,15 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 
 _KEYS = {
     "": ("defaults", "recordings", "avatars"),
-    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "overwrite"),
+    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "overwrite", "tolerance",
+                 "fps", "export"),
     "recordings": ("path", "user"),
     "avatars": ("blend", "armature"),
 }
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _UNSAFE = re.compile(r"[^\w.+-]")  # \w: letters and digits of any script, and _
 PART_BYTES = 64
+EXPORT_FORMATS = ("blend", "fbx", "glb", "gltf", "bvh")
 
 
 @dataclass
@@ -97,10 +102,23 @@ class Job:
     filter: str | None = None
     plant_feet: bool = True
     overwrite: bool = False
+    tolerance: float | None = None
+    fps: float | None = None
+    exports: tuple[Path, ...] = ()  # further outputs beside `output` (other formats)
+
+    @property
+    def outputs(self) -> list[Path]:
+        return [self.output, *self.exports]
 
     def argv(self) -> list[str]:
         args = ["retarget", str(self.recording), "--user", str(self.user), "--avatar", str(self.avatar),
-                "--method", self.method, "-o", str(self.output)]
+                "--method", self.method]
+        for out in self.outputs:
+            args += ["-o", str(out)]
+        if self.tolerance is not None:
+            args += ["--tolerance", repr(float(self.tolerance))]
+        if self.fps is not None:
+            args += ["--fps", repr(float(self.fps))]
         if self.armature:
             args += ["--armature", self.armature]
         if self.filter is not None:
@@ -221,6 +239,25 @@ def _filter(check: _Checker, value) -> str | None:
     return value
 
 
+def _number(check: _Checker, value, field: str, low: float, high: float, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise check.error(field, f"must be a number from {low:g} to {high:g} ({what}), got {_describe(value)}")
+    return float(value)
+
+
+def _exports(check: _Checker, value) -> list[str]:
+    field, allowed = "defaults.export", ", ".join(EXPORT_FORMATS)
+    formats = [value] if isinstance(value, str) else value
+    if not isinstance(formats, list) or not formats:
+        raise check.error(field, f"must be a format or a non-empty list of formats ({allowed}), got {_describe(value)}")
+    for f in formats:
+        if f not in EXPORT_FORMATS:
+            raise check.error(field, f"unknown format {_describe(f)}; use {allowed}")
+    if len(set(formats)) != len(formats):
+        raise check.error(field, "lists a format twice; list each once")
+    return formats
+
+
 def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
     what = {"recordings": "[[recordings]] tables with path and user",
             "avatars": "[[avatars]] tables with blend (and optionally armature)"}[key]
@@ -251,6 +288,10 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     overwrite = defaults.get("overwrite", False)
     if not isinstance(overwrite, bool):
         raise check.error("defaults.overwrite", f"must be true or false, got {_describe(overwrite)}")
+    tolerance = (_number(check, defaults["tolerance"], "defaults.tolerance", 0.0, 180.0, "degrees")
+                 if "tolerance" in defaults else None)
+    fps = _number(check, defaults["fps"], "defaults.fps", 1.0, 1000.0, "frames per second") if "fps" in defaults else None
+    formats = _exports(check, defaults.get("export", ["blend"]))
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     if not recordings or not avatars:
@@ -281,7 +322,8 @@ def load_jobs(path) -> tuple[list[Job], dict]:
 
     specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm in avs for m in methods]
     names = output_names(specs)
-    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.blend", filt, plant, overwrite)
+    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, tolerance, fps,
+                tuple(out_dir / f"{name}.{f}" for f in formats[1:]))
             for name, (rp, up, ap, arm, m) in zip(names, specs)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):
@@ -434,6 +476,7 @@ def _send(run: _Running, sig: int):
 def _result(job: Job, status: str, code: int | None, seconds: float, error: str | None) -> dict:
     return {"job": job.name, "status": status, "ok": status == "ok", "exit_code": code, "seconds": round(seconds, 2),
             "output": str(job.output) if status == "ok" else None,
+            "outputs": [str(o) for o in job.outputs] if status == "ok" else [],
             "error": " ".join(error.split()) if error else None}
 
 

@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 from .errors import BodyCalError
 from .outputs import describe_os_error
+from .keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .retarget.pipeline import METHODS
 
 EXIT_OK = 0
@@ -55,7 +56,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: feet planted while the performer stands on them)")
-    c.add_argument("-o", "--output", required=True, metavar="OUT.blend")
+    c.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
+                   help="key reduction: each bone's rotation stays within DEG degrees of every sample "
+                        f"(default {DEFAULT_TOLERANCE_DEG:g}; 0 keys every sample)")
+    c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
+                   help=f"key reduction of the root's location, in millimetres (default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
+    c.add_argument("--fps", type=float, default=None, metavar="N",
+                   help="output frame rate: the action is resampled to N frames per second, timing kept "
+                        "(default: one key per recording sample, the scene set to the recording's rate)")
+    c.add_argument("-o", "--output", required=True, action="append", metavar="OUT.blend|.fbx|.glb|.gltf|.bvh",
+                   help="a .blend (the avatar's file with the new action), or an export of the avatar "
+                        "and its baked action for game engines; give -o several times for several files")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")

@@ -5,13 +5,19 @@ progress and listens for Esc; the bake (the only scene write) runs on the main t
 arrays are ready. From scripts and in background mode `execute` runs the same steps synchronously.
 """
 
+import math
 import threading
+from pathlib import Path
 
 import bpy
+from bpy_extras.io_utils import ExportHelper
 
 from ..bodycal_addon.blender import retarget_scene
+from ..bodycal_addon.blender.bake import BakeOptions
+from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
 from ..bodycal_addon.errors import Cancelled
 from ..bodycal_addon.filters import OneEuro
+from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .reporting import reports_errors
 
 METHOD_ITEMS = [
@@ -49,6 +55,18 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     filter_rot_beta: bpy.props.FloatProperty(
         name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
+    tolerance: bpy.props.FloatProperty(
+        name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0), precision=3, subtype="ANGLE",
+        description="Key reduction: every bone's rotation stays within this angle of the every-frame bake "
+                    "(linear keys); 0 keys every frame")
+    location_tolerance: bpy.props.FloatProperty(
+        name="Location Tolerance", default=DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
+        precision=4, subtype="DISTANCE", unit="LENGTH",
+        description="Key reduction of the root bone's location: stays within this distance of the every-frame bake")
+    output_fps: bpy.props.IntProperty(
+        name="Frame Rate", default=0, min=0, max=1000,
+        description="Frame rate of the baked action, timing kept (0: the scene's rate; another rate also "
+                    "becomes the scene's)")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 
 
@@ -94,7 +112,12 @@ on each"""
     def _finish(self, context, inputs: list, anims: list):
         """Bake every avatar's animation: only once all of them were computed."""
         settings = context.scene.bodycal_retarget
-        lines = [retarget_scene.bake_and_measure(i, a, replace=settings.replace, push_to_nla=settings.push_to_nla
+        render = context.scene.render
+        fps = float(settings.output_fps) if settings.output_fps else render.fps / render.fps_base
+        options = BakeOptions(math.degrees(settings.tolerance),
+                              settings.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps)
+        lines = [retarget_scene.bake_and_measure(i, a, replace=settings.replace, push_to_nla=settings.push_to_nla,
+                                                 options=options, set_scene_rate=bool(settings.output_fps)
                                                  ).line() for i, a in zip(inputs, anims)]
         settings.last_result = "; ".join(lines)
         for line in lines:
@@ -159,7 +182,56 @@ on each"""
         return self._finish(context, self._inputs_cache, self._result["anims"])
 
 
-CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake)
+class BODYCAL_OT_export_animation(bpy.types.Operator, ExportHelper):
+    """Export the active armature with its meshes and its baked action (FBX, glTF or BVH), with the
+options a game engine expects"""
+
+    bl_idname = "bodycal.export_animation"
+    bl_label = "Export Baked Avatar"
+    bl_options = {"REGISTER"}
+
+    filename_ext = ".fbx"
+    filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in EXPORT_SUFFIXES), options={"HIDDEN"})
+    file_format: bpy.props.EnumProperty(
+        name="Format", default=".fbx",
+        items=[(".fbx", "FBX", "Armature, meshes and the action; Y up, no leaf bones (Unity, Unreal)"),
+               (".glb", "glTF Binary (.glb)", "One binary file: armature, skinned meshes and the action"),
+               (".gltf", "glTF (.gltf)", "One text file with its buffers embedded"),
+               (".bvh", "BVH", "The armature's motion only")],
+        update=lambda self, _context: self._use_format())
+
+    def _use_format(self):
+        self.filename_ext = self.file_format
+        if self.filepath:
+            self.filepath = str(Path(self.filepath).with_suffix(self.file_format))
+
+    def check(self, context):
+        self.filename_ext = self.file_format
+        return super().check(context)
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.active_object
+        if obj is None or obj.type != "ARMATURE":
+            cls.poll_message_set("Make an armature the active object")
+            return False
+        if obj.animation_data is None or obj.animation_data.action is None:
+            cls.poll_message_set("The armature has no action: retarget and bake first")
+            return False
+        return True
+
+    @reports_errors
+    def execute(self, context):
+        path = Path(self.filepath)
+        if path.suffix.lower() not in EXPORT_SUFFIXES:
+            path = path.with_suffix(self.file_format)
+        # The file browser already asked before replacing an existing file.
+        export_avatar(context.active_object, path, overwrite=True, field="file")
+        self.report({"INFO"}, f"Exported {context.active_object.name} to {path}")
+        return {"FINISHED"}
+
+
+CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake, BODYCAL_OT_export_animation)
 
 
 def register_properties():

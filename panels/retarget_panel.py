@@ -28,7 +28,12 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
             sub.prop(settings, "filter_beta")
             sub.prop(settings, "filter_rot_min_cutoff")
             sub.prop(settings, "filter_rot_beta")
+        sub = col.column(align=True)
+        sub.prop(settings, "output_fps")
+        sub.prop(settings, "tolerance")
+        sub.prop(settings, "location_tolerance")
         col.operator("bodycal.retarget_bake", icon="ACTION")
+        col.operator("bodycal.export_animation", icon="EXPORT")
         if settings.last_result:
             box = layout.box()
             for part in settings.last_result.split("; "):

@@ -48,7 +48,7 @@ def save_blend(path, *, overwrite: bool = True, inputs=(), field: str = "-o") ->
     with outputs.replacing(path, inputs=inputs, overwrite=overwrite, field=field) as tmp:
         tmp.unlink()  # else Blender keeps the empty placeholder as a `.blend1` backup
         try:
-            bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True)
+            bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)
         except RuntimeError as exc:
             raise BodyCalError(f"Blender cannot save it ({str(exc).strip().splitlines()[-1][:120]})",
                                source=str(path), field=field, hint="check the disk space and the folder") from None

@@ -113,7 +113,7 @@ def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
             arm.location = (COLUMN_SPACING * col, ROW_SPACING * row, 0.0)
     scene.frame_set(scene.frame_start)
     out = output_dir / "demo.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(out.resolve()))
+    bpy.ops.wm.save_as_mainfile(filepath=str(out.resolve()), compress=True)
 
     log("")
     log(f"{'avatar':<18}{'method':<12}{'contact gap median':>20}{'p95':>9}{'floor error median':>20}{'keys':>10}")

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import metrics, outputs
-from ..animation import AvatarAnimation
+from ..animation import AvatarAnimation, resample
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
 from ..filters import OneEuro, filter_recording
@@ -44,11 +44,14 @@ class RetargetSummary:
     compute_s: float
     bake_s: float
     figures: dict = field(default_factory=dict)
+    samples: int = 0  # keys an every-frame bake would have written
+    fps: float = 0.0  # the action's key rate
 
     def line(self) -> str:
         fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
-        return (f"Baked '{self.action}' ({self.method}): {self.frames} frames, {self.keys} keys in "
-                f"{self.compute_s + self.bake_s:.1f} s" + (f"; {fig}" if fig else ""))
+        kept = f" ({self.keys / self.samples:.0%} of every frame)" if 0 < self.keys < self.samples else ""
+        return (f"Baked '{self.action}' ({self.method}): {self.frames} frames at {self.fps:g} fps, {self.keys} keys"
+                f"{kept} in {self.compute_s + self.bake_s:.1f} s" + (f"; {fig}" if fig else ""))
 
 
 def missing_inputs(scene) -> str | None:
@@ -100,27 +103,41 @@ def quality_figures(anim: AvatarAnimation) -> dict[str, float]:
     return figures
 
 
+def output_rate(recording: Recording, fps: float | None) -> tuple[int, float, float, bool]:
+    """(scene fps, fps_base, key rate, resample?) for baking `recording` at `fps` (None: its own
+    samples, at the frames the recording import uses: frame = frame_start + (t - t0) x rate)."""
+    rec_fps, rec_base, rate = recording_scene.frame_mapping(recording)
+    if fps is None or abs(fps - rate) <= 1e-6 * rate:
+        return rec_fps, rec_base, rate, False
+    whole = max(1, int(round(fps)))
+    return whole, whole / fps, float(fps), True
+
+
 def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: bool = False,
                      push_to_nla: bool = False, action_name: str | None = None,
-                     set_scene_rate: bool = False) -> RetargetSummary:
-    """Bake one key per recording sample, at the frames the recording import uses (frame =
-    frame_start + (t - t0) x rate). `set_scene_rate` makes the scene play at the recording's rate
-    (the import already does it in the UI flow; the command line starts from the avatar's file)."""
+                     set_scene_rate: bool = False, options: bake.BakeOptions | None = None) -> RetargetSummary:
+    """Bake `anim` at `options.fps` (None: one key per recording sample), keys reduced within the
+    options' tolerances. `set_scene_rate` makes the scene play at that rate (in the UI flow the
+    recording import already did, or the user picked the scene's rate; the command line starts
+    from the avatar's file)."""
     import bpy
 
+    options = options or bake.BakeOptions()
     name = action_name or bake.default_action_name(inputs.recording.name, inputs.armature.name, inputs.method)
-    fps, fps_base, rate = recording_scene.frame_mapping(inputs.recording)
+    fps, fps_base, rate, resampled = output_rate(inputs.recording, options.fps)
     t0 = time.perf_counter()
     if set_scene_rate:
         bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
-    result = bake.bake_animation(anim, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
-                                 fps=rate)
+    keyed = resample(anim, rate) if resampled else anim
+    result = bake.bake_animation(keyed, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
+                                 fps=rate, tolerance_deg=options.tolerance_deg,
+                                 location_tolerance_mm=options.location_tolerance_mm)
     if inputs.avatar_calibrated_now:
         avatar_storage.store_model(inputs.armature, inputs.avatar)
     bake_s = time.perf_counter() - t0
     compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
-    return RetargetSummary(result.action.name, inputs.method, anim.frame_count, result.keys, compute_s, bake_s,
-                           quality_figures(anim))
+    return RetargetSummary(result.action.name, inputs.method, keyed.frame_count, result.keys, compute_s, bake_s,
+                           quality_figures(anim), result.samples, rate)
 
 
 def output_inputs(recording_path, user_path, avatar_blend) -> list[tuple[str, object]]:
@@ -129,22 +146,32 @@ def output_inputs(recording_path, user_path, avatar_blend) -> list[tuple[str, ob
             ("the avatar .blend (--avatar)", avatar_blend)]
 
 
-def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, armature: str | None = None,
+def retarget_files(recording_path, user_path, avatar_blend, output_paths, *, armature: str | None = None,
                    method: str = "egocentric", filter: OneEuro | None = None, plant_feet: bool = True,
-                   overwrite: bool = True, log=print) -> RetargetSummary:
-    """`bodycal retarget`: everything from paths, nothing from a running session. The output is
-    checked first (not an input, not a link or device, replaced only with `overwrite`), so a bad
-    path costs nothing; it is written last, all at once."""
+                   overwrite: bool = True, options: bake.BakeOptions | None = None, log=print) -> RetargetSummary:
+    """`bodycal retarget`: everything from paths, nothing from a running session. `output_paths`
+    (one path or several: a .blend and/or exports) are checked first (not an input, not a link or
+    device, replaced only with `overwrite`, each once), so a bad path costs nothing; they are
+    written last, each all at once."""
     from pathlib import Path
 
     import bpy
 
     from ..recording_io import load_recording
     from .blendfile import find_armature, open_blend, save_blend
+    from .export import export_avatar, output_kind
 
-    avatar_blend, output_blend = Path(avatar_blend), Path(output_blend)
+    avatar_blend = Path(avatar_blend)
+    outs = [Path(p) for p in ([output_paths] if isinstance(output_paths, (str, Path)) else output_paths)]
     files_read = output_inputs(recording_path, user_path, avatar_blend)
-    outputs.check_output(output_blend, inputs=files_read, overwrite=overwrite)
+    seen = {}
+    for out in outs:
+        outputs.check_output(out, inputs=files_read, overwrite=overwrite)  # the most important reason first
+        kind = output_kind(out)
+        key = str(out.resolve())
+        if key in seen:
+            raise BodyCalError("is given twice", source=str(out), field="-o", hint="give each output once")
+        seen[key] = kind
     recording = load_recording(recording_path)  # validate every input before opening anything
     user = BodyModel.load(user_path)
     if user.kind != "user":
@@ -154,8 +181,13 @@ def retarget_files(recording_path, user_path, avatar_blend, output_blend, *, arm
     inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user, filter=filter,
                            plant_feet=plant_feet)
     anim = compute(inputs)
-    summary = bake_and_measure(inputs, anim, set_scene_rate=True)
-    save_blend(output_blend, inputs=files_read, overwrite=overwrite)
+    summary = bake_and_measure(inputs, anim, set_scene_rate=True, options=options)
+    del anim, inputs, recording  # the keys are in the action now: let the writers have the memory
     log(summary.line())
-    log(f"saved {output_blend}")
+    for out in outs:
+        if output_kind(out) == "blend":
+            save_blend(out, inputs=files_read, overwrite=overwrite)
+        else:
+            export_avatar(arm, out, inputs=files_read, overwrite=overwrite)
+        log(f"saved {out}")
     return summary

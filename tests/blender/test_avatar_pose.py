@@ -133,7 +133,8 @@ def test_bake_contract_blender_fk_reproduces_the_joints(session, method, case):
     avatar = rt.procedural_avatar(spec, matrix_world=world)
     anim = pl.retarget(rec, user, avatar, method, chunk_frames=64)
     anim.armature = arm.name
-    bake_animation(anim, arm, fps=rec.fps, frame_start=1.0)  # one key per integer frame
+    # One key per integer frame, no key reduction: this is the every-frame contract.
+    bake_animation(anim, arm, fps=rec.fps, frame_start=1.0, tolerance_deg=0.0, location_tolerance_mm=0.0)
     scene = bpy.context.scene
     for f in np.linspace(0, anim.frame_count - 1, 6).astype(int):
         scene.frame_set(int(f) + 1)

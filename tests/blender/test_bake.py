@@ -31,7 +31,8 @@ def test_keys_reproduce_the_animation_exactly_in_the_pose():
     arm = _armature()
     anim = _animation()
     bpy.context.scene.render.fps = 30
-    result = bake_animation(anim, arm, action_name="rec|procedural|egocentric")
+    result = bake_animation(anim, arm, action_name="rec|procedural|egocentric", tolerance_deg=0.0,
+                            location_tolerance_mm=0.0)
     assert arm.animation_data.action == result.action
     assert result.keys == anim.frame_count * (4 * len(BONES) + 3)
     q = continuous_quaternions(anim.rotations)
