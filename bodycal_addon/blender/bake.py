@@ -75,7 +75,9 @@ def validate(anim: AvatarAnimation, obj) -> None:
 
 def world_scale(obj) -> float:
     """The armature object's (uniform) world scale: armature units per metre is its inverse."""
-    lin = np.array(obj.matrix_world, float)[:3, :3]
+    # From the object's own transform (always current; matrix_world waits for a depsgraph update).
+    m = obj.matrix_basis if obj.parent is None else obj.parent.matrix_world @ obj.matrix_parent_inverse @ obj.matrix_basis
+    lin = np.array(m, float)[:3, :3]
     return float(np.cbrt(abs(np.linalg.det(lin)))) or 1.0
 
 

@@ -113,6 +113,45 @@ def test_filter_and_feet_settings_reach_every_job(tmp_path):
         load_jobs(tmp_path / "jobs.toml")
 
 
+def test_output_settings_and_exports_reach_every_job(tmp_path):
+    (tmp_path / "jobs.toml").write_text('[defaults]\ntolerance = 0.25\nfps = 30\nexport = ["fbx", "blend", "bvh"]\n'
+                                        '[[recordings]]\npath="t.bcrec.json"\nuser="u.body.json"\n'
+                                        '[[avatars]]\nblend="a.blend"\n')
+    (job,), _settings = load_jobs(tmp_path / "jobs.toml")
+    argv = job.argv()
+    outs = [argv[i + 1] for i, a in enumerate(argv) if a == "-o"]
+    base = tmp_path / "out" / "batch" / "t__a__egocentric"
+    assert outs == [f"{base}.fbx", f"{base}.blend", f"{base}.bvh"]
+    assert argv[argv.index("--tolerance") + 1] == "0.25" and argv[argv.index("--fps") + 1] == "30.0"
+
+
+@pytest.mark.slow
+def test_a_batch_writes_every_export_it_is_asked_for(tmp_path):
+    _write_inputs(tmp_path)
+    (tmp_path / "jobs.toml").write_text('''
+[defaults]
+method = "rotations"
+output_dir = "results"
+workers = 1
+fps = 30
+export = ["blend", "glb"]
+
+[[recordings]]
+path = "takes/clap.bcrec.json"
+user = "takes/performer.body.json"
+
+[[avatars]]
+blend = "procedural.blend"
+''')
+    out = subprocess.run([sys.executable, "-m", "bodycal_addon", "batch", str(tmp_path / "jobs.toml")], cwd=REPO,
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    (result,) = json.loads((tmp_path / "results" / "summary.json").read_text())["results"]
+    assert result["ok"] and [Path(p).name for p in result["outputs"]] == ["clap__procedural__rotations.blend",
+                                                                          "clap__procedural__rotations.glb"]
+    assert all(Path(p).stat().st_size > 0 for p in result["outputs"])
+
+
 def _jobs_file(tmp_path, defaults="", recordings=(("t.bcrec.json", "u.body.json"),), avatars=(("a.blend", None),)):
     text = f"[defaults]\n{defaults}\n"
     for path, user in recordings:
@@ -207,6 +246,13 @@ BAD_DEFAULTS = [
     ('plant_feet = "no"', "defaults.plant_feet", "true or false"),
     ("overwrite = 1", "defaults.overwrite", "true or false"),
     ("plant_foot = false", "defaults", "unknown key"),
+    ("tolerance = -0.1", "defaults.tolerance", "number from 0"),
+    ('tolerance = "0.1"', "defaults.tolerance", "number from 0"),
+    ("fps = 0", "defaults.fps", "number from 1"),
+    ("fps = true", "defaults.fps", "number from 1"),
+    ('export = ["obj"]', "defaults.export", "unknown format"),
+    ('export = ["fbx", "fbx"]', "defaults.export", "twice"),
+    ("export = []", "defaults.export", "non-empty"),
 ]
 
 

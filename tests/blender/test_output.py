@@ -1,0 +1,194 @@
+"""Issue 15: production-size output. Blender plays the reduced keys within the tolerance, --fps
+resamples with the timing kept, every .blend is compressed, and each export format re-imports
+with the joints where the .blend has them."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+from repo_paths import REPO
+
+from bodycal_addon import keyreduce, paths
+from bodycal_addon.blender.bake import bake_animation
+from bodycal_addon.blender.fcurves import continuous_quaternions
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_dev import retarget_fixtures as rt
+from bodycal_dev import synthetic
+
+rigs = paths.sample_rigs()
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+@pytest.fixture(scope="module")
+def take(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("take")
+    perf = synthetic.make_performer(seed=11)
+    rec, truth = synthetic.record_session(perf, motions=("clap", "walk_in_place"), calibration=["tpose"], seed=11)
+    rec.name = "clapwalk"
+    rec_path, _truth = synthetic.write_session(folder, "clapwalk", rec, truth)
+    user = truth.body_model()
+    user_path = user.save(folder / "performer.body.json")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    rigs.build_procedural_avatar()
+    blend = folder / "avatar.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return {"folder": folder, "rec": rec, "user": user, "rec_path": rec_path, "user_path": user_path, "blend": blend}
+
+
+def _the_armature():
+    (arm,) = [o for o in bpy.data.objects if o.type == "ARMATURE"]
+    return arm
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "bodycal_addon", *map(str, args)], cwd=REPO, capture_output=True,
+                          text=True, timeout=600)
+
+
+def _angle(a, b):
+    return 2 * np.arccos(np.minimum(np.abs((a * b).sum(-1)), 1.0))
+
+
+@pytest.mark.parametrize("tol_deg", [0.1, 1.0])
+def test_blender_plays_the_reduced_keys_within_the_tolerance(take, tol_deg):
+    """Evaluated by Blender (not the numpy model of it) at every 7th frame: every bone within the
+    angle, the root within the distance, and far fewer keys at the looser tolerance."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, spec = rigs.build_procedural_avatar()
+    anim = pl.retarget(take["rec"], take["user"], rt.procedural_avatar(spec), "rotations")
+    anim.armature = arm.name
+    result = bake_animation(anim, arm, fps=take["rec"].fps, frame_start=1.0, tolerance_deg=tol_deg,
+                            location_tolerance_mm=1.0)
+    assert 0 < result.keys < result.samples
+    q = continuous_quaternions(anim.rotations)
+    scene = bpy.context.scene
+    worst_rot = worst_loc = 0.0
+    for f in range(0, anim.frame_count, 7):
+        scene.frame_set(f + 1)
+        got = np.array([tuple(arm.pose.bones[b].rotation_quaternion) for b in anim.bone_names])
+        worst_rot = max(worst_rot, float(_angle(got / np.linalg.norm(got, axis=1, keepdims=True), q[f]).max()))
+        loc = np.array(arm.pose.bones[anim.root_bone].location)
+        worst_loc = max(worst_loc, float(np.linalg.norm(loc - anim.root_location[f])))
+    # float32 keys: a few micro-degrees on top of the bound
+    assert np.degrees(worst_rot) <= tol_deg + 1e-3, np.degrees(worst_rot)
+    assert worst_loc <= 1e-3 + 1e-6, worst_loc
+    assert worst_rot > 0.0  # really reduced: not every sample kept
+
+
+def test_the_bound_holds_in_armature_units_on_a_scaled_armature(take):
+    """The location tolerance is in world millimetres: on an armature scaled x0.01 (FBX-style, data
+    in centimetres) the root keys stay within 1 mm in the world, not 1 mm of armature units."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, spec = rigs.build_procedural_avatar()
+    anim = pl.retarget(take["rec"], take["user"], rt.procedural_avatar(spec), "rotations")
+    anim.root_location = anim.root_location * 100.0  # the same motion in centimetre armature units
+    arm.scale = (0.01, 0.01, 0.01)
+    bake_animation(anim, arm, fps=take["rec"].fps, frame_start=1.0, tolerance_deg=0.1, location_tolerance_mm=1.0)
+    keep = keyreduce.location_keys(anim.root_location, 1e-3 * 100.0)
+    loc = anim.root_location
+    approx = keyreduce.interpolate(np.arange(len(loc), dtype=float), keep, loc)
+    assert np.linalg.norm(approx - loc, axis=1).max() * 0.01 <= 1e-3 + 1e-9
+    fc_keys = [len(fc.keyframe_points) for fc in _fcurves(arm) if fc.data_path.endswith(".location")]
+    assert fc_keys == [int(keep.sum())] * 3
+
+
+def _fcurves(arm):
+    from bodycal_addon.blender.fcurves import object_fcurves
+
+    return list(object_fcurves(arm).values())
+
+
+def test_fps_resamples_with_the_timing_kept_and_the_blend_is_compressed(take, tmp_path):
+    out = tmp_path / "at30.blend"
+    res = _run("retarget", take["rec_path"], "--user", take["user_path"], "--avatar", take["blend"], "--fps", "30",
+               "-o", out)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert out.read_bytes()[:4] == ZSTD_MAGIC
+    bpy.ops.wm.open_mainfile(filepath=str(out), load_ui=False)
+    scene = bpy.context.scene
+    assert (scene.render.fps, scene.render.fps_base) == (30, 1.0)
+    rec = take["rec"]
+    duration = rec.time[-1] - rec.time[0]
+    assert scene.frame_end - scene.frame_start == int(np.floor(duration * 30 + 1e-6))
+    keyed = {tuple(fc.keyframe_points[i].co)[0] for fc in _fcurves(_the_armature())
+             for i in (0, len(fc.keyframe_points) - 1)}
+    assert min(keyed) == scene.frame_start and max(keyed) == scene.frame_end
+    assert all(float(k).is_integer() for k in keyed)
+
+
+@pytest.mark.parametrize("bad, words", [
+    (("--tolerance", "-1"), ("tolerance", ">= 0")),
+    (("--tolerance", "nan"), ("tolerance", ">= 0")),
+    (("--fps", "0"), ("frame rate", "1 to 1000")),
+    (("-o", "OUT.obj"), ("cannot write a '.obj' file", ".fbx")),
+])
+def test_bad_output_options_are_one_line(take, tmp_path, bad, words):
+    args = ["retarget", take["rec_path"], "--user", take["user_path"], "--avatar", take["blend"]]
+    if bad[0] == "-o":
+        args += ["-o", tmp_path / bad[1]]
+    else:
+        args += [*bad, "-o", tmp_path / "x.blend"]
+    res = _run(*args)
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    for w in words:
+        assert w in line, line
+    assert not list(tmp_path.iterdir())
+
+
+def _heads(arm, bones, frames) -> np.ndarray:
+    scene = bpy.context.scene
+    out = []
+    for f in frames:
+        scene.frame_set(int(f))
+        bpy.context.view_layer.update()
+        m = np.array(arm.matrix_world)
+        out.append([(m @ np.append(np.array(arm.pose.bones[b].head), 1.0))[:3] for b in bones])
+    return np.array(out)
+
+
+def _import(path: Path, fps: int):
+    """Into an empty scene at the export's rate (glTF stores seconds; the importer keys them at the
+    scene's rate)."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.context.scene.render.fps = fps
+    suffix = path.suffix.lower()
+    if suffix == ".fbx":
+        bpy.ops.import_scene.fbx(filepath=str(path), anim_offset=0.0)
+    elif suffix in (".glb", ".gltf"):
+        bpy.ops.import_scene.gltf(filepath=str(path))
+    else:
+        # Blender's BVH exporter writes the armature's own axes (Z up here): read them as they are.
+        bpy.ops.import_anim.bvh(filepath=str(path), frame_start=1, use_fps_scale=False, update_scene_fps=True,
+                                update_scene_duration=True, axis_forward="Y", axis_up="Z")
+    return _the_armature()
+
+
+@pytest.mark.slow
+def test_each_export_reimports_with_the_joints_where_the_blend_has_them(take, tmp_path):
+    """Round trip through Blender's own importers: every mapped bone's head within 1 mm of the
+    baked .blend's at frames spread over the take."""
+    outs = [tmp_path / f"take{s}" for s in (".blend", ".fbx", ".glb", ".gltf", ".bvh")]
+    args = ["retarget", take["rec_path"], "--user", take["user_path"], "--avatar", take["blend"], "--fps", "30"]
+    for o in outs:
+        args += ["-o", o]
+    res = _run(*args)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert all(o.is_file() for o in outs)
+    bpy.ops.wm.open_mainfile(filepath=str(outs[0]), load_ui=False)
+    arm = _the_armature()
+    bones = [b.name for b in arm.data.bones if not b.name.lower().startswith("root")]
+    scene = bpy.context.scene
+    frames = np.linspace(scene.frame_start, scene.frame_end, 7).round().astype(int)
+    fps = scene.render.fps
+    truth = _heads(arm, bones, frames)
+    for path in outs[1:]:
+        other = _import(path, fps)
+        got = _heads(other, bones, frames - (frames[0] - 1 if path.suffix == ".bvh" else 0))
+        err = np.linalg.norm(got - truth, axis=-1)
+        assert err.max() <= 1e-3, (path.suffix, float(err.max()), bones[int(np.argmax(err.max(0)))])

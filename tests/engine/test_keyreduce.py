@@ -1,0 +1,145 @@
+"""Key reduction (issue 15): the bound holds at every sample whatever the curve, and it really
+reduces what is reducible."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bodycal_addon import keyreduce as kr
+from bodycal_addon import transforms as tf
+from bodycal_addon.animation import AvatarAnimation, resample
+
+
+def _continuous(q):
+    q = q.copy()
+    flips = np.cumprod(np.where((q[1:] * q[:-1]).sum(-1) < 0, -1.0, 1.0), axis=0)
+    q[1:] *= flips[..., None]
+    return q
+
+
+def _motion(frames: int, bones: int, seed: int, noise_deg: float) -> np.ndarray:
+    """Smooth random rotations (random walks of angular velocity) plus white noise."""
+    rng = np.random.default_rng(seed)
+    omega = np.cumsum(rng.normal(0.0, 0.02, (frames, bones, 3)), axis=0) * 0.05
+    omega += rng.normal(0.0, np.radians(noise_deg), (frames, bones, 3))
+    q = np.empty((frames, bones, 4))
+    q[0] = tf.quat_normalize(rng.normal(size=(bones, 4)))
+    for f in range(1, frames):  # test data only
+        angle = np.linalg.norm(omega[f], axis=-1)
+        q[f] = tf.quat_normalize(tf.quat_mul(tf.axis_angle_to_quat(omega[f], angle), q[f - 1]))
+    return _continuous(q)
+
+
+def _worst_angle(q: np.ndarray, keep: np.ndarray) -> float:
+    frames = np.arange(len(q), dtype=float)
+    worst = 0.0
+    for b in range(q.shape[1]):
+        approx = kr.interpolate(frames, keep[:, b], q[:, b])
+        worst = max(worst, float(kr.rotation_error(q[:, b], approx).max()))
+    return worst
+
+
+@settings(max_examples=40, deadline=None)
+@given(frames=st.integers(2, 300), bones=st.integers(1, 12), seed=st.integers(0, 2**31),
+       noise=st.sampled_from([0.0, 0.05, 0.5, 3.0]), tol_deg=st.sampled_from([0.01, 0.1, 0.5, 2.0]))
+def test_every_sample_is_within_the_rotation_tolerance(frames, bones, seed, noise, tol_deg):
+    q = _motion(frames, bones, seed, noise)
+    keep = kr.rotation_keys(q, np.radians(tol_deg))
+    assert keep.shape == (frames, bones)
+    assert keep[0].all() and keep[-1].all()
+    assert _worst_angle(q, keep) <= np.radians(tol_deg) * (1 + 1e-6) + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(frames=st.integers(2, 400), seed=st.integers(0, 2**31), tol_mm=st.sampled_from([0.1, 0.5, 5.0]))
+def test_every_sample_is_within_the_location_tolerance(frames, seed, tol_mm):
+    rng = np.random.default_rng(seed)
+    p = np.cumsum(np.cumsum(rng.normal(0, 1e-4, (frames, 3)), axis=0), axis=0) + rng.normal(0, 2e-4, (frames, 3))
+    keep = kr.location_keys(p, tol_mm / 1000.0)
+    approx = kr.interpolate(np.arange(frames, dtype=float), keep, p)
+    assert keep[0] and keep[-1]
+    assert np.linalg.norm(approx - p, axis=1).max() <= tol_mm / 1000.0 * (1 + 1e-9)
+
+
+def test_zero_tolerance_keeps_every_sample():
+    q = _motion(50, 3, 0, 0.5)
+    assert kr.rotation_keys(q, 0.0).all()
+    assert kr.location_keys(np.random.default_rng(0).normal(size=(50, 3)), 0.0).all()
+
+
+def test_what_linear_keys_reproduce_exactly_needs_only_its_ends():
+    """A still bone, a constant-speed location and a rotation about one axis at constant speed
+    (component-wise lerp of two quaternions is the same path, normalised) keep only the ends."""
+    f = 500
+    still = np.tile([[0.6, 0.0, 0.8, 0.0]], (f, 1))
+    turn = tf.axis_angle_to_quat(np.tile([[0.0, 0.0, 1.0]], (f, 1)), np.linspace(0.0, np.radians(60), f))
+    keep = kr.rotation_keys(np.stack([still, turn], axis=1), np.radians(0.1))
+    assert keep[:, 0].sum() == 2
+    # nlerp and slerp part by at most ~0.05 deg over 60 deg: a few keys, nowhere near 500
+    assert keep[:, 1].sum() <= 4
+    ramp = np.linspace([0, 0, 0], [1.0, -2.0, 0.5], f)
+    assert kr.location_keys(ramp, 1e-4).sum() == 2
+
+
+def _slow_swings(frames: int, bones: int, fps: float = 90.0) -> np.ndarray:
+    """Each bone swings +-30 deg at 0.3 Hz about its own axis: peak angular acceleration ~100
+    deg/s^2, so linear keys 8 frames apart stay within 0.1 deg (error ~ a h^2 / 8)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(frames) / fps
+    axes = tf.normalize(rng.normal(size=(bones, 3)))
+    angle = np.radians(30.0) * np.sin(2 * np.pi * 0.3 * t[:, None] + rng.uniform(0, 6, bones))
+    return _continuous(tf.axis_angle_to_quat(np.broadcast_to(axes, (frames, bones, 3)), angle))
+
+
+def test_smooth_motion_is_reduced_and_the_reduction_tightens_with_the_tolerance():
+    q = _slow_swings(2000, 6)
+    counts = [int(kr.rotation_keys(q, np.radians(t)).sum()) for t in (0.5, 0.1, 0.02)]
+    assert counts[0] < counts[1] < counts[2] < q.shape[0] * q.shape[1]
+    assert counts[1] * 5 <= q.shape[0] * q.shape[1], counts
+
+
+def test_bones_are_reduced_independently_of_each_other():
+    """Batched bone by bone: the result for a bone never depends on its neighbours."""
+    q = _motion(400, 19, 5, 0.5)
+    together = kr.rotation_keys(q, np.radians(0.2))
+    for b in (0, 7, 8, 18):
+        alone = kr.rotation_keys(q[:, b:b + 1], np.radians(0.2))[:, 0]
+        np.testing.assert_array_equal(together[:, b], alone)
+
+
+def _anim(frames: int, fps: float, seed: int = 0) -> AvatarAnimation:
+    q = _motion(frames, 4, seed, 0.0)
+    rng = np.random.default_rng(seed)
+    root = np.cumsum(rng.normal(0, 0.01, (frames, 3)), axis=0)
+    return AvatarAnimation("a", ["b0", "b1", "b2", "b3"], q, "b0", root, 2.0 + np.arange(frames) / fps,
+                           joints_world={"pelvis": root.copy()})
+
+
+def test_resampling_keeps_the_duration_and_the_samples_it_lands_on():
+    anim = _anim(901, 90.0)  # 10 s
+    out = resample(anim, 30.0)
+    assert out.frame_count == 301
+    assert out.time[0] == anim.time[0] and abs(out.time[-1] - anim.time[-1]) < 1e-9
+    # Every third 90 Hz sample is a 30 fps sample: the same pose there.
+    np.testing.assert_allclose(np.abs((out.rotations * anim.rotations[::3]).sum(-1)), 1.0, atol=1e-9)
+    np.testing.assert_allclose(out.root_location, anim.root_location[::3], atol=1e-12)
+    np.testing.assert_allclose(out.joints_world["pelvis"], anim.joints_world["pelvis"][::3], atol=1e-12)
+
+
+def test_resampling_between_samples_is_the_slerp_and_the_lerp():
+    anim = _anim(11, 10.0, seed=2)
+    out = resample(anim, 20.0)  # every other output sample is halfway between two inputs
+    assert out.frame_count == 21
+    mid = tf.slerp(anim.rotations[3], anim.rotations[4], 0.5)
+    np.testing.assert_allclose(np.abs((out.rotations[7] * mid).sum(-1)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(out.root_location[7], anim.root_location[3:5].mean(0), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(out.rotations, axis=-1), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("fps", [0.0, -30.0, float("nan")])
+def test_resampling_refuses_a_rate_that_is_not_positive(fps):
+    with pytest.raises(ValueError):
+        resample(_anim(10, 30.0), fps)
