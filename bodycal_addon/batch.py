@@ -66,6 +66,7 @@ import tomllib
 import unicodedata
 from collections import defaultdict, deque
 from dataclasses import dataclass
+from glob import escape as glob_escape
 from pathlib import Path
 
 from .errors import BodyCalError
@@ -131,8 +132,18 @@ class Job:
 
     @property
     def partial(self) -> Path:
-        """Blender's temporary save file: it writes `<output>@`, then renames it to the output."""
+        """Blender's temporary save file when it saves straight to the output: `<output>@`."""
         return self.output.with_name(self.output.name + "@")
+
+    def leftovers(self) -> list[Path]:
+        """What a worker ended while writing can leave beside its outputs: `<output>@`, and the
+        hidden temporary `.<output name>.<hex>.tmp<suffix>` the command writes first (outputs.py),
+        with Blender's `@` beside it."""
+        found = []
+        for out in self.outputs:
+            found += [p for p in (out.with_name(out.name + "@"),) if p.exists()]
+            found += sorted(out.parent.glob(f".{glob_escape(out.name)}.*.tmp{glob_escape(out.suffix)}*"))
+        return found
 
 
 # ---- the jobs file --------------------------------------------------------------------------------
@@ -433,14 +444,17 @@ def _signal_name(signum: int) -> str:
         return f"signal {signum}"
 
 
-def _remove_partial(job: Job) -> bool:
-    try:
-        job.partial.unlink()
-        return True
-    except FileNotFoundError:
-        return False
-    except OSError:  # e.g. no permission: left in place, and the job is not said to have removed it
-        return False
+def _remove_partial(job: Job) -> list[str]:
+    """Remove the job's leftovers; the names of those removed (one left in place, e.g. for lack of
+    permission, is not said to be removed)."""
+    removed = []
+    for path in job.leftovers():
+        try:
+            path.unlink()
+            removed.append(path.name)
+        except OSError:
+            pass
+    return removed
 
 
 def _start(job: Job, runner: str) -> _Running | dict:
@@ -488,7 +502,7 @@ def _finish(run: _Running, stopped_by: str | None = None) -> dict:
     run.stderr.close()
     removed = _remove_partial(job)
     if code == 0:
-        error = f"removed a temporary save file {job.partial.name} the worker left" if removed else None
+        error = f"removed a temporary save file {', '.join(removed)} the worker left" if removed else None
         return {**_result(job, "ok", code, seconds, None), **({"note": error} if error else {})}
     if stopped_by:
         status, error = "cancelled", f"cancelled by {stopped_by} while running"
@@ -499,7 +513,7 @@ def _finish(run: _Running, stopped_by: str | None = None) -> dict:
         else:
             error = lines[-1] if lines else f"the worker ended with exit code {code}"
     if removed:
-        error += f"; removed its partial save {job.partial.name}"
+        error += f"; removed its partial save {', '.join(removed)}"
     return _result(job, status, code, seconds, error)
 
 
@@ -521,7 +535,7 @@ def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
     except OSError as exc:
         raise BodyCalError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}", source=str(jobs_file),
                            field="defaults.output_dir") from None
-    stale = [str(job.partial) for job in jobs if _remove_partial(job)]
+    stale = [str(Path(job.output.parent, name)) for job in jobs for name in _remove_partial(job)]
     for name in stale:
         log(f"removed {name}, a partial save left by an earlier batch that was killed")
     workers = max(1, min(settings["workers"], len(jobs)))

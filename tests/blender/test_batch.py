@@ -321,8 +321,11 @@ name = os.path.basename(out)
 open(os.path.join(os.environ["FAKE_PIDS"], str(os.getpid())), "w").close()
 if name.startswith("fast"):
     open(out, "wb").write(b"blend")
-elif name.startswith("crash"):  # killed while Blender saves: its temporary file stays
+elif name.startswith("crash"):  # killed while Blender saves: its temporary files stay
     open(out + "@", "wb").write(b"half a blend")
+    tmp = os.path.join(os.path.dirname(out), "." + name + ".0a1b2c3d.tmp.blend")
+    open(tmp, "wb").write(b"half a blend")
+    open(tmp + "@", "wb").write(b"half a blend")
     os.kill(os.getpid(), signal.SIGKILL)
 else:  # slow, and deaf to SIGTERM: only SIGKILL ends it
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -367,9 +370,11 @@ def test_a_worker_killed_while_saving_leaves_nothing_and_is_one_failure(tmp_path
     crash = next(r for r in summary["results"] if r["job"].startswith("crash"))
     assert crash["status"] == "failed" and "killed by SIGKILL" in crash["error"]
     assert "removed its partial save crash__a__egocentric.blend@" in crash["error"]
+    assert ".crash__a__egocentric.blend.0a1b2c3d.tmp.blend@" in crash["error"]  # the command's own temp too
     assert summary["removed_stale"] == [str(tmp_path / "results" / "fast__a__egocentric.blend@")]
     assert any("fast__a__egocentric.blend@" in ln and "earlier batch" in ln for ln in lines)
     assert not list((tmp_path / "results").glob("*@"))
+    assert not list((tmp_path / "results").glob(".*.tmp*"))
     assert (tmp_path / "results" / "fast__a__egocentric.blend").read_bytes() == b"blend"
     assert json.loads((tmp_path / "results" / "summary.json").read_text())["failed"] == 1
 
