@@ -110,6 +110,9 @@ def apply_preset(arm, preset: BonePreset) -> tuple[sk.BoneMap, bool]:
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
     bm = preset.resolve([b.name for b in arm.data.bones])
+    if not bm.bones and not any(bm.chains.values()):  # would wipe the working map for nothing
+        raise BodyCalError(f"bone map preset '{preset.name}' maps none of its bones", source=arm.name,
+                           hint="pick the preset of this rig's naming scheme, or Import a map made for it")
     return bm, apply_bone_map(arm, bm)
 
 
