@@ -205,3 +205,18 @@ def test_a_bad_jobs_bone_map_is_one_line_before_any_job(tmp_path, content, words
         batch.load_jobs(_jobs(tmp_path, 'bone_map = "map.json"'))
     line = str(exc.value)
     assert "jobs.toml: avatars[0].bone_map: " in line and words in line and "\n" not in line
+
+
+def test_the_formats_example_is_a_valid_preset():
+    """FORMATS.md §5's example parses, and says what the table says."""
+    import pathlib
+    import re
+
+    text = (pathlib.Path(__file__).resolve().parents[2] / "docs" / "FORMATS.md").read_text()
+    section = text[text.index("## 5. Bone map presets"):]
+    example = json.loads(re.search(r"```json\n(.*?)\n```", section, re.S).group(1))
+    preset = bp.parse_preset(example, "FORMATS.md")
+    assert preset.scheme == "mixamo" and preset.bones["toe_l"] is None
+    assert preset.chains["spine"] == ["Ogre_Spine", "Ogre_Spine1", "Ogre_Chest"]
+    for scheme in sk.SCHEME_BY_NAME:  # every scheme is listed in the section
+        assert f"`{scheme}`" in section, scheme
