@@ -514,7 +514,7 @@ def _compiled(scheme: NamingScheme) -> _CompiledScheme:
                 if seg not in segments:
                     segments.append(seg)
                 k = segments.index(seg)
-                base = sum(1 for r in regexes if r[0] == k)
+                base = sum(1 for r in regexes if r[0] == k)  # a segment listed again: its first entry wins
                 for prio, rx in enumerate(templates):
                     regexes.append((k, base + prio, re.compile(rx if token is None else rx.replace("{s}", token),
                                                                re.I)))
