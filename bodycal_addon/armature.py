@@ -127,11 +127,37 @@ def check_humanoid(name: str, bm: sk.BoneMap) -> None:
             hint="map these segments in the BodyCal panel (Avatar > Bone Map) or pick another armature")
 
 
+def _ancestors(bone: str, parent: dict[str, str | None]) -> list[str]:
+    out, seen = [], {bone}
+    while (bone := parent.get(bone)) is not None and bone not in seen:
+        out.append(bone)
+        seen.add(bone)
+    return out
+
+
+def check_pelvis_is_root(name: str, bm: sk.BoneMap, parent: dict[str, str | None]) -> None:
+    """The pelvis bone carries the root motion, so both thighs and the spine must hang from it.
+    A rig whose bone called "pelvis" is a child of the hips root (Daz, Character Creator: hip ->
+    pelvis -> thighs, hip -> abdomen) mapped by that name would leave the spine behind."""
+    pelvis = bm.bones["pelvis"]
+    spine = (list(bm.chains.get("spine", [])) + list(bm.chains.get("neck", [])))[:1]
+    hanging = [bm.bones["thigh_l"], bm.bones["thigh_r"], *spine]
+    stray = [b for b in hanging if pelvis not in _ancestors(b, parent)]
+    if not stray:
+        return
+    common = [a for a in _ancestors(hanging[0], parent) if all(a in _ancestors(b, parent) for b in hanging[1:])]
+    hint = (f"map pelvis to '{common[0]}', the bone the spine and both thighs hang from" if common
+            else "parent the thighs and the spine to the hips bone")
+    raise BodyCalError(f"the pelvis bone '{pelvis}' is not a parent of {', '.join(stray)}: the root motion "
+                       "would leave them behind", source=name, field="pelvis", hint=hint)
+
+
 def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dict], bone_map: sk.BoneMap,
                   hinge_overrides: dict[str, np.ndarray] | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature in its rest pose. `rest_bones`: per bone
     {"parent", "head", "tail" (armature space), "matrix" (3x3, the bone's rest axes as columns)}."""
     check_humanoid(name, bone_map)
+    check_pelvis_is_root(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
     seg_of = _segment_of(bone_map)
     chain_index = {n: i for names in bone_map.chains.values() for i, n in enumerate(names)}
     bones = {n: {"parent": b["parent"], "head": np.asarray(b["head"], float), "tail": np.asarray(b["tail"], float),

@@ -25,6 +25,7 @@ JOBS.toml:
     [[avatars]]
     blend = "avatars/ogre.blend"
     armature = "Ogre"           # optional
+    bone_map = "avatars/ogre.bonemap.json"  # optional: a bone map preset (retarget --bone-map)
 
 Every recording is retargeted onto every avatar with every method. Paths are relative to the
 JOBS.toml folder. Every field is checked before any job starts (its type and allowed values; an
@@ -69,6 +70,7 @@ from dataclasses import dataclass
 from glob import escape as glob_escape
 from pathlib import Path
 
+from .bone_presets import load_preset
 from .errors import BodyCalError
 from .paths import ROOT_DIR
 from .retarget.pipeline import METHODS
@@ -83,7 +85,7 @@ _KEYS = {
     "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "overwrite", "tolerance",
                  "fps", "export"),
     "recordings": ("path", "user"),
-    "avatars": ("blend", "armature"),
+    "avatars": ("blend", "armature", "bone_map"),
 }
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _UNSAFE = re.compile(r"[^\w.+-]")  # \w: letters and digits of any script, and _
@@ -106,6 +108,7 @@ class Job:
     tolerance: float | None = None
     fps: float | None = None
     exports: tuple[Path, ...] = ()  # further outputs beside `output` (other formats)
+    bone_map: Path | None = None
 
     @property
     def outputs(self) -> list[Path]:
@@ -122,6 +125,8 @@ class Job:
             args += ["--fps", repr(float(self.fps))]
         if self.armature:
             args += ["--armature", self.armature]
+        if self.bone_map is not None:
+            args += ["--bone-map", str(self.bone_map)]
         if self.filter is not None:
             args += ["--filter", self.filter]
         if not self.plant_feet:
@@ -271,11 +276,25 @@ def _exports(check: _Checker, value) -> list[str]:
 
 def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
     what = {"recordings": "[[recordings]] tables with path and user",
-            "avatars": "[[avatars]] tables with blend (and optionally armature)"}[key]
+            "avatars": "[[avatars]] tables with blend (and optionally armature and bone_map)"}[key]
     entries = data.get(key, [])
     if not isinstance(entries, list):
         raise check.error(key, f"must be {what}, got {_describe(entries)}")
     return [check.table(e, f"{key}[{i}]", _KEYS[key], f"a table ({what})") for i, e in enumerate(entries)]
+
+
+def _bone_map(check: _Checker, base: Path, avatar: dict, j: int) -> Path | None:
+    """An avatar's bone map preset, read and checked now (the bones it names are checked by the
+    job, against the armature in the .blend)."""
+    if "bone_map" not in avatar:
+        return None
+    field = f"avatars[{j}].bone_map"
+    path = base / check.text(avatar["bone_map"], field, "a bone map preset file")
+    try:
+        load_preset(path)
+    except BodyCalError as exc:
+        raise check.error(field, exc.line()) from None
+    return path
 
 
 def _abs(path: Path) -> str:
@@ -329,13 +348,14 @@ def load_jobs(path) -> tuple[list[Job], dict]:
         if identity in seen:
             raise check.error(f"avatars[{j}]", f"same blend and armature as avatars[{seen[identity]}]; remove one")
         seen[identity] = j
-        avs.append((ap, arm))
+        avs.append((ap, arm, _bone_map(check, base, av, j)))
 
-    specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm in avs for m in methods]
+    specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm, _bm in avs for m in methods]
+    bone_maps = [bm for _rp, _up in recs for _ap, _arm, bm in avs for _m in methods]
     names = output_names(specs)
     jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, tolerance, fps,
-                tuple(out_dir / f"{name}.{f}" for f in formats[1:]))
-            for name, (rp, up, ap, arm, m) in zip(names, specs)]
+                tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm)
+            for name, (rp, up, ap, arm, m), bm in zip(names, specs, bone_maps)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):
         raise check.error(None, "internal error: output names are not unique inside output_dir; please report it")

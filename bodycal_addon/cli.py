@@ -20,6 +20,8 @@ from .retarget.pipeline import METHODS
 
 EXIT_OK = 0
 EXIT_USAGE = 2
+_BONE_MAP_HELP = ("bone map preset (JSON, docs/FORMATS.md §5) for an armature whose bone names no naming scheme "
+                  "knows; it replaces the map stored on the armature for this run")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
     c.add_argument("blend", metavar="FILE.blend")
     c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
@@ -50,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--user", required=True, metavar="USER.body.json")
     c.add_argument("--avatar", required=True, metavar="FILE.blend")
     c.add_argument("--armature", metavar="NAME")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric")
     c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
                    help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "

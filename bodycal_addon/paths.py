@@ -27,6 +27,14 @@ def shared_avatar_files() -> list[Path]:
     return sorted((d / "avatars" / "mpfb2_variants").glob("*.glb"))
 
 
+def extension_package() -> str | None:
+    """The extension's package ("bl_ext.<repository>.bodycal", what Blender's
+    `bpy.utils.extension_path_user` wants) when BodyCal runs as an installed extension; None when
+    it is imported from the repository as `bodycal_addon` (the command line, the tests' engine)."""
+    parent = __package__.rpartition(".")[0]
+    return parent if parent.startswith("bl_ext.") else None
+
+
 def sample_rigs():
     """The root `sample_rigs` package, whichever way BodyCal was loaded: as the extension
     (`bl_ext.<repo>.bodycal.sample_rigs`) or from the repository root (`sample_rigs`)."""

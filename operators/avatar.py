@@ -47,7 +47,8 @@ def _poll_armature(cls, context, need_model=False, object_mode=True):
 
 class BODYCAL_OT_detect_bone_map(bpy.types.Operator):
     """Map the armature's bones to the canonical skeleton from their names (Unreal, Rigify,
-    Mixamo, VRM); your manual assignments are kept unless Reset is on"""
+    Mixamo, VRM / Unity, VRoid, MakeHuman, Daz, Character Creator); your manual assignments and
+    applied presets are kept unless Reset is on"""
 
     bl_idname = "bodycal.detect_bone_map"
     bl_label = "Detect Bone Map"

@@ -61,6 +61,13 @@ class BODYCAL_PT_avatar(bpy.types.Panel):
             if missing and not active:
                 box.label(text="Select the bone in Pose Mode, then assign", icon="INFO")
             box.operator("bodycal.set_hinge_axis", icon="CON_ROTLIKE")
+        # Presets: a naming scheme forced, or a saved map (FORMATS.md §5); the map stays on the armature.
+        row = box.row(align=True)
+        row.prop(context.window_manager, "bodycal_bone_map_preset", text="")
+        row.operator("bodycal.apply_bone_map_preset", text="Apply", icon="CHECKMARK")
+        row = box.row(align=True)
+        row.operator("bodycal.export_bone_map", text="Export Map", icon="EXPORT")
+        row.operator("bodycal.import_bone_map", text="Import Map", icon="IMPORT")
         col = layout.column(align=True)
         col.operator("bodycal.calibrate_avatar", icon="MOD_MESHDEFORM")
         if avatar_storage.has_model(arm):

@@ -2,6 +2,10 @@
 stored on the object as `bodycal_bone_map` and `bodycal_hinge_axes`) and `read_rig(arm)`, which
 reads the rest pose into the engine's `armature.ArmatureReading` (see `bodycal_addon/armature.py`
 for the joint rules and the bones' `right`).
+
+The overrides are the one place a bone map is kept: assigning a bone writes one segment, applying
+a preset (`apply_preset`, the panel's Apply, `--bone-map`) writes every segment, so detection no
+longer decides anything for that armature until Detect Bone Map with Reset.
 """
 
 from __future__ import annotations
@@ -12,7 +16,9 @@ import numpy as np
 
 from .. import skeleton as sk
 from ..armature import HINGE_BONES, ArmatureReading, read_armature
+from ..bone_presets import SINGLE_SEGMENTS, BonePreset
 from ..errors import BodyCalError
+from . import avatar_storage
 
 BONE_MAP_PROP = "bodycal_bone_map"  # JSON {segment: avatar bone ("" = unmapped)}: user overrides
 HINGE_AXES_PROP = "bodycal_hinge_axes"  # JSON {canonical bone: [x, y, z] in the avatar bone's frame}
@@ -68,10 +74,46 @@ def bone_map_for(arm) -> sk.BoneMap:
         else:
             bm.bones.pop(seg, None)
     if ov:
-        bm.scheme = f"{bm.scheme}+custom"
+        whole = all(seg in ov for seg in (*SINGLE_SEGMENTS, *sk.CHAIN_SEGMENTS))
+        bm.scheme = "custom" if whole else f"{bm.scheme}+custom"
         used = set(bm.bones.values()) | {b for c in bm.chains.values() for b in c}
         bm.unmapped = [n for n in names if n not in used]
     return bm
+
+
+def apply_bone_map(arm, bm: sk.BoneMap) -> bool:
+    """Make `bm` the armature's bone map: every segment is written to the overrides ("" where it
+    maps nothing). An avatar model stored on the armature that was calibrated with another map no
+    longer fits it and is removed (returns True): the next calibration or bake measures it again."""
+    missing = [b for b in [*bm.bones.values(), *(b for c in bm.chains.values() for b in c)]
+               if b not in arm.data.bones]
+    if missing:
+        raise BodyCalError(f"armature has no bone '{missing[0]}'", source=arm.name)
+    ov = {seg: bm.bones.get(seg, "") for seg in SINGLE_SEGMENTS}
+    ov |= {chain: ",".join(bm.chains.get(chain, [])) for chain in sk.CHAIN_SEGMENTS}
+    arm[BONE_MAP_PROP] = json.dumps(ov)
+    if not avatar_storage.has_model(arm):
+        return False
+    try:
+        stored = sk.BoneMap.from_dict(avatar_storage.load_model(arm).extra.get("rig", {}).get("bone_map", {}))
+    except BodyCalError:  # damaged: the next calibration replaces it anyway
+        return False
+    if stored.same_mapping(bm):
+        return False
+    avatar_storage.clear_model(arm)
+    return True
+
+
+def apply_preset(arm, preset: BonePreset) -> tuple[sk.BoneMap, bool]:
+    """Resolve `preset` on the armature's bones and store the result (`apply_bone_map`): the map,
+    and whether a stored avatar model made with another map was removed."""
+    if arm is None or getattr(arm, "type", None) != "ARMATURE":
+        raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
+    bm = preset.resolve([b.name for b in arm.data.bones])
+    if not bm.bones and not any(bm.chains.values()):  # would wipe the working map for nothing
+        raise BodyCalError(f"bone map preset '{preset.name}' maps none of its bones", source=arm.name,
+                           hint="pick the preset of this rig's naming scheme, or Import a map made for it")
+    return bm, apply_bone_map(arm, bm)
 
 
 def hinge_overrides(arm) -> dict[str, np.ndarray]:

@@ -148,7 +148,8 @@ def output_inputs(recording_path, user_path, avatar_blend) -> list[tuple[str, ob
 
 def retarget_files(recording_path, user_path, avatar_blend, output_paths, *, armature: str | None = None,
                    method: str = "egocentric", filter: OneEuro | None = None, plant_feet: bool = True,
-                   overwrite: bool = True, options: bake.BakeOptions | None = None, log=print) -> RetargetSummary:
+                   overwrite: bool = True, options: bake.BakeOptions | None = None, log=print,
+                   bone_map=None) -> RetargetSummary:
     """`bodycal retarget`: everything from paths, nothing from a running session. `output_paths`
     (one path or several: a .blend and/or exports) are checked first (not an input, not a link or
     device, replaced only with `overwrite`, each once), so a bad path costs nothing; they are
@@ -178,6 +179,11 @@ def retarget_files(recording_path, user_path, avatar_blend, output_paths, *, arm
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
     open_blend(avatar_blend)
     arm = find_armature(armature, str(avatar_blend))
+    if bone_map is not None:  # a bone_presets.BonePreset (--bone-map), checked before the file was opened
+        from .avatar_rig import apply_preset
+
+        if apply_preset(arm, bone_map)[1]:
+            log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
     inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user, filter=filter,
                            plant_feet=plant_feet)
     anim = compute(inputs)

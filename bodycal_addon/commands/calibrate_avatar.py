@@ -1,5 +1,6 @@
-"""`bodycal calibrate-avatar FILE.blend [--armature NAME] -o AVATAR.body.json` (FORMATS.md §4):
-surface calibration by raycasting onto the avatar's mesh. The .blend is read, never written."""
+"""`bodycal calibrate-avatar FILE.blend [--armature NAME] [--bone-map FILE] -o AVATAR.body.json`
+(FORMATS.md §4): surface calibration by raycasting onto the avatar's mesh. The .blend is read,
+never written; a bone map preset is checked before it is opened."""
 
 from __future__ import annotations
 
@@ -8,14 +9,20 @@ import sys
 
 def run(args) -> int:
     from ..blender.avatar_calibration import calibrate_avatar
+    from ..blender.avatar_rig import apply_preset
     from ..blender.blendfile import find_armature, open_blend
+    from ..bone_presets import load_preset
     from ..outputs import check_output
 
-    files_read = [("the avatar .blend", args.blend)]
+    bone_map = getattr(args, "bone_map", None)
+    files_read = [("the avatar .blend", args.blend), ("the bone map (--bone-map)", bone_map)]
     overwrite = getattr(args, "overwrite", False)
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before opening anything
+    preset = load_preset(bone_map) if bone_map else None
     open_blend(args.blend)
     arm = find_armature(args.armature, str(args.blend))
+    if preset is not None:
+        apply_preset(arm, preset)
     model = calibrate_avatar(arm)
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)
     q = model.calibration["quality"]

@@ -71,7 +71,7 @@ def test_mixamo_and_vrm_names_map():
     assert m.scheme == "mixamo" and m.unmapped == [] and m.missing() == []
     assert m.chains["spine"] == ["mixamorig:Spine", "mixamorig:Spine1", "mixamorig:Spine2"]
     v = sk.detect_bone_map(vrm)
-    assert v.scheme == "vrm1" and v.unmapped == [] and v.missing() == []
+    assert v.scheme == "vrm_humanoid" and v.unmapped == [] and v.missing() == []
     assert v.chains["spine"] == ["spine", "chest", "upperChest"]
     assert v.bones["thumb_1_l"] == "leftThumbMetacarpal" and v.bones["thumb_3_r"] == "rightThumbDistal"
 
