@@ -116,6 +116,14 @@ def file_figures(anim, folder: Path) -> dict:
     return {k: (round(v / 1e6, 1) if isinstance(v, int) else v) for k, v in sizes.items()}
 
 
+def _high_water_kb(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next((int(line.split()[1]) for line in f if line.startswith("VmHWM:")), 0)
+    except OSError:  # it just ended
+        return 0
+
+
 def command_memory(rec_path: Path, user_path: Path, folder: Path) -> dict:
     bpy.ops.wm.read_homefile(use_empty=True)
     paths.sample_rigs().load_glb_avatar(paths.data_dir() / "avatars" / "mpfb2_variants" / "adult_male.glb")
@@ -127,11 +135,15 @@ def command_memory(rec_path: Path, user_path: Path, folder: Path) -> dict:
         child = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "retarget", str(rec_path), "--user",
                                   str(user_path), "--avatar", str(blend), "--method", method, "-o", str(target)],
                                  cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        _pid, status, usage = os.wait4(child.pid, 0)  # this child's own peak, not the largest so far
-        child.returncode = os.waitstatus_to_exitcode(status)
+        # The child's own high-water mark, read while it runs: rusage would count this big process's
+        # memory (a forked child's peak starts at its parent's size).
+        peak_kb = 0
+        while child.poll() is None:
+            peak_kb = max(peak_kb, _high_water_kb(child.pid))
+            time.sleep(0.05)
         if child.returncode != 0:
             raise SystemExit(f"retarget {method} failed with exit {child.returncode}")
-        out[method] = {"peak_rss_mb": round(usage.ru_maxrss / 1024), "file_mb": round(target.stat().st_size / 1e6, 1)}
+        out[method] = {"peak_rss_mb": round(peak_kb / 1024), "file_mb": round(target.stat().st_size / 1e6, 1)}
     return out
 
 
