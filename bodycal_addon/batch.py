@@ -320,7 +320,8 @@ def load_jobs(path) -> tuple[list[Job], dict]:
         raise check.error("defaults.overwrite", f"must be true or false, got {_describe(overwrite)}")
     tolerance = (_number(check, defaults["tolerance"], "defaults.tolerance", 0.0, 180.0, "degrees")
                  if "tolerance" in defaults else None)
-    fps = _number(check, defaults["fps"], "defaults.fps", 1.0, 1000.0, "frames per second") if "fps" in defaults else None
+    fps = (_number(check, defaults["fps"], "defaults.fps", 1.0, 1000.0, "frames per second")
+           if "fps" in defaults else None)
     formats = _exports(check, defaults.get("export", ["blend"]))
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")

@@ -14,8 +14,8 @@ import sys
 from collections.abc import Callable
 
 from .errors import BodyCalError
-from .outputs import describe_os_error
 from .keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from .outputs import describe_os_error
 from .retarget.pipeline import METHODS
 
 EXIT_OK = 0
@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="key reduction: each bone's rotation stays within DEG degrees of every sample "
                         f"(default {DEFAULT_TOLERANCE_DEG:g}; 0 keys every sample)")
     c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
-                   help=f"key reduction of the root's location, in millimetres (default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
+                   help="key reduction of the root's location, in millimetres "
+                        f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
     c.add_argument("--fps", type=float, default=None, metavar="N",
                    help="output frame rate: the action is resampled to N frames per second, timing kept "
                         "(default: one key per recording sample, the scene set to the recording's rate)")

@@ -56,7 +56,8 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
         name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
     tolerance: bpy.props.FloatProperty(
-        name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0), precision=3, subtype="ANGLE",
+        name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0),
+        precision=3, subtype="ANGLE",
         description="Key reduction: every bone's rotation stays within this angle of the every-frame bake "
                     "(linear keys); 0 keys every frame")
     location_tolerance: bpy.props.FloatProperty(

@@ -2,8 +2,9 @@
 
 Keys are reduced first (`keyreduce`): each bone keeps the frames its rotation needs for linear
 keys to stay within `tolerance_deg` of every sample, the root those its location needs to stay
-within `location_tolerance_mm`; a tolerance of 0 keeps every sample. Keys are written per F-Curve with `keyframe_points.add(n)` + `foreach_set("co", ...)`, a few
-thousand times faster than inserting one key per call (BLENDER_NOTES.md: 5.8 M keys/s against 11.7 k/s).
+within `location_tolerance_mm`; a tolerance of 0 keeps every sample. Keys are written per F-Curve
+with `keyframe_points.add(n)` + `foreach_set("co", ...)`, a few thousand times faster than inserting
+one key per call (BLENDER_NOTES.md: 5.8 M keys/s against 11.7 k/s).
 Portable across Blender 4.2 (`action.fcurves`) and 4.4+ / 5.0 slotted actions
 (`action.fcurve_ensure_for_datablock`). Everything is computed before the scene is touched, and
 if writing fails half way the new action is removed and the previous assignment restored.
@@ -17,9 +18,9 @@ import bpy
 import numpy as np
 
 from .. import keyreduce
-from ..keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from ..animation import AvatarAnimation
 from ..errors import BodyCalError
+from ..keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .fcurves import continuous_quaternions, new_fcurve, write_keys
 
 
@@ -76,7 +77,9 @@ def validate(anim: AvatarAnimation, obj) -> None:
 def world_scale(obj) -> float:
     """The armature object's (uniform) world scale: armature units per metre is its inverse."""
     # From the object's own transform (always current; matrix_world waits for a depsgraph update).
-    m = obj.matrix_basis if obj.parent is None else obj.parent.matrix_world @ obj.matrix_parent_inverse @ obj.matrix_basis
+    m = obj.matrix_basis
+    if obj.parent is not None:
+        m = obj.parent.matrix_world @ obj.matrix_parent_inverse @ m
     lin = np.array(m, float)[:3, :3]
     return float(np.cbrt(abs(np.linalg.det(lin)))) or 1.0
 
