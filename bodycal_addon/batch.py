@@ -135,11 +135,6 @@ class Job:
             args += ["--overwrite"]
         return args
 
-    @property
-    def partial(self) -> Path:
-        """Blender's temporary save file when it saves straight to the output: `<output>@`."""
-        return self.output.with_name(self.output.name + "@")
-
     def leftovers(self) -> list[Path]:
         """What a worker ended while writing can leave beside its outputs: `<output>@`, and the
         hidden temporary `.<output name>.<hex>.tmp<suffix>` the command writes first (outputs.py),
@@ -208,18 +203,19 @@ def _parse(path: Path) -> dict:
                            "numbers and lists", source=str(path)) from None
 
 
-def _methods(check: _Checker, value) -> list[str]:
-    field, allowed = "defaults.method", ", ".join(METHODS)
-    methods = [value] if isinstance(value, str) else value
-    if not isinstance(methods, list) or not methods:
-        raise check.error(field, f"must be a method or a non-empty list of methods ({allowed}), "
+def _choices(check: _Checker, value, field: str, noun: str, allowed: tuple[str, ...]) -> list[str]:
+    """One of `allowed` or a non-empty list of them, each once (`method`, `export`)."""
+    names = ", ".join(allowed)
+    chosen = [value] if isinstance(value, str) else value
+    if not isinstance(chosen, list) or not chosen:
+        raise check.error(field, f"must be a {noun} or a non-empty list of {noun}s ({names}), "
                                  f"got {_describe(value)}")
-    for m in methods:
-        if m not in METHODS:
-            raise check.error(field, f"unknown method {_describe(m)}; use one of {allowed}")
-    if len(set(methods)) != len(methods):
-        raise check.error(field, "lists a method twice; list each once")
-    return methods
+    for c in chosen:
+        if c not in allowed:
+            raise check.error(field, f"unknown {noun} {_describe(c)}; use one of {names}")
+    if len(set(chosen)) != len(chosen):
+        raise check.error(field, f"lists a {noun} twice; list each once")
+    return chosen
 
 
 def _workers(check: _Checker, value) -> int:
@@ -261,19 +257,6 @@ def _number(check: _Checker, value, field: str, low: float, high: float, what: s
     return float(value)
 
 
-def _exports(check: _Checker, value) -> list[str]:
-    field, allowed = "defaults.export", ", ".join(EXPORT_FORMATS)
-    formats = [value] if isinstance(value, str) else value
-    if not isinstance(formats, list) or not formats:
-        raise check.error(field, f"must be a format or a non-empty list of formats ({allowed}), got {_describe(value)}")
-    for f in formats:
-        if f not in EXPORT_FORMATS:
-            raise check.error(field, f"unknown format {_describe(f)}; use {allowed}")
-    if len(set(formats)) != len(formats):
-        raise check.error(field, "lists a format twice; list each once")
-    return formats
-
-
 def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
     what = {"recordings": "[[recordings]] tables with path and user",
             "avatars": "[[avatars]] tables with blend (and optionally armature and bone_map)"}[key]
@@ -308,7 +291,7 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     check.table(data, None, _KEYS[""], "a TOML document")
     base = path.parent
     defaults = check.table(data.get("defaults", {}), "defaults", _KEYS["defaults"], "a table ([defaults])")
-    methods = _methods(check, defaults.get("method", "egocentric"))
+    methods = _choices(check, defaults.get("method", "egocentric"), "defaults.method", "method", METHODS)
     out_dir = base / check.text(defaults.get("output_dir", "out/batch"), "defaults.output_dir", "a folder")
     workers = _workers(check, defaults.get("workers", os.cpu_count() or 1))
     filt = _filter(check, defaults.get("filter", False))
@@ -322,7 +305,7 @@ def load_jobs(path) -> tuple[list[Job], dict]:
                  if "tolerance" in defaults else None)
     fps = (_number(check, defaults["fps"], "defaults.fps", 1.0, 1000.0, "frames per second")
            if "fps" in defaults else None)
-    formats = _exports(check, defaults.get("export", ["blend"]))
+    formats = _choices(check, defaults.get("export", ["blend"]), "defaults.export", "format", EXPORT_FORMATS)
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     if not recordings or not avatars:

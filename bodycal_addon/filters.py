@@ -29,6 +29,7 @@ import numpy as np
 
 from .errors import BodyCalError
 from .recording import Recording
+from .transforms import continuous_quaternions
 
 
 @dataclass(frozen=True)
@@ -106,13 +107,6 @@ def _one_euro(x: np.ndarray, dt: np.ndarray, velocity: np.ndarray, cfg_min: floa
     return _lowpass(x, _alpha(cutoff, dt[:, None])[..., None])
 
 
-def _aligned(q: np.ndarray) -> np.ndarray:
-    """Quaternions (F, D, 4) with signs flipped so consecutive ones lie in one hemisphere."""
-    d = np.einsum("fdk,fdk->fd", q[1:], q[:-1])
-    flips = np.concatenate([np.ones((1,) + d.shape[1:]), np.where(d < 0, -1.0, 1.0)])
-    return q * np.cumprod(flips, axis=0)[..., None]
-
-
 def _dt(time: np.ndarray) -> np.ndarray:
     t = np.asarray(time, float)
     dt = np.diff(t, prepend=t[0] - (t[1] - t[0] if len(t) > 1 else 1.0 / 90.0))
@@ -141,7 +135,7 @@ def smooth_positions(time: np.ndarray, pos: np.ndarray, min_cutoff: float, beta:
 def smooth_rotations(time: np.ndarray, quat: np.ndarray, min_cutoff: float, beta: float, d_cutoff: float = 1.0,
                      two_pass: bool = True) -> np.ndarray:
     """One Euro of unit quaternions (F, D, 4) (w, x, y, z), the cutoff from the angular speed."""
-    q = _aligned(np.asarray(quat, float))
+    q = continuous_quaternions(np.asarray(quat, float))
     if len(q) < 2:
         return q.copy()
 

@@ -84,8 +84,8 @@ def _squared_distance(true: np.ndarray, lerp: np.ndarray) -> np.ndarray:
 
 def rotation_keys(quaternions: np.ndarray, tolerance_rad: float) -> np.ndarray:
     """(F, B) mask of the frames to key for each bone's (F, B, 4) quaternion curve (already made
-    continuous in sign) so that nlerp between kept keys stays within `tolerance_rad` of every
-    sample. A tolerance of 0 keeps every frame."""
+    continuous in sign: `transforms.continuous_quaternions`) so that nlerp between kept keys stays
+    within `tolerance_rad` of every sample. A tolerance of 0 keeps every frame."""
     q = np.asarray(quaternions)
     tol = float(tolerance_rad)
     keep = np.empty(q.shape[:2], bool)

@@ -154,6 +154,17 @@ def inverse_transform_points(pos: np.ndarray, rot: np.ndarray, world: np.ndarray
     return rotate(quat_conj(rot), np.asarray(world, float) - pos)
 
 
+def continuous_quaternions(q: np.ndarray) -> np.ndarray:
+    """Flip signs along the frame axis (the first) so consecutive quaternions lie on one
+    hemisphere: q and -q are the same rotation, but anything that interpolates or filters
+    components (F-Curves, low-pass filters, key reduction) would swing through a half turn between
+    them. Returns a new array."""
+    q = np.array(q, dtype=float, copy=True)
+    dots = (q[1:] * q[:-1]).sum(-1)
+    q[1:] *= np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)[..., None]
+    return q
+
+
 def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     a, b = np.asarray(a, float), np.asarray(b, float)
     d = (a * b).sum(-1, keepdims=True)

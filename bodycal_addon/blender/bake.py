@@ -21,7 +21,8 @@ from .. import keyreduce
 from ..animation import AvatarAnimation
 from ..errors import BodyCalError
 from ..keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
-from .fcurves import continuous_quaternions, new_fcurve, write_keys
+from ..transforms import continuous_quaternions
+from .fcurves import new_fcurve, write_keys
 
 
 @dataclass

@@ -73,7 +73,7 @@ def _gltf_embedded_allowed():
             prefs.allow_embedded_format = had
 
 
-def _export_to(kind: str, arm, tmp: Path) -> None:
+def _export_to(kind: str, tmp: Path) -> None:
     scene = bpy.context.scene
     if kind == "fbx":
         bpy.ops.export_scene.fbx(
@@ -111,7 +111,7 @@ def export_avatar(arm, path, *, inputs=(), overwrite: bool = False, field: str =
         chatter = io.StringIO()  # the exporters print progress; the command line keeps one line per result
         try:
             with _selected(arm, [arm, *_skinned_meshes(arm)]), contextlib.redirect_stdout(chatter):
-                _export_to(kind, arm, tmp)
+                _export_to(kind, tmp)
         except RuntimeError as exc:
             raise BodyCalError(f"Blender's {kind.upper()} exporter failed ({str(exc).strip().splitlines()[-1][:120]})",
                                source=str(path), field=field) from None

@@ -12,17 +12,6 @@ import numpy as np
 LINEAR, CONSTANT = 1, 0  # KeyframePoint.interpolation enum values (CONSTANT=0, LINEAR=1, BEZIER=2)
 
 
-def continuous_quaternions(q: np.ndarray) -> np.ndarray:
-    """Flip signs along the frame axis so consecutive keys are on the same hemisphere: q and -q
-    are the same rotation, but F-Curves interpolate components and would swing through a half
-    turn between them."""
-    q = np.array(q, dtype=float, copy=True)
-    dots = (q[1:] * q[:-1]).sum(-1)
-    flips = np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)
-    q[1:] *= flips[..., None]
-    return q
-
-
 def _channelbag(action, obj):
     slot = obj.animation_data.action_slot if obj.animation_data else None
     if slot is None or not action.layers:

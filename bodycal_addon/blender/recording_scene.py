@@ -27,7 +27,8 @@ import numpy as np
 
 from ..errors import BodyCalError
 from ..recording import STEPS, Device, Recording, Segment
-from .fcurves import CONSTANT, continuous_quaternions, new_fcurve, object_fcurves, read_keys, write_keys
+from ..transforms import continuous_quaternions
+from .fcurves import CONSTANT, new_fcurve, object_fcurves, read_keys, write_keys
 
 SCENE_KEY = "bodycal_recording"
 DEVICE_PROP = "bodycal_device"  # on a device empty: the device name

@@ -140,46 +140,48 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
                            quality_figures(anim), result.samples, rate)
 
 
-def output_inputs(recording_path, user_path, avatar_blend) -> list[tuple[str, object]]:
+def output_inputs(recording_path, user_path, avatar_blend, bone_map_path=None) -> list[tuple[str, object]]:
     """What `retarget` reads, named for the message when its output would be one of them."""
     return [*outputs.recording_inputs(recording_path), ("the user file (--user)", user_path),
-            ("the avatar .blend (--avatar)", avatar_blend)]
+            ("the avatar .blend (--avatar)", avatar_blend), ("the bone map (--bone-map)", bone_map_path)]
 
 
 def retarget_files(recording_path, user_path, avatar_blend, output_paths, *, armature: str | None = None,
                    method: str = "egocentric", filter: OneEuro | None = None, plant_feet: bool = True,
                    overwrite: bool = True, options: bake.BakeOptions | None = None, log=print,
-                   bone_map=None) -> RetargetSummary:
+                   bone_map_path=None) -> RetargetSummary:
     """`bodycal retarget`: everything from paths, nothing from a running session. `output_paths`
     (one path or several: a .blend and/or exports) are checked first (not an input, not a link or
     device, replaced only with `overwrite`, each once), so a bad path costs nothing; they are
-    written last, each all at once."""
+    written last, each all at once. A bone map preset (`bone_map_path`) is read and checked with
+    the other inputs, before the avatar's file is opened."""
     from pathlib import Path
 
     import bpy
 
+    from ..bone_presets import load_preset
     from ..recording_io import load_recording
     from .blendfile import find_armature, open_blend, save_blend
     from .export import export_avatar, output_kind
 
     avatar_blend = Path(avatar_blend)
     outs = [Path(p) for p in ([output_paths] if isinstance(output_paths, (str, Path)) else output_paths)]
-    files_read = output_inputs(recording_path, user_path, avatar_blend)
-    seen = {}
+    files_read = output_inputs(recording_path, user_path, avatar_blend, bone_map_path)
+    seen = set()
     for out in outs:
         outputs.check_output(out, inputs=files_read, overwrite=overwrite)  # the most important reason first
-        kind = output_kind(out)
-        key = str(out.resolve())
-        if key in seen:
+        output_kind(out)
+        if str(out.resolve()) in seen:
             raise BodyCalError("is given twice", source=str(out), field="-o", hint="give each output once")
-        seen[key] = kind
-    recording = load_recording(recording_path)  # validate every input before opening anything
+        seen.add(str(out.resolve()))
+    bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening anything
+    recording = load_recording(recording_path)
     user = BodyModel.load(user_path)
     if user.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
     open_blend(avatar_blend)
     arm = find_armature(armature, str(avatar_blend))
-    if bone_map is not None:  # a bone_presets.BonePreset (--bone-map), checked before the file was opened
+    if bone_map is not None:
         from .avatar_rig import apply_preset
 
         if apply_preset(arm, bone_map)[1]:

@@ -48,7 +48,6 @@ from .avatar_pose import (
 )
 from .user_animation import _joint_from, _trackers, animate_user, pose_finger_chain
 
-METHODS = ("egocentric", "offsets", "rotations")
 TARGETS = tuple(
     [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
     + [f"tip_{f}_{s}" for s in sk.SIDES for f in sk.FINGERS] + ["skull_base"])

@@ -8,8 +8,9 @@ from bodycal_addon import paths
 from bodycal_addon import transforms as tf
 from bodycal_addon.animation import AvatarAnimation
 from bodycal_addon.blender.bake import bake_animation
-from bodycal_addon.blender.fcurves import continuous_quaternions, object_fcurves
+from bodycal_addon.blender.fcurves import object_fcurves
 from bodycal_addon.errors import BodyCalError
+from bodycal_addon.transforms import continuous_quaternions
 
 rigs = paths.sample_rigs()
 BONES = ["upperarm_l", "lowerarm_l", "thigh_r", "spine_02", "head"]

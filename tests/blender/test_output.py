@@ -13,8 +13,8 @@ from repo_paths import REPO
 
 from bodycal_addon import keyreduce, paths
 from bodycal_addon.blender.bake import bake_animation
-from bodycal_addon.blender.fcurves import continuous_quaternions
 from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.transforms import continuous_quaternions
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -49,10 +49,6 @@ def _run(*args):
                           text=True, timeout=600)
 
 
-def _angle(a, b):
-    return 2 * np.arccos(np.minimum(np.abs((a * b).sum(-1)), 1.0))
-
-
 @pytest.mark.parametrize("tol_deg", [0.1, 1.0])
 def test_blender_plays_the_reduced_keys_within_the_tolerance(take, tol_deg):
     """Evaluated by Blender (not the numpy model of it) at every 7th frame: every bone within the
@@ -70,7 +66,7 @@ def test_blender_plays_the_reduced_keys_within_the_tolerance(take, tol_deg):
     for f in range(0, anim.frame_count, 7):
         scene.frame_set(f + 1)
         got = np.array([tuple(arm.pose.bones[b].rotation_quaternion) for b in anim.bone_names])
-        worst_rot = max(worst_rot, float(_angle(got / np.linalg.norm(got, axis=1, keepdims=True), q[f]).max()))
+        worst_rot = max(worst_rot, float(keyreduce.rotation_error(q[f], got).max()))
         loc = np.array(arm.pose.bones[anim.root_bone].location)
         worst_loc = max(worst_loc, float(np.linalg.norm(loc - anim.root_location[f])))
     # float32 keys: a few micro-degrees on top of the bound

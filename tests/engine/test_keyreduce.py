@@ -13,13 +13,6 @@ from bodycal_addon import transforms as tf
 from bodycal_addon.animation import AvatarAnimation, resample
 
 
-def _continuous(q):
-    q = q.copy()
-    flips = np.cumprod(np.where((q[1:] * q[:-1]).sum(-1) < 0, -1.0, 1.0), axis=0)
-    q[1:] *= flips[..., None]
-    return q
-
-
 def _motion(frames: int, bones: int, seed: int, noise_deg: float) -> np.ndarray:
     """Smooth random rotations (random walks of angular velocity) plus white noise."""
     rng = np.random.default_rng(seed)
@@ -30,7 +23,7 @@ def _motion(frames: int, bones: int, seed: int, noise_deg: float) -> np.ndarray:
     for f in range(1, frames):  # test data only
         angle = np.linalg.norm(omega[f], axis=-1)
         q[f] = tf.quat_normalize(tf.quat_mul(tf.axis_angle_to_quat(omega[f], angle), q[f - 1]))
-    return _continuous(q)
+    return tf.continuous_quaternions(q)
 
 
 def _worst_angle(q: np.ndarray, keep: np.ndarray) -> float:
@@ -91,7 +84,7 @@ def _slow_swings(frames: int, bones: int, fps: float = 90.0) -> np.ndarray:
     t = np.arange(frames) / fps
     axes = tf.normalize(rng.normal(size=(bones, 3)))
     angle = np.radians(30.0) * np.sin(2 * np.pi * 0.3 * t[:, None] + rng.uniform(0, 6, bones))
-    return _continuous(tf.axis_angle_to_quat(np.broadcast_to(axes, (frames, bones, 3)), angle))
+    return tf.continuous_quaternions(tf.axis_angle_to_quat(np.broadcast_to(axes, (frames, bones, 3)), angle))
 
 
 def test_smooth_motion_is_reduced_and_the_reduction_tightens_with_the_tolerance():
