@@ -220,12 +220,17 @@ class AvatarRig:
                                field="rig.bones") from None
         world = np.asarray(rig.get("matrix_world", np.eye(4)), float).reshape(4, 4)
         lin = world[:3, :3]
-        scales = np.linalg.norm(lin, axis=0)
-        if np.ptp(scales) > 1e-6 * scales.max() or np.linalg.det(lin) <= 0:
-            raise BodyCalError("the armature's object scale must be uniform and positive", source=src,
-                               field="rig.matrix_world", hint="apply the scale (Ctrl+A) and recalibrate")
-        w_scale = float(scales.mean())
-        w_rot = lin / w_scale
+        det = np.linalg.det(lin)
+        if not det > 0:
+            raise BodyCalError("the armature object is mirrored or flattened (its scale has a negative or zero "
+                               "axis)", source=src, field="rig.matrix_world",
+                               hint="apply the scale (Ctrl+A) and recalibrate")
+        # Pose bones only rotate, so the armature's transform is taken as a rotation and one scale:
+        # exact for a uniform scale; for a non-uniform one (the calibration warns) the nearest
+        # rotation (polar decomposition) and the mean scale, which keep the rest pose's world joints.
+        u, _, vt = np.linalg.svd(lin)
+        w_rot = u @ vt
+        w_scale = float(np.cbrt(det))
         bm = sk.BoneMap.from_dict(rig.get("bone_map", {}))
         seg_of = {}
         for seg, bn in bm.bones.items():
