@@ -13,6 +13,7 @@ JOBS.toml:
     runner = "python"           # or "blender": `blender -b -c bodycal ...` (needs the extension installed)
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
+    placement = "object"        # optional: "performer" plays each avatar where the performer was
     overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
 
     [[recordings]]
@@ -20,7 +21,7 @@ JOBS.toml:
     user = "takes/performer.body.json"
 
     [[avatars]]
-    blend = "avatars/ogre.blend"
+    file = "avatars/ogre.blend" # or .fbx, .glb, .gltf, .vrm (`blend = ...` reads too)
     armature = "Ogre"           # optional
 
 Every recording is retargeted onto every avatar with every method. Paths are relative to the
@@ -66,8 +67,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import BodyCalError
-from .paths import ROOT_DIR
+from .paths import AVATAR_SUFFIXES, ROOT_DIR
 from .retarget.pipeline import METHODS
+from .retarget.placement import PLACEMENTS
 
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
@@ -76,9 +78,9 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 
 _KEYS = {
     "": ("defaults", "recordings", "avatars"),
-    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "overwrite"),
+    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite"),
     "recordings": ("path", "user"),
-    "avatars": ("blend", "armature"),
+    "avatars": ("file", "blend", "armature"),
 }
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _UNSAFE = re.compile(r"[^\w.+-]")  # \w: letters and digits of any script, and _
@@ -97,6 +99,7 @@ class Job:
     filter: str | None = None
     plant_feet: bool = True
     overwrite: bool = False
+    placement: str = "object"
 
     def argv(self) -> list[str]:
         args = ["retarget", str(self.recording), "--user", str(self.user), "--avatar", str(self.avatar),
@@ -107,6 +110,8 @@ class Job:
             args += ["--filter", self.filter]
         if not self.plant_feet:
             args += ["--no-plant-feet"]
+        if self.placement != "object":
+            args += ["--placement", self.placement]
         if self.overwrite:
             args += ["--overwrite"]
         return args
@@ -223,7 +228,7 @@ def _filter(check: _Checker, value) -> str | None:
 
 def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
     what = {"recordings": "[[recordings]] tables with path and user",
-            "avatars": "[[avatars]] tables with blend (and optionally armature)"}[key]
+            "avatars": "[[avatars]] tables with file (and optionally armature)"}[key]
     entries = data.get(key, [])
     if not isinstance(entries, list):
         raise check.error(key, f"must be {what}, got {_describe(entries)}")
@@ -251,6 +256,10 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     overwrite = defaults.get("overwrite", False)
     if not isinstance(overwrite, bool):
         raise check.error("defaults.overwrite", f"must be true or false, got {_describe(overwrite)}")
+    placement = defaults.get("placement", PLACEMENTS[0])
+    if placement not in PLACEMENTS:
+        raise check.error("defaults.placement", f"must be {' or '.join(json.dumps(p) for p in PLACEMENTS)}, "
+                                                f"got {_describe(placement)}")
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     if not recordings or not avatars:
@@ -269,19 +278,24 @@ def load_jobs(path) -> tuple[list[Job], dict]:
         recs.append((rp, up))
     avs, seen = [], {}
     for j, av in enumerate(avatars):
-        if "blend" not in av:
-            raise check.error(f"avatars[{j}]", "missing 'blend'")
-        ap = base / check.text(av["blend"], f"avatars[{j}].blend", "a .blend file")
+        keys = [k for k in ("file", "blend") if k in av]
+        if len(keys) != 1:
+            raise check.error(f"avatars[{j}]", "missing 'file'" if not keys else "has both 'file' and 'blend'; "
+                                                                                 "keep 'file'")
+        what = f"an avatar file ({', '.join(AVATAR_SUFFIXES)})"
+        ap = base / check.text(av[keys[0]], f"avatars[{j}].{keys[0]}", what)
+        if ap.suffix.lower() not in AVATAR_SUFFIXES:
+            raise check.error(f"avatars[{j}].{keys[0]}", f"must be {what}, got {_describe(av[keys[0]])}")
         arm = check.text(av["armature"], f"avatars[{j}].armature", "an armature name") if "armature" in av else None
         identity = (_abs(ap), arm)
         if identity in seen:
-            raise check.error(f"avatars[{j}]", f"same blend and armature as avatars[{seen[identity]}]; remove one")
+            raise check.error(f"avatars[{j}]", f"same file and armature as avatars[{seen[identity]}]; remove one")
         seen[identity] = j
         avs.append((ap, arm))
 
     specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm in avs for m in methods]
     names = output_names(specs)
-    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.blend", filt, plant, overwrite)
+    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.blend", filt, plant, overwrite, placement)
             for name, (rp, up, ap, arm, m) in zip(names, specs)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):

@@ -6,6 +6,7 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper
 from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, surface_helpers
 from ..bodycal_addon.bodymodel import BodyModel
 from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.retarget.placement import avatar_warnings
 from .reporting import reports_errors
 
 
@@ -162,6 +163,8 @@ class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
         self.report({"INFO"}, f"{arm.name}: {len(model.surface)} surface elements, "
                     f"{sum(v['hit'] for v in q.values())} ray hits ({rejected} rejected), "
                     f"{model.extra['rig']['rest_pose']}-pose rest{note}")
+        for line in avatar_warnings(model):
+            self.report({"WARNING"}, line)
         return {"FINISHED"}
 
 

@@ -1,5 +1,7 @@
-"""`bodycal calibrate-avatar FILE.blend [--armature NAME] -o AVATAR.body.json` (FORMATS.md §4):
-surface calibration by raycasting onto the avatar's mesh. The .blend is read, never written."""
+"""`bodycal calibrate-avatar AVATAR [--armature NAME] -o AVATAR.body.json` (FORMATS.md §4):
+surface calibration by raycasting onto the avatar's mesh. AVATAR is a .blend (read, never
+written) or an .fbx, .glb, .gltf or .vrm imported by Blender's own importer. One `warning:` line
+on stderr per doubt about the armature object's transform (placement.avatar_warnings)."""
 
 from __future__ import annotations
 
@@ -8,15 +10,19 @@ import sys
 
 def run(args) -> int:
     from ..blender.avatar_calibration import calibrate_avatar
-    from ..blender.blendfile import find_armature, open_blend
+    from ..blender.blendfile import find_armature, open_avatar
+    from ..blender.retarget_scene import avatar_input
     from ..outputs import check_output
+    from ..retarget.placement import avatar_warnings
 
-    files_read = [("the avatar .blend", args.blend)]
+    files_read = [avatar_input(args.avatar)]
     overwrite = getattr(args, "overwrite", False)
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before opening anything
-    open_blend(args.blend)
-    arm = find_armature(args.armature, str(args.blend))
+    open_avatar(args.avatar)
+    arm = find_armature(args.armature, str(args.avatar))
     model = calibrate_avatar(arm)
+    for line in avatar_warnings(model):
+        print(f"bodycal calibrate-avatar: warning: {line}", file=sys.stderr, flush=True)
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)
     q = model.calibration["quality"]
     print(f"{out}: avatar {arm.name}, {len(model.joints)} joints, {len(model.surface)} surface elements, "
