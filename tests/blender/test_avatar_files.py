@@ -275,3 +275,28 @@ def test_a_batch_job_takes_a_glb_avatar(files, tmp_path):
     assert summary["ok"] == 1 and summary["results"][0]["job"] == "take__adult_male__rotations"
     bpy.ops.wm.open_mainfile(filepath=summary["results"][0]["output"])
     assert bpy.data.objects["adult_male_rig"].animation_data.action.name == "take|adult_male_rig|rotations"
+
+
+def test_the_sidebar_imports_an_fbx_avatar_ready_to_calibrate(files, tmp_path):
+    """Avatar > Import Avatar: Blender's importer, the armature made active; Calibrate Avatar then
+    measures the body the .blend gives. A file the importer cannot read is one ERROR line and
+    leaves the scene as it was."""
+    assert bpy.ops.bodycal.import_avatar(filepath=str(files["fbx"])) == {"FINISHED"}
+    arm = bpy.context.view_layer.objects.active
+    assert arm.type == "ARMATURE" and arm.name == "adult_male" and arm.select_get()
+    assert bpy.ops.bodycal.calibrate_avatar() == {"FINISHED"}
+    blendfile.open_avatar(files["blend"])
+    from bodycal_addon.blender.avatar_calibration import calibrate_avatar
+
+    reference = calibrate_avatar(blendfile.find_armature(None, "blend"))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert bpy.ops.bodycal.import_avatar(filepath=str(files["fbx"])) == {"FINISHED"}
+    assert bpy.ops.bodycal.calibrate_avatar() == {"FINISHED"}
+    _same_body(avatar_storage.load_model(bpy.context.view_layer.objects.active), reference, atol=5e-5)
+    bad = tmp_path / "broken.glb"
+    bad.write_bytes(b"glTF\x02\x00\x00\x00" + b"\x00" * 64)
+    before = set(bpy.data.objects)
+    with pytest.raises(RuntimeError) as err:  # an ERROR report makes bpy.ops raise
+        bpy.ops.bodycal.import_avatar(filepath=str(bad))
+    assert "importer cannot read it" in str(err.value) and "\n" not in str(err.value).strip()
+    assert set(bpy.data.objects) == before
