@@ -193,3 +193,36 @@ def test_a_doubtful_object_transform_is_one_warning_line_in_the_ui(session, capf
 
     (line,) = avatar_warnings(calibrate_avatar(tiny))
     assert "tall" in line and math.isclose(float(line.split(" is ")[1].split()[0]), 0.17, abs_tol=0.02)
+
+
+@pytest.mark.slow
+def test_the_command_line_warns_in_one_line_and_takes_the_placement(session, tmp_path):
+    """calibrate-avatar and retarget on a .blend whose armature is scaled unevenly: exit 0, one
+    `warning:` line each on stderr; --placement performer plays it where the performer was."""
+    import subprocess
+    import sys
+
+    from repo_paths import REPO
+
+    rec, truth, user = session
+    rec_path, _ = synthetic.write_session(tmp_path, "take", rec, truth)
+    user_path = user.save(tmp_path / "performer.body.json")
+    _avatar(Matrix.Translation((2.0, -3.0, 0.0)) @ Matrix.Diagonal((1.0, 1.0, 1.25, 1.0)))
+    blend = tmp_path / "stretched.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+
+    def bodycal(*args):
+        return subprocess.run([sys.executable, "-m", "bodycal_addon", *map(str, args)], cwd=REPO,
+                              capture_output=True, text=True, timeout=600)
+
+    for command, args in (("calibrate-avatar", (blend, "-o", tmp_path / "a.body.json")),
+                          ("retarget", (rec_path, "--user", user_path, "--avatar", blend, "--placement", "performer",
+                                        "-o", tmp_path / "out.blend"))):
+        run = bodycal(command, *args)
+        assert run.returncode == 0, run.stderr
+        (line,) = run.stderr.splitlines()
+        assert line.startswith(f"bodycal {command}: warning: procedural: ") and "not uniform" in line, line
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "out.blend"))
+    arm = bpy.data.objects["procedural"]
+    start = _posed_heads(arm, [0])[0, 0]
+    np.testing.assert_allclose(start[:2], truth.joint_tracks["pelvis"][0][:2], atol=0.03)
