@@ -58,7 +58,7 @@ def rig_matrix(model: BodyModel) -> np.ndarray:
 
 
 def rest_heading(model: BodyModel) -> np.ndarray:
-    """(3,) unit floor direction the avatar faces at rest: up x its hip line (right to left)."""
+    """(3,) unit floor direction the avatar faces at rest: its hip line (right to left) x up."""
     try:
         lateral = np.asarray(model.joints["hip_l"].world, float) - np.asarray(model.joints["hip_r"].world, float)
     except KeyError as exc:
