@@ -147,7 +147,8 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
                 for method in pl.METHODS:
                     for variant, take in (("raw", rec), ("filtered", filtered)):
                         try:
-                            anim = pl.retarget(take, user, avatar, method)
+                            # in the room: the figures compare the avatar with the source there
+                            anim = pl.retarget(take, user, avatar, method, placement="performer")
                         except BodyCalError as exc:
                             motion[f"{method}/{name}/{key}/{variant}"] = {"error": str(exc)}
                             continue

@@ -13,6 +13,7 @@ JOBS.toml:
     runner = "python"           # or "blender": `blender -b -c bodycal ...` (needs the extension installed)
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
+    placement = "object"        # optional: "performer" plays each avatar where the performer was
     overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
     tolerance = 0.1             # optional: key reduction, degrees (as retarget --tolerance; 0 keys every sample)
     fps = 30                    # optional: output frame rate (as retarget --fps; default the recording's)
@@ -23,7 +24,7 @@ JOBS.toml:
     user = "takes/performer.body.json"
 
     [[avatars]]
-    blend = "avatars/ogre.blend"
+    file = "avatars/ogre.blend" # or .fbx, .glb, .gltf, .vrm (`blend = ...` reads too)
     armature = "Ogre"           # optional
     bone_map = "avatars/ogre.bonemap.json"  # optional: a bone map preset (retarget --bone-map)
 
@@ -72,8 +73,9 @@ from pathlib import Path
 
 from .bone_presets import load_preset
 from .errors import BodyCalError
-from .paths import ROOT_DIR
+from .paths import AVATAR_SUFFIXES, ROOT_DIR
 from .retarget.pipeline import METHODS
+from .retarget.placement import PLACEMENTS
 
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
@@ -82,10 +84,10 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 
 _KEYS = {
     "": ("defaults", "recordings", "avatars"),
-    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "overwrite", "tolerance",
-                 "fps", "export"),
+    "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite",
+                 "tolerance", "fps", "export"),
     "recordings": ("path", "user"),
-    "avatars": ("blend", "armature", "bone_map"),
+    "avatars": ("file", "blend", "armature", "bone_map"),
 }
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _UNSAFE = re.compile(r"[^\w.+-]")  # \w: letters and digits of any script, and _
@@ -105,6 +107,7 @@ class Job:
     filter: str | None = None
     plant_feet: bool = True
     overwrite: bool = False
+    placement: str = "object"
     tolerance: float | None = None
     fps: float | None = None
     exports: tuple[Path, ...] = ()  # further outputs beside `output` (other formats)
@@ -131,6 +134,8 @@ class Job:
             args += ["--filter", self.filter]
         if not self.plant_feet:
             args += ["--no-plant-feet"]
+        if self.placement != "object":
+            args += ["--placement", self.placement]
         if self.overwrite:
             args += ["--overwrite"]
         return args
@@ -259,7 +264,7 @@ def _number(check: _Checker, value, field: str, low: float, high: float, what: s
 
 def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
     what = {"recordings": "[[recordings]] tables with path and user",
-            "avatars": "[[avatars]] tables with blend (and optionally armature and bone_map)"}[key]
+            "avatars": "[[avatars]] tables with file (and optionally armature and bone_map)"}[key]
     entries = data.get(key, [])
     if not isinstance(entries, list):
         raise check.error(key, f"must be {what}, got {_describe(entries)}")
@@ -306,6 +311,10 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     fps = (_number(check, defaults["fps"], "defaults.fps", 1.0, 1000.0, "frames per second")
            if "fps" in defaults else None)
     formats = _choices(check, defaults.get("export", ["blend"]), "defaults.export", "format", EXPORT_FORMATS)
+    placement = defaults.get("placement", PLACEMENTS[0])
+    if placement not in PLACEMENTS:
+        raise check.error("defaults.placement", f"must be {' or '.join(json.dumps(p) for p in PLACEMENTS)}, "
+                                                f"got {_describe(placement)}")
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     if not recordings or not avatars:
@@ -324,21 +333,26 @@ def load_jobs(path) -> tuple[list[Job], dict]:
         recs.append((rp, up))
     avs, seen = [], {}
     for j, av in enumerate(avatars):
-        if "blend" not in av:
-            raise check.error(f"avatars[{j}]", "missing 'blend'")
-        ap = base / check.text(av["blend"], f"avatars[{j}].blend", "a .blend file")
+        keys = [k for k in ("file", "blend") if k in av]
+        if len(keys) != 1:
+            raise check.error(f"avatars[{j}]", "missing 'file'" if not keys else "has both 'file' and 'blend'; "
+                                                                                 "keep 'file'")
+        what = f"an avatar file ({', '.join(AVATAR_SUFFIXES)})"
+        ap = base / check.text(av[keys[0]], f"avatars[{j}].{keys[0]}", what)
+        if ap.suffix.lower() not in AVATAR_SUFFIXES:
+            raise check.error(f"avatars[{j}].{keys[0]}", f"must be {what}, got {_describe(av[keys[0]])}")
         arm = check.text(av["armature"], f"avatars[{j}].armature", "an armature name") if "armature" in av else None
         identity = (_abs(ap), arm)
         if identity in seen:
-            raise check.error(f"avatars[{j}]", f"same blend and armature as avatars[{seen[identity]}]; remove one")
+            raise check.error(f"avatars[{j}]", f"same file and armature as avatars[{seen[identity]}]; remove one")
         seen[identity] = j
         avs.append((ap, arm, _bone_map(check, base, av, j)))
 
     specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm, _bm in avs for m in methods]
     bone_maps = [bm for _rp, _up in recs for _ap, _arm, bm in avs for _m in methods]
     names = output_names(specs)
-    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, tolerance, fps,
-                tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm)
+    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, placement,
+                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm)
             for name, (rp, up, ap, arm, m), bm in zip(names, specs, bone_maps)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):

@@ -17,11 +17,14 @@ from .errors import BodyCalError
 from .keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .outputs import describe_os_error
 from .retarget.pipeline import METHODS
+from .retarget.placement import PLACEMENTS
 
 EXIT_OK = 0
 EXIT_USAGE = 2
 _BONE_MAP_HELP = ("bone map preset (JSON, docs/FORMATS.md §5) for an armature whose bone names no naming scheme "
                   "knows; it replaces the map stored on the armature for this run")
+AVATAR_HELP = ("the avatar: a .blend, or an .fbx, .glb, .gltf or .vrm read by Blender's importer "
+               "(.vrm needs a VRM importer add-on enabled)")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
-    c.add_argument("blend", metavar="FILE.blend")
+    c.add_argument("avatar", metavar="AVATAR", help=AVATAR_HELP)
     c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
@@ -51,10 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
     c.add_argument("recording", metavar="REC")
     c.add_argument("--user", required=True, metavar="USER.body.json")
-    c.add_argument("--avatar", required=True, metavar="FILE.blend")
+    c.add_argument("--avatar", required=True, metavar="AVATAR", help=AVATAR_HELP)
     c.add_argument("--armature", metavar="NAME")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric")
+    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
+                   help="object: the performance plays relative to the armature object's place and heading "
+                        "(default); performer: where the performer was in the room")
     c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
                    help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")

@@ -8,6 +8,9 @@ from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 ROOT_DIR = PACKAGE_DIR.parent  # the repository / extension root
+# The avatar files the command line and batch jobs read (blender.blendfile.open_avatar): a .blend,
+# or what Blender's importers read (.vrm: a VRM importer add-on the user installs).
+AVATAR_SUFFIXES = (".blend", ".fbx", ".glb", ".gltf", ".vrm")
 
 
 def data_dir() -> Path | None:

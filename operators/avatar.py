@@ -3,9 +3,10 @@
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, surface_helpers
+from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, blendfile, surface_helpers
 from ..bodycal_addon.bodymodel import BodyModel
 from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.retarget.placement import avatar_warnings
 from .reporting import reports_errors
 
 
@@ -163,6 +164,8 @@ class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
         self.report({"INFO"}, f"{arm.name}: {len(model.surface)} surface elements, "
                     f"{sum(v['hit'] for v in q.values())} ray hits ({rejected} rejected), "
                     f"{model.extra['rig']['rest_pose']}-pose rest{note}")
+        for line in avatar_warnings(model):
+            self.report({"WARNING"}, line)
         return {"FINISHED"}
 
 
@@ -271,6 +274,45 @@ class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
 
-CLASSES = (BODYCAL_OT_detect_bone_map, BODYCAL_OT_assign_bone, BODYCAL_OT_set_hinge_axis, BODYCAL_OT_calibrate_avatar,
-           BODYCAL_OT_edit_surface, BODYCAL_OT_apply_surface_edits, BODYCAL_OT_export_avatar_model,
-           BODYCAL_OT_import_avatar_model)
+class BODYCAL_OT_import_avatar(bpy.types.Operator, ImportHelper):
+    """Import an avatar (.fbx, .glb, .gltf, or .vrm with a VRM importer add-on) with Blender's own
+    importer and make its armature the active object; a .blend avatar is opened or appended as
+    usual (File > Open, File > Append)"""
+
+    bl_idname = "bodycal.import_avatar"
+    bl_label = "Import Avatar"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filter_glob: bpy.props.StringProperty(default="*.fbx;*.glb;*.gltf;*.vrm", options={"HIDDEN"})
+
+    @classmethod
+    def poll(cls, context):
+        if context.mode != "OBJECT":
+            cls.poll_message_set("Switch to Object Mode to import an avatar")
+            return False
+        return True
+
+    @reports_errors
+    def execute(self, context):
+        new = blendfile.import_avatar_file(self.filepath)
+        armatures = [o for o in new if o.type == "ARMATURE"]
+        # As on the command line: an armature no mesh is skinned to is a helper, not the avatar.
+        avatars = [a for a in armatures if blendfile.deformed_meshes(a)] or armatures
+        if not avatars:
+            for obj in new:  # nothing to animate: leave the scene as it was
+                bpy.data.objects.remove(obj)
+            raise BodyCalError("the file has no armature", source=self.filepath)
+        for obj in context.selected_objects:
+            obj.select_set(False)
+        for arm in avatars:
+            arm.select_set(True)
+        context.view_layer.objects.active = avatars[0]
+        others = f"; also {', '.join(a.name for a in avatars[1:])}" if len(avatars) > 1 else ""
+        self.report({"INFO"}, f"Imported {avatars[0].name} ({len(new)} objects){others}: "
+                    f"check its bone map, then Calibrate Avatar")
+        return {"FINISHED"}
+
+
+CLASSES = (BODYCAL_OT_import_avatar, BODYCAL_OT_detect_bone_map, BODYCAL_OT_assign_bone, BODYCAL_OT_set_hinge_axis,
+           BODYCAL_OT_calibrate_avatar, BODYCAL_OT_edit_surface, BODYCAL_OT_apply_surface_edits,
+           BODYCAL_OT_export_avatar_model, BODYCAL_OT_import_avatar_model)

@@ -25,6 +25,12 @@ METHOD_ITEMS = [
     ("offsets", "Exact Offsets", "AvatarGo: exact tracker-to-joint offsets from the T-pose + IK"),
     ("rotations", "Rotation Copy", "Copy the performer's bone rotations (the usual retargeting baseline)"),
 ]
+PLACEMENT_ITEMS = [  # retarget/placement.py
+    ("object", "Avatar's Spot", "The performance plays relative to the avatar: the performer's play-area origin "
+     "and forward land on the armature's origin and the way the avatar faces"),
+    ("performer", "Performer's Spot", "The avatar plays where the performer was in the room (with the imported "
+     "devices), on its own floor"),
+]
 
 
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
@@ -37,6 +43,7 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
         description="Overwrite an existing action of the same name instead of creating a new one")
     push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
                                         description="Put the baked action on a new NLA track")
+    placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
     plant_feet: bpy.props.BoolProperty(
         name="Plant Feet", default=True,
         description="Hold each foot still and on the floor while the performer stands on it (every method)")
@@ -107,8 +114,12 @@ on each"""
         st = context.scene.bodycal_retarget
         cfg = OneEuro(st.filter_min_cutoff, st.filter_beta, st.filter_rot_min_cutoff, st.filter_rot_beta) \
             if st.use_filter else None
-        return [retarget_scene.gather_inputs(context.scene, arm, st.method, filter=cfg, plant_feet=st.plant_feet)
-                for arm in _target_armatures(context)]
+        inputs = [retarget_scene.gather_inputs(context.scene, arm, st.method, filter=cfg, plant_feet=st.plant_feet,
+                                               placement=st.placement) for arm in _target_armatures(context)]
+        for i in inputs:  # said before the (long) work, like the command line
+            for line in i.warnings:
+                self.report({"WARNING"}, line)
+        return inputs
 
     def _finish(self, context, inputs: list, anims: list):
         """Bake every avatar's animation: only once all of them were computed."""

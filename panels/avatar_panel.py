@@ -30,6 +30,7 @@ class BODYCAL_PT_avatar(bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
+        layout.operator("bodycal.import_avatar", icon="IMPORT")
         arm = context_armature(context)
         if arm is None:
             layout.label(text="Select an avatar's armature or mesh", icon="INFO")

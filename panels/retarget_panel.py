@@ -17,6 +17,7 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
         col = layout.column()
         col.prop(settings, "armature")
         col.prop(settings, "method")
+        col.prop(settings, "placement")
         row = col.row(align=True)
         row.prop(settings, "replace", toggle=True)
         row.prop(settings, "push_to_nla", toggle=True)

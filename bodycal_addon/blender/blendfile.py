@@ -1,14 +1,28 @@
-"""Opening a user's .blend from the command line, finding the avatar's armature in it, and
+"""Opening a user's avatar file from the command line (a .blend, or an .fbx, .glb / .gltf or .vrm
+through Blender's own importers into an empty scene), finding the avatar's armature in it, and
 saving the result without risking any file the user has."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 from pathlib import Path
 
 import bpy
 
 from .. import outputs
 from ..errors import BodyCalError
+from ..paths import AVATAR_SUFFIXES
+
+# suffix -> (the format's name, its import_scene operator, the add-on that provides it; None: not
+# Blender's own, the user installs one)
+IMPORTERS = {
+    ".fbx": ("FBX", "fbx", "io_scene_fbx"),
+    ".glb": ("glTF", "gltf", "io_scene_gltf2"),
+    ".gltf": ("glTF", "gltf", "io_scene_gltf2"),
+    ".vrm": ("VRM", "vrm", None),
+}
 
 
 def open_blend(path) -> None:
@@ -35,10 +49,123 @@ def find_armature(name: str | None, source: str):
         return arm
     if not armatures:
         raise BodyCalError("the file has no armature", source=source)
-    if len(armatures) > 1:
-        raise BodyCalError(f"several armatures ({', '.join(sorted(o.name for o in armatures))}): pick one",
+    # An armature no mesh is skinned to is a helper (an importer's bone-shape rig, a prop's), not
+    # an avatar: it is a candidate only when nothing else is.
+    skinned = [a for a in armatures if deformed_meshes(a)] or armatures
+    if len(skinned) > 1:
+        raise BodyCalError(f"several armatures ({', '.join(sorted(o.name for o in skinned))}): pick one",
                            source=source, hint="use --armature NAME")
-    return armatures[0]
+    return skinned[0]
+
+
+def deformed_meshes(arm) -> list:
+    """Mesh objects with an Armature modifier driven by `arm`."""
+    return [o for o in bpy.data.objects if o.type == "MESH" and any(
+        m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
+
+
+def open_avatar(path) -> None:
+    """Make the avatar file `path` the open file: a .blend is opened (scripts off, `open_blend`);
+    an .fbx, .glb, .gltf or .vrm is imported into an empty scene by Blender's own importer
+    (`import_avatar_file`)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in AVATAR_SUFFIXES:
+        raise BodyCalError(f"not an avatar file this version reads (it reads {', '.join(AVATAR_SUFFIXES)})",
+                           source=str(path))
+    if suffix == ".blend":
+        open_blend(path)
+        return
+    if not path.is_file():
+        raise BodyCalError("no such file", source=str(path))
+    importer_operator(suffix, str(path))  # a missing importer is said before the session is emptied
+    bpy.ops.wm.read_homefile(use_empty=True)
+    import_avatar_file(path)
+
+
+def import_avatar_file(path) -> list:
+    """Import an .fbx, .glb, .gltf or .vrm into the current scene with Blender's importer; returns
+    the objects it added. What the importer prints stays off stderr (its tracebacks would break
+    the command line's one error line): it goes to stdout, with Blender's own log. A file the
+    importer cannot read is one BodyCalError."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in IMPORTERS:
+        raise BodyCalError(f"not a file Blender imports as an avatar ({', '.join(IMPORTERS)})", source=str(path))
+    if not path.is_file():
+        raise BodyCalError("no such file", source=str(path))
+    fmt = IMPORTERS[suffix][0]
+    before = set(bpy.data.objects)
+    with _importer_enabled(suffix, str(path)) as operator, _stderr_to_stdout():
+        try:
+            result = operator(filepath=str(path.resolve()))
+        except RuntimeError as exc:
+            raise BodyCalError(f"Blender's {fmt} importer cannot read it ({_last_line(exc, path)})",
+                               source=str(path)) from None
+    if "FINISHED" not in result:
+        raise BodyCalError(f"Blender's {fmt} importer gave up on it", source=str(path))
+    return [o for o in bpy.data.objects if o not in before]
+
+
+def importer_operator(suffix: str, source: str):
+    """The import_scene operator for `suffix`, or a BodyCalError saying what to install."""
+    fmt, op_name, addon = IMPORTERS[suffix]
+    if op_name in dir(bpy.ops.import_scene):
+        return getattr(bpy.ops.import_scene, op_name)
+    if addon is None:
+        raise BodyCalError(f"reading {suffix} needs a {fmt} importer add-on, and none is enabled", source=source,
+                           hint="install and enable one (such as \"VRM format\" in Preferences > Get Extensions), "
+                                "then run again")
+    return None  # Blender's own: enabled on demand (_importer_enabled)
+
+
+@contextlib.contextmanager
+def _importer_enabled(suffix: str, source: str):
+    """The importer operator, with its add-on enabled for the import when it was not (Blender's
+    own FBX and glTF importers are add-ons a user may have turned off), and turned off again."""
+    import addon_utils
+
+    fmt, op_name, addon = IMPORTERS[suffix]
+    operator = importer_operator(suffix, source)
+    enabled_here = False
+    if operator is None:
+        addon_utils.enable(addon, default_set=False, handle_error=lambda _exc: None)
+        enabled_here = op_name in dir(bpy.ops.import_scene)
+        if not enabled_here:
+            raise BodyCalError(f"Blender's {fmt} importer ({addon}) cannot be enabled", source=source,
+                               hint="check the Blender installation")
+        operator = getattr(bpy.ops.import_scene, op_name)
+    try:
+        yield operator
+    finally:
+        if enabled_here:
+            addon_utils.disable(addon, default_set=False, handle_error=lambda _exc: None)
+
+
+@contextlib.contextmanager
+def _stderr_to_stdout():
+    """Python's and the C library's stderr both go to stdout for the block."""
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = os.dup(2)
+    try:
+        os.dup2(1, 2)
+        with contextlib.redirect_stderr(sys.stdout):
+            yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _last_line(exc: BaseException, path: Path) -> str:
+    """The reason an operator's RuntimeError gives, on one short line: its last line (a traceback's
+    is the exception; Blender may add the operator's "Location:" after it), without Blender's
+    "Error:" prefix and with the file's path shortened."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip() and not ln.strip().startswith("Location:")]
+    text = lines[-1] if lines else type(exc).__name__
+    text = text.removeprefix("Error:").strip().replace(str(path.resolve()), path.name).replace(str(path), path.name)
+    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def save_blend(path, *, overwrite: bool = True, inputs=(), field: str = "-o") -> Path:

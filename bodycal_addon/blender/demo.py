@@ -108,8 +108,10 @@ def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
             floor = np.abs(_floor_error(arm, inputs.avatar, anim, planted))
             rows.append((name, method, np.nanmedian(gap) * 1000, np.nanpercentile(gap, 95) * 1000,
                          np.nanmedian(floor) * 1000, summary.keys))
-            # Measured where it was calibrated; then stood aside. The action is in armature space,
-            # so the whole performance moves with the object.
+            # Measured where it was calibrated; then stood aside. The performance plays relative to
+            # the armature object (the default placement) and the action is in armature space, so
+            # moving the object afterwards moves the whole performance with it: one avatar per
+            # column, one method per row.
             arm.location = (COLUMN_SPACING * col, ROW_SPACING * row, 0.0)
     scene.frame_set(scene.frame_start)
     out = output_dir / "demo.blend"

@@ -19,6 +19,7 @@ from ..errors import BodyCalError
 from ..filters import OneEuro, filter_recording
 from ..recording import Recording
 from ..retarget.pipeline import retarget
+from ..retarget.placement import avatar_warnings, check_placement, moved_to
 from . import avatar_storage, bake, calibration_scene, recording_scene
 from .avatar_calibration import calibrate_avatar
 
@@ -33,6 +34,8 @@ class RetargetInputs:
     avatar_calibrated_now: bool = False  # store the avatar model with the bake
     filter: OneEuro | None = None  # One Euro filter on the devices before retargeting
     plant_feet: bool = True
+    placement: str = "object"  # where the performance plays (retarget/placement.py)
+    warnings: list[str] = field(default_factory=list)  # about the avatar's object transform, one line each
 
 
 @dataclass
@@ -64,21 +67,25 @@ def missing_inputs(scene) -> str | None:
 
 
 def avatar_model_for(arm) -> tuple[BodyModel, bool]:
-    """The armature's stored avatar model, or a fresh surface calibration (not stored yet)."""
+    """The armature's stored avatar model, brought to where its object stands now (moved, turned
+    or scaled since it was calibrated), or a fresh surface calibration (not stored yet)."""
     if avatar_storage.has_model(arm):
-        return avatar_storage.load_model(arm), False
+        stored = avatar_storage.load_model(arm)
+        return moved_to(stored, np.array(arm.matrix_world, dtype=float)), False
     return calibrate_avatar(arm), True
 
 
 def gather_inputs(scene, arm, method: str, recording: Recording | None = None,
                   user: BodyModel | None = None, *, filter: OneEuro | None = None,
-                  plant_feet: bool = True) -> RetargetInputs:
+                  plant_feet: bool = True, placement: str = "object") -> RetargetInputs:
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("pick an avatar armature", source=getattr(arm, "name", "no object"))
+    check_placement(placement)
     recording = recording if recording is not None else recording_scene.recording_from_scene(scene)
     user = user if user is not None else calibration_scene.load_user_model(scene)
     avatar, fresh = avatar_model_for(arm)
-    return RetargetInputs(recording, user, avatar, arm, method, fresh, filter, plant_feet)
+    return RetargetInputs(recording, user, avatar, arm, method, fresh, filter, plant_feet, placement,
+                          avatar_warnings(avatar))
 
 
 def compute(inputs: RetargetInputs, progress=None, cancel=None) -> AvatarAnimation:
@@ -87,7 +94,7 @@ def compute(inputs: RetargetInputs, progress=None, cancel=None) -> AvatarAnimati
     t0 = time.perf_counter()
     rec = inputs.recording if inputs.filter is None else filter_recording(inputs.recording, inputs.filter)
     anim = retarget(rec, inputs.user, inputs.avatar, inputs.method, progress=progress, cancel=cancel,
-                    plant_feet=inputs.plant_feet)
+                    plant_feet=inputs.plant_feet, placement=inputs.placement)
     anim.notes.append(f"compute_s={time.perf_counter() - t0:.3f}")
     return anim
 
@@ -140,33 +147,45 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
                            quality_figures(anim), result.samples, rate)
 
 
-def output_inputs(recording_path, user_path, avatar_blend, bone_map_path=None) -> list[tuple[str, object]]:
+def avatar_input(avatar_file) -> tuple[str, object]:
+    """The avatar file as an input that no output may be (named by its kind: "the avatar .fbx")."""
+    from pathlib import Path
+
+    return f"the avatar {Path(avatar_file).suffix.lower() or 'file'}", avatar_file
+
+
+def output_inputs(recording_path, user_path, avatar_file, bone_map_path=None) -> list[tuple[str, object]]:
     """What `retarget` reads, named for the message when its output would be one of them."""
+    name, path = avatar_input(avatar_file)
     return [*outputs.recording_inputs(recording_path), ("the user file (--user)", user_path),
-            ("the avatar .blend (--avatar)", avatar_blend), ("the bone map (--bone-map)", bone_map_path)]
+            (f"{name} (--avatar)", path), ("the bone map (--bone-map)", bone_map_path)]
 
 
-def retarget_files(recording_path, user_path, avatar_blend, output_paths, *, armature: str | None = None,
+def retarget_files(recording_path, user_path, avatar_file, output_paths, *, armature: str | None = None,
                    method: str = "egocentric", filter: OneEuro | None = None, plant_feet: bool = True,
-                   overwrite: bool = True, options: bake.BakeOptions | None = None, log=print,
-                   bone_map_path=None) -> RetargetSummary:
+                   placement: str = "object", overwrite: bool = True, options: bake.BakeOptions | None = None,
+                   log=print, warn=print, bone_map_path=None) -> RetargetSummary:
     """`bodycal retarget`: everything from paths, nothing from a running session. `output_paths`
     (one path or several: a .blend and/or exports) are checked first (not an input, not a link or
     device, replaced only with `overwrite`, each once), so a bad path costs nothing; they are
     written last, each all at once. A bone map preset (`bone_map_path`) is read and checked with
-    the other inputs, before the avatar's file is opened."""
+    the other inputs, before the avatar's file is opened. The avatar is a .blend, or an .fbx,
+    .glb, .gltf or .vrm imported into an empty scene (blendfile.open_avatar): a .blend output
+    then holds the imported avatar with the baked action. `warn` gets one line per doubt about
+    the avatar (placement.avatar_warnings), before the work."""
     from pathlib import Path
 
     import bpy
 
     from ..bone_presets import load_preset
     from ..recording_io import load_recording
-    from .blendfile import find_armature, open_blend, save_blend
+    from .blendfile import find_armature, open_avatar, save_blend
     from .export import export_avatar, output_kind
 
-    avatar_blend = Path(avatar_blend)
+    avatar_file = Path(avatar_file)
+    check_placement(placement)
     outs = [Path(p) for p in ([output_paths] if isinstance(output_paths, (str, Path)) else output_paths)]
-    files_read = output_inputs(recording_path, user_path, avatar_blend, bone_map_path)
+    files_read = output_inputs(recording_path, user_path, avatar_file, bone_map_path)
     seen = set()
     for out in outs:
         outputs.check_output(out, inputs=files_read, overwrite=overwrite)  # the most important reason first
@@ -179,15 +198,17 @@ def retarget_files(recording_path, user_path, avatar_blend, output_paths, *, arm
     user = BodyModel.load(user_path)
     if user.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
-    open_blend(avatar_blend)
-    arm = find_armature(armature, str(avatar_blend))
+    open_avatar(avatar_file)
+    arm = find_armature(armature, str(avatar_file))
     if bone_map is not None:
         from .avatar_rig import apply_preset
 
         if apply_preset(arm, bone_map)[1]:
             log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
     inputs = gather_inputs(bpy.context.scene, arm, method, recording=recording, user=user, filter=filter,
-                           plant_feet=plant_feet)
+                           plant_feet=plant_feet, placement=placement)
+    for line in inputs.warnings:
+        warn(line)
     anim = compute(inputs)
     summary = bake_and_measure(inputs, anim, set_scene_rate=True, options=options)
     del anim, inputs, recording  # the keys are in the action now: let the writers have the memory

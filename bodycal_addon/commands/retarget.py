@@ -1,6 +1,9 @@
-"""`bodycal retarget REC --user USER.body.json --avatar FILE.blend [--armature NAME] [--bone-map FILE]
-[--method M] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]] [--no-plant-feet] [--tolerance DEG]
-[--location-tolerance MM] [--fps N] -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`."""
+"""`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
+[--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]]
+[--no-plant-feet] [--tolerance DEG] [--location-tolerance MM] [--fps N]
+-o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
+
+import sys
 
 
 def run(args) -> int:
@@ -12,6 +15,7 @@ def run(args) -> int:
     options = BakeOptions(args.tolerance, args.location_tolerance, args.fps)
     retarget_files(args.recording, args.user, args.avatar, args.output, armature=args.armature, method=args.method,
                    filter=cfg, plant_feet=getattr(args, "plant_feet", True),
-                   overwrite=getattr(args, "overwrite", False), options=options,
-                   bone_map_path=getattr(args, "bone_map", None))
+                   placement=getattr(args, "placement", "object"), overwrite=getattr(args, "overwrite", False),
+                   options=options, bone_map_path=getattr(args, "bone_map", None),
+                   warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
     return 0

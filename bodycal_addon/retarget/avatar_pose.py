@@ -169,8 +169,9 @@ class AvatarRig:
     tail: np.ndarray
     rest: np.ndarray  # (N, 3, 3)
     world: np.ndarray  # (4, 4)
-    w_rot: np.ndarray  # (3, 3)
-    w_scale: float
+    w_rot: np.ndarray  # (3, 3) the armature's rotation (rotations map through it)
+    w_scale: float  # its (mean) uniform scale
+    w_inv: np.ndarray  # (3, 3) the exact inverse of its linear part (positions map through it)
     root: int
     driver: list  # per bone: canonical bone index, "chain" or None
     chain_s: np.ndarray  # (N,) arc position (0..12 vertebrae) of a chain bone's aim point
@@ -220,12 +221,18 @@ class AvatarRig:
                                field="rig.bones") from None
         world = np.asarray(rig.get("matrix_world", np.eye(4)), float).reshape(4, 4)
         lin = world[:3, :3]
-        scales = np.linalg.norm(lin, axis=0)
-        if np.ptp(scales) > 1e-6 * scales.max() or np.linalg.det(lin) <= 0:
-            raise BodyCalError("the armature's object scale must be uniform and positive", source=src,
-                               field="rig.matrix_world", hint="apply the scale (Ctrl+A) and recalibrate")
-        w_scale = float(scales.mean())
-        w_rot = lin / w_scale
+        det = np.linalg.det(lin)
+        if not det > 0:
+            raise BodyCalError("the armature object is mirrored or flattened (its scale has a negative or zero "
+                               "axis)", source=src, field="rig.matrix_world",
+                               hint="apply the scale (Ctrl+A) and recalibrate")
+        # Pose bones only rotate, so rotations go through the armature's transform as a rotation
+        # and one scale: exact for a uniform scale; for a non-uniform one (the calibration warns)
+        # the nearest rotation (polar decomposition) and the mean scale. Positions go through the
+        # transform itself, so the joints stay what Blender's FK gives (the root lands where asked).
+        u, _, vt = np.linalg.svd(lin)
+        w_rot = u @ vt
+        w_scale = float(np.cbrt(det))
         bm = sk.BoneMap.from_dict(rig.get("bone_map", {}))
         seg_of = {}
         for seg, bn in bm.bones.items():
@@ -256,6 +263,7 @@ class AvatarRig:
         self.model, self.armature = model, str(rig.get("armature", model.name))
         self.names, self.parent, self.head, self.tail, self.rest = names, parent, head, tail, rest
         self.world, self.w_rot, self.w_scale, self.root = world, w_rot, w_scale, idx[pelvis_bone]
+        self.w_inv = np.linalg.inv(lin)
         self.driver, self.notes = driver, []
         pos = complete_joints(model)
         self.joint_world = np.stack([pos[j] for j in JOINTS])
@@ -319,11 +327,12 @@ class AvatarRig:
     # --- coordinates ----------------------------------------------------------------------------
 
     def to_armature(self, p):
-        return np.einsum("ba,...b->...a", self.w_rot, np.asarray(p, float) - self.world[:3, 3]) / self.w_scale
+        p = np.asarray(p, float) - self.world[:3, 3]
+        return (p.reshape(-1, 3) @ self.w_inv.T).reshape(p.shape)
 
     def to_world(self, p):
         p = np.asarray(p, float)  # one BLAS call on (N, 3) rows (einsum is several times slower)
-        return (p.reshape(-1, 3) @ (self.w_rot.T * self.w_scale)).reshape(p.shape) + self.world[:3, 3]
+        return (p.reshape(-1, 3) @ self.world[:3, :3].T).reshape(p.shape) + self.world[:3, 3]
 
     @property
     def bone_index(self) -> dict[str, int]:
@@ -473,8 +482,8 @@ class AvatarRig:
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
-        ys = np.einsum("ji,fbj->fbi", self.w_rot, frames[:, [BI[s] for s in SPINE_BONES]][..., :, 1])
-        steps = ys * (self.lengths[[BI[s] for s in SPINE_BONES]] / self.w_scale)[None, :, None]
+        ys = frames[:, [BI[s] for s in SPINE_BONES]][..., :, 1] * self.lengths[[BI[s] for s in SPINE_BONES]][:, None]
+        steps = ys @ self.w_inv.T  # world steps in armature units
         return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
 
     def _finish(self, basis, P, H, root_loc, realised=True) -> RigPose:

@@ -82,7 +82,8 @@ class TwoBoneResult:
         return iter((self.mid, self.end, self.rot1, self.rot2))
 
 
-def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None) -> TwoBoneResult:
+def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None,
+             size_ratio: float = 1.0) -> TwoBoneResult:
     """Two-bone analytical IK (Delahaye 2023, appendix E).
 
     root, target: (F, 3); l1, l2: bone lengths (scalars or (F,)).
@@ -93,6 +94,9 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
       used). `flex_axis_hint`: the user's hinge axis (forearm/shin +X, world), whose swivel is
       axis x hint; with both, the hint is added with the weight of a SWIVEL_HINT_WEIGHT offset, so
       it takes over smoothly as the user's limb straightens; with the hint alone it is the swivel.
+    size_ratio: the avatar's size over the performer's (the root scale); r is divided by it, so
+      eq. 7's metres are the performer's and an avatar scaled by s poses as its unscaled self,
+      scaled (Decision: measured on the avatar, a child's elbow blended unlike its performer's).
     Returns TwoBoneResult. Unreachable targets: the limb fully extended toward the target; too
     close (d < |l1 - l2|): folded as far as possible toward it; target on the root: the axis is
     taken toward the pole target (else straight down). Never NaN.
@@ -131,7 +135,7 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     if pole_target is not None:
         rel = np.asarray(pole_target, float) - root
         beta_dir, r = _perp_unit(rel, axis, gamma_dir)
-        t = swivel_blend(r)
+        t = swivel_blend(r / size_ratio)
     else:
         beta_dir, t = gamma_dir, np.zeros(F)
     # δ = t β + (1 - t) γ as angles about the axis, measured from γ (shortest way round).

@@ -46,6 +46,7 @@ from .avatar_pose import (
     root_positions,
     root_scale,
 )
+from .placement import check_placement, play_area_to_world, transformed_avatar
 from .user_animation import _joint_from, _trackers, animate_user, pose_finger_chain
 
 TARGETS = tuple(
@@ -76,24 +77,30 @@ def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.n
     return out
 
 
+def _check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
+    if method not in METHOD_CLASSES:
+        raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
+    if user.kind != "user":
+        raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
+    if avatar.kind != "avatar":
+        raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
+                           field="kind")
+    if recording.frame_count == 0:
+        raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
+
+
 class _Run:
     """Everything computed once per (user, avatar, method)."""
 
     def __init__(self, recording: Recording, user: BodyModel, avatar: BodyModel, method: str,
-                 plant_feet: bool = True):
-        if method not in METHOD_CLASSES:
-            raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
-        if user.kind != "user":
-            raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
-        if avatar.kind != "avatar":
-            raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
-                               field="kind")
-        if recording.frame_count == 0:
-            raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
+                 plant_feet: bool = True, centre: np.ndarray | None = None):
+        _check_inputs(recording, user, avatar, method)
         self.rec, self.user, self.avatar, self.method = recording, user, avatar, method
         self.rig = AvatarRig.from_model(avatar)
         self.k = root_scale(user, self.rig)
-        self.centre = root_centre(user)
+        # The floor point the performer's path is scaled about (placement.py): the play area's
+        # origin, or the one under the performer's pelvis at the reference time.
+        self.centre = root_centre(user) if centre is None else np.asarray(centre, float)
         self.user_pos = complete_joints(user)
         self.user_frames0 = model_rest_frames(user, self.user_pos)
         avatar_pos = complete_joints(avatar)
@@ -215,7 +222,7 @@ class _Run:
                 # Appendix E: swivel blended between the mapped intermediate target and the user's.
                 tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"),
                                  up.joints[:, JI[f"{m}_{s}"]] - up.joints[:, JI[f"{a}_{s}"]],
-                                 up.frames[:, BI[f"{ab}_{s}"]][..., :, 0])
+                                 up.frames[:, BI[f"{ab}_{s}"]][..., :, 0], size_ratio=self.k)
                 frames[:, BI[f"{ab}_{s}"]] = tb.rot1
                 frames[:, BI[f"{mb}_{s}"]] = tb.rot2
                 reached = tb.end
@@ -510,13 +517,23 @@ def surface_bone_indices(*models: BodyModel) -> list[int]:
 
 def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyModel, method: str = "egocentric", *,
              chunk_frames: int = 2000, progress: Callable[[float], None] | None = None,
-             cancel: Callable[[], bool] | None = None, plant_feet: bool = True) -> AvatarAnimation:
+             cancel: Callable[[], bool] | None = None, plant_feet: bool = True,
+             placement: str = "object") -> AvatarAnimation:
     """Retarget `recording` of the user (`user_model`) onto the avatar (`avatar_model`, kind
     "avatar" with `extra["rig"]`). Frames are processed `chunk_frames` at a time; `progress(f)` is
     called with the fraction done after each chunk and `cancel()` before each one (True raises
     `errors.Cancelled`). `plant_feet` holds the feet still and on the floor while the performer
-    stands on them (feet.py), in every method. Bad inputs raise one `BodyCalError`."""
-    run = _Run(recording, user_model, avatar_model, method, plant_feet)
+    stands on them (feet.py), in every method. `placement` ("object" or "performer", placement.py)
+    says where the performance plays: relative to the armature object's placement, or where the
+    performer was in the room. Bad inputs raise one `BodyCalError`."""
+    # Everything is computed in the performer's play area, with the avatar brought into it; the
+    # pose-bone values are in armature space either way, the world joints and targets go back.
+    _check_inputs(recording, user_model, avatar_model, method)
+    to_world = play_area_to_world(avatar_model, check_placement(placement))
+    avatar_in_area = transformed_avatar(avatar_model, np.linalg.inv(to_world))
+    run = _Run(recording, user_model, avatar_in_area, method, plant_feet,
+               centre=np.zeros(3) if placement == "object" else None)
+    rot_t, shift = to_world[:3, :3].T, to_world[:3, 3]
     nf = recording.frame_count
     rig = run.rig
     nb = len(rig.names)
@@ -532,9 +549,9 @@ def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyMode
         pose, tg = run.chunk(start, stop)
         rotations[start:stop] = pose.basis
         root_loc[start:stop] = pose.root_location
-        joints[start:stop] = pose.joints
+        joints[start:stop] = pose.joints @ rot_t + shift
         for n, v in tg.items():
-            targets.setdefault(n, np.empty((nf, 3), np.float32))[start:stop] = v
+            targets.setdefault(n, np.empty((nf, 3), np.float32))[start:stop] = v @ rot_t + shift
         if progress is not None:
             progress(stop / nf)
     if not (np.isfinite(rotations).all() and np.isfinite(root_loc).all()):

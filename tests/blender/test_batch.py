@@ -100,15 +100,15 @@ def test_filter_and_feet_settings_reach_every_job(tmp_path):
     (job,), _settings = load_jobs(tmp_path / "jobs.toml")
     assert job.argv()[-3:] == ["--filter", "2,6", "--no-plant-feet"] and "--overwrite" not in job.argv()
     (tmp_path / "jobs.toml").write_text('[defaults]\noverwrite = true\n[[recordings]]\npath="t"\nuser="u"\n'
-                                        '[[avatars]]\nblend="a"\n')
+                                        '[[avatars]]\nblend="a.blend"\n')
     (job,), _settings = load_jobs(tmp_path / "jobs.toml")
     assert job.argv()[-1] == "--overwrite"
     (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = true\n[[recordings]]\npath="t"\nuser="u"\n'
-                                        '[[avatars]]\nblend="a"\n')
+                                        '[[avatars]]\nblend="a.blend"\n')
     (job,), _settings = load_jobs(tmp_path / "jobs.toml")
     assert job.argv()[-2:] == ["--filter", "on"]
     (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = "soft"\n[[recordings]]\npath="t"\nuser="u"\n'
-                                        '[[avatars]]\nblend="a"\n')
+                                        '[[avatars]]\nblend="a.blend"\n')
     with pytest.raises(BodyCalError, match="--filter"):
         load_jobs(tmp_path / "jobs.toml")
 
@@ -202,7 +202,7 @@ def test_a_malicious_armature_name_stays_inside_output_dir(tmp_path):
 def test_repeated_entries_are_an_error_not_a_lost_result(tmp_path):
     with pytest.raises(BodyCalError, match=r"recordings\[1\]: same path and user as recordings\[0\]"):
         load_jobs(_jobs_file(tmp_path, recordings=(("t.csv", "u"), ("./t.csv", "u"))))
-    with pytest.raises(BodyCalError, match=r"avatars\[1\]: same blend and armature as avatars\[0\]"):
+    with pytest.raises(BodyCalError, match=r"avatars\[1\]: same file and armature as avatars\[0\]"):
         load_jobs(_jobs_file(tmp_path, avatars=(("a.blend", "R"), ("a.blend", "R"))))
 
 
@@ -245,6 +245,7 @@ BAD_DEFAULTS = [
     ("filter = 3", "defaults.filter", "true, false"),
     ('plant_feet = "no"', "defaults.plant_feet", "true or false"),
     ("overwrite = 1", "defaults.overwrite", "true or false"),
+    ('placement = "stage"', "defaults.placement", '"object" or "performer"'),
     ("plant_foot = false", "defaults", "unknown key"),
     ("tolerance = -0.1", "defaults.tolerance", "number from 0"),
     ('tolerance = "0.1"', "defaults.tolerance", "number from 0"),
@@ -279,6 +280,8 @@ def test_each_bad_defaults_field_is_one_line(tmp_path, defaults, field, words):
     ((("a.blend", 5),), (("t", "u"),), "avatars[0].armature", "armature name"),
     ((("a.blend", "R\n"),), (("t", "u"),), "avatars[0].armature", "control character"),
     ((("a.blend", None),), (("t", ""),), "recordings[0].user", "non-empty"),
+    ((("a.obj", None),), (("t", "u"),), "avatars[0].blend", ".fbx, .glb, .gltf, .vrm"),
+    ((("a", None),), (("t", "u"),), "avatars[0].blend", "avatar file"),
 ])
 def test_each_bad_entry_field_is_one_line(tmp_path, avatars, recordings, field, words):
     jobs = _jobs_file(tmp_path, recordings=recordings, avatars=avatars)
@@ -290,6 +293,10 @@ def test_structure_errors_are_one_line(tmp_path):
     for text, field, words in [('recordings = "t"\n[[avatars]]\nblend="a"\n', "recordings", "[[recordings]]"),
                                ('[[recordings]]\npath="t"\nuser="u"\nspeed=2\n[[avatars]]\nblend="a"\n',
                                 "recordings[0]", "unknown key"),
+                               ('[[recordings]]\npath="t"\nuser="u"\n[[avatars]]\nfile="a.glb"\nblend="a.blend"\n',
+                                "avatars[0]", "both 'file' and 'blend'"),
+                               ('[[recordings]]\npath="t"\nuser="u"\n[[avatars]]\narmature="R"\n',
+                                "avatars[0]", "missing 'file'"),
                                ("[[defaults]]\nworkers=1\n", "defaults", "table")]:
         jobs.write_text(text)
         _assert_one_line(_cli(jobs), jobs, field, words)

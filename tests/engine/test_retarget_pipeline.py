@@ -1,6 +1,9 @@
 """The retargeting pipeline's invariants (DESIGN.md §1, §5, §6) on the synthetic performer. The
 exactness tests run without planted feet (feet.py moves a planted foot onto its place on the
-floor, which no mapping invariant speaks of); planting has its own tests at the end."""
+floor, which no mapping invariant speaks of); planting has its own tests at the end. The
+invariants are stated in the performer's room (placement "performer": the avatar plays where the
+performer was); the default placement carries the same result onto the armature object's spot
+(placement.py, tested in test_placement.py)."""
 
 from __future__ import annotations
 
@@ -39,7 +42,7 @@ def _mm(a, b):
 def test_rotations_copies_the_bone_frames_exactly(session):
     rec, _, user, up = session
     avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2), arm_drop_deg=30.0)
-    anim = pl.retarget(rec, user, avatar, "rotations", plant_feet=False)
+    anim = pl.retarget(rec, user, avatar, "rotations", plant_feet=False, placement="performer")
     rig = ap.AvatarRig.from_model(avatar)
     pose = rig.fk(anim.rotations, anim.root_location)
     # Limbs, hands, feet, fingers: the user's frames as they are; the trunk: the user's rotation
@@ -61,7 +64,7 @@ def test_rotations_copies_the_bone_frames_exactly(session):
 
 def test_self_avatar_rotations_reproduce_the_user(session):
     rec, _, user, up = session
-    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations", plant_feet=False)
+    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations", plant_feet=False, placement="performer")
     for j in ("pelvis", "hip_l", "knee_r", "ankle_l", "skull_base", "head"):
         assert _mm(anim.joints_world[j], up.joint(j)).max() < 0.1, j
 
@@ -73,7 +76,7 @@ def test_self_avatar_egocentric_maps_targets_onto_themselves(session):
     avatar's bones are rigid; the trunk is solved first, and the shoulders it moves by a
     millimetre or two carry the arms (mapped second, against the solved trunk)."""
     rec, _, user, up = session
-    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "egocentric", plant_feet=False)
+    anim = pl.retarget(rec, user, rt.avatar_from_user(user), "egocentric", plant_feet=False, placement="performer")
     for name, tg in anim.targets.items():
         e = _mm(tg, up.joint(name))
         lower = name.startswith(("ankle_", "knee_", "skull_base"))
@@ -105,11 +108,11 @@ def test_scaled_avatar_gives_scaled_positions(session, scale):
     rec, _, user, up = session
     avatar = rt.avatar_from_user(user, scale)
     c = ap.root_centre(user)
-    rot = pl.retarget(rec, user, avatar, "rotations", plant_feet=False)
-    base = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations", plant_feet=False)
+    rot = pl.retarget(rec, user, avatar, "rotations", plant_feet=False, placement="performer")
+    base = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations", plant_feet=False, placement="performer")
     for j in ap.JOINTS:
         np.testing.assert_allclose(rot.joints_world[j], c + scale * (base.joints_world[j] - c), atol=1e-4, err_msg=j)
-    ego = pl.retarget(rec, user, avatar, "egocentric", plant_feet=False)
+    ego = pl.retarget(rec, user, avatar, "egocentric", plant_feet=False, placement="performer")
     for name, tg in ego.targets.items():
         e = _mm(tg, c + scale * (up.joint(name) - c))
         lower = name.startswith(("ankle_", "knee_", "skull_base"))
@@ -128,7 +131,7 @@ def test_offsets_put_the_tracked_joints_on_the_user_at_the_tpose(session):
 
     rec, truth, user, _ = session
     avatar = rt.avatar_from_user(user)
-    anim = pl.retarget(rec, user, avatar, "offsets", plant_feet=False)
+    anim = pl.retarget(rec, user, avatar, "offsets", plant_feet=False, placement="performer")
     f0 = int(np.argmin(np.abs(rec.time - user.reference_time)))
     for j in ("pelvis", "ankle_l", "ankle_r"):
         assert _mm(anim.joints_world[j][f0], truth.joint_tracks[j][f0]) < 0.1, j
