@@ -176,9 +176,9 @@ def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None,
     basis, locations = read_action(arm, action, names, frames)
     notes = []
     if model.calibration.get("method") == ESTIMATED:
-        model, locations, lift = stand_on_floor(model, locations)
-        notes.append(f"{arm.name}: no mesh, body surface estimated from its bone lengths"
-                     + (f"; rest pose stood on the floor ({lift * 1000:.0f} mm up)" if abs(lift) > 1e-4 else ""))
+        model, locations, lift, motion = stand_on_floor(model, locations, basis, (frames - f0) / fps)
+        notes.append(f"{arm.name}: no mesh, body surface estimated from its bone lengths; its rest pose stood "
+                     f"on the floor ({lift * 1000:+.0f} mm), its motion's feet on it ({motion * 1000:+.0f} mm)")
     return SourceAnimation(model, basis, locations, (frames - f0) / fps, fps, action.name, arm.name, notes)
 
 

@@ -60,21 +60,27 @@ def transfer(source: BodyModel, basis: np.ndarray, locations: np.ndarray, time: 
     return anim
 
 
-def stand_on_floor(model: BodyModel, locations: np.ndarray) -> tuple[BodyModel, np.ndarray, float]:
-    """A bare skeleton whose rest pose hangs from its root (a BVH's hips at the origin, its feet
-    below the floor) stood on the floor: the rest lifted so its lowest sole point is at the
-    armature object's origin height (the floor of its play area), and the parentless bones' pose
-    locations (F, N, 3) lowered by as much, so every posed bone stays where the action puts it.
-    Returns (model, locations, lift in metres)."""
+FLOOR_PERCENTILE = 5.0  # of the clip's lowest sole height per frame: where a bare skeleton's floor is
+
+
+def stand_on_floor(model: BodyModel, locations: np.ndarray, basis: np.ndarray, time: np.ndarray
+                   ) -> tuple[BodyModel, np.ndarray, float, float]:
+    """A bare skeleton stood on its floor (a BVH says nothing of where its floor is: its rest pose
+    hangs from the hips at the origin, and its motion's height is the capture's):
+    - the rest pose is lifted so its lowest sole point is at the armature object's origin height
+      (the floor of its play area; the sole from the estimated body);
+    - the motion is moved up or down so that the lowest sole point of each frame is on that floor
+      in the clip's lower FLOOR_PERCENTILE (its feet touch the floor, whatever the capture's zero),
+      through the parentless bones' pose locations (F, N, 3).
+    Returns (model, locations, the rest's lift, the motion's lift) in metres."""
     from ..body_estimate import sole_depth
     from .avatar_pose import AvatarRig
     from .placement import rig_matrix
 
     world = rig_matrix(model)
-    sole = min(float(model.joints[f"ankle_{s}"].world[2]) - sole_depth(model, s) for s in ("l", "r"))
+    depth = {s: sole_depth(model, s) for s in ("l", "r")}
+    sole = min(float(model.joints[f"ankle_{s}"].world[2]) - depth[s] for s in ("l", "r"))
     lift = float(world[2, 3] - sole)
-    if abs(lift) < 1e-6:
-        return model, locations, 0.0
     out = copy.deepcopy(model)
     for j in out.joints.values():
         j.world = np.asarray(j.world, float) + [0.0, 0.0, lift]
@@ -83,7 +89,15 @@ def stand_on_floor(model: BodyModel, locations: np.ndarray) -> tuple[BodyModel, 
         b["head"] = (np.asarray(b["head"], float) + step).tolist()
         b["tail"] = (np.asarray(b["tail"], float) + step).tolist()
     rig = AvatarRig.from_model(out)
+    roots = np.flatnonzero(rig.parent < 0)
     locations = np.array(locations, float, copy=True)
-    for i in np.flatnonzero(rig.parent < 0):
+    for i in roots:
         locations[:, i] -= rig.rest[i].T @ step
-    return out, locations, lift
+    # The motion: the rest lift kept every posed bone in place; now the clip's floor.
+    src = AnimationSource(out, basis, locations, time)
+    low = np.min([src.ankle(s)[:, 2] - depth[s] for s in ("l", "r")], axis=0)
+    motion = float(world[2, 3] - np.percentile(low, FLOOR_PERCENTILE))
+    step = np.linalg.solve(world[:3, :3], [0.0, 0.0, motion])
+    for i in roots:
+        locations[:, i] += rig.rest[i].T @ step
+    return out, locations, lift, motion
