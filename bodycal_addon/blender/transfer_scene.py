@@ -23,7 +23,7 @@ from ..errors import BodyCalError
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.transfer import check_method, stand_on_floor, transfer
 from ..transforms import matrix_to_quat, quat_normalize
-from . import avatar_rig, bake
+from . import avatar_rig, avatar_storage, bake
 from .avatar_calibration import avatar_meshes
 from .fcurves import object_fcurves, read_keys
 
@@ -150,9 +150,21 @@ def source_model(arm) -> BodyModel:
     """The source character's body: measured on its skinned mesh by the avatar calibration, or,
     for a bare skeleton, estimated from its bone lengths (body_estimate)."""
     if avatar_meshes(arm):
+        import bpy
+
         from .retarget_scene import avatar_model_for
 
-        return avatar_model_for(arm)[0]
+        if avatar_storage.has_model(arm):
+            return avatar_model_for(arm)[0]
+        # An animated character's mesh is posed by its action: it is measured in its rest pose.
+        was = arm.data.pose_position
+        arm.data.pose_position = "REST"
+        try:
+            bpy.context.view_layer.update()
+            return avatar_model_for(arm)[0]
+        finally:
+            arm.data.pose_position = was
+            bpy.context.view_layer.update()
     return estimate_surface(avatar_rig.read_rig(arm), arm.name)
 
 
@@ -276,8 +288,9 @@ def compute(source: SourceAnimation, avatar: BodyModel, method: str, *, plant_fe
 
 def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, options: bake.BakeOptions | None = None,
                   action_name: str | None = None, replace: bool = False, push_to_nla: bool = False,
-                  set_scene_rate: bool = False) -> TransferSummary:
-    """Bake at the source's rate (or `options.fps`, resampled), keys reduced within tolerances."""
+                  set_scene_rate: bool = False, avatar: BodyModel | None = None) -> TransferSummary:
+    """Bake at the source's rate (or `options.fps`, resampled), keys reduced within tolerances;
+    `avatar`: the target's model calibrated for this bake, stored on the armature with it."""
     import bpy
 
     from ..animation import resample
@@ -293,6 +306,8 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
     result = bake.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla, fps=rate,
                                  tolerance_deg=options.tolerance_deg,
                                  location_tolerance_mm=options.location_tolerance_mm)
+    if avatar is not None:  # calibrated for this bake: kept with it, as retarget does
+        avatar_storage.store_model(arm, avatar)
     compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
     return TransferSummary(result.action.name, anim.method, keyed.frame_count, result.keys, compute_s,
                            time.perf_counter() - t0, rate, [n for n in anim.notes if not n.startswith("compute_s=")])
@@ -322,11 +337,11 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
         log(note)
     open_avatar(Path(avatar_file))
     arm = find_armature(armature, str(avatar_file))
-    avatar, _ = avatar_model_for(arm)
+    avatar, fresh = avatar_model_for(arm)
     for line in avatar_warnings(avatar):
         warn(line)
     anim = compute(source, avatar, method, plant_feet=plant_feet, placement=placement)
-    summary = bake_transfer(source, anim, arm, options=options, set_scene_rate=True)
+    summary = bake_transfer(source, anim, arm, options=options, set_scene_rate=True, avatar=avatar if fresh else None)
     del anim
     log(summary.line())
     write_outputs(arm, outs, files_read, overwrite, log)

@@ -1,0 +1,125 @@
+"""Animation transfer in Blender (issue 16): a real CMU BVH (a bare skeleton: its body estimated)
+onto the shared avatars, the action read from its F-Curves against Blender's own pose, a skinned
+character's action onto another avatar, and `bodycal transfer` on the command line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+from repo_paths import REPO
+
+from bodycal_addon import metrics
+from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
+from bodycal_addon.blender import transfer_scene as ts
+from bodycal_addon.blender.retarget_scene import avatar_model_for
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import feet
+from bodycal_addon.retarget.pose_source import AnimationSource
+
+WALK = "02_01_walk.bvh"
+
+
+def _bvh(data_dir):
+    return data_dir / "motion" / "cmu_bvh" / WALK
+
+
+def test_the_action_read_from_its_fcurves_poses_as_blender_does(data_dir):
+    ts.open_source(_bvh(data_dir))
+    arm = blendfile.find_armature(None, WALK)
+    src = ts.read_source(arm)
+    assert src.fps == pytest.approx(120.0, rel=1e-3) and len(src.time) == 343
+    # Blender's own pose at a few frames against the engine's FK of the arrays read (before the
+    # bare skeleton is stood on its floor: compare the rest as the file has it).
+    model = ts.estimate_surface(ts.avatar_rig.read_rig(arm), arm.name)
+    rig = ap.AvatarRig.from_model(model)
+    frames = np.array([1.0, 77.0, 200.0, 343.0])
+    basis, locations = ts.read_action(arm, arm.animation_data.action, rig.names, frames)
+    pose = rig.fk(basis, locations[:, rig.root], locations=locations)
+    for k, f in enumerate(frames):
+        bpy.context.scene.frame_set(int(f))
+        for i, name in enumerate(rig.names):
+            pb = arm.pose.bones[name]
+            np.testing.assert_allclose(pose.heads[k, i], np.array(pb.head), atol=1e-5, err_msg=name)
+            np.testing.assert_allclose(pose.rotations[k, i], np.array(pb.matrix.to_3x3()), atol=1e-5, err_msg=name)
+
+
+@pytest.mark.parametrize("avatar", ["adult_male", "child_10y"])
+def test_a_bvh_transfers_with_no_nan_and_the_feet_on_the_floor(data_dir, avatar):
+    ts.open_source(_bvh(data_dir))
+    src = ts.read_source(blendfile.find_armature(None, WALK))
+    assert src.estimated and any("estimated from its bone lengths" in n for n in src.notes)
+    walker = AnimationSource(src.model, src.basis, src.locations, src.time)
+    rest = {s: float(src.model.joints[f"ankle_{s}"].world[2]) for s in "lr"}
+    stance = {s: feet.detect(walker.ankle(s), src.time, rest[s]).weight >= 1.0 for s in "lr"}
+    assert all(0.2 < v.mean() < 0.8 for v in stance.values())  # a walk: each foot down part of the time
+    blendfile.open_avatar(data_dir / "avatars" / "mpfb2_variants" / f"{avatar}.glb")
+    arm = blendfile.find_armature(None, avatar)
+    model, _ = avatar_model_for(arm)
+    for method in ("egocentric", "rotations"):
+        anim = ts.compute(src, model, method)
+        assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
+        assert any("estimated" in n for n in anim.notes)
+        for s in "lr":
+            low = metrics.floor_error(mesh_metrics.sole_points(model, anim, s), stance[s])
+            assert np.nanpercentile(np.abs(low), 95) < 0.005, (method, s)
+            ankle = anim.joints_world[f"ankle_{s}"][:, :2]
+            still = stance[s][1:] & stance[s][:-1]
+            assert np.percentile(np.linalg.norm(np.diff(ankle, axis=0), axis=1)[still], 95) < 1e-3, (method, s)
+        # the walk goes somewhere: the avatar's pelvis travels as far as its legs scale the source's
+        assert np.ptp(anim.joints_world["pelvis"][:, :2], axis=0).max() > 1.0
+
+
+def test_a_skinned_characters_action_transfers_onto_another_avatar(data_dir, tmp_path):
+    """A character with a mesh is measured by the raycasts (not estimated): bake a BVH walk onto the
+    adult avatar, save it, and transfer that action from the .blend onto the child."""
+    out = tmp_path / "male_walk.blend"
+    done = _run("transfer", str(_bvh(data_dir)), "--avatar",
+                str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb"), "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "estimated from its bone lengths" in done.stdout and "saved" in done.stdout
+    child = tmp_path / "child_walk.glb"
+    done = _run("transfer", str(out), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"),
+                "--method", "rotations", "-o", str(child))
+    assert done.returncode == 0, done.stderr
+    assert "estimated" not in done.stdout and child.stat().st_size > 10_000
+    blendfile.open_blend(out)
+    action = bpy.data.actions["02_01_walk|adult_male_rig|egocentric"]
+    assert action.frame_range[1] - action.frame_range[0] == pytest.approx(342, abs=1)
+    # Without the model the bake stored, the animated character is measured in its rest pose.
+    arm = blendfile.find_armature(None, "male_walk")
+    stored = avatar_storage.load_model(arm)
+    avatar_storage.clear_model(arm)
+    bpy.context.scene.frame_set(120)
+    src = ts.read_source(arm)
+    assert not src.estimated and arm.data.pose_position == "POSE"
+    assert src.model.bones["thigh_l"].radius_head == pytest.approx(stored.bones["thigh_l"].radius_head, abs=1e-4)
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "bodycal_addon", *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=300)
+
+
+@pytest.mark.parametrize("case", ["suffix", "missing", "action", "method", "output-is-source"])
+def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
+    avatar = str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb")
+    bvh = str(_bvh(data_dir))
+    args = {
+        "suffix": (str(tmp_path / "walk.txt"), "--avatar", avatar, "-o", str(tmp_path / "o.blend")),
+        "missing": (str(tmp_path / "none.bvh"), "--avatar", avatar, "-o", str(tmp_path / "o.blend")),
+        "action": (bvh, "--avatar", avatar, "--action", "dance", "-o", str(tmp_path / "o.blend")),
+        "method": (bvh, "--avatar", avatar, "--method", "offsets", "-o", str(tmp_path / "o.blend")),
+        "output-is-source": (bvh, "--avatar", avatar, "-o", bvh, "--overwrite"),
+    }[case]
+    (tmp_path / "walk.txt").write_text("not a clip")
+    before = _bvh(data_dir).read_bytes()
+    done = _run("transfer", *args)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert {"suffix": "not an animation source", "missing": "no such file", "action": "no action named 'dance'",
+            "method": "invalid choice", "output-is-source": "source"}[case] in lines[0]
+    assert _bvh(data_dir).read_bytes() == before
