@@ -19,7 +19,7 @@ from .. import skeleton as sk
 from ..bodymodel import BodyModel
 from ..errors import BodyCalError
 from ..recording import Recording
-from ..transforms import frame_from_axes, normalize
+from ..transforms import frame_from_axes, normalize, quat_to_matrix
 from .avatar_pose import BI, JI, SPINE_BONES, SPINE_JOINTS, AvatarRig, _arc_param, _curve_point
 from .user_animation import UserPose, _joint_from, _trackers, animate_user
 
@@ -165,9 +165,30 @@ class AnimationSource:
 
     def ankle(self, side):
         if self._ankles is None:
-            idx = [JI[f"ankle_{s}"] for s in sk.SIDES]
-            parts = [self._fk(a, min(a + ANKLE_CHUNK, self.frame_count), False).joints[:, idx]
-                     for a in range(0, self.frame_count, ANKLE_CHUNK)]
-            both = np.concatenate(parts)
-            self._ankles = {s: both[:, k] for k, s in enumerate(sk.SIDES)}
+            # Blender's pose rule (AvatarRig.fk) on the ankles' bones and their ancestors only.
+            rig = self.rig
+            carry = {s: int(rig.joint_bone[JI[f"ankle_{s}"]]) for s in sk.SIDES}
+            need = set()
+            for b in carry.values():
+                while b >= 0 and b not in need:
+                    need.add(b)
+                    b = int(rig.parent[b])
+            out = {s: np.empty((self.frame_count, 3)) for s in sk.SIDES}
+            for a in range(0, self.frame_count, ANKLE_CHUNK):
+                z = min(a + ANKLE_CHUNK, self.frame_count)
+                B = quat_to_matrix(self.basis[a:z])
+                P, H = {}, {}
+                for i in sorted(need):
+                    p, loc = int(rig.parent[i]), self.locations[a:z, i]
+                    if p < 0:
+                        P[i] = rig.rest[i] @ B[:, i]
+                        H[i] = rig.head[i] + loc @ rig.rest[i].T
+                    else:
+                        pr = P[p] @ (rig.rest[p].T @ rig.rest[i])
+                        P[i] = pr @ B[:, i]
+                        H[i] = H[p] + P[p] @ (rig.rest[p].T @ (rig.head[i] - rig.head[p])) \
+                            + (pr @ loc[..., None])[..., 0]
+                for s, b in carry.items():
+                    out[s][a:z] = rig.to_world(H[b] + P[b] @ rig.joint_local[JI[f"ankle_{s}"]])
+            self._ankles = out
         return self._ankles[side]

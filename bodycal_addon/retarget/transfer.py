@@ -40,6 +40,8 @@ def source_in_play_area(source: BodyModel, placement: str = "object") -> tuple[B
     if placement == "performer":
         return source, np.eye(4)
     to_area = np.linalg.inv(play_area_to_world(source, "object"))
+    if np.allclose(to_area, np.eye(4), atol=1e-12):
+        return source, to_area
     return transformed_avatar(source, to_area), to_area
 
 
