@@ -123,3 +123,28 @@ def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
     assert {"suffix": "not an animation source", "missing": "no such file", "action": "no action named 'dance'",
             "method": "invalid choice", "output-is-source": "source"}[case] in lines[0]
     assert _bvh(data_dir).read_bytes() == before
+
+
+def test_the_panels_operator_transfers_onto_the_selected_avatars(data_dir):
+    """The sidebar flow: a BVH and two avatars in one scene, the source picked, the targets
+    selected; one new action on each target, none on the source."""
+    from sample_rigs import load_glb_avatar
+
+    bpy.ops.import_anim.bvh(filepath=str(_bvh(data_dir)), global_scale=ts.BVH_UNITS["cmu"], update_scene_fps=True)
+    source = bpy.context.active_object
+    settings = bpy.context.scene.bodycal_transfer
+    settings.source = source
+    assert not bpy.ops.bodycal.transfer_animation.poll()  # no target yet (the source alone is selected)
+    targets = [load_glb_avatar(data_dir / "avatars" / "mpfb2_variants" / f"{n}.glb")[0]
+               for n in ("adult_female", "heavy_belly_male")]
+    bpy.ops.object.select_all(action="DESELECT")
+    for arm in targets:
+        arm.select_set(True)
+    bpy.context.view_layer.objects.active = targets[0]
+    before = set(bpy.data.actions)
+    assert bpy.ops.bodycal.transfer_animation() == {"FINISHED"}
+    new = set(bpy.data.actions) - before
+    assert {a.name for a in new} == {f"02_01_walk|{t.name}|egocentric" for t in targets}
+    assert all(t.animation_data.action in new for t in targets)
+    assert source.animation_data.action.name == "02_01_walk"
+    assert settings.last_result.count("Baked") == 2
