@@ -93,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--source-armature", metavar="NAME", help="the source's armature (default: the only one)")
     c.add_argument("--action", metavar="NAME", help="the source's action (default: its active one)")
     c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one)")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP + " (the avatar's)")
     c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0])
     _bake_arguments(c, "the source's")
     return p

@@ -316,9 +316,12 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
 def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
                    action: str | None = None, armature: str | None = None, method: str = "egocentric",
                    plant_feet: bool = True, placement: str = "object", overwrite: bool = True,
-                   options: bake.BakeOptions | None = None, log=print, warn=print) -> TransferSummary:
+                   options: bake.BakeOptions | None = None, log=print, warn=print,
+                   bone_map_path=None) -> TransferSummary:
     """`bodycal transfer`: the source's action onto the avatar of `avatar_file`, baked and saved to
-    `output_paths` (checked first, written last, as `retarget_files`)."""
+    `output_paths` (checked first, written last, as `retarget_files`); `bone_map_path`: a bone map
+    preset for the target's armature (`retarget --bone-map`)."""
+    from ..bone_presets import load_preset
     from ..retarget.placement import avatar_warnings, check_placement
     from .blendfile import find_armature, open_avatar
     from .retarget_scene import avatar_input, avatar_model_for, checked_outputs, write_outputs
@@ -327,8 +330,10 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
     check_placement(placement)
     source_path = Path(source_path)
     name, path = avatar_input(avatar_file)
-    files_read = [(f"the source {source_path.suffix.lower() or 'file'}", source_path), (f"{name} (--avatar)", path)]
+    files_read = [(f"the source {source_path.suffix.lower() or 'file'}", source_path), (f"{name} (--avatar)", path),
+                  ("the bone map (--bone-map)", bone_map_path)]
     outs = checked_outputs(output_paths, files_read, overwrite)
+    bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening any
     for note in open_source(source_path):
         log(note)
     src_arm = find_armature(source_armature, str(source_path))
@@ -337,6 +342,11 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
         log(note)
     open_avatar(Path(avatar_file))
     arm = find_armature(armature, str(avatar_file))
+    if bone_map is not None:
+        from .avatar_rig import apply_preset
+
+        if apply_preset(arm, bone_map)[1]:
+            log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
     avatar, fresh = avatar_model_for(arm)
     for line in avatar_warnings(avatar):
         warn(line)

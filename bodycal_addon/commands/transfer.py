@@ -1,5 +1,5 @@
 """`bodycal transfer SOURCE --avatar AVATAR -o OUT [-o ...] [--source-armature NAME] [--action NAME]
-[--armature NAME] [--method egocentric|rotations] [--placement object|performer] [--no-plant-feet]
+[--armature NAME] [--bone-map FILE] [--method egocentric|rotations] [--placement object|performer] [--no-plant-feet]
 [--tolerance DEG] [--location-tolerance MM] [--fps N] [--overwrite]`; SOURCE is a .blend, .bvh,
 .fbx, .glb or .gltf with an animated humanoid armature, AVATAR a .blend, .fbx, .glb, .gltf or .vrm."""
 
@@ -13,6 +13,6 @@ def run(args) -> int:
     options = BakeOptions(args.tolerance, args.location_tolerance, args.fps)
     transfer_files(args.source, args.avatar, args.output, source_armature=args.source_armature, action=args.action,
                    armature=args.armature, method=args.method, plant_feet=args.plant_feet, placement=args.placement,
-                   overwrite=args.overwrite, options=options,
+                   overwrite=args.overwrite, options=options, bone_map_path=args.bone_map,
                    warn=lambda line: print(f"bodycal transfer: warning: {line}", file=sys.stderr, flush=True))
     return 0

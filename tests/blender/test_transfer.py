@@ -16,6 +16,7 @@ from bodycal_addon import metrics
 from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
 from bodycal_addon.blender import transfer_scene as ts
 from bodycal_addon.blender.retarget_scene import avatar_model_for
+from bodycal_addon.errors import BodyCalError
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import feet
 from bodycal_addon.retarget.pose_source import AnimationSource
@@ -148,3 +149,41 @@ def test_the_panels_operator_transfers_onto_the_selected_avatars(data_dir):
     assert all(t.animation_data.action in new for t in targets)
     assert source.animation_data.action.name == "02_01_walk"
     assert settings.last_result.count("Baked") == 2
+
+
+def test_batch_jobs_take_animation_sources_beside_recordings(tmp_path):
+    from bodycal_addon.batch import load_jobs
+
+    (tmp_path / "jobs.toml").write_text('[defaults]\nmethod = ["egocentric", "offsets", "rotations"]\n'
+                                        '[[recordings]]\npath="t.bcrec.json"\nuser="u.body.json"\n'
+                                        '[[animations]]\npath="clips/walk.bvh"\n'
+                                        '[[animations]]\npath="chars.blend"\nsource_armature="Walker"\naction="Run"\n'
+                                        '[[avatars]]\nfile="ogre.glb"\n')
+    jobs, _ = load_jobs(tmp_path / "jobs.toml")
+    names = sorted(j.name for j in jobs)
+    assert names == sorted([f"t__ogre__{m}" for m in ("egocentric", "offsets", "rotations")]
+                           + [f"walk__ogre__{m}" for m in ("egocentric", "rotations")]
+                           + [f"chars-Run__ogre__{m}" for m in ("egocentric", "rotations")])
+    run = next(j for j in jobs if j.name == "chars-Run__ogre__rotations")
+    assert run.argv() == ["transfer", str(tmp_path / "chars.blend"), "--avatar", str(tmp_path / "ogre.glb"),
+                          "--method", "rotations", "--source-armature", "Walker", "--action", "Run",
+                          "-o", str(tmp_path / "out" / "batch" / "chars-Run__ogre__rotations.blend")]
+    (tmp_path / "jobs.toml").write_text('[defaults]\nmethod = "offsets"\n[[animations]]\npath="walk.bvh"\n'
+                                        '[[avatars]]\nfile="ogre.glb"\n')
+    with pytest.raises(BodyCalError, match="defaults.method: animations transfer with egocentric or rotations"):
+        load_jobs(tmp_path / "jobs.toml")
+    (tmp_path / "jobs.toml").write_text('[[animations]]\npath="walk.txt"\n[[avatars]]\nfile="ogre.glb"\n')
+    with pytest.raises(BodyCalError, match=r"animations\[0\].path"):
+        load_jobs(tmp_path / "jobs.toml")
+
+
+def test_a_batch_transfers_a_bvh_onto_an_avatar(data_dir, tmp_path):
+    import json
+
+    (tmp_path / "jobs.toml").write_text(f'[defaults]\nmethod = "egocentric"\nworkers = 1\noutput_dir = "res"\n'
+                                        f'[[animations]]\npath = "{_bvh(data_dir)}"\n'
+                                        f'[[avatars]]\nfile = "{data_dir / "avatars/mpfb2_variants/child_10y.glb"}"\n')
+    done = _run("batch", str(tmp_path / "jobs.toml"))
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "res" / "summary.json").read_text())
+    assert summary["ok"] == 1 and (tmp_path / "res" / "02_01_walk__child_10y__egocentric.blend").is_file()
