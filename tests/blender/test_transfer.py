@@ -78,10 +78,15 @@ def test_a_skinned_characters_action_transfers_onto_another_avatar(data_dir, tmp
     """A character with a mesh is measured by the raycasts (not estimated): bake a BVH walk onto the
     adult avatar, save it, and transfer that action from the .blend onto the child."""
     out = tmp_path / "male_walk.blend"
+    fbx = tmp_path / "male_walk.fbx"
     done = _run("transfer", str(_bvh(data_dir)), "--avatar",
-                str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb"), "-o", str(out))
+                str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb"), "-o", str(out), "-o", str(fbx))
     assert done.returncode == 0, done.stderr
     assert "estimated from its bone lengths" in done.stdout and "saved" in done.stdout
+    # The same character as an FBX (Blender's importer: its own object transform and action).
+    done = _run("transfer", str(fbx), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"),
+                "-o", str(tmp_path / "child_from_fbx.blend"))
+    assert done.returncode == 0 and "estimated" not in done.stdout, done.stderr
     child = tmp_path / "child_walk.glb"
     done = _run("transfer", str(out), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"),
                 "--method", "rotations", "-o", str(child))
