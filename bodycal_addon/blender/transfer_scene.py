@@ -99,6 +99,10 @@ def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.n
     finally:
         if previous != action:
             ad.action = previous
+    if not any(path.startswith(f'pose.bones["{name}"]') for path, _ in curves for name in names):
+        # (4.4+: an action whose slot is for another data-block gives the object no F-Curves)
+        raise BodyCalError(f"the action '{action.name}' animates none of the armature's bones", source=arm.name,
+                           field="--action", hint="pick the armature's own action")
     nf, n = len(frames), len(names)
     basis = np.empty((nf, n, 4))
     locations = np.empty((nf, n, 3))

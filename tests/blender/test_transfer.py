@@ -46,6 +46,10 @@ def test_the_action_read_from_its_fcurves_poses_as_blender_does(data_dir):
             pb = arm.pose.bones[name]
             np.testing.assert_allclose(pose.heads[k, i], np.array(pb.head), atol=1e-5, err_msg=name)
             np.testing.assert_allclose(pose.rotations[k, i], np.array(pb.matrix.to_3x3()), atol=1e-5, err_msg=name)
+    # An action that keys none of its bones is one error, not a still character.
+    with pytest.raises(BodyCalError, match="animates none of the armature's bones"):
+        ts.read_source(arm, bpy.data.actions.new("empty"))
+    assert arm.animation_data.action.name == "02_01_walk"
 
 
 @pytest.mark.parametrize("avatar", ["adult_male", "child_10y"])
