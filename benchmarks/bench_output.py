@@ -5,9 +5,10 @@
   throughput (input keys/s), and how far the reduced action moves any joint from the every-frame
   bake (max and p99 over every frame and joint, mm: Blender's linear interpolation of the kept
   keys, normalised, through the rig's forward kinematics).
-- `real_motion`: the same figures for the CMU walk clip made into a recording by `evaluation/`
-  (0.3 deg tracker noise), raw and with the One Euro filter: how much of the key count is the
-  bake's own frame-to-frame jitter.
+- `real_motion`: the same figures for the CMU walk clip made into a recording by `evaluation/`,
+  at two tracker noise levels (issue 11's 0.5 mm / 0.3 deg, and the 0.15 mm / 0.008 deg measured
+  on a SteamVR tracker), raw and with the One Euro filter: how much of the key count is tracker
+  noise and how much the bake's own frame-to-frame jitter.
 - `files`: the take baked onto the procedural avatar in Blender and saved: every frame keyed and
   uncompressed (before issue 15) against the default (reduced, compressed); the shipped demo's
   out/demo.blend size when `--demo` is given.
@@ -83,21 +84,28 @@ def reduction_figures(anim, avatar) -> dict:
             "joint_deviation_mm_p99": round(float(np.percentile(dev, 99)), 2)}
 
 
+# Tracker noise (position mm, rotation degrees): issue 11's benchmark level, and the random error
+# measured on a SteamVR tracker (Maciejewski 2021: 0.15 mm, 0.008 deg, static).
+NOISE_LEVELS = {"issue11": (0.5, 0.3), "steamvr": (0.15, 0.008)}
+
+
 def real_motion_figures() -> dict:
     from evaluation import bvh, capture, performer, session
 
     clip_path = paths.data_dir() / "motion" / "cmu_bvh" / "02_01_walk.bvh"
     clip = bvh.read(clip_path).resampled(90.0)
     perf = performer.Performer(clip)
-    cap = capture.capture(session.build_session(perf, seed=0), perf, "full", seed=0)
-    with tempfile.TemporaryDirectory() as d:
-        rec = recording_io.load_recording(cap.write(Path(d) / "walk.bcrec.json", up="Y"))
-    user = calibrate_user(rec)
     avatar = rt.procedural_avatar()
     out = {}
-    for label, r in (("raw", rec), ("filtered", filter_recording(rec, OneEuro()))):
-        for method in ("egocentric", "rotations"):
-            out[f"{method}_{label}"] = reduction_figures(pl.retarget(r, user, avatar, method), avatar)
+    for level, (noise_mm, noise_deg) in NOISE_LEVELS.items():
+        cap = capture.capture(session.build_session(perf, seed=0), perf, "full", seed=0, noise_mm=noise_mm,
+                              noise_deg=noise_deg)
+        with tempfile.TemporaryDirectory() as d:
+            rec = recording_io.load_recording(cap.write(Path(d) / "walk.bcrec.json", up="Y"))
+        user = calibrate_user(rec)
+        for label, r in (("raw", rec), ("filtered", filter_recording(rec, OneEuro()))):
+            for method in ("egocentric", "rotations"):
+                out[f"{level}_{method}_{label}"] = reduction_figures(pl.retarget(r, user, avatar, method), avatar)
     return out
 
 

@@ -103,16 +103,16 @@ def _dir(F, L, U, az: float, el: float = 0.0) -> np.ndarray:
     return np.cos(e) * (np.cos(a) * F + np.sin(a) * L) + np.sin(e) * U
 
 
-def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> BodyModel:
-    """The avatar model of `rig` measured with `caster`: every element of `surface_layout.element_ids()`
-    (or a default and a note in `calibration["defaulted"]`), the rig for FK in `extra["rig"]`."""
+def skeleton_model(rig: ArmatureReading, name: str, method: str = "raycast") -> tuple[BodyModel, dict]:
+    """The avatar model of `rig` without its surface: joints, bones (with `right`), the calibration
+    record (`method`, defaults, missing parts) and the canonical rest frames {bone: (3, 3)}."""
     model = BodyModel("avatar", name)
     quality: dict = {}
     defaulted: dict = {}
     for miss in rig.missing:
         if miss.startswith("toe_"):
             defaulted[miss.split()[0]] = "the foot bone's tail (the rig has no toe bone)"
-    model.calibration = {"method": "raycast", "steps_used": ["raycast"], "defaulted": defaulted,
+    model.calibration = {"method": method, "steps_used": [method], "defaulted": defaulted,
                          "missing": [m for m in rig.missing if m.startswith("fingers")], "quality": quality}
     # Joints: exact rest positions, and where they ride on the avatar's own bones.
     for j in sk.JOINTS:
@@ -128,6 +128,15 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
         model.bones[b.name] = BoneInfo(b.head, b.tail, float(np.linalg.norm(t - h)), rig.rights[b.name].copy(),
                                        extra=extra)
         frames[b.name] = sl.bone_frame(h, t, rig.rights[b.name])
+    model.extra["rig"] = rig.rig_dict()
+    return model, frames
+
+
+def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> BodyModel:
+    """The avatar model of `rig` measured with `caster`: every element of `surface_layout.element_ids()`
+    (or a default and a note in `calibration["defaulted"]`), the rig for FK in `extra["rig"]`."""
+    model, frames = skeleton_model(rig, name)
+    quality = model.calibration["quality"]
     F, L, U = rig.forward, rig.lateral, rig.up
     J = rig.joints
 

@@ -23,13 +23,19 @@ JOBS.toml:
     path = "takes/take1.bcrec.json"
     user = "takes/performer.body.json"
 
+    [[animations]]              # optional (issue 16): characters' actions, transferred (`bodycal transfer`)
+    path = "clips/walk.bvh"     # .blend, .bvh, .fbx, .glb or .gltf
+    source_armature = "Walker"  # optional
+    action = "Walk"             # optional (default: the armature's active action)
+
     [[avatars]]
     file = "avatars/ogre.blend" # or .fbx, .glb, .gltf, .vrm (`blend = ...` reads too)
     armature = "Ogre"           # optional
     bone_map = "avatars/ogre.bonemap.json"  # optional: a bone map preset (retarget --bone-map)
 
-Every recording is retargeted onto every avatar with every method. Paths are relative to the
-JOBS.toml folder. Every field is checked before any job starts (its type and allowed values; an
+Every recording is retargeted onto every avatar with every method, and every animation source
+transferred onto every avatar with every method transfer has (egocentric, rotations). Paths are
+relative to the JOBS.toml folder. Every field is checked before any job starts (its type and allowed values; an
 unknown key, a repeated entry or method, a control character in a string are errors); a bad one
 is one line naming the file and the field.
 
@@ -76,6 +82,9 @@ from .errors import BodyCalError
 from .paths import AVATAR_SUFFIXES, ROOT_DIR
 from .retarget.pipeline import METHODS
 from .retarget.placement import PLACEMENTS
+from .retarget.transfer import TRANSFER_METHODS
+
+SOURCE_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")  # what `bodycal transfer` reads
 
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
@@ -83,10 +92,11 @@ GRACE_SECONDS = 3.0  # between SIGTERM and SIGKILL for a running worker when the
 EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal number, as shells do
 
 _KEYS = {
-    "": ("defaults", "recordings", "avatars"),
+    "": ("defaults", "recordings", "animations", "avatars"),
     "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite",
                  "tolerance", "fps", "export"),
     "recordings": ("path", "user"),
+    "animations": ("path", "source_armature", "action"),
     "avatars": ("file", "blend", "armature", "bone_map"),
 }
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
@@ -98,8 +108,8 @@ EXPORT_FORMATS = ("blend", "fbx", "glb", "gltf", "bvh")
 @dataclass
 class Job:
     name: str
-    recording: Path
-    user: Path
+    recording: Path  # the recording, or the animation source of a transfer job
+    user: Path | None  # None: a transfer job (`bodycal transfer`, issue 16)
     avatar: Path
     armature: str | None
     method: str
@@ -112,14 +122,23 @@ class Job:
     fps: float | None = None
     exports: tuple[Path, ...] = ()  # further outputs beside `output` (other formats)
     bone_map: Path | None = None
+    source_armature: str | None = None  # transfer jobs
+    action: str | None = None
 
     @property
     def outputs(self) -> list[Path]:
         return [self.output, *self.exports]
 
     def argv(self) -> list[str]:
-        args = ["retarget", str(self.recording), "--user", str(self.user), "--avatar", str(self.avatar),
-                "--method", self.method]
+        if self.user is None:
+            args = ["transfer", str(self.recording), "--avatar", str(self.avatar), "--method", self.method]
+            if self.source_armature:
+                args += ["--source-armature", self.source_armature]
+            if self.action:
+                args += ["--action", self.action]
+        else:
+            args = ["retarget", str(self.recording), "--user", str(self.user), "--avatar", str(self.avatar),
+                    "--method", self.method]
         for out in self.outputs:
             args += ["-o", str(out)]
         if self.tolerance is not None:
@@ -130,7 +149,7 @@ class Job:
             args += ["--armature", self.armature]
         if self.bone_map is not None:
             args += ["--bone-map", str(self.bone_map)]
-        if self.filter is not None:
+        if self.filter is not None and self.user is not None:  # tracker smoothing: recordings only
             args += ["--filter", self.filter]
         if not self.plant_feet:
             args += ["--no-plant-feet"]
@@ -264,6 +283,7 @@ def _number(check: _Checker, value, field: str, low: float, high: float, what: s
 
 def _entries(check: _Checker, data: dict, key: str) -> list[dict]:
     what = {"recordings": "[[recordings]] tables with path and user",
+            "animations": "[[animations]] tables with path (and optionally source_armature and action)",
             "avatars": "[[avatars]] tables with file (and optionally armature and bone_map)"}[key]
     entries = data.get(key, [])
     if not isinstance(entries, list):
@@ -317,8 +337,13 @@ def load_jobs(path) -> tuple[list[Job], dict]:
                                                 f"got {_describe(placement)}")
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
-    if not recordings or not avatars:
-        raise check.error(None, "needs at least one [[recordings]] and one [[avatars]] entry")
+    animations = _entries(check, data, "animations")
+    if not (recordings or animations) or not avatars:
+        raise check.error(None, "needs at least one [[recordings]] or [[animations]] entry and one [[avatars]] entry")
+    transfer_methods = [m for m in methods if m in TRANSFER_METHODS]
+    if animations and not transfer_methods:
+        raise check.error("defaults.method", f"animations transfer with {' or '.join(TRANSFER_METHODS)}, "
+                                             f"not {' or '.join(methods)}")
 
     recs, seen = [], {}
     for i, rec in enumerate(recordings):
@@ -331,6 +356,22 @@ def load_jobs(path) -> tuple[list[Job], dict]:
             raise check.error(f"recordings[{i}]", f"same path and user as recordings[{seen[identity]}]; remove one")
         seen[identity] = i
         recs.append((rp, up))
+    anims, seen = [], {}
+    for i, an in enumerate(animations):
+        if "path" not in an:
+            raise check.error(f"animations[{i}]", "missing 'path'")
+        what = f"an animation source ({', '.join(SOURCE_SUFFIXES)})"
+        sp = base / check.text(an["path"], f"animations[{i}].path", what)
+        if sp.suffix.lower() not in SOURCE_SUFFIXES:
+            raise check.error(f"animations[{i}].path", f"must be {what}, got {_describe(an['path'])}")
+        sa, act = (check.text(an[k], f"animations[{i}].{k}", "a name") if k in an else None
+                   for k in ("source_armature", "action"))
+        identity = (_abs(sp), sa, act)
+        if identity in seen:
+            raise check.error(f"animations[{i}]", f"same path, armature and action as animations[{seen[identity]}]; "
+                                                  "remove one")
+        seen[identity] = i
+        anims.append((sp, sa, act))
     avs, seen = [], {}
     for j, av in enumerate(avatars):
         keys = [k for k in ("file", "blend") if k in av]
@@ -349,11 +390,15 @@ def load_jobs(path) -> tuple[list[Job], dict]:
         avs.append((ap, arm, _bone_map(check, base, av, j)))
 
     specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm, _bm in avs for m in methods]
-    bone_maps = [bm for _rp, _up in recs for _ap, _arm, bm in avs for _m in methods]
-    names = output_names(specs)
+    extra = [(bm, None, None) for _rp, _up in recs for _ap, _arm, bm in avs for _m in methods]
+    # Animation sources (issue 16): transferred onto every avatar, with the methods transfer has;
+    # the action's name is part of the source's identity (one file may hold several).
+    specs += [(sp, None, ap, arm, m) for sp, _sa, _act in anims for ap, arm, _bm in avs for m in transfer_methods]
+    extra += [(bm, sa, act) for _sp, sa, act in anims for _ap, _arm, bm in avs for _m in transfer_methods]
+    names = output_names(specs, [act for _bm, _sa, act in extra])
     jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, placement,
-                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm)
-            for name, (rp, up, ap, arm, m), bm in zip(names, specs, bone_maps)]
+                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act)
+            for name, (rp, up, ap, arm, m), (bm, sa, act) in zip(names, specs, extra)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):
         raise check.error(None, "internal error: output names are not unique inside output_dir; please report it")
@@ -376,19 +421,23 @@ def safe_part(text: str) -> str:
     return s or "unnamed"
 
 
-def _hash(rp: Path, up: Path, ap: Path, arm: str | None, method: str) -> str:
-    text = json.dumps([_abs(rp), _abs(up), _abs(ap), arm, method])  # ASCII: \uXXXX escapes
+def _hash(rp: Path, up: Path | None, ap: Path, arm: str | None, method: str, action: str | None = None) -> str:
+    # An animation job (no user) hashes [source, null, avatar, armature, method, action].
+    items = [_abs(rp), _abs(up) if up is not None else None, _abs(ap), arm, method]
+    text = json.dumps(items if up is not None else [*items, action])  # ASCII: \uXXXX escapes
     return hashlib.sha256(text.encode("ascii")).hexdigest()[:8]
 
 
-def output_names(specs: list[tuple[Path, Path, Path, str | None, str]]) -> list[str]:
+def output_names(specs: list[tuple[Path, Path | None, Path, str | None, str]], actions=None) -> list[str]:
     """Unique (letter case ignored) file-name stems for jobs given as (recording, user, avatar,
-    armature, method); the rule is in the module docstring, "Output names"."""
+    armature, method); the rule is in the module docstring, "Output names". An animation job (user
+    None) is named after its source, or `<source>-<action>` when it picks an action (`actions`)."""
     parts = []
-    for rp, up, ap, arm, m in specs:
-        rec = safe_part(_stem(rp))
+    actions = actions or [None] * len(specs)
+    for (rp, up, ap, arm, m), act in zip(specs, actions):
+        rec = safe_part(_stem(rp) if not act else f"{_stem(rp)}-{act}")
         parts.append((rec, f"{safe_part(rp.parent.name)}-{rec}", safe_part(arm or _stem(ap)), m,
-                      _hash(rp, up, ap, arm, m)))
+                      _hash(rp, up, ap, arm, m, act)))
     level = [0] * len(specs)
 
     def name(k: int) -> str:

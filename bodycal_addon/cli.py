@@ -22,6 +22,7 @@ from .keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .outputs import describe_os_error
 from .retarget.pipeline import METHODS
 from .retarget.placement import PLACEMENTS
+from .retarget.transfer import TRANSFER_METHODS
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -89,7 +90,39 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
     c.add_argument("-o", "--output-dir", default="out", metavar="DIR")
+
+    c = sub.add_parser("transfer", help="another character's animation onto the avatar, keeping self-contacts")
+    c.add_argument("source", metavar="SOURCE", help="the animated character: a .blend, .bvh, .fbx, .glb or .gltf")
+    c.add_argument("--avatar", required=True, metavar="AVATAR", help=AVATAR_HELP)
+    c.add_argument("--source-armature", metavar="NAME", help="the source's armature (default: the only one)")
+    c.add_argument("--action", metavar="NAME", help="the source's action (default: its active one)")
+    c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one)")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP + " (the avatar's)")
+    c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0])
+    _bake_arguments(c, "the source's")
     return p
+
+
+def _bake_arguments(c, rate_of: str) -> None:
+    """Placement, feet, key reduction, output rate and outputs (as retarget takes them)."""
+    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
+                   help="object: the motion plays relative to the armature object's place and heading "
+                        "(default); performer: where the performer was in the room")
+    c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
+                   help="let the feet follow the method (default: feet planted while the performer stands on them)")
+    c.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
+                   help="key reduction: each bone's rotation stays within DEG degrees of every sample "
+                        f"(default {DEFAULT_TOLERANCE_DEG:g}; 0 keys every sample)")
+    c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
+                   help="key reduction of the root's location, in millimetres "
+                        f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
+    c.add_argument("--fps", type=float, default=None, metavar="N",
+                   help="output frame rate: the action is resampled to N frames per second, timing kept "
+                        f"(default: one key per sample, the scene set to {rate_of} rate)")
+    c.add_argument("-o", "--output", required=True, action="append", metavar="OUT.blend|.fbx|.glb|.gltf|.bvh",
+                   help="a .blend (the avatar's file with the new action), or an export of the avatar "
+                        "and its baked action for game engines; give -o several times for several files")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
 
 def _handler(command: str) -> Callable[[argparse.Namespace], int]:

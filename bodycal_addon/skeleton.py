@@ -260,6 +260,30 @@ CMU_MB = NamingScheme(
     (("spine", r"(LowerBack)", {"lowerback": -1}), ("spine", r"Spine(\d*)", None), ("neck", r"Neck(\d*)", None)),
 )
 
+# The CMU motion capture BVH of the "3ds Max friendly" release (cgspeed), the one most BVH packs
+# ship: bones named by the joint at their head, so "LeftShoulder" is the upper arm (it starts at
+# the shoulder) and the clavicle is "LeftCollar"; lowerback, Chest, Chest2 up the spine and
+# lowerneck, Neck up the neck; lhand / LFingers / LThumb are lumped hand bones (no phalanges).
+CMU_JOINTS = NamingScheme(
+    "cmu_joints", "CMU motion capture BVH, joint names (3ds Max friendly release)",
+    {"l": "Left", "r": "Right"},
+    (
+        _p("pelvis", r"Hips"),
+        _p("head", r"Head"),
+        _p("clavicle_{s}", r"{s}Collar"),
+        _p("upperarm_{s}", r"{s}Shoulder"),
+        _p("forearm_{s}", r"{s}Elbow"),
+        _p("hand_{s}", r"{s}Wrist"),
+        _p("thigh_{s}", r"{s}Hip"),
+        _p("shin_{s}", r"{s}Knee"),
+        _p("foot_{s}", r"{s}Ankle"),
+        _p("toe_{s}", r"{s}Toe"),
+        _p("pelvis_side_l", r"LHipJoint"), _p("pelvis_side_r", r"RHipJoint"),
+    ),
+    (("spine", r"(lowerback|Chest|Chest2)", {"lowerback": 0, "chest": 1, "chest2": 2}),
+     ("neck", r"(lowerneck|Neck)", {"lowerneck": 0, "neck": 1})),
+)
+
 # VRM humanoid bone names (VRM 0.x and 1.0) are Unity's HumanBodyBones with a lower-case first
 # letter; Unity's own rigs write them "LeftUpperArm" and, for fingers, HumanTrait.BoneName's
 # "Left Thumb Proximal". VRM 1.0 renamed the thumb: its phalanges 1..3 are Metacarpal,
@@ -459,7 +483,7 @@ CHARACTER_CREATOR = NamingScheme(
      ("neck", r"CC_Base_NeckTwist(\d+)", None)),
 )
 
-SCHEMES: tuple[NamingScheme, ...] = (UNREAL, RIGIFY_METARIG, MIXAMO, CMU_MB, VRM_HUMANOID, VROID, VRM_ADDON,
+SCHEMES: tuple[NamingScheme, ...] = (UNREAL, RIGIFY_METARIG, MIXAMO, CMU_MB, CMU_JOINTS, VRM_HUMANOID, VROID, VRM_ADDON,
                                      MAKEHUMAN, DAZ_GENESIS8, DAZ_GENESIS9, CHARACTER_CREATOR)
 SCHEME_BY_NAME: dict[str, NamingScheme] = {s.name: s for s in SCHEMES}
 

@@ -185,20 +185,12 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, arma
 
     from ..bone_presets import load_preset
     from ..recording_io import load_recording
-    from .blendfile import find_armature, open_avatar, save_blend
-    from .export import export_avatar, output_kind
+    from .blendfile import find_armature, open_avatar
 
     avatar_file = Path(avatar_file)
     check_placement(placement)
-    outs = [Path(p) for p in ([output_paths] if isinstance(output_paths, (str, Path)) else output_paths)]
     files_read = output_inputs(recording_path, user_path, avatar_file, bone_map_path)
-    seen = set()
-    for out in outs:
-        outputs.check_output(out, inputs=files_read, overwrite=overwrite)  # the most important reason first
-        output_kind(out)
-        if str(out.resolve()) in seen:
-            raise BodyCalError("is given twice", source=str(out), field="-o", hint="give each output once")
-        seen.add(str(out.resolve()))
+    outs = checked_outputs(output_paths, files_read, overwrite)
     bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening anything
     recording = load_recording(recording_path)
     user = BodyModel.load(user_path)
@@ -220,10 +212,36 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, arma
     summary = bake_and_measure(inputs, anim, set_scene_rate=True, options=options, release=True)
     del anim, inputs  # the keys are in the action now: let the writers have the memory
     log(summary.line())
+    write_outputs(arm, outs, files_read, overwrite, log)
+    return summary
+
+
+def checked_outputs(output_paths, files_read, overwrite: bool) -> list:
+    """The -o paths (one or several: a .blend and/or exports), each checked before any work: not
+    one of `files_read`, not a link or device, replaced only with `overwrite`, each given once."""
+    from pathlib import Path
+
+    from .export import output_kind
+
+    outs = [Path(p) for p in ([output_paths] if isinstance(output_paths, (str, Path)) else output_paths)]
+    seen = set()
+    for out in outs:
+        outputs.check_output(out, inputs=files_read, overwrite=overwrite)  # the most important reason first
+        output_kind(out)
+        if str(out.resolve()) in seen:
+            raise BodyCalError("is given twice", source=str(out), field="-o", hint="give each output once")
+        seen.add(str(out.resolve()))
+    return outs
+
+
+def write_outputs(arm, outs, files_read, overwrite: bool, log=print) -> None:
+    """Write the open file (.blend) or the avatar with its baked action (exports), each all at once."""
+    from .blendfile import save_blend
+    from .export import export_avatar, output_kind
+
     for out in outs:
         if output_kind(out) == "blend":
             save_blend(out, inputs=files_read, overwrite=overwrite)
         else:
             export_avatar(arm, out, inputs=files_read, overwrite=overwrite)
         log(f"saved {out}")
-    return summary

@@ -522,17 +522,23 @@ class AvatarRig:
 
     # --- pose -> joints (Blender's FK, for checks and for the offsets method) --------------------
 
-    def fk(self, basis: np.ndarray, root_location: np.ndarray) -> RigPose:
+    def fk(self, basis: np.ndarray, root_location: np.ndarray, *, locations: np.ndarray | None = None,
+           realised=True) -> RigPose:
         """Blender's pose evaluation from pose-bone quaternions (F, N, 4) and the root bone's
-        location (F, 3)."""
+        location (F, 3); `locations` (F, N, 3), when given, are every bone's pose location (an
+        animated character's: a bone above the pelvis may carry the motion), the root's included."""
         basis = np.asarray(basis, float)
         nf, n = basis.shape[:2]
         B = np.swapaxes(quat_to_matrix(basis), 0, 1)
         P = np.empty((n, nf, 3, 3))
         H = np.empty((n, nf, 3))
+        zero = np.zeros((nf, 3))
         for i in range(n):
             p = self.parent[i]
-            loc = root_location if i == self.root else np.zeros((nf, 3))
+            if locations is not None:
+                loc = locations[:, i]
+            else:
+                loc = root_location if i == self.root else zero
             if p < 0:
                 P[i] = mul_stack(self.rest[i], B[i])
                 H[i] = self.head[i] + loc @ self.rest[i].T
@@ -542,7 +548,7 @@ class AvatarRig:
                 P[i] = pr @ B[i]
                 H[i] = H[p] + stack_apply(P[p], self.rest[p].T @ (self.head[i] - self.head[p])) \
                     + (pr @ loc[..., None])[..., 0]
-        return self._finish(basis, P, H, np.asarray(root_location, float))
+        return self._finish(basis, P, H, np.asarray(root_location, float), realised)
 
 
 def _closest_on_segment(p, a, b):

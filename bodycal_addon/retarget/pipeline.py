@@ -47,7 +47,8 @@ from .avatar_pose import (
     root_scale,
 )
 from .placement import check_placement, play_area_to_world, transformed_avatar
-from .user_animation import _joint_from, _trackers, animate_user, pose_finger_chain
+from .pose_source import PoseSource, RecordingSource
+from .user_animation import _trackers, pose_finger_chain
 
 TARGETS = tuple(
     [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
@@ -77,25 +78,34 @@ def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.n
     return out
 
 
-def _check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
+def _check_method(avatar: BodyModel, method: str) -> None:
     if method not in METHOD_CLASSES:
         raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
-    if user.kind != "user":
-        raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
     if avatar.kind != "avatar":
         raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
                            field="kind")
+
+
+def _check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
+    _check_method(avatar, method)
+    if user.kind != "user":
+        raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
     if recording.frame_count == 0:
         raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
 
 
 class _Run:
-    """Everything computed once per (user, avatar, method)."""
+    """Everything computed once per (performer, avatar, method). The performer is a pose source
+    (pose_source.py): a tracker recording of a calibrated user, or another character's action."""
 
-    def __init__(self, recording: Recording, user: BodyModel, avatar: BodyModel, method: str,
-                 plant_feet: bool = True, centre: np.ndarray | None = None):
-        _check_inputs(recording, user, avatar, method)
-        self.rec, self.user, self.avatar, self.method = recording, user, avatar, method
+    def __init__(self, source: PoseSource, avatar: BodyModel, method: str, plant_feet: bool = True,
+                 centre: np.ndarray | None = None):
+        _check_method(avatar, method)
+        user = source.model
+        self.src, self.user, self.avatar, self.method = source, user, avatar, method
+        self.rec = getattr(source, "recording", None)  # None: not a tracker recording
+        # An animated character (pose_source.AnimationSource): its own spine shape and limb hinges.
+        self.character = bool(getattr(source, "character", False))
         self.rig = AvatarRig.from_model(avatar)
         self.k = root_scale(user, self.rig)
         # The floor point the performer's path is scaled about (placement.py): the play area's
@@ -115,19 +125,20 @@ class _Run:
         self.feet = self._plan_feet(avatar, avatar_pos) if plant_feet else None
 
     def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> dict:
-        """The stances of the whole recording from the user's foot trackers and, per stance, where the
-        avatar's foot is planted (feet.py): {side: (weight (F,), planted xy (F, 2), the avatar's sole
-        points (K, 3) in its canonical foot frame)}."""
-        tr = _trackers(self.rec, self.user)
+        """The stances of the whole take from the performer's ankles (carried by the foot trackers,
+        or the source character's) and, per stance, where the avatar's foot is planted (feet.py):
+        {side: (weight (F,), planted xy (F, 2), the avatar's sole points (K, 3) in its canonical
+        foot frame)}."""
         out = {}
         ref = self.user_pos
-        placed = self.impl.ankle_places(tr)
+        tr = self.src.trackers()
+        placed = self.impl.ankle_places(tr) if tr is not None else None
         corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
         for s in sk.SIDES:
-            user_ankle = _joint_from(self.user, tr, f"ankle_{s}", [f"foot_{s}"])
+            user_ankle = self.src.ankle(s)
             if user_ankle is None:
                 continue
-            stance = feet.detect(user_ankle, self.rec.time, float(ref[f"ankle_{s}"][2]))
+            stance = feet.detect(user_ankle, self.src.time, float(ref[f"ankle_{s}"][2]))
             reference = (placed[f"ankle_{s}"] if placed is not None
                          else root_positions(user_ankle, self.k, self.centre))
             eid = f"mesh:sole_{s}"
@@ -173,13 +184,13 @@ class _Run:
     # --- one chunk of frames ------------------------------------------------------------------
 
     def chunk(self, start: int, stop: int):
-        up = animate_user(self.rec, self.user, start, stop, rest=(self.user_pos, self.user_frames0))
+        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0))
         for n in up.notes:
             if n not in self.notes:
                 self.notes.append(n)
         pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
         # From here on the user's frames are the ones copied onto the avatar (step 2).
-        user_frames = up.frames
+        user_frames = up.frames if up.surface_frames is None else up.surface_frames
         up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
                       up.notes)
         fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
@@ -196,17 +207,27 @@ class _Run:
         # clavicles keep their pose relative to vertebra 5.
         if "skull_base" in targets:
             spine_idx = [BI[b] for b in SPINE_BONES]
-            res = ik.spine(pelvis, fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]],
-                           None, targets["skull_base"],
-                           top_right=normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]]),
-                           two_pass=False, rest_segments=self.rest_spine)
+            top_right = normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]])
+
+            def solve_spine(aim):
+                return ik.spine(pelvis, fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]], None, aim,
+                                top_right=top_right, two_pass=False, rest_segments=self.rest_spine)
+
+            res = solve_spine(targets["skull_base"])
             frames[:, BI["sacrum"]] = res.sacrum_rot
-            frames[:, spine_idx] = res.rotations
+            if self.character:
+                # Decision (issue 16): an animated character's spine has its own shape (an
+                # animator's curve is no IK's), so the IK only corrects it: each vertebra turns by
+                # what the IK changes between aiming at the copied skull base and at the target.
+                # Where they agree (the same body) the source's spine comes back as it was.
+                held = solve_spine(fk.joints[:, JI["skull_base"]])
+                frames[:, spine_idx] = res.rotations @ np.swapaxes(held.rotations, -1, -2) @ up.frames[:, spine_idx]
+            else:
+                frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
             for s in sk.SIDES:
                 c = BI[f"clavicle_{s}"]
-                frames[:, c] = res.rotations[:, sk.CLAVICLE_VERTEBRA - 1] @ np.swapaxes(up.frames[:, v5], -1, -2) \
-                    @ up.frames[:, c]
+                frames[:, c] = frames[:, v5] @ np.swapaxes(up.frames[:, v5], -1, -2) @ up.frames[:, c]
         # The limbs hang from the trunk as solved now (or as given).
         names = [f"{a}_{s}" for s in sk.SIDES for a, _, e, _, _ in LIMBS.values() if f"{e}_{s}" in targets]
         at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
@@ -220,8 +241,11 @@ class _Run:
                 root = roots[f"{a}_{s}"]
                 l1, l2 = rig.lengths[BI[f"{ab}_{s}"]], rig.lengths[BI[f"{mb}_{s}"]]
                 # Appendix E: swivel blended between the mapped intermediate target and the user's.
+                # The hinge's axis: a character's upper bones twist on their own (a user's share
+                # the hinge's right), so its hinge is the intermediate bone's +X.
+                hinge = up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
                 tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"), self._user_swivel(up, a, m, e, s),
-                                 up.frames[:, BI[f"{ab}_{s}"]][..., :, 0], size_ratio=self.k)
+                                 hinge, size_ratio=self.k)
                 frames[:, BI[f"{ab}_{s}"]] = tb.rot1
                 frames[:, BI[f"{mb}_{s}"]] = tb.rot2
                 reached = tb.end
@@ -359,7 +383,9 @@ class Egocentric(Method):
         uj, uf = _jd(up.joints), _fd(user_frames, self.sbones)
         heads = np.take(up.joints, self.bone_heads, axis=1)
         tails = np.take(up.joints, self.bone_tails, axis=1)
-        vec = normalize(tails - heads) * self.user_lengths[:, None]
+        # A user's bones keep their calibrated lengths (tracked joints wobble); a character's are
+        # taken as posed, like the avatar's own (a vertebra spanning two spine bones stretches).
+        vec = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]
         ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
         lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
         upper = [n for n in self.targets if n not in lower]
@@ -419,6 +445,9 @@ class ExactOffsets(Method):
 
     def __init__(self, run: _Run, avatar_pos: dict):
         super().__init__(run, avatar_pos)
+        if run.rec is None:
+            raise BodyCalError("the offsets method needs a tracker recording (AvatarGo's offsets are from "
+                               "trackers)", source=run.user.name, field="method", hint="use egocentric or rotations")
         tpose = {}
         raw = run.user.extra.get("tpose") or {}
         tr0 = None
@@ -537,15 +566,24 @@ def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyMode
     stands on them (feet.py), in every method. `placement` ("object" or "performer", placement.py)
     says where the performance plays: relative to the armature object's placement, or where the
     performer was in the room. Bad inputs raise one `BodyCalError`."""
+    _check_inputs(recording, user_model, avatar_model, method)
+    return run_source(RecordingSource(recording, user_model), avatar_model, method, chunk_frames=chunk_frames,
+                      progress=progress, cancel=cancel, plant_feet=plant_feet, placement=placement)
+
+
+def run_source(source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *, chunk_frames: int = 2000,
+               progress: Callable[[float], None] | None = None, cancel: Callable[[], bool] | None = None,
+               plant_feet: bool = True, placement: str = "object") -> AvatarAnimation:
+    """`retarget` for any pose source (pose_source.py): a recording of a calibrated user, or an
+    animated character (`transfer.transfer`). The source's poses are in its play area."""
     # Everything is computed in the performer's play area, with the avatar brought into it; the
     # pose-bone values are in armature space either way, the world joints and targets go back.
-    _check_inputs(recording, user_model, avatar_model, method)
+    _check_method(avatar_model, method)
     to_world = play_area_to_world(avatar_model, check_placement(placement))
     avatar_in_area = transformed_avatar(avatar_model, np.linalg.inv(to_world))
-    run = _Run(recording, user_model, avatar_in_area, method, plant_feet,
-               centre=np.zeros(3) if placement == "object" else None)
+    run = _Run(source, avatar_in_area, method, plant_feet, centre=np.zeros(3) if placement == "object" else None)
     rot_t, shift = to_world[:3, :3].T, to_world[:3, 3]
-    nf = recording.frame_count
+    nf = source.frame_count
     rig = run.rig
     nb = len(rig.names)
     rotations = np.empty((nf, nb, 4))
@@ -566,8 +604,8 @@ def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyMode
         if progress is not None:
             progress(stop / nf)
     if not (np.isfinite(rotations).all() and np.isfinite(root_loc).all()):
-        raise BodyCalError("the retargeted animation has non-finite values", source=recording.source or recording.name,
-                           hint="check the recording for broken device poses")
+        raise BodyCalError("the retargeted animation has non-finite values", source=source.name,
+                           hint="check the source for broken poses")
     return AvatarAnimation(rig.armature, list(rig.names), rotations, rig.names[rig.root], root_loc,
-                           np.asarray(recording.time, float), method,
+                           np.asarray(source.time, float), method,
                            {j: joints[:, i] for i, j in enumerate(JOINTS)}, targets, run.notes)

@@ -51,6 +51,9 @@ class UserPose:
     frames: np.ndarray  # (F, B, 3, 3) canonical bone frames (skeleton.BONES order), world
     valid: np.ndarray  # (F,) every device used was tracked this frame
     notes: list[str] = field(default_factory=list)
+    # (F, B, 3, 3) the frames the body's surface rides on, when not `frames` (an animated
+    # character's vertebrae: rigid on its spine bones, pose_source.AnimationSource)
+    surface_frames: np.ndarray | None = None
 
     def joint(self, name: str) -> np.ndarray:
         return self.joints[:, JI[name]]

@@ -8,7 +8,7 @@ from repo_paths import REPO
 from bodycal_addon import cli
 from bodycal_addon.blender import cli_bridge
 
-COMMANDS = ("calibrate-user", "calibrate-avatar", "retarget", "batch", "demo")
+COMMANDS = ("calibrate-user", "calibrate-avatar", "retarget", "transfer", "batch", "demo")
 
 
 def _run(*args):

@@ -69,6 +69,12 @@ def cmu_mb() -> list[str]:  # MPFB2 rig.cmu_mb, all 31 bones
                 "Shoulder", "Arm", "ForeArm", "Hand", "FingerBase", "HandFinger1", "UpLeg", "Leg", "Foot", "ToeBase")]]
 
 
+def cmu_joints() -> list[str]:  # CMU BVH, 3ds Max friendly release (131_01_start_walk_stop.bvh), all 31 joints
+    return ["Hips", "LHipJoint", "RHipJoint", "lowerback", "Chest", "Chest2", "lowerneck", "Neck", "Head", "lhand",
+            "LFingers", "LThumb", "rhand", "RFingers", "RThumb", *[f"{side}{b}" for side in ("Left", "Right") for b in (
+                "Hip", "Knee", "Ankle", "Toe", "Collar", "Shoulder", "Elbow", "Wrist")]]
+
+
 def vrm(thumb: tuple[str, str, str], style: str = "vrm") -> list[str]:
     """VRM humanoid names ("vrm": leftUpperArm), or Unity's ("unity": LeftUpperArm, and the
     fingers as HumanTrait.BoneName writes them, "Left Thumb Proximal")."""
@@ -312,6 +318,13 @@ CASES = {
                expect("Hips", "Head", ["LowerBack", "Spine", "Spine1"], ["Neck", "Neck1"],
                       {k: v.replace("{p}", "") for k, v in MIXAMO_LIMBS.items()}, 1,
                       {"pelvis_side_l": "LHipJoint", "pelvis_side_r": "RHipJoint"})),
+    # Bones named by their head joint: "LeftShoulder" is the upper arm, "LeftCollar" the clavicle.
+    "cmu_joints": (cmu_joints(), "cmu_joints",
+                   expect("Hips", "Head", ["lowerback", "Chest", "Chest2"], ["lowerneck", "Neck"],
+                          {"clavicle": "{s}Collar", "upperarm": "{s}Shoulder", "forearm": "{s}Elbow",
+                           "hand": "{s}Wrist", "thigh": "{s}Hip", "shin": "{s}Knee", "foot": "{s}Ankle",
+                           "toe": "{s}Toe"}, 1,
+                          {"pelvis_side_l": "LHipJoint", "pelvis_side_r": "RHipJoint"})),
     "vrm1": (vrm(("Metacarpal", "Proximal", "Distal")), "vrm_humanoid",
              _vrm_expect("vrm", ("Metacarpal", "Proximal", "Distal"))),
     "vrm0": (vrm(("Proximal", "Intermediate", "Distal")), "vrm_humanoid",

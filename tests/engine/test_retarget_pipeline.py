@@ -17,6 +17,7 @@ from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget import user_animation as ua
+from bodycal_addon.retarget.pose_source import RecordingSource
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -210,7 +211,7 @@ def test_a_target_sweeping_beside_the_crude_torso_moves_continuously(session):
     # motion moved the mapped target by up to 11 mm. Continuity, not smallness: a sweep 100 times
     # finer around the largest step must shrink it about as much (a jump would stay).
     rec, _, user, _ = session
-    run = pl._Run(rec, user, rt.procedural_avatar(belly=0.06), "egocentric")
+    run = pl._Run(RecordingSource(rec, user), rt.procedural_avatar(belly=0.06), "egocentric")
     rest = {j: run.user_pos[j] for j in ap.JOINTS}
     n = 801
 

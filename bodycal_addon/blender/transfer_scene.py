@@ -1,0 +1,362 @@
+"""Animation transfer inside Blender (issue 16): read a source character (its armature, body model
+and action) into numpy, run `retarget.transfer.transfer` onto a target avatar, bake.
+
+Reading an action never steps the scene frame by frame: every F-Curve is sampled once (its keys
+when they sit on the sampled frames, as a BVH import's do; else `FCurve.evaluate` per frame),
+Euler and axis-angle rotations are turned into quaternions in numpy, and the pose is evaluated by
+the engine's FK (`AvatarRig.fk`, the same Blender pose rule). What the F-Curves do not say (NLA
+strips, constraints, drivers, the armature object's own animation) is not read.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..animation import AvatarAnimation
+from ..body_estimate import ESTIMATED, estimate_surface
+from ..bodymodel import BodyModel
+from ..errors import BodyCalError
+from ..retarget.avatar_pose import AvatarRig
+from ..retarget.transfer import check_method, stand_on_floor, transfer
+from ..transforms import matrix_to_quat, quat_normalize
+from . import avatar_rig, avatar_storage, bake
+from .avatar_calibration import avatar_meshes
+from .fcurves import object_fcurves, read_keys
+
+SOURCE_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")
+# Metres per file unit a BVH may be written in (m, cm, inch, CMU's inch / 0.45, mm): the one that
+# makes the skeleton's rest height closest to a human's is taken (BLENDER_NOTES.md, BVH import).
+BVH_UNITS = {"m": 1.0, "cm": 0.01, "in": 0.0254, "cmu": 0.0254 / 0.45, "mm": 0.001}
+HUMAN_HEIGHT_M = 1.7
+
+
+@dataclass
+class SourceAnimation:
+    """Everything the transfer needs of the source, in numpy: nothing refers to Blender data."""
+
+    model: BodyModel
+    basis: np.ndarray  # (F, N, 4) in AvatarRig.from_model(model).names order
+    locations: np.ndarray  # (F, N, 3)
+    time: np.ndarray  # (F,) s
+    fps: float
+    action: str
+    armature: str
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def estimated(self) -> bool:
+        return self.model.calibration.get("method") == ESTIMATED
+
+
+def _euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
+    """(F, 3, 3) of Blender Euler angles (F, 3) in rotation mode `order` ("XYZ": X applied first)."""
+    out = np.broadcast_to(np.eye(3), (len(angles), 3, 3)).copy()
+    for axis in order:
+        k = "XYZ".index(axis)
+        c, s = np.cos(angles[:, k]), np.sin(angles[:, k])
+        m = np.zeros((len(angles), 3, 3))
+        i, j = [(1, 2), (2, 0), (0, 1)][k]
+        m[:, k, k] = 1.0
+        m[:, i, i] = c
+        m[:, j, j] = c
+        m[:, i, j] = -s
+        m[:, j, i] = s
+        out = m @ out
+    return out
+
+
+def _axis_angle_quats(v: np.ndarray) -> np.ndarray:
+    angle, axis = v[:, 0], v[:, 1:]
+    n = np.linalg.norm(axis, axis=1, keepdims=True)
+    axis = np.where(n > 1e-12, axis / np.maximum(n, 1e-12), [0.0, 1.0, 0.0])
+    return np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], axis=1)
+
+
+def _sample(fc, frames: np.ndarray) -> np.ndarray:
+    """The F-Curve's values at `frames`: its keys where every frame is a key (no evaluation),
+    else one evaluation per frame."""
+    kf, kv = read_keys(fc)
+    if len(kf) and not fc.modifiers:
+        pos = np.clip(np.searchsorted(kf, frames - 1e-3), 0, len(kf) - 1)
+        if np.all(np.abs(kf[pos] - frames) < 1e-3):
+            return kv[pos].astype(float)
+    return np.array([fc.evaluate(float(f)) for f in frames], float)
+
+
+def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(basis (F, N, 4), locations (F, N, 3)) of `action` on armature object `arm` for the pose
+    bones `names`, at `frames`. A channel without an F-Curve keeps the pose bone's current value."""
+    ad = arm.animation_data or arm.animation_data_create()
+    previous = ad.action
+    try:
+        if ad.action != action:
+            ad.action = action
+        curves = object_fcurves(arm)
+    finally:
+        if previous != action:
+            ad.action = previous
+    if not any(path.startswith(f'pose.bones["{name}"]') for path, _ in curves for name in names):
+        # (4.4+: an action whose slot is for another data-block gives the object no F-Curves)
+        raise BodyCalError(f"the action '{action.name}' animates none of the armature's bones", source=arm.name,
+                           field="--action", hint="pick the armature's own action")
+    nf, n = len(frames), len(names)
+    basis = np.empty((nf, n, 4))
+    locations = np.empty((nf, n, 3))
+
+    def channel(bone, prop, size, current):
+        out = np.empty((nf, size))
+        for k in range(size):
+            fc = curves.get((f'pose.bones["{bone}"].{prop}', k))
+            out[:, k] = _sample(fc, frames) if fc is not None else current[k]
+        return out
+
+    for i, name in enumerate(names):
+        pb = arm.pose.bones[name]
+        locations[:, i] = channel(name, "location", 3, list(pb.location))
+        mode = pb.rotation_mode
+        if mode == "QUATERNION":
+            basis[:, i] = quat_normalize(channel(name, "rotation_quaternion", 4, list(pb.rotation_quaternion)))
+        elif mode == "AXIS_ANGLE":
+            basis[:, i] = _axis_angle_quats(channel(name, "rotation_axis_angle", 4, list(pb.rotation_axis_angle)))
+        else:
+            basis[:, i] = matrix_to_quat(_euler_matrices(channel(name, "rotation_euler", 3, list(pb.rotation_euler)),
+                                                         mode))
+    return basis, locations
+
+
+def pick_action(arm, name: str | None, source: str):
+    """The action named `name`, else the armature's active action, else the file's only action."""
+    import bpy
+
+    if name:
+        action = bpy.data.actions.get(name)
+        if action is None:
+            have = ", ".join(sorted(a.name for a in bpy.data.actions)) or "none"
+            raise BodyCalError(f"no action named '{name}' (actions in the file: {have})", source=source,
+                               field="--action")
+        return action
+    if arm.animation_data is not None and arm.animation_data.action is not None:
+        return arm.animation_data.action
+    actions = list(bpy.data.actions)
+    if len(actions) == 1:
+        return actions[0]
+    if not actions:
+        raise BodyCalError("the source has no animation (no action)", source=source)
+    raise BodyCalError(f"several actions ({', '.join(sorted(a.name for a in actions))}) and none is active: pick "
+                       "one", source=source, hint="use --action NAME")
+
+
+def source_model(arm) -> BodyModel:
+    """The source character's body: measured on its skinned mesh by the avatar calibration, or,
+    for a bare skeleton, estimated from its bone lengths (body_estimate)."""
+    if avatar_meshes(arm):
+        import bpy
+
+        from .retarget_scene import avatar_model_for
+
+        if avatar_storage.has_model(arm):
+            return avatar_model_for(arm)[0]
+        # An animated character's mesh is posed by its action: it is measured in its rest pose.
+        was = arm.data.pose_position
+        arm.data.pose_position = "REST"
+        try:
+            bpy.context.view_layer.update()
+            return avatar_model_for(arm)[0]
+        finally:
+            arm.data.pose_position = was
+            bpy.context.view_layer.update()
+    return estimate_surface(avatar_rig.read_rig(arm), arm.name)
+
+
+def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None, fps: float | None = None
+                ) -> SourceAnimation:
+    """The source armature `arm` and its action (default: the active one) in numpy, every frame
+    of the action's range (or `frame_range`) at the scene's rate (or `fps`)."""
+    import bpy
+
+    if arm is None or getattr(arm, "type", None) != "ARMATURE":
+        raise BodyCalError("pick a source armature", source=getattr(arm, "name", "no object"))
+    action = action or pick_action(arm, None, arm.name)
+    scene = bpy.context.scene
+    fps = float(fps or scene.render.fps / scene.render.fps_base)
+    f0, f1 = frame_range or (int(np.floor(action.frame_range[0])), int(np.ceil(action.frame_range[1])))
+    if f1 < f0:
+        raise BodyCalError("the action's frame range is empty", source=action.name)
+    frames = np.arange(f0, f1 + 1, dtype=float)
+    model = source_model(arm)
+    names = AvatarRig.from_model(model).names
+    basis, locations = read_action(arm, action, names, frames)
+    notes = []
+    if model.calibration.get("method") == ESTIMATED:
+        model, locations, lift, motion = stand_on_floor(model, locations, basis, (frames - f0) / fps)
+        notes.append(f"{arm.name}: no mesh, body surface estimated from its bone lengths; its rest pose stood "
+                     f"on the floor ({lift * 1000:+.0f} mm), its motion's feet on it ({motion * 1000:+.0f} mm)")
+    return SourceAnimation(model, basis, locations, (frames - f0) / fps, fps, action.name, arm.name, notes)
+
+
+# --- files --------------------------------------------------------------------------------------
+
+
+def bvh_unit(path) -> tuple[str, float]:
+    """(name, metres per unit) of a BVH file: the unit of BVH_UNITS that makes the rest skeleton's
+    vertical extent (Y up, end sites included) closest to a human's height."""
+    toks = Path(path).read_text(errors="replace").split()
+    ys, stack, y = [], [], 0.0
+    i = 0
+    try:
+        while i < len(toks) and toks[i] != "MOTION":
+            t = toks[i]
+            if t == "{":
+                stack.append(y)
+            elif t == "}":
+                y = stack.pop() if stack else 0.0
+                if stack:
+                    y = stack[-1]
+            elif t == "OFFSET":
+                y = (stack[-1] if stack else 0.0) + float(toks[i + 2])
+                ys.append(y)
+                i += 3
+            i += 1
+    except (ValueError, IndexError):
+        raise BodyCalError("not a BVH file Blender can read (its HIERARCHY is malformed)", source=str(path)) from None
+    extent = (max(ys) - min(ys)) if ys else 0.0
+    if not extent > 0:
+        raise BodyCalError("the BVH skeleton has no height", source=str(path))
+    return min(BVH_UNITS.items(), key=lambda kv: abs(np.log(extent * kv[1] / (HUMAN_HEIGHT_M * 0.9))))
+
+
+def open_source(path) -> list[str]:
+    """Make the source file the open file (a .blend opened, a .bvh / .fbx / .glb / .gltf imported
+    into an empty scene); returns notes (a BVH's unit)."""
+    import bpy
+
+    from .blendfile import _stderr_to_stdout, open_avatar
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in SOURCE_SUFFIXES:
+        raise BodyCalError(f"not an animation source this version reads (it reads {', '.join(SOURCE_SUFFIXES)})",
+                           source=str(path))
+    if not path.is_file():
+        raise BodyCalError("no such file", source=str(path))
+    if suffix != ".bvh":
+        open_avatar(path)
+        return []
+    unit, scale = bvh_unit(path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    with _stderr_to_stdout():
+        try:
+            # Blender's importer turns the BVH's Y up into Z up, keys every BVH frame from frame 1
+            # and sets the scene's rate to the file's.
+            result = bpy.ops.import_anim.bvh(filepath=str(path.resolve()), global_scale=scale, frame_start=1,
+                                             use_fps_scale=False, update_scene_fps=True,
+                                             update_scene_duration=True, rotate_mode="NATIVE")
+        except (RuntimeError, ValueError, IndexError) as exc:
+            raise BodyCalError(f"Blender's BVH importer cannot read it ({str(exc).strip().splitlines()[-1][:120]})",
+                               source=str(path)) from None
+    if "FINISHED" not in result:
+        raise BodyCalError("Blender's BVH importer gave up on it", source=str(path))
+    return [f"{path.name}: BVH read in {unit} ({scale:.6g} m per unit)"]
+
+
+@dataclass
+class TransferSummary:
+    action: str
+    method: str
+    frames: int
+    keys: int
+    compute_s: float
+    bake_s: float
+    fps: float
+    notes: list[str] = field(default_factory=list)
+
+    def line(self) -> str:
+        return (f"Baked '{self.action}' ({self.method}): {self.frames} frames at {self.fps:g} fps, {self.keys} keys "
+                f"in {self.compute_s + self.bake_s:.1f} s")
+
+
+def compute(source: SourceAnimation, avatar: BodyModel, method: str, *, plant_feet: bool = True,
+            placement: str = "object", progress=None, cancel=None) -> AvatarAnimation:
+    """Pure numpy (a worker thread may run it)."""
+    t0 = time.perf_counter()
+    anim = transfer(source.model, source.basis, source.locations, source.time, avatar, method,
+                    plant_feet=plant_feet, placement=placement, progress=progress, cancel=cancel,
+                    name=source.armature)
+    anim.notes = [*source.notes, *anim.notes, f"compute_s={time.perf_counter() - t0:.3f}"]
+    return anim
+
+
+def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, options: bake.BakeOptions | None = None,
+                  action_name: str | None = None, replace: bool = False, push_to_nla: bool = False,
+                  set_scene_rate: bool = False, avatar: BodyModel | None = None) -> TransferSummary:
+    """Bake at the source's rate (or `options.fps`, resampled), keys reduced within tolerances;
+    `avatar`: the target's model calibrated for this bake, stored on the armature with it."""
+    import bpy
+
+    from ..animation import resample
+
+    options = options or bake.BakeOptions()
+    rate = float(options.fps or source.fps)
+    keyed = resample(anim, rate) if abs(rate - source.fps) > 1e-6 * rate else anim
+    if set_scene_rate:
+        whole = max(1, int(round(rate)))
+        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = whole, whole / rate
+    t0 = time.perf_counter()
+    name = action_name or bake.default_action_name(source.action, arm.name, anim.method)
+    result = bake.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla, fps=rate,
+                                 tolerance_deg=options.tolerance_deg,
+                                 location_tolerance_mm=options.location_tolerance_mm)
+    if avatar is not None:  # calibrated for this bake: kept with it, as retarget does
+        avatar_storage.store_model(arm, avatar)
+    compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
+    return TransferSummary(result.action.name, anim.method, keyed.frame_count, result.keys, compute_s,
+                           time.perf_counter() - t0, rate, [n for n in anim.notes if not n.startswith("compute_s=")])
+
+
+def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
+                   action: str | None = None, armature: str | None = None, method: str = "egocentric",
+                   plant_feet: bool = True, placement: str = "object", overwrite: bool = True,
+                   options: bake.BakeOptions | None = None, log=print, warn=print,
+                   bone_map_path=None) -> TransferSummary:
+    """`bodycal transfer`: the source's action onto the avatar of `avatar_file`, baked and saved to
+    `output_paths` (checked first, written last, as `retarget_files`); `bone_map_path`: a bone map
+    preset for the target's armature (`retarget --bone-map`)."""
+    from ..bone_presets import load_preset
+    from ..retarget.placement import avatar_warnings, check_placement
+    from .blendfile import find_armature, open_avatar
+    from .retarget_scene import avatar_input, avatar_model_for, checked_outputs, write_outputs
+
+    check_method(method)
+    check_placement(placement)
+    source_path = Path(source_path)
+    name, path = avatar_input(avatar_file)
+    files_read = [(f"the source {source_path.suffix.lower() or 'file'}", source_path), (f"{name} (--avatar)", path),
+                  ("the bone map (--bone-map)", bone_map_path)]
+    outs = checked_outputs(output_paths, files_read, overwrite)
+    bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening any
+    for note in open_source(source_path):
+        log(note)
+    src_arm = find_armature(source_armature, str(source_path))
+    source = read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+    for note in source.notes:
+        log(note)
+    open_avatar(Path(avatar_file))
+    arm = find_armature(armature, str(avatar_file))
+    if bone_map is not None:
+        from .avatar_rig import apply_preset
+
+        if apply_preset(arm, bone_map)[1]:
+            log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
+    avatar, fresh = avatar_model_for(arm)
+    for line in avatar_warnings(avatar):
+        warn(line)
+    anim = compute(source, avatar, method, plant_feet=plant_feet, placement=placement)
+    summary = bake_transfer(source, anim, arm, options=options, set_scene_rate=True, avatar=avatar if fresh else None)
+    del anim
+    log(summary.line())
+    write_outputs(arm, outs, files_read, overwrite, log)
+    return summary

@@ -1,0 +1,198 @@
+"""Animation transfer in Blender (issue 16): a real CMU BVH (a bare skeleton: its body estimated)
+onto the shared avatars, the action read from its F-Curves against Blender's own pose, a skinned
+character's action onto another avatar, and `bodycal transfer` on the command line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+from repo_paths import REPO
+
+from bodycal_addon import metrics
+from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
+from bodycal_addon.blender import transfer_scene as ts
+from bodycal_addon.blender.retarget_scene import avatar_model_for
+from bodycal_addon.errors import BodyCalError
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import feet
+from bodycal_addon.retarget.pose_source import AnimationSource
+
+WALK = "02_01_walk.bvh"
+
+
+def _bvh(data_dir):
+    return data_dir / "motion" / "cmu_bvh" / WALK
+
+
+def test_the_action_read_from_its_fcurves_poses_as_blender_does(data_dir):
+    ts.open_source(_bvh(data_dir))
+    arm = blendfile.find_armature(None, WALK)
+    src = ts.read_source(arm)
+    assert src.fps == pytest.approx(120.0, rel=1e-3) and len(src.time) == 343
+    # Blender's own pose at a few frames against the engine's FK of the arrays read (before the
+    # bare skeleton is stood on its floor: compare the rest as the file has it).
+    model = ts.estimate_surface(ts.avatar_rig.read_rig(arm), arm.name)
+    rig = ap.AvatarRig.from_model(model)
+    frames = np.array([1.0, 77.0, 200.0, 343.0])
+    basis, locations = ts.read_action(arm, arm.animation_data.action, rig.names, frames)
+    pose = rig.fk(basis, locations[:, rig.root], locations=locations)
+    for k, f in enumerate(frames):
+        bpy.context.scene.frame_set(int(f))
+        for i, name in enumerate(rig.names):
+            pb = arm.pose.bones[name]
+            np.testing.assert_allclose(pose.heads[k, i], np.array(pb.head), atol=1e-5, err_msg=name)
+            np.testing.assert_allclose(pose.rotations[k, i], np.array(pb.matrix.to_3x3()), atol=1e-5, err_msg=name)
+    # An action that keys none of its bones is one error, not a still character.
+    with pytest.raises(BodyCalError, match="animates none of the armature's bones"):
+        ts.read_source(arm, bpy.data.actions.new("empty"))
+    assert arm.animation_data.action.name == "02_01_walk"
+
+
+@pytest.mark.parametrize("avatar", ["adult_male", "child_10y"])
+def test_a_bvh_transfers_with_no_nan_and_the_feet_on_the_floor(data_dir, avatar):
+    ts.open_source(_bvh(data_dir))
+    src = ts.read_source(blendfile.find_armature(None, WALK))
+    assert src.estimated and any("estimated from its bone lengths" in n for n in src.notes)
+    walker = AnimationSource(src.model, src.basis, src.locations, src.time)
+    rest = {s: float(src.model.joints[f"ankle_{s}"].world[2]) for s in "lr"}
+    stance = {s: feet.detect(walker.ankle(s), src.time, rest[s]).weight >= 1.0 for s in "lr"}
+    assert all(0.2 < v.mean() < 0.8 for v in stance.values())  # a walk: each foot down part of the time
+    blendfile.open_avatar(data_dir / "avatars" / "mpfb2_variants" / f"{avatar}.glb")
+    arm = blendfile.find_armature(None, avatar)
+    model, _ = avatar_model_for(arm)
+    for method in ("egocentric", "rotations"):
+        anim = ts.compute(src, model, method)
+        assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
+        assert any("estimated" in n for n in anim.notes)
+        for s in "lr":
+            low = metrics.floor_error(mesh_metrics.sole_points(model, anim, s), stance[s])
+            assert np.nanpercentile(np.abs(low), 95) < 0.005, (method, s)
+            ankle = anim.joints_world[f"ankle_{s}"][:, :2]
+            still = stance[s][1:] & stance[s][:-1]
+            assert np.percentile(np.linalg.norm(np.diff(ankle, axis=0), axis=1)[still], 95) < 1e-3, (method, s)
+        # the walk goes somewhere: the avatar's pelvis travels as far as its legs scale the source's
+        assert np.ptp(anim.joints_world["pelvis"][:, :2], axis=0).max() > 1.0
+
+
+def test_a_skinned_characters_action_transfers_onto_another_avatar(data_dir, tmp_path):
+    """A character with a mesh is measured by the raycasts (not estimated): bake a BVH walk onto the
+    adult avatar, save it, and transfer that action from the .blend onto the child."""
+    out = tmp_path / "male_walk.blend"
+    fbx = tmp_path / "male_walk.fbx"
+    done = _run("transfer", str(_bvh(data_dir)), "--avatar",
+                str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb"), "-o", str(out), "-o", str(fbx))
+    assert done.returncode == 0, done.stderr
+    assert "estimated from its bone lengths" in done.stdout and "saved" in done.stdout
+    # The same character as an FBX (Blender's importer: its own object transform and action).
+    done = _run("transfer", str(fbx), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"),
+                "-o", str(tmp_path / "child_from_fbx.blend"))
+    assert done.returncode == 0 and "estimated" not in done.stdout, done.stderr
+    child = tmp_path / "child_walk.glb"
+    done = _run("transfer", str(out), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"),
+                "--method", "rotations", "-o", str(child))
+    assert done.returncode == 0, done.stderr
+    assert "estimated" not in done.stdout and child.stat().st_size > 10_000
+    blendfile.open_blend(out)
+    action = bpy.data.actions["02_01_walk|adult_male_rig|egocentric"]
+    assert action.frame_range[1] - action.frame_range[0] == pytest.approx(342, abs=1)
+    # Without the model the bake stored, the animated character is measured in its rest pose.
+    arm = blendfile.find_armature(None, "male_walk")
+    stored = avatar_storage.load_model(arm)
+    avatar_storage.clear_model(arm)
+    bpy.context.scene.frame_set(120)
+    src = ts.read_source(arm)
+    assert not src.estimated and arm.data.pose_position == "POSE"
+    assert src.model.bones["thigh_l"].radius_head == pytest.approx(stored.bones["thigh_l"].radius_head, abs=1e-4)
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "bodycal_addon", *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=300)
+
+
+@pytest.mark.parametrize("case", ["suffix", "missing", "action", "method", "output-is-source"])
+def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
+    avatar = str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb")
+    bvh = str(_bvh(data_dir))
+    args = {
+        "suffix": (str(tmp_path / "walk.txt"), "--avatar", avatar, "-o", str(tmp_path / "o.blend")),
+        "missing": (str(tmp_path / "none.bvh"), "--avatar", avatar, "-o", str(tmp_path / "o.blend")),
+        "action": (bvh, "--avatar", avatar, "--action", "dance", "-o", str(tmp_path / "o.blend")),
+        "method": (bvh, "--avatar", avatar, "--method", "offsets", "-o", str(tmp_path / "o.blend")),
+        "output-is-source": (bvh, "--avatar", avatar, "-o", bvh, "--overwrite"),
+    }[case]
+    (tmp_path / "walk.txt").write_text("not a clip")
+    before = _bvh(data_dir).read_bytes()
+    done = _run("transfer", *args)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert {"suffix": "not an animation source", "missing": "no such file", "action": "no action named 'dance'",
+            "method": "invalid choice", "output-is-source": "source"}[case] in lines[0]
+    assert _bvh(data_dir).read_bytes() == before
+
+
+def test_the_panels_operator_transfers_onto_the_selected_avatars(data_dir):
+    """The sidebar flow: a BVH and two avatars in one scene, the source picked, the targets
+    selected; one new action on each target, none on the source."""
+    from sample_rigs import load_glb_avatar
+
+    bpy.ops.import_anim.bvh(filepath=str(_bvh(data_dir)), global_scale=ts.BVH_UNITS["cmu"], update_scene_fps=True)
+    source = bpy.context.active_object
+    settings = bpy.context.scene.bodycal_transfer
+    settings.source = source
+    assert not bpy.ops.bodycal.transfer_animation.poll()  # no target yet (the source alone is selected)
+    targets = [load_glb_avatar(data_dir / "avatars" / "mpfb2_variants" / f"{n}.glb")[0]
+               for n in ("adult_female", "heavy_belly_male")]
+    bpy.ops.object.select_all(action="DESELECT")
+    for arm in targets:
+        arm.select_set(True)
+    bpy.context.view_layer.objects.active = targets[0]
+    before = set(bpy.data.actions)
+    assert bpy.ops.bodycal.transfer_animation() == {"FINISHED"}
+    new = set(bpy.data.actions) - before
+    assert {a.name for a in new} == {f"02_01_walk|{t.name}|egocentric" for t in targets}
+    assert all(t.animation_data.action in new for t in targets)
+    assert source.animation_data.action.name == "02_01_walk"
+    assert settings.last_result.count("Baked") == 2
+
+
+def test_batch_jobs_take_animation_sources_beside_recordings(tmp_path):
+    from bodycal_addon.batch import load_jobs
+
+    (tmp_path / "jobs.toml").write_text('[defaults]\nmethod = ["egocentric", "offsets", "rotations"]\n'
+                                        '[[recordings]]\npath="t.bcrec.json"\nuser="u.body.json"\n'
+                                        '[[animations]]\npath="clips/walk.bvh"\n'
+                                        '[[animations]]\npath="chars.blend"\nsource_armature="Walker"\naction="Run"\n'
+                                        '[[avatars]]\nfile="ogre.glb"\n')
+    jobs, _ = load_jobs(tmp_path / "jobs.toml")
+    names = sorted(j.name for j in jobs)
+    assert names == sorted([f"t__ogre__{m}" for m in ("egocentric", "offsets", "rotations")]
+                           + [f"walk__ogre__{m}" for m in ("egocentric", "rotations")]
+                           + [f"chars-Run__ogre__{m}" for m in ("egocentric", "rotations")])
+    run = next(j for j in jobs if j.name == "chars-Run__ogre__rotations")
+    assert run.argv() == ["transfer", str(tmp_path / "chars.blend"), "--avatar", str(tmp_path / "ogre.glb"),
+                          "--method", "rotations", "--source-armature", "Walker", "--action", "Run",
+                          "-o", str(tmp_path / "out" / "batch" / "chars-Run__ogre__rotations.blend")]
+    (tmp_path / "jobs.toml").write_text('[defaults]\nmethod = "offsets"\n[[animations]]\npath="walk.bvh"\n'
+                                        '[[avatars]]\nfile="ogre.glb"\n')
+    with pytest.raises(BodyCalError, match="defaults.method: animations transfer with egocentric or rotations"):
+        load_jobs(tmp_path / "jobs.toml")
+    (tmp_path / "jobs.toml").write_text('[[animations]]\npath="walk.txt"\n[[avatars]]\nfile="ogre.glb"\n')
+    with pytest.raises(BodyCalError, match=r"animations\[0\].path"):
+        load_jobs(tmp_path / "jobs.toml")
+
+
+def test_a_batch_transfers_a_bvh_onto_an_avatar(data_dir, tmp_path):
+    import json
+
+    (tmp_path / "jobs.toml").write_text(f'[defaults]\nmethod = "egocentric"\nworkers = 1\noutput_dir = "res"\n'
+                                        f'[[animations]]\npath = "{_bvh(data_dir)}"\n'
+                                        f'[[avatars]]\nfile = "{data_dir / "avatars/mpfb2_variants/child_10y.glb"}"\n')
+    done = _run("batch", str(tmp_path / "jobs.toml"))
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "res" / "summary.json").read_text())
+    assert summary["ok"] == 1 and (tmp_path / "res" / "02_01_walk__child_10y__egocentric.blend").is_file()
