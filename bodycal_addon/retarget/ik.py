@@ -28,9 +28,11 @@ BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
 # is mostly tracker noise: at 1 cm the swivel of straight limbs turned by tens of degrees from one
 # frame to the next (a standing knee jumped 7-11 mm, the egocentric wrists' acceleration tripled on
 # real clips). At 5 cm the upper arm's roll still jittered at twice the rotation copy's on a CMU
-# walk at SteamVR noise (p95 0.53 vs 0.23 degrees per frame squared); at 20 cm 0.32, and the
-# avatar's bend plane stays within 6 degrees (median) of the user's, 0.3 degrees further than at 5 cm.
-SWIVEL_HINT_WEIGHT = 0.2
+# walk at SteamVR noise (p95 0.53 vs 0.23 degrees per frame squared); at 10 cm 0.39, and the
+# avatar's bend plane stays within 6 degrees (median) of the user's. (20 cm gave 0.32, but moved
+# a nearly straight arm's elbow by 17-24 um on a rig whose rest Blender recomputed in float32,
+# where 10 cm keeps it under 10 um: tests/blender/test_rig_variants.py.)
+SWIVEL_HINT_WEIGHT = 0.1
 
 
 def _dot(a, b):
