@@ -14,6 +14,8 @@ JOBS.toml:
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
     placement = "object"        # optional: "performer" plays each avatar where the performer was
+    root_motion = "root"        # optional: "pelvis" or "in-place" (as retarget --root-motion)
+    rigify_target = "fk"        # optional: "def" keys a generated Rigify rig's DEF- bones (retarget --rigify-target)
     overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
     tolerance = 0.1             # optional: key reduction, degrees (as retarget --tolerance; 0 keys every sample)
     fps = 30                    # optional: output frame rate (as retarget --fps; default the recording's)
@@ -76,6 +78,8 @@ from .errors import BodyCalError
 from .paths import AVATAR_SUFFIXES, ROOT_DIR
 from .retarget.pipeline import METHODS
 from .retarget.placement import PLACEMENTS
+from .retarget.rigify import RIGIFY_TARGETS
+from .retarget.root_motion import ROOT_MOTIONS
 
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
@@ -85,7 +89,7 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 _KEYS = {
     "": ("defaults", "recordings", "avatars"),
     "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite",
-                 "tolerance", "fps", "export"),
+                 "tolerance", "fps", "export", "root_motion", "rigify_target"),
     "recordings": ("path", "user"),
     "avatars": ("file", "blend", "armature", "bone_map"),
 }
@@ -112,6 +116,8 @@ class Job:
     fps: float | None = None
     exports: tuple[Path, ...] = ()  # further outputs beside `output` (other formats)
     bone_map: Path | None = None
+    root_motion: str = "root"
+    rigify_target: str = "fk"
 
     @property
     def outputs(self) -> list[Path]:
@@ -136,6 +142,10 @@ class Job:
             args += ["--no-plant-feet"]
         if self.placement != "object":
             args += ["--placement", self.placement]
+        if self.root_motion != "root":
+            args += ["--root-motion", self.root_motion]
+        if self.rigify_target != "fk":
+            args += ["--rigify-target", self.rigify_target]
         if self.overwrite:
             args += ["--overwrite"]
         return args
@@ -315,6 +325,12 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     if placement not in PLACEMENTS:
         raise check.error("defaults.placement", f"must be {' or '.join(json.dumps(p) for p in PLACEMENTS)}, "
                                                 f"got {_describe(placement)}")
+    extra = {}
+    for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS)):
+        extra[key] = defaults.get(key, allowed[0])
+        if extra[key] not in allowed:
+            raise check.error(f"defaults.{key}", f"must be {' or '.join(json.dumps(p) for p in allowed)}, "
+                                                 f"got {_describe(extra[key])}")
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     if not recordings or not avatars:
@@ -352,7 +368,7 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     bone_maps = [bm for _rp, _up in recs for _ap, _arm, bm in avs for _m in methods]
     names = output_names(specs)
     jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, placement,
-                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm)
+                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, **extra)
             for name, (rp, up, ap, arm, m), bm in zip(names, specs, bone_maps)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):

@@ -18,6 +18,8 @@ from .keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .outputs import describe_os_error
 from .retarget.pipeline import METHODS
 from .retarget.placement import PLACEMENTS
+from .retarget.rigify import RIGIFY_TARGETS
+from .retarget.root_motion import ROOT_MOTIONS
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -61,6 +63,13 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
                    help="object: the performance plays relative to the armature object's place and heading "
                         "(default); performer: where the performer was in the room")
+    c.add_argument("--root-motion", choices=ROOT_MOTIONS, default=ROOT_MOTIONS[0],
+                   help="root: the travel and heading on the rig's root bone when it has one above the pelvis "
+                        "(default; else on the pelvis); pelvis: on the pelvis, the root at rest; in-place: no "
+                        "horizontal travel")
+    c.add_argument("--rigify-target", choices=RIGIFY_TARGETS, default=RIGIFY_TARGETS[0],
+                   help="a generated Rigify rig: fk keys its FK controls, IK switched to FK (default, to edit); "
+                        "def keys the DEF- bones (for export)")
     c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
                    help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")
