@@ -156,10 +156,16 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
     try:
         for pb in pbs:
             pb.rotation_mode = "QUATERNION"
+        # A detached action leaves its last pose: a root bone keyed with root motion would stay moved.
+        for pb in arm.pose.bones:
+            pb.location = (0.0, 0.0, 0.0)
+        located = [(arm.pose.bones[n], loc) for n, loc in anim.bone_locations.items()]
         for f, items in sorted(by_frame.items()):
             for b, pb in enumerate(pbs):
                 pb.rotation_quaternion = anim.rotations[f, b]
             root.location = anim.root_location[f]
+            for pb, loc in located:
+                pb.location = loc[f]
             view_layer.update()
             dg = bpy.context.evaluated_depsgraph_get()
             world_verts = {}
