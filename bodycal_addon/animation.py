@@ -7,6 +7,7 @@ Values are exactly what Blender stores on pose bones, so the bake only copies ar
   bone, armature units).
 - `bone_locations[bone][f]` = `pose.bones[bone].location` of other bones keyed with a location
   (the root bone carrying root motion, `retarget/root_motion.py`; Rigify's `torso` control).
+- `constant_keys[data_path]` = a value keyed once at the first frame (Rigify's IK_FK switches).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ class AvatarAnimation:
     targets: dict[str, np.ndarray] = field(default_factory=dict)  # retargeted effector targets, (F, 3) world
     notes: list[str] = field(default_factory=list)
     bone_locations: dict[str, np.ndarray] = field(default_factory=dict)  # other location-keyed bones, (F, 3)
+    constant_keys: dict[str, float] = field(default_factory=dict)  # data path -> value, one key
 
     def __post_init__(self):
         f, b = len(self.time), len(self.bone_names)
@@ -72,4 +74,4 @@ def resample(anim: AvatarAnimation, fps: float) -> AvatarAnimation:
                            {k: lerp(v) for k, v in anim.joints_world.items()},
                            {k: lerp(v) for k, v in anim.targets.items()},
                            [*anim.notes, f"resampled to {fps:g} fps from {len(time)} samples"],
-                           {k: lerp(v) for k, v in anim.bone_locations.items()})
+                           {k: lerp(v) for k, v in anim.bone_locations.items()}, dict(anim.constant_keys))

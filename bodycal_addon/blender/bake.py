@@ -150,6 +150,9 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
             for i in range(3):
                 write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], loc[kept, i])
             fcurves, keys = fcurves + 3, keys + 3 * int(kept.sum())
+        for path, value in anim.constant_keys.items():  # switches: one key holds for the whole action
+            write_keys(new_fcurve(action, obj, path, 0), frames32[:1], np.array([value], np.float32))
+            fcurves, keys = fcurves + 1, keys + 1
     except Exception:
         if had_animation_data:
             obj.animation_data.action = previous_action

@@ -136,13 +136,10 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
     if set_scene_rate:
         bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
     keyed = resample(anim, rate) if resampled else anim
-    rigify_fk = options.rigify_target == "fk" and rig_output.avatar_rig.is_rigify_generated(inputs.armature)
     keyed = rig_output.for_bake(keyed, inputs.armature, options.root_motion, options.rigify_target)
     result = bake.bake_animation(keyed, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
                                  fps=rate, tolerance_deg=options.tolerance_deg,
                                  location_tolerance_mm=options.location_tolerance_mm)
-    if rigify_fk:
-        rig_output.key_switches(inputs.armature, result.action, result.frame_range[0])
     if inputs.avatar_calibrated_now:
         avatar_storage.store_model(inputs.armature, inputs.avatar)
     bake_s = time.perf_counter() - t0

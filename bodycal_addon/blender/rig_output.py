@@ -154,29 +154,16 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
     values = {n: rigify.basis_values(basis[n]) for n in names}
     root = "torso" if target == "fk" and "torso" in values else names[0]
     located = {n: values[n][1] for n in names if n != root and not bones[n].use_connect}
-    out = AvatarAnimation(anim.armature, names, np.stack([values[n][0] for n in names], axis=1), root,
-                          values[root][1], anim.time, anim.method, anim.joints_world, anim.targets,
-                          [*anim.notes, f"Rigify rig: keys on its {'FK controls' if target == 'fk' else 'DEF- bones'}"],
-                          located)
-    return out
-
-
-def key_switches(obj, action, frame: float) -> int:
-    """Key the FK switches (one key each, at `frame`) into the baked action; returns how many."""
-    import bpy
-
-    from .fcurves import new_fcurve, write_keys
-
-    n = 0
-    for (bone_t, prop), value in rigify.FK_SWITCHES.items():
-        for bone in rigify.sided(bone_t):
-            pb = obj.pose.bones.get(bone)
-            if pb is not None and prop in pb:
-                path = f'pose.bones["{bpy.utils.escape_identifier(bone)}"]["{prop}"]'
-                write_keys(new_fcurve(action, obj, path, 0, bone), np.array([frame], np.float32),
-                           np.array([value], np.float32))
-                n += 1
-    return n
+    switches = {}
+    if target == "fk":
+        for (bone_t, prop), value in rigify.FK_SWITCHES.items():
+            for bone in rigify.sided(bone_t):
+                if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
+                    switches[f'pose.bones["{bpy.utils.escape_identifier(bone)}"]["{prop}"]'] = float(value)
+    note = f"Rigify rig: keys on its {'FK controls' if target == 'fk' else 'DEF- bones'}"
+    return AvatarAnimation(anim.armature, names, np.stack([values[n][0] for n in names], axis=1), root,
+                           values[root][1], anim.time, anim.method, anim.joints_world, anim.targets,
+                           [*anim.notes, note], located, switches)
 
 
 def for_bake(anim: AvatarAnimation, obj, root_motion: str, rigify_target: str) -> AvatarAnimation:

@@ -17,6 +17,7 @@ from repo_paths import REPO
 
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.blender import avatar_rig, bake, rig_output
+from bodycal_addon.blender.fcurves import object_fcurves
 from bodycal_addon.retarget.pipeline import retarget
 from bodycal_dev import synthetic
 
@@ -55,8 +56,6 @@ def _bake(anim, arm, target):
     fps = (anim.frame_count - 1) / (anim.time[-1] - anim.time[0])  # key f lands on frame 1 + f
     res = bake.bake_animation(keyed, arm, action_name=target, frame_start=1, fps=fps, tolerance_deg=0.0,
                               location_tolerance_mm=0.0)
-    if target == "fk":
-        rig_output.key_switches(arm, res.action, 1.0)
     return keyed, res
 
 
@@ -114,6 +113,7 @@ def test_fk_controls_and_def_bones_both_play_the_engine_pose(rigify_blend, belly
     assert controls <= set(keyed.bone_names)
     got, fk_mesh = _evaluate(arm, mesh, frames, bones)
     assert arm.pose.bones["upper_arm_parent.L"]["IK_FK"] == 1.0 and arm.pose.bones["thigh_parent.R"]["IK_FK"] == 1.0
+    assert keyed.constant_keys['pose.bones["thigh_parent.R"]["IK_FK"]'] == 1.0
     err = np.linalg.norm(got - want, axis=-1).max(axis=(0, 2))  # per bone, head and tail, mm
     main = [i for i, n in enumerate(bones) if not any(k in n for k in IN_BETWEEN)]
     worst = {bones[i]: round(float(err[i]) * 1000, 2) for i in main if err[i] > 1e-3}
@@ -121,3 +121,30 @@ def test_fk_controls_and_def_bones_both_play_the_engine_pose(rigify_blend, belly
     assert err.max() < 3e-3  # the in-betweens too, within 3 mm
     d = np.linalg.norm(fk_mesh - def_mesh, axis=-1)
     assert np.percentile(d, 95) < 1e-3 and d.max() < 0.015, (np.percentile(d, 95), d.max())
+
+
+@pytest.mark.slow
+def test_the_command_line_bakes_a_rigify_rig_on_its_controls_or_its_def_bones(rigify_blend, tmp_path):
+    truth_dir = tmp_path / "in"
+    truth_dir.mkdir()
+    performer = synthetic.make_performer(seed=5)
+    rec, truth = synthetic.record_session(performer, profile="full", motions=("hand_on_belly",),
+                                          calibration=["tpose"], seed=5, motion_seconds=1.5)
+    rec_path, _ = synthetic.write_session(truth_dir, "belly", rec, truth)
+    user_path = truth.body_model().save(truth_dir / "performer.body.json")
+    for target in ("fk", "def"):
+        out = subprocess.run([sys.executable, "-m", "bodycal_addon", "retarget", str(rec_path), "--user",
+                              str(user_path), "--avatar", str(rigify_blend), "--rigify-target", target, "-o",
+                              str(tmp_path / f"{target}.blend")], cwd=REPO, capture_output=True, text=True,
+                             timeout=600)
+        assert out.returncode == 0, out.stderr[-2000:]
+        arm, _mesh = _open(tmp_path / f"{target}.blend")
+        paths = {p for p, _i in object_fcurves(arm)}
+        keyed = {p.split('"')[1] for p in paths if p.startswith("pose.bones")}
+        if target == "fk":
+            assert {"torso", "hand_fk.L", "thigh_fk.R"} <= keyed and not any(k.startswith("DEF-") for k in keyed)
+            assert object_fcurves(arm)[('pose.bones["upper_arm_parent.L"]["IK_FK"]', 0)].evaluate(1) == 1.0
+        else:
+            assert {"DEF-spine", "DEF-hand.L"} <= keyed and "torso" not in keyed
+            assert all(c.mute for c in arm.pose.bones["DEF-hand.L"].constraints)
+    assert "Traceback" not in out.stderr
