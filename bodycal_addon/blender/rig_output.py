@@ -6,6 +6,8 @@ a generated Rigify rig's DEF- pose carried onto its FK controls or its DEF- bone
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from ..animation import AvatarAnimation
@@ -86,6 +88,8 @@ def _rules(obj) -> dict[str, list[rigify.Rule]]:
                 continue  # local-space copies (the spine's hips and chest halves) act on controls left at rest
             if c.type == "COPY_ROTATION" and (c.mix_mode != "REPLACE" or not (c.use_x and c.use_y and c.use_z)):
                 continue
+            if c.type == "DAMPED_TRACK" and c.track_axis != "TRACK_Y":
+                continue
             rules.setdefault(pb.name, []).append(rigify.Rule(kinds[c.type], c.subtarget, float(c.influence),
                                                              float(getattr(c, "head_tail", 0.0))))
     return rules
@@ -118,6 +122,17 @@ def rigify_deform_pose(anim: AvatarAnimation, obj) -> tuple[dict[str, np.ndarray
     return rigify.pose_matrices(names, parents, rest, basis), rest
 
 
+CHUNK_FRAMES = 2000
+
+
+def _frames(anim: AvatarAnimation, start: int, stop: int) -> AvatarAnimation:
+    part = copy.copy(anim)
+    part.rotations, part.root_location = anim.rotations[start:stop], anim.root_location[start:stop]
+    part.time = anim.time[start:stop]
+    part.bone_locations = {k: v[start:stop] for k, v in anim.bone_locations.items()}
+    return part
+
+
 def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation:
     """The engine's animation of a generated Rigify rig's DEF- skeleton, as keys on the rig itself:
     its FK controls (`fk`, the rig switched to FK) or its DEF- bones (`def`, their constraints
@@ -125,8 +140,8 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
     rigify.check_rigify_target(target)
     import bpy
 
-    poses, _ = rigify_deform_pose(anim, obj)
     bones = obj.data.bones
+    deform = avatar_rig.deform_parents(obj)
     for pb in obj.pose.bones:  # an unkeyed control keeps its pose in a new action: rest it
         pb.location = (0.0, 0.0, 0.0)
         pb.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
@@ -140,18 +155,26 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
                 if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
                     obj.pose.bones[bone][prop] = value
         pairs = [(c, d) for ct, dt in rigify.FK_CONTROLS.items() for c, d in zip(rigify.sided(ct), rigify.sided(dt))
-                 if c in bones and d in poses]
+                 if c in bones and d in deform and d in anim.bone_names]
     else:
         _mute_deform(obj, True)
-        pairs = [(n, n) for n in poses if n.startswith("DEF-")]
+        pairs = [(n, n) for n in deform if n.startswith("DEF-") and n in anim.bone_names]
     bpy.context.view_layer.update()
     rest = {b.name: _rest4(obj, b.name) for b in bones}
     parents = {b.name: b.parent.name if b.parent else None for b in bones}
-    targets = {c: poses[d] @ (np.linalg.inv(rest[d]) @ rest[c]) for c, d in pairs}
     lengths = {b.name: b.length for b in bones}
-    basis = rigify.solve_basis(targets, rest, parents, _rules(obj), anim.frame_count, lengths)
-    names = list(targets)
-    values = {n: rigify.basis_values(basis[n]) for n in names}
+    rules = _rules(obj)
+    names = [c for c, _d in pairs]
+    quats = np.empty((anim.frame_count, len(names), 4))
+    locs = np.empty((anim.frame_count, len(names), 3))
+    for start in range(0, anim.frame_count, CHUNK_FRAMES):  # (F, 4, 4) per bone: bounded memory on long takes
+        stop = min(anim.frame_count, start + CHUNK_FRAMES)
+        poses, _ = rigify_deform_pose(_frames(anim, start, stop), obj)
+        targets = {c: poses[d] @ (np.linalg.inv(rest[d]) @ rest[c]) for c, d in pairs}
+        basis = rigify.solve_basis(targets, rest, parents, rules, stop - start, lengths)
+        for k, n in enumerate(names):
+            quats[start:stop, k], locs[start:stop, k] = rigify.basis_values(basis[n])
+    values = {n: (quats[:, k], locs[:, k]) for k, n in enumerate(names)}
     root = "torso" if target == "fk" and "torso" in values else names[0]
     located = {n: values[n][1] for n in names if n != root and not bones[n].use_connect}
     switches = {}

@@ -92,7 +92,8 @@ def test_a_generated_rig_is_detected_and_calibrated_on_its_def_bones(rigify_blen
 
 
 @pytest.mark.slow
-def test_fk_controls_and_def_bones_both_play_the_engine_pose(rigify_blend, belly):
+def test_fk_controls_and_def_bones_both_play_the_engine_pose(rigify_blend, belly, monkeypatch):
+    monkeypatch.setattr(rig_output, "CHUNK_FRAMES", 100)  # the take in chunks, as a long one is
     rec, user = belly
     arm, mesh = _open(rigify_blend)
     anim = retarget(rec, user, ac.calibrate_avatar(arm), "egocentric")
