@@ -27,8 +27,10 @@ BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
 # than the joint's offset while the limb is nearly straight, where a standing knee's 1-2 cm offset
 # is mostly tracker noise: at 1 cm the swivel of straight limbs turned by tens of degrees from one
 # frame to the next (a standing knee jumped 7-11 mm, the egocentric wrists' acceleration tripled on
-# real clips). At 5 cm the user's own joint takes over from about 20° of flexion.
-SWIVEL_HINT_WEIGHT = 0.05
+# real clips). At 5 cm the upper arm's roll still jittered at twice the rotation copy's on a CMU
+# walk at SteamVR noise (p95 0.53 vs 0.23 degrees per frame squared); at 20 cm 0.32, and the
+# avatar's bend plane stays within 6 degrees (median) of the user's, 0.3 degrees further than at 5 cm.
+SWIVEL_HINT_WEIGHT = 0.2
 
 
 def _dot(a, b):

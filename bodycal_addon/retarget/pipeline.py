@@ -220,8 +220,7 @@ class _Run:
                 root = roots[f"{a}_{s}"]
                 l1, l2 = rig.lengths[BI[f"{ab}_{s}"]], rig.lengths[BI[f"{mb}_{s}"]]
                 # Appendix E: swivel blended between the mapped intermediate target and the user's.
-                tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"),
-                                 up.joints[:, JI[f"{m}_{s}"]] - up.joints[:, JI[f"{a}_{s}"]],
+                tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"), self._user_swivel(up, a, m, e, s),
                                  up.frames[:, BI[f"{ab}_{s}"]][..., :, 0], size_ratio=self.k)
                 frames[:, BI[f"{ab}_{s}"]] = tb.rot1
                 frames[:, BI[f"{mb}_{s}"]] = tb.rot2
@@ -234,6 +233,18 @@ class _Run:
             elif s in wrist_pos and self.has_fingers[s]:
                 self._fingers(frames, s, wrist_pos[s], targets)
         return frames
+
+    @staticmethod
+    def _user_swivel(up, anchor: str, mid: str, effector: str, s: str) -> np.ndarray:
+        """The user's swivel: the intermediate joint's offset from the user's own anchor-effector
+        axis. Measured from the avatar's axis instead, the offset would also hold the angle
+        between the two axes (the mapping moves the effector), whose direction turns with every
+        millimetre of target noise when the limb is nearly straight: the upper arm's roll then
+        jittered three times the user's."""
+        root = up.joints[:, JI[f"{anchor}_{s}"]]
+        axis = normalize(up.joints[:, JI[f"{effector}_{s}"]] - root)
+        v = up.joints[:, JI[f"{mid}_{s}"]] - root
+        return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
 
     def _fingers(self, frames, s, wrist, targets):
         rig = self.rig

@@ -188,3 +188,47 @@ def test_each_export_reimports_with_the_joints_where_the_blend_has_them(take, tm
         got = _heads(other, bones, frames - (frames[0] - 1 if path.suffix == ".bvh" else 0))
         err = np.linalg.norm(got - truth, axis=-1)
         assert err.max() <= 1e-3, (path.suffix, float(err.max()), bones[int(np.argmax(err.max(0)))])
+
+
+SAVE_MEMORY_SCRIPT = """
+import sys
+import bpy
+import numpy as np
+sys.path.insert(0, sys.argv[-1])
+from bodycal_addon.blender.blendfile import save_blend
+from bodycal_addon.blender.fcurves import new_fcurve, write_keys
+
+def rss_mb():
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+
+bpy.ops.wm.read_factory_settings(use_empty=True)
+arm = bpy.data.objects.new("A", bpy.data.armatures.new("A"))
+bpy.context.scene.collection.objects.link(arm)
+arm.animation_data_create()
+arm.animation_data.action = act = bpy.data.actions.new("big")
+n = 170000
+frames = np.arange(n, dtype=np.float32)
+values = np.random.default_rng(0).random(n)
+for path in ("location", "rotation_euler", "scale", "delta_location"):
+    for i in range(3):
+        write_keys(new_fcurve(act, arm, path, i), frames, values)
+before = rss_mb()
+save_blend(sys.argv[-2])
+print("GROWTH", rss_mb() - before)
+"""
+
+
+def test_saving_does_not_copy_the_baked_action(tmp_path):
+    """Issue 13/15 memory: `bpy.ops` updates the view layer around every call, and that copies each
+    action into the depsgraph (2 M keys: ~140 MB; a 10-minute bake: +650 MB at the command's
+    peak). save_blend writes the file without that copy."""
+    script = tmp_path / "save_memory.py"
+    script.write_text(SAVE_MEMORY_SCRIPT)
+    out = tmp_path / "big.blend"
+    proc = subprocess.run([sys.executable, str(script), str(out), str(REPO)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    growth = float(proc.stdout.split("GROWTH")[-1])
+    assert growth < 40.0, f"saving grew the process by {growth:.0f} MB"
+    assert out.stat().st_size > 0

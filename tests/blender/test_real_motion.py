@@ -176,3 +176,23 @@ def test_planted_feet_hold_still_on_the_floor(walk_full, method):
     assert abs(np.median(low_mm)) < 1.0 and low_mm.min() > -1.0, (np.median(low_mm), low_mm.min())
     unplanted_slide, unplanted_low = figures[False]
     assert unplanted_slide > 1.0 or abs(np.median(unplanted_low)) > 5.0, (unplanted_slide, np.median(unplanted_low))
+
+
+def _roll_jitter(anim, bone: str) -> float:
+    """p95 of the frame-to-frame change of the bone's angular step about its own Y (its roll), rad."""
+    R = tf.quat_to_matrix(anim.rotations[:, anim.bone_names.index(bone)])
+    step = np.einsum("fji,fjk->fik", R[:-1], R[1:])
+    return float(np.percentile(np.abs(np.diff((step[:, 0, 2] - step[:, 2, 0]) / 2.0)), 95))
+
+
+def test_the_limb_ik_adds_no_roll_jitter_to_nearly_straight_limbs(walk_full):
+    """Issue 11 (smoothness): walking arms hang nearly straight and beyond the avatar's reach; the
+    swivel measured from the avatar's axis then held the mapping's axis change and the upper arm's
+    roll jittered at 2.7-3.2x the rotation copy's. Measured from the user's own axis, with the
+    hinge axis weighing as a 20 cm offset, it stays within 1.5x (1.23x measured)."""
+    rec, _ = walk_full
+    user = calibrate_user(rec)
+    avatar = rt.procedural_avatar()
+    ego, rot = (pl.retarget(rec, user, avatar, m) for m in ("egocentric", "rotations"))
+    for bone in ("upperarm_l", "upperarm_r", "thigh_l", "thigh_r"):
+        assert _roll_jitter(ego, bone) <= 1.5 * _roll_jitter(rot, bone), bone

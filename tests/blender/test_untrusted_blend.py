@@ -120,3 +120,21 @@ def test_every_blend_the_project_opens_goes_through_the_scriptless_opener():
     assert opens == [("bodycal_addon/blender/blendfile.py", "open_mainfile")]
     source = (REPO / "bodycal_addon/blender/blendfile.py").read_text()
     assert source.count("open_mainfile(") == 1 and "use_scripts=False" in source
+
+
+def test_blenders_complaints_about_the_file_stay_off_stderr(armed, tmp_path):
+    """Issue 13, item 6: Blender prints its refusal to run the file's driver ("restricted access
+    disallows name '__import__'", "Error in PyDriver", 4 lines) to the process's stderr while the
+    command evaluates the scene; stderr keeps BodyCal's lines only: none on success, one on error."""
+    blend, markers = armed
+    ok = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(blend), "-o",
+                         str(tmp_path / "avatar.body.json")], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert "PyDriver" in ok.stdout  # Blender did complain, on stdout
+    assert ok.stderr == ""
+    bad = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(blend), "--bone-map",
+                          str(tmp_path / "avatar.body.json"), "-o", str(tmp_path / "again.body.json")],
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2
+    assert len(bad.stderr.splitlines()) == 1 and "error" in bad.stderr
+    assert [m for m in markers if m.exists()] == []
