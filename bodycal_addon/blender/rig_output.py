@@ -47,11 +47,11 @@ def root_rest(obj, anim: AvatarAnimation) -> RootRest:
     return RootRest(root, rm, rh, pm, ph, up / np.linalg.norm(up), lateral, lin)
 
 
-def with_root_motion(anim: AvatarAnimation, obj, mode: str) -> AvatarAnimation:
+def with_root_motion(anim: AvatarAnimation, obj, mode: str, own: bool = False) -> AvatarAnimation:
     check_root_motion(mode)
     if mode == "pelvis":
         return anim
-    return apply_root_motion(anim, root_rest(obj, anim), mode)
+    return apply_root_motion(anim, root_rest(obj, anim), mode, own=own)
 
 
 # --- a generated Rigify rig (retarget/rigify.py) ----------------------------------------------------
@@ -189,10 +189,11 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
                            [*anim.notes, note], located, switches)
 
 
-def for_bake(anim: AvatarAnimation, obj, root_motion: str, rigify_target: str) -> AvatarAnimation:
+def for_bake(anim: AvatarAnimation, obj, root_motion: str, rigify_target: str, own: bool = False) -> AvatarAnimation:
     """The animation the bake keys on `obj`: travel where `root_motion` says, and a generated
-    Rigify rig's DEF- pose carried onto its controls or DEF- bones."""
-    anim = with_root_motion(anim, obj, root_motion)
+    Rigify rig's DEF- pose carried onto its controls or DEF- bones. `own`: `anim` is given away
+    and may be changed in place."""
+    anim = with_root_motion(anim, obj, root_motion, own)
     if avatar_rig.is_rigify_generated(obj):
         anim = rigify_animation(anim, obj, rigify_target)
     return anim

@@ -5,6 +5,8 @@ the hip line; in place holds the pelvis's floor position."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from bodycal_addon.animation import AvatarAnimation
@@ -81,3 +83,8 @@ def test_the_root_carries_the_travel_and_the_body_stays():
     np.testing.assert_allclose(drift - (drift @ up)[:, None] * up, 0.0, atol=1e-9)
     np.testing.assert_allclose(Hs @ up, before[3] @ up, atol=1e-9)  # heights kept
     assert apply_root_motion(anim, rr, "pelvis") is anim
+    given = copy.deepcopy(anim)  # given away: changed in place, the same keys
+    again = apply_root_motion(given, rr, "root", own=True)
+    assert again is given
+    np.testing.assert_array_equal(again.rotations, out.rotations)
+    np.testing.assert_array_equal(again.bone_locations["root"], out.bone_locations["root"])
