@@ -5,6 +5,9 @@ Values are exactly what Blender stores on pose bones, so the bake only copies ar
   the bone's rotation relative to its rest pose in its own rest frame (Blender's matrix_basis).
 - `root_location[f]` = `pose.bones[root_bone].location` at frame f (rest-local frame of the root
   bone, armature units).
+- `bone_locations[bone][f]` = `pose.bones[bone].location` of other bones keyed with a location
+  (the root bone carrying root motion, `retarget/root_motion.py`; Rigify's `torso` control).
+- `constant_keys[data_path]` = a value keyed once at the first frame (Rigify's IK_FK switches).
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ class AvatarAnimation:
     joints_world: dict[str, np.ndarray] = field(default_factory=dict)  # canonical joint -> (F, 3) after IK
     targets: dict[str, np.ndarray] = field(default_factory=dict)  # retargeted effector targets, (F, 3) world
     notes: list[str] = field(default_factory=list)
+    bone_locations: dict[str, np.ndarray] = field(default_factory=dict)  # other location-keyed bones, (F, 3)
+    constant_keys: dict[str, float] = field(default_factory=dict)  # data path -> value, one key
 
     def __post_init__(self):
         f, b = len(self.time), len(self.bone_names)
@@ -35,6 +40,9 @@ class AvatarAnimation:
             raise ValueError(f"rotations must be ({f}, {b}, 4), got {self.rotations.shape}")
         if self.root_location.shape != (f, 3):
             raise ValueError(f"root_location must be ({f}, 3), got {self.root_location.shape}")
+        for name, loc in self.bone_locations.items():
+            if np.shape(loc) != (f, 3):
+                raise ValueError(f"bone_locations[{name!r}] must be ({f}, 3), got {np.shape(loc)}")
 
     @property
     def frame_count(self) -> int:
@@ -65,4 +73,5 @@ def resample(anim: AvatarAnimation, fps: float) -> AvatarAnimation:
                            lerp(anim.root_location), t_out, anim.method,
                            {k: lerp(v) for k, v in anim.joints_world.items()},
                            {k: lerp(v) for k, v in anim.targets.items()},
-                           [*anim.notes, f"resampled to {fps:g} fps from {len(time)} samples"])
+                           [*anim.notes, f"resampled to {fps:g} fps from {len(time)} samples"],
+                           {k: lerp(v) for k, v in anim.bone_locations.items()}, dict(anim.constant_keys))

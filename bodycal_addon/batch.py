@@ -14,6 +14,8 @@ JOBS.toml:
     filter = "3,5"              # optional: One Euro filter on the devices (true = default parameters)
     plant_feet = true           # optional: false lets the feet follow the method
     placement = "object"        # optional: "performer" plays each avatar where the performer was
+    root_motion = "root"        # optional: "pelvis" or "in-place" (as retarget --root-motion)
+    rigify_target = "fk"        # optional: "def" keys a generated Rigify rig's DEF- bones (retarget --rigify-target)
     overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
     tolerance = 0.1             # optional: key reduction, degrees (as retarget --tolerance; 0 keys every sample)
     fps = 30                    # optional: output frame rate (as retarget --fps; default the recording's)
@@ -82,6 +84,8 @@ from .errors import BodyCalError
 from .paths import AVATAR_SUFFIXES, ROOT_DIR
 from .retarget.pipeline import METHODS
 from .retarget.placement import PLACEMENTS
+from .retarget.rigify import RIGIFY_TARGETS
+from .retarget.root_motion import ROOT_MOTIONS
 from .retarget.transfer import TRANSFER_METHODS
 
 SOURCE_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")  # what `bodycal transfer` reads
@@ -94,7 +98,7 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 _KEYS = {
     "": ("defaults", "recordings", "animations", "avatars"),
     "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite",
-                 "tolerance", "fps", "export"),
+                 "tolerance", "fps", "export", "root_motion", "rigify_target"),
     "recordings": ("path", "user"),
     "animations": ("path", "source_armature", "action"),
     "avatars": ("file", "blend", "armature", "bone_map"),
@@ -124,6 +128,8 @@ class Job:
     bone_map: Path | None = None
     source_armature: str | None = None  # transfer jobs
     action: str | None = None
+    root_motion: str = "root"
+    rigify_target: str = "fk"
 
     @property
     def outputs(self) -> list[Path]:
@@ -155,6 +161,10 @@ class Job:
             args += ["--no-plant-feet"]
         if self.placement != "object":
             args += ["--placement", self.placement]
+        if self.root_motion != "root":
+            args += ["--root-motion", self.root_motion]
+        if self.rigify_target != "fk":
+            args += ["--rigify-target", self.rigify_target]
         if self.overwrite:
             args += ["--overwrite"]
         return args
@@ -335,6 +345,12 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     if placement not in PLACEMENTS:
         raise check.error("defaults.placement", f"must be {' or '.join(json.dumps(p) for p in PLACEMENTS)}, "
                                                 f"got {_describe(placement)}")
+    rig_options = {}
+    for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS)):
+        rig_options[key] = defaults.get(key, allowed[0])
+        if rig_options[key] not in allowed:
+            raise check.error(f"defaults.{key}", f"must be {' or '.join(json.dumps(p) for p in allowed)}, "
+                                                 f"got {_describe(rig_options[key])}")
     runner = _runner(check, defaults.get("runner", "python"))
     recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
     animations = _entries(check, data, "animations")
@@ -397,7 +413,7 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     extra += [(bm, sa, act) for _sp, sa, act in anims for _ap, _arm, bm in avs for _m in transfer_methods]
     names = output_names(specs, [act for _bm, _sa, act in extra])
     jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, placement,
-                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act)
+                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act, **rig_options)
             for name, (rp, up, ap, arm, m), (bm, sa, act) in zip(names, specs, extra)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):

@@ -22,6 +22,8 @@ from .keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .outputs import describe_os_error
 from .retarget.pipeline import METHODS
 from .retarget.placement import PLACEMENTS
+from .retarget.rigify import RIGIFY_TARGETS
+from .retarget.root_motion import ROOT_MOTIONS
 from .retarget.transfer import TRANSFER_METHODS
 
 EXIT_OK = 0
@@ -63,27 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--armature", metavar="NAME")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric")
-    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
-                   help="object: the performance plays relative to the armature object's place and heading "
-                        "(default); performer: where the performer was in the room")
     c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
                    help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")
-    c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
-                   help="let the feet follow the method (default: feet planted while the performer stands on them)")
-    c.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
-                   help="key reduction: each bone's rotation stays within DEG degrees of every sample "
-                        f"(default {DEFAULT_TOLERANCE_DEG:g}; 0 keys every sample)")
-    c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
-                   help="key reduction of the root's location, in millimetres "
-                        f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
-    c.add_argument("--fps", type=float, default=None, metavar="N",
-                   help="output frame rate: the action is resampled to N frames per second, timing kept "
-                        "(default: one key per recording sample, the scene set to the recording's rate)")
-    c.add_argument("-o", "--output", required=True, action="append", metavar="OUT.blend|.fbx|.glb|.gltf|.bvh",
-                   help="a .blend (the avatar's file with the new action), or an export of the avatar "
-                        "and its baked action for game engines; give -o several times for several files")
-    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+    _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
     c.add_argument("jobs", metavar="JOBS.toml")
@@ -104,12 +89,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _bake_arguments(c, rate_of: str) -> None:
-    """Placement, feet, key reduction, output rate and outputs (as retarget takes them)."""
+    """Placement, feet, root motion, Rigify target, key reduction, output rate and outputs: what
+    `retarget` and `transfer` both take."""
     c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
                    help="object: the motion plays relative to the armature object's place and heading "
                         "(default); performer: where the performer was in the room")
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: feet planted while the performer stands on them)")
+    c.add_argument("--root-motion", choices=ROOT_MOTIONS, default=ROOT_MOTIONS[0],
+                   help="root: the travel and heading on the rig's root bone when it has one above the pelvis "
+                        "(default; else on the pelvis); pelvis: on the pelvis, the root at rest; in-place: no "
+                        "horizontal travel")
+    c.add_argument("--rigify-target", choices=RIGIFY_TARGETS, default=RIGIFY_TARGETS[0],
+                   help="a generated Rigify rig: fk keys its FK controls, IK switched to FK (default, to edit); "
+                        "def keys the DEF- bones (for export)")
     c.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
                    help="key reduction: each bone's rotation stays within DEG degrees of every sample "
                         f"(default {DEFAULT_TOLERANCE_DEG:g}; 0 keys every sample)")

@@ -225,6 +225,36 @@ RIGIFY_METARIG = NamingScheme(
     (("spine", r"spine\.(00[1-3])", None), ("neck", r"spine\.(00[45])", None)),
 )
 
+# Rigify's generated rig: the deforming DEF- bones carry the body (ORG-, MCH- and the controls drive
+# them through constraints; blender/avatar_rig.py reads the DEF- bones as their own skeleton).
+# Upper arms, forearms, thighs and shins are split into twist segments (`.001`): the segment is the
+# first one, whose head is the joint, and the second follows it.
+RIGIFY = NamingScheme(
+    "rigify", "Rigify generated rig (DEF- deform bones)",
+    {"l": "L", "r": "R"},
+    (
+        _p("root", r"root"),
+        _p("pelvis", r"DEF-spine"),
+        _p("head", r"DEF-spine\.006"),
+        _p("clavicle_{s}", r"DEF-shoulder\.{s}"),
+        _p("upperarm_{s}", r"DEF-upper_arm\.{s}"),
+        _p("forearm_{s}", r"DEF-forearm\.{s}"),
+        _p("hand_{s}", r"DEF-hand\.{s}"),
+        _p("thigh_{s}", r"DEF-thigh\.{s}"),
+        _p("shin_{s}", r"DEF-shin\.{s}"),
+        _p("foot_{s}", r"DEF-foot\.{s}"),
+        _p("toe_{s}", r"DEF-toe\.{s}"),
+        _p("breast_{s}", r"DEF-breast\.{s}"),
+        _p("pelvis_side_{s}", r"DEF-pelvis\.{s}"),
+        _p("metacarpal_index_{s}", r"DEF-palm\.01\.{s}"),
+        _p("metacarpal_middle_{s}", r"DEF-palm\.02\.{s}"),
+        _p("metacarpal_ring_{s}", r"DEF-palm\.03\.{s}"),
+        _p("metacarpal_pinky_{s}", r"DEF-palm\.04\.{s}"),
+        *_fingers(r"DEF-{finger}\.{n}\.{{s}}", _RIGIFY_FINGERS, ("01", "02", "03")),
+    ),
+    (("spine", r"DEF-spine\.(00[1-3])", None), ("neck", r"DEF-spine\.(00[45])", None)),
+)
+
 # Mixamo's rig uses MotionBuilder's (HumanIK) names behind a `mixamorig:` prefix; Blender's FBX
 # import keeps it, numbered when several characters share a file (`mixamorig1:`, `mixamorig12:`),
 # and glTF tools drop the colon (`mixamorigHips`). Ready Player Me and MPFB's "mixamo" rig use
@@ -483,8 +513,8 @@ CHARACTER_CREATOR = NamingScheme(
      ("neck", r"CC_Base_NeckTwist(\d+)", None)),
 )
 
-SCHEMES: tuple[NamingScheme, ...] = (UNREAL, RIGIFY_METARIG, MIXAMO, CMU_MB, CMU_JOINTS, VRM_HUMANOID, VROID, VRM_ADDON,
-                                     MAKEHUMAN, DAZ_GENESIS8, DAZ_GENESIS9, CHARACTER_CREATOR)
+SCHEMES: tuple[NamingScheme, ...] = (UNREAL, RIGIFY_METARIG, RIGIFY, MIXAMO, CMU_MB, CMU_JOINTS, VRM_HUMANOID, VROID,
+                                     VRM_ADDON, MAKEHUMAN, DAZ_GENESIS8, DAZ_GENESIS9, CHARACTER_CREATOR)
 SCHEME_BY_NAME: dict[str, NamingScheme] = {s.name: s for s in SCHEMES}
 
 

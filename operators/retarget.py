@@ -32,6 +32,17 @@ PLACEMENT_ITEMS = [  # retarget/placement.py
      "devices), on its own floor"),
 ]
 
+ROOT_MOTION_ITEMS = [  # retarget/root_motion.py
+    ("root", "Root Bone", "The travel and heading on the rig's root bone when it has one above the pelvis "
+     "(game engines' root motion); else on the pelvis"),
+    ("pelvis", "Pelvis", "The travel on the pelvis; the root bone stays at rest"),
+    ("in-place", "In Place", "No horizontal travel: the character stays on its spot"),
+]
+RIGIFY_TARGET_ITEMS = [  # retarget/rigify.py
+    ("fk", "FK Controls", "A generated Rigify rig is keyed on its FK controls (IK switched to FK): ready to edit"),
+    ("def", "DEF Bones", "A generated Rigify rig is keyed on its deforming DEF- bones: for export"),
+]
+
 
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="egocentric")
@@ -44,6 +55,8 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
                                         description="Put the baked action on a new NLA track")
     placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
+    root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root")
+    rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk")
     plant_feet: bpy.props.BoolProperty(
         name="Plant Feet", default=True,
         description="Hold each foot still and on the floor while the performer stands on it (every method)")
@@ -127,7 +140,8 @@ on each"""
         render = context.scene.render
         fps = float(settings.output_fps) if settings.output_fps else render.fps / render.fps_base
         options = BakeOptions(math.degrees(settings.tolerance),
-                              settings.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps)
+                              settings.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps,
+                              settings.root_motion, settings.rigify_target)
         lines = [retarget_scene.bake_and_measure(i, a, replace=settings.replace, push_to_nla=settings.push_to_nla,
                                                  options=options, set_scene_rate=bool(settings.output_fps)
                                                  ).line() for i, a in zip(inputs, anims)]

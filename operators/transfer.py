@@ -17,7 +17,7 @@ from ..bodycal_addon.errors import BodyCalError, Cancelled
 from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from ..bodycal_addon.retarget.placement import avatar_warnings
 from .reporting import reports_errors
-from .retarget import METHOD_ITEMS
+from .retarget import METHOD_ITEMS, RIGIFY_TARGET_ITEMS, ROOT_MOTION_ITEMS
 
 TRANSFER_METHOD_ITEMS = [m for m in METHOD_ITEMS if m[0] in ("egocentric", "rotations")]
 PLACEMENT_ITEMS = [  # retarget/placement.py, the source's motion relative to its own armature object
@@ -41,6 +41,8 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
         description="Armature to animate (default: the selected armatures other than the source)")
     method: bpy.props.EnumProperty(name="Method", items=TRANSFER_METHOD_ITEMS, default="egocentric")
     placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
+    root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root")
+    rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk")
     plant_feet: bpy.props.BoolProperty(name="Plant Feet", default=True,
                                        description="Hold each foot still and on the floor while the source stands "
                                                    "on it")
@@ -121,7 +123,7 @@ bake a new action on each"""
         st = context.scene.bodycal_transfer
         options = BakeOptions(math.degrees(st.tolerance),
                               st.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length,
-                              float(st.output_fps) if st.output_fps else None)
+                              float(st.output_fps) if st.output_fps else None, st.root_motion, st.rigify_target)
         lines = [transfer_scene.bake_transfer(source, anim, arm, options=options, replace=st.replace,
                                               push_to_nla=st.push_to_nla, set_scene_rate=True,
                                               avatar=model if fresh else None).line()

@@ -18,6 +18,8 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
         col.prop(settings, "armature")
         col.prop(settings, "method")
         col.prop(settings, "placement")
+        col.prop(settings, "root_motion")
+        col.prop(settings, "rigify_target")
         row = col.row(align=True)
         row.prop(settings, "replace", toggle=True)
         row.prop(settings, "push_to_nla", toggle=True)

@@ -21,6 +21,8 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
         col.prop(st, "armature")
         col.prop(st, "method")
         col.prop(st, "placement")
+        col.prop(st, "root_motion")
+        col.prop(st, "rigify_target")
         col.prop(st, "plant_feet")
         row = col.row(align=True)
         row.prop(st, "replace", toggle=True)

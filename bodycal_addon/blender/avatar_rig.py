@@ -139,14 +139,50 @@ def set_hinge_axis(arm, canonical_bone: str, local_axis) -> None:
 # --- reading the rig -----------------------------------------------------------------------------
 
 
+def is_rigify_generated(arm) -> bool:
+    """A rig Rigify generated (not its metarig): Rigify's `rig_id` on the armature data, or its
+    DEF-/ORG- pair of spines where a file lost the property."""
+    bones = arm.data.bones
+    if "DEF-spine" not in bones:
+        return False
+    return bool(arm.data.get("rig_id")) or "ORG-spine" in bones
+
+
+def deform_parents(arm) -> dict[str, str | None]:
+    """The DEF- bones of a generated Rigify rig (and its `root`) as a skeleton of their own: each
+    DEF- bone's parent is its nearest ancestor that is a DEF- bone, an ORG- bone standing for its
+    DEF- twin (ORG-spine -> DEF-spine), or the root. Rigify parents DEF- bones to ORG- and MCH-
+    bones that its constraints move; at rest both skeletons are the same, so this one calibrates
+    and retargets exactly, and blender/rig_output.py puts the result on the rig's controls."""
+    bones = arm.data.bones
+    out: dict[str, str | None] = {}
+    for b in bones:
+        if not b.name.startswith("DEF-") and b.name != "root":
+            continue
+        p = b.parent
+        while p is not None:
+            twin = "DEF-" + p.name[4:] if p.name.startswith("ORG-") else None
+            if p.name.startswith("DEF-") or p.name == "root":
+                break
+            if twin and twin in bones and twin != b.name:
+                p = bones[twin]
+                break
+            p = p.parent
+        out[b.name] = p.name if p is not None else None
+    return out
+
+
 def read_rig(arm, bone_map: sk.BoneMap | None = None) -> ArmatureReading:
-    """Canonical joints and bone rights of an armature object in its rest pose."""
+    """Canonical joints and bone rights of an armature object in its rest pose (a generated Rigify
+    rig: of its DEF- bones, `deform_parents`)."""
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
     bm = bone_map or bone_map_for(arm)
-    rest = {b.name: {"parent": b.parent.name if b.parent else None, "head": np.array(b.head_local[:]),
-                     "tail": np.array(b.tail_local[:]),
-                     "matrix": np.array([b.matrix_local[i][:3] for i in range(3)], dtype=float)}
-            for b in arm.data.bones}
+    parents = ({b.name: b.parent.name if b.parent else None for b in arm.data.bones}
+               if not is_rigify_generated(arm) else deform_parents(arm))
+    rest = {name: {"parent": parent, "head": np.array(arm.data.bones[name].head_local[:]),
+                   "tail": np.array(arm.data.bones[name].tail_local[:]),
+                   "matrix": np.array([arm.data.bones[name].matrix_local[i][:3] for i in range(3)], dtype=float)}
+            for name, parent in parents.items()}
     return read_armature(arm.name, np.array([row[:] for row in arm.matrix_world], dtype=float), rest, bm,
                          hinge_overrides(arm))

@@ -21,6 +21,8 @@ from .. import keyreduce
 from ..animation import AvatarAnimation
 from ..errors import BodyCalError
 from ..keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..retarget.rigify import check_rigify_target
+from ..retarget.root_motion import check_root_motion
 from ..transforms import continuous_quaternions
 from .fcurves import new_fcurve, write_keys
 
@@ -32,8 +34,12 @@ class BakeOptions:
     tolerance_deg: float = DEFAULT_TOLERANCE_DEG  # rotation error bound per bone; 0 keeps every sample
     location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM  # root location bound (world mm)
     fps: float | None = None  # output frame rate; None keys the samples as they are
+    root_motion: str = "root"  # where the travel goes: root | pelvis | in-place (retarget/root_motion.py)
+    rigify_target: str = "fk"  # a generated Rigify rig: keys on its FK controls or its DEF- bones (retarget/rigify.py)
 
     def __post_init__(self):
+        check_root_motion(self.root_motion)
+        check_rigify_target(self.rigify_target)
         for name in ("tolerance_deg", "location_tolerance_mm"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0):
@@ -65,13 +71,14 @@ def key_frames(time: np.ndarray, fps: float, frame_start: float) -> np.ndarray:
 def validate(anim: AvatarAnimation, obj) -> None:
     if obj is None or obj.type != "ARMATURE":
         raise BodyCalError("pick an armature to bake onto", source=getattr(obj, "name", "no object"))
-    missing = [b for b in anim.bone_names + [anim.root_bone] if b not in obj.pose.bones]
+    missing = [b for b in [*anim.bone_names, anim.root_bone, *anim.bone_locations] if b not in obj.pose.bones]
     if missing:
         raise BodyCalError(f"the armature has no bones named {', '.join(sorted(set(missing))[:6])}",
                            source=obj.name, hint="recalibrate the avatar after renaming bones")
     if anim.frame_count == 0:
         raise BodyCalError("nothing to bake: the animation has no frames", source=obj.name)
-    if not (np.all(np.isfinite(anim.rotations)) and np.all(np.isfinite(anim.root_location))):
+    if not (np.all(np.isfinite(anim.rotations)) and np.all(np.isfinite(anim.root_location))
+            and all(np.all(np.isfinite(v)) for v in anim.bone_locations.values())):
         raise BodyCalError("the retargeted animation has non-finite values; nothing was written", source=obj.name)
 
 
@@ -114,6 +121,10 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     rot_keep, loc_keep = key_masks(anim, rotations, tolerance_deg, location_tolerance_mm, 1.0 / world_scale(obj))
     rotations = rotations.astype(np.float32)
     root_location = np.asarray(anim.root_location, dtype=np.float32)
+    locations = {anim.root_bone: (loc_keep, root_location)}
+    for bone_name, loc in anim.bone_locations.items():  # the root bone under root motion, Rigify's torso
+        locations[bone_name] = (keyreduce.location_keys(np.asarray(loc, float), max(location_tolerance_mm, 0.0)
+                                                        / 1000.0 / world_scale(obj)), np.asarray(loc, np.float32))
     name = action_name or default_action_name("recording", obj.name, anim.method)
     old = bpy.data.actions.get(name)
 
@@ -134,10 +145,14 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
             for i in range(4):
                 write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], rotations[kept, b, i])
             fcurves, keys = fcurves + 4, keys + 4 * int(kept.sum())
-        path = f'pose.bones["{bpy.utils.escape_identifier(anim.root_bone)}"].location'
-        for i in range(3):
-            write_keys(new_fcurve(action, obj, path, i, anim.root_bone), frames32[loc_keep], root_location[loc_keep, i])
-        fcurves, keys = fcurves + 3, keys + 3 * int(loc_keep.sum())
+        for bone_name, (kept, loc) in locations.items():
+            path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].location'
+            for i in range(3):
+                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], loc[kept, i])
+            fcurves, keys = fcurves + 3, keys + 3 * int(kept.sum())
+        for path, value in anim.constant_keys.items():  # switches: one key holds for the whole action
+            write_keys(new_fcurve(action, obj, path, 0), frames32[:1], np.array([value], np.float32))
+            fcurves, keys = fcurves + 1, keys + 1
     except Exception:
         if had_animation_data:
             obj.animation_data.action = previous_action

@@ -156,10 +156,16 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
     try:
         for pb in pbs:
             pb.rotation_mode = "QUATERNION"
+        # A detached action leaves its last pose: a root bone keyed with root motion would stay moved.
+        for pb in arm.pose.bones:
+            pb.location = (0.0, 0.0, 0.0)
+        located = [(arm.pose.bones[n], loc) for n, loc in anim.bone_locations.items()]
         for f, items in sorted(by_frame.items()):
             for b, pb in enumerate(pbs):
                 pb.rotation_quaternion = anim.rotations[f, b]
             root.location = anim.root_location[f]
+            for pb, loc in located:
+                pb.location = loc[f]
             view_layer.update()
             dg = bpy.context.evaluated_depsgraph_get()
             world_verts = {}
@@ -200,12 +206,14 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
 
 
 def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[dict], max_frames: int = 12,
-                 mesh: EvaluatedMesh | None = None, against: str = "body") -> list[np.ndarray]:
+                 mesh: EvaluatedMesh | None = None, against: str = "body",
+                 posed: AvatarAnimation | None = None) -> list[np.ndarray]:
     """Signed contact gap (m, negative inside) per contact of the synthetic ground truth
     (`{"effector", "target", "frames" (F,) bool}`), measured on up to `max_frames` evenly spaced
     contact frames each: distance from the avatar's effector skin to the evaluated skin of the
     body without the effector's own arm (`against="body"`, DESIGN.md §7), or of the touched body
-    part only (`against="target"`)."""
+    part only (`against="target"`). `posed` is what the bake keys when it is not the engine's
+    animation (root motion, a Rigify rig's controls: `rig_output.for_bake`); the mesh is posed by it."""
     rig = AvatarRig.from_model(avatar)
     bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
     mesh = mesh or EvaluatedMesh(arm)
@@ -224,7 +232,7 @@ def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[d
             tris = mesh.triangles_without(_segment_bones(bm, effector_segments(c["effector"])))
         queries.append((idx, tris, pts[idx]))
         offsets.append(off)
-    gaps = signed_gaps(arm, anim, queries, mesh)
+    gaps = signed_gaps(arm, posed if posed is not None else anim, queries, mesh)
     return [g - o for g, o in zip(gaps, offsets)]
 
 

@@ -20,7 +20,7 @@ from ..filters import OneEuro, filter_recording
 from ..recording import Recording
 from ..retarget.pipeline import retarget
 from ..retarget.placement import avatar_warnings, check_placement, moved_to
-from . import avatar_storage, bake, calibration_scene, recording_scene
+from . import avatar_storage, bake, calibration_scene, recording_scene, rig_output
 from .avatar_calibration import calibrate_avatar
 
 
@@ -142,6 +142,8 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
     if set_scene_rate:
         bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
     keyed = resample(anim, rate) if resampled else anim
+    keyed = rig_output.for_bake(keyed, inputs.armature, options.root_motion, options.rigify_target,
+                                own=resampled or release)
     result = bake.bake_animation(keyed, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
                                  fps=rate, tolerance_deg=options.tolerance_deg,
                                  location_tolerance_mm=options.location_tolerance_mm)

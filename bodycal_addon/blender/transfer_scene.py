@@ -23,7 +23,7 @@ from ..errors import BodyCalError
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.transfer import check_method, stand_on_floor, transfer
 from ..transforms import matrix_to_quat, quat_normalize
-from . import avatar_rig, avatar_storage, bake
+from . import avatar_rig, avatar_storage, bake, rig_output
 from .avatar_calibration import avatar_meshes
 from .fcurves import object_fcurves, read_keys
 
@@ -301,7 +301,9 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
 
     options = options or bake.BakeOptions()
     rate = float(options.fps or source.fps)
-    keyed = resample(anim, rate) if abs(rate - source.fps) > 1e-6 * rate else anim
+    resampled = abs(rate - source.fps) > 1e-6 * rate
+    keyed = resample(anim, rate) if resampled else anim
+    keyed = rig_output.for_bake(keyed, arm, options.root_motion, options.rigify_target, own=resampled)
     if set_scene_rate:
         whole = max(1, int(round(rate)))
         bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = whole, whole / rate

@@ -49,3 +49,16 @@ def test_a_bad_filter_is_one_line_before_anything_is_read(tmp_path):
     assert out.returncode == 2
     (line,) = out.stderr.strip().splitlines()
     assert "--filter" in line and "expected 2 or 4 numbers" in line and "Traceback" not in out.stderr
+
+
+def test_retarget_and_transfer_take_the_same_bake_options():
+    """Root motion and the Rigify target apply to whatever is baked onto the avatar: a transfer onto
+    a game rig or a generated Rigify rig needs them as much as a retarget does."""
+    parser = cli.build_parser()
+    common = ["--root-motion", "in-place", "--rigify-target", "def", "--tolerance", "0.2", "--fps", "30",
+              "--placement", "performer", "--no-plant-feet", "-o", "a.blend", "-o", "a.fbx"]
+    retarget = parser.parse_args(["retarget", "r.bcrec.json", "--user", "u.json", "--avatar", "a.blend", *common])
+    transfer = parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", *common])
+    for args in (retarget, transfer):
+        assert (args.root_motion, args.rigify_target, args.tolerance, args.fps, args.placement, args.plant_feet,
+                args.output) == ("in-place", "def", 0.2, 30.0, "performer", False, ["a.blend", "a.fbx"])

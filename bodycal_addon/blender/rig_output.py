@@ -1,0 +1,199 @@
+"""What the bake keys on the armature besides the engine's own pose bones (issue 14): where the
+travel goes (root motion, `retarget/root_motion.py`) read off the armature object's rest pose, and
+a generated Rigify rig's DEF- pose carried onto its FK controls or its DEF- bones
+(`retarget/rigify.py`).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from ..animation import AvatarAnimation
+from ..retarget import rigify
+from ..retarget.root_motion import RootRest, apply_root_motion, check_root_motion
+from . import avatar_rig
+
+
+def _rest(obj, name: str) -> tuple[np.ndarray, np.ndarray]:
+    b = obj.data.bones[name]
+    return np.array([b.matrix_local[i][:3] for i in range(3)], float), np.array(b.head_local[:], float)
+
+
+def root_bone_of(obj, pelvis: str) -> str | None:
+    """The bone map's `root` bone when it is an ancestor of `pelvis` (it carries the travel)."""
+    root = avatar_rig.bone_map_for(obj).bones.get("root")
+    if not root or root == pelvis or root not in obj.data.bones or pelvis not in obj.data.bones:
+        return None
+    parent = obj.data.bones[pelvis].parent
+    while parent is not None:
+        if parent.name == root:
+            return root
+        parent = parent.parent
+    return None
+
+
+def root_rest(obj, anim: AvatarAnimation) -> RootRest:
+    bm = avatar_rig.bone_map_for(obj)
+    lin = np.array(obj.matrix_world, float)[:3, :3]
+    up = np.linalg.solve(lin, np.array([0.0, 0.0, 1.0]))
+    lateral = np.zeros(3)
+    if bm.bones.get("thigh_l") in obj.data.bones and bm.bones.get("thigh_r") in obj.data.bones:
+        lateral = _rest(obj, bm.bones["thigh_l"])[1] - _rest(obj, bm.bones["thigh_r"])[1]
+    root = root_bone_of(obj, anim.root_bone)
+    rm, rh = _rest(obj, root) if root else (None, None)
+    pm, ph = _rest(obj, anim.root_bone)
+    return RootRest(root, rm, rh, pm, ph, up / np.linalg.norm(up), lateral, lin)
+
+
+def with_root_motion(anim: AvatarAnimation, obj, mode: str, own: bool = False) -> AvatarAnimation:
+    check_root_motion(mode)
+    if mode == "pelvis":
+        return anim
+    return apply_root_motion(anim, root_rest(obj, anim), mode, own=own)
+
+
+# --- a generated Rigify rig (retarget/rigify.py) ----------------------------------------------------
+
+def _rest4(obj, name: str) -> np.ndarray:
+    m, h = _rest(obj, name)
+    return rigify.rest_matrix(m, h)
+
+
+def _rules(obj) -> dict[str, list[rigify.Rule]]:
+    """What each bone's constraints do, read from the evaluated rig (drivers set the influences,
+    e.g. IK_FK switches the ORG- bones' Copy Transforms from the IK chain to the FK one)."""
+    import bpy
+
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    kinds = {"COPY_TRANSFORMS": "copy", "COPY_ROTATION": "rotation", "COPY_LOCATION": "location",
+             "DAMPED_TRACK": "track"}
+    rules: dict[str, list[rigify.Rule]] = {}
+    for pb in ev.pose.bones:
+        for c in pb.constraints:
+            on = getattr(c, "enabled", not getattr(c, "mute", False))
+            if not on or c.influence < 1e-6:
+                continue
+            if c.type == "ARMATURE":
+                live = [t for t in c.targets if t.subtarget and t.weight > 1e-6]
+                if live:
+                    rules.setdefault(pb.name, []).append(
+                        rigify.Rule("child_of", max(live, key=lambda t: t.weight).subtarget))
+                continue
+            target = getattr(c, "target", None)
+            if c.type not in kinds or target is None or target.name != obj.name or not c.subtarget:
+                continue
+            if c.type != "DAMPED_TRACK" and (c.target_space != "WORLD" or c.owner_space != "WORLD"):
+                continue  # local-space copies (the spine's hips and chest halves) act on controls left at rest
+            if c.type == "COPY_ROTATION" and (c.mix_mode != "REPLACE" or not (c.use_x and c.use_y and c.use_z)):
+                continue
+            if c.type == "DAMPED_TRACK" and c.track_axis != "TRACK_Y":
+                continue
+            rules.setdefault(pb.name, []).append(rigify.Rule(kinds[c.type], c.subtarget, float(c.influence),
+                                                             float(getattr(c, "head_tail", 0.0))))
+    return rules
+
+
+DEF_MUTED_PROP = "bodycal_def_muted"  # set on a Rigify rig whose DEF- constraints a DEF bake muted
+
+
+def _mute_deform(obj, mute: bool) -> None:
+    for pb in obj.pose.bones:
+        if pb.name.startswith("DEF-"):
+            for c in pb.constraints:
+                c.mute = mute
+    if mute:
+        obj[DEF_MUTED_PROP] = 1
+    elif DEF_MUTED_PROP in obj:
+        del obj[DEF_MUTED_PROP]
+
+
+def rigify_deform_pose(anim: AvatarAnimation, obj) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(armature-space poses (F, 4, 4) of the DEF- skeleton the engine animated, their rests)."""
+    parents = avatar_rig.deform_parents(obj)
+    names = [n for n in anim.bone_names if n in parents]
+    rest = {n: _rest4(obj, n) for n in names}
+    index = {n: i for i, n in enumerate(anim.bone_names)}
+    basis = {}
+    for n in names:
+        loc = anim.root_location if n == anim.root_bone else anim.bone_locations.get(n)
+        basis[n] = rigify.basis_matrices(anim.rotations[:, index[n]], loc)
+    return rigify.pose_matrices(names, parents, rest, basis), rest
+
+
+CHUNK_FRAMES = 2000
+
+
+def _frames(anim: AvatarAnimation, start: int, stop: int) -> AvatarAnimation:
+    part = copy.copy(anim)
+    part.rotations, part.root_location = anim.rotations[start:stop], anim.root_location[start:stop]
+    part.time = anim.time[start:stop]
+    part.bone_locations = {k: v[start:stop] for k, v in anim.bone_locations.items()}
+    return part
+
+
+def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation:
+    """The engine's animation of a generated Rigify rig's DEF- skeleton, as keys on the rig itself:
+    its FK controls (`fk`, the rig switched to FK) or its DEF- bones (`def`, their constraints
+    muted). Sets the pose of every other bone to rest, the switches and the mutes on the rig."""
+    rigify.check_rigify_target(target)
+    import bpy
+
+    bones = obj.data.bones
+    deform = avatar_rig.deform_parents(obj)
+    for pb in obj.pose.bones:  # an unkeyed control keeps its pose in a new action: rest it
+        pb.location = (0.0, 0.0, 0.0)
+        pb.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
+        pb.rotation_euler = (0.0, 0.0, 0.0)
+        pb.scale = (1.0, 1.0, 1.0)
+    if target == "fk":
+        if obj.get(DEF_MUTED_PROP):  # a DEF bake muted them: the controls drive the DEF- bones again
+            _mute_deform(obj, False)
+        for (bone_t, prop), value in rigify.FK_SWITCHES.items():
+            for bone in rigify.sided(bone_t):
+                if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
+                    obj.pose.bones[bone][prop] = value
+        pairs = [(c, d) for ct, dt in rigify.FK_CONTROLS.items() for c, d in zip(rigify.sided(ct), rigify.sided(dt))
+                 if c in bones and d in deform and d in anim.bone_names]
+    else:
+        _mute_deform(obj, True)
+        pairs = [(n, n) for n in deform if n.startswith("DEF-") and n in anim.bone_names]
+    bpy.context.view_layer.update()
+    rest = {b.name: _rest4(obj, b.name) for b in bones}
+    parents = {b.name: b.parent.name if b.parent else None for b in bones}
+    lengths = {b.name: b.length for b in bones}
+    rules = _rules(obj)
+    names = [c for c, _d in pairs]
+    quats = np.empty((anim.frame_count, len(names), 4))
+    locs = np.empty((anim.frame_count, len(names), 3))
+    for start in range(0, anim.frame_count, CHUNK_FRAMES):  # (F, 4, 4) per bone: bounded memory on long takes
+        stop = min(anim.frame_count, start + CHUNK_FRAMES)
+        poses, _ = rigify_deform_pose(_frames(anim, start, stop), obj)
+        targets = {c: poses[d] @ (np.linalg.inv(rest[d]) @ rest[c]) for c, d in pairs}
+        basis = rigify.solve_basis(targets, rest, parents, rules, stop - start, lengths)
+        for k, n in enumerate(names):
+            quats[start:stop, k], locs[start:stop, k] = rigify.basis_values(basis[n])
+    values = {n: (quats[:, k], locs[:, k]) for k, n in enumerate(names)}
+    root = "torso" if target == "fk" and "torso" in values else names[0]
+    located = {n: values[n][1] for n in names if n != root and not bones[n].use_connect}
+    switches = {}
+    if target == "fk":
+        for (bone_t, prop), value in rigify.FK_SWITCHES.items():
+            for bone in rigify.sided(bone_t):
+                if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
+                    switches[f'pose.bones["{bpy.utils.escape_identifier(bone)}"]["{prop}"]'] = float(value)
+    note = f"Rigify rig: keys on its {'FK controls' if target == 'fk' else 'DEF- bones'}"
+    return AvatarAnimation(anim.armature, names, np.stack([values[n][0] for n in names], axis=1), root,
+                           values[root][1], anim.time, anim.method, anim.joints_world, anim.targets,
+                           [*anim.notes, note], located, switches)
+
+
+def for_bake(anim: AvatarAnimation, obj, root_motion: str, rigify_target: str, own: bool = False) -> AvatarAnimation:
+    """The animation the bake keys on `obj`: travel where `root_motion` says, and a generated
+    Rigify rig's DEF- pose carried onto its controls or DEF- bones. `own`: `anim` is given away
+    and may be changed in place."""
+    anim = with_root_motion(anim, obj, root_motion, own)
+    if avatar_rig.is_rigify_generated(obj):
+        anim = rigify_animation(anim, obj, rigify_target)
+    return anim
