@@ -201,8 +201,8 @@ def _assert_same_model(model: BodyModel, ref: BodyModel, names: dict[str, str]):
 
 
 # Renaming bones changes no number: the motion is the same to the last bit (1e-9 m). Splitting a
-# bone or inserting one goes through Edit Mode, and leaving Edit Mode recomputes every bone's rest
-# matrix from its head, tail and roll in float32 (measured: entries move by 1.3e-6, BLENDER_NOTES.md);
+# bone or inserting one goes through Edit Mode, which recomputes the rest matrix of every bone
+# whose parent changed from its head, tail and roll in float32 (entries move by 1.25e-6, BLENDER_NOTES.md);
 # the limb IK carries that to at most 6 um on the joints of the 1.5 s take, hence 10 um there.
 RENAMED_ATOL = 1e-9
 EDITED_ATOL = 1e-5
