@@ -51,8 +51,9 @@ def main():
     out["target_seconds"] = 1.0
     out["meets_target"] = max(secs) < 1.0
     print(json.dumps(out))
-    sys.stdout.flush()
-    os._exit(0)  # Blender 4.5 can hang at exit (BLENDER_NOTES.md)
+    from bodycal_addon.blender.process_exit import exit_now
+
+    exit_now(0)  # Blender 4.5 can hang at exit (BLENDER_NOTES.md)
 
 
 if __name__ == "__main__":

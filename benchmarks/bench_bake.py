@@ -125,5 +125,6 @@ def main():
 
 if __name__ == "__main__":
     main()
-    sys.stdout.flush()
-    os._exit(0)
+    from bodycal_addon.blender.process_exit import exit_now
+
+    exit_now(0)

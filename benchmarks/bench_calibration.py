@@ -248,8 +248,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    import os
 
     code = main()
-    sys.stdout.flush()
-    os._exit(code)
+    from bodycal_addon.blender.process_exit import exit_now
+
+    exit_now(code)

@@ -191,7 +191,6 @@ def main(quick: bool = False):
 
 if __name__ == "__main__":
     main(quick="--quick" in sys.argv)
-    sys.stdout.flush()
-    import os
+    from bodycal_addon.blender.process_exit import exit_now
 
-    os._exit(0)  # the Rigify rig's file enables nothing, but leave as the other benchmarks do in 4.5
+    exit_now(0)  # the Rigify rig's file enables nothing, but leave as the other benchmarks do in 4.5

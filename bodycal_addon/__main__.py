@@ -1,6 +1,5 @@
 """`python -m bodycal_addon <command> ...` (Blender as a Python module)."""
 
-import os
 import sys
 
 from bodycal_addon.cli import main
@@ -10,7 +9,7 @@ if __name__ == "__main__":
     sys.stdout.flush()
     sys.stderr.flush()
     if "bpy" in sys.modules:
-        # Blender 4.5 as a module can hang at interpreter exit once classes were registered
-        # (BLENDER_NOTES.md, "EXIT HANG"): leave without running its atexit handlers.
-        os._exit(code)
+        from bodycal_addon.blender.process_exit import exit_now
+
+        exit_now(code)
     sys.exit(code)

@@ -5,12 +5,11 @@ to the generated rig's DEF- bones with the same rigid weights, so it is the same
 Unreal-style procedural avatar.
 
 Run `build(path)` in a subprocess of its own (`python -m sample_rigs.rigify_rig OUT.blend`): after
-enabling Rigify, Blender 4.5 hangs at exit, so the process ends with os._exit.
+enabling Rigify, Blender 4.5 hangs at exit, so the process ends with `exit_now` (os._exit).
 """
 
 from __future__ import annotations
 
-import os
 import sys
 
 import numpy as np
@@ -115,5 +114,6 @@ def build(out_path) -> None:
 
 if __name__ == "__main__":
     build(sys.argv[1])
-    sys.stdout.flush()
-    os._exit(0)
+    from bodycal_addon.blender.process_exit import exit_now
+
+    exit_now(0)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import pathlib
-import sys
 import tempfile
 
 from repo_paths import REPO
@@ -17,6 +16,8 @@ os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="bodycal-test-use
 import bpy  # noqa: E402, I001  (first: addon_utils and mathutils import only after it)
 import addon_utils  # noqa: E402
 import pytest  # noqa: E402
+
+from bodycal_addon.blender.process_exit import exit_now  # noqa: E402
 
 EXTENSION_MODULE = "bl_ext.user_default.bodycal"
 _exit_status = 0
@@ -57,9 +58,7 @@ def pytest_unconfigure(config):
         disable_extension()
     finally:
         if bpy.app.version < (5, 0, 0):
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(_exit_status)
+            exit_now(_exit_status)
 
 
 @pytest.fixture(autouse=True)

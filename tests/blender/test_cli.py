@@ -1,5 +1,6 @@
 """The command line of FORMATS.md §4, both ways in."""
 
+import os
 import subprocess
 import sys
 
@@ -62,3 +63,17 @@ def test_retarget_and_transfer_take_the_same_bake_options():
     for args in (retarget, transfer):
         assert (args.root_motion, args.rigify_target, args.tolerance, args.fps, args.placement, args.plant_feet,
                 args.output) == ("in-place", "def", 0.2, 30.0, "performer", False, ["a.blend", "a.fbx"])
+
+
+def test_a_command_leaves_no_blender_temp_folder(tmp_path):
+    """Blender as a module makes a session folder (`<temp>/blender_XXXXXX`) that its exit handlers
+    remove; the command line leaves without them (they can hang Blender 4.5), so it removes the
+    folder itself: a batch farm otherwise collected one per job."""
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    env = {**os.environ, "TMPDIR": str(temp)}
+    out = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(tmp_path / "missing.blend"),
+                          "-o", str(tmp_path / "a.body.json")], cwd=REPO, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
+    assert [p.name for p in temp.iterdir()] == []

@@ -55,8 +55,11 @@ def auto_run_scripts_on():
     prefs.use_scripts_auto_execute = before
 
 
+_EXIT = "\nfrom bodycal_addon.blender.process_exit import exit_now\nexit_now(code)\n"
+
+
 def _in_fresh_blender(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
-    """Run `code` in a new process with the auto-run preference on; it ends with os._exit
+    """Run `code` in a new process with the auto-run preference on; it ends with exit_now
     (Blender as a module can hang at interpreter exit, BLENDER_NOTES.md)."""
     script = tmp_path / "run.py"
     script.write_text(textwrap.dedent("""
@@ -65,7 +68,7 @@ def _in_fresh_blender(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
         import bpy
         bpy.context.preferences.filepaths.use_scripts_auto_execute = True
         code = 0
-    """).format(repo=str(REPO)) + textwrap.dedent(code) + "\nsys.stdout.flush(); sys.stderr.flush(); os._exit(code)\n")
+    """).format(repo=str(REPO)) + textwrap.dedent(code) + _EXIT)
     return subprocess.run([sys.executable, str(script)], cwd=REPO, capture_output=True, text=True, timeout=300)
 
 
