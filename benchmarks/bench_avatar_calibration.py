@@ -51,7 +51,7 @@ def main():
     out["target_seconds"] = 1.0
     out["meets_target"] = max(secs) < 1.0
     print(json.dumps(out))
-    from bodycal_addon.blender.process_exit import exit_now
+    from bodycal_addon.blender.process import exit_now
 
     exit_now(0)  # Blender 4.5 can hang at exit (BLENDER_NOTES.md)
 

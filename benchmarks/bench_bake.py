@@ -125,6 +125,6 @@ def main():
 
 if __name__ == "__main__":
     main()
-    from bodycal_addon.blender.process_exit import exit_now
+    from bodycal_addon.blender.process import exit_now
 
     exit_now(0)

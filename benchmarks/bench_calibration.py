@@ -250,6 +250,6 @@ def main() -> int:
 if __name__ == "__main__":
 
     code = main()
-    from bodycal_addon.blender.process_exit import exit_now
+    from bodycal_addon.blender.process import exit_now
 
     exit_now(code)

@@ -191,6 +191,6 @@ def main(quick: bool = False):
 
 if __name__ == "__main__":
     main(quick="--quick" in sys.argv)
-    from bodycal_addon.blender.process_exit import exit_now
+    from bodycal_addon.blender.process import exit_now
 
     exit_now(0)  # the Rigify rig's file enables nothing, but leave as the other benchmarks do in 4.5

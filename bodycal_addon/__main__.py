@@ -9,7 +9,7 @@ if __name__ == "__main__":
     sys.stdout.flush()
     sys.stderr.flush()
     if "bpy" in sys.modules:
-        from bodycal_addon.blender.process_exit import exit_now
+        from bodycal_addon.blender.process import exit_now
 
         exit_now(code)
     sys.exit(code)

@@ -154,13 +154,13 @@ def inverse_transform_points(pos: np.ndarray, rot: np.ndarray, world: np.ndarray
     return rotate(quat_conj(rot), np.asarray(world, float) - pos)
 
 
-def continuous_quaternions(q: np.ndarray) -> np.ndarray:
+def continuous_quaternions(q: np.ndarray, *, in_place: bool = False) -> np.ndarray:
     """Flip signs along the frame axis (the first) so consecutive quaternions lie on one
     hemisphere: q and -q are the same rotation, but anything that interpolates or filters
     components (F-Curves, low-pass filters, key reduction) would swing through a half turn between
-    them. Returns a new array."""
-    q = np.array(q, dtype=float, copy=True)
-    dots = (q[1:] * q[:-1]).sum(-1)
+    them. Returns a new array, or `q` itself changed with `in_place` (a float64 array)."""
+    q = q if in_place else np.array(q, dtype=float, copy=True)
+    dots = np.einsum("...i,...i->...", q[1:], q[:-1])
     q[1:] *= np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)[..., None]
     return q
 

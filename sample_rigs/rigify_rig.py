@@ -114,6 +114,6 @@ def build(out_path) -> None:
 
 if __name__ == "__main__":
     build(sys.argv[1])
-    from bodycal_addon.blender.process_exit import exit_now
+    from bodycal_addon.blender.process import exit_now
 
     exit_now(0)

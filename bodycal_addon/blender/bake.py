@@ -103,9 +103,11 @@ def key_masks(anim: AvatarAnimation, rotations: np.ndarray, tolerance_deg: float
 def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None, replace: bool = False,
                    fps: float | None = None, frame_start: float | None = None, push_to_nla: bool = False,
                    tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
-                   location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM) -> BakeResult:
+                   location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM, own: bool = False) -> BakeResult:
     """Bake `anim` onto armature `obj` as a new action and make it the active action; one key per
     sample at frame_start + (t - t0) x fps, reduced within the tolerances (0 keeps every sample).
+    `own`: the caller gives `anim` away; its rotations are made sign-continuous in place instead
+    of in a copy (a 10-minute take: 87 MB less while the keys are made).
 
     An existing action of the same name is kept (the new one gets Blender's `.001` suffix) unless
     `replace` is True, in which case the old action is removed once the new one is written.
@@ -116,10 +118,10 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     frame_start = float(scene.frame_start if frame_start is None else frame_start)
     # --- compute everything first -------------------------------------------------------------
     frames32 = key_frames(anim.time, fps, frame_start).astype(np.float32)
-    rotations = continuous_quaternions(anim.rotations)  # (F, B, 4)
+    in_place = own and anim.rotations.dtype == np.float64 and anim.rotations.flags.writeable
+    rotations = continuous_quaternions(anim.rotations, in_place=in_place)  # (F, B, 4)
     # The tolerance is in world millimetres; the root location is keyed in armature units.
     rot_keep, loc_keep = key_masks(anim, rotations, tolerance_deg, location_tolerance_mm, 1.0 / world_scale(obj))
-    rotations = rotations.astype(np.float32)
     root_location = np.asarray(anim.root_location, dtype=np.float32)
     locations = {anim.root_bone: (loc_keep, root_location)}
     for bone_name, loc in anim.bone_locations.items():  # the root bone under root motion, Rigify's torso

@@ -35,6 +35,6 @@ def build_zip(output_dir: Path, source_dir: Path = paths.ROOT_DIR) -> Path:
 
 if __name__ == "__main__":
     print(build_zip(Path(sys.argv[1] if len(sys.argv) > 1 else "dist")))
-    from .process_exit import exit_now
+    from .process import exit_now
 
     exit_now(0)

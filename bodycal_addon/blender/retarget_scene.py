@@ -20,7 +20,7 @@ from ..filters import OneEuro, filter_recording
 from ..recording import Recording
 from ..retarget.pipeline import retarget
 from ..retarget.placement import avatar_warnings, check_placement, moved_to
-from . import avatar_storage, bake, calibration_scene, recording_scene, rig_output
+from . import avatar_storage, bake, calibration_scene, process, recording_scene, rig_output
 from .avatar_calibration import calibrate_avatar
 
 
@@ -138,6 +138,7 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
     figures = quality_figures(anim)
     if release:
         inputs.recording, anim.joints_world, anim.targets = None, {}, {}
+        process.release_freed_memory()
     t0 = time.perf_counter()
     if set_scene_rate:
         bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
@@ -146,7 +147,7 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
                                 own=resampled or release)
     result = bake.bake_animation(keyed, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
                                  fps=rate, tolerance_deg=options.tolerance_deg,
-                                 location_tolerance_mm=options.location_tolerance_mm)
+                                 location_tolerance_mm=options.location_tolerance_mm, own=resampled or release)
     if inputs.avatar_calibrated_now:
         avatar_storage.store_model(inputs.armature, inputs.avatar)
     bake_s = time.perf_counter() - t0

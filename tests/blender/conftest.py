@@ -17,7 +17,7 @@ import bpy  # noqa: E402, I001  (first: addon_utils and mathutils import only af
 import addon_utils  # noqa: E402
 import pytest  # noqa: E402
 
-from bodycal_addon.blender.process_exit import exit_now  # noqa: E402
+from bodycal_addon.blender.process import exit_now  # noqa: E402
 
 EXTENSION_MODULE = "bl_ext.user_default.bodycal"
 _exit_status = 0

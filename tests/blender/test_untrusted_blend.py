@@ -55,7 +55,7 @@ def auto_run_scripts_on():
     prefs.use_scripts_auto_execute = before
 
 
-_EXIT = "\nfrom bodycal_addon.blender.process_exit import exit_now\nexit_now(code)\n"
+_EXIT = "\nfrom bodycal_addon.blender.process import exit_now\nexit_now(code)\n"
 
 
 def _in_fresh_blender(code: str, tmp_path: Path) -> subprocess.CompletedProcess:

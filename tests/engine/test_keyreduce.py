@@ -136,3 +136,17 @@ def test_resampling_between_samples_is_the_slerp_and_the_lerp():
 def test_resampling_refuses_a_rate_that_is_not_positive(fps):
     with pytest.raises(ValueError):
         resample(_anim(10, 30.0), fps)
+
+
+def test_continuous_quaternions_in_place_is_the_copy_without_the_copy():
+    """The bake makes a given-away animation's rotations continuous in place (87 MB less on a
+    10-minute take): the same numbers as the copy, in the array it was given."""
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(500, 7, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    expected = tf.continuous_quaternions(q)
+    assert not np.array_equal(expected, q)  # some signs do flip
+    out = tf.continuous_quaternions(q, in_place=True)
+    assert out is q
+    np.testing.assert_array_equal(q, expected)
+    assert (np.einsum("fbi,fbi->fb", q[1:], q[:-1]) >= 0).all()
