@@ -302,11 +302,14 @@ def read_c3d(path) -> C3DData:
     elif is_float:
         raw = np.frombuffer(data, np.uint8, n_frames * per_frame * 4, dstart).reshape(n_frames, per_frame, 4)
         raw = raw[:, :4 * n_points]
-        if proc == DEC:
-            vals = _dec_to_ieee(raw)
-        else:
-            vals = np.ascontiguousarray(raw).view(r.endian + "f4")[..., 0]
-        points = vals.astype(float).reshape(n_frames, n_points, 4)
+        # A damaged file's words may be signalling NaNs, which warn when widened: they become
+        # invalid points below (not finite), as any NaN does.
+        with np.errstate(invalid="ignore", over="ignore"):
+            if proc == DEC:
+                vals = _dec_to_ieee(raw)
+            else:
+                vals = np.ascontiguousarray(raw).view(r.endian + "f4")[..., 0]
+            points = vals.astype(float).reshape(n_frames, n_points, 4)
     else:
         vals = np.frombuffer(data, r.endian + "i2", n_frames * per_frame, dstart).reshape(n_frames, per_frame)
         points = vals[:, :4 * n_points].astype(float).reshape(n_frames, n_points, 4)
