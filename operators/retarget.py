@@ -6,7 +6,6 @@ arrays are ready. From scripts and in background mode `execute` runs the same st
 """
 
 import math
-import threading
 from pathlib import Path
 
 import bpy
@@ -15,9 +14,9 @@ from bpy_extras.io_utils import ExportHelper
 from ..bodycal_addon.blender import retarget_scene
 from ..bodycal_addon.blender.bake import BakeOptions
 from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
-from ..bodycal_addon.errors import Cancelled
 from ..bodycal_addon.filters import OneEuro
 from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from .background_work import BackgroundWork
 from .reporting import reports_errors
 
 METHOD_ITEMS = [
@@ -101,10 +100,11 @@ def _target_armatures(context) -> list:
     return ([active] if active is not None and active.type == "ARMATURE" else []) + selected
 
 
-class BODYCAL_OT_retarget_bake(bpy.types.Operator):
+class BODYCAL_OT_retarget_bake(BackgroundWork, bpy.types.Operator):
     """Retarget the scene's recording onto the avatar(s) with the chosen method and bake a new action
 on each"""
 
+    _doing, _cancelled = "retargeting", "Retargeting cancelled"
     bl_idname = "bodycal.retarget_bake"
     bl_label = "Retarget and Bake"
     bl_options = {"REGISTER", "UNDO"}
@@ -160,52 +160,18 @@ on each"""
 
     @reports_errors
     def invoke(self, context, _event):
-        self._inputs_cache = self._inputs(context)
-        self._progress = 0.0
-        self._cancel = threading.Event()
-        self._result = {}
+        inputs = self._inputs(context)
+        self._inputs_cache = inputs
+        n = len(inputs)
 
-        def work():
-            n = len(self._inputs_cache)
-            try:
-                self._result["anims"] = [retarget_scene.compute(
-                    inputs, progress=lambda f, k=k: setattr(self, "_progress", (k + f) / n),
-                    cancel=self._cancel.is_set) for k, inputs in enumerate(self._inputs_cache)]
-            except BaseException as exc:  # reported on the main thread
-                self._result["error"] = exc
+        def work(progress, cancel):
+            return [retarget_scene.compute(i, progress=lambda f, k=k: progress((k + f) / n), cancel=cancel)
+                    for k, i in enumerate(inputs)]
 
-        self._thread = threading.Thread(target=work, name="bodycal-retarget", daemon=True)
-        self._thread.start()
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.progress_begin(0, 100)
-        wm.modal_handler_add(self)
-        context.workspace.status_text_set("BodyCal: retargeting... (Esc to cancel)")
-        return {"RUNNING_MODAL"}
+        return self._start(context, work)
 
-    def _cleanup(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        context.workspace.status_text_set(None)
-
-    @reports_errors
-    def modal(self, context, event):
-        if event.type == "ESC":
-            self._cancel.set()
-        if event.type != "TIMER":
-            return {"RUNNING_MODAL"}
-        context.window_manager.progress_update(int(100 * self._progress))
-        if self._thread.is_alive():
-            return {"RUNNING_MODAL"}
-        self._cleanup(context)
-        error = self._result.get("error")
-        if isinstance(error, Cancelled):
-            self.report({"WARNING"}, "Retargeting cancelled: nothing was written")
-            return {"CANCELLED"}
-        if error is not None:
-            raise error  # bad input becomes one line (reports_errors); anything else is a bug
-        return self._finish(context, self._inputs_cache, self._result["anims"])
+    def _done(self, context, anims):
+        return self._finish(context, self._inputs_cache, anims)
 
 
 class BODYCAL_OT_export_animation(bpy.types.Operator, ExportHelper):

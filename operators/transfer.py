@@ -6,16 +6,16 @@ runs in a worker thread (it never touches bpy); the bake runs on the main thread
 target's arrays are ready. From scripts and in background mode `execute` runs the same steps."""
 
 import math
-import threading
 
 import bpy
 
 from ..bodycal_addon.blender import transfer_scene
 from ..bodycal_addon.blender.bake import BakeOptions
 from ..bodycal_addon.blender.retarget_scene import avatar_model_for
-from ..bodycal_addon.errors import BodyCalError, Cancelled
+from ..bodycal_addon.errors import BodyCalError
 from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from ..bodycal_addon.retarget.placement import avatar_warnings
+from .background_work import BackgroundWork
 from .reporting import reports_errors
 from .retarget import METHOD_ITEMS, RIGIFY_TARGET_ITEMS, ROOT_MOTION_ITEMS
 
@@ -73,10 +73,11 @@ def _targets(context) -> list:
     return [o for o in chosen if o != st.source]
 
 
-class BODYCAL_OT_transfer_animation(bpy.types.Operator):
+class BODYCAL_OT_transfer_animation(BackgroundWork, bpy.types.Operator):
     """Transfer the source character's action onto the target avatar(s), keeping its self-contacts, and
 bake a new action on each"""
 
+    _doing, _cancelled = "transferring", "Transfer cancelled"
     bl_idname = "bodycal.transfer_animation"
     bl_label = "Transfer and Bake"
     bl_options = {"REGISTER", "UNDO"}
@@ -143,50 +144,11 @@ bake a new action on each"""
         self._source, self._targets = self._inputs(context)
         if not self._targets:
             raise BodyCalError("no target armature")
-        self._progress = 0.0
-        self._cancel = threading.Event()
-        self._result = {}
+        return self._start(context, lambda progress, cancel: self._compute(context, self._source, self._targets,
+                                                                            progress=progress, cancel=cancel))
 
-        def work():
-            try:
-                self._result["anims"] = self._compute(context, self._source, self._targets,
-                                                      progress=lambda f: setattr(self, "_progress", f),
-                                                      cancel=self._cancel.is_set)
-            except BaseException as exc:  # reported on the main thread
-                self._result["error"] = exc
-
-        self._thread = threading.Thread(target=work, name="bodycal-transfer", daemon=True)
-        self._thread.start()
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.progress_begin(0, 100)
-        wm.modal_handler_add(self)
-        context.workspace.status_text_set("BodyCal: transferring... (Esc to cancel)")
-        return {"RUNNING_MODAL"}
-
-    def _cleanup(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        context.workspace.status_text_set(None)
-
-    @reports_errors
-    def modal(self, context, event):
-        if event.type == "ESC":
-            self._cancel.set()
-        if event.type != "TIMER":
-            return {"RUNNING_MODAL"}
-        context.window_manager.progress_update(int(100 * self._progress))
-        if self._thread.is_alive():
-            return {"RUNNING_MODAL"}
-        self._cleanup(context)
-        error = self._result.get("error")
-        if isinstance(error, Cancelled):
-            self.report({"WARNING"}, "Transfer cancelled: nothing was written")
-            return {"CANCELLED"}
-        if error is not None:
-            raise error
-        return self._finish(context, self._source, self._targets, self._result["anims"])
+    def _done(self, context, anims):
+        return self._finish(context, self._source, self._targets, anims)
 
 
 CLASSES = (BODYCAL_PG_transfer_settings, BODYCAL_OT_transfer_animation)
