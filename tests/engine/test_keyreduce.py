@@ -3,6 +3,8 @@ reduces what is reducible."""
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -35,23 +37,37 @@ def _worst_angle(q: np.ndarray, keep: np.ndarray) -> float:
     return worst
 
 
+@contextlib.contextmanager
+def _blocks_of(frames: int):
+    """The search's block length set small, so that short test curves span several blocks."""
+    saved, kr.BLOCK_FRAMES = kr.BLOCK_FRAMES, frames
+    try:
+        yield
+    finally:
+        kr.BLOCK_FRAMES = saved
+
+
 @settings(max_examples=40, deadline=None)
 @given(frames=st.integers(2, 300), bones=st.integers(1, 12), seed=st.integers(0, 2**31),
-       noise=st.sampled_from([0.0, 0.05, 0.5, 3.0]), tol_deg=st.sampled_from([0.01, 0.1, 0.5, 2.0]))
-def test_every_sample_is_within_the_rotation_tolerance(frames, bones, seed, noise, tol_deg):
+       noise=st.sampled_from([0.0, 0.05, 0.5, 3.0]), tol_deg=st.sampled_from([0.01, 0.1, 0.5, 2.0]),
+       block=st.sampled_from([1, 2, 7, 64, kr.BLOCK_FRAMES]))
+def test_every_sample_is_within_the_rotation_tolerance(frames, bones, seed, noise, tol_deg, block):
     q = _motion(frames, bones, seed, noise)
-    keep = kr.rotation_keys(q, np.radians(tol_deg))
+    with _blocks_of(block):
+        keep = kr.rotation_keys(q, np.radians(tol_deg))
     assert keep.shape == (frames, bones)
     assert keep[0].all() and keep[-1].all()
     assert _worst_angle(q, keep) <= np.radians(tol_deg) * (1 + 1e-6) + 1e-9
 
 
 @settings(max_examples=40, deadline=None)
-@given(frames=st.integers(2, 400), seed=st.integers(0, 2**31), tol_mm=st.sampled_from([0.1, 0.5, 5.0]))
-def test_every_sample_is_within_the_location_tolerance(frames, seed, tol_mm):
+@given(frames=st.integers(2, 400), seed=st.integers(0, 2**31), tol_mm=st.sampled_from([0.1, 0.5, 5.0]),
+       block=st.sampled_from([1, 5, 64, kr.BLOCK_FRAMES]))
+def test_every_sample_is_within_the_location_tolerance(frames, seed, tol_mm, block):
     rng = np.random.default_rng(seed)
     p = np.cumsum(np.cumsum(rng.normal(0, 1e-4, (frames, 3)), axis=0), axis=0) + rng.normal(0, 2e-4, (frames, 3))
-    keep = kr.location_keys(p, tol_mm / 1000.0)
+    with _blocks_of(block):
+        keep = kr.location_keys(p, tol_mm / 1000.0)
     approx = kr.interpolate(np.arange(frames, dtype=float), keep, p)
     assert keep[0] and keep[-1]
     assert np.linalg.norm(approx - p, axis=1).max() <= tol_mm / 1000.0 * (1 + 1e-9)
@@ -75,6 +91,20 @@ def test_what_linear_keys_reproduce_exactly_needs_only_its_ends():
     assert keep[:, 1].sum() <= 4
     ramp = np.linspace([0, 0, 0], [1.0, -2.0, 0.5], f)
     assert kr.location_keys(ramp, 1e-4).sum() == 2
+
+
+def test_a_long_take_is_searched_in_blocks_whose_ends_are_keys():
+    """Past one block the bound still holds across the block ends, each block end is a key, and
+    those are nearly all the keys a still bone gets (one per block)."""
+    f = 3 * kr.BLOCK_FRAMES + 100
+    still = np.tile([[0.6, 0.0, 0.8, 0.0]], (f, 1))
+    q = np.stack([still, _motion(f, 1, 3, 0.05)[:, 0]], axis=1)
+    keep = kr.rotation_keys(q, np.radians(0.1))
+    ends = np.r_[np.arange(0, f, kr.BLOCK_FRAMES), f - 1]
+    assert keep[ends].all()
+    assert keep[:, 0].sum() == len(ends)
+    assert _worst_angle(q, keep) <= np.radians(0.1) * (1 + 1e-6) + 1e-9
+    assert kr.location_keys(np.linspace([0, 0, 0], [1.0, -2.0, 0.5], f), 1e-4).sum() == len(ends)
 
 
 def _slow_swings(frames: int, bones: int, fps: float = 90.0) -> np.ndarray:
