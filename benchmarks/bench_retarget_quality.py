@@ -11,7 +11,10 @@ Figures per method and avatar:
 - reach error (mm): the avatar's wrists, ankles and fingertips after IK against their targets.
 Target for egocentric: p95 contact gap <= 10 mm on every avatar and >= 5x smaller than rotations.
 
-Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_retarget_quality.py [--quick]
+`--filter[=MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]`: the recordings go through the One Euro filter
+first (filters.py; its defaults without parameters), as `retarget --filter` does.
+
+Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_retarget_quality.py [--quick] [--filter[=...]]
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np  # noqa: E402
 from bodycal_addon import metrics, paths  # noqa: E402
 from bodycal_addon import skeleton as sk  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
+from bodycal_addon.filters import OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
@@ -96,7 +100,7 @@ def ap_bones():
     return BONES
 
 
-def main(quick: bool = False):
+def main(quick: bool = False, smooth: OneEuro | None = None):
     t0 = time.time()
     avatars, notes = _avatars()
     performers = PERFORMERS[:1] if quick else PERFORMERS
@@ -104,6 +108,8 @@ def main(quick: bool = False):
     for build, height in performers:
         perf = synthetic.make_performer(height=height, build=build, seed=1)
         rec, truth = synthetic.record_session(perf, motions=CONTACT_MOTIONS, calibration=False, seed=1)
+        if smooth is not None:
+            rec = filter_recording(rec, smooth)
         sessions.append((build, rec, truth, truth.body_model()))
     res: dict = {m: {} for m in pl.METHODS}
     fps = {m: [] for m in pl.METHODS}
@@ -140,6 +146,7 @@ def main(quick: bool = False):
              for a in ego}
     out = {
         "bench": "retarget_quality",
+        "filter": None if smooth is None else [smooth.min_cutoff, smooth.beta, smooth.rot_min_cutoff, smooth.rot_beta],
         "performers": [b for b, *_ in sessions],
         "motions": list(CONTACT_MOTIONS),
         "avatars": [a for a, *_ in avatars],
@@ -161,4 +168,5 @@ def main(quick: bool = False):
 
 if __name__ == "__main__":
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    main(quick="--quick" in sys.argv)
+    given = [a.partition("=")[2] for a in sys.argv[1:] if a.split("=")[0] == "--filter"]
+    main(quick="--quick" in sys.argv, smooth=OneEuro.parse(given[-1]) if given else None)

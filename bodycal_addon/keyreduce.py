@@ -74,9 +74,10 @@ def _reduce(samples: np.ndarray, tolerance: float, error) -> np.ndarray:
     return keep
 
 
-def _reduce_blocks(curves: np.ndarray, tolerance: float, error) -> np.ndarray:
+def _reduce_blocks(curves: np.ndarray, tolerance: float, error, unit: bool = False) -> np.ndarray:
     """Key mask (F, G) for curves (F, G, C), searched BLOCK_FRAMES frames at a time (every curve
-    of a block at once; the frame shared by two blocks is a key of both)."""
+    of a block at once; the frame shared by two blocks is a key of both). `unit`: each sample is
+    normalised first (in float64)."""
     f, g = curves.shape[:2]
     keep = np.zeros((f, g), bool)
     if f <= 2 or tolerance <= 0:
@@ -85,6 +86,8 @@ def _reduce_blocks(curves: np.ndarray, tolerance: float, error) -> np.ndarray:
     for start in range(0, f - 1, BLOCK_FRAMES):
         stop = min(start + BLOCK_FRAMES, f - 1) + 1
         block = np.ascontiguousarray(curves[start:stop].transpose(1, 0, 2), dtype=float)
+        if unit:
+            block /= np.linalg.norm(block, axis=-1, keepdims=True)
         keep[start:stop] |= _reduce(block, tolerance, error).T
     return keep
 
@@ -108,7 +111,9 @@ def rotation_keys(quaternions: np.ndarray, tolerance_rad: float) -> np.ndarray:
     within `tolerance_rad` of every sample. A tolerance of 0 keeps every frame."""
     q = np.asarray(quaternions)
     tol = float(tolerance_rad)
-    return _reduce_blocks(q, 1.0 - np.cos(tol / 2.0) if tol > 0 else 0.0, _rotation_badness)
+    # Normalised: the badness 1 - cos(angle / 2) is ~4e-7 at 0.1 deg, and a float32 quaternion's
+    # norm is off by up to ~6e-8, which would take 0.01 deg off (or add it to) the bound.
+    return _reduce_blocks(q, 1.0 - np.cos(tol / 2.0) if tol > 0 else 0.0, _rotation_badness, unit=True)
 
 
 def location_keys(locations: np.ndarray, tolerance: float) -> np.ndarray:

@@ -118,8 +118,10 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     frame_start = float(scene.frame_start if frame_start is None else frame_start)
     # --- compute everything first -------------------------------------------------------------
     frames32 = key_frames(anim.time, fps, frame_start).astype(np.float32)
-    in_place = own and anim.rotations.dtype == np.float64 and anim.rotations.flags.writeable
-    rotations = continuous_quaternions(anim.rotations, in_place=in_place)  # (F, B, 4)
+    in_place = own and anim.rotations.dtype in (np.float32, np.float64) and anim.rotations.flags.writeable
+    # (F, B, 4) as Blender keys them, float32: what an every-frame bake holds, so the reduction's
+    # bound is measured against it, whatever precision `anim` came in.
+    rotations = np.asarray(continuous_quaternions(anim.rotations, in_place=in_place), np.float32)
     # The tolerance is in world millimetres; the root location is keyed in armature units.
     rot_keep, loc_keep = key_masks(anim, rotations, tolerance_deg, location_tolerance_mm, 1.0 / world_scale(obj))
     root_location = np.asarray(anim.root_location, dtype=np.float32)

@@ -232,3 +232,26 @@ def test_saving_does_not_copy_the_baked_action(tmp_path):
     growth = float(proc.stdout.split("GROWTH")[-1])
     assert growth < 40.0, f"saving grew the process by {growth:.0f} MB"
     assert out.stat().st_size > 0
+
+
+def test_a_released_animation_bakes_the_same_keys(take):
+    """The command gives its animation away (release): it is keyed from float32 rotations, Blender's
+    own precision, and the action is the one the kept animation bakes, key for key."""
+    from bodycal_addon.blender import retarget_scene
+    from bodycal_addon.blender.fcurves import object_fcurves, read_keys
+
+    actions = []
+    for release in (False, True):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        arm, _mesh, _spec = rigs.build_procedural_avatar()
+        inputs = retarget_scene.gather_inputs(bpy.context.scene, arm, "egocentric", recording=take["rec"],
+                                              user=take["user"])
+        anim = retarget_scene.compute(inputs)
+        summary = retarget_scene.bake_and_measure(inputs, anim, release=release)
+        assert (anim.rotations.dtype == np.float32) == release
+        curves = object_fcurves(arm)
+        actions.append((summary.keys, {k: np.stack(read_keys(fc)) for k, fc in curves.items()}))
+    (keys_kept, kept), (keys_released, released) = actions
+    assert keys_kept == keys_released and kept.keys() == released.keys()
+    for k in kept:
+        np.testing.assert_array_equal(kept[k], released[k], err_msg=str(k))
