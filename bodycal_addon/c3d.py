@@ -106,9 +106,12 @@ class _Reader:
     def floats(self, off, count) -> np.ndarray:
         self.need(off, 4 * count, "parameter section")
         raw = np.frombuffer(self.data, np.uint8, 4 * count, off).reshape(count, 4)
-        if self.proc == DEC:
-            return _dec_to_ieee(raw).astype(float)
-        return raw.copy().view(self.endian + "f4")[:, 0].astype(float)
+        # A damaged parameter may be a signalling NaN, which warns when widened: it stays a NaN,
+        # and the checks of the parameter that uses it report it in one line.
+        with np.errstate(invalid="ignore", over="ignore"):
+            if self.proc == DEC:
+                return _dec_to_ieee(raw).astype(float)
+            return raw.copy().view(self.endian + "f4")[:, 0].astype(float)
 
     def f32(self, off):
         return float(self.floats(off, 1)[0])
