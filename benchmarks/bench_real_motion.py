@@ -14,9 +14,13 @@ Figures, per clip x profile (calibration) and per method x avatar x clip x profi
 - sole height during the source's stance (mm): median and worst of the avatar's lowest sole point;
 - foot slide (mm per 90 Hz frame, p95) of the avatar's ankle over the source's stance frames, with
   the source's own;
-- wrist / ankle acceleration p95 over the source's (scaled by the avatar / source arm and leg
-  ratios: the same motion moves a longer limb's end faster), and over the user's own joint as the
-  trackers give it, scaled alike (`pipeline_gain`: what the pipeline adds);
+- wrist / ankle acceleration p95 over the source's, scaled the way the method scales motion: by the
+  avatar / source arm and leg ratios for egocentric and rotations (a rotation copy moves a longer
+  limb's end faster), by AvatarGo's one eye-height ratio for offsets (eq. 2 at the user's size,
+  divided by it: a child's legs, shorter for its height than an adult's, then move ~14% more than
+  the leg ratio says, by the method's design; `accel_ratio_limb_scaled` keeps that figure too);
+  and over the user's own joint as the trackers give it, scaled alike (`pipeline_gain`: what the
+  pipeline adds);
 - hip-line angle (degrees, p95 and max) between the avatar's and the source's.
 Every retarget runs twice: on the recording as read (`raw`) and with the One Euro filter's defaults
 on the devices (`filtered`): 0.5 mm of tracker noise alone puts the raw controller at 1.5-2x the
@@ -48,6 +52,7 @@ from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
 from bodycal_addon.errors import BodyCalError  # noqa: E402
 from bodycal_addon.filters import OneEuro, filter_recording  # noqa: E402
+from bodycal_addon.retarget import offsets  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig  # noqa: E402
 from bodycal_addon.retarget.user_animation import animate_user  # noqa: E402
@@ -103,6 +108,9 @@ def motion_figures(anim, avatar, truth, k: dict, user_pose) -> dict:
             av = measure.accel_p95(anim.joints_world[f"{j}_{s}"][a:b].astype(float), fps)
             src = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k[j]
             out["accel_ratio"][f"{j}_{s}"] = round(av / max(src, 1e-9), 2)
+            if "limb" in k:
+                limb = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k["limb"][j]
+                out.setdefault("accel_ratio_limb_scaled", {})[f"{j}_{s}"] = round(av / max(limb, 1e-9), 2)
             # against the user's own joint, as the trackers give it (scaled): what the pipeline adds
             usr = measure.accel_p95(user_pose.joint(f"{j}_{s}")[a:b], fps) * k[j]
             out["pipeline_gain"][f"{j}_{s}"] = round(av / max(usr, 1e-9), 2)
@@ -143,7 +151,8 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
             filtered = filter_recording(rec, OneEuro())
             user_poses = {"raw": animate_user(rec, user), "filtered": animate_user(filtered, user)}
             for name, _arm, avatar in avatars:
-                k = _size_ratios(AvatarRig.from_model(avatar), truth, ref)
+                limb_k = _size_ratios(AvatarRig.from_model(avatar), truth, ref)
+                eye_k = offsets.eye_height(avatar) / offsets.eye_height(user)
                 for method in pl.METHODS:
                     for variant, take in (("raw", rec), ("filtered", filtered)):
                         try:
@@ -152,6 +161,7 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
                         except BodyCalError as exc:
                             motion[f"{method}/{name}/{key}/{variant}"] = {"error": str(exc)}
                             continue
+                        k = limb_k if method != "offsets" else {"ankle": eye_k, "wrist": eye_k, "limb": limb_k}
                         motion[f"{method}/{name}/{key}/{variant}"] = motion_figures(anim, avatar, truth, k,
                                                                                    user_poses[variant])
     out = {"bench": "real_motion", "clips": [p.stem for p in clips], "avatars": [a for a, *_ in avatars],

@@ -48,7 +48,7 @@ from .avatar_pose import (
 )
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource, RecordingSource
-from .user_animation import _trackers, pose_finger_chain
+from .user_animation import _trackers, pose_finger_chain, sacrum_toward_hip_line
 
 TARGETS = tuple(
     [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
@@ -462,7 +462,11 @@ class ExactOffsets(Method):
                     tr0 = _trackers(run.rec, run.user, f0, f0 + 1)
                 if tr0 is not None and role in tr0.pos:
                     tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
-        self.ofs = ofs.setup(run.user, run.rig, run.user_frames0, tpose, run.centre)
+        # The user's sacrum at the T-pose as the other methods see it (halfway to the hip line),
+        # so that eq. 3 turns the avatar's pelvis the way theirs turns.
+        ref = run.user_frames0.copy()
+        ref[BI["sacrum"]] = sacrum_toward_hip_line(ref[BI["sacrum"]], run.user_pos["hip_l"], run.user_pos["hip_r"])
+        self.ofs = ofs.setup(run.user, run.rig, ref, tpose, run.centre)
         self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
 
     def ankle_places(self, trackers) -> dict:

@@ -215,10 +215,7 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
         Fr[:, BI[f"foot_{s}"]] = _rigid(tr, f"foot_{s}", C0[BI[f"foot_{s}"]])
         Fr[:, BI[f"hand_{s}"]] = _rigid(tr, f"hand_{s}", C0[BI[f"hand_{s}"]])
     # --- sacrum: lateral and origin averaged with the hip line (appendix D) ----------------------
-    lat_hips = normalize(P["hip_l"] - P["hip_r"])
-    x_rigid = sac[..., :, 0]
-    fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + lat_hips)))
-    sac = fix @ sac
+    sac = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])
     hipmid0 = 0.5 * (rest_pos["hip_l"] + rest_pos["hip_r"])
     from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
     P["pelvis"] = 0.5 * (pel_rigid + from_hips)
@@ -265,6 +262,15 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
         raise BodyCalError("the user animation has non-finite values", source=src,
                            hint="check the recording for broken device poses")
     return UserPose(recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
+
+
+def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
+    """The sacrum frame (..., 3, 3) turned so its lateral axis lies half way to the hip line
+    (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
+    hip centres each carry their own error, and the average halves the larger."""
+    x_rigid = sacrum[..., :, 0]
+    fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + normalize(hip_l - hip_r))))
+    return fix @ sacrum
 
 
 def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
