@@ -267,7 +267,7 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
     """The sacrum frame (..., 3, 3) turned so its lateral axis lies half way to the hip line
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
-    hip centres each carry their own error, and the average halves the larger."""
+    hip centres each carry their own error, and their average is never worse than the worse of them."""
     x_rigid = sacrum[..., :, 0]
     fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + normalize(hip_l - hip_r))))
     return fix @ sacrum
