@@ -106,9 +106,13 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
 
 
 def axis_angle_to_quat(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    axis = normalize(axis)
+    """Unit quaternions for turns by `angle` about `axis` (any length). A zero axis is no turn
+    whatever the angle, as Blender reads a bone's axis-angle rotation."""
+    unit = normalize(axis)
     half = 0.5 * np.asarray(angle, float)[..., None]
-    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+    q = np.concatenate([np.cos(half), np.sin(half) * unit], axis=-1)
+    still = ~np.any(unit, axis=-1)
+    return np.where(still[..., None], np.array([1.0, 0.0, 0.0, 0.0]), q)
 
 
 def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

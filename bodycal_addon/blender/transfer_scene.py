@@ -22,7 +22,7 @@ from ..bodymodel import BodyModel
 from ..errors import BodyCalError
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.transfer import check_method, stand_on_floor, transfer
-from ..transforms import matrix_to_quat, quat_normalize
+from ..transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
 from . import avatar_rig, avatar_storage, bake, rig_output
 from .avatar_calibration import avatar_meshes
 from .fcurves import object_fcurves, read_keys
@@ -67,13 +67,6 @@ def _euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
         m[:, j, i] = s
         out = m @ out
     return out
-
-
-def _axis_angle_quats(v: np.ndarray) -> np.ndarray:
-    angle, axis = v[:, 0], v[:, 1:]
-    n = np.linalg.norm(axis, axis=1, keepdims=True)
-    axis = np.where(n > 1e-12, axis / np.maximum(n, 1e-12), [0.0, 1.0, 0.0])
-    return np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], axis=1)
 
 
 def _sample(fc, frames: np.ndarray) -> np.ndarray:
@@ -121,7 +114,8 @@ def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.n
         if mode == "QUATERNION":
             basis[:, i] = quat_normalize(channel(name, "rotation_quaternion", 4, list(pb.rotation_quaternion)))
         elif mode == "AXIS_ANGLE":
-            basis[:, i] = _axis_angle_quats(channel(name, "rotation_axis_angle", 4, list(pb.rotation_axis_angle)))
+            v = channel(name, "rotation_axis_angle", 4, list(pb.rotation_axis_angle))  # (angle, x, y, z)
+            basis[:, i] = axis_angle_to_quat(v[:, 1:], v[:, 0])
         else:
             basis[:, i] = matrix_to_quat(_euler_matrices(channel(name, "rotation_euler", 3, list(pb.rotation_euler)),
                                                          mode))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon import metrics
+from bodycal_addon import metrics, paths
 from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
 from bodycal_addon.blender import transfer_scene as ts
 from bodycal_addon.blender.retarget_scene import avatar_model_for
@@ -50,6 +50,41 @@ def test_the_action_read_from_its_fcurves_poses_as_blender_does(data_dir):
     with pytest.raises(BodyCalError, match="animates none of the armature's bones"):
         ts.read_source(arm, bpy.data.actions.new("empty"))
     assert arm.animation_data.action.name == "02_01_walk"
+
+
+def test_every_rotation_mode_is_read_as_blender_poses_it():
+    """Hand-keyed rigs use any rotation mode: each Euler order and axis-angle (with an unnormalised
+    axis, and a zero axis, which Blender reads as no turn) give the rotation Blender poses."""
+    from bodycal_addon.blender.fcurves import new_fcurve, write_keys
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, _spec = paths.sample_rigs().build_procedural_avatar()
+    modes = ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "AXIS_ANGLE", "AXIS_ANGLE"]
+    names = [b.name for b in arm.pose.bones][1:1 + len(modes)]
+    rng = np.random.default_rng(4)
+    action = bpy.data.actions.new("modes")
+    arm.animation_data_create().action = action
+    frames = np.array([1.0, 2.0, 3.0], np.float32)
+    for k, (name, mode) in enumerate(zip(names, modes)):
+        arm.pose.bones[name].rotation_mode = mode
+        esc = bpy.utils.escape_identifier(name)
+        if mode == "AXIS_ANGLE":
+            values = np.column_stack([rng.uniform(-3, 3, 3), 2.5 * rng.normal(size=(3, 3))])
+            if k == len(modes) - 1:
+                values[1, 1:] = 0.0  # a zero axis with a turn of its own
+            path = f'pose.bones["{esc}"].rotation_axis_angle'
+        else:
+            values = rng.uniform(-3, 3, (3, 3))
+            path = f'pose.bones["{esc}"].rotation_euler'
+        for c in range(values.shape[1]):
+            write_keys(new_fcurve(action, arm, path, c, name), frames, values[:, c])
+    basis, _locations = ts.read_action(arm, action, names, frames.astype(float))
+    for f, frame in enumerate(frames):
+        bpy.context.scene.frame_set(int(frame))
+        for i, name in enumerate(names):
+            want = np.array(arm.pose.bones[name].matrix_basis.to_quaternion())
+            got = basis[f, i]
+            assert min(np.abs(got - want).max(), np.abs(got + want).max()) < 1e-5, (name, modes[i], got, want)
 
 
 @pytest.mark.parametrize("avatar", ["adult_male", "child_10y"])
