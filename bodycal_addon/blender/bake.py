@@ -12,6 +12,7 @@ if writing fails half way the new action is removed and the previous assignment 
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import bpy
@@ -58,6 +59,45 @@ class BakeResult:
     replaced: str | None = None
     nla_track: str | None = None
     samples: int = 0  # keys an every-frame bake would have written
+
+
+_POSE_SETTINGS = ("rotation_mode", "location", "rotation_quaternion", "rotation_euler", "rotation_axis_angle", "scale")
+
+
+@contextlib.contextmanager
+def restored_on_failure(obj, scene):
+    """What getting an armature ready for a bake changes, put back if the bake then fails: each
+    pose bone's rotation mode and pose, its custom number properties (a Rigify rig's IK/FK
+    switches), every bone constraint's mute, the object's own properties and the scene's frame
+    rate. A bake that completes keeps them: the new action plays with them."""
+    bones = {pb.name: ({k: _copied(getattr(pb, k)) for k in _POSE_SETTINGS},
+                       {k: pb[k] for k in pb.keys() if isinstance(pb[k], (int, float))},
+                       [c.mute for c in pb.constraints]) for pb in obj.pose.bones}
+    props = {k: obj[k] for k in obj.keys() if isinstance(obj[k], (int, float, str))}
+    rate = scene.render.fps, scene.render.fps_base
+    try:
+        yield
+    except BaseException:
+        for pb in obj.pose.bones:
+            if pb.name not in bones:
+                continue
+            settings, numbers, mutes = bones[pb.name]
+            for k, v in settings.items():
+                setattr(pb, k, v)
+            for k, v in numbers.items():
+                pb[k] = v
+            for c, m in zip(pb.constraints, mutes):
+                c.mute = m
+        for k in [k for k in obj.keys() if k not in props and isinstance(obj[k], (int, float, str))]:
+            del obj[k]
+        for k, v in props.items():
+            obj[k] = v
+        scene.render.fps, scene.render.fps_base = rate
+        raise
+
+
+def _copied(value):
+    return value if isinstance(value, str) else tuple(value)
 
 
 def default_action_name(recording: str, avatar: str, method: str) -> str:

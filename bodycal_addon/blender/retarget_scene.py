@@ -140,19 +140,20 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
         inputs.recording, anim.joints_world, anim.targets = None, {}, {}
         process.release_freed_memory()
     t0 = time.perf_counter()
-    if set_scene_rate:
-        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
-    keyed = resample(anim, rate) if resampled else anim
-    keyed = rig_output.for_bake(keyed, inputs.armature, options.root_motion, options.rigify_target,
-                                own=resampled or release)
-    if release:
-        # Keys are float32 in Blender: the rotations the bake keys from need be no finer (a
-        # 10-minute take: 46 MB less while the keys are made; the reduction searches in float64).
-        keyed.rotations = np.asarray(keyed.rotations, np.float32)
-        anim.rotations = keyed.rotations
-    result = bake.bake_animation(keyed, inputs.armature, action_name=name, replace=replace, push_to_nla=push_to_nla,
-                                 fps=rate, tolerance_deg=options.tolerance_deg,
-                                 location_tolerance_mm=options.location_tolerance_mm, own=resampled or release)
+    with bake.restored_on_failure(inputs.armature, bpy.context.scene):
+        if set_scene_rate:
+            bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = fps, fps_base
+        keyed = resample(anim, rate) if resampled else anim
+        keyed = rig_output.for_bake(keyed, inputs.armature, options.root_motion, options.rigify_target,
+                                    own=resampled or release)
+        if release:
+            # Keys are float32 in Blender: the rotations the bake keys from need be no finer (a
+            # 10-minute take: 46 MB less while the keys are made; the reduction searches in float64).
+            keyed.rotations = np.asarray(keyed.rotations, np.float32)
+            anim.rotations = keyed.rotations
+        result = bake.bake_animation(keyed, inputs.armature, action_name=name, replace=replace,
+                                     push_to_nla=push_to_nla, fps=rate, tolerance_deg=options.tolerance_deg,
+                                     location_tolerance_mm=options.location_tolerance_mm, own=resampled or release)
     if inputs.avatar_calibrated_now:
         avatar_storage.store_model(inputs.armature, inputs.avatar)
     bake_s = time.perf_counter() - t0

@@ -296,16 +296,17 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
     options = options or bake.BakeOptions()
     rate = float(options.fps or source.fps)
     resampled = abs(rate - source.fps) > 1e-6 * rate
-    keyed = resample(anim, rate) if resampled else anim
-    keyed = rig_output.for_bake(keyed, arm, options.root_motion, options.rigify_target, own=resampled)
-    if set_scene_rate:
-        whole = max(1, int(round(rate)))
-        bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = whole, whole / rate
     t0 = time.perf_counter()
     name = action_name or bake.default_action_name(source.action, arm.name, anim.method)
-    result = bake.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla, fps=rate,
-                                 tolerance_deg=options.tolerance_deg,
-                                 location_tolerance_mm=options.location_tolerance_mm)
+    with bake.restored_on_failure(arm, bpy.context.scene):
+        keyed = resample(anim, rate) if resampled else anim
+        keyed = rig_output.for_bake(keyed, arm, options.root_motion, options.rigify_target, own=resampled)
+        if set_scene_rate:
+            whole = max(1, int(round(rate)))
+            bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = whole, whole / rate
+        result = bake.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla,
+                                     fps=rate, tolerance_deg=options.tolerance_deg,
+                                     location_tolerance_mm=options.location_tolerance_mm)
     if avatar is not None:  # calibrated for this bake: kept with it, as retarget does
         avatar_storage.store_model(arm, avatar)
     compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)

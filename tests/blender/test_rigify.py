@@ -149,3 +149,53 @@ def test_the_command_line_bakes_a_rigify_rig_on_its_controls_or_its_def_bones(ri
             assert {"DEF-spine", "DEF-hand.L"} <= keyed and "torso" not in keyed
             assert all(c.mute for c in arm.pose.bones["DEF-hand.L"].constraints)
     assert "Traceback" not in out.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("target", ["fk", "def"])
+def test_a_failed_bake_leaves_the_rig_as_it_was(rigify_blend, belly, monkeypatch, target):
+    """Getting a Rigify rig ready for its bake sets its IK/FK switches, mutes or unmutes its DEF-
+    constraints, rests its controls and sets the scene's rate. When the bake then fails, all of
+    that is put back and the rig's own action stays assigned."""
+    from bodycal_addon.blender import retarget_scene
+
+    rec, user = belly
+    arm, _mesh = _open(rigify_blend)
+    scene = bpy.context.scene
+    inputs = retarget_scene.gather_inputs(scene, arm, "egocentric", recording=rec, user=user)
+    anim = retarget_scene.compute(inputs)
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+    arm.pose.bones["upper_arm_parent.L"]["IK_FK"] = 0.0
+    arm.pose.bones["forearm_fk.L"].rotation_quaternion = (0.9, 0.3, 0.2, 0.1)
+    arm.pose.bones["torso"].location = (0.1, 0.0, 0.05)
+    mine = bpy.data.actions.new("animator's")
+    arm.animation_data_create().action = mine
+
+    def state():
+        return ({pb.name: (pb.rotation_mode, tuple(pb.location), tuple(pb.rotation_quaternion),
+                           tuple(pb.rotation_euler), tuple(pb.scale),
+                           {k: pb[k] for k in pb.keys() if isinstance(pb[k], (int, float, str))},
+                           [c.mute for c in pb.constraints]) for pb in arm.pose.bones},
+                dict(arm.items()), (scene.render.fps, scene.render.fps_base), arm.animation_data.action)
+
+    before = state()
+    calls = []
+
+    def failing_write(*args, **kwargs):
+        calls.append(1)
+        if len(calls) > 40:
+            raise RuntimeError("disk full")
+        return write_keys(*args, **kwargs)
+
+    from bodycal_addon.blender.fcurves import write_keys
+
+    monkeypatch.setattr(bake, "write_keys", failing_write)
+    with pytest.raises(RuntimeError, match="disk full"):
+        retarget_scene.bake_and_measure(inputs, anim, set_scene_rate=True,
+                                        options=bake.BakeOptions(rigify_target=target))
+    assert len(calls) > 40  # it failed half way through the keys
+    after = state()
+    assert after[1:] == before[1:]
+    changed = [n for n in before[0] if before[0][n] != after[0][n]]
+    assert not changed, changed[:5]
+    assert [a.name for a in bpy.data.actions if a.name.startswith(rec.name)] == []  # the half-made action went
