@@ -5,18 +5,16 @@ progress and listens for Esc; the bake (the only scene write) runs on the main t
 arrays are ready. From scripts and in background mode `execute` runs the same steps synchronously.
 """
 
-import math
 from pathlib import Path
 
 import bpy
 from bpy_extras.io_utils import ExportHelper
 
 from ..bodycal_addon.blender import retarget_scene
-from ..bodycal_addon.blender.bake import BakeOptions
 from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
 from ..bodycal_addon.filters import OneEuro
-from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from .background_work import BackgroundWork
+from .bake_settings import BakeSettings
 from .reporting import reports_errors
 
 METHOD_ITEMS = [
@@ -31,31 +29,12 @@ PLACEMENT_ITEMS = [  # retarget/placement.py
      "devices), on its own floor"),
 ]
 
-ROOT_MOTION_ITEMS = [  # retarget/root_motion.py
-    ("root", "Root Bone", "The travel and heading on the rig's root bone when it has one above the pelvis "
-     "(game engines' root motion); else on the pelvis"),
-    ("pelvis", "Pelvis", "The travel on the pelvis; the root bone stays at rest"),
-    ("in-place", "In Place", "No horizontal travel: the character stays on its spot"),
-]
-RIGIFY_TARGET_ITEMS = [  # retarget/rigify.py
-    ("fk", "FK Controls", "A generated Rigify rig is keyed on its FK controls (IK switched to FK): ready to edit"),
-    ("def", "DEF Bones", "A generated Rigify rig is keyed on its deforming DEF- bones: for export"),
-]
-
-
-class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
+class BODYCAL_PG_retarget_settings(BakeSettings, bpy.types.PropertyGroup):
     method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="egocentric")
     armature: bpy.props.PointerProperty(
         name="Avatar", type=bpy.types.Object, poll=lambda _self, obj: obj.type == "ARMATURE",
         description="Armature to animate (default: the selected armatures)")
-    replace: bpy.props.BoolProperty(
-        name="Replace Action", default=False,
-        description="Overwrite an existing action of the same name instead of creating a new one")
-    push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
-                                        description="Put the baked action on a new NLA track")
     placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
-    root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root")
-    rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk")
     plant_feet: bpy.props.BoolProperty(
         name="Plant Feet", default=True,
         description="Hold each foot still and on the floor while the performer stands on it (every method)")
@@ -74,20 +53,10 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     filter_rot_beta: bpy.props.FloatProperty(
         name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
-    tolerance: bpy.props.FloatProperty(
-        name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0),
-        precision=3, subtype="ANGLE",
-        description="Key reduction: every bone's rotation stays within this angle of the every-frame bake "
-                    "(linear keys); 0 keys every frame")
-    location_tolerance: bpy.props.FloatProperty(
-        name="Location Tolerance", default=DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
-        precision=4, subtype="DISTANCE", unit="LENGTH",
-        description="Key reduction of the root bone's location: stays within this distance of the every-frame bake")
     output_fps: bpy.props.IntProperty(
         name="Frame Rate", default=0, min=0, max=1000,
         description="Frame rate of the baked action, timing kept (0: the scene's rate; another rate also "
                     "becomes the scene's)")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 
 
 def _target_armatures(context) -> list:
@@ -139,9 +108,7 @@ on each"""
         settings = context.scene.bodycal_retarget
         render = context.scene.render
         fps = float(settings.output_fps) if settings.output_fps else render.fps / render.fps_base
-        options = BakeOptions(math.degrees(settings.tolerance),
-                              settings.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps,
-                              settings.root_motion, settings.rigify_target)
+        options = settings.bake_options(context, fps)
         lines = [retarget_scene.bake_and_measure(i, a, replace=settings.replace, push_to_nla=settings.push_to_nla,
                                                  options=options, set_scene_rate=bool(settings.output_fps)
                                                  ).line() for i, a in zip(inputs, anims)]

@@ -5,19 +5,17 @@ The source is read into numpy on the main thread (its F-Curves, its body model);
 runs in a worker thread (it never touches bpy); the bake runs on the main thread once every
 target's arrays are ready. From scripts and in background mode `execute` runs the same steps."""
 
-import math
 
 import bpy
 
 from ..bodycal_addon.blender import transfer_scene
-from ..bodycal_addon.blender.bake import BakeOptions
 from ..bodycal_addon.blender.retarget_scene import avatar_model_for
 from ..bodycal_addon.errors import BodyCalError
-from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from ..bodycal_addon.retarget.placement import avatar_warnings
 from .background_work import BackgroundWork
+from .bake_settings import BakeSettings
 from .reporting import reports_errors
-from .retarget import METHOD_ITEMS, RIGIFY_TARGET_ITEMS, ROOT_MOTION_ITEMS
+from .retarget import METHOD_ITEMS
 
 TRANSFER_METHOD_ITEMS = [m for m in METHOD_ITEMS if m[0] in ("egocentric", "rotations")]
 PLACEMENT_ITEMS = [  # retarget/placement.py, the source's motion relative to its own armature object
@@ -31,7 +29,7 @@ def _is_armature(_self, obj):
     return obj.type == "ARMATURE"
 
 
-class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
+class BODYCAL_PG_transfer_settings(BakeSettings, bpy.types.PropertyGroup):
     source: bpy.props.PointerProperty(name="Source", type=bpy.types.Object, poll=_is_armature,
                                       description="The animated character whose action is transferred")
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action,
@@ -41,26 +39,12 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
         description="Armature to animate (default: the selected armatures other than the source)")
     method: bpy.props.EnumProperty(name="Method", items=TRANSFER_METHOD_ITEMS, default="egocentric")
     placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
-    root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root")
-    rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk")
     plant_feet: bpy.props.BoolProperty(name="Plant Feet", default=True,
                                        description="Hold each foot still and on the floor while the source stands "
                                                    "on it")
-    replace: bpy.props.BoolProperty(name="Replace Action", default=False,
-                                    description="Overwrite an existing action of the same name")
-    push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
-                                        description="Put the baked action on a new NLA track")
-    tolerance: bpy.props.FloatProperty(
-        name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0),
-        precision=3, subtype="ANGLE",
-        description="Key reduction: every bone's rotation stays within this angle of the every-frame bake")
-    location_tolerance: bpy.props.FloatProperty(
-        name="Location Tolerance", default=DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
-        precision=4, subtype="DISTANCE", unit="LENGTH",
-        description="Key reduction of the root bone's location")
     output_fps: bpy.props.IntProperty(name="Frame Rate", default=0, min=0, max=1000,
-                                      description="Frame rate of the baked action (0: the scene's rate)")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+                                      description="Frame rate of the baked action, timing kept (0: the source's "
+                                                  "rate); the scene is set to it")
 
 
 def _targets(context) -> list:
@@ -122,9 +106,7 @@ bake a new action on each"""
 
     def _finish(self, context, source, targets, anims):
         st = context.scene.bodycal_transfer
-        options = BakeOptions(math.degrees(st.tolerance),
-                              st.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length,
-                              float(st.output_fps) if st.output_fps else None, st.root_motion, st.rigify_target)
+        options = st.bake_options(context, float(st.output_fps) if st.output_fps else None)
         lines = [transfer_scene.bake_transfer(source, anim, arm, options=options, replace=st.replace,
                                               push_to_nla=st.push_to_nla, set_scene_rate=True,
                                               avatar=model if fresh else None).line()

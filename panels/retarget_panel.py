@@ -2,6 +2,8 @@
 
 import bpy
 
+from .bake_rows import draw_keys, draw_last_result, draw_rig_output
+
 
 class BODYCAL_PT_retarget(bpy.types.Panel):
     bl_idname = "BODYCAL_PT_retarget"
@@ -18,11 +20,7 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
         col.prop(settings, "armature")
         col.prop(settings, "method")
         col.prop(settings, "placement")
-        col.prop(settings, "root_motion")
-        col.prop(settings, "rigify_target")
-        row = col.row(align=True)
-        row.prop(settings, "replace", toggle=True)
-        row.prop(settings, "push_to_nla", toggle=True)
+        draw_rig_output(col, settings)
         col.prop(settings, "plant_feet")
         col.prop(settings, "use_filter")
         if settings.use_filter:
@@ -31,16 +29,10 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
             sub.prop(settings, "filter_beta")
             sub.prop(settings, "filter_rot_min_cutoff")
             sub.prop(settings, "filter_rot_beta")
-        sub = col.column(align=True)
-        sub.prop(settings, "output_fps")
-        sub.prop(settings, "tolerance")
-        sub.prop(settings, "location_tolerance")
+        draw_keys(col, settings)
         col.operator("bodycal.retarget_bake", icon="ACTION")
         col.operator("bodycal.export_animation", icon="EXPORT")
-        if settings.last_result:
-            box = layout.box()
-            for part in settings.last_result.split("; "):
-                box.label(text=part)
+        draw_last_result(layout, settings)
 
 
 CLASSES = (BODYCAL_PT_retarget,)

@@ -2,6 +2,8 @@
 
 import bpy
 
+from .bake_rows import draw_keys, draw_last_result, draw_rig_output
+
 
 class BODYCAL_PT_transfer(bpy.types.Panel):
     bl_idname = "BODYCAL_PT_transfer"
@@ -21,21 +23,11 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
         col.prop(st, "armature")
         col.prop(st, "method")
         col.prop(st, "placement")
-        col.prop(st, "root_motion")
-        col.prop(st, "rigify_target")
+        draw_rig_output(col, st)
         col.prop(st, "plant_feet")
-        row = col.row(align=True)
-        row.prop(st, "replace", toggle=True)
-        row.prop(st, "push_to_nla", toggle=True)
-        sub = col.column(align=True)
-        sub.prop(st, "output_fps")
-        sub.prop(st, "tolerance")
-        sub.prop(st, "location_tolerance")
+        draw_keys(col, st)
         col.operator("bodycal.transfer_animation", icon="ACTION")
-        if st.last_result:
-            box = layout.box()
-            for part in st.last_result.split("; "):
-                box.label(text=part)
+        draw_last_result(layout, st)
 
 
 CLASSES = (BODYCAL_PT_transfer,)

@@ -142,3 +142,45 @@ def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(
     assert keys[True].shape == keys[False].shape
     change = np.abs(keys[True] - keys[False]).max()
     assert 1e-4 < change < 0.2, change  # smoothed, not another motion
+
+
+class _Layout:
+    """A UI layout stand-in for background mode: records what is drawn."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def prop(self, data, name, **_kw):
+        self.log.append(("prop", data, name))
+
+    def operator(self, idname, **_kw):
+        self.log.append(("operator", idname))
+
+    def label(self, text="", **_kw):
+        self.log.append(("label", text))
+
+    def __getattr__(self, name):
+        return lambda *a, **k: _Layout(self.log)
+
+
+@pytest.mark.parametrize("panel, group", [("BODYCAL_PT_retarget", "bodycal_retarget"),
+                                          ("BODYCAL_PT_transfer", "bodycal_transfer")])
+def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
+    """Retarget and Transfer declare their bake settings once (operators/bake_settings.py) and
+    draw them with the same rows: every property drawn is one of the group's, each bake setting
+    is there, and the last result is shown part by part."""
+    settings = getattr(bpy.context.scene, group)
+    if group == "bodycal_retarget":
+        settings.use_filter = True  # its rows drawn too
+    settings.last_result = "first avatar: 10 keys; second avatar: 12 keys"
+    log = []
+    getattr(bpy.types, panel).draw(type("P", (), {"layout": _Layout(log)})(), bpy.context)
+    props = [(e[1], e[2]) for e in log if e[0] == "prop"]
+    for data, name in props:
+        assert name in data.bl_rna.properties, (panel, name)
+    shared = {"root_motion", "rigify_target", "replace", "push_to_nla", "output_fps", "tolerance", "location_tolerance"}
+    drawn = {name for data, name in props if data == settings}
+    assert shared <= drawn, shared - drawn
+    assert [e[1] for e in log if e[0] == "label"] == ["first avatar: 10 keys", "second avatar: 12 keys"]
+    assert settings.bake_options(bpy.context, None).tolerance_deg == pytest.approx(0.1)
+    settings.last_result = ""
