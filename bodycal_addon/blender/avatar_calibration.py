@@ -1,11 +1,14 @@
 """Avatar surface calibration in Blender: `calibrate_avatar(arm)` measures the evaluated (deformed,
 modifier-applied) mesh of every object skinned to the armature with `mathutils.bvhtree.BVHTree`,
-in the rest pose as it stands in the scene (object transforms, scale and parenting included: rays
-are cast in world space and moved into each mesh object's local space). The rays and the fits are
+in the rest pose (the armature is shown at rest while the meshes are read, whatever its pose) as
+it stands in the scene (object transforms, scale and parenting included: rays are cast in world
+space and moved into each mesh object's local space). The rays and the fits are
 the engine's (`bodycal_addon/avatar_rays.py`, which documents every ray).
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import numpy as np
 
@@ -78,6 +81,27 @@ class Caster:
         return best
 
 
+@contextlib.contextmanager
+def in_rest_position(arm):
+    """The armature shown in its rest position while its meshes are read (the Armature panel's
+    Rest Position), then as it was. The bones are read at rest; a rig opened posed (an imported
+    take at its current frame, a character mid-animation) would deform its meshes away from them,
+    and the rays from a posed arm's bones missed it."""
+    import bpy
+
+    data = arm.data
+    before = data.pose_position
+    if before != "REST":
+        data.pose_position = "REST"
+        bpy.context.view_layer.update()
+    try:
+        yield
+    finally:
+        if data.pose_position != before:
+            data.pose_position = before
+            bpy.context.view_layer.update()
+
+
 def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) -> BodyModel:
     """Surface-calibrate the avatar of armature object `arm` (rest pose as it stands)."""
     import bpy
@@ -87,8 +111,8 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
     if not meshes:
         raise BodyCalError("no mesh is skinned to this armature, nothing to raycast", source=arm.name,
                            hint="add an Armature modifier pointing at it to the avatar's mesh")
-    depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
-    caster = Caster(meshes, depsgraph)
+    with in_rest_position(arm):
+        caster = Caster(meshes, depsgraph or bpy.context.evaluated_depsgraph_get())
     if not caster.trees:
         raise BodyCalError(f"none of the meshes skinned to it ({', '.join(o.name for o in meshes)}) is in the "
                            "view layer", source=arm.name, hint="include the avatar's collection in the view layer")

@@ -79,6 +79,23 @@ def test_transformed_armature_transforms_the_results():
     assert moved.extra["rig"]["bones"]["head"] == ref.extra["rig"]["bones"]["head"]
 
 
+def test_a_posed_armature_is_calibrated_at_rest():
+    """A rig opened posed (an imported take at its current frame, a character being animated) is
+    calibrated as at rest: the same model, and the armature shown posed again afterwards. Read
+    posed, the rays from the raised arm's bones missed its mesh."""
+    arm, _mesh, _spec = build_procedural_avatar()
+    ref = ac.calibrate_avatar(arm).to_dict()
+    for bone, euler in (("upperarm_l", (0.0, 0.0, math.radians(50))), ("thigh_r", (math.radians(40), 0.0, 0.0)),
+                        ("spine_02", (0.3, 0.2, -0.1))):
+        pb = arm.pose.bones[bone]
+        pb.rotation_mode = "XYZ"
+        pb.rotation_euler = euler
+    bpy.context.view_layer.update()
+    assert ac.calibrate_avatar(arm).to_dict() == ref
+    assert arm.data.pose_position == "POSE"
+    assert tuple(arm.pose.bones["upperarm_l"].rotation_euler) == pytest.approx((0.0, 0.0, math.radians(50)))
+
+
 def test_parented_mesh_with_its_own_transform():
     """The mesh unparented and moved by its own object transform (mesh data moved back): the
     evaluated surface is unchanged, so the measurement is too."""
