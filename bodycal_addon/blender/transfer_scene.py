@@ -148,21 +148,10 @@ def source_model(arm) -> BodyModel:
     """The source character's body: measured on its skinned mesh by the avatar calibration, or,
     for a bare skeleton, estimated from its bone lengths (body_estimate)."""
     if avatar_meshes(arm):
-        import bpy
-
         from .retarget_scene import avatar_model_for
 
-        if avatar_storage.has_model(arm):
-            return avatar_model_for(arm)[0]
-        # An animated character's mesh is posed by its action: it is measured in its rest pose.
-        was = arm.data.pose_position
-        arm.data.pose_position = "REST"
-        try:
-            bpy.context.view_layer.update()
-            return avatar_model_for(arm)[0]
-        finally:
-            arm.data.pose_position = was
-            bpy.context.view_layer.update()
+        # its stored model, else the calibration's (which reads the posed character at rest)
+        return avatar_model_for(arm)[0]
     return estimate_surface(avatar_rig.read_rig(arm), arm.name)
 
 
