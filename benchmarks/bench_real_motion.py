@@ -91,7 +91,9 @@ def _avatars(names):
     return out
 
 
-def motion_figures(anim, avatar, truth, k: dict, user_pose) -> dict:
+def motion_figures(anim, avatar, truth, k: dict, user_pose, limb_k: dict | None = None) -> dict:
+    """`k`: how the method scales the source's wrist and ankle motion; `limb_k`, when that is not
+    the limb ratios, the limb ratios too (their figure is reported beside)."""
     a, b = truth["motion"]
     fps = truth["fps"]
     names = truth["joints"]
@@ -108,8 +110,8 @@ def motion_figures(anim, avatar, truth, k: dict, user_pose) -> dict:
             av = measure.accel_p95(anim.joints_world[f"{j}_{s}"][a:b].astype(float), fps)
             src = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k[j]
             out["accel_ratio"][f"{j}_{s}"] = round(av / max(src, 1e-9), 2)
-            if "limb" in k:
-                limb = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * k["limb"][j]
+            if limb_k is not None:
+                limb = measure.accel_p95(T[:, J[f"{j}_{s}"]], fps) * limb_k[j]
                 out.setdefault("accel_ratio_limb_scaled", {})[f"{j}_{s}"] = round(av / max(limb, 1e-9), 2)
             # against the user's own joint, as the trackers give it (scaled): what the pipeline adds
             usr = measure.accel_p95(user_pose.joint(f"{j}_{s}")[a:b], fps) * k[j]
@@ -161,9 +163,10 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
                         except BodyCalError as exc:
                             motion[f"{method}/{name}/{key}/{variant}"] = {"error": str(exc)}
                             continue
-                        k = limb_k if method != "offsets" else {"ankle": eye_k, "wrist": eye_k, "limb": limb_k}
-                        motion[f"{method}/{name}/{key}/{variant}"] = motion_figures(anim, avatar, truth, k,
-                                                                                   user_poses[variant])
+                        by_eye = method == "offsets"  # AvatarGo scales every position by the eye height
+                        k = {"ankle": eye_k, "wrist": eye_k} if by_eye else limb_k
+                        motion[f"{method}/{name}/{key}/{variant}"] = motion_figures(
+                            anim, avatar, truth, k, user_poses[variant], limb_k if by_eye else None)
     out = {"bench": "real_motion", "clips": [p.stem for p in clips], "avatars": [a for a, *_ in avatars],
            "profiles": list(PROFILES), "noise": {"mm": 0.5, "deg": 0.3, "wobble_mm": 1.5},
            "calibration": calib, "targets": _targets(calib, motion), "motion": motion, "notes": notes,

@@ -106,14 +106,8 @@ def _mesh_floor(arm, avatar, keyed, planted: np.ndarray, side: str, count: int) 
     heights = []
 
     def grab():
-        dg = bpy.context.evaluated_depsgraph_get()
-        ev = obj.evaluated_get(dg)
-        me = ev.to_mesh()
-        co = np.empty(len(me.vertices) * 3)
-        me.vertices.foreach_get("co", co)
-        ev.to_mesh_clear()
-        m = np.array(obj.matrix_world)
-        heights.append(float((co.reshape(-1, 3)[verts] @ m[:3, :3].T + m[:3, 3])[:, 2].min()))
+        world = mesh_metrics.world_vertices(obj, bpy.context.evaluated_depsgraph_get())
+        heights.append(float(world[verts, 2].min()))
 
     ad = arm.animation_data
     saved = ad.action if ad is not None else None

@@ -50,3 +50,11 @@ class BakeSettings:
         return BakeOptions(math.degrees(self.tolerance),
                            self.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps,
                            self.root_motion, self.rigify_target)
+
+
+def can_bake_in(cls, context) -> bool:
+    """A bake operator's first poll check: the mode the bake writes in (its poll message says so)."""
+    if context.mode not in {"OBJECT", "POSE"}:
+        cls.poll_message_set("Switch to Object or Pose Mode to bake")
+        return False
+    return True

@@ -14,7 +14,7 @@ from ..bodycal_addon.blender import retarget_scene
 from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
 from ..bodycal_addon.filters import OneEuro
 from .background_work import BackgroundWork
-from .bake_settings import BakeSettings
+from .bake_settings import BakeSettings, can_bake_in
 from .reporting import reports_errors
 
 METHOD_ITEMS = [
@@ -80,8 +80,7 @@ on each"""
 
     @classmethod
     def poll(cls, context):
-        if context.mode not in {"OBJECT", "POSE"}:
-            cls.poll_message_set("Switch to Object or Pose Mode to bake")
+        if not can_bake_in(cls, context):
             return False
         if not _target_armatures(context):
             cls.poll_message_set("Pick an avatar armature in the BodyCal tab (or select armatures)")

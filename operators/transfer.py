@@ -13,7 +13,7 @@ from ..bodycal_addon.blender.retarget_scene import avatar_model_for
 from ..bodycal_addon.errors import BodyCalError
 from ..bodycal_addon.retarget.placement import avatar_warnings
 from .background_work import BackgroundWork
-from .bake_settings import BakeSettings
+from .bake_settings import BakeSettings, can_bake_in
 from .reporting import reports_errors
 from .retarget import METHOD_ITEMS
 
@@ -68,8 +68,7 @@ bake a new action on each"""
 
     @classmethod
     def poll(cls, context):
-        if context.mode not in {"OBJECT", "POSE"}:
-            cls.poll_message_set("Switch to Object or Pose Mode to bake")
+        if not can_bake_in(cls, context):
             return False
         st = context.scene.bodycal_transfer
         if st.source is None:

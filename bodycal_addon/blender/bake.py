@@ -73,22 +73,20 @@ def restored_on_failure(obj, scene):
     bones = {pb.name: ({k: _copied(getattr(pb, k)) for k in _POSE_SETTINGS},
                        {k: pb[k] for k in pb.keys() if isinstance(pb[k], (int, float))},
                        [c.mute for c in pb.constraints]) for pb in obj.pose.bones}
-    props = {k: obj[k] for k in obj.keys() if isinstance(obj[k], (int, float, str))}
+    props = _plain_properties(obj)
     rate = scene.render.fps, scene.render.fps_base
     try:
         yield
     except BaseException:
-        for pb in obj.pose.bones:
-            if pb.name not in bones:
-                continue
-            settings, numbers, mutes = bones[pb.name]
+        for name, (settings, numbers, mutes) in bones.items():
+            pb = obj.pose.bones[name]
             for k, v in settings.items():
                 setattr(pb, k, v)
             for k, v in numbers.items():
                 pb[k] = v
             for c, m in zip(pb.constraints, mutes):
                 c.mute = m
-        for k in [k for k in obj.keys() if k not in props and isinstance(obj[k], (int, float, str))]:
+        for k in _plain_properties(obj).keys() - props.keys():
             del obj[k]
         for k, v in props.items():
             obj[k] = v
@@ -98,6 +96,11 @@ def restored_on_failure(obj, scene):
 
 def _copied(value):
     return value if isinstance(value, str) else tuple(value)
+
+
+def _plain_properties(obj) -> dict:
+    """The object's custom properties that are a number or a string (what a bake may set)."""
+    return {k: obj[k] for k in obj.keys() if isinstance(obj[k], (int, float, str))}
 
 
 def default_action_name(recording: str, avatar: str, method: str) -> str:

@@ -26,6 +26,17 @@ from ..retarget.avatar_pose import BI, AvatarRig, complete_joints
 from ..retarget.pipeline import surface_correction
 
 
+def world_vertices(obj, depsgraph) -> np.ndarray:
+    """(V, 3) world positions of the mesh object's evaluated (deformed) vertices."""
+    ev = obj.evaluated_get(depsgraph)
+    me = ev.to_mesh()
+    co = np.empty(len(me.vertices) * 3)
+    me.vertices.foreach_get("co", co)
+    ev.to_mesh_clear()
+    m = np.array(obj.matrix_world)
+    return co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+
+
 def target_segments(target: str) -> list[str]:
     """Canonical segments whose skin is the touched element `target` ("mesh:torso/belly_c2",
     "capsule:thigh_l", "sphere:skull", "mesh:palm_r/palm_2_r", ...)."""
@@ -168,15 +179,7 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
                 pb.location = loc[f]
             view_layer.update()
             dg = bpy.context.evaluated_depsgraph_get()
-            world_verts = {}
-            for obj in mesh.meshes:
-                ev = obj.evaluated_get(dg)
-                me = ev.to_mesh()
-                co = np.empty(len(me.vertices) * 3)
-                me.vertices.foreach_get("co", co)
-                ev.to_mesh_clear()
-                m = np.array(obj.matrix_world)
-                world_verts[obj.name] = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+            world_verts = {obj.name: world_vertices(obj, dg) for obj in mesh.meshes}
             for qi, k in items:
                 _, tris_by_mesh, points = queries[qi]
                 verts, tris, off = [], [], 0

@@ -7,6 +7,7 @@ import sys
 import bpy
 import numpy as np
 import pytest
+import ui_layout
 from repo_paths import REPO
 
 from bodycal_addon import paths
@@ -144,25 +145,6 @@ def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(
     assert 1e-4 < change < 0.2, change  # smoothed, not another motion
 
 
-class _Layout:
-    """A UI layout stand-in for background mode: records what is drawn."""
-
-    def __init__(self, log):
-        self.log = log
-
-    def prop(self, data, name, **_kw):
-        self.log.append(("prop", data, name))
-
-    def operator(self, idname, **_kw):
-        self.log.append(("operator", idname))
-
-    def label(self, text="", **_kw):
-        self.log.append(("label", text))
-
-    def __getattr__(self, name):
-        return lambda *a, **k: _Layout(self.log)
-
-
 @pytest.mark.parametrize("panel, group", [("BODYCAL_PT_retarget", "bodycal_retarget"),
                                           ("BODYCAL_PT_transfer", "bodycal_transfer")])
 def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
@@ -173,8 +155,7 @@ def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
     if group == "bodycal_retarget":
         settings.use_filter = True  # its rows drawn too
     settings.last_result = "first avatar: 10 keys; second avatar: 12 keys"
-    log = []
-    getattr(bpy.types, panel).draw(type("P", (), {"layout": _Layout(log)})(), bpy.context)
+    log = ui_layout.draw(getattr(bpy.types, panel), bpy.context)
     props = [(e[1], e[2]) for e in log if e[0] == "prop"]
     for data, name in props:
         assert name in data.bl_rna.properties, (panel, name)

@@ -14,6 +14,7 @@ import sys
 import bpy
 import numpy as np
 import pytest
+import ui_layout
 from repo_paths import REPO
 
 from bodycal_addon import paths
@@ -401,28 +402,10 @@ def test_the_output_may_not_be_the_bone_map(tmp_path):
     assert json.loads((tmp_path / "map.json").read_text())["scheme"] == "unreal"
 
 
-class _RecordingLayout:
-    """A UI layout stand-in for background mode: records the operators and properties drawn."""
-
-    def __init__(self, log):
-        self.log = log
-
-    def operator(self, idname, **_kw):
-        self.log.append(("operator", idname))
-        return type("Props", (), {})()
-
-    def prop(self, data, name, **_kw):
-        self.log.append(("prop", data, name))
-
-    def __getattr__(self, name):
-        return lambda *a, **k: _RecordingLayout(self.log)
-
-
 def test_the_avatar_panel_offers_the_preset_list_and_its_operators(avatar_files):
     arm, _mesh = rigs.load_glb_avatar(next(p for p in avatar_files if p.stem == "adult_male"))
     bpy.context.view_layer.objects.active = arm
-    log = []
-    bpy.types.BODYCAL_PT_avatar.draw(type("P", (), {"layout": _RecordingLayout(log)})(), bpy.context)
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_avatar, bpy.context)
     drawn_ops = {entry[1] for entry in log if entry[0] == "operator"}
     assert {"bodycal.apply_bone_map_preset", "bodycal.export_bone_map", "bodycal.import_bone_map"} <= drawn_ops
     for idname in drawn_ops:  # every button names a registered operator

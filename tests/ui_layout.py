@@ -1,0 +1,28 @@
+"""A UI layout stand-in for background mode (no window draws panels there): a panel's `draw`
+given it records what it draws, as ("prop", data, name), ("operator", idname) and
+("label", text); every sub-layout (column, row, box...) records into the same log."""
+
+
+class RecordingLayout:
+    def __init__(self, log: list):
+        self.log = log
+
+    def operator(self, idname, **_kw):
+        self.log.append(("operator", idname))
+        return type("Props", (), {})()
+
+    def prop(self, data, name, **_kw):
+        self.log.append(("prop", data, name))
+
+    def label(self, text="", **_kw):
+        self.log.append(("label", text))
+
+    def __getattr__(self, name):
+        return lambda *a, **k: RecordingLayout(self.log)
+
+
+def draw(panel_type, context) -> list:
+    """What `panel_type.draw` draws in `context`, as the log above."""
+    log = []
+    panel_type.draw(type("P", (), {"layout": RecordingLayout(log)})(), context)
+    return log
