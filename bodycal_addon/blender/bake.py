@@ -135,14 +135,6 @@ def world_scale(obj) -> float:
     return float(np.cbrt(abs(np.linalg.det(lin)))) or 1.0
 
 
-def key_masks(anim: AvatarAnimation, rotations: np.ndarray, tolerance_deg: float, location_tolerance_mm: float,
-              units_per_metre: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """(F, B) frames to key per bone and (F,) for the root location (`rotations` continuous)."""
-    rot_keep = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)))
-    loc_keep = keyreduce.location_keys(anim.root_location, max(location_tolerance_mm, 0.0) / 1000.0 * units_per_metre)
-    return rot_keep, loc_keep
-
-
 def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None, replace: bool = False,
                    fps: float | None = None, frame_start: float | None = None, push_to_nla: bool = False,
                    tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
@@ -165,13 +157,16 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     # (F, B, 4) as Blender keys them, float32: what an every-frame bake holds, so the reduction's
     # bound is measured against it, whatever precision `anim` came in.
     rotations = np.asarray(continuous_quaternions(anim.rotations, in_place=in_place), np.float32)
-    # The tolerance is in world millimetres; the root location is keyed in armature units.
-    rot_keep, loc_keep = key_masks(anim, rotations, tolerance_deg, location_tolerance_mm, 1.0 / world_scale(obj))
-    root_location = np.asarray(anim.root_location, dtype=np.float32)
-    locations = {anim.root_bone: (loc_keep, root_location)}
-    for bone_name, loc in anim.bone_locations.items():  # the root bone under root motion, Rigify's torso
-        locations[bone_name] = (keyreduce.location_keys(np.asarray(loc, float), max(location_tolerance_mm, 0.0)
-                                                        / 1000.0 / world_scale(obj)), np.asarray(loc, np.float32))
+    # The key values go into `rotations` itself, at the kept frames (it is the bake's own array, or
+    # the one `own` gave away).
+    rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations)
+    # The tolerance is in world millimetres; locations are keyed in armature units.
+    location_tolerance = max(location_tolerance_mm, 0.0) / 1000.0 / world_scale(obj)
+    locations = {}
+    # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso
+    for bone_name, loc in {anim.root_bone: anim.root_location, **anim.bone_locations}.items():
+        kept, values = keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance)
+        locations[bone_name] = (kept, values)
     name = action_name or default_action_name("recording", obj.name, anim.method)
     old = bpy.data.actions.get(name)
 

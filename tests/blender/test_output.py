@@ -84,9 +84,9 @@ def test_the_bound_holds_in_armature_units_on_a_scaled_armature(take):
     anim.root_location = anim.root_location * 100.0  # the same motion in centimetre armature units
     arm.scale = (0.01, 0.01, 0.01)
     bake_animation(anim, arm, fps=take["rec"].fps, frame_start=1.0, tolerance_deg=0.1, location_tolerance_mm=1.0)
-    keep = keyreduce.location_keys(anim.root_location, 1e-3 * 100.0)
-    loc = anim.root_location
-    approx = keyreduce.interpolate(np.arange(len(loc), dtype=float), keep, loc)
+    loc = anim.root_location.astype(np.float32)  # as the bake keys it
+    keep, values = keyreduce.location_keys(loc, 1e-3 * 100.0)
+    approx = keyreduce.interpolate(np.arange(len(loc), dtype=float), keep, values.astype(float))
     assert np.linalg.norm(approx - loc, axis=1).max() * 0.01 <= 1e-3 + 1e-9
     fc_keys = [len(fc.keyframe_points) for fc in _fcurves(arm) if fc.data_path.endswith(".location")]
     assert fc_keys == [int(keep.sum())] * 3

@@ -28,11 +28,12 @@ def _motion(frames: int, bones: int, seed: int, noise_deg: float) -> np.ndarray:
     return tf.continuous_quaternions(q)
 
 
-def _worst_angle(q: np.ndarray, keep: np.ndarray) -> float:
+def _worst_angle(q: np.ndarray, keep: np.ndarray, values: np.ndarray) -> float:
+    """The largest angle between a sample and what linear keys (values at kept frames) evaluate to."""
     frames = np.arange(len(q), dtype=float)
     worst = 0.0
     for b in range(q.shape[1]):
-        approx = kr.interpolate(frames, keep[:, b], q[:, b])
+        approx = kr.interpolate(frames, keep[:, b], values[:, b])
         worst = max(worst, float(kr.rotation_error(q[:, b], approx).max()))
     return worst
 
@@ -54,10 +55,10 @@ def _blocks_of(frames: int):
 def test_every_sample_is_within_the_rotation_tolerance(frames, bones, seed, noise, tol_deg, block):
     q = _motion(frames, bones, seed, noise)
     with _blocks_of(block):
-        keep = kr.rotation_keys(q, np.radians(tol_deg))
-    assert keep.shape == (frames, bones)
+        keep, values = kr.rotation_keys(q, np.radians(tol_deg))
+    assert keep.shape == (frames, bones) and values.shape == q.shape
     assert keep[0].all() and keep[-1].all()
-    assert _worst_angle(q, keep) <= np.radians(tol_deg) * (1 + 1e-6) + 1e-9
+    assert _worst_angle(q, keep, values) <= np.radians(tol_deg) * (1 + 1e-6) + 1e-9
 
 
 @settings(max_examples=40, deadline=None)
@@ -67,16 +68,21 @@ def test_every_sample_is_within_the_location_tolerance(frames, seed, tol_mm, blo
     rng = np.random.default_rng(seed)
     p = np.cumsum(np.cumsum(rng.normal(0, 1e-4, (frames, 3)), axis=0), axis=0) + rng.normal(0, 2e-4, (frames, 3))
     with _blocks_of(block):
-        keep = kr.location_keys(p, tol_mm / 1000.0)
-    approx = kr.interpolate(np.arange(frames, dtype=float), keep, p)
+        keep, values = kr.location_keys(p, tol_mm / 1000.0)
+    approx = kr.interpolate(np.arange(frames, dtype=float), keep, values)
     assert keep[0] and keep[-1]
     assert np.linalg.norm(approx - p, axis=1).max() <= tol_mm / 1000.0 * (1 + 1e-9)
 
 
-def test_zero_tolerance_keeps_every_sample():
+def test_zero_tolerance_keeps_every_sample_as_it_is():
     q = _motion(50, 3, 0, 0.5)
-    assert kr.rotation_keys(q, 0.0).all()
-    assert kr.location_keys(np.random.default_rng(0).normal(size=(50, 3)), 0.0).all()
+    keep, values = kr.rotation_keys(q, 0.0)
+    assert keep.all()
+    np.testing.assert_array_equal(values, q)
+    p = np.random.default_rng(0).normal(size=(50, 3))
+    keep, values = kr.location_keys(p, 0.0)
+    assert keep.all()
+    np.testing.assert_array_equal(values, p)
 
 
 def test_what_linear_keys_reproduce_exactly_needs_only_its_ends():
@@ -85,12 +91,12 @@ def test_what_linear_keys_reproduce_exactly_needs_only_its_ends():
     f = 500
     still = np.tile([[0.6, 0.0, 0.8, 0.0]], (f, 1))
     turn = tf.axis_angle_to_quat(np.tile([[0.0, 0.0, 1.0]], (f, 1)), np.linspace(0.0, np.radians(60), f))
-    keep = kr.rotation_keys(np.stack([still, turn], axis=1), np.radians(0.1))
+    keep, _ = kr.rotation_keys(np.stack([still, turn], axis=1), np.radians(0.1))
     assert keep[:, 0].sum() == 2
     # nlerp and slerp part by at most ~0.05 deg over 60 deg: a few keys, nowhere near 500
     assert keep[:, 1].sum() <= 4
     ramp = np.linspace([0, 0, 0], [1.0, -2.0, 0.5], f)
-    assert kr.location_keys(ramp, 1e-4).sum() == 2
+    assert kr.location_keys(ramp, 1e-4)[0].sum() == 2
 
 
 def test_a_long_take_is_searched_in_blocks_whose_ends_are_keys():
@@ -99,12 +105,12 @@ def test_a_long_take_is_searched_in_blocks_whose_ends_are_keys():
     f = 3 * kr.BLOCK_FRAMES + 100
     still = np.tile([[0.6, 0.0, 0.8, 0.0]], (f, 1))
     q = np.stack([still, _motion(f, 1, 3, 0.05)[:, 0]], axis=1)
-    keep = kr.rotation_keys(q, np.radians(0.1))
+    keep, values = kr.rotation_keys(q, np.radians(0.1))
     ends = np.r_[np.arange(0, f, kr.BLOCK_FRAMES), f - 1]
     assert keep[ends].all()
     assert keep[:, 0].sum() == len(ends)
-    assert _worst_angle(q, keep) <= np.radians(0.1) * (1 + 1e-6) + 1e-9
-    assert kr.location_keys(np.linspace([0, 0, 0], [1.0, -2.0, 0.5], f), 1e-4).sum() == len(ends)
+    assert _worst_angle(q, keep, values) <= np.radians(0.1) * (1 + 1e-6) + 1e-9
+    assert kr.location_keys(np.linspace([0, 0, 0], [1.0, -2.0, 0.5], f), 1e-4)[0].sum() == len(ends)
 
 
 def _slow_swings(frames: int, bones: int, fps: float = 90.0) -> np.ndarray:
@@ -119,7 +125,7 @@ def _slow_swings(frames: int, bones: int, fps: float = 90.0) -> np.ndarray:
 
 def test_smooth_motion_is_reduced_and_the_reduction_tightens_with_the_tolerance():
     q = _slow_swings(2000, 6)
-    counts = [int(kr.rotation_keys(q, np.radians(t)).sum()) for t in (0.5, 0.1, 0.02)]
+    counts = [int(kr.rotation_keys(q, np.radians(t))[0].sum()) for t in (0.5, 0.1, 0.02)]
     assert counts[0] < counts[1] < counts[2] < q.shape[0] * q.shape[1]
     assert counts[1] * 5 <= q.shape[0] * q.shape[1], counts
 
@@ -127,10 +133,11 @@ def test_smooth_motion_is_reduced_and_the_reduction_tightens_with_the_tolerance(
 def test_bones_are_reduced_independently_of_each_other():
     """Batched bone by bone: the result for a bone never depends on its neighbours."""
     q = _motion(400, 19, 5, 0.5)
-    together = kr.rotation_keys(q, np.radians(0.2))
+    together, values = kr.rotation_keys(q, np.radians(0.2))
     for b in (0, 7, 8, 18):
-        alone = kr.rotation_keys(q[:, b:b + 1], np.radians(0.2))[:, 0]
-        np.testing.assert_array_equal(together[:, b], alone)
+        alone, alone_values = kr.rotation_keys(q[:, b:b + 1], np.radians(0.2))
+        np.testing.assert_array_equal(together[:, b], alone[:, 0])
+        np.testing.assert_array_equal(values[:, b], alone_values[:, 0])
 
 
 def _anim(frames: int, fps: float, seed: int = 0) -> AvatarAnimation:
@@ -180,3 +187,64 @@ def test_continuous_quaternions_in_place_is_the_copy_without_the_copy():
     assert out is q
     np.testing.assert_array_equal(q, expected)
     assert (np.einsum("fbi,fbi->fb", q[1:], q[:-1]) >= 0).all()
+
+
+@contextlib.contextmanager
+def _band(fraction: float):
+    saved, kr.BAND = kr.BAND, fraction
+    try:
+        yield
+    finally:
+        kr.BAND = saved
+
+
+@settings(max_examples=25, deadline=None)
+@given(frames=st.integers(2, 300), seed=st.integers(0, 2**31), noise=st.sampled_from([0.0, 0.05, 0.5]),
+       block=st.sampled_from([1, 2, 7, 64]))
+def test_key_values_stay_in_the_band_and_do_not_depend_on_the_blocks(frames, seed, noise, block):
+    """A key's value is within BAND x the tolerance of its own sample, and it is the same value
+    whatever the block length (a frame shared by two blocks gets one value)."""
+    q = _motion(frames, 3, seed, noise)
+    tol = np.radians(0.1)
+    keep, values = kr.rotation_keys(q, tol)
+    with _blocks_of(block):
+        keep_b, values_b = kr.rotation_keys(q, tol)
+    assert kr.rotation_error(q[keep], values[keep]).max() <= kr.BAND * tol * (1 + 1e-6) + 1e-9
+    both = keep & keep_b
+    np.testing.assert_allclose(values[both], values_b[both], rtol=0, atol=1e-12)
+    p = np.cumsum(np.random.default_rng(seed).normal(0, 1e-3, (frames, 3)), axis=0)
+    keep, values = kr.location_keys(p, 1e-3)
+    assert np.linalg.norm(values[keep] - p[keep], axis=1).max() <= kr.BAND * 1e-3 * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("block", [1, 2, 3, 4, 7, 64])
+def test_keys_written_into_the_samples_array_are_the_keys_of_a_copy(block):
+    """`out=` the samples themselves (the bake's own float32 array): the same keys and values as
+    with a separate array, across block ends (blocks shorter than the smoothing window too), and
+    the frames not kept are left as they were."""
+    q = _motion(300, 4, 2, 0.3).astype(np.float32)
+    with _blocks_of(block):
+        keep, values = kr.rotation_keys(q, np.radians(0.1))
+        inplace = q.copy()
+        keep_i, values_i = kr.rotation_keys(inplace, np.radians(0.1), out=inplace)
+    assert values_i is inplace
+    np.testing.assert_array_equal(keep_i, keep)
+    np.testing.assert_array_equal(values_i[keep], values[keep])
+    np.testing.assert_array_equal(inplace[~keep], q[~keep])
+
+
+def test_keys_off_the_noise_save_keys_on_jitter_and_cost_none_on_smooth_motion():
+    """Slow swings with white jitter of half the tolerance: key values in the band keep fewer keys
+    than key values on the samples (BAND 0: 22% fewer); on the swings alone, as many."""
+    smooth = _slow_swings(3000, 6)
+    rng = np.random.default_rng(4)
+    jitter = tf.axis_angle_to_quat(tf.normalize(rng.normal(size=smooth.shape[:2] + (3,))),
+                                   np.abs(rng.normal(0.0, np.radians(0.05), smooth.shape[:2])))
+    noisy = tf.continuous_quaternions(tf.quat_mul(jitter, smooth))
+    tol = np.radians(0.1)
+    for q, most in ((noisy, 0.85), (smooth, 1.02)):
+        with _band(0.0):
+            on_samples = int(kr.rotation_keys(q, tol)[0].sum())
+        keep, values = kr.rotation_keys(q, tol)
+        assert int(keep.sum()) <= most * on_samples, (int(keep.sum()), on_samples)
+        assert _worst_angle(q, keep, values) <= tol * (1 + 1e-6) + 1e-9
