@@ -9,6 +9,11 @@
   at two tracker noise levels (issue 11's 0.5 mm / 0.3 deg, and the 0.15 mm / 0.008 deg measured
   on a SteamVR tracker), raw and with the One Euro filter: how much of the key count is tracker
   noise and how much the bake's own frame-to-frame jitter.
+- `targets`: the key ratio is judged on the real walk with a SteamVR tracker's jitter, raw
+  (`key_ratio_ge_5`: trackers only, no finger markers). The synthetic take's ratio is shown beside
+  it (`key_ratio_ge_5_synthetic_noise`): its devices carry 1 mm / 0.57 deg white noise and 2 mm
+  wobble (7-70x a SteamVR tracker's), and its hands and fingers come from LED gloves, whose
+  orientations keep 94-99% of their frames even at 0.15 mm of LED noise.
 - `files`: the take baked onto the procedural avatar in Blender and saved: every frame keyed and
   uncompressed (before issue 15) against the default (reduced, compressed); the shipped demo's
   out/demo.blend size when `--demo` is given.
@@ -61,13 +66,14 @@ def _rig_basis(rig: AvatarRig, anim, rotations) -> np.ndarray:
 def reduction_figures(anim, avatar) -> dict:
     q = continuous_quaternions(anim.rotations)
     t0 = time.perf_counter()
-    rot_keep = keyreduce.rotation_keys(q, np.radians(TOL_DEG))
-    loc_keep = keyreduce.location_keys(anim.root_location, TOL_MM / 1000.0)
+    rot_keep, rot_values = keyreduce.rotation_keys(q, np.radians(TOL_DEG))
+    loc_keep, loc_values = keyreduce.location_keys(anim.root_location, TOL_MM / 1000.0)
     seconds = time.perf_counter() - t0
     frames = np.arange(anim.frame_count, dtype=float)
-    approx = np.stack([keyreduce.interpolate(frames, rot_keep[:, b], q[:, b]) for b in range(q.shape[1])], axis=1)
+    approx = np.stack([keyreduce.interpolate(frames, rot_keep[:, b], rot_values[:, b]) for b in range(q.shape[1])],
+                      axis=1)
     approx /= np.linalg.norm(approx, axis=-1, keepdims=True)
-    root = keyreduce.interpolate(frames, loc_keep, anim.root_location)
+    root = keyreduce.interpolate(frames, loc_keep, loc_values)
     rig = AvatarRig.from_model(avatar)
     dev = []
     for s in range(0, anim.frame_count, 5000):  # in chunks: the FK holds (F, bones, 3, 3)
@@ -104,7 +110,7 @@ def real_motion_figures() -> dict:
             rec = recording_io.load_recording(cap.write(Path(d) / "walk.bcrec.json", up="Y"))
         user = calibrate_user(rec)
         for label, r in (("raw", rec), ("filtered", filter_recording(rec, OneEuro()))):
-            for method in ("egocentric", "rotations"):
+            for method in pl.METHODS:
                 out[f"{level}_{method}_{label}"] = reduction_figures(pl.retarget(r, user, avatar, method), avatar)
     return out
 
@@ -188,8 +194,10 @@ def main() -> None:
             result["demo_blend_mb"] = round((demo_dir / "demo.blend").stat().st_size / 1e6, 1)
     worst = result["reduction"]
     result["targets"] = {
-        "joint_deviation_max_le_5mm": all(v["joint_deviation_mm_max"] <= 5.0 for v in worst.values()),
-        "key_ratio_ge_5": {m: v["key_ratio"] >= 5.0 for m, v in worst.items()},
+        "joint_deviation_max_le_5mm": all(v["joint_deviation_mm_max"] <= 5.0
+                                          for v in [*worst.values(), *result["real_motion"].values()]),
+        "key_ratio_ge_5": {m: result["real_motion"][f"steamvr_{m}_raw"]["key_ratio"] >= 5.0 for m in worst},
+        "key_ratio_ge_5_synthetic_noise": {m: v["key_ratio"] >= 5.0 for m, v in worst.items()},
         "file_ratio_ge_5": result["files_mb"]["ratio"] >= 5.0,
         "throughput_ge_2M_keys_per_s": all(v["input_keys_per_s"] >= 2e6 for v in worst.values()),
         "take_file_le_60mb": all(v["file_mb"] <= 60 for v in result["command"].values()),
