@@ -119,16 +119,21 @@ def _pulled_into_band(samples: np.ndarray, smooth: np.ndarray, radius: float, un
         d = smooth - samples
         dist = np.sqrt(np.einsum("...c,...c->...", d, d))
         return samples + d * np.minimum(1.0, radius / np.maximum(dist, 1e-300))[..., None]
-    smooth = smooth / np.linalg.norm(smooth, axis=-1, keepdims=True)
-    cos = np.einsum("...c,...c->...", samples, smooth)
-    smooth = np.where(cos[..., None] < 0.0, -smooth, smooth)
-    cos = np.minimum(np.abs(cos), 1.0)
-    half = np.arccos(cos)  # half the rotation angle between the two
+    smooth = smooth / _norm(smooth)
+    cos = np.einsum("...c,...c->...", samples, smooth)  # cos of half the angle between the two
+    smooth *= np.where(cos < 0.0, -1.0, 1.0)[..., None]
+    cos = np.abs(cos)
+    # Outside the band: the sample turned by half the radius toward the smoothed value along their
+    # great circle (no per-value trigonometry: the turn is the same for all of them).
     ortho = smooth - cos[..., None] * samples
-    ortho /= np.maximum(np.linalg.norm(ortho, axis=-1, keepdims=True), 1e-300)
-    turn = np.minimum(half, radius / 2.0)[..., None]
-    out = samples * np.cos(turn) + ortho * np.sin(turn)
-    return np.where((half > 1e-12)[..., None], out, samples)
+    ortho /= np.maximum(_norm(ortho), 1e-300)
+    edge = samples * np.cos(radius / 2.0) + ortho * np.sin(radius / 2.0)
+    return np.where((cos >= np.cos(radius / 2.0))[..., None], smooth, edge)
+
+
+def _norm(x: np.ndarray) -> np.ndarray:
+    """Euclidean norms over the last axis, kept as a length-1 axis."""
+    return np.sqrt(np.einsum("...c,...c->...", x, x))[..., None]
 
 
 def _reduce_blocks(curves: np.ndarray, tolerance: float, error, radius: float, unit: bool,
@@ -154,13 +159,13 @@ def _reduce_blocks(curves: np.ndarray, tolerance: float, error, radius: float, u
             _, where, values = pending.pop(0)
             out[where] = values
         if unit:
-            window /= np.linalg.norm(window, axis=-1, keepdims=True)
+            window /= _norm(window)
         samples = window[_HALF:-_HALF]
         # Rounded as they will be stored, so the bound is measured on what Blender evaluates.
         values = _pulled_into_band(samples, _smoothed(window), radius, unit).astype(out.dtype).astype(float)
         if unit:
             # a float32 quaternion's norm is off by up to ~6e-8: renormalising moves no direction
-            values /= np.linalg.norm(values, axis=-1, keepdims=True)
+            values /= _norm(values)
         block_keep = _reduce(samples.transpose(1, 0, 2).copy(), values.transpose(1, 0, 2).copy(), tolerance,
                              error).T
         keep[start:stop] |= block_keep
