@@ -146,8 +146,7 @@ def _reduce_blocks(curves: np.ndarray, tolerance: float, error, radius: float, u
     keep = np.zeros((f, g), bool)
     if f <= 2 or tolerance <= 0:
         keep[:] = True
-        if out is not curves:
-            out[:] = curves
+        out[:] = curves
         return keep
     # Key values wait until no later block's window reads their frames (`out` may be `curves`).
     pending: list = []  # (last frame, (frames, curves), values)
@@ -189,6 +188,11 @@ def _squared_distance(true: np.ndarray, lerp: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", d, d)
 
 
+def _values_array(curves: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+    """Where key values go: `out`, or a copy of the curves (floating point)."""
+    return np.array(curves, dtype=curves.dtype if curves.dtype.kind == "f" else float) if out is None else out
+
+
 def rotation_keys(quaternions: np.ndarray, tolerance_rad: float, out: np.ndarray | None = None):
     """(keep, values) for each bone's (F, B, 4) quaternion curve (already made continuous in sign:
     `transforms.continuous_quaternions`): the (F, B) mask of frames to key and an (F, B, 4) array
@@ -197,7 +201,7 @@ def rotation_keys(quaternions: np.ndarray, tolerance_rad: float, out: np.ndarray
     itself: only kept frames are written). A tolerance of 0 keeps every sample as it is."""
     q = np.asarray(quaternions)
     tol = float(tolerance_rad)
-    out = np.array(q, dtype=q.dtype if q.dtype.kind == "f" else float) if out is None else out
+    out = _values_array(q, out)
     # Normalised: the badness 1 - cos(angle / 2) is ~4e-7 at 0.1 deg, and a float32 quaternion's
     # norm is off by up to ~6e-8, which would take 0.01 deg off (or add it to) the bound.
     keep = _reduce_blocks(q, 1.0 - np.cos(tol / 2.0) if tol > 0 else 0.0, _rotation_badness, BAND * tol, True, out)
@@ -211,7 +215,7 @@ def location_keys(locations: np.ndarray, tolerance: float, out: np.ndarray | Non
     `locations` itself). A tolerance of 0 keeps every sample as it is."""
     p = np.asarray(locations)
     tol = float(tolerance)
-    values = np.array(p, dtype=p.dtype if p.dtype.kind == "f" else float) if out is None else out
+    values = _values_array(p, out)
     keep = _reduce_blocks(p[:, None], tol * tol if tol > 0 else 0.0, _squared_distance, BAND * tol, False,
                           values[:, None])
     return keep[:, 0], values

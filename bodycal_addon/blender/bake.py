@@ -162,11 +162,9 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations)
     # The tolerance is in world millimetres; locations are keyed in armature units.
     location_tolerance = max(location_tolerance_mm, 0.0) / 1000.0 / world_scale(obj)
-    locations = {}
-    # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso
-    for bone_name, loc in {anim.root_bone: anim.root_location, **anim.bone_locations}.items():
-        kept, values = keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance)
-        locations[bone_name] = (kept, values)
+    # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso: (kept, values)
+    locations = {bone_name: keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance)
+                 for bone_name, loc in {anim.root_bone: anim.root_location, **anim.bone_locations}.items()}
     name = action_name or default_action_name("recording", obj.name, anim.method)
     old = bpy.data.actions.get(name)
 

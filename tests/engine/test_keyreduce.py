@@ -3,7 +3,7 @@ reduces what is reducible."""
 
 from __future__ import annotations
 
-import contextlib
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -38,14 +38,9 @@ def _worst_angle(q: np.ndarray, keep: np.ndarray, values: np.ndarray) -> float:
     return worst
 
 
-@contextlib.contextmanager
 def _blocks_of(frames: int):
     """The search's block length set small, so that short test curves span several blocks."""
-    saved, kr.BLOCK_FRAMES = kr.BLOCK_FRAMES, frames
-    try:
-        yield
-    finally:
-        kr.BLOCK_FRAMES = saved
+    return mock.patch.object(kr, "BLOCK_FRAMES", frames)
 
 
 @settings(max_examples=40, deadline=None)
@@ -189,15 +184,6 @@ def test_continuous_quaternions_in_place_is_the_copy_without_the_copy():
     assert (np.einsum("fbi,fbi->fb", q[1:], q[:-1]) >= 0).all()
 
 
-@contextlib.contextmanager
-def _band(fraction: float):
-    saved, kr.BAND = kr.BAND, fraction
-    try:
-        yield
-    finally:
-        kr.BAND = saved
-
-
 @settings(max_examples=25, deadline=None)
 @given(frames=st.integers(2, 300), seed=st.integers(0, 2**31), noise=st.sampled_from([0.0, 0.05, 0.5]),
        block=st.sampled_from([1, 2, 7, 64]))
@@ -243,7 +229,7 @@ def test_keys_off_the_noise_save_keys_on_jitter_and_cost_none_on_smooth_motion()
     noisy = tf.continuous_quaternions(tf.quat_mul(jitter, smooth))
     tol = np.radians(0.1)
     for q, most in ((noisy, 0.85), (smooth, 1.02)):
-        with _band(0.0):
+        with mock.patch.object(kr, "BAND", 0.0):
             on_samples = int(kr.rotation_keys(q, tol)[0].sum())
         keep, values = kr.rotation_keys(q, tol)
         assert int(keep.sum()) <= most * on_samples, (int(keep.sum()), on_samples)
