@@ -10,6 +10,13 @@ bone linking the wrist to the base joint"), +X the flexion axis; a positive rota
 flexes, so the finger curls toward +Z (the palm side). Angles follow the paper's Figure 16:
 pitch > 0 extends the finger (toward -Z, the back of the hand), pitch < 0 flexes it; yaw > 0 turns
 it toward +X.
+
+**Decision**: pitch is measured in the flexion plane and yaw out of it, the floating-axis order of
+a joint coordinate system (Wu 2005: flexion about the hand's axis first, then abduction), so a
+direction is Rx(-pitch) Rz(-yaw) +Y. Figure 16 draws yaw as a longitude about the hand's up axis,
+whose pole is where a curled fingertip points (pitch near -90°): there the yaw of the tip's
+direction is undefined, and 0.15 mm of marker noise flipped a gripping finger between its ±15°
+yaw limits from frame to frame. In this order the pole is at yaw ±90°, far outside every limit.
 """
 
 from __future__ import annotations
@@ -63,11 +70,21 @@ def _ry(angle):
 
 def yaw_pitch(direction) -> tuple[np.ndarray, np.ndarray]:
     """(yaw, pitch) of directions (..., 3) expressed in the finger's reference frame:
-    direction = Rz(-yaw) Rx(-pitch) +Y."""
+    direction = Rx(-pitch) Rz(-yaw) +Y = (sin yaw, cos yaw cos pitch, -cos yaw sin pitch).
+    Yaw is within ±90°, pitch within ±180° (a tip behind the base joint has |pitch| > 90°)."""
     d = np.asarray(direction, float)
-    yaw = np.arctan2(d[..., 0], d[..., 1])
-    pitch = np.arctan2(-d[..., 2], np.hypot(d[..., 0], d[..., 1]))
+    pitch = np.arctan2(-d[..., 2], d[..., 1])
+    yaw = np.arctan2(d[..., 0], np.hypot(d[..., 1], d[..., 2]))
     return yaw, pitch
+
+
+def _clamp_angle(angle, lo, hi):
+    """Clamp angles (radians, within ±π) to [lo, hi] on the circle: an angle outside goes to the
+    nearer limit around the circle, so a tip curled far behind the base joint (pitch near -180°)
+    clamps to the flexion limit, not to the extension limit across the ±180° seam."""
+    beyond_hi = np.mod(angle - hi, 2 * np.pi)  # how far past hi, going round the excluded arc
+    excluded = 2 * np.pi - (hi - lo)
+    return np.where((angle >= lo) & (angle <= hi), angle, np.where(beyond_hi < excluded / 2, hi, lo))
 
 
 def realign(target_local, flexed_local, thumb: bool = False):
@@ -76,24 +93,30 @@ def realign(target_local, flexed_local, thumb: bool = False):
     target_local, flexed_local: (F, 3) the target tip and the flexed finger's tip (zero yaw by
     construction), both in the reference frame centred on the MCP. The target's yaw and pitch are
     clamped to the limits (fingers: yaw [-15°, 15°], pitch [-85°, 10°]; thumb: yaw [-30°, 40°],
-    pitch [-15°, 15°]); the correction turns the finger by the pitch difference about +X, then by
-    the yaw about +Z. Returns (rotation (F, 3, 3) in the reference frame, yaw, pitch) with the
-    clamped target angles."""
+    pitch [-15°, 15°]); the correction unpitches the flexed finger (about +X), turns it out of its
+    flexion plane by the yaw (about +Z), then pitches it to the target's pitch (about +X).
+    Returns (rotation (F, 3, 3) in the reference frame, yaw, pitch) with the clamped target
+    angles."""
     (ylo, yhi), (plo, phi) = LIMITS["thumb" if thumb else "finger"]
     yaw, pitch = yaw_pitch(target_local)
     yaw = np.clip(yaw, np.deg2rad(ylo), np.deg2rad(yhi))
-    pitch = np.clip(pitch, np.deg2rad(plo), np.deg2rad(phi))
+    pitch = _clamp_angle(pitch, np.deg2rad(plo), np.deg2rad(phi))
     _, flexed_pitch = yaw_pitch(flexed_local)
-    return _rz_rx(-yaw, -(pitch - flexed_pitch)), yaw, pitch
+    return _rx_rz_rx(-pitch, -yaw, flexed_pitch), yaw, pitch
 
 
-def _rz_rx(a, b):
-    """Rz(a) Rx(b), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
-    ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+def _rx_rz_rx(a, b, c):
+    """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
     out = np.empty(np.shape(a) + (3, 3))
-    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = ca, -sa * cb, sa * sb
-    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = sa, ca * cb, -ca * sb
-    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 0.0, sb, cb
+    # Rz(b) Rx(c) has rows (cb, -sb cc, sb sc), (sb, cb cc, -cb sc), (0, sc, cc); Rx(a) mixes the
+    # last two.
+    r1 = (sb, cb * cc, -cb * sc)
+    r2 = (0.0, sc, cc)
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = cb, -sb * cc, sb * sc
+    for j in range(3):
+        out[..., 1, j] = ca * r1[j] - sa * r2[j]
+        out[..., 2, j] = sa * r1[j] + ca * r2[j]
     return out
 
 

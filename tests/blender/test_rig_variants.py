@@ -204,9 +204,12 @@ def _assert_same_model(model: BodyModel, ref: BodyModel, names: dict[str, str]):
 # Renaming bones changes no number: the motion is the same to the last bit (1e-9 m). Splitting a
 # bone or inserting one goes through Edit Mode, which recomputes the rest matrix of every bone
 # whose parent changed from its head, tail and roll in float32 (entries move by 1.25e-6, BLENDER_NOTES.md);
-# the limb IK carries that to at most 6 um on the joints of the 1.5 s take, hence 10 um there.
+# the limb IK carries that to at most 6 um on the joints of the 1.5 s take, except where a limb is
+# straight: at frame 31 the right arm is straight within 0.5 deg, its elbow sits 1 mm off the
+# shoulder-wrist axis and turns about it with the swivel, and moves 17 um (measured since the
+# finger realignment's angle order changed, which moved that elbow by 1 mm), hence 20 um there.
 RENAMED_ATOL = 1e-9
-EDITED_ATOL = 1e-5
+EDITED_ATOL = 2e-5
 
 
 def _assert_same_animation(anim, ref, names: dict[str, str], atol: float):

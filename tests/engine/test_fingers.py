@@ -49,7 +49,7 @@ def test_pose_finger_reaches_targets_within_the_limits(thumb):
     # Tip pitch of the flexed finger plus a realignment that stays within the pitch limits.
     tip_local = fg.tip_distance(l1, l2, l3, alpha)
     pitch = np.deg2rad(rng.uniform(plo, phi, n))
-    direction = np.stack([np.sin(yaw) * np.cos(pitch), np.cos(yaw) * np.cos(pitch), -np.sin(pitch)], -1)
+    direction = np.stack([np.sin(yaw), np.cos(yaw) * np.cos(pitch), -np.cos(yaw) * np.sin(pitch)], -1)
     ref = random_rotations(rng, n)
     mcp = rng.normal(size=(n, 3))
     roll = fg.THUMB_ROLL if thumb else 0.0
@@ -76,8 +76,8 @@ def test_realignment_clamps_to_the_anatomical_limits():
     l1, l2, l3 = LENGTHS[0]
     mcp = np.zeros((2, 3))
     # Far sideways and bent backwards: yaw 60°, pitch +45° (hyperextension): both clamped.
-    d = np.array([np.sin(np.deg2rad(60)), np.cos(np.deg2rad(60)), 0.0]) * np.cos(np.deg2rad(45))
-    d[2] = -np.sin(np.deg2rad(45))
+    y, p = np.deg2rad(60), np.deg2rad(45)
+    d = np.array([np.sin(y), np.cos(y) * np.cos(p), -np.cos(y) * np.sin(p)])
     pose = fg.pose_finger(mcp, ref, l1, l2, l3, np.stack([d, d]) * 0.08)
     assert np.rad2deg(pose.yaw) == pytest.approx([15.0, 15.0])
     assert np.rad2deg(pose.pitch) == pytest.approx([10.0, 10.0])
@@ -92,3 +92,38 @@ def test_degenerate_targets_are_finite():
     target = np.array([[0.0, 0.0, 0.0], [0.0, 5.0, 0.0], [0.0, -0.01, 0.0]])
     pose = fg.pose_finger(mcp, ref, 0.04, 0.03, 0.02, target)
     assert np.all(np.isfinite(pose.joints)) and np.all(np.isfinite(pose.rotations))
+
+
+def test_pitch_clamps_to_the_nearer_limit_around_the_circle():
+    # Finger pitch limits [-85°, 10°]: the excluded arc runs from 10° up through 180° to -85°,
+    # its middle at 142.5°.
+    pitch = np.deg2rad([-85.0, 0.0, 10.0, 30.0, 140.0, 145.0, 179.0, -179.0, -100.0])
+    clamped = np.rad2deg(fg._clamp_angle(pitch, np.deg2rad(-85.0), np.deg2rad(10.0)))
+    np.testing.assert_allclose(clamped, [-85.0, 0.0, 10.0, 10.0, 10.0, -85.0, -85.0, -85.0, -85.0])
+
+
+@pytest.mark.parametrize("thumb", [False, True])
+def test_a_curled_finger_turns_smoothly_with_its_target(thumb):
+    """A fingertip curled under the base joint (Figure 16's pole, where a yaw about the hand's up
+    axis is undefined) moved by a tenth of a millimetre turns the finger by about as much as the
+    move subtends, never by a jump between yaw limits."""
+    rng = np.random.default_rng(11)
+    n = 400
+    l1, l2, l3 = LENGTHS[0]
+    ref = np.broadcast_to(np.eye(3), (n, 3, 3))
+    mcp = np.zeros((n, 3))
+    # Directions within 12° of straight down the palm side (+Z) and straight behind it, beyond
+    # the pitch limit: a fist.
+    pole = np.array([0.0, 0.0, 1.0]) + rng.normal(scale=0.1, size=(n, 3))
+    pole[:, 1] = np.abs(pole[:, 1]) * rng.choice([-1, 1], n)
+    target = 0.03 * pole / np.linalg.norm(pole, axis=-1, keepdims=True)
+    step = 1e-4 * rng.normal(size=(n, 3)) / np.sqrt(3)
+    a = fg.pose_finger(mcp, ref, l1, l2, l3, target, thumb=thumb, roll=0.0)
+    b = fg.pose_finger(mcp, ref, l1, l2, l3, target + step, thumb=thumb, roll=0.0)
+    turn = np.arccos(np.clip((np.trace(np.swapaxes(a.rotations[:, 0], -1, -2) @ b.rotations[:, 0],
+                                       axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+    subtended = np.linalg.norm(step, axis=-1) / 0.03
+    # A turn may exceed the subtended angle by the flexion's own change (the distance moves too),
+    # bounded by a few times it; the flip this guards against was 30°.
+    assert np.rad2deg(turn).max() < 0.5
+    assert np.all(turn <= 8 * subtended + 1e-9)
