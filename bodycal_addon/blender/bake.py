@@ -50,6 +50,24 @@ class BakeOptions:
             raise BodyCalError(f"the output frame rate must be a number from 1 to 1000, got {self.fps!r}", field="fps")
 
 
+# A bone whose rotation keeps more than this share of its frames is named after the bake (takes of
+# at least DENSE_MIN_FRAMES): the reduction could hardly thin it, because the rotation changes by
+# more than the tolerance from one frame to the next: device or LED noise, mostly (LED gloves at
+# 0.15 mm give hands and fingers 0.5-0.7 deg RMS; FORMATS.md §4.2).
+DENSE_FRACTION = 0.9
+DENSE_MIN_FRAMES = 100
+
+
+def dense_note(bones) -> str:
+    """The end of a bake's summary line naming the bones the key reduction could hardly thin."""
+    if not bones:
+        return ""
+    shown = ", ".join(bones[:3]) + (f" and {len(bones) - 3} more" if len(bones) > 3 else "")
+    return (f"; {len(bones)} bone{'s' if len(bones) > 1 else ''} kept over {DENSE_FRACTION:.0%} of the frames "
+            f"({shown}): their rotation changes by more than the tolerance from frame to frame (device noise?); "
+            f"smoothing the devices or a larger tolerance keeps fewer keys")
+
+
 @dataclass
 class BakeResult:
     action: bpy.types.Action
@@ -59,6 +77,7 @@ class BakeResult:
     replaced: str | None = None
     nla_track: str | None = None
     samples: int = 0  # keys an every-frame bake would have written
+    dense_bones: tuple[str, ...] = ()  # bones keyed at more than DENSE_FRACTION of the frames, most first
 
 
 _POSE_SETTINGS = ("rotation_mode", "location", "rotation_quaternion", "rotation_euler", "rotation_axis_angle", "scale")
@@ -160,6 +179,10 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     # The key values go into `rotations` itself, at the kept frames (it is the bake's own array, or
     # the one `own` gave away).
     rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations)
+    dense = ()
+    if tolerance_deg > 0 and len(frames32) >= DENSE_MIN_FRAMES:
+        share = rot_keep.mean(axis=0)
+        dense = tuple(anim.bone_names[b] for b in np.argsort(-share, kind="stable") if share[b] > DENSE_FRACTION)
     # The tolerance is in world millimetres; locations are keyed in armature units.
     location_tolerance = max(location_tolerance_mm, 0.0) / 1000.0 / world_scale(obj)
     # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso: (kept, values)
@@ -215,4 +238,4 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     scene.frame_start = int(np.floor(frames32[0]))
     scene.frame_end = max(scene.frame_start, int(np.ceil(frames32[-1])))
     return BakeResult(action, keys, fcurves, (float(frames32[0]), float(frames32[-1])), replaced, track,
-                      fcurves * len(frames32))
+                      fcurves * len(frames32), dense)

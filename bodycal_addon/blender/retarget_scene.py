@@ -49,12 +49,14 @@ class RetargetSummary:
     figures: dict = field(default_factory=dict)
     samples: int = 0  # keys an every-frame bake would have written
     fps: float = 0.0  # the action's key rate
+    dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
 
     def line(self) -> str:
         fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
         kept = f" ({self.keys / self.samples:.0%} of every frame)" if 0 < self.keys < self.samples else ""
         return (f"Baked '{self.action}' ({self.method}): {self.frames} frames at {self.fps:g} fps, {self.keys} keys"
-                f"{kept} in {self.compute_s + self.bake_s:.1f} s" + (f"; {fig}" if fig else ""))
+                f"{kept} in {self.compute_s + self.bake_s:.1f} s" + (f"; {fig}" if fig else "")
+                + bake.dense_note(self.dense_bones))
 
 
 def missing_inputs(scene) -> str | None:
@@ -159,7 +161,7 @@ def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: 
     bake_s = time.perf_counter() - t0
     compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
     return RetargetSummary(result.action.name, inputs.method, keyed.frame_count, result.keys, compute_s, bake_s,
-                           figures, result.samples, rate)
+                           figures, result.samples, rate, result.dense_bones)
 
 
 def avatar_input(avatar_file) -> tuple[str, object]:

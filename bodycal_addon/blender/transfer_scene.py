@@ -256,10 +256,11 @@ class TransferSummary:
     bake_s: float
     fps: float
     notes: list[str] = field(default_factory=list)
+    dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
 
     def line(self) -> str:
         return (f"Baked '{self.action}' ({self.method}): {self.frames} frames at {self.fps:g} fps, {self.keys} keys "
-                f"in {self.compute_s + self.bake_s:.1f} s")
+                f"in {self.compute_s + self.bake_s:.1f} s" + bake.dense_note(self.dense_bones))
 
 
 def compute(source: SourceAnimation, avatar: BodyModel, method: str, *, plant_feet: bool = True,
@@ -300,7 +301,8 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
         avatar_storage.store_model(arm, avatar)
     compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
     return TransferSummary(result.action.name, anim.method, keyed.frame_count, result.keys, compute_s,
-                           time.perf_counter() - t0, rate, [n for n in anim.notes if not n.startswith("compute_s=")])
+                           time.perf_counter() - t0, rate, [n for n in anim.notes if not n.startswith("compute_s=")],
+                           result.dense_bones)
 
 
 def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,

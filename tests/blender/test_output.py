@@ -255,3 +255,31 @@ def test_a_released_animation_bakes_the_same_keys(take):
     assert keys_kept == keys_released and kept.keys() == released.keys()
     for k in kept:
         np.testing.assert_array_equal(kept[k], released[k], err_msg=str(k))
+
+
+def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
+    """A bone whose rotation jitters by more than the tolerance keeps nearly every frame: the
+    summary line names it, and only it (the smooth bones are thinned); a tolerance of 0 asks
+    for every frame, so nothing is named."""
+    from bodycal_addon import transforms as tf
+    from bodycal_addon.animation import AvatarAnimation
+    from bodycal_addon.blender.bake import DENSE_FRACTION
+    from bodycal_addon.blender.retarget_scene import RetargetSummary
+
+    bones = ["upperarm_l", "lowerarm_l", "thigh_r", "spine_02", "head"]
+    frames = 300
+    t = np.arange(frames) / 90.0
+    swing = tf.axis_angle_to_quat(np.array([0.0, 0.6, 0.8]), 0.5 * np.sin(2.0 * t))
+    q = np.repeat(swing[:, None], len(bones), axis=1)
+    rng = np.random.default_rng(5)
+    jitter = tf.axis_angle_to_quat(tf.normalize(rng.normal(size=(frames, 3))), np.full(frames, np.radians(0.5)))
+    q[:, 3] = tf.quat_mul(q[:, 3], jitter)  # spine_02: 0.5 deg of jitter against a 0.1 deg tolerance
+    anim = AvatarAnimation("procedural", bones, q, "pelvis", np.zeros((frames, 3)), t, method="egocentric")
+    for tol, named in ((0.1, ("spine_02",)), (0.0, ())):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        arm, _mesh, _spec = rigs.build_procedural_avatar()
+        result = bake_animation(anim, arm, fps=90.0, frame_start=1.0, tolerance_deg=tol)
+        assert result.dense_bones == named
+        line = RetargetSummary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0,
+                               samples=result.samples, fps=90.0, dense_bones=result.dense_bones).line()
+        assert (f"1 bone kept over {DENSE_FRACTION:.0%} of the frames (spine_02)" in line) == bool(named), line
