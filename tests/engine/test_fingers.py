@@ -112,8 +112,8 @@ def test_a_curled_finger_turns_smoothly_with_its_target(thumb):
     l1, l2, l3 = LENGTHS[0]
     ref = np.broadcast_to(np.eye(3), (n, 3, 3))
     mcp = np.zeros((n, 3))
-    # Directions within 12° of straight down the palm side (+Z) and straight behind it, beyond
-    # the pitch limit: a fist.
+    # Directions a few degrees from straight down the palm side (+Z), a little ahead of or behind
+    # the base joint (pitch near -90°, beyond the -85° limit): a fist.
     pole = np.array([0.0, 0.0, 1.0]) + rng.normal(scale=0.1, size=(n, 3))
     pole[:, 1] = np.abs(pole[:, 1]) * rng.choice([-1, 1], n)
     target = 0.03 * pole / np.linalg.norm(pole, axis=-1, keepdims=True)
