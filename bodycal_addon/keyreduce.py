@@ -49,13 +49,10 @@ def _reduce(samples: np.ndarray, values: np.ndarray, tolerance: float, error) ->
     """Key mask (G, F) for samples (G, F, C) such that error(sample, lerp of the two neighbouring
     keys' `values`) <= tolerance at every frame between keys, `error` taking (N, C) arrays and
     giving (N,) values that grow with the error. (Each key's own value must be within the
-    tolerance of its sample: the caller's band sees to it.)"""
+    tolerance of its sample, and the tolerance above 0: `_reduce_blocks` sees to both.)"""
     g, f = samples.shape[:2]
     keep = np.zeros((g, f), bool)
     keep[:, 0] = keep[:, -1] = True
-    if f <= 2 or tolerance <= 0:
-        keep[:] = True
-        return keep
     flat, value = samples.reshape(g * f, -1), values.reshape(g * f, -1)
     # The frames still inside a segment not yet known to be within tolerance, as flat g*f indices
     # (sorted, so each segment is a contiguous run), with the flat indices of their segment's
@@ -117,8 +114,7 @@ def _pulled_into_band(samples: np.ndarray, smooth: np.ndarray, radius: float, un
     angle (rad) between unit quaternions along their great circle, or a Euclidean distance."""
     if not unit:
         d = smooth - samples
-        dist = np.sqrt(np.einsum("...c,...c->...", d, d))
-        return samples + d * np.minimum(1.0, radius / np.maximum(dist, 1e-300))[..., None]
+        return samples + d * np.minimum(1.0, radius / np.maximum(_norm(d), 1e-300))
     smooth = smooth / _norm(smooth)
     cos = np.einsum("...c,...c->...", samples, smooth)  # cos of half the angle between the two
     smooth *= np.where(cos < 0.0, -1.0, 1.0)[..., None]

@@ -58,6 +58,15 @@ DENSE_FRACTION = 0.9
 DENSE_MIN_FRAMES = 100
 
 
+def dense_bones(rot_keep: np.ndarray, names, tolerance_deg: float) -> tuple[str, ...]:
+    """The bones whose rotation keeps more than DENSE_FRACTION of its frames (`rot_keep` (F, B)),
+    most first; none when every frame was asked for or the take is short."""
+    if tolerance_deg <= 0 or len(rot_keep) < DENSE_MIN_FRAMES:
+        return ()
+    share = rot_keep.mean(axis=0)
+    return tuple(names[b] for b in np.argsort(-share, kind="stable") if share[b] > DENSE_FRACTION)
+
+
 def dense_note(bones) -> str:
     """The end of a bake's summary line naming the bones the key reduction could hardly thin."""
     if not bones:
@@ -66,6 +75,19 @@ def dense_note(bones) -> str:
     return (f"; {len(bones)} bone{'s' if len(bones) > 1 else ''} kept over {DENSE_FRACTION:.0%} of the frames "
             f"({shown}): their rotation changes by more than the tolerance from frame to frame (device noise?); "
             f"smoothing the devices or a larger tolerance keeps fewer keys")
+
+
+def baked_line(action: str, method: str, frames: int, fps: float, keys: int, seconds: float, samples: int = 0) -> str:
+    """The start of a retarget's or a transfer's summary line (`samples`: the keys an every-frame
+    bake would have written, given to show the share kept)."""
+    kept = f" ({keys / samples:.0%} of every frame)" if 0 < keys < samples else ""
+    return f"Baked '{action}' ({method}): {frames} frames at {fps:g} fps, {keys} keys{kept} in {seconds:.1f} s"
+
+
+def scene_rate(fps: float) -> tuple[int, float]:
+    """(render.fps, render.fps_base) that play at `fps`, fractional rates included."""
+    whole = max(1, int(round(fps)))
+    return whole, whole / fps
 
 
 @dataclass
@@ -179,10 +201,7 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     # The key values go into `rotations` itself, at the kept frames (it is the bake's own array, or
     # the one `own` gave away).
     rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations)
-    dense = ()
-    if tolerance_deg > 0 and len(frames32) >= DENSE_MIN_FRAMES:
-        share = rot_keep.mean(axis=0)
-        dense = tuple(anim.bone_names[b] for b in np.argsort(-share, kind="stable") if share[b] > DENSE_FRACTION)
+    dense = dense_bones(rot_keep, anim.bone_names, tolerance_deg)
     # The tolerance is in world millimetres; locations are keyed in armature units.
     location_tolerance = max(location_tolerance_mm, 0.0) / 1000.0 / world_scale(obj)
     # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso: (kept, values)

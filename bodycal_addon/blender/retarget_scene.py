@@ -53,10 +53,9 @@ class RetargetSummary:
 
     def line(self) -> str:
         fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
-        kept = f" ({self.keys / self.samples:.0%} of every frame)" if 0 < self.keys < self.samples else ""
-        return (f"Baked '{self.action}' ({self.method}): {self.frames} frames at {self.fps:g} fps, {self.keys} keys"
-                f"{kept} in {self.compute_s + self.bake_s:.1f} s" + (f"; {fig}" if fig else "")
-                + bake.dense_note(self.dense_bones))
+        return (bake.baked_line(self.action, self.method, self.frames, self.fps, self.keys,
+                                self.compute_s + self.bake_s, self.samples)
+                + (f"; {fig}" if fig else "") + bake.dense_note(self.dense_bones))
 
 
 def missing_inputs(scene) -> str | None:
@@ -118,8 +117,7 @@ def output_rate(recording: Recording, fps: float | None) -> tuple[int, float, fl
     rec_fps, rec_base, rate = recording_scene.frame_mapping(recording)
     if fps is None or abs(fps - rate) <= 1e-6 * rate:
         return rec_fps, rec_base, rate, False
-    whole = max(1, int(round(fps)))
-    return whole, whole / fps, float(fps), True
+    return *bake.scene_rate(fps), float(fps), True
 
 
 def bake_and_measure(inputs: RetargetInputs, anim: AvatarAnimation, *, replace: bool = False,

@@ -259,8 +259,9 @@ class TransferSummary:
     dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
 
     def line(self) -> str:
-        return (f"Baked '{self.action}' ({self.method}): {self.frames} frames at {self.fps:g} fps, {self.keys} keys "
-                f"in {self.compute_s + self.bake_s:.1f} s" + bake.dense_note(self.dense_bones))
+        seconds = self.compute_s + self.bake_s
+        return (bake.baked_line(self.action, self.method, self.frames, self.fps, self.keys, seconds)
+                + bake.dense_note(self.dense_bones))
 
 
 def compute(source: SourceAnimation, avatar: BodyModel, method: str, *, plant_feet: bool = True,
@@ -292,8 +293,7 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
         keyed = resample(anim, rate) if resampled else anim
         keyed = rig_output.for_bake(keyed, arm, options.root_motion, options.rigify_target, own=resampled)
         if set_scene_rate:
-            whole = max(1, int(round(rate)))
-            bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = whole, whole / rate
+            bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = bake.scene_rate(rate)
         result = bake.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla,
                                      fps=rate, tolerance_deg=options.tolerance_deg,
                                      location_tolerance_mm=options.location_tolerance_mm)
