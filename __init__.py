@@ -3,7 +3,7 @@
 import bpy
 
 from . import operators, panels
-from .bodycal_addon.blender import cli_bridge
+from .bodycal_addon.app import cli_bridge
 
 _cli_handle = None
 

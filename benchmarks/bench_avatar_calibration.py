@@ -17,8 +17,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import bpy  # noqa: E402
 
-from bodycal_addon import paths  # noqa: E402
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar  # noqa: E402
+from bodycal_addon.core import paths  # noqa: E402
 from sample_rigs import build_procedural_avatar, load_glb_avatar  # noqa: E402
 
 REPEATS = 3

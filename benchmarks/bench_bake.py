@@ -19,10 +19,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import transforms as tf  # noqa: E402
-from bodycal_addon.animation import AvatarAnimation  # noqa: E402
 from bodycal_addon.blender.bake import bake_animation  # noqa: E402
 from bodycal_addon.blender.fcurves import object_fcurves  # noqa: E402
+from bodycal_addon.body.animation import AvatarAnimation  # noqa: E402
+from bodycal_addon.core import transforms as tf  # noqa: E402
 
 BONES = 60
 FRAMES = 5000

@@ -37,11 +37,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bodycal_addon import geometry, paths  # noqa: E402
-from bodycal_addon import transforms as tf  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
-from bodycal_addon.errors import BodyCalError  # noqa: E402
-from bodycal_addon.geometry import fit_circle  # noqa: E402
+from bodycal_addon.core import geometry, paths  # noqa: E402
+from bodycal_addon.core import transforms as tf  # noqa: E402
+from bodycal_addon.core.errors import BodyCalError  # noqa: E402
+from bodycal_addon.core.geometry import fit_circle  # noqa: E402
 
 GROUPS = {
     "shoulders": ("shoulder_l", "shoulder_r"), "hips": ("hip_l", "hip_r"), "elbows": ("elbow_l", "elbow_r"),
@@ -185,7 +185,7 @@ def walk_part() -> dict:
     reference. The ankle is not evaluated: our ankle is the mean of the two malleolus touches and
     the file has only the lateral malleolus marker (its AJC is built from the ankle width the same
     way, so comparing would be circular)."""
-    from bodycal_addon.c3d import read_c3d
+    from bodycal_addon.recording.io.c3d import read_c3d
 
     z = paths.data_dir() / "markers" / "kineticstoolkit" / "walk.c3d.zip"
     if not z.exists():

@@ -20,8 +20,8 @@ sys.path.insert(0, str(ROOT))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import recording_io  # noqa: E402
 from bodycal_addon.blender import recording_scene  # noqa: E402
+from bodycal_addon.recording import io as recording_io  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 
 

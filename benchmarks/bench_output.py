@@ -44,13 +44,15 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import keyreduce, paths, recording_io  # noqa: E402
 from bodycal_addon.blender.bake import bake_animation  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
-from bodycal_addon.filters import OneEuro, filter_recording  # noqa: E402
+from bodycal_addon.core import paths  # noqa: E402
+from bodycal_addon.core.transforms import continuous_quaternions  # noqa: E402
+from bodycal_addon.output import keyreduce  # noqa: E402
+from bodycal_addon.recording import io as recording_io  # noqa: E402
+from bodycal_addon.recording.filters import OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig  # noqa: E402
-from bodycal_addon.transforms import continuous_quaternions  # noqa: E402
 from bodycal_dev import retarget_fixtures as rt  # noqa: E402
 
 TOL_DEG = keyreduce.DEFAULT_TOLERANCE_DEG

@@ -22,8 +22,8 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from bodycal_addon import recording_io  # noqa: E402
-from bodycal_addon.recording import Device, Recording  # noqa: E402
+from bodycal_addon.recording import io as recording_io  # noqa: E402
+from bodycal_addon.recording.model import Device, Recording  # noqa: E402
 
 _MEASURE = """
 import sys, resource

@@ -47,11 +47,12 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import paths, recording_io  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
-from bodycal_addon.errors import BodyCalError  # noqa: E402
-from bodycal_addon.filters import OneEuro, filter_recording  # noqa: E402
+from bodycal_addon.core import paths  # noqa: E402
+from bodycal_addon.core.errors import BodyCalError  # noqa: E402
+from bodycal_addon.recording import io as recording_io  # noqa: E402
+from bodycal_addon.recording.filters import OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import offsets  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig  # noqa: E402
@@ -179,7 +180,7 @@ def _size_ratios(rig, truth, frame: int) -> dict[str, float]:
     """How much larger the avatar's limbs are than the source's: the same motion moves a joint
     proportionally faster. Ankles: hip to knee to ankle plus the ankle's height (the root's scale,
     `AvatarRig.leg_length`); wrists: shoulder to elbow to wrist."""
-    from bodycal_addon.skeleton import JOINT_INDEX as JI
+    from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 
     p = dict(zip(truth["joints"], truth["positions"][frame]))
     a = rig.joint_world

@@ -30,10 +30,11 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import metrics, paths  # noqa: E402
-from bodycal_addon import skeleton as sk  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
-from bodycal_addon.filters import OneEuro, filter_recording  # noqa: E402
+from bodycal_addon.body import skeleton as sk  # noqa: E402
+from bodycal_addon.core import paths  # noqa: E402
+from bodycal_addon.output import metrics  # noqa: E402
+from bodycal_addon.recording.filters import OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402

@@ -31,7 +31,7 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
-from bodycal_addon.recording import Recording  # noqa: E402
+from bodycal_addon.recording.model import Recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 from bodycal_dev.retarget_fixtures import procedural_avatar  # noqa: E402

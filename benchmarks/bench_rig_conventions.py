@@ -32,9 +32,9 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import metrics  # noqa: E402
 from bodycal_addon.blender import avatar_calibration as ac  # noqa: E402
 from bodycal_addon.blender import avatar_rig, mesh_metrics, rig_output  # noqa: E402
+from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.retarget.pipeline import retarget  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 

@@ -36,11 +36,12 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import metrics, paths  # noqa: E402
-from bodycal_addon import skeleton as sk  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.blender import transfer_scene as ts  # noqa: E402
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar  # noqa: E402
+from bodycal_addon.body import skeleton as sk  # noqa: E402
+from bodycal_addon.core import paths  # noqa: E402
+from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.retarget import feet  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.pose_source import AnimationSource  # noqa: E402

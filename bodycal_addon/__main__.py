@@ -2,7 +2,7 @@
 
 import sys
 
-from bodycal_addon.cli import main
+from bodycal_addon.app.cli import main
 
 if __name__ == "__main__":
     code = main(sys.argv[1:])

@@ -1,4 +1,4 @@
-"""Write C3D files (the subset `bodycal_addon.c3d` reads: points, labels, units, rate, events;
+"""Write C3D files (the subset `bodycal_addon.recording.io.c3d` reads: points, labels, units, rate, events;
 Intel, DEC or MIPS; int16 or float), so the reader's tests can make files in every processor
 format. Development only: not part of the extension."""
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodycal_addon.c3d import DEC, INTEL, MIPS
+from bodycal_addon.recording.io.c3d import DEC, INTEL, MIPS
 
 
 def ieee_to_dec(values: np.ndarray) -> np.ndarray:

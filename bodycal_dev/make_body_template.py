@@ -1,4 +1,4 @@
-"""Regenerate `bodycal_addon/body_template.py` (the bare-skeleton body estimate's proportions,
+"""Regenerate `bodycal_addon/avatar/template.py` (the bare-skeleton body estimate's proportions,
 DESIGN.md "Estimated body") from the shared avatars: each avatar is surface-calibrated by the
 raycasts, every surface value is made relative to its own bone's size (`body_estimate.scales`),
 and the mean over the avatars is written. Run: .venv/bin/python bodycal_dev/make_body_template.py
@@ -16,8 +16,9 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bodycal_addon import body_estimate, paths  # noqa: E402
+from bodycal_addon.avatar import estimate as body_estimate  # noqa: E402
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar  # noqa: E402
+from bodycal_addon.core import paths  # noqa: E402
 from sample_rigs import load_glb_avatar  # noqa: E402
 
 

@@ -13,19 +13,15 @@ import copy
 
 import numpy as np
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
-from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
-from bodycal_addon.retarget.avatar_pose import (
-    BI,
-    BONES,
-    HINGES,
-    JOINTS,
-    SPINE_JOINTS,
-    complete_joints,
-    model_rest_frames,
-)
-from bodycal_addon.transforms import normalize
+from bodycal_addon.body import naming
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from bodycal_addon.body.rest_frames import complete_joints, model_rest_frames
+from bodycal_addon.body.skeleton import BONE_INDEX as BI
+from bodycal_addon.body.skeleton import BONES, JOINTS, SPINE_JOINTS
+from bodycal_addon.body.skeleton import HINGE_BONES as HINGES
+from bodycal_addon.core.transforms import normalize
 
 
 def _rig_dict(name, bones, matrix_world, bone_map, rest_pose="T"):
@@ -59,7 +55,7 @@ def avatar_from_user(user: BodyModel, scale: float = 1.0, matrix_world=None, nam
                              "matrix": (wr.T @ frames0[BI[b.name]]).tolist(), "segment": seg or "spine"}
         if seg:
             segs[seg] = b.name
-    bm = sk.BoneMap("canonical", segs, {"spine": avatar_spine(), "neck": []}, [])
+    bm = naming.BoneMap("canonical", segs, {"spine": avatar_spine(), "neck": []}, [])
     joints = {}
     for j in JOINTS:
         bone = next((b.name for b in BONES if b.head == j and b.name in rig_bones), None)
@@ -125,7 +121,7 @@ def procedural_avatar(spec=None, matrix_world=None, name: str | None = None, **s
     for bn, b in spec.bones.items():
         rig_bones[bn] = {"parent": b.parent or "", "head": b.head.tolist(), "tail": b.tail.tolist(),
                          "matrix": align_roll_matrix(b.head, b.tail, b.z_axis).tolist()}
-    bm = sk.detect_bone_map(list(spec.bones))
+    bm = naming.detect_bone_map(list(spec.bones))
     for seg, bn in bm.bones.items():
         rig_bones[bn]["segment"] = seg
     for c, lst in bm.chains.items():

@@ -65,11 +65,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
-from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording import Device, Recording, Segment
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording.model import Device, Recording, Segment
 
 BUILDS = ("child", "thin", "average", "heavy", "tall", "long_arms")
 PROFILES = ("full", "minimal")
@@ -1761,7 +1761,7 @@ def _body_model(truth: GroundTruth, name: str) -> BodyModel:
 
 def write_session(directory, name: str, rec: Recording, truth: GroundTruth) -> tuple[Path, Path]:
     """Write `<name>.bcrec.json` (FORMATS.md §2.1, via recording_io) and `<name>.truth.json`."""
-    from bodycal_addon import recording_io
+    from bodycal_addon.recording import io as recording_io
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

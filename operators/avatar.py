@@ -4,8 +4,8 @@ import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, blendfile, surface_helpers
-from ..bodycal_addon.bodymodel import BodyModel
-from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.body.bodymodel import BodyModel
+from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.retarget.placement import avatar_warnings
 from .reporting import reports_errors
 

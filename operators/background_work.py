@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 
-from ..bodycal_addon.errors import Cancelled
+from ..bodycal_addon.core.errors import Cancelled
 from .reporting import reports_errors
 
 

@@ -7,7 +7,7 @@ import math
 import bpy
 
 from ..bodycal_addon.blender.bake import BakeOptions
-from ..bodycal_addon.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..bodycal_addon.output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 
 ROOT_MOTION_ITEMS = [  # retarget/root_motion.py
     ("root", "Root Bone", "The travel and heading on the rig's root bone when it has one above the pelvis "

@@ -7,10 +7,10 @@ import os
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon import skeleton as sk
 from ..bodycal_addon.blender import avatar_rig, bone_map_presets
-from ..bodycal_addon.bone_presets import load_preset
-from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.body import naming
+from ..bodycal_addon.body.bone_presets import load_preset
+from ..bodycal_addon.core.errors import BodyCalError
 from .avatar import _poll_armature, context_armature
 from .reporting import reports_errors
 
@@ -21,7 +21,7 @@ def _preset_items(_self, _context):
     try:
         entries = bone_map_presets.preset_entries()
     except (BodyCalError, OSError, ValueError) as exc:  # the user folder cannot be read: built-ins only
-        entries = [(f"{bone_map_presets.BUILTIN}{s.name}", s.title, f"Built-in ({exc})") for s in sk.SCHEMES]
+        entries = [(f"{bone_map_presets.BUILTIN}{s.name}", s.title, f"Built-in ({exc})") for s in naming.SCHEMES]
     _items_alive[:] = [(ident, label, desc, i) for i, (ident, label, desc) in enumerate(entries)]
     return _items_alive
 

@@ -4,7 +4,7 @@ show the fitted joints, spheres, circles and surface elements as helper objects.
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.core.errors import BodyCalError
 from .reporting import reports_errors
 
 
@@ -100,7 +100,7 @@ class BODYCAL_OT_load_user_model(bpy.types.Operator, ImportHelper):
     @reports_errors
     def execute(self, context):
         from ..bodycal_addon.blender import calibration_scene as cs
-        from ..bodycal_addon.bodymodel import BodyModel
+        from ..bodycal_addon.body.bodymodel import BodyModel
 
         model = BodyModel.load(self.filepath)
         if model.kind != "user":

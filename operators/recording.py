@@ -3,8 +3,8 @@
 import bpy
 from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 
-from ..bodycal_addon import recording_io
 from ..bodycal_addon.blender import recording_scene
+from ..bodycal_addon.recording import io as recording_io
 from .reporting import reports_errors
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 
-from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.core.errors import BodyCalError
 
 
 def error_line(exc: BaseException) -> str:

@@ -12,7 +12,7 @@ from bpy_extras.io_utils import ExportHelper
 
 from ..bodycal_addon.blender import retarget_scene
 from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
-from ..bodycal_addon.filters import OneEuro
+from ..bodycal_addon.recording.filters import OneEuro
 from .background_work import BackgroundWork
 from .bake_settings import BakeSettings, can_bake_in
 from .reporting import reports_errors

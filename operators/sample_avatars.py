@@ -3,7 +3,7 @@
 import bpy
 
 from .. import sample_rigs
-from ..bodycal_addon import paths
+from ..bodycal_addon.core import paths
 
 
 class BODYCAL_OT_add_procedural_avatar(bpy.types.Operator):

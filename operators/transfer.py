@@ -10,7 +10,7 @@ import bpy
 
 from ..bodycal_addon.blender import transfer_scene
 from ..bodycal_addon.blender.retarget_scene import avatar_model_for
-from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.retarget.placement import avatar_warnings
 from .background_work import BackgroundWork
 from .bake_settings import BakeSettings, can_bake_in

@@ -3,7 +3,7 @@
 import bpy
 
 from ..bodycal_addon.blender import avatar_rig, avatar_storage, surface_helpers
-from ..bodycal_addon.errors import BodyCalError
+from ..bodycal_addon.core.errors import BodyCalError
 from ..operators.avatar import context_armature
 
 _cache: dict = {}

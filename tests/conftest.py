@@ -16,7 +16,7 @@ import pytest  # noqa: E402
 
 @pytest.fixture(scope="session")
 def data_dir() -> pathlib.Path:
-    from bodycal_addon import paths
+    from bodycal_addon.core import paths
 
     d = paths.data_dir()
     assert d is not None, "sample data not found: sample_data/ is missing (or BODYCAL_DATA points elsewhere)"

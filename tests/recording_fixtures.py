@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodycal_addon import transforms as tf
-from bodycal_addon.recording import Device, Recording, Segment
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.recording.model import Device, Recording, Segment
 
 # Body frame: x = performer's left, y = forward, z = up (metres).
 FULL = {

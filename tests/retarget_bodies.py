@@ -13,10 +13,10 @@ import copy
 
 import numpy as np
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
-from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
-from bodycal_addon.transforms import frame_from_axes
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from bodycal_addon.core.transforms import frame_from_axes
 
 RADII = {"upperarm": (0.045, 0.038), "forearm": (0.036, 0.028), "thigh": (0.075, 0.055), "shin": (0.05, 0.038)}
 FINGER_RADIUS = (0.009, 0.008)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
 from sample_rigs.procedural import torso_surface_distance
 
 TOL = 0.002  # metres: "within 2 mm of the known truth"

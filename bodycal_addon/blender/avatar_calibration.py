@@ -3,7 +3,7 @@ modifier-applied) mesh of every object skinned to the armature with `mathutils.b
 in the rest pose (the armature is shown at rest while the meshes are read, whatever its pose) as
 it stands in the scene (object transforms, scale and parenting included: rays are cast in world
 space and moved into each mesh object's local space). The rays and the fits are
-the engine's (`bodycal_addon/avatar_rays.py`, which documents every ray).
+the engine's (`bodycal_addon/avatar/rays.py`, which documents every ray).
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import contextlib
 
 import numpy as np
 
-from ..avatar_rays import surface_from_rays
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from ..avatar.rays import surface_from_rays
+from ..body.bodymodel import BodyModel
+from ..core.errors import BodyCalError
 from . import avatar_rig
 
 

@@ -1,6 +1,6 @@
 """An avatar's armature object in Blender: its bone map (auto-detected, plus the user's overrides
 stored on the object as `bodycal_bone_map` and `bodycal_hinge_axes`) and `read_rig(arm)`, which
-reads the rest pose into the engine's `armature.ArmatureReading` (see `bodycal_addon/armature.py`
+reads the rest pose into the engine's `armature.ArmatureReading` (see `bodycal_addon/avatar/armature.py`
 for the joint rules and the bones' `right`).
 
 The overrides are the one place a bone map is kept: assigning a bone writes one segment, applying
@@ -14,10 +14,11 @@ import json
 
 import numpy as np
 
-from .. import skeleton as sk
-from ..armature import HINGE_BONES, ArmatureReading, read_armature
-from ..bone_presets import SINGLE_SEGMENTS, BonePreset
-from ..errors import BodyCalError
+from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature
+from ..body import naming
+from ..body import skeleton as sk
+from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset
+from ..core.errors import BodyCalError
 from . import avatar_storage
 
 BONE_MAP_PROP = "bodycal_bone_map"  # JSON {segment: avatar bone ("" = unmapped)}: user overrides
@@ -60,10 +61,10 @@ def clear_overrides(arm) -> None:
         del arm[BONE_MAP_PROP]
 
 
-def bone_map_for(arm) -> sk.BoneMap:
+def bone_map_for(arm) -> naming.BoneMap:
     """Auto-detected map with the user's overrides applied (chains: comma-separated bone lists)."""
     names = [b.name for b in arm.data.bones]
-    bm = sk.detect_bone_map(names)
+    bm = naming.detect_bone_map(names)
     ov = load_overrides(arm)
     for seg, bone in ov.items():
         if seg in sk.CHAIN_SEGMENTS:
@@ -81,7 +82,7 @@ def bone_map_for(arm) -> sk.BoneMap:
     return bm
 
 
-def apply_bone_map(arm, bm: sk.BoneMap) -> bool:
+def apply_bone_map(arm, bm: naming.BoneMap) -> bool:
     """Make `bm` the armature's bone map: every segment is written to the overrides ("" where it
     maps nothing). An avatar model stored on the armature that was calibrated with another map no
     longer fits it and is removed (returns True): the next calibration or bake measures it again."""
@@ -95,7 +96,7 @@ def apply_bone_map(arm, bm: sk.BoneMap) -> bool:
     if not avatar_storage.has_model(arm):
         return False
     try:
-        stored = sk.BoneMap.from_dict(avatar_storage.load_model(arm).extra.get("rig", {}).get("bone_map", {}))
+        stored = naming.BoneMap.from_dict(avatar_storage.load_model(arm).extra.get("rig", {}).get("bone_map", {}))
     except BodyCalError:  # damaged: the next calibration replaces it anyway
         return False
     if stored.same_mapping(bm):
@@ -104,7 +105,7 @@ def apply_bone_map(arm, bm: sk.BoneMap) -> bool:
     return True
 
 
-def apply_preset(arm, preset: BonePreset) -> tuple[sk.BoneMap, bool]:
+def apply_preset(arm, preset: BonePreset) -> tuple[naming.BoneMap, bool]:
     """Resolve `preset` on the armature's bones and store the result (`apply_bone_map`): the map,
     and whether a stored avatar model made with another map was removed."""
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
@@ -172,7 +173,7 @@ def deform_parents(arm) -> dict[str, str | None]:
     return out
 
 
-def read_rig(arm, bone_map: sk.BoneMap | None = None) -> ArmatureReading:
+def read_rig(arm, bone_map: naming.BoneMap | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature object in its rest pose (a generated Rigify
     rig: of its DEF- bones, `deform_parents`)."""
     if arm is None or getattr(arm, "type", None) != "ARMATURE":

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import json
 
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from ..body.bodymodel import BodyModel
+from ..core.errors import BodyCalError
 
 MODEL_PROP = "bodycal_avatar_model"
 

@@ -18,13 +18,13 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from .. import keyreduce
-from ..animation import AvatarAnimation
-from ..errors import BodyCalError
-from ..keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
-from ..retarget.rigify import check_rigify_target
-from ..retarget.root_motion import check_root_motion
-from ..transforms import continuous_quaternions
+from ..body.animation import AvatarAnimation
+from ..core.errors import BodyCalError
+from ..core.transforms import continuous_quaternions
+from ..output import keyreduce
+from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..output.rigify import check_rigify_target
+from ..output.root_motion import check_root_motion
 from .fcurves import new_fcurve, write_keys
 
 

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import bpy
 
-from .. import outputs
-from ..errors import BodyCalError
-from ..paths import AVATAR_SUFFIXES
+from ..core import outputs
+from ..core.errors import BodyCalError
+from ..core.paths import AVATAR_SUFFIXES
 
 # suffix -> (the format's name, its import_scene operator, the add-on that provides it; None: not
 # Blender's own, the user installs one)

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .. import outputs, paths
-from .. import skeleton as sk
-from ..batch import safe_part
-from ..bone_presets import BonePreset, load_preset, preset_from_bone_map
-from ..errors import BodyCalError
+from ..body import naming
+from ..body.bone_presets import BonePreset, load_preset, preset_from_bone_map
+from ..core import outputs, paths
+from ..core.errors import BodyCalError
+from ..core.outputs import safe_part
 from . import avatar_rig
 
 USER_FOLDER = "bone_maps"
@@ -32,7 +32,7 @@ def user_preset_dir(create: bool = True) -> Path:
 def preset_entries() -> list[tuple[str, str, str]]:
     """(identifier, label, description) of every preset: the built-in ones, then the user's files
     in name order; a file that cannot be read is listed with the reason (applying it says it)."""
-    out = [(f"{BUILTIN}{s.name}", s.title, f"Built-in: the {s.title} naming scheme") for s in sk.SCHEMES]
+    out = [(f"{BUILTIN}{s.name}", s.title, f"Built-in: the {s.title} naming scheme") for s in naming.SCHEMES]
     for path in sorted(user_preset_dir().glob("*.json")):
         try:
             out.append((f"{USER}{path.name}", load_preset(path).name, f"Your preset ({path.name})"))
@@ -43,7 +43,7 @@ def preset_entries() -> list[tuple[str, str, str]]:
 
 def preset_for(identifier: str) -> BonePreset:
     if identifier.startswith(BUILTIN):
-        scheme = sk.SCHEME_BY_NAME.get(identifier[len(BUILTIN):])
+        scheme = naming.SCHEME_BY_NAME.get(identifier[len(BUILTIN):])
         if scheme is None:
             raise BodyCalError(f"no built-in bone map preset '{identifier}'")
         return BonePreset(scheme.title, scheme.name, source=f"built-in: {scheme.name}")

@@ -8,8 +8,9 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from .. import surface_layout as sl
-from ..bodymodel import BodyModel
+from ..body import surface_layout as sl
+from ..body.bodymodel import BodyModel
+from ..core.transforms import matrix_to_quat
 from .avatar_storage import has_json_model, load_json_model, store_json_model
 
 MODEL_PROP = "bodycal_user_model"
@@ -59,7 +60,6 @@ def _empty(coll, name, loc, display="SPHERE", size=0.01, rot=None):
     obj.location = [float(x) for x in loc]
     if rot is not None:
         obj.rotation_mode = "QUATERNION"
-        from ..transforms import matrix_to_quat
 
         obj.rotation_quaternion = [float(x) for x in matrix_to_quat(rot)]
     coll.objects.link(obj)

@@ -17,10 +17,11 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from .. import metrics, paths
 from ..calibration import calibrate_user
-from ..errors import BodyCalError
-from ..recording_io import load_recording
+from ..core import paths
+from ..core.errors import BodyCalError
+from ..output import metrics
+from ..recording.io import load_recording
 from ..retarget.pipeline import METHODS
 from . import avatar_storage, calibration_scene, mesh_metrics, recording_scene, retarget_scene
 from .avatar_calibration import calibrate_avatar

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import bpy
 
-from .. import outputs
-from ..errors import BodyCalError
+from ..core import outputs
+from ..core.errors import BodyCalError
 
 EXPORT_SUFFIXES = (".fbx", ".glb", ".gltf", ".bvh")
 OUTPUT_SUFFIXES = (".blend", *EXPORT_SUFFIXES)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import bpy
 
-from .. import paths
+from ..core import paths
 
 
 def blender_ext_tool() -> Path:

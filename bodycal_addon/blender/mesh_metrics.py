@@ -18,11 +18,14 @@ import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
-from .. import skeleton as sk
-from ..animation import AvatarAnimation
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
-from ..retarget.avatar_pose import BI, AvatarRig, complete_joints
+from ..body import naming
+from ..body import skeleton as sk
+from ..body.animation import AvatarAnimation
+from ..body.bodymodel import BodyModel
+from ..body.rest_frames import complete_joints
+from ..body.skeleton import BONE_INDEX as BI
+from ..core.errors import BodyCalError
+from ..retarget.avatar_pose import AvatarRig
 from ..retarget.pipeline import surface_correction
 
 
@@ -65,7 +68,7 @@ def effector_segments(effector: str) -> list[str]:
         f"{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)] + [f"metacarpal_{f}_{side}" for f in sk.FINGERS]
 
 
-def _segment_bones(bone_map: sk.BoneMap, segments) -> set[str]:
+def _segment_bones(bone_map: naming.BoneMap, segments) -> set[str]:
     out = set()
     for seg in segments:
         if seg in bone_map.chains:
@@ -218,7 +221,7 @@ def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[d
     part only (`against="target"`). `posed` is what the bake keys when it is not the engine's
     animation (root motion, a Rigify rig's controls: `rig_output.for_bake`); the mesh is posed by it."""
     rig = AvatarRig.from_model(avatar)
-    bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+    bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
     mesh = mesh or EvaluatedMesh(arm)
     queries, offsets = [], []
     for c in contacts:

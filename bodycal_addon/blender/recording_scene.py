@@ -25,9 +25,9 @@ import math
 import bpy
 import numpy as np
 
-from ..errors import BodyCalError
-from ..recording import STEPS, Device, Recording, Segment
-from ..transforms import continuous_quaternions
+from ..core.errors import BodyCalError
+from ..core.transforms import continuous_quaternions
+from ..recording.model import STEPS, Device, Recording, Segment
 from .fcurves import CONSTANT, new_fcurve, object_fcurves, read_keys, write_keys
 
 SCENE_KEY = "bodycal_recording"

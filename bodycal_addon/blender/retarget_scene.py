@@ -12,16 +12,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import metrics, outputs
-from ..animation import AvatarAnimation, resample
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
-from ..filters import OneEuro, filter_recording
-from ..recording import Recording
+from ..body.animation import AvatarAnimation, resample
+from ..body.bodymodel import BodyModel
+from ..body.bone_presets import load_preset
+from ..core import outputs
+from ..core.errors import BodyCalError
+from ..output import metrics
+from ..recording.filters import OneEuro, filter_recording
+from ..recording.io import load_recording
+from ..recording.model import Recording
 from ..retarget.pipeline import retarget
 from ..retarget.placement import avatar_warnings, check_placement, moved_to
 from . import avatar_storage, bake, calibration_scene, process, recording_scene, rig_output
 from .avatar_calibration import calibrate_avatar
+from .avatar_rig import apply_preset
+from .blendfile import find_armature, open_avatar, save_blend
+from .export import export_avatar, output_kind
 
 
 @dataclass
@@ -192,9 +198,6 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, arma
 
     import bpy
 
-    from ..bone_presets import load_preset
-    from ..recording_io import load_recording
-    from .blendfile import find_armature, open_avatar
 
     avatar_file = Path(avatar_file)
     check_placement(placement)
@@ -208,7 +211,6 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, arma
     open_avatar(avatar_file)
     arm = find_armature(armature, str(avatar_file))
     if bone_map is not None:
-        from .avatar_rig import apply_preset
 
         if apply_preset(arm, bone_map)[1]:
             log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
@@ -230,7 +232,6 @@ def checked_outputs(output_paths, files_read, overwrite: bool) -> list:
     one of `files_read`, not a link or device, replaced only with `overwrite`, each given once."""
     from pathlib import Path
 
-    from .export import output_kind
 
     outs = [Path(p) for p in ([output_paths] if isinstance(output_paths, (str, Path)) else output_paths)]
     seen = set()
@@ -245,8 +246,6 @@ def checked_outputs(output_paths, files_read, overwrite: bool) -> list:
 
 def write_outputs(arm, outs, files_read, overwrite: bool, log=print) -> None:
     """Write the open file (.blend) or the avatar with its baked action (exports), each all at once."""
-    from .blendfile import save_blend
-    from .export import export_avatar, output_kind
 
     for out in outs:
         if output_kind(out) == "blend":

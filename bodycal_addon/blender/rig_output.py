@@ -10,9 +10,9 @@ import copy
 
 import numpy as np
 
-from ..animation import AvatarAnimation
-from ..retarget import rigify
-from ..retarget.root_motion import RootRest, apply_root_motion, check_root_motion
+from ..body.animation import AvatarAnimation
+from ..output import rigify
+from ..output.root_motion import RootRest, apply_root_motion, check_root_motion
 from . import avatar_rig
 
 

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import surface_layout as sl
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from ..body import skeleton as sk
+from ..body import surface_layout as sl
+from ..body.bodymodel import BodyModel
+from ..core.errors import BodyCalError
 from . import avatar_storage
 
 ELEMENT_PROP = "bodycal_element"

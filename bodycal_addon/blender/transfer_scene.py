@@ -16,16 +16,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..animation import AvatarAnimation
-from ..body_estimate import ESTIMATED, estimate_surface
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from ..avatar.estimate import ESTIMATED, estimate_surface
+from ..body.animation import AvatarAnimation, resample
+from ..body.bodymodel import BodyModel
+from ..body.bone_presets import load_preset
+from ..core.errors import BodyCalError
+from ..core.transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
 from ..retarget.avatar_pose import AvatarRig
+from ..retarget.placement import avatar_warnings, check_placement
 from ..retarget.transfer import check_method, stand_on_floor, transfer
-from ..transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
 from . import avatar_rig, avatar_storage, bake, rig_output
 from .avatar_calibration import avatar_meshes
+from .avatar_rig import apply_preset
+from .blendfile import _stderr_to_stdout, find_armature, open_avatar
 from .fcurves import object_fcurves, read_keys
+from .retarget_scene import avatar_input, avatar_model_for, checked_outputs, write_outputs
 
 SOURCE_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")
 # Metres per file unit a BVH may be written in (m, cm, inch, CMU's inch / 0.45, mm): the one that
@@ -148,7 +153,6 @@ def source_model(arm) -> BodyModel:
     """The source character's body: measured on its skinned mesh by the avatar calibration, or,
     for a bare skeleton, estimated from its bone lengths (body_estimate)."""
     if avatar_meshes(arm):
-        from .retarget_scene import avatar_model_for
 
         # its stored model, else the calibration's (which reads the posed character at rest)
         return avatar_model_for(arm)[0]
@@ -217,7 +221,6 @@ def open_source(path) -> list[str]:
     into an empty scene); returns notes (a BVH's unit)."""
     import bpy
 
-    from .blendfile import _stderr_to_stdout, open_avatar
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -282,7 +285,6 @@ def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, option
     `avatar`: the target's model calibrated for this bake, stored on the armature with it."""
     import bpy
 
-    from ..animation import resample
 
     options = options or bake.BakeOptions()
     rate = float(options.fps or source.fps)
@@ -313,10 +315,6 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
     """`bodycal transfer`: the source's action onto the avatar of `avatar_file`, baked and saved to
     `output_paths` (checked first, written last, as `retarget_files`); `bone_map_path`: a bone map
     preset for the target's armature (`retarget --bone-map`)."""
-    from ..bone_presets import load_preset
-    from ..retarget.placement import avatar_warnings, check_placement
-    from .blendfile import find_armature, open_avatar
-    from .retarget_scene import avatar_input, avatar_model_for, checked_outputs, write_outputs
 
     check_method(method)
     check_placement(placement)
@@ -335,7 +333,6 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
     open_avatar(Path(avatar_file))
     arm = find_armature(armature, str(avatar_file))
     if bone_map is not None:
-        from .avatar_rig import apply_preset
 
         if apply_preset(arm, bone_map)[1]:
             log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")

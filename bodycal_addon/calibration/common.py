@@ -8,10 +8,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import transforms as tf
-from ..errors import BodyCalError
-from ..led_gloves import led_hand_frame
-from ..recording import Recording, Segment
+from ..core import transforms as tf
+from ..core.errors import BodyCalError
+from ..core.geometry import robust_mean
+from ..recording.led_gloves import led_hand_frame
+from ..recording.model import Recording, Segment
 
 REF_HALF_WINDOW = 0.1  # s: device poses at the reference time are robust means over this window
 SPIKE_WINDOW_S = 0.07  # running median window for glitch detection
@@ -226,7 +227,6 @@ class Session:
     def carry(self, joint_local: np.ndarray, from_role: str, to_role: str, idx: np.ndarray) -> np.ndarray:
         """A joint fixed in `from_role`'s frame, expressed in `to_role`'s frame: robust mean over
         the frames `idx` (the joint is rigid in both when it sits between their two bones)."""
-        from ..geometry import robust_mean
 
         ap, aq, av = self.pose(from_role)
         bp, bq, bv = self.pose(to_role)

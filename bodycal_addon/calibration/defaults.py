@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import transforms as tf
-from ..transforms import EPS
+from ..body import skeleton as sk
+from ..core import transforms as tf
+from ..core.transforms import EPS
 from .common import Session, State
+from .hands import PHALANX_FRACTIONS
 
 EYE_TO_STATURE = 0.93
 R = {  # fractions of the stature (joint centres, so the shoulders are narrower than the biacromial width)
@@ -205,7 +206,6 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
             put(f"mcp_{f}_{s}", mcp, "hand layout ratios of the stature")
             direction = along if f != "thumb" else (along + thumb) / np.linalg.norm(along + thumb)
             put(f"tip_{f}_{s}", w[f"mcp_{f}_{s}"] + direction * length * H, "finger length ratio of the stature")
-            from .hands import PHALANX_FRACTIONS
 
             fa, fb = PHALANX_FRACTIONS[f]
             m, t = w[f"mcp_{f}_{s}"], w[f"tip_{f}_{s}"]

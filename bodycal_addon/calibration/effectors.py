@@ -11,10 +11,10 @@ the joint, nothing is measured and the defaults apply (defaults.py), reported as
 
 from __future__ import annotations
 
-from .. import skeleton as sk
-from .. import transforms as tf
-from ..errors import BodyCalError
-from ..geometry import fit_rigid_point
+from ..body import skeleton as sk
+from ..core import transforms as tf
+from ..core.errors import BodyCalError
+from ..core.geometry import fit_rigid_point
 from .common import Session, State
 
 MAX_FRAMES = 4000  # a long take is thinned to this many frames (the fit is over a few seconds of motion)

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import transforms as tf
-from ..geometry import fit_plane, robust_mean
+from ..body import skeleton as sk
+from ..core import transforms as tf
+from ..core.geometry import fit_plane, robust_mean
 from . import touches as T
 from .common import Session, State
 

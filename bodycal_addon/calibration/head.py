@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import fit_sphere
-from ..surface_layout import JAW_POINTS, SKULL_POINTS
+from ..body.surface_layout import JAW_POINTS, SKULL_POINTS
+from ..core.geometry import fit_sphere
 from . import touches as T
 from .common import Session, State
 

@@ -50,11 +50,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import transforms as tf
-from ..errors import BodyCalError
-from ..geometry import fit_circle, fit_rigid_point, fit_rotation_axis, fit_sphere, fit_sphere_moving_point
-from ..transforms import EPS
+from ..body import skeleton as sk
+from ..core import transforms as tf
+from ..core.errors import BodyCalError
+from ..core.geometry import fit_circle, fit_rigid_point, fit_rotation_axis, fit_sphere, fit_sphere_moving_point
+from ..core.transforms import EPS
 from . import touches as T
 from .common import Session, State
 

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import transforms as tf
-from ..errors import BodyCalError
-from ..geometry import robust_mean
-from ..recording import Segment
+from ..core import transforms as tf
+from ..core.errors import BodyCalError
+from ..core.geometry import robust_mean
+from ..recording.model import Segment
 from .common import Session, State, other, running_median, side_of
 
 STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still

@@ -6,19 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import transforms as tf
-from ..bodymodel import Offset
+from ..body.bodymodel import Offset
+from ..core import transforms as tf
+from ..recording.roles import apply_roles
 from .common import Session
 
 
 def identify_roles(session: Session) -> None:
     rec = session.rec
     if not any(d.role is None for d in rec.devices) or not rec.segments_of("tpose"):
-        return
-    try:
-        from ..roles import apply_roles
-    except ImportError:  # roles.py not available: leave the roles as they are
-        session.missing.append("role identification (bodycal_addon.roles not available)")
         return
     before = {d.name: d.role for d in rec.devices}
     apply_roles(rec)

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import transforms as tf
-from ..surface_layout import BELLY_CENTRE, TORSO_POINTS, belly_centre_points
+from ..body import skeleton as sk
+from ..body.surface_layout import BELLY_CENTRE, TORSO_POINTS, belly_centre_points
+from ..core import transforms as tf
 from . import touches as T
 from .common import Session, State
 

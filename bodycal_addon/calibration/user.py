@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import skeleton as sk
-from .. import surface_layout as sl
-from .. import transforms as tf
-from ..bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
-from ..errors import BodyCalError
-from ..recording import Recording
-from ..transforms import EPS
+from ..body import skeleton as sk
+from ..body import surface_layout as sl
+from ..body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
+from ..core import transforms as tf
+from ..core.errors import BodyCalError
+from ..core.transforms import EPS
+from ..recording.model import Recording
 from . import defaults, effectors, feet, hands, head, limbs, tpose, trunk
 from .common import Session, State
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..transforms import stack_mul
+from ..core.transforms import stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4

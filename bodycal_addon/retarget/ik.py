@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..transforms import EPS
+from ..core.transforms import EPS
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m

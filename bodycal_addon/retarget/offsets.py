@@ -26,11 +26,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import skeleton as sk
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
-from ..transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
-from .avatar_pose import BI, JI, SPINE_BONES, AvatarRig, complete_joints, copy_frames
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel
+from ..body.rest_frames import complete_joints
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.skeleton import SPINE_BONES
+from ..core.errors import BodyCalError
+from ..core.transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
+from .avatar_pose import AvatarRig, copy_frames
 from .user_animation import _axis_angle_matrix
 
 TRACKED = {  # joint -> (tracker role, canonical bone whose rotation follows eq. 3)

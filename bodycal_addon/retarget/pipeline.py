@@ -21,31 +21,22 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .. import skeleton as sk
-from ..animation import AvatarAnimation
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError, Cancelled
-from ..recording import Recording
-from ..surface_layout import bone_frame
-from ..transforms import normalize, quat_to_matrix, stack_apply, stack_mul
+from ..body import naming
+from ..body import skeleton as sk
+from ..body.animation import AvatarAnimation
+from ..body.bodymodel import BodyModel
+from ..body.rest_frames import complete_joints, model_rest_frames
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import BONES, JOINTS, SPINE_BONES, SPINE_JOINTS
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.surface_layout import bone_frame
+from ..core.errors import BodyCalError, Cancelled
+from ..core.transforms import normalize, quat_to_matrix, stack_apply, stack_mul
+from ..recording.model import Recording
 from . import egocentric as ego
 from . import feet, ik
 from . import offsets as ofs
-from .avatar_pose import (
-    BI,
-    BONES,
-    JI,
-    JOINTS,
-    SPINE_BONES,
-    SPINE_JOINTS,
-    AvatarRig,
-    complete_joints,
-    copy_frames,
-    model_rest_frames,
-    root_centre,
-    root_positions,
-    root_scale,
-)
+from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource, RecordingSource
 from .user_animation import _trackers, pose_finger_chain, sacrum_toward_hip_line
@@ -118,7 +109,7 @@ class _Run:
         self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
             self.rig.frames0[BI["sacrum"]]
         self.notes: list[str] = []
-        bm = sk.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+        bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
         self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
                             for s in sk.SIDES}
         self.impl = METHOD_CLASSES[method](self, avatar_pos)

@@ -27,8 +27,8 @@ import copy
 
 import numpy as np
 
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from ..body.bodymodel import BodyModel
+from ..core.errors import BodyCalError
 
 PLACEMENTS = ("object", "performer")  # the default first
 PLAY_AREA_FORWARD = np.array([0.0, 1.0, 0.0])

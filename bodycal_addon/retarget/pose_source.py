@@ -15,12 +15,15 @@ from typing import Protocol
 
 import numpy as np
 
-from .. import skeleton as sk
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
-from ..recording import Recording
-from ..transforms import frame_from_axes, normalize, quat_to_matrix
-from .avatar_pose import BI, JI, SPINE_BONES, SPINE_JOINTS, AvatarRig, _arc_param, _curve_point
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
+from ..core.errors import BodyCalError
+from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
+from ..recording.model import Recording
+from .avatar_pose import AvatarRig, _arc_param, _curve_point
 from .user_animation import UserPose, _joint_from, _trackers, animate_user
 
 ANKLE_CHUNK = 4000  # frames posed at once for the whole take's ankles

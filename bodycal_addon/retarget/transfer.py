@@ -17,11 +17,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..animation import AvatarAnimation
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
+from ..avatar.estimate import sole_depth
+from ..body.animation import AvatarAnimation
+from ..body.bodymodel import BodyModel
+from ..core.errors import BodyCalError
+from .avatar_pose import AvatarRig
 from .pipeline import run_source
-from .placement import check_placement, play_area_to_world, transformed_avatar
+from .placement import check_placement, play_area_to_world, rig_matrix, transformed_avatar
 from .pose_source import AnimationSource
 
 TRANSFER_METHODS = ("egocentric", "rotations")  # the default first; offsets need trackers
@@ -75,9 +77,6 @@ def stand_on_floor(model: BodyModel, locations: np.ndarray, basis: np.ndarray, t
       in the clip's lower FLOOR_PERCENTILE (its feet touch the floor, whatever the capture's zero),
       through the parentless bones' pose locations (F, N, 3).
     Returns (model, locations, the rest's lift, the motion's lift) in metres."""
-    from ..body_estimate import sole_depth
-    from .avatar_pose import AvatarRig
-    from .placement import rig_matrix
 
     world = rig_matrix(model)
     depth = {s: sole_depth(model, s) for s in ("l", "r")}

@@ -21,12 +21,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import skeleton as sk
-from ..bodymodel import BodyModel
-from ..errors import BodyCalError
-from ..geometry import two_bone_mid
-from ..recording import Recording
-from ..transforms import (
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel
+from ..body.rest_frames import complete_joints, model_rest_frames
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import BONES, JOINTS, SPINE_BONES, SPINE_JOINTS
+from ..body.skeleton import JOINT_INDEX as JI
+from ..core.errors import BodyCalError
+from ..core.geometry import two_bone_mid
+from ..core.transforms import (
     frame_from_axes,
     normalize,
     quat_between,
@@ -35,8 +38,8 @@ from ..transforms import (
     stack_apply,
     stack_mul,
 )
+from ..recording.model import Recording
 from . import fingers, ik
-from .avatar_pose import BI, BONES, JI, JOINTS, SPINE_BONES, SPINE_JOINTS, complete_joints, model_rest_frames
 
 LIMB_SEGMENTS = {  # side-less limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),

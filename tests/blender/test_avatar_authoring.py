@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from mathutils import Matrix, Vector
 
-from bodycal_addon import cli
-from bodycal_addon import surface_layout as sl
+from bodycal_addon.app import cli
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.blender import avatar_storage, surface_helpers
-from bodycal_addon.bodymodel import BodyModel
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core.errors import BodyCalError
 from sample_rigs import build_procedural_avatar
 
 

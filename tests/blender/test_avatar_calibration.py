@@ -12,10 +12,10 @@ import pytest
 import truth_checks as tc
 from mathutils import Matrix
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
 from bodycal_addon.blender import avatar_calibration as ac
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.core.errors import BodyCalError
 from sample_rigs import build_procedural_avatar, load_glb_avatar
 
 

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon import paths
 from bodycal_addon.blender import avatar_storage, blendfile
-from bodycal_addon.bodymodel import BodyModel
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core import paths
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -265,7 +265,7 @@ def test_a_batch_job_takes_a_glb_avatar(files, tmp_path):
     jobs.write_text(f'[defaults]\nmethod = "rotations"\nplacement = "performer"\nworkers = 1\n'
                     f'output_dir = "out"\n\n[[recordings]]\npath = "{files["recording"]}"\nuser = "{files["user"]}"\n\n'
                     f'[[avatars]]\nfile = "{files["glb"]}"\n')
-    from bodycal_addon.batch import load_jobs
+    from bodycal_addon.app.batch import load_jobs
 
     (job,), _settings = load_jobs(jobs)
     assert job.avatar == files["glb"] and "--placement" in job.argv() and "performer" in job.argv()

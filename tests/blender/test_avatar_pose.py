@@ -9,10 +9,13 @@ import pytest
 from mathutils import Matrix
 
 from bodycal_addon.blender.bake import bake_animation
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body.skeleton import BONE_INDEX as BI
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.core.transforms import normalize, quat_to_matrix
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.transforms import normalize, quat_to_matrix
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 from sample_rigs import build_procedural_avatar, procedural
@@ -31,7 +34,7 @@ BLENDER_JOINTS = {
 
 def _random_frames(rig, n, seed=0, amount=0.4):
     rng = np.random.default_rng(seed)
-    q = normalize(np.concatenate([np.ones((n, len(ap.BONES), 1)), amount * rng.normal(size=(n, len(ap.BONES), 3))],
+    q = normalize(np.concatenate([np.ones((n, len(sk.BONES), 1)), amount * rng.normal(size=(n, len(sk.BONES), 3))],
                                  -1))
     return quat_to_matrix(q) @ rig.frames0
 
@@ -41,19 +44,19 @@ def _random_frames(rig, n, seed=0, amount=0.4):
 def test_solve_then_fk_reproduces_joints_and_frames(world, drop):
     rig = ap.AvatarRig.from_model(rt.procedural_avatar(matrix_world=world, arm_drop_deg=drop))
     frames = _random_frames(rig, 7, seed=int(drop))
-    pelvis = rig.joint_world[ap.JI["pelvis"]] + np.linspace(0, 0.3, 7)[:, None]
+    pelvis = rig.joint_world[JI["pelvis"]] + np.linspace(0, 0.3, 7)[:, None]
     pose = rig.solve(frames, pelvis)
     again = rig.fk(pose.basis, pose.root_location)
     np.testing.assert_allclose(again.joints, pose.joints, atol=1e-9)
-    np.testing.assert_allclose(pose.joints[:, ap.JI["pelvis"]], pelvis, atol=1e-9)
+    np.testing.assert_allclose(pose.joints[:, JI["pelvis"]], pelvis, atol=1e-9)
     # Every canonical bone the rig has a bone for is realised exactly (vertebrae are resampled).
     for b in ("sacrum", "head", "upperarm_l", "forearm_r", "hand_l", "thigh_r", "shin_l", "foot_r", "index_2_l",
               "thumb_3_r", "clavicle_l"):
-        np.testing.assert_allclose(pose.frames[:, ap.BI[b]], frames[:, ap.BI[b]], atol=1e-9, err_msg=b)
+        np.testing.assert_allclose(pose.frames[:, BI[b]], frames[:, BI[b]], atol=1e-9, err_msg=b)
     # The bone lengths follow the frames: elbow = shoulder + L * Y(upperarm).
-    length = rig.lengths[ap.BI["upperarm_l"]]
-    np.testing.assert_allclose(pose.joints[:, ap.JI["elbow_l"]],
-                               pose.joints[:, ap.JI["shoulder_l"]] + length * frames[:, ap.BI["upperarm_l"]][..., :, 1],
+    length = rig.lengths[BI["upperarm_l"]]
+    np.testing.assert_allclose(pose.joints[:, JI["elbow_l"]],
+                               pose.joints[:, JI["shoulder_l"]] + length * frames[:, BI["upperarm_l"]][..., :, 1],
                                atol=1e-9)
 
 
@@ -62,16 +65,16 @@ def test_joint_positions_of_a_few_joints_match_the_full_solve(world):
     # The IK poses only the bones the limb roots hang from; they must land where the full solve puts them.
     rig = ap.AvatarRig.from_model(rt.procedural_avatar(matrix_world=world, arm_drop_deg=30.0))
     frames = _random_frames(rig, 6, seed=5)
-    pelvis = rig.joint_world[ap.JI["pelvis"]] + np.linspace(0, 0.2, 6)[:, None]
+    pelvis = rig.joint_world[JI["pelvis"]] + np.linspace(0, 0.2, 6)[:, None]
     names = ["shoulder_l", "hip_r", "skull_base", "tip_index_l"]
     full = rig.solve(frames, pelvis, basis=False, realised=False).joints
-    np.testing.assert_allclose(rig.joint_positions(frames, pelvis, names), full[:, [ap.JI[j] for j in names]],
+    np.testing.assert_allclose(rig.joint_positions(frames, pelvis, names), full[:, [JI[j] for j in names]],
                                atol=1e-12)
 
 
 def test_rest_frames_give_the_identity_pose():
     rig = ap.AvatarRig.from_model(rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(20.0, 0.8)))
-    pose = rig.solve(rig.frames0[None], rig.joint_world[ap.JI["pelvis"]][None])
+    pose = rig.solve(rig.frames0[None], rig.joint_world[JI["pelvis"]][None])
     np.testing.assert_allclose(np.abs(pose.basis[..., 0]), 1.0, atol=1e-12)
     np.testing.assert_allclose(pose.root_location, 0.0, atol=1e-12)
     np.testing.assert_allclose(pose.joints[0], rig.joint_world, atol=1e-12)
@@ -83,7 +86,7 @@ def test_armature_placement_does_not_move_the_world_pose():
     a = ap.AvatarRig.from_model(rt.avatar_from_user(user))
     b = ap.AvatarRig.from_model(rt.avatar_from_user(user, matrix_world=rt.rigid_matrix_world(50.0, 2.0)))
     frames = _random_frames(a, 5, seed=4)
-    pel = np.tile(a.joint_world[ap.JI["pelvis"]], (5, 1))
+    pel = np.tile(a.joint_world[JI["pelvis"]], (5, 1))
     np.testing.assert_allclose(a.solve(frames, pel).joints, b.solve(frames, pel).joints, atol=1e-9)
 
 

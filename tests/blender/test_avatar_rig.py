@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from bodycal_addon import skeleton as sk
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.blender import avatar_rig
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.core.errors import BodyCalError
 from sample_rigs import build_procedural_avatar, load_glb_avatar
 
 MIXAMO = {"pelvis": "Hips", "spine_01": "Spine", "spine_02": "Spine1", "spine_03": "Spine2", "neck_01": "Neck",
@@ -177,12 +177,13 @@ def test_model_is_what_the_retargeting_engine_reads(avatar_files):
     of a real rig and its canonical frames carry the model's rights; on the procedural A-pose
     avatar, solving for the rest frames gives the rest pose back (identity pose bones, joints in
     place)."""
+    from bodycal_addon.body import rest_frames
     from bodycal_addon.retarget import avatar_pose as ap
 
     arm, _mesh = load_glb_avatar(avatar_files[0])
     model = ac.calibrate_avatar(arm)
     ap.AvatarRig.from_model(model)
-    frames = ap.model_rest_frames(model)
+    frames = rest_frames.model_rest_frames(model)
     for i, b in enumerate(sk.BONES):
         if b.name in model.bones:
             assert np.allclose(frames[i][:, 0], model.bones[b.name].right, atol=1e-6), b.name

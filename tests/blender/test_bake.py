@@ -4,13 +4,13 @@ import bpy
 import numpy as np
 import pytest
 
-from bodycal_addon import paths
-from bodycal_addon import transforms as tf
-from bodycal_addon.animation import AvatarAnimation
 from bodycal_addon.blender.bake import bake_animation
 from bodycal_addon.blender.fcurves import object_fcurves
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.transforms import continuous_quaternions
+from bodycal_addon.body.animation import AvatarAnimation
+from bodycal_addon.core import paths
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.core.transforms import continuous_quaternions
 
 rigs = paths.sample_rigs()
 BONES = ["upperarm_l", "lowerarm_l", "thigh_r", "spine_02", "head"]

@@ -18,9 +18,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from repo_paths import REPO
 
-from bodycal_addon import batch, paths
-from bodycal_addon.batch import command_line, load_jobs, output_names
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.app import batch
+from bodycal_addon.app.batch import command_line, load_jobs, output_names
+from bodycal_addon.core import paths
+from bodycal_addon.core.errors import BodyCalError
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -342,8 +343,8 @@ else:  # slow, and deaf to SIGTERM: only SIGKILL ends it
 
 DRIVER = r"""
 import sys
-import bodycal_addon.batch as batch
-from bodycal_addon.cli import main
+import bodycal_addon.app.batch as batch
+from bodycal_addon.app.cli import main
 batch.command_line = lambda job, runner: [sys.executable, sys.argv[1], *job.argv()]
 sys.exit(main(["batch", sys.argv[2]]))
 """

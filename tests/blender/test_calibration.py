@@ -6,13 +6,13 @@ import re
 import numpy as np
 import pytest
 
-from bodycal_addon import transforms as tf
 from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.calibration import limbs as L
 from bodycal_addon.calibration import touches as T
 from bodycal_addon.calibration.common import Session, State
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording import Device, Recording, Segment
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording.model import Device, Recording, Segment
 
 FPS = 90.0
 rng = np.random.default_rng(11)
@@ -240,7 +240,7 @@ def test_a_touch_that_never_stops_moving_is_actionable():
 def test_a_borderline_touch_never_aborts_and_json_and_csv_agree(tmp_path):
     """Issue 11 item 6: the project's own compact clap session (22 fps, half pace) was rejected on
     one touch, and its CSV failed where the JSON passed. Every format now gives the same model."""
-    from bodycal_addon.recording_io import load_recording, save_recording
+    from bodycal_addon.recording.io import load_recording, save_recording
     from bodycal_dev import synthetic
 
     rec, _ = synthetic.record_session(synthetic.make_performer(seed=0), motions=("clap",), fps=22, pace=0.5)
@@ -266,7 +266,7 @@ def test_touch_point_without_its_tracker():
 def test_hand_built_session_yields_a_complete_model_with_defaults_reported():
     rec, truth = _still_session()
     model = calibrate_user(rec)
-    from bodycal_addon.bodymodel import REQUIRED_USER_JOINTS, BodyModel
+    from bodycal_addon.body.bodymodel import REQUIRED_USER_JOINTS, BodyModel
 
     assert set(REQUIRED_USER_JOINTS) <= set(model.joints)
     assert np.linalg.norm(model.joints["elbow_l"].world - truth["elbow"]) < 1e-6
@@ -285,9 +285,9 @@ def _still_session():
 
 
 def test_cli_calibrate_user_writes_the_body_model(tmp_path, capsys):
-    from bodycal_addon import cli
-    from bodycal_addon.bodymodel import BodyModel
-    from bodycal_addon.recording_io import save_recording
+    from bodycal_addon.app import cli
+    from bodycal_addon.body.bodymodel import BodyModel
+    from bodycal_addon.recording.io import save_recording
 
     rec, truth = _still_session()
     path = save_recording(rec, tmp_path / "elbow.bcrec.json")[0]
@@ -300,9 +300,9 @@ def test_cli_calibrate_user_writes_the_body_model(tmp_path, capsys):
 
 
 def test_cli_unusable_step_is_reported_and_the_model_written(tmp_path, capsys):
-    from bodycal_addon import cli
-    from bodycal_addon.bodymodel import BodyModel
-    from bodycal_addon.recording_io import save_recording
+    from bodycal_addon.app import cli
+    from bodycal_addon.body.bodymodel import BodyModel
+    from bodycal_addon.recording.io import save_recording
 
     rec, _ = _elbow_session(flex_deg=15)
     path = save_recording(rec, tmp_path / "small.bcrec.json")[0]
@@ -316,8 +316,8 @@ def test_cli_unusable_step_is_reported_and_the_model_written(tmp_path, capsys):
 
 
 def test_cli_bad_calibration_data_is_one_actionable_line(tmp_path, capsys):
-    from bodycal_addon import cli
-    from bodycal_addon.recording_io import save_recording
+    from bodycal_addon.app import cli
+    from bodycal_addon.recording.io import save_recording
 
     rec, _ = _elbow_session()
     rec.devices = [d for d in rec.devices]
@@ -380,7 +380,7 @@ def full_model(full_session):
 
 
 def _surface_world(model, element_id):
-    from bodycal_addon import surface_layout as sl
+    from bodycal_addon.body import surface_layout as sl
 
     e = model.element(element_id)
     out = {}
@@ -438,7 +438,7 @@ def test_full_session_radii_axes_and_surface_match_the_truth(full_session, full_
 @pytest.mark.slow
 def test_anchor_rigid_point_beats_the_sphere_under_wobble(full_session):
     """DESIGN.md §3 decision (limbs.py): the anchor centre from the rigid-point fit, not the sphere."""
-    from bodycal_addon.geometry import fit_rigid_point, fit_sphere
+    from bodycal_addon.core.geometry import fit_rigid_point, fit_sphere
 
     rec, truth = full_session
     tm = truth.body_model()
@@ -485,7 +485,7 @@ def test_body_model_contract_matches_the_ground_truth_structure(full_session, fu
 
 @pytest.mark.slow
 def test_minimal_profile_yields_a_complete_model_with_defaults_reported():
-    from bodycal_addon.bodymodel import REQUIRED_USER_JOINTS
+    from bodycal_addon.body.bodymodel import REQUIRED_USER_JOINTS
     from bodycal_dev import synthetic
 
     perf = synthetic.make_performer(height=1.80, build="average", seed=2)
@@ -556,7 +556,7 @@ def test_wizard_lists_the_steps_of_the_timeline_with_their_quality():
 @pytest.mark.slow
 def test_hinge_axis_from_rotations_beats_the_circle_normal(full_session):
     """DESIGN.md §3 decision (limbs.py): the hinge axis from the relative rotations."""
-    from bodycal_addon.geometry import fit_circle, fit_rotation_axis
+    from bodycal_addon.core.geometry import fit_circle, fit_rotation_axis
 
     rec, truth = full_session
     tm = truth.body_model()

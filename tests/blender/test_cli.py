@@ -6,8 +6,7 @@ import sys
 
 from repo_paths import REPO
 
-from bodycal_addon import cli
-from bodycal_addon.blender import cli_bridge
+from bodycal_addon.app import cli, cli_bridge
 
 COMMANDS = ("calibrate-user", "calibrate-avatar", "retarget", "transfer", "batch", "demo")
 

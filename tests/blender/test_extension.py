@@ -68,7 +68,7 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
 def test_operator_failures_become_one_status_line_and_bugs_still_raise():
     pkg = "bl_ext.user_default.bodycal"
     reporting = importlib.import_module(f"{pkg}.operators.reporting")
-    errors = importlib.import_module(f"{pkg}.bodycal_addon.errors")
+    errors = importlib.import_module(f"{pkg}.bodycal_addon.core.errors")
 
     class Operator:
         def __init__(self):

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from recording_fixtures import recording_doc, tpose_recording
 
-from bodycal_addon import recording_io as rio
 from bodycal_addon.blender import recording_scene as rs
 from bodycal_addon.blender.fcurves import object_fcurves, read_keys
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording import Segment
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording import io as rio
+from bodycal_addon.recording.model import Segment
 
 
 def _recording():

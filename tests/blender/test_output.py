@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon import keyreduce, paths
 from bodycal_addon.blender.bake import bake_animation
+from bodycal_addon.core import paths
+from bodycal_addon.core.transforms import continuous_quaternions
+from bodycal_addon.output import keyreduce
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.transforms import continuous_quaternions
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -261,10 +262,10 @@ def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
     """A bone whose rotation jitters by more than the tolerance keeps nearly every frame: the
     summary line names it, and only it (the smooth bones are thinned); a tolerance of 0 asks
     for every frame, so nothing is named."""
-    from bodycal_addon import transforms as tf
-    from bodycal_addon.animation import AvatarAnimation
     from bodycal_addon.blender.bake import DENSE_FRACTION
     from bodycal_addon.blender.retarget_scene import RetargetSummary
+    from bodycal_addon.body.animation import AvatarAnimation
+    from bodycal_addon.core import transforms as tf
 
     bones = ["upperarm_l", "lowerarm_l", "thigh_r", "spine_02", "head"]
     frames = 300

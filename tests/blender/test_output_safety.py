@@ -15,10 +15,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from repo_paths import REPO
 
-from bodycal_addon import cli, outputs, paths
-from bodycal_addon.bodymodel import BodyModel
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording_io import save_recording
+from bodycal_addon.app import cli
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core import outputs, paths
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording.io import save_recording
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -217,7 +218,7 @@ def test_a_new_output_path_works_as_before_folders_included(inputs, tmp_path):
 
 def test_an_os_error_no_check_foresaw_is_one_line(monkeypatch, capsys, tmp_path):
     """A file that vanishes or a disk that fills mid-way: cli.py turns any OSError into one line."""
-    import bodycal_addon.recording_io as recording_io
+    import bodycal_addon.recording.io as recording_io
 
     def vanished(path):
         raise FileNotFoundError(2, "No such file or directory", str(path))

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from bodycal_addon import metrics, paths
 from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene, retarget_scene
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar
+from bodycal_addon.core import paths
+from bodycal_addon.output import metrics
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_dev import synthetic
 

@@ -9,10 +9,10 @@ import copy
 import numpy as np
 import pytest
 
-from bodycal_addon import recording_io
-from bodycal_addon import transforms as tf
 from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.recording import Recording
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.recording import io as recording_io
+from bodycal_addon.recording.model import Recording
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_dev import retarget_fixtures as rt
 from evaluation import bvh, capture, performer, session
@@ -157,7 +157,7 @@ def test_the_offsets_pelvis_turns_as_the_other_methods_pelvis(walk_six):
 
 @pytest.mark.slow
 def test_a_csv_round_trip_gives_the_same_body_model_as_the_json(walk_six, tmp_path):
-    from bodycal_addon.recording_io import save_recording
+    from bodycal_addon.recording.io import save_recording
 
     rec, _ = walk_six
     models = [calibrate_user(recording_io.load_recording(save_recording(rec, tmp_path / name)[0]))

@@ -10,9 +10,9 @@ import pytest
 import ui_layout
 from repo_paths import REPO
 
-from bodycal_addon import paths
 from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene
-from bodycal_addon.bodymodel import BodyModel
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core import paths
 from bodycal_addon.retarget.pipeline import retarget
 from bodycal_dev import synthetic
 

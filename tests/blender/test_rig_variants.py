@@ -17,12 +17,13 @@ import pytest
 import ui_layout
 from repo_paths import REPO
 
-from bodycal_addon import paths
-from bodycal_addon import skeleton as sk
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.blender import avatar_rig, avatar_storage
-from bodycal_addon.bodymodel import BodyModel
-from bodycal_addon.bone_presets import BonePreset, preset_from_bone_map
+from bodycal_addon.body import naming
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.body.bone_presets import BonePreset, preset_from_bone_map
+from bodycal_addon.core import paths
 from bodycal_addon.retarget.pipeline import retarget
 from bodycal_dev import synthetic
 
@@ -286,7 +287,7 @@ def test_panel_preset_round_trip_export_import_apply(avatar_files, tmp_path):
     names = {b.name: f"jnt{i:03d}" for i, b in enumerate(arm.data.bones)}
     for old, new in names.items():
         arm.data.bones[old].name = new
-    wanted = sk.BoneMap("x", {s: names[b] for s, b in ref.bones.items()},
+    wanted = naming.BoneMap("x", {s: names[b] for s, b in ref.bones.items()},
                         {c: [names[b] for b in v] for c, v in ref.chains.items()}, [])
     avatar_rig.apply_bone_map(arm, wanted)
     bpy.context.view_layer.objects.active = arm
@@ -364,7 +365,7 @@ def test_bone_map_on_the_command_line_maps_a_rig_no_scheme_knows(tmp_path, avata
     arm = bpy.data.objects["adult_male"]
     assert arm.animation_data.action.name == "belly|adult_male|egocentric"
     stored = avatar_storage.load_model(arm)
-    assert sk.BoneMap.from_dict(stored.extra["rig"]["bone_map"]).bones["pelvis"] == names["pelvis"]
+    assert naming.BoneMap.from_dict(stored.extra["rig"]["bone_map"]).bones["pelvis"] == names["pelvis"]
     # the keys in the .blend are the original rig's motion on the renamed bones
     i = ref_anim.bone_names.index("upperarm_l")
     for f in (0, ref_anim.frame_count // 2, ref_anim.frame_count - 1):

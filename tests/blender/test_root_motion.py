@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon import paths, recording_io
-from bodycal_addon.batch import load_jobs
+from bodycal_addon.app.batch import load_jobs
 from bodycal_addon.blender import avatar_calibration as ac
 from bodycal_addon.blender import bake, rig_output
 from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.core import paths
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording import io as recording_io
 from bodycal_addon.retarget.pipeline import retarget
 from evaluation import bvh, capture, performer, session
 

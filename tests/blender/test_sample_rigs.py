@@ -8,7 +8,7 @@ import numpy as np
 from mathutils import Vector
 from mathutils.bvhtree import BVHTree
 
-from bodycal_addon import paths
+from bodycal_addon.core import paths
 from sample_rigs import procedural
 
 rigs = paths.sample_rigs()

@@ -7,7 +7,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bodycal_addon import skeleton as sk
+from bodycal_addon.body import naming
+from bodycal_addon.body import skeleton as sk
 
 FACE_PREFIXES = ("face", "lip", "brow", "ear", "nose", "lid", "cheek", "chin", "jaw", "tongue", "teeth",
                  "temple", "forehead", "eye")
@@ -29,7 +30,7 @@ def test_every_bone_links_known_joints_and_parents():
                                      "long_arms_male"])
 def test_unreal_style_avatars_map_every_body_bone(data_dir, variant):
     bones = json.loads((data_dir / "avatars" / "mpfb2_variants" / f"{variant}.skeleton.json").read_text())["bones"]
-    bm = sk.detect_bone_map(list(bones))
+    bm = naming.detect_bone_map(list(bones))
     assert bm.scheme == "unreal"
     assert bm.unmapped == []
     assert bm.missing(with_fingers=True) == []
@@ -48,7 +49,7 @@ def test_rigify_human_metarig_maps_every_body_bone():
     names = [b.name for b in bpy.context.active_object.data.bones]
     body = [n for n in names if not n.startswith(FACE_PREFIXES)]
     assert len(body) == 67
-    bm = sk.detect_bone_map(body)
+    bm = naming.detect_bone_map(body)
     assert bm.scheme == "rigify_metarig"
     assert bm.unmapped == []
     assert bm.missing(with_fingers=True) == []
@@ -67,17 +68,17 @@ def test_mixamo_and_vrm_names_map():
         low = s.lower()
         vrm += [f"{low}{b}" for b in ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot")]
         vrm += [f"{low}Thumb{p}" for p in ("Metacarpal", "Proximal", "Distal")]
-    m = sk.detect_bone_map(mixamo)
+    m = naming.detect_bone_map(mixamo)
     assert m.scheme == "mixamo" and m.unmapped == [] and m.missing() == []
     assert m.chains["spine"] == ["mixamorig:Spine", "mixamorig:Spine1", "mixamorig:Spine2"]
-    v = sk.detect_bone_map(vrm)
+    v = naming.detect_bone_map(vrm)
     assert v.scheme == "vrm_humanoid" and v.unmapped == [] and v.missing() == []
     assert v.chains["spine"] == ["spine", "chest", "upperChest"]
     assert v.bones["thumb_1_l"] == "leftThumbMetacarpal" and v.bones["thumb_3_r"] == "rightThumbDistal"
 
 
 def test_missing_bones_are_listed():
-    bm = sk.detect_bone_map(["pelvis", "spine_01", "head", "upperarm_l", "lowerarm_l"])
+    bm = naming.detect_bone_map(["pelvis", "spine_01", "head", "upperarm_l", "lowerarm_l"])
     missing = bm.missing()
     assert "hand_l" in missing and "thigh_r" in missing and "upperarm_l" not in missing
 

@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon import metrics, paths
 from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
 from bodycal_addon.blender import transfer_scene as ts
 from bodycal_addon.blender.retarget_scene import avatar_model_for
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.core import paths
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.output import metrics
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import feet
 from bodycal_addon.retarget.pose_source import AnimationSource
@@ -196,7 +197,7 @@ def test_the_panels_operator_transfers_onto_the_selected_avatars(data_dir):
 
 
 def test_batch_jobs_take_animation_sources_beside_recordings(tmp_path):
-    from bodycal_addon.batch import load_jobs
+    from bodycal_addon.app.batch import load_jobs
 
     (tmp_path / "jobs.toml").write_text('[defaults]\nmethod = ["egocentric", "offsets", "rotations"]\n'
                                         '[[recordings]]\npath="t.bcrec.json"\nuser="u.body.json"\n'

@@ -3,7 +3,7 @@
 import numpy as np
 from mathutils import Quaternion, Vector
 
-from bodycal_addon import transforms as tf
+from bodycal_addon.core import transforms as tf
 
 rng = np.random.default_rng(7)
 

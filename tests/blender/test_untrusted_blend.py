@@ -12,8 +12,8 @@ import bpy
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon import paths
 from bodycal_addon.blender import blendfile
+from bodycal_addon.core import paths
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -101,7 +101,7 @@ def test_the_commands_run_nothing_from_the_avatar_file(armed, tmp_path):
     rec_path, _truth = synthetic.write_session(tmp_path, "clap", rec, truth)
     user = truth.body_model().save(tmp_path / "performer.body.json")
     out = _in_fresh_blender(f"""
-        from bodycal_addon.cli import main
+        from bodycal_addon.app.cli import main
         code = main(["calibrate-avatar", {str(blend)!r}, "-o", {str(tmp_path / "avatar.body.json")!r}])
         if code == 0:
             code = main(["retarget", {str(tmp_path / rec_path.name)!r}, "--user", {str(user)!r},

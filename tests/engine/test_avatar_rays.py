@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import truth_checks as tc
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon.armature import read_armature
-from bodycal_addon.avatar_rays import surface_from_rays
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.avatar.armature import read_armature
+from bodycal_addon.avatar.rays import surface_from_rays
+from bodycal_addon.body import naming
+from bodycal_addon.core.errors import BodyCalError
 from sample_rigs import procedural
 
 
@@ -111,7 +111,7 @@ def _rest_bones(spec: procedural.ProceduralAvatar) -> dict[str, dict]:
 def _measure(spec, matrix_world=None):
     matrix_world = np.eye(4) if matrix_world is None else matrix_world
     bones = _rest_bones(spec)
-    rig = read_armature(spec.name, matrix_world, bones, sk.detect_bone_map(list(bones)))
+    rig = read_armature(spec.name, matrix_world, bones, naming.detect_bone_map(list(bones)))
     caster = AnalyticCaster(spec, matrix_world)
     return surface_from_rays(rig, caster, spec.name), caster
 
@@ -150,7 +150,7 @@ def test_a_caster_that_never_hits_gives_one_clear_error():
             return None
 
     bones = _rest_bones(spec)
-    rig = read_armature(spec.name, np.eye(4), bones, sk.detect_bone_map(list(bones)))
+    rig = read_armature(spec.name, np.eye(4), bones, naming.detect_bone_map(list(bones)))
     with pytest.raises(BodyCalError, match=r"capsule:\w+: only 0 of 60 rays .* hit the mesh") as info:
         surface_from_rays(rig, Nothing(), spec.name)
     assert "\n" not in str(info.value)

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from bodycal_addon.bodymodel import BodyModel, BoneInfo, Joint, Offset, SurfaceElement, SurfacePoint
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.body.bodymodel import BodyModel, BoneInfo, Joint, Offset, SurfaceElement, SurfacePoint
+from bodycal_addon.core.errors import BodyCalError
 
 EXAMPLE = {
     "format": "bodycal-body", "version": 1, "kind": "user", "name": "session-2026-11-22", "reference_time": 1.25,
@@ -145,7 +145,7 @@ def test_cli_retarget_with_a_random_bytes_body_is_one_line(tmp_path):
     from recording_fixtures import tpose_recording
     from repo_paths import REPO
 
-    from bodycal_addon import recording_io as rio
+    from bodycal_addon.recording import io as rio
 
     rec = rio.save_recording(tpose_recording(seconds=0.5), tmp_path / "rec.bcrec.json")[0]
     body = tmp_path / "user.body.json"

@@ -12,17 +12,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_naming_schemes import CASES, character_creator, cmu_mb, daz_genesis8
 
-from bodycal_addon import batch
-from bodycal_addon import bone_presets as bp
-from bodycal_addon import skeleton as sk
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.app import batch
+from bodycal_addon.body import bone_presets as bp
+from bodycal_addon.body import naming
+from bodycal_addon.core.errors import BodyCalError
 
 GOOD = {"format": "bodycal-bone-map", "version": 1, "name": "Ogre",
         "bones": {"pelvis": "Hips_jnt", "head": "Head_jnt", "toe_l": None},
         "chains": {"spine": ["Spine_jnt", "Chest_jnt"], "neck": []}}
 
 
-def _chains(bm: sk.BoneMap) -> dict:
+def _chains(bm: naming.BoneMap) -> dict:
     return {k: v for k, v in bm.chains.items() if v}
 
 
@@ -30,7 +30,7 @@ def _chains(bm: sk.BoneMap) -> dict:
 def test_a_whole_map_round_trips_through_a_preset_file(tmp_path, case):
     """Export then import gives the same map, on the bones in any order, whatever detection says."""
     names = CASES[case][0]
-    bm = sk.detect_bone_map(names)
+    bm = naming.detect_bone_map(names)
     path = bp.preset_from_bone_map(bm, case).save(tmp_path / f"{case}.json")
     back = bp.load_preset(path)
     assert back.scheme is None and back.name == case
@@ -46,12 +46,12 @@ def test_a_scheme_preset_forces_that_scheme():
     """The CMU rig is detected as cmu_mb (LowerBack in the spine); the Mixamo preset maps it the
     Mixamo way, LowerBack left out."""
     names = cmu_mb()
-    assert sk.detect_bone_map(names).chains["spine"][0] == "LowerBack"
+    assert naming.detect_bone_map(names).chains["spine"][0] == "LowerBack"
     (mixamo,) = [p for p in bp.builtin_presets() if p.scheme == "mixamo"]
     bm = mixamo.resolve(names)
     assert bm.scheme == "mixamo"
     assert bm.chains["spine"] == ["Spine", "Spine1"] and "LowerBack" in bm.unmapped
-    assert {p.scheme for p in bp.builtin_presets()} == set(sk.SCHEME_BY_NAME)
+    assert {p.scheme for p in bp.builtin_presets()} == set(naming.SCHEME_BY_NAME)
 
 
 def test_a_preset_over_a_scheme_replaces_its_choices():
@@ -184,7 +184,7 @@ def _jobs(tmp_path, avatar_extra: str) -> object:
 
 
 def test_a_jobs_bone_map_reaches_the_command_line(tmp_path):
-    bp.preset_from_bone_map(sk.detect_bone_map(character_creator()), "cc").save(tmp_path / "cc.json")
+    bp.preset_from_bone_map(naming.detect_bone_map(character_creator()), "cc").save(tmp_path / "cc.json")
     jobs, _settings = batch.load_jobs(_jobs(tmp_path, 'bone_map = "cc.json"'))
     (job,) = jobs
     argv = job.argv()
@@ -218,5 +218,5 @@ def test_the_formats_example_is_a_valid_preset():
     preset = bp.parse_preset(example, "FORMATS.md")
     assert preset.scheme == "mixamo" and preset.bones["toe_l"] is None
     assert preset.chains["spine"] == ["Ogre_Spine", "Ogre_Spine1", "Ogre_Chest"]
-    for scheme in sk.SCHEME_BY_NAME:  # every scheme is listed in the section
+    for scheme in naming.SCHEME_BY_NAME:  # every scheme is listed in the section
         assert f"`{scheme}`" in section, scheme

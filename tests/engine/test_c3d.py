@@ -8,15 +8,15 @@ import zipfile
 import numpy as np
 import pytest
 
-from bodycal_addon import c3d
-from bodycal_addon import recording_io as rio
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording import io as rio
+from bodycal_addon.recording.io import c3d
 from bodycal_dev import c3d_writer
 
 
 @pytest.fixture(scope="module")
 def markers_dir():
-    from bodycal_addon import paths
+    from bodycal_addon.core import paths
 
     d = paths.data_dir()
     assert d is not None, "sample_data/ missing"

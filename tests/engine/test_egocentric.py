@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import retarget_bodies as rb
 
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget.egocentric import projection as egp
 
@@ -166,7 +166,7 @@ def test_mismatched_surfaces_are_a_clear_error(user):
 def test_mesh_with_other_triangles_falls_back_to_its_bone_frame(user):
     # The avatar's left palm has five outline points instead of four: no triangle pairs up, the
     # projection is carried in the hand bone's frame scaled by the bone length ratio.
-    from bodycal_addon.bodymodel import SurfacePoint
+    from bodycal_addon.body.bodymodel import SurfacePoint
 
     s = 1.2
     avatar = rb.scale_model(user, s)

@@ -1,4 +1,4 @@
-"""The One Euro filter on device poses (bodycal_addon/filters.py)."""
+"""The One Euro filter on device poses (bodycal_addon/recording/filters.py)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from bodycal_addon import filters as F
-from bodycal_addon import transforms as tf
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording import Device, Recording
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording import filters as F
+from bodycal_addon.recording.model import Device, Recording
 
 
 def _reference_one_euro(t, x, min_cutoff, beta, d_cutoff):

@@ -17,10 +17,10 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from recording_fixtures import recording_doc, tpose_recording
 
-from bodycal_addon import recording_io as rio
-from bodycal_addon.bodymodel import BodyModel
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording_io import csv_format, header, json_format
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording import io as rio
+from bodycal_addon.recording.io import csv_format, header, json_format
 from bodycal_dev import c3d_writer
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])

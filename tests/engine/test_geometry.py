@@ -1,11 +1,11 @@
-"""Robust fits (bodycal_addon.geometry): exact on exact points, robust to outliers with the 2-sigma
+"""Robust fits (bodycal_addon.core.geometry): exact on exact points, robust to outliers with the 2-sigma
 pass, and a clear BodyCalError on data that cannot determine the fit."""
 
 import numpy as np
 import pytest
 
-from bodycal_addon import geometry as geo
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.core import geometry as geo
+from bodycal_addon.core.errors import BodyCalError
 
 rng = np.random.default_rng(3)
 
@@ -158,7 +158,7 @@ def test_repeated_two_sigma_passes_beat_a_single_pass():
 
 def _rigid_pair(n, swing=1.0, noise=0.0, b_swing=0.2):
     """Frame B fixed-ish, frame A swinging about a joint J: J = R_a a + p_a = R_b b + p_b."""
-    from bodycal_addon import transforms as tf
+    from bodycal_addon.core import transforms as tf
 
     j = np.array([0.1, 0.2, 1.3])
     a, b = np.array([0.02, -0.12, 0.03]), np.array([0.15, 0.05, -0.1])
@@ -195,7 +195,7 @@ def test_rigid_point_without_relative_motion_is_actionable():
 
 
 def test_rotation_axis_exact():
-    from bodycal_addon import transforms as tf
+    from bodycal_addon.core import transforms as tf
 
     axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     base = tf.quat_to_matrix(_random_quat_g())

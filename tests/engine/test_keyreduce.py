@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bodycal_addon import keyreduce as kr
-from bodycal_addon import transforms as tf
-from bodycal_addon.animation import AvatarAnimation, resample
+from bodycal_addon.body.animation import AvatarAnimation, resample
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.output import keyreduce as kr
 
 
 def _motion(frames: int, bones: int, seed: int, noise_deg: float) -> np.ndarray:

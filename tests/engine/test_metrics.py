@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import retarget_bodies as rb
 
-from bodycal_addon import metrics
+from bodycal_addon.output import metrics
 from bodycal_addon.retarget import egocentric as eg
 
 

@@ -1,6 +1,7 @@
-"""The recording readers' layout: the C3D reader and the shared leaves never import the
-recording_io package (which imports them), so there is no import cycle and no import inside a
-function to hide one."""
+"""The engine's layout (DESIGN.md "Modules"): packages stacked in layers, each importing only its
+own layer and those below; no import cycle; no import hidden inside a function (where one would
+dodge a cycle) except the command-line entry points, which load Blender's glue lazily; no module
+loose at the top of `bodycal_addon/`; the numpy engine never imports Blender."""
 
 import ast
 import pathlib
@@ -8,29 +9,131 @@ import pathlib
 import pytest
 
 ADDON = pathlib.Path(__file__).resolve().parents[2] / "bodycal_addon"
-LEAVES = ("c3d.py", "coords.py", "segments.py", "gaps.py", "led_gloves.py", "errors.py")
+
+# Lowest first. Packages on one line are siblings: neither imports the other.
+LAYERS = (
+    ("core",),
+    ("body",),
+    ("recording",),
+    ("calibration", "avatar"),
+    ("retarget",),
+    ("output",),
+    ("blender",),
+    ("app",),
+)
+RANK = {pkg: rank for rank, names in enumerate(LAYERS) for pkg in names}
+LAZY_ALLOWED = ("app",)  # entry points: `bodycal calibrate-user` runs without loading bpy
+BLENDER_MODULES = ("bpy", "mathutils", "bmesh", "addon_utils")
 
 
-def _imported_modules(path: pathlib.Path) -> list[str]:
-    """Every module named by an import statement anywhere in the file (functions included)."""
-    names = []
-    for node in ast.walk(ast.parse(path.read_text())):
+def _module_name(path: pathlib.Path) -> str:
+    parts = list(path.relative_to(ADDON.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+MODULES = {_module_name(p): p for p in sorted(ADDON.rglob("*.py"))}
+
+
+def _imports(path: pathlib.Path):
+    """(imported module, line, inside a function?) for every import of the file."""
+    name = _module_name(path)
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    tree = ast.parse(path.read_text())
+    nested = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
+              for n in ast.walk(f) if n is not f}
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names += [a.name for a in node.names]
+            for alias in node.names:
+                yield alias.name, node.lineno, id(node) in nested
         elif isinstance(node, ast.ImportFrom):
-            base = "." * node.level + (node.module or "")
-            names += [base] + [f"{base}.{a.name}" if node.module else base + a.name for a in node.names]
-    return names
+            if node.level:
+                base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            for alias in node.names:
+                full = f"{base}.{alias.name}"
+                yield (full if full in MODULES else base), node.lineno, id(node) in nested
 
 
-@pytest.mark.parametrize("name", LEAVES)
-def test_readers_leaves_do_not_import_recording_io(name):
-    imported = _imported_modules(ADDON / name)
-    assert imported, name
-    assert not [m for m in imported if "recording_io" in m], name
+def _package(module: str) -> str | None:
+    """The layer package a module belongs to (`python -m bodycal_addon` is the command line's)."""
+    parts = module.split(".")
+    if len(parts) < 2 or parts[0] != "bodycal_addon":
+        return None
+    return "app" if parts[1] == "__main__" else parts[1]
 
 
-def test_c3d_imports_only_the_leaves():
-    local = {m for m in _imported_modules(ADDON / "c3d.py") if m.startswith(".") and m.count(".") == 1}
-    assert {".coords", ".segments"} <= local
-    assert not any("recording_io" in m for m in local)
+def test_no_module_loose_at_the_top():
+    loose = sorted(p.name for p in ADDON.glob("*.py"))
+    assert loose == ["__init__.py", "__main__.py"]
+    assert {p.name for p in ADDON.iterdir() if p.is_dir() and p.name != "__pycache__"} == set(RANK)
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_imports_stay_in_their_layer(module):
+    own = _package(module)
+    for target, line, in_function in _imports(MODULES[module]):
+        other = _package(target)
+        if own is None or other is None:
+            continue
+        where = f"{module}:{line} imports {target}"
+        assert RANK[other] <= RANK[own], f"{where}: up a layer"
+        if RANK[other] == RANK[own]:
+            assert other == own, f"{where}: a sibling package"
+        if in_function:
+            assert own in LAZY_ALLOWED, f"{where} inside a function"
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if _package(m) not in ("blender", "app", None)))
+def test_engine_never_imports_blender(module):
+    for target, line, _ in _imports(MODULES[module]):
+        assert target.split(".")[0] not in BLENDER_MODULES, f"{module}:{line} imports {target}"
+        assert _package(target) not in ("blender", "app"), f"{module}:{line} imports {target}"
+
+
+def test_no_import_cycle():
+    graph = {m: {t for t, _, _ in _imports(p) if t in MODULES and t != m} for m, p in MODULES.items()}
+    # a package's __init__ importing its own modules is its face, not a cycle through them
+    state: dict[str, int] = {}
+    path: list[str] = []
+
+    def visit(m):
+        state[m] = 1
+        path.append(m)
+        for t in sorted(graph[m]):
+            if state.get(t) == 1:
+                if not m.startswith(t + ".") and not t.startswith(m + "."):
+                    raise AssertionError("import cycle: " + " -> ".join(path[path.index(t):] + [t]))
+            elif t not in state:
+                visit(t)
+        path.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+
+
+@pytest.mark.parametrize("path", sorted(ADDON.rglob("__init__.py")), ids=lambda p: _module_name(p) or "bodycal_addon")
+def test_package_init_only_re_exports(path):
+    """A package's __init__ is its face: a docstring, imports and `__all__` (the top package also
+    its version); the code lives in modules."""
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str):
+            continue
+        if isinstance(node, ast.Assign) and [t.id for t in node.targets if isinstance(t, ast.Name)] in (
+                ["__all__"], ["__version__"]):
+            continue
+        raise AssertionError(f"{_module_name(path)}: line {node.lineno} is code, not a re-export")
+
+
+def test_recording_readers_leaves_do_not_import_the_readers_package():
+    """coords, segments, gaps and the LED gloves are shared by every reader; the readers' package
+    imports them, never the other way."""
+    for leaf in ("coords", "segments", "gaps", "led_gloves", "model"):
+        for target, line, _ in _imports(MODULES[f"bodycal_addon.recording.{leaf}"]):
+            assert not target.startswith("bodycal_addon.recording.io"), f"{leaf}:{line} imports {target}"

@@ -1,4 +1,4 @@
-"""Bone naming schemes (skeleton.SCHEMES): each convention's real bone names, extra bones
+"""Bone naming schemes (naming.SCHEMES): each convention's real bone names, extra bones
 included (twist, IK, corrective, facial, hair, breast, toes), detected with no manual step; the
 required segments land on the right bones and the extras stay unmapped. The name lists come from
 the tools that make these rigs (sources in the report of issue 14 and in skeleton.py's comments):
@@ -14,7 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bodycal_addon import skeleton as sk
+from bodycal_addon.body import naming
+from bodycal_addon.body import skeleton as sk
 
 SIDES = {"l": ("L", "Left", "left", "l"), "r": ("R", "Right", "right", "r")}
 
@@ -353,7 +354,7 @@ def _expected(case: str) -> tuple[list[str], str, dict[str, str], dict[str, list
 def test_each_convention_is_detected_and_maps_the_right_bones(case):
     names, scheme, bones, chains = _expected(case)
     assert len(set(names)) == len(names), "the fixture lists a bone twice"
-    bm = sk.detect_bone_map(names)
+    bm = naming.detect_bone_map(names)
     assert bm.scheme == scheme
     assert bm.missing() == []
     assert bm.bones == bones
@@ -370,7 +371,7 @@ def test_split_and_helper_bones_stay_unmapped(case):
     """The twist half of a split limb and the corrective or IK helpers never take a segment: the
     segment's bone is the one whose head is the joint (armature.py)."""
     names, _scheme, _bones, _chains = _expected(case)
-    bm = sk.detect_bone_map(names)
+    bm = naming.detect_bone_map(names)
     helpers = [n for n in names if any(w in n.lower() for w in (
         "twist", "corrective", "ik_", "share", "upperarm02", "upperleg02", "lowerarm02", "lowerleg02",
         "shoulder01", "metatarsal")) and "necktwist" not in n.lower()]  # CC's neck bones are the neck
@@ -383,23 +384,23 @@ def test_daz_and_cc_pelvis_bone_is_not_the_hips_root():
     root ('hip', 'CC_Base_Hip') is the pelvis segment, the pelvis bone follows it."""
     for names, root, pelvis_bone in ((daz_genesis8(), "hip", "pelvis"), (daz_genesis9(), "hip", "pelvis"),
                                      (character_creator(), "CC_Base_Hip", "CC_Base_Pelvis")):
-        bm = sk.detect_bone_map(names)
+        bm = naming.detect_bone_map(names)
         assert bm.bones["pelvis"] == root
         assert pelvis_bone in bm.unmapped
 
 
 def test_today_vroid_maps_every_body_bone():
     """The VRoid rig that left 51 of 53 bones unmapped before: every J_Bip bone has a segment."""
-    bm = sk.detect_bone_map(vroid())
+    bm = naming.detect_bone_map(vroid())
     assert [n for n in bm.unmapped if n.startswith("J_Bip_")] == []
     assert bm.missing(with_fingers=True) == []
 
 
 def test_letter_case_and_vrm_thumb_conventions():
-    bm = sk.detect_bone_map([n.upper() for n in mixamo()])
+    bm = naming.detect_bone_map([n.upper() for n in mixamo()])
     assert bm.scheme == "mixamo" and bm.bones["upperarm_l"] == "MIXAMORIG:LEFTARM"
-    v1 = sk.detect_bone_map(vrm(("Metacarpal", "Proximal", "Distal")))
-    v0 = sk.detect_bone_map(vrm(("Proximal", "Intermediate", "Distal")))
+    v1 = naming.detect_bone_map(vrm(("Metacarpal", "Proximal", "Distal")))
+    v0 = naming.detect_bone_map(vrm(("Proximal", "Intermediate", "Distal")))
     assert [v1.bones[f"thumb_{i}_l"] for i in (1, 2, 3)] == ["leftThumbMetacarpal", "leftThumbProximal",
                                                              "leftThumbDistal"]
     assert [v0.bones[f"thumb_{i}_r"] for i in (1, 2, 3)] == ["rightThumbProximal", "rightThumbIntermediate",
@@ -409,7 +410,7 @@ def test_letter_case_and_vrm_thumb_conventions():
 # --- properties ------------------------------------------------------------------------------------
 
 def _claimed_by_no_scheme(name: str) -> bool:
-    return all(sk.map_with_scheme([name], s).unmapped == [name] for s in sk.SCHEMES)
+    return all(naming.map_with_scheme([name], s).unmapped == [name] for s in naming.SCHEMES)
 
 
 EXTRA_WORDS = ["twist", "Twist01", "ik", "IK_", "corrective", "jiggle", "hair", "Hair_", "breast_jiggle", "cloth",
@@ -433,7 +434,7 @@ def test_order_and_unknown_extra_bones_never_change_the_map(case, seed, extras):
     extras = [e for e in extras if e not in names]
     shuffled = names + extras
     random.Random(seed).shuffle(shuffled)
-    bm = sk.detect_bone_map(shuffled)
+    bm = naming.detect_bone_map(shuffled)
     assert bm.scheme == scheme
     assert bm.bones == bones
     assert {k: v for k, v in bm.chains.items() if v} == chains
@@ -447,11 +448,11 @@ def test_every_scheme_maps_any_order_of_its_own_names_the_same(seed):
         names, scheme, bones, chains = _expected(case)
         shuffled = list(names)
         random.Random(seed).shuffle(shuffled)
-        bm = sk.map_with_scheme(shuffled, sk.SCHEME_BY_NAME[scheme])
+        bm = naming.map_with_scheme(shuffled, naming.SCHEME_BY_NAME[scheme])
         assert bm.bones == bones, case
         assert {k: v for k, v in bm.chains.items() if v} == chains, case
 
 
 def test_scheme_names_are_unique_and_titled():
-    assert len(sk.SCHEME_BY_NAME) == len(sk.SCHEMES)
-    assert all(s.title for s in sk.SCHEMES)
+    assert len(naming.SCHEME_BY_NAME) == len(naming.SCHEMES)
+    assert all(s.title for s in naming.SCHEMES)

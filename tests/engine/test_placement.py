@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget import placement as pm
@@ -121,7 +122,7 @@ def test_moving_turning_scaling_the_object_moves_the_result_with_it(session, unm
     np.testing.assert_allclose(anim.root_location, base.root_location, atol=1e-6)
     # and the joints the engine reports are what the armature's FK puts in the world
     pose = ap.AvatarRig.from_model(avatar).fk(anim.rotations, anim.root_location)
-    np.testing.assert_allclose(pose.joints[:, ap.JI["ankle_l"]], anim.joints_world["ankle_l"], atol=1e-4)
+    np.testing.assert_allclose(pose.joints[:, sk.JOINT_INDEX["ankle_l"]], anim.joints_world["ankle_l"], atol=1e-4)
 
 
 @settings(max_examples=6, deadline=None)

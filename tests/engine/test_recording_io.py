@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from recording_fixtures import recording_doc, tpose_recording
 
-from bodycal_addon import recording_io as rio
-from bodycal_addon import transforms as tf
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording import io as rio
 
 IDENTITY = [1.0, 0.0, 0.0, 0.0]
 

@@ -12,7 +12,10 @@ import copy
 import numpy as np
 import pytest
 
-from bodycal_addon.errors import BodyCalError, Cancelled
+from bodycal_addon.body import rest_frames
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body.skeleton import BONE_INDEX as BI
+from bodycal_addon.core.errors import BodyCalError, Cancelled
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget import pipeline as pl
@@ -48,17 +51,17 @@ def test_rotations_copies_the_bone_frames_exactly(session):
     pose = rig.fk(anim.rotations, anim.root_location)
     # Limbs, hands, feet, fingers: the user's frames as they are; the trunk: the user's rotation
     # since the reference pose on the avatar's rest (avatar_pose.copy_frames).
-    want = ap.copy_frames(up.frames, ap.model_rest_frames(user), rig.frames0)
+    want = ap.copy_frames(up.frames, rest_frames.model_rest_frames(user), rig.frames0)
     for b in DRIVEN:
-        np.testing.assert_allclose(pose.frames[:, ap.BI[b]], want[:, ap.BI[b]], atol=1e-9, err_msg=b)
-        if ap.BI[b] not in ap.DELTA_COPY:
-            np.testing.assert_allclose(pose.frames[:, ap.BI[b]], up.frames[:, ap.BI[b]], atol=1e-9, err_msg=b)
+        np.testing.assert_allclose(pose.frames[:, BI[b]], want[:, BI[b]], atol=1e-9, err_msg=b)
+        if BI[b] not in ap.DELTA_COPY:
+            np.testing.assert_allclose(pose.frames[:, BI[b]], up.frames[:, BI[b]], atol=1e-9, err_msg=b)
     # At the reference time the trunk stands as the avatar's rest, turned to face as the user
     # faced (this avatar's armature is turned 30 degrees: its rest faces elsewhere).
     f0 = int(np.argmin(np.abs(rec.time - user.reference_time)))
-    turn = ap.facing_turn(ap.model_rest_frames(user), rig.frames0)
+    turn = ap.facing_turn(rest_frames.model_rest_frames(user), rig.frames0)
     assert abs(np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))) > 20.0
-    np.testing.assert_allclose(pose.frames[f0, ap.BI["sacrum"]], turn @ rig.frames0[ap.BI["sacrum"]], atol=0.05)
+    np.testing.assert_allclose(pose.frames[f0, BI["sacrum"]], turn @ rig.frames0[BI["sacrum"]], atol=0.05)
     assert np.isfinite(anim.rotations).all()
     np.testing.assert_allclose(np.linalg.norm(anim.rotations, axis=-1), 1.0, atol=1e-9)
 
@@ -111,7 +114,7 @@ def test_scaled_avatar_gives_scaled_positions(session, scale):
     c = ap.root_centre(user)
     rot = pl.retarget(rec, user, avatar, "rotations", plant_feet=False, placement="performer")
     base = pl.retarget(rec, user, rt.avatar_from_user(user), "rotations", plant_feet=False, placement="performer")
-    for j in ap.JOINTS:
+    for j in sk.JOINTS:
         np.testing.assert_allclose(rot.joints_world[j], c + scale * (base.joints_world[j] - c), atol=1e-4, err_msg=j)
     ego = pl.retarget(rec, user, avatar, "egocentric", plant_feet=False, placement="performer")
     for name, tg in ego.targets.items():
@@ -140,7 +143,7 @@ def test_offsets_put_the_tracked_joints_on_the_user_at_the_tpose(session):
     rig = ap.AvatarRig.from_model(avatar)
     pose = rig.fk(anim.rotations, anim.root_location)
     for s in ("l", "r"):
-        hand = pose.frames[:, ap.BI[f"hand_{s}"]]
+        hand = pose.frames[:, BI[f"hand_{s}"]]
         held = anim.joints_world[f"wrist_{s}"] + np.einsum("fij,j->fi", hand, ofs.controller_in_hand(rig, s))
         device, _, _ = rec.pose(f"hand_{s}")
         assert _mm(held, device).max() < 0.1, s  # the controller in the palm, in every frame
@@ -163,7 +166,7 @@ def test_offsets_on_a_minimal_recording():
     # The hand holds the controller where the arm reaches it (AvatarGo §3.4: a shorter arm
     # cannot always); where it cannot, the arm is stretched straight toward it.
     rig = ap.AvatarRig.from_model(avatar)
-    reach = rig.lengths[ap.BI["upperarm_l"]] + rig.lengths[ap.BI["forearm_l"]]
+    reach = rig.lengths[BI["upperarm_l"]] + rig.lengths[BI["forearm_l"]]
     sh, wr = (anim.joints_world[j].astype(float) for j in ("shoulder_l", "wrist_l"))
     tg = anim.targets["wrist_l"].astype(float)
     missed = _mm(wr, tg) > 1.0
@@ -212,16 +215,16 @@ def test_a_target_sweeping_beside_the_crude_torso_moves_continuously(session):
     # finer around the largest step must shrink it about as much (a jump would stay).
     rec, _, user, _ = session
     run = pl._Run(RecordingSource(rec, user), rt.procedural_avatar(belly=0.06), "egocentric")
-    rest = {j: run.user_pos[j] for j in ap.JOINTS}
+    rest = {j: run.user_pos[j] for j in sk.JOINTS}
     n = 801
 
     def posed(joints, frames0, model):
-        return eg.pose_surface(model, {j: np.repeat(np.asarray(joints[j])[None], n, 0) for j in ap.JOINTS},
-                               {b.name: np.repeat(frames0[i][None], n, 0) for i, b in enumerate(ap.BONES)},
+        return eg.pose_surface(model, {j: np.repeat(np.asarray(joints[j])[None], n, 0) for j in sk.JOINTS},
+                               {b.name: np.repeat(frames0[i][None], n, 0) for i, b in enumerate(sk.BONES)},
                                run.impl.ids)
 
     us = posed(rest, run.user_frames0, run.impl.user_s)
-    av = posed(dict(zip(ap.JOINTS, run.rig.joint_world)), run.rig.frames0, run.impl.avatar_s)
+    av = posed(dict(zip(sk.JOINTS, run.rig.joint_world)), run.rig.frames0, run.impl.avatar_s)
     torso = us.element_ids.index("mesh:torso") - us.counts[0] - us.counts[1]
     tri = us.tri[0, slice(*us.mesh_slices[torso])]
 

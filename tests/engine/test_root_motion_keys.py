@@ -9,9 +9,9 @@ import copy
 
 import numpy as np
 
-from bodycal_addon.animation import AvatarAnimation
-from bodycal_addon.retarget.root_motion import RootRest, apply_root_motion
-from bodycal_addon.transforms import matrix_to_quat, quat_to_matrix
+from bodycal_addon.body.animation import AvatarAnimation
+from bodycal_addon.core.transforms import matrix_to_quat, quat_to_matrix
+from bodycal_addon.output.root_motion import RootRest, apply_root_motion
 
 
 def _rot(axis, angle):

@@ -1,8 +1,8 @@
-"""The avatar calibration's small fits (bodycal_addon/surface_fit.py) on exact data."""
+"""The avatar calibration's small fits (bodycal_addon/avatar/surface_fit.py) on exact data."""
 
 import numpy as np
 
-from bodycal_addon import surface_fit as sf
+from bodycal_addon.avatar import surface_fit as sf
 
 
 def _ring(centre, radius, n=12):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from bodycal_addon import surface_layout as sl
+from bodycal_addon.body import surface_layout as sl
 
 # A performer facing -Y, left at +X (Blender's front view), points roughly where touches land.
 TORSO = {

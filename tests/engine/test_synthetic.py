@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
-from bodycal_addon.bodymodel import BodyModel
-from bodycal_addon.transforms import quat_to_matrix
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core.transforms import quat_to_matrix
 from bodycal_dev import synthetic as sy
 
 FPS = 45.0
@@ -368,7 +368,7 @@ def test_session_has_the_whole_protocol(perf):
 
 
 def test_write_session_round_trips_through_the_reader(tmp_path, perf):
-    from bodycal_addon import recording_io
+    from bodycal_addon.recording import io as recording_io
 
     rec, truth = sy.record_session(perf, fps=30.0, calibration=["stand"], touch_points=None, motions=("clap",),
                                    dropout_rate=0.02, seed=4)

@@ -8,11 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bodycal_addon import body_estimate
-from bodycal_addon import skeleton as sk
-from bodycal_addon import surface_layout as sl
-from bodycal_addon.armature import read_armature
-from bodycal_addon.errors import BodyCalError
+from bodycal_addon.avatar import estimate as body_estimate
+from bodycal_addon.avatar.armature import read_armature
+from bodycal_addon.body import naming, rest_frames
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.body import surface_layout as sl
+from bodycal_addon.body.skeleton import BONE_INDEX as BI
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.placement import transformed_avatar
@@ -34,7 +37,7 @@ def source():
 
 
 def _joints(anim):
-    return np.stack([anim.joints_world[j] for j in ap.JOINTS], axis=1)
+    return np.stack([anim.joints_world[j] for j in sk.JOINTS], axis=1)
 
 
 def _source_joints(avatar, anim):
@@ -46,7 +49,7 @@ def test_the_source_itself_as_target_gets_the_source_pose(source, method):
     avatar, anim = source
     out = transfer(avatar, anim.rotations, anim.root_location, anim.time, avatar, method)
     err = np.linalg.norm(_joints(out) - _source_joints(avatar, anim), axis=-1)
-    assert err.max() <= 1e-3, (ap.JOINTS[int(np.argmax(err.max(0)))], err.max())
+    assert err.max() <= 1e-3, (sk.JOINTS[int(np.argmax(err.max(0)))], err.max())
     assert out.bone_names == ap.AvatarRig.from_model(avatar).names
 
 
@@ -60,7 +63,7 @@ def test_a_uniformly_scaled_moved_target_gets_the_scaled_pose(source, method):
     out = transfer(avatar, anim.rotations, anim.root_location, anim.time, big, method)
     want = _source_joints(avatar, anim) @ m[:3, :3].T + m[:3, 3]  # the object placement carries the whole motion
     err = np.linalg.norm(_joints(out) - want, axis=-1)
-    assert err.max() <= 1e-3 * s, (ap.JOINTS[int(np.argmax(err.max(0)))], err.max())
+    assert err.max() <= 1e-3 * s, (sk.JOINTS[int(np.argmax(err.max(0)))], err.max())
 
 
 def test_the_offsets_method_and_bad_arrays_are_one_error(source):
@@ -89,13 +92,13 @@ def test_a_thicker_target_keeps_the_hand_on_its_belly(source):
     def palm_gap(model, out_anim):
         rig = ap.AvatarRig.from_model(model)
         pose = rig.fk(out_anim.rotations, out_anim.root_location)
-        surf_model = pl.canonical_surface(pl._surface_bones(model), rig.frames0, ap.complete_joints(model))
-        joints = {j: pose.joints[:, i] for i, j in enumerate(ap.JOINTS)}
-        frames = {b.name: pose.frames[:, i] for i, b in enumerate(ap.BONES)}
+        surf_model = pl.canonical_surface(pl._surface_bones(model), rig.frames0, rest_frames.complete_joints(model))
+        joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
+        frames = {b.name: pose.frames[:, i] for i, b in enumerate(sk.BONES)}
         torso = ego_mod.pose_surface(surf_model, joints, frames, ["mesh:torso"])
         palm = np.mean([p.local for p in surf_model.element("mesh:palm_r").points.values()], axis=0)
-        centre = pose.joints[:, ap.JI["wrist_r"]] + np.einsum("fij,j->fi", pose.frames[:, ap.BI["hand_r"]], palm)
-        from bodycal_addon import metrics
+        centre = pose.joints[:, JI["wrist_r"]] + np.einsum("fij,j->fi", pose.frames[:, BI["hand_r"]], palm)
+        from bodycal_addon.output import metrics
 
         return metrics.signed_distances(centre[:, None], torso)[:, 0, 0]
 
@@ -119,7 +122,7 @@ def _bare_rig(scale=1.0, offset=(0.0, 0.0, 0.0)):
         z /= np.linalg.norm(z)
         bones[name] = {"parent": b.parent, "head": b.head * scale + offset, "tail": b.tail * scale + offset,
                        "matrix": np.stack([np.cross(y, z), y, z], 1)}
-    return read_armature("bare", np.eye(4), bones, sk.detect_bone_map(list(bones)))
+    return read_armature("bare", np.eye(4), bones, naming.detect_bone_map(list(bones)))
 
 
 def test_a_bare_skeleton_gets_every_element_scaled_with_it_and_marked_estimated():
@@ -136,8 +139,8 @@ def test_a_bare_skeleton_gets_every_element_scaled_with_it_and_marked_estimated(
     torso = small.element("mesh:torso")
     assert all(p.bone.startswith("spine_") for p in torso.points.values())
     rig = ap.AvatarRig.from_model(small)
-    model = pl.canonical_surface(pl._surface_bones(small), rig.frames0, ap.complete_joints(small))
-    world = {n: rig.joint_world[ap.JI[sk.BONE_BY_NAME[p.bone].head]] + rig.frames0[ap.BI[p.bone]] @ p.local
+    model = pl.canonical_surface(pl._surface_bones(small), rig.frames0, rest_frames.complete_joints(small))
+    world = {n: rig.joint_world[JI[sk.BONE_BY_NAME[p.bone].head]] + rig.frames0[BI[p.bone]] @ p.local
              for n, p in model.element("mesh:torso").points.items()}
     fwd = body_estimate.trunk_axes({j: v.world for j, v in small.joints.items()})[:, 1]
     pelvis = small.joints["pelvis"].world
@@ -162,7 +165,7 @@ def test_a_hanging_skeleton_is_stood_on_its_floor_without_moving_its_motion(sour
     after = AnimationSource(stood, basis, loc2, time).pose(0, 40).joints
     # the estimated soles are about where the procedural avatar's feet were before it was hung
     assert lift == pytest.approx(0.95, abs=0.03)
-    low = min(before[:, ap.JI[f"ankle_{s}"], 2].min() - body_estimate.sole_depth(bare, s) for s in sk.SIDES)
+    low = min(before[:, JI[f"ankle_{s}"], 2].min() - body_estimate.sole_depth(bare, s) for s in sk.SIDES)
     assert motion == pytest.approx(-low, abs=1e-9) and motion == pytest.approx(0.95 - 0.3, abs=0.03)
     np.testing.assert_allclose(after, before + [0.0, 0.0, motion], atol=1e-9)
     sole = min(stood.joints[f"ankle_{s}"].world[2] - body_estimate.sole_depth(stood, s) for s in sk.SIDES)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bodycal_addon.errors import BodyCalError
-from bodycal_addon.recording import Recording
-from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.body import skeleton as sk
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording.model import Recording
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_dev import synthetic
 
@@ -25,14 +25,14 @@ def exact():
 
 
 def _err_mm(up, truth, joint):
-    return np.linalg.norm(up.joints[:, ap.JI[joint]] - truth.joint_tracks[joint], axis=-1) * 1e3
+    return np.linalg.norm(up.joints[:, sk.JOINT_INDEX[joint]] - truth.joint_tracks[joint], axis=-1) * 1e3
 
 
 def test_tracked_joints_follow_the_trackers_exactly(exact):
     rec, truth, model = exact
     up = ua.animate_user(rec, model)
-    assert up.joints.shape == (rec.frame_count, len(ap.JOINTS), 3)
-    assert up.frames.shape == (rec.frame_count, len(ap.BONES), 3, 3)
+    assert up.joints.shape == (rec.frame_count, len(sk.JOINTS), 3)
+    assert up.frames.shape == (rec.frame_count, len(sk.BONES), 3, 3)
     for j in TRACKED_JOINTS:
         assert _err_mm(up, truth, j).max() < 0.5, j
 
@@ -43,7 +43,7 @@ def test_limb_bones_keep_the_hinge_right_and_join(exact):
     for s in ("l", "r"):
         for a, m, e, ab, mb in (("shoulder", "elbow", "wrist", "upperarm", "forearm"),
                                 ("hip", "knee", "ankle", "thigh", "shin")):
-            upper, lower = up.frames[:, ap.BI[f"{ab}_{s}"]], up.frames[:, ap.BI[f"{mb}_{s}"]]
+            upper, lower = up.frames[:, sk.BONE_INDEX[f"{ab}_{s}"]], up.frames[:, sk.BONE_INDEX[f"{mb}_{s}"]]
             # Same +X on both bones: the limb flexes about the hinge axis only, no twist.
             np.testing.assert_allclose(upper[..., :, 0], lower[..., :, 0], atol=1e-6)
             # +Y runs from the anchor to the intermediate joint and on to the effector.

@@ -7,8 +7,8 @@ from __future__ import annotations
 from collections import deque
 from functools import cache
 
-from ... import skeleton as sk
-from ...errors import BodyCalError
+from ...body import skeleton as sk
+from ...core.errors import BodyCalError
 
 TORSO_ROOT = sk.spine_joint(sk.CLAVICLE_VERTEBRA)
 

@@ -8,9 +8,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from ... import skeleton as sk
-from ...errors import BodyCalError
-from ...transforms import EPS
+from ...body import skeleton as sk
+from ...core.errors import BodyCalError
+from ...core.transforms import EPS
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _normalised, _Proj, _project, _repose
 from .surface import PosedSurface

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...transforms import EPS
+from ...core.transforms import EPS
 from .surface import PosedSurface
 
 FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)

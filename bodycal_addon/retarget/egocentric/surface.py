@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ... import skeleton as sk
-from ...errors import BodyCalError
-from ...transforms import frame_from_axes
+from ...body import skeleton as sk
+from ...core.errors import BodyCalError
+from ...core.transforms import frame_from_axes
 from .graph import element_root
 
 

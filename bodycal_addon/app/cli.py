@@ -1,0 +1,190 @@
+"""The command line of FORMATS.md §4.
+
+One entry point, two ways in: `python -m bodycal_addon <command>` (Blender as a Python module,
+from the repository root) and `blender -b -c bodycal <command>` (registered by the extension
+with `bpy.utils.register_cli_command`). Exit 0 on success, 2 on bad input with one clear line on
+stderr and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import io
+import os
+import sys
+import warnings
+from collections.abc import Callable
+
+from ..core.errors import BodyCalError
+from ..core.outputs import describe_os_error
+from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..output.rigify import RIGIFY_TARGETS
+from ..output.root_motion import ROOT_MOTIONS
+from ..retarget.pipeline import METHODS
+from ..retarget.placement import PLACEMENTS
+from ..retarget.transfer import TRANSFER_METHODS
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+_BONE_MAP_HELP = ("bone map preset (JSON, docs/FORMATS.md §5) for an armature whose bone names no naming scheme "
+                  "knows; it replaces the map stored on the armature for this run")
+AVATAR_HELP = ("the avatar: a .blend, or an .fbx, .glb, .gltf or .vrm read by Blender's importer "
+               "(.vrm needs a VRM importer add-on enabled)")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of exiting, so `blender -c` is not killed by SystemExit."""
+
+    def error(self, message):
+        raise BodyCalError(message, source=self.prog)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="bodycal", description="BodyCal: VR tracker recordings to animation on any humanoid "
+                "avatar, keeping self-contacts.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
+    c.add_argument("recording", metavar="REC", help="recording: .bcrec.json, .csv (+ sidecar .json) or .c3d")
+    c.add_argument("-o", "--output", required=True, metavar="USER.body.json")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+
+    c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
+    c.add_argument("avatar", metavar="AVATAR", help=AVATAR_HELP)
+    c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
+    c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+
+    c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
+    c.add_argument("recording", metavar="REC")
+    c.add_argument("--user", required=True, metavar="USER.body.json")
+    c.add_argument("--avatar", required=True, metavar="AVATAR", help=AVATAR_HELP)
+    c.add_argument("--armature", metavar="NAME")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
+    c.add_argument("--method", choices=METHODS, default="egocentric")
+    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
+                   help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
+                        "Hz, Hz per m/s, Hz, Hz per rad/s)")
+    _bake_arguments(c, "the recording's")
+
+    c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
+    c.add_argument("jobs", metavar="JOBS.toml")
+
+    c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
+    c.add_argument("-o", "--output-dir", default="out", metavar="DIR")
+
+    c = sub.add_parser("transfer", help="another character's animation onto the avatar, keeping self-contacts")
+    c.add_argument("source", metavar="SOURCE", help="the animated character: a .blend, .bvh, .fbx, .glb or .gltf")
+    c.add_argument("--avatar", required=True, metavar="AVATAR", help=AVATAR_HELP)
+    c.add_argument("--source-armature", metavar="NAME", help="the source's armature (default: the only one)")
+    c.add_argument("--action", metavar="NAME", help="the source's action (default: its active one)")
+    c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one)")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP + " (the avatar's)")
+    c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0])
+    _bake_arguments(c, "the source's")
+    return p
+
+
+def _bake_arguments(c, rate_of: str) -> None:
+    """Placement, feet, root motion, Rigify target, key reduction, output rate and outputs: what
+    `retarget` and `transfer` both take."""
+    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
+                   help="object: the motion plays relative to the armature object's place and heading "
+                        "(default); performer: where the performer was in the room")
+    c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
+                   help="let the feet follow the method (default: feet planted while the performer stands on them)")
+    c.add_argument("--root-motion", choices=ROOT_MOTIONS, default=ROOT_MOTIONS[0],
+                   help="root: the travel and heading on the rig's root bone when it has one above the pelvis "
+                        "(default; else on the pelvis); pelvis: on the pelvis, the root at rest; in-place: no "
+                        "horizontal travel")
+    c.add_argument("--rigify-target", choices=RIGIFY_TARGETS, default=RIGIFY_TARGETS[0],
+                   help="a generated Rigify rig: fk keys its FK controls, IK switched to FK (default, to edit); "
+                        "def keys the DEF- bones (for export)")
+    c.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
+                   help="key reduction: each bone's rotation stays within DEG degrees of every sample "
+                        f"(default {DEFAULT_TOLERANCE_DEG:g}; 0 keys every sample)")
+    c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
+                   help="key reduction of the root's location, in millimetres "
+                        f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
+    c.add_argument("--fps", type=float, default=None, metavar="N",
+                   help="output frame rate: the action is resampled to N frames per second, timing kept "
+                        f"(default: one key per sample, the scene set to {rate_of} rate)")
+    c.add_argument("-o", "--output", required=True, action="append", metavar="OUT.blend|.fbx|.glb|.gltf|.bvh",
+                   help="a .blend (the avatar's file with the new action), or an export of the avatar "
+                        "and its baked action for game engines; give -o several times for several files")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+
+
+def _handler(command: str) -> Callable[[argparse.Namespace], int]:
+    """Each command lives in its own module under `commands/`, imported only when run, so that
+    `--help` and argument errors never load Blender."""
+    module_name = "commands." + command.replace("-", "_")
+    return importlib.import_module(f".{module_name}", __package__).run
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    except BodyCalError as exc:
+        print(f"bodycal: error: {exc.line()}", file=sys.stderr)
+        return EXIT_USAGE
+    if not args.command:
+        parser.print_help()
+        return EXIT_USAGE
+    with _blender_output_to_stdout():
+        return _run(args)
+
+
+def _run(args) -> int:
+    try:
+        return int(_handler(args.command)(args) or 0)
+    except BodyCalError as exc:
+        print(f"bodycal {args.command}: error: {exc.line()}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # a file the checks could not foresee (vanished, disk full, permissions changed)
+        print(f"bodycal {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"bodycal {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+@contextlib.contextmanager
+def _blender_output_to_stdout():
+    """stderr carries BodyCal's own lines only (one per error or warning): what Blender's C code
+    prints to the process's stderr while a command runs (a scripted driver it refuses to run, an
+    importer's complaints) and Python's warnings (numpy's) go to stdout with Blender's log.
+    Nothing changes when stderr is not the process's (a test capturing it in Python)."""
+    try:
+        is_process_stderr = sys.stderr.fileno() == 2
+    except (AttributeError, ValueError, io.UnsupportedOperation):
+        is_process_stderr = False
+    if not is_process_stderr:
+        yield
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    own = open(saved, "w", buffering=1, encoding=sys.stderr.encoding, errors="backslashreplace", closefd=False)
+    previous, show = sys.stderr, warnings.showwarning
+
+    def to_stdout(message, category, filename, lineno, file=None, line=None):
+        show(message, category, filename, lineno, file=sys.stdout, line=line)
+
+    os.dup2(1, 2)
+    sys.stderr, warnings.showwarning = own, to_stdout
+    try:
+        yield
+    finally:
+        own.flush()
+        sys.stdout.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+        sys.stderr, warnings.showwarning = previous, show

@@ -1,0 +1,38 @@
+"""`bodycal calibrate-avatar AVATAR [--armature NAME] [--bone-map FILE] -o AVATAR.body.json`
+(FORMATS.md §4): surface calibration by raycasting onto the avatar's mesh. AVATAR is a .blend
+(read, never written) or an .fbx, .glb, .gltf or .vrm imported by Blender's own importer; a bone
+map preset is checked before it is opened. One `warning:` line on stderr per doubt about the
+armature object's transform (placement.avatar_warnings)."""
+
+from __future__ import annotations
+
+import sys
+
+
+def run(args) -> int:
+    from ...blender.avatar_calibration import calibrate_avatar
+    from ...blender.avatar_rig import apply_preset
+    from ...blender.blendfile import find_armature, open_avatar
+    from ...blender.retarget_scene import avatar_input
+    from ...body.bone_presets import load_preset
+    from ...core.outputs import check_output
+    from ...retarget.placement import avatar_warnings
+
+    bone_map = getattr(args, "bone_map", None)
+    files_read = [avatar_input(args.avatar), ("the bone map (--bone-map)", bone_map)]
+    overwrite = getattr(args, "overwrite", False)
+    check_output(args.output, inputs=files_read, overwrite=overwrite)  # before opening anything
+    preset = load_preset(bone_map) if bone_map else None
+    open_avatar(args.avatar)
+    arm = find_armature(args.armature, str(args.avatar))
+    if preset is not None:
+        apply_preset(arm, preset)
+    model = calibrate_avatar(arm)
+    for line in avatar_warnings(model):
+        print(f"bodycal calibrate-avatar: warning: {line}", file=sys.stderr, flush=True)
+    out = model.save(args.output, inputs=files_read, overwrite=overwrite)
+    q = model.calibration["quality"]
+    print(f"{out}: avatar {arm.name}, {len(model.joints)} joints, {len(model.surface)} surface elements, "
+          f"{sum(v['hit'] for v in q.values())} ray hits, rest pose {model.extra['rig']['rest_pose']}")
+    sys.stdout.flush()
+    return 0

@@ -1,0 +1,23 @@
+"""`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
+[--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]]
+[--no-plant-feet] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
+[--tolerance DEG] [--location-tolerance MM] [--fps N]
+-o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
+
+import sys
+
+
+def run(args) -> int:
+    from ...blender.bake import BakeOptions
+    from ...blender.retarget_scene import retarget_files
+    from ...recording.filters import OneEuro
+
+    cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
+    options = BakeOptions(args.tolerance, args.location_tolerance, args.fps,
+                          getattr(args, "root_motion", "root"), getattr(args, "rigify_target", "fk"))
+    retarget_files(args.recording, args.user, args.avatar, args.output, armature=args.armature, method=args.method,
+                   filter=cfg, plant_feet=getattr(args, "plant_feet", True),
+                   placement=getattr(args, "placement", "object"), overwrite=getattr(args, "overwrite", False),
+                   options=options, bone_map_path=getattr(args, "bone_map", None),
+                   warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
+    return 0

@@ -1,0 +1,19 @@
+"""`bodycal transfer SOURCE --avatar AVATAR -o OUT [-o ...] [--source-armature NAME] [--action NAME]
+[--armature NAME] [--bone-map FILE] [--method egocentric|rotations] [--placement object|performer] [--no-plant-feet]
+[--root-motion root|pelvis|in-place] [--rigify-target fk|def]
+[--tolerance DEG] [--location-tolerance MM] [--fps N] [--overwrite]`; SOURCE is a .blend, .bvh,
+.fbx, .glb or .gltf with an animated humanoid armature, AVATAR a .blend, .fbx, .glb, .gltf or .vrm."""
+
+import sys
+
+
+def run(args) -> int:
+    from ...blender.bake import BakeOptions
+    from ...blender.transfer_scene import transfer_files
+
+    options = BakeOptions(args.tolerance, args.location_tolerance, args.fps, args.root_motion, args.rigify_target)
+    transfer_files(args.source, args.avatar, args.output, source_armature=args.source_armature, action=args.action,
+                   armature=args.armature, method=args.method, plant_feet=args.plant_feet, placement=args.placement,
+                   overwrite=args.overwrite, options=options, bone_map_path=args.bone_map,
+                   warn=lambda line: print(f"bodycal transfer: warning: {line}", file=sys.stderr, flush=True))
+    return 0

@@ -1,0 +1,1 @@
+"""Avatars measured from their armature and mesh, or estimated from bone lengths."""

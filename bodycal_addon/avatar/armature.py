@@ -1,0 +1,258 @@
+"""An armature in canonical terms, numpy only: the rest pose of every bone (armature space, as
+Blender's `bone.matrix_local` gives it), the bone map, and every canonical joint the rig allows in
+world space with the bone it rides on. `read_armature` builds it from plain arrays;
+`blender.avatar_rig.read_rig` reads those arrays from a Blender armature object.
+
+Joint rules (rest pose):
+- `pelvis` = midpoint of the hips, on the pelvis bone; `spine_root` = head of the first spine
+  bone; `spine_01..spine_12` resampled at equal arc length along the polyline through the heads
+  of the spine and neck chain bones up to the head bone's head (= `skull_base` = `spine_12`),
+  each on the chain bone whose stretch of the polyline holds it (`spine_12` on the head bone);
+- `head` = the head bone's tail (top of the head bone), on the head bone;
+- `clavicle_<s>` = clavicle head; shoulder/elbow/wrist = heads of upperarm/forearm/hand;
+  mcp/pip/dip = heads of finger bones 1..3, tip = tail of bone 3;
+- hip/knee/ankle = heads of thigh/shin/foot; toe = head of the toe bone, else the foot's tail.
+`local` is the joint in its bone's rest frame in ARMATURE space (bone head at the origin, axes
+= the columns of bone.matrix_local): world = matrix_world @ (head + R @ local).
+
+Canonical bone `right` (a world direction, orthogonal to the canonical bone): hinges (forearm,
+shin, finger bones 2 and 3) take the avatar bone's local +X (its flexion axis, FORMATS.md §1) or
+the per-bone override stored on the armature (`bodycal_hinge_axes`, in the avatar bone's frame);
+every other bone follows `body.rest_frames.canonical_rest_frames`, the one rule shared with
+the user model (upper limb bones take their child hinge's axis, hand and metacarpals the palm's
+lateral line, trunk and head the hip line, clavicles and hips the trunk's forward direction).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..body import naming
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel, Joint
+from ..body.rest_frames import canonical_rest_frames, complete_joints
+from ..core.errors import BodyCalError
+
+HINGE_BONES = tuple(b.name for b in sk.BONES if b.hinge)
+A_POSE_DEG = 20.0  # an upper arm further than this below horizontal makes the rest pose an A-pose
+
+
+@dataclass
+class ArmatureReading:
+    armature: str
+    matrix_world: np.ndarray  # (4, 4)
+    bone_map: naming.BoneMap
+    bones: dict[str, dict]  # avatar bone -> parent, head, tail (armature space), matrix (3x3), segment
+    joints: dict[str, np.ndarray] = field(default_factory=dict)  # canonical joint -> world
+    joint_frames: dict[str, str] = field(default_factory=dict)  # canonical joint -> avatar bone
+    rights: dict[str, np.ndarray] = field(default_factory=dict)  # canonical bone -> world right
+    hinges: dict[str, np.ndarray] = field(default_factory=dict)  # hinge bone -> world flexion axis
+    rest_pose: str = "T"
+    missing: list[str] = field(default_factory=list)  # optional segments the rig lacks (fingers, toes)
+
+    # -- frames ---------------------------------------------------------------------------------
+    def bone_world_matrix(self, bone: str) -> np.ndarray:
+        """(4, 4) rest matrix of an avatar bone in world space."""
+        b = self.bones[bone]
+        m = np.eye(4)
+        m[:3, :3] = b["matrix"]
+        m[:3, 3] = b["head"]
+        return self.matrix_world @ m
+
+    def to_local(self, bone: str, world: np.ndarray) -> np.ndarray:
+        """A world point in the avatar bone's rest frame (armature units)."""
+        b = self.bones[bone]
+        p_arm = np.linalg.solve(self.matrix_world, np.append(world, 1.0))[:3]
+        return b["matrix"].T @ (p_arm - b["head"])
+
+    def to_world(self, point_arm: np.ndarray) -> np.ndarray:
+        return (self.matrix_world @ np.append(point_arm, 1.0))[:3]
+
+    def axis_world(self, bone: str, local_axis) -> np.ndarray:
+        v = self.matrix_world[:3, :3] @ (self.bones[bone]["matrix"] @ np.asarray(local_axis, float))
+        return v / np.linalg.norm(v)
+
+    @property
+    def up(self) -> np.ndarray:
+        """The avatar's up: the armature-space axis (+-X, +-Y, +-Z) closest to its spine, in world.
+        Blender rigs stand along +Z; FBX-style rigs keep Y-up bones under an object rotated 90
+        degrees. Either way it turns exactly with the armature object."""
+        lin = self.matrix_world[:3, :3]
+        spine = np.linalg.solve(lin, self.joints["skull_base"] - self.joints["pelvis"])
+        k = int(np.argmax(np.abs(spine)))
+        v = lin[:, k] * np.sign(spine[k])
+        return v / np.linalg.norm(v)
+
+    @property
+    def lateral(self) -> np.ndarray:
+        """Towards the avatar's left (hip_r -> hip_l), orthogonal to up."""
+        v = self.joints["hip_l"] - self.joints["hip_r"]
+        v = v - np.dot(v, self.up) * self.up
+        return v / np.linalg.norm(v)
+
+    @property
+    def forward(self) -> np.ndarray:
+        """Where the avatar faces (-Y for a Blender rig facing the front view): left x up."""
+        return np.cross(self.lateral, self.up)
+
+    def rig_dict(self) -> dict:
+        """extra["rig"] of the avatar body model: everything the retargeting engine needs for FK."""
+        return {
+            "armature": self.armature,
+            "matrix_world": [[round(float(x), 9) for x in row] for row in self.matrix_world],
+            "scheme": self.bone_map.scheme,
+            "bone_map": self.bone_map.to_dict(),
+            "bones": {n: {"parent": b["parent"], "head": [round(float(x), 9) for x in b["head"]],
+                          "tail": [round(float(x), 9) for x in b["tail"]],
+                          "matrix": [[round(float(x), 9) for x in row] for row in b["matrix"]],
+                          "segment": b["segment"],
+                          **({"chain_index": b["chain_index"]} if b["chain_index"] is not None else {})}
+                      for n, b in self.bones.items()},
+            "rest_pose": self.rest_pose,
+        }
+
+
+def _segment_of(bm: naming.BoneMap) -> dict[str, str]:
+    seg = {bone: s for s, bone in bm.bones.items()}
+    for chain, names in bm.chains.items():
+        for n in names:
+            seg[n] = chain
+    return seg
+
+
+def check_humanoid(name: str, bm: naming.BoneMap) -> None:
+    missing = bm.missing(with_fingers=False)
+    if missing:
+        raise BodyCalError(
+            f"not a humanoid rig this version can map: missing {', '.join(missing)}", source=name,
+            hint="map these segments in the BodyCal panel (Avatar > Bone Map) or pick another armature")
+
+
+def _ancestors(bone: str, parent: dict[str, str | None]) -> list[str]:
+    out, seen = [], {bone}
+    while (bone := parent.get(bone)) is not None and bone not in seen:
+        out.append(bone)
+        seen.add(bone)
+    return out
+
+
+def check_pelvis_is_root(name: str, bm: naming.BoneMap, parent: dict[str, str | None]) -> None:
+    """The pelvis bone carries the root motion, so both thighs and the spine must hang from it.
+    A rig whose bone called "pelvis" is a child of the hips root (Daz, Character Creator: hip ->
+    pelvis -> thighs, hip -> abdomen) mapped by that name would leave the spine behind."""
+    pelvis = bm.bones["pelvis"]
+    spine = (list(bm.chains.get("spine", [])) + list(bm.chains.get("neck", [])))[:1]
+    hanging = [bm.bones["thigh_l"], bm.bones["thigh_r"], *spine]
+    stray = [b for b in hanging if pelvis not in _ancestors(b, parent)]
+    if not stray:
+        return
+    common = [a for a in _ancestors(hanging[0], parent) if all(a in _ancestors(b, parent) for b in hanging[1:])]
+    hint = (f"map pelvis to '{common[0]}', the bone the spine and both thighs hang from" if common
+            else "parent the thighs and the spine to the hips bone")
+    raise BodyCalError(f"the pelvis bone '{pelvis}' is not a parent of {', '.join(stray)}: the root motion "
+                       "would leave them behind", source=name, field="pelvis", hint=hint)
+
+
+def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dict], bone_map: naming.BoneMap,
+                  hinge_overrides: dict[str, np.ndarray] | None = None) -> ArmatureReading:
+    """Canonical joints and bone rights of an armature in its rest pose. `rest_bones`: per bone
+    {"parent", "head", "tail" (armature space), "matrix" (3x3, the bone's rest axes as columns)}."""
+    check_humanoid(name, bone_map)
+    check_pelvis_is_root(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
+    seg_of = _segment_of(bone_map)
+    chain_index = {n: i for names in bone_map.chains.values() for i, n in enumerate(names)}
+    bones = {n: {"parent": b["parent"], "head": np.asarray(b["head"], float), "tail": np.asarray(b["tail"], float),
+                 "matrix": np.asarray(b["matrix"], float), "segment": seg_of.get(n), "chain_index": chain_index.get(n)}
+             for n, b in rest_bones.items()}
+    rig = ArmatureReading(name, np.asarray(matrix_world, float), bone_map, bones)
+    _canonical_joints(rig)
+    _rights(rig, hinge_overrides or {})
+    up_arm = rig.joints["elbow_l"] - rig.joints["shoulder_l"]
+    drop = np.degrees(np.arcsin(np.clip(-np.dot(up_arm, rig.up) / np.linalg.norm(up_arm), -1, 1)))
+    rig.rest_pose = "A" if drop > A_POSE_DEG else "T"
+    return rig
+
+
+def _canonical_joints(rig: ArmatureReading) -> None:
+    bm, bones = rig.bone_map, rig.bones
+
+    def head(bone):
+        return rig.to_world(bones[bone]["head"])
+
+    def tail(bone):
+        return rig.to_world(bones[bone]["tail"])
+
+    def put(joint, world, frame):
+        rig.joints[joint] = np.asarray(world, float)
+        rig.joint_frames[joint] = frame
+
+    seg = bm.bones
+    for s in sk.SIDES:
+        put(f"hip_{s}", head(seg[f"thigh_{s}"]), seg[f"thigh_{s}"])
+    put("pelvis", 0.5 * (rig.joints["hip_l"] + rig.joints["hip_r"]), seg["pelvis"])
+    chain = list(bm.chains.get("spine", [])) + list(bm.chains.get("neck", []))
+    if not chain:
+        raise BodyCalError("no spine bones mapped", source=rig.armature, hint="map the spine chain in the panel")
+    poly = np.array([head(b) for b in chain] + [head(seg["head"])])
+    put("spine_root", poly[0], chain[0])
+    spine = sk.resample_polyline(poly, sk.SPINE_COUNT)
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poly, axis=0), axis=1))])
+    targets = np.linspace(0.0, 1.0, sk.SPINE_COUNT + 1) * cum[-1]
+    for k in range(1, sk.SPINE_COUNT):
+        i = int(np.clip(np.searchsorted(cum, targets[k], side="right") - 1, 0, len(chain) - 1))
+        put(sk.spine_joint(k), spine[k], chain[i])
+    put(sk.spine_joint(sk.SPINE_COUNT), head(seg["head"]), seg["head"])  # the top of the spine
+    put("skull_base", head(seg["head"]), seg["head"])
+    put("head", tail(seg["head"]), seg["head"])
+    for s in sk.SIDES:
+        for joint, segment in (("clavicle", "clavicle"), ("shoulder", "upperarm"), ("elbow", "forearm"),
+                               ("wrist", "hand")):
+            put(f"{joint}_{s}", head(seg[f"{segment}_{s}"]), seg[f"{segment}_{s}"])
+        for f in sk.FINGERS:
+            names = [seg.get(f"{f}_{i}_{s}") for i in (1, 2, 3)]
+            if not all(names):
+                rig.missing.append(f"fingers: {f}_{s}")
+                continue
+            for joint, b in zip(("mcp", "pip", "dip"), names):
+                put(f"{joint}_{f}_{s}", head(b), b)
+            put(f"tip_{f}_{s}", tail(names[2]), names[2])
+        put(f"knee_{s}", head(seg[f"shin_{s}"]), seg[f"shin_{s}"])
+        put(f"ankle_{s}", head(seg[f"foot_{s}"]), seg[f"foot_{s}"])
+        if seg.get(f"toe_{s}"):
+            put(f"toe_{s}", head(seg[f"toe_{s}"]), seg[f"toe_{s}"])
+        else:
+            put(f"toe_{s}", tail(seg[f"foot_{s}"]), seg[f"foot_{s}"])
+            rig.missing.append(f"toe_{s} (foot tail used)")
+
+
+def canonical_bones(rig: ArmatureReading) -> list[sk.Bone]:
+    return [b for b in sk.BONES if b.head in rig.joints and b.tail in rig.joints]
+
+
+def _rights(rig: ArmatureReading, overrides: dict[str, np.ndarray]) -> None:
+    """Hinge rights from the avatar bones; every other right from the ONE rule the retargeting
+    engine uses for the user and the avatar alike (`body.rest_frames.canonical_rest_frames`),
+    so surface points expressed in these frames mean the same thing on both sides."""
+
+    seg = rig.bone_map.bones
+    hinge_world: dict[str, np.ndarray] = {}
+    for name in HINGE_BONES:
+        avatar_bone = seg.get(name)
+        if avatar_bone is None or sk.BONE_BY_NAME[name].tail not in rig.joints:
+            continue
+        hinge_world[name] = rig.axis_world(avatar_bone, overrides.get(name, (1.0, 0.0, 0.0)))
+    pos = complete_joints(BodyModel("avatar", rig.armature, {j: Joint(p) for j, p in rig.joints.items()}))
+    rig.hinges = hinge_world
+    frames = canonical_rest_frames(pos, hinge_world)
+    for b in canonical_bones(rig):
+        d = rig.joints[b.tail] - rig.joints[b.head]
+        if np.linalg.norm(d) < 1e-9:
+            raise BodyCalError(f"canonical bone {b.name} has zero length", source=rig.armature,
+                               hint="check the bone map")
+        r = frames[b.name][:, 0]
+        if not np.all(np.isfinite(r)) or np.linalg.norm(r) < 0.5:
+            raise BodyCalError(f"the right axis of {b.name} runs along the bone", source=rig.armature,
+                               hint="override its hinge axis")
+        rig.rights[b.name] = r

@@ -1,0 +1,1 @@
+"""The canonical body: skeleton, naming schemes, body models, surface layout, animations."""

@@ -1,0 +1,1 @@
+"""Foundations every layer uses: errors, rigid transforms, fits, paths and safe output files."""

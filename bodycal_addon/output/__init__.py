@@ -1,0 +1,1 @@
+"""What a retargeted animation becomes: root motion, Rigify targets, key reduction, metrics."""

@@ -1,0 +1,122 @@
+"""Quality metrics shared by tests and benchmarks (DESIGN.md §7), numpy only.
+
+Every function returns metres (or radians); `stats_mm` turns an array of metres into the figures
+benchmarks print (median, 95th percentile, max, in millimetres). NaN marks "not measured" (e.g. a
+frame where the foot is not planted) and is ignored by `stats_mm`.
+
+The contact gap here is measured against the analytic surface elements of a posed body model
+(`retarget.egocentric.PosedSurface`: capsules, spheres, crude-mesh triangles); the gap against
+the avatar's evaluated Blender mesh lives with the Blender code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..retarget.egocentric import own_chain_elements, project
+
+
+def stats_mm(values) -> dict:
+    """{"median", "p95", "max", "mean", "count"} of |values| in mm, NaN ignored (None if empty)."""
+    v = np.abs(np.asarray(values, float)).ravel()
+    v = v[np.isfinite(v)] * 1000.0
+    if v.size == 0:
+        return {"median": None, "p95": None, "max": None, "mean": None, "count": 0}
+    return {"median": round(float(np.median(v)), 3), "p95": round(float(np.percentile(v, 95)), 3),
+            "max": round(float(v.max()), 3), "mean": round(float(v.mean()), 3), "count": int(v.size)}
+
+
+def joint_centre_error(estimated: dict, truth: dict) -> dict[str, float]:
+    """Distance (m) between estimated and true joint centres, per joint present in both (arrays of
+    any matching shape (..., 3); frames are averaged)."""
+    out = {}
+    for name, p in estimated.items():
+        if name in truth:
+            d = np.linalg.norm(np.asarray(p, float) - np.asarray(truth[name], float), axis=-1)
+            out[name] = float(np.mean(d))
+    return out
+
+
+def signed_distances(points, surface, mesh_depth: float = 0.15) -> np.ndarray:
+    """Signed distance (m, negative inside) of (F, P, 3) points to every element of a PosedSurface:
+    (F, P, E). Capsules: distance to the axis segment minus the radius interpolated at the closest
+    axis point; spheres: to the centre minus the radius; meshes: distance to the closest triangle,
+    negative only behind its outward face, inside its outline (the closest point is not on an
+    edge) and less than `mesh_depth` deep: a crude mesh is an open surface, so a point far behind
+    it (above a sole, beside the torso) is not inside the body."""
+    p = np.asarray(points, float)
+    proj = project(p, surface, penetration_tolerance=0.0)
+    C, S, M = surface.counts
+    pe = p[:, :, None, :]
+    a = surface.caps_head[:, None]
+    ab = surface.caps_tail[:, None] - a
+    t = proj.cap_t
+    r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
+    caps = np.linalg.norm(pe - (a + t[..., None] * ab), axis=-1) - r
+    sph = np.linalg.norm(pe - surface.sph_center[:, None], axis=-1) - surface.sph_radius
+    if M:
+        fi = np.arange(p.shape[0])[:, None, None]
+        normal = surface.tri_normal[fi, proj.tri_index]
+        v = proj.v[:, :, C + S:]
+        interior = np.all(proj.tri_bary > 1e-9, axis=-1)
+        dist = proj.dist[:, :, C + S:]
+        behind = (np.einsum("...i,...i->...", v, normal) < 0) & interior & (dist < mesh_depth)
+        mesh = np.where(behind, -dist, dist)
+    else:
+        mesh = np.zeros(p.shape[:2] + (0,))
+    return np.concatenate([caps, sph, mesh], axis=2)
+
+
+def contact_gap(points, surface, target_names: list[str] | None = None, exclude_ids=()) -> np.ndarray:
+    """Gap (m) between each target and the posed body surface: the smallest signed distance over
+    the elements (negative: inside). With `target_names`, each target's own-chain elements are left
+    out (egocentric.own_chain_elements: a wrist is always "touching" its own forearm); `exclude_ids`
+    leaves more out for every target. Returns (F, P)."""
+    d = signed_distances(points, surface)
+    ids = surface.element_ids
+    mask = np.zeros(d.shape[1:], bool)
+    for e, eid in enumerate(ids):
+        if eid in exclude_ids:
+            mask[:, e] = True
+    if target_names is not None:
+        for p, name in enumerate(target_names):
+            own = own_chain_elements(name)
+            mask[p] |= np.array([eid in own for eid in ids], bool)
+    d = np.where(mask, np.inf, d)
+    out = d.min(axis=-1) if d.shape[-1] else np.full(d.shape[:2], np.inf)
+    return np.where(np.isfinite(out), out, np.nan)
+
+
+def floor_error(foot_points, planted) -> np.ndarray:
+    """Height (m) of the lowest foot point above the floor (z = 0) in the frames where the foot is
+    planted, NaN elsewhere. foot_points: (F, K, 3) points of one foot (sole corners, ankle, toe);
+    planted: (F,) bool."""
+    low = np.asarray(foot_points, float)[..., 2].min(axis=-1)
+    return np.where(np.asarray(planted, bool), low, np.nan)
+
+
+def foot_sliding(point, planted) -> np.ndarray:
+    """Horizontal displacement (m) of a foot point between consecutive frames that are both
+    planted, NaN elsewhere; (F - 1,). Its mean is the sliding in m per planted frame."""
+    p = np.asarray(point, float)
+    pl = np.asarray(planted, bool)
+    step = np.linalg.norm(np.diff(p[:, :2], axis=0), axis=-1)
+    return np.where(pl[1:] & pl[:-1], step, np.nan)
+
+
+def planted_frames(point, speed_threshold: float = 0.05, height_threshold: float = 0.12,
+                   dt: float = 1 / 90) -> np.ndarray:
+    """Frames where a foot point (F, 3) is planted: low (z below `height_threshold`) and slow
+    (horizontal speed below `speed_threshold` m/s). (F,) bool."""
+    p = np.asarray(point, float)
+    v = np.zeros(len(p))
+    if len(p) > 1:
+        sp = np.linalg.norm(np.diff(p[:, :2], axis=0), axis=-1) / dt
+        v[1:] = sp
+        v[0] = sp[0]
+    return (p[:, 2] < height_threshold) & (v < speed_threshold)
+
+
+def reach_error(effector, target) -> np.ndarray:
+    """Distance (m) between the avatar's effectors after IK and their retargeted targets."""
+    return np.linalg.norm(np.asarray(effector, float) - np.asarray(target, float), axis=-1)

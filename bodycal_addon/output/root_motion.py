@@ -1,0 +1,130 @@
+"""Where an animation's travel goes (issue 14; DESIGN.md §1 "Root motion", FORMATS.md §4.3).
+Numpy only; applied to the finished `AvatarAnimation` just before the bake, so the engine, its
+joints and every figure measured on them stay the same.
+
+The engine keys the whole motion on the pelvis bone (its `location` in its rest frame), and a
+rig's root bone above it stays at rest. Game rigs (Unreal, Unity, Mixamo with a root) expect the
+travel on the root bone instead. Three modes:
+
+- `root` (the default): when the rig has a root bone above the pelvis (the bone map's `root`
+  segment), that bone stands on the floor under the pelvis bone's head (its rest height along the
+  armature's up) and turns about the vertical with the pelvis's heading (the hip line's direction
+  on the floor); the pelvis is keyed relative to it, so every bone lands where it did. A rig
+  without a root bone keeps the motion on the pelvis.
+- `pelvis`: the engine's keys as they are (the root bone at rest).
+- `in-place`: no travel: the root bone at rest and the pelvis's horizontal motion removed (its
+  floor position held at the first frame's); the height, the turns and the limbs are kept.
+
+Blender's pose rule for a bone whose ancestors up to the root only follow it (identity keys):
+a root posed by rotation D about its head's new place t moves the rest of that chain rigidly,
+P_child = D M_child, H_child = D h_child + t. The pelvis then needs
+basis = M_p^T D^T P_p and location = M_p^T D^T (H_p - t - D h_p), with P_p, H_p its pose before.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body.animation import AvatarAnimation
+from ..core.errors import BodyCalError
+from ..core.transforms import matrix_to_quat, quat_to_matrix
+
+ROOT_MOTIONS = ("root", "pelvis", "in-place")  # the default first
+
+
+def check_root_motion(mode: str) -> str:
+    if mode not in ROOT_MOTIONS:
+        raise BodyCalError(f"unknown root motion '{mode}'", field="root_motion",
+                           hint=f"use one of {', '.join(ROOT_MOTIONS)}")
+    return mode
+
+
+@dataclass
+class RootRest:
+    """What the conversion needs of the rig, in armature space (armature units)."""
+
+    root_bone: str | None  # the bone above the pelvis that carries the travel; None: the rig has none
+    root_matrix: np.ndarray | None  # (3, 3) its bone.matrix_local rotation
+    root_head: np.ndarray | None  # (3,)
+    pelvis_matrix: np.ndarray  # (3, 3) the pelvis bone's (the animation's root_bone)
+    pelvis_head: np.ndarray  # (3,)
+    up: np.ndarray  # (3,) the world's up in armature space (unit)
+    lateral: np.ndarray  # (3,) the rest hip line (right to left) in armature space
+    world_linear: np.ndarray  # (3, 3) the armature object's matrix_world linear part
+
+
+def _turn_about(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) rotations by `angle` (F,) about the unit `axis` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
+    return c * np.eye(3) + s * k + (1.0 - c) * np.outer(axis, axis)
+
+
+def pelvis_pose(anim: AvatarAnimation, rest: RootRest) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3, 3) pose rotations and (F, 3) heads of the pelvis bone in armature space, with its
+    ancestors at rest (the engine's output)."""
+    b = anim.bone_names.index(anim.root_bone)
+    P = rest.pelvis_matrix @ quat_to_matrix(np.asarray(anim.rotations[:, b], float))
+    H = rest.pelvis_head + np.asarray(anim.root_location, float) @ rest.pelvis_matrix.T
+    return P, H
+
+
+def heading(P: np.ndarray, rest: RootRest) -> np.ndarray:
+    """(F,) the pelvis's turn about the vertical since rest (radians, unwrapped): its hip line's
+    direction on the floor. The hip line stays level when the trunk bends forward, so the heading
+    holds through a bow where the pelvis's forward axis would tip towards the floor."""
+    up = rest.up
+    e1 = rest.lateral - np.dot(rest.lateral, up) * up
+    n = np.linalg.norm(e1)
+    if n < 1e-9:
+        raise BodyCalError("the rest hip line is vertical: the heading on the floor is undefined", field="root_motion",
+                           hint="use --root-motion pelvis")
+    e1 /= n
+    e2 = np.cross(up, e1)
+    lat = P @ (rest.pelvis_matrix.T @ rest.lateral)
+    return np.unwrap(np.arctan2(lat @ e2, lat @ e1))
+
+
+def apply_root_motion(anim: AvatarAnimation, rest: RootRest, mode: str, *, own: bool = False) -> AvatarAnimation:
+    """`anim` (the engine's: travel on the pelvis) with its travel put where `mode` says. The
+    result's `bone_locations` holds the root bone's location keys in `root` mode. `own`: the caller
+    gives `anim` away, which is changed and returned (no copy of its rotations: a 10-minute take's
+    are ~90 MB at the bake's peak)."""
+    check_root_motion(mode)
+    if mode == "pelvis" or (mode == "root" and rest.root_bone is None):
+        return anim
+    out = anim if own else copy.copy(anim)
+    if not own:
+        out.rotations = np.array(anim.rotations, float, copy=True)
+    out.bone_locations = dict(anim.bone_locations)
+    P, H = pelvis_pose(anim, rest)
+    Mp, hp, up = rest.pelvis_matrix, rest.pelvis_head, rest.up
+    pel = anim.bone_names.index(anim.root_bone)
+    if mode == "in-place":
+        drift = H - H[0]
+        drift -= (drift @ up)[:, None] * up
+        out.root_location = (H - drift - hp) @ Mp
+        world_drift = (drift @ rest.world_linear.T).astype(np.float32)
+        out.joints_world = {j: v - world_drift for j, v in anim.joints_world.items()}
+        out.targets = {j: v - world_drift for j, v in anim.targets.items()}
+        out.notes = [*anim.notes, "in place: the pelvis's horizontal travel removed"]
+        return out
+    Mr, hr = rest.root_matrix, rest.root_head
+    D = _turn_about(up, heading(P, rest))
+    Hr = H - ((H - hr) @ up)[:, None] * up  # on the root's rest floor, under the pelvis's head
+    t = Hr - D @ hr
+    Dt = np.swapaxes(D, -1, -2)
+    out.rotations[:, pel] = matrix_to_quat(Mp.T @ Dt @ P)
+    out.root_location = ((Dt @ (H - t - D @ hp)[..., None])[..., 0]) @ Mp
+    root_basis = matrix_to_quat(Mr.T @ D @ Mr)
+    if rest.root_bone in anim.bone_names:
+        out.rotations[:, anim.bone_names.index(rest.root_bone)] = root_basis
+    else:
+        out.bone_names = [*anim.bone_names, rest.root_bone]
+        out.rotations = np.concatenate([out.rotations, root_basis[:, None]], axis=1)
+    out.bone_locations[rest.root_bone] = (Hr - hr) @ Mr
+    out.notes = [*anim.notes, f"root motion on '{rest.root_bone}'"]
+    return out

@@ -1,0 +1,1 @@
+"""Tracker recordings: the model, coordinates, segments, gaps, roles, filters and readers."""

@@ -1,0 +1,189 @@
+"""Identify tracker roles from the T-pose (AvatarGo §3.2: "fitting a plane through the
+location of all tracking devices, to then automatically identify each tracker's role based on
+their relative location on the plane").
+
+In a T-pose every device lies near the performer's frontal plane. The plane's normal (made
+horizontal) is the facing axis. Its sign: the HMD (in front of the face) and the foot trackers (on
+top of the feet) lie ahead of the plane; when that margin is too small to trust, an upright HMD's
+view direction decides (local -Z: OpenXR view space, also Blender's camera convention; see
+coords.py for how device frames are converted). Left = up x forward. Then, on the plane:
+highest = head, the two far lateral = hands, lowest per side = feet, and the rest by height and
+lateral distance: central devices are pelvis (waist) and chest (above), lateral ones above the
+waist are upper arm (nearer) and forearm (farther), below it thigh (higher) and shin (lower).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.errors import BodyCalError
+from ..core.geometry import fit_plane
+from ..core.transforms import rotate
+from .model import Recording
+
+HMD_FORWARD_LOCAL = np.array([0.0, 0.0, -1.0])
+HMD_UP_LOCAL = np.array([0.0, 1.0, 0.0])
+GEOMETRY_MARGIN = 0.03  # metres: HMD offset + mean foot offset ahead of the T-pose plane
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def tpose_positions(rec: Recording) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Mean device positions over the middle half of the first tpose segment: (D, 3), (D,) tracked, info."""
+    segs = rec.segments_of("tpose")
+    if not segs:
+        raise BodyCalError("no tpose segment: roles cannot be identified", source=rec.source or rec.name,
+                           field="segments", hint="record a T-pose or give every device a role")
+    s = segs[0]
+    quarter = 0.25 * (s.end - s.start)
+    frames = rec.frames(s.start + quarter, s.end - quarter)
+    if frames.size == 0:
+        frames = rec.frames(s.start, s.end)
+    if frames.size == 0:
+        raise BodyCalError(f"the tpose segment {s.start:g}..{s.end:g} s holds no frame", source=rec.source or rec.name,
+                           field="segments")
+    valid = rec.valid[frames]
+    count = valid.sum(axis=0)
+    pos = (rec.positions[frames] * valid[..., None]).sum(axis=0) / np.maximum(count, 1)[:, None]
+    return pos, count > 0, {"frames": frames, "segment": s}
+
+
+def _facing(rec: Recording, pos: np.ndarray, tracked: np.ndarray, normal: np.ndarray, head: int,
+            frames: np.ndarray) -> tuple[np.ndarray, str]:
+    """Forward (horizontal unit vector) and how it was decided.
+
+    Geometry first: the HMD sits in front of the face and foot trackers on top of the feet, so both
+    are ahead of the plane through the devices (a few cm each; `GEOMETRY_MARGIN` in total). When that
+    is unclear, an upright HMD (local +Y within 45 degrees of up) looks along its local -Z."""
+    fwd = normal - (normal @ UP) * UP
+    if np.linalg.norm(fwd) < 1e-6:
+        raise BodyCalError("the devices do not span a vertical plane in the tpose segment",
+                           source=rec.source or rec.name, field="segments",
+                           hint="stand in a T-pose with arms spread")
+    fwd /= np.linalg.norm(fwd)
+    idx = np.flatnonzero(tracked)
+    centre = pos[idx].mean(axis=0)
+    offset = (pos - centre) @ fwd
+    others = [i for i in idx if i != head]
+    feet = sorted(others, key=lambda i: pos[i, 2])[:2] if len(others) >= 4 else []
+    cue = offset[head] + (float(np.mean(offset[feet])) if feet else 0.0)
+    if abs(cue) >= GEOMETRY_MARGIN:
+        return (fwd if cue > 0 else -fwd), "HMD and feet ahead of the body plane"
+    if rec.devices[head].kind == "hmd":
+        ok = rec.valid[frames, head]
+        if ok.any():
+            q = rec.rotations[frames[ok], head]
+            look = rotate(q, HMD_FORWARD_LOCAL).mean(axis=0)
+            up_axis = rotate(q, HMD_UP_LOCAL).mean(axis=0)
+            look_h = look - (look @ UP) * UP
+            upright = up_axis @ UP > np.cos(np.radians(45)) * np.linalg.norm(up_axis)
+            if upright and abs(look_h @ fwd) > 0.5 * np.linalg.norm(look):
+                return (fwd if look_h @ fwd > 0 else -fwd), "HMD view direction"
+    return (fwd if cue >= 0 else -fwd), "HMD and feet ahead of the body plane (weak)"
+
+
+def identify_roles(rec: Recording) -> dict[str, str]:
+    """Role of every device (name -> role) from the tpose segment, AvatarGo §3.2. Devices already
+    holding a role keep it; their roles are not given to others. Raises BodyCalError when the
+    T-pose cannot be read (no segment, fewer than 4 tracked devices, no vertical plane)."""
+    return _classify(rec)[0]
+
+
+def _classify(rec: Recording) -> tuple[dict[str, str], str]:
+    src = rec.source or rec.name
+    pos, tracked, info = tpose_positions(rec)
+    idx = np.flatnonzero(tracked)
+    if idx.size < 4:
+        raise BodyCalError(f"only {idx.size} devices tracked in the tpose segment, at least 4 needed (head, hands, "
+                           "a foot or the pelvis)", source=src, field="segments")
+    plane = fit_plane(pos[idx], name=f"{src}: tpose plane")
+    fixed = {d.role: i for i, d in enumerate(rec.devices) if d.role}
+    roles: dict[int, str] = {}
+    free = set(int(i) for i in idx)
+
+    def take(i, role):
+        roles[i] = role
+        free.discard(i)
+
+    # Head: the HMD (or the highest device).
+    if "head" in fixed:
+        head = fixed["head"]
+    else:
+        hmds = [i for i in free if rec.devices[i].kind == "hmd"]
+        head = max(hmds or free, key=lambda i: pos[i, 2])
+    take(head, "head")
+    fwd, how = _facing(rec, pos, tracked, plane.normal, head, info["frames"])
+    left = np.cross(UP, fwd)
+    u = (pos - pos[head]) @ left  # lateral coordinate, + = performer's left
+    floor = pos[idx, 2].min()
+    height = max(pos[head, 2] - floor, 0.5)  # head height above the lowest device
+    for role, i in fixed.items():  # keep given roles
+        if i in free:
+            take(i, role)
+
+    def side_of(i):
+        return "l" if u[i] > 0 else "r"
+
+    # Hands: farthest to each side (controllers / gloves first), AvatarGo: "the two far lateral".
+    for s, sign in (("l", 1.0), ("r", -1.0)):
+        if f"hand_{s}" in fixed:
+            continue
+        cands = [i for i in free if sign * u[i] > 0.25 * height]
+        preferred = [i for i in cands if rec.devices[i].kind in ("controller", "rigid_body")]
+        if preferred or cands:
+            take(max(preferred or cands, key=lambda i: sign * u[i]), f"hand_{s}")
+    # Feet: the two lowest devices near the floor, left/right by the lateral coordinate.
+    feet_free = [r for r in ("foot_l", "foot_r") if r not in fixed]
+    low = sorted((i for i in free if pos[i, 2] - floor < 0.15 * height), key=lambda i: pos[i, 2])[:len(feet_free)]
+    if len(low) == 2:
+        a, b = sorted(low, key=lambda i: -u[i])
+        take(a, "foot_l")
+        take(b, "foot_r")
+    elif len(low) == 1:
+        role = f"foot_{side_of(low[0])}" if len(feet_free) == 2 else feet_free[0]
+        take(low[0], role)
+    z_rel = (pos[:, 2] - floor) / height
+    waist = 0.55
+    central = 0.09 * height
+    rest = sorted(free, key=lambda i: -pos[i, 2])
+    # Central devices above the knees: chest (higher) and pelvis (lower).
+    trunk = [i for i in rest if abs(u[i]) < central and z_rel[i] > 0.4]
+    if len(trunk) >= 2 and "chest" not in fixed and "pelvis" not in fixed:
+        take(trunk[0], "chest")
+        take(trunk[1], "pelvis")
+    elif len(trunk) == 1 or (trunk and ("chest" in fixed) != ("pelvis" in fixed)):
+        role = "pelvis" if "pelvis" not in fixed and (z_rel[trunk[0]] < 0.7 or "chest" in fixed) else "chest"
+        if role not in fixed:
+            take(trunk[0], role)
+    # Arms (above the waist) and legs (below), per side.
+    for s, sign in (("l", 1.0), ("r", -1.0)):
+        side = [i for i in free if sign * u[i] > 0]
+        arm = sorted((i for i in side if z_rel[i] >= waist), key=lambda i: sign * u[i])
+        leg = sorted((i for i in side if z_rel[i] < waist), key=lambda i: -pos[i, 2])
+        for i, role in zip(arm, (f"upperarm_{s}", f"forearm_{s}")):
+            if role not in fixed:
+                take(i, role)
+        for i, role in zip(leg, (f"thigh_{s}", f"shin_{s}")):
+            if role not in fixed:
+                take(i, role)
+    # A single remaining device in the minimal profile is the waist tracker.
+    if len(free) == 1 and "pelvis" not in fixed and "pelvis" not in roles.values():
+        take(free.pop(), "pelvis")
+    names = {rec.devices[i].name: r for i, r in roles.items()}
+    return names, f"facing from the {how}, {len(free)} device(s) left unidentified"
+
+
+def apply_roles(rec: Recording) -> dict[str, str]:
+    """Fill in the missing roles of `rec` from its tpose segment and say so in rec.notes."""
+    found, how = _classify(rec)
+    assigned = {}
+    for d in rec.devices:
+        if d.role is None and d.name in found:
+            d.role = found[d.name]
+            assigned[d.name] = d.role
+    missing = [d.name for d in rec.devices if d.role is None]
+    text = ", ".join(f"{n}={r}" for n, r in assigned.items()) or "none"
+    note = f"roles identified from the tpose segment (AvatarGo §3.2, {how}): {text}"
+    if missing:
+        note += f"; no role for {', '.join(missing)}"
+    rec.notes.append(note)
+    return assigned
