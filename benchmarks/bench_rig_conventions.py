@@ -136,7 +136,7 @@ def _measure(arm, sessions, root_motion: str, rigify_target: str = "fk", quick: 
     gaps, floors, mesh_floors = [], [], []
     for rec, truth, user in sessions:
         anim = retarget(rec, user, avatar, "egocentric")
-        keyed = rig_output.for_bake(anim, arm, root_motion, rigify_target)
+        keyed = rig_output.for_bake(anim, arm, avatar_rig.bone_map_for(arm), root_motion, rigify_target)
         contacts = [c for c in truth.contacts if c["target"].startswith("mesh:")]
         for g in mesh_metrics.contact_gaps(arm, avatar, anim, contacts, max_frames=6 if quick else 12, posed=keyed):
             gaps.append(g)

@@ -36,16 +36,17 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bodycal_addon.blender import character_source as ts  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
-from bodycal_addon.blender import transfer_scene as ts  # noqa: E402
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar  # noqa: E402
 from bodycal_addon.body import skeleton as sk  # noqa: E402
 from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.retarget import feet  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
+from bodycal_addon.retarget.methods import methods_for  # noqa: E402
 from bodycal_addon.retarget.pose_source import AnimationSource  # noqa: E402
-from bodycal_addon.retarget.transfer import TRANSFER_METHODS, transfer  # noqa: E402
+from bodycal_addon.retarget.transfer import transfer  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 
 CONTACT_MOTIONS = ("clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "squat")
@@ -94,12 +95,12 @@ def main(quick: bool = False):
     src_gap = np.concatenate(mesh_metrics.contact_gaps(src_arm, src_model, src_anim, contacts, max_frames,
                                                        meshes[SOURCE_AVATAR]))
     src_floor, src_slide = _floor_and_slide(src_model, src_anim, planted, src_fps)
-    contact = {m: {} for m in TRANSFER_METHODS}
-    speed = {m: [] for m in TRANSFER_METHODS}
+    contact = {m: {} for m in methods_for("animation")}
+    speed = {m: [] for m in methods_for("animation")}
     for name, arm, model in avatars:
         if name == SOURCE_AVATAR:
             continue
-        for method in TRANSFER_METHODS:
+        for method in methods_for("animation"):
             anim, fps = _timed(src_model, src_anim.rotations, src_anim.root_location, src_anim.time, model, method)
             speed[method].append(fps / src_fps)
             gap = np.concatenate(mesh_metrics.contact_gaps(arm, model, anim, contacts, max_frames, meshes[name]))
@@ -107,7 +108,7 @@ def main(quick: bool = False):
             contact[method][name] = {"contact_gap_mm": metrics.stats_mm(gap), "floor_error_mm": floor,
                                      "foot_slide_mm_per_s": slide, "frames_per_s": round(fps, 1)}
     # Real motion: the CMU clips, bare skeletons with estimated bodies.
-    cmu = {m: {} for m in TRANSFER_METHODS}
+    cmu = {m: {} for m in methods_for("animation")}
     clips = sorted((paths.data_dir() / "motion" / "cmu_bvh").glob("*.bvh"))
     for clip in clips[:1] if quick else clips:
         saved = bpy.context.scene
@@ -120,7 +121,7 @@ def main(quick: bool = False):
         del saved
         avatars = _avatars()
         for name, _arm, model in avatars:
-            for method in TRANSFER_METHODS:
+            for method in methods_for("animation"):
                 anim, fps = _timed(src.model, src.basis, src.locations, src.time, model, method)
                 speed[method].append(fps / src.fps)
                 floor, slide = _floor_and_slide(model, anim, stance, src.fps)

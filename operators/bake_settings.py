@@ -1,31 +1,56 @@
-"""The bake settings Retarget and Bake and Transfer Animation share (issue 15's key reduction and
-frame rate, issue 14's root motion and Rigify target): one set of sidebar properties, mixed into
-each panel's settings group, and the BakeOptions they make."""
+"""What Retarget and Bake and Transfer Animation share, declared once: the settings group
+`scene.bodycal_bake` (the avatar to animate, where the performance plays, feet, root motion, the
+Rigify target, key reduction and frame rate) and the operator mixin `BakeOperator`, which runs
+any take through the one session path (`bodycal_addon/blender/session.py`): read the take and
+the targets on the main thread, compute in a worker thread (progress, Esc cancels), bake on the
+main thread once every target is computed."""
 
 import math
 
 import bpy
 
+from ..bodycal_addon.blender import session
 from ..bodycal_addon.blender.bake import BakeOptions
 from ..bodycal_addon.output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..bodycal_addon.retarget.methods import METHOD_INFO, methods_for
+from .background_work import BackgroundWork
+from .reporting import reports_errors
 
-ROOT_MOTION_ITEMS = [  # retarget/root_motion.py
+PLACEMENT_ITEMS = [  # retarget/placement.py
+    ("object", "Avatar's Spot", "The performance plays relative to the avatar: the performer's (or source "
+     "character's) place and heading land on the armature's origin and the way the avatar faces"),
+    ("performer", "Performer's Spot", "The avatar plays where the performer (or the source character) was, on "
+     "its own floor"),
+]
+ROOT_MOTION_ITEMS = [  # output/root_motion.py
     ("root", "Root Bone", "The travel and heading on the rig's root bone when it has one above the pelvis "
      "(game engines' root motion); else on the pelvis"),
     ("pelvis", "Pelvis", "The travel on the pelvis; the root bone stays at rest"),
     ("in-place", "In Place", "No horizontal travel: the character stays on its spot"),
 ]
-RIGIFY_TARGET_ITEMS = [  # retarget/rigify.py
+RIGIFY_TARGET_ITEMS = [  # output/rigify.py
     ("fk", "FK Controls", "A generated Rigify rig is keyed on its FK controls (IK switched to FK): ready to edit"),
     ("def", "DEF Bones", "A generated Rigify rig is keyed on its deforming DEF- bones: for export"),
 ]
 
 
-class BakeSettings:
-    """Mixed into a PropertyGroup (Blender registers annotations a base class declares: checked on
-    4.2, 4.5 and 5.0). The group adds its own `output_fps`, whose 0 means the source's rate for a
-    transfer and the scene's for a retarget."""
+def method_items(source_kind: str) -> list[tuple[str, str, str]]:
+    """The sidebar's method menu for a kind of take, from the one registry (retarget/methods.py)."""
+    return [(name, METHOD_INFO[name].label, METHOD_INFO[name].description) for name in methods_for(source_kind)]
 
+
+def _is_armature(_self, obj):
+    return obj.type == "ARMATURE"
+
+
+class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
+    armature: bpy.props.PointerProperty(
+        name="Avatar", type=bpy.types.Object, poll=_is_armature,
+        description="Armature to animate (default: the selected armatures)")
+    placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
+    plant_feet: bpy.props.BoolProperty(
+        name="Plant Feet", default=True,
+        description="Hold each foot still and on the floor while the performer stands on it (every method)")
     root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root")
     rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk")
     replace: bpy.props.BoolProperty(
@@ -33,6 +58,10 @@ class BakeSettings:
         description="Overwrite an existing action of the same name instead of creating a new one")
     push_to_nla: bpy.props.BoolProperty(name="Push to NLA", default=False,
                                         description="Put the baked action on a new NLA track")
+    output_fps: bpy.props.IntProperty(
+        name="Frame Rate", default=0, min=0, max=1000,
+        description="Frame rate of the baked action, timing kept (0: the scene's rate; another rate also "
+                    "becomes the scene's)")
     tolerance: bpy.props.FloatProperty(
         name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0),
         precision=3, subtype="ANGLE",
@@ -42,14 +71,18 @@ class BakeSettings:
         name="Location Tolerance", default=DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
         precision=4, subtype="DISTANCE", unit="LENGTH",
         description="Key reduction of the root bone's location: stays within this distance of the every-frame bake")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 
-    def bake_options(self, context, fps: float | None) -> BakeOptions:
-        """The settings as the bake takes them: degrees, and world millimetres whatever the
-        scene's unit scale."""
+    def bake_options(self, context) -> BakeOptions:
+        """The settings as the bake takes them: degrees, world millimetres whatever the scene's
+        unit scale, and the output rate (the scene's when 0)."""
+        render = context.scene.render
+        fps = float(self.output_fps) if self.output_fps else render.fps / render.fps_base
         return BakeOptions(math.degrees(self.tolerance),
                            self.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps,
                            self.root_motion, self.rigify_target)
+
+    def session_settings(self, method: str) -> session.Settings:
+        return session.Settings(method, self.plant_feet, self.placement)
 
 
 def can_bake_in(cls, context) -> bool:
@@ -58,3 +91,93 @@ def can_bake_in(cls, context) -> bool:
         cls.poll_message_set("Switch to Object or Pose Mode to bake")
         return False
     return True
+
+
+def selected_armatures(context, exclude=None) -> list:
+    """The avatar picked in the bake settings, else every selected armature (the active one first)
+    but `exclude` (a transfer's source)."""
+    picked = context.scene.bodycal_bake.armature
+    if picked is not None:
+        return [picked]
+    active = context.active_object
+    chosen = ([active] if active is not None and active.type == "ARMATURE" else []) + [
+        o for o in context.selected_objects if o.type == "ARMATURE" and o != active]
+    return [o for o in chosen if o != exclude]
+
+
+class BakeOperator(BackgroundWork):
+    """Mixin for an operator that bakes a take onto armatures. The operator says where its take
+    comes from (`_read_take(context)`), which armatures it animates (`_armatures(context)`), the
+    method (`_method(context)`) and its own settings group (`_own_settings(context)`, which keeps
+    `last_result`); this mixin does the rest the same way for every kind of take. From scripts and
+    in background mode `execute` runs the same steps synchronously."""
+
+    def _read_take(self, context):
+        raise NotImplementedError
+
+    def _armatures(self, context) -> list:
+        raise NotImplementedError
+
+    def _method(self, context) -> str:
+        raise NotImplementedError
+
+    def _own_settings(self, context):
+        raise NotImplementedError
+
+    def _prepare(self, context):
+        """The take, the targets and the settings, read on the main thread (the worker touches no
+        Blender data); what the take and targets say is reported first, like the command line,
+        before the (long) work."""
+        take = self._read_take(context)
+        targets = [session.prepare_target(arm) for arm in self._armatures(context)]
+        for target in targets:
+            for line in target.warnings:
+                self.report({"WARNING"}, line)
+        for note in take.notes:
+            self.report({"INFO"}, note)
+        return take, targets, context.scene.bodycal_bake.session_settings(self._method(context))
+
+    @staticmethod
+    def _compute(take, targets, settings, progress=None, cancel=None) -> list:
+        n = len(targets)
+        return [session.compute(take, target, settings, cancel=cancel,
+                                progress=None if progress is None else (lambda f, k=k: progress((k + f) / n)))
+                for k, target in enumerate(targets)]
+
+    def _finish(self, context, take, targets, computed):
+        """Bake every target: only once all of them were computed."""
+        bake = context.scene.bodycal_bake
+        summaries = [session.bake(take, target, result, options=bake.bake_options(context), replace=bake.replace,
+                                  push_to_nla=bake.push_to_nla, set_scene_rate=bool(bake.output_fps))
+                     for target, result in zip(targets, computed)]
+        self._own_settings(context).last_result = "; ".join(s.line() for s in summaries)
+        for summary in summaries:
+            for line in summary.report_lines():
+                self.report({"INFO"}, line)
+        return {"FINISHED"}
+
+    @reports_errors
+    def execute(self, context):
+        take, targets, settings = self._prepare(context)
+        return self._finish(context, take, targets, self._compute(take, targets, settings))
+
+    @reports_errors
+    def invoke(self, context, _event):
+        take, targets, settings = self._prepared = self._prepare(context)
+        return self._start(context, lambda progress, cancel: self._compute(take, targets, settings,
+                                                                            progress=progress, cancel=cancel))
+
+    def _done(self, context, computed):
+        take, targets, _settings = self._prepared
+        return self._finish(context, take, targets, computed)
+
+
+CLASSES = (BODYCAL_PG_bake_settings,)
+
+
+def register_properties():
+    bpy.types.Scene.bodycal_bake = bpy.props.PointerProperty(type=BODYCAL_PG_bake_settings)
+
+
+def unregister_properties():
+    del bpy.types.Scene.bodycal_bake

@@ -1,43 +1,23 @@
-"""Retarget and bake: the last step of the sidebar flow.
-
-The numpy pipeline runs in a worker thread (it never touches bpy) while a modal timer shows
-progress and listens for Esc; the bake (the only scene write) runs on the main thread once the
-arrays are ready. From scripts and in background mode `execute` runs the same steps synchronously.
-"""
+"""Retarget and bake: the last step of the sidebar flow, the scene's recording as the take of the
+shared bake (operators/bake_settings.BakeOperator); and the export of a baked avatar."""
 
 from pathlib import Path
 
 import bpy
 from bpy_extras.io_utils import ExportHelper
 
-from ..bodycal_addon.blender import retarget_scene
+from ..bodycal_addon.blender import session
 from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
 from ..bodycal_addon.recording.filters import OneEuro
-from .background_work import BackgroundWork
-from .bake_settings import BakeSettings, can_bake_in
+from ..bodycal_addon.retarget.takes import RecordingTake
+from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .reporting import reports_errors
 
-METHOD_ITEMS = [
-    ("egocentric", "Egocentric", "Keep self-contacts: egocentric mapping onto the avatar's surface + IK"),
-    ("offsets", "Exact Offsets", "AvatarGo: exact tracker-to-joint offsets from the T-pose + IK"),
-    ("rotations", "Rotation Copy", "Copy the performer's bone rotations (the usual retargeting baseline)"),
-]
-PLACEMENT_ITEMS = [  # retarget/placement.py
-    ("object", "Avatar's Spot", "The performance plays relative to the avatar: the performer's play-area origin "
-     "and forward land on the armature's origin and the way the avatar faces"),
-    ("performer", "Performer's Spot", "The avatar plays where the performer was in the room (with the imported "
-     "devices), on its own floor"),
-]
 
-class BODYCAL_PG_retarget_settings(BakeSettings, bpy.types.PropertyGroup):
-    method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="egocentric")
-    armature: bpy.props.PointerProperty(
-        name="Avatar", type=bpy.types.Object, poll=lambda _self, obj: obj.type == "ARMATURE",
-        description="Armature to animate (default: the selected armatures)")
-    placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
-    plant_feet: bpy.props.BoolProperty(
-        name="Plant Feet", default=True,
-        description="Hold each foot still and on the floor while the performer stands on it (every method)")
+class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
+    """What only a recording's bake has (the shared bake settings: scene.bodycal_bake)."""
+
+    method: bpy.props.EnumProperty(name="Method", items=method_items(RecordingTake.kind), default="egocentric")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Devices", default=False,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
@@ -53,23 +33,15 @@ class BODYCAL_PG_retarget_settings(BakeSettings, bpy.types.PropertyGroup):
     filter_rot_beta: bpy.props.FloatProperty(
         name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
-    output_fps: bpy.props.IntProperty(
-        name="Frame Rate", default=0, min=0, max=1000,
-        description="Frame rate of the baked action, timing kept (0: the scene's rate; another rate also "
-                    "becomes the scene's)")
+    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+
+    def one_euro(self) -> OneEuro | None:
+        if not self.use_filter:
+            return None
+        return OneEuro(self.filter_min_cutoff, self.filter_beta, self.filter_rot_min_cutoff, self.filter_rot_beta)
 
 
-def _target_armatures(context) -> list:
-    """The avatar picked in the panel, else every selected armature (the active one first)."""
-    settings = context.scene.bodycal_retarget
-    if settings.armature is not None:
-        return [settings.armature]
-    active = context.active_object
-    selected = [o for o in context.selected_objects if o.type == "ARMATURE" and o != active]
-    return ([active] if active is not None and active.type == "ARMATURE" else []) + selected
-
-
-class BODYCAL_OT_retarget_bake(BackgroundWork, bpy.types.Operator):
+class BODYCAL_OT_retarget_bake(BakeOperator, bpy.types.Operator):
     """Retarget the scene's recording onto the avatar(s) with the chosen method and bake a new action
 on each"""
 
@@ -82,62 +54,26 @@ on each"""
     def poll(cls, context):
         if not can_bake_in(cls, context):
             return False
-        if not _target_armatures(context):
+        if not selected_armatures(context):
             cls.poll_message_set("Pick an avatar armature in the BodyCal tab (or select armatures)")
             return False
-        problem = retarget_scene.missing_inputs(context.scene)
+        problem = session.scene_take_missing(context.scene)
         if problem:
             cls.poll_message_set(problem)
             return False
         return True
 
-    def _inputs(self, context) -> list:
-        st = context.scene.bodycal_retarget
-        cfg = OneEuro(st.filter_min_cutoff, st.filter_beta, st.filter_rot_min_cutoff, st.filter_rot_beta) \
-            if st.use_filter else None
-        inputs = [retarget_scene.gather_inputs(context.scene, arm, st.method, filter=cfg, plant_feet=st.plant_feet,
-                                               placement=st.placement) for arm in _target_armatures(context)]
-        for i in inputs:  # said before the (long) work, like the command line
-            for line in i.warnings:
-                self.report({"WARNING"}, line)
-        return inputs
+    def _read_take(self, context) -> RecordingTake:
+        return session.scene_take(context.scene, self._own_settings(context).one_euro())
 
-    def _finish(self, context, inputs: list, anims: list):
-        """Bake every avatar's animation: only once all of them were computed."""
-        settings = context.scene.bodycal_retarget
-        render = context.scene.render
-        fps = float(settings.output_fps) if settings.output_fps else render.fps / render.fps_base
-        options = settings.bake_options(context, fps)
-        lines = [retarget_scene.bake_and_measure(i, a, replace=settings.replace, push_to_nla=settings.push_to_nla,
-                                                 options=options, set_scene_rate=bool(settings.output_fps)
-                                                 ).line() for i, a in zip(inputs, anims)]
-        settings.last_result = "; ".join(lines)
-        for line in lines:
-            self.report({"INFO"}, line)
-        return {"FINISHED"}
+    def _armatures(self, context) -> list:
+        return selected_armatures(context)
 
-    @reports_errors
-    def execute(self, context):
-        inputs = self._inputs(context)
-        anims = [retarget_scene.compute(i) for i in inputs]
-        return self._finish(context, inputs, anims)
+    def _method(self, context) -> str:
+        return self._own_settings(context).method
 
-    # --- modal: compute in a worker thread, Esc cancels, bake on the main thread --------------
-
-    @reports_errors
-    def invoke(self, context, _event):
-        inputs = self._inputs(context)
-        self._inputs_cache = inputs
-        n = len(inputs)
-
-        def work(progress, cancel):
-            return [retarget_scene.compute(i, progress=lambda f, k=k: progress((k + f) / n), cancel=cancel)
-                    for k, i in enumerate(inputs)]
-
-        return self._start(context, work)
-
-    def _done(self, context, anims):
-        return self._finish(context, self._inputs_cache, anims)
+    def _own_settings(self, context):
+        return context.scene.bodycal_retarget
 
 
 class BODYCAL_OT_export_animation(bpy.types.Operator, ExportHelper):

@@ -1,20 +1,23 @@
 """The sidebar rows of the bake settings Retarget and Bake and Transfer Animation share
-(operators/bake_settings.py)."""
+(`scene.bodycal_bake`, operators/bake_settings.py)."""
 
 
-def draw_rig_output(col, settings) -> None:
-    col.prop(settings, "root_motion")
-    col.prop(settings, "rigify_target")
+def draw_placement(col, bake) -> None:
+    """Where the performance plays and what carries it: placement, root motion, Rigify, feet."""
+    col.prop(bake, "placement")
+    col.prop(bake, "root_motion")
+    col.prop(bake, "rigify_target")
+    col.prop(bake, "plant_feet")
 
 
-def draw_keys(col, settings) -> None:
+def draw_keys(col, bake) -> None:
     row = col.row(align=True)
-    row.prop(settings, "replace", toggle=True)
-    row.prop(settings, "push_to_nla", toggle=True)
+    row.prop(bake, "replace", toggle=True)
+    row.prop(bake, "push_to_nla", toggle=True)
     sub = col.column(align=True)
-    sub.prop(settings, "output_fps")
-    sub.prop(settings, "tolerance")
-    sub.prop(settings, "location_tolerance")
+    sub.prop(bake, "output_fps")
+    sub.prop(bake, "tolerance")
+    sub.prop(bake, "location_tolerance")
 
 
 def draw_last_result(layout, settings) -> None:

@@ -2,7 +2,7 @@
 
 import bpy
 
-from .bake_rows import draw_keys, draw_last_result, draw_rig_output
+from .bake_rows import draw_keys, draw_last_result, draw_placement
 
 
 class BODYCAL_PT_retarget(bpy.types.Panel):
@@ -15,13 +15,11 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        settings = context.scene.bodycal_retarget
+        settings, bake = context.scene.bodycal_retarget, context.scene.bodycal_bake
         col = layout.column()
-        col.prop(settings, "armature")
+        col.prop(bake, "armature")
         col.prop(settings, "method")
-        col.prop(settings, "placement")
-        draw_rig_output(col, settings)
-        col.prop(settings, "plant_feet")
+        draw_placement(col, bake)
         col.prop(settings, "use_filter")
         if settings.use_filter:
             sub = col.column(align=True)
@@ -29,7 +27,7 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
             sub.prop(settings, "filter_beta")
             sub.prop(settings, "filter_rot_min_cutoff")
             sub.prop(settings, "filter_rot_beta")
-        draw_keys(col, settings)
+        draw_keys(col, bake)
         col.operator("bodycal.retarget_bake", icon="ACTION")
         col.operator("bodycal.export_animation", icon="EXPORT")
         draw_last_result(layout, settings)

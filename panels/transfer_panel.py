@@ -1,8 +1,8 @@
-"""Sidebar: transfer another character's animation onto the avatar(s) (issue 16)."""
+"""Sidebar: transfer another character's animation onto the avatar(s)."""
 
 import bpy
 
-from .bake_rows import draw_keys, draw_last_result, draw_rig_output
+from .bake_rows import draw_keys, draw_last_result, draw_placement
 
 
 class BODYCAL_PT_transfer(bpy.types.Panel):
@@ -16,16 +16,14 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        st = context.scene.bodycal_transfer
+        st, bake = context.scene.bodycal_transfer, context.scene.bodycal_bake
         col = layout.column()
         col.prop(st, "source")
         col.prop(st, "action")
-        col.prop(st, "armature")
+        col.prop(bake, "armature", text="Target")
         col.prop(st, "method")
-        col.prop(st, "placement")
-        draw_rig_output(col, st)
-        col.prop(st, "plant_feet")
-        draw_keys(col, st)
+        draw_placement(col, bake)
+        draw_keys(col, bake)
         col.operator("bodycal.transfer_animation", icon="ACTION")
         draw_last_result(layout, st)
 

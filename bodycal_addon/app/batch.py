@@ -81,15 +81,17 @@ from pathlib import Path
 from ..body.bone_presets import load_preset
 from ..core.errors import BodyCalError
 from ..core.outputs import safe_part
+from ..core.paths import ANIMATION_SUFFIXES as SOURCE_SUFFIXES
 from ..core.paths import AVATAR_SUFFIXES, ROOT_DIR
 from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
 from ..recording.filters import OneEuro
-from ..retarget.pipeline import METHODS
+from ..retarget.methods import methods_for
 from ..retarget.placement import PLACEMENTS
-from ..retarget.transfer import TRANSFER_METHODS
 
-SOURCE_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")  # what `bodycal transfer` reads
+METHODS = methods_for("recording")  # every method, the default first (retarget/methods.py)
+TRANSFER_METHODS = methods_for("animation")
+
 
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024

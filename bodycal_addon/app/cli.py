@@ -22,9 +22,11 @@ from ..core.outputs import describe_os_error
 from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
-from ..retarget.pipeline import METHODS
+from ..retarget.methods import methods_for
 from ..retarget.placement import PLACEMENTS
-from ..retarget.transfer import TRANSFER_METHODS
+
+METHODS = methods_for("recording")  # every method, the default first (retarget/methods.py)
+TRANSFER_METHODS = methods_for("animation")
 
 EXIT_OK = 0
 EXIT_USAGE = 2

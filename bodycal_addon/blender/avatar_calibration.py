@@ -15,7 +15,8 @@ import numpy as np
 from ..avatar.rays import surface_from_rays
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
-from . import avatar_rig
+from ..retarget.placement import moved_to
+from . import avatar_rig, avatar_storage
 
 
 def avatar_meshes(arm) -> list:
@@ -117,3 +118,13 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
         raise BodyCalError(f"none of the meshes skinned to it ({', '.join(o.name for o in meshes)}) is in the "
                            "view layer", source=arm.name, hint="include the avatar's collection in the view layer")
     return surface_from_rays(rig, caster, name or arm.name)
+
+
+def avatar_model_for(arm) -> tuple[BodyModel, bool]:
+    """The armature's stored avatar model, brought to where its object stands now (moved, turned
+    or scaled since it was calibrated), or a fresh surface calibration (True: not stored yet; the
+    bake stores it with the action it makes)."""
+    if avatar_storage.has_model(arm):
+        stored = avatar_storage.load_model(arm)
+        return moved_to(stored, np.array(arm.matrix_world, dtype=float)), False
+    return calibrate_avatar(arm), True

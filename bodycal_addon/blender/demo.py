@@ -23,7 +23,8 @@ from ..core.errors import BodyCalError
 from ..output import metrics
 from ..recording.io import load_recording
 from ..retarget.pipeline import METHODS
-from . import avatar_storage, calibration_scene, mesh_metrics, recording_scene, retarget_scene
+from ..retarget.takes import RecordingTake
+from . import avatar_storage, calibration_scene, mesh_metrics, recording_scene, session
 from .avatar_calibration import calibrate_avatar
 
 DEMO_RECORDING = paths.ROOT_DIR / "sample_rigs" / "recordings" / "demo_full.bcrec.json"
@@ -88,6 +89,7 @@ def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
     log(f"performer calibrated from {len(cal.get('steps_used', []))} steps; defaulted: "
         f"{', '.join(cal.get('defaulted', {})) or 'nothing'}")
 
+    take = RecordingTake(rec, user)
     rows = []
     for col, (name, load) in enumerate(_avatar_loaders(only_avatars)):
         avatar = None
@@ -99,14 +101,14 @@ def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
                 log(f"avatar {name}: surface calibrated in {time.perf_counter() - t0:.2f} s")
             avatar_storage.store_model(arm, avatar)
             arm.name = f"{name}.{method}"
-            inputs = retarget_scene.gather_inputs(scene, arm, method, recording=rec, user=user)
-            anim = retarget_scene.compute(inputs)
-            summary = retarget_scene.bake_and_measure(
-                inputs, anim, action_name=f"{rec.name}|{name}|{method}")
+            target = session.prepare_target(arm)
+            computed = session.compute(take, target, session.Settings(method))
+            summary = session.bake(take, target, computed, action_name=f"{rec.name}|{name}|{method}")
+            anim = computed.animation
             touching = [c for c in contacts if c["effector"].split("_")[0] in ("palm", "wrist", "tip")]
-            gaps = mesh_metrics.contact_gaps(arm, inputs.avatar, anim, touching, max_frames=8)
+            gaps = mesh_metrics.contact_gaps(arm, target.avatar, anim, touching, max_frames=8)
             gap = np.abs(np.concatenate(gaps)) if gaps else np.array([np.nan])
-            floor = np.abs(_floor_error(arm, inputs.avatar, anim, planted))
+            floor = np.abs(_floor_error(arm, target.avatar, anim, planted))
             rows.append((name, method, np.nanmedian(gap) * 1000, np.nanpercentile(gap, 95) * 1000,
                          np.nanmedian(floor) * 1000, summary.keys))
             # Measured where it was calibrated; then stood aside. The performance plays relative to

@@ -10,6 +10,7 @@ import copy
 
 import numpy as np
 
+from ..body import naming
 from ..body.animation import AvatarAnimation
 from ..output import rigify
 from ..output.root_motion import RootRest, apply_root_motion, check_root_motion
@@ -21,9 +22,9 @@ def _rest(obj, name: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array([b.matrix_local[i][:3] for i in range(3)], float), np.array(b.head_local[:], float)
 
 
-def root_bone_of(obj, pelvis: str) -> str | None:
+def root_bone_of(obj, pelvis: str, bone_map: naming.BoneMap) -> str | None:
     """The bone map's `root` bone when it is an ancestor of `pelvis` (it carries the travel)."""
-    root = avatar_rig.bone_map_for(obj).bones.get("root")
+    root = bone_map.bones.get("root")
     if not root or root == pelvis or root not in obj.data.bones or pelvis not in obj.data.bones:
         return None
     parent = obj.data.bones[pelvis].parent
@@ -34,24 +35,26 @@ def root_bone_of(obj, pelvis: str) -> str | None:
     return None
 
 
-def root_rest(obj, anim: AvatarAnimation) -> RootRest:
-    bm = avatar_rig.bone_map_for(obj)
+def root_rest(obj, anim: AvatarAnimation, bm: naming.BoneMap) -> RootRest:
     lin = np.array(obj.matrix_world, float)[:3, :3]
     up = np.linalg.solve(lin, np.array([0.0, 0.0, 1.0]))
     lateral = np.zeros(3)
     if bm.bones.get("thigh_l") in obj.data.bones and bm.bones.get("thigh_r") in obj.data.bones:
         lateral = _rest(obj, bm.bones["thigh_l"])[1] - _rest(obj, bm.bones["thigh_r"])[1]
-    root = root_bone_of(obj, anim.root_bone)
+    root = root_bone_of(obj, anim.root_bone, bm)
     rm, rh = _rest(obj, root) if root else (None, None)
     pm, ph = _rest(obj, anim.root_bone)
     return RootRest(root, rm, rh, pm, ph, up / np.linalg.norm(up), lateral, lin)
 
 
-def with_root_motion(anim: AvatarAnimation, obj, mode: str, own: bool = False) -> AvatarAnimation:
+def with_root_motion(anim: AvatarAnimation, obj, bone_map: naming.BoneMap, mode: str, own: bool = False
+                     ) -> AvatarAnimation:
+    """The travel where `mode` says (output/root_motion.py), on the bones `bone_map` (the one the
+    animation was solved with) names."""
     check_root_motion(mode)
     if mode == "pelvis":
         return anim
-    return apply_root_motion(anim, root_rest(obj, anim), mode, own=own)
+    return apply_root_motion(anim, root_rest(obj, anim, bone_map), mode, own=own)
 
 
 # --- a generated Rigify rig (retarget/rigify.py) ----------------------------------------------------
@@ -189,11 +192,13 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
                            [*anim.notes, note], located, switches)
 
 
-def for_bake(anim: AvatarAnimation, obj, root_motion: str, rigify_target: str, own: bool = False) -> AvatarAnimation:
+def for_bake(anim: AvatarAnimation, obj, bone_map: naming.BoneMap, root_motion: str, rigify_target: str,
+             own: bool = False) -> AvatarAnimation:
     """The animation the bake keys on `obj`: travel where `root_motion` says, and a generated
-    Rigify rig's DEF- pose carried onto its controls or DEF- bones. `own`: `anim` is given away
-    and may be changed in place."""
-    anim = with_root_motion(anim, obj, root_motion, own)
+    Rigify rig's DEF- pose carried onto its controls or DEF- bones. `bone_map`: the map the
+    animation was solved with (the avatar model's). `own`: `anim` is given away and may be changed
+    in place."""
+    anim = with_root_motion(anim, obj, bone_map, root_motion, own)
     if avatar_rig.is_rigify_generated(obj):
         anim = rigify_animation(anim, obj, rigify_target)
     return anim

@@ -14,6 +14,9 @@ ROOT_DIR = PACKAGE_DIR.parent  # the repository / extension root
 # when imported from the repository): this module is `<that>.bodycal_addon.core.paths`.
 EXTENSION_ROOT = __package__.removesuffix("bodycal_addon.core").rstrip(".")
 AVATAR_SUFFIXES = (".blend", ".fbx", ".glb", ".gltf", ".vrm")
+# The files a character's animation is read from (`bodycal transfer`, batch `[[animations]]`):
+# a .blend, or what Blender's importers read.
+ANIMATION_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")
 
 
 def data_dir() -> Path | None:

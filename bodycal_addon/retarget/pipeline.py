@@ -37,6 +37,7 @@ from . import egocentric as ego
 from . import feet, ik
 from . import offsets as ofs
 from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
+from .methods import check_method, methods_for
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource, RecordingSource
 from .user_animation import _trackers, pose_finger_chain, sacrum_toward_hip_line
@@ -70,8 +71,7 @@ def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.n
 
 
 def _check_method(avatar: BodyModel, method: str) -> None:
-    if method not in METHOD_CLASSES:
-        raise BodyCalError(f"unknown method '{method}'", field="method", hint=f"use one of {', '.join(METHODS)}")
+    check_method(method, "recording")
     if avatar.kind != "avatar":
         raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
                            field="kind")
@@ -488,7 +488,7 @@ class ExactOffsets(Method):
 
 
 METHOD_CLASSES: dict[str, type[Method]] = {m.name: m for m in (Egocentric, ExactOffsets, RotationCopy)}
-METHODS = tuple(METHOD_CLASSES)  # the method names, the default first
+METHODS = methods_for("recording")  # every method (a recording takes them all), the default first
 
 
 def _surface_bones(model: BodyModel) -> BodyModel:

@@ -20,20 +20,11 @@ import numpy as np
 from ..avatar.estimate import sole_depth
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
-from ..core.errors import BodyCalError
 from .avatar_pose import AvatarRig
+from .methods import check_method
 from .pipeline import run_source
 from .placement import check_placement, play_area_to_world, rig_matrix, transformed_avatar
 from .pose_source import AnimationSource
-
-TRANSFER_METHODS = ("egocentric", "rotations")  # the default first; offsets need trackers
-
-
-def check_method(method: str) -> str:
-    if method not in TRANSFER_METHODS:
-        raise BodyCalError(f"unknown transfer method '{method}'", field="method",
-                           hint=f"use one of {', '.join(TRANSFER_METHODS)}")
-    return method
 
 
 def source_in_play_area(source: BodyModel, placement: str = "object") -> tuple[BodyModel, np.ndarray]:
@@ -54,7 +45,7 @@ def transfer(source: BodyModel, basis: np.ndarray, locations: np.ndarray, time: 
     """The source character's animation (`basis` (F, N, 4) pose-bone quaternions in the order of
     its rig's bone names, `locations` (F, N, 3) or the pelvis bone's (F, 3), `time` (F,) s) on
     `avatar`, by `method` (egocentric or rotations). Bad inputs raise one BodyCalError."""
-    check_method(method)
+    check_method(method, "animation")
     moved, _ = source_in_play_area(source, placement)
     src = AnimationSource(moved, basis, locations, time, name or source.name)
     anim = run_source(src, avatar, method, chunk_frames=chunk_frames, progress=progress, cancel=cancel,

@@ -238,17 +238,19 @@ def test_saving_does_not_copy_the_baked_action(tmp_path):
 def test_a_released_animation_bakes_the_same_keys(take):
     """The command gives its animation away (release): it is keyed from float32 rotations, Blender's
     own precision, and the action is the one the kept animation bakes, key for key."""
-    from bodycal_addon.blender import retarget_scene
+    from bodycal_addon.blender import session
     from bodycal_addon.blender.fcurves import object_fcurves, read_keys
+    from bodycal_addon.retarget.takes import RecordingTake
 
     actions = []
     for release in (False, True):
         bpy.ops.wm.read_homefile(use_empty=True)
         arm, _mesh, _spec = rigs.build_procedural_avatar()
-        inputs = retarget_scene.gather_inputs(bpy.context.scene, arm, "egocentric", recording=take["rec"],
-                                              user=take["user"])
-        anim = retarget_scene.compute(inputs)
-        summary = retarget_scene.bake_and_measure(inputs, anim, release=release)
+        target = session.prepare_target(arm)
+        recording_take = RecordingTake(take["rec"], take["user"])
+        computed = session.compute(recording_take, target, session.Settings("egocentric"))
+        anim = computed.animation
+        summary = session.bake(recording_take, target, computed, release=release)
         assert (anim.rotations.dtype == np.float32) == release
         curves = object_fcurves(arm)
         actions.append((summary.keys, {k: np.stack(read_keys(fc)) for k, fc in curves.items()}))
@@ -263,7 +265,7 @@ def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
     summary line names it, and only it (the smooth bones are thinned); a tolerance of 0 asks
     for every frame, so nothing is named."""
     from bodycal_addon.blender.bake import DENSE_FRACTION
-    from bodycal_addon.blender.retarget_scene import RetargetSummary
+    from bodycal_addon.blender.session import Summary
     from bodycal_addon.body.animation import AvatarAnimation
     from bodycal_addon.core import transforms as tf
 
@@ -281,6 +283,6 @@ def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
         arm, _mesh, _spec = rigs.build_procedural_avatar()
         result = bake_animation(anim, arm, fps=90.0, frame_start=1.0, tolerance_deg=tol)
         assert result.dense_bones == named
-        line = RetargetSummary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0,
-                               samples=result.samples, fps=90.0, dense_bones=result.dense_bones).line()
+        line = Summary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0, 90.0,
+                       samples=result.samples, dense_bones=result.dense_bones).line()
         assert (f"1 bone kept over {DENSE_FRACTION:.0%} of the frames (spine_02)" in line) == bool(named), line

@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene, retarget_scene
+from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene
+from bodycal_addon.blender import session as bake_session
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar
 from bodycal_addon.core import paths
 from bodycal_addon.output import metrics
 from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget.takes import RecordingTake
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -41,13 +43,12 @@ def _avatar(matrix=None, body_scale=1.0):
     return arm
 
 
-def _bake(arm, session, placement="object"):
-    rec, _truth, user = session
-    inputs = retarget_scene.gather_inputs(bpy.context.scene, arm, "egocentric", recording=rec, user=user,
-                                          placement=placement)
-    anim = retarget_scene.compute(inputs)
-    retarget_scene.bake_and_measure(inputs, anim, set_scene_rate=True)
-    return inputs, anim
+def _bake(arm, recorded, placement="object"):
+    rec, _truth, user = recorded
+    take, target = RecordingTake(rec, user), bake_session.prepare_target(arm)
+    computed = bake_session.compute(take, target, bake_session.Settings("egocentric", placement=placement))
+    bake_session.bake(take, target, computed, set_scene_rate=True)
+    return target, computed.animation
 
 
 def _posed_heads(arm, frames, bones=("pelvis", "hand_l", "foot_r", "head")) -> np.ndarray:
@@ -59,15 +60,15 @@ def _posed_heads(arm, frames, bones=("pelvis", "hand_l", "foot_r", "head")) -> n
     return np.array(out)
 
 
-def _figures(arm, inputs, anim, truth, floor_z: float) -> dict[str, float]:
+def _figures(arm, target, anim, truth, floor_z: float) -> dict[str, float]:
     """Median contact gap per contact (mm, the evaluated mesh) and the planted soles' height above
     the avatar's floor (median and worst, mm)."""
-    gaps = mesh_metrics.contact_gaps(arm, inputs.avatar, anim, truth.contacts, max_frames=6)
+    gaps = mesh_metrics.contact_gaps(arm, target.avatar, anim, truth.contacts, max_frames=6)
     out = {f"gap {c['effector']}>{c['target']}": float(np.median(g)) * 1000
            for c, g in zip(truth.contacts, gaps) if len(g)}
     low = []
     for s in ("l", "r"):
-        soles = mesh_metrics.sole_points(inputs.avatar, anim, s)
+        soles = mesh_metrics.sole_points(target.avatar, anim, s)
         low.append(metrics.floor_error(soles - [0.0, 0.0, floor_z], truth.planted[f"foot_{s}"]))
     low = np.concatenate(low) * 1000
     out["floor median"] = float(np.nanmedian(low))
@@ -140,7 +141,7 @@ def test_two_avatars_in_one_file_keep_their_own_spots(session):
         arms[name] = _avatar(matrix)
     recording_scene.import_recording_to_scene(rec, bpy.context.scene)
     calibration_scene.store_user_model(bpy.context.scene, user)
-    bpy.context.scene.bodycal_retarget.armature = None
+    bpy.context.scene.bodycal_bake.armature = None
     for arm in arms.values():
         arm.select_set(True)
     bpy.context.view_layer.objects.active = arms["near"]
@@ -183,7 +184,7 @@ def test_a_doubtful_object_transform_is_one_warning_line_in_the_ui(session, capf
     assert avatar_storage.has_model(arm)
     recording_scene.import_recording_to_scene(rec, bpy.context.scene)
     calibration_scene.store_user_model(bpy.context.scene, user)
-    bpy.context.scene.bodycal_retarget.armature = arm
+    bpy.context.scene.bodycal_bake.armature = arm
     assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
     out = capfd.readouterr().out
     warnings = [ln for ln in out.splitlines() if ln.startswith("Warning:")]

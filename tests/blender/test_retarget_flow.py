@@ -32,7 +32,7 @@ def _scene_ready(rec, truth):
     arm, _mesh, _spec = rigs.build_procedural_avatar()
     recording_scene.import_recording_to_scene(rec, bpy.context.scene)
     calibration_scene.store_user_model(bpy.context.scene, truth.body_model())
-    bpy.context.scene.bodycal_retarget.armature = arm
+    bpy.context.scene.bodycal_bake.armature = arm
     return arm
 
 
@@ -40,9 +40,9 @@ def test_poll_says_what_is_missing_first():
     arm, _mesh, _spec = rigs.build_procedural_avatar()
     bpy.context.view_layer.objects.active = arm
     assert not bpy.ops.bodycal.retarget_bake.poll()
-    from bodycal_addon.blender.retarget_scene import missing_inputs
+    from bodycal_addon.blender.session import scene_take_missing
 
-    assert "Import a recording" in missing_inputs(bpy.context.scene)
+    assert "Import a recording" in scene_take_missing(bpy.context.scene)
 
 
 def test_operator_bakes_a_new_action_and_reports_figures(belly_session):
@@ -62,7 +62,7 @@ def test_operator_bakes_a_new_action_and_reports_figures(belly_session):
 def test_operator_bakes_every_selected_armature(belly_session):
     rec, truth = belly_session
     first = _scene_ready(rec, truth)
-    bpy.context.scene.bodycal_retarget.armature = None
+    bpy.context.scene.bodycal_bake.armature = None
     second, _mesh, _spec = rigs.build_procedural_avatar(scale=0.7)
     for arm in (first, second):
         arm.select_set(True)
@@ -127,14 +127,14 @@ def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(
 
     rec, truth = belly_session
     arm = _scene_ready(rec, truth)
-    settings = bpy.context.scene.bodycal_retarget
+    settings, bake = bpy.context.scene.bodycal_retarget, bpy.context.scene.bodycal_bake
     settings.method = "rotations"
-    settings.tolerance = 0.0  # every frame keyed, so the two bakes compare key for key
+    bake.tolerance = 0.0  # every frame keyed, so the two bakes compare key for key
     samples = recording_scene.recording_from_scene(bpy.context.scene).positions.copy()
     keys = {}
     for smooth in (False, True):
         settings.use_filter = smooth
-        settings.plant_feet = not smooth
+        bake.plant_feet = not smooth
         assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
         fcurves = object_fcurves(arm)
         keys[smooth] = np.stack([read_keys(fc)[1] for (path, _i), fc in sorted(fcurves.items())
@@ -148,10 +148,11 @@ def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(
 @pytest.mark.parametrize("panel, group", [("BODYCAL_PT_retarget", "bodycal_retarget"),
                                           ("BODYCAL_PT_transfer", "bodycal_transfer")])
 def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
-    """Retarget and Transfer declare their bake settings once (operators/bake_settings.py) and
-    draw them with the same rows: every property drawn is one of the group's, each bake setting
-    is there, and the last result is shown part by part."""
-    settings = getattr(bpy.context.scene, group)
+    """Retarget and Transfer share one group of bake settings (`scene.bodycal_bake`,
+    operators/bake_settings.py) and draw it with the same rows: every property drawn is its
+    group's, each shared setting is there, each panel's own settings are its own group's, and the
+    last result is shown part by part."""
+    settings, bake = getattr(bpy.context.scene, group), bpy.context.scene.bodycal_bake
     if group == "bodycal_retarget":
         settings.use_filter = True  # its rows drawn too
     settings.last_result = "first avatar: 10 keys; second avatar: 12 keys"
@@ -159,9 +160,11 @@ def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
     props = [(e[1], e[2]) for e in log if e[0] == "prop"]
     for data, name in props:
         assert name in data.bl_rna.properties, (panel, name)
-    shared = {"root_motion", "rigify_target", "replace", "push_to_nla", "output_fps", "tolerance", "location_tolerance"}
-    drawn = {name for data, name in props if data == settings}
-    assert shared <= drawn, shared - drawn
+    shared = {"armature", "placement", "plant_feet", "root_motion", "rigify_target", "replace", "push_to_nla",
+              "output_fps", "tolerance", "location_tolerance"}
+    assert {name for data, name in props if data == bake} == shared
+    own = {name for data, name in props if data == settings}
+    assert "method" in own and not own & shared
     assert [e[1] for e in log if e[0] == "label"] == ["first avatar: 10 keys", "second avatar: 12 keys"]
-    assert settings.bake_options(bpy.context, None).tolerance_deg == pytest.approx(0.1)
+    assert bake.bake_options(bpy.context).tolerance_deg == pytest.approx(0.1)
     settings.last_result = ""

@@ -15,7 +15,7 @@ from repo_paths import REPO
 
 from bodycal_addon.app.batch import load_jobs
 from bodycal_addon.blender import avatar_calibration as ac
-from bodycal_addon.blender import bake, rig_output
+from bodycal_addon.blender import avatar_rig, bake, rig_output
 from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.core import paths
 from bodycal_addon.core.errors import BodyCalError
@@ -58,7 +58,7 @@ def _world_heads(arm, frames) -> np.ndarray:
 
 
 def _bake(arm, anim, mode):
-    keyed = rig_output.with_root_motion(anim, arm, mode)
+    keyed = rig_output.with_root_motion(anim, arm, avatar_rig.bone_map_for(arm), mode)
     res = bake.bake_animation(keyed, arm, action_name=mode, frame_start=1, tolerance_deg=0.0,
                               location_tolerance_mm=0.0)
     return keyed, res
@@ -67,7 +67,7 @@ def _bake(arm, anim, mode):
 def test_the_root_carries_the_walk_and_every_bone_stays_where_it_was(walked):
     path, anim = walked
     arm, _mesh = rigs.load_glb_avatar(path)
-    assert rig_output.root_bone_of(arm, anim.root_bone) == "Root"
+    assert rig_output.root_bone_of(arm, anim.root_bone, avatar_rig.bone_map_for(arm)) == "Root"
     frames = np.linspace(1, anim.frame_count, 7).round()
     _bake(arm, anim, "pelvis")
     ref = _world_heads(arm, frames)
@@ -123,8 +123,8 @@ def test_a_rig_without_a_root_bone_keeps_the_travel_on_the_pelvis(walked):
     bpy.ops.object.mode_set(mode="EDIT")
     arm.data.edit_bones["pelvis"].parent = None
     bpy.ops.object.mode_set(mode="OBJECT")
-    assert rig_output.root_bone_of(arm, "pelvis") is None
-    assert rig_output.with_root_motion(anim, arm, "root") is anim
+    assert rig_output.root_bone_of(arm, "pelvis", avatar_rig.bone_map_for(arm)) is None
+    assert rig_output.with_root_motion(anim, arm, avatar_rig.bone_map_for(arm), "root") is anim
 
 
 def test_an_unknown_root_motion_is_one_line():

@@ -13,8 +13,8 @@ import pytest
 from repo_paths import REPO
 
 from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
-from bodycal_addon.blender import transfer_scene as ts
-from bodycal_addon.blender.retarget_scene import avatar_model_for
+from bodycal_addon.blender import character_source as ts
+from bodycal_addon.blender.avatar_calibration import avatar_model_for
 from bodycal_addon.core import paths
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.output import metrics
@@ -101,7 +101,7 @@ def test_a_bvh_transfers_with_no_nan_and_the_feet_on_the_floor(data_dir, avatar)
     arm = blendfile.find_armature(None, avatar)
     model, _ = avatar_model_for(arm)
     for method in ("egocentric", "rotations"):
-        anim = ts.compute(src, model, method)
+        anim = src.animate(model, method)
         assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
         assert any("estimated" in n for n in anim.notes)
         for s in "lr":

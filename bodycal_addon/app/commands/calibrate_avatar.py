@@ -13,7 +13,7 @@ def run(args) -> int:
     from ...blender.avatar_calibration import calibrate_avatar
     from ...blender.avatar_rig import apply_preset
     from ...blender.blendfile import find_armature, open_avatar
-    from ...blender.retarget_scene import avatar_input
+    from ...blender.session import avatar_input
     from ...body.bone_presets import load_preset
     from ...core.outputs import check_output
     from ...retarget.placement import avatar_warnings

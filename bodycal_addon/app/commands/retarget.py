@@ -8,16 +8,23 @@ import sys
 
 
 def run(args) -> int:
-    from ...blender.bake import BakeOptions
-    from ...blender.retarget_scene import retarget_files
+    from ...blender import session
     from ...recording.filters import OneEuro
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
-    options = BakeOptions(args.tolerance, args.location_tolerance, args.fps,
-                          getattr(args, "root_motion", "root"), getattr(args, "rigify_target", "fk"))
-    retarget_files(args.recording, args.user, args.avatar, args.output, armature=args.armature, method=args.method,
-                   filter=cfg, plant_feet=getattr(args, "plant_feet", True),
-                   placement=getattr(args, "placement", "object"), overwrite=getattr(args, "overwrite", False),
-                   options=options, bone_map_path=getattr(args, "bone_map", None),
-                   warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
+    session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg, armature=args.armature,
+                           settings=session.Settings(args.method, getattr(args, "plant_feet", True),
+                                                     getattr(args, "placement", "object")),
+                           overwrite=getattr(args, "overwrite", False), options=bake_options(args),
+                           bone_map_path=getattr(args, "bone_map", None),
+                           warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
     return 0
+
+
+def bake_options(args):
+    """The bake options every baking command takes (--tolerance, --location-tolerance, --fps,
+    --root-motion, --rigify-target)."""
+    from ...blender.bake import BakeOptions
+
+    return BakeOptions(args.tolerance, args.location_tolerance, args.fps, getattr(args, "root_motion", "root"),
+                       getattr(args, "rigify_target", "fk"))

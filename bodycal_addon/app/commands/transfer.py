@@ -8,12 +8,12 @@ import sys
 
 
 def run(args) -> int:
-    from ...blender.bake import BakeOptions
-    from ...blender.transfer_scene import transfer_files
+    from ...blender import session
+    from .retarget import bake_options
 
-    options = BakeOptions(args.tolerance, args.location_tolerance, args.fps, args.root_motion, args.rigify_target)
-    transfer_files(args.source, args.avatar, args.output, source_armature=args.source_armature, action=args.action,
-                   armature=args.armature, method=args.method, plant_feet=args.plant_feet, placement=args.placement,
-                   overwrite=args.overwrite, options=options, bone_map_path=args.bone_map,
-                   warn=lambda line: print(f"bodycal transfer: warning: {line}", file=sys.stderr, flush=True))
+    session.transfer_files(args.source, args.avatar, args.output, source_armature=args.source_armature,
+                           action=args.action, armature=args.armature,
+                           settings=session.Settings(args.method, args.plant_feet, args.placement),
+                           overwrite=args.overwrite, options=bake_options(args), bone_map_path=args.bone_map,
+                           warn=lambda line: print(f"bodycal transfer: warning: {line}", file=sys.stderr, flush=True))
     return 0

@@ -1,5 +1,6 @@
-"""Animation transfer inside Blender (issue 16): read a source character (its armature, body model
-and action) into numpy, run `retarget.transfer.transfer` onto a target avatar, bake.
+"""Another character as a pose source: its armature, body model and action read into numpy
+(`read_source` -> `retarget.takes.CharacterTake`), and the files such a source comes in
+(`open_source`: a .blend, or a .bvh / .fbx / .glb / .gltf imported into an empty scene).
 
 Reading an action never steps the scene frame by frame: every F-Curve is sampled once (its keys
 when they sit on the sampled frames, as a BVH import's do; else `FCurve.evaluate` per frame),
@@ -10,51 +11,27 @@ strips, constraints, drivers, the armature object's own animation) is not read.
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..avatar.estimate import ESTIMATED, estimate_surface
-from ..body.animation import AvatarAnimation, resample
 from ..body.bodymodel import BodyModel
-from ..body.bone_presets import load_preset
 from ..core.errors import BodyCalError
+from ..core.paths import ANIMATION_SUFFIXES
 from ..core.transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
 from ..retarget.avatar_pose import AvatarRig
-from ..retarget.placement import avatar_warnings, check_placement
-from ..retarget.transfer import check_method, stand_on_floor, transfer
-from . import avatar_rig, avatar_storage, bake, rig_output
-from .avatar_calibration import avatar_meshes
-from .avatar_rig import apply_preset
-from .blendfile import _stderr_to_stdout, find_armature, open_avatar
+from ..retarget.takes import CharacterTake
+from ..retarget.transfer import stand_on_floor
+from . import avatar_rig
+from .avatar_calibration import avatar_meshes, avatar_model_for
+from .blendfile import _stderr_to_stdout, open_avatar
 from .fcurves import object_fcurves, read_keys
-from .retarget_scene import avatar_input, avatar_model_for, checked_outputs, write_outputs
 
-SOURCE_SUFFIXES = (".blend", ".bvh", ".fbx", ".glb", ".gltf")
 # Metres per file unit a BVH may be written in (m, cm, inch, CMU's inch / 0.45, mm): the one that
 # makes the skeleton's rest height closest to a human's is taken (BLENDER_NOTES.md, BVH import).
 BVH_UNITS = {"m": 1.0, "cm": 0.01, "in": 0.0254, "cmu": 0.0254 / 0.45, "mm": 0.001}
 HUMAN_HEIGHT_M = 1.7
-
-
-@dataclass
-class SourceAnimation:
-    """Everything the transfer needs of the source, in numpy: nothing refers to Blender data."""
-
-    model: BodyModel
-    basis: np.ndarray  # (F, N, 4) in AvatarRig.from_model(model).names order
-    locations: np.ndarray  # (F, N, 3)
-    time: np.ndarray  # (F,) s
-    fps: float
-    action: str
-    armature: str
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def estimated(self) -> bool:
-        return self.model.calibration.get("method") == ESTIMATED
 
 
 def _euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
@@ -151,16 +128,15 @@ def pick_action(arm, name: str | None, source: str):
 
 def source_model(arm) -> BodyModel:
     """The source character's body: measured on its skinned mesh by the avatar calibration, or,
-    for a bare skeleton, estimated from its bone lengths (body_estimate)."""
+    for a bare skeleton, estimated from its bone lengths (avatar/estimate.py)."""
     if avatar_meshes(arm):
-
         # its stored model, else the calibration's (which reads the posed character at rest)
         return avatar_model_for(arm)[0]
     return estimate_surface(avatar_rig.read_rig(arm), arm.name)
 
 
 def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None, fps: float | None = None
-                ) -> SourceAnimation:
+                ) -> CharacterTake:
     """The source armature `arm` and its action (default: the active one) in numpy, every frame
     of the action's range (or `frame_range`) at the scene's rate (or `fps`)."""
     import bpy
@@ -182,10 +158,7 @@ def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None,
         model, locations, lift, motion = stand_on_floor(model, locations, basis, (frames - f0) / fps)
         notes.append(f"{arm.name}: no mesh, body surface estimated from its bone lengths; its rest pose stood "
                      f"on the floor ({lift * 1000:+.0f} mm), its motion's feet on it ({motion * 1000:+.0f} mm)")
-    return SourceAnimation(model, basis, locations, (frames - f0) / fps, fps, action.name, arm.name, notes)
-
-
-# --- files --------------------------------------------------------------------------------------
+    return CharacterTake(model, basis, locations, (frames - f0) / fps, fps, action.name, arm.name, notes)
 
 
 def bvh_unit(path) -> tuple[str, float]:
@@ -221,11 +194,10 @@ def open_source(path) -> list[str]:
     into an empty scene); returns notes (a BVH's unit)."""
     import bpy
 
-
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in SOURCE_SUFFIXES:
-        raise BodyCalError(f"not an animation source this version reads (it reads {', '.join(SOURCE_SUFFIXES)})",
+    if suffix not in ANIMATION_SUFFIXES:
+        raise BodyCalError(f"not an animation source this version reads (it reads {', '.join(ANIMATION_SUFFIXES)})",
                            source=str(path))
     if not path.is_file():
         raise BodyCalError("no such file", source=str(path))
@@ -247,101 +219,3 @@ def open_source(path) -> list[str]:
     if "FINISHED" not in result:
         raise BodyCalError("Blender's BVH importer gave up on it", source=str(path))
     return [f"{path.name}: BVH read in {unit} ({scale:.6g} m per unit)"]
-
-
-@dataclass
-class TransferSummary:
-    action: str
-    method: str
-    frames: int
-    keys: int
-    compute_s: float
-    bake_s: float
-    fps: float
-    notes: list[str] = field(default_factory=list)
-    dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
-
-    def line(self) -> str:
-        seconds = self.compute_s + self.bake_s
-        return (bake.baked_line(self.action, self.method, self.frames, self.fps, self.keys, seconds)
-                + bake.dense_note(self.dense_bones))
-
-
-def compute(source: SourceAnimation, avatar: BodyModel, method: str, *, plant_feet: bool = True,
-            placement: str = "object", progress=None, cancel=None) -> AvatarAnimation:
-    """Pure numpy (a worker thread may run it)."""
-    t0 = time.perf_counter()
-    anim = transfer(source.model, source.basis, source.locations, source.time, avatar, method,
-                    plant_feet=plant_feet, placement=placement, progress=progress, cancel=cancel,
-                    name=source.armature)
-    anim.notes = [*source.notes, *anim.notes, f"compute_s={time.perf_counter() - t0:.3f}"]
-    return anim
-
-
-def bake_transfer(source: SourceAnimation, anim: AvatarAnimation, arm, *, options: bake.BakeOptions | None = None,
-                  action_name: str | None = None, replace: bool = False, push_to_nla: bool = False,
-                  set_scene_rate: bool = False, avatar: BodyModel | None = None) -> TransferSummary:
-    """Bake at the source's rate (or `options.fps`, resampled), keys reduced within tolerances;
-    `avatar`: the target's model calibrated for this bake, stored on the armature with it."""
-    import bpy
-
-
-    options = options or bake.BakeOptions()
-    rate = float(options.fps or source.fps)
-    resampled = abs(rate - source.fps) > 1e-6 * rate
-    t0 = time.perf_counter()
-    name = action_name or bake.default_action_name(source.action, arm.name, anim.method)
-    with bake.restored_on_failure(arm, bpy.context.scene):
-        keyed = resample(anim, rate) if resampled else anim
-        keyed = rig_output.for_bake(keyed, arm, options.root_motion, options.rigify_target, own=resampled)
-        if set_scene_rate:
-            bpy.context.scene.render.fps, bpy.context.scene.render.fps_base = bake.scene_rate(rate)
-        result = bake.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla,
-                                     fps=rate, tolerance_deg=options.tolerance_deg,
-                                     location_tolerance_mm=options.location_tolerance_mm)
-    if avatar is not None:  # calibrated for this bake: kept with it, as retarget does
-        avatar_storage.store_model(arm, avatar)
-    compute_s = next((float(n.split("=")[1]) for n in anim.notes if n.startswith("compute_s=")), 0.0)
-    return TransferSummary(result.action.name, anim.method, keyed.frame_count, result.keys, compute_s,
-                           time.perf_counter() - t0, rate, [n for n in anim.notes if not n.startswith("compute_s=")],
-                           result.dense_bones)
-
-
-def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
-                   action: str | None = None, armature: str | None = None, method: str = "egocentric",
-                   plant_feet: bool = True, placement: str = "object", overwrite: bool = True,
-                   options: bake.BakeOptions | None = None, log=print, warn=print,
-                   bone_map_path=None) -> TransferSummary:
-    """`bodycal transfer`: the source's action onto the avatar of `avatar_file`, baked and saved to
-    `output_paths` (checked first, written last, as `retarget_files`); `bone_map_path`: a bone map
-    preset for the target's armature (`retarget --bone-map`)."""
-
-    check_method(method)
-    check_placement(placement)
-    source_path = Path(source_path)
-    name, path = avatar_input(avatar_file)
-    files_read = [(f"the source {source_path.suffix.lower() or 'file'}", source_path), (f"{name} (--avatar)", path),
-                  ("the bone map (--bone-map)", bone_map_path)]
-    outs = checked_outputs(output_paths, files_read, overwrite)
-    bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening any
-    for note in open_source(source_path):
-        log(note)
-    src_arm = find_armature(source_armature, str(source_path))
-    source = read_source(src_arm, pick_action(src_arm, action, str(source_path)))
-    for note in source.notes:
-        log(note)
-    open_avatar(Path(avatar_file))
-    arm = find_armature(armature, str(avatar_file))
-    if bone_map is not None:
-
-        if apply_preset(arm, bone_map)[1]:
-            log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
-    avatar, fresh = avatar_model_for(arm)
-    for line in avatar_warnings(avatar):
-        warn(line)
-    anim = compute(source, avatar, method, plant_feet=plant_feet, placement=placement)
-    summary = bake_transfer(source, anim, arm, options=options, set_scene_rate=True, avatar=avatar if fresh else None)
-    del anim
-    log(summary.line())
-    write_outputs(arm, outs, files_read, overwrite, log)
-    return summary

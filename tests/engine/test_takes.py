@@ -1,0 +1,83 @@
+"""One path for every pose source (retarget/takes.py, retarget/methods.py): a take of either kind
+animates an avatar exactly as the pipeline's own entry for that kind does, the method registry is
+the one the pipeline runs, and each kind takes only the methods that can use it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording.filters import OneEuro
+from bodycal_addon.retarget import methods
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget.avatar_pose import AvatarRig
+from bodycal_addon.retarget.takes import CharacterTake, RecordingTake
+from bodycal_addon.retarget.transfer import transfer
+from bodycal_dev import retarget_fixtures as rt
+from bodycal_dev import synthetic
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    perf = synthetic.make_performer(seed=3)
+    rec, truth = synthetic.record_session(perf, motions=("hand_on_belly",), calibration=False, motion_seconds=0.5,
+                                          noise_mm=0.5, wobble_mm=0.0)
+    return rec, truth.body_model()
+
+
+def test_the_registry_is_the_pipelines_methods():
+    assert set(methods.METHOD_INFO) == set(pl.METHOD_CLASSES)
+    assert pl.METHODS == tuple(m.name for m in methods.REGISTRY) and pl.METHODS[0] == "egocentric"
+    assert methods.methods_for("animation") == ("egocentric", "rotations")  # offsets need trackers
+    assert all(set(m.sources) <= set(methods.SOURCE_KINDS) for m in methods.REGISTRY)
+
+
+def test_a_kind_refuses_a_method_it_cannot_use_in_one_line():
+    assert methods.check_method("offsets", "recording") == "offsets"
+    with pytest.raises(BodyCalError, match="unknown transfer method 'offsets'.*use one of egocentric, rotations"):
+        methods.check_method("offsets", "animation")
+    with pytest.raises(BodyCalError, match="unknown method 'ik'"):
+        methods.check_method("ik", "recording")
+
+
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_a_recording_take_animates_as_the_pipeline_does(recorded, method):
+    rec, user = recorded
+    avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(20.0, 1.1))
+    take = RecordingTake(rec, user)
+    assert take.name == rec.name and take.rate == pytest.approx(rec.fps)
+    got = take.animate(avatar, method, placement="performer")
+    want = pl.retarget(rec, user, avatar, method, placement="performer")
+    np.testing.assert_array_equal(got.rotations, want.rotations)
+    np.testing.assert_array_equal(got.root_location, want.root_location)
+    assert got.notes == want.notes
+
+
+def test_a_filtered_take_smooths_a_copy(recorded):
+    rec, user = recorded
+    before = rec.positions.copy()
+    avatar = rt.procedural_avatar()
+    plain = RecordingTake(rec, user).animate(avatar, "rotations")
+    smooth = RecordingTake(rec, user, OneEuro()).animate(avatar, "rotations")
+    np.testing.assert_array_equal(rec.positions, before)
+    dot = np.clip(np.abs(np.sum(smooth.rotations * plain.rotations, axis=-1)), 0.0, 1.0)
+    turn_deg = np.degrees(2 * np.arccos(dot))
+    assert turn_deg.max() > 1e-2 and np.median(turn_deg) < 2.0  # smoothed, not another motion
+
+
+def test_a_character_take_animates_as_the_transfer_does(recorded):
+    rec, user = recorded
+    source = rt.procedural_avatar()
+    performed = pl.retarget(rec, user, source, "rotations", plant_feet=False)
+    rig = AvatarRig.from_model(source)
+    locations = np.zeros((performed.frame_count, len(rig.names), 3))
+    locations[:, rig.root] = performed.root_location
+    take = CharacterTake(source, performed.rotations, locations, performed.time, rec.fps, "clip", "src")
+    assert take.name == "clip" and take.kind == "animation" and not take.estimated
+    target = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(-40.0, 0.9))
+    got = take.animate(target, "egocentric")
+    want = transfer(source, performed.rotations, locations, performed.time, target, "egocentric", name="src")
+    np.testing.assert_array_equal(got.rotations, want.rotations)
+    take.release()
+    assert take.basis is None and take.locations is None
