@@ -94,9 +94,9 @@ class _Run:
         _check_method(avatar, method)
         user = source.model
         self.src, self.user, self.avatar, self.method = source, user, avatar, method
-        self.rec = getattr(source, "recording", None)  # None: not a tracker recording
+        self.rec = source.recording  # None: not a tracker recording
         # An animated character (pose_source.AnimationSource): its own spine shape and limb hinges.
-        self.character = bool(getattr(source, "character", False))
+        self.character = source.character
         self.rig = AvatarRig.from_model(avatar)
         self.k = root_scale(user, self.rig)
         # The floor point the performer's path is scaled about (placement.py): the play area's
@@ -140,8 +140,8 @@ class _Run:
             out[s] = (stance.weight, feet.planted_xy(reference, stance), sole)
         return out
 
-    def _planted(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
-                 ankles: dict | None = None):
+    def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
+             ankles: dict | None = None):
         """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
         onto the planted places, and the pelvis lowered where a planted foot is out of reach. Returns
         (targets, pelvis, whether anything is planted in these frames)."""
@@ -187,7 +187,7 @@ class _Run:
         fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
         return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
 
-    def _ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
+    def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
         """Avatar IK (appendix E, DESIGN.md §6) toward the targets present: the spine when there is
         a skull-base target, then each limb whose effector has a target, then the fingers.
         `frames` (default: the user's, copied) are updated; `trunk` is the rig pose the limbs
@@ -311,12 +311,12 @@ class RotationCopy(Method):
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         run = self.run
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
-        targets, pelvis, planted = run._planted({}, up.frames, pelvis, start, stop, ankles)
+        targets, pelvis, planted = run.plant({}, up.frames, pelvis, start, stop, ankles)
         if not planted:
             return fk, {}
         # The legs reach their planted feet (and only the legs: the rest stays a rotation copy).
         legs = {n: v for n, v in targets.items() if n.startswith("ankle_")}
-        frames = run._ik(up, fk, pelvis, legs)
+        frames = run.solve_ik(up, fk, pelvis, legs)
         return run.rig.solve(frames, pelvis, realised=False), legs
 
 
@@ -388,8 +388,8 @@ class Egocentric(Method):
                                      user_bones=ub, dtype=MAPPING_DTYPE)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
-        targets, pelvis, _ = run._planted(targets, up.frames, pelvis, start, stop, ankles)
-        frames = run._ik(up, fk, pelvis, targets)
+        targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)
+        frames = run.solve_ik(up, fk, pelvis, targets)
         mid = run.rig.solve(frames, pelvis, basis=False, realised=self.realised)
         us = ego.pose_surface(self.user_s, uj, uf, self.ids)
         pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
@@ -420,7 +420,7 @@ class Egocentric(Method):
             for s, (_, a_loc) in self.palm_local.items():
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
                                                                                     a_loc)
-            arm_frames = run._ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
+            arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
             if k + 1 < ARM_PASSES:
                 pose = run.rig.solve(arm_frames, pelvis, basis=False, realised=self.realised)
         frames = arm_frames
@@ -480,9 +480,9 @@ class ExactOffsets(Method):
             frames[:, c] = stack_mul(sf[:, v5], st.spine0[v5].T @ st.ref_frames[c])
         targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
         # AvatarGo stands its avatar on the floor: planted feet on it, the pelvis lowered to reach.
-        targets, pelvis, _ = run._planted(targets, frames, p["pelvis"], start, stop)
+        targets, pelvis, _ = run.plant(targets, frames, p["pelvis"], start, stop)
         up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
-        frames = run._ik(up2, fk, pelvis, targets, hands=self.grip)
+        frames = run.solve_ik(up2, fk, pelvis, targets, hands=self.grip)
         targets["skull_base"] = p["skull_base"]
         return run.rig.solve(frames, pelvis, realised=False), targets
 

@@ -33,6 +33,8 @@ class PoseSource(Protocol):
     model: BodyModel  # the performer's body: a user model, or the source character's avatar model
     time: np.ndarray  # (F,) seconds
     name: str  # for messages
+    recording: Recording | None  # the tracker recording (AvatarGo's offsets read its devices); None: none
+    character: bool  # an animated character: its spine's shape and its limbs' twists are its own (_Run.solve_ik)
 
     @property
     def frame_count(self) -> int: ...
@@ -48,6 +50,8 @@ class PoseSource(Protocol):
 
 
 class RecordingSource:
+    character = False
+
     def __init__(self, recording: Recording, user: BodyModel):
         self.recording, self.model = recording, user
         self.time = recording.time
@@ -71,10 +75,12 @@ class RecordingSource:
 
 
 class AnimationSource:
-    character = True  # its spine's shape and its limbs' twists are its own (_Run._ik)
     """A character's action: `basis` (F, N, 4) pose-bone quaternions (w, x, y, z) in the order of
     `AvatarRig.from_model(model).names`, `locations` (F, N, 3) pose-bone locations (or (F, 3) for
     the pelvis bone only), `time` (F,) seconds."""
+
+    character = True
+    recording = None
 
     def __init__(self, model: BodyModel, basis: np.ndarray, locations: np.ndarray, time: np.ndarray,
                  name: str | None = None):
