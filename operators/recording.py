@@ -5,6 +5,7 @@ from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 
 from ..bodycal_addon.blender import recording_scene
 from ..bodycal_addon.recording import io as recording_io
+from ..bodycal_addon.recording.io.reader import RECORDING_SUFFIXES
 from .reporting import reports_errors
 
 
@@ -16,7 +17,8 @@ class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
     bl_label = "Import BodyCal Recording"
     bl_options = {"REGISTER", "UNDO"}
 
-    filter_glob: bpy.props.StringProperty(default="*.json;*.csv;*.c3d", options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in RECORDING_SUFFIXES),
+                                          options={"HIDDEN"})
     fill_gaps: bpy.props.FloatProperty(
         name="Fill Gaps Shorter Than", default=recording_io.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0, unit="TIME_ABSOLUTE",
         description="Untracked stretches shorter than this (seconds) are interpolated; 0 keeps every dropout")

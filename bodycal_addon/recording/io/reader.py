@@ -12,6 +12,11 @@ from .csv_format import read_csv
 from .json_format import read_json
 from .postprocess import DEFAULT_FILL_GAPS_S, finish_recording
 
+# The file types a recording is read from (FORMATS.md §2), by suffix: the importer's file filter
+# and the command line read this table.
+READERS = {".json": read_json, ".csv": read_csv, ".c3d": c3d.read_c3d_recording}
+RECORDING_SUFFIXES = tuple(READERS)
+
 
 def load_recording(path, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S, identify_roles: bool = True) -> Recording:
     """Read a recording (.bcrec.json / .json, .csv with an optional `name.json` sidecar, .c3d) into
@@ -21,13 +26,7 @@ def load_recording(path, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S, identify_r
     if not path.is_file():
         raise BodyCalError("file not found", source=str(path))
     suffix = path.suffix.lower()
-    if suffix == ".json":
-        rec = read_json(path)
-    elif suffix == ".csv":
-        rec = read_csv(path)
-    elif suffix == ".c3d":
-        rec = c3d.read_c3d_recording(path)
-    else:
+    if suffix not in READERS:
         raise BodyCalError(f"unknown recording type '{suffix}'", source=source,
                            hint="use .bcrec.json, .json, .csv or .c3d")
-    return finish_recording(rec, fill_gaps_s=fill_gaps_s, identify_roles=identify_roles)
+    return finish_recording(READERS[suffix](path), fill_gaps_s=fill_gaps_s, identify_roles=identify_roles)
