@@ -1,5 +1,5 @@
-"""Seconds per avatar of the surface calibration by raycasting (issue 5; target: under 1 s for a
-13k-vertex avatar), for each shared MakeHuman avatar and the procedural one. Each figure is the
+"""Seconds per avatar of the surface calibration by raycasting (DESIGN.md §4; target: under 1 s for
+a 13k-vertex avatar), for each shared MakeHuman avatar and the procedural one. Each figure is the
 best of 3 runs of `calibrate_avatar` (BVH build on the evaluated mesh + every ray + the model),
 excluding the import. Prints one JSON line."""
 

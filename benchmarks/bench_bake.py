@@ -1,4 +1,4 @@
-"""Keys per second of three ways to bake the same 60-bone animation (issue 7).
+"""Keys per second of three ways to bake the same 60-bone animation (DESIGN.md §1, step 5).
 
 - BodyCal's writer (`keyframe_points.add` + `foreach_set`), 5,000 frames;
 - per-key `keyframe_insert`, 500 frames (it is far too slow for 5,000: BLENDER_NOTES.md);

@@ -1,4 +1,4 @@
-"""Benchmark of the user calibration (issue 4): joint-centre error against ground truth.
+"""Benchmark of the user calibration (DESIGN.md §3): joint-centre error against ground truth.
 
 Synthetic part: >= 6 performers (child to tall, thin to heavy) x 3 tracker noise levels (0.5, 1,
 2 mm, with soft-tissue wobble and 10% outlier frames), full calibration profile. Per joint group,

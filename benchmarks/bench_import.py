@@ -1,4 +1,4 @@
-"""Import benchmark (issue 3): a 10-minute, 90 Hz, full-profile recording of the synthetic performer,
+"""Import benchmark: a 10-minute, 90 Hz, full-profile recording of the synthetic performer,
 written as JSON and as CSV + sidecar; seconds to load each into arrays and to import into the
 scene, with the ratio to real time (600 s / seconds). Prints ONE JSON line.
 

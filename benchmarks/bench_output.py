@@ -1,4 +1,4 @@
-"""Production-size output (issue 15): key reduction, compressed files, memory. Prints ONE JSON line.
+"""Production-size output (FORMATS.md §4.2): key reduction, compressed files, memory. Prints ONE JSON line.
 
 - `reduction`: the 10-minute, 90 Hz synthetic take (bench_import's) retargeted onto the procedural
   avatar with each method; keys at the default tolerance against every frame, the reduction's
@@ -6,9 +6,9 @@
   bake (max and p99 over every frame and joint, mm: Blender's linear interpolation of the kept
   keys, normalised, through the rig's forward kinematics).
 - `real_motion`: the same figures for the CMU walk clip made into a recording by `evaluation/`,
-  at two tracker noise levels (issue 11's 0.5 mm / 0.3 deg, and the 0.15 mm / 0.008 deg measured
-  on a SteamVR tracker), raw and with the One Euro filter: how much of the key count is tracker
-  noise and how much the bake's own frame-to-frame jitter.
+  at two tracker noise levels (bench_real_motion's 0.5 mm / 0.3 deg, and the 0.15 mm / 0.008 deg
+  measured on a SteamVR tracker), raw and with the One Euro filter: how much of the key count is
+  tracker noise and how much the bake's own frame-to-frame jitter.
 - `glove_take`: the same figures for a synthetic session with LED gloves (the calibration steps
   and 60 s of motion) at 0.15 mm of white noise on every position and LED (0.086 deg on device
   rotations, no wobble), raw and with the One Euro filter: the hand frames come from three LEDs and
@@ -19,8 +19,8 @@
   it (`key_ratio_ge_5_synthetic_noise`): its devices carry 1 mm / 0.57 deg white noise and 2 mm
   wobble (7-70x a SteamVR tracker's), and its hands and fingers come from LED gloves.
 - `files`: the take baked onto the procedural avatar in Blender and saved: every frame keyed and
-  uncompressed (before issue 15) against the default (reduced, compressed); the shipped demo's
-  out/demo.blend size when `--demo` is given.
+  uncompressed (as before key reduction and compression) against the default (reduced,
+  compressed); the shipped demo's out/demo.blend size when `--demo` is given.
 - `memory`: peak RSS of the whole `bodycal retarget` command on the take (a child process), MB.
 
 Run: .venv/bin/python benchmarks/bench_output.py [--seconds 600] [--demo]
@@ -96,8 +96,9 @@ def reduction_figures(anim, avatar) -> dict:
             "joint_deviation_mm_p99": round(float(np.percentile(dev, 99)), 2)}
 
 
-# Tracker noise (position mm, rotation degrees): issue 11's benchmark level, and the random error
-# measured on a SteamVR tracker (Maciejewski 2021: 0.15 mm, 0.008 deg, static).
+# Tracker noise (position mm, rotation degrees): bench_real_motion's level (its JSON key keeps
+# its old name, "issue11"), and the random error measured on a SteamVR tracker (Maciejewski 2021:
+# 0.15 mm, 0.008 deg, static).
 NOISE_LEVELS = {"issue11": (0.5, 0.3), "steamvr": (0.15, 0.008)}
 
 

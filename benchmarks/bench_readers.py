@@ -1,4 +1,4 @@
-"""Reader resources benchmark (issue 13): the peak memory of loading a long-format CSV recording as a
+"""Reader resources benchmark: the peak memory of loading a long-format CSV recording as a
 multiple of the file's size (tracemalloc in a fresh subprocess, so nothing else is counted), and the
 time to load a JSON recording with 10k and with 40k devices and the ratio of the two (a linear
 parser gives about 4; the quadratic one gave about 16). Only ratios within one run are compared.

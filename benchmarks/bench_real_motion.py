@@ -1,4 +1,5 @@
-"""Real human motion through the whole pipeline, as an outside tool would record it (issue 11).
+"""Real human motion through the whole pipeline, as an outside tool would record it (DESIGN.md §7,
+"Real motion").
 
 Each CMU BVH clip (motion/cmu_bvh of the sample data, plus any given with --clips) becomes a FORMATS.md
 recording through `evaluation/` (code that shares nothing with synthetic.py): the calibration
@@ -25,7 +26,7 @@ Figures, per clip x profile (calibration) and per method x avatar x clip x profi
 Every retarget runs twice: on the recording as read (`raw`) and with the One Euro filter's defaults
 on the devices (`filtered`): 0.5 mm of tracker noise alone puts the raw controller at 1.5-2x the
 source's acceleration, so the 1.3x target is checked on both and can only be met filtered.
-Targets (issue 11) are checked in `targets`.
+Targets are checked in `targets`.
 
 Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_real_motion.py [--quick] [--clips F ...]
 [--avatars NAME ...] [--filter]
@@ -62,7 +63,7 @@ from evaluation import bvh, capture, measure, performer, session  # noqa: E402
 AVATARS = ("child_10y", "long_arms_male")
 PROFILES = ("full", "six")
 FPS = 90.0
-JOINT_TARGETS = {  # issue 11, without touch steps: (profile, joints, mm)
+JOINT_TARGETS = {  # without touch steps: (profile, joints, mm)
     "knees_elbows_full": ("full", ("knee_l", "knee_r", "elbow_l", "elbow_r"), 15.0),
     "ankles_full": ("full", ("ankle_l", "ankle_r"), 20.0),
     "wrists_full": ("full", ("wrist_l", "wrist_r"), 10.0),

@@ -1,4 +1,4 @@
-"""Retargeting quality (issue 6, DESIGN.md §7): synthetic performers doing the contact motions,
+"""Retargeting quality (DESIGN.md §7): synthetic performers doing the contact motions,
 retargeted onto every shared avatar (calibrated in Blender by the avatar calibration; the
 procedural avatar when none can be loaded) with each method.
 

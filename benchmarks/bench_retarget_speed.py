@@ -1,6 +1,6 @@
-"""Retargeting speed (issue 6): frames per second of the full per-frame pipeline, steps 1-4
-(user animation, FK, egocentric mapping, IK; full body with fingers), as a ratio to a 90 Hz
-capture, on one core; and the peak memory of a 10-minute capture (54,000 frames) retargeted
+"""Retargeting speed (DESIGN.md §7, "Throughput"): frames per second of the full per-frame pipeline,
+steps 1-4 (user animation, FK, egocentric mapping, IK; full body with fingers), as a ratio to a
+90 Hz capture, on one core; and the peak memory of a 10-minute capture (54,000 frames) retargeted
 in chunks.
 
 One core: BLAS threads are pinned to 1 before numpy is imported. Peak memory is the process's

@@ -1,6 +1,7 @@
-"""The rigs users bring (issue 14): one body (the procedural avatar, sample_rigs) in every rig
-convention and file layout the engine detects, calibrated and retargeted with no manual step, and
-its contact gaps and floor error compared with the same body in the plain Unreal-style rig.
+"""The rigs users bring (DESIGN.md §7, "Rig conventions"): one body (the procedural avatar,
+sample_rigs) in every rig convention and file layout the engine detects, calibrated and retargeted
+with no manual step, and its contact gaps and floor error compared with the same body in the plain
+Unreal-style rig.
 
 Variants: Unreal names (the reference, travel on the pelvis); the same with root motion on its
 root bone; Mixamo names under an FBX-style object transform (Y-up bones in centimetres, the object

@@ -1,5 +1,5 @@
-"""Animation transfer between characters (issue 16, DESIGN.md "Transfer"): sources are characters
-animated with the contact motions and real CMU clips, targets the shared avatars, per method.
+"""Animation transfer between characters (DESIGN.md §8): sources are characters animated with the
+contact motions and real CMU clips, targets the shared avatars, per method.
 
 - Contact sources: the synthetic performer's contact motions (clap, hand on belly, hand on head,
   hands on thighs, squat) retargeted (egocentric) onto one shared avatar, the SOURCE; its action

@@ -1,5 +1,5 @@
 """A virtual performer with exact ground truth: the reference of every calibration and retargeting
-test and benchmark (issue 3). Numpy only; every stage is vectorised over frames. Development only
+test and benchmark. Numpy only; every stage is vectorised over frames. Development only
 (the `bodycal_dev` package is not in the extension zip).
 
 It is an independent truth generator, not a client of the engine: it poses its bones with its own

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 
 from ..bodycal_addon.core.errors import BodyCalError
+from ..bodycal_addon.core.outputs import describe_os_error
 
 
 def error_line(exc: BaseException) -> str:
@@ -12,8 +13,7 @@ def error_line(exc: BaseException) -> str:
     if isinstance(exc, BodyCalError):
         return exc.line()
     if isinstance(exc, OSError):
-        where = f"{exc.filename}: " if exc.filename else ""
-        return " ".join(f"{where}{exc.strerror or exc}".split())
+        return " ".join(describe_os_error(exc, advice=False).split())
     return " ".join(str(exc).split())
 
 

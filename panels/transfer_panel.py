@@ -1,4 +1,4 @@
-"""Sidebar: transfer another character's animation onto the avatar(s)."""
+"""Sidebar: transfer another character's animation onto the avatar(s) (DESIGN.md §8)."""
 
 import bpy
 

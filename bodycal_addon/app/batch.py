@@ -25,7 +25,7 @@ JOBS.toml:
     path = "takes/take1.bcrec.json"
     user = "takes/performer.body.json"
 
-    [[animations]]              # optional (issue 16): characters' actions, transferred (`bodycal transfer`)
+    [[animations]]              # optional: characters' actions, transferred (`bodycal transfer`)
     path = "clips/walk.bvh"     # .blend, .bvh, .fbx, .glb or .gltf
     source_armature = "Walker"  # optional
     action = "Walk"             # optional (default: the armature's active action)
@@ -114,7 +114,7 @@ EXPORT_FORMATS = ("blend", "fbx", "glb", "gltf", "bvh")
 class Job:
     name: str
     recording: Path  # the recording, or the animation source of a transfer job
-    user: Path | None  # None: a transfer job (`bodycal transfer`, issue 16)
+    user: Path | None  # None: a transfer job (`bodycal transfer`)
     avatar: Path
     armature: str | None
     method: str

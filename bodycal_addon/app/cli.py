@@ -9,14 +9,11 @@ stderr and no traceback.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
-import io
-import os
 import sys
-import warnings
 from collections.abc import Callable
 
+from ..blender.process import stderr_to_stdout
 from ..core.errors import BodyCalError
 from ..core.outputs import describe_os_error
 from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
@@ -140,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.command:
         parser.print_help()
         return EXIT_USAGE
-    with _blender_output_to_stdout():
+    with stderr_to_stdout(python_stderr=False):
         return _run(args)
 
 
@@ -157,36 +154,3 @@ def _run(args) -> int:
         print(f"bodycal {args.command}: interrupted", file=sys.stderr)
         return 130
 
-
-@contextlib.contextmanager
-def _blender_output_to_stdout():
-    """stderr carries BodyCal's own lines only (one per error or warning): what Blender's C code
-    prints to the process's stderr while a command runs (a scripted driver it refuses to run, an
-    importer's complaints) and Python's warnings (numpy's) go to stdout with Blender's log.
-    Nothing changes when stderr is not the process's (a test capturing it in Python)."""
-    try:
-        is_process_stderr = sys.stderr.fileno() == 2
-    except (AttributeError, ValueError, io.UnsupportedOperation):
-        is_process_stderr = False
-    if not is_process_stderr:
-        yield
-        return
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = os.dup(2)
-    own = open(saved, "w", buffering=1, encoding=sys.stderr.encoding, errors="backslashreplace", closefd=False)
-    previous, show = sys.stderr, warnings.showwarning
-
-    def to_stdout(message, category, filename, lineno, file=None, line=None):
-        show(message, category, filename, lineno, file=sys.stdout, line=line)
-
-    os.dup2(1, 2)
-    sys.stderr, warnings.showwarning = own, to_stdout
-    try:
-        yield
-    finally:
-        own.flush()
-        sys.stdout.flush()
-        os.dup2(saved, 2)
-        os.close(saved)
-        sys.stderr, warnings.showwarning = previous, show

@@ -30,7 +30,7 @@ from .fcurves import new_fcurve, write_keys
 
 @dataclass
 class BakeOptions:
-    """How the bake keys the animation: output rate and key reduction (issue 15)."""
+    """How the bake keys the animation: output rate and key reduction (FORMATS.md §4.2)."""
 
     tolerance_deg: float = DEFAULT_TOLERANCE_DEG  # rotation error bound per bone; 0 keeps every sample
     location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM  # root location bound (world mm)

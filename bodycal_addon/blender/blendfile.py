@@ -5,8 +5,6 @@ saving the result without risking any file the user has."""
 from __future__ import annotations
 
 import contextlib
-import os
-import sys
 from pathlib import Path
 
 import bpy
@@ -14,6 +12,7 @@ import bpy
 from ..core import outputs
 from ..core.errors import BodyCalError
 from ..core.paths import AVATAR_SUFFIXES
+from .process import stderr_to_stdout
 
 # suffix -> (the format's name, its import_scene operator, the add-on that provides it; None: not
 # Blender's own, the user installs one)
@@ -96,7 +95,7 @@ def import_avatar_file(path) -> list:
         raise BodyCalError("no such file", source=str(path))
     fmt = IMPORTERS[suffix][0]
     before = set(bpy.data.objects)
-    with _importer_enabled(suffix, str(path)) as operator, _stderr_to_stdout():
+    with _importer_enabled(suffix, str(path)) as operator, stderr_to_stdout():
         try:
             result = operator(filepath=str(path.resolve()))
         except RuntimeError as exc:
@@ -140,22 +139,6 @@ def _importer_enabled(suffix: str, source: str):
     finally:
         if enabled_here:
             addon_utils.disable(addon, default_set=False, handle_error=lambda _exc: None)
-
-
-@contextlib.contextmanager
-def _stderr_to_stdout():
-    """Python's and the C library's stderr both go to stdout for the block."""
-    for stream in (sys.stdout, sys.stderr):
-        stream.flush()
-    saved = os.dup(2)
-    try:
-        os.dup2(1, 2)
-        with contextlib.redirect_stderr(sys.stdout):
-            yield
-    finally:
-        sys.stdout.flush()
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 def _last_line(exc: BaseException, path: Path) -> str:

@@ -25,8 +25,9 @@ from ..retarget.takes import CharacterTake
 from ..retarget.transfer import stand_on_floor
 from . import avatar_rig
 from .avatar_calibration import avatar_meshes, avatar_model_for
-from .blendfile import _stderr_to_stdout, open_avatar
+from .blendfile import open_avatar
 from .fcurves import object_fcurves, read_keys
+from .process import stderr_to_stdout
 
 # Metres per file unit a BVH may be written in (m, cm, inch, CMU's inch / 0.45, mm): the one that
 # makes the skeleton's rest height closest to a human's is taken (BLENDER_NOTES.md, BVH import).
@@ -206,7 +207,7 @@ def open_source(path) -> list[str]:
         return []
     unit, scale = bvh_unit(path)
     bpy.ops.wm.read_homefile(use_empty=True)
-    with _stderr_to_stdout():
+    with stderr_to_stdout():
         try:
             # Blender's importer turns the BVH's Y up into Z up, keys every BVH frame from frame 1
             # and sets the scene's rate to the file's.

@@ -1,7 +1,7 @@
-"""Exporting a baked avatar for game engines and other tools (issue 15): FBX, glTF (.glb binary,
-.gltf with its buffers embedded) and BVH, through Blender's own exporters, with the options a
-game engine expects: the armature and its skinned meshes, the baked (active) action only, no
-leaf bones, Y up where the format wants it.
+"""Exporting a baked avatar for game engines and other tools (FORMATS.md §4.2, "Files"): FBX,
+glTF (.glb binary, .gltf with its buffers embedded) and BVH, through Blender's own exporters,
+with the options a game engine expects: the armature and its skinned meshes, the baked (active)
+action only, no leaf bones, Y up where the format wants it.
 
 Every export goes through `outputs.replacing` (a temporary file beside the target, renamed only
 once complete), so a failed export never leaves half a file or costs an existing one.

@@ -1,11 +1,61 @@
-"""The process that runs Blender as a module: giving freed memory back, and ending it."""
+"""The process that runs Blender as a module: where Blender's output goes, giving freed memory
+back, and ending it. Nothing here imports `bpy`: the command line uses it before Blender loads."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shutil
 import sys
+import warnings
 from typing import NoReturn
+
+
+@contextlib.contextmanager
+def stderr_to_stdout(*, python_stderr: bool = True):
+    """What Blender's C code prints to the process's stderr (file descriptor 2) goes to stdout for
+    the block: a scripted driver it refuses to run, an importer's complaints.
+
+    `python_stderr`: Python's `sys.stderr` goes to stdout too (Blender's importers print their
+    chatter from Python). False (the command line): Python's stderr keeps the process's real
+    stderr, which then carries BodyCal's own lines only (one per error or warning), while Python's
+    warnings (numpy's) go to stdout with Blender's log; when `sys.stderr` is not the process's (a
+    test capturing it in Python), nothing changes."""
+    if not python_stderr:
+        try:
+            is_process_stderr = sys.stderr.fileno() == 2
+        except (AttributeError, ValueError, io.UnsupportedOperation):
+            is_process_stderr = False
+        if not is_process_stderr:
+            yield
+            return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        os.dup2(1, 2)
+        if python_stderr:
+            with contextlib.redirect_stderr(sys.stdout):
+                yield
+        else:
+            own = open(saved, "w", buffering=1, encoding=sys.stderr.encoding, errors="backslashreplace",
+                       closefd=False)
+            previous, show = sys.stderr, warnings.showwarning
+
+            def to_stdout(message, category, filename, lineno, file=None, line=None):
+                show(message, category, filename, lineno, file=sys.stdout, line=line)
+
+            sys.stderr, warnings.showwarning = own, to_stdout
+            try:
+                yield
+            finally:
+                own.flush()
+                sys.stderr, warnings.showwarning = previous, show
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def release_freed_memory() -> None:

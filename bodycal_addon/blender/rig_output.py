@@ -1,7 +1,7 @@
-"""What the bake keys on the armature besides the engine's own pose bones (issue 14): where the
-travel goes (root motion, `retarget/root_motion.py`) read off the armature object's rest pose, and
-a generated Rigify rig's DEF- pose carried onto its FK controls or its DEF- bones
-(`retarget/rigify.py`).
+"""What the bake keys on the armature besides the engine's own pose bones (DESIGN.md §1, "Root
+motion" and "Rigify"): where the travel goes (root motion, `retarget/root_motion.py`) read off
+the armature object's rest pose, and a generated Rigify rig's DEF- pose carried onto its FK
+controls or its DEF- bones (`retarget/rigify.py`).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ Winter, "Biomechanics and Motor Control of Human Movement", Fig. 4.1). Positions
 what is known at the reference time (measured joints, device poses in the T-pose) and fall back to
 a body frame: up = +Z, left `L`, forward `F` = L x up.
 
-Where the devices sit on the body (checked against the CMU subjects of `evaluation/`, issue 11):
+Where the devices sit on the body (checked against the CMU subjects of `evaluation/`):
 - the foot tracker is strapped on the instep, in front of the ankle (the top of the navicular and
   cuneiforms, about a quarter of the foot's length, 0.035 H, ahead of the joint), along the foot,
   which points 10° out from the body's forward (the foot progression angle, 7-13° in adults);

@@ -39,7 +39,7 @@ def device_poses(session: Session) -> dict[str, list[float]]:
 
 def offsets(session: Session, joints: dict, bone_quats: dict[str, np.ndarray], joint_bone: dict[str, str]
             ) -> dict[str, Offset]:
-    """Paper 004 §3.3: per joint with a tracker, v0 = p0(J) - p0(T), R0(T), R0(J)."""
+    """AvatarGo §3.3: per joint with a tracker, v0 = p0(J) - p0(T), R0(T), R0(J)."""
     out = {}
     for name, j in joints.items():
         if j.frame is None or name not in joint_bone:

@@ -70,7 +70,7 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
     if not session.has("head"):
         raise BodyCalError("the recording has no HMD (role 'head'): the eye height and the head cannot be "
                            "calibrated", source=session.source, hint="assign the role 'head' to the HMD device")
-    # Paper 000, appendix B: extremities (hands, feet, head), then the limbs, then the trunk.
+    # Delahaye 2023, appendix B: extremities (hands, feet, head), then the limbs, then the trunk.
     _run("palms_together", hands.palms_together, session, state)
     _run("hand touches", hands.hand_touches, session, state)
     _run("feet", feet.feet, session, state)

@@ -165,7 +165,7 @@ def _arc_deg(angles: np.ndarray) -> float:
 
 
 def _two_sigma(dist: np.ndarray) -> np.ndarray:
-    """Paper 000, appendix B: drop points whose distance to the centre is more than two standard
+    """Delahaye 2023, appendix B: drop points whose distance to the centre is more than two standard
     deviations from the mean distance."""
     mu, sd = dist.mean(), dist.std()
     return np.abs(dist - mu) <= max(2.0 * sd, 1e-9 * max(mu, 1.0))  # exact data: keep everything

@@ -150,10 +150,12 @@ def write_text(path, text: str, **checks) -> Path:
     return Path(path)
 
 
-def describe_os_error(exc: OSError) -> str:
-    """One line for an OSError nothing more specific caught: the path, what failed, what to do."""
+def describe_os_error(exc: OSError, *, advice: bool = True) -> str:
+    """One line for an OSError nothing more specific caught: the path, what failed and (`advice`)
+    what to do. The sidebar's status bar leaves the advice out (operators/reporting.py)."""
     where = f"{exc.filename}: " if exc.filename else ""
-    return f"{where}{exc.strerror or exc}; check the path exists and that you may read or write it"
+    text = f"{where}{exc.strerror or exc}"
+    return f"{text}; check the path exists and that you may read or write it" if advice else text
 
 
 _UNSAFE = re.compile(r"[^\w.+-]")  # \w: letters and digits of any script, and _

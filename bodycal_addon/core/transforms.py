@@ -13,9 +13,25 @@ EPS = 1e-12
 
 def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
     """Unit vectors; zero vectors stay zero (never NaN)."""
-    v = np.asarray(v, dtype=float)
-    n = np.linalg.norm(v, axis=axis, keepdims=True)
-    return np.divide(v, n, out=np.zeros_like(v), where=n > EPS)
+    return unit_and_norm(np.asarray(v, dtype=float), 0.0, axis)[0]
+
+
+def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors of `v` along `axis` and their norms; `fallback` (broadcast like `v`) where a
+    norm is EPS or less, so never NaN. `v`'s float type is kept (the egocentric kernels run in
+    float32, their vectors components first: `axis=0`). The norm sums the squared components in
+    order, as `np.linalg.norm` does, one component at a time (several times faster on a short
+    trailing axis)."""
+    comps = np.moveaxis(v, axis, 0)
+    s = comps[0] * comps[0]
+    for c in comps[1:]:
+        s += c * c
+    n = np.sqrt(s)
+    ok = n > EPS
+    u = v / np.expand_dims(np.where(ok, n, 1.0), axis)
+    if not ok.all():
+        u = np.where(np.expand_dims(ok, axis), u, fallback)
+    return u, n
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

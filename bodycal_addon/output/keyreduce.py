@@ -1,4 +1,4 @@
-"""Key reduction with a guaranteed error bound (issue 15): which samples of a densely sampled
+"""Key reduction with a guaranteed error bound (FORMATS.md §4.2, "Keys"): which samples of a densely sampled
 curve to keep so that LINEAR interpolation between the kept keys reproduces every sample within
 a tolerance.
 

@@ -1,4 +1,4 @@
-"""Rigify's generated rig (issue 14; DESIGN.md §2 "Rigify", FORMATS.md §4.3). Numpy only.
+"""Rigify's generated rig (DESIGN.md §1 "Rigify", FORMATS.md §4.4). Numpy only.
 
 The engine calibrates and animates a generated rig on its DEF- bones read as a skeleton of their
 own (blender/avatar_rig.deform_parents). The result then goes onto the rig itself, one of two ways:

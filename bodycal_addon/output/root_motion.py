@@ -1,4 +1,4 @@
-"""Where an animation's travel goes (issue 14; DESIGN.md §1 "Root motion", FORMATS.md §4.3).
+"""Where an animation's travel goes (DESIGN.md §1 "Root motion", FORMATS.md §4.4).
 Numpy only; applied to the finished `AvatarAnimation` just before the bake, so the engine, its
 joints and every figure measured on them stay the same.
 

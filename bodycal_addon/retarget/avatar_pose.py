@@ -533,7 +533,7 @@ def copy_frames(user_frames: np.ndarray, user_frames0: np.ndarray, avatar_frames
     whatever the avatar's rest pose); trunk frames (DELTA_COPY) as the rotation since the user's
     reference pose applied to the avatar's rest turned to face as the user did (`facing_turn` Y):
     C_u(t) C_u0^-1 Y C_a0. Without Y a performer who faced anywhere but the avatar's rest facing
-    got a trunk turned against the limbs (legs crossed, issue 11)."""
+    got a trunk turned against the limbs (legs crossed; DESIGN.md §1, "Frame of reference")."""
     out = np.array(user_frames, float, copy=True)
     idx = list(DELTA_COPY)
     turn = facing_turn(user_frames0, avatar_frames0)

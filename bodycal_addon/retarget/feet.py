@@ -1,4 +1,4 @@
-"""Planted feet (issue 11; beyond papers 000 and 004, whose feet follow their targets).
+"""Planted feet (DESIGN.md §6; beyond Delahaye 2023 and AvatarGo, whose feet follow their targets).
 
 While the performer stands on a foot, the avatar's foot stays put and on the floor, in every
 method:

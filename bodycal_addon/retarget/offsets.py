@@ -141,7 +141,7 @@ def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarra
 
 
 def capsule_sdf(p, s, e, r):
-    """Paper 004, eq. 5: |v1 - v2 h| - r, h = clamp(v1.v2 / v2.v2, 0, 1)."""
+    """AvatarGo, eq. 5: |v1 - v2 h| - r, h = clamp(v1.v2 / v2.v2, 0, 1)."""
     v1, v2 = p - s, e - s
     h = np.clip((v1 * v2).sum(-1) / np.maximum((v2 * v2).sum(-1), EPS), 0.0, 1.0)
     return np.linalg.norm(v1 - v2 * h[..., None], axis=-1) - r

@@ -207,7 +207,7 @@ class _Run:
             res = solve_spine(targets["skull_base"])
             frames[:, BI["sacrum"]] = res.sacrum_rot
             if self.character:
-                # Decision (issue 16): an animated character's spine has its own shape (an
+                # Decision (DESIGN.md §8): an animated character's spine has its own shape (an
                 # animator's curve is no IK's), so the IK only corrects it: each vertebra turns by
                 # what the IK changes between aiming at the copied skull base and at the target.
                 # Where they agree (the same body) the source's spine comes back as it was.

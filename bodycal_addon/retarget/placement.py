@@ -1,4 +1,4 @@
-"""Where a performance plays in the avatar's scene (issue 14; DESIGN.md §1, "Placement"), and the
+"""Where a performance plays in the avatar's scene (DESIGN.md §1, "Placement"), and the
 avatar-model checks that go with the armature object's transform. Numpy only.
 
 The retargeting engine works in the performer's play area: the recording's frame, floor at z = 0,

@@ -3,10 +3,10 @@ asks a pose source for the performer's body model, the canonical joints and bone
 of frames, and the ankles of the whole take (feet.py's stance detection).
 
 - `RecordingSource`: a tracker recording of a calibrated user (`user_animation.animate_user`).
-- `AnimationSource` (issue 16): another character's animation: its avatar model (surface
-  calibrated, or estimated from a bare skeleton) and its pose-bone values per frame, posed by the
-  same FK as the avatar's (`AvatarRig.fk`), so the canonical joints and frames are exactly where
-  Blender's pose puts them.
+- `AnimationSource` (animation transfer, DESIGN.md §8): another character's animation: its
+  avatar model (surface calibrated, or estimated from a bare skeleton) and its pose-bone values
+  per frame, posed by the same FK as the avatar's (`AvatarRig.fk`), so the canonical joints and
+  frames are exactly where Blender's pose puts them.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Animation transfer between characters (issue 16, DESIGN.md "Transfer"): any animated humanoid
+"""Animation transfer between characters (DESIGN.md §8): any animated humanoid
 is the performer, any avatar the target, through the same pipeline as a tracker recording
 (`pipeline.run_source` with a `pose_source.AnimationSource`).
 

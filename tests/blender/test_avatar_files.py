@@ -1,7 +1,7 @@
-"""Issue 14: avatars from the files users bring, .blend, .fbx, .glb / .gltf and .vrm, read by
-Blender's own importers into an empty scene (blendfile.open_avatar), on the command line, in
-batch jobs and in the sidebar; what an importer brings besides the avatar is ignored, and a file
-it cannot read is one line."""
+"""Avatars from the files users bring (FORMATS.md §4.3), .blend, .fbx, .glb / .gltf and .vrm, read
+by Blender's own importers into an empty scene (blendfile.open_avatar), on the command line, in
+batch jobs and in the sidebar; what an importer brings besides the avatar is ignored, and a file it
+cannot read is one line."""
 
 from __future__ import annotations
 

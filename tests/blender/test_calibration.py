@@ -115,7 +115,7 @@ def test_hinge_sign_holds_with_noise_and_small_range():
 
 
 def test_hinge_too_little_motion_is_reported_and_left_out():
-    """Issue 11: a step that cannot be used is reported and defaulted, never fatal."""
+    """A step that cannot be used is reported and defaulted, never fatal."""
     rec, _ = _elbow_session(flex_deg=15, touches=False)
     session, state = Session(rec), State()
     L.limbs(session, state)
@@ -125,9 +125,9 @@ def test_hinge_too_little_motion_is_reported_and_left_out():
 
 
 def test_hinge_without_its_upper_arm_tracker_uses_a_trunk_tracker():
-    """Issue 11: no upper arm tracker (six devices, or a dead one): the upper arm is held still
-    against the trunk while the elbow flexes, so a trunk tracker (here the HMD) circles the hinge
-    in the forearm's frame just as the upper arm tracker would."""
+    """No upper arm tracker (six devices, or a dead one): the upper arm is held still against the
+    trunk while the elbow flexes, so a trunk tracker (here the HMD) circles the hinge in the
+    forearm's frame just as the upper arm tracker would."""
     rec, truth = _elbow_session(touches=False)
     rec.devices[0].role = None  # the upper arm tracker is unknown
     rec.devices[0].name = "LHR-1"
@@ -238,8 +238,8 @@ def test_a_touch_that_never_stops_moving_is_actionable():
 
 @pytest.mark.slow
 def test_a_borderline_touch_never_aborts_and_json_and_csv_agree(tmp_path):
-    """Issue 11 item 6: the project's own compact clap session (22 fps, half pace) was rejected on
-    one touch, and its CSV failed where the JSON passed. Every format now gives the same model."""
+    """The project's own compact clap session (22 fps, half pace) was rejected on one touch, and its
+    CSV failed where the JSON passed. Every format now gives the same model."""
     from bodycal_addon.recording.io import load_recording, save_recording
     from bodycal_dev import synthetic
 
@@ -513,9 +513,9 @@ def _drop_device(rec, role):
 
 @pytest.mark.slow
 def test_bad_synthetic_data_is_reported_not_fatal(full_session):
-    """Issue 11: without the upper arm tracker the elbow step is fitted from the devices left (the
-    hand circling the elbow in a trunk frame); a touch that never settles is dropped with a
-    warning naming it, and the rest of the model still comes out."""
+    """Without the upper arm tracker the elbow step is fitted from the devices left (the hand
+    circling the elbow in a trunk frame); a touch that never settles is dropped with a warning
+    naming it, and the rest of the model still comes out."""
     rec, truth = full_session
     model = calibrate_user(_drop_device(rec, "upperarm_l"))
     q = model.calibration["quality"]["flex_elbow_l"]

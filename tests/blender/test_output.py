@@ -1,5 +1,5 @@
-"""Issue 15: production-size output. Blender plays the reduced keys within the tolerance, --fps
-resamples with the timing kept, every .blend is compressed, and each export format re-imports
+"""Production-size output (FORMATS.md §4.2). Blender plays the reduced keys within the tolerance,
+--fps resamples with the timing kept, every .blend is compressed, and each export format re-imports
 with the joints where the .blend has them."""
 
 import subprocess
@@ -221,9 +221,9 @@ print("GROWTH", rss_mb() - before)
 
 
 def test_saving_does_not_copy_the_baked_action(tmp_path):
-    """Issue 13/15 memory: `bpy.ops` updates the view layer around every call, and that copies each
-    action into the depsgraph (2 M keys: ~140 MB; a 10-minute bake: +650 MB at the command's
-    peak). save_blend writes the file without that copy."""
+    """The bake's memory (BLENDER_NOTES.md): `bpy.ops` updates the view layer around every call, and
+    that copies each action into the depsgraph (2 M keys: ~140 MB; a 10-minute bake: +650 MB at the
+    command's peak). save_blend writes the file without that copy."""
     script = tmp_path / "save_memory.py"
     script.write_text(SAVE_MEMORY_SCRIPT)
     out = tmp_path / "big.blend"

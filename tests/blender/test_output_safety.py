@@ -1,5 +1,6 @@
-"""Issue 13: an output never destroys what the user has. Every bad output path ends in exit 2 with
-one line on stderr, before any work, with every input byte-identical and no temporary file left."""
+"""An output never destroys what the user has (FORMATS.md §4, "Outputs"). Every bad output path ends
+in exit 2 with one line on stderr, before any work, with every input byte-identical and no temporary
+file left."""
 
 import hashlib
 import os

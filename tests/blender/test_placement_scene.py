@@ -1,7 +1,7 @@
-"""Issue 14 in Blender: an armature object anywhere, turned and scaled, plays the same body's
-performance relative to where it stands (retarget/placement.py), measured on the baked,
-evaluated armature and mesh; the performer placement; the warnings a doubtful object transform
-gets; two avatars in one file."""
+"""Placement in Blender (DESIGN.md §1, "Placement"): an armature object anywhere, turned and scaled,
+plays the same body's performance relative to where it stands (retarget/placement.py), measured on
+the baked, evaluated armature and mesh; the performer placement; the warnings a doubtful object
+transform gets; two avatars in one file."""
 
 from __future__ import annotations
 
@@ -109,8 +109,8 @@ def test_a_scaled_moved_turned_armature_is_the_same_body_at_that_size(session):
 
 
 def test_an_avatar_placed_away_plays_there_and_the_performer_placement_keeps_the_room(session):
-    """Issue 14: an avatar placed at (2, -3) ended at the origin. Now it plays on its spot, facing
-    its way; with the performer placement it plays where the performer was (here: the origin)."""
+    """An avatar placed at (2, -3) used to end at the origin. Now it plays on its spot, facing its
+    way; with the performer placement it plays where the performer was (here: the origin)."""
     rec, truth, user = session
     arm = _avatar(Matrix.Translation((2.0, -3.0, 0.0)))
     _bake(arm, session)

@@ -1,6 +1,7 @@
 """Recordings of real human motion as an outside tool writes them (`evaluation/`: a CMU clip, the
-calibration steps performed by its own skeleton, trackers strapped at random angles and offsets,
-any facing): what a real session asks of the engine beyond the synthetic performer (issue 11)."""
+calibration steps performed by its own skeleton, trackers strapped at random angles and offsets, any
+facing): what a real session asks of the engine beyond the synthetic performer (DESIGN.md §7, "Real
+motion")."""
 
 from __future__ import annotations
 
@@ -54,8 +55,8 @@ def walk_full(walker, tmp_path_factory):
 @pytest.mark.slow
 @pytest.mark.parametrize("method", pl.METHODS)
 def test_turning_and_moving_the_room_turns_and_moves_the_animation(walk_full, method):
-    """Issue 11: the same recording rotated by any yaw and moved anywhere on the floor gives the
-    same animation up to that rigid motion (<= 1 mm), whichever way the performer faced."""
+    """The same recording rotated by any yaw and moved anywhere on the floor gives the same
+    animation up to that rigid motion (<= 1 mm), whichever way the performer faced."""
     rec, _ = walk_full
     other, R, t = moved(rec, 137.0, (1.3, -0.8, 0.0))
     avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.1))
@@ -70,8 +71,8 @@ def test_turning_and_moving_the_room_turns_and_moves_the_animation(walk_full, me
 
 @pytest.mark.slow
 def test_a_performer_facing_forward_keeps_the_pelvis_with_the_legs(walker, tmp_path):
-    """Issue 11 item 1: facing FORMATS.md's forward (internal +Y) the pelvis turned 180 degrees
-    against the torso and the legs crossed. The avatar's hip line follows the source's."""
+    """Facing FORMATS.md's forward (internal +Y) the pelvis used to turn 180 degrees against the
+    torso and the legs crossed. The avatar's hip line follows the source's."""
     rec, truth = outside_recording(walker, tmp_path, "full", seed=1, yaw=np.radians(180.0))
     user = calibrate_user(rec)
     avatar = rt.procedural_avatar()
@@ -99,9 +100,9 @@ def walk_six(walker, tmp_path_factory):
 
 @pytest.mark.slow
 def test_six_devices_calibrate_every_step_from_the_devices_there(walk_six):
-    """Issue 11: HMD, controllers, pelvis and feet only. The swing and flex steps are fitted from
-    the devices that are there (the report names which, in which frame) and nothing aborts; hips,
-    shoulders, knees and elbows land within 25 mm of the clip's joints."""
+    """HMD, controllers, pelvis and feet only (AvatarGo's six devices). The swing and flex steps are
+    fitted from the devices that are there (the report names which, in which frame) and nothing
+    aborts; hips, shoulders, knees and elbows land within 25 mm of the clip's joints."""
     rec, truth = walk_six
     user = calibrate_user(rec)
     cal = user.calibration
@@ -122,8 +123,8 @@ def test_six_devices_calibrate_every_step_from_the_devices_there(walk_six):
 
 @pytest.mark.slow
 def test_full_profile_without_touches_places_the_joints(walk_full):
-    """Issue 11 targets without touch steps: knees and elbows within 15 mm (their place along the
-    hinge axis from the anchor's flexion plane), ankles within 20 mm and wrists within 10 mm
+    """The real-motion targets without touch steps: knees and elbows within 15 mm (their place along
+    the hinge axis from the anchor's flexion plane), ankles within 20 mm and wrists within 10 mm
     (fitted from the motion between the limb tracker and the hand / foot device)."""
     rec, truth = walk_full
     user = calibrate_user(rec)
@@ -171,8 +172,8 @@ def test_a_csv_round_trip_gives_the_same_body_model_as_the_json(walk_six, tmp_pa
 @pytest.mark.slow
 @pytest.mark.parametrize("method", pl.METHODS)
 def test_planted_feet_hold_still_on_the_floor(walk_full, method):
-    """Issue 11 item 4: during the source's stance the avatar's foot neither slides nor sinks nor
-    floats, whatever the method; without planting it does (the test can fail)."""
+    """Planted feet (DESIGN.md §6): during the source's stance the avatar's foot neither slides nor
+    sinks nor floats, whatever the method; without planting it does (the test can fail)."""
     from bodycal_addon.blender import mesh_metrics
 
     rec, truth = walk_full
@@ -205,10 +206,10 @@ def _roll_jitter(anim, bone: str) -> float:
 
 
 def test_the_limb_ik_adds_no_roll_jitter_to_nearly_straight_limbs(walk_full):
-    """Issue 11 (smoothness): walking arms hang nearly straight and beyond the avatar's reach; the
-    swivel measured from the avatar's axis then held the mapping's axis change and the upper arm's
-    roll jittered at 2.7-3.2x the rotation copy's. Measured from the user's own axis, with the
-    hinge axis weighing as a 10 cm offset: 1.50x measured, the thighs 1.02x."""
+    """Smoothness: walking arms hang nearly straight and beyond the avatar's reach; the swivel
+    measured from the avatar's axis then held the mapping's axis change and the upper arm's roll
+    jittered at 2.7-3.2x the rotation copy's. Measured from the user's own axis, with the hinge axis
+    weighing as a 10 cm offset: 1.50x measured, the thighs 1.02x."""
     rec, _ = walk_full
     user = calibrate_user(rec)
     avatar = rt.procedural_avatar()

@@ -1,5 +1,5 @@
 """The last step as users run it: the sidebar's Retarget and Bake operator, and the `retarget`
-command on files, end to end (issue 7)."""
+command on files, end to end."""
 
 import subprocess
 import sys
@@ -112,7 +112,7 @@ def test_retarget_command_end_to_end_keeps_the_hand_on_the_belly(tmp_path, belly
     anim = retarget(rec, BodyModel.load(user_path), avatar, "egocentric")
     (contact,) = [c for c in truth.contacts if c["target"].startswith("mesh:torso")]
     gaps = mesh_metrics.contact_gaps(arm, avatar, anim, [contact], max_frames=6)[0]
-    assert np.all(np.abs(gaps) < 0.010), gaps  # within the quality target (issue 6: p95 <= 10 mm)
+    assert np.all(np.abs(gaps) < 0.010), gaps  # within the quality target (bench_retarget_quality: p95 <= 10 mm)
     frame = int(bpy.context.scene.frame_start + np.flatnonzero(contact["frames"])[0])
     bpy.context.scene.frame_set(frame)
     baked = np.array(arm.pose.bones["hand_r"].rotation_quaternion)
@@ -121,8 +121,8 @@ def test_retarget_command_end_to_end_keeps_the_hand_on_the_belly(tmp_path, belly
 
 
 def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(belly_session):
-    """Issue 11: the One Euro filter is a panel option; it works on a copy (the scene's recording
-    keeps its samples) and changes the bake; feet can be left to the method."""
+    """The One Euro filter (DESIGN.md §6b) is a panel option; it works on a copy (the scene's
+    recording keeps its samples) and changes the bake; feet can be left to the method."""
     from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 
     rec, truth = belly_session

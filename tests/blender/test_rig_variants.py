@@ -1,9 +1,9 @@
-"""The rigs users bring (issue 14): one sample avatar (MPFB2 adult_male) rebuilt with the bone
-names of VRoid, Daz Genesis 8 (with its hip/pelvis pair and Bend/Twist limbs), Character Creator
-(with its side-branch twist bones), Unity and numbered Mixamo. Detection needs no manual step and
-the calibrated avatar model and the retargeted animation are those of the original. A rig whose
-names no scheme knows is mapped with a preset (`--bone-map`, the panel's Import/Apply), and a bad
-preset is one line with exit 2."""
+"""The rigs users bring (DESIGN.md §2, "Naming schemes"): one sample avatar (MPFB2 adult_male)
+rebuilt with the bone names of VRoid, Daz Genesis 8 (with its hip/pelvis pair and Bend/Twist limbs),
+Character Creator (with its side-branch twist bones), Unity and numbered Mixamo. Detection needs no
+manual step and the calibrated avatar model and the retargeted animation are those of the original.
+A rig whose names no scheme knows is mapped with a preset (`--bone-map`, the panel's Import/Apply),
+and a bad preset is one line with exit 2."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""A generated Rigify rig (issue 14): ~410 bones, DEF-/ORG-/MCH- and FK/IK controls, built from
-Rigify's human metarig fitted onto the procedural avatar (sample_rigs/rigify_rig.py, generated
-once per session in a subprocess: Rigify hangs Blender 4.5 at exit). It is detected with no manual
-step, calibrated on its DEF- bones, and the retargeted motion is keyed on its FK controls (the
-animator's rig, IK switched to FK) or on its DEF- bones (export); either way Blender's own
+"""A generated Rigify rig (DESIGN.md §1, "Rigify"): ~410 bones, DEF-/ORG-/MCH- and FK/IK controls,
+built from Rigify's human metarig fitted onto the procedural avatar (sample_rigs/rigify_rig.py,
+generated once per session in a subprocess: Rigify hangs Blender 4.5 at exit). It is detected with
+no manual step, calibrated on its DEF- bones, and the retargeted motion is keyed on its FK controls
+(the animator's rig, IK switched to FK) or on its DEF- bones (export); either way Blender's own
 evaluation of the DEF- bones and of the deformed mesh shows the engine's pose."""
 
 from __future__ import annotations

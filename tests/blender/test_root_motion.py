@@ -1,7 +1,7 @@
-"""Root motion (issue 14): on a rig with a root bone above the pelvis (the MakeHuman game-engine
-sample, Unreal names: Root -> pelvis) the travel of a walk goes on the root bone, on the floor
-under the pelvis and turned with its heading; the pelvis is keyed relative to it, so every bone
-lands where the pelvis-only bake puts it. In place keeps the pelvis on its spot."""
+"""Root motion (DESIGN.md §1, FORMATS.md §4.4): on a rig with a root bone above the pelvis (the
+MakeHuman game-engine sample, Unreal names: Root -> pelvis) the travel of a walk goes on the root
+bone, on the floor under the pelvis and turned with its heading; the pelvis is keyed relative to it,
+so every bone lands where the pelvis-only bake puts it. In place keeps the pelvis on its spot."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
-"""Animation transfer in Blender (issue 16): a real CMU BVH (a bare skeleton: its body estimated)
-onto the shared avatars, the action read from its F-Curves against Blender's own pose, a skinned
-character's action onto another avatar, and `bodycal transfer` on the command line."""
+"""Animation transfer in Blender (DESIGN.md §8): a real CMU BVH (a bare skeleton: its body
+estimated) onto the shared avatars, the action read from its F-Curves against Blender's own pose, a
+skinned character's action onto another avatar, and `bodycal transfer` on the command line."""
 
 from __future__ import annotations
 

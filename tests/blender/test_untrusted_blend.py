@@ -1,7 +1,7 @@
-"""Issue 13: nothing inside an avatar .blend runs. A user's file may carry a text block registered
-as a module (run by Blender when a file is loaded with scripts allowed) and Python drivers (run
-whenever the scene is evaluated); BodyCal opens every .blend with scripts disabled, whatever the
-user's "Auto Run Python Scripts" preference says."""
+"""Nothing inside an avatar .blend runs (FORMATS.md §4). A user's file may carry a text block
+registered as a module (run by Blender when a file is loaded with scripts allowed) and Python
+drivers (run whenever the scene is evaluated); BodyCal opens every .blend with scripts disabled,
+whatever the user's "Auto Run Python Scripts" preference says."""
 
 import subprocess
 import sys
@@ -126,9 +126,9 @@ def test_every_blend_the_project_opens_goes_through_the_scriptless_opener():
 
 
 def test_blenders_complaints_about_the_file_stay_off_stderr(armed, tmp_path):
-    """Issue 13, item 6: Blender prints its refusal to run the file's driver ("restricted access
-    disallows name '__import__'", "Error in PyDriver", 4 lines) to the process's stderr while the
-    command evaluates the scene; stderr keeps BodyCal's lines only: none on success, one on error."""
+    """Blender prints its refusal to run the file's driver ("restricted access disallows name
+    '__import__'", "Error in PyDriver", 4 lines) to the process's stderr while the command evaluates
+    the scene; stderr keeps BodyCal's lines only: none on success, one on error."""
     blend, markers = armed
     ok = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(blend), "-o",
                          str(tmp_path / "avatar.body.json")], cwd=REPO, capture_output=True, text=True, timeout=300)

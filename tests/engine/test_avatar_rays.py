@@ -1,7 +1,7 @@
-"""The avatar calibration's ray plan without Blender (issue 12): `avatar_rays.surface_from_rays` on
-the procedural avatar's armature read by the engine (`armature.read_armature`), cast against the
-avatar's exact shapes by an analytic caster: capsules, the torso ellipsoid, the skull sphere and
-the palm and sole boxes. The same truth checks as the BVH raycasts in Blender."""
+"""The avatar calibration's ray plan without Blender (DESIGN.md §4): `avatar_rays.surface_from_rays`
+on the procedural avatar's armature read by the engine (`armature.read_armature`), cast against the
+avatar's exact shapes by an analytic caster: capsules, the torso ellipsoid, the skull sphere and the
+palm and sole boxes. The same truth checks as the BVH raycasts in Blender."""
 
 from __future__ import annotations
 

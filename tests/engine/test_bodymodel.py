@@ -92,7 +92,7 @@ def test_capsule_axis_offsets_round_trip(tmp_path):
     np.testing.assert_allclose(back.element("capsule:forearm_l").axis_offsets(), [[0.001, 0, -0.02], [0, 0, -0.015]])
 
 
-# Issue 13: every bad body.json gets one line naming the file and the field.
+# Every bad body.json gets one line naming the file and the field (FORMATS.md §3).
 
 @pytest.mark.parametrize("mutate, field, words", [
     (lambda d: d["bones"]["forearm_l"].update(length=0), "bones.forearm_l.length", "positive length"),
@@ -138,7 +138,7 @@ def test_unreadable_body_files_are_one_line(tmp_path, blob, words):
 
 
 def test_cli_retarget_with_a_random_bytes_body_is_one_line(tmp_path):
-    # End to end (issue 13): exit 2 and exactly one line on stderr, naming the body file.
+    # End to end: exit 2 and exactly one line on stderr, naming the body file.
     import subprocess
     import sys
 

@@ -190,7 +190,7 @@ def test_broken_files_raise_one_line(tmp_path):
     ("POINT:RATE", 1e30, {}, "POINT:RATE: frame rate 1e+30 Hz is not plausible"),
 ])
 def test_non_finite_parameters_are_one_line(tmp_path, key, value, extra, words):
-    # Used to escape as ValueError / OverflowError from int(nan) / int(inf) (issue 13).
+    # Used to escape as ValueError / OverflowError from int(nan) / int(inf).
     path = c3d_writer.write_c3d(tmp_path / "p.c3d", _points(), list("ABCD"), 100.0, events=[("tpose", 0.1)],
                                 float_params={key: value, **extra})
     with pytest.raises(BodyCalError) as info:

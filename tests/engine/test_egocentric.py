@@ -225,8 +225,8 @@ def _reach_forward(joints, k):
 
 
 def test_kinematic_normalisation_stretches_a_reach_with_longer_arms():
-    # Paper 000, Figure 14: an avatar with 1.5x longer arms reaching forward like the user should
-    # reach further; with τ'/τ = 1 the wrist would stay at the user's reach from the chest.
+    # Delahaye 2023, Figure 14: an avatar with 1.5x longer arms reaching forward like the user
+    # should reach further; with τ'/τ = 1 the wrist would stay at the user's reach from the chest.
     base = rb.standing_joints()
     user, avatar = rb.make_body_model(_reach_forward(base, 1.0)), rb.make_body_model(_reach_forward(base, 1.5))
 

@@ -227,7 +227,7 @@ def test_fast_csv_path_agrees_with_the_careful_one(line, col, cell):
 
 
 # ---------------------------------------------------------------------------------------------
-# Issue 13: every bad input gets one line naming the file (and the field)
+# Every bad input gets one line naming the file (and the field)
 
 C3D_PARAMS = {  # parameter -> what else the file needs for it to be read
     "POINT:USED": {}, "POINT:DATA_START": {}, "POINT:RATE": {}, "POINT:SCALE": {}, "EVENT:USED": {},
@@ -457,8 +457,8 @@ def _csv_outcome(path):
        cell=st.sampled_from(["", "nan", "x", "1e999", "5", "hmd", "LHR-00", "1e5"]), blank=st.integers(0, 200),
        sidecar=st.booleans())
 def test_csv_read_in_chunks_is_the_same_as_at_once(chunk, line, col, cell, blank, sidecar):
-    # The CSV is parsed a chunk at a time (memory, issue 13): whatever the chunk size, a file loads
-    # to the same arrays or fails with the same line as when read at once.
+    # The CSV is parsed a chunk at a time (memory): whatever the chunk size, a file loads to the
+    # same arrays or fails with the same line as when read at once.
     lines = VALID_CSV.decode().splitlines()
     k = 1 + line % (len(lines) - 1)
     cells = lines[k].split(",")

@@ -238,9 +238,9 @@ def test_spine_from_the_rest_shape_is_finite_on_the_root_and_short_out_of_reach(
 
 
 def test_a_nearly_straight_limb_keeps_its_bend_plane_under_joint_noise():
-    """Issue 11 item 5: a standing leg's knee sits 1-2 cm off the hip-ankle line and the trackers
-    move it by millimetres; the measured hinge axis, not that noise, must set the swivel (it
-    turned by tens of degrees a frame and the avatar's knee jumped by centimetres)."""
+    """A standing leg's knee sits 1-2 cm off the hip-ankle line and the trackers move it by
+    millimetres; the measured hinge axis, not that noise, must set the swivel (it turned by tens of
+    degrees a frame and the avatar's knee jumped by centimetres)."""
     rng = np.random.default_rng(7)
     n = 300
     root = np.zeros((n, 3))

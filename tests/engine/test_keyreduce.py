@@ -1,5 +1,5 @@
-"""Key reduction (issue 15): the bound holds at every sample whatever the curve, and it really
-reduces what is reducible."""
+"""Key reduction (FORMATS.md §4.2, "Keys"): the bound holds at every sample whatever the curve, and
+it really reduces what is reducible."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Bone naming schemes (naming.SCHEMES): each convention's real bone names, extra bones
 included (twist, IK, corrective, facial, hair, breast, toes), detected with no manual step; the
 required segments land on the right bones and the extras stay unmapped. The name lists come from
-the tools that make these rigs (sources in the report of issue 14 and in skeleton.py's comments):
+the tools that make these rigs (sources in body/naming.py's comments):
 the VRM add-on for Blender's human bone mappers and humanoid template, MPFB2's rig definitions,
 the Diffeomorphic Daz importer's and DazToUnreal's rename tables, a Character Creator skeleton,
 Unreal's MetaHuman / Manny bone lists, Unity's HumanTrait.BoneName."""

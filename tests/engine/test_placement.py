@@ -1,7 +1,7 @@
-"""Where a performance plays (issue 14, retarget/placement.py): relative to the armature object's
-placement by default, or where the performer was in the room; and the avatar model moved with
-its object. The avatars are the procedural one as the calibration measures it on its exact
-surface, placed by an armature matrix_world (bodycal_dev.retarget_fixtures)."""
+"""Where a performance plays (DESIGN.md §1, "Placement"; retarget/placement.py): relative to the
+armature object's placement by default, or where the performer was in the room; and the avatar model
+moved with its object. The avatars are the procedural one as the calibration measures it on its
+exact surface, placed by an armature matrix_world (bodycal_dev.retarget_fixtures)."""
 
 from __future__ import annotations
 

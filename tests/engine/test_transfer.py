@@ -1,7 +1,7 @@
-"""Animation transfer between characters (issue 16) without Blender: the source is the procedural
-avatar animated by retargeting a synthetic performance onto it (feet planted, hands on the belly,
-squats), posed by the rig's own FK; the targets are that avatar itself, scaled and moved copies,
-and other builds."""
+"""Animation transfer between characters (DESIGN.md §8) without Blender: the source is the
+procedural avatar animated by retargeting a synthetic performance onto it (feet planted, hands on
+the belly, squats), posed by the rig's own FK; the targets are that avatar itself, scaled and moved
+copies, and other builds."""
 
 from __future__ import annotations
 

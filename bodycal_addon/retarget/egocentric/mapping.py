@@ -10,11 +10,11 @@ import numpy as np
 
 from ...body import skeleton as sk
 from ...core.errors import BodyCalError
-from ...core.transforms import EPS
+from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
-from .projection import PENETRATION_TOLERANCE, _dot, _normalised, _Proj, _project, _repose
+from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
 from .surface import PosedSurface
-from .weights import normalise, raw_weights
+from .weights import normalise_weights, raw_weights
 
 SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
 
@@ -292,10 +292,10 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     lam_raw, floor_raw = raw_weights(pr, p[..., 2], plan.exclude, falloff)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
-    lam, lam_g, lam_gf = normalise(lam_raw, floor_raw)
+    lam, lam_g, lam_gf = normalise_weights(lam_raw, floor_raw)
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
-    vhat, _ = _normalised(_chains(pr.v, plan), 0.0)  # (3, F, N)
+    vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
     vt = np.ascontiguousarray(np.take(vhat, plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
     tau = np.zeros(vt.shape[1:], vt.dtype)
     dots = []

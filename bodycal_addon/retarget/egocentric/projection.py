@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.transforms import EPS
+from ...core.transforms import EPS, unit_and_norm
 from .surface import PosedSurface
 
 FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)
@@ -55,16 +55,6 @@ def _floating(a) -> np.ndarray:
 
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _normalised(v, fallback):
-    """Unit vectors of (3, ...) `v` and their norms; `fallback` where v vanishes (never NaN)."""
-    n = np.sqrt(_dot(v, v))
-    ok = n > EPS
-    u = v / np.where(ok, n, 1.0)
-    if not ok.all():
-        u = np.where(ok, u, fallback)
-    return u, n
 
 
 def _apply(rc, v):
@@ -157,7 +147,7 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     ap = pc - a
     t = np.clip(_dot(ap, ab) / abab, 0.0, 1.0)
     rc = _rot_comp(surface.caps_rot)
-    d, n = _normalised(ap - t * ab, rc[:, 0])  # on the axis: the bone's +X
+    d, n = unit_and_norm(ap - t * ab, rc[:, 0], axis=0)  # on the axis: the bone's +X
     r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
     cap_v = (n - r) * d
     cos_ax = _dot(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
@@ -165,7 +155,7 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     # Spheres.
     sc = _comp(surface.sph_center)[:, :, None, :]
     src = _rot_comp(surface.sph_rot)
-    sd, sn = _normalised(pc - sc, src[:, 1])
+    sd, sn = unit_and_norm(pc - sc, src[:, 1], axis=0)
     sph_v = (sn - surface.sph_radius) * sd
     # Meshes: the closest triangle of each element.
     if M:

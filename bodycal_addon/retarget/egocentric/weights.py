@@ -25,8 +25,9 @@ def raw_weights(proj: Projections, heights: np.ndarray, exclude: np.ndarray | No
     return lam, floor
 
 
-def normalise(lam: np.ndarray, lam_floor: np.ndarray):
-    """The two normalisations of eq. 1: λ over the elements without the floor, λg with it.
+def normalise_weights(lam: np.ndarray, lam_floor: np.ndarray):
+    """The two normalisations of eq. 1, weights scaled to sum to one (not vectors to unit length):
+    λ over the elements without the floor, λg with it.
     Returns (λ (F, P, E), λg (F, P, E), λg_floor (F, P)); λ is 0 where no element has weight."""
     s = lam.sum(-1)
     sg = s + lam_floor
