@@ -39,7 +39,7 @@ def peak_rss():
 
 
 sys.path.insert(0, {root!r})
-from bodycal_addon import recording_io
+from bodycal_addon.recording import io as recording_io
 traced = {traced!r}
 if traced:
     import tracemalloc

@@ -1760,7 +1760,7 @@ def _body_model(truth: GroundTruth, name: str) -> BodyModel:
 
 
 def write_session(directory, name: str, rec: Recording, truth: GroundTruth) -> tuple[Path, Path]:
-    """Write `<name>.bcrec.json` (FORMATS.md §2.1, via recording_io) and `<name>.truth.json`."""
+    """Write `<name>.bcrec.json` (FORMATS.md §2.1, via recording/io) and `<name>.truth.json`."""
     from bodycal_addon.recording import io as recording_io
 
     directory = Path(directory)

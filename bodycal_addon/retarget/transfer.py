@@ -3,7 +3,7 @@ is the performer, any avatar the target, through the same pipeline as a tracker 
 (`pipeline.run_source` with a `pose_source.AnimationSource`).
 
 The source character is measured like an avatar (its BodyModel from the avatar surface
-calibration, or `body_estimate.estimate_surface` for a bare skeleton) and posed by its own action
+calibration, or `avatar/estimate.estimate_surface` for a bare skeleton) and posed by its own action
 (pose-bone values, Blender's FK). Placement: the source's motion is taken relative to where its
 armature object stands and faces at rest (its play area, placement.py's `object` rule applied to
 the source), and played relative to the target's object (`object`) or in the source's world

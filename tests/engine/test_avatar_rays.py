@@ -1,4 +1,4 @@
-"""The avatar calibration's ray plan without Blender (DESIGN.md §4): `avatar_rays.surface_from_rays`
+"""The avatar calibration's ray plan without Blender (DESIGN.md §4): `avatar/rays.surface_from_rays`
 on the procedural avatar's armature read by the engine (`armature.read_armature`), cast against the
 avatar's exact shapes by an analytic caster: capsules, the torso ellipsoid, the skull sphere and the
 palm and sole boxes. The same truth checks as the BVH raycasts in Blender."""
