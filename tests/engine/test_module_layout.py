@@ -137,3 +137,33 @@ def test_recording_readers_leaves_do_not_import_the_readers_package():
     for leaf in ("coords", "segments", "gaps", "led_gloves", "model"):
         for target, line, _ in _imports(MODULES[f"bodycal_addon.recording.{leaf}"]):
             assert not target.startswith("bodycal_addon.recording.io"), f"{leaf}:{line} imports {target}"
+
+
+MAX_FUNCTION_LINES = 80
+
+
+def _functions(tree: ast.AST, outer: str = ""):
+    """(qualified name, node) of every function and method, nested ones included."""
+    for node in ast.iter_child_nodes(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            name = f"{outer}{node.name}"
+            if not isinstance(node, ast.ClassDef):
+                yield name, node
+            yield from _functions(node, name + ".")
+        else:
+            yield from _functions(node, outer)
+
+
+def test_no_engine_function_is_longer_than_80_lines():
+    """A long engine function becomes a short sequence of named passes, each stating what it reads
+    and what it sets (as glTF-Blender-IO's vnode.py and Rigify's rig stages do), so each step can
+    be read and checked on its own. The Blender glue (`blender/`) is not the engine."""
+    too_long = []
+    for path in sorted(ADDON.rglob("*.py")):
+        if path.relative_to(ADDON).parts[0] == "blender":
+            continue
+        for name, node in _functions(ast.parse(path.read_text())):
+            lines = node.end_lineno - node.lineno + 1
+            if lines > MAX_FUNCTION_LINES:
+                too_long.append(f"{_module_name(path)}.{name} (line {node.lineno}): {lines} lines")
+    assert not too_long, f"longer than {MAX_FUNCTION_LINES} lines; split into passes: " + "; ".join(too_long)
