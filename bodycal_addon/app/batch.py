@@ -81,8 +81,7 @@ from pathlib import Path
 from ..body.bone_presets import load_preset
 from ..core.errors import BodyCalError
 from ..core.outputs import safe_part
-from ..core.paths import ANIMATION_SUFFIXES as SOURCE_SUFFIXES
-from ..core.paths import AVATAR_SUFFIXES, ROOT_DIR
+from ..core.paths import ANIMATION_SUFFIXES, AVATAR_SUFFIXES, ROOT_DIR
 from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
 from ..recording.filters import OneEuro
@@ -319,48 +318,79 @@ def _abs(path: Path) -> str:
     return os.path.normpath(os.path.abspath(path))
 
 
-def load_jobs(path) -> tuple[list[Job], dict]:
-    path = Path(path)
-    check = _Checker(path)
-    data = _parse(path)
-    check.table(data, None, _KEYS[""], "a TOML document")
-    base = path.parent
+@dataclass
+class _Defaults:
+    """The `[defaults]` table, checked: what every job of the file shares."""
+    methods: list[str]
+    out_dir: Path
+    workers: int
+    filter: str | None
+    plant_feet: bool
+    overwrite: bool
+    tolerance: float | None
+    fps: float | None
+    formats: list[str]
+    placement: str
+    rig_options: dict[str, str]  # root_motion and rigify_target, as Job takes them
+    runner: str
+
+
+def _flag(check: _Checker, defaults: dict, key: str, default: bool) -> bool:
+    value = defaults.get(key, default)
+    if not isinstance(value, bool):
+        raise check.error(f"defaults.{key}", f"must be true or false, got {_describe(value)}")
+    return value
+
+
+def _one_of(check: _Checker, defaults: dict, key: str, allowed: tuple[str, ...]) -> str:
+    """A setting with a few named values, the first the default (placement, root_motion, ...)."""
+    value = defaults.get(key, allowed[0])
+    if value not in allowed:
+        raise check.error(f"defaults.{key}", f"must be {' or '.join(json.dumps(p) for p in allowed)}, "
+                                             f"got {_describe(value)}")
+    return value
+
+
+def _read_defaults(check: _Checker, data: dict, base: Path) -> _Defaults:
+    """Reads the document's `[defaults]` (every key optional) and checks each value, in the order
+    the fields are listed here, so that the first bad one is the one reported. Paths are resolved
+    against `base`, the jobs file's folder."""
     defaults = check.table(data.get("defaults", {}), "defaults", _KEYS["defaults"], "a table ([defaults])")
     methods = _choices(check, defaults.get("method", "egocentric"), "defaults.method", "method", METHODS)
     out_dir = base / check.text(defaults.get("output_dir", "out/batch"), "defaults.output_dir", "a folder")
     workers = _workers(check, defaults.get("workers", os.cpu_count() or 1))
     filt = _filter(check, defaults.get("filter", False))
-    plant = defaults.get("plant_feet", True)
-    if not isinstance(plant, bool):
-        raise check.error("defaults.plant_feet", f"must be true or false, got {_describe(plant)}")
-    overwrite = defaults.get("overwrite", False)
-    if not isinstance(overwrite, bool):
-        raise check.error("defaults.overwrite", f"must be true or false, got {_describe(overwrite)}")
+    plant = _flag(check, defaults, "plant_feet", True)
+    overwrite = _flag(check, defaults, "overwrite", False)
     tolerance = (_number(check, defaults["tolerance"], "defaults.tolerance", 0.0, 180.0, "degrees")
                  if "tolerance" in defaults else None)
     fps = (_number(check, defaults["fps"], "defaults.fps", 1.0, 1000.0, "frames per second")
            if "fps" in defaults else None)
     formats = _choices(check, defaults.get("export", ["blend"]), "defaults.export", "format", EXPORT_FORMATS)
-    placement = defaults.get("placement", PLACEMENTS[0])
-    if placement not in PLACEMENTS:
-        raise check.error("defaults.placement", f"must be {' or '.join(json.dumps(p) for p in PLACEMENTS)}, "
-                                                f"got {_describe(placement)}")
-    rig_options = {}
-    for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS)):
-        rig_options[key] = defaults.get(key, allowed[0])
-        if rig_options[key] not in allowed:
-            raise check.error(f"defaults.{key}", f"must be {' or '.join(json.dumps(p) for p in allowed)}, "
-                                                 f"got {_describe(rig_options[key])}")
+    placement = _one_of(check, defaults, "placement", PLACEMENTS)
+    rig_options = {key: _one_of(check, defaults, key, allowed)
+                   for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS))}
     runner = _runner(check, defaults.get("runner", "python"))
-    recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
-    animations = _entries(check, data, "animations")
+    return _Defaults(methods, out_dir, workers, filt, plant, overwrite, tolerance, fps, formats, placement,
+                     rig_options, runner)
+
+
+def _transfer_methods(check: _Checker, methods: list[str], recordings: list, animations: list,
+                      avatars: list) -> list[str]:
+    """Checks that the file has something to do (a source and an avatar) and, when it has
+    animations, a method transfer has; returns those methods, in the file's order."""
     if not (recordings or animations) or not avatars:
         raise check.error(None, "needs at least one [[recordings]] or [[animations]] entry and one [[avatars]] entry")
     transfer_methods = [m for m in methods if m in TRANSFER_METHODS]
     if animations and not transfer_methods:
         raise check.error("defaults.method", f"animations transfer with {' or '.join(TRANSFER_METHODS)}, "
                                              f"not {' or '.join(methods)}")
+    return transfer_methods
 
+
+def _read_recordings(check: _Checker, base: Path, recordings: list[dict]) -> list[tuple[Path, Path]]:
+    """The `[[recordings]]` tables as (recording, user model) paths; a missing key or the same pair
+    twice is an error."""
     recs, seen = [], {}
     for i, rec in enumerate(recordings):
         if "path" not in rec or "user" not in rec:
@@ -372,13 +402,19 @@ def load_jobs(path) -> tuple[list[Job], dict]:
             raise check.error(f"recordings[{i}]", f"same path and user as recordings[{seen[identity]}]; remove one")
         seen[identity] = i
         recs.append((rp, up))
+    return recs
+
+
+def _read_animations(check: _Checker, base: Path, animations: list[dict]) -> list[tuple[Path, str | None, str | None]]:
+    """The `[[animations]]` tables as (source file, source armature, action); a file `bodycal
+    transfer` cannot read, or the same source twice, is an error."""
     anims, seen = [], {}
     for i, an in enumerate(animations):
         if "path" not in an:
             raise check.error(f"animations[{i}]", "missing 'path'")
-        what = f"an animation source ({', '.join(SOURCE_SUFFIXES)})"
+        what = f"an animation source ({', '.join(ANIMATION_SUFFIXES)})"
         sp = base / check.text(an["path"], f"animations[{i}].path", what)
-        if sp.suffix.lower() not in SOURCE_SUFFIXES:
+        if sp.suffix.lower() not in ANIMATION_SUFFIXES:
             raise check.error(f"animations[{i}].path", f"must be {what}, got {_describe(an['path'])}")
         sa, act = (check.text(an[k], f"animations[{i}].{k}", "a name") if k in an else None
                    for k in ("source_armature", "action"))
@@ -388,6 +424,12 @@ def load_jobs(path) -> tuple[list[Job], dict]:
                                                   "remove one")
         seen[identity] = i
         anims.append((sp, sa, act))
+    return anims
+
+
+def _read_avatars(check: _Checker, base: Path, avatars: list[dict]) -> list[tuple[Path, str | None, Path | None]]:
+    """The `[[avatars]]` tables as (avatar file, armature, bone map preset); the preset is read now.
+    A file the avatar import cannot read, or the same avatar twice, is an error."""
     avs, seen = [], {}
     for j, av in enumerate(avatars):
         keys = [k for k in ("file", "blend") if k in av]
@@ -404,21 +446,49 @@ def load_jobs(path) -> tuple[list[Job], dict]:
             raise check.error(f"avatars[{j}]", f"same file and armature as avatars[{seen[identity]}]; remove one")
         seen[identity] = j
         avs.append((ap, arm, _bone_map(check, base, av, j)))
+    return avs
 
+
+def _make_jobs(check: _Checker, settings: _Defaults, transfer_methods: list[str], recs: list, anims: list,
+               avs: list) -> list[Job]:
+    """Every recording onto every avatar with every method, then every animation source with every
+    transfer method; names them (`output_names`) and checks the outputs stay inside output_dir."""
+    methods, out_dir, formats = settings.methods, settings.out_dir, settings.formats
     specs = [(rp, up, ap, arm, m) for rp, up in recs for ap, arm, _bm in avs for m in methods]
     extra = [(bm, None, None) for _rp, _up in recs for _ap, _arm, bm in avs for _m in methods]
-    # Animation sources (issue 16): transferred onto every avatar, with the methods transfer has;
+    # Animation sources (DESIGN.md §8): transferred onto every avatar, with the methods transfer has;
     # the action's name is part of the source's identity (one file may hold several).
     specs += [(sp, None, ap, arm, m) for sp, _sa, _act in anims for ap, arm, _bm in avs for m in transfer_methods]
     extra += [(bm, sa, act) for _sp, sa, act in anims for _ap, _arm, bm in avs for _m in transfer_methods]
     names = output_names(specs, [act for _bm, _sa, act in extra])
-    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", filt, plant, overwrite, placement,
-                tolerance, fps, tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act, **rig_options)
+    jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", settings.filter, settings.plant_feet,
+                settings.overwrite, settings.placement, settings.tolerance, settings.fps,
+                tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act, **settings.rig_options)
             for name, (rp, up, ap, arm, m), (bm, sa, act) in zip(names, specs, extra)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):
         raise check.error(None, "internal error: output names are not unique inside output_dir; please report it")
-    return jobs, {"workers": workers, "runner": runner, "output_dir": out_dir}
+    return jobs
+
+
+def load_jobs(path) -> tuple[list[Job], dict]:
+    """The jobs of a JOBS.toml (module docstring), every field checked before any job starts, and
+    the batch's settings (workers, runner, output_dir). Raises BodyCalError naming the first bad
+    field."""
+    path = Path(path)
+    check = _Checker(path)
+    data = _parse(path)
+    check.table(data, None, _KEYS[""], "a TOML document")
+    base = path.parent
+    settings = _read_defaults(check, data, base)
+    recordings, avatars = _entries(check, data, "recordings"), _entries(check, data, "avatars")
+    animations = _entries(check, data, "animations")
+    transfer_methods = _transfer_methods(check, settings.methods, recordings, animations, avatars)
+    recs = _read_recordings(check, base, recordings)
+    anims = _read_animations(check, base, animations)
+    avs = _read_avatars(check, base, avatars)
+    jobs = _make_jobs(check, settings, transfer_methods, recs, anims, avs)
+    return jobs, {"workers": settings.workers, "runner": settings.runner, "output_dir": settings.out_dir}
 
 
 # ---- output names ----------------------------------------------------------------------------------

@@ -51,6 +51,7 @@ once centred, so no angular radius profile is kept.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -132,94 +133,147 @@ def skeleton_model(rig: ArmatureReading, name: str, method: str = "raycast") -> 
     return model, frames
 
 
+@dataclass
+class _Survey:
+    """What every pass of `surface_from_rays` shares: the rig read, the caster, the model being
+    filled (its `calibration["quality"]` gets one entry per element) and the bones' rest frames."""
+    rig: ArmatureReading
+    caster: RayCaster
+    model: BodyModel
+    frames: dict[str, np.ndarray]
+
+    def __post_init__(self):
+        self.quality = self.model.calibration["quality"]
+        self.F, self.L, self.U = self.rig.forward, self.rig.lateral, self.rig.up
+        self.J = self.rig.joints
+
+    def local(self, bone: str, p: np.ndarray) -> np.ndarray:
+        """A world point in `bone`'s rest frame, about its head."""
+        return self.frames[bone].T @ (p - self.J[sk.BONE_BY_NAME[bone].head])
+
+    def hit(self, point: str, bone_for_message: str, origin, direction, max_dist=1e4):
+        """The caster's (hit, distance) for a ray that must hit; a miss is one error naming `point`."""
+        r = self.caster.cast(origin, direction / np.linalg.norm(direction), max_dist)
+        if r is None:
+            raise BodyCalError(f"the ray for {point} (from near bone {bone_for_message}) missed the mesh",
+                               source=self.rig.armature,
+                               hint="check that the mesh covers this part, or edit the point by hand")
+        return r
+
+
 def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> BodyModel:
     """The avatar model of `rig` measured with `caster`: every element of `surface_layout.element_ids()`
     (or a default and a note in `calibration["defaulted"]`), the rig for FK in `extra["rig"]`."""
     model, frames = skeleton_model(rig, name)
-    quality = model.calibration["quality"]
-    F, L, U = rig.forward, rig.lateral, rig.up
-    J = rig.joints
+    survey = _Survey(rig, caster, model, frames)
+    _measure_capsules(survey)
+    centre, head_h = _head_centre(survey)
+    _measure_skull(survey, centre, head_h)
+    _measure_jaw(survey, centre, head_h)
+    _measure_torso(survey)
+    for s in sk.SIDES:  # palm then sole, side by side: the order the rays are cast and reported in
+        _measure_palm(survey, s)
+        _measure_sole(survey, s)
+    model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
+    model.extra["rig"] = rig.rig_dict()
+    model.extra["rays_cast"] = caster.rays
+    return model
 
-    def local(bone, p):
-        return frames[bone].T @ (p - J[sk.BONE_BY_NAME[bone].head])
 
-    def hit(point, bone_for_message, origin, direction, max_dist=1e4):
-        r = caster.cast(origin, direction / np.linalg.norm(direction), max_dist)
-        if r is None:
-            raise BodyCalError(f"the ray for {point} (from near bone {bone_for_message}) missed the mesh",
-                               source=rig.armature,
-                               hint="check that the mesh covers this part, or edit the point by hand")
-        return r
-
-    # --- capsules -----------------------------------------------------------------------------
+def _measure_capsules(survey: _Survey) -> None:
+    """Capsules pass: for every `CAPSULE_BONES` bone the model has, in that order, measures its
+    cross-sections (`_capsule_sections`) and sets the bone's `radius_head` / `radius_tail`, appends
+    `capsule:<bone>` with its axis offsets and records its quality. Raises when too few rays hit."""
     angles = np.linspace(0.0, 2 * np.pi, CAPSULE_RAYS, endpoint=False)
     ring_2d = np.stack([np.cos(angles), np.sin(angles)], axis=-1)  # (rays, 2): bone x, z
     for bone in sl.CAPSULE_BONES:
-        if bone not in model.bones:
-            continue
-        h, t = J[sk.BONE_BY_NAME[bone].head], J[sk.BONE_BY_NAME[bone].tail]
-        R = frames[bone]
-        length = np.linalg.norm(t - h)
+        if bone in survey.model.bones:
+            _measure_capsule(survey, bone, ring_2d)
 
-        dirs = ring_2d @ np.stack([R[:, 0], R[:, 2]])  # (rays, 3) world directions
 
-        def section(st, h=h, t=t, length=length, dirs=dirs):
-            """(CAPSULE_RAYS, 2) hit points of a station's ring in the bone's (x, z) plane, NaN
-            where a ray missed."""
-            o = h + st * (t - h)
-            dist = np.full(len(dirs), np.nan)
-            for k, d in enumerate(dirs):
-                r = caster.cast(o, d, max_dist=length)
-                if r is not None:
-                    dist[k] = r[1]
-            return ring_2d * dist[:, None]
+def _capsule_sections(survey: _Survey, bone: str, ring_2d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Casts `bone`'s rings: (stations as fractions along the bone, (stations, CAPSULE_RAYS, 2) hit
+    points in the bone's (x, z) plane, NaN where a ray missed). Reads the joints and the frame."""
+    J = survey.J
+    h, t = J[sk.BONE_BY_NAME[bone].head], J[sk.BONE_BY_NAME[bone].tail]
+    R = survey.frames[bone]
+    length = np.linalg.norm(t - h)
 
-        # Stations keep clear of the joints by 1.6 probe radii: the neighbouring part's surface
-        # (a thicker parent's rounded end, the next phalanx, the torso at the hip) reaches about
-        # that far. A fingertip has no neighbour beyond its tail.
-        probe = np.linalg.norm(section(0.5), axis=1)
-        probe = probe[np.isfinite(probe)]
-        margin = 0.25
-        if len(probe) >= 3:
-            margin = float(np.clip(1.6 * probe[robust_keep(probe)].mean() / length, 0.1, 0.45))
-        tail_margin = min(margin, 0.25) if bone.split("_")[1:2] == ["3"] else margin
-        stations = np.linspace(margin, 1.0 - tail_margin, len(CAPSULE_STATIONS))
-        pts = np.stack([section(st) for st in stations])
-        hits = np.isfinite(pts).all(axis=-1)
-        # Decision (beyond Delahaye 2023's bone-centred capsules): the capsule's axis goes through
-        # the middle of the cross-section, not along the bone; a femur runs ~25 mm behind the
-        # middle of an adult thigh, and a hand resting on the thigh sank that far into it.
-        centres, radii, keep = cross_sections(pts)
-        used = np.isfinite(radii)
-        n_hit, n_rej = int(hits.sum()), int((hits & ~keep)[used].sum())
-        station_t, station_r, station_c = stations[used], radii[used], centres[used]
-        spreads = [np.linalg.norm(pts[i][keep[i]] - centres[i], axis=1) - radii[i] for i in np.flatnonzero(used)]
-        rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
-        avatar_bone = rig.bone_map.bones.get(bone, bone)
-        if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
-            raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
-                               source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
-        extend = LIMB_EXTRAPOLATION if bone in sl.LIMB_CAPSULE_BONES else 0.0
-        rh, rt = linear_radii(station_t, station_r, extend)
-        model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
-        element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
-        ch, ct = linear_offsets(station_t, station_c, extend)
-        element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
-        model.surface.append(element)
-        quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
-                                      "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
+    dirs = ring_2d @ np.stack([R[:, 0], R[:, 2]])  # (rays, 3) world directions
 
-    # --- head: size, skull sphere, jaw ----------------------------------------------------------------
+    def section(st):
+        """(CAPSULE_RAYS, 2) hit points of a station's ring in the bone's (x, z) plane, NaN
+        where a ray missed."""
+        o = h + st * (t - h)
+        dist = np.full(len(dirs), np.nan)
+        for k, d in enumerate(dirs):
+            r = survey.caster.cast(o, d, max_dist=length)
+            if r is not None:
+                dist[k] = r[1]
+        return ring_2d * dist[:, None]
+
+    # Stations keep clear of the joints by 1.6 probe radii: the neighbouring part's surface
+    # (a thicker parent's rounded end, the next phalanx, the torso at the hip) reaches about
+    # that far. A fingertip has no neighbour beyond its tail.
+    probe = np.linalg.norm(section(0.5), axis=1)
+    probe = probe[np.isfinite(probe)]
+    margin = 0.25
+    if len(probe) >= 3:
+        margin = float(np.clip(1.6 * probe[robust_keep(probe)].mean() / length, 0.1, 0.45))
+    tail_margin = min(margin, 0.25) if bone.split("_")[1:2] == ["3"] else margin
+    stations = np.linspace(margin, 1.0 - tail_margin, len(CAPSULE_STATIONS))
+    return stations, np.stack([section(st) for st in stations])
+
+
+def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
+    """One bone of the capsules pass (see `_measure_capsules`)."""
+    rig, model = survey.rig, survey.model
+    stations, pts = _capsule_sections(survey, bone, ring_2d)
+    hits = np.isfinite(pts).all(axis=-1)
+    # Decision (beyond Delahaye 2023's bone-centred capsules): the capsule's axis goes through
+    # the middle of the cross-section, not along the bone; a femur runs ~25 mm behind the
+    # middle of an adult thigh, and a hand resting on the thigh sank that far into it.
+    centres, radii, keep = cross_sections(pts)
+    used = np.isfinite(radii)
+    n_hit, n_rej = int(hits.sum()), int((hits & ~keep)[used].sum())
+    station_t, station_r, station_c = stations[used], radii[used], centres[used]
+    spreads = [np.linalg.norm(pts[i][keep[i]] - centres[i], axis=1) - radii[i] for i in np.flatnonzero(used)]
+    rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
+    avatar_bone = rig.bone_map.bones.get(bone, bone)
+    if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
+        raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
+                           source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
+    extend = LIMB_EXTRAPOLATION if bone in sl.LIMB_CAPSULE_BONES else 0.0
+    rh, rt = linear_radii(station_t, station_r, extend)
+    model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
+    element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
+    ch, ct = linear_offsets(station_t, station_c, extend)
+    element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
+    model.surface.append(element)
+    survey.quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
+                                         "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
+
+
+def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:
+    """Head size pass: casts down onto the top of the head; returns the head centre c and the head
+    height above the skull base (the table's "head top" and "head centre c"). Adds no element."""
+    J, U = survey.J, survey.U
     sb = J["skull_base"]
     spine_len = float(np.linalg.norm(sb - J["pelvis"]))
-    top, _ = hit("head top", rig.bone_map.bones["head"], sb + U * spine_len, -U)
+    top, _ = survey.hit("head top", survey.rig.bone_map.bones["head"], sb + U * spine_len, -U)
     head_h = float(np.dot(top - sb, U))
     if head_h <= 0:
-        raise BodyCalError("the top of the head is below the skull base", source=rig.armature)
-    c = sb + U * head_h / 2
+        raise BodyCalError("the top of the head is below the skull base", source=survey.rig.armature)
+    return sb + U * head_h / 2, head_h
+
+
+def _measure_skull(survey: _Survey, c: np.ndarray, head_h: float) -> None:
+    """Skull pass: casts `SKULL_RAYS` from the head centre `c`, fits a sphere, appends
+    `sphere:skull` (in the head bone's frame) and its quality. Raises below 8 hits."""
+    rig, F, L, U = survey.rig, survey.F, survey.L, survey.U
     pts = []
     for az, el in SKULL_RAYS:
-        r = caster.cast(c, _dir(F, L, U, az, el), max_dist=head_h)
+        r = survey.caster.cast(c, _dir(F, L, U, az, el), max_dist=head_h)
         if r is not None:
             pts.append(r[0])
     if len(pts) < 8:
@@ -227,22 +281,34 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
                            f"(bone {rig.bone_map.bones['head']}) hit the mesh", source=rig.armature)
     pts = np.array(pts)
     centre, radius, keep = sphere_fit(pts)
-    model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=local("head", centre), radius=radius))
+    survey.model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=survey.local("head", centre),
+                                               radius=radius))
     res = np.linalg.norm(pts[keep] - centre, axis=1) - radius
-    quality["sphere:skull"] = {"rays": len(SKULL_RAYS), "hit": len(pts), "rejected": int((~keep).sum()),
-                               "spread_mm": round(float(res.std() * 1000), 3)}
+    survey.quality["sphere:skull"] = {"rays": len(SKULL_RAYS), "hit": len(pts), "rejected": int((~keep).sum()),
+                                      "spread_mm": round(float(res.std() * 1000), 3)}
+
+
+def _measure_jaw(survey: _Survey, c: np.ndarray, head_h: float) -> None:
+    """Jaw pass: casts `JAW_RAYS` from outside the head towards its centre `c`; appends `mesh:jaw`
+    (points in the head bone's frame) and its quality."""
+    F, L, U = survey.F, survey.L, survey.U
     jaw = {}
     for p, (az, el) in JAW_RAYS.items():
         # From outside towards the head centre: the first hit is the skin, never the mouth's
         # inside or teeth that a ray from the centre would meet first.
         d = _dir(F, L, U, az, el)
-        jaw[p] = hit(f"mesh:jaw {p}", rig.bone_map.bones["head"], c + d * 2 * head_h, -d)[0]
-    model.surface.append(SurfaceElement(
-        "mesh:jaw", "mesh", "head", points={p: SurfacePoint("head", local("head", w)) for p, w in jaw.items()},
+        jaw[p] = survey.hit(f"mesh:jaw {p}", survey.rig.bone_map.bones["head"], c + d * 2 * head_h, -d)[0]
+    survey.model.surface.append(SurfaceElement(
+        "mesh:jaw", "mesh", "head", points={p: SurfacePoint("head", survey.local("head", w)) for p, w in jaw.items()},
         triangles=list(sl.JAW_TRIANGLES)))
-    quality["mesh:jaw"] = {"rays": len(jaw), "hit": len(jaw), "rejected": 0, "spread_mm": 0.0}
+    survey.quality["mesh:jaw"] = {"rays": len(jaw), "hit": len(jaw), "rejected": 0, "spread_mm": 0.0}
 
-    # --- torso ---------------------------------------------------------------------------------------------
+
+def _measure_torso(survey: _Survey) -> None:
+    """Torso pass: casts `TORSO_RAYS` from the spine curve, then the belly centre points towards
+    their bilinear default; appends `mesh:torso` (each point in its nearest vertebra's frame) and
+    its quality."""
+    J, F, L, U = survey.J, survey.F, survey.L, survey.U
     spine = np.array([J["pelvis"], J["spine_root"]] + [J[sk.spine_joint(k)] for k in range(1, sk.SPINE_COUNT + 1)])
     spine_joints = spine[1:]
     heights = (spine - J["pelvis"]) @ U
@@ -255,74 +321,82 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
     torso = {}
     for p, (frac, az) in TORSO_RAYS.items():
         o = spine_at(frac * shoulder_h)
-        torso[p] = hit(f"mesh:torso {p}", sl.nearest_vertebra(o, spine_joints), o, _dir(F, L, U, az))[0]
+        torso[p] = survey.hit(f"mesh:torso {p}", sl.nearest_vertebra(o, spine_joints), o, _dir(F, L, U, az))[0]
     for p, guess in sl.belly_centre_points(torso["belly_ul"], torso["belly_ur"], torso["belly_ll"],
                                            torso["belly_lr"]).items():
         o = spine_at(float((guess - J["pelvis"]) @ U))
         d = guess - o
         d = d - np.dot(d, U) * U
-        torso[p] = hit(f"mesh:torso {p}", sl.nearest_vertebra(o, spine_joints), o, d)[0]
+        torso[p] = survey.hit(f"mesh:torso {p}", sl.nearest_vertebra(o, spine_joints), o, d)[0]
     points = {}
     for p in sl.TORSO_POINTS:
         v = sl.nearest_vertebra(torso[p], spine_joints)
-        points[p] = SurfacePoint(v, local(v, torso[p]))
-    model.surface.append(SurfaceElement("mesh:torso", "mesh", "spine_*", points=points,
-                                        triangles=list(sl.TORSO_TRIANGLES)))
-    quality["mesh:torso"] = {"rays": len(torso), "hit": len(torso), "rejected": 0, "spread_mm": 0.0}
+        points[p] = SurfacePoint(v, survey.local(v, torso[p]))
+    survey.model.surface.append(SurfaceElement("mesh:torso", "mesh", "spine_*", points=points,
+                                               triangles=list(sl.TORSO_TRIANGLES)))
+    survey.quality["mesh:torso"] = {"rays": len(torso), "hit": len(torso), "rejected": 0, "spread_mm": 0.0}
 
-    # --- palms and soles ------------------------------------------------------------------------------------
-    for s in sk.SIDES:
-        hand = f"hand_{s}"
-        if hand in model.bones and f"mcp_index_{s}" in J and f"mcp_pinky_{s}" in J:
-            w = J[f"wrist_{s}"]
-            ends = {"I": J[f"mcp_index_{s}"], "P": J[f"mcp_pinky_{s}"]}
-            hand_dir = J[f"mcp_middle_{s}"] - w
-            n = np.cross(rig.hinges.get(f"middle_2_{s}", frames[hand][:, 0]), hand_dir)
-            n /= np.linalg.norm(n)
-            names = sl.palm_points(len(PALM_RAYS), s)
-            hits = [hit(f"mesh:palm_{s} {p}", rig.bone_map.bones[hand], w + f * (ends[k] - w), n)[0]
-                    for p, (k, f) in zip(names, PALM_RAYS)]
-            hits = _wind(hits, n)
-            model.surface.append(SurfaceElement(
-                f"mesh:palm_{s}", "mesh", hand,
-                points={p: SurfacePoint(hand, local(hand, x)) for p, x in zip(names, hits)},
-                triangles=sl.fan_triangles(names)))
-            quality[f"mesh:palm_{s}"] = {"rays": len(names), "hit": len(names), "rejected": 0, "spread_mm": 0.0}
-        else:
-            model.calibration["missing"].append(f"mesh:palm_{s} (no finger bones to place it)")
-        foot = f"foot_{s}"
-        a, toe = J[f"ankle_{s}"], J[f"toe_{s}"]
-        leg = float(np.linalg.norm(J[f"hip_{s}"] - a)) + 0.1
-        floor_hits = [hit(f"mesh:sole_{s} floor", rig.bone_map.bones[foot], p - U * leg, U)[0] for p in (a, toe)]
-        floor = min(float(x @ U) for x in floor_hits)
-        f = toe - a
-        f = f - np.dot(f, U) * U
-        f /= np.linalg.norm(f)
-        lat = L - np.dot(L, f) * f
-        lat /= np.linalg.norm(lat)
-        low = floor + SOLE_HEIGHT * (float(a @ U) - floor)
 
-        def at_low(p, low=low):
-            return p + U * (low - float(p @ U))
+def _measure_palm(survey: _Survey, s: str) -> None:
+    """Palm pass for side `s`: casts `PALM_RAYS` out of the palm; appends `mesh:palm_<s>` (in the
+    hand bone's frame) and its quality, or, without the finger bones, a line in
+    `calibration["missing"]`."""
+    J, model = survey.J, survey.model
+    hand = f"hand_{s}"
+    if not (hand in model.bones and f"mcp_index_{s}" in J and f"mcp_pinky_{s}" in J):
+        model.calibration["missing"].append(f"mesh:palm_{s} (no finger bones to place it)")
+        return
+    w = J[f"wrist_{s}"]
+    ends = {"I": J[f"mcp_index_{s}"], "P": J[f"mcp_pinky_{s}"]}
+    hand_dir = J[f"mcp_middle_{s}"] - w
+    n = np.cross(survey.rig.hinges.get(f"middle_2_{s}", survey.frames[hand][:, 0]), hand_dir)
+    n /= np.linalg.norm(n)
+    names = sl.palm_points(len(PALM_RAYS), s)
+    hits = [survey.hit(f"mesh:palm_{s} {p}", survey.rig.bone_map.bones[hand], w + f * (ends[k] - w), n)[0]
+            for p, (k, f) in zip(names, PALM_RAYS)]
+    hits = _wind(hits, n)
+    model.surface.append(SurfaceElement(
+        f"mesh:palm_{s}", "mesh", hand,
+        points={p: SurfacePoint(hand, survey.local(hand, x)) for p, x in zip(names, hits)},
+        triangles=sl.fan_triangles(names)))
+    survey.quality[f"mesh:palm_{s}"] = {"rays": len(names), "hit": len(names), "rejected": 0, "spread_mm": 0.0}
 
-        heel_st = at_low(a + 0.15 * (toe - a))
-        rays = [(at_low(a), -f), (heel_st, lat), (at_low(toe), lat), (at_low(toe), f), (at_low(toe), -lat),
-                (heel_st, -lat)]
-        names = sl.sole_points(len(rays), s)
-        outline = [hit(f"mesh:sole_{s} {p}", rig.bone_map.bones[foot], o, d)[0] for p, (o, d) in zip(names, rays)]
-        outline = [x + U * (floor - float(x @ U)) for x in outline]  # on the floor plane
-        outline = _wind(outline, -U)
-        model.surface.append(SurfaceElement(
-            f"mesh:sole_{s}", "mesh", foot,
-            points={p: SurfacePoint(foot, local(foot, x)) for p, x in zip(names, outline)},
-            triangles=sl.fan_triangles(names)))
-        quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2, "hit": len(rays) + 2, "rejected": 0,
-                                     "spread_mm": round(float(np.ptp([x @ U for x in floor_hits]) * 1000), 3)}
 
-    model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
-    model.extra["rig"] = rig.rig_dict()
-    model.extra["rays_cast"] = caster.rays
-    return model
+def _measure_sole(survey: _Survey, s: str) -> None:
+    """Sole pass for side `s`: finds the floor under the ankle and the toe, casts the six outline
+    rays at `SOLE_HEIGHT` and puts the hits on the floor plane; appends `mesh:sole_<s>` (in the
+    foot bone's frame) and its quality."""
+    J, L, U = survey.J, survey.L, survey.U
+    foot = f"foot_{s}"
+    a, toe = J[f"ankle_{s}"], J[f"toe_{s}"]
+    leg = float(np.linalg.norm(J[f"hip_{s}"] - a)) + 0.1
+    floor_hits = [survey.hit(f"mesh:sole_{s} floor", survey.rig.bone_map.bones[foot], p - U * leg, U)[0]
+                  for p in (a, toe)]
+    floor = min(float(x @ U) for x in floor_hits)
+    f = toe - a
+    f = f - np.dot(f, U) * U
+    f /= np.linalg.norm(f)
+    lat = L - np.dot(L, f) * f
+    lat /= np.linalg.norm(lat)
+    low = floor + SOLE_HEIGHT * (float(a @ U) - floor)
+
+    def at_low(p):
+        return p + U * (low - float(p @ U))
+
+    heel_st = at_low(a + 0.15 * (toe - a))
+    rays = [(at_low(a), -f), (heel_st, lat), (at_low(toe), lat), (at_low(toe), f), (at_low(toe), -lat),
+            (heel_st, -lat)]
+    names = sl.sole_points(len(rays), s)
+    outline = [survey.hit(f"mesh:sole_{s} {p}", survey.rig.bone_map.bones[foot], o, d)[0]
+               for p, (o, d) in zip(names, rays)]
+    outline = [x + U * (floor - float(x @ U)) for x in outline]  # on the floor plane
+    outline = _wind(outline, -U)
+    survey.model.surface.append(SurfaceElement(
+        f"mesh:sole_{s}", "mesh", foot,
+        points={p: SurfacePoint(foot, survey.local(foot, x)) for p, x in zip(names, outline)},
+        triangles=sl.fan_triangles(names)))
+    survey.quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2, "hit": len(rays) + 2, "rejected": 0,
+                                        "spread_mm": round(float(np.ptp([x @ U for x in floor_hits]) * 1000), 3)}
 
 
 _ORDER = {eid: i for i, eid in enumerate(sl.element_ids())}

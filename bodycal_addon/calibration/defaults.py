@@ -21,6 +21,8 @@ Where the devices sit on the body (checked against the CMU subjects of `evaluati
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from ..body import skeleton as sk
@@ -108,89 +110,138 @@ class BodyFrame:
         return base + self.left * left + self.forward * forward + UP * height
 
 
+_SIGN = {"l": 1.0, "r": -1.0}  # toward the body's left
+
+
+@dataclass
+class _Placement:
+    """What the passes of `default_joints` share: the world joints so far (`world`, measured and
+    already defaulted), the defaulted ones alone (`placed`), and the stature `H`."""
+    session: Session
+    state: State
+    body: BodyFrame
+    world: dict[str, np.ndarray]
+    placed: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def H(self) -> float:
+        return self.body.stature
+
+    def put(self, name: str, value, how: str) -> None:
+        """Defaults joint `name` to `value` unless it is already known; two touches that estimate it
+        win over the ratio. Records `how` in the session's defaults."""
+        if name not in self.world:
+            est = self.state.extra.get("touch_estimates", {}).get(name)
+            if est is not None:
+                value = self.session.to_world(est[0], est[1])
+                how = f"mean of its two touches, in the {est[0]} tracker's frame (not rigid)"
+            self.world[name] = self.placed[name] = np.asarray(value, float)
+            self.session.default(name, how)
+
+
 def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str, np.ndarray]:
     """World positions of every canonical joint the steps did not measure (not spine vertebrae,
     clavicles or spine_root: the trunk rules place those)."""
-    H = body.stature
-    w = dict(state.world)
-    out: dict[str, np.ndarray] = {}
-    has = session.has
-    sign = {"l": 1.0, "r": -1.0}
+    placing = _Placement(session, state, body, dict(state.world))
+    _place_pelvis_and_hips(placing)
+    _place_legs(placing)
+    _place_arms(placing)
+    _place_head(placing)
+    _place_fingers(placing)
+    return placing.placed
 
-    def put(name, value, how):
-        if name not in w:
-            est = state.extra.get("touch_estimates", {}).get(name)
-            if est is not None:
-                value = session.to_world(est[0], est[1])
-                how = f"mean of its two touches, in the {est[0]} tracker's frame (not rigid)"
-            w[name] = out[name] = np.asarray(value, float)
-            session.default(name, how)
 
-    # pelvis and hips
+def _place_pelvis_and_hips(placing: _Placement) -> None:
+    """Pelvis pass: the pelvis from the hips, else the pelvis tracker, else the stature; then each
+    hip beside it. Reads the reference poses; adds pelvis, hip_l, hip_r when unmeasured."""
+    session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "pelvis" not in w:
         if "hip_l" in w and "hip_r" in w:
             put("pelvis", 0.5 * (w["hip_l"] + w["hip_r"]), "midpoint of the hips")
-        elif has("pelvis"):
+        elif session.has("pelvis"):
             p = session.ref_pose("pelvis")[0]
             put("pelvis", body.at(R["hip_height"] * H, 0, R["pelvis_forward_of_back_tracker"] * H, p),
                 f"{R['pelvis_forward_of_back_tracker']} H in front of the pelvis tracker, {R['hip_height']} H high")
         else:
             put("pelvis", body.at(R["hip_height"] * H), f"{R['hip_height']} H above the floor")
     for s in sk.SIDES:
-        put(f"hip_{s}", w["pelvis"] + body.left * sign[s] * R["hip_half_width"] * H,
+        put(f"hip_{s}", w["pelvis"] + body.left * _SIGN[s] * R["hip_half_width"] * H,
             f"{R['hip_half_width']} H beside the pelvis")
-    # feet and knees
+
+
+def _place_legs(placing: _Placement) -> None:
+    """Legs pass, side by side: the ankle behind the foot tracker on the instep (or under the hip),
+    the knee between hip and ankle, slightly bent, and the toe ahead of the ankle. Needs the hips."""
+    session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     for s in sk.SIDES:
-        if has(f"foot_{s}"):
+        if session.has(f"foot_{s}"):
             # On the instep the tracker is ahead of the ankle along the foot; the height is the
             # ankle's above the floor, whatever the tracker's.
             p = session.ref_pose(f"foot_{s}")[0]
             toe_out = np.radians(R["foot_toe_out_deg"])
-            along = body.forward * np.cos(toe_out) + body.left * sign[s] * np.sin(toe_out)
+            along = body.forward * np.cos(toe_out) + body.left * _SIGN[s] * np.sin(toe_out)
             back = p - along * R["ankle_behind_foot_tracker"] * H
             put(f"ankle_{s}", np.array([back[0], back[1], R["ankle_height"] * H]),
                 f"{R['ankle_height']} H above the floor, {R['ankle_behind_foot_tracker']} H behind the foot "
                 f"tracker along the foot")
         else:
-            put(f"ankle_{s}", body.at(R["ankle_height"] * H, sign[s] * R["hip_half_width"] * H),
+            put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H),
                 f"{R['ankle_height']} H high under the hip")
         a, h = w[f"ankle_{s}"], w[f"hip_{s}"]
-        put(f"knee_{s}", _relaxed_mid(session, state, h, a, R["thigh"] * H, R["shin"] * H, f"shin_{s}"),
+        put(f"knee_{s}", _relaxed_mid(session, placing.state, h, a, R["thigh"] * H, R["shin"] * H, f"shin_{s}"),
             f"between the hip and the ankle at the thigh : shin ratio, bent {R['reference_bend_deg']:.0f}° "
             f"(standing, nobody locks the knee straight)")
         put(f"toe_{s}", body.at(R["toe_height"] * H, 0, R["toe_forward"] * H, w[f"ankle_{s}"]),
             f"{R['toe_forward']} H in front of the ankle")
-    # arms: in the T-pose the shoulders lie on the line between the hands
-    tpose_hands = session.reference_step == "tpose" and has("hand_l") and has("hand_r")
+
+
+def _place_arms(placing: _Placement) -> None:
+    """Arms pass, side by side: the shoulder (in the T-pose on the line between the hands), the
+    wrist (`_place_wrist`), the elbow between them, slightly bent."""
+    session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
+    tpose_hands = session.reference_step == "tpose" and session.has("hand_l") and session.has("hand_r")
     if tpose_hands:
         hl, hr = session.ref_pose("hand_l")[0], session.ref_pose("hand_r")[0]
         mid, across = 0.5 * (hl + hr), (hl - hr) / max(np.linalg.norm(hl - hr), 1e-9)
     for s in sk.SIDES:
         if tpose_hands:
-            put(f"shoulder_{s}", mid + across * sign[s] * R["shoulder_half_width"] * H,
+            put(f"shoulder_{s}", mid + across * _SIGN[s] * R["shoulder_half_width"] * H,
                 f"on the T-pose hand line, {R['shoulder_half_width']} H from the middle")
         else:
-            put(f"shoulder_{s}", body.at(R["shoulder_height"] * H, sign[s] * R["shoulder_half_width"] * H),
+            put(f"shoulder_{s}", body.at(R["shoulder_height"] * H, _SIGN[s] * R["shoulder_half_width"] * H),
                 f"{R['shoulder_height']} H high, {R['shoulder_half_width']} H beside the middle")
         sh = w[f"shoulder_{s}"]
-        if has(f"hand_{s}"):
-            p = session.ref_pose(f"hand_{s}")[0]
-            out_dir = (p - sh) / max(np.linalg.norm(p - sh), 1e-9)
-            wrist = p - out_dir * R["wrist_in_from_grip"] * H
-            how = f"{R['wrist_in_from_grip']} H from the hand device toward the shoulder"
-            if session.reference_step == "tpose":  # palms down: the fist's centre is below the wrist
-                wrist = wrist + UP * R["wrist_above_grip"] * H
-                how += f", {R['wrist_above_grip']} H above it"
-            put(f"wrist_{s}", wrist, how)
-        else:
-            put(f"wrist_{s}", sh - UP * (R["upperarm"] + R["forearm"]) * H, "arm hanging straight down")
+        _place_wrist(placing, s, sh)
         wr = w[f"wrist_{s}"]
-        put(f"elbow_{s}", _relaxed_mid(session, state, sh, wr, R["upperarm"] * H, R["forearm"] * H, f"forearm_{s}"),
+        put(f"elbow_{s}", _relaxed_mid(session, placing.state, sh, wr, R["upperarm"] * H, R["forearm"] * H,
+                                       f"forearm_{s}"),
             f"between the shoulder and the wrist at the upper arm : forearm ratio, bent "
             f"{R['reference_bend_deg']:.0f}° (nobody locks the elbow straight)")
-    # head
+
+
+def _place_wrist(placing: _Placement, s: str, sh: np.ndarray) -> None:
+    """The wrist of side `s`: in from the hand device's grip toward the shoulder `sh` (and above
+    it, palms down, in the T-pose), else the arm hanging straight down."""
+    session, H = placing.session, placing.H
+    if session.has(f"hand_{s}"):
+        p = session.ref_pose(f"hand_{s}")[0]
+        out_dir = (p - sh) / max(np.linalg.norm(p - sh), 1e-9)
+        wrist = p - out_dir * R["wrist_in_from_grip"] * H
+        how = f"{R['wrist_in_from_grip']} H from the hand device toward the shoulder"
+        if session.reference_step == "tpose":  # palms down: the fist's centre is below the wrist
+            wrist = wrist + UP * R["wrist_above_grip"] * H
+            how += f", {R['wrist_above_grip']} H above it"
+        placing.put(f"wrist_{s}", wrist, how)
+    else:
+        placing.put(f"wrist_{s}", sh - UP * (R["upperarm"] + R["forearm"]) * H, "arm hanging straight down")
+
+
+def _place_head(placing: _Placement) -> None:
+    """Head pass: the skull base behind and below the HMD (or at 0.87 H), the head bone's tip above
+    it."""
+    session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "skull_base" not in w:
-        if has("head"):
+        if session.has("head"):
             p = session.ref_pose("head")[0]
             put("skull_base", p - body.forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H,
                 f"{R['skull_base_back']} H behind and {R['skull_base_down']} H below the HMD")
@@ -198,9 +249,14 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
             put("skull_base", body.at(0.87 * H), "0.87 H above the floor")
     put("head", w["skull_base"] + UP * R["head_above_skull_base"] * H,
         f"{R['head_above_skull_base']} H above the skull base (the head bone's tip)")
-    # fingers
+
+
+def _place_fingers(placing: _Placement) -> None:
+    """Fingers pass, side by side, finger by finger: mcp and tip from `FINGER_LAYOUT` along the hand
+    (`hand_axes`), pip and dip at the phalanx fractions between them. Needs the wrists."""
+    w, H, put = placing.world, placing.H, placing.put
     for s in sk.SIDES:
-        along, palm_n, thumb = hand_axes(session, state, body, s, w)
+        along, palm_n, thumb = hand_axes(placing.session, placing.state, placing.body, s, w)
         for f, (a, c, length) in FINGER_LAYOUT.items():
             mcp = w[f"wrist_{s}"] + along * a * H + thumb * c * H
             put(f"mcp_{f}_{s}", mcp, "hand layout ratios of the stature")
@@ -211,7 +267,6 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
             m, t = w[f"mcp_{f}_{s}"], w[f"tip_{f}_{s}"]
             put(f"pip_{f}_{s}", m + fa * (t - m), "phalanx fractions")
             put(f"dip_{f}_{s}", m + fb * (t - m), "phalanx fractions")
-    return out
 
 
 def _relaxed_mid(session: Session, state: State, root, effector, l1: float, l2: float, hinge_bone: str):

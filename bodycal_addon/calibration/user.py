@@ -3,6 +3,8 @@ docstring)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..body import skeleton as sk
@@ -165,6 +167,36 @@ def _order_outline(names: list[str], world: dict[str, np.ndarray], out_normal: n
 
 
 def assemble(session: Session, state: State, name: str) -> BodyModel:
+    """The user's BodyModel from the steps' results in `state`: every joint (measured, else
+    defaulted), bone, surface element and AvatarGo offset; what was defaulted goes to
+    `calibration["defaulted"]` in the order it was decided."""
+    body = _complete_joints(session, state)
+    joints = _joints(session, state)
+    rights = _bone_rights(session, state, body, state.world)
+    bones, frames_world = _bones(session, state, rights)
+    parts = _Surfaces(session, state, body, frames_world)
+    surface = [SurfaceElement(f"capsule:{b}", "capsule", b) for b in sl.CAPSULE_BONES]
+    surface.append(_skull(parts))
+    surface.append(_torso(parts))
+    surface.append(_jaw(parts))
+    palm_planes = {}
+    for s in sk.SIDES:  # palm then sole, side by side: the surface's order
+        along, n, thumb = defaults.hand_axes(session, state, body, s, state.world)
+        surface.append(_palm(parts, s, n, thumb))
+        surface.append(_sole(parts, s))
+        plane = _palm_plane(parts, s, n)
+        if plane is not None:
+            palm_planes[f"hand_{s}"] = plane
+    offs = _avatargo_offsets(session, joints, frames_world)
+    model = BodyModel("user", name, joints, bones, surface, session.reference_time, offs)
+    _record(model, session, state, body, palm_planes)
+    return model
+
+
+def _complete_joints(session: Session, state: State) -> defaults.BodyFrame:
+    """Joints pass: `state.world` gets every canonical joint (measured from the trackers' frames,
+    the toes from the soles, the rest defaulted, then the spine) and `state.radii` every radius.
+    Returns the body frame the defaults were placed in."""
     _measured_world(session, state)
     _soles_toe(session, state)
     body = defaults.BodyFrame(session, state)
@@ -175,10 +207,13 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
         session.default("spine_root", "0.10 m above and 0.05 m behind the defaulted pelvis")
     trunk.spine(w)
     defaults.default_radii(state, body, session)
-    has = session.has
+    return body
 
-    # Joints: world + every tracker frame the joint is known in (defaulted ones too, so the
-    # animation can carry them).
+
+def _joints(session: Session, state: State) -> dict[str, Joint]:
+    """Each joint's world position and every tracker frame it is known in (defaulted joints too, so
+    the animation can carry them); the primary frame is its first natural role that has it."""
+    w, has = state.world, session.has
     joints = {}
     for jn in sk.JOINTS:
         frames = dict(state.local.get(jn, {}))
@@ -189,9 +224,14 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
         primary = next((r for r in roles if r in frames), next(iter(frames), None))
         joints[jn] = Joint(np.asarray(w[jn], float), primary, None if primary is None else frames[primary],
                            {r: frames[r] for r in ([primary] if primary else []) + [r for r in frames if r != primary]})
+    return joints
 
-    rights = _bone_rights(session, state, body, w)
-    rad = state.radii
+
+def _bones(session: Session, state: State, rights: dict[str, np.ndarray]
+           ) -> tuple[dict[str, BoneInfo], dict[str, np.ndarray]]:
+    """Bones pass: each bone's length, right, capsule radii (from `state.radii`) and, for the
+    hinges, the right in its tracker's frame; and each bone's world rest frame."""
+    w, rad = state.world, state.radii
     bones, frames_world = {}, {}
     for b in sk.BONES:
         head_w, tail_w = w[b.head], w[b.tail]
@@ -211,28 +251,47 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
             if b.name in state.hinge_right:
                 role = state.hinge_right[b.name][0]
             else:
-                role = (natural_roles(b.head, has) or [None])[0]
+                role = (natural_roles(b.head, session.has) or [None])[0]
             if role is not None:
                 info.extra["right_local"] = [round(float(x), 7) for x in
                                              tf.rotate(tf.quat_conj(session.ref_pose(role)[1]), rights[b.name])]
                 info.extra["right_frame"] = role
         bones[b.name] = info
         frames_world[b.name] = sl.bone_frame(head_w, tail_w, rights[b.name])
+    return bones, frames_world
 
-    def local_to_bone(bone: str, world_point) -> np.ndarray:
-        return frames_world[bone].T @ (np.asarray(world_point) - w[sk.BONE_BY_NAME[bone].head])
 
-    surface = [SurfaceElement(f"capsule:{b}", "capsule", b) for b in sl.CAPSULE_BONES]
-    # skull sphere, centre local to the head bone
+@dataclass
+class _Surfaces:
+    """What the surface passes share: the session and state after the joints pass, the body frame
+    and the bones' world rest frames (to store points in a bone's frame)."""
+    session: Session
+    state: State
+    body: defaults.BodyFrame
+    frames_world: dict[str, np.ndarray]
+
+    def local_to_bone(self, bone: str, world_point) -> np.ndarray:
+        return self.frames_world[bone].T @ (np.asarray(world_point) - self.state.world[sk.BONE_BY_NAME[bone].head])
+
+
+def _skull(parts: _Surfaces) -> SurfaceElement:
+    """`sphere:skull`, its centre in the head bone's frame: the skull touches' sphere, else the
+    stature's ratios above the skull base (a default)."""
+    session, state, body = parts.session, parts.state, parts.body
     if state.skull is not None:
         centre_w, radius = session.to_world("head", state.skull[0]), state.skull[1]
     else:
-        centre_w = w["skull_base"] + UP * defaults.R["skull_up"] * body.stature
+        centre_w = state.world["skull_base"] + UP * defaults.R["skull_up"] * body.stature
         radius = defaults.R["skull_radius"] * body.stature
         session.default("sphere:skull", "skull radius and height ratios of the stature")
-    surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=local_to_bone("head", centre_w),
-                                  radius=float(radius)))
-    # torso
+    return SurfaceElement("sphere:skull", "sphere", "head", center=parts.local_to_bone("head", centre_w),
+                          radius=float(radius))
+
+
+def _torso(parts: _Surfaces) -> SurfaceElement:
+    """`mesh:torso`, each point in its nearest vertebra's frame: the touched points (completed by
+    `trunk.complete_torso`), the layout's ratios for the rest, then the belly centre points."""
+    session, state, body, w = parts.session, parts.state, parts.body, parts.state.world
     trunk.complete_torso(session, state)
     torso_w = dict(state.torso_world)
     spine_pts = np.array([w[sk.spine_joint(k)] for k in range(sk.SPINE_COUNT + 1)])
@@ -248,67 +307,89 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
     pts = {}
     for k in sl.TORSO_POINTS:
         bone = sl.nearest_vertebra(torso_w[k], spine_pts)
-        pts[k] = SurfacePoint(bone, local_to_bone(bone, torso_w[k]))
-    surface.append(SurfaceElement("mesh:torso", "mesh", "spine_*", points=pts, triangles=list(sl.TORSO_TRIANGLES)))
-    # jaw
+        pts[k] = SurfacePoint(bone, parts.local_to_bone(bone, torso_w[k]))
+    return SurfaceElement("mesh:torso", "mesh", "spine_*", points=pts, triangles=list(sl.TORSO_TRIANGLES))
+
+
+def _jaw(parts: _Surfaces) -> SurfaceElement:
+    """`mesh:jaw` in the head bone's frame: the jaw touches, else the layout around the skull base."""
+    session, state, body = parts.session, parts.state, parts.body
     if state.jaw:
         jaw_w = {k: session.to_world("head", v) for k, v in state.jaw.items()}
     else:
-        jaw_w = {k: w["skull_base"] + (body.left * a + body.forward * b + UP * c) * body.stature
+        jaw_w = {k: state.world["skull_base"] + (body.left * a + body.forward * b + UP * c) * body.stature
                  for k, (a, b, c) in defaults.JAW_LAYOUT.items()}
         session.default("mesh:jaw", "jaw layout ratios of the stature around the skull base")
-    surface.append(SurfaceElement("mesh:jaw", "mesh", "head",
-                                  points={k: SurfacePoint("head", local_to_bone("head", v)) for k, v in jaw_w.items()},
-                                  triangles=list(sl.JAW_TRIANGLES)))
-    # palms and soles
-    palm_planes = {}
-    for s in sk.SIDES:
-        along, n, thumb = defaults.hand_axes(session, state, body, s, w)
-        if s in state.palm_points:
-            palm_w = {k: session.to_world(f"hand_{s}", v) for k, v in state.palm_points[s].items()}
-        else:
-            r = rad[f"finger_middle_{s}"]
-            wr, mi, mp = w[f"wrist_{s}"], w[f"mcp_index_{s}"], w[f"mcp_pinky_{s}"]
-            half = 0.3 * np.linalg.norm(mi - mp)
-            palm_w = {f"palm_1_{s}": mi + n * r, f"palm_2_{s}": mp + n * r,
-                      f"palm_3_{s}": wr - thumb * half + n * r, f"palm_4_{s}": wr + thumb * half + n * r}
-            session.default(f"mesh:palm_{s}", "quad from the index and pinky bases to the wrist")
-        order = _order_outline(sorted(palm_w), palm_w, n)
-        surface.append(SurfaceElement(
-            f"mesh:palm_{s}", "mesh", f"hand_{s}",
-            points={k: SurfacePoint(f"hand_{s}", local_to_bone(f"hand_{s}", palm_w[k])) for k in order},
-            triangles=sl.fan_triangles(order)))
-        if s in state.sole_points:
-            sole_w = {k: session.to_world(f"foot_{s}", v) for k, v in state.sole_points[s].items()}
-        else:
-            a, t = w[f"ankle_{s}"], w[f"toe_{s}"]
-            fw = t - a
-            fw[2] = 0
-            fw /= max(np.linalg.norm(fw), 1e-9)
-            side = np.cross(UP, fw)
-            hw = 0.5 * defaults.R["foot_width"] * body.stature
-            heel = a - fw * defaults.R["heel_back"] * body.stature
-            front = t + fw * 0.04 * body.stature
-            sole_w = {f"sole_1_{s}": heel + side * hw, f"sole_2_{s}": heel - side * hw,
-                      f"sole_3_{s}": front - side * hw, f"sole_4_{s}": front + side * hw}
-            sole_w = {k: v * np.array([1, 1, 0]) for k, v in sole_w.items()}
-            session.default(f"mesh:sole_{s}", "rectangle from the heel to past the toe, foot width ratio")
-        order = _order_outline(sorted(sole_w), sole_w, -UP)
-        surface.append(SurfaceElement(
-            f"mesh:sole_{s}", "mesh", f"foot_{s}",
-            points={k: SurfacePoint(f"foot_{s}", local_to_bone(f"foot_{s}", sole_w[k])) for k in order},
-            triangles=sl.fan_triangles(order)))
-        if f"hand_{s}" in state.palm_planes:
-            point, normal = state.palm_planes[f"hand_{s}"]
-            palm_planes[f"hand_{s}"] = {"point": [round(float(x), 7) for x in point],
-                                        "normal": [round(float(x), 7) for x in normal]}
-        elif has(f"hand_{s}"):
-            q = session.ref_pose(f"hand_{s}")[1]
-            point = session.to_local(f"hand_{s}", w[f"mcp_middle_{s}"] + n * rad[f"finger_middle_{s}"])
-            palm_planes[f"hand_{s}"] = {"point": [round(float(x), 7) for x in point],
-                                        "normal": [round(float(x), 7) for x in tf.rotate(tf.quat_conj(q), n)]}
+    return SurfaceElement("mesh:jaw", "mesh", "head",
+                          points={k: SurfacePoint("head", parts.local_to_bone("head", v)) for k, v in jaw_w.items()},
+                          triangles=list(sl.JAW_TRIANGLES))
 
-    # AvatarGo offsets (AvatarGo §3.3): the rotation of the bone a joint starts (else ends).
+
+def _palm(parts: _Surfaces, s: str, n: np.ndarray, thumb: np.ndarray) -> SurfaceElement:
+    """`mesh:palm_<s>` in the hand bone's frame, wound out of the palm (normal `n`): the palm
+    touches, else a quad from the index and pinky bases to the wrist (a default)."""
+    session, state, w = parts.session, parts.state, parts.state.world
+    if s in state.palm_points:
+        palm_w = {k: session.to_world(f"hand_{s}", v) for k, v in state.palm_points[s].items()}
+    else:
+        r = state.radii[f"finger_middle_{s}"]
+        wr, mi, mp = w[f"wrist_{s}"], w[f"mcp_index_{s}"], w[f"mcp_pinky_{s}"]
+        half = 0.3 * np.linalg.norm(mi - mp)
+        palm_w = {f"palm_1_{s}": mi + n * r, f"palm_2_{s}": mp + n * r,
+                  f"palm_3_{s}": wr - thumb * half + n * r, f"palm_4_{s}": wr + thumb * half + n * r}
+        session.default(f"mesh:palm_{s}", "quad from the index and pinky bases to the wrist")
+    order = _order_outline(sorted(palm_w), palm_w, n)
+    return SurfaceElement(
+        f"mesh:palm_{s}", "mesh", f"hand_{s}",
+        points={k: SurfacePoint(f"hand_{s}", parts.local_to_bone(f"hand_{s}", palm_w[k])) for k in order},
+        triangles=sl.fan_triangles(order))
+
+
+def _sole(parts: _Surfaces, s: str) -> SurfaceElement:
+    """`mesh:sole_<s>` in the foot bone's frame, wound facing down: the sole touches, else a
+    rectangle on the floor from the heel to past the toe (a default)."""
+    session, state, body, w = parts.session, parts.state, parts.body, parts.state.world
+    if s in state.sole_points:
+        sole_w = {k: session.to_world(f"foot_{s}", v) for k, v in state.sole_points[s].items()}
+    else:
+        a, t = w[f"ankle_{s}"], w[f"toe_{s}"]
+        fw = t - a
+        fw[2] = 0
+        fw /= max(np.linalg.norm(fw), 1e-9)
+        side = np.cross(UP, fw)
+        hw = 0.5 * defaults.R["foot_width"] * body.stature
+        heel = a - fw * defaults.R["heel_back"] * body.stature
+        front = t + fw * 0.04 * body.stature
+        sole_w = {f"sole_1_{s}": heel + side * hw, f"sole_2_{s}": heel - side * hw,
+                  f"sole_3_{s}": front - side * hw, f"sole_4_{s}": front + side * hw}
+        sole_w = {k: v * np.array([1, 1, 0]) for k, v in sole_w.items()}
+        session.default(f"mesh:sole_{s}", "rectangle from the heel to past the toe, foot width ratio")
+    order = _order_outline(sorted(sole_w), sole_w, -UP)
+    return SurfaceElement(
+        f"mesh:sole_{s}", "mesh", f"foot_{s}",
+        points={k: SurfacePoint(f"foot_{s}", parts.local_to_bone(f"foot_{s}", sole_w[k])) for k in order},
+        triangles=sl.fan_triangles(order))
+
+
+def _palm_plane(parts: _Surfaces, s: str, n: np.ndarray) -> dict | None:
+    """The palm plane of hand `s` in the hand device's frame (point, normal; for the finger
+    animation): as measured, else through the middle finger's base one finger radius out along
+    `n`; None without a hand device."""
+    session, state = parts.session, parts.state
+    if f"hand_{s}" in state.palm_planes:
+        point, normal = state.palm_planes[f"hand_{s}"]
+        return {"point": [round(float(x), 7) for x in point], "normal": [round(float(x), 7) for x in normal]}
+    if session.has(f"hand_{s}"):
+        q = session.ref_pose(f"hand_{s}")[1]
+        point = session.to_local(f"hand_{s}", state.world[f"mcp_middle_{s}"] + n * state.radii[f"finger_middle_{s}"])
+        return {"point": [round(float(x), 7) for x in point],
+                "normal": [round(float(x), 7) for x in tf.rotate(tf.quat_conj(q), n)]}
+    return None
+
+
+def _avatargo_offsets(session: Session, joints: dict[str, Joint], frames_world: dict[str, np.ndarray]) -> dict:
+    """AvatarGo offsets (AvatarGo §3.3): every tracker to every joint, with the rotation of the bone
+    the joint starts (else ends)."""
     bone_quats = {b: tf.matrix_to_quat(m) for b, m in frames_world.items()}
     joint_bone = {}
     for b in sk.BONES:
@@ -317,9 +398,13 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
     for b in sk.BONES:
         if not b.shortcut:
             joint_bone.setdefault(b.tail, b.name)
-    offs = tpose.offsets(session, joints, bone_quats, joint_bone)
+    return tpose.offsets(session, joints, bone_quats, joint_bone)
 
-    model = BodyModel("user", name, joints, bones, surface, session.reference_time, offs)
+
+def _record(model: BodyModel, session: Session, state: State, body: defaults.BodyFrame, palm_planes: dict) -> None:
+    """Sets the model's calibration record (steps used, defaults, missing steps, warnings, quality)
+    and its extras (T-pose device poses, eye height, palm planes, radii, sacrum width)."""
+    rad = state.radii
     model.calibration = {
         "steps_used": list(session.steps_used),
         "defaulted": dict(session.defaulted),
@@ -337,4 +422,3 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
     }
     if "sacrum_width" in state.extra:
         model.extra["sacrum_width"] = round(state.extra["sacrum_width"], 6)
-    return model

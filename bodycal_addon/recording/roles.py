@@ -14,6 +14,8 @@ waist are upper arm (nearer) and forearm (farther), below it thigh (higher) and 
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from ..core.errors import BodyCalError
@@ -88,7 +90,35 @@ def identify_roles(rec: Recording) -> dict[str, str]:
     return _classify(rec)[0]
 
 
+@dataclass
+class _Assignment:
+    """What the role passes share: the T-pose positions (D, 3), the roles the devices already hold
+    (`fixed`, role -> device), the roles found so far (device -> role, in the order found) and the
+    tracked devices still without one (`free`). Once the facing is known (`orient`): each device's
+    lateral coordinate `u` (+ = the performer's left), its height above the lowest device as a
+    fraction of the head's (`z_rel`), the floor and that head height."""
+
+    rec: Recording
+    pos: np.ndarray
+    fixed: dict[str, int]
+    free: set[int]
+    roles: dict[int, str] = field(default_factory=dict)
+
+    def take(self, i: int, role: str) -> None:
+        self.roles[i] = role
+        self.free.discard(i)
+
+    def orient(self, head: int, fwd: np.ndarray, idx: np.ndarray) -> None:
+        left = np.cross(UP, fwd)
+        self.u = (self.pos - self.pos[head]) @ left  # lateral coordinate, + = performer's left
+        self.floor = self.pos[idx, 2].min()
+        self.height = max(self.pos[head, 2] - self.floor, 0.5)  # head height above the lowest device
+        self.z_rel = (self.pos[:, 2] - self.floor) / self.height
+
+
 def _classify(rec: Recording) -> tuple[dict[str, str], str]:
+    """(device name -> role, how the facing was decided) from the tpose segment: the passes below in
+    the order AvatarGo §3.2 reads the T-pose, each taking devices the earlier ones left free."""
     src = rec.source or rec.name
     pos, tracked, info = tpose_positions(rec)
     idx = np.flatnonzero(tracked)
@@ -97,79 +127,96 @@ def _classify(rec: Recording) -> tuple[dict[str, str], str]:
                            "a foot or the pelvis)", source=src, field="segments")
     plane = fit_plane(pos[idx], name=f"{src}: tpose plane")
     fixed = {d.role: i for i, d in enumerate(rec.devices) if d.role}
-    roles: dict[int, str] = {}
-    free = set(int(i) for i in idx)
-
-    def take(i, role):
-        roles[i] = role
-        free.discard(i)
-
-    # Head: the HMD (or the highest device).
-    if "head" in fixed:
-        head = fixed["head"]
-    else:
-        hmds = [i for i in free if rec.devices[i].kind == "hmd"]
-        head = max(hmds or free, key=lambda i: pos[i, 2])
-    take(head, "head")
+    found = _Assignment(rec, pos, fixed, set(int(i) for i in idx))
+    head = _take_head(found)
     fwd, how = _facing(rec, pos, tracked, plane.normal, head, info["frames"])
-    left = np.cross(UP, fwd)
-    u = (pos - pos[head]) @ left  # lateral coordinate, + = performer's left
-    floor = pos[idx, 2].min()
-    height = max(pos[head, 2] - floor, 0.5)  # head height above the lowest device
+    found.orient(head, fwd, idx)
     for role, i in fixed.items():  # keep given roles
-        if i in free:
-            take(i, role)
+        if i in found.free:
+            found.take(i, role)
+    _take_hands(found)
+    _take_feet(found)
+    _take_trunk(found)
+    _take_limbs(found)
+    # A single remaining device in the minimal profile is the waist tracker.
+    if len(found.free) == 1 and "pelvis" not in fixed and "pelvis" not in found.roles.values():
+        found.take(found.free.pop(), "pelvis")
+    names = {rec.devices[i].name: r for i, r in found.roles.items()}
+    return names, f"facing from the {how}, {len(found.free)} device(s) left unidentified"
 
-    def side_of(i):
-        return "l" if u[i] > 0 else "r"
 
-    # Hands: farthest to each side (controllers / gloves first), AvatarGo: "the two far lateral".
+def _take_head(found: _Assignment) -> int:
+    """The head: the device given that role, else the HMD (the highest one), else the highest
+    device. Takes it; returns its index."""
+    if "head" in found.fixed:
+        head = found.fixed["head"]
+    else:
+        hmds = [i for i in found.free if found.rec.devices[i].kind == "hmd"]
+        head = max(hmds or found.free, key=lambda i: found.pos[i, 2])
+    found.take(head, "head")
+    return head
+
+
+def _take_hands(found: _Assignment) -> None:
+    """Hands: per side without a given hand, the farthest free device beyond a quarter of the head
+    height (controllers and rigid bodies first); AvatarGo: "the two far lateral"."""
+    u = found.u
     for s, sign in (("l", 1.0), ("r", -1.0)):
-        if f"hand_{s}" in fixed:
+        if f"hand_{s}" in found.fixed:
             continue
-        cands = [i for i in free if sign * u[i] > 0.25 * height]
-        preferred = [i for i in cands if rec.devices[i].kind in ("controller", "rigid_body")]
+        cands = [i for i in found.free if sign * u[i] > 0.25 * found.height]
+        preferred = [i for i in cands if found.rec.devices[i].kind in ("controller", "rigid_body")]
         if preferred or cands:
-            take(max(preferred or cands, key=lambda i: sign * u[i]), f"hand_{s}")
-    # Feet: the two lowest devices near the floor, left/right by the lateral coordinate.
+            found.take(max(preferred or cands, key=lambda i: sign * u[i]), f"hand_{s}")
+
+
+def _take_feet(found: _Assignment) -> None:
+    """Feet: the lowest free devices near the floor, as many as feet are not given; two are told
+    apart by the lateral coordinate, a single one by its side (or takes the one foot left)."""
+    pos, u, fixed = found.pos, found.u, found.fixed
     feet_free = [r for r in ("foot_l", "foot_r") if r not in fixed]
-    low = sorted((i for i in free if pos[i, 2] - floor < 0.15 * height), key=lambda i: pos[i, 2])[:len(feet_free)]
+    low = sorted((i for i in found.free if pos[i, 2] - found.floor < 0.15 * found.height),
+                 key=lambda i: pos[i, 2])[:len(feet_free)]
     if len(low) == 2:
         a, b = sorted(low, key=lambda i: -u[i])
-        take(a, "foot_l")
-        take(b, "foot_r")
+        found.take(a, "foot_l")
+        found.take(b, "foot_r")
     elif len(low) == 1:
-        role = f"foot_{side_of(low[0])}" if len(feet_free) == 2 else feet_free[0]
-        take(low[0], role)
-    z_rel = (pos[:, 2] - floor) / height
-    waist = 0.55
-    central = 0.09 * height
-    rest = sorted(free, key=lambda i: -pos[i, 2])
-    # Central devices above the knees: chest (higher) and pelvis (lower).
-    trunk = [i for i in rest if abs(u[i]) < central and z_rel[i] > 0.4]
+        role = f"foot_{'l' if u[low[0]] > 0 else 'r'}" if len(feet_free) == 2 else feet_free[0]
+        found.take(low[0], role)
+
+
+def _take_trunk(found: _Assignment) -> None:
+    """Trunk: central free devices above the knees, highest first: chest then pelvis; one alone (or
+    beside a given chest or pelvis) is the pelvis when low or when the chest is given."""
+    fixed, z_rel = found.fixed, found.z_rel
+    central = 0.09 * found.height
+    rest = sorted(found.free, key=lambda i: -found.pos[i, 2])
+    trunk = [i for i in rest if abs(found.u[i]) < central and z_rel[i] > 0.4]
     if len(trunk) >= 2 and "chest" not in fixed and "pelvis" not in fixed:
-        take(trunk[0], "chest")
-        take(trunk[1], "pelvis")
+        found.take(trunk[0], "chest")
+        found.take(trunk[1], "pelvis")
     elif len(trunk) == 1 or (trunk and ("chest" in fixed) != ("pelvis" in fixed)):
         role = "pelvis" if "pelvis" not in fixed and (z_rel[trunk[0]] < 0.7 or "chest" in fixed) else "chest"
         if role not in fixed:
-            take(trunk[0], role)
-    # Arms (above the waist) and legs (below), per side.
+            found.take(trunk[0], role)
+
+
+def _take_limbs(found: _Assignment) -> None:
+    """Arms above the waist (upper arm nearer the middle, then forearm) and legs below it (thigh
+    higher, then shin), per side, among the free devices; given roles are not taken again."""
+    waist = 0.55
+    u, z_rel, fixed = found.u, found.z_rel, found.fixed
     for s, sign in (("l", 1.0), ("r", -1.0)):
-        side = [i for i in free if sign * u[i] > 0]
+        side = [i for i in found.free if sign * u[i] > 0]
         arm = sorted((i for i in side if z_rel[i] >= waist), key=lambda i: sign * u[i])
-        leg = sorted((i for i in side if z_rel[i] < waist), key=lambda i: -pos[i, 2])
+        leg = sorted((i for i in side if z_rel[i] < waist), key=lambda i: -found.pos[i, 2])
         for i, role in zip(arm, (f"upperarm_{s}", f"forearm_{s}")):
             if role not in fixed:
-                take(i, role)
+                found.take(i, role)
         for i, role in zip(leg, (f"thigh_{s}", f"shin_{s}")):
             if role not in fixed:
-                take(i, role)
-    # A single remaining device in the minimal profile is the waist tracker.
-    if len(free) == 1 and "pelvis" not in fixed and "pelvis" not in roles.values():
-        take(free.pop(), "pelvis")
-    names = {rec.devices[i].name: r for i, r in roles.items()}
-    return names, f"facing from the {how}, {len(free)} device(s) left unidentified"
+                found.take(i, role)
 
 
 def apply_roles(rec: Recording) -> dict[str, str]:

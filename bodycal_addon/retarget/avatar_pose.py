@@ -52,6 +52,85 @@ def _driver_of_segment(seg: str) -> str | None:
     return None
 
 
+def _rig_bones(bones: dict, src: str) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rig's bones parents first (by depth, then in the rig's order): (names, parent index or
+    -1, rest heads, rest tails, rest matrices), armature space. Refuses a parent outside the rig,
+    a bone that is its own ancestor, and a bone without head, tail or 3x3 matrix."""
+    depth = {}
+
+    def d(n, seen=()):
+        if n in depth:
+            return depth[n]
+        p = bones[n].get("parent") or None
+        if p is not None and p not in bones:
+            raise BodyCalError(f"bone '{n}' has parent '{p}' that is not in the rig", source=src, field="rig.bones")
+        if n in seen:
+            raise BodyCalError(f"bone '{n}' is its own ancestor", source=src, field="rig.bones")
+        depth[n] = 0 if p is None else d(p, seen + (n,)) + 1
+        return depth[n]
+
+    names = sorted(bones, key=lambda n: (d(n), list(bones).index(n)))
+    idx = {n: i for i, n in enumerate(names)}
+    parent = np.array([idx[bones[n]["parent"]] if bones[n].get("parent") else -1 for n in names])
+    try:
+        head = np.array([bones[n]["head"] for n in names], float)
+        tail = np.array([bones[n]["tail"] for n in names], float)
+        rest = np.array([bones[n]["matrix"] for n in names], float).reshape(-1, 3, 3)
+    except (KeyError, ValueError) as exc:
+        raise BodyCalError(f"every rig bone needs head, tail and a 3x3 matrix ({exc})", source=src,
+                           field="rig.bones") from None
+    return names, parent, head, tail, rest
+
+
+def _rig_world(rig: dict, src: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """(matrix_world (4, 4), its rotation, its mean scale); refuses a mirrored or flattened one."""
+    world = np.asarray(rig.get("matrix_world", np.eye(4)), float).reshape(4, 4)
+    lin = world[:3, :3]
+    det = np.linalg.det(lin)
+    if not det > 0:
+        raise BodyCalError("the armature object is mirrored or flattened (its scale has a negative or zero "
+                           "axis)", source=src, field="rig.matrix_world",
+                           hint="apply the scale (Ctrl+A) and recalibrate")
+    # Pose bones only rotate, so rotations go through the armature's transform as a rotation
+    # and one scale: exact for a uniform scale; for a non-uniform one (the calibration warns)
+    # the nearest rotation (polar decomposition) and the mean scale. Positions go through the
+    # transform itself, so the joints stay what Blender's FK gives (the root lands where asked).
+    u, _, vt = np.linalg.svd(lin)
+    return world, u @ vt, float(np.cbrt(det))
+
+
+def _drivers(bones: dict, names: list[str], idx: dict[str, int], bm: naming.BoneMap, src: str
+             ) -> tuple[list, list[str]]:
+    """(per bone: the canonical bone index driving it, "chain" or None; the spine and neck chain
+    bones, lowest first). A bone's segment is the bone map's, else the rig's `segment` (not for
+    chain segments). Refuses a rig without a pelvis, head or limb bone mapped."""
+    seg_of = {}
+    for seg, bn in bm.bones.items():
+        seg_of.setdefault(bn, seg)
+    chain = [b for c in ("spine", "neck") for b in bm.chains.get(c, []) if b in idx]
+    for n in names:
+        seg = bones[n].get("segment")
+        if seg and n not in seg_of and seg not in sk.CHAIN_SEGMENTS:
+            seg_of[n] = seg
+    pelvis_bone = bm.bones.get("pelvis")
+    if pelvis_bone not in idx:
+        raise BodyCalError("no avatar bone is mapped to the pelvis", source=src, field="rig.bone_map",
+                           hint="map the pelvis bone in the bone map panel")
+    driver: list = []
+    for n in names:
+        if n in chain:
+            driver.append("chain")
+        else:
+            c = _driver_of_segment(seg_of.get(n, ""))
+            driver.append(BI[c] if c is not None else None)
+    for seg in ("head", "upperarm_l", "upperarm_r", "forearm_l", "forearm_r", "thigh_l", "thigh_r",
+                "shin_l", "shin_r"):
+        if seg not in bm.bones or bm.bones[seg] not in idx:
+            raise BodyCalError(f"no avatar bone is mapped to '{seg}'", source=src, field="rig.bone_map",
+                               hint="map it in the bone map panel")
+    return driver, chain
+
+
 @dataclass
 class RigPose:
     basis: np.ndarray  # (F, N, 4) pose-bone rotation_quaternion (matrix_basis), w x y z
@@ -93,92 +172,45 @@ class AvatarRig:
 
     @classmethod
     def from_model(cls, model: BodyModel) -> AvatarRig:
+        """The solver for an avatar body model's rig (`extra["rig"]`, written by the avatar
+        calibration). Raises BodyCalError naming the field when the rig cannot be posed: no bones,
+        a broken hierarchy, a mirrored armature, the pelvis or a limb not mapped."""
         rig = model.extra.get("rig")
         src = model.name or "avatar"
         if not isinstance(rig, dict) or not isinstance(rig.get("bones"), dict) or not rig["bones"]:
             raise BodyCalError("the avatar body model has no rig (extra.rig.bones)", source=src, field="rig",
                                hint="calibrate the avatar again")
-        bones = rig["bones"]
-        depth = {}
-
-        def d(n, seen=()):
-            if n in depth:
-                return depth[n]
-            p = bones[n].get("parent") or None
-            if p is not None and p not in bones:
-                raise BodyCalError(f"bone '{n}' has parent '{p}' that is not in the rig", source=src, field="rig.bones")
-            if n in seen:
-                raise BodyCalError(f"bone '{n}' is its own ancestor", source=src, field="rig.bones")
-            depth[n] = 0 if p is None else d(p, seen + (n,)) + 1
-            return depth[n]
-
-        names = sorted(bones, key=lambda n: (d(n), list(bones).index(n)))
+        names, parent, head, tail, rest = _rig_bones(rig["bones"], src)
         idx = {n: i for i, n in enumerate(names)}
-        parent = np.array([idx[bones[n]["parent"]] if bones[n].get("parent") else -1 for n in names])
-        try:
-            head = np.array([bones[n]["head"] for n in names], float)
-            tail = np.array([bones[n]["tail"] for n in names], float)
-            rest = np.array([bones[n]["matrix"] for n in names], float).reshape(-1, 3, 3)
-        except (KeyError, ValueError) as exc:
-            raise BodyCalError(f"every rig bone needs head, tail and a 3x3 matrix ({exc})", source=src,
-                               field="rig.bones") from None
-        world = np.asarray(rig.get("matrix_world", np.eye(4)), float).reshape(4, 4)
-        lin = world[:3, :3]
-        det = np.linalg.det(lin)
-        if not det > 0:
-            raise BodyCalError("the armature object is mirrored or flattened (its scale has a negative or zero "
-                               "axis)", source=src, field="rig.matrix_world",
-                               hint="apply the scale (Ctrl+A) and recalibrate")
-        # Pose bones only rotate, so rotations go through the armature's transform as a rotation
-        # and one scale: exact for a uniform scale; for a non-uniform one (the calibration warns)
-        # the nearest rotation (polar decomposition) and the mean scale. Positions go through the
-        # transform itself, so the joints stay what Blender's FK gives (the root lands where asked).
-        u, _, vt = np.linalg.svd(lin)
-        w_rot = u @ vt
-        w_scale = float(np.cbrt(det))
+        world, w_rot, w_scale = _rig_world(rig, src)
         bm = naming.BoneMap.from_dict(rig.get("bone_map", {}))
-        seg_of = {}
-        for seg, bn in bm.bones.items():
-            seg_of.setdefault(bn, seg)
-        chain = [b for c in ("spine", "neck") for b in bm.chains.get(c, []) if b in idx]
-        for n in names:
-            seg = bones[n].get("segment")
-            if seg and n not in seg_of and seg not in sk.CHAIN_SEGMENTS:
-                seg_of[n] = seg
-        pelvis_bone = bm.bones.get("pelvis")
-        if pelvis_bone not in idx:
-            raise BodyCalError("no avatar bone is mapped to the pelvis", source=src, field="rig.bone_map",
-                               hint="map the pelvis bone in the bone map panel")
-        driver: list = []
-        for n in names:
-            if n in chain:
-                driver.append("chain")
-            else:
-                c = _driver_of_segment(seg_of.get(n, ""))
-                driver.append(BI[c] if c is not None else None)
-        for seg in ("head", "upperarm_l", "upperarm_r", "forearm_l", "forearm_r", "thigh_l", "thigh_r",
-                    "shin_l", "shin_r"):
-            if seg not in bm.bones or bm.bones[seg] not in idx:
-                raise BodyCalError(f"no avatar bone is mapped to '{seg}'", source=src, field="rig.bone_map",
-                                   hint="map it in the bone map panel")
+        driver, chain = _drivers(rig["bones"], names, idx, bm, src)
 
         self = cls.__new__(cls)
         self.model, self.armature = model, str(rig.get("armature", model.name))
         self.names, self.parent, self.head, self.tail, self.rest = names, parent, head, tail, rest
-        self.world, self.w_rot, self.w_scale, self.root = world, w_rot, w_scale, idx[pelvis_bone]
-        self.w_inv = np.linalg.inv(lin)
+        self.world, self.w_rot, self.w_scale, self.root = world, w_rot, w_scale, idx[bm.bones.get("pelvis")]
+        self.w_inv = np.linalg.inv(world[:3, :3])
         self.driver, self.notes = driver, []
         pos = complete_joints(model)
         self.joint_world = np.stack([pos[j] for j in JOINTS])
         self.frames0 = model_rest_frames(model, pos)
         self.lengths = np.array([np.linalg.norm(pos[b.tail] - pos[b.head]) for b in BONES])
-        # Joints ride on avatar bones: the model's choice, else the bone driven by a canonical bone
-        # that starts (then ends) at the joint, else the pelvis bone.
         drv_bone = {BONES[c].name: i for i, c in enumerate(driver) if isinstance(c, (int, np.integer))}
+        self._ride_joints(idx, chain, drv_bone)
+        self._carry_frames(drv_bone)
+        self._aim_chains(idx, chain, bm.bones.get("head"), pos)
+        return self
+
+    def _ride_joints(self, idx: dict[str, int], chain: list[str], drv_bone: dict[str, int]) -> None:
+        """Construction pass: sets `joint_bone` and `joint_local` from `joint_world`. A joint rides
+        on the model's choice of bone, else the bone driven by a canonical bone that starts (then
+        ends) at the joint, else (a vertebra) the nearest chain bone, else the pelvis bone."""
+        head, tail = self.head, self.tail
         arm_pts = self.to_armature(self.joint_world)
         jb = np.empty(len(JOINTS), int)
         for j, name in enumerate(JOINTS):
-            frame = model.joints[name].frame if name in model.joints else None
+            frame = self.model.joints[name].frame if name in self.model.joints else None
             if frame in idx:
                 jb[j] = idx[frame]
                 continue
@@ -190,30 +222,38 @@ class AvatarRig:
                 cands = [min(segs)[1]]
             jb[j] = cands[0] if cands else self.root
         self.joint_bone = jb
-        self.joint_local = np.einsum("jba,jb->ja", rest[jb], arm_pts - head[jb])
-        # Canonical frames ride on the avatar bone driven by them, else on their parent's carrier.
+        self.joint_local = np.einsum("jba,jb->ja", self.rest[jb], arm_pts - head[jb])
+
+    def _carry_frames(self, drv_bone: dict[str, int]) -> None:
+        """Construction pass: sets `carrier`. A canonical frame rides on the avatar bone it drives,
+        else (vertebrae, shortcuts) on its head joint's bone, else on its parent's carrier. Needs
+        `joint_bone`."""
         car = np.empty(len(BONES), int)
         for i, b in enumerate(BONES):
             if b.name in drv_bone:
                 car[i] = drv_bone[b.name]
             elif b.name in SPINE_BONES or b.name.startswith("shortcut_"):
-                car[i] = jb[JI[b.head]]
+                car[i] = self.joint_bone[JI[b.head]]
             elif b.parent is not None:
                 car[i] = car[BI[b.parent]]
             else:
                 car[i] = self.root
         self.carrier = car
-        # Chain bones aim their "aim point" at the canonical spine curve: the head of their child
-        # up the spine (chain bone or head bone) when they have one (rig chains need not be
-        # connected: a tail may sit off the spine), else their tail; its arc position on the rest
-        # curve and its place in the bone's rest frame (so the rest pose aims at itself). Twist:
-        # the canonical vertebra at the bone's middle.
+
+    def _aim_chains(self, idx: dict[str, int], chain: list[str], head_bone: str | None, pos: dict) -> None:
+        """Construction pass: sets `chain_s`, `chain_aim`, `chain_off` and `chain_vertebra` (zero for
+        bones off the chain). Chain bones aim their "aim point" at the canonical spine curve: the
+        head of their child up the spine (chain bone or `head_bone`) when they have one (rig chains
+        need not be connected: a tail may sit off the spine), else their tail; its arc position on
+        the rest curve and its place in the bone's rest frame (so the rest pose aims at itself).
+        Twist: the canonical vertebra at the bone's middle."""
+        names, parent, head, tail, rest = self.names, self.parent, self.head, self.tail, self.rest
         spine_rest = self.to_armature(np.stack([pos[j] for j in SPINE_JOINTS]))
         self.chain_s = np.zeros(len(names))
         self.chain_aim = np.zeros((len(names), 3))
         self.chain_off = np.zeros((len(names), 3))
         self.chain_vertebra = np.zeros(len(names), int)
-        up_spine = set(chain) | {bm.bones.get("head")}
+        up_spine = set(chain) | {head_bone}
         for c in chain:
             i = idx[c]
             kids = [j for j in range(len(names)) if parent[j] == i and names[j] in up_spine]
@@ -225,7 +265,6 @@ class AvatarRig:
             # where the aim point sits off the curve, carried by the vertebra: the rest pose aims at itself
             self.chain_off[i] = aim - _curve_point(spine_rest[None], s_t)[0]
             self.chain_vertebra[i] = int(np.clip(np.floor(0.5 * (s_t + s_h)), 0, sk.SPINE_COUNT - 1))
-        return self
 
     # --- coordinates ----------------------------------------------------------------------------
 

@@ -157,6 +157,30 @@ def _hinge_right(model: BodyModel, tr: _Trackers, bone: str, fallback: np.ndarra
     return fallback
 
 
+@dataclass
+class _Animating:
+    """What the passes of `animate_user` share: the recording's frames [start, stop), the user
+    model and its trackers, its rest joints and rest bone frames `C0` (B, 3, 3), and what the passes
+    fill: joint positions `P` (name -> (F, 3)) and bone frames `Fr` (F, B, 3, 3)."""
+
+    recording: Recording
+    model: BodyModel
+    tr: _Trackers
+    rest_pos: dict[str, np.ndarray]
+    C0: np.ndarray
+    start: int
+    stop: int
+    Fr: np.ndarray
+    P: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def need(self, joint: str, value):
+        """`value`, or one error when no tracked device knows `joint`."""
+        if value is None:
+            raise BodyCalError(f"joint '{joint}' is not known in any tracked device", source=self.model.name,
+                               field=f"joints.{joint}.frames", hint="calibrate the user with these trackers")
+        return value
+
+
 def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, stop: int | None = None, *,
                  rest: tuple[dict, np.ndarray] | None = None) -> UserPose:
     """Animate the user's canonical skeleton over frames [start, stop) of `recording`. `rest`: the
@@ -166,6 +190,27 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
     stop = recording.frame_count if stop is None else stop
     tr = _trackers(recording, user_model, start, stop)
     src = recording.source or recording.name
+    _check_trackers(tr, src, user_model)
+    if rest is None:
+        rest_pos = complete_joints(user_model)
+        rest = rest_pos, model_rest_frames(user_model, rest_pos)
+    rest_pos, C0 = rest
+    an = _Animating(recording, user_model, tr, rest_pos, C0, start, stop, np.empty((stop - start, len(BONES), 3, 3)))
+    sacrum, pelvis_rigid = _animate_head(an)
+    _animate_limbs(an)
+    _animate_trunk(an, sacrum, pelvis_rigid)
+    _animate_hands(an)
+    pos = np.stack([an.P[j] for j in JOINTS], axis=1)
+    _shortcut_frames(an)
+    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(an.Fr)):
+        raise BodyCalError("the user animation has non-finite values", source=src,
+                           hint="check the recording for broken device poses")
+    return UserPose(recording.time[start:stop], pos, an.Fr, tr.valid, tr.notes)
+
+
+def _check_trackers(tr: _Trackers, src: str, user_model: BodyModel) -> None:
+    """Refuses a recording without the six devices every method needs, or a model without their
+    reference poses."""
     for role in ("head", "pelvis", "hand_l", "hand_r", "foot_l", "foot_r"):
         if role not in tr.pos:
             raise BodyCalError(f"no tracked device with role '{role}'", source=src, field="devices",
@@ -173,56 +218,58 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
         if role not in tr.ref_rot:
             raise BodyCalError(f"no reference pose for '{role}' (body model extra.tpose)", source=user_model.name,
                                field="extra.tpose", hint="calibrate the user from this recording")
-    nf = stop - start
-    if rest is None:
-        rest_pos = complete_joints(user_model)
-        rest = rest_pos, model_rest_frames(user_model, rest_pos)
-    rest_pos, C0 = rest
-    P = {}
-    Fr = np.empty((nf, len(BONES), 3, 3))
 
-    def need(joint, value):
-        if value is None:
-            raise BodyCalError(f"joint '{joint}' is not known in any tracked device", source=user_model.name,
-                               field=f"joints.{joint}.frames", hint="calibrate the user with these trackers")
-        return value
 
-    # --- head (rigid on the HMD) and sacrum (rigid on the pelvis tracker) ---------------------
+def _animate_head(an: _Animating) -> tuple[np.ndarray, np.ndarray]:
+    """Head pass: skull base, head and the head frame rigid on the HMD. Returns the sacrum frame
+    rigid on the pelvis tracker and the pelvis joint from that tracker, for `_animate_trunk`."""
     for j in ("skull_base", "head"):
-        P[j] = need(j, _joint_from(user_model, tr, j, ["head"]))
-    Fr[:, BI["head"]] = _rigid(tr, "head", C0[BI["head"]])
-    sac = _rigid(tr, "pelvis", C0[BI["sacrum"]])
-    pel_rigid = need("pelvis", _joint_from(user_model, tr, "pelvis", ["pelvis"]))
-    # --- limbs -------------------------------------------------------------------------------
+        an.P[j] = an.need(j, _joint_from(an.model, an.tr, j, ["head"]))
+    an.Fr[:, BI["head"]] = _rigid(an.tr, "head", an.C0[BI["head"]])
+    sac = _rigid(an.tr, "pelvis", an.C0[BI["sacrum"]])
+    pel_rigid = an.need("pelvis", _joint_from(an.model, an.tr, "pelvis", ["pelvis"]))
+    return sac, pel_rigid
+
+
+def _animate_limbs(an: _Animating) -> None:
+    """Limbs pass, per side: anchor, intermediate and effector joints and the two limb bones' frames
+    (they join the joints and keep the hinge's right), the toe, and the hand and foot frames rigid
+    on their devices."""
+    model, tr, P, Fr, C0, rest_pos = an.model, an.tr, an.P, an.Fr, an.C0, an.rest_pos
     for s in sk.SIDES:
         for limb, (a, m, e, ab, mb) in LIMB_SEGMENTS.items():
             eff_role = "hand" if limb == "arm" else "foot"
             # The anchor rides on its limb's tracker (the root tracker's estimate ignores the
             # clavicle / pelvis-side motion); the root tracker only when the limb has none.
-            anchor = _joint_from(user_model, tr, f"{a}_{s}", [f"{ab}_{s}"])
-            P[f"{a}_{s}"] = need(f"{a}_{s}", anchor if anchor is not None else
-                                 _joint_from(user_model, tr, f"{a}_{s}"))
-            P[f"{e}_{s}"] = need(f"{e}_{s}", _own_frame(user_model, f"{e}_{s}", tr))
-            mid = _joint_from(user_model, tr, f"{m}_{s}")
-            right = _hinge_right(user_model, tr, f"{mb}_{s}",
+            anchor = _joint_from(model, tr, f"{a}_{s}", [f"{ab}_{s}"])
+            P[f"{a}_{s}"] = an.need(f"{a}_{s}", anchor if anchor is not None else
+                                    _joint_from(model, tr, f"{a}_{s}"))
+            P[f"{e}_{s}"] = an.need(f"{e}_{s}", _own_frame(model, f"{e}_{s}", tr))
+            mid = _joint_from(model, tr, f"{m}_{s}")
+            right = _hinge_right(model, tr, f"{mb}_{s}",
                                  _rigid(tr, f"{eff_role}_{s}", C0[BI[f"{mb}_{s}"]])[..., :, 0])
             if mid is None:  # no tracker carries it (minimal profile): two-bone from the user's lengths
                 mid = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], rest_pos, a, m, e, s, right)
             P[f"{m}_{s}"] = mid
             Fr[:, BI[f"{ab}_{s}"]] = frame_from_axes(P[f"{m}_{s}"] - P[f"{a}_{s}"], right)
             Fr[:, BI[f"{mb}_{s}"]] = frame_from_axes(P[f"{e}_{s}"] - P[f"{m}_{s}"], right)
-        P[f"toe_{s}"] = _own_frame(user_model, f"toe_{s}", tr)
+        P[f"toe_{s}"] = _own_frame(model, f"toe_{s}", tr)
         if P[f"toe_{s}"] is None:
             P[f"toe_{s}"] = P[f"ankle_{s}"] + stack_apply(_rigid(tr, f"foot_{s}", np.eye(3)),
                                                           rest_pos[f"toe_{s}"] - rest_pos[f"ankle_{s}"])
         Fr[:, BI[f"foot_{s}"]] = _rigid(tr, f"foot_{s}", C0[BI[f"foot_{s}"]])
         Fr[:, BI[f"hand_{s}"]] = _rigid(tr, f"hand_{s}", C0[BI[f"hand_{s}"]])
-    # --- sacrum: lateral and origin averaged with the hip line (appendix D) ----------------------
+
+
+def _animate_trunk(an: _Animating, sac: np.ndarray, pel_rigid: np.ndarray) -> None:
+    """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
+    hip line, the spine aimed at the skull base with its twist shared hips -> shoulders -> head
+    (`ik.spine`), and the clavicles from vertebra 5 to the shoulders. Needs the limbs and head."""
+    P, Fr, C0, rest_pos = an.P, an.Fr, an.C0, an.rest_pos
     sac = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])
     hipmid0 = 0.5 * (rest_pos["hip_l"] + rest_pos["hip_r"])
     from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
     P["pelvis"] = 0.5 * (pel_rigid + from_hips)
-    # --- spine aimed at the skull base, twist shared hips -> shoulders -> head ----------------
     sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
     rest_spine = np.stack([rest_pos[j] for j in SPINE_JOINTS])
     res = ik.spine(P["pelvis"], sac, sac_len, None, P["skull_base"],
@@ -237,7 +284,12 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
     for s in sk.SIDES:
         P[f"clavicle_{s}"] = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
         Fr[:, BI[f"clavicle_{s}"]] = frame_from_axes(P[f"shoulder_{s}"] - P[f"clavicle_{s}"], v5[..., :, 2])
-    # --- hands and fingers -------------------------------------------------------------------
+
+
+def _animate_hands(an: _Animating) -> None:
+    """Hands pass: finger joints and frames rigid on the hand as calibrated, then each finger with
+    a tip marker posed from it (`pose_user_finger`; forward-filled over its dropouts)."""
+    recording, P, Fr, C0, rest_pos = an.recording, an.P, an.Fr, an.C0, an.rest_pos
     for s in sk.SIDES:
         hand = Fr[:, BI[f"hand_{s}"]]
         c0h = C0[BI[f"hand_{s}"]]
@@ -253,18 +305,17 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
             tip_name = f"{f}_tip_{s}"
             if tip_name in recording.marker_names:
                 m, mv = recording.marker(tip_name)
-                idx = forward_fill(mv)[start:stop]
+                idx = forward_fill(mv)[an.start:an.stop]
                 if mv.any():
-                    pose_user_finger(P, Fr, f, s, m[idx], rest_pos, C0, hand, user_model.bones)
-    # --- shortcut bones and hips (rigid in the sacrum for the mapping's kinematic paths) ---------
-    pos = np.stack([P[j] for j in JOINTS], axis=1)
+                    pose_user_finger(P, Fr, f, s, m[idx], rest_pos, C0, hand, an.model.bones)
+
+
+def _shortcut_frames(an: _Animating) -> None:
+    """Shortcut bones (and hips): frames rigid in the sacrum's lateral, for the mapping's kinematic
+    paths. Needs the sacrum frame."""
     for b in BONES:
         if b.shortcut:
-            Fr[:, BI[b.name]] = frame_from_axes(P[b.tail] - P[b.head], Fr[:, BI["sacrum"]][..., :, 0])
-    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(Fr)):
-        raise BodyCalError("the user animation has non-finite values", source=src,
-                           hint="check the recording for broken device poses")
-    return UserPose(recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
+            an.Fr[:, BI[b.name]] = frame_from_axes(an.P[b.tail] - an.P[b.head], an.Fr[:, BI["sacrum"]][..., :, 0])
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:

@@ -228,8 +228,41 @@ def _labels(params, n: int) -> list[str]:
     return [lab if lab else f"point_{k}" for k, lab in enumerate(labels)]
 
 
+@dataclass
+class _PointLayout:
+    """Where a C3D file's point data lies and how to read it: the header's words, overridden by
+    the POINT, ANALOG and TRIAL parameters."""
+
+    n_points: int
+    analog: int  # analog samples per frame, stored after each frame's points
+    first: int  # first frame number
+    n_frames: int
+    scale: float  # POINT:SCALE; negative: the points are float32
+    rate: float  # frames per second
+    data_block: int  # first 512-byte block of the point data (1-based)
+
+    @property
+    def is_float(self) -> bool:
+        return self.scale < 0
+
+
 def read_c3d(path) -> C3DData:
     """Read a C3D file's header, parameters, points and events (raw, in the file's units and axes)."""
+    r, params = _open(path)
+    layout = _point_layout(r, params)
+    points = _read_points(r, layout)
+    xyz, valid, resid_word = _valid_points(points, layout.is_float)
+    return C3DData(source=r.source, processor=PROCESSORS[r.proc], rate=layout.rate, first_frame=layout.first,
+                   points=xyz, valid=valid, residuals=np.where(valid, resid_word, -1.0),
+                   labels=_labels(params, layout.n_points), units=_units(params), scale=layout.scale,
+                   is_float=layout.is_float, events=_events(r, params), parameters=params,
+                   analog_per_frame=layout.analog)
+
+
+def _open(path) -> tuple[_Reader, dict]:
+    """Opening pass: reads the file, checks the header's signature and the parameter section's
+    processor type (which sets the reader's byte order and float format) and parses the
+    parameters. Returns the reader over the whole file and {"GROUP:NAME": value}."""
     path = Path(path)
     source = path.name
     try:
@@ -252,8 +285,13 @@ def read_c3d(path) -> C3DData:
                     hint="expected 84 (Intel), 85 (DEC), 86 (MIPS)")
     r.proc = proc
     r.endian = ">" if proc == MIPS else "<"
-    params = _parse_parameters(r, pstart, data[pstart + 2])
+    return r, _parse_parameters(r, pstart, data[pstart + 2])
 
+
+def _point_layout(r: _Reader, params: dict) -> _PointLayout:
+    """Layout pass: the header's words, each overridden by its parameter when the file has it
+    (the analog samples per frame from ANALOG:USED and ANALOG:RATE), then checked: a usable rate
+    and scale, a frame range (`_frame_range`) and a data block after the header."""
     n_points = r.u16(2)
     analog = r.u16(4)
     first, last = r.u16(6), r.u16(8)
@@ -278,6 +316,15 @@ def read_c3d(path) -> C3DData:
                     hint=f"at most {MAX_RATE_HZ:g} Hz")
     if not np.isfinite(scale) or scale == 0:
         raise r.err(f"point scale {scale} is not usable", field="POINT:SCALE")
+    first, n_frames = _frame_range(r, params, first, last)
+    if data_block < 2:
+        raise r.err(f"data section at block {data_block}", field="POINT:DATA_START")
+    return _PointLayout(n_points, analog, first, n_frames, scale, rate, data_block)
+
+
+def _frame_range(r: _Reader, params: dict, first: int, last: int) -> tuple[int, int]:
+    """(first frame, frame count) from the header's 16-bit first and last frame, or from
+    TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD when both hold a usable 32-bit range."""
     n_frames = last - first + 1
     start_field = params.get("TRIAL:ACTUAL_START_FIELD")
     end_field = params.get("TRIAL:ACTUAL_END_FIELD")
@@ -289,34 +336,43 @@ def read_c3d(path) -> C3DData:
             first, n_frames = s, e - s + 1
     if n_frames <= 0:
         raise r.err(f"last frame {last} before first frame {first}", field="header")
-    if data_block < 2:
-        raise r.err(f"data section at block {data_block}", field="POINT:DATA_START")
-    is_float = scale < 0
-    width = 4 if is_float else 2
-    per_frame = 4 * n_points + analog
-    dstart = (data_block - 1) * 512
+    return first, n_frames
+
+
+def _read_points(r: _Reader, layout: _PointLayout) -> np.ndarray:
+    """Points pass: (frames, points, 4) x, y, z (scaled to the file's units) and the residual word
+    of every point, from the data section; refuses a data section shorter than the layout says."""
+    data, n_frames, n_points = r.data, layout.n_frames, layout.n_points
+    width = 4 if layout.is_float else 2
+    per_frame = 4 * n_points + layout.analog
+    dstart = (layout.data_block - 1) * 512
     need = dstart + n_frames * per_frame * width
     if need > len(data):
         have = max(0, (len(data) - dstart) // max(per_frame * width, 1))
         raise r.err(f"data section holds {have} frames, the header says {n_frames}", field="data",
                     hint="the file is truncated")
     if n_points == 0:
-        points = np.zeros((n_frames, 0, 4))
-    elif is_float:
+        return np.zeros((n_frames, 0, 4))
+    if layout.is_float:
         raw = np.frombuffer(data, np.uint8, n_frames * per_frame * 4, dstart).reshape(n_frames, per_frame, 4)
         raw = raw[:, :4 * n_points]
         # A damaged file's words may be signalling NaNs, which warn when widened: they become
         # invalid points below (not finite), as any NaN does.
         with np.errstate(invalid="ignore", over="ignore"):
-            if proc == DEC:
+            if r.proc == DEC:
                 vals = _dec_to_ieee(raw)
             else:
                 vals = np.ascontiguousarray(raw).view(r.endian + "f4")[..., 0]
-            points = vals.astype(float).reshape(n_frames, n_points, 4)
-    else:
-        vals = np.frombuffer(data, r.endian + "i2", n_frames * per_frame, dstart).reshape(n_frames, per_frame)
-        points = vals[:, :4 * n_points].astype(float).reshape(n_frames, n_points, 4)
-        points[..., :3] *= abs(scale)
+            return vals.astype(float).reshape(n_frames, n_points, 4)
+    vals = np.frombuffer(data, r.endian + "i2", n_frames * per_frame, dstart).reshape(n_frames, per_frame)
+    points = vals[:, :4 * n_points].astype(float).reshape(n_frames, n_points, 4)
+    points[..., :3] *= abs(layout.scale)
+    return points
+
+
+def _valid_points(points: np.ndarray, is_float: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, z with invalid points zeroed, valid, residual word): a point is valid when its
+    residual word is not negative and its coordinates are finite."""
     residual = points[..., 3]
     if is_float:
         # The residual word of float files is a float holding an int16 (camera mask in the high byte).
@@ -324,11 +380,20 @@ def read_c3d(path) -> C3DData:
     else:
         resid_word = residual
     valid = (resid_word >= 0) & np.isfinite(points[..., :3]).all(-1)
-    xyz = np.where(valid[..., None], points[..., :3], 0.0)
+    return np.where(valid[..., None], points[..., :3], 0.0), valid, resid_word
+
+
+def _units(params: dict) -> str:
+    """POINT:UNITS in lower case; millimetres when absent or blank."""
     units = params.get("POINT:UNITS", "mm")
     if not isinstance(units, str):
         units = units[0] if isinstance(units, list) and units else "mm"
-    units = units.strip().lower() or "mm"
+    return units.strip().lower() or "mm"
+
+
+def _events(r: _Reader, params: dict) -> list[tuple[str, float, str]]:
+    """The EVENT group as (label, seconds, context), as many as EVENT:USED and the labels and
+    times the file holds allow."""
     events = []
     used = _count(r, params, "EVENT:USED", 0)
     if used > 0:
@@ -343,9 +408,7 @@ def read_c3d(path) -> C3DData:
                 for k in range(min(used, len(labels), len(t))):
                     ctx = contexts[k] if k < len(contexts) else ""
                     events.append((labels[k], float(t[k, 0] * 60.0 + t[k, 1]), ctx))
-    return C3DData(source=source, processor=PROCESSORS[proc], rate=rate, first_frame=first, points=xyz, valid=valid,
-                   residuals=np.where(valid, resid_word, -1.0), labels=_labels(params, n_points), units=units,
-                   scale=scale, is_float=is_float, events=events, parameters=params, analog_per_frame=analog)
+    return events
 
 
 def match_marker_name(label: str) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,12 +24,66 @@ def read_csv(path) -> Recording:
     path = Path(path)
     source = path.name
     sidecar = path.with_suffix(".json")
+    header = _csv_header(sidecar)
+    rows = _read_rows(path, source)
+    _check_names_and_times(rows, source)
+    time = rows.split_frames()
+    _check_poses(rows, header, source)
+    header = _declare_names(header, rows)
+    devices, marker_names = header["devices"], header["marker_names"]
+    slots = _row_slots(rows, devices, marker_names, source, sidecar)
+    frames = _CsvFrames.scatter(rows, slots, len(time), len(devices), len(marker_names))
+    # The per-row arrays go before the conversion so that they and its copies are never all held
+    # at once.
+    del rows, slots
+    check_quaternions(frames.rotations, frames.valid, time, devices, source, where_of=frames.where_of)
+    rec = assemble(header, source, time, devices, frames.positions, frames.rotations, frames.valid, marker_names,
+                   frames.markers, frames.marker_valid, quaternions_checked=True)
+    if not sidecar.is_file():
+        rec.notes.append(f"no sidecar {sidecar.name}: assumed Y up, right-handed, metres, "
+                         f"{len(devices)} trackers without roles, {len(marker_names)} markers, no segments")
+    return rec
+
+
+def _csv_header(sidecar: Path) -> dict:
+    """The recording's header from the sidecar when there is one; else Y up, right-handed, metres,
+    with the devices and markers left for `_declare_names` to find in the rows."""
     if sidecar.is_file():
-        header = _parse_header(_load_json_file(sidecar, sidecar.name), sidecar.name, _SIDECAR_FIELDS,
-                               require_frames=False)
-    else:
-        header = {"name": None, "coords": ("Y", "right", "m"), "devices": None, "marker_names": None,
-                  "segments_raw": []}
+        return _parse_header(_load_json_file(sidecar, sidecar.name), sidecar.name, _SIDECAR_FIELDS,
+                             require_frames=False)
+    return {"name": None, "coords": ("Y", "right", "m"), "devices": None, "marker_names": None,
+            "segments_raw": []}
+
+
+@dataclass
+class _CsvRows:
+    """One entry per data row of the file: its line number, its name (an index into `uniq`, the
+    stripped names in order of first appearance), time, position and quaternion (empty cells NaN);
+    and, once `split_frames` ran, the frame each row belongs to."""
+
+    line_no: np.ndarray
+    uniq: list[str]
+    name_idx: np.ndarray
+    t_rows: np.ndarray
+    p_vals: np.ndarray
+    q_vals: np.ndarray
+    new_frame: np.ndarray | None = None  # (rows,) the row starts a frame
+    frame_of_row: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.p_set, self.q_set = ~np.isnan(self.p_vals), ~np.isnan(self.q_vals)  # written nan / inf were refused
+
+    def split_frames(self) -> np.ndarray:
+        """Sets `new_frame` and `frame_of_row` (a frame is the rows of one time); returns the
+        frames' times."""
+        self.new_frame = np.concatenate([[True], np.diff(self.t_rows) > 0])
+        self.frame_of_row = np.cumsum(self.new_frame) - 1
+        return self.t_rows[self.new_frame]
+
+
+def _read_rows(path: Path, source: str) -> _CsvRows:
+    """Rows pass: checks the header line's columns (each known, once; time, name and the position
+    required; the quaternion all or nothing), then parses every data row (`_csv_rows`)."""
     chunks = _csv_chunks(path, source)
     lines = next(chunks, [])
     if not lines or not lines[0].strip():
@@ -49,12 +104,16 @@ def read_csv(path) -> Recording:
     if missing:
         raise BodyCalError(f"missing column '{missing[0]}'", source=source, where="line 1",
                            hint="columns are time,name,px,py,pz,qw,qx,qy,qz")
-    line_no, uniq, name_idx, t_rows, p_vals, q_vals = _csv_rows(path, lines, chunks, cols, has_q, source)
-    del lines
-    p_set, q_set = ~np.isnan(p_vals), ~np.isnan(q_vals)  # empty cells; written nan / inf were refused
-    empty_name = [k for k, u in enumerate(uniq) if u == ""]
+    return _CsvRows(*_csv_rows(path, lines, chunks, cols, has_q, source))
+
+
+def _check_names_and_times(rows: _CsvRows, source: str) -> None:
+    """Refuses an empty name, a time that is not a finite number, and a time that goes back; names
+    the first offending line."""
+    line_no, t_rows = rows.line_no, rows.t_rows
+    empty_name = [k for k, u in enumerate(rows.uniq) if u == ""]
     if empty_name:
-        k = int(np.flatnonzero(name_idx == empty_name[0])[0])
+        k = int(np.flatnonzero(rows.name_idx == empty_name[0])[0])
         raise BodyCalError("empty name", source=source, field="name", where=f"line {line_no[k]}")
     bad = np.flatnonzero(~np.isfinite(t_rows))
     if bad.size:
@@ -64,10 +123,12 @@ def read_csv(path) -> Recording:
         raise BodyCalError(f"time goes back ({t_rows[back[0]]} then {t_rows[back[0] + 1]})", source=source,
                            field="time", where=f"line {line_no[back[0] + 1]}",
                            hint="rows must be sorted by time, strictly increasing between frames")
-    new_frame = np.concatenate([[True], np.diff(t_rows) > 0])
-    frame_of_row = np.cumsum(new_frame) - 1
-    time = t_rows[new_frame]
-    f = len(time)
+
+
+def _check_poses(rows: _CsvRows, header: dict, source: str) -> None:
+    """Refuses a pose with some fields empty and others not, a quaternion without a position, a
+    NaN or infinite value, and positions beyond the header's units' bounds (`check_positions`)."""
+    line_no, p_vals, q_vals, p_set, q_set = rows.line_no, rows.p_vals, rows.q_vals, rows.p_set, rows.q_set
     partial_p = p_set.any(1) & ~p_set.all(1)
     partial_q = q_set.any(1) & ~q_set.all(1)
     bad = np.flatnonzero(partial_p | partial_q)
@@ -85,14 +146,25 @@ def read_csv(path) -> Recording:
     check_positions(p_vals[:, None], p_set.all(1)[:, None], UNITS[header["coords"][2]], source,
                     ["px,py,pz"], lambda k, _i, lines=line_no: f"line {lines[k]}")
 
-    is_pose_row = q_set.all(1)
-    if header["devices"] is None:  # no sidecar: names with a quaternion anywhere are trackers
-        dev_mask = np.zeros(len(uniq), bool)
-        dev_mask[name_idx[is_pose_row]] = True
-        devices = [Device(name=u, kind="tracker", role=None) for k, u in enumerate(uniq) if dev_mask[k]]
-        marker_names = [u for k, u in enumerate(uniq) if not dev_mask[k]]
-        header = dict(header, devices=devices, marker_names=marker_names)
-    devices, marker_names = header["devices"], header["marker_names"]
+
+def _declare_names(header: dict, rows: _CsvRows) -> dict:
+    """The header with its devices and markers: the sidecar's; without one, a name with a quaternion
+    on any row is a tracker (in order of first appearance), any other a marker."""
+    if header["devices"] is not None:
+        return header
+    dev_mask = np.zeros(len(rows.uniq), bool)
+    dev_mask[rows.name_idx[rows.q_set.all(1)]] = True
+    devices = [Device(name=u, kind="tracker", role=None) for k, u in enumerate(rows.uniq) if dev_mask[k]]
+    marker_names = [u for k, u in enumerate(rows.uniq) if not dev_mask[k]]
+    return dict(header, devices=devices, marker_names=marker_names)
+
+
+def _row_slots(rows: _CsvRows, devices: list[Device], marker_names: list[str], source: str,
+               sidecar: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(kind of each row: 0 device, 1 marker; its device or marker index). Refuses an undeclared
+    name, a device row without a quaternion, a marker row with one, and a second row for a name
+    in one frame."""
+    uniq, name_idx, line_no = rows.uniq, rows.name_idx, rows.line_no
     slot = {d.name: ("d", i) for i, d in enumerate(devices)}
     slot.update({n: ("m", j) for j, n in enumerate(marker_names)})
     kind_of = np.array([{"d": 0, "m": 1, "?": 2}[slot.get(u, ("?", -1))[0]] for u in uniq], np.int8)
@@ -102,55 +174,63 @@ def read_csv(path) -> Recording:
     if bad.size:
         raise BodyCalError(f"unknown name '{uniq[name_idx[bad[0]]]}'", source=source, field="name",
                            where=f"line {line_no[bad[0]]}", hint=f"declare it in {sidecar.name}")
-    bad = np.flatnonzero((row_kind == 0) & p_set.all(1) & ~q_set.all(1))
+    bad = np.flatnonzero((row_kind == 0) & rows.p_set.all(1) & ~rows.q_set.all(1))
     if bad.size:
         raise BodyCalError(f"device '{uniq[name_idx[bad[0]]]}' has no quaternion", source=source,
                            where=f"line {line_no[bad[0]]}")
-    bad = np.flatnonzero((row_kind == 1) & q_set.any(1))
+    bad = np.flatnonzero((row_kind == 1) & rows.q_set.any(1))
     if bad.size:
         raise BodyCalError(f"marker '{uniq[name_idx[bad[0]]]}' has a quaternion", source=source,
                            where=f"line {line_no[bad[0]]}", hint="marker rows leave qw,qx,qy,qz empty")
     # One row per name and frame.
-    key = frame_of_row * len(uniq) + name_idx
+    key = rows.frame_of_row * len(uniq) + name_idx
     order = np.argsort(key, kind="stable")
     dup = np.flatnonzero(np.diff(key[order]) == 0)
     if dup.size:
         k = order[dup[0] + 1]
-        raise BodyCalError(f"second row for '{uniq[name_idx[k]]}' at time {t_rows[k]}", source=source,
+        raise BodyCalError(f"second row for '{uniq[name_idx[k]]}' at time {rows.t_rows[k]}", source=source,
                            where=f"line {line_no[k]}")
-    del key, order, dup
+    return row_kind, index_of[name_idx]
 
-    row_index = index_of[name_idx]
-    positions = np.zeros((f, len(devices), 3))
-    rotations = np.tile(np.array([1.0, 0, 0, 0]), (f, len(devices), 1))
-    valid = np.zeros((f, len(devices)), bool)
-    d_rows = (row_kind == 0) & is_pose_row
-    positions[frame_of_row[d_rows], row_index[d_rows]] = p_vals[d_rows]
-    rotations[frame_of_row[d_rows], row_index[d_rows]] = q_vals[d_rows]
-    valid[frame_of_row[d_rows], row_index[d_rows]] = True
-    markers = np.zeros((f, len(marker_names), 3))
-    marker_valid = np.zeros((f, len(marker_names)), bool)
-    m_rows = (row_kind == 1) & p_set.all(1)
-    markers[frame_of_row[m_rows], row_index[m_rows]] = p_vals[m_rows]
-    marker_valid[frame_of_row[m_rows], row_index[m_rows]] = True
-    # The line of each device's row per frame (4 bytes a row); the per-row arrays go before the
-    # conversion so that they and its copies are never all held at once.
-    frame_lines = line_no[new_frame]
-    dev_line = np.zeros((f, len(devices)), np.int32)
-    dev_line[frame_of_row[d_rows], row_index[d_rows]] = line_no[d_rows]
-    del line_no, name_idx, t_rows, p_vals, q_vals, p_set, q_set, row_kind, row_index, frame_of_row, d_rows, m_rows
-    del new_frame, is_pose_row, partial_p, partial_q, finite, bad
 
-    def where_of(frame, dev):
-        return f"line {dev_line[frame, dev] or frame_lines[frame]}"
+@dataclass
+class _CsvFrames:
+    """The rows laid out by frame: device poses and markers, which are set, and for the quaternion
+    check's messages the line of each device's row (0: none) and of each frame's first row."""
 
-    check_quaternions(rotations, valid, time, devices, source, where_of=where_of)
-    rec = assemble(header, source, time, devices, positions, rotations, valid, marker_names, markers,
-                   marker_valid, quaternions_checked=True)
-    if not sidecar.is_file():
-        rec.notes.append(f"no sidecar {sidecar.name}: assumed Y up, right-handed, metres, "
-                         f"{len(devices)} trackers without roles, {len(marker_names)} markers, no segments")
-    return rec
+    positions: np.ndarray  # (F, D, 3)
+    rotations: np.ndarray  # (F, D, 4), identity where untracked
+    valid: np.ndarray  # (F, D)
+    markers: np.ndarray  # (F, M, 3)
+    marker_valid: np.ndarray  # (F, M)
+    dev_line: np.ndarray  # (F, D) int32, 4 bytes a row
+    frame_lines: np.ndarray  # (F,)
+
+    @classmethod
+    def scatter(cls, rows: _CsvRows, slots: tuple[np.ndarray, np.ndarray], f: int, n_devices: int,
+                n_markers: int) -> _CsvFrames:
+        """Frames pass: every device row with a pose and every marker row with a position into its
+        frame and slot (`_row_slots`)."""
+        row_kind, row_index = slots
+        frame_of_row = rows.frame_of_row
+        positions = np.zeros((f, n_devices, 3))
+        rotations = np.tile(np.array([1.0, 0, 0, 0]), (f, n_devices, 1))
+        valid = np.zeros((f, n_devices), bool)
+        d_rows = (row_kind == 0) & rows.q_set.all(1)
+        positions[frame_of_row[d_rows], row_index[d_rows]] = rows.p_vals[d_rows]
+        rotations[frame_of_row[d_rows], row_index[d_rows]] = rows.q_vals[d_rows]
+        valid[frame_of_row[d_rows], row_index[d_rows]] = True
+        markers = np.zeros((f, n_markers, 3))
+        marker_valid = np.zeros((f, n_markers), bool)
+        m_rows = (row_kind == 1) & rows.p_set.all(1)
+        markers[frame_of_row[m_rows], row_index[m_rows]] = rows.p_vals[m_rows]
+        marker_valid[frame_of_row[m_rows], row_index[m_rows]] = True
+        dev_line = np.zeros((f, n_devices), np.int32)
+        dev_line[frame_of_row[d_rows], row_index[d_rows]] = rows.line_no[d_rows]
+        return cls(positions, rotations, valid, markers, marker_valid, dev_line, rows.line_no[rows.new_frame])
+
+    def where_of(self, frame, dev) -> str:
+        return f"line {self.dev_line[frame, dev] or self.frame_lines[frame]}"
 
 
 _CSV_CHUNK_BYTES = 1 << 20  # text parsed at a time: the file is never held whole, as bytes or as text

@@ -138,8 +138,53 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
     elements (default: all of the model's); an element whose joints are missing is left out and
     named in `notes`."""
     frames = _frames_of(joints)
-    joints = {k: np.asarray(v, float) for k, v in joints.items()}
+    posing = _Posing(model, {k: np.asarray(v, float) for k, v in joints.items()}, bone_rotations, frames)
     wanted = element_ids if element_ids is not None else [e.id for e in model.surface]
+    caps, sphs, meshes, notes = _posable_elements(posing, wanted)
+    capsules = _pose_capsules(posing, caps)
+    spheres = _pose_spheres(posing, sphs)
+    mesh_bones, mesh_fields = _pose_meshes(posing, meshes, first=len(caps) + len(sphs))
+    ordered, bones = caps + sphs + meshes, [e.bone for e in caps + sphs] + mesh_bones
+    return PosedSurface(
+        element_ids=[e.id for e in ordered], element_bones=bones,
+        element_roots=[element_root(e.id, b) for e, b in zip(ordered, bones)],
+        **capsules, **spheres, **mesh_fields, joints=posing.joints, notes=notes)
+
+
+@dataclass
+class _Posing:
+    """What the passes of `pose_surface` share: the model, the joints (F, 3) as floats, the bone
+    frames given, the frame count, and the bone frames the mesh pass made (made once a bone)."""
+
+    model: object
+    joints: dict[str, np.ndarray]
+    bone_rotations: dict[str, np.ndarray]
+    frames: int
+    rot_cache: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def rotation(self, bone: str) -> np.ndarray:
+        """(F, 3, 3) frame of `bone`: given, else from its joints and rest right (`_rotation`)."""
+        return _rotation(bone, self.joints, self.bone_rotations, self.model, self.frames)
+
+    def cached_rotation(self, bone: str) -> np.ndarray:
+        if bone not in self.rot_cache:
+            self.rot_cache[bone] = self.rotation(bone)
+        return self.rot_cache[bone]
+
+    def head(self, bone: str) -> np.ndarray:
+        """(F, 3) position of `bone`'s head joint."""
+        return self.joints[_head_of(bone, self.model)]
+
+    def stack(self, arrs: list[np.ndarray], shape: tuple) -> np.ndarray:
+        """Per-element (F, *shape) arrays as (F, E, *shape); (F, 0, *shape) for none."""
+        return np.stack(arrs, axis=1) if arrs else np.zeros((self.frames, 0) + shape)
+
+
+def _posable_elements(posing: _Posing, wanted: list[str]) -> tuple[list, list, list, list[str]]:
+    """Sorting pass: the `wanted` elements as (capsules, spheres, meshes, notes), each list in the
+    order wanted; an element whose joints, radii or points are missing is left out and named in
+    the notes. Raises for an id the model does not have."""
+    model, joints = posing.model, posing.joints
     by_id = {e.id: e for e in model.surface}
     notes = []
     caps, sphs, meshes = [], [], []
@@ -167,35 +212,61 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
                 notes.append(f"{eid}: mesh points not posed, element left out")
                 continue
             meshes.append(e)
-    ordered = caps + sphs + meshes
+    return caps, sphs, meshes, notes
 
-    def stack(arrs, shape):
-        return np.stack(arrs, axis=1) if arrs else np.zeros((frames, 0) + shape)
 
-    caps_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in caps], (3, 3))
+def _pose_capsules(posing: _Posing, caps: list) -> dict[str, np.ndarray]:
+    """Capsules pass: PosedSurface's `caps_*` fields. A capsule runs from its bone's head joint to
+    its tail joint, moved by the element's axis offsets in the bone's frame."""
+    joints, model = posing.joints, posing.model
+    caps_rot = posing.stack([posing.rotation(e.bone) for e in caps], (3, 3))
     caps_off = np.array([e.axis_offsets() for e in caps], float).reshape(-1, 2, 3)
-    caps_head = stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
-    caps_tail = stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
+    caps_head = posing.stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
+    caps_tail = posing.stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
     if np.any(caps_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
         caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
         caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
     caps_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
                            float).reshape(-1, 2)
-    sph_rot = stack([_rotation(e.bone, joints, bone_rotations, model, frames) for e in sphs], (3, 3))
-    sph_origin = stack([joints[_head_of(e.bone, model)] for e in sphs], (3,))
+    return {"caps_head": caps_head, "caps_tail": caps_tail, "caps_rot": caps_rot, "caps_radius": caps_radius}
+
+
+def _pose_spheres(posing: _Posing, sphs: list) -> dict[str, np.ndarray]:
+    """Spheres pass: PosedSurface's `sph_*` fields; a centre is local to its bone's frame."""
+    sph_rot = posing.stack([posing.rotation(e.bone) for e in sphs], (3, 3))
+    sph_origin = posing.stack([posing.head(e.bone) for e in sphs], (3,))
     sph_local = np.array([e.center for e in sphs], float).reshape(-1, 3)
     sph_center = sph_origin + np.einsum("fsij,sj->fsi", sph_rot, sph_local)
     sph_radius = np.array([e.radius for e in sphs], float)
+    return {"sph_center": sph_center, "sph_rot": sph_rot, "sph_radius": sph_radius}
 
-    # Mesh points: one gather over every point of every mesh.
+
+def _pose_meshes(posing: _Posing, meshes: list, first: int) -> tuple[list[str], dict]:
+    """Meshes pass: (each mesh's bone, PosedSurface's `tri*`, `mesh_*` fields). Mesh points are
+    local to their bones; the triangles are gathered from them (`_mesh_triangles`). `first` is the
+    element index of the first mesh (after the capsules and spheres)."""
+    tri, tri_elem, slices = _mesh_triangles(posing, meshes, first)
+    n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
+
+    # A mesh's own bone (its frame is the re-posing fallback); an element that names no single
+    # bone (e.g. "spine_*") takes its first point's.
+    model = posing.model
+    mesh_bones = [e.bone if e.bone in model.bones or e.bone in sk.BONE_BY_NAME else next(iter(e.points.values())).bone
+                  for e in meshes]
+    mesh_head = posing.stack([posing.head(b) for b in mesh_bones], (3,))
+    mesh_rot = posing.stack([posing.cached_rotation(b) for b in mesh_bones], (3, 3))
+    mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
+    return mesh_bones, {"tri": tri, "tri_normal": tri_normal, "tri_elem": np.array(tri_elem, int),
+                        "mesh_slices": slices, "mesh_head": mesh_head, "mesh_rot": mesh_rot, "mesh_scale": mesh_scale}
+
+
+def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarray, list[int], list[tuple[int, int]]]:
+    """(triangle corners (F, T, 3, 3), element index of each triangle, each mesh's triangle range):
+    every point of every mesh placed in one gather, per bone."""
+    frames, joints = posing.frames, posing.joints
     point_bones, point_local, tri_rows, tri_elem, slices = [], [], [], [], []
-    rot_cache: dict[str, np.ndarray] = {}
-
-    def rot_of(bone):
-        if bone not in rot_cache:
-            rot_cache[bone] = _rotation(bone, joints, bone_rotations, model, frames)
-        return rot_cache[bone]
-
     for m, e in enumerate(meshes):
         names = list(e.points)
         base = len(point_bones)
@@ -203,36 +274,16 @@ def pose_surface(model, joints: dict[str, np.ndarray], bone_rotations: dict[str,
         point_local += [e.points[n].local for n in names]
         start = len(tri_rows)
         tri_rows += [[base + names.index(n) for n in t] for t in e.triangles]
-        tri_elem += [len(caps) + len(sphs) + m] * len(e.triangles)
+        tri_elem += [first + m] * len(e.triangles)
         slices.append((start, len(tri_rows)))
-    if point_bones:
-        # Per bone, its points in one BLAS call (frames stay the outer axis: C order throughout).
-        world = np.empty((frames, len(point_bones), 3))
-        local = np.array(point_local, float)
-        for b in dict.fromkeys(point_bones):
-            rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
-            rot = np.ascontiguousarray(rot_of(b))
-            world[:, rows] = joints[_head_of(b, model)][:, None, :] + np.swapaxes(
-                (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
-        tri = np.take(world, np.array(tri_rows), axis=1)  # (F, T, 3, 3), C order (world[:, rows] is not)
-    else:
-        tri = np.zeros((frames, 0, 3, 3))
-    n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-    nn = np.linalg.norm(n, axis=-1, keepdims=True)
-    tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
-
-    # A mesh's own bone (its frame is the re-posing fallback); an element that names no single
-    # bone (e.g. "spine_*") takes its first point's.
-    mesh_bones = [e.bone if e.bone in model.bones or e.bone in sk.BONE_BY_NAME else next(iter(e.points.values())).bone
-                  for e in meshes]
-    mesh_head = stack([joints[_head_of(b, model)] for b in mesh_bones], (3,))
-    mesh_rot = stack([rot_of(b) for b in mesh_bones], (3, 3))
-    mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
-
-    return PosedSurface(
-        element_ids=[e.id for e in ordered], element_bones=[e.bone for e in caps + sphs] + mesh_bones,
-        element_roots=[element_root(e.id, b) for e, b in zip(ordered, [e.bone for e in caps + sphs] + mesh_bones)],
-        caps_head=caps_head, caps_tail=caps_tail, caps_rot=caps_rot, caps_radius=caps_radius,
-        sph_center=sph_center, sph_rot=sph_rot, sph_radius=sph_radius,
-        tri=tri, tri_normal=tri_normal, tri_elem=np.array(tri_elem, int), mesh_slices=slices,
-        mesh_head=mesh_head, mesh_rot=mesh_rot, mesh_scale=mesh_scale, joints=joints, notes=notes)
+    if not point_bones:
+        return np.zeros((frames, 0, 3, 3)), tri_elem, slices
+    # Per bone, its points in one BLAS call (frames stay the outer axis: C order throughout).
+    world = np.empty((frames, len(point_bones), 3))
+    local = np.array(point_local, float)
+    for b in dict.fromkeys(point_bones):
+        rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
+        rot = np.ascontiguousarray(posing.cached_rotation(b))
+        world[:, rows] = joints[_head_of(b, posing.model)][:, None, :] + np.swapaxes(
+            (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
+    return np.take(world, np.array(tri_rows), axis=1), tri_elem, slices  # (F, T, 3, 3), C order
