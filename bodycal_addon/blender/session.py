@@ -117,8 +117,10 @@ def quality_figures(anim: AvatarAnimation) -> dict[str, float]:
     figures = {}
     reach = [metrics.reach_error(anim.joints_world[j], anim.targets[j]) for j in anim.targets
              if j in anim.joints_world]
-    if reach:
-        figures["reach p95"] = float(np.percentile(np.concatenate([np.ravel(r) for r in reach]), 95) * 1000)
+    reach = np.concatenate([np.ravel(r) for r in reach]) if reach else np.empty(0)
+    reach = reach[np.isfinite(reach)]  # frames where a method set no target
+    if reach.size:
+        figures["reach p95"] = float(np.percentile(reach, 95) * 1000)
     return figures
 
 

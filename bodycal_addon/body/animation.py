@@ -29,7 +29,7 @@ class AvatarAnimation:
     time: np.ndarray  # (F,) seconds
     method: str = "egocentric"
     joints_world: dict[str, np.ndarray] = field(default_factory=dict)  # canonical joint -> (F, 3) after IK
-    targets: dict[str, np.ndarray] = field(default_factory=dict)  # retargeted effector targets, (F, 3) world
+    targets: dict[str, np.ndarray] = field(default_factory=dict)  # retargeted effector targets, (F, 3) world; NaN: none
     notes: list[str] = field(default_factory=list)
     bone_locations: dict[str, np.ndarray] = field(default_factory=dict)  # other location-keyed bones, (F, 3)
     constant_keys: dict[str, float] = field(default_factory=dict)  # data path -> value, one key

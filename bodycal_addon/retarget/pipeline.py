@@ -595,7 +595,8 @@ def run_source(source: PoseSource, avatar_model: BodyModel, method: str = "egoce
         root_loc[start:stop] = pose.root_location
         joints[start:stop] = pose.joints @ rot_t + shift
         for n, v in tg.items():
-            targets.setdefault(n, np.empty((nf, 3), np.float32))[start:stop] = v @ rot_t + shift
+            # NaN where a chunk had no target of this name (rotations: an ankle only while planted)
+            targets.setdefault(n, np.full((nf, 3), np.nan, np.float32))[start:stop] = v @ rot_t + shift
         if progress is not None:
             progress(stop / nf)
     if not (np.isfinite(rotations).all() and np.isfinite(root_loc).all()):

@@ -281,3 +281,18 @@ def test_bad_inputs_are_one_clear_error(session):
     with pytest.raises(BodyCalError) as info:
         pl.retarget(rec, user, no_surface, "egocentric")
     assert "\n" not in str(info.value)
+
+
+def test_targets_a_method_did_not_set_are_nan_not_leftover_memory():
+    """Rotation Copy sets an ankle target only in the chunks where that foot is planted: the other
+    frames are NaN (they were uninitialised memory, so figures over them changed from run to run)."""
+    perf = synthetic.make_performer(seed=4)
+    rec, truth = synthetic.record_session(perf, motions=("walk_in_place",), calibration=False, motion_seconds=2.0,
+                                          noise_mm=0.0, wobble_mm=0.0)
+    anim = pl.retarget(rec, truth.body_model(), rt.procedural_avatar(), "rotations", chunk_frames=8)
+    unset = 0
+    for name, tg in anim.targets.items():
+        rows = np.isfinite(tg).all(axis=1)
+        assert (rows | np.isnan(tg).all(axis=1)).all(), name  # a row is a target or no target
+        unset += int((~rows).sum())
+    assert anim.targets and unset > 0  # a swinging foot's chunks have none
