@@ -258,12 +258,12 @@ class AvatarRig:
             i = idx[c]
             kids = [j for j in range(len(names)) if parent[j] == i and names[j] in up_spine]
             aim = head[kids[0]] if kids else tail[i]
-            s_t = _arc_param(spine_rest, aim)
-            s_h = _arc_param(spine_rest, head[i])
+            s_t = arc_param(spine_rest, aim)
+            s_h = arc_param(spine_rest, head[i])
             self.chain_s[i] = s_t
             self.chain_aim[i] = rest[i].T @ (aim - head[i])
             # where the aim point sits off the curve, carried by the vertebra: the rest pose aims at itself
-            self.chain_off[i] = aim - _curve_point(spine_rest[None], s_t)[0]
+            self.chain_off[i] = aim - curve_point(spine_rest[None], s_t)[0]
             self.chain_vertebra[i] = int(np.clip(np.floor(0.5 * (s_t + s_h)), 0, sk.SPINE_COUNT - 1))
 
     # --- coordinates ----------------------------------------------------------------------------
@@ -347,7 +347,7 @@ class AvatarRig:
                 c = BI[SPINE_BONES[self.chain_vertebra[i]]]
                 delta = self._from_world(stack_mul(frames[:, c], self.frames0[c].T @ self.w_rot))
                 twist = stack_mul(delta, self.rest[i])
-                target = _curve_point(curve, self.chain_s[i]) + stack_apply(delta, self.chain_off[i])
+                target = curve_point(curve, self.chain_s[i]) + stack_apply(delta, self.chain_off[i])
                 q = quat_between(stack_apply(twist, self.chain_aim[i]), target - H[i])
                 P[i] = quat_to_matrix(q) @ twist
             else:
@@ -499,7 +499,7 @@ def _closest_on_segment(p, a, b):
     return a + t * ab
 
 
-def _arc_param(curve: np.ndarray, p: np.ndarray) -> float:
+def arc_param(curve: np.ndarray, p: np.ndarray) -> float:
     """Position of p's projection on the polyline, in segments (0..len-1)."""
     best = (np.inf, 0.0)
     for k in range(len(curve) - 1):
@@ -512,7 +512,8 @@ def _arc_param(curve: np.ndarray, p: np.ndarray) -> float:
     return best[1]
 
 
-def _curve_point(curve: np.ndarray, s: float) -> np.ndarray:
+def curve_point(curve: np.ndarray, s: float) -> np.ndarray:
+    """Points (F, 3) at arc parameter `s` (in segments, `arc_param`) on polylines `curve` (F, N, 3)."""
     k = int(np.clip(np.floor(s), 0, curve.shape[1] - 2))
     t = s - k
     return (1 - t) * curve[:, k] + t * curve[:, k + 1]

@@ -35,7 +35,7 @@ from ..body.skeleton import SPINE_BONES
 from ..core.errors import BodyCalError
 from ..core.transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
 from .avatar_pose import AvatarRig, copy_frames
-from .user_animation import _axis_angle_matrix
+from .user_animation import axis_angle_matrix
 
 TRACKED = {  # joint -> (tracker role, canonical bone whose rotation follows eq. 3)
     "pelvis": ("pelvis", "sacrum"),
@@ -196,7 +196,7 @@ def grip_fingers(rig: AvatarRig, side: str) -> dict[str, np.ndarray]:
         for i in range(3):
             axis = fr[:, i, :, 0]
             ang = t[..., i] * (np.pi / 2)
-            rot = _axis_angle_matrix(np.broadcast_to(axis, ang.shape + (3,)), ang) @ rot
+            rot = axis_angle_matrix(np.broadcast_to(axis, ang.shape + (3,)), ang) @ rot
             f_i = rot @ fr[:, i]
             frames.append(f_i)
             p = p + f_i[..., :, 1] * lens[..., i:i + 1]

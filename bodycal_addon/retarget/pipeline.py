@@ -40,7 +40,7 @@ from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, ro
 from .methods import check_method, methods_for
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource, RecordingSource
-from .user_animation import _trackers, pose_finger_chain, sacrum_toward_hip_line
+from .user_animation import pose_finger_chain, read_trackers, sacrum_toward_hip_line
 
 TARGETS = tuple(
     [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
@@ -450,7 +450,7 @@ class ExactOffsets(Method):
                 if tr0 is None and run.user.reference_time is not None:
                     f0 = int(np.clip(np.searchsorted(run.rec.time, run.user.reference_time), 0,
                                      run.rec.frame_count - 1))
-                    tr0 = _trackers(run.rec, run.user, f0, f0 + 1)
+                    tr0 = read_trackers(run.rec, run.user, f0, f0 + 1)
                 if tr0 is not None and role in tr0.pos:
                     tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
         # The user's sacrum at the T-pose as the other methods see it (halfway to the hip line),
@@ -467,7 +467,7 @@ class ExactOffsets(Method):
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         run = self.run
         st = self.ofs
-        tr = _trackers(run.rec, run.user, start, stop)
+        tr = read_trackers(run.rec, run.user, start, stop)
         p, r = ofs.effector_targets(st, tr.pos, tr.rot)
         frames = up.frames.copy()
         for bone, fr in r.items():

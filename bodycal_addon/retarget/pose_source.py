@@ -23,8 +23,8 @@ from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
 from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
 from ..recording.model import Recording
-from .avatar_pose import AvatarRig, _arc_param, _curve_point
-from .user_animation import UserPose, _joint_from, _trackers, animate_user
+from .avatar_pose import AvatarRig, arc_param, curve_point
+from .user_animation import UserPose, animate_user, joint_from_trackers, read_trackers
 
 ANKLE_CHUNK = 4000  # frames posed at once for the whole take's ankles
 
@@ -46,7 +46,7 @@ class PoseSource(Protocol):
         """(F, 3) the performer's ankle over the whole take (None: not known)."""
 
     def trackers(self):
-        """The whole take's trackers (user_animation._Trackers), None for an animation."""
+        """The whole take's trackers (user_animation.Trackers), None for an animation."""
 
 
 class RecordingSource:
@@ -67,11 +67,11 @@ class RecordingSource:
 
     def trackers(self):
         if self._tr is None:
-            self._tr = _trackers(self.recording, self.model)
+            self._tr = read_trackers(self.recording, self.model)
         return self._tr
 
     def ankle(self, side):
-        return _joint_from(self.model, self.trackers(), f"ankle_{side}", [f"foot_{side}"])
+        return joint_from_trackers(self.model, self.trackers(), f"ankle_{side}", [f"foot_{side}"])
 
 
 class AnimationSource:
@@ -145,7 +145,7 @@ class AnimationSource:
         if self._chain is None:
             chain = [i for i, d in enumerate(rig.driver) if d == "chain"]
             rest = rig.to_armature(np.stack([rig.joint_world[JI[j]] for j in SPINE_JOINTS]))
-            starts = sorted((_arc_param(rest, rig.head[i]), i) for i in chain)
+            starts = sorted((arc_param(rest, rig.head[i]), i) for i in chain)
             self._chain = (rest, starts, sorted((float(rig.chain_s[i]), i) for i in chain))
         rest, starts, ends = self._chain
         ys = fk.frames[:, [BI[b] for b in SPINE_BONES]][..., :, 1]
@@ -165,7 +165,7 @@ class AnimationSource:
         for k in range(len(SPINE_BONES)):
             end = next(((s1, i) for s1, i in ends if k + 1e-9 < s1 <= k + 1 + 1e-9), None)
             if end is not None and end[0] < k + 1 - 1e-6:
-                aim = image(end[1], _curve_point(rest[None], end[0])[0])
+                aim = image(end[1], curve_point(rest[None], end[0])[0])
             else:
                 aim = image(bone_at(k + 1), rest[k + 1])
             out[:, k] = normalize(aim - c)

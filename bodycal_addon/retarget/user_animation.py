@@ -76,7 +76,7 @@ def forward_fill(valid: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class _Trackers:
+class Trackers:
     pos: dict[str, np.ndarray]  # role -> (F, 3)
     rot: dict[str, np.ndarray]  # role -> (F, 3, 3)
     ref_rot: dict[str, np.ndarray]  # role -> (3, 3) at the reference time
@@ -84,7 +84,10 @@ class _Trackers:
     notes: list[str]
 
 
-def _trackers(recording: Recording, model: BodyModel, start: int = 0, stop: int | None = None) -> _Trackers:
+def read_trackers(recording: Recording, model: BodyModel, start: int = 0, stop: int | None = None) -> Trackers:
+    """The tracked devices of frames [start, stop) by role: positions, rotations, their rotations at
+    the reference (T-pose) time, which frames every device tracked, and notes on devices never or
+    partly tracked (their untracked frames hold the last valid pose)."""
     stop = recording.frame_count if stop is None else stop
     pos, rot, ref_rot, notes = {}, {}, {}, []
     valid_all = np.ones(stop - start, bool)
@@ -113,10 +116,10 @@ def _trackers(recording: Recording, model: BodyModel, start: int = 0, stop: int 
             ref_rot[role] = quat_to_matrix(quat_normalize(np.asarray(tpose[role][3:7], float)))
         elif ref_frame is not None:
             ref_rot[role] = quat_to_matrix(quat_normalize(recording.rotations[idx_full[ref_frame], d_i]))
-    return _Trackers(pos, rot, ref_rot, valid_all, notes)
+    return Trackers(pos, rot, ref_rot, valid_all, notes)
 
 
-def _joint_from(model: BodyModel, tr: _Trackers, joint: str, roles: list[str] | None = None):
+def joint_from_trackers(model: BodyModel, tr: Trackers, joint: str, roles: list[str] | None = None):
     """Mean position of `joint` over the trackers it is known in (restricted to `roles`)."""
     j = model.joints.get(joint)
     if j is None:
@@ -128,23 +131,23 @@ def _joint_from(model: BodyModel, tr: _Trackers, joint: str, roles: list[str] | 
     return ests[0] if len(ests) == 1 else np.mean(ests, axis=0)
 
 
-def _own_frame(model: BodyModel, joint: str, tr: _Trackers):
+def _own_frame(model: BodyModel, joint: str, tr: Trackers):
     """Position of an effector joint from its own (first) tracker only."""
     j = model.joints.get(joint)
     if j is None:
         return None
     for r in j.frames:
         if r in tr.pos:
-            return _joint_from(model, tr, joint, [r])
+            return joint_from_trackers(model, tr, joint, [r])
     return None
 
 
-def _rigid(tr: _Trackers, role: str, frame0: np.ndarray):
+def _rigid(tr: Trackers, role: str, frame0: np.ndarray):
     """A bone frame rigid on a tracker: R_T(t) R_T0^-1 C0."""
     return stack_mul(tr.rot[role], tr.ref_rot[role].T @ frame0)
 
 
-def _hinge_right(model: BodyModel, tr: _Trackers, bone: str, fallback: np.ndarray) -> np.ndarray:
+def _hinge_right(model: BodyModel, tr: Trackers, bone: str, fallback: np.ndarray) -> np.ndarray:
     info = model.bones.get(bone)
     ex = info.extra if info is not None else {}
     role = ex.get("right_frame")
@@ -165,7 +168,7 @@ class _Animating:
 
     recording: Recording
     model: BodyModel
-    tr: _Trackers
+    tr: Trackers
     rest_pos: dict[str, np.ndarray]
     C0: np.ndarray
     start: int
@@ -188,7 +191,7 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
     if user_model.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user_model.kind}'", source=user_model.name)
     stop = recording.frame_count if stop is None else stop
-    tr = _trackers(recording, user_model, start, stop)
+    tr = read_trackers(recording, user_model, start, stop)
     src = recording.source or recording.name
     _check_trackers(tr, src, user_model)
     if rest is None:
@@ -208,7 +211,7 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
     return UserPose(recording.time[start:stop], pos, an.Fr, tr.valid, tr.notes)
 
 
-def _check_trackers(tr: _Trackers, src: str, user_model: BodyModel) -> None:
+def _check_trackers(tr: Trackers, src: str, user_model: BodyModel) -> None:
     """Refuses a recording without the six devices every method needs, or a model without their
     reference poses."""
     for role in ("head", "pelvis", "hand_l", "hand_r", "foot_l", "foot_r"):
@@ -224,10 +227,10 @@ def _animate_head(an: _Animating) -> tuple[np.ndarray, np.ndarray]:
     """Head pass: skull base, head and the head frame rigid on the HMD. Returns the sacrum frame
     rigid on the pelvis tracker and the pelvis joint from that tracker, for `_animate_trunk`."""
     for j in ("skull_base", "head"):
-        an.P[j] = an.need(j, _joint_from(an.model, an.tr, j, ["head"]))
+        an.P[j] = an.need(j, joint_from_trackers(an.model, an.tr, j, ["head"]))
     an.Fr[:, BI["head"]] = _rigid(an.tr, "head", an.C0[BI["head"]])
     sac = _rigid(an.tr, "pelvis", an.C0[BI["sacrum"]])
-    pel_rigid = an.need("pelvis", _joint_from(an.model, an.tr, "pelvis", ["pelvis"]))
+    pel_rigid = an.need("pelvis", joint_from_trackers(an.model, an.tr, "pelvis", ["pelvis"]))
     return sac, pel_rigid
 
 
@@ -241,11 +244,11 @@ def _animate_limbs(an: _Animating) -> None:
             eff_role = "hand" if limb == "arm" else "foot"
             # The anchor rides on its limb's tracker (the root tracker's estimate ignores the
             # clavicle / pelvis-side motion); the root tracker only when the limb has none.
-            anchor = _joint_from(model, tr, f"{a}_{s}", [f"{ab}_{s}"])
+            anchor = joint_from_trackers(model, tr, f"{a}_{s}", [f"{ab}_{s}"])
             P[f"{a}_{s}"] = an.need(f"{a}_{s}", anchor if anchor is not None else
-                                    _joint_from(model, tr, f"{a}_{s}"))
+                                    joint_from_trackers(model, tr, f"{a}_{s}"))
             P[f"{e}_{s}"] = an.need(f"{e}_{s}", _own_frame(model, f"{e}_{s}", tr))
-            mid = _joint_from(model, tr, f"{m}_{s}")
+            mid = joint_from_trackers(model, tr, f"{m}_{s}")
             right = _hinge_right(model, tr, f"{mb}_{s}",
                                  _rigid(tr, f"{eff_role}_{s}", C0[BI[f"{mb}_{s}"]])[..., :, 0])
             if mid is None:  # no tracker carries it (minimal profile): two-bone from the user's lengths
@@ -372,7 +375,8 @@ def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
     return fp.joints, [fp.rotations[:, i] for i in range(3)]
 
 
-def _axis_angle_matrix(axis, angle):
+def axis_angle_matrix(axis, angle):
+    """(..., 3, 3) rotation matrices of `angle` (rad) about `axis` (normalised here)."""
     axis = normalize(axis)
     x, y, z = np.moveaxis(axis, -1, 0)
     c, s_ = np.cos(angle), np.sin(angle)

@@ -14,7 +14,7 @@ import numpy as np
 from ...core.errors import BodyCalError, short_repr
 from ..coords import UNITS, check_positions, check_quaternions
 from ..model import Device, Recording
-from .header import _SIDECAR_FIELDS, _load_json_file, _parse_header, assemble
+from .header import SIDECAR_FIELDS, assemble, load_json_file, parse_header
 
 _CSV_COLUMNS = ("time", "name", "px", "py", "pz", "qw", "qx", "qy", "qz")
 
@@ -49,7 +49,7 @@ def _csv_header(sidecar: Path) -> dict:
     """The recording's header from the sidecar when there is one; else Y up, right-handed, metres,
     with the devices and markers left for `_declare_names` to find in the rows."""
     if sidecar.is_file():
-        return _parse_header(_load_json_file(sidecar, sidecar.name), sidecar.name, _SIDECAR_FIELDS,
+        return parse_header(load_json_file(sidecar, sidecar.name), sidecar.name, SIDECAR_FIELDS,
                              require_frames=False)
     return {"name": None, "coords": ("Y", "right", "m"), "devices": None, "marker_names": None,
             "segments_raw": []}

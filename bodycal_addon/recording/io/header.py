@@ -13,12 +13,12 @@ from ..segments import parse_segments
 
 FORMAT_NAME = "bodycal-recording"
 
-_TOP_FIELDS = {"format", "version", "coords", "devices", "markers", "time", "poses", "points", "segments", "name",
+TOP_FIELDS = {"format", "version", "coords", "devices", "markers", "time", "poses", "points", "segments", "name",
                "extra"}
-_SIDECAR_FIELDS = _TOP_FIELDS - {"time", "poses", "points"}
+SIDECAR_FIELDS = TOP_FIELDS - {"time", "poses", "points"}
 
 
-def _load_json_file(path: Path, source: str, report_bools: bool = False):
+def load_json_file(path: Path, source: str, report_bools: bool = False):
     """The parsed document (and, with `report_bools`, whether the text holds `true` / `false` at all:
     only then do the per-frame arrays need the slower look for booleans posing as numbers)."""
     try:
@@ -39,7 +39,9 @@ def _load_json_file(path: Path, source: str, report_bools: bool = False):
     return doc
 
 
-def _parse_header(doc, source: str, allowed: set, require_frames: bool) -> dict:
+def parse_header(doc, source: str, allowed: set, require_frames: bool) -> dict:
+    """The header fields the JSON document and the CSV sidecar share (FORMATS.md §2.1), checked:
+    only `allowed` fields, each of its type; one BodyCalError naming the field otherwise."""
     if not isinstance(doc, dict):
         raise BodyCalError("the file must hold a JSON object", source=source, hint="see FORMATS.md §2.1")
     unknown = set(doc) - allowed

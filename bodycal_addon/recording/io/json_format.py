@@ -11,7 +11,7 @@ import numpy as np
 from ...core.errors import BodyCalError, short_repr
 from ..coords import UNITS, check_positions
 from ..model import Recording
-from .header import _TOP_FIELDS, _load_json_file, _parse_header, assemble
+from .header import TOP_FIELDS, assemble, load_json_file, parse_header
 
 
 def read_json(path) -> Recording:
@@ -19,8 +19,8 @@ def read_json(path) -> Recording:
     gap-filled or role-identified (see `finish_recording`)."""
     path = Path(path)
     source = path.name
-    doc, has_bools = _load_json_file(path, source, report_bools=True)
-    header = _parse_header(doc, source, _TOP_FIELDS, require_frames=True)
+    doc, has_bools = load_json_file(path, source, report_bools=True)
+    header = parse_header(doc, source, TOP_FIELDS, require_frames=True)
     time = _parse_time(doc.get("time"), source, has_bools)
     f = len(time)
     devices, marker_names = header["devices"], header["marker_names"]
