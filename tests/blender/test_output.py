@@ -117,10 +117,29 @@ def test_fps_resamples_with_the_timing_kept_and_the_blend_is_compressed(take, tm
     assert all(float(k).is_integer() for k in keyed)
 
 
+def test_fps_0_is_the_takes_rate_and_the_frame_range_limits_the_bake(take, tmp_path):
+    """`--fps 0` keys the recording's samples at its rate (as the sidebar's 0); `--frame-range`
+    bakes only those frames of the take (its first sample is frame 1), and the output's scene
+    range is theirs."""
+    out = tmp_path / "shot.blend"
+    res = _run("retarget", take["rec_path"], "--user", take["user_path"], "--avatar", take["blend"], "--fps", "0",
+               "--frame-range", "11", "40", "--tolerance", "0", "--location-tolerance", "0", "-o", out)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "30 frames (11-40)" in res.stdout
+    bpy.ops.wm.open_mainfile(filepath=str(out), load_ui=False)
+    scene = bpy.context.scene
+    assert scene.render.fps / scene.render.fps_base == pytest.approx(take["rec"].fps, rel=1e-6)
+    keyed = np.unique(np.concatenate([[k.co[0] for k in fc.keyframe_points] for fc in _fcurves(_the_armature())]))
+    np.testing.assert_array_equal(keyed, np.arange(11, 41))
+    assert (scene.frame_start, scene.frame_end) == (11, 40)
+
+
 @pytest.mark.parametrize("bad, words", [
     (("--tolerance", "-1"), ("tolerance", ">= 0")),
     (("--tolerance", "nan"), ("tolerance", ">= 0")),
-    (("--fps", "0"), ("frame rate", "1 to 1000")),
+    (("--fps", "-1"), ("frame rate", "1 to 1000")),
+    (("--frame-range", "40", "11"), ("--frame-range", "FIRST <= LAST")),
+    (("--frame-range", "5000", "5100"), ("frame range", "holds none of the take's frames")),
     (("-o", "OUT.obj"), ("cannot write a '.obj' file", ".fbx")),
 ])
 def test_bad_output_options_are_one_line(take, tmp_path, bad, words):
