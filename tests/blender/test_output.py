@@ -210,6 +210,37 @@ def test_each_export_reimports_with_the_joints_where_the_blend_has_them(take, tm
         assert err.max() <= 1e-3, (path.suffix, float(err.max()), bones[int(np.argmax(err.max(0)))])
 
 
+def test_exported_clips_are_named_after_the_baked_action(tmp_path):
+    """A game engine shows the FBX take and the glTF animation by name: each is the baked
+    action's (the FBX importer names its action "<object>|<take>"), not the scene's or a fixed
+    "Animation", even when another scene already has the action's name; the scenes keep theirs."""
+    from bodycal_addon.blender.export import export_avatar
+    from bodycal_addon.blender.fcurves import new_fcurve, write_keys
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, _spec = rigs.build_procedural_avatar()
+    name = "demo_full|procedural|egocentric"
+    action = bpy.data.actions.new(name)
+    arm.animation_data_create().action = action
+    arm.pose.bones["upperarm_l"].rotation_mode = "QUATERNION"
+    frames = np.arange(1, 11, dtype=np.float32)
+    for i, (a, b) in enumerate(((1.0, 0.9), (0.0, 0.3), (0.0, 0.1), (0.0, 0.0))):
+        write_keys(new_fcurve(action, arm, 'pose.bones["upperarm_l"].rotation_quaternion', i, "upperarm_l"), frames,
+                   np.linspace(a, b, len(frames), dtype=np.float32))
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 10
+    other = bpy.data.scenes.new(name)
+    scene_name = scene.name
+    outs = [tmp_path / f"clip{s}" for s in (".fbx", ".glb", ".gltf")]
+    for out in outs:
+        export_avatar(arm, out)
+    assert scene.name == scene_name and other.name == name
+    for out in outs:
+        imported = _import(out, 30)
+        got = imported.animation_data.action.name
+        assert got == (f"{imported.name}|{name}" if out.suffix == ".fbx" else name), (out.suffix, got)
+
+
 SAVE_MEMORY_SCRIPT = """
 import sys
 import bpy
