@@ -67,14 +67,24 @@ def dense_bones(rot_keep: np.ndarray, names, tolerance_deg: float) -> tuple[str,
     return tuple(names[b] for b in np.argsort(-share, kind="stable") if share[b] > DENSE_FRACTION)
 
 
-def dense_note(bones) -> str:
-    """The end of a bake's summary line naming the bones the key reduction could hardly thin."""
+# What makes a bone's rotation change by more than the tolerance every frame, and what keeps fewer
+# keys, by kind of take (retarget/takes.py): only what that kind's bake can do.
+DENSE_CAUSES = {
+    "recording": ("tracker noise reaching the bones, or fast motion",
+                  "smoothing the devices (Smooth Devices, --filter) or a larger tolerance keeps fewer keys"),
+    "animation": ("the source action's own motion or capture jitter", "a larger tolerance keeps fewer keys"),
+}
+
+
+def dense_note(bones, kind: str = "recording") -> str:
+    """The end of a bake's summary line naming the bones the key reduction could hardly thin, with
+    what causes it and what helps for a take of `kind`."""
     if not bones:
         return ""
+    cause, remedy = DENSE_CAUSES.get(kind, DENSE_CAUSES["animation"])
     shown = ", ".join(bones[:3]) + (f" and {len(bones) - 3} more" if len(bones) > 3 else "")
     return (f"; {len(bones)} bone{'s' if len(bones) > 1 else ''} kept over {DENSE_FRACTION:.0%} of the frames "
-            f"({shown}): their rotation changes by more than the tolerance from frame to frame (device noise?); "
-            f"smoothing the devices or a larger tolerance keeps fewer keys")
+            f"({shown}): their rotation changes by more than the tolerance from frame to frame ({cause}); {remedy}")
 
 
 def baked_line(action: str, method: str, frames: int, fps: float, keys: int, seconds: float, samples: int = 0,

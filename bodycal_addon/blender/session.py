@@ -82,12 +82,13 @@ class Summary:
     notes: list[str] = field(default_factory=list)  # what the engine said of this animation, one line each
     dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
     frame_range: tuple[float, float] | None = None  # the scene frames of the first and last keys
+    kind: str = "recording"  # the take's kind (retarget/takes.py): what the dense-bone note suggests
 
     def line(self) -> str:
         fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
         return (baking.baked_line(self.action, self.method, self.frames, self.fps, self.keys,
                                   self.compute_s + self.bake_s, self.samples, self.frame_range)
-                + (f"; {fig}" if fig else "") + baking.dense_note(self.dense_bones))
+                + (f"; {fig}" if fig else "") + baking.dense_note(self.dense_bones, self.kind))
 
     def report_lines(self) -> list[str]:
         """The summary line, then the engine's notes."""
@@ -177,7 +178,7 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
         target.calibrated_now = False
     return Summary(result.action.name, anim.method, keyed.frame_count, result.keys, computed.seconds,
                    time.perf_counter() - t0, rate, result.samples, figures, list(keyed.notes), result.dense_bones,
-                   result.frame_range)
+                   result.frame_range, take.kind)
 
 
 # --- takes in the scene ------------------------------------------------------------------------------

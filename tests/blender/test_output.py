@@ -312,8 +312,8 @@ def test_a_released_animation_bakes_the_same_keys(take):
 
 def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
     """A bone whose rotation jitters by more than the tolerance keeps nearly every frame: the
-    summary line names it, and only it (the smooth bones are thinned); a tolerance of 0 asks
-    for every frame, so nothing is named."""
+    summary line names it, and only it (the smooth bones are thinned), with what helps for the
+    kind of take; a tolerance of 0 asks for every frame, so nothing is named."""
     from bodycal_addon.blender.bake import DENSE_FRACTION
     from bodycal_addon.blender.session import Summary
     from bodycal_addon.body.animation import AvatarAnimation
@@ -336,3 +336,9 @@ def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
         line = Summary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0, 90.0,
                        samples=result.samples, dense_bones=result.dense_bones).line()
         assert (f"1 bone kept over {DENSE_FRACTION:.0%} of the frames (spine_02)" in line) == bool(named), line
+        # A transfer's take has no devices to smooth and its command no --filter: its note says neither.
+        moved = Summary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0, 90.0,
+                        samples=result.samples, dense_bones=result.dense_bones, kind="animation").line()
+        assert ("smoothing the devices" in line and "--filter" in line) == bool(named), line
+        assert not any(w in moved for w in ("device", "smooth", "filter")), moved
+        assert ("a larger tolerance keeps fewer keys" in moved) == bool(named), moved
