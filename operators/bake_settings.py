@@ -11,6 +11,7 @@ import bpy
 
 from ..bodycal_addon.blender import session
 from ..bodycal_addon.blender.bake import BakeOptions
+from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
 from ..bodycal_addon.retarget.methods import METHOD_INFO, methods_for
 from .background_work import BackgroundWork
@@ -31,6 +32,14 @@ ROOT_MOTION_ITEMS = [  # output/root_motion.py
 RIGIFY_TARGET_ITEMS = [  # output/rigify.py
     ("fk", "FK Controls", "A generated Rigify rig is keyed on its FK controls (IK switched to FK): ready to edit"),
     ("def", "DEF Bones", "A generated Rigify rig is keyed on its deforming DEF- bones: for export"),
+]
+
+
+FRAME_RANGE_ITEMS = [
+    ("scene", "Scene Range", "The frames the timeline plays: the scene's frame range, or its preview range when "
+     "that is on"),
+    ("take", "Whole Take", "Every frame of the recording or the source action"),
+    ("custom", "Custom", "The frames typed below"),
 ]
 
 
@@ -67,6 +76,15 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
         precision=3, subtype="ANGLE",
         description="Key reduction: every bone's rotation stays within this angle of the every-frame bake "
                     "(linear keys); 0 keys every frame")
+    frame_range: bpy.props.EnumProperty(
+        name="Frame Range", items=FRAME_RANGE_ITEMS, default="scene",
+        description="Which frames are baked; keys land on the frames the recording was imported at (a "
+                    "transfer: the source action's own frames)")
+    frame_first: bpy.props.IntProperty(name="First", default=1, description="First frame baked (Custom range)")
+    frame_last: bpy.props.IntProperty(name="Last", default=250, description="Last frame baked (Custom range)")
+    set_scene_range: bpy.props.BoolProperty(
+        name="Set Scene Range", default=False,
+        description="Make the scene's frame range the baked action's (otherwise it is left as it is)")
     location_tolerance: bpy.props.FloatProperty(
         name="Location Tolerance", default=DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
         precision=4, subtype="DISTANCE", unit="LENGTH",
@@ -80,6 +98,22 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
         return BakeOptions(math.degrees(self.tolerance),
                            self.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps,
                            self.root_motion, self.rigify_target)
+
+    def window(self, context) -> tuple[int, int] | None:
+        """The frames to bake, (first, last); None: the whole take."""
+        scene = context.scene
+        if self.frame_range == "take":
+            return None
+        if self.frame_range == "custom":
+            first, last = self.frame_first, self.frame_last
+        elif scene.use_preview_range:
+            first, last = scene.frame_preview_start, scene.frame_preview_end
+        else:
+            first, last = scene.frame_start, scene.frame_end
+        if last < first:
+            raise BodyCalError(f"the frame range {first}-{last} ends before it starts", field="Frame Range",
+                               hint="set the last frame at or after the first")
+        return first, last
 
     def session_settings(self, method: str) -> session.Settings:
         return session.Settings(method, self.plant_feet, self.placement)
@@ -129,6 +163,9 @@ class BakeOperator(BackgroundWork):
         Blender data); what the take and targets say is reported first, like the command line,
         before the (long) work."""
         take = self._read_take(context)
+        window = context.scene.bodycal_bake.window(context)
+        if window is not None:
+            take = take.window(*window)
         targets = [session.prepare_target(arm) for arm in self._armatures(context)]
         for target in targets:
             for line in target.warnings:
@@ -148,7 +185,8 @@ class BakeOperator(BackgroundWork):
         """Bake every target: only once all of them were computed."""
         bake = context.scene.bodycal_bake
         summaries = [session.bake(take, target, result, options=bake.bake_options(context), replace=bake.replace,
-                                  push_to_nla=bake.push_to_nla, set_scene_rate=bool(bake.output_fps))
+                                  push_to_nla=bake.push_to_nla, set_scene_rate=bool(bake.output_fps),
+                                  set_scene_range=bake.set_scene_range)
                      for target, result in zip(targets, computed)]
         self._own_settings(context).last_result = "; ".join(s.line() for s in summaries)
         for summary in summaries:

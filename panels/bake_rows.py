@@ -15,6 +15,13 @@ def draw_keys(col, bake) -> None:
     row.prop(bake, "replace", toggle=True)
     row.prop(bake, "push_to_nla", toggle=True)
     sub = col.column(align=True)
+    sub.prop(bake, "frame_range")
+    if bake.frame_range == "custom":
+        row = sub.row(align=True)
+        row.prop(bake, "frame_first")
+        row.prop(bake, "frame_last")
+    sub.prop(bake, "set_scene_range")
+    sub = col.column(align=True)
     sub.prop(bake, "output_fps")
     sub.prop(bake, "tolerance")
     sub.prop(bake, "location_tolerance")

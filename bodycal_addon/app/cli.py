@@ -110,7 +110,10 @@ def _bake_arguments(c, rate_of: str) -> None:
                         f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
     c.add_argument("--fps", type=float, default=None, metavar="N",
                    help="output frame rate: the action is resampled to N frames per second, timing kept "
-                        f"(default: one key per sample, the scene set to {rate_of} rate)")
+                        f"(default, or 0: one key per sample, the scene set to {rate_of} rate)")
+    c.add_argument("--frame-range", type=float, nargs=2, default=None, metavar=("FIRST", "LAST"),
+                   help=f"bake only {rate_of} frames FIRST..LAST (a recording's first "
+                        "sample is frame 1, a source action keeps its own frames; default: all of them)")
     c.add_argument("-o", "--output", required=True, action="append", metavar="OUT.blend|.fbx|.glb|.gltf|.bvh",
                    help="a .blend (the avatar's file with the new action), or an export of the avatar "
                         "and its baked action for game engines; give -o several times for several files")

@@ -67,21 +67,34 @@ def dense_bones(rot_keep: np.ndarray, names, tolerance_deg: float) -> tuple[str,
     return tuple(names[b] for b in np.argsort(-share, kind="stable") if share[b] > DENSE_FRACTION)
 
 
-def dense_note(bones) -> str:
-    """The end of a bake's summary line naming the bones the key reduction could hardly thin."""
+# What makes a bone's rotation change by more than the tolerance every frame, and what keeps fewer
+# keys, by kind of take (retarget/takes.py): only what that kind's bake can do.
+DENSE_CAUSES = {
+    "recording": ("tracker noise reaching the bones, or fast motion",
+                  "smoothing the devices (Smooth Devices, --filter) or a larger tolerance keeps fewer keys"),
+    "animation": ("the source action's own motion or capture jitter", "a larger tolerance keeps fewer keys"),
+}
+
+
+def dense_note(bones, kind: str = "recording") -> str:
+    """The end of a bake's summary line naming the bones the key reduction could hardly thin, with
+    what causes it and what helps for a take of `kind`."""
     if not bones:
         return ""
+    cause, remedy = DENSE_CAUSES.get(kind, DENSE_CAUSES["animation"])
     shown = ", ".join(bones[:3]) + (f" and {len(bones) - 3} more" if len(bones) > 3 else "")
     return (f"; {len(bones)} bone{'s' if len(bones) > 1 else ''} kept over {DENSE_FRACTION:.0%} of the frames "
-            f"({shown}): their rotation changes by more than the tolerance from frame to frame (device noise?); "
-            f"smoothing the devices or a larger tolerance keeps fewer keys")
+            f"({shown}): their rotation changes by more than the tolerance from frame to frame ({cause}); {remedy}")
 
 
-def baked_line(action: str, method: str, frames: int, fps: float, keys: int, seconds: float, samples: int = 0) -> str:
+def baked_line(action: str, method: str, frames: int, fps: float, keys: int, seconds: float, samples: int = 0,
+               frame_range: tuple[float, float] | None = None) -> str:
     """The start of a retarget's or a transfer's summary line (`samples`: the keys an every-frame
-    bake would have written, given to show the share kept)."""
+    bake would have written, given to show the share kept; `frame_range`: where the keys are)."""
     kept = f" ({keys / samples:.0%} of every frame)" if 0 < keys < samples else ""
-    return f"Baked '{action}' ({method}): {frames} frames at {fps:g} fps, {keys} keys{kept} in {seconds:.1f} s"
+    span = f" ({frame_range[0]:g}-{frame_range[1]:g})" if frame_range else ""
+    return (f"Baked '{action}' ({method}): {frames} frames{span} at {fps:g} fps, {keys} keys{kept} "
+            f"in {seconds:.1f} s")
 
 
 def scene_rate(fps: float) -> tuple[int, float]:
@@ -179,9 +192,12 @@ def world_scale(obj) -> float:
 def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None, replace: bool = False,
                    fps: float | None = None, frame_start: float | None = None, push_to_nla: bool = False,
                    tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
-                   location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM, own: bool = False) -> BakeResult:
+                   location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM, own: bool = False,
+                   set_scene_range: bool = False) -> BakeResult:
     """Bake `anim` onto armature `obj` as a new action and make it the active action; one key per
-    sample at frame_start + (t - t0) x fps, reduced within the tolerances (0 keeps every sample).
+    sample at frame_start (default: the scene's first frame) + (t - t0) x fps, reduced within the
+    tolerances (0 keeps every sample). The scene's frame range becomes the action's only with
+    `set_scene_range`.
     `own`: the caller gives `anim` away; its rotations are made sign-continuous in place instead
     of in a copy (a 10-minute take: 87 MB less while the keys are made).
 
@@ -254,7 +270,8 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
         nla.strips.new(action.name, int(round(frames32[0])), action)
         obj.animation_data.action = None
         track = nla.name
-    scene.frame_start = int(np.floor(frames32[0]))
-    scene.frame_end = max(scene.frame_start, int(np.ceil(frames32[-1])))
+    if set_scene_range:
+        scene.frame_start = int(np.floor(frames32[0]))
+        scene.frame_end = max(scene.frame_start, int(np.ceil(frames32[-1])))
     return BakeResult(action, keys, fcurves, (float(frames32[0]), float(frames32[-1])), replaced, track,
                       fcurves * len(frames32), dense)

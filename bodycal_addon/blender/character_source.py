@@ -159,7 +159,8 @@ def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None,
         model, locations, lift, motion = stand_on_floor(model, locations, basis, (frames - f0) / fps)
         notes.append(f"{arm.name}: no mesh, body surface estimated from its bone lengths; its rest pose stood "
                      f"on the floor ({lift * 1000:+.0f} mm), its motion's feet on it ({motion * 1000:+.0f} mm)")
-    return CharacterTake(model, basis, locations, (frames - f0) / fps, fps, action.name, arm.name, notes)
+    return CharacterTake(model, basis, locations, (frames - f0) / fps, fps, action.name, arm.name, notes,
+                         frame_start=float(f0))
 
 
 def bvh_unit(path) -> tuple[str, float]:

@@ -1,7 +1,8 @@
 """Exporting a baked avatar for game engines and other tools (FORMATS.md §4.2, "Files"): FBX,
 glTF (.glb binary, .gltf with its buffers embedded) and BVH, through Blender's own exporters,
 with the options a game engine expects: the armature and its skinned meshes, the baked (active)
-action only, no leaf bones, Y up where the format wants it.
+action only, no leaf bones, Y up where the format wants it, and the clip (the FBX take, the glTF
+animation) named after the action.
 
 Every export goes through `outputs.replacing` (a temporary file beside the target, renamed only
 once complete), so a failed export never leaves half a file or costs an existing one.
@@ -73,19 +74,36 @@ def _gltf_embedded_allowed():
             prefs.allow_embedded_format = had
 
 
-def _export_to(kind: str, tmp: Path) -> None:
+@contextlib.contextmanager
+def _scene_named(name: str):
+    """The scene named `name` for the FBX export (its exporter names the take, the clip a game
+    engine shows, after the scene when it exports the active action alone); a scene that already
+    has the name gives it up meanwhile. Both names are put back."""
+    scene = bpy.context.scene
+    own = scene.name
+    other = bpy.data.scenes.get(name)
+    if other is not None and other != scene:
+        other.name = name + ".bodycal-export"
+    scene.name = name
+    try:
+        yield
+    finally:
+        scene.name = own
+        if other is not None and other != scene:
+            other.name = name
+
+
+def _export_to(kind: str, tmp: Path, action_name: str) -> None:
     scene = bpy.context.scene
     if kind == "fbx":
-        bpy.ops.export_scene.fbx(
-            filepath=str(tmp), use_selection=True, object_types={"ARMATURE", "MESH"}, add_leaf_bones=False,
-            bake_anim=True, bake_anim_use_all_bones=True, bake_anim_use_nla_strips=False,
-            bake_anim_use_all_actions=False, bake_anim_force_startend_keying=True, bake_anim_simplify_factor=0.0,
-            axis_forward="-Z", axis_up="Y", apply_scale_options="FBX_SCALE_ALL", path_mode="AUTO")
+        with _scene_named(action_name):
+            _export_fbx(tmp)
     elif kind in ("glb", "gltf"):
         with _gltf_embedded_allowed():
             bpy.ops.export_scene.gltf(
                 filepath=str(tmp), export_format="GLB" if kind == "glb" else "GLTF_EMBEDDED", use_selection=True,
                 export_yup=True, export_animations=True, export_animation_mode="ACTIVE_ACTIONS",
+                export_nla_strips_merged_animation_name=action_name,
                 export_frame_range=True, export_force_sampling=True, export_skins=True, export_leaf_bone=False,
                 export_anim_slide_to_zero=False)
     elif kind == "bvh":  # the armature alone (BVH has no mesh); rotations in each bone's own order
@@ -93,6 +111,14 @@ def _export_to(kind: str, tmp: Path) -> None:
                                 rotate_mode="NATIVE", root_transform_only=False)
     else:
         raise ValueError(kind)
+
+
+def _export_fbx(tmp: Path) -> None:
+    bpy.ops.export_scene.fbx(
+        filepath=str(tmp), use_selection=True, object_types={"ARMATURE", "MESH"}, add_leaf_bones=False,
+        bake_anim=True, bake_anim_use_all_bones=True, bake_anim_use_nla_strips=False,
+        bake_anim_use_all_actions=False, bake_anim_force_startend_keying=True, bake_anim_simplify_factor=0.0,
+        axis_forward="-Z", axis_up="Y", apply_scale_options="FBX_SCALE_ALL", path_mode="AUTO")
 
 
 def export_avatar(arm, path, *, inputs=(), overwrite: bool = False, field: str = "-o") -> Path:
@@ -111,7 +137,7 @@ def export_avatar(arm, path, *, inputs=(), overwrite: bool = False, field: str =
         chatter = io.StringIO()  # the exporters print progress; the command line keeps one line per result
         try:
             with _selected(arm, [arm, *_skinned_meshes(arm)]), contextlib.redirect_stdout(chatter):
-                _export_to(kind, tmp)
+                _export_to(kind, tmp, arm.animation_data.action.name)
         except RuntimeError as exc:
             raise BodyCalError(f"Blender's {kind.upper()} exporter failed ({str(exc).strip().splitlines()[-1][:120]})",
                                source=str(path), field=field) from None

@@ -188,6 +188,19 @@ def segments_from_markers(scene, time: np.ndarray, t0: float, rate: float, frame
     return out
 
 
+def frame_mapping_in_scene(context_or_scene=None) -> tuple[float, float]:
+    """(frame of the first sample, frames per second) the scene's recording was imported with:
+    sample k is at frame_start + (t_k - t_0) x rate."""
+    scene = _scene_of(context_or_scene)
+    coll = scene_recording_collection(scene)
+    try:
+        meta = json.loads(coll[META_KEY])
+        return float(meta["frame_start"]), float(meta["rate"])
+    except (KeyError, TypeError, ValueError):
+        raise BodyCalError("the stored recording is damaged", source=getattr(coll, "name", scene.name),
+                           hint="re-import the recording") from None
+
+
 def recording_from_scene(context_or_scene=None) -> Recording:
     """Rebuild the scene's Recording from the empties' animation, their custom properties and the
     timeline markers (works after saving and reopening the .blend)."""

@@ -81,12 +81,14 @@ class Summary:
     figures: dict[str, float] = field(default_factory=dict)  # mm
     notes: list[str] = field(default_factory=list)  # what the engine said of this animation, one line each
     dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
+    frame_range: tuple[float, float] | None = None  # the scene frames of the first and last keys
+    kind: str = "recording"  # the take's kind (retarget/takes.py): what the dense-bone note suggests
 
     def line(self) -> str:
         fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
         return (baking.baked_line(self.action, self.method, self.frames, self.fps, self.keys,
-                                  self.compute_s + self.bake_s, self.samples)
-                + (f"; {fig}" if fig else "") + baking.dense_note(self.dense_bones))
+                                  self.compute_s + self.bake_s, self.samples, self.frame_range)
+                + (f"; {fig}" if fig else "") + baking.dense_note(self.dense_bones, self.kind))
 
     def report_lines(self) -> list[str]:
         """The summary line, then the engine's notes."""
@@ -134,19 +136,23 @@ def key_rate(take: Take, fps: float | None) -> tuple[int, float, float, bool]:
 
 def bake(take: Take, target: Target, computed: Computed, *, options: baking.BakeOptions | None = None,
          replace: bool = False, push_to_nla: bool = False, action_name: str | None = None,
-         set_scene_rate: bool = False, release: bool = False) -> Summary:
+         set_scene_rate: bool = False, set_scene_range: bool = False,
+         release: bool = False) -> Summary:
     """Bake the computed animation onto the target's armature at `options.fps` (None: one key per
     sample of the take), keys reduced within the options' tolerances; a new action unless
-    `replace`. `set_scene_rate` makes the scene play at that rate (the command line starts from
-    the avatar's file). `release`: nothing more will be computed from the take or measured on the
-    animation's joints and targets; they are let go before the keys are made (a 10-minute take:
-    ~250 MB less at the command's peak)."""
+    `replace`. The first key lands on the take's `frame_start` (the frame its source plays at).
+    `set_scene_rate` makes the scene play at that rate, `set_scene_range` makes the scene's frame
+    range the action's (the command line starts from the avatar's file; the sidebar asks).
+    `release`: nothing more will be computed from the take or measured on the animation's joints
+    and targets; they are let go before the keys are made (a 10-minute take: ~250 MB less at the
+    command's peak)."""
     import bpy
 
     options = options or baking.BakeOptions()
     arm, anim = target.armature, computed.animation
     name = action_name or baking.default_action_name(take.name, arm.name, anim.method)
     fps, fps_base, rate, resampled = key_rate(take, options.fps)
+    frame_start = take.frame_start
     figures = quality_figures(anim)
     if release:
         take.release()
@@ -166,14 +172,15 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
             keyed.rotations = np.asarray(keyed.rotations, np.float32)
             anim.rotations = keyed.rotations
         result = baking.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla,
-                                       fps=rate, tolerance_deg=options.tolerance_deg,
+                                       fps=rate, frame_start=frame_start, tolerance_deg=options.tolerance_deg,
                                        location_tolerance_mm=options.location_tolerance_mm,
-                                       own=resampled or release)
+                                       own=resampled or release, set_scene_range=set_scene_range)
     if target.calibrated_now:
         avatar_storage.store_model(arm, target.avatar)
         target.calibrated_now = False
     return Summary(result.action.name, anim.method, keyed.frame_count, result.keys, computed.seconds,
-                   time.perf_counter() - t0, rate, result.samples, figures, list(keyed.notes), result.dense_bones)
+                   time.perf_counter() - t0, rate, result.samples, figures, list(keyed.notes), result.dense_bones,
+                   result.frame_range, take.kind)
 
 
 # --- takes in the scene ------------------------------------------------------------------------------
@@ -190,9 +197,11 @@ def scene_take_missing(scene) -> str | None:
 
 def scene_take(scene, filter: OneEuro | None = None) -> RecordingTake:
     """The scene's recording (its devices' empties, as the importer made them or the user edited
-    them) and the performer's calibrated body model as a take."""
-    return RecordingTake(recording_scene.recording_from_scene(scene), calibration_scene.load_user_model(scene),
-                         filter)
+    them) and the performer's calibrated body model as a take, on the frames it was imported at."""
+    recording = recording_scene.recording_from_scene(scene)
+    frame_start, rate = recording_scene.frame_mapping_in_scene(scene)
+    return RecordingTake(recording, calibration_scene.load_user_model(scene), filter, frame_start=frame_start,
+                         frame_rate=rate if recording.frame_count > 1 else None)
 
 
 # --- the command line: everything from paths, nothing from a running session -----------------------
@@ -229,13 +238,16 @@ def write_outputs(arm, outs, files_read, overwrite: bool, log=print) -> None:
 
 def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar_file, output_paths, *,
               armature: str | None = None, settings: Settings | None = None, overwrite: bool = True,
-              options: baking.BakeOptions | None = None, log=print, warn=print, bone_map_path=None) -> Summary:
+              options: baking.BakeOptions | None = None, log=print, warn=print, bone_map_path=None,
+              frame_range: tuple[float, float] | None = None) -> Summary:
     """A take of `kind` (read by `read_take`, which may open its own file) onto the avatar of
     `avatar_file`, baked and written to `output_paths`. Every path is checked first (the outputs:
     not an input, not a link or device, replaced only with `overwrite`, each once; the bone map
     preset read and checked) so a bad path costs nothing; the outputs are written last, each all
     at once. The avatar is a .blend, or an .fbx, .glb, .gltf or .vrm imported into an empty scene
     (blendfile.open_avatar): a .blend output then holds the imported avatar with the baked action.
+    `frame_range` (first, last) limits the take to those frames (a recording's first sample is
+    frame 1, a character's action keeps its own frames); the scene's range becomes the baked one.
     `warn` gets one line per doubt about the avatar (placement.avatar_warnings), before the work;
     `log` the take's notes, the summary line and the engine's notes."""
     settings = settings or Settings()
@@ -246,6 +258,8 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     outs = checked_outputs(output_paths, files_read, overwrite)
     bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening any
     take = read_take()
+    if frame_range is not None:
+        take = take.window(*frame_range)
     for note in take.notes:
         log(note)
     open_avatar(Path(avatar_file))
@@ -256,7 +270,7 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     for line in target.warnings:
         warn(line)
     computed = compute(take, target, settings)
-    summary = bake(take, target, computed, options=options, set_scene_rate=True, release=True)
+    summary = bake(take, target, computed, options=options, set_scene_rate=True, set_scene_range=True, release=True)
     del computed, take  # the keys are in the action now: let the writers have the memory
     for line in summary.report_lines():
         log(line)

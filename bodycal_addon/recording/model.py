@@ -6,7 +6,7 @@ load; everything downstream sees only this. Arrays have a leading frame axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -103,6 +103,16 @@ class Recording:
         lo = np.searchsorted(self.time, start, side="left")
         hi = np.searchsorted(self.time, end, side="right")
         return np.arange(lo, hi)
+
+    def window(self, lo: int, hi: int) -> Recording:
+        """A copy holding frames lo..hi-1 (the arrays are views), the steps cut to its span and
+        those outside it left out."""
+        t0, t1 = float(self.time[lo]), float(self.time[hi - 1])
+        segments = [replace(s, start=max(s.start, t0), end=min(s.end, t1)) for s in self.segments
+                    if s.end > t0 and s.start < t1]
+        return replace(self, time=self.time[lo:hi], positions=self.positions[lo:hi],
+                       rotations=self.rotations[lo:hi], valid=self.valid[lo:hi], markers=self.markers[lo:hi],
+                       marker_valid=self.marker_valid[lo:hi], segments=segments, notes=list(self.notes))
 
     def segments_of(self, step: str) -> list[Segment]:
         return [s for s in self.segments if s.step == step]

@@ -1,10 +1,13 @@
 """A take: what a session reads from a pose source, in numpy (DESIGN.md §1, "One session path").
 
-A take names itself (the baked action's name starts with it), says at what rate its samples come,
-carries the notes its reading made (said once, when it is read), and turns itself into an avatar's
-animation by the pipeline. The glue (`blender/session.py`) reads a take, computes each target's
-animation from it (nothing of the scene: a worker thread may run it), then bakes; it never asks
-which kind of take it holds.
+A take names itself (the baked action's name starts with it), says at what rate its samples come
+and at which scene frame its first sample is (keys land on the frames its source plays at: a
+recording's import mapping, a character action's own frames), carries the notes its reading made
+(said once, when it is read), can be limited to a frame range (`window`: the pipeline then
+sees, and looks ahead, only within it), and turns itself into an avatar's animation by the
+pipeline. The glue (`blender/session.py`) reads a take, computes each target's animation from it
+(nothing of the scene: a worker thread may run it), then bakes; it never asks which kind of take
+it holds.
 
 - `RecordingTake`: a tracker recording of a calibrated performer (`pipeline.retarget`), smoothed by
   the One Euro filter first when asked (on a copy: the recording itself is not changed).
@@ -16,7 +19,7 @@ A live stream is one more kind: anything with these attributes and methods.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar, Protocol
 
 import numpy as np
@@ -24,6 +27,7 @@ import numpy as np
 from ..avatar.estimate import ESTIMATED
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
+from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro, filter_recording
 from ..recording.model import Recording
 from .methods import check_method
@@ -31,16 +35,35 @@ from .pipeline import retarget
 from .transfer import transfer
 
 FALLBACK_RATE = 30.0  # a one-frame take has no rate of its own
+FRAME_EPS = 1e-3  # a sample this close to a range's end frame is in the range
+
+
+def window_slice(time: np.ndarray, rate: float, frame_start: float, first: float, last: float,
+                 source: str) -> tuple[slice, float]:
+    """(the samples at scene frames first..last, the frame of the first of them) of a take whose
+    sample k plays at frame_start + (t_k - t_0) x rate; one BodyCalError when none is."""
+    frames = frame_start + (np.asarray(time, float) - float(time[0])) * rate
+    lo = int(np.searchsorted(frames, first - FRAME_EPS, side="left"))
+    hi = int(np.searchsorted(frames, last + FRAME_EPS, side="right"))
+    if hi <= lo:
+        raise BodyCalError(f"the frame range {first:g}-{last:g} holds none of the take's frames "
+                           f"({frames[0]:g}-{frames[-1]:g})", source=source, field="frame range",
+                           hint="pick a frame range that overlaps the take")
+    return slice(lo, hi), float(frames[lo])
 
 
 class Take(Protocol):
     kind: ClassVar[str]  # "recording" | "animation" (methods.SOURCE_KINDS)
     name: str  # the take's name: baked actions are named "<take>|<armature>|<method>"
     notes: list[str]  # what reading it found, one line each
+    frame_start: float  # the scene frame of its first sample: sample k at frame_start + (t_k - t_0) x rate
 
     @property
     def rate(self) -> float:
         """Samples per second."""
+
+    def window(self, first: float, last: float) -> Take:
+        """The take limited to its samples at scene frames first..last (both included)."""
 
     def animate(self, avatar: BodyModel, method: str, *, plant_feet: bool = True, placement: str = "object",
                 progress: Callable[[float], None] | None = None,
@@ -58,14 +81,24 @@ class RecordingTake:
     user: BodyModel
     filter: OneEuro | None = None  # One Euro on the devices before retargeting
     notes: list[str] = field(default_factory=list)
+    frame_start: float = 1.0  # the import's mapping (recording_scene); a file's take starts at frame 1
+    frame_rate: float | None = None  # the frames' rate when not the recording's own (a window keeps its take's)
 
     def __post_init__(self):
         self.name = self.recording.name
 
     @property
     def rate(self) -> float:
+        if self.frame_rate is not None:
+            return self.frame_rate
         rec = self.recording
         return rec.fps if rec.frame_count > 1 else FALLBACK_RATE
+
+    def window(self, first: float, last: float) -> RecordingTake:
+        rec = self.recording
+        part, start = window_slice(rec.time, self.rate, self.frame_start, first, last, rec.source or rec.name)
+        return replace(self, recording=rec.window(part.start, part.stop), notes=list(self.notes), frame_start=start,
+                       frame_rate=self.rate)
 
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
         check_method(method, self.kind)
@@ -90,6 +123,7 @@ class CharacterTake:
     action: str
     armature: str
     notes: list[str] = field(default_factory=list)
+    frame_start: float = 1.0  # the action's frame of the first sample
 
     def __post_init__(self):
         self.name = self.action
@@ -97,6 +131,11 @@ class CharacterTake:
     @property
     def rate(self) -> float:
         return float(self.fps)
+
+    def window(self, first: float, last: float) -> CharacterTake:
+        part, start = window_slice(self.time, self.rate, self.frame_start, first, last, self.action)
+        return replace(self, basis=self.basis[part], locations=self.locations[part], time=self.time[part],
+                       notes=list(self.notes), frame_start=start)
 
     @property
     def estimated(self) -> bool:

@@ -117,10 +117,29 @@ def test_fps_resamples_with_the_timing_kept_and_the_blend_is_compressed(take, tm
     assert all(float(k).is_integer() for k in keyed)
 
 
+def test_fps_0_is_the_takes_rate_and_the_frame_range_limits_the_bake(take, tmp_path):
+    """`--fps 0` keys the recording's samples at its rate (as the sidebar's 0); `--frame-range`
+    bakes only those frames of the take (its first sample is frame 1), and the output's scene
+    range is theirs."""
+    out = tmp_path / "shot.blend"
+    res = _run("retarget", take["rec_path"], "--user", take["user_path"], "--avatar", take["blend"], "--fps", "0",
+               "--frame-range", "11", "40", "--tolerance", "0", "--location-tolerance", "0", "-o", out)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "30 frames (11-40)" in res.stdout
+    bpy.ops.wm.open_mainfile(filepath=str(out), load_ui=False)
+    scene = bpy.context.scene
+    assert scene.render.fps / scene.render.fps_base == pytest.approx(take["rec"].fps, rel=1e-6)
+    keyed = np.unique(np.concatenate([[k.co[0] for k in fc.keyframe_points] for fc in _fcurves(_the_armature())]))
+    np.testing.assert_array_equal(keyed, np.arange(11, 41))
+    assert (scene.frame_start, scene.frame_end) == (11, 40)
+
+
 @pytest.mark.parametrize("bad, words", [
     (("--tolerance", "-1"), ("tolerance", ">= 0")),
     (("--tolerance", "nan"), ("tolerance", ">= 0")),
-    (("--fps", "0"), ("frame rate", "1 to 1000")),
+    (("--fps", "-1"), ("frame rate", "1 to 1000")),
+    (("--frame-range", "40", "11"), ("--frame-range", "FIRST <= LAST")),
+    (("--frame-range", "5000", "5100"), ("frame range", "holds none of the take's frames")),
     (("-o", "OUT.obj"), ("cannot write a '.obj' file", ".fbx")),
 ])
 def test_bad_output_options_are_one_line(take, tmp_path, bad, words):
@@ -189,6 +208,37 @@ def test_each_export_reimports_with_the_joints_where_the_blend_has_them(take, tm
         got = _heads(other, bones, frames - (frames[0] - 1 if path.suffix == ".bvh" else 0))
         err = np.linalg.norm(got - truth, axis=-1)
         assert err.max() <= 1e-3, (path.suffix, float(err.max()), bones[int(np.argmax(err.max(0)))])
+
+
+def test_exported_clips_are_named_after_the_baked_action(tmp_path):
+    """A game engine shows the FBX take and the glTF animation by name: each is the baked
+    action's (the FBX importer names its action "<object>|<take>"), not the scene's or a fixed
+    "Animation", even when another scene already has the action's name; the scenes keep theirs."""
+    from bodycal_addon.blender.export import export_avatar
+    from bodycal_addon.blender.fcurves import new_fcurve, write_keys
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, _spec = rigs.build_procedural_avatar()
+    name = "demo_full|procedural|egocentric"
+    action = bpy.data.actions.new(name)
+    arm.animation_data_create().action = action
+    arm.pose.bones["upperarm_l"].rotation_mode = "QUATERNION"
+    frames = np.arange(1, 11, dtype=np.float32)
+    for i, (a, b) in enumerate(((1.0, 0.9), (0.0, 0.3), (0.0, 0.1), (0.0, 0.0))):
+        write_keys(new_fcurve(action, arm, 'pose.bones["upperarm_l"].rotation_quaternion', i, "upperarm_l"), frames,
+                   np.linspace(a, b, len(frames), dtype=np.float32))
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 10
+    other = bpy.data.scenes.new(name)
+    scene_name = scene.name
+    outs = [tmp_path / f"clip{s}" for s in (".fbx", ".glb", ".gltf")]
+    for out in outs:
+        export_avatar(arm, out)
+    assert scene.name == scene_name and other.name == name
+    for out in outs:
+        imported = _import(out, 30)
+        got = imported.animation_data.action.name
+        assert got == (f"{imported.name}|{name}" if out.suffix == ".fbx" else name), (out.suffix, got)
 
 
 SAVE_MEMORY_SCRIPT = """
@@ -262,8 +312,8 @@ def test_a_released_animation_bakes_the_same_keys(take):
 
 def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
     """A bone whose rotation jitters by more than the tolerance keeps nearly every frame: the
-    summary line names it, and only it (the smooth bones are thinned); a tolerance of 0 asks
-    for every frame, so nothing is named."""
+    summary line names it, and only it (the smooth bones are thinned), with what helps for the
+    kind of take; a tolerance of 0 asks for every frame, so nothing is named."""
     from bodycal_addon.blender.bake import DENSE_FRACTION
     from bodycal_addon.blender.session import Summary
     from bodycal_addon.body.animation import AvatarAnimation
@@ -286,3 +336,9 @@ def test_the_bones_the_reduction_cannot_thin_are_named_in_the_summary():
         line = Summary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0, 90.0,
                        samples=result.samples, dense_bones=result.dense_bones).line()
         assert (f"1 bone kept over {DENSE_FRACTION:.0%} of the frames (spine_02)" in line) == bool(named), line
+        # A transfer's take has no devices to smooth and its command no --filter: its note says neither.
+        moved = Summary(result.action.name, "egocentric", frames, result.keys, 0.0, 0.0, 90.0,
+                        samples=result.samples, dense_bones=result.dense_bones, kind="animation").line()
+        assert ("smoothing the devices" in line and "--filter" in line) == bool(named), line
+        assert not any(w in moved for w in ("device", "smooth", "filter")), moved
+        assert ("a larger tolerance keeps fewer keys" in moved) == bool(named), moved

@@ -74,6 +74,68 @@ def test_operator_bakes_every_selected_armature(belly_session):
     assert bpy.context.scene.bodycal_retarget.last_result.count("Baked") == 2
 
 
+def _key_frames(obj) -> list[np.ndarray]:
+    from bodycal_addon.blender.fcurves import object_fcurves, read_keys
+
+    return [read_keys(fc)[0] for fc in object_fcurves(obj).values()]
+
+
+def test_the_bake_lands_on_the_trackers_frames_and_the_range_limits_it(belly_session):
+    """Imported at frame 101, the scene's range then moved to a shot: the avatar is keyed on the
+    tracker empties' own frames (every key of every curve on one of them, the first on theirs),
+    the scene range (or the preview range, or a typed one) limits the bake to its frames, and the
+    scene's range changes only when asked."""
+    rec, truth = belly_session
+    scene = bpy.context.scene
+    arm, _mesh, _spec = rigs.build_procedural_avatar()
+    recording_scene.import_recording_to_scene(rec, scene, frame_start=101)
+    calibration_scene.store_user_model(scene, truth.body_model())
+    bake = scene.bodycal_bake
+    bake.armature, bake.tolerance, bake.location_tolerance = arm, 0.0, 0.0
+    tracker = next(o for o in bpy.data.objects if recording_scene.DEVICE_PROP in o)
+    (tracked,) = {tuple(f) for f in _key_frames(tracker)}
+    tracked = np.array(tracked)
+    assert tracked[0] == 101 and len(tracked) == rec.frame_count
+    shot = (int(tracked[0]) + 40, int(tracked[0]) + 90)
+    scene.frame_start, scene.frame_end = shot
+
+    def baked(frame_range, first=None, last=None):
+        bake.frame_range = frame_range
+        if first is not None:
+            bake.frame_first, bake.frame_last = first, last
+        assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
+        curves = _key_frames(arm)
+        assert all(np.isin(c, tracked).all() for c in curves)  # every key on a tracker key's frame
+        return np.unique(np.concatenate(curves)), min(c[0] for c in curves)
+
+    keys, first_key = baked("take")
+    np.testing.assert_array_equal(keys, tracked)  # the whole take, where the trackers are
+    assert first_key == tracked[0]
+    assert (scene.frame_start, scene.frame_end) == shot  # not asked to change
+
+    in_shot = tracked[(tracked >= shot[0]) & (tracked <= shot[1])]
+    keys, first_key = baked("scene")
+    np.testing.assert_array_equal(keys, in_shot)
+    assert first_key == shot[0] and keys[-1] == shot[1]
+
+    scene.use_preview_range = True
+    scene.frame_preview_start, scene.frame_preview_end = shot[0] + 5, shot[0] + 20
+    keys, _first = baked("scene")
+    np.testing.assert_array_equal(keys, np.arange(shot[0] + 5, shot[0] + 21))
+
+    bake.set_scene_range = True
+    keys, _first = baked("custom", 120, 130)
+    np.testing.assert_array_equal(keys, np.arange(120, 131))
+    assert (scene.frame_start, scene.frame_end) == (120, 130)
+    assert "11 frames (120-130)" in scene.bodycal_retarget.last_result
+
+    bake.frame_first, bake.frame_last = 5000, 5100  # past the take: one line, no new action
+    n_actions = len(bpy.data.actions)
+    with pytest.raises(RuntimeError, match="holds none of the take's frames"):
+        bpy.ops.bodycal.retarget_bake()
+    assert len(bpy.data.actions) == n_actions
+
+
 def test_operator_error_is_one_line_and_changes_nothing(belly_session):
     rec, truth = belly_session
     arm = _scene_ready(rec, truth)
@@ -161,7 +223,7 @@ def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
     for data, name in props:
         assert name in data.bl_rna.properties, (panel, name)
     shared = {"armature", "placement", "plant_feet", "root_motion", "rigify_target", "replace", "push_to_nla",
-              "output_fps", "tolerance", "location_tolerance"}
+              "output_fps", "tolerance", "location_tolerance", "frame_range", "set_scene_range"}
     assert {name for data, name in props if data == bake} == shared
     own = {name for data, name in props if data == settings}
     assert "method" in own and not own & shared

@@ -34,6 +34,7 @@ class StreamedTake:
     def __init__(self, recording, user):
         self._inner = RecordingTake(recording, user)
         self.name, self.notes = "streamed", ["received over the wire"]
+        self.frame_start = 1.0
 
     @property
     def rate(self):
@@ -41,6 +42,9 @@ class StreamedTake:
 
     def animate(self, avatar, method, **kwargs):
         return self._inner.animate(avatar, method, **kwargs)
+
+    def window(self, first, last):
+        raise NotImplementedError  # not asked of a take the session bakes whole
 
     def release(self):
         self._inner.release()

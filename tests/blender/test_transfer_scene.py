@@ -196,6 +196,39 @@ def test_the_panels_operator_transfers_onto_the_selected_avatars(data_dir):
     assert settings.last_result.count("Baked") == 2
 
 
+def test_the_transfer_keys_the_source_actions_own_frames_within_the_range():
+    """A source action keyed on frames 21-60 and a scene that starts at frame 1: the target's
+    keys are on the source's frames (the whole action: 21-60; the scene range 1-30: 21-30), and
+    the scene's range is left as it was."""
+    from bodycal_addon.blender.fcurves import new_fcurve, object_fcurves, read_keys, write_keys
+    from bodycal_addon.core import transforms as tf
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    rigs = paths.sample_rigs()
+    source, _mesh, _spec = rigs.build_procedural_avatar()
+    target, _mesh, _spec = rigs.build_procedural_avatar(scale=0.8)
+    action = bpy.data.actions.new("wave")
+    source.animation_data_create().action = action
+    frames = np.arange(21, 61, dtype=np.float32)
+    q = tf.axis_angle_to_quat(np.array([0.0, 1.0, 0.0]), np.linspace(0.0, 1.2, len(frames)))
+    source.pose.bones["upperarm_l"].rotation_mode = "QUATERNION"
+    for i in range(4):
+        write_keys(new_fcurve(action, source, 'pose.bones["upperarm_l"].rotation_quaternion', i, "upperarm_l"),
+                   frames, q[:, i].astype(np.float32))
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 30
+    scene.bodycal_transfer.source = source
+    bake = scene.bodycal_bake
+    bake.armature, bake.tolerance, bake.location_tolerance = target, 0.0, 0.0
+    for frame_range, want in (("take", frames), ("scene", frames[frames <= 30])):
+        bake.frame_range = frame_range
+        assert bpy.ops.bodycal.transfer_animation() == {"FINISHED"}
+        keyed = [read_keys(fc)[0] for fc in object_fcurves(target).values()]
+        np.testing.assert_array_equal(np.unique(np.concatenate(keyed)), want)
+        assert min(k[0] for k in keyed) == want[0]
+        assert (scene.frame_start, scene.frame_end) == (1, 30)
+
+
 def test_batch_jobs_take_animation_sources_beside_recordings(tmp_path):
     from bodycal_addon.app.batch import load_jobs
 

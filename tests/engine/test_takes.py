@@ -81,3 +81,31 @@ def test_a_character_take_animates_as_the_transfer_does(recorded):
     np.testing.assert_array_equal(got.rotations, want.rotations)
     take.release()
     assert take.basis is None and take.locations is None
+
+
+def test_a_window_keeps_the_frames_its_samples_play_at(recorded):
+    """A take imported at frame 101 and limited to frames 110-120: its samples are those at those
+    frames (jittered timestamps included: the frames are the import's mean-rate mapping), at the
+    take's rate, starting at the first of them; a character take keeps its action's frames; a
+    range past the take is one error."""
+    rec, user = recorded
+    rec = rec.window(0, rec.frame_count)
+    rng = np.random.default_rng(2)
+    rec.time = rec.time + np.r_[0.0, rng.uniform(-0.3, 0.3, rec.frame_count - 2) / rec.fps, 0.0]
+    take = RecordingTake(rec, user, frame_start=101.0)
+    frames = 101.0 + (rec.time - rec.time[0]) * take.rate
+    part = take.window(110, 120)
+    inside = (frames >= 110 - 1e-3) & (frames <= 120 + 1e-3)
+    np.testing.assert_array_equal(part.recording.time, rec.time[inside])
+    np.testing.assert_array_equal(part.recording.positions, rec.positions[inside])
+    assert part.rate == take.rate != pytest.approx(part.recording.fps, rel=1e-9)
+    assert part.frame_start == frames[inside][0] and part.name == take.name
+    with pytest.raises(BodyCalError, match=r"frame range 1e\+06-2e\+06 holds none of the take.s frames \(101-"):
+        take.window(1e6, 2e6)
+
+    source = rt.procedural_avatar()
+    n = 30
+    char = CharacterTake(source, np.tile([1.0, 0, 0, 0], (n, 5, 1)), np.zeros((n, 5, 3)), np.arange(n) / 30.0,
+                         30.0, "clip", "src", frame_start=21.0)
+    part = char.window(1, 30)
+    assert part.frame_start == 21.0 and len(part.time) == 10 and part.basis.shape[0] == 10

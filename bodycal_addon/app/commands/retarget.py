@@ -1,9 +1,10 @@
 """`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
 [--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]]
 [--no-plant-feet] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
-[--tolerance DEG] [--location-tolerance MM] [--fps N]
+[--tolerance DEG] [--location-tolerance MM] [--fps N] [--frame-range FIRST LAST]
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
+import math
 import sys
 
 
@@ -16,6 +17,7 @@ def run(args) -> int:
                            settings=session.Settings(args.method, getattr(args, "plant_feet", True),
                                                      getattr(args, "placement", "object")),
                            overwrite=getattr(args, "overwrite", False), options=bake_options(args),
+                           frame_range=frame_range(args),
                            bone_map_path=getattr(args, "bone_map", None),
                            warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
     return 0
@@ -23,8 +25,23 @@ def run(args) -> int:
 
 def bake_options(args):
     """The bake options every baking command takes (--tolerance, --location-tolerance, --fps,
-    --root-motion, --rigify-target)."""
+    --root-motion, --rigify-target); --fps 0 is the take's own rate, as no --fps."""
     from ...blender.bake import BakeOptions
 
-    return BakeOptions(args.tolerance, args.location_tolerance, args.fps, getattr(args, "root_motion", "root"),
+    fps = None if args.fps == 0 else args.fps
+    return BakeOptions(args.tolerance, args.location_tolerance, fps, getattr(args, "root_motion", "root"),
                        getattr(args, "rigify_target", "fk"))
+
+
+def frame_range(args) -> tuple[float, float] | None:
+    """--frame-range FIRST LAST, checked: finite, FIRST <= LAST."""
+    from ...core.errors import BodyCalError
+
+    given = getattr(args, "frame_range", None)
+    if given is None:
+        return None
+    first, last = given
+    if not (math.isfinite(first) and math.isfinite(last) and first <= last):
+        raise BodyCalError(f"--frame-range {first:g} {last:g} is not a range", field="--frame-range",
+                           hint="give FIRST LAST with FIRST <= LAST")
+    return first, last
