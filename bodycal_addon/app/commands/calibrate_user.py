@@ -4,8 +4,9 @@ recording allows; prints one line per step with its quality, what was defaulted,
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
+
+from .. import console
 
 
 def summary_lines(model) -> list[str]:
@@ -34,8 +35,8 @@ def run(args) -> int:
     rec = load_recording(args.recording)
     model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)
-    print(f"calibrated {len(model.joints)} joints from {len(model.calibration['steps_used'])} steps "
-          f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s) -> {out}")
+    console.say(f"calibrated {len(model.joints)} joints from {len(model.calibration['steps_used'])} steps "
+                f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s) -> {out}")
     for line in summary_lines(model):
-        print(line, file=sys.stdout)
+        console.say(line)
     return 0

@@ -4,7 +4,7 @@
 [--tolerance DEG] [--location-tolerance MM] [--fps N]
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
-import sys
+from .. import console
 
 
 def run(args) -> int:
@@ -17,7 +17,7 @@ def run(args) -> int:
                                                      getattr(args, "placement", "object")),
                            overwrite=getattr(args, "overwrite", False), options=bake_options(args),
                            bone_map_path=getattr(args, "bone_map", None),
-                           warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
+                           log=console.say, warn=lambda line: console.warn("retarget", line))
     return 0
 
 
