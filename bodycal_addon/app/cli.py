@@ -80,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
     c.add_argument("recording", metavar="REC", help=REC_HELP)
     c.add_argument("-o", "--output", required=True, metavar="USER.body.json", help="the body model to write")
+    c.add_argument("--allow-defaults", action="store_true",
+                   help="write the body model even when most body joints could not be measured and would be "
+                        "guessed from the eye height (default: refused, exit 2)")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
