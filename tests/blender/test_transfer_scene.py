@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
+from bodycal_addon.avatar.estimate import estimate_surface
+from bodycal_addon.blender import avatar_rig, avatar_storage, blendfile, mesh_metrics
 from bodycal_addon.blender import character_source as ts
 from bodycal_addon.blender.avatar_calibration import avatar_model_for
 from bodycal_addon.core import paths
@@ -36,7 +37,7 @@ def test_the_action_read_from_its_fcurves_poses_as_blender_does(data_dir):
     assert src.fps == pytest.approx(120.0, rel=1e-3) and len(src.time) == 343
     # Blender's own pose at a few frames against the engine's FK of the arrays read (before the
     # bare skeleton is stood on its floor: compare the rest as the file has it).
-    model = ts.estimate_surface(ts.avatar_rig.read_rig(arm), arm.name)
+    model = estimate_surface(avatar_rig.read_rig(arm), arm.name)
     rig = ap.AvatarRig.from_model(model)
     frames = np.array([1.0, 77.0, 200.0, 343.0])
     basis, locations = ts.read_action(arm, arm.animation_data.action, rig.names, frames)
