@@ -5,6 +5,7 @@ source is read into numpy on the main thread (its F-Curves, its body model)."""
 import bpy
 
 from ..bodycal_addon.blender.character_source import read_source
+from ..bodycal_addon.blender.fcurves import action_bones
 from ..bodycal_addon.retarget.takes import CharacterTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 
@@ -13,13 +14,21 @@ def _is_armature(_self, obj):
     return obj.type == "ARMATURE"
 
 
+def _animates_source(self, action) -> bool:
+    """The action picker lists the actions that animate the source's bones (all, before a source)."""
+    if self.source is None or self.source.type != "ARMATURE":
+        return True
+    return not action_bones(action).isdisjoint(self.source.pose.bones.keys())
+
+
 class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
     """What only a transfer has (the shared bake settings: scene.bodycal_bake)."""
 
     source: bpy.props.PointerProperty(name="Source", type=bpy.types.Object, poll=_is_armature,
                                       description="The animated character whose action is transferred")
-    action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action,
-                                      description="The source's action (default: its active one)")
+    action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action, poll=_animates_source,
+                                      description="The source's action (default: its active one); "
+                                                  "only actions that animate the source's bones are listed")
     method: bpy.props.EnumProperty(name="Method", items=method_items(CharacterTake.kind), default="egocentric")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 

@@ -7,7 +7,9 @@ import json
 import bpy
 
 from ..bodycal_addon.blender.calibration_scene import MODEL_PROP
-from ..bodycal_addon.calibration import CALIBRATION_STEPS
+from ..bodycal_addon.calibration import CALIBRATION_STEPS, coverage
+from ..bodycal_addon.calibration.coverage import BODY_JOINTS
+from ..operators.calibration import REFUSED
 
 _STEP_ORDER = (*CALIBRATION_STEPS, "touch")
 _cache = {"raw": None, "cal": {}}
@@ -48,6 +50,19 @@ def quality_text(q: dict) -> str:
     return ", ".join(parts)
 
 
+def _wrapped(col, text: str, width: int) -> None:
+    """`text` as labels of about `width` characters, cut at spaces (a refusal is one long line)."""
+    line = ""
+    for word in text.split():
+        if line and len(line) + 1 + len(word) > width:
+            col.label(text=line)
+            line = word
+        else:
+            line = f"{line} {word}".strip()
+    if line:
+        col.label(text=line)
+
+
 class BODYCAL_PT_calibration(bpy.types.Panel):
     bl_idname = "BODYCAL_PT_calibration"
     bl_label = "User Calibration"
@@ -81,10 +96,22 @@ class BODYCAL_PT_calibration(bpy.types.Panel):
                 row.label(text=label, icon="RADIOBUT_OFF")
         for line in cal.get("warnings", []):
             layout.label(text=line, icon="ERROR")
-        if cal.get("defaulted"):
-            layout.label(text=f"{len(cal['defaulted'])} values defaulted from the eye height", icon="INFO")
+        if cal:
+            cov = coverage(cal)
+            layout.label(text=f"Measured {len(cov.measured)} of {len(BODY_JOINTS)} body joints, "
+                              f"{len(cov.defaulted)} defaulted", icon="ERROR" if cov.mostly_guessed else "INFO")
+            if cal.get("defaulted"):
+                layout.label(text=f"{len(cal['defaulted'])} values defaulted from the eye height", icon="INFO")
         col = layout.column(align=True)
         col.operator("bodycal.calibrate_user", icon="PLAY")
+        refused = REFUSED.get(scene.name)
+        if refused is not None:
+            line, can_accept = refused
+            width = max(context.region.width // 7, 30) if context.region else 60
+            _wrapped(layout.column(align=True), line, width)
+            if can_accept:
+                op = col.operator("bodycal.calibrate_user", text="Calibrate, Accept Defaults", icon="ERROR")
+                op.allow_defaults = True
         row = col.row(align=True)
         row.operator("bodycal.save_user_model", icon="EXPORT", text="Save")
         row.operator("bodycal.load_user_model", icon="IMPORT", text="Load")

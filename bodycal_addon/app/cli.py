@@ -11,9 +11,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import tomllib
 from collections.abc import Callable
 
-from ..blender.process import stderr_to_stdout
+from ..core import paths
 from ..core.errors import BodyCalError
 from ..core.outputs import describe_os_error
 from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
@@ -21,6 +22,7 @@ from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
 from ..retarget.methods import methods_for
 from ..retarget.placement import PLACEMENTS
+from . import console
 
 METHODS = methods_for("recording")  # every method, the default first (retarget/methods.py)
 TRANSFER_METHODS = methods_for("animation")
@@ -33,47 +35,82 @@ AVATAR_HELP = ("the avatar: a .blend, or an .fbx, .glb, .gltf or .vrm read by Bl
                "(.vrm needs a VRM importer add-on enabled)")
 
 
+REC_HELP = "the recording: .bcrec.json, .csv (+ sidecar .json) or .c3d (docs/FORMATS.md §2)"
+USER_HELP = "the performer's body model, written by calibrate-user"
+VERBOSE_HELP = "let Blender's own output (importers, file reports) through to stdout (default: BodyCal's lines only)"
+
+
+class UsageError(BodyCalError):
+    """A command line argparse refuses; `prog` is the parser's (`bodycal` or `bodycal <command>`)."""
+
+    def __init__(self, message: str, prog: str):
+        super().__init__(message)
+        self.prog = prog
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse that raises instead of exiting, so `blender -c` is not killed by SystemExit."""
 
     def error(self, message):
-        raise BodyCalError(message, source=self.prog)
+        raise UsageError(message, self.prog)
+
+
+def version() -> str:
+    """The extension's version, from its manifest (the one file that holds it)."""
+    try:
+        return tomllib.loads((paths.ROOT_DIR / "blender_manifest.toml").read_text(encoding="utf-8"))["version"]
+    except (OSError, ValueError, KeyError):
+        return "unknown"
+
+
+def _method_help(methods) -> str:
+    """What each of `methods` does (retarget/methods.py's names)."""
+    what = {"egocentric": "keeps self-contacts (Delahaye 2023)", "offsets": "AvatarGo's exact tracker offsets",
+            "rotations": "rotation copy, the usual baseline"}
+    return "; ".join(f"{m}: {what.get(m, m)}" for m in methods) + f" (default: {methods[0]})"
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="bodycal", description="BodyCal: VR tracker recordings to animation on any humanoid "
                 "avatar, keeping self-contacts.")
+    p.add_argument("--version", action="version", version=f"bodycal {version()}")
+    p.add_argument("-v", "--verbose", action="store_true", help=VERBOSE_HELP)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
-    c.add_argument("recording", metavar="REC", help="recording: .bcrec.json, .csv (+ sidecar .json) or .c3d")
-    c.add_argument("-o", "--output", required=True, metavar="USER.body.json")
+    c.add_argument("recording", metavar="REC", help=REC_HELP)
+    c.add_argument("-o", "--output", required=True, metavar="USER.body.json", help="the body model to write")
+    c.add_argument("--allow-defaults", action="store_true",
+                   help="write the body model even when most body joints could not be measured and would be "
+                        "guessed from the eye height (default: refused, exit 2)")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
     c.add_argument("avatar", metavar="AVATAR", help=AVATAR_HELP)
     c.add_argument("--armature", metavar="NAME", help="armature object (default: the only one in the file)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
-    c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json")
+    c.add_argument("-o", "--output", required=True, metavar="AVATAR.body.json", help="the body model to write")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
-    c.add_argument("recording", metavar="REC")
-    c.add_argument("--user", required=True, metavar="USER.body.json")
+    c.add_argument("recording", metavar="REC", help=REC_HELP)
+    c.add_argument("--user", required=True, metavar="USER.body.json", help=USER_HELP)
     c.add_argument("--avatar", required=True, metavar="AVATAR", help=AVATAR_HELP)
-    c.add_argument("--armature", metavar="NAME")
+    c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one in the file)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
-    c.add_argument("--method", choices=METHODS, default="egocentric")
+    c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
     c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
                    help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")
     _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
-    c.add_argument("jobs", metavar="JOBS.toml")
+    c.add_argument("jobs", metavar="JOBS.toml", help="the jobs file: recordings, animations, avatars, methods and "
+                   "defaults (docs/FORMATS.md §4.1)")
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
-    c.add_argument("-o", "--output-dir", default="out", metavar="DIR")
+    c.add_argument("-o", "--output-dir", default="out", metavar="DIR",
+                   help="where demo.blend is written (default: out)")
 
     c = sub.add_parser("transfer", help="another character's animation onto the avatar, keeping self-contacts")
     c.add_argument("source", metavar="SOURCE", help="the animated character: a .blend, .bvh, .fbx, .glb or .gltf")
@@ -82,8 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--action", metavar="NAME", help="the source's action (default: its active one)")
     c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP + " (the avatar's)")
-    c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0])
+    c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0],
+                   help=_method_help(TRANSFER_METHODS))
     _bake_arguments(c, "the source's")
+    for c in sub.choices.values():  # also after the command: `bodycal retarget ... --verbose`
+        c.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP)
     return p
 
 
@@ -132,28 +172,29 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help
+    except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
-    except BodyCalError as exc:
-        print(f"bodycal: error: {exc.line()}", file=sys.stderr)
+    except UsageError as exc:
+        console.error(exc.prog, exc.line())
         return EXIT_USAGE
     if not args.command:
         parser.print_help()
         return EXIT_USAGE
-    with stderr_to_stdout(python_stderr=False):
+    with console.own_lines_only(verbose=args.verbose):
         return _run(args)
 
 
 def _run(args) -> int:
+    prog = f"bodycal {args.command}"
     try:
         return int(_handler(args.command)(args) or 0)
     except BodyCalError as exc:
-        print(f"bodycal {args.command}: error: {exc.line()}", file=sys.stderr)
+        console.error(prog, exc.line())
         return EXIT_USAGE
     except OSError as exc:  # a file the checks could not foresee (vanished, disk full, permissions changed)
-        print(f"bodycal {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        console.error(prog, describe_os_error(exc))
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print(f"bodycal {args.command}: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=console.stderr(), flush=True)
         return 130
 

@@ -12,6 +12,7 @@ import contextlib
 
 import numpy as np
 
+from ..avatar.estimate import estimate_surface
 from ..avatar.rays import surface_from_rays
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
@@ -111,7 +112,8 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
     meshes = list(meshes) if meshes is not None else avatar_meshes(arm)
     if not meshes:
         raise BodyCalError("no mesh is skinned to this armature, nothing to raycast", source=arm.name,
-                           hint="add an Armature modifier pointing at it to the avatar's mesh")
+                           hint="add an Armature modifier pointing at it to the avatar's mesh; retarget and "
+                                "transfer estimate a bare skeleton's body from its bone lengths")
     with in_rest_position(arm):
         caster = Caster(meshes, depsgraph or bpy.context.evaluated_depsgraph_get())
     if not caster.trees:
@@ -123,8 +125,12 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
 def avatar_model_for(arm) -> tuple[BodyModel, bool]:
     """The armature's stored avatar model, brought to where its object stands now (moved, turned
     or scaled since it was calibrated), or a fresh surface calibration (True: not stored yet; the
-    bake stores it with the action it makes)."""
+    bake stores it with the action it makes), or for a bare skeleton (no mesh skinned to it: a game
+    skeleton, a BVH) its body estimated from its bone lengths (avatar/estimate.py, DESIGN.md §8;
+    False: cheap to make again, and not stored, so that a mesh added later is measured)."""
     if avatar_storage.has_model(arm):
         stored = avatar_storage.load_model(arm)
         return moved_to(stored, np.array(arm.matrix_world, dtype=float)), False
+    if not avatar_meshes(arm):
+        return estimate_surface(avatar_rig.read_rig(arm), arm.name), False
     return calibrate_avatar(arm), True

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..avatar.estimate import ESTIMATED, estimate_surface
+from ..avatar.estimate import ESTIMATED
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..core.paths import ANIMATION_SUFFIXES
@@ -23,8 +23,7 @@ from ..core.transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.takes import CharacterTake
 from ..retarget.transfer import stand_on_floor
-from . import avatar_rig
-from .avatar_calibration import avatar_meshes, avatar_model_for
+from .avatar_calibration import avatar_model_for
 from .blendfile import open_avatar
 from .fcurves import object_fcurves, read_keys
 from .process import stderr_to_stdout
@@ -130,10 +129,7 @@ def pick_action(arm, name: str | None, source: str):
 def source_model(arm) -> BodyModel:
     """The source character's body: measured on its skinned mesh by the avatar calibration, or,
     for a bare skeleton, estimated from its bone lengths (avatar/estimate.py)."""
-    if avatar_meshes(arm):
-        # its stored model, else the calibration's (which reads the posed character at rest)
-        return avatar_model_for(arm)[0]
-    return estimate_surface(avatar_rig.read_rig(arm), arm.name)
+    return avatar_model_for(arm)[0]  # its stored model, else the calibration's (read at rest), else the estimate
 
 
 def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None, fps: float | None = None

@@ -77,7 +77,10 @@ def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
     scene = bpy.context.scene
 
     rec = load_recording(DEMO_RECORDING)
-    contacts, planted = read_truth(DEMO_RECORDING.with_name("demo_full.truth.json"), rec.frame_count)
+    truth = DEMO_RECORDING.with_name("demo_full.truth.json")  # development file, not in the extension zip
+    contacts, planted = read_truth(truth, rec.frame_count) if truth.is_file() else ([], {})
+    if not truth.is_file():
+        log(f"no ground truth ({truth.name}): contact gaps and floor errors are not measured")
     recording_scene.import_recording_to_scene(rec, scene)
     log(f"recording {rec.name}: {rec.frame_count} frames at {rec.fps:.0f} Hz, {len(rec.devices)} devices, "
         f"{len(rec.marker_names)} markers, {len(rec.segments)} steps")

@@ -72,3 +72,18 @@ def object_fcurves(obj) -> dict:
     elif hasattr(action, "fcurves"):
         curves = list(action.fcurves)
     return {(fc.data_path, fc.array_index): fc for fc in curves}
+
+
+def action_bones(action) -> set[str]:
+    """The pose bones `action` animates (`pose.bones["name"]...` F-Curves, in any of its slots),
+    whatever the action API (4.2's `action.fcurves`; the channelbags of 4.4+ / 5.0)."""
+    curves = []
+    if hasattr(action, "layers") and len(action.layers):
+        for layer in action.layers:
+            for strip in layer.strips:
+                for bag in getattr(strip, "channelbags", ()):
+                    curves.extend(bag.fcurves)
+    elif hasattr(action, "fcurves"):
+        curves = list(action.fcurves)
+    prefix = 'pose.bones["'
+    return {fc.data_path[len(prefix):].split('"]', 1)[0] for fc in curves if fc.data_path.startswith(prefix)}

@@ -6,9 +6,11 @@ from anthropometric ratios of the eye height, and reports per step in `model.cal
 `steps_used`, `defaulted` {what: how}, `missing`, `warnings` (one line per step or touch whose
 data could not be used, and why: such a step is left out and defaulted, never fatal) and
 `quality` {step: {rms_mm, kept, of, range_deg, ...}}. The output follows the user-model contract
-in bodymodel.py's docstring.
+in bodymodel.py's docstring. `coverage` and `check_usable` (coverage.py) say how much of it was
+measured and refuse a model that no method could animate or that is mostly guessed.
 """
 
+from .coverage import ANIMATED_ROLES, check_usable, coverage
 from .user import CALIBRATION_STEPS, calibrate_user, natural_roles
 
-__all__ = ["CALIBRATION_STEPS", "calibrate_user", "natural_roles"]
+__all__ = ["ANIMATED_ROLES", "CALIBRATION_STEPS", "calibrate_user", "check_usable", "coverage", "natural_roles"]

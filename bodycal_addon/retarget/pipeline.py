@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..avatar.estimate import ESTIMATED
 from ..body import naming
 from ..body import skeleton as sk
 from ..body.animation import AvatarAnimation
@@ -360,8 +361,10 @@ class Egocentric(Method):
                 self.palm_local[s] = tuple(
                     np.mean([p.local for p in m.element(eid).points.values()], axis=0)
                     for m in (self.user_s, self.avatar_s))
+        # A fingertip is a target when the user has that finger and the avatar finger bones to reach it
+        # (a skeleton with lumped hands, such as CMU's, has none: its tips would be reached by nothing).
         self.targets = [t for t in TARGETS if not t.startswith("tip_") or
-                        any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have)]
+                        (run.has_fingers[t[-1]] and any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have))]
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
@@ -602,6 +605,8 @@ def run_source(source: PoseSource, avatar_model: BodyModel, method: str = "egoce
     if not (np.isfinite(rotations).all() and np.isfinite(root_loc).all()):
         raise BodyCalError("the retargeted animation has non-finite values", source=source.name,
                            hint="check the source for broken poses")
+    if avatar_model.calibration.get("method") == ESTIMATED:
+        run.notes.append(f"{avatar_model.name} (target): no mesh, body surface estimated from its bone lengths")
     return AvatarAnimation(rig.armature, list(rig.names), rotations, rig.names[rig.root], root_loc,
                            np.asarray(source.time, float), method,
                            {j: joints[:, i] for i, j in enumerate(JOINTS)}, targets, run.notes)

@@ -14,7 +14,8 @@ carried back by it. Two placements:
   uniformly scaling the armature object moves the whole result with it, and two avatars in one
   scene each play on their own spot.
 - `performer`: the avatar plays where the performer was in the room (the recording's x, y and
-  facing), on its own floor (the height of the armature object's origin); the path is scaled
+  facing), on its own floor (the height of the armature object's origin; a bare skeleton's,
+  `floor_height`, under its rest soles); the path is scaled
   about the floor point under the performer's pelvis at the reference time (`root_centre`).
 
 Either way the pose-bone values of the result are in armature space, so the bake is the same; only
@@ -27,6 +28,7 @@ import copy
 
 import numpy as np
 
+from ..avatar.estimate import ESTIMATED, sole_depth
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 
@@ -79,16 +81,30 @@ def yaw_matrix(from_dir: np.ndarray, to_dir: np.ndarray) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def floor_height(avatar: BodyModel) -> float:
+    """The avatar's floor (world z): the height of its object's origin; for a bare skeleton's
+    estimated body (avatar/estimate.py), under its rest soles instead: nothing says where a
+    skeleton's floor is (a BVH's rest hangs from the hips at the object's origin), and a rest pose
+    standing on the floor is where the skeleton stands."""
+    origin = rig_matrix(avatar)[:3, 3]
+    if avatar.calibration.get("method") != ESTIMATED:
+        return float(origin[2])
+    try:
+        return min(float(avatar.joints[f"ankle_{s}"].world[2]) - sole_depth(avatar, s) for s in ("l", "r"))
+    except (KeyError, ValueError, BodyCalError):  # no sole estimated (no foot bones): the object's origin
+        return float(origin[2])
+
+
 def play_area_to_world(avatar: BodyModel, placement: str = "object") -> np.ndarray:
     """(4, 4) rigid: the performer's play area -> the world, for this avatar (module docstring)."""
     check_placement(placement)
     origin = rig_matrix(avatar)[:3, 3]
     m = np.eye(4)
     if placement == "performer":
-        m[2, 3] = origin[2]  # the avatar's floor: where its object stands
+        m[2, 3] = floor_height(avatar)  # the avatar's floor: where its object stands
         return m
     m[:3, :3] = yaw_matrix(PLAY_AREA_FORWARD, rest_heading(avatar))
-    m[:3, 3] = origin
+    m[:3, 3] = origin[0], origin[1], floor_height(avatar)
     return m
 
 

@@ -27,6 +27,7 @@ from ..body.rest_frames import complete_joints, model_rest_frames
 from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import BONES, JOINTS, SPINE_BONES, SPINE_JOINTS
 from ..body.skeleton import JOINT_INDEX as JI
+from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
@@ -214,7 +215,7 @@ def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, st
 def _check_trackers(tr: Trackers, src: str, user_model: BodyModel) -> None:
     """Refuses a recording without the six devices every method needs, or a model without their
     reference poses."""
-    for role in ("head", "pelvis", "hand_l", "hand_r", "foot_l", "foot_r"):
+    for role in ANIMATED_ROLES:
         if role not in tr.pos:
             raise BodyCalError(f"no tracked device with role '{role}'", source=src, field="devices",
                                hint="assign device roles or record with the HMD, both hands, pelvis and both feet")

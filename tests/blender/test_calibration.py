@@ -278,10 +278,28 @@ def test_hand_built_session_yields_a_complete_model_with_defaults_reported():
     assert back.bones["forearm_l"].extra["right_frame"] == "forearm_l"
 
 
-def _still_session():
+def _still_session(six=False):
+    """The elbow session with a still stand first; `six`: `_with_the_six`."""
     rec, truth = _elbow_session()
     rec.segments.insert(0, Segment("stand", 0.0, 0.45))  # still, before the flexion (segments never overlap)
-    return rec, truth
+    return (_with_the_six(rec) if six else rec), truth
+
+
+def _with_the_six(rec):
+    """`rec` with the devices every method animates from (pelvis, hands and feet standing still
+    beside the HMD), which calibrate-user requires (calibration/coverage.py)."""
+    n = rec.frame_count
+    places = {"pelvis": (0.0, 0.0, 1.0), "hand_l": (0.3, -0.2, 1.0), "hand_r": (-0.3, -0.2, 1.0),
+              "foot_l": (0.1, -0.05, 0.08), "foot_r": (-0.1, -0.05, 0.08)}
+    devices = [*rec.devices, *(Device(r, "tracker", r) for r in places)]
+    pos = np.concatenate([rec.positions, np.tile(np.array(list(places.values())), (n, 1, 1))], axis=1)
+    rot = np.concatenate([rec.rotations, np.tile([1.0, 0, 0, 0], (n, len(places), 1))], axis=1)
+    if "forearm_l" in [d.role for d in rec.devices]:  # the left hand rides with the forearm (no wrist motion)
+        k, h = rec.device_index("forearm_l"), len(rec.devices) + 1
+        pos[:, h] = rec.positions[:, k] + tf.rotate(rec.rotations[:, k], np.array([0.0, 0.0, -0.2]))
+        rot[:, h] = rec.rotations[:, k]
+    return Recording(rec.name, rec.time, devices, pos, rot, np.ones((n, len(devices)), bool), rec.marker_names,
+                     rec.markers, rec.marker_valid, rec.segments, rec.source)
 
 
 def test_cli_calibrate_user_writes_the_body_model(tmp_path, capsys):
@@ -289,10 +307,11 @@ def test_cli_calibrate_user_writes_the_body_model(tmp_path, capsys):
     from bodycal_addon.body.bodymodel import BodyModel
     from bodycal_addon.recording.io import save_recording
 
-    rec, truth = _still_session()
+    rec, truth = _still_session(six=True)
     path = save_recording(rec, tmp_path / "elbow.bcrec.json")[0]
     out = tmp_path / "user.body.json"
-    assert cli.main(["calibrate-user", str(path), "-o", str(out)]) == 0
+    # one joint measured: a body mostly guessed, written only when the defaults are accepted
+    assert cli.main(["calibrate-user", str(path), "-o", str(out), "--allow-defaults"]) == 0
     model = BodyModel.load(out)
     assert model.kind == "user"
     assert np.linalg.norm(model.world("elbow_l") - truth["elbow"]) < 1e-4
@@ -305,10 +324,15 @@ def test_cli_unusable_step_is_reported_and_the_model_written(tmp_path, capsys):
     from bodycal_addon.recording.io import save_recording
 
     rec, _ = _elbow_session(flex_deg=15)
+    rec = _with_the_six(rec)
     path = save_recording(rec, tmp_path / "small.bcrec.json")[0]
-    assert cli.main(["calibrate-user", str(path), "-o", str(tmp_path / "u.body.json")]) == 0
-    out = capsys.readouterr().out
-    assert "warning: flex_elbow_l not used: only" in out and "Traceback" not in out
+    assert cli.main(["calibrate-user", str(path), "-o", str(tmp_path / "u.body.json"), "--allow-defaults"]) == 0
+    captured = capsys.readouterr()
+    # warnings on stderr (FORMATS.md §4), each one line naming the command
+    warnings = [ln for ln in captured.err.splitlines() if ln.startswith("bodycal calibrate-user: warning: ")]
+    assert warnings and len(warnings) == len(captured.err.splitlines())
+    assert any("flex_elbow_l not used: only" in ln for ln in warnings)
+    assert "warning" not in captured.out and "Traceback" not in captured.err
     model = BodyModel.load(tmp_path / "u.body.json")
     cal = model.calibration
     assert "flex_elbow_l" in cal["missing"] and cal["warnings"]
@@ -337,9 +361,9 @@ def test_operators_store_show_save_and_reload(tmp_path):
     from bodycal_addon.blender.recording_scene import import_recording_to_scene
 
     assert not bpy.ops.bodycal.calibrate_user.poll()
-    rec, truth = _still_session()
+    rec, truth = _still_session(six=True)
     import_recording_to_scene(rec, bpy.context.scene)
-    assert bpy.ops.bodycal.calibrate_user() == {"FINISHED"}
+    assert bpy.ops.bodycal.calibrate_user(allow_defaults=True) == {"FINISHED"}
     model = cs.load_user_model(bpy.context.scene)
     assert np.linalg.norm(model.world("elbow_l") - truth["elbow"]) < 1e-4
     coll = bpy.data.collections[cs.COLLECTION]
@@ -542,11 +566,11 @@ def test_wizard_lists_the_steps_of_the_timeline_with_their_quality():
     from bodycal_addon.blender.recording_scene import import_recording_to_scene
 
     panels = __import__("bl_ext.user_default.bodycal.panels.calibration_panel", fromlist=["x"])
-    rec, _ = _still_session()
+    rec, _ = _still_session(six=True)
     import_recording_to_scene(rec, bpy.context.scene)
     found = panels.steps_in_scene(bpy.context.scene)
     assert found == {"stand": 1, "flex_elbow_l": 1, "touch": 2}
-    assert bpy.ops.bodycal.calibrate_user() == {"FINISHED"}
+    assert bpy.ops.bodycal.calibrate_user(allow_defaults=True) == {"FINISHED"}
     quality = panels._calibration(bpy.context.scene)["quality"]
     text = panels.quality_text(quality["flex_elbow_l"])
     assert "mm" in text and "pts" in text and "°" in text
@@ -576,3 +600,81 @@ def test_hinge_axis_from_rotations_beats_the_circle_normal(full_session):
             assert swept > 60
     assert max(rot_err) < 2.0
     assert np.mean(rot_err) < np.mean(circle_err)
+
+
+# --- measured or guessed (calibration/coverage.py, DESIGN.md §3) -----------------------------------
+
+
+def _demo_part(frames=900, roles=None, segments=False):
+    """The first `frames` of the bundled demo recording (15 devices, LED gloves), its calibration
+    segments dropped unless `segments`, only the devices of `roles` when given."""
+    from bodycal_addon.core import paths
+    from bodycal_addon.recording.io import load_recording
+
+    rec = load_recording(paths.ROOT_DIR / "sample_rigs" / "recordings" / "demo_full.bcrec.json")
+    keep = [i for i, d in enumerate(rec.devices) if roles is None or d.role in roles]
+    has_markers = roles is None and rec.markers is not None
+    return Recording(rec.name, rec.time[:frames], [rec.devices[i] for i in keep], rec.positions[:frames, keep],
+                     rec.rotations[:frames, keep], rec.valid[:frames, keep],
+                     rec.marker_names if has_markers else [], rec.markers[:frames] if has_markers else None,
+                     rec.marker_valid[:frames] if has_markers else None,
+                     [s for s in rec.segments if s.end <= rec.time[frames - 1]] if segments else [], rec.source)
+
+
+def test_cli_refuses_a_body_mostly_guessed_unless_the_defaults_are_accepted(tmp_path, capsys):
+    """A recording without calibration steps used to print "calibrated 72 joints", exit 0: now one
+    line and exit 2, nothing written; with --allow-defaults the model is written and the summary
+    says how many body joints were measured and defaulted."""
+    from bodycal_addon.app import cli
+    from bodycal_addon.body.bodymodel import REQUIRED_USER_JOINTS, BodyModel
+    from bodycal_addon.recording.io import save_recording
+
+    path = save_recording(_demo_part(), tmp_path / "take.bcrec.json")[0]
+    out = tmp_path / "u.body.json"
+    assert cli.main(["calibrate-user", str(path), "-o", str(out)]) == 2
+    captured = capsys.readouterr()
+    (line,) = captured.err.strip().splitlines()
+    assert line.startswith("bodycal calibrate-user: error: ") and "--allow-defaults" in line
+    assert "no calibration steps" in line and not out.exists() and captured.out == ""
+
+    assert cli.main(["calibrate-user", str(path), "-o", str(out), "--allow-defaults"]) == 0
+    summary = capsys.readouterr().out.splitlines()[0]
+    defaulted = BodyModel.load(out).calibration["defaulted"]
+    measured = [j for j in REQUIRED_USER_JOINTS if j not in defaulted]
+    assert 2 * len(measured) < len(REQUIRED_USER_JOINTS)  # the case: mostly guessed
+    assert f"measured {len(measured)} of {len(REQUIRED_USER_JOINTS)} body joints" in summary
+    assert f"{len(REQUIRED_USER_JOINTS) - len(measured)} defaulted" in summary
+    assert f"only {len(measured)} of {len(REQUIRED_USER_JOINTS)} body joints measured" in line
+
+
+def test_cli_refuses_a_three_point_recording_in_one_line(tmp_path, capsys):
+    """HMD and two controllers, with the calibration steps: it used to calibrate with dozens of
+    warnings, exit 0, and fail later at retarget; no option makes a model from it."""
+    from bodycal_addon.app import cli
+    from bodycal_addon.recording.io import save_recording
+
+    rec = _demo_part(frames=2822, roles=("head", "hand_l", "hand_r"), segments=True)
+    path = save_recording(rec, tmp_path / "3point.bcrec.json")[0]
+    for extra in ([], ["--allow-defaults"]):
+        assert cli.main(["calibrate-user", str(path), "-o", str(tmp_path / "u.body.json"), *extra]) == 2
+        captured = capsys.readouterr()
+        (line,) = captured.err.strip().splitlines()
+        assert "no pelvis, foot_l and foot_r devices" in line and "3-point" in line and "Traceback" not in line
+        assert not (tmp_path / "u.body.json").exists()
+
+
+def test_the_sidebar_refuses_a_guessed_body_and_offers_to_accept_defaults():
+    import bpy
+
+    from bodycal_addon.blender import calibration_scene as cs
+    from bodycal_addon.blender.recording_scene import import_recording_to_scene
+
+    ops = __import__("bl_ext.user_default.bodycal.operators.calibration", fromlist=["x"])
+    import_recording_to_scene(_demo_part(frames=600), bpy.context.scene)
+    with pytest.raises(RuntimeError, match=r"would be guessed from the eye height.*Accept Defaults"):
+        bpy.ops.bodycal.calibrate_user()
+    assert not cs.has_user_model(bpy.context.scene)  # refused: nothing stored
+    line, can_accept = ops.REFUSED[bpy.context.scene.name]
+    assert can_accept and "body joints measured" in line
+    assert bpy.ops.bodycal.calibrate_user(allow_defaults=True) == {"FINISHED"}
+    assert cs.has_user_model(bpy.context.scene) and bpy.context.scene.name not in ops.REFUSED

@@ -76,3 +76,31 @@ def test_a_command_leaves_no_blender_temp_folder(tmp_path):
                          timeout=300)
     assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
     assert [p.name for p in temp.iterdir()] == []
+
+
+def test_version_is_the_manifests():
+    import tomllib
+
+    out = _run("--version")
+    manifest = tomllib.loads((REPO / "blender_manifest.toml").read_text())
+    assert out.returncode == 0 and out.stdout.strip() == f"bodycal {manifest['version']}", out.stderr
+
+
+def test_an_argument_error_names_the_program_once():
+    """argparse's message already carries its program: the line is `bodycal: error: ...` or
+    `bodycal <command>: error: ...`, never both."""
+    top = _run("calibrate-user", "a.bcrec.json", "-o", "u.body.json", "stray")
+    (line,) = top.stderr.strip().splitlines()
+    assert top.returncode == 2 and line == "bodycal: error: unrecognized arguments: stray"
+    sub = _run("retarget", "a.bcrec.json")
+    (line,) = sub.stderr.strip().splitlines()
+    assert sub.returncode == 2 and line.startswith("bodycal retarget: error: the following arguments are required")
+
+
+def test_every_argument_of_every_command_has_help():
+    parser = cli.build_parser()
+    (sub,) = [a for a in parser._actions if a.dest == "command"]
+    missing = [f"{name} {a.dest}" for name, p in sub.choices.items() for a in p._actions
+               if a.help in (None, "") and a.dest != "help"]
+    assert missing == []
+    assert all(sub.choices[c].description or any(ch.dest == c for ch in sub._choices_actions) for c in COMMANDS)

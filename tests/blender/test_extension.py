@@ -48,6 +48,16 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     assert any(n.startswith("bodycal_addon/") for n in names)
     # Left out of the zip by [build] paths_exclude_pattern.
     assert not any(n.startswith(("tests/", "benchmarks/", ".ci/", ".venv/")) for n in names)
+    assert not any(n.endswith(".truth.json") for n in names)  # the synthetic ground truth: development only
+    # The licence the manifest names ships with it, and the manifest has no placeholder left.
+    import tomllib
+
+    assert "LICENSE" in names
+    licence = zipfile.ZipFile(zip_path).read("LICENSE").decode()
+    assert "GNU GENERAL PUBLIC LICENSE" in licence and "Version 3" in licence
+    manifest = tomllib.loads(zipfile.ZipFile(zip_path).read("blender_manifest.toml").decode())
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"] and manifest["copyright"]
+    assert ".invalid" not in manifest.get("website", "") and "<" in manifest["maintainer"]
 
     out = subprocess.run([sys.executable, str(REPO / "tests" / "helpers" / "install_probe.py"), str(zip_path)],
                          capture_output=True, text=True, timeout=300)

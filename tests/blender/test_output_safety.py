@@ -187,7 +187,7 @@ def test_an_existing_user_file_is_replaced_only_with_overwrite(inputs, tmp_path)
     assert out_path.read_text() == "the user's earlier calibration"
 
     before = _hashes(inputs["folder"])
-    done = _run("calibrate-user", inputs["rec"], "-o", out_path, "--overwrite")
+    done = _run("calibrate-user", inputs["rec"], "-o", out_path, "--overwrite", "--allow-defaults")  # T-pose only
     assert done.returncode == 0, done.stderr[-2000:]
     assert BodyModel.load(out_path).kind == "user"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["user.body.json"]  # no temp left beside it

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from repo_paths import REPO
 
-from bodycal_addon.blender import avatar_storage, blendfile, mesh_metrics
+from bodycal_addon.avatar.estimate import estimate_surface
+from bodycal_addon.blender import avatar_rig, avatar_storage, blendfile, mesh_metrics
 from bodycal_addon.blender import character_source as ts
 from bodycal_addon.blender.avatar_calibration import avatar_model_for
 from bodycal_addon.core import paths
@@ -36,7 +37,7 @@ def test_the_action_read_from_its_fcurves_poses_as_blender_does(data_dir):
     assert src.fps == pytest.approx(120.0, rel=1e-3) and len(src.time) == 343
     # Blender's own pose at a few frames against the engine's FK of the arrays read (before the
     # bare skeleton is stood on its floor: compare the rest as the file has it).
-    model = ts.estimate_surface(ts.avatar_rig.read_rig(arm), arm.name)
+    model = estimate_surface(avatar_rig.read_rig(arm), arm.name)
     rig = ap.AvatarRig.from_model(model)
     frames = np.array([1.0, 77.0, 200.0, 343.0])
     basis, locations = ts.read_action(arm, arm.animation_data.action, rig.names, frames)
@@ -123,6 +124,11 @@ def test_a_skinned_characters_action_transfers_onto_another_avatar(data_dir, tmp
                 str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb"), "-o", str(out), "-o", str(fbx))
     assert done.returncode == 0, done.stderr
     assert "estimated from its bone lengths" in done.stdout and "saved" in done.stdout
+    # stdout carries BodyCal's lines only: not the BVH reader's, the glTF importer's nor Blender's
+    # reports (FORMATS.md §4); the same run with --verbose shows them.
+    for chatter in ("parsing bvh", "INFO:", "Info: Saved"):
+        assert chatter not in done.stdout, done.stdout
+    assert done.stderr == ""
     # The same character as an FBX (Blender's importer: its own object transform and action).
     done = _run("transfer", str(fbx), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"),
                 "-o", str(tmp_path / "child_from_fbx.blend"))
@@ -169,6 +175,33 @@ def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
     assert {"suffix": "not an animation source", "missing": "no such file", "action": "no action named 'dance'",
             "method": "invalid choice", "output-is-source": "source"}[case] in lines[0]
     assert _bvh(data_dir).read_bytes() == before
+
+
+def test_the_action_picker_lists_the_sources_actions_only():
+    """Two armatures with an action each: with one picked as the source, the picker offers its own
+    action and not the other's (their bones differ), the property's poll that Blender's search uses."""
+    from sample_rigs import build_procedural_avatar
+
+    transfer = __import__("bl_ext.user_default.bodycal.operators.transfer", fromlist=["x"])
+    arms = []
+    for name, bone in (("walker", "upperarm_l"), ("prop", "Bone")):
+        if bone == "Bone":
+            bpy.ops.object.armature_add()
+            arm = bpy.context.active_object
+        else:
+            arm = build_procedural_avatar()[0]
+        arm.name = name
+        arm.pose.bones[bone].rotation_mode = "XYZ"
+        arm.pose.bones[bone].keyframe_insert("rotation_euler", frame=1)
+        arm.animation_data.action.name = f"{name}_action"
+        arms.append(arm)
+    settings = bpy.context.scene.bodycal_transfer
+    settings.source = arms[0]
+    poll = transfer.BODYCAL_PG_transfer_settings.__annotations__["action"].keywords["poll"]
+    assert poll(settings, bpy.data.actions["walker_action"])
+    assert not poll(settings, bpy.data.actions["prop_action"])
+    settings.source = None
+    assert poll(settings, bpy.data.actions["prop_action"])  # no source yet: every action
 
 
 def test_the_panels_operator_transfers_onto_the_selected_avatars(data_dir):

@@ -133,8 +133,12 @@ def test_blenders_complaints_about_the_file_stay_off_stderr(armed, tmp_path):
     ok = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(blend), "-o",
                          str(tmp_path / "avatar.body.json")], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert ok.returncode == 0, ok.stderr[-2000:]
-    assert "PyDriver" in ok.stdout  # Blender did complain, on stdout
-    assert ok.stderr == ""
+    assert "PyDriver" not in ok.stdout and ok.stderr == ""  # stdout: BodyCal's lines only (FORMATS.md §4)
+    loud = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(blend), "-o",
+                           str(tmp_path / "loud.body.json"), "--verbose"], cwd=REPO, capture_output=True, text=True,
+                          timeout=300)
+    assert loud.returncode == 0 and "PyDriver" in loud.stdout  # Blender did complain: on stdout with --verbose
+    assert loud.stderr == ""
     bad = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(blend), "--bone-map",
                           str(tmp_path / "avatar.body.json"), "-o", str(tmp_path / "again.body.json")],
                          cwd=REPO, capture_output=True, text=True, timeout=300)

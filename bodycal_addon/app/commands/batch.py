@@ -3,20 +3,21 @@
 
 import json
 import signal
-import sys
+
+from .. import console
 
 
 def run(args) -> int:
     from ..batch import EXIT_ON_SIGNAL, run_batch
 
-    summary = run_batch(args.jobs, log=lambda line: print(line, flush=True))
-    print(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}), flush=True)
+    summary = run_batch(args.jobs, log=console.say)
+    console.say(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}))
     if summary["interrupted"]:
         print(f"bodycal batch: stopped by {summary['interrupted']}: {summary['ok']} ok, {summary['failed']} failed, "
-              f"{summary['cancelled']} cancelled (see {summary['summary_file']})", file=sys.stderr)
+              f"{summary['cancelled']} cancelled (see {summary['summary_file']})", file=console.stderr(), flush=True)
         return EXIT_ON_SIGNAL.get(getattr(signal.Signals, summary["interrupted"], None), 130)
     if summary["failed"]:
         print(f"bodycal batch: {summary['failed']} of {summary['jobs']} jobs failed (see {summary['summary_file']})",
-              file=sys.stderr)
+              file=console.stderr(), flush=True)
         return 2
     return 0

@@ -6,7 +6,7 @@ armature object's transform (placement.avatar_warnings)."""
 
 from __future__ import annotations
 
-import sys
+from .. import console
 
 
 def run(args) -> int:
@@ -29,10 +29,9 @@ def run(args) -> int:
         apply_preset(arm, preset)
     model = calibrate_avatar(arm)
     for line in avatar_warnings(model):
-        print(f"bodycal calibrate-avatar: warning: {line}", file=sys.stderr, flush=True)
+        console.warn("calibrate-avatar", line)
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)
     q = model.calibration["quality"]
-    print(f"{out}: avatar {arm.name}, {len(model.joints)} joints, {len(model.surface)} surface elements, "
-          f"{sum(v['hit'] for v in q.values())} ray hits, rest pose {model.extra['rig']['rest_pose']}")
-    sys.stdout.flush()
+    console.say(f"{out}: avatar {arm.name}, {len(model.joints)} joints, {len(model.surface)} surface elements, "
+                f"{sum(v['hit'] for v in q.values())} ray hits, rest pose {model.extra['rig']['rest_pose']}")
     return 0

@@ -1,11 +1,15 @@
-"""`bodycal calibrate-user REC -o USER.body.json` (FORMATS.md §4): every calibration step the
-recording allows; prints one line per step with its quality, what was defaulted, and one
-`warning:` line per step or touch whose data could not be used (left out, never fatal)."""
+"""`bodycal calibrate-user REC -o USER.body.json [--allow-defaults]` (FORMATS.md §4): every
+calibration step the recording allows. stdout: a summary line (how many body joints were measured
+and how many defaulted), one line per step with its quality and what was defaulted; stderr: one
+`warning:` line per step or touch whose data could not be used (left out, never fatal). Refused
+with one line (exit 2, nothing written): a recording without the six devices every method animates
+from, and a body mostly guessed unless `--allow-defaults` (calibration/coverage.py)."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
+
+from .. import console
 
 
 def summary_lines(model) -> list[str]:
@@ -18,13 +22,11 @@ def summary_lines(model) -> list[str]:
         lines.append(f"  defaulted ({len(cal['defaulted'])}): {', '.join(sorted(cal['defaulted']))}")
     if cal.get("missing"):
         lines.append(f"  missing: {', '.join(cal['missing'])}")
-    for w in cal.get("warnings", []):
-        lines.append(f"  warning: {w}")
     return lines
 
 
 def run(args) -> int:
-    from ...calibration import calibrate_user
+    from ...calibration import calibrate_user, check_usable
     from ...core.outputs import check_output, recording_inputs
     from ...recording.io import load_recording
 
@@ -33,9 +35,12 @@ def run(args) -> int:
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before any work
     rec = load_recording(args.recording)
     model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
+    cov = check_usable(model, allow_defaults=getattr(args, "allow_defaults", False), source=str(args.recording))
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)
-    print(f"calibrated {len(model.joints)} joints from {len(model.calibration['steps_used'])} steps "
-          f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s) -> {out}")
+    for w in model.calibration.get("warnings", []):
+        console.warn("calibrate-user", w)
+    console.say(f"calibrated {out}: {cov.line()}, from {len(model.calibration['steps_used'])} steps "
+                f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s)")
     for line in summary_lines(model):
-        print(line, file=sys.stdout)
+        console.say(line)
     return 0

@@ -5,7 +5,8 @@
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
 import math
-import sys
+
+from .. import console
 
 
 def run(args) -> int:
@@ -19,7 +20,7 @@ def run(args) -> int:
                            overwrite=getattr(args, "overwrite", False), options=bake_options(args),
                            frame_range=frame_range(args),
                            bone_map_path=getattr(args, "bone_map", None),
-                           warn=lambda line: print(f"bodycal retarget: warning: {line}", file=sys.stderr, flush=True))
+                           log=console.say, warn=lambda line: console.warn("retarget", line))
     return 0
 
 

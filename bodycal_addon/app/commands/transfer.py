@@ -5,7 +5,7 @@
 [--overwrite]`; SOURCE is a .blend, .bvh,
 .fbx, .glb or .gltf with an animated humanoid armature, AVATAR a .blend, .fbx, .glb, .gltf or .vrm."""
 
-import sys
+from .. import console
 
 
 def run(args) -> int:
@@ -17,5 +17,5 @@ def run(args) -> int:
                            settings=session.Settings(args.method, args.plant_feet, args.placement),
                            overwrite=args.overwrite, options=bake_options(args), bone_map_path=args.bone_map,
                            frame_range=frame_range(args),
-                           warn=lambda line: print(f"bodycal transfer: warning: {line}", file=sys.stderr, flush=True))
+                           log=console.say, warn=lambda line: console.warn("transfer", line))
     return 0
