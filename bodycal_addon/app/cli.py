@@ -69,8 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")
     _bake_arguments(c, "the recording's")
 
-    c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
+    c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a Dask cluster")
     c.add_argument("jobs", metavar="JOBS.toml")
+    c.add_argument("--cluster", metavar="ADDRESS",
+                   help="run the jobs on a Dask cluster: tcp://HOST:PORT (a running scheduler) or local:N "
+                        "(N worker processes here); needs dask and distributed (docs/FARM.md)")
+    c.add_argument("--retries", type=int, default=0, metavar="N",
+                   help="with --cluster: submit a job again, up to N times, when the worker running it died")
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
     c.add_argument("-o", "--output-dir", default="out", metavar="DIR")
