@@ -88,6 +88,7 @@ def _pids(tmp_path) -> list[int]:
     (["--retries", "2"], "--cluster"),
     (["--cluster", "local:1", "--retries", "-1"], "0 to 100"),
     (["--cluster", "local:1", "--retries", "many"], "invalid int"),
+    (["--cluster", "local:1", "--export-openjd", "farm"], "not allowed with"),
 ])
 def test_bad_cluster_options_are_one_line_and_run_nothing(tmp_path, args, words):
     jobs = _jobs(tmp_path, ["fast"])

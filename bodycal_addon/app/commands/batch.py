@@ -1,6 +1,7 @@
 """`bodycal batch JOBS.toml`: exit 0 when every job succeeded, 2 on a bad jobs file or a failed job,
 130 when stopped by SIGINT (Ctrl-C) and 143 by SIGTERM (the summary is written in every case).
-`--cluster` runs the same jobs on a Dask cluster (app/cluster.py)."""
+`--cluster` runs the same jobs on a Dask cluster (app/cluster.py); `--export-openjd` and
+`--export-flamenco` write them for a farm instead of running them (app/openjd.py, app/flamenco.py)."""
 
 import json
 import signal
@@ -24,11 +25,24 @@ def _cluster_module():
     return cluster
 
 
+def _export(args) -> int:
+    if args.export_openjd:
+        from ..openjd import export_openjd
+        written = export_openjd(args.jobs, args.export_openjd)
+    else:
+        from ..flamenco import export_flamenco
+        written = export_flamenco(args.jobs, args.export_flamenco)
+    print(f"wrote {written}", flush=True)
+    return 0
+
+
 def run(args) -> int:
     from ..batch import EXIT_ON_SIGNAL, run_batch
 
     if args.retries and not args.cluster:
         raise BodyCalError("retries a job whose cluster worker died; give it with --cluster", source="--retries")
+    if args.export_openjd or args.export_flamenco:
+        return _export(args)
     if args.cluster:
         summary = _cluster_module().run_on_cluster(args.jobs, args.cluster, args.retries,
                                                    log=lambda line: print(line, flush=True))
