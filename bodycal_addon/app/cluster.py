@@ -182,7 +182,7 @@ def _outcome(outcome, job: Job, attempt: int) -> tuple[dict, bool]:
     return {**result, "attempts": attempt + 1}, died
 
 
-class _Scheduling:
+class Scheduling:
     """The futures of one batch on one client: submitted, awaited, retried, cancelled."""
 
     def __init__(self, client: Client, jobs: list[Job], settings: dict, retries: int, report, log):
@@ -275,7 +275,7 @@ def run_on_cluster(jobs_file, address: str, retries: int = 0, log=print) -> dict
     previous = stop.install()
     try:
         with connect(target) as client:
-            scheduling = _Scheduling(client, jobs, settings, retries, report, say)
+            scheduling = Scheduling(client, jobs, settings, retries, report, say)
             try:
                 scheduling.run(stop)
             except KeyboardInterrupt:  # the handlers could not be installed (not the main thread)
