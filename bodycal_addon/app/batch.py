@@ -20,6 +20,7 @@ JOBS.toml:
     tolerance = 0.1             # optional: key reduction, degrees (as retarget --tolerance; 0 keys every sample)
     fps = 30                    # optional: output frame rate (as retarget --fps; default the recording's)
     export = ["blend", "fbx"]   # optional: the files each job writes (blend, fbx, glb, gltf, bvh)
+    timeout = 600               # optional: seconds a job may run before it is ended and failed
 
     [[recordings]]
     path = "takes/take1.bcrec.json"
@@ -58,6 +59,12 @@ what was cancelled (status "cancelled"), and `bodycal batch` exits 130 (SIGINT) 
 A worker that fails or is ended can leave Blender's temporary save file `<output>@`; it is removed
 and said in that job's error line. One left by an earlier killed batch is removed before the jobs
 start and listed in the summary (`removed_stale`).
+
+A job that runs longer than `timeout` seconds is ended (SIGKILL) and failed. On Linux every job
+process is tied to the process that started it (PR_SET_PDEATHSIG): a batch or a cluster worker
+that is killed outright takes its running jobs with it, so none is left writing an output that a
+retry writes again. The same jobs run on a Dask cluster through `app/cluster.py`, and are
+exported for farms by `app/openjd.py` and `app/flamenco.py` (docs/FARM.md).
 """
 
 from __future__ import annotations
@@ -94,13 +101,14 @@ TRANSFER_METHODS = methods_for("animation")
 
 RUNNERS = ("python", "blender")
 MAX_WORKERS = 1024
+MAX_TIMEOUT = 7 * 24 * 3600.0  # a week: anything longer is a typo for "no timeout" (leave the key out)
 GRACE_SECONDS = 3.0  # between SIGTERM and SIGKILL for a running worker when the batch is stopped
 EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal number, as shells do
 
 _KEYS = {
     "": ("defaults", "recordings", "animations", "avatars"),
     "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite",
-                 "tolerance", "fps", "export", "root_motion", "rigify_target"),
+                 "tolerance", "fps", "export", "root_motion", "rigify_target", "timeout"),
     "recordings": ("path", "user"),
     "animations": ("path", "source_armature", "action"),
     "avatars": ("file", "blend", "armature", "bone_map"),
@@ -130,6 +138,7 @@ class Job:
     action: str | None = None
     root_motion: str = "root"
     rigify_target: str = "fk"
+    timeout: float | None = None  # seconds the job may run (defaults.timeout); the runner enforces it
 
     @property
     def outputs(self) -> list[Path]:
@@ -333,6 +342,7 @@ class _Defaults:
     placement: str
     rig_options: dict[str, str]  # root_motion and rigify_target, as Job takes them
     runner: str
+    timeout: float | None
 
 
 def _flag(check: _Checker, defaults: dict, key: str, default: bool) -> bool:
@@ -371,8 +381,10 @@ def _read_defaults(check: _Checker, data: dict, base: Path) -> _Defaults:
     rig_options = {key: _one_of(check, defaults, key, allowed)
                    for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS))}
     runner = _runner(check, defaults.get("runner", "python"))
+    timeout = (_number(check, defaults["timeout"], "defaults.timeout", 1.0, MAX_TIMEOUT, "seconds a job may run")
+               if "timeout" in defaults else None)
     return _Defaults(methods, out_dir, workers, filt, plant, overwrite, tolerance, fps, formats, placement,
-                     rig_options, runner)
+                     rig_options, runner, timeout)
 
 
 def _transfer_methods(check: _Checker, methods: list[str], recordings: list, animations: list,
@@ -463,7 +475,8 @@ def _make_jobs(check: _Checker, settings: _Defaults, transfer_methods: list[str]
     names = output_names(specs, [act for _bm, _sa, act in extra])
     jobs = [Job(name, rp, up, ap, arm, m, out_dir / f"{name}.{formats[0]}", settings.filter, settings.plant_feet,
                 settings.overwrite, settings.placement, settings.tolerance, settings.fps,
-                tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act, **settings.rig_options)
+                tuple(out_dir / f"{name}.{f}" for f in formats[1:]), bm, sa, act, **settings.rig_options,
+                timeout=settings.timeout)
             for name, (rp, up, ap, arm, m), (bm, sa, act) in zip(names, specs, extra)]
     # The naming rule guarantees both; checked because a wrong path here would lose a user's file.
     if any(job.output.parent != out_dir for job in jobs) or len({n.casefold() for n in names}) != len(names):
@@ -488,7 +501,8 @@ def load_jobs(path) -> tuple[list[Job], dict]:
     anims = _read_animations(check, base, animations)
     avs = _read_avatars(check, base, avatars)
     jobs = _make_jobs(check, settings, transfer_methods, recs, anims, avs)
-    return jobs, {"workers": settings.workers, "runner": settings.runner, "output_dir": settings.out_dir}
+    return jobs, {"workers": settings.workers, "runner": settings.runner, "output_dir": settings.out_dir,
+                  "methods": settings.methods, "formats": settings.formats, "timeout": settings.timeout}
 
 
 # ---- output names ----------------------------------------------------------------------------------
@@ -538,13 +552,30 @@ def output_names(specs: list[tuple[Path, Path | None, Path, str | None, str]], a
 # ---- running ---------------------------------------------------------------------------------------
 
 def command_line(job: Job, runner: str) -> list[str]:
-    """The self-contained command for one job: what a farm worker runs."""
+    """The self-contained command for one job: what a farm worker runs. Evaluated where the job runs
+    (a cluster worker calls it itself), so `sys.executable` is that machine's interpreter."""
     if runner == "blender":  # the extension must be installed and enabled in that Blender
         return ["blender", "-b", "-c", "bodycal", *job.argv()]
     return [sys.executable, "-m", "bodycal_addon", *job.argv()]
 
 
-class _Stop:
+# Run before the job's own command (Linux): the job gets SIGKILL when the process that started it
+# dies, then becomes that command (execvp keeps the pid and the death signal). A batch or a cluster
+# worker killed outright so never leaves a bake running on behind it.
+_TIED_TO_PARENT = (
+    "import ctypes, os, sys\n"
+    "ctypes.CDLL(None).prctl(1, 9)\n"  # PR_SET_PDEATHSIG, SIGKILL
+    "os.getppid() == int(sys.argv[1]) or os._exit(137)\n"  # the parent died before prctl: end as if killed
+    "os.execvp(sys.argv[2], sys.argv[2:])\n")
+
+
+def _tied_to_parent(command: list[str]) -> list[str]:
+    if not sys.platform.startswith("linux"):
+        return command
+    return [sys.executable, "-c", _TIED_TO_PARENT, str(os.getpid()), *command]
+
+
+class Stop:
     """Signal handler: the first SIGINT/SIGTERM stops the batch, a second one kills at once."""
 
     def __init__(self):
@@ -573,21 +604,25 @@ class _Stop:
 
 
 @dataclass
-class _Running:
+class Running:
     job: Job
     proc: subprocess.Popen
     stderr: object
     t0: float
+    timed_out: bool = False
+
+    def overdue(self) -> bool:
+        return self.job.timeout is not None and time.perf_counter() - self.t0 > self.job.timeout
 
 
-def _signal_name(signum: int) -> str:
+def signal_name(signum: int) -> str:
     try:
         return signal.Signals(signum).name
     except ValueError:
         return f"signal {signum}"
 
 
-def _remove_partial(job: Job) -> list[str]:
+def remove_partial(job: Job) -> list[str]:
     """Remove the job's leftovers; the names of those removed (one left in place, e.g. for lack of
     permission, is not said to be removed)."""
     removed = []
@@ -600,7 +635,9 @@ def _remove_partial(job: Job) -> list[str]:
     return removed
 
 
-def _start(job: Job, runner: str) -> _Running | dict:
+def start_job(job: Job, command: list[str]) -> Running | dict:
+    """Starts one job's command in its own process (never a fork of a process that loaded Blender);
+    a result dict if it cannot start."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT_DIR), env.get("PYTHONPATH", "")) if p)
     err = tempfile.TemporaryFile()  # a file, not a pipe: a chatty worker can never block on it
@@ -608,15 +645,15 @@ def _start(job: Job, runner: str) -> _Running | dict:
     try:
         # Its own session (POSIX): the terminal's Ctrl-C reaches only the batch, which ends the
         # worker and everything it started (os.killpg).
-        proc = subprocess.Popen(command_line(job, runner), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+        proc = subprocess.Popen(_tied_to_parent(command), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=err, cwd=ROOT_DIR, env=env, start_new_session=os.name == "posix")
     except OSError as exc:
         err.close()
-        return _result(job, "failed", None, 0.0, f"cannot start the worker: {exc.strerror or exc}")
-    return _Running(job, proc, err, t0)
+        return job_result(job, "failed", None, 0.0, f"cannot start the worker: {exc.strerror or exc}")
+    return Running(job, proc, err, t0)
 
 
-def _send(run: _Running, sig: int):
+def signal_job(run: Running, sig: int):
     if run.proc.poll() is not None:
         return
     try:
@@ -630,47 +667,63 @@ def _send(run: _Running, sig: int):
         pass
 
 
-def _result(job: Job, status: str, code: int | None, seconds: float, error: str | None) -> dict:
+KILL = signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM
+
+
+def end_if_overdue(run: Running) -> bool:
+    """Ends a job past its timeout (SIGKILL: a bake that overran gets no grace); True if it did."""
+    if run.timed_out or not run.overdue():
+        return False
+    run.timed_out = True
+    signal_job(run, KILL)
+    return True
+
+
+def job_result(job: Job, status: str, code: int | None, seconds: float, error: str | None) -> dict:
     return {"job": job.name, "status": status, "ok": status == "ok", "exit_code": code, "seconds": round(seconds, 2),
             "output": str(job.output) if status == "ok" else None,
             "outputs": [str(o) for o in job.outputs] if status == "ok" else [],
             "error": " ".join(error.split()) if error else None}
 
 
-def _finish(run: _Running, stopped_by: str | None = None) -> dict:
+def finish_job(run: Running, stopped_by: str | None = None) -> dict:
     job, code = run.job, run.proc.wait()
     seconds = time.perf_counter() - run.t0
     run.stderr.seek(0)
     lines = [ln for ln in run.stderr.read().decode("utf-8", errors="replace").splitlines() if ln.strip()]
     run.stderr.close()
-    removed = _remove_partial(job)
-    if code == 0:
+    removed = remove_partial(job)
+    if code == 0 and not run.timed_out:
         error = f"removed a temporary save file {', '.join(removed)} the worker left" if removed else None
-        return {**_result(job, "ok", code, seconds, None), **({"note": error} if error else {})}
+        return {**job_result(job, "ok", code, seconds, None), **({"note": error} if error else {})}
     if stopped_by:
         status, error = "cancelled", f"cancelled by {stopped_by} while running"
     else:
         status = "failed"
-        if code < 0:
-            error = f"the worker was killed by {_signal_name(-code)}"
+        if run.timed_out:
+            error = f"timed out after {job.timeout:g} s (defaults.timeout) and was ended"
+        elif code < 0:
+            error = f"the worker was killed by {signal_name(-code)}"
         else:
             error = lines[-1] if lines else f"the worker ended with exit code {code}"
     if removed:
         error += f"; removed its partial save {', '.join(removed)}"
-    return _result(job, status, code, seconds, error)
+    return job_result(job, status, code, seconds, error)
 
 
-def _stop_running(running: list[_Running], stop: _Stop, grace: float):
+def stop_running(running: list[Running], stop: Stop, grace: float):
     for run in running:
-        _send(run, signal.SIGTERM)
+        signal_job(run, signal.SIGTERM)
     deadline = time.monotonic() + grace
     while any(r.proc.poll() is None for r in running) and time.monotonic() < deadline and not stop.force:
         time.sleep(0.05)
     for run in running:
-        _send(run, signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM)
+        signal_job(run, KILL)
 
 
-def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
+def prepare_batch(jobs_file, log=print) -> tuple[list[Job], dict, list[str]]:
+    """The checked jobs, the settings, and the partial saves of an earlier killed batch, removed
+    (said on `log`); the output folder is created."""
     jobs, settings = load_jobs(jobs_file)
     out_dir = Path(settings["output_dir"])
     try:
@@ -678,56 +731,85 @@ def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
     except OSError as exc:
         raise BodyCalError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}", source=str(jobs_file),
                            field="defaults.output_dir") from None
-    stale = [str(Path(job.output.parent, name)) for job in jobs for name in _remove_partial(job)]
+    stale = [str(Path(job.output.parent, name)) for job in jobs for name in remove_partial(job)]
     for name in stale:
         log(f"removed {name}, a partial save left by an earlier batch that was killed")
-    workers = max(1, min(settings["workers"], len(jobs)))
-    results: list[dict] = []
-    pending, running = deque(jobs), []
-    stop = _Stop()
-    previous = stop.install()
+    return jobs, settings, stale
 
-    def report(r):
-        results.append(r)
-        status = {"ok": "ok", "cancelled": r["error"]}.get(r["status"], f"FAILED: {r['error']}")
-        log(f"[{len(results)}/{len(jobs)}] {r['job']}: {status} ({r['seconds']} s)")
 
-    try:
-        try:
-            while (pending or running) and stop.signum is None:
-                while pending and len(running) < workers and stop.signum is None:
-                    started = _start(pending.popleft(), settings["runner"])
-                    if isinstance(started, dict):
-                        report(started)
-                    else:
-                        running.append(started)
-                time.sleep(0.05)
-                for run in [r for r in running if r.proc.poll() is not None]:
-                    running.remove(run)
-                    report(_finish(run))
-        except KeyboardInterrupt:  # handlers could not be installed (not the main thread)
-            stop.signum = signal.SIGINT
-        if stop.signum is not None:
-            name = _signal_name(stop.signum)
-            _stop_running(running, stop, grace)
-            for run in running:
-                report(_finish(run, stopped_by=name))
-            for job in pending:
-                report(_result(job, "cancelled", None, 0.0, f"cancelled by {name} before it started"))
-    finally:
-        _Stop.restore(previous)
-        for run in running:  # only if something above raised: never leave a worker behind
-            _send(run, signal.SIGKILL if hasattr(signal, "SIGKILL") else signal.SIGTERM)
+def progress_line(r: dict, done: int, total: int) -> str:
+    status = {"ok": "ok", "cancelled": r["error"]}.get(r["status"], f"FAILED: {r['error']}")
+    where = f" on {r['worker']}" if r.get("worker") else ""
+    return f"[{done}/{total}] {r['job']}: {status} ({r['seconds']} s{where})"
 
+
+def write_summary(jobs: list[Job], settings: dict, results: list[dict], stop: Stop, stale: list[str],
+                  **extra) -> dict:
+    """`<output_dir>/summary.json` (docs/FORMATS.md §4.1), whole or absent; the summary, with
+    `summary_file`."""
     results.sort(key=lambda r: r["job"])
     summary = {"jobs": len(jobs), "ok": sum(r["status"] == "ok" for r in results),
                "failed": sum(r["status"] == "failed" for r in results),
                "cancelled": sum(r["status"] == "cancelled" for r in results),
-               "interrupted": _signal_name(stop.signum) if stop.signum is not None else None,
-               "removed_stale": stale, "results": results}
-    summary_path = out_dir / "summary.json"
+               "interrupted": signal_name(stop.signum) if stop.signum is not None else None,
+               "removed_stale": stale, **extra, "results": results}
+    summary_path = Path(settings["output_dir"]) / "summary.json"
     tmp = summary_path.with_name(summary_path.name + ".tmp")
     tmp.write_text(json.dumps(summary, indent=1))
     os.replace(tmp, summary_path)  # a summary is whole or absent, even if the batch is killed now
     summary["summary_file"] = str(summary_path)
     return summary
+
+
+def _poll(running: list[Running], report):
+    for run in running:
+        end_if_overdue(run)
+    for run in [r for r in running if r.proc.poll() is not None]:
+        running.remove(run)
+        report(finish_job(run))
+
+
+def _run_all(jobs: list[Job], settings: dict, stop: Stop, report, grace: float):
+    workers = max(1, min(settings["workers"], len(jobs)))
+    pending, running = deque(jobs), []
+    try:
+        try:
+            while (pending or running) and stop.signum is None:
+                while pending and len(running) < workers and stop.signum is None:
+                    job = pending.popleft()
+                    started = start_job(job, command_line(job, settings["runner"]))
+                    if isinstance(started, dict):
+                        report(started)
+                    else:
+                        running.append(started)
+                time.sleep(0.05)
+                _poll(running, report)
+        except KeyboardInterrupt:  # handlers could not be installed (not the main thread)
+            stop.signum = signal.SIGINT
+        if stop.signum is not None:
+            name = signal_name(stop.signum)
+            stop_running(running, stop, grace)
+            for run in running:
+                report(finish_job(run, stopped_by=name))
+            for job in pending:
+                report(job_result(job, "cancelled", None, 0.0, f"cancelled by {name} before it started"))
+    finally:
+        for run in running:  # only if something above raised: never leave a worker behind
+            signal_job(run, KILL)
+
+
+def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
+    jobs, settings, stale = prepare_batch(jobs_file, log)
+    results: list[dict] = []
+    stop = Stop()
+    previous = stop.install()
+
+    def report(r):
+        results.append(r)
+        log(progress_line(r, len(results), len(jobs)))
+
+    try:
+        _run_all(jobs, settings, stop, report, grace)
+    finally:
+        Stop.restore(previous)
+    return write_summary(jobs, settings, results, stop, stale)

@@ -104,9 +104,20 @@ def build_parser() -> argparse.ArgumentParser:
                         "Hz, Hz per m/s, Hz, Hz per rad/s)")
     _bake_arguments(c, "the recording's")
 
-    c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes")
+    c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a farm")
     c.add_argument("jobs", metavar="JOBS.toml", help="the jobs file: recordings, animations, avatars, methods and "
                    "defaults (docs/FORMATS.md §4.1)")
+    where = c.add_mutually_exclusive_group()
+    where.add_argument("--cluster", metavar="ADDRESS",
+                       help="run the jobs on a Dask cluster: tcp://HOST:PORT (a running scheduler) or local:N "
+                            "(N worker processes here); needs dask and distributed (docs/FARM.md)")
+    where.add_argument("--export-openjd", metavar="DIR",
+                       help="write an Open Job Description job template, one task per job, into DIR; run nothing")
+    where.add_argument("--export-flamenco", metavar="FILE.json",
+                       help="write a Flamenco job (type bodycal-batch, farm/flamenco/bodycal_batch.js) for the "
+                            "Manager's API; run nothing")
+    c.add_argument("--retries", type=int, default=0, metavar="N",
+                   help="with --cluster: submit a job again, up to N times, when the worker running it died")
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
     c.add_argument("-o", "--output-dir", default="out", metavar="DIR",

@@ -255,6 +255,8 @@ BAD_DEFAULTS = [
     ('export = ["obj"]', "defaults.export", "unknown format"),
     ('export = ["fbx", "fbx"]', "defaults.export", "twice"),
     ("export = []", "defaults.export", "non-empty"),
+    ("timeout = 0", "defaults.timeout", "number from 1"),
+    ('timeout = "1h"', "defaults.timeout", "seconds a job may run"),
 ]
 
 

@@ -1,16 +1,52 @@
 """`bodycal batch JOBS.toml`: exit 0 when every job succeeded, 2 on a bad jobs file or a failed job,
-130 when stopped by SIGINT (Ctrl-C) and 143 by SIGTERM (the summary is written in every case)."""
+130 when stopped by SIGINT (Ctrl-C) and 143 by SIGTERM (the summary is written in every case).
+`--cluster` runs the same jobs on a Dask cluster (app/cluster.py); `--export-openjd` and
+`--export-flamenco` write them for a farm instead of running them (app/openjd.py, app/flamenco.py)."""
 
 import json
 import signal
 
+from ...core.errors import BodyCalError
 from .. import console
+
+_FARM_PACKAGES = ("dask", "distributed", "tqdm", "cloudpickle", "msgpack", "tornado")
+
+
+def _cluster_module():
+    """app/cluster.py, which needs dask and distributed: a batch dependency, not the extension's."""
+    try:
+        from .. import cluster
+    except ImportError as exc:
+        if (exc.name or "").split(".")[0] not in _FARM_PACKAGES:
+            raise
+        package = exc.name.split(".")[0]
+        raise BodyCalError(f"needs the Python package {package}; install the batch dependencies with "
+                           "`pip install -r requirements-dev.txt` in this environment", source="--cluster") from None
+    return cluster
+
+
+def _export(args) -> int:
+    if args.export_openjd:
+        from ..openjd import export_openjd
+        written = export_openjd(args.jobs, args.export_openjd)
+    else:
+        from ..flamenco import export_flamenco
+        written = export_flamenco(args.jobs, args.export_flamenco)
+    console.say(f"wrote {written}")
+    return 0
 
 
 def run(args) -> int:
     from ..batch import EXIT_ON_SIGNAL, run_batch
 
-    summary = run_batch(args.jobs, log=console.say)
+    if args.retries and not args.cluster:
+        raise BodyCalError("retries a job whose cluster worker died; give it with --cluster", source="--retries")
+    if args.export_openjd or args.export_flamenco:
+        return _export(args)
+    if args.cluster:
+        summary = _cluster_module().run_on_cluster(args.jobs, args.cluster, args.retries, log=console.say)
+    else:
+        summary = run_batch(args.jobs, log=console.say)
     console.say(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}))
     if summary["interrupted"]:
         print(f"bodycal batch: stopped by {summary['interrupted']}: {summary['ok']} ok, {summary['failed']} failed, "
