@@ -70,11 +70,26 @@ def _summary(tmp_path):
 
 
 def _alive(pid: int) -> bool:
+    """Running: a process that was killed but not yet reaped by its new parent (a zombie) is not."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    return True
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def _still_alive(pids, within: float = 5.0) -> list[int]:
+    """The processes still running after up to `within` seconds: a kill, even on its parent's death
+    (PR_SET_PDEATHSIG), is delivered and acted on asynchronously."""
+    deadline = time.monotonic() + within
+    while True:
+        alive = [pid for pid in pids if _alive(pid)]
+        if not alive or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.05)
 
 
 def _pids(tmp_path) -> list[int]:
@@ -148,7 +163,7 @@ def test_a_worker_killed_mid_job_is_retried_and_takes_its_job_with_it(tmp_path):
     assert all(Path(r["output"]).is_file() for r in summary["results"])
     assert out.stdout.count("retrying killworker__a__") == 2
     first_attempts = [int(p.read_text()) for p in (tmp_path / "state").iterdir()]
-    assert len(first_attempts) == 2 and not any(_alive(pid) for pid in first_attempts)  # died with the worker
+    assert len(first_attempts) == 2 and not _still_alive(first_attempts)  # died with the worker
 
 
 def test_without_retries_a_dead_worker_fails_its_job_in_one_line(tmp_path):
@@ -170,7 +185,7 @@ def test_a_job_over_its_timeout_is_ended_and_failed(tmp_path, where):
     assert slow["status"] == "failed" and slow["error"].startswith("timed out after 1 s")
     assert "removed its partial save slow__a__egocentric.blend@" in slow["error"]
     assert results["fast__a__egocentric"]["ok"]
-    assert not any(_alive(pid) for pid in _pids(tmp_path)) and not list((tmp_path / "results").glob("*@"))
+    assert not _still_alive(_pids(tmp_path)) and not list((tmp_path / "results").glob("*@"))
 
 
 def test_an_input_a_worker_cannot_read_fails_naming_the_worker_and_the_path(tmp_path):
@@ -209,7 +224,7 @@ def test_ctrl_c_cancels_what_is_pending_ends_what_runs_and_says_what_finished(tm
     assert len(running) == 1 and "removed its partial save" in running[0]
     assert sum("before it started" in e for e in errors.values()) == 2
     assert len(_pids(tmp_path)) == 2  # fast and one slow job: the pending ones never started
-    assert not any(_alive(pid) for pid in _pids(tmp_path))  # the SIGTERM-deaf job was killed
+    assert not _still_alive(_pids(tmp_path))  # the SIGTERM-deaf job was killed
     assert not list((tmp_path / "results").glob("*@"))
     assert len([ln for ln in out.splitlines() if ln.startswith("[")]) == 3  # + the first: one line per job
 
