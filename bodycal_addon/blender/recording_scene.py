@@ -27,12 +27,13 @@ import numpy as np
 
 from ..core.errors import BodyCalError
 from ..core.transforms import continuous_quaternions
-from ..recording.model import STEPS, Device, Recording, Segment
+from ..recording.model import ROLES, STEPS, Device, Recording, Segment
 from .fcurves import CONSTANT, new_fcurve, object_fcurves, read_keys, write_keys
 
 SCENE_KEY = "bodycal_recording"
 DEVICE_PROP = "bodycal_device"  # on a device empty: the device name
 MARKER_PROP = "bodycal_marker"  # on a marker empty: the marker name
+ROLE_PROP = "bodycal_role"  # on a device empty: its role (the user may change it; "" = identify from the T-pose)
 META_KEY = "bodycal"
 TIME_KEY = "bodycal_time"
 TRACKED = "bodycal_tracked"
@@ -119,7 +120,7 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         obj, action = empty(f"{rec.name}.{d.name}", "ARROWS", 0.1)
         obj[DEVICE_PROP] = d.name
         obj["bodycal_kind"] = d.kind
-        obj["bodycal_role"] = d.role or ""
+        obj[ROLE_PROP] = d.role or ""
         obj.rotation_mode = "QUATERNION"
         for k in range(3):
             write_keys(new_fcurve(action, obj, "location", k), frames32, pos[:, i, k])
@@ -201,6 +202,24 @@ def frame_mapping_in_scene(context_or_scene=None) -> tuple[float, float]:
                            hint="re-import the recording") from None
 
 
+def device_role(obj, imported: str) -> str | None:
+    """The device's role as its empty says now: the user may set `bodycal_role` (the object's custom
+    property) to a role or to "" (identified from the T-pose again); else the imported one."""
+    role = obj.get(ROLE_PROP, imported)
+    if not isinstance(role, str) or (role and role not in ROLES):
+        raise BodyCalError(f"{role!r} is not a device role", source=obj.name, field=ROLE_PROP,
+                           hint=f"set it to one of {', '.join(ROLES)}, or to \"\" to identify it from the T-pose")
+    return role or None
+
+
+def _check_roles_unique(devices: list[Device], source: str) -> None:
+    seen: dict[str, str] = {}
+    for d in devices:
+        if d.role is not None and seen.setdefault(d.role, d.name) != d.name:
+            raise BodyCalError(f"devices '{seen[d.role]}' and '{d.name}' both have the role '{d.role}'",
+                               source=source, field=ROLE_PROP, hint="give each role to one device")
+
+
 def recording_from_scene(context_or_scene=None) -> Recording:
     """Rebuild the scene's Recording from the empties' animation, their custom properties and the
     timeline markers (works after saving and reopening the .blend)."""
@@ -246,7 +265,7 @@ def recording_from_scene(context_or_scene=None) -> Recording:
         if obj is None:
             notes.append(f"device '{d['name']}' has no empty in {coll.name}: left out")
             continue
-        devices.append(Device(name=d["name"], kind=d["kind"], role=d["role"] or None))
+        devices.append(Device(name=d["name"], kind=d["kind"], role=device_role(obj, d["role"])))
         pos.append(channels(obj, "location", 3, d["name"]))
         rot.append(channels(obj, "rotation_quaternion", 4, d["name"]))
         valid.append(channels(obj, f'["{TRACKED}"]', 1, d["name"])[:, 0] > 0.5)
@@ -259,6 +278,7 @@ def recording_from_scene(context_or_scene=None) -> Recording:
         names.append(name)
         mk.append(channels(obj, "location", 3, name))
         mk_valid.append(channels(obj, f'["{TRACKED}"]', 1, name)[:, 0] > 0.5)
+    _check_roles_unique(devices, coll.name)
     stack = lambda xs, shape: np.stack(xs, axis=1).astype(float) if xs else np.zeros(shape)  # noqa: E731
     rotations = stack(rot, (f, 0, 4))
     if rotations.size:

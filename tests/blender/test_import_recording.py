@@ -63,6 +63,28 @@ def test_import_builds_animated_empties_markers_and_range():
     assert rs.scene_recording_collection(scene) == coll
 
 
+def test_a_role_set_on_a_device_empty_is_the_role_read_back():
+    """The `bodycal_role` a device's empty shows is the role: the user swaps two, clears one (to be
+    identified from the T-pose again), and the rebuilt recording says so; a role that is not one, or
+    given to two devices, is one line naming the empty or the collection."""
+    rec = _recording()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    coll = rs.import_recording_to_scene(rec, bpy.context.scene)
+    empty = {o["bodycal_device"]: o for o in coll.objects if "bodycal_device" in o}
+    (a, ra), (b, rb), (c, _rc) = [(d.name, d.role) for d in rec.devices[:3]]
+    empty[a]["bodycal_role"], empty[b]["bodycal_role"], empty[c]["bodycal_role"] = rb, ra, ""
+    roles = {d.name: d.role for d in rs.recording_from_scene(bpy.context.scene).devices}
+    assert (roles[a], roles[b], roles[c]) == (rb, ra, None)
+    assert all(roles[d.name] == d.role for d in rec.devices[3:])
+    empty[c]["bodycal_role"] = "left_hand"
+    with pytest.raises(BodyCalError, match="'left_hand' is not a device role") as err:
+        rs.recording_from_scene(bpy.context.scene)
+    assert err.value.line().count("\n") == 0 and empty[c].name in err.value.line()
+    empty[c]["bodycal_role"] = ra
+    with pytest.raises(BodyCalError, match=f"both have the role '{ra}'"):
+        rs.recording_from_scene(bpy.context.scene)
+
+
 def test_rebuild_after_save_and_reload_is_exact_to_float32(tmp_path):
     rec = _recording()
     rs.import_recording_to_scene(rec, bpy.context)
