@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from ..avatar.estimate import ESTIMATED
-from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..core.paths import ANIMATION_SUFFIXES
 from ..core.transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
@@ -126,12 +125,6 @@ def pick_action(arm, name: str | None, source: str):
                        "one", source=source, hint="use --action NAME")
 
 
-def source_model(arm) -> BodyModel:
-    """The source character's body: measured on its skinned mesh by the avatar calibration, or,
-    for a bare skeleton, estimated from its bone lengths (avatar/estimate.py)."""
-    return avatar_model_for(arm)[0]  # its stored model, else the calibration's (read at rest), else the estimate
-
-
 def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None, fps: float | None = None
                 ) -> CharacterTake:
     """The source armature `arm` and its action (default: the active one) in numpy, every frame
@@ -147,7 +140,7 @@ def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None,
     if f1 < f0:
         raise BodyCalError("the action's frame range is empty", source=action.name)
     frames = np.arange(f0, f1 + 1, dtype=float)
-    model = source_model(arm)
+    model = avatar_model_for(arm)[0]  # its stored model, else the calibration's (read at rest), else the estimate
     names = AvatarRig.from_model(model).names
     basis, locations = read_action(arm, action, names, frames)
     notes = []

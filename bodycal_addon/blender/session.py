@@ -201,7 +201,7 @@ def scene_take(scene, filter: OneEuro | None = None) -> RecordingTake:
     recording = recording_scene.recording_from_scene(scene)
     frame_start, rate = recording_scene.frame_mapping_in_scene(scene)
     return RecordingTake(recording, calibration_scene.load_user_model(scene), filter, frame_start=frame_start,
-                         frame_rate=rate if recording.frame_count > 1 else None)
+                         frame_rate=rate)
 
 
 # --- the command line: everything from paths, nothing from a running session -----------------------

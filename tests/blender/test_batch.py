@@ -16,6 +16,7 @@ import bpy
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from processes import alive as _alive
 from repo_paths import REPO
 
 from bodycal_addon.app import batch
@@ -357,14 +358,6 @@ def _fake_setup(tmp_path, recordings, workers=2):
     (tmp_path / "pids").mkdir()
     return _jobs_file(tmp_path, f'output_dir = "results"\nworkers = {workers}',
                       recordings=[(f"{r}.bcrec.json", "u.body.json") for r in recordings])
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
 
 
 def test_a_worker_killed_while_saving_leaves_nothing_and_is_one_failure(tmp_path, monkeypatch):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import bpy
 import pytest
+from processes import still_alive as _still_alive
 from repo_paths import REPO
 from test_batch import _write_inputs
 
@@ -67,29 +68,6 @@ def _run_fake(tmp_path, *args, timeout=180):
 
 def _summary(tmp_path):
     return json.loads((tmp_path / "results" / "summary.json").read_text())
-
-
-def _alive(pid: int) -> bool:
-    """Running: a process that was killed but not yet reaped by its new parent (a zombie) is not."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
-
-
-def _still_alive(pids, within: float = 5.0) -> list[int]:
-    """The processes still running after up to `within` seconds: a kill, even on its parent's death
-    (PR_SET_PDEATHSIG), is delivered and acted on asynchronously."""
-    deadline = time.monotonic() + within
-    while True:
-        alive = [pid for pid in pids if _alive(pid)]
-        if not alive or time.monotonic() > deadline:
-            return alive
-        time.sleep(0.05)
 
 
 def _pids(tmp_path) -> list[int]:
