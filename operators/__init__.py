@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import avatar, bake_settings, bone_maps, calibration, recording, retarget, sample_avatars, transfer
+from . import avatar, bake_settings, bone_maps, calibration, preview, recording, retarget, sample_avatars, transfer
 
-_MODULES = (sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, retarget, transfer)
+_MODULES = (sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, retarget, transfer, preview)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
@@ -18,9 +18,15 @@ def register():
     for m in _MODULES:  # menu entries (e.g. File > Import), after the classes they show
         if hasattr(m, "register_menus"):
             m.register_menus()
+    for m in _MODULES:  # app handlers (the timeline preview's frame changes)
+        if hasattr(m, "register_handlers"):
+            m.register_handlers()
 
 
 def unregister():
+    for m in reversed(_MODULES):
+        if hasattr(m, "unregister_handlers"):
+            m.unregister_handlers()
     for m in reversed(_MODULES):
         if hasattr(m, "unregister_menus"):
             m.unregister_menus()

@@ -569,6 +569,50 @@ def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyMode
                       progress=progress, cancel=cancel, plant_feet=plant_feet, placement=placement)
 
 
+class PreparedTake:
+    """A pose source and an avatar prepared once for a whole take (the feet plan included):
+    `solve(start, stop)` is the avatar's animation of frames [start, stop), the very values the bake
+    of the take keys there (`run_source` runs the same steps over chunks). The timeline preview
+    solves the frame the user scrubs to."""
+
+    def __init__(self, source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *,
+                 plant_feet: bool = True, placement: str = "object"):
+        _check_method(avatar_model, method)
+        self.source, self.avatar = source, avatar_model
+        to_world = play_area_to_world(avatar_model, check_placement(placement))
+        avatar_in_area = transformed_avatar(avatar_model, np.linalg.inv(to_world))
+        self.run = _Run(source, avatar_in_area, method, plant_feet,
+                        centre=np.zeros(3) if placement == "object" else None)
+        self.rot_t, self.shift = to_world[:3, :3].T, to_world[:3, 3]
+
+    @property
+    def frame_count(self) -> int:
+        return self.source.frame_count
+
+    def solve(self, start: int, stop: int) -> AvatarAnimation:
+        start, stop = max(0, int(start)), min(self.frame_count, int(stop))
+        if stop <= start:
+            raise BodyCalError(f"frames {start}-{stop} are outside the take (0-{self.frame_count - 1})",
+                               source=self.source.name)
+        run = self.run
+        pose, tg = run.chunk(start, stop)
+        rig = run.rig
+        joints = {j: pose.joints[:, i] @ self.rot_t + self.shift for i, j in enumerate(JOINTS)}
+        return AvatarAnimation(rig.armature, list(rig.names), pose.basis, rig.names[rig.root],
+                               np.asarray(pose.root_location, float), np.asarray(self.source.time[start:stop], float),
+                               run.method, joints, {n: v @ self.rot_t + self.shift for n, v in tg.items()},
+                               list(run.notes))
+
+
+def prepare_recording(recording: Recording, user_model: BodyModel, avatar_model: BodyModel,
+                      method: str = "egocentric", *, plant_feet: bool = True, placement: str = "object"
+                      ) -> PreparedTake:
+    """`retarget`'s take prepared once, to be solved a few frames at a time (PreparedTake)."""
+    _check_inputs(recording, user_model, avatar_model, method)
+    return PreparedTake(RecordingSource(recording, user_model), avatar_model, method, plant_feet=plant_feet,
+                        placement=placement)
+
+
 def run_source(source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *, chunk_frames: int = 2000,
                progress: Callable[[float], None] | None = None, cancel: Callable[[], bool] | None = None,
                plant_feet: bool = True, placement: str = "object") -> AvatarAnimation:

@@ -296,3 +296,22 @@ def test_targets_a_method_did_not_set_are_nan_not_leftover_memory():
         assert (rows | np.isnan(tg).all(axis=1)).all(), name  # a row is a target or no target
         unset += int((~rows).sum())
     assert anim.targets and unset > 0  # a swinging foot's chunks have none
+
+
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_a_prepared_take_solves_any_frame_as_the_bake_does(session, method):
+    """The timeline preview solves the one frame the user scrubs to (PreparedTake): the values are
+    the bake's at that frame, feet planted and the avatar's object turned, in any order."""
+    rec, _, user, _ = session
+    avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2))
+    whole = pl.retarget(rec, user, avatar, method)
+    prepared = pl.prepare_recording(rec, user, avatar, method)
+    order = np.random.default_rng(1).permutation(rec.frame_count)[:25]
+    for f in order:
+        one = prepared.solve(f, f + 1)
+        np.testing.assert_allclose(one.rotations[0], whole.rotations[f], atol=1e-9, err_msg=f"frame {f}")
+        np.testing.assert_allclose(one.root_location[0], whole.root_location[f], atol=1e-9)
+        np.testing.assert_allclose(one.joints_world["wrist_l"][0], whole.joints_world["wrist_l"][f], atol=1e-5)
+        assert one.time[0] == rec.time[f]
+    with pytest.raises(BodyCalError, match="outside the take"):
+        prepared.solve(rec.frame_count, rec.frame_count + 1)
