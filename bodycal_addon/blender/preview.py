@@ -27,7 +27,8 @@ from .session import Settings, Target
 
 # A preview rebuilds itself when what it was made from changes. What it was made from (the scene's
 # settings, the take, the models) is the UI's to say: `follow(key_of, rebuild)` gives the handler a
-# function that says it now (`key_of(scene, armature) -> tuple`) and one that starts it again.
+# function that says it now (`key_of(scene, armature, key it was made with) -> tuple`) and one that
+# starts it again (`rebuild(scene, armature, key)`).
 _follow: dict = {"key_of": None, "rebuild": None}
 
 
@@ -162,8 +163,8 @@ def on_frame_change(scene, _depsgraph=None) -> None:
     for pv in list(_active.values()):
         try:
             arm = bpy.data.objects.get(pv.armature)
-            if arm is not None and key_of is not None and key_of(scene, arm) != pv.key:
-                rebuild(scene, arm)  # starts it again, showing this frame
+            if arm is not None and key_of is not None and key_of(scene, arm, pv.key) != pv.key:
+                rebuild(scene, arm, pv.key)  # starts it again, showing this frame
             else:
                 show(pv, scene)
         except BodyCalError as exc:  # a handler must not raise: the preview stops with its reason

@@ -144,8 +144,10 @@ class _Run:
     def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
              ankles: dict | None = None):
         """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
-        onto the planted places, and the pelvis lowered where a planted foot is out of reach. Returns
-        (targets, pelvis, whether anything is planted in these frames)."""
+        onto the planted places and kept above the floor, and the pelvis lowered where a planted foot
+        is out of reach. Returns (targets, pelvis, whether the feet have targets: a foot with a plan
+        always has one, planted or not, so that a frame's result never depends on which frames are
+        solved with it)."""
         if not self.feet:
             return targets, pelvis, False
         rig = self.rig
@@ -153,8 +155,6 @@ class _Run:
         weights, aims, sides = [], [], []
         for s, (weight, planted, sole) in self.feet.items():
             w = weight[start:stop]
-            if not w.any():
-                continue
             name = f"ankle_{s}"
             base = targets[name] if name in targets else ankles[name]
             targets[name] = feet.lock(base, planted[start:stop], w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))

@@ -144,7 +144,34 @@ def test_a_saved_file_never_holds_the_preview(session, tmp_path):
 def test_a_preview_without_what_it_needs_says_so(session):
     arm, _mesh, _spec = rigs.build_procedural_avatar()
     bpy.context.scene.bodycal_bake.armature = arm
-    assert not bpy.ops.bodycal.preview_retarget.poll()
-    from bodycal_addon.blender.session import scene_take_missing
+    with pytest.raises(RuntimeError, match="Import a recording first"):
+        bpy.ops.bodycal.preview_retarget()
+    with pytest.raises(RuntimeError, match="Pick the animated source armature"):
+        bpy.ops.bodycal.preview_retarget(take="transfer")
+    assert preview.active(arm) is None
 
-    assert "Import a recording" in scene_take_missing(bpy.context.scene)
+
+def test_a_transfer_preview_shows_what_the_transfer_bakes(data_dir):
+    """Transfer Animation > Preview: a CMU walk (a bare skeleton) followed by the avatar as the
+    timeline moves; the transfer bake then keys the values shown."""
+    from bodycal_addon.blender import blendfile
+    from bodycal_addon.blender import character_source as ts
+
+    ts.open_source(data_dir / "motion" / "cmu_bvh" / "02_01_walk.bvh")
+    scene = bpy.context.scene
+    source = blendfile.find_armature(None, "walk")
+    target, _mesh, _spec = rigs.build_procedural_avatar()
+    scene.bodycal_transfer.source = source
+    bake = scene.bodycal_bake
+    bake.armature, bake.tolerance, bake.location_tolerance, bake.frame_range = target, 0.0, 0.0, "take"
+    assert bpy.ops.bodycal.preview_retarget(take="transfer") == {"FINISHED"}
+    shown = {}
+    for f in (200, 40, 120):
+        scene.frame_set(f)
+        shown[f] = _pose(target)[:2]
+    preview.stop_all()
+    assert bpy.ops.bodycal.transfer_animation() == {"FINISHED"}
+    for f, (q_shown, loc_shown) in shown.items():
+        q, loc = _action_pose(target, f)
+        _same_rotations(q_shown, q, 1e-6)
+        np.testing.assert_allclose(loc_shown, loc, atol=1e-5)
