@@ -19,7 +19,7 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
 
     method: bpy.props.EnumProperty(name="Method", items=method_items(RecordingTake.kind), default="egocentric")
     use_filter: bpy.props.BoolProperty(
-        name="Smooth Devices", default=False,
+        name="Smooth Devices", default=True,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
     filter_min_cutoff: bpy.props.FloatProperty(
         name="Min Cutoff", default=OneEuro.min_cutoff, min=0.01, soft_max=20.0,
