@@ -34,6 +34,7 @@ SCENE_KEY = "bodycal_recording"
 DEVICE_PROP = "bodycal_device"  # on a device empty: the device name
 MARKER_PROP = "bodycal_marker"  # on a marker empty: the marker name
 ROLE_PROP = "bodycal_role"  # on a device empty: its role (the user may change it; "" = identify from the T-pose)
+ROLE_FROM_PROP = "bodycal_role_from"  # on a device empty: "file", "tpose" (identified) or "user" (set in the list)
 META_KEY = "bodycal"
 TIME_KEY = "bodycal_time"
 TRACKED = "bodycal_tracked"
@@ -121,6 +122,7 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         obj[DEVICE_PROP] = d.name
         obj["bodycal_kind"] = d.kind
         obj[ROLE_PROP] = d.role or ""
+        obj[ROLE_FROM_PROP] = "tpose" if d.identified else "file" if d.role else ""
         obj.rotation_mode = "QUATERNION"
         for k in range(3):
             write_keys(new_fcurve(action, obj, "location", k), frames32, pos[:, i, k])
@@ -220,9 +222,10 @@ def _check_roles_unique(devices: list[Device], source: str) -> None:
                                source=source, field=ROLE_PROP, hint="give each role to one device")
 
 
-def recording_from_scene(context_or_scene=None) -> Recording:
+def recording_from_scene(context_or_scene=None, *, role_of=device_role) -> Recording:
     """Rebuild the scene's Recording from the empties' animation, their custom properties and the
-    timeline markers (works after saving and reopening the .blend)."""
+    timeline markers (works after saving and reopening the .blend). `role_of(empty, imported)`:
+    a device's role (default: what its empty says, `device_role`)."""
     scene = _scene_of(context_or_scene)
     coll = scene_recording_collection(scene)
     if coll is None:
@@ -265,7 +268,7 @@ def recording_from_scene(context_or_scene=None) -> Recording:
         if obj is None:
             notes.append(f"device '{d['name']}' has no empty in {coll.name}: left out")
             continue
-        devices.append(Device(name=d["name"], kind=d["kind"], role=device_role(obj, d["role"])))
+        devices.append(Device(name=d["name"], kind=d["kind"], role=role_of(obj, d["role"])))
         pos.append(channels(obj, "location", 3, d["name"]))
         rot.append(channels(obj, "rotation_quaternion", 4, d["name"]))
         valid.append(channels(obj, f'["{TRACKED}"]', 1, d["name"])[:, 0] > 0.5)
