@@ -8,7 +8,8 @@ Layout:
   the frame mapping (frame = frame_start + (t - t0) * fps);
 - one empty per device (arrows, quaternion rotation) and per marker (small sphere), with custom
   properties `bodycal_device` / `bodycal_marker` naming what it shows, and a keyed custom property
-  `bodycal_tracked` (1 tracked, 0 not; constant interpolation);
+  `bodycal_tracked` (1 tracked, 0 not; constant interpolation); a device's role in `bodycal_role`
+  and where it came from in `bodycal_role_from` (FORMATS.md §2.5);
 - keys written with `keyframe_points.add` + `foreach_set` (BLENDER_NOTES.md), portable to slotted
   actions (4.4+ / 5.0) through `action.fcurve_ensure_for_datablock`;
 - timeline markers `bodycal:<step>[:<point>[:<by>]]` at each segment start, and `bodycal:end` where a

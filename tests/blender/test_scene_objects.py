@@ -76,6 +76,7 @@ def moving_objects():
     _dense(quat, "location", np.stack([np.sin(t), np.cos(t), 1 + 0.1 * t], 1), frames)
     axis = tf.normalize(np.stack([np.ones_like(t), t, 0.5 + 0 * t], 1))
     q = tf.axis_angle_to_quat(axis, 2.5 * t) * (1.0 + 0.3 * np.sin(3 * t))[:, None]  # Blender normalises
+    q[6] = 0.0  # which Blender reads as a half turn about X (BLENDER_NOTES.md)
     _dense(quat, "rotation_quaternion", q, frames)
     spin = _empty("HMD", "AXIS_ANGLE")
     _keys(spin, 3, location=(0, 0, 1.7), rotation_axis_angle=(0.0, 0.0, 0.0, 1.0))
