@@ -2,9 +2,20 @@
 
 import bpy
 
-from . import avatar, bake_settings, bone_maps, calibration, recording, retarget, sample_avatars, transfer
+from . import (
+    avatar,
+    bake_settings,
+    bone_map_editor,
+    bone_maps,
+    calibration,
+    recording,
+    retarget,
+    sample_avatars,
+    transfer,
+)
 
-_MODULES = (sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, retarget, transfer)
+_MODULES = (sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, retarget, transfer,
+            bone_map_editor)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
