@@ -69,7 +69,7 @@ def draw_row(ulist, layout, arm, item) -> None:
 class BODYCAL_UL_bone_map(bpy.types.UIList):
     """The armature's bone map: a row per canonical segment, grouped; search by segment or bone."""
 
-    expanded: bpy.props.BoolVectorProperty(name="Open", size=len(editor.GROUPS),
+    expanded: bpy.props.BoolVectorProperty(name="Open", size=len(editor.GROUPS), options=set(),
                                            default=tuple(g[3] for g in editor.GROUPS),
                                            description="Show this group's segments")
 

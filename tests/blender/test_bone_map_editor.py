@@ -252,4 +252,7 @@ def test_rows_are_made_after_drawing_not_during_it():
     assert editor.rows_ready(arm) and len(arm.bodycal_bone_map_rows) == len(editor.ROWS)
     bpy.context.view_layer.objects.active = arm
     assert bpy.ops.bodycal.show_bone_map() == {"FINISHED"} and len(arm.bodycal_bone_map_rows) == len(editor.ROWS)
+    for cls in editor.CLASSES:  # every edit is undoable
+        if issubclass(cls, bpy.types.Operator):
+            assert "UNDO" in cls.bl_options, cls.bl_idname
 
