@@ -5,6 +5,7 @@ import bpy
 from . import (
     avatar,
     bake_settings,
+    bone_map_editor,
     bone_maps,
     calibration,
     devices,
@@ -16,7 +17,7 @@ from . import (
 )
 
 _MODULES = (sample_avatars, recording, devices, calibration, avatar, bone_maps, bake_settings, retarget, transfer,
-            preview)
+            preview, bone_map_editor)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)

@@ -1,6 +1,7 @@
 """A UI layout stand-in for background mode (no window draws panels there): a panel's `draw`
-given it records what it draws, as ("prop", data, name), ("operator", idname) and
-("label", text); every sub-layout (column, row, box...) records into the same log."""
+given it records what it draws, as ("prop", data, name), ("prop_search", data, name, search_data,
+search_name), ("template_list", listtype, data, propname), ("operator", idname) and ("label", text);
+every sub-layout (column, row, box...) records into the same log."""
 
 
 class RecordingLayout:
@@ -14,11 +15,17 @@ class RecordingLayout:
     def prop(self, data, name, **_kw):
         self.log.append(("prop", data, name))
 
+    def prop_search(self, data, name, search_data, search_name, **_kw):
+        self.log.append(("prop_search", data, name, search_data, search_name))
+
+    def template_list(self, listtype, _list_id, data, propname, *_a, **_kw):
+        self.log.append(("template_list", listtype, data, propname))
+
     def label(self, text="", **_kw):
         self.log.append(("label", text))
 
     def __getattr__(self, name):
-        return lambda *a, **k: RecordingLayout(self.log)
+        return lambda *a, **k: type(self)(self.log)
 
 
 def draw(panel_type, context) -> list:
