@@ -96,6 +96,23 @@ def from_internal(positions: np.ndarray, rotations: np.ndarray | None, up="Y", h
     return pos, rot
 
 
+def turns_to_internal(rotations: np.ndarray, up="Y", handedness="right") -> np.ndarray:
+    """Quaternions (..., 4) of turns written in a file convention (a bone's rotation relative to its
+    parent's, a pose relative to a rest pose: rotations between two frames of one body, not a
+    device's frame in the room) as the same turns in the internal frame: R' = A R A^T, A the axis
+    map. Unlike a device frame there is no local mirror: the identity stays the identity, and a
+    turn about the file's up axis by +a is a turn about +Z by +a (right-handed) or -a (left-handed,
+    as a mirror reverses the sense of every turn)."""
+    a = _AXIS_MAPS[(up, handedness)]
+    return tf.matrix_to_quat(a @ tf.quat_to_matrix(np.asarray(rotations, float)) @ a.T)
+
+
+def turns_from_internal(rotations: np.ndarray, up="Y", handedness="right") -> np.ndarray:
+    """Inverse of `turns_to_internal`: R = A^T R' A."""
+    a = _AXIS_MAPS[(up, handedness)]
+    return tf.matrix_to_quat(a.T @ tf.quat_to_matrix(np.asarray(rotations, float)) @ a)
+
+
 def _convert_rotations(q: np.ndarray, a: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Quaternions of A R P (A, P orthogonal, det(A P) = +1), by quaternion products only, so that
     the sign of the input (and the continuity of a track) is kept."""
