@@ -56,6 +56,7 @@ MARKER = "/BodyCal/Marker/Pos"
 DEVICE_INFO = "/BodyCal/Device"
 MARKER_INFO = "/BodyCal/Marker"
 SEGMENT = "/BodyCal/Segment"
+_BUNDLE = b"#bundle\x00"
 MAX_DATAGRAM = 1400  # bytes per bundle sent: within one Ethernet frame (the specification: 1500)
 MAX_DEVICES = 64  # distinct devices a stream may name; more are refused (a flood of serials)
 MAX_MARKERS = 256
@@ -65,9 +66,33 @@ PARSE_ERRORS = (BundleError, MessageError, TypeParseError, IndexError, struct.er
                 ValueError, OverflowError, RecursionError)
 
 
+def _framed(dgram: bytes) -> bool:
+    """Every OSC packet is a whole number of 4-byte words, and a bundle's elements fill it exactly:
+    python-osc pads what is missing at the end of a datagram with zeros (a cut float would read as
+    another number), so a cut or overrunning datagram is refused here first."""
+    spans = [(0, len(dgram))]
+    while spans:
+        lo, hi = spans.pop()
+        if (hi - lo) % 4:
+            return False
+        if dgram.startswith(_BUNDLE, lo):
+            i = lo + 16
+            if i > hi:
+                return False
+            while i < hi:
+                size = int.from_bytes(dgram[i:i + 4], "big", signed=True)
+                if size <= 0 or i + 4 + size > hi:
+                    return False
+                spans.append((i + 4, i + 4 + size))
+                i += 4 + size
+    return True
+
+
 def osc_messages(dgram: bytes) -> list[tuple[str, list]]:
     """(address, arguments) of every message of a datagram, bundles opened in order (nested ones
     too). Raises one of PARSE_ERRORS for what is not OSC."""
+    if not _framed(dgram):
+        raise ValueError("cut short or overrunning")
     if OscBundle.dgram_is_bundle(dgram):
         out: list[tuple[str, list]] = []
         stack = [iter(OscBundle(dgram))]
