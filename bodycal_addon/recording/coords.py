@@ -22,6 +22,8 @@ l (with l' = P l) therefore maps to the same world point before and after conver
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..core import transforms as tf
@@ -117,14 +119,21 @@ def _convert_rotations(q: np.ndarray, a: np.ndarray, p: np.ndarray) -> np.ndarra
     """Quaternions of A R P (A, P orthogonal, det(A P) = +1), by quaternion products only, so that
     the sign of the input (and the continuity of a track) is kept."""
     q = np.array(q, float)
-    if np.linalg.det(p) < 0:
+    if p[2, 2] < 0:  # P is the identity or the mirror along z (`conversion`)
         # A R P = (A P)(P R P); for the mirror P = diag(1, 1, -1), P R P = (-P) R (-P)^-1 with -P a half
         # turn about z, whose quaternion keeps w and turns the vector part: (w, -x, -y, z).
         q *= np.array([1.0, -1.0, -1.0, 1.0])
         a = a @ p
-    if np.allclose(a, np.eye(3)):
-        return q
-    return tf.quat_mul(tf.matrix_to_quat(a), q)
+    qa = _turn_of(np.ascontiguousarray(a, float).tobytes())
+    return q if qa is None else tf.quat_mul(qa, q)
+
+
+@functools.lru_cache(maxsize=32)
+def _turn_of(a_bytes: bytes) -> np.ndarray | None:
+    """The quaternion of a conversion's axis map (None: the identity), once per map: a live source
+    converts every frame it receives (recording/live/vmc.py)."""
+    a = np.frombuffer(a_bytes).reshape(3, 3)
+    return None if np.allclose(a, np.eye(3)) else tf.matrix_to_quat(a)
 
 
 def check_positions(values: np.ndarray, valid: np.ndarray, unit_scale: float, source: str, fields, where_of) -> None:

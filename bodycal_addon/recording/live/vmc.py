@@ -121,25 +121,33 @@ def _name(value) -> str | None:
 def _floats(args, start: int, count: int) -> list[float] | None:
     """args[start:start + count] when they are all finite floats (OSC f or d), else None."""
     vals = args[start:start + count]
-    if len(vals) != count or not all(type(v) is float and math.isfinite(v) for v in vals):
+    if len(vals) != count:
         return None
-    return vals
+    for v in vals:
+        if type(v) is not float:
+            return None
+    total = sum(vals)
+    # inf or NaN anywhere makes the sum's difference with itself NaN (so does an overflow of the
+    # sum, which only values far beyond any position or quaternion can reach)
+    return vals if total - total == 0.0 else None
 
 
-def _pose(args) -> tuple[str | None, list[float] | None, str]:
-    """(serial, [px, py, pz, qx, qy, qz, qw] with q renormalised, why not) of a device message."""
-    serial = _name(args[0]) if args else None
+def _pose(args, known=frozenset()) -> tuple[str | None, list[float] | None, str]:
+    """(serial, [px, py, pz, qx, qy, qz, qw] with q renormalised, why not) of a device message;
+    `known` serials need no second look at their text."""
+    serial = args[0] if args and type(args[0]) is str and args[0] in known else _name(args[0]) if args else None
     if serial is None:
         return None, None, "the serial is not a name"
     vals = _floats(args, 1, 7)
     if vals is None:
         return serial, None, "needs 7 finite floats after the serial"
-    if max(abs(v) for v in vals[:3]) >= MAX_POSITION_M:
+    px, py, pz, qx, qy, qz, qw = vals
+    if not (abs(px) < MAX_POSITION_M and abs(py) < MAX_POSITION_M and abs(pz) < MAX_POSITION_M):
         return serial, None, f"position {MAX_POSITION_M:g} m or more from the origin"
-    norm = math.sqrt(sum(v * v for v in vals[3:]))
+    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     if abs(norm - 1.0) > QUAT_TOLERANCE:
         return serial, None, f"quaternion not unit length (|q| = {norm:.6g})"
-    return serial, vals[:3] + [v / norm for v in vals[3:]], ""
+    return serial, [px, py, pz, qx / norm, qy / norm, qz / norm, qw / norm], ""
 
 
 def check_segment(step, point, by, start, end) -> Segment:
@@ -237,7 +245,9 @@ class FrameAssembler:
 
     def _device(self, address: str, args: list, arrival: float, done: list) -> None:
         kind, local = DEVICE_ADDRESSES[address]
-        serial, pose, why = _pose(args)
+        if not local and args and type(args[0]) is str and args[0] in self._local:
+            return  # the raw values of this device come in its /Local message: this one is not read
+        serial, pose, why = _pose(args, self.kinds.keys())
         if pose is None:
             self._bad(address, why)
             return
