@@ -12,10 +12,10 @@ import threading
 
 import numpy as np
 import pytest
+from osc_server import OscServer
 from pythonosc.udp_client import SimpleUDPClient
 from recording_fixtures import tpose_recording
 from repo_paths import REPO
-from test_vmc_stream import OscServer
 
 from bodycal_addon.output.vmc_bones import HUMANOID
 from bodycal_addon.recording.io import load_recording, save_recording

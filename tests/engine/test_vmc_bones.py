@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from test_vmc_stream import OscServer
+from osc_server import OscServer
 
 from bodycal_addon.body.animation import AvatarAnimation
 from bodycal_addon.core import transforms as tf

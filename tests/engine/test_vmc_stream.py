@@ -8,9 +8,8 @@ import threading
 
 import numpy as np
 import pytest
-from pythonosc.dispatcher import Dispatcher
+from osc_server import OscServer
 from pythonosc.osc_packet import OscPacket
-from pythonosc.osc_server import BlockingOSCUDPServer
 from recording_fixtures import tpose_recording
 
 from bodycal_addon.core import transforms as tf
@@ -22,37 +21,6 @@ from bodycal_addon.recording.live.sender import RecordingMessages, VmcSender, re
 from bodycal_addon.recording.model import Device, Recording, Segment
 
 F32 = 2.0 ** -23
-
-
-class OscServer:
-    """python-osc's blocking server on a thread, keeping (address, args) in arrival order."""
-
-    def __init__(self):
-        self.messages = []
-        d = Dispatcher()
-        d.set_default_handler(lambda address, *args: self.messages.append((address, list(args))))
-        self.server = BlockingOSCUDPServer(("127.0.0.1", 0), d)
-        self.port = self.server.server_address[1]
-        self.thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.server.shutdown()
-        self.server.server_close()
-        self.thread.join(5)
-
-    def wait_for(self, count_address, n, seconds=3.0):
-        deadline = threading.Event()
-        timer = threading.Timer(seconds, deadline.set)
-        timer.start()
-        try:
-            while sum(a == count_address for a, _ in self.messages) < n:
-                assert not deadline.wait(0.01), "timed out"
-        finally:
-            timer.cancel()
 
 
 def known_take() -> Recording:
