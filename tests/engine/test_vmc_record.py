@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from recording_fixtures import tpose_recording
 
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.recording.io import load_recording
@@ -134,3 +135,27 @@ def test_saved_whole_and_read_back_as_recorded(tmp_path, suffix):
     assert header["extra"]["live"]["clock"] == "sender" and header["coords"]["up"] == "Z"
     with pytest.raises(BodyCalError, match="already exists"):
         rec.save(out)
+
+
+def test_roles_from_a_t_pose_recorded_live():
+    take = tpose_recording(roles=False, shuffle=True, yaw=0.7)
+    truth = {d.name: r for d, r in zip(take.devices, tpose_recording(roles=True, shuffle=True, yaw=0.7).devices)}
+    rec = LiveRecorder(roles={"LHR-00": truth["LHR-00"].role})
+    for k in range(take.frame_count):
+        rec(LiveFrame(k, float(k), float(take.time[k]), tuple(d.name for d in take.devices), take.positions[k],
+                      take.rotations[k]))
+        if k == 10:
+            rec.mark_segment_start("tpose")
+        if k == 150:
+            rec.mark_segment_end()
+    found = rec.identify_roles()
+    assert "LHR-00" not in found  # the user's role stays the user's
+    assert {d.name: d.role for d in rec.recording().devices} == {n: d.role for n, d in truth.items()}
+    with pytest.raises(BodyCalError, match="no tpose segment"):
+        _no_tpose()
+
+
+def _no_tpose():
+    rec = LiveRecorder()
+    rec(frame(0, ["d0"]))
+    rec.identify_roles()

@@ -26,6 +26,7 @@ from ...core.errors import BodyCalError
 from ...core.outputs import replacing
 from ..io.writer import save_recording
 from ..model import ROLES, Device, Recording, Segment
+from ..roles import identify_roles
 from ..segments import parse_segments
 from .source import LiveFrame
 from .vmc import check_segment
@@ -66,6 +67,7 @@ class LiveRecorder:
         self.names: list[str] = []
         self.kinds: dict[str, str] = {}
         self.announced_roles: dict[str, str | None] = {}
+        self.identified_roles: dict[str, str] = {}  # from the T-pose (`identify_roles`)
         self.marker_names: list[str] = []
         self._slot: dict[str, int] = {}
         self._mslot: dict[str, int] = {}
@@ -205,8 +207,8 @@ class LiveRecorder:
             n, d, m = self.frames, len(self.names), len(self.marker_names)
             if n == 0 or d + m == 0:
                 raise BodyCalError("no device or marker arrived", hint="is the sender sending to this port?")
-            devices = [Device(nm, self.kinds[nm], self.user_roles.get(nm, self.announced_roles.get(nm)))
-                       for nm in self.names]
+            devices = [Device(nm, self.kinds[nm], self.user_roles.get(nm) or self.announced_roles.get(nm)
+                              or self.identified_roles.get(nm)) for nm in self.names]
             rec = Recording(self.name, self._times[:n].copy(), devices, self._pos.ensure(n, d)[:n, :d].copy(),
                             self._rot.ensure(n, d)[:n, :d].copy(), self._valid.ensure(n, d)[:n, :d].copy(),
                             list(self.marker_names), self._pts.ensure(n, m)[:n, :m].copy(),
@@ -216,6 +218,17 @@ class LiveRecorder:
         _unique_roles(rec)
         rec.segments = _segments_that_fit(rec, segments)
         return rec
+
+    def identify_roles(self) -> dict[str, str]:
+        """Roles of the devices that have none, from the first T-pose step recorded so far (AvatarGo's
+        plane through the devices, recording/roles.py, as for a file); kept for what is recorded
+        next. Returns those found; one BodyCalError when the T-pose cannot be read."""
+        rec = self.recording()
+        found = {n: r for n, r in identify_roles(rec).items()
+                 if n not in self.user_roles and not self.announced_roles.get(n)}
+        with self._lock:
+            self.identified_roles.update(found)
+        return found
 
     def extra(self) -> dict:
         """What the file's `extra` keeps of the stream (FORMATS.md §6.2): each frame's arrival
