@@ -181,7 +181,6 @@ class FrameAssembler:
 
     def _open(self) -> None:
         self._poses: dict[str, list[float]] = {}
-        self._from_local: set[str] = set()
         self._points: dict[str, list[float]] = {}
         self._seen: set[tuple[str, str]] = set()
         self._sender_time: float | None = None
@@ -261,9 +260,6 @@ class FrameAssembler:
         if local:
             self._local.add(serial)
             self.stats.scaled_devices.discard(serial)
-            self._from_local.add(serial)
-        elif serial in self._local or serial in self._from_local:
-            return  # the raw values of this device come in its /Local message
         else:
             self.stats.scaled_devices.add(serial)
         self._poses[serial] = pose
