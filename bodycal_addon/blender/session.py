@@ -127,9 +127,11 @@ def quality_figures(anim: AvatarAnimation) -> dict[str, float]:
 
 
 def key_rate(take: Take, fps: float | None) -> tuple[int, float, float, bool]:
-    """(scene fps, fps_base, key rate, resample?) for baking `take` at `fps` (None: its own samples)."""
+    """(scene fps, fps_base, key rate, resample?) for baking `take` at `fps` (None: its own samples,
+    on the frames they play at). A take imported timed to the scene's rate (its samples between
+    frames) baked at that rate is resampled, so its keys fall on whole frames."""
     own = take.rate
-    if fps is None or abs(fps - own) <= 1e-6 * own:
+    if fps is None or (abs(fps - own) <= 1e-6 * own and abs(take.sample_rate - own) <= 1e-6 * own):
         return *baking.scene_rate(own), own, False
     return *baking.scene_rate(fps), float(fps), True
 

@@ -60,7 +60,11 @@ class Take(Protocol):
 
     @property
     def rate(self) -> float:
-        """Samples per second."""
+        """Scene frames per second of the take's time: sample k plays at frame_start + (t_k - t_0) x rate."""
+
+    @property
+    def sample_rate(self) -> float:
+        """Samples per second (the rate, unless the take was imported timed to another scene rate)."""
 
     def window(self, first: float, last: float) -> Take:
         """The take limited to its samples at scene frames first..last (both included)."""
@@ -91,6 +95,10 @@ class RecordingTake:
     def rate(self) -> float:
         if self.frame_rate is not None:
             return self.frame_rate
+        return self.sample_rate
+
+    @property
+    def sample_rate(self) -> float:
         rec = self.recording
         return rec.fps if rec.frame_count > 1 else FALLBACK_RATE
 
@@ -130,6 +138,10 @@ class CharacterTake:
 
     @property
     def rate(self) -> float:
+        return float(self.fps)
+
+    @property
+    def sample_rate(self) -> float:
         return float(self.fps)
 
     def window(self, first: float, last: float) -> CharacterTake:
