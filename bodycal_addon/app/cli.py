@@ -17,7 +17,7 @@ from collections.abc import Callable
 from ..core import paths
 from ..core.errors import BodyCalError
 from ..core.outputs import describe_os_error
-from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG, INTERPOLATIONS
 from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
 from ..retarget.methods import methods_for
@@ -159,6 +159,9 @@ def _bake_arguments(c, rate_of: str) -> None:
     c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
                    help="key reduction of the root's location, in millimetres "
                         f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
+    c.add_argument("--interpolation", choices=INTERPOLATIONS, default=INTERPOLATIONS[0],
+                   help="the baked keys: linear (default), or bezier (Auto Clamped handles; keys are added where "
+                        "the curve would stray beyond the tolerances)")
     c.add_argument("--fps", type=float, default=None, metavar="N",
                    help="output frame rate: the action is resampled to N frames per second, timing kept "
                         f"(default, or 0: one key per sample, the scene set to {rate_of} rate)")

@@ -176,7 +176,8 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
         result = baking.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla,
                                        fps=rate, frame_start=frame_start, tolerance_deg=options.tolerance_deg,
                                        location_tolerance_mm=options.location_tolerance_mm,
-                                       own=resampled or release, set_scene_range=set_scene_range)
+                                       own=resampled or release, set_scene_range=set_scene_range,
+                                       interpolation=options.interpolation)
     if target.calibrated_now:
         avatar_storage.store_model(arm, target.avatar)
         target.calibrated_now = False

@@ -125,6 +125,11 @@ def test_output_settings_and_exports_reach_every_job(tmp_path):
     base = tmp_path / "out" / "batch" / "t__a__egocentric"
     assert outs == [f"{base}.fbx", f"{base}.blend", f"{base}.bvh"]
     assert argv[argv.index("--tolerance") + 1] == "0.25" and argv[argv.index("--fps") + 1] == "30.0"
+    assert "--interpolation" not in argv
+    (tmp_path / "jobs.toml").write_text('[defaults]\ninterpolation = "bezier"\n[[recordings]]\npath="t"\nuser="u"\n'
+                                        '[[animations]]\npath="walk.bvh"\n[[avatars]]\nblend="a.blend"\n')
+    jobs, _settings = load_jobs(tmp_path / "jobs.toml")
+    assert [job.argv()[job.argv().index("--interpolation") + 1] for job in jobs] == ["bezier", "bezier"]
 
 
 @pytest.mark.slow
@@ -248,6 +253,7 @@ BAD_DEFAULTS = [
     ('plant_feet = "no"', "defaults.plant_feet", "true or false"),
     ("overwrite = 1", "defaults.overwrite", "true or false"),
     ('placement = "stage"', "defaults.placement", '"object" or "performer"'),
+    ('interpolation = "cubic"', "defaults.interpolation", '"linear" or "bezier"'),
     ("plant_foot = false", "defaults", "unknown key"),
     ("tolerance = -0.1", "defaults.tolerance", "number from 0"),
     ('tolerance = "0.1"', "defaults.tolerance", "number from 0"),

@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 from repo_paths import REPO
 
 from bodycal_addon.app import cli, cli_bridge
@@ -55,13 +56,21 @@ def test_retarget_and_transfer_take_the_same_bake_options():
     """Root motion and the Rigify target apply to whatever is baked onto the avatar: a transfer onto
     a game rig or a generated Rigify rig needs them as much as a retarget does."""
     parser = cli.build_parser()
+    from bodycal_addon.app.commands.retarget import bake_options
+
     common = ["--root-motion", "in-place", "--rigify-target", "def", "--tolerance", "0.2", "--fps", "30",
-              "--placement", "performer", "--no-plant-feet", "-o", "a.blend", "-o", "a.fbx"]
+              "--placement", "performer", "--no-plant-feet", "--interpolation", "bezier", "-o", "a.blend",
+              "-o", "a.fbx"]
     retarget = parser.parse_args(["retarget", "r.bcrec.json", "--user", "u.json", "--avatar", "a.blend", *common])
     transfer = parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", *common])
     for args in (retarget, transfer):
         assert (args.root_motion, args.rigify_target, args.tolerance, args.fps, args.placement, args.plant_feet,
                 args.output) == ("in-place", "def", 0.2, 30.0, "performer", False, ["a.blend", "a.fbx"])
+        assert bake_options(args).interpolation == "bezier"
+    plain = parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", "-o", "a.blend"])
+    assert bake_options(plain).interpolation == "linear"
+    with pytest.raises(cli.UsageError, match="invalid choice: 'cubic'"):
+        parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", "--interpolation", "cubic", "-o", "a.blend"])
 
 
 def test_a_command_leaves_no_blender_temp_folder(tmp_path):

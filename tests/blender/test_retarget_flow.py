@@ -278,10 +278,14 @@ def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
     for data, name in props:
         assert name in data.bl_rna.properties, (panel, name)
     shared = {"armature", "placement", "plant_feet", "root_motion", "rigify_target", "replace", "push_to_nla",
-              "output_fps", "tolerance", "location_tolerance", "frame_range", "set_scene_range"}
+              "output_fps", "interpolation", "tolerance", "location_tolerance", "frame_range", "set_scene_range"}
     assert {name for data, name in props if data == bake} == shared
     own = {name for data, name in props if data == settings}
     assert "method" in own and not own & shared
     assert [e[1] for e in log if e[0] == "label"] == ["first avatar: 10 keys", "second avatar: 12 keys"]
     assert bake.bake_options(bpy.context).tolerance_deg == pytest.approx(0.1)
+    assert bake.bake_options(bpy.context).interpolation == "linear"
+    bake.interpolation = "bezier"
+    assert bake.bake_options(bpy.context).interpolation == "bezier"
+    bake.interpolation = "linear"
     settings.last_result = ""

@@ -1,7 +1,7 @@
 """`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
 [--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]]
 [--no-plant-feet] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
-[--tolerance DEG] [--location-tolerance MM] [--fps N] [--frame-range FIRST LAST]
+[--tolerance DEG] [--location-tolerance MM] [--interpolation linear|bezier] [--fps N] [--frame-range FIRST LAST]
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
 import math
@@ -26,12 +26,12 @@ def run(args) -> int:
 
 def bake_options(args):
     """The bake options every baking command takes (--tolerance, --location-tolerance, --fps,
-    --root-motion, --rigify-target); --fps 0 is the take's own rate, as no --fps."""
+    --root-motion, --rigify-target, --interpolation); --fps 0 is the take's own rate, as no --fps."""
     from ...blender.bake import BakeOptions
 
     fps = None if args.fps == 0 else args.fps
     return BakeOptions(args.tolerance, args.location_tolerance, fps, getattr(args, "root_motion", "root"),
-                       getattr(args, "rigify_target", "fk"))
+                       getattr(args, "rigify_target", "fk"), getattr(args, "interpolation", "linear"))
 
 
 def frame_range(args) -> tuple[float, float] | None:

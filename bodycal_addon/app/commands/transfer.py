@@ -1,7 +1,7 @@
 """`bodycal transfer SOURCE --avatar AVATAR -o OUT [-o ...] [--source-armature NAME] [--action NAME]
 [--armature NAME] [--bone-map FILE] [--method egocentric|rotations] [--placement object|performer] [--no-plant-feet]
 [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
-[--tolerance DEG] [--location-tolerance MM] [--fps N] [--frame-range FIRST LAST]
+[--tolerance DEG] [--location-tolerance MM] [--interpolation linear|bezier] [--fps N] [--frame-range FIRST LAST]
 [--overwrite]`; SOURCE is a .blend, .bvh,
 .fbx, .glb or .gltf with an animated humanoid armature, AVATAR a .blend, .fbx, .glb, .gltf or .vrm."""
 
