@@ -22,6 +22,7 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
         col.prop(st, "action")
         col.prop(bake, "armature", text="Target")
         col.prop(st, "method")
+        col.prop(st, "use_filter")
         draw_placement(col, bake)
         draw_keys(col, bake)
         col.operator("bodycal.transfer_animation", icon="ACTION")

@@ -99,9 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one in the file)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
-    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
-                   help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
-                        "Hz, Hz per m/s, Hz, Hz per rad/s)")
+    _filter_argument(c, "the devices before retargeting")
     _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a farm")
@@ -132,10 +130,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP + " (the avatar's)")
     c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0],
                    help=_method_help(TRANSFER_METHODS))
+    _filter_argument(c, "the source's pose (each bone's rotation, and its location in metres) before transferring")
     _bake_arguments(c, "the source's")
     for c in sub.choices.values():  # also after the command: `bodycal retarget ... --verbose`
         c.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP)
     return p
+
+
+def _filter_argument(c, what: str) -> None:
+    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
+                   help=f"One Euro filter on {what} (default parameters 3,5,4,1: Hz, Hz per m/s, Hz, Hz per rad/s)")
 
 
 def _bake_arguments(c, rate_of: str) -> None:

@@ -81,7 +81,8 @@ def dense_bones(rot_keep: np.ndarray, names, tolerance_deg: float) -> tuple[str,
 DENSE_CAUSES = {
     "recording": ("tracker noise reaching the bones, or fast motion",
                   "smoothing the devices (Smooth Devices, --filter) or a larger tolerance keeps fewer keys"),
-    "animation": ("the source action's own motion or capture jitter", "a larger tolerance keeps fewer keys"),
+    "animation": ("the source action's own motion or capture jitter",
+                  "smoothing the source (Smooth Source, --filter) or a larger tolerance keeps fewer keys"),
 }
 
 

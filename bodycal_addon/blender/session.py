@@ -297,16 +297,18 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filt
 
 
 def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
-                   action: str | None = None, log=print, **kwargs) -> Summary:
+                   action: str | None = None, filter: OneEuro | None = None, log=print, **kwargs) -> Summary:
     """`bodycal transfer`: the action of a character in `source_path` (.blend, .bvh, .fbx, .glb,
-    .gltf; character_source.open_source)."""
+    .gltf; character_source.open_source), its pose One-Euro filtered first with `filter`."""
     source_path = Path(source_path)
 
     def read():
         for note in open_source(source_path):
             log(note)
         src_arm = find_armature(source_armature, str(source_path))
-        return read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+        take = read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+        take.filter = filter
+        return take
 
     files_read = [(f"the source {source_path.suffix.lower() or 'file'}", source_path)]
     return run_files(read, CharacterTake.kind, files_read, avatar_file, output_paths, log=log, **kwargs)

@@ -12,7 +12,8 @@ it holds.
 - `RecordingTake`: a tracker recording of a calibrated performer (`pipeline.retarget`), smoothed by
   the One Euro filter first when asked (on a copy: the recording itself is not changed).
 - `CharacterTake`: another character's action (`transfer.transfer`): its body model (measured on
-  its mesh, or estimated from its bone lengths) and its pose-bone values per frame.
+  its mesh, or estimated from its bone lengths) and its pose-bone values per frame, smoothed by the
+  One Euro filter first when asked (its bones' rotations and locations, on a copy).
 A live stream is one more kind: anything with these attributes and methods.
 """
 
@@ -28,10 +29,11 @@ from ..avatar.estimate import ESTIMATED
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
-from ..recording.filters import OneEuro, filter_recording
+from ..recording.filters import OneEuro, filter_pose, filter_recording
 from ..recording.model import Recording
 from .methods import check_method
 from .pipeline import retarget
+from .placement import rig_matrix
 from .transfer import transfer
 
 FALLBACK_RATE = 30.0  # a one-frame take has no rate of its own
@@ -132,6 +134,7 @@ class CharacterTake:
     armature: str
     notes: list[str] = field(default_factory=list)
     frame_start: float = 1.0  # the action's frame of the first sample
+    filter: OneEuro | None = None  # One Euro on the source's pose before transferring
 
     def __post_init__(self):
         self.name = self.action
@@ -154,8 +157,16 @@ class CharacterTake:
         return self.model.calibration.get("method") == ESTIMATED
 
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
-        return transfer(self.model, self.basis, self.locations, self.time, avatar, method, plant_feet=plant_feet,
+        basis, locations = self.basis, self.locations
+        if self.filter is not None:
+            # Locations in the source's armature units; the filter's speeds are in metres.
+            scale = float(np.cbrt(abs(np.linalg.det(rig_matrix(self.model)[:3, :3])))) or 1.0
+            basis, locations = filter_pose(self.time, basis, locations, self.filter, scale)
+        anim = transfer(self.model, basis, locations, self.time, avatar, method, plant_feet=plant_feet,
                         placement=placement, progress=progress, cancel=cancel, name=self.armature)
+        if self.filter is not None:
+            anim.notes.append(f"One Euro filter on {self.armature}'s pose: {self.filter.describe()}")
+        return anim
 
     def release(self) -> None:
         self.basis = self.locations = None
