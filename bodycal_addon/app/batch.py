@@ -804,15 +804,27 @@ def _run_all(jobs: list[Job], settings: dict, stop: Stop, report, grace: float):
             signal_job(run, KILL)
 
 
-def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
+def job_progress(results: list[dict], total: int) -> tuple[str, float]:
+    """(stage, fraction) of a batch's progress line: the jobs done, ok and failed."""
+    failed = sum(r["status"] == "failed" for r in results)
+    return (f"{len(results)}/{total} jobs" + (f", {failed} failed" if failed else ""),
+            len(results) / max(total, 1))
+
+
+def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS, progress=None) -> dict:
+    """Runs the jobs file's jobs in worker processes here (module docstring); `log` gets one line per
+    finished job, `progress(stage, fraction)` how many are done."""
     jobs, settings, stale = prepare_batch(jobs_file, log)
     results: list[dict] = []
     stop = Stop()
     previous = stop.install()
+    step = progress or (lambda stage, fraction: None)
+    step(*job_progress(results, len(jobs)))
 
     def report(r):
         results.append(r)
         log(progress_line(r, len(results), len(jobs)))
+        step(*job_progress(results, len(jobs)))
 
     try:
         _run_all(jobs, settings, stop, report, grace)

@@ -113,3 +113,24 @@ def test_every_argument_of_every_command_has_help():
                if a.help in (None, "") and a.dest != "help"]
     assert missing == []
     assert all(sub.choices[c].description or any(ch.dest == c for ch in sub._choices_actions) for c in COMMANDS)
+
+
+def test_a_long_command_shows_a_progress_line_on_a_terminal_and_nothing_in_a_pipe(tmp_path, data_dir):
+    """On a terminal, one updating line (`bodycal calibrate-avatar: <stage>  42%|...`, tqdm) says how far
+    the command is and is erased at the end, leaving BodyCal's lines; piped (CI, a farm's log),
+    stdout has BodyCal's lines only, and stderr is empty either way."""
+    from terminal import lines_left, run_in_terminal
+
+    glb = data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"
+    argv = [sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(glb), "-o", str(tmp_path / "c.body.json")]
+    code, received, err = run_in_terminal(argv, cwd=REPO, timeout=300)
+    assert code == 0 and err == "", err
+    shown = received.decode(errors="replace")
+    for stage in ("opening the avatar", "raycasting its surface", "saving"):
+        assert f"\rbodycal calibrate-avatar: {stage} " in shown, shown[-2000:]
+    assert "%|" in shown
+    (line,) = lines_left(received)  # the progress line erased: BodyCal's one line stays
+    assert line.startswith(f"{tmp_path / 'c.body.json'}: avatar child_10y_rig")
+    piped = subprocess.run([*argv, "--overwrite"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert piped.returncode == 0 and piped.stderr == ""
+    assert piped.stdout.splitlines() == [line] and "\r" not in piped.stdout and "%|" not in piped.stdout

@@ -183,14 +183,24 @@ def test_smoothing_the_source_calms_the_transferred_motion(data_dir):
     np.testing.assert_array_equal(src.locations, locations)
 
 
-def test_transfer_filter_on_the_command_line(data_dir, tmp_path):
-    out = tmp_path / "calm.blend"
-    done = _run("transfer", str(_bvh(data_dir)), "--avatar", str(data_dir / "avatars" / "mpfb2_variants" /
-                                                                 "child_10y.glb"),
-                "--method", "rotations", "--filter", "2,4", "--frame-range", "1", "60", "-o", str(out))
-    assert done.returncode == 0, done.stderr
-    assert ("One Euro filter on 02_01_walk's pose: position 2 Hz + 4 Hz per m/s, rotation 4 Hz + 1 Hz per rad/s"
-            in done.stdout), done.stdout
+def test_transfer_filter_and_progress_on_the_command_line(data_dir, tmp_path):
+    """`transfer --filter 2,4` says how it smoothed the source; run at a terminal, its progress line
+    goes through the run's stages (the method's share counted by the engine's chunks) and is erased,
+    leaving BodyCal's lines."""
+    from terminal import lines_left, run_in_terminal
+
+    argv = [sys.executable, "-m", "bodycal_addon", "transfer", str(_bvh(data_dir)), "--avatar",
+            str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"), "--method", "rotations",
+            "--filter", "2,4", "--frame-range", "1", "60", "-o", str(tmp_path / "calm.blend")]
+    code, received, err = run_in_terminal(argv, cwd=REPO, timeout=300)
+    assert code == 0 and err == "", err
+    shown = received.decode(errors="replace")
+    for stage in ("reading", "opening the avatar", "measuring the avatar", "rotations", "baking", "saving"):
+        assert f"\rbodycal transfer: {stage} " in shown, (stage, shown[-3000:])
+    lines = lines_left(received)
+    assert ("One Euro filter on 02_01_walk's pose: position 2 Hz + 4 Hz per m/s, rotation 4 Hz + 1 Hz per rad/s, "
+            "forward and backward") in lines, lines
+    assert lines[-1] == f"saved {tmp_path / 'calm.blend'}" and not any("%|" in line for line in lines)
 
 
 @pytest.mark.parametrize("case", ["suffix", "missing", "action", "method", "output-is-source", "filter"])

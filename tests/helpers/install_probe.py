@@ -30,6 +30,10 @@ report["module_enabled"] = "bl_ext.user_default.bodycal" in bpy.context.preferen
 report["installed"] = registered()
 installed_dir = os.path.join(bpy.utils.user_resource("EXTENSIONS", path="user_default"), "bodycal")
 report["installed_files"] = sorted(os.listdir(installed_dir)) if os.path.isdir(installed_dir) else []
+# The manifest's wheels, unpacked by Blender into the user extensions' own site-packages.
+user_files = os.walk(os.environ["BLENDER_USER_RESOURCES"])
+report["wheel_packages"] = sorted({os.path.basename(d) for d, _sub, files in user_files
+                                   if "__init__.py" in files and os.path.dirname(d).endswith("site-packages")})
 addon_utils.disable("bl_ext.user_default.bodycal", default_set=True)
 report["after_disable"] = registered()
 report["module_enabled_after"] = "bl_ext.user_default.bodycal" in bpy.context.preferences.addons

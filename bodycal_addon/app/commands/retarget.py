@@ -14,13 +14,15 @@ def run(args) -> int:
     from ...recording.filters import OneEuro
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
-    session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg, armature=args.armature,
-                           settings=session.Settings(args.method, getattr(args, "plant_feet", True),
-                                                     getattr(args, "placement", "object")),
-                           overwrite=getattr(args, "overwrite", False), options=bake_options(args),
-                           frame_range=frame_range(args),
-                           bone_map_path=getattr(args, "bone_map", None),
-                           log=console.say, warn=lambda line: console.warn("retarget", line))
+    with console.progress("retarget") as step:
+        session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg,
+                               armature=args.armature,
+                               settings=session.Settings(args.method, getattr(args, "plant_feet", True),
+                                                         getattr(args, "placement", "object")),
+                               overwrite=getattr(args, "overwrite", False), options=bake_options(args),
+                               frame_range=frame_range(args),
+                               bone_map_path=getattr(args, "bone_map", None),
+                               log=console.say, warn=lambda line: console.warn("retarget", line), progress=step)
     return 0
 
 

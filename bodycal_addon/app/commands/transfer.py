@@ -15,10 +15,11 @@ def run(args) -> int:
     from .retarget import bake_options, frame_range
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
-    session.transfer_files(args.source, args.avatar, args.output, source_armature=args.source_armature,
-                           action=args.action, armature=args.armature, filter=cfg,
-                           settings=session.Settings(args.method, args.plant_feet, args.placement),
-                           overwrite=args.overwrite, options=bake_options(args), bone_map_path=args.bone_map,
-                           frame_range=frame_range(args),
-                           log=console.say, warn=lambda line: console.warn("transfer", line))
+    with console.progress("transfer") as step:
+        session.transfer_files(args.source, args.avatar, args.output, source_armature=args.source_armature,
+                               action=args.action, armature=args.armature, filter=cfg,
+                               settings=session.Settings(args.method, args.plant_feet, args.placement),
+                               overwrite=args.overwrite, options=bake_options(args), bone_map_path=args.bone_map,
+                               frame_range=frame_range(args),
+                               log=console.say, warn=lambda line: console.warn("transfer", line), progress=step)
     return 0
