@@ -18,11 +18,28 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 from ..blender.process import stderr_to_stdout
+from ..core.paths import ROOT_DIR
 
-try:
-    from tqdm import tqdm
-except ImportError:  # a checkout run without the bundled wheel installed: no progress line
-    tqdm = None
+
+def _load_tqdm():
+    """tqdm: installed (the extension's wheel, or requirements-dev.txt), else straight from the wheel
+    the extension bundles (a checkout run by a Python without it: pure Python imports from the
+    zip), else None (no progress line)."""
+    try:
+        from tqdm import tqdm as bar
+    except ImportError:
+        wheel = next(iter(sorted((ROOT_DIR / "wheels").glob("tqdm-*-py3-none-any.whl"))), None)
+        if wheel is None:
+            return None
+        sys.path.append(str(wheel))
+        try:
+            from tqdm import tqdm as bar
+        except ImportError:
+            return None
+    return bar
+
+
+tqdm = _load_tqdm()
 
 
 @dataclass
