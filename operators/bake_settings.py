@@ -35,6 +35,11 @@ RIGIFY_TARGET_ITEMS = [  # output/rigify.py
 ]
 
 
+INTERPOLATION_ITEMS = [  # output/keyreduce.py INTERPOLATIONS
+    ("linear", "Linear", "Linear keys: straight between the kept keys"),
+    ("bezier", "Bézier", "Bézier keys with Auto Clamped handles, smooth to edit; keys are added where the curve "
+     "would stray beyond the tolerance"),
+]
 FRAME_RANGE_ITEMS = [
     ("scene", "Scene Range", "The frames the timeline plays: the scene's frame range, or its preview range when "
      "that is on"),
@@ -76,6 +81,9 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
         precision=3, subtype="ANGLE",
         description="Key reduction: every bone's rotation stays within this angle of the every-frame bake "
                     "(linear keys); 0 keys every frame")
+    interpolation: bpy.props.EnumProperty(
+        name="Keys", items=INTERPOLATION_ITEMS, default="linear",
+        description="Interpolation of the baked keys; either way every frame stays within the tolerances")
     frame_range: bpy.props.EnumProperty(
         name="Frame Range", items=FRAME_RANGE_ITEMS, default="scene",
         description="Which frames are baked; keys land on the frames the recording was imported at (a "
@@ -97,7 +105,7 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
         fps = float(self.output_fps) if self.output_fps else render.fps / render.fps_base
         return BakeOptions(math.degrees(self.tolerance),
                            self.location_tolerance * 1000.0 * context.scene.unit_settings.scale_length, fps,
-                           self.root_motion, self.rigify_target)
+                           self.root_motion, self.rigify_target, self.interpolation)
 
     def window(self, context) -> tuple[int, int] | None:
         """The frames to bake, (first, last); None: the whole take."""

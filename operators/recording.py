@@ -5,22 +5,38 @@ from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 
 from ..bodycal_addon.blender import recording_scene
 from ..bodycal_addon.recording import io as recording_io
-from ..bodycal_addon.recording.io.reader import RECORDING_SUFFIXES
 from .reporting import reports_errors
+
+STEP_MARKER_ITEMS = [  # recording_scene.STEP_MARKERS
+    ("starts", "At Step Starts", "One timeline marker where each calibration step starts"),
+    ("bounds", "Starts and Ends", "A marker where each step starts, and one where it ends when a pause follows"),
+    ("none", "None", "No timeline markers: the recording's steps are used until a bodycal: marker is added"),
+]
 
 
 class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
-    """Import a tracker recording (.bcrec.json, .csv, .c3d): one animated empty per device and
-    marker, timeline markers for the calibration steps"""
+    """Import a tracker recording (.bcrec.json, .csv, .c3d) as one animated empty per device and marker"""
 
     bl_idname = "bodycal.import_recording"
     bl_label = "Import BodyCal Recording"
     bl_options = {"REGISTER", "UNDO"}
 
-    filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in RECORDING_SUFFIXES),
-                                          options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default=";".join(recording_io.RECORDING_GLOBS), options={"HIDDEN"})
+    frame_start: bpy.props.IntProperty(
+        name="Start Frame", default=1,
+        description="Frame the recording's first sample is keyed on")
+    update_scene_rate: bpy.props.BoolProperty(
+        name="Set Scene Frame Rate", default=True,
+        description="Set the scene's frame rate to the recording's; off: keep it and time the samples to it")
+    update_scene_range: bpy.props.BoolProperty(
+        name="Set Scene Frame Range", default=True,
+        description="Set the scene's frame range to the recording's frames")
+    step_markers: bpy.props.EnumProperty(
+        name="Step Markers", items=STEP_MARKER_ITEMS, default="starts",
+        description="Timeline markers for the calibration steps (bodycal:<step>); moving them edits the steps")
     fill_gaps: bpy.props.FloatProperty(
-        name="Fill Gaps Shorter Than", default=recording_io.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0, unit="TIME_ABSOLUTE",
+        name="Fill Gaps Shorter Than", default=recording_io.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0,
+        unit="TIME_ABSOLUTE",
         description="Untracked stretches shorter than this (seconds) are interpolated; 0 keeps every dropout")
 
     @classmethod
@@ -33,26 +49,54 @@ class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
             return False
         return True
 
+    def draw(self, _context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        header, body = layout.panel("BODYCAL_import_timing", default_closed=False)
+        header.label(text="Frames")
+        if body:
+            body.prop(self, "frame_start")
+            body.prop(self, "update_scene_rate")
+            body.prop(self, "update_scene_range")
+        header, body = layout.panel("BODYCAL_import_steps", default_closed=False)
+        header.label(text="Steps and Tracking")
+        if body:
+            body.prop(self, "step_markers")
+            body.prop(self, "fill_gaps")
+
+    @reports_errors
+    def invoke(self, context, event):
+        if not self.properties.is_property_set("filepath"):
+            return ImportHelper.invoke(self, context, event)
+        # A file dropped on the viewport or the outliner (Blender 4.2+ passes its path): the
+        # handler claims every .json, .csv and .c3d, so only a recording goes on to the options.
+        recording_io.check_recording_file(self.filepath)
+        return context.window_manager.invoke_props_dialog(self, title=bpy.path.basename(self.filepath),
+                                                          confirm_text="Import")
+
     @reports_errors
     def execute(self, context):
         # Compute first (read + validate), write last: on error the scene is untouched.
         rec = recording_io.load_recording(self.filepath, fill_gaps_s=self.fill_gaps)
-        coll = recording_scene.import_recording_to_scene(rec, context)
-        summary = f"Imported {coll.name}: {len(rec.devices)} devices, {len(rec.marker_names)} markers, " \
-                  f"{rec.frame_count} frames at {rec.fps:.4g} Hz, {len(rec.segments)} steps"
+        coll = recording_scene.import_recording_to_scene(
+            rec, context, frame_start=self.frame_start, set_scene_rate=self.update_scene_rate,
+            set_scene_range=self.update_scene_range, step_markers=self.step_markers)
         for note in rec.notes:
             self.report({"INFO"}, note)
-        self.report({"INFO"}, summary)
+        self.report({"INFO"}, recording_scene.import_summary(rec, coll, context.scene))
         return {"FINISHED"}
 
 
 class BODYCAL_FH_recording(bpy.types.FileHandler):
-    """Drop a recording file on the 3D viewport or the outliner to import it (Blender 4.1+)."""
+    """Drop a recording file on the 3D viewport or the outliner to import it (Blender 4.2+)."""
 
     bl_idname = "BODYCAL_FH_recording"
     bl_label = "BodyCal recording"
     bl_import_operator = BODYCAL_OT_import_recording.bl_idname
-    bl_file_extensions = ".bcrec.json;.csv;.c3d"
+    # Blender matches a dropped file by its last suffix only: `.bcrec.json` is `.json` here, and the
+    # operator's invoke refuses a file that is not a recording (recording_io.check_recording_file).
+    bl_file_extensions = ".json;.csv;.c3d"
 
     @classmethod
     def poll_drop(cls, context):

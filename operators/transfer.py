@@ -6,6 +6,7 @@ import bpy
 
 from ..bodycal_addon.blender.character_source import read_source
 from ..bodycal_addon.blender.fcurves import action_bones
+from ..bodycal_addon.recording.filters import OneEuro
 from ..bodycal_addon.retarget.takes import CharacterTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 
@@ -30,6 +31,9 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
                                       description="The source's action (default: its active one); "
                                                   "only actions that animate the source's bones are listed")
     method: bpy.props.EnumProperty(name="Method", items=method_items(CharacterTake.kind), default="egocentric")
+    use_filter: bpy.props.BoolProperty(
+        name="Smooth Source", default=False,
+        description="One Euro filter on the source's pose before transferring (its action is not changed)")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
 
 
@@ -60,7 +64,9 @@ bake a new action on each"""
 
     def _read_take(self, context) -> CharacterTake:
         st = self._own_settings(context)
-        return read_source(st.source, st.action)
+        take = read_source(st.source, st.action)
+        take.filter = OneEuro() if st.use_filter else None
+        return take
 
     def _armatures(self, context) -> list:
         return selected_armatures(context, exclude=self._own_settings(context).source)

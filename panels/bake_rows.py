@@ -23,6 +23,7 @@ def draw_keys(col, bake) -> None:
     sub.prop(bake, "set_scene_range")
     sub = col.column(align=True)
     sub.prop(bake, "output_fps")
+    sub.prop(bake, "interpolation")
     sub.prop(bake, "tolerance")
     sub.prop(bake, "location_tolerance")
 

@@ -1,11 +1,13 @@
 """The user-calibration wizard (sidebar sub-panel of BodyCal): the steps found in the scene's
-recording (its `bodycal:<step>...` timeline markers), each with its status and quality from the
-stored user model (residual mm, points kept, motion range), and the run / save / load buttons."""
+recording (its `bodycal:<step>...` timeline markers, or its stored steps when imported without),
+each with its status and quality from the stored user model (residual mm, points kept, motion
+range), and the run / save / load buttons."""
 
 import json
 
 import bpy
 
+from ..bodycal_addon.blender import recording_scene
 from ..bodycal_addon.blender.calibration_scene import MODEL_PROP
 from ..bodycal_addon.calibration import CALIBRATION_STEPS, coverage
 from ..bodycal_addon.calibration.coverage import BODY_JOINTS
@@ -28,13 +30,9 @@ def _calibration(scene) -> dict:
 
 
 def steps_in_scene(scene) -> dict[str, int]:
-    """{step: count} from the timeline markers `bodycal:<step>[:<point>[:<by>]]`."""
-    out = {}
-    for m in scene.timeline_markers:
-        if m.name.startswith("bodycal:") and m.name != "bodycal:end":
-            step = m.name.split(":")[1]
-            out[step] = out.get(step, 0) + 1
-    return out
+    """{step: count} from the timeline markers `bodycal:<step>[:<point>[:<by>]]` (or the stored
+    steps of a recording imported without markers)."""
+    return recording_scene.steps_in_scene(scene)
 
 
 def quality_text(q: dict) -> str:

@@ -23,6 +23,7 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
         col.prop(st, "action")
         col.prop(bake, "armature", text="Target")
         col.prop(st, "method")
+        col.prop(st, "use_filter")
         draw_placement(col, bake)
         draw_keys(col, bake)
         on = preview.any_active()

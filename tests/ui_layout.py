@@ -24,6 +24,11 @@ class RecordingLayout:
     def label(self, text="", **_kw):
         self.log.append(("label", text))
 
+    def panel(self, idname, **_kw):
+        """A collapsible sub-panel (Blender 4.1+), open: its header and body layouts."""
+        self.log.append(("panel", idname))
+        return RecordingLayout(self.log), RecordingLayout(self.log)
+
     def __getattr__(self, name):
         return lambda *a, **k: type(self)(self.log)
 

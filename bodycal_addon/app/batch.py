@@ -18,6 +18,7 @@ JOBS.toml:
     rigify_target = "fk"        # optional: "def" keys a generated Rigify rig's DEF- bones (retarget --rigify-target)
     overwrite = false           # optional: true replaces outputs a previous run left (else those jobs fail)
     tolerance = 0.1             # optional: key reduction, degrees (as retarget --tolerance; 0 keys every sample)
+    interpolation = "linear"    # optional: "bezier" keys (as retarget --interpolation)
     fps = 30                    # optional: output frame rate (as retarget --fps; default the recording's)
     export = ["blend", "fbx"]   # optional: the files each job writes (blend, fbx, glb, gltf, bvh)
     timeout = 600               # optional: seconds a job may run before it is ended and failed
@@ -89,6 +90,7 @@ from ..body.bone_presets import load_preset
 from ..core.errors import BodyCalError
 from ..core.outputs import safe_part
 from ..core.paths import ANIMATION_SUFFIXES, AVATAR_SUFFIXES, ROOT_DIR
+from ..output.keyreduce import INTERPOLATIONS
 from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
 from ..recording.filters import OneEuro
@@ -108,7 +110,7 @@ EXIT_ON_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + signal numbe
 _KEYS = {
     "": ("defaults", "recordings", "animations", "avatars"),
     "defaults": ("method", "output_dir", "workers", "runner", "filter", "plant_feet", "placement", "overwrite",
-                 "tolerance", "fps", "export", "root_motion", "rigify_target", "timeout"),
+                 "tolerance", "fps", "export", "root_motion", "rigify_target", "interpolation", "timeout"),
     "recordings": ("path", "user"),
     "animations": ("path", "source_armature", "action"),
     "avatars": ("file", "blend", "armature", "bone_map"),
@@ -138,6 +140,7 @@ class Job:
     action: str | None = None
     root_motion: str = "root"
     rigify_target: str = "fk"
+    interpolation: str = "linear"
     timeout: float | None = None  # seconds the job may run (defaults.timeout); the runner enforces it
 
     @property
@@ -174,6 +177,8 @@ class Job:
             args += ["--root-motion", self.root_motion]
         if self.rigify_target != "fk":
             args += ["--rigify-target", self.rigify_target]
+        if self.interpolation != "linear":
+            args += ["--interpolation", self.interpolation]
         if self.overwrite:
             args += ["--overwrite"]
         return args
@@ -340,7 +345,7 @@ class _Defaults:
     fps: float | None
     formats: list[str]
     placement: str
-    rig_options: dict[str, str]  # root_motion and rigify_target, as Job takes them
+    rig_options: dict[str, str]  # root_motion, rigify_target and interpolation, as Job takes them
     runner: str
     timeout: float | None
 
@@ -379,7 +384,8 @@ def _read_defaults(check: _Checker, data: dict, base: Path) -> _Defaults:
     formats = _choices(check, defaults.get("export", ["blend"]), "defaults.export", "format", EXPORT_FORMATS)
     placement = _one_of(check, defaults, "placement", PLACEMENTS)
     rig_options = {key: _one_of(check, defaults, key, allowed)
-                   for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS))}
+                   for key, allowed in (("root_motion", ROOT_MOTIONS), ("rigify_target", RIGIFY_TARGETS),
+                                        ("interpolation", INTERPOLATIONS))}
     runner = _runner(check, defaults.get("runner", "python"))
     timeout = (_number(check, defaults["timeout"], "defaults.timeout", 1.0, MAX_TIMEOUT, "seconds a job may run")
                if "timeout" in defaults else None)
@@ -798,15 +804,27 @@ def _run_all(jobs: list[Job], settings: dict, stop: Stop, report, grace: float):
             signal_job(run, KILL)
 
 
-def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS) -> dict:
+def job_progress(results: list[dict], total: int) -> tuple[str, float]:
+    """(stage, fraction) of a batch's progress line: the jobs done, ok and failed."""
+    failed = sum(r["status"] == "failed" for r in results)
+    return (f"{len(results)}/{total} jobs" + (f", {failed} failed" if failed else ""),
+            len(results) / max(total, 1))
+
+
+def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS, progress=None) -> dict:
+    """Runs the jobs file's jobs in worker processes here (module docstring); `log` gets one line per
+    finished job, `progress(stage, fraction)` how many are done."""
     jobs, settings, stale = prepare_batch(jobs_file, log)
     results: list[dict] = []
     stop = Stop()
     previous = stop.install()
+    step = progress or (lambda stage, fraction: None)
+    step(*job_progress(results, len(jobs)))
 
     def report(r):
         results.append(r)
         log(progress_line(r, len(results), len(jobs)))
+        step(*job_progress(results, len(jobs)))
 
     try:
         _run_all(jobs, settings, stop, report, grace)

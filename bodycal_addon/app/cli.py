@@ -17,7 +17,7 @@ from collections.abc import Callable
 from ..core import paths
 from ..core.errors import BodyCalError
 from ..core.outputs import describe_os_error
-from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG, INTERPOLATIONS
 from ..output.rigify import RIGIFY_TARGETS
 from ..output.root_motion import ROOT_MOTIONS
 from ..retarget.methods import methods_for
@@ -100,12 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one in the file)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
-    smooth = c.add_mutually_exclusive_group()
-    smooth.add_argument("--filter", nargs="?", const="on", default="on", metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
-                        help="the One Euro filter on the devices before retargeting, on by default (parameters "
-                             "3,5,4,1: Hz, Hz per m/s, Hz, Hz per rad/s)")
-    smooth.add_argument("--no-filter", dest="filter", action="store_const", const=None,
-                        help="retarget the devices as recorded, unsmoothed")
+    _filter_argument(c, "the devices before retargeting", on=True)
     _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a farm")
@@ -138,6 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP + " (the avatar's)")
     c.add_argument("--method", choices=TRANSFER_METHODS, default=TRANSFER_METHODS[0],
                    help=_method_help(TRANSFER_METHODS))
+    _filter_argument(c, "the source's pose (each bone's rotation, and its location in metres) before transferring")
     _bake_arguments(c, "the source's")
     for c in sub.choices.values():  # also after the command: `bodycal retarget ... --verbose`
         c.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP)
@@ -178,10 +174,21 @@ def _live_commands(sub) -> None:
     c.add_argument("--armature", metavar="NAME", help="the avatar file's armature (default: the only one)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
-    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
-                   help="One Euro filter on the devices before retargeting (as retarget --filter)")
+    _filter_argument(c, "the devices before retargeting", on=True)
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: planted while the performer stands on them)")
+
+
+def _filter_argument(c, what: str, on: bool = False) -> None:
+    """--filter [PARAMETERS], and --no-filter where smoothing is the default (DESIGN.md §6b)."""
+    group = c.add_mutually_exclusive_group()
+    group.add_argument("--filter", nargs="?", const="on", default="on" if on else None,
+                       metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
+                       help=f"the One Euro filter on {what}{', on by default' if on else ''} (default parameters "
+                            "3,5,4,1: Hz, Hz per m/s, Hz, Hz per rad/s)")
+    if on:
+        group.add_argument("--no-filter", dest="filter", action="store_const", const=None,
+                           help=f"do not smooth {what}")
 
 
 def _bake_arguments(c, rate_of: str) -> None:
@@ -205,6 +212,9 @@ def _bake_arguments(c, rate_of: str) -> None:
     c.add_argument("--location-tolerance", type=float, default=DEFAULT_LOCATION_TOLERANCE_MM, metavar="MM",
                    help="key reduction of the root's location, in millimetres "
                         f"(default {DEFAULT_LOCATION_TOLERANCE_MM:g})")
+    c.add_argument("--interpolation", choices=INTERPOLATIONS, default=INTERPOLATIONS[0],
+                   help="the baked keys: linear (default), or bezier (Auto Clamped handles; keys are added where "
+                        "the curve would stray beyond the tolerances)")
     c.add_argument("--fps", type=float, default=None, metavar="N",
                    help="output frame rate: the action is resampled to N frames per second, timing kept "
                         f"(default, or 0: one key per sample, the scene set to {rate_of} rate)")

@@ -32,7 +32,6 @@ import re
 import signal
 import socket
 import subprocess
-import sys
 import time
 import uuid
 from collections import Counter
@@ -43,7 +42,6 @@ from dataclasses import replace
 import dask
 from distributed import Client, LocalCluster, Variable, as_completed, get_worker
 from distributed.scheduler import KilledWorker
-from tqdm import tqdm
 
 from ..core.errors import BodyCalError
 from . import batch
@@ -251,25 +249,23 @@ class Scheduling:
             self.report({**batch.job_result(job, "cancelled", None, 0.0, error), "attempts": attempt + 1})
 
 
-def run_on_cluster(jobs_file, address: str, retries: int = 0, log=print) -> dict:
+def run_on_cluster(jobs_file, address: str, retries: int = 0, log=print, progress=None) -> dict:
     """Runs the jobs file on the cluster at `address` (module docstring); the summary, as
-    `batch.run_batch`'s, written to `<output_dir>/summary.json`."""
+    `batch.run_batch`'s, written to `<output_dir>/summary.json`; `progress(stage, fraction)` how many
+    jobs are done (the command line's progress line, which steps aside for `log`'s lines)."""
     target = parse_address(address)
     if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= 100:
         raise BodyCalError(f"must be a whole number from 0 to 100, got {retries!r}", source="--retries")
     jobs, settings, stale = batch.prepare_batch(jobs_file, log)
     results: list[dict] = []
-    bar = tqdm(total=len(jobs), unit="job", disable=None, file=sys.stderr, dynamic_ncols=True)
-
-    def say(line: str):
-        with tqdm.external_write_mode():  # the bar steps aside for the line, then comes back
-            log(line)
+    step = progress or (lambda stage, fraction: None)
+    step(*batch.job_progress(results, len(jobs)))
+    say = log
 
     def report(result: dict):
         results.append(result)
-        bar.update(1)
-        bar.set_postfix(ok=sum(r["ok"] for r in results), failed=sum(r["status"] == "failed" for r in results))
         say(batch.progress_line(result, len(results), len(jobs)))
+        step(*batch.job_progress(results, len(jobs)))
 
     stop = Stop()
     previous = stop.install()
@@ -284,7 +280,6 @@ def run_on_cluster(jobs_file, address: str, retries: int = 0, log=print) -> dict
                 scheduling.cancel(batch.signal_name(stop.signum), stop)
     finally:
         Stop.restore(previous)
-        bar.close()
     by_name = {job.name: job for job in jobs}
     for result in results:  # a job ended with its worker (a local cluster closed) leaves its partial save
         if result["status"] == "cancelled":

@@ -1,7 +1,11 @@
 """Where a command's lines go (FORMATS.md §4): stdout carries BodyCal's own log, stderr its errors
 and warnings, one line each; what Blender and its importers print while the command runs (the glTF
 importer's `INFO:` lines, the BVH reader's, Blender's `Info: Saved copy as ...` reports, its
-complaints about a file's drivers) goes to neither, unless `--verbose` sends it to stdout."""
+complaints about a file's drivers) goes to neither, unless `--verbose` sends it to stdout.
+
+A long command shows one updating progress line (`progress`, drawn by tqdm, a wheel the extension
+bundles) on stdout when stdout is a terminal, and nothing when it is not (a pipe, a file, a farm's
+log); BodyCal's lines are printed above it."""
 
 from __future__ import annotations
 
@@ -10,9 +14,32 @@ import ctypes
 import io
 import os
 import sys
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 
 from ..blender.process import stderr_to_stdout
+from ..core.paths import ROOT_DIR
+
+
+def _load_tqdm():
+    """tqdm: installed (the extension's wheel, or requirements-dev.txt), else straight from the wheel
+    the extension bundles (a checkout run by a Python without it: pure Python imports from the
+    zip), else None (no progress line)."""
+    try:
+        from tqdm import tqdm as bar
+    except ImportError:
+        wheel = next(iter(sorted((ROOT_DIR / "wheels").glob("tqdm-*-py3-none-any.whl"))), None)
+        if wheel is None:
+            return None
+        sys.path.append(str(wheel))
+        try:
+            from tqdm import tqdm as bar
+        except ImportError:
+            return None
+    return bar
+
+
+tqdm = _load_tqdm()
 
 
 @dataclass
@@ -20,6 +47,8 @@ class _Streams:
     out: object | None = None  # None: sys.stdout / sys.stderr at the time of the call
     err: object | None = None
     status_open: bool = False  # a status line is on the terminal without its newline yet
+    owned: bool = False  # inside own_lines_only, not verbose: nothing else writes to the terminal
+    bars: list = field(default_factory=list)  # the progress lines on screen now
 
 
 _streams = _Streams()
@@ -30,18 +59,27 @@ def stderr():
     return _streams.err or sys.stderr
 
 
+def _print(line: str, stream) -> None:
+    """`line` on `stream`, the progress line (if any) stepping aside for it and coming back below."""
+    if _streams.bars:
+        with tqdm.external_write_mode(file=_streams.out):
+            print(line, file=stream, flush=True)
+    else:
+        print(line, file=stream, flush=True)
+
+
 def say(line: str) -> None:
     """One line of the command's log, on stdout."""
     out = _streams.out or sys.stdout
     _end_status(out)
-    print(line, file=out, flush=True)
+    _print(line, out)
 
 
 def status(line: str) -> None:
     """A progress line (`bodycal record`, `bodycal stream`): on a terminal it replaces the previous
     one in place; elsewhere (a pipe, a log file) it is one more line of the log."""
     out = _streams.out or sys.stdout
-    if not _isatty(out):
+    if not _is_terminal(out):
         print(line, file=out, flush=True)
         return
     print(f"\r{line}\033[K", end="", file=out, flush=True)
@@ -54,23 +92,53 @@ def _end_status(out) -> None:
         _streams.status_open = False
 
 
-def _isatty(stream) -> bool:
-    try:
-        return stream.isatty()
-    except (AttributeError, ValueError):
-        return False
-
-
 def warn(command: str, line: str) -> None:
     """One `bodycal <command>: warning: ...` line on stderr."""
     _end_status(_streams.out or sys.stdout)
-    print(f"bodycal {command}: warning: {line}", file=_streams.err or sys.stderr, flush=True)
+    _print(f"bodycal {command}: warning: {line}", _streams.err or sys.stderr)
 
 
 def error(prog: str, line: str) -> None:
     """One `<prog>: error: ...` line on stderr (prog: `bodycal` or `bodycal <command>`)."""
     _end_status(_streams.out or sys.stdout)
-    print(f"{prog}: error: {line}", file=_streams.err or sys.stderr, flush=True)
+    _print(f"{prog}: error: {line}", _streams.err or sys.stderr)
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError, OSError):
+        return False
+
+
+STEPS = 1000  # the progress line's resolution
+
+
+@contextlib.contextmanager
+def progress(command: str) -> Iterator[Callable[[str, float], None]]:
+    """For the block, `step(stage, fraction)` updates one progress line on stdout (`bodycal
+    <command>: <stage>  42%|####      | 0:12<0:16`), when the command owns the terminal's stdout
+    (`own_lines_only`, not verbose: Blender's own output would break the line) and it is a
+    terminal; otherwise `step` does nothing. The line is erased when the block ends."""
+    out = _streams.out
+    if tqdm is None or not _streams.owned or not _is_terminal(out):
+        yield lambda stage, fraction: None
+        return
+    bar = tqdm(total=STEPS, file=out, leave=False, dynamic_ncols=True, desc=f"bodycal {command}",
+               bar_format="{desc}  {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
+    _streams.bars.append(bar)
+
+    def step(stage: str, fraction: float) -> None:
+        desc = f"bodycal {command}: {stage}"
+        if desc != bar.desc:  # a new stage is shown at once; the fraction at tqdm's pace
+            bar.set_description_str(desc)
+        bar.update(max(0, min(STEPS, round(fraction * STEPS))) - bar.n)
+
+    try:
+        yield step
+    finally:
+        _streams.bars.remove(bar)
+        bar.close()
 
 
 def _flush_c_streams() -> None:
@@ -118,12 +186,14 @@ def own_lines_only(verbose: bool = False):
                 streams[fd] = stream
             os.dup2(sink.fileno(), fd)
         _streams.out, _streams.err = streams[1], streams[2]
+        _streams.owned = True
         sys.stdout = sys.stderr = sink
         yield
     finally:
         _flush_c_streams()  # what Blender printed with C's stdio, before the descriptors are restored
         sys.stdout, sys.stderr = out, err
         _streams.out = _streams.err = None
+        _streams.owned = False
         for own in opened:
             own.close()
         for fd, dup in saved.items():

@@ -1,8 +1,9 @@
 """Step 5 of the pipeline (DESIGN.md §1): write an AvatarAnimation into a NEW action.
 
 Keys are reduced first (`keyreduce`): each bone keeps the frames its rotation needs for linear
-keys to stay within `tolerance_deg` of every sample, the root those its location needs to stay
-within `location_tolerance_mm`; a tolerance of 0 keeps every sample. Keys are written per F-Curve
+keys (or, with `interpolation="bezier"`, Bézier keys with Auto Clamped handles) to stay within
+`tolerance_deg` of every sample, the root those its location needs to stay within
+`location_tolerance_mm`; a tolerance of 0 keeps every sample. Keys are written per F-Curve
 with `keyframe_points.add(n)` + `foreach_set("co", ...)`, a few thousand times faster than inserting
 one key per call (BLENDER_NOTES.md: 5.8 M keys/s against 11.7 k/s).
 Portable across Blender 4.2 (`action.fcurves`) and 4.4+ / 5.0 slotted actions
@@ -22,10 +23,10 @@ from ..body.animation import AvatarAnimation
 from ..core.errors import BodyCalError
 from ..core.transforms import continuous_quaternions
 from ..output import keyreduce
-from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
+from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG, INTERPOLATIONS
 from ..output.rigify import check_rigify_target
 from ..output.root_motion import check_root_motion
-from .fcurves import new_fcurve, write_keys
+from .fcurves import BEZIER, LINEAR, new_fcurve, write_keys
 
 
 @dataclass
@@ -37,10 +38,12 @@ class BakeOptions:
     fps: float | None = None  # output frame rate; None keys the samples as they are
     root_motion: str = "root"  # where the travel goes: root | pelvis | in-place (retarget/root_motion.py)
     rigify_target: str = "fk"  # a generated Rigify rig: keys on its FK controls or its DEF- bones (retarget/rigify.py)
+    interpolation: str = "linear"  # the keys': linear, or bezier (Auto Clamped handles, the bound kept)
 
     def __post_init__(self):
         check_root_motion(self.root_motion)
         check_rigify_target(self.rigify_target)
+        check_interpolation(self.interpolation)
         for name in ("tolerance_deg", "location_tolerance_mm"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= 0):
@@ -48,6 +51,12 @@ class BakeOptions:
         if self.fps is not None and not (isinstance(self.fps, (int, float)) and not isinstance(self.fps, bool)
                                          and np.isfinite(self.fps) and 1 <= self.fps <= 1000):
             raise BodyCalError(f"the output frame rate must be a number from 1 to 1000, got {self.fps!r}", field="fps")
+
+
+def check_interpolation(interpolation: str) -> None:
+    if interpolation not in INTERPOLATIONS:
+        raise BodyCalError(f"unknown key interpolation {interpolation!r}", field="interpolation",
+                           hint=f"one of {', '.join(INTERPOLATIONS)}")
 
 
 # A bone whose rotation keeps more than this share of its frames is named after the bake (takes of
@@ -72,7 +81,8 @@ def dense_bones(rot_keep: np.ndarray, names, tolerance_deg: float) -> tuple[str,
 DENSE_CAUSES = {
     "recording": ("tracker noise reaching the bones, or fast motion",
                   "smoothing the devices (Smooth Devices, --filter) or a larger tolerance keeps fewer keys"),
-    "animation": ("the source action's own motion or capture jitter", "a larger tolerance keeps fewer keys"),
+    "animation": ("the source action's own motion or capture jitter",
+                  "smoothing the source (Smooth Source, --filter) or a larger tolerance keeps fewer keys"),
 }
 
 
@@ -193,18 +203,22 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
                    fps: float | None = None, frame_start: float | None = None, push_to_nla: bool = False,
                    tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
                    location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM, own: bool = False,
-                   set_scene_range: bool = False) -> BakeResult:
+                   set_scene_range: bool = False, interpolation: str = "linear") -> BakeResult:
     """Bake `anim` onto armature `obj` as a new action and make it the active action; one key per
     sample at frame_start (default: the scene's first frame) + (t - t0) x fps, reduced within the
     tolerances (0 keeps every sample). The scene's frame range becomes the action's only with
     `set_scene_range`.
     `own`: the caller gives `anim` away; its rotations are made sign-continuous in place instead
-    of in a copy (a 10-minute take: 87 MB less while the keys are made).
+    of in a copy (a 10-minute take: 87 MB less while the keys are made). `interpolation`: "linear"
+    keys, or "bezier" keys with Auto Clamped handles (the reduction then keeps the bound on the
+    Bézier curves: keyreduce).
 
     An existing action of the same name is kept (the new one gets Blender's `.001` suffix) unless
     `replace` is True, in which case the old action is removed once the new one is written.
     """
     validate(anim, obj)
+    check_interpolation(interpolation)
+    bezier = interpolation == "bezier"
     scene = bpy.context.scene
     fps = float(fps or scene.render.fps / scene.render.fps_base)
     frame_start = float(scene.frame_start if frame_start is None else frame_start)
@@ -216,12 +230,14 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     rotations = np.asarray(continuous_quaternions(anim.rotations, in_place=in_place), np.float32)
     # The key values go into `rotations` itself, at the kept frames (it is the bake's own array, or
     # the one `own` gave away).
-    rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations)
+    rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations,
+                                          bezier=bezier, frames=frames32)
     dense = dense_bones(rot_keep, anim.bone_names, tolerance_deg)
     # The tolerance is in world millimetres; locations are keyed in armature units.
     location_tolerance = max(location_tolerance_mm, 0.0) / 1000.0 / world_scale(obj)
     # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso: (kept, values)
-    locations = {bone_name: keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance)
+    locations = {bone_name: keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance, bezier=bezier,
+                                                    frames=frames32)
                  for bone_name, loc in {anim.root_bone: anim.root_location, **anim.bone_locations}.items()}
     name = action_name or default_action_name("recording", obj.name, anim.method)
     old = bpy.data.actions.get(name)
@@ -232,6 +248,7 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     action = bpy.data.actions.new(name + ".bodycal-new" if old is not None and replace else name)
     action.use_fake_user = False
     fcurves = keys = 0
+    kind = BEZIER if bezier else LINEAR
     try:
         ad = obj.animation_data_create()
         ad.action = action
@@ -241,12 +258,12 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
             path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].rotation_quaternion'
             kept = rot_keep[:, b]
             for i in range(4):
-                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], rotations[kept, b, i])
+                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], rotations[kept, b, i], kind)
             fcurves, keys = fcurves + 4, keys + 4 * int(kept.sum())
         for bone_name, (kept, loc) in locations.items():
             path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].location'
             for i in range(3):
-                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], loc[kept, i])
+                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], loc[kept, i], kind)
             fcurves, keys = fcurves + 3, keys + 3 * int(kept.sum())
         for path, value in anim.constant_keys.items():  # switches: one key holds for the whole action
             write_keys(new_fcurve(action, obj, path, 0), frames32[:1], np.array([value], np.float32))

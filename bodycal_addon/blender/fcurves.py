@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-LINEAR, CONSTANT = 1, 0  # KeyframePoint.interpolation enum values (CONSTANT=0, LINEAR=1, BEZIER=2)
+LINEAR, CONSTANT, BEZIER = 1, 0, 2  # KeyframePoint.interpolation enum values
+AUTO_CLAMPED = 4  # KeyframePoint.handle_left_type / handle_right_type enum value (HD_AUTO_ANIM)
 
 
 def _channelbag(action, obj):
@@ -38,14 +39,24 @@ def new_fcurve(action, obj, data_path: str, index: int, group: str | None = None
 
 def write_keys(fc, frames32: np.ndarray, values: np.ndarray, interpolation: int = LINEAR) -> None:
     """Append one key per frame. Dense samples are keyed linearly (or constant): exact at the
-    keys and no Bézier handles to compute (FCurve.update() costs more than writing the keys)."""
+    keys and no Bézier handles to compute. BEZIER keys get Auto Clamped handles, computed once for
+    the curve by Blender (`handles_recalc`) with the curve's Auto Handle Smoothing set to None:
+    each key's handles then depend on its neighbours only, the rule output/bezier.py models and
+    the key reduction checks its bound on."""
     n = len(frames32)
     co = np.empty(2 * n, dtype=np.float32)
     co[0::2] = frames32
     co[1::2] = values
-    fc.keyframe_points.add(n)
-    fc.keyframe_points.foreach_set("co", co)
-    fc.keyframe_points.foreach_set("interpolation", np.full(n, interpolation, dtype=np.int32))
+    points = fc.keyframe_points
+    points.add(n)
+    points.foreach_set("co", co)
+    points.foreach_set("interpolation", np.full(n, interpolation, dtype=np.int32))
+    if interpolation == BEZIER:
+        everywhere = np.full(len(points), AUTO_CLAMPED, dtype=np.int32)
+        points.foreach_set("handle_left_type", everywhere)
+        points.foreach_set("handle_right_type", everywhere)
+        fc.auto_smoothing = "NONE"
+        points.handles_recalc()
 
 
 def read_keys(fc) -> tuple[np.ndarray, np.ndarray]:

@@ -12,9 +12,15 @@ Layout:
   and where it came from in `bodycal_role_from` (FORMATS.md §2.5);
 - keys written with `keyframe_points.add` + `foreach_set` (BLENDER_NOTES.md), portable to slotted
   actions (4.4+ / 5.0) through `action.fcurve_ensure_for_datablock`;
-- timeline markers `bodycal:<step>[:<point>[:<by>]]` at each segment start, and `bodycal:end` where a
-  segment ends without another one starting; a step ends at the next `bodycal:` marker (FORMATS.md
-  §2.4), so editing the markers edits the steps;
+- timeline markers (`step_markers`, FORMATS.md §2.5): `bodycal:<step>[:<point>[:<by>]]` at each
+  segment start ("starts", the default: one marker per step), plus `bodycal:end` where a segment
+  ends without another one starting ("bounds"), or none ("none": the steps are the stored ones
+  until a `bodycal:` marker is added). A step ends at the next `bodycal:` marker (FORMATS.md §2.4),
+  or at its recorded end while its marker is where the import put it, so editing the markers
+  edits the steps;
+- the scene's frame rate and range set to the recording's unless asked not to: with the scene's
+  rate kept, sample k is at frame_start + (t_k - t_0) x the scene's rate (the take plays in real
+  time, its samples between frames when the rates differ);
 - `scene["bodycal_recording"]` points at the collection, so later steps find the recording.
 """
 
@@ -41,6 +47,7 @@ TIME_KEY = "bodycal_time"
 TRACKED = "bodycal_tracked"
 MARKER_PREFIX = "bodycal:"
 END_LABEL = "bodycal:end"
+STEP_MARKERS = ("starts", "bounds", "none")  # how the import shows the steps on the timeline
 
 
 def _scene_of(context_or_scene):
@@ -59,28 +66,44 @@ def frame_mapping(rec: Recording) -> tuple[int, float, float]:
     return fps, fps / rate, rate
 
 
-def _segment_markers(rec: Recording, frame_of) -> list[tuple[str, int]]:
+def _segment_markers(rec: Recording, frame_of, layout: str) -> list[tuple[str, int]]:
+    """The timeline markers of `layout` (STEP_MARKERS): each step's start, and with "bounds" an end
+    marker where the step ends before the next one starts."""
     out = []
+    if layout == "none":
+        return out
     segs = sorted(rec.segments, key=lambda s: s.start)
+    last_frame = frame_of(rec.time[-1])
     for k, s in enumerate(segs):
         out.append((MARKER_PREFIX + s.label, frame_of(s.start)))
+        if layout != "bounds":
+            continue
         nxt = segs[k + 1].start if k + 1 < len(segs) else None
         end_frame = frame_of(s.end)
-        last_frame = frame_of(rec.time[-1])
         if (nxt is None and end_frame < last_frame) or (nxt is not None and frame_of(nxt) > end_frame):
             out.append((END_LABEL, end_frame))
     return out
 
 
-def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_start: int = 1):
-    """Put `rec` in the scene (see the module docstring); returns the new collection. Everything
-    is computed before the scene is touched."""
+def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_start: int = 1,
+                              set_scene_rate: bool = True, set_scene_range: bool = True,
+                              step_markers: str = "starts"):
+    """Put `rec` in the scene (see the module docstring), its first sample at `frame_start`;
+    returns the new collection. `set_scene_rate`: the scene plays at the recording's rate, one
+    sample per frame (else its rate is kept and the samples are timed to it); `set_scene_range`:
+    the scene's range becomes the recording's frames; `step_markers`: one of STEP_MARKERS.
+    Everything is computed before the scene is touched."""
     scene = _scene_of(context_or_scene)
     f = rec.frame_count
     if f == 0:
         raise BodyCalError("the recording has no frames", source=rec.source or rec.name)
+    if step_markers not in STEP_MARKERS:
+        raise BodyCalError(f"unknown step marker layout {step_markers!r}", field="step markers",
+                           hint=f"one of {', '.join(STEP_MARKERS)}")
     # --- compute -------------------------------------------------------------------------------
     fps, fps_base, rate = frame_mapping(rec)
+    if not set_scene_rate:
+        rate = scene.render.fps / scene.render.fps_base
     t0 = float(rec.time[0])
     frames32 = (frame_start + (rec.time - t0) * rate).astype(np.float32)
 
@@ -92,12 +115,12 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
     valid = rec.valid.astype(np.float32)
     mk = rec.markers.astype(np.float32)
     mk_valid = rec.marker_valid.astype(np.float32)
-    labels = _segment_markers(rec, frame_of)
+    labels = _segment_markers(rec, frame_of, step_markers)
     meta = {
         "name": rec.name, "source": rec.source, "notes": list(rec.notes),
         "devices": [{"name": d.name, "kind": d.kind, "role": d.role or ""} for d in rec.devices],
         "markers": list(rec.marker_names),
-        "t0": t0, "rate": rate, "frame_start": frame_start,
+        "t0": t0, "rate": rate, "frame_start": frame_start, "step_markers": step_markers,
         "segments": [{"step": s.step, "start": s.start, "end": s.end, "point": s.point or "", "by": s.by or ""}
                      for s in rec.segments],
     }
@@ -141,12 +164,30 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         scene.timeline_markers.remove(m)  # one recording per scene: its steps replace the old ones
     for label, frame in labels:
         scene.timeline_markers.new(label, frame=frame)
-    scene.render.fps = fps
-    scene.render.fps_base = fps_base
-    scene.frame_start = frame_start
-    scene.frame_end = max(frame_start, frame_of(rec.time[-1]))
+    if set_scene_rate:
+        scene.render.fps = fps
+        scene.render.fps_base = fps_base
+    if set_scene_range:
+        scene.frame_start = frame_start
+        scene.frame_end = max(frame_start, int(math.ceil(float(frames32[-1]) - 1e-3)))
     scene[SCENE_KEY] = coll
     return coll
+
+
+def import_summary(rec: Recording, coll, context_or_scene=None) -> str:
+    """The import's report line: what was read and where it went in the scene (its frames, the
+    scene's rate and whether the scene's rate and range were set)."""
+    scene = _scene_of(context_or_scene)
+    meta = json.loads(coll[META_KEY])
+    first = meta["frame_start"]
+    last = first + (float(rec.time[-1]) - meta["t0"]) * meta["rate"]
+    scene_rate = scene.render.fps / scene.render.fps_base
+    timing = ("one sample per frame" if abs(scene_rate - rec.fps) <= 1e-6 * rec.fps or rec.frame_count < 2
+              else f"timed to the scene's {scene_rate:.4g} fps")
+    marks = sum(1 for m in scene.timeline_markers if m.name.startswith(MARKER_PREFIX))
+    return (f"Imported {coll.name}: {len(rec.devices)} devices, {len(rec.marker_names)} markers, {rec.frame_count} "
+            f"frames at {rec.fps:.4g} Hz on frames {first:g}-{last:.6g} ({timing}), {len(rec.segments)} steps, "
+            f"{marks} timeline markers")
 
 
 def scene_recording_collection(scene):
@@ -156,13 +197,23 @@ def scene_recording_collection(scene):
     return None
 
 
+def _step_marks(scene) -> list[tuple[int, str]]:
+    return sorted((m.frame, m.name) for m in scene.timeline_markers if m.name.startswith(MARKER_PREFIX))
+
+
 def segments_from_markers(scene, time: np.ndarray, t0: float, rate: float, frame_start: int,
                           stored: list[dict] | None = None, source: str = "") -> list[Segment]:
     """Steps from the timeline markers `bodycal:<step>[:<point>[:<by>]]`; each ends at the next
     `bodycal:` marker (or the end of the recording). A marker left where the import put it keeps
-    the exact stored start/end times."""
-    marks = sorted((m.frame, m.name) for m in scene.timeline_markers if m.name.startswith(MARKER_PREFIX))
+    the exact stored start and, unless the next marker comes first or is a moved `bodycal:end`,
+    the stored end."""
+    marks = _step_marks(scene)
     t_end = float(time[-1])
+    half = 0.5 / rate + 1e-9
+
+    def frame_time(frame):
+        return t0 + (frame - frame_start) / rate
+
     exact = {}
     for s in stored or []:
         label = ":".join(p for p in (s["step"], s["point"], s["by"]) if p)
@@ -176,19 +227,47 @@ def segments_from_markers(scene, time: np.ndarray, t0: float, rate: float, frame
         if step not in STEPS:
             raise BodyCalError(f"timeline marker '{name}' names no step", source=source, field="timeline markers",
                                where=f"frame {frame}", hint=f"steps: {', '.join(STEPS)}")
-        start = t0 + (frame - frame_start) / rate
-        end = t0 + (marks[k + 1][0] - frame_start) / rate if k + 1 < len(marks) else t_end
+        nxt = marks[k + 1] if k + 1 < len(marks) else None
+        start = frame_time(frame)
+        end = frame_time(nxt[0]) if nxt else t_end
         key = (name[len(MARKER_PREFIX):], frame)
         if key in exact:
-            s0, e0 = exact[key]
-            start = s0
-            if k + 1 == len(marks) or abs((marks[k + 1][0] - frame_start) / rate + t0 - e0) <= 0.5 / rate + 1e-9:
+            start, e0 = exact[key]
+            if nxt is None or (abs(end - e0) <= half if nxt[1] == END_LABEL else end >= e0 - half):
                 end = e0
         start, end = max(start, float(time[0])), min(end, t_end)
         if end <= start:
             continue
         out.append(Segment(step=step, start=start, end=end, point=parts[1] if len(parts) > 1 and parts[1] else None,
                            by=parts[2] if len(parts) > 2 and parts[2] else None))
+    return out
+
+
+def _stored_segments(meta: dict) -> list[Segment]:
+    return [Segment(step=s["step"], start=s["start"], end=s["end"], point=s["point"] or None, by=s["by"] or None)
+            for s in meta.get("segments", [])]
+
+
+def _steps_are_stored(scene, meta: dict) -> bool:
+    """Imported without markers and none added since: the steps are the recording's own."""
+    return meta.get("step_markers") == "none" and not _step_marks(scene)
+
+
+def steps_in_scene(scene) -> dict[str, int]:
+    """{step: count} of the scene's recording: from its `bodycal:` timeline markers, or the stored
+    steps of a recording imported without markers (none added since)."""
+    coll = scene_recording_collection(scene)
+    try:
+        meta = json.loads(coll[META_KEY]) if coll is not None else {}
+    except (TypeError, ValueError):
+        meta = {}
+    if _steps_are_stored(scene, meta):
+        steps = [s["step"] for s in meta.get("segments", [])]
+    else:
+        steps = [name[len(MARKER_PREFIX):].split(":")[0] for _frame, name in _step_marks(scene) if name != END_LABEL]
+    out: dict[str, int] = {}
+    for step in steps:
+        out[step] = out.get(step, 0) + 1
     return out
 
 
@@ -289,8 +368,9 @@ def recording_from_scene(context_or_scene=None, *, role_of=device_role) -> Recor
         norm = np.linalg.norm(rotations, axis=-1, keepdims=True)
         rotations = np.divide(rotations, norm, out=np.tile([1.0, 0, 0, 0], rotations.shape[:-1] + (1,)),
                               where=norm > 1e-9)
-    segments = segments_from_markers(scene, time, t0, rate, frame_start, meta.get("segments", []),
-                                     source=scene.name)
+    segments = (_stored_segments(meta) if _steps_are_stored(scene, meta) else
+                segments_from_markers(scene, time, t0, rate, frame_start, meta.get("segments", []),
+                                      source=scene.name))
     rec = Recording(name=str(meta["name"]), time=time, devices=devices, positions=stack(pos, (f, 0, 3)),
                     rotations=rotations, valid=np.stack(valid, axis=1) if valid else np.zeros((f, 0), bool),
                     marker_names=names, markers=stack(mk, (f, 0, 3)),

@@ -127,9 +127,11 @@ def quality_figures(anim: AvatarAnimation) -> dict[str, float]:
 
 
 def key_rate(take: Take, fps: float | None) -> tuple[int, float, float, bool]:
-    """(scene fps, fps_base, key rate, resample?) for baking `take` at `fps` (None: its own samples)."""
+    """(scene fps, fps_base, key rate, resample?) for baking `take` at `fps` (None: its own samples,
+    on the frames they play at). A take imported timed to the scene's rate (its samples between
+    frames) baked at that rate is resampled, so its keys fall on whole frames."""
     own = take.rate
-    if fps is None or abs(fps - own) <= 1e-6 * own:
+    if fps is None or (abs(fps - own) <= 1e-6 * own and abs(take.sample_rate - own) <= 1e-6 * own):
         return *baking.scene_rate(own), own, False
     return *baking.scene_rate(fps), float(fps), True
 
@@ -174,7 +176,8 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
         result = baking.bake_animation(keyed, arm, action_name=name, replace=replace, push_to_nla=push_to_nla,
                                        fps=rate, frame_start=frame_start, tolerance_deg=options.tolerance_deg,
                                        location_tolerance_mm=options.location_tolerance_mm,
-                                       own=resampled or release, set_scene_range=set_scene_range)
+                                       own=resampled or release, set_scene_range=set_scene_range,
+                                       interpolation=options.interpolation)
     if target.calibrated_now:
         avatar_storage.store_model(arm, target.avatar)
         target.calibrated_now = False
@@ -236,10 +239,16 @@ def write_outputs(arm, outs, files_read, overwrite: bool, log=print) -> None:
         log(f"saved {out}")
 
 
+# The share of a command's run each stage takes on its progress line (the engine's compute is the rest).
+_STAGES = {"reading": 0.0, "opening the avatar": 0.04, "measuring the avatar": 0.08, "computing": 0.14,
+           "baking": 0.86, "saving": 0.94}
+
+
 def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar_file, output_paths, *,
               armature: str | None = None, settings: Settings | None = None, overwrite: bool = True,
               options: baking.BakeOptions | None = None, log=print, warn=print, bone_map_path=None,
-              frame_range: tuple[float, float] | None = None) -> Summary:
+              frame_range: tuple[float, float] | None = None,
+              progress: Callable[[str, float], None] | None = None) -> Summary:
     """A take of `kind` (read by `read_take`, which may open its own file) onto the avatar of
     `avatar_file`, baked and written to `output_paths`. Every path is checked first (the outputs:
     not an input, not a link or device, replaced only with `overwrite`, each once; the bone map
@@ -249,7 +258,8 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     `frame_range` (first, last) limits the take to those frames (a recording's first sample is
     frame 1, a character's action keeps its own frames); the scene's range becomes the baked one.
     `warn` gets one line per doubt about the avatar (placement.avatar_warnings), before the work;
-    `log` the take's notes, the summary line and the engine's notes."""
+    `log` the take's notes, the summary line and the engine's notes; `progress(stage, fraction)`
+    how far the run is (the command line's progress line)."""
     settings = settings or Settings()
     check_method(settings.method, kind)
     check_placement(settings.placement)
@@ -257,24 +267,33 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     files_read = [*files_read, (f"{name} (--avatar)", path), ("the bone map (--bone-map)", bone_map_path)]
     outs = checked_outputs(output_paths, files_read, overwrite)
     bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening any
+    step = progress or (lambda stage, fraction: None)
+    step("reading", _STAGES["reading"])
     take = read_take()
     if frame_range is not None:
         take = take.window(*frame_range)
     for note in take.notes:
         log(note)
+    step("opening the avatar", _STAGES["opening the avatar"])
     open_avatar(Path(avatar_file))
     arm = find_armature(armature, str(avatar_file))
     if bone_map is not None and apply_preset(arm, bone_map)[1]:
         log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")
+    step("measuring the avatar", _STAGES["measuring the avatar"])
     target = prepare_target(arm)
     for line in target.warnings:
         warn(line)
-    computed = compute(take, target, settings)
+    start, span = _STAGES["computing"], _STAGES["baking"] - _STAGES["computing"]
+    step(settings.method, start)
+    computed = compute(take, target, settings, progress=lambda f: step(settings.method, start + span * f))
+    step("baking", _STAGES["baking"])
     summary = bake(take, target, computed, options=options, set_scene_rate=True, set_scene_range=True, release=True)
     del computed, take  # the keys are in the action now: let the writers have the memory
     for line in summary.report_lines():
         log(line)
+    step("saving", _STAGES["saving"])
     write_outputs(arm, outs, files_read, overwrite, log)
+    step("saving", 1.0)
     return summary
 
 
@@ -294,16 +313,18 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filt
 
 
 def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
-                   action: str | None = None, log=print, **kwargs) -> Summary:
+                   action: str | None = None, filter: OneEuro | None = None, log=print, **kwargs) -> Summary:
     """`bodycal transfer`: the action of a character in `source_path` (.blend, .bvh, .fbx, .glb,
-    .gltf; character_source.open_source)."""
+    .gltf; character_source.open_source), its pose One-Euro filtered first with `filter`."""
     source_path = Path(source_path)
 
     def read():
         for note in open_source(source_path):
             log(note)
         src_arm = find_armature(source_armature, str(source_path))
-        return read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+        take = read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+        take.filter = filter
+        return take
 
     files_read = [(f"the source {source_path.suffix.lower() or 'file'}", source_path)]
     return run_files(read, CharacterTake.kind, files_read, avatar_file, output_paths, log=log, **kwargs)

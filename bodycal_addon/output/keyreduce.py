@@ -29,16 +29,27 @@ fewer keys, and on noise-free motion as many as the samples themselves do, withi
 
 The bound holds at every sample (the frames the every-frame bake would key); between samples
 both the every-frame bake and the reduced one are linear.
+
+Bézier keys (`bezier=True`): the same keys, then the curve Blender draws through them with Auto
+Clamped handles (`bezier.py`) is checked at every sample, and each stretch between two keys where
+it strays beyond the tolerance gets its worst sample as a key (valued as the sample), until none
+does: the bound holds on the Bézier curve too. A key changes its neighbours' handles, so the
+curves that got a key are checked again, a pass at a time.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from . import bezier
+
+INTERPOLATIONS = ("linear", "bezier")  # the baked keys' interpolation (Bézier: Auto Clamped handles)
 DEFAULT_TOLERANCE_DEG = 0.1  # rotation: angle between the baked and the every-sample rotation
 DEFAULT_LOCATION_TOLERANCE_MM = 0.5  # root location, world millimetres
 BLOCK_FRAMES = 1024  # frames searched together (their first and last are keys)
 BAND = 0.7  # a key's value lies within BAND x the tolerance of its own sample
+BEZIER_MARGIN = 0.999  # Bézier keys: the bound checked this much tighter (Blender evaluates in float32)
+REFINE_ELEMENTS = 1 << 21  # Bézier check: curves x frames looked at together (memory)
 # Savitzky-Golay, 7 frames, quadratic: the centre weights. A quadratic passes through unchanged, so
 # smooth motion keeps its shape; white noise loses 57% of its amplitude.
 _SMOOTHING = np.array([-2.0, 3.0, 6.0, 7.0, 6.0, 3.0, -2.0]) / 21.0
@@ -171,6 +182,55 @@ def _reduce_blocks(curves: np.ndarray, tolerance: float, error, radius: float, u
     return keep
 
 
+def _refine_bezier(curves: np.ndarray, values: np.ndarray, keep: np.ndarray, tolerance: float, error,
+                   unit: bool, frames: np.ndarray) -> None:
+    """Add keys (to `keep` (F, G) and their values, the samples, to `values` (F, G, C)) until the
+    Bézier curves through the kept keys (Blender's Auto Clamped handles) are within `tolerance`
+    (in `error`'s measure) of every sample of `curves` (F, G, C). Curves are looked at in groups of
+    about REFINE_ELEMENTS frames; within a group, only the curves that got a key are checked again."""
+    f, g = keep.shape
+    if f <= 2 or tolerance <= 0:
+        return
+    step = max(1, REFINE_ELEMENTS // f)
+    for lo in range(0, g, step):
+        todo = np.arange(lo, min(lo + step, g))
+        while todo.size:
+            added = _bezier_pass(curves, values, keep, tolerance, error, unit, frames, todo)
+            todo = todo[np.isin(todo, added)]
+
+
+def _bezier_pass(curves, values, keep, tolerance, error, unit, frames, cols) -> np.ndarray:
+    """One check of curves `cols`: the worst sample of every stretch beyond the tolerance becomes a
+    key. Returns the curves that got one."""
+    sub = keep[:, cols].T  # (n, F): one row per curve, frames in order
+    kc, kf, first, last, seg = bezier.runs(sub)
+    x = frames[kf]
+    y = np.asarray(values[kf, cols[kc]], float)
+    handles = bezier.auto_clamped_handles(x, y, first, last)
+    qc, qf = np.nonzero(~sub)  # every sample between keys (a curve's ends are always keys)
+    if not qc.size:
+        return np.empty(0, np.int64)
+    seg = seg[qc, qf]
+    approx = bezier.evaluate(x, y, handles, seg, frames[qf])
+    true = np.asarray(curves[qf, cols[qc]], float)
+    if unit:  # a float32 quaternion's norm would move the bound by ~0.01 deg (rotation_keys)
+        true /= _norm(true)
+    err = error(true, approx)
+    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    worst = np.maximum.reduceat(err, starts)
+    bad = np.flatnonzero(worst > tolerance)
+    if not bad.size:
+        return np.empty(0, np.int64)
+    seg_of = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(seg)]))
+    at_worst = np.flatnonzero((err == worst[seg_of]) & np.isin(seg_of, bad))
+    pick = at_worst[np.r_[True, seg_of[at_worst[1:]] != seg_of[at_worst[:-1]]]]
+    rows, cols_new = qf[pick], cols[qc[pick]]
+    keep[rows, cols_new] = True
+    new = np.asarray(curves[rows, cols_new], float)
+    values[rows, cols_new] = new / _norm(new) if unit else new
+    return np.unique(cols_new)
+
+
 def _rotation_badness(true: np.ndarray, lerp: np.ndarray) -> np.ndarray:
     """1 - cos(angle / 2) between unit quaternions `true` and the normalised `lerp`: grows with
     the angle, and needs no arccos (the tolerance is turned into the same measure instead)."""
@@ -189,31 +249,45 @@ def _values_array(curves: np.ndarray, out: np.ndarray | None) -> np.ndarray:
     return np.array(curves, dtype=curves.dtype if curves.dtype.kind == "f" else float) if out is None else out
 
 
-def rotation_keys(quaternions: np.ndarray, tolerance_rad: float, out: np.ndarray | None = None):
+def _frames_of(frames, f: int) -> np.ndarray:
+    return np.arange(f, dtype=float) if frames is None else np.asarray(frames, float)
+
+
+def rotation_keys(quaternions: np.ndarray, tolerance_rad: float, out: np.ndarray | None = None, *,
+                  bezier: bool = False, frames: np.ndarray | None = None):
     """(keep, values) for each bone's (F, B, 4) quaternion curve (already made continuous in sign:
     `transforms.continuous_quaternions`): the (F, B) mask of frames to key and an (F, B, 4) array
     holding, at each kept frame, the value to key there, such that nlerp between kept keys stays
-    within `tolerance_rad` of every sample. `values` is `out` when given (it may be `quaternions`
-    itself: only kept frames are written). A tolerance of 0 keeps every sample as it is."""
+    within `tolerance_rad` of every sample (with `bezier`, the normalised Bézier curves through
+    them too: their keys at `frames`, default 0, 1, 2 ...). `values` is `out` when given (it may be
+    `quaternions` itself: only kept frames are written). A tolerance of 0 keeps every sample as it is."""
     q = np.asarray(quaternions)
     tol = float(tolerance_rad)
     out = _values_array(q, out)
     # Normalised: the badness 1 - cos(angle / 2) is ~4e-7 at 0.1 deg, and a float32 quaternion's
     # norm is off by up to ~6e-8, which would take 0.01 deg off (or add it to) the bound.
     keep = _reduce_blocks(q, 1.0 - np.cos(tol / 2.0) if tol > 0 else 0.0, _rotation_badness, BAND * tol, True, out)
+    if bezier and tol > 0:
+        _refine_bezier(q, out, keep, 1.0 - np.cos(BEZIER_MARGIN * tol / 2.0), _rotation_badness, True,
+                       _frames_of(frames, len(q)))
     return keep, out
 
 
-def location_keys(locations: np.ndarray, tolerance: float, out: np.ndarray | None = None):
+def location_keys(locations: np.ndarray, tolerance: float, out: np.ndarray | None = None, *,
+                  bezier: bool = False, frames: np.ndarray | None = None):
     """(keep, values) for an (F, 3) location curve: the (F,) mask of frames to key and an (F, 3)
-    array holding the value to key at each kept frame, such that lerp between kept keys stays
-    within `tolerance` (same units) of every sample. `values` is `out` when given (it may be
-    `locations` itself). A tolerance of 0 keeps every sample as it is."""
+    array holding the value to key at each kept frame, such that lerp between kept keys (with
+    `bezier`, the Bézier curves through them, keyed at `frames`) stays within `tolerance` (same
+    units) of every sample. `values` is `out` when given (it may be `locations` itself). A
+    tolerance of 0 keeps every sample as it is."""
     p = np.asarray(locations)
     tol = float(tolerance)
     values = _values_array(p, out)
     keep = _reduce_blocks(p[:, None], tol * tol if tol > 0 else 0.0, _squared_distance, BAND * tol, False,
                           values[:, None])
+    if bezier and tol > 0:
+        _refine_bezier(p[:, None], values[:, None], keep, (BEZIER_MARGIN * tol) ** 2, _squared_distance, False,
+                       _frames_of(frames, len(p)))
     return keep[:, 0], values
 
 

@@ -72,6 +72,11 @@ class OneEuro:
             vals += [cls.rot_min_cutoff, cls.rot_beta]
         return cls(*vals)
 
+    def describe(self) -> str:
+        """The parameters as the notes say them."""
+        return (f"position {self.min_cutoff:g} Hz + {self.beta:g} Hz per m/s, rotation {self.rot_min_cutoff:g} Hz + "
+                f"{self.rot_beta:g} Hz per rad/s" + (", forward and backward" if self.two_pass else ""))
+
 
 DEFAULT_FILTER = OneEuro()  # what a take is smoothed with unless the user says otherwise (DESIGN.md §6b)
 
@@ -173,9 +178,7 @@ def filter_recording(rec: Recording, cfg: OneEuro | None = None) -> Recording:
                                      cfg.two_pass)
     if rec.markers is not None and rec.markers.shape[1]:
         out.markers = smooth_positions(rec.time, rec.markers, cfg.min_cutoff, cfg.beta, cfg.d_cutoff, cfg.two_pass)
-    note = (f"One Euro filter: position {cfg.min_cutoff:g} Hz + {cfg.beta:g} Hz per m/s, rotation "
-            f"{cfg.rot_min_cutoff:g} Hz + {cfg.rot_beta:g} Hz per rad/s" + (", forward and backward" if cfg.two_pass
-                                                                           else ""))
+    note = f"One Euro filter: {cfg.describe()}"
     if cfg.anchored:
         note += _anchored(rec, out, cfg)
     out.notes = list(rec.notes) + [note]
@@ -254,3 +257,18 @@ def contact_cutoff(rec: Recording, hands: list[int]) -> np.ndarray:
     speed = _lowpass(speed, _alpha(CONTACT_SPEED_CUTOFF, dt))
     near = np.clip(1.0 - np.linalg.norm(rel, axis=-1) / CONTACT_RADIUS, 0.0, 1.0) ** 2
     return np.repeat((CONTACT_BETA * near * speed)[:, None], 2, axis=1)
+
+
+def filter_pose(time: np.ndarray, basis: np.ndarray, locations: np.ndarray, cfg: OneEuro | None = None,
+                metres_per_unit: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A character's pose (DESIGN.md §8) One-Euro filtered, as `filter_recording` filters devices:
+    each bone's rotation (`basis` (F, N, 4) quaternions) by its angular speed, its location
+    (`locations` (F, N, 3), or (F, 3), in units of `metres_per_unit`) by its speed in metres.
+    Returns new arrays."""
+    cfg = cfg or OneEuro()
+    basis = smooth_rotations(time, basis, cfg.rot_min_cutoff, cfg.rot_beta, cfg.d_cutoff, cfg.two_pass)
+    loc = np.asarray(locations, float)
+    flat = loc.ndim == 2
+    metres = (loc[:, None] if flat else loc) * metres_per_unit
+    metres = smooth_positions(time, metres, cfg.min_cutoff, cfg.beta, cfg.d_cutoff, cfg.two_pass) / metres_per_unit
+    return basis, metres[:, 0] if flat else metres

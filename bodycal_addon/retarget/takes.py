@@ -12,7 +12,8 @@ it holds.
 - `RecordingTake`: a tracker recording of a calibrated performer (`pipeline.retarget`), smoothed by
   the One Euro filter first when asked (on a copy: the recording itself is not changed).
 - `CharacterTake`: another character's action (`transfer.transfer`): its body model (measured on
-  its mesh, or estimated from its bone lengths) and its pose-bone values per frame.
+  its mesh, or estimated from its bone lengths) and its pose-bone values per frame, smoothed by the
+  One Euro filter first when asked (its bones' rotations and locations, on a copy).
 A live stream is one more kind: anything with these attributes and methods.
 """
 
@@ -28,10 +29,11 @@ from ..avatar.estimate import ESTIMATED
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
-from ..recording.filters import DEFAULT_FILTER, OneEuro, filter_recording
+from ..recording.filters import DEFAULT_FILTER, OneEuro, filter_pose, filter_recording
 from ..recording.model import Recording
 from .methods import check_method
 from .pipeline import PreparedTake, prepare_recording, retarget
+from .placement import rig_matrix
 from .transfer import prepare_transfer, transfer
 
 FALLBACK_RATE = 30.0  # a one-frame take has no rate of its own
@@ -60,7 +62,11 @@ class Take(Protocol):
 
     @property
     def rate(self) -> float:
-        """Samples per second."""
+        """Scene frames per second of the take's time: sample k plays at frame_start + (t_k - t_0) x rate."""
+
+    @property
+    def sample_rate(self) -> float:
+        """Samples per second (the rate, unless the take was imported timed to another scene rate)."""
 
     def window(self, first: float, last: float) -> Take:
         """The take limited to its samples at scene frames first..last (both included)."""
@@ -96,6 +102,10 @@ class RecordingTake:
     def rate(self) -> float:
         if self.frame_rate is not None:
             return self.frame_rate
+        return self.sample_rate
+
+    @property
+    def sample_rate(self) -> float:
         rec = self.recording
         return rec.fps if rec.frame_count > 1 else FALLBACK_RATE
 
@@ -136,12 +146,17 @@ class CharacterTake:
     armature: str
     notes: list[str] = field(default_factory=list)
     frame_start: float = 1.0  # the action's frame of the first sample
+    filter: OneEuro | None = None  # One Euro on the source's pose before transferring
 
     def __post_init__(self):
         self.name = self.action
 
     @property
     def rate(self) -> float:
+        return float(self.fps)
+
+    @property
+    def sample_rate(self) -> float:
         return float(self.fps)
 
     def window(self, first: float, last: float) -> CharacterTake:
@@ -154,12 +169,25 @@ class CharacterTake:
         return self.model.calibration.get("method") == ESTIMATED
 
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
-        return transfer(self.model, self.basis, self.locations, self.time, avatar, method, plant_feet=plant_feet,
+        basis, locations = self._pose()
+        anim = transfer(self.model, basis, locations, self.time, avatar, method, plant_feet=plant_feet,
                         placement=placement, progress=progress, cancel=cancel, name=self.armature)
+        if self.filter is not None:
+            anim.notes.append(f"One Euro filter on {self.armature}'s pose: {self.filter.describe()}")
+        return anim
 
     def prepare(self, avatar, method, *, plant_feet=True, placement="object"):
-        return prepare_transfer(self.model, self.basis, self.locations, self.time, avatar, method,
-                                plant_feet=plant_feet, placement=placement, name=self.armature)
+        basis, locations = self._pose()
+        return prepare_transfer(self.model, basis, locations, self.time, avatar, method, plant_feet=plant_feet,
+                                placement=placement, name=self.armature)
+
+    def _pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The source's pose values, smoothed when asked."""
+        if self.filter is None:
+            return self.basis, self.locations
+        # Locations in the source's armature units; the filter's speeds are in metres.
+        scale = float(np.cbrt(abs(np.linalg.det(rig_matrix(self.model)[:3, :3])))) or 1.0
+        return filter_pose(self.time, self.basis, self.locations, self.filter, scale)
 
     def release(self) -> None:
         self.basis = self.locations = None

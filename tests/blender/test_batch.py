@@ -129,6 +129,11 @@ def test_output_settings_and_exports_reach_every_job(tmp_path):
     base = tmp_path / "out" / "batch" / "t__a__egocentric"
     assert outs == [f"{base}.fbx", f"{base}.blend", f"{base}.bvh"]
     assert argv[argv.index("--tolerance") + 1] == "0.25" and argv[argv.index("--fps") + 1] == "30.0"
+    assert "--interpolation" not in argv
+    (tmp_path / "jobs.toml").write_text('[defaults]\ninterpolation = "bezier"\n[[recordings]]\npath="t"\nuser="u"\n'
+                                        '[[animations]]\npath="walk.bvh"\n[[avatars]]\nblend="a.blend"\n')
+    jobs, _settings = load_jobs(tmp_path / "jobs.toml")
+    assert [job.argv()[job.argv().index("--interpolation") + 1] for job in jobs] == ["bezier", "bezier"]
 
 
 @pytest.mark.slow
@@ -252,6 +257,7 @@ BAD_DEFAULTS = [
     ('plant_feet = "no"', "defaults.plant_feet", "true or false"),
     ("overwrite = 1", "defaults.overwrite", "true or false"),
     ('placement = "stage"', "defaults.placement", '"object" or "performer"'),
+    ('interpolation = "cubic"', "defaults.interpolation", '"linear" or "bezier"'),
     ("plant_foot = false", "defaults", "unknown key"),
     ("tolerance = -0.1", "defaults.tolerance", "number from 0"),
     ('tolerance = "0.1"', "defaults.tolerance", "number from 0"),
@@ -384,6 +390,32 @@ def test_a_worker_killed_while_saving_leaves_nothing_and_is_one_failure(tmp_path
     assert not list((tmp_path / "results").glob(".*.tmp*"))
     assert (tmp_path / "results" / "fast__a__egocentric.blend").read_bytes() == b"blend"
     assert json.loads((tmp_path / "results" / "summary.json").read_text())["failed"] == 1
+
+
+def test_a_batch_at_a_terminal_counts_its_jobs_on_one_progress_line(tmp_path):
+    """`bodycal batch` at a terminal: one progress line counts the jobs done (and failed), each job's
+    own line printed above it; piped, only the job lines and the summary."""
+    from terminal import lines_left, run_in_terminal
+
+    jobs = _fake_setup(tmp_path, ["fast1", "fast2", "crash"], workers=1)
+    (tmp_path / "driver.py").write_text(DRIVER)
+    env = {**os.environ, "FAKE_PIDS": str(tmp_path / "pids"), "PYTHONPATH": str(REPO)}
+    argv = [sys.executable, str(tmp_path / "driver.py"), str(tmp_path / "fake_worker.py"), str(jobs)]
+    code, received, err = run_in_terminal(argv, cwd=REPO, env=env, timeout=120)
+    assert code == 2 and "1 of 3 jobs failed" in err
+    shown = received.decode(errors="replace")
+    for count in ("0/3 jobs", "1/3 jobs", "2/3 jobs", "3/3 jobs, 1 failed"):
+        assert f"\rbodycal batch: {count} " in shown, shown
+    lines = lines_left(received)
+    assert [line.split(":")[0] for line in lines[:3]] == ["[1/3] fast1__a__egocentric", "[2/3] fast2__a__egocentric",
+                                                         "[3/3] crash__a__egocentric"], lines
+    assert json.loads(lines[3])["failed"] == 1 and len(lines) == 4
+    for name in ("fast1", "fast2"):
+        (tmp_path / "results" / f"{name}__a__egocentric.blend").unlink()
+    piped = subprocess.run(argv, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    untimed = [line.rsplit(" (", 1)[0] for line in piped.stdout.splitlines()[:3]]
+    assert untimed == [line.rsplit(" (", 1)[0] for line in lines[:3]]
+    assert len(piped.stdout.splitlines()) == 4 and "\r" not in piped.stdout and "%|" not in piped.stdout
 
 
 def test_sigterm_stops_the_batch_ends_deaf_workers_and_writes_the_summary(tmp_path):

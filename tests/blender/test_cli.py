@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 from repo_paths import REPO
 
 from bodycal_addon.app import cli, cli_bridge
@@ -55,13 +56,21 @@ def test_retarget_and_transfer_take_the_same_bake_options():
     """Root motion and the Rigify target apply to whatever is baked onto the avatar: a transfer onto
     a game rig or a generated Rigify rig needs them as much as a retarget does."""
     parser = cli.build_parser()
+    from bodycal_addon.app.commands.retarget import bake_options
+
     common = ["--root-motion", "in-place", "--rigify-target", "def", "--tolerance", "0.2", "--fps", "30",
-              "--placement", "performer", "--no-plant-feet", "-o", "a.blend", "-o", "a.fbx"]
+              "--placement", "performer", "--no-plant-feet", "--interpolation", "bezier", "-o", "a.blend",
+              "-o", "a.fbx"]
     retarget = parser.parse_args(["retarget", "r.bcrec.json", "--user", "u.json", "--avatar", "a.blend", *common])
     transfer = parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", *common])
     for args in (retarget, transfer):
         assert (args.root_motion, args.rigify_target, args.tolerance, args.fps, args.placement, args.plant_feet,
                 args.output) == ("in-place", "def", 0.2, 30.0, "performer", False, ["a.blend", "a.fbx"])
+        assert bake_options(args).interpolation == "bezier"
+    plain = parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", "-o", "a.blend"])
+    assert bake_options(plain).interpolation == "linear"
+    with pytest.raises(cli.UsageError, match="invalid choice: 'cubic'"):
+        parser.parse_args(["transfer", "s.bvh", "--avatar", "a.blend", "--interpolation", "cubic", "-o", "a.blend"])
 
 
 def test_a_command_leaves_no_blender_temp_folder(tmp_path):
@@ -104,3 +113,24 @@ def test_every_argument_of_every_command_has_help():
                if a.help in (None, "") and a.dest != "help"]
     assert missing == []
     assert all(sub.choices[c].description or any(ch.dest == c for ch in sub._choices_actions) for c in COMMANDS)
+
+
+def test_a_long_command_shows_a_progress_line_on_a_terminal_and_nothing_in_a_pipe(tmp_path, data_dir):
+    """On a terminal, one updating line (`bodycal calibrate-avatar: <stage>  42%|...`, tqdm) says how far
+    the command is and is erased at the end, leaving BodyCal's lines; piped (CI, a farm's log),
+    stdout has BodyCal's lines only, and stderr is empty either way."""
+    from terminal import lines_left, run_in_terminal
+
+    glb = data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"
+    argv = [sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(glb), "-o", str(tmp_path / "c.body.json")]
+    code, received, err = run_in_terminal(argv, cwd=REPO, timeout=300)
+    assert code == 0 and err == "", err
+    shown = received.decode(errors="replace")
+    for stage in ("opening the avatar", "raycasting its surface", "saving"):
+        assert f"\rbodycal calibrate-avatar: {stage} " in shown, shown[-2000:]
+    assert "%|" in shown
+    (line,) = lines_left(received)  # the progress line erased: BodyCal's one line stays
+    assert line.startswith(f"{tmp_path / 'c.body.json'}: avatar child_10y_rig")
+    piped = subprocess.run([*argv, "--overwrite"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert piped.returncode == 0 and piped.stderr == ""
+    assert piped.stdout.splitlines() == [line] and "\r" not in piped.stdout and "%|" not in piped.stdout

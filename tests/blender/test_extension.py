@@ -5,6 +5,7 @@ import importlib
 import json
 import subprocess
 import sys
+import tomllib
 import zipfile
 
 import bpy
@@ -51,8 +52,10 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     # Left out of the zip by [build] paths_exclude_pattern.
     assert not any(n.startswith(("tests/", "benchmarks/", ".ci/", ".venv/")) for n in names)
     assert not any(n.endswith(".truth.json") for n in names)  # the synthetic ground truth: development only
+    # The wheels the manifest names (tqdm: the command line's progress line) ship in the zip.
+    manifest_wheels = tomllib.loads((REPO / "blender_manifest.toml").read_text())["wheels"]
+    assert manifest_wheels and all(w.removeprefix("./") in names for w in manifest_wheels)
     # The licence the manifest names ships with it, and the manifest has no placeholder left.
-    import tomllib
 
     assert "LICENSE" in names
     licence = zipfile.ZipFile(zip_path).read("LICENSE").decode()
@@ -73,6 +76,7 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     assert report["installed"]["categories"] == ["BodyCal"]
     assert "bodycal_addon" in report["installed_files"]
     assert report["wheel"] == {"installed": True, "on_path": True, "receiver_ran": True}
+    assert "tqdm" in report["wheel_packages"]
     assert not report["module_enabled_after"]
     assert report["after_disable"]["classes"] == []
     assert report["after_disable"]["operators"] == []
@@ -118,5 +122,6 @@ def test_a_real_operator_on_a_missing_file_reports_one_line(tmp_path):
 def test_recordings_can_be_dropped_on_the_viewport():
     handler = bpy.types.FileHandler.bl_rna_get_subclass_py("BODYCAL_FH_recording")
     assert handler.bl_import_operator == "bodycal.import_recording"
-    assert set(handler.bl_file_extensions.split(";")) == {".bcrec.json", ".csv", ".c3d"}
+    # Blender matches a drop by its last suffix: `.bcrec.json` is claimed as `.json` (FORMATS.md §2.5).
+    assert set(handler.bl_file_extensions.split(";")) == {".json", ".csv", ".c3d"}
     assert not handler.poll_drop(bpy.context)  # background mode: no area to drop on

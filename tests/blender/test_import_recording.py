@@ -13,6 +13,7 @@ from recording_fixtures import recording_doc, tpose_recording
 
 from bodycal_addon.blender import recording_scene as rs
 from bodycal_addon.blender.fcurves import object_fcurves, read_keys
+from bodycal_addon.core import paths
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.recording import io as rio
 from bodycal_addon.recording.model import Segment
@@ -36,7 +37,7 @@ def _keys(obj, path, index):
 def test_import_builds_animated_empties_markers_and_range():
     rec = _recording()
     scene = bpy.context.scene
-    coll = rs.import_recording_to_scene(rec, scene)
+    coll = rs.import_recording_to_scene(rec, scene, step_markers="bounds")
     assert coll.name == rec.name
     assert len(coll.objects) == len(rec.devices) + len(rec.marker_names)
     assert scene.render.fps == 90 and scene.render.fps_base == pytest.approx(1.0)
@@ -114,7 +115,7 @@ def test_rebuild_after_save_and_reload_is_exact_to_float32(tmp_path):
 def test_edited_timeline_markers_are_the_steps():
     rec = _recording()
     scene = bpy.context.scene
-    rs.import_recording_to_scene(rec, scene)
+    rs.import_recording_to_scene(rec, scene, step_markers="bounds")
     tpose = next(m for m in scene.timeline_markers if m.name == "bodycal:tpose")
     tpose.frame = 10
     scene.timeline_markers.new("bodycal:stand", frame=50)
@@ -172,3 +173,126 @@ def test_synthetic_session_survives_the_scene(tmp_path):
     np.testing.assert_array_equal(back.valid, rec.valid)
     np.testing.assert_allclose(back.positions, rec.positions, atol=1e-5)
     np.testing.assert_allclose(back.markers, rec.markers, atol=1e-5)
+
+
+def _tracker_frames(coll) -> np.ndarray:
+    obj = next(o for o in coll.objects if rs.DEVICE_PROP in o)
+    return _keys(obj, "location", 0)[0]
+
+
+def test_import_options_start_frame_and_the_scene_left_as_it_was(tmp_path):
+    """Import options (FORMATS.md §2.5): the first sample on the start frame; with the scene's rate
+    and range kept, the samples are timed to the scene's rate (the take plays in real time) and the
+    scene's rate and range are what they were; with them set, the scene is the recording's."""
+    rec = tpose_recording(seconds=2.0)
+    rec.segments = [Segment("tpose", 0.2, 1.0), Segment("motion", 1.2, 1.9)]
+    path = tmp_path / "take.bcrec.json"
+    path.write_text(json.dumps(recording_doc(rec)))
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base, scene.frame_start, scene.frame_end = 24, 1.0, 5, 60
+    assert bpy.ops.bodycal.import_recording(filepath=str(path), frame_start=1000, update_scene_rate=False,
+                                            update_scene_range=False) == {"FINISHED"}
+    assert (scene.render.fps, scene.render.fps_base, scene.frame_start, scene.frame_end) == (24, 1.0, 5, 60)
+    coll = rs.scene_recording_collection(scene)
+    frames = _tracker_frames(coll)
+    np.testing.assert_allclose(frames, 1000 + (rec.time - rec.time[0]) * 24, atol=1e-3)
+    assert {(m.name, m.frame) for m in scene.timeline_markers} == {("bodycal:tpose", 1000 + round(0.2 * 24)),
+                                                                    ("bodycal:motion", 1000 + round(1.2 * 24))}
+    assert rs.frame_mapping_in_scene(scene) == (1000.0, 24.0)
+    back = rs.recording_from_scene(scene)  # the steps read back from frames at the scene's rate
+    assert [(s.label, s.start, s.end) for s in back.segments] == [("tpose", 0.2, 1.0), ("motion", 1.2, 1.9)]
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.fps = 24
+    assert bpy.ops.bodycal.import_recording(filepath=str(path), frame_start=1000) == {"FINISHED"}
+    frames = _tracker_frames(rs.scene_recording_collection(scene))
+    np.testing.assert_allclose(frames, 1000 + np.arange(rec.frame_count), atol=1e-3)
+    assert (scene.render.fps, scene.frame_start, scene.frame_end) == (90, 1000, 1000 + rec.frame_count - 1)
+
+
+@pytest.fixture(scope="module")
+def sample_take():
+    return rio.load_recording(paths.ROOT_DIR / "sample_rigs" / "recordings" / "demo_full.bcrec.json")
+
+
+@pytest.mark.parametrize("layout, markers, ends", [("starts", 91, 0), ("bounds", 182, 91), ("none", 0, 0)])
+def test_step_markers_do_not_flood_the_timeline(sample_take, layout, markers, ends):
+    """The sample take's 91 steps, each followed by a pause: one marker per step by default (it was
+    a start and an end marker each, 182), both on request, or none; whichever the layout, the steps
+    read back are the recording's own, to the sample, and the wizard counts them all."""
+    rec = sample_take
+    assert len(rec.segments) == 91
+    scene = bpy.context.scene
+    rs.import_recording_to_scene(rec, scene, step_markers=layout)
+    names = [m.name for m in scene.timeline_markers]
+    assert (len(names), names.count("bodycal:end")) == (markers, ends)
+    back = rs.recording_from_scene(scene)
+    want = sorted((s.label, s.start, s.end) for s in rec.segments)
+    assert sorted((s.label, s.start, s.end) for s in back.segments) == want
+    counts = rs.steps_in_scene(scene)
+    assert sum(counts.values()) == 91 and counts["touch"] == 76
+    if layout == "none":  # a marker added: the timeline decides from then on
+        scene.timeline_markers.new("bodycal:stand", frame=40)
+        assert rs.steps_in_scene(scene) == {"stand": 1}
+        assert [s.step for s in rs.recording_from_scene(scene).segments] == ["stand"]
+
+
+def test_a_step_left_where_it_was_keeps_its_end_and_a_moved_one_runs_to_the_next_marker():
+    rec = _recording()  # tpose 0.2-1.0, touch 1.1-1.3, motion 1.5-2.9 at 90 Hz
+    scene = bpy.context.scene
+    rs.import_recording_to_scene(rec, scene)
+    assert sorted((m.frame, m.name) for m in scene.timeline_markers) == [
+        (19, "bodycal:tpose"), (100, "bodycal:touch:wrist_top_l:index_tip_r"), (136, "bodycal:motion")]
+    touch = next(m for m in scene.timeline_markers if m.name.startswith("bodycal:touch"))
+    touch.frame = 95
+    scene.timeline_markers.new("bodycal:end", frame=60)  # ends the T-pose early
+    got = {s.step: (s.start, s.end) for s in rs.recording_from_scene(scene).segments}
+    assert got["tpose"] == pytest.approx((0.2, 59 / 90))
+    assert got["touch"] == pytest.approx((94 / 90, 135 / 90))  # moved: to the next marker
+    assert got["motion"] == pytest.approx((1.5, 2.9))
+
+
+def test_the_file_filter_lists_recordings_and_a_dropped_file_must_be_one(tmp_path):
+    """The file browser lists `*.bcrec.json`, `*.csv` and `*.c3d`; a drop (Blender gives the path to
+    invoke) is claimed by suffix, `.json` included since Blender matches the last suffix only, and a
+    file that is not a recording is one line, with nothing imported; a recording goes on to the
+    options dialog. (Background Blender runs no invoke: it is called as the drop calls it.)"""
+    from types import SimpleNamespace
+
+    from bodycal_addon.recording.io import RECORDING_GLOBS
+
+    op_type = bpy.types.BODYCAL_OT_import_recording
+    glob = bpy.ops.bodycal.import_recording.get_rna_type().properties["filter_glob"].default
+    assert glob == "*.bcrec.json;*.csv;*.c3d" == ";".join(RECORDING_GLOBS)
+    assert set(bpy.types.BODYCAL_FH_recording.bl_file_extensions.split(";")) == {".json", ".csv", ".c3d"}
+    sheet = tmp_path / "sheet.csv"
+    sheet.write_text("subject,height\nann,1.7\n")
+    take = tmp_path / "take.bcrec.json"
+    take.write_text(json.dumps(recording_doc(tpose_recording(seconds=0.5))))
+    dialogs, reports = [], []
+    context = SimpleNamespace(window_manager=SimpleNamespace(
+        invoke_props_dialog=lambda op, **kw: dialogs.append(kw) or {"RUNNING_MODAL"}))
+
+    def dropped(path):
+        return SimpleNamespace(filepath=str(path), properties=SimpleNamespace(is_property_set=lambda name: True),
+                               report=lambda kind, line: reports.append((kind, line)))
+
+    before = (len(bpy.data.objects), len(bpy.data.collections), len(bpy.data.actions))
+    assert op_type.invoke(dropped(sheet), context, None) == {"CANCELLED"}
+    (kind, line), = reports
+    assert kind == {"ERROR"} and line.startswith("sheet.csv: not a BodyCal recording") and "\n" not in line
+    assert not dialogs and (len(bpy.data.objects), len(bpy.data.collections), len(bpy.data.actions)) == before
+    assert op_type.invoke(dropped(take), context, None) == {"RUNNING_MODAL"}
+    assert dialogs == [{"title": "take.bcrec.json", "confirm_text": "Import"}] and len(reports) == 1
+
+
+def test_the_file_browser_side_panel_shows_the_import_options():
+    import ui_layout
+
+    log = []
+    op = type("Op", (), {"layout": ui_layout.RecordingLayout(log)})()
+    bpy.types.BODYCAL_OT_import_recording.draw(op, bpy.context)
+    shown = [entry[2] for entry in log if entry[0] == "prop"]
+    assert shown == ["frame_start", "update_scene_rate", "update_scene_range", "step_markers", "fill_gaps"]
+    assert [entry[1] for entry in log if entry[0] == "panel"] == ["BODYCAL_import_timing", "BODYCAL_import_steps"]

@@ -137,6 +137,61 @@ def test_the_bake_lands_on_the_trackers_frames_and_the_range_limits_it(belly_ses
     assert len(bpy.data.actions) == n_actions
 
 
+def _bone_rotation(arm, bone, frames) -> np.ndarray:
+    """The baked action's quaternion of `bone` at (fractional) frames, as Blender evaluates it."""
+    from bodycal_addon.blender.fcurves import object_fcurves
+
+    curves = object_fcurves(arm)
+    path = f'pose.bones["{bone}"].rotation_quaternion'
+    q = np.array([[curves[(path, i)].evaluate(f) for i in range(4)] for f in frames])
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def test_imported_at_frame_1000_the_avatar_plays_with_its_trackers(tmp_path, belly_session):
+    """File > Import at Start Frame 1000: the trackers are keyed from frame 1000 and the avatar's
+    bake lands on the same frames. Imported into a 24 fps scene kept at 24 fps (the take timed to
+    it, its samples between frames), the bake is keyed on whole frames from 1000 and plays the
+    same pose at the same moment as the bake of the take imported at its own rate."""
+    from bodycal_addon.recording.io import save_recording
+
+    rec, truth = belly_session
+    path = tmp_path / "belly.bcrec.json"
+    save_recording(rec, path)
+    seconds = rec.time[-1] - rec.time[0]
+    whole = 1000 + np.arange(int(np.floor(seconds * 24 + 1e-6)) + 1)  # the frames a 24 fps bake keys
+    moments = (whole[::4] - 1000) / 24  # seconds into the take
+    bones = ("hand_r", "lowerarm_l", "thigh_r")
+    runs = {}
+    for own_rate in (True, False):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.fps = 24
+        arm, _mesh, _spec = rigs.build_procedural_avatar()
+        assert bpy.ops.bodycal.import_recording(filepath=str(path), frame_start=1000, update_scene_rate=own_rate,
+                                                fill_gaps=0.0) == {"FINISHED"}
+        calibration_scene.store_user_model(scene, truth.body_model())
+        bake = scene.bodycal_bake
+        bake.armature, bake.tolerance, bake.location_tolerance, bake.frame_range = arm, 0.0, 0.0, "take"
+        bake.plant_feet = False
+        scene.bodycal_retarget.method = "rotations"
+        tracker = next(o for o in bpy.data.objects if recording_scene.DEVICE_PROP in o)
+        (tracked,) = {tuple(f) for f in _key_frames(tracker)}
+        assert tracked[0] == 1000 and len(tracked) == rec.frame_count
+        assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
+        keys = np.unique(np.concatenate(_key_frames(arm)))
+        # The same moments: frame 1000 + 90 t in the scene at the take's rate, 1000 + 24 t at 24 fps.
+        at = 1000 + moments * (rec.fps if own_rate else 24)
+        runs[own_rate] = np.array(tracked), keys, {b: _bone_rotation(arm, b, at) for b in bones}
+    tracked90, keys90, pose90 = runs[True]
+    np.testing.assert_array_equal(keys90, tracked90)  # every sample, on its tracker's frame
+    tracked24, keys24, pose24 = runs[False]
+    np.testing.assert_allclose(tracked24, 1000 + (rec.time - rec.time[0]) * 24, atol=1e-3)
+    np.testing.assert_array_equal(keys24, whole)
+    for bone in bones:
+        angle = np.degrees(2 * np.arccos(np.minimum(np.abs((pose24[bone] * pose90[bone]).sum(1)), 1.0)))
+        assert angle.max() < 0.5, (bone, angle.max())
+
+
 def test_operator_error_is_one_line_and_changes_nothing(belly_session):
     rec, truth = belly_session
     arm = _scene_ready(rec, truth)
@@ -225,10 +280,14 @@ def test_both_bake_panels_draw_the_shared_bake_settings(panel, group):
     for data, name in props:
         assert name in data.bl_rna.properties, (panel, name)
     shared = {"armature", "placement", "plant_feet", "root_motion", "rigify_target", "replace", "push_to_nla",
-              "output_fps", "tolerance", "location_tolerance", "frame_range", "set_scene_range"}
+              "output_fps", "interpolation", "tolerance", "location_tolerance", "frame_range", "set_scene_range"}
     assert {name for data, name in props if data == bake} == shared
     own = {name for data, name in props if data == settings}
     assert "method" in own and not own & shared
     assert [e[1] for e in log if e[0] == "label"] == ["first avatar: 10 keys", "second avatar: 12 keys"]
     assert bake.bake_options(bpy.context).tolerance_deg == pytest.approx(0.1)
+    assert bake.bake_options(bpy.context).interpolation == "linear"
+    bake.interpolation = "bezier"
+    assert bake.bake_options(bpy.context).interpolation == "bezier"
+    bake.interpolation = "linear"
     settings.last_result = ""

@@ -40,6 +40,10 @@ class StreamedTake:
     def rate(self):
         return self._inner.rate
 
+    @property
+    def sample_rate(self):
+        return self._inner.sample_rate
+
     def animate(self, avatar, method, **kwargs):
         return self._inner.animate(avatar, method, **kwargs)
 

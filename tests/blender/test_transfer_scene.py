@@ -156,7 +156,54 @@ def _run(*args):
                           timeout=300)
 
 
-@pytest.mark.parametrize("case", ["suffix", "missing", "action", "method", "output-is-source"])
+def test_smoothing_the_source_calms_the_transferred_motion(data_dir):
+    """`transfer --filter` (the sidebar's Smooth Source): the One Euro filter on the source's pose
+    (each bone's rotation, the root's location in metres) before transferring. On the CMU walk
+    (a capture at 120 fps, its jitter in it) the avatar's wrists and ankles accelerate less (p95, by
+    a third or more), the source's own arrays are not changed, and the animation's notes say so."""
+    from dataclasses import replace
+
+    from bodycal_addon.recording.filters import OneEuro
+
+    ts.open_source(_bvh(data_dir))
+    src = ts.read_source(blendfile.find_armature(None, WALK))
+    basis, locations = src.basis.copy(), src.locations.copy()
+    blendfile.open_avatar(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb")
+    model, _ = avatar_model_for(blendfile.find_armature(None, "adult_male"))
+    for method in ("egocentric", "rotations"):
+        raw = src.animate(model, method)
+        calm = replace(src, filter=OneEuro()).animate(model, method)
+        for joint in ("wrist_l", "wrist_r", "ankle_l", "ankle_r"):
+            fast, slow = (np.percentile(np.linalg.norm(np.diff(a.joints_world[joint], 2, axis=0), axis=1), 95)
+                          for a in (raw, calm))
+            assert slow < 0.8 * fast, (method, joint, slow, fast)
+        assert "One Euro filter on 02_01_walk's pose: position 3 Hz" in calm.notes[-1]
+        assert not any("One Euro" in n for n in raw.notes)
+    np.testing.assert_array_equal(src.basis, basis)
+    np.testing.assert_array_equal(src.locations, locations)
+
+
+def test_transfer_filter_and_progress_on_the_command_line(data_dir, tmp_path):
+    """`transfer --filter 2,4` says how it smoothed the source; run at a terminal, its progress line
+    goes through the run's stages (the method's share counted by the engine's chunks) and is erased,
+    leaving BodyCal's lines."""
+    from terminal import lines_left, run_in_terminal
+
+    argv = [sys.executable, "-m", "bodycal_addon", "transfer", str(_bvh(data_dir)), "--avatar",
+            str(data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"), "--method", "rotations",
+            "--filter", "2,4", "--frame-range", "1", "60", "-o", str(tmp_path / "calm.blend")]
+    code, received, err = run_in_terminal(argv, cwd=REPO, timeout=300)
+    assert code == 0 and err == "", err
+    shown = received.decode(errors="replace")
+    for stage in ("reading", "opening the avatar", "measuring the avatar", "rotations", "baking", "saving"):
+        assert f"\rbodycal transfer: {stage} " in shown, (stage, shown[-3000:])
+    lines = lines_left(received)
+    assert ("One Euro filter on 02_01_walk's pose: position 2 Hz + 4 Hz per m/s, rotation 4 Hz + 1 Hz per rad/s, "
+            "forward and backward") in lines, lines
+    assert lines[-1] == f"saved {tmp_path / 'calm.blend'}" and not any("%|" in line for line in lines)
+
+
+@pytest.mark.parametrize("case", ["suffix", "missing", "action", "method", "output-is-source", "filter"])
 def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
     avatar = str(data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb")
     bvh = str(_bvh(data_dir))
@@ -166,6 +213,7 @@ def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
         "action": (bvh, "--avatar", avatar, "--action", "dance", "-o", str(tmp_path / "o.blend")),
         "method": (bvh, "--avatar", avatar, "--method", "offsets", "-o", str(tmp_path / "o.blend")),
         "output-is-source": (bvh, "--avatar", avatar, "-o", bvh, "--overwrite"),
+        "filter": (bvh, "--avatar", avatar, "--filter", "1,2,3", "-o", str(tmp_path / "o.blend")),
     }[case]
     (tmp_path / "walk.txt").write_text("not a clip")
     before = _bvh(data_dir).read_bytes()
@@ -173,7 +221,8 @@ def test_bad_input_is_one_line_and_exit_2(data_dir, tmp_path, case):
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
     assert {"suffix": "not an animation source", "missing": "no such file", "action": "no action named 'dance'",
-            "method": "invalid choice", "output-is-source": "source"}[case] in lines[0]
+            "method": "invalid choice", "output-is-source": "source",
+            "filter": "expected 2 or 4 numbers"}[case] in lines[0]
     assert _bvh(data_dir).read_bytes() == before
 
 

@@ -234,3 +234,56 @@ def test_keys_off_the_noise_save_keys_on_jitter_and_cost_none_on_smooth_motion()
         keep, values = kr.rotation_keys(q, tol)
         assert int(keep.sum()) <= most * on_samples, (int(keep.sum()), on_samples)
         assert _worst_angle(q, keep, values) <= tol * (1 + 1e-6) + 1e-9
+
+
+def _worst_bezier_angle(q: np.ndarray, keep: np.ndarray, values: np.ndarray, frames=None) -> float:
+    """The largest angle between a sample and what Bézier keys with Auto Clamped handles (values at
+    kept frames) evaluate to (output/bezier.py: Blender's rule, checked against Blender in
+    tests/blender/test_output.py)."""
+    from bodycal_addon.output import bezier
+
+    return float(kr.rotation_error(q, bezier.evaluate_keys(keep, values, frames)).max())
+
+
+@settings(max_examples=30, deadline=None)
+@given(frames=st.integers(2, 300), bones=st.integers(1, 8), seed=st.integers(0, 2**31),
+       noise=st.sampled_from([0.0, 0.05, 0.5, 3.0]), tol_deg=st.sampled_from([0.05, 0.1, 0.5, 2.0]),
+       block=st.sampled_from([7, 64, kr.BLOCK_FRAMES]), uneven=st.booleans(), f32=st.booleans())
+def test_bezier_keys_keep_every_sample_within_the_rotation_tolerance(frames, bones, seed, noise, tol_deg, block,
+                                                                     uneven, f32):
+    """Bézier keys (FORMATS.md §4.2): the curve Blender draws through them with Auto Clamped handles
+    stays within the tolerance at every sample, on evenly or unevenly spaced frames, from float32
+    rotations as the bake keys them too (their norms off by ~6e-8: 0.01 deg near the bound if
+    taken as unit); the keys are the linear ones plus what the Bézier curve needs."""
+    q = _motion(frames, bones, seed, noise)
+    given_q = q.astype(np.float32) if f32 else q
+    at = np.cumsum(np.random.default_rng(seed).uniform(0.5, 2.0, frames)) if uneven else None
+    with _blocks_of(block):
+        linear, _ = kr.rotation_keys(given_q, np.radians(tol_deg))
+        keep, values = kr.rotation_keys(given_q.copy(), np.radians(tol_deg), bezier=True, frames=at)
+    assert (keep >= linear).all()
+    assert _worst_bezier_angle(q, keep, values, at) <= np.radians(tol_deg) * (1 + 1e-6) + 1e-9
+
+
+def test_linear_keys_drawn_as_bezier_stray_and_the_bezier_reduction_mends_it():
+    """The same kept keys as Bézier curves leave the tolerance between keys far behind (a key at a
+    corner with long straight spans each side: the handles swing past the lines); the Bézier-aware
+    reduction adds the keys that bring it back, a few percent more."""
+    q = _motion(600, 6, 3, 0.05)
+    linear, values = kr.rotation_keys(q, np.radians(0.1))
+    assert _worst_bezier_angle(q, linear, values) > np.radians(0.3)
+    keep, values = kr.rotation_keys(q, np.radians(0.1), bezier=True)
+    assert _worst_bezier_angle(q, keep, values) <= np.radians(0.1) * (1 + 1e-6)
+    assert linear.sum() < keep.sum() < 1.5 * linear.sum()
+
+
+@settings(max_examples=30, deadline=None)
+@given(frames=st.integers(2, 300), seed=st.integers(0, 2**31), tol_mm=st.sampled_from([0.1, 0.5, 5.0]))
+def test_bezier_keys_keep_every_sample_within_the_location_tolerance(frames, seed, tol_mm):
+    from bodycal_addon.output import bezier
+
+    rng = np.random.default_rng(seed)
+    p = np.cumsum(np.cumsum(rng.normal(0, 1e-4, (frames, 3)), axis=0), axis=0) + rng.normal(0, 2e-4, (frames, 3))
+    keep, values = kr.location_keys(p, tol_mm / 1000.0, bezier=True)
+    got = bezier.evaluate_keys(keep[:, None], values[:, None])[:, 0]
+    assert np.linalg.norm(got - p, axis=1).max() <= tol_mm / 1000.0 * (1 + 1e-6) + 1e-12

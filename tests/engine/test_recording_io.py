@@ -428,3 +428,51 @@ def test_synthetic_glove_frames_rebuilt_from_leds(tmp_path):
         np.testing.assert_allclose(p, rec.positions[:, i], atol=1e-9)
         np.testing.assert_allclose(np.degrees(tf.quat_angle(tf.quat_mul(tf.quat_conj(q), rec.rotations[:, i]))), 0,
                                    atol=1e-5)
+
+
+def test_only_recordings_pass_the_drop_check(tmp_path):
+    """A file dropped on Blender is imported only when it is a recording by its look (FORMATS.md
+    §2.5): a `*.bcrec.json` or a JSON saying its format, a CSV with a recording's header (with or
+    without its sidecar), a C3D with a marker label or a step event BodyCal knows. Anything else
+    is one line naming the file, and nothing else is read."""
+    from bodycal_dev.c3d_writer import write_c3d
+
+    rec = tpose_recording(seconds=0.5)
+    ok = [tmp_path / "take.bcrec.json", tmp_path / "export.json", tmp_path / "take.csv", tmp_path / "bare.csv"]
+    ok[0].write_text(json.dumps(recording_doc(rec)))
+    ok[1].write_text(json.dumps(recording_doc(rec)))
+    rio.save_recording(rec, ok[2])  # + take.json, its sidecar
+    ok[3].write_text(" Time, name,px,py,pz\n0.0,index_tip_r,0,1,0\n")
+    pts = np.zeros((10, 2, 3))
+    ok.append(write_c3d(tmp_path / "gloves.c3d", pts, ["Subject:INDEX_TIP_R", "elbow"], 100.0))
+    ok.append(write_c3d(tmp_path / "steps.c3d", pts, ["LASI", "RASI"], 100.0, events=[("tpose", 0.02)]))
+    for path in ok:
+        rio.check_recording_file(path)
+        assert rio.load_recording(path).frame_count > 0, path.name
+
+    refused = {
+        "user.body.json": ('{"format": "bodycal-body", "version": 1}', 'no "format": "bodycal-recording"'),
+        "take.json": (None, "is the sidecar of take.csv"),
+        "sheet.csv": ("subject,height\nann,1.7\n", "its first line is not time,name"),
+        "points.csv": ("time,name,px,py\n", "its first line is not time,name"),
+        "vicon.c3d": (None, "no marker label BodyCal knows"),
+    }
+    write_c3d(tmp_path / "vicon.c3d", pts, ["LASI", "RASI"], 100.0, events=[("Foot Strike", 0.02)])
+    for name, (text, words) in refused.items():
+        if text is not None:
+            (tmp_path / name).write_text(text)
+        with pytest.raises(BodyCalError) as err:
+            rio.check_recording_file(tmp_path / name)
+        assert words in err.value.line() and name in err.value.line() and "\n" not in err.value.line()
+    with pytest.raises(BodyCalError, match="not a C3D file"):
+        (tmp_path / "fake.c3d").write_bytes(b"\0" * 600)
+        rio.check_recording_file(tmp_path / "fake.c3d")
+
+
+def test_the_file_browser_lists_recordings_only():
+    from fnmatch import fnmatch
+
+    shown = ["take.bcrec.json", "TAKE.BCREC.JSON", "take.csv", "take.c3d"]
+    hidden = ["user.body.json", "take.json", "map.bonemap.json", "take.blend"]
+    assert all(any(fnmatch(n.lower(), g) for g in rio.RECORDING_GLOBS) for n in shown)
+    assert not any(fnmatch(n.lower(), g) for n in hidden for g in rio.RECORDING_GLOBS)

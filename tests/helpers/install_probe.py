@@ -44,6 +44,10 @@ live = receiver.VmcReceiver(port=0)
 live.start()
 report["wheel"]["receiver_ran"] = live.running
 live.stop()
+# The manifest's wheels, unpacked by Blender into the user extensions' own site-packages.
+user_files = os.walk(os.environ["BLENDER_USER_RESOURCES"])
+report["wheel_packages"] = sorted({os.path.basename(d) for d, _sub, files in user_files
+                                   if "__init__.py" in files and os.path.dirname(d).endswith("site-packages")})
 addon_utils.disable("bl_ext.user_default.bodycal", default_set=True)
 report["after_disable"] = registered()
 report["module_enabled_after"] = "bl_ext.user_default.bodycal" in bpy.context.preferences.addons

@@ -43,10 +43,12 @@ def run(args) -> int:
         raise BodyCalError("retries a job whose cluster worker died; give it with --cluster", source="--retries")
     if args.export_openjd or args.export_flamenco:
         return _export(args)
-    if args.cluster:
-        summary = _cluster_module().run_on_cluster(args.jobs, args.cluster, args.retries, log=console.say)
-    else:
-        summary = run_batch(args.jobs, log=console.say)
+    with console.progress("batch") as step:
+        if args.cluster:
+            summary = _cluster_module().run_on_cluster(args.jobs, args.cluster, args.retries, log=console.say,
+                                                       progress=step)
+        else:
+            summary = run_batch(args.jobs, log=console.say, progress=step)
     console.say(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}))
     if summary["interrupted"]:
         print(f"bodycal batch: stopped by {summary['interrupted']}: {summary['ok']} ok, {summary['failed']} failed, "

@@ -23,14 +23,19 @@ def run(args) -> int:
     overwrite = getattr(args, "overwrite", False)
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before opening anything
     preset = load_preset(bone_map) if bone_map else None
-    open_avatar(args.avatar)
-    arm = find_armature(args.armature, str(args.avatar))
-    if preset is not None:
-        apply_preset(arm, preset)
-    model = calibrate_avatar(arm)
-    for line in avatar_warnings(model):
-        console.warn("calibrate-avatar", line)
-    out = model.save(args.output, inputs=files_read, overwrite=overwrite)
+    with console.progress("calibrate-avatar") as step:
+        step("opening the avatar", 0.0)
+        open_avatar(args.avatar)
+        arm = find_armature(args.armature, str(args.avatar))
+        if preset is not None:
+            apply_preset(arm, preset)
+        step("raycasting its surface", 0.3)
+        model = calibrate_avatar(arm)
+        for line in avatar_warnings(model):
+            console.warn("calibrate-avatar", line)
+        step("saving", 0.95)
+        out = model.save(args.output, inputs=files_read, overwrite=overwrite)
+        step("saving", 1.0)
     q = model.calibration["quality"]
     console.say(f"{out}: avatar {arm.name}, {len(model.joints)} joints, {len(model.surface)} surface elements, "
                 f"{sum(v['hit'] for v in q.values())} ray hits, rest pose {model.extra['rig']['rest_pose']}")

@@ -1,7 +1,7 @@
 """`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
 [--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]] | --no-filter]
 [--no-plant-feet] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
-[--tolerance DEG] [--location-tolerance MM] [--fps N] [--frame-range FIRST LAST]
+[--tolerance DEG] [--location-tolerance MM] [--interpolation linear|bezier] [--fps N] [--frame-range FIRST LAST]
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
 import math
@@ -14,24 +14,26 @@ def run(args) -> int:
     from ...recording.filters import OneEuro
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
-    session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg, armature=args.armature,
-                           settings=session.Settings(args.method, getattr(args, "plant_feet", True),
-                                                     getattr(args, "placement", "object")),
-                           overwrite=getattr(args, "overwrite", False), options=bake_options(args),
-                           frame_range=frame_range(args),
-                           bone_map_path=getattr(args, "bone_map", None),
-                           log=console.say, warn=lambda line: console.warn("retarget", line))
+    with console.progress("retarget") as step:
+        session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg,
+                               armature=args.armature,
+                               settings=session.Settings(args.method, getattr(args, "plant_feet", True),
+                                                         getattr(args, "placement", "object")),
+                               overwrite=getattr(args, "overwrite", False), options=bake_options(args),
+                               frame_range=frame_range(args),
+                               bone_map_path=getattr(args, "bone_map", None),
+                               log=console.say, warn=lambda line: console.warn("retarget", line), progress=step)
     return 0
 
 
 def bake_options(args):
     """The bake options every baking command takes (--tolerance, --location-tolerance, --fps,
-    --root-motion, --rigify-target); --fps 0 is the take's own rate, as no --fps."""
+    --root-motion, --rigify-target, --interpolation); --fps 0 is the take's own rate, as no --fps."""
     from ...blender.bake import BakeOptions
 
     fps = None if args.fps == 0 else args.fps
     return BakeOptions(args.tolerance, args.location_tolerance, fps, getattr(args, "root_motion", "root"),
-                       getattr(args, "rigify_target", "fk"))
+                       getattr(args, "rigify_target", "fk"), getattr(args, "interpolation", "linear"))
 
 
 def frame_range(args) -> tuple[float, float] | None:

@@ -41,13 +41,14 @@ from .csv_format import read_csv
 from .header import FORMAT_NAME
 from .json_format import check_time, read_json
 from .postprocess import DEFAULT_FILL_GAPS_S, finish_recording
-from .reader import load_recording
+from .reader import RECORDING_GLOBS, check_recording_file, load_recording
 from .writer import save_recording
 
 __all__ = [
-    "DEFAULT_FILL_GAPS_S", "FORMAT_NAME", "HANDEDNESS", "LED_NAMES", "MAX_POSITION_M", "QUAT_TOLERANCE", "UNITS",
-    "UPS", "add_led_hand_frames", "check_coords", "check_positions", "check_quaternions", "check_time",
-    "conversion", "fill_gaps", "finish_recording", "from_internal", "hold_untracked", "led_hand_frame",
-    "load_recording", "parse_segments", "read_csv", "read_json", "save_recording", "to_internal",
+    "DEFAULT_FILL_GAPS_S", "FORMAT_NAME", "HANDEDNESS", "LED_NAMES", "MAX_POSITION_M", "QUAT_TOLERANCE",
+    "RECORDING_GLOBS", "UNITS", "UPS", "add_led_hand_frames", "check_coords", "check_positions",
+    "check_quaternions", "check_recording_file", "check_time", "conversion", "fill_gaps", "finish_recording",
+    "from_internal", "hold_untracked", "led_hand_frame", "load_recording", "parse_segments", "read_csv", "read_json",
+    "save_recording", "to_internal",
 ]
 

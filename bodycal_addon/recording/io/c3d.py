@@ -411,6 +411,17 @@ def _events(r: _Reader, params: dict) -> list[tuple[str, float, str]]:
     return events
 
 
+def known_labels(path) -> tuple[int, int]:
+    """(marker labels BodyCal knows, calibration step events) of a C3D file, from its header and
+    parameters only (no point data read): what tells a C3D recording BodyCal can use from any other
+    C3D. Raises BodyCalError (one line) when it is not a readable C3D file."""
+    r, params = _open(path)
+    labels = _labels(params, _count(r, params, "POINT:USED", r.u16(2)) or 0)
+    known = sum(1 for label in labels if MARKER_RE.match(match_marker_name(label)))
+    steps = len(event_segments(_events(r, params), math.inf))
+    return known, steps
+
+
 def match_marker_name(label: str) -> str:
     """FORMATS marker name for a C3D label (case-insensitive, `subject:` prefix ignored), else the
     label without its prefix."""

@@ -45,6 +45,19 @@ def read_csv(path) -> Recording:
     return rec
 
 
+def has_recording_header(path) -> bool:
+    """Whether the file's first line is a recording's header (FORMATS.md §2.2: known columns, each
+    once, time, name and the position among them): what tells a BodyCal CSV from any other CSV
+    without reading it all."""
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as f:
+            first = f.readline(4096)
+    except OSError:
+        return False
+    cols = [c.strip().lower() for c in first.split(",")]
+    return len(set(cols)) == len(cols) and set(cols) <= set(_CSV_COLUMNS) and set(_CSV_COLUMNS[:5]) <= set(cols)
+
+
 def _csv_header(sidecar: Path) -> dict:
     """The recording's header from the sidecar when there is one; else Y up, right-handed, metres,
     with the devices and markers left for `_declare_names` to find in the rows."""
