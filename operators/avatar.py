@@ -85,7 +85,8 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
     bl_label = "Assign Bone"
     bl_options = {"REGISTER", "UNDO"}
 
-    segment: bpy.props.StringProperty(name="Segment")
+    segment: bpy.props.StringProperty(name="Segment",
+                                      description="The canonical body segment to map (upperarm_l, spine...)")
     bone: bpy.props.StringProperty(name="Bone", description="Bone name (spine/neck: comma-separated, bottom-up); "
                                    "empty = the active bone")
 
@@ -117,8 +118,10 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
     bl_label = "Set Hinge Axis"
     bl_options = {"REGISTER", "UNDO"}
 
-    bone: bpy.props.EnumProperty(name="Hinge", items=_HINGE_ITEMS)
-    axis: bpy.props.EnumProperty(name="Axis", items=[(k, k, f"The bone's local {k}") for k in _AXES], default="X")
+    bone: bpy.props.EnumProperty(name="Hinge", items=_HINGE_ITEMS,
+                                 description="The hinge joint's bone (elbow: forearm, knee: shin)")
+    axis: bpy.props.EnumProperty(name="Axis", items=[(k, k, f"The bone's local {k}") for k in _AXES], default="X",
+                                description="The local axis of the avatar's bone the hinge flexes about")
 
     @classmethod
     def poll(cls, context):

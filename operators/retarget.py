@@ -17,7 +17,8 @@ from .reporting import reports_errors
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     """What only a recording's bake has (the shared bake settings: scene.bodycal_bake)."""
 
-    method: bpy.props.EnumProperty(name="Method", items=method_items(RecordingTake.kind), default="egocentric")
+    method: bpy.props.EnumProperty(name="Method", items=method_items(RecordingTake.kind), default="egocentric",
+                                   description="How the recording drives the avatar")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Devices", default=False,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
@@ -33,7 +34,8 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     filter_rot_beta: bpy.props.FloatProperty(
         name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
+                                          description="The last bake's figures, per avatar")
 
     def one_euro(self) -> OneEuro | None:
         if not self.use_filter:
@@ -87,7 +89,7 @@ options a game engine expects"""
     filename_ext = ".fbx"
     filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in EXPORT_SUFFIXES), options={"HIDDEN"})
     file_format: bpy.props.EnumProperty(
-        name="Format", default=".fbx",
+        name="Format", default=".fbx", description="The file format: sets the file name's extension",
         items=[(".fbx", "FBX", "Armature, meshes and the action; Y up, no leaf bones (Unity, Unreal)"),
                (".glb", "glTF Binary (.glb)", "One binary file: armature, skinned meshes and the action"),
                (".gltf", "glTF (.gltf)", "One text file with its buffers embedded"),
@@ -129,7 +131,8 @@ CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake, BODYCAL_OT_ex
 
 
 def register_properties():
-    bpy.types.Scene.bodycal_retarget = bpy.props.PointerProperty(type=BODYCAL_PG_retarget_settings)
+    bpy.types.Scene.bodycal_retarget = bpy.props.PointerProperty(
+        type=BODYCAL_PG_retarget_settings, description="BodyCal: what only Retarget and Bake has")
 
 
 def unregister_properties():

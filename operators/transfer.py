@@ -29,8 +29,10 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action, poll=_animates_source,
                                       description="The source's action (default: its active one); "
                                                   "only actions that animate the source's bones are listed")
-    method: bpy.props.EnumProperty(name="Method", items=method_items(CharacterTake.kind), default="egocentric")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+    method: bpy.props.EnumProperty(name="Method", items=method_items(CharacterTake.kind), default="egocentric",
+                                   description="How the source character's motion drives the avatar")
+    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
+                                          description="The last transfer's figures, per avatar")
 
 
 class BODYCAL_OT_transfer_animation(BakeOperator, bpy.types.Operator):
@@ -76,7 +78,8 @@ CLASSES = (BODYCAL_PG_transfer_settings, BODYCAL_OT_transfer_animation)
 
 
 def register_properties():
-    bpy.types.Scene.bodycal_transfer = bpy.props.PointerProperty(type=BODYCAL_PG_transfer_settings)
+    bpy.types.Scene.bodycal_transfer = bpy.props.PointerProperty(
+        type=BODYCAL_PG_transfer_settings, description="BodyCal: what only Transfer Animation has")
 
 
 def unregister_properties():

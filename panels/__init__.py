@@ -1,10 +1,9 @@
 """Sidebar panels (View3D > Sidebar > BodyCal): thin UI over the operators."""
 
-import bpy
-
+from ..operators.registration import register_classes_factory
 from . import avatar_panel, calibration_panel, main_panel, retarget_panel, transfer_panel
 
 CLASSES = (main_panel.CLASSES + calibration_panel.CLASSES + avatar_panel.CLASSES + retarget_panel.CLASSES
            + transfer_panel.CLASSES)
 
-register, unregister = bpy.utils.register_classes_factory(CLASSES)
+register, unregister = register_classes_factory(CLASSES)

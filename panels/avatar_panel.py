@@ -21,6 +21,8 @@ def _bone_map(arm):
 
 
 class BODYCAL_PT_avatar(bpy.types.Panel):
+    """The avatar's bone map and its surface measured from its mesh"""
+
     bl_idname = "BODYCAL_PT_avatar"
     bl_label = "Avatar"
     bl_space_type = "VIEW_3D"

@@ -64,6 +64,8 @@ def _wrapped(col, text: str, width: int) -> None:
 
 
 class BODYCAL_PT_calibration(bpy.types.Panel):
+    """The performer's body measured from the recording's calibration steps"""
+
     bl_idname = "BODYCAL_PT_calibration"
     bl_label = "User Calibration"
     bl_space_type = "VIEW_3D"

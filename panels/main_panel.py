@@ -4,6 +4,8 @@ import bpy
 
 
 class BODYCAL_PT_main(bpy.types.Panel):
+    """BodyCal: VR tracker recordings onto any humanoid avatar, keeping self-contacts"""
+
     bl_idname = "BODYCAL_PT_main"
     bl_label = "BodyCal"
     bl_space_type = "VIEW_3D"

@@ -6,6 +6,8 @@ from .bake_rows import draw_keys, draw_last_result, draw_placement
 
 
 class BODYCAL_PT_retarget(bpy.types.Panel):
+    """Retarget the recording onto the avatar(s) and bake a new action"""
+
     bl_idname = "BODYCAL_PT_retarget"
     bl_label = "Retarget and Bake"
     bl_space_type = "VIEW_3D"

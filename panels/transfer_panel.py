@@ -6,6 +6,8 @@ from .bake_rows import draw_keys, draw_last_result, draw_placement
 
 
 class BODYCAL_PT_transfer(bpy.types.Panel):
+    """Another character's animation onto the avatar(s), keeping its self-contacts"""
+
     bl_idname = "BODYCAL_PT_transfer"
     bl_label = "Transfer Animation"
     bl_space_type = "VIEW_3D"
