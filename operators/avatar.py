@@ -7,6 +7,7 @@ from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_stora
 from ..bodycal_addon.body.bodymodel import BodyModel
 from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.retarget.placement import avatar_warnings
+from .preferences import StartsInFolder
 from .reporting import reports_errors
 
 
@@ -220,12 +221,13 @@ class BODYCAL_OT_apply_surface_edits(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_export_avatar_model(bpy.types.Operator, ExportHelper):
+class BODYCAL_OT_export_avatar_model(StartsInFolder, bpy.types.Operator, ExportHelper):
     """Write the avatar body model stored on the armature as a *.body.json file"""
 
     bl_idname = "bodycal.export_avatar_model"
     bl_label = "Export Avatar Model"
     bl_options = {"REGISTER"}
+    _folder = "avatars_folder"
 
     filename_ext = ".json"
     filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
@@ -247,12 +249,13 @@ class BODYCAL_OT_export_avatar_model(bpy.types.Operator, ExportHelper):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_import_avatar_model(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Read a *.body.json avatar model (an authored configuration) onto the active armature"""
 
     bl_idname = "bodycal.import_avatar_model"
     bl_label = "Import Avatar Model"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "avatars_folder"
 
     filename_ext = ".json"
     filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
@@ -277,7 +280,7 @@ class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_import_avatar(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_import_avatar(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Import an avatar (.fbx, .glb, .gltf, or .vrm with a VRM importer add-on) with Blender's own
     importer and make its armature the active object; a .blend avatar is opened or appended as
     usual (File > Open, File > Append)"""
@@ -285,6 +288,7 @@ class BODYCAL_OT_import_avatar(bpy.types.Operator, ImportHelper):
     bl_idname = "bodycal.import_avatar"
     bl_label = "Import Avatar"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "avatars_folder"
 
     filter_glob: bpy.props.StringProperty(default="*.fbx;*.glb;*.gltf;*.vrm", options={"HIDDEN"})
 

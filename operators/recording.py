@@ -6,16 +6,18 @@ from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 from ..bodycal_addon.blender import recording_scene
 from ..bodycal_addon.recording import io as recording_io
 from ..bodycal_addon.recording.io.reader import RECORDING_SUFFIXES
+from .preferences import StartsInFolder
 from .reporting import reports_errors
 
 
-class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Import a tracker recording (.bcrec.json, .csv, .c3d): one animated empty per device and
     marker, timeline markers for the calibration steps"""
 
     bl_idname = "bodycal.import_recording"
     bl_label = "Import BodyCal Recording"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "recordings_folder"
 
     filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in RECORDING_SUFFIXES),
                                           options={"HIDDEN"})

@@ -11,14 +11,14 @@ from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
 from ..bodycal_addon.recording.filters import OneEuro
 from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
+from .preferences import StartsInFolder, method_property
 from .reporting import reports_errors
 
 
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     """What only a recording's bake has (the shared bake settings: scene.bodycal_bake)."""
 
-    method: bpy.props.EnumProperty(name="Method", items=method_items(RecordingTake.kind), default="egocentric",
-                                   description="How the recording drives the avatar")
+    method: method_property(method_items(RecordingTake.kind), "Method", "How the recording drives the avatar")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Devices", default=False,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
@@ -78,13 +78,14 @@ on each"""
         return context.scene.bodycal_retarget
 
 
-class BODYCAL_OT_export_animation(bpy.types.Operator, ExportHelper):
+class BODYCAL_OT_export_animation(StartsInFolder, bpy.types.Operator, ExportHelper):
     """Export the active armature with its meshes and its baked action (FBX, glTF or BVH), with the
 options a game engine expects"""
 
     bl_idname = "bodycal.export_animation"
     bl_label = "Export Baked Avatar"
     bl_options = {"REGISTER"}
+    _folder = "export_folder"
 
     filename_ext = ".fbx"
     filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in EXPORT_SUFFIXES), options={"HIDDEN"})
@@ -100,6 +101,9 @@ options a game engine expects"""
         self.filename_ext = self.file_format
         if self.filepath:
             self.filepath = str(Path(self.filepath).with_suffix(self.file_format))
+
+    def _suggested_name(self, context) -> str:
+        return bpy.path.clean_name(context.active_object.name) + self.file_format
 
     def check(self, context):
         self.filename_ext = self.file_format

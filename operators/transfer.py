@@ -8,6 +8,7 @@ from ..bodycal_addon.blender.character_source import read_source
 from ..bodycal_addon.blender.fcurves import action_bones
 from ..bodycal_addon.retarget.takes import CharacterTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
+from .preferences import method_property
 
 
 def _is_armature(_self, obj):
@@ -29,8 +30,8 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action, poll=_animates_source,
                                       description="The source's action (default: its active one); "
                                                   "only actions that animate the source's bones are listed")
-    method: bpy.props.EnumProperty(name="Method", items=method_items(CharacterTake.kind), default="egocentric",
-                                   description="How the source character's motion drives the avatar")
+    method: method_property(method_items(CharacterTake.kind), "Method",
+                            "How the source character's motion drives the avatar")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last transfer's figures, per avatar")
 

@@ -5,6 +5,7 @@ operators' progress, Esc and viewport navigation, the panels' order and layout."
 import importlib
 
 import bpy
+import pytest
 
 EXTENSION = "bl_ext.user_default.bodycal"
 
@@ -24,7 +25,8 @@ def _subclasses(base) -> list:
 
 
 def _properties(rna) -> list:
-    return [p for p in rna.properties if p.identifier != "rna_type" and not p.is_hidden]
+    return [p for p in rna.properties
+            if p.identifier != "rna_type" and not p.identifier.startswith("bl_") and not p.is_hidden]
 
 
 def _described_things():
@@ -70,3 +72,88 @@ def test_every_tooltip_is_one_line_and_every_property_is_described():
 
 def _module(name):
     return importlib.import_module(f"{EXTENSION}.{name}")
+
+
+def _prefs():
+    return bpy.context.preferences.addons[EXTENSION].preferences
+
+
+@pytest.fixture
+def prefs():
+    """BodyCal's add-on preferences, put back as they were after the test."""
+    p = _prefs()
+    before = {name: getattr(p, name) for name in ("recordings_folder", "avatars_folder", "export_folder",
+                                                   "default_method")}
+    yield p
+    for name, value in before.items():
+        setattr(p, name, value)
+
+
+def test_preferences_are_the_extensions_own():
+    """Blender keys an extension's preferences by its package, bl_ext.<repository>.bodycal."""
+    p = _prefs()
+    assert type(p).bl_idname == EXTENSION
+    for name in ("recordings_folder", "avatars_folder", "export_folder"):
+        assert p.bl_rna.properties[name].subtype == "DIR_PATH"
+    assert p.default_method == "egocentric"
+
+
+def test_the_default_method_is_the_preferences_until_the_scene_picks_one(prefs):
+    retarget, transfer = bpy.context.scene.bodycal_retarget, bpy.context.scene.bodycal_transfer
+    assert retarget.method == transfer.method == "egocentric"
+    prefs.default_method = "offsets"
+    assert retarget.method == "offsets"
+    assert transfer.method == "egocentric"  # a transfer has no trackers to take offsets from
+    prefs.default_method = "rotations"
+    assert retarget.method == transfer.method == "rotations"
+    retarget.method = "egocentric"  # picked in this scene: the preference no longer changes it
+    prefs.default_method = "offsets"
+    assert retarget.method == "egocentric" and transfer.method == "egocentric"
+    bpy.ops.wm.read_homefile(use_empty=True)  # a new file starts from the preference again
+    assert bpy.context.scene.bodycal_retarget.method == "offsets"
+
+
+class _WindowManager:
+    def __init__(self):
+        self.browsers = []
+
+    def fileselect_add(self, op):
+        self.browsers.append(op.filepath)
+
+
+def test_file_browsers_open_in_the_preferences_folders(prefs, tmp_path):
+    from bpy_extras.io_utils import ExportHelper, ImportHelper
+
+    preferences = _module("operators.preferences")
+    context = type("Context", (), {"preferences": bpy.context.preferences, "window_manager": _WindowManager(),
+                                   "blend_data": bpy.data})()
+    importer = type("Importer", (preferences.StartsInFolder, ImportHelper),
+                    {"filepath": "", "_folder": "recordings_folder"})
+    exporter = type("Exporter", (preferences.StartsInFolder, ExportHelper),
+                    {"filepath": "", "filename_ext": ".fbx", "_folder": "export_folder",
+                     "_suggested_name": lambda self, _context: "ogre.fbx"})
+    importer().invoke(context, None)
+    exporter().invoke(context, None)
+    assert [p.lower() for p in context.window_manager.browsers] == ["", "untitled.fbx"]  # no folder: Blender's choice
+    prefs.recordings_folder = str(tmp_path / "takes")
+    prefs.export_folder = str(tmp_path / "exports")
+    (tmp_path / "exports").mkdir()
+    importer().invoke(context, None)
+    exporter().invoke(context, None)
+    # A folder that does not exist is ignored, rather than opening the browser on nothing.
+    assert context.window_manager.browsers[2:] == ["", str(tmp_path / "exports" / "ogre.fbx")]
+    (tmp_path / "takes").mkdir()
+    importer().invoke(context, None)
+    assert context.window_manager.browsers[4] == str(tmp_path / "takes") + "/"
+    given = exporter()
+    given.filepath = str(tmp_path / "elsewhere.fbx")  # a path the caller gave is kept
+    given.invoke(context, None)
+    assert context.window_manager.browsers[5] == str(tmp_path / "elsewhere.fbx")
+    # The sidebar's file operators use it, each with its folder.
+    folders = {"import_recording": "recordings_folder", "save_user_model": "recordings_folder",
+               "load_user_model": "recordings_folder", "import_avatar": "avatars_folder",
+               "export_avatar_model": "avatars_folder", "import_avatar_model": "avatars_folder",
+               "export_animation": "export_folder"}
+    for name, pref in folders.items():
+        cls = bpy.types.Operator.bl_rna_get_subclass_py(f"BODYCAL_OT_{name}")
+        assert issubclass(cls, preferences.StartsInFolder) and cls._folder == pref, name
