@@ -1,9 +1,21 @@
 """Operators: thin UI over the engine (`bodycal_addon`) and its Blender glue."""
 
-from . import avatar, bake_settings, bone_maps, calibration, preferences, recording, retarget, sample_avatars, transfer
+from . import (
+    avatar,
+    bake_presets,
+    bake_settings,
+    bone_maps,
+    calibration,
+    preferences,
+    recording,
+    retarget,
+    sample_avatars,
+    transfer,
+)
 from .registration import register_classes_factory
 
-_MODULES = (preferences, sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, retarget, transfer)
+_MODULES = (preferences, sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, bake_presets,
+            retarget, transfer)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = register_classes_factory(CLASSES)

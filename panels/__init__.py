@@ -1,9 +1,9 @@
 """Sidebar panels (View3D > Sidebar > BodyCal): thin UI over the operators."""
 
 from ..operators.registration import register_classes_factory
-from . import avatar_panel, calibration_panel, main_panel, retarget_panel, transfer_panel
+from . import avatar_panel, bake_presets, calibration_panel, main_panel, retarget_panel, transfer_panel
 
 CLASSES = (main_panel.CLASSES + calibration_panel.CLASSES + avatar_panel.CLASSES + retarget_panel.CLASSES
-           + transfer_panel.CLASSES)
+           + transfer_panel.CLASSES + bake_presets.CLASSES)
 
 register, unregister = register_classes_factory(CLASSES)

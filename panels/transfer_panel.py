@@ -2,6 +2,7 @@
 
 import bpy
 
+from .bake_presets import draw_presets_button
 from .bake_rows import draw_keys, draw_last_result, draw_placement
 
 
@@ -15,6 +16,9 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
     bl_category = "BodyCal"
     bl_parent_id = "BODYCAL_PT_main"
     bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_header_preset(self, _context):
+        draw_presets_button(self.layout)
 
     def draw(self, context):
         layout = self.layout

@@ -1,6 +1,6 @@
 """A UI layout stand-in for background mode (no window draws panels there): a panel's `draw`
-given it records what it draws, as ("prop", data, name), ("operator", idname) and
-("label", text); every sub-layout (column, row, box...) records into the same log."""
+given it records what it draws, as ("prop", data, name), ("operator", idname), ("label", text)
+and ("popover", panel); every sub-layout (column, row, box...) records into the same log."""
 
 
 class RecordingLayout:
@@ -17,12 +17,16 @@ class RecordingLayout:
     def label(self, text="", **_kw):
         self.log.append(("label", text))
 
+    def popover(self, panel, **_kw):
+        self.log.append(("popover", panel))
+
     def __getattr__(self, name):
         return lambda *a, **k: RecordingLayout(self.log)
 
 
-def draw(panel_type, context) -> list:
-    """What `panel_type.draw` draws in `context`, as the log above."""
+def draw(panel_type, context, method="draw") -> list:
+    """What `panel_type.draw` (or another of its draw methods: "draw_header", "draw_header_preset")
+    draws in `context`, as the log above."""
     log = []
-    panel_type.draw(type("P", (), {"layout": RecordingLayout(log)})(), context)
+    getattr(panel_type, method)(type("P", (), {"layout": RecordingLayout(log)})(), context)
     return log

@@ -3,9 +3,11 @@ preferences, bake presets, the File > Export entry, the sample buttons, the long
 operators' progress, Esc and viewport navigation, the panels' order and layout."""
 
 import importlib
+import os
 
 import bpy
 import pytest
+import ui_layout
 
 EXTENSION = "bl_ext.user_default.bodycal"
 
@@ -157,3 +159,38 @@ def test_file_browsers_open_in_the_preferences_folders(prefs, tmp_path):
     for name, pref in folders.items():
         cls = bpy.types.Operator.bl_rna_get_subclass_py(f"BODYCAL_OT_{name}")
         assert issubclass(cls, preferences.StartsInFolder) and cls._folder == pref, name
+
+
+def test_bake_presets_save_and_apply_the_bake_settings():
+    scene = bpy.context.scene
+    bake, retarget = scene.bodycal_bake, scene.bodycal_retarget
+    arm = bpy.data.objects.new("avatar", bpy.data.armatures.new("avatar"))
+    scene.collection.objects.link(arm)
+    bake.armature = arm
+    bake.root_motion, bake.rigify_target, bake.plant_feet, bake.output_fps = "in-place", "def", False, 60
+    bake.tolerance, bake.frame_range = 0.01, "take"
+    retarget.use_filter, retarget.filter_beta = True, 2.5
+    retarget.method = "offsets"
+    assert bpy.ops.bodycal.add_bake_preset(name="Game Export") == {"FINISHED"}
+    preset = os.path.join(bpy.utils.user_resource("SCRIPTS", path="presets/bodycal/bake"), "Game_Export.py")
+    assert os.path.isfile(preset)  # the user's presets: kept across files and sessions
+    try:
+        bake.root_motion, bake.rigify_target, bake.plant_feet, bake.output_fps = "root", "fk", True, 0
+        bake.tolerance, bake.frame_range = 0.002, "scene"
+        retarget.use_filter, retarget.filter_beta = False, 5.0
+        bake.armature, retarget.method = None, "rotations"
+        assert bpy.ops.script.execute_preset(filepath=preset, menu_idname="BODYCAL_PT_bake_presets") == {"FINISHED"}
+        assert (bake.root_motion, bake.rigify_target, bake.plant_feet, bake.output_fps) == ("in-place", "def", False, 60)
+        assert bake.tolerance == pytest.approx(0.01) and bake.frame_range == "take"
+        assert retarget.use_filter and retarget.filter_beta == pytest.approx(2.5)
+        # How to bake, not what: the avatar and the method are the scene's own.
+        assert bake.armature is None and retarget.method == "rotations"
+        # Both bake panels offer the presets in their header.
+        for panel in ("BODYCAL_PT_retarget", "BODYCAL_PT_transfer"):
+            log = ui_layout.draw(getattr(bpy.types, panel), bpy.context, "draw_header_preset")
+            assert ("popover", "BODYCAL_PT_bake_presets") in log, panel
+        assert bpy.ops.bodycal.add_bake_preset(remove_active=True) == {"FINISHED"}  # the one applied last
+        assert not os.path.exists(preset)
+    finally:
+        if os.path.exists(preset):
+            os.remove(preset)
