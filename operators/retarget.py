@@ -1,5 +1,6 @@
 """Retarget and bake: the last step of the sidebar flow, the scene's recording as the take of the
-shared bake (operators/bake_settings.BakeOperator); and the export of a baked avatar."""
+shared bake (operators/bake_settings.BakeOperator); and the export of a baked avatar (also in
+File > Export)."""
 
 from pathlib import Path
 
@@ -132,6 +133,18 @@ options a game engine expects"""
 
 
 CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake, BODYCAL_OT_export_animation)
+
+
+def menu_export(self, _context):
+    self.layout.operator(BODYCAL_OT_export_animation.bl_idname, text="BodyCal Baked Avatar (.fbx, .glb, .gltf, .bvh)")
+
+
+def register_menus():
+    bpy.types.TOPBAR_MT_file_export.append(menu_export)
+
+
+def unregister_menus():
+    bpy.types.TOPBAR_MT_file_export.remove(menu_export)
 
 
 def register_properties():

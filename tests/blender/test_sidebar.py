@@ -180,7 +180,8 @@ def test_bake_presets_save_and_apply_the_bake_settings():
         retarget.use_filter, retarget.filter_beta = False, 5.0
         bake.armature, retarget.method = None, "rotations"
         assert bpy.ops.script.execute_preset(filepath=preset, menu_idname="BODYCAL_PT_bake_presets") == {"FINISHED"}
-        assert (bake.root_motion, bake.rigify_target, bake.plant_feet, bake.output_fps) == ("in-place", "def", False, 60)
+        applied = (bake.root_motion, bake.rigify_target, bake.plant_feet, bake.output_fps)
+        assert applied == ("in-place", "def", False, 60)
         assert bake.tolerance == pytest.approx(0.01) and bake.frame_range == "take"
         assert retarget.use_filter and retarget.filter_beta == pytest.approx(2.5)
         # How to bake, not what: the avatar and the method are the scene's own.
@@ -194,3 +195,36 @@ def test_bake_presets_save_and_apply_the_bake_settings():
     finally:
         if os.path.exists(preset):
             os.remove(preset)
+
+
+def _baked_avatar():
+    """The procedural avatar with a short action on its upper arm, as a bake leaves it (active)."""
+    from bodycal_addon.core import paths
+
+    arm, _mesh, _spec = paths.sample_rigs().build_procedural_avatar()
+    bpy.context.view_layer.objects.active = arm
+    arm.animation_data_create().action = bpy.data.actions.new("take__procedural")
+    bone = arm.pose.bones["upperarm_l"]
+    bone.rotation_mode = "QUATERNION"
+    for frame, w in ((1, 1.0), (10, 0.8)):
+        bone.rotation_quaternion = (w, (1 - w * w) ** 0.5, 0.0, 0.0)
+        bone.keyframe_insert("rotation_quaternion", frame=frame)
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 10
+    return arm
+
+
+def test_file_export_offers_the_baked_avatar(tmp_path):
+    entries = []
+    for draw in bpy.types.TOPBAR_MT_file_export._dyn_ui_initialize():
+        log = []
+        draw(type("Menu", (), {"layout": ui_layout.RecordingLayout(log)})(), bpy.context)
+        entries += [e[1] for e in log if e[0] == "operator"]
+    assert "bodycal.export_animation" in entries
+    assert not bpy.ops.bodycal.export_animation.poll()  # nothing baked is active: greyed out, says why
+    arm = _baked_avatar()
+    assert bpy.ops.bodycal.export_animation.poll()
+    for suffix in (".fbx", ".glb"):
+        out = tmp_path / f"ogre{suffix}"
+        assert bpy.ops.bodycal.export_animation(filepath=str(out), file_format=suffix) == {"FINISHED"}
+        assert out.stat().st_size > 1000
+    assert bpy.context.active_object == arm
