@@ -2,6 +2,8 @@
 
 import bpy
 
+from ..bodycal_addon.core import paths
+
 
 class BODYCAL_PT_main(bpy.types.Panel):
     """BodyCal: VR tracker recordings onto any humanoid avatar, keeping self-contacts"""
@@ -17,7 +19,10 @@ class BODYCAL_PT_main(bpy.types.Panel):
         col = layout.column(align=True)
         col.label(text="Avatars", icon="ARMATURE_DATA")
         col.operator("bodycal.add_procedural_avatar", icon="OUTLINER_OB_ARMATURE")
-        col.operator("bodycal.load_sample_avatars", icon="IMPORT")
+        # The samples come with the source repository, not the extension zip: an installed
+        # extension would show the button greyed out for good.
+        if paths.shared_avatar_files():
+            col.operator("bodycal.load_sample_avatars", icon="IMPORT")
 
 
 CLASSES = (BODYCAL_PT_main,)

@@ -228,3 +228,15 @@ def test_file_export_offers_the_baked_avatar(tmp_path):
         assert bpy.ops.bodycal.export_animation(filepath=str(out), file_format=suffix) == {"FINISHED"}
         assert out.stat().st_size > 1000
     assert bpy.context.active_object == arm
+
+
+def test_sample_avatars_are_offered_only_where_they_are(monkeypatch):
+    """An installed extension has no sample_data/: its Load Sample Avatars button was there for
+    good, greyed out."""
+    paths = _module("bodycal_addon.core.paths")
+    drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_main, bpy.context) if e[0] == "operator"}
+    assert {"bodycal.load_sample_avatars", "bodycal.add_procedural_avatar"} <= drawn
+    monkeypatch.setattr(paths, "data_dir", lambda: None)
+    drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_main, bpy.context) if e[0] == "operator"}
+    assert "bodycal.load_sample_avatars" not in drawn
+    assert "bodycal.add_procedural_avatar" in drawn  # built from code: always there
