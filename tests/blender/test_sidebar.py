@@ -240,3 +240,102 @@ def test_sample_avatars_are_offered_only_where_they_are(monkeypatch):
     drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_main, bpy.context) if e[0] == "operator"}
     assert "bodycal.load_sample_avatars" not in drawn
     assert "bodycal.add_procedural_avatar" in drawn  # built from code: always there
+
+
+class _Event:
+    def __init__(self, kind, alt=False):
+        self.type, self.value, self.alt = kind, "PRESS", alt
+
+
+class _JobContext:
+    """What a running job touches of its context: the progress, the status text, the timer."""
+
+    def __init__(self, emulate_3_button=False):
+        self.progress, self.status = [], []
+        wm = type("WM", (), {})()
+        wm.progress_update = self.progress.append
+        wm.progress_begin = wm.progress_end = lambda *a: None
+        wm.event_timer_add = lambda *a, **k: "timer"
+        wm.event_timer_remove = wm.modal_handler_add = lambda *a: None
+        self.window_manager, self.window = wm, None
+        self.workspace = type("WS", (), {"status_text_set": lambda _s, text: self.status.append(text)})()
+        inputs = type("Inputs", (), {"use_mouse_emulate_3_button": emulate_3_button})()
+        self.preferences = type("Prefs", (), {"inputs": inputs})()
+
+
+def _job(work, doing="retargeting"):
+    """A BackgroundWork operator stand-in (the mixin Retarget and Bake and Transfer use) that
+    started `work(progress, cancel)` in its worker thread."""
+    background_work = _module("operators.background_work")
+
+    class Job(background_work.BackgroundWork):
+        _doing = doing
+
+        def __init__(self):
+            self.reports = []
+
+        def report(self, kind, text):
+            self.reports.append((kind, text))
+
+        def _done(self, _context, result):
+            self.result = result
+            return {"FINISHED"}
+
+    job, context = Job(), _JobContext()
+    assert job._start(context, work) == {"RUNNING_MODAL"}
+    return job, context
+
+
+def _until_finished(job, context):
+    while True:
+        result = job.modal(context, _Event("TIMER"))
+        if result != {"PASS_THROUGH"}:
+            return result
+        job._thread.join(0.05)
+
+
+def test_a_running_bake_lets_the_viewport_be_navigated_and_nothing_else():
+    import threading
+
+    release = threading.Event()
+
+    def work(progress, cancel):
+        progress(0.25)
+        release.wait(30)
+        progress(1.0)
+        return "baked"
+
+    job, context = _job(work)
+    for kind in ("MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "MOUSEMOVE", "TRACKPADPAN", "TRACKPADZOOM",
+                 "NDOF_MOTION", "NUMPAD_1", "NUMPAD_PERIOD", "HOME", "TIMER_REPORT"):
+        assert job.modal(context, _Event(kind)) == {"PASS_THROUGH"}, kind
+    for kind in ("LEFTMOUSE", "RIGHTMOUSE", "A", "G", "X", "DEL", "Z", "SPACE", "RET"):
+        assert job.modal(context, _Event(kind)) == {"RUNNING_MODAL"}, kind  # no edits under a bake
+    assert job.modal(context, _Event("LEFTMOUSE", alt=True)) == {"RUNNING_MODAL"}
+    context.preferences.inputs.use_mouse_emulate_3_button = True  # Alt + left button orbits
+    assert job.modal(context, _Event("LEFTMOUSE", alt=True)) == {"PASS_THROUGH"}
+    job._thread.join(0.2)
+    assert job.modal(context, _Event("TIMER")) == {"PASS_THROUGH"}  # still working
+    assert context.progress[-1] == 25 and context.status[-1] == "BodyCal: retargeting... 25% (Esc to cancel)"
+    release.set()
+    assert _until_finished(job, context) == {"FINISHED"} and job.result == "baked"
+    assert context.progress[-1] == 100 and context.status[-1] is None
+
+
+def test_esc_stops_a_running_bake_before_anything_is_written():
+    errors = _module("bodycal_addon.core.errors")
+
+    def work(progress, cancel):
+        k = 0
+        while not cancel():
+            progress(min(k / 1000, 0.5))
+            k += 1
+        raise errors.Cancelled()
+
+    job, context = _job(work)
+    assert job.modal(context, _Event("ESC")) == {"RUNNING_MODAL"}  # Esc is the job's: nothing else sees it
+    job._thread.join(5)
+    assert job.modal(context, _Event("TIMER")) == {"CANCELLED"}
+    assert "BodyCal: cancelling retargeting..." in context.status and context.status[-1] is None
+    assert not hasattr(job, "result")
+    assert job.reports == [({"WARNING"}, "Cancelled: nothing was written")]
