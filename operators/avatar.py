@@ -7,6 +7,7 @@ from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_stora
 from ..bodycal_addon.body.bodymodel import BodyModel
 from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.retarget.placement import avatar_warnings
+from .background_work import BackgroundWork
 from .preferences import StartsInFolder
 from .reporting import reports_errors
 
@@ -140,10 +141,11 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
+class BODYCAL_OT_calibrate_avatar(BackgroundWork, bpy.types.Operator):
     """Measure the avatar's surface by raycasting onto its mesh (capsules, torso, jaw, skull,
     palms, soles) and store the body model on the armature"""
 
+    _doing, _cancelled = "calibrating the avatar", "Avatar calibration cancelled"
     bl_idname = "bodycal.calibrate_avatar"
     bl_label = "Calibrate Avatar"
     bl_options = {"REGISTER", "UNDO"}
@@ -152,16 +154,29 @@ class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context)
 
+    def _survey(self, context):
+        """The armature, its rig and its meshes' BVH trees, read on the main thread."""
+        arm = context_armature(context)
+        return arm, *avatar_calibration.prepare_survey(arm, depsgraph=context.evaluated_depsgraph_get())
+
     @reports_errors
     def execute(self, context):
-        arm = context_armature(context)
-        wm = context.window_manager
-        wm.progress_begin(0, 1)
-        try:
-            model = avatar_calibration.calibrate_avatar(arm, depsgraph=context.evaluated_depsgraph_get())
-            avatar_storage.store_model(arm, model)
-        finally:
-            wm.progress_end()
+        arm, rig, caster = self._survey(context)
+        return self._store(arm, avatar_calibration.measure(rig, caster, arm.name))
+
+    @reports_errors
+    def invoke(self, context, _event):
+        """The rays in a worker thread: the progress in the status bar, Esc cancels."""
+        arm, rig, caster = self._survey(context)
+        self._arm = arm
+        return self._start(context, lambda progress, cancel: avatar_calibration.measure(
+            rig, caster, arm.name, progress=progress, cancel=cancel))
+
+    def _done(self, _context, model):
+        return self._store(self._arm, model)
+
+    def _store(self, arm, model):
+        avatar_storage.store_model(arm, model)
         q = model.calibration["quality"]
         rejected = sum(v["rejected"] for v in q.values())
         note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""

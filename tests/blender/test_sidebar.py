@@ -339,3 +339,38 @@ def test_esc_stops_a_running_bake_before_anything_is_written():
     assert "BodyCal: cancelling retargeting..." in context.status and context.status[-1] is None
     assert not hasattr(job, "result")
     assert job.reports == [({"WARNING"}, "Cancelled: nothing was written")]
+
+
+def test_calibrate_avatar_shows_its_progress_and_esc_stops_it():
+    """Calibrate Avatar casts its rays in the sidebar's worker (the bake's BackgroundWork): its
+    progress runs from 0 to 100 % as the rays are cast, and Esc stops it with nothing stored."""
+    from bodycal_addon.core import paths
+
+    # The extension's own modules: its worker knows its own Cancelled.
+    avatar_calibration = _module("bodycal_addon.blender.avatar_calibration")
+    avatar_storage = _module("bodycal_addon.blender.avatar_storage")
+    background_work = _module("operators.background_work")
+    assert issubclass(bpy.types.BODYCAL_OT_calibrate_avatar, background_work.BackgroundWork)
+    arm, _mesh, _spec = paths.sample_rigs().build_procedural_avatar()
+    rig, caster = avatar_calibration.prepare_survey(arm)
+    seen = []
+
+    def work(progress, cancel):
+        return avatar_calibration.measure(rig, caster, arm.name, progress=lambda f: (seen.append(f), progress(f)),
+                                          cancel=cancel)
+
+    job, context = _job(work, "calibrating the avatar")
+    assert _until_finished(job, context) == {"FINISHED"}
+    assert len(set(seen)) > 1000 and seen == sorted(seen) and seen[-1] == 1.0
+    assert job.result.extra["rays_cast"] == len(seen)
+    assert context.progress[-1] == 100
+    reference = avatar_calibration.calibrate_avatar(arm)  # the same numbers as the one-call path
+    assert [e.id for e in job.result.surface] == [e.id for e in reference.surface]
+    assert job.result.bones["forearm_l"].radius_head == reference.bones["forearm_l"].radius_head
+
+    rig, caster = avatar_calibration.prepare_survey(arm)
+    job, context = _job(lambda progress, cancel: avatar_calibration.measure(
+        rig, caster, arm.name, progress=progress, cancel=cancel), "calibrating the avatar")
+    job.modal(context, _Event("ESC"))
+    assert _until_finished(job, context) == {"CANCELLED"}
+    assert caster.rays < caster.planned and not avatar_storage.has_model(arm)
