@@ -93,7 +93,36 @@ def _avatars(names):
     return out
 
 
-def motion_figures(anim, avatar, truth, k: dict, user_pose, limb_k: dict | None = None) -> dict:
+def skin_figures(arm, avatar, anim, truth, leg_k: float) -> dict:
+    """The feet as the animator sees them, on the evaluated mesh (mesh_metrics.foot_skin): the
+    lowest foot skin while the source's heel or ball is on the ground (its ankle or toe joint low
+    and slow, from the BVH), and the slide of the skin's heel and ball points while the source's
+    heel, resp. ball, is down, against the source's ankle, resp. toe joint, scaled like the legs."""
+    a, b = truth["motion"]
+    fps = truth["fps"]
+    J = {n: i for i, n in enumerate(truth["joints"])}
+    T = truth["positions"][a:b]
+    down = {s: {part: measure.contact(T[:, J[f"{joint}_{s}"]], fps) for part, joint in (("heel", "ankle"),
+                                                                                     ("ball", "toe"))}
+            for s in ("l", "r")}
+    skin = mesh_metrics.foot_skin(arm, avatar, anim, np.arange(a, b))
+    out = {"skin_height_mm": {}, "heel_slide_mm": {}, "ball_slide_mm": {}, "slide_ratio": {}}
+    for s, sk_ in skin.items():
+        on = down[s]["heel"] | down[s]["ball"]
+        low = sk_["low"][on] * 1000
+        out["skin_height_mm"][s] = {"median": round(float(np.median(low)), 1), "worst": round(float(low.min()), 1)} \
+            if low.size else {"median": None, "worst": None}
+        for part, joint in (("heel", "ankle"), ("ball", "toe")):
+            mine = measure.slide_p95_mm(sk_[part], down[s][part], fps)
+            src = measure.slide_p95_mm(T[:, J[f"{joint}_{s}"]], down[s][part], fps)
+            scaled = None if src is None else round(src * leg_k, 2)
+            out[f"{part}_slide_mm"][s] = {"avatar": mine, "source_scaled": scaled}
+            if mine is not None and scaled:
+                out["slide_ratio"][f"{part}_{s}"] = round(mine / scaled, 2)
+    return out
+
+
+def motion_figures(anim, avatar, truth, k: dict, user_pose, limb_k: dict | None = None, arm=None) -> dict:
     """`k`: how the method scales the source's wrist and ankle motion; `limb_k`, when that is not
     the limb ratios, the limb ratios too (their figure is reported beside)."""
     a, b = truth["motion"]
@@ -118,6 +147,8 @@ def motion_figures(anim, avatar, truth, k: dict, user_pose, limb_k: dict | None 
             # against the user's own joint, as the trackers give it (scaled): what the pipeline adds
             usr = measure.accel_p95(user_pose.joint(f"{j}_{s}")[a:b], fps) * k[j]
             out["pipeline_gain"][f"{j}_{s}"] = round(av / max(usr, 1e-9), 2)
+    if arm is not None:
+        out.update(skin_figures(arm, avatar, anim, truth, k["ankle"]))
     out["hip_line_deg"] = measure.hip_line_deg(anim.joints_world["hip_l"][a:b], anim.joints_world["hip_r"][a:b],
                                                T[:, J["hip_l"]], T[:, J["hip_r"]])
     return out
@@ -154,7 +185,7 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
                           "warnings": user.calibration.get("warnings", [])}
             filtered = filter_recording(rec, OneEuro())
             user_poses = {"raw": animate_user(rec, user), "filtered": animate_user(filtered, user)}
-            for name, _arm, avatar in avatars:
+            for name, _arm, avatar in avatars:  # noqa: B007 (the armature: the skin figures)
                 limb_k = _size_ratios(AvatarRig.from_model(avatar), truth, ref)
                 eye_k = offsets.eye_height(avatar) / offsets.eye_height(user)
                 for method in pl.METHODS:
@@ -168,7 +199,8 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
                         by_eye = method == "offsets"  # AvatarGo scales every position by the eye height
                         k = {"ankle": eye_k, "wrist": eye_k} if by_eye else limb_k
                         motion[f"{method}/{name}/{key}/{variant}"] = motion_figures(
-                            anim, avatar, truth, k, user_poses[variant], limb_k if by_eye else None)
+                            anim, avatar, truth, k, user_poses[variant], limb_k if by_eye else None,
+                            arm=_arm if variant == "raw" else None)
     out = {"bench": "real_motion", "clips": [p.stem for p in clips], "avatars": [a for a, *_ in avatars],
            "profiles": list(PROFILES), "noise": {"mm": 0.5, "deg": 0.3, "wobble_mm": 1.5},
            "calibration": calib, "targets": _targets(calib, motion), "motion": motion, "notes": notes,
@@ -224,6 +256,20 @@ def _targets(calib, motion) -> dict:
             "met": bool(acc) and max(acc) <= 1.3}
         out[f"pipeline_gain_over_user_{variant}"] = {"worst": max(gain) if gain else None,
                                                      "median": float(np.median(gain)) if gain else None}
+    # What the animator sees (the evaluated mesh; raw runs: the default settings).
+    skin = [m for m in raw if "skin_height_mm" in m]
+    med = [m["skin_height_mm"][s]["median"] for m in skin for s in m["skin_height_mm"]
+           if m["skin_height_mm"][s]["median"] is not None]
+    worst = [m["skin_height_mm"][s]["worst"] for m in skin for s in m["skin_height_mm"]
+             if m["skin_height_mm"][s]["worst"] is not None]
+    ratio = [v for m in skin for v in m["slide_ratio"].values()]
+    out["skin_median_within_5mm"] = {"range_mm": [min(med), max(med)] if med else None,
+                                     "met": bool(med) and max(abs(v) for v in med) <= 5.0}
+    out["skin_worst_ge_minus_10mm"] = {"worst_mm": min(worst) if worst else None,
+                                       "met": bool(worst) and min(worst) >= -10.0}
+    out["heel_ball_slide_le_1_5x_source"] = {"worst_ratio": max(ratio) if ratio else None,
+                                             "median_ratio": float(np.median(ratio)) if ratio else None,
+                                             "met": bool(ratio) and max(ratio) <= 1.5}
     out["runs_failed"] = [k for k, m in motion.items() if "error" in m]
     return out
 

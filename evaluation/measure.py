@@ -51,3 +51,18 @@ def hip_line_deg(avatar_l, avatar_r, source_l, source_r) -> dict:
     d = yaw(avatar_l - avatar_r) - yaw(source_l - source_r)
     d = np.degrees(np.abs((d + np.pi) % (2 * np.pi) - np.pi))
     return {"p95": round(float(np.percentile(d, 95)), 1), "max": round(float(d.max()), 1)}
+
+
+def contact(point: np.ndarray, fps: float, speed: float = 0.15, height: float = 0.03) -> np.ndarray:
+    """(F,) bool: the source's point (a heel's ankle, a ball's toe joint) on the ground: slower
+    than `speed` (m/s, central difference) and within `height` of its lowest 5 % over the clip."""
+    v = np.gradient(point, axis=0) * fps
+    slow = np.linalg.norm(v[:, :2], axis=-1) < speed
+    low = point[:, 2] < np.percentile(point[:, 2], 5) + height
+    return slow & low
+
+
+def slide_p95_mm(point: np.ndarray, on: np.ndarray, fps: float) -> float | None:
+    """p95 of the horizontal step (mm per 90 Hz frame) of `point` (F, 3) between consecutive
+    frames both `on`."""
+    return slide_mm_per_90hz(point, on, fps)

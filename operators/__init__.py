@@ -7,6 +7,7 @@ from . import (
     bone_maps,
     calibration,
     preferences,
+    preview,
     recording,
     retarget,
     sample_avatars,
@@ -15,7 +16,7 @@ from . import (
 from .registration import register_classes_factory
 
 _MODULES = (preferences, sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, bake_presets,
-            retarget, transfer)
+            retarget, transfer, preview)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = register_classes_factory(CLASSES)
@@ -29,9 +30,15 @@ def register():
     for m in _MODULES:  # menu entries (e.g. File > Import), after the classes they show
         if hasattr(m, "register_menus"):
             m.register_menus()
+    for m in _MODULES:  # app handlers (the timeline preview's frame changes)
+        if hasattr(m, "register_handlers"):
+            m.register_handlers()
 
 
 def unregister():
+    for m in reversed(_MODULES):
+        if hasattr(m, "unregister_handlers"):
+            m.unregister_handlers()
     for m in reversed(_MODULES):
         if hasattr(m, "unregister_menus"):
             m.unregister_menus()

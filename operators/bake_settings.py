@@ -9,7 +9,7 @@ import math
 
 import bpy
 
-from ..bodycal_addon.blender import session
+from ..bodycal_addon.blender import preview, session
 from ..bodycal_addon.blender.bake import BakeOptions
 from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
@@ -169,7 +169,10 @@ class BakeOperator(BackgroundWork):
         window = context.scene.bodycal_bake.window(context)
         if window is not None:
             take = take.window(*window)
-        targets = [session.prepare_target(arm) for arm in self._armatures(context)]
+        armatures = self._armatures(context)
+        for arm in armatures:  # its pose put back first: the bake starts from the armature as it was
+            preview.stop(arm.name)
+        targets = [session.prepare_target(arm) for arm in armatures]
         for target in targets:
             for line in target.warnings:
                 self.report({"WARNING"}, line)

@@ -2,6 +2,7 @@
 
 import bpy
 
+from ..bodycal_addon.blender import preview
 from .bake_presets import draw_presets_button
 from .bake_rows import draw_keys, draw_last_result, draw_placement
 
@@ -34,6 +35,9 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
             sub.prop(settings, "filter_rot_min_cutoff")
             sub.prop(settings, "filter_rot_beta")
         draw_keys(col, bake)
+        on = preview.any_active()
+        col.operator("bodycal.preview_retarget", text="Stop Preview" if on else "Preview", icon="PLAY",
+                     depress=on)
         col.operator("bodycal.retarget_bake", icon="ACTION")
         col.operator("bodycal.export_animation", icon="EXPORT")
         draw_last_result(layout, settings)

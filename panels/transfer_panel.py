@@ -2,6 +2,7 @@
 
 import bpy
 
+from ..bodycal_addon.blender import preview
 from .bake_presets import draw_presets_button
 from .bake_rows import draw_keys, draw_last_result, draw_placement
 
@@ -30,6 +31,9 @@ class BODYCAL_PT_transfer(bpy.types.Panel):
         col.prop(st, "method")
         draw_placement(col, bake)
         draw_keys(col, bake)
+        on = preview.any_active()
+        col.operator("bodycal.preview_retarget", text="Stop Preview" if on else "Preview", icon="PLAY",
+                     depress=on).take = "transfer"
         col.operator("bodycal.transfer_animation", icon="ACTION")
         draw_last_result(layout, st)
 

@@ -14,6 +14,8 @@ The armature's pose and action are restored afterwards.
 
 from __future__ import annotations
 
+import contextlib
+
 import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
@@ -114,18 +116,14 @@ class EvaluatedMesh:
             raise BodyCalError("no mesh is skinned to this armature", source=arm.name)
         self.meshes = meshes
         self.tri_bone = {}
+        self.dominant = {}  # mesh name -> (V,) each vertex's dominant bone
         for obj in meshes:
             me = obj.data
             me.calc_loop_triangles()
             tris = np.empty(len(me.loop_triangles) * 3, np.int32)
             me.loop_triangles.foreach_get("vertices", tris)
             tris = tris.reshape(-1, 3)
-            groups = {g.index: g.name for g in obj.vertex_groups}
-            dom = np.full(len(me.vertices), "", dtype=object)
-            for v in me.vertices:
-                best = max(v.groups, key=lambda g: g.weight, default=None)
-                if best is not None:
-                    dom[v.index] = groups.get(best.group, "")
+            self.dominant[obj.name] = dom = _dominant(obj)
             self.tri_bone[obj.name] = (tris, dom[tris])
 
     def triangles_without(self, bones: set[str]):
@@ -147,13 +145,11 @@ class EvaluatedMesh:
         return out
 
 
-def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict, np.ndarray]],
-                mesh: EvaluatedMesh | None = None) -> list[np.ndarray]:
-    """Pose the armature at frames and measure signed distances (m) to selected skin.
-
-    queries: [(frame indices (n,), {mesh name: triangles}, points (n, 3) world)]; returns one (n,)
-    array per query. Frames shared by several queries are posed once."""
-    mesh = mesh or EvaluatedMesh(arm)
+@contextlib.contextmanager
+def posed(arm, anim: AvatarAnimation, meshes):
+    """A function `frame -> {mesh name: (V, 3) world vertices}` of the skinned `meshes` with the
+    armature posed at that frame of `anim` (its action detached meanwhile); the armature's pose
+    and action are put back afterwards."""
     pbs = [arm.pose.bones[n] for n in anim.bone_names]
     root = arm.pose.bones[anim.root_bone]
     saved = [(pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location)) for pb in arm.pose.bones]
@@ -161,28 +157,51 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
     saved_action = ad.action if ad is not None else None
     if ad is not None:
         ad.action = None
-    by_frame: dict[int, list[tuple[int, int]]] = {}
-    for qi, (frames, _, _) in enumerate(queries):
-        for k, f in enumerate(np.asarray(frames, int)):
-            by_frame.setdefault(int(f), []).append((qi, k))
-    out = [np.full(len(q[0]), np.nan) for q in queries]
     view_layer = bpy.context.view_layer
+    located = [(arm.pose.bones[n], loc) for n, loc in anim.bone_locations.items()]
+
+    def at(f: int) -> dict[str, np.ndarray]:
+        for b, pb in enumerate(pbs):
+            pb.rotation_quaternion = anim.rotations[f, b]
+        root.location = anim.root_location[f]
+        for pb, loc in located:
+            pb.location = loc[f]
+        view_layer.update()
+        dg = bpy.context.evaluated_depsgraph_get()
+        return {obj.name: world_vertices(obj, dg) for obj in meshes}
+
     try:
         for pb in pbs:
             pb.rotation_mode = "QUATERNION"
         # A detached action leaves its last pose: a root bone keyed with root motion would stay moved.
         for pb in arm.pose.bones:
             pb.location = (0.0, 0.0, 0.0)
-        located = [(arm.pose.bones[n], loc) for n, loc in anim.bone_locations.items()]
+        yield at
+    finally:
+        for pb, (mode, q, loc) in zip(arm.pose.bones, saved):
+            pb.rotation_quaternion = q
+            pb.location = loc
+            pb.rotation_mode = mode
+        if ad is not None:
+            ad.action = saved_action
+        view_layer.update()
+
+
+def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict, np.ndarray]],
+                mesh: EvaluatedMesh | None = None) -> list[np.ndarray]:
+    """Pose the armature at frames and measure signed distances (m) to selected skin.
+
+    queries: [(frame indices (n,), {mesh name: triangles}, points (n, 3) world)]; returns one (n,)
+    array per query. Frames shared by several queries are posed once."""
+    mesh = mesh or EvaluatedMesh(arm)
+    by_frame: dict[int, list[tuple[int, int]]] = {}
+    for qi, (frames, _, _) in enumerate(queries):
+        for k, f in enumerate(np.asarray(frames, int)):
+            by_frame.setdefault(int(f), []).append((qi, k))
+    out = [np.full(len(q[0]), np.nan) for q in queries]
+    with posed(arm, anim, mesh.meshes) as at:
         for f, items in sorted(by_frame.items()):
-            for b, pb in enumerate(pbs):
-                pb.rotation_quaternion = anim.rotations[f, b]
-            root.location = anim.root_location[f]
-            for pb, loc in located:
-                pb.location = loc[f]
-            view_layer.update()
-            dg = bpy.context.evaluated_depsgraph_get()
-            world_verts = {obj.name: world_vertices(obj, dg) for obj in mesh.meshes}
+            world_verts = at(f)
             for qi, k in items:
                 _, tris_by_mesh, points = queries[qi]
                 verts, tris, off = [], [], 0
@@ -200,14 +219,6 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
                     continue
                 sign = 1.0 if np.dot(np.asarray(p) - np.asarray(loc), np.asarray(normal)) >= 0 else -1.0
                 out[qi][k] = sign * dist
-    finally:
-        for pb, (mode, q, loc) in zip(arm.pose.bones, saved):
-            pb.rotation_quaternion = q
-            pb.location = loc
-            pb.rotation_mode = mode
-        if ad is not None:
-            ad.action = saved_action
-        view_layer.update()
     return out
 
 
@@ -253,3 +264,55 @@ def sole_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> np.ndarr
     ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
     local = np.stack([p.local for p in el.points.values()])
     return ankle[:, None] + np.einsum("fij,kj->fki", frame, local)
+
+
+def foot_skin(arm, avatar: BodyModel, anim: AvatarAnimation, frames, mesh: EvaluatedMesh | None = None
+              ) -> dict[str, dict[str, np.ndarray]]:
+    """What the animator sees of the feet (DESIGN.md §7, "Real motion"), on the evaluated mesh at
+    `frames` (n,): per side, `low` (n,) the lowest world height of the foot's skin (the vertices
+    the foot and toe bones dominate), and `heel` / `ball` (n, 3) two skin points followed through
+    the motion: the lowest vertex at the back of the sole and the lowest one under the ball of the
+    foot (the toe joint), chosen on the mesh as it was bound."""
+    mesh = mesh or EvaluatedMesh(arm)
+    bone_map = naming.BoneMap.from_dict(avatar.extra["rig"]["bone_map"])
+    frames = np.asarray(frames, int)
+    picks = {}
+    for s in sk.SIDES:
+        bones = _segment_bones(bone_map, [f"foot_{s}", f"toe_{s}"])
+        ankle, toe = (np.asarray(avatar.joints[f"{j}_{s}"].world, float) for j in ("ankle", "toe"))
+        forward = (toe - ankle) * [1.0, 1.0, 0.0]
+        forward /= max(np.linalg.norm(forward), 1e-9)
+        for obj in mesh.meshes:
+            idx = np.flatnonzero(np.isin(mesh.dominant[obj.name], list(bones)))
+            if idx.size == 0:
+                continue
+            m = np.array(obj.matrix_world)
+            co = np.empty(len(obj.data.vertices) * 3)
+            obj.data.vertices.foreach_get("co", co)
+            rest = co.reshape(-1, 3)[idx] @ m[:3, :3].T + m[:3, 3]
+            low = rest[:, 2] <= rest[:, 2].min() + 0.01  # the sole: within 1 cm of the lowest skin
+            heel = idx[low][np.argmin(rest[low] @ forward)]
+            ball = idx[low][np.argmin(np.linalg.norm((rest[low] - toe)[:, :2], axis=1))]
+            picks[s] = (obj.name, idx, heel, ball)
+            break
+    out = {s: {"low": np.full(len(frames), np.nan), "heel": np.full((len(frames), 3), np.nan),
+               "ball": np.full((len(frames), 3), np.nan)} for s in picks}
+    with posed(arm, anim, mesh.meshes) as at:
+        for k, f in enumerate(frames):
+            verts = at(int(f))
+            for s, (name, idx, heel, ball) in picks.items():
+                v = verts[name]
+                out[s]["low"][k] = v[idx, 2].min()
+                out[s]["heel"][k], out[s]["ball"][k] = v[heel], v[ball]
+    return out
+
+
+def _dominant(obj) -> np.ndarray:
+    """(V,) the name of the vertex group with the largest weight on each vertex ("" for none)."""
+    groups = {g.index: g.name for g in obj.vertex_groups}
+    dom = np.full(len(obj.data.vertices), "", dtype=object)
+    for v in obj.data.vertices:
+        best = max(v.groups, key=lambda g: g.weight, default=None)
+        if best is not None:
+            dom[v.index] = groups.get(best.group, "")
+    return dom

@@ -144,8 +144,10 @@ class _Run:
     def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
              ankles: dict | None = None):
         """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
-        onto the planted places, and the pelvis lowered where a planted foot is out of reach. Returns
-        (targets, pelvis, whether anything is planted in these frames)."""
+        onto the planted places and kept above the floor, and the pelvis lowered where a planted foot
+        is out of reach. Returns (targets, pelvis, whether the feet have targets: a foot with a plan
+        always has one, planted or not, so that a frame's result never depends on which frames are
+        solved with it)."""
         if not self.feet:
             return targets, pelvis, False
         rig = self.rig
@@ -153,8 +155,6 @@ class _Run:
         weights, aims, sides = [], [], []
         for s, (weight, planted, sole) in self.feet.items():
             w = weight[start:stop]
-            if not w.any():
-                continue
             name = f"ankle_{s}"
             base = targets[name] if name in targets else ankles[name]
             targets[name] = feet.lock(base, planted[start:stop], w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
@@ -567,6 +567,50 @@ def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyMode
     _check_inputs(recording, user_model, avatar_model, method)
     return run_source(RecordingSource(recording, user_model), avatar_model, method, chunk_frames=chunk_frames,
                       progress=progress, cancel=cancel, plant_feet=plant_feet, placement=placement)
+
+
+class PreparedTake:
+    """A pose source and an avatar prepared once for a whole take (the feet plan included):
+    `solve(start, stop)` is the avatar's animation of frames [start, stop), the very values the bake
+    of the take keys there (`run_source` runs the same steps over chunks). The timeline preview
+    solves the frame the user scrubs to."""
+
+    def __init__(self, source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *,
+                 plant_feet: bool = True, placement: str = "object"):
+        _check_method(avatar_model, method)
+        self.source, self.avatar = source, avatar_model
+        to_world = play_area_to_world(avatar_model, check_placement(placement))
+        avatar_in_area = transformed_avatar(avatar_model, np.linalg.inv(to_world))
+        self.run = _Run(source, avatar_in_area, method, plant_feet,
+                        centre=np.zeros(3) if placement == "object" else None)
+        self.rot_t, self.shift = to_world[:3, :3].T, to_world[:3, 3]
+
+    @property
+    def frame_count(self) -> int:
+        return self.source.frame_count
+
+    def solve(self, start: int, stop: int) -> AvatarAnimation:
+        start, stop = max(0, int(start)), min(self.frame_count, int(stop))
+        if stop <= start:
+            raise BodyCalError(f"frames {start}-{stop} are outside the take (0-{self.frame_count - 1})",
+                               source=self.source.name)
+        run = self.run
+        pose, tg = run.chunk(start, stop)
+        rig = run.rig
+        joints = {j: pose.joints[:, i] @ self.rot_t + self.shift for i, j in enumerate(JOINTS)}
+        return AvatarAnimation(rig.armature, list(rig.names), pose.basis, rig.names[rig.root],
+                               np.asarray(pose.root_location, float), np.asarray(self.source.time[start:stop], float),
+                               run.method, joints, {n: v @ self.rot_t + self.shift for n, v in tg.items()},
+                               list(run.notes))
+
+
+def prepare_recording(recording: Recording, user_model: BodyModel, avatar_model: BodyModel,
+                      method: str = "egocentric", *, plant_feet: bool = True, placement: str = "object"
+                      ) -> PreparedTake:
+    """`retarget`'s take prepared once, to be solved a few frames at a time (PreparedTake)."""
+    _check_inputs(recording, user_model, avatar_model, method)
+    return PreparedTake(RecordingSource(recording, user_model), avatar_model, method, plant_feet=plant_feet,
+                        placement=placement)
 
 
 def run_source(source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *, chunk_frames: int = 2000,

@@ -31,8 +31,8 @@ from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro, filter_recording
 from ..recording.model import Recording
 from .methods import check_method
-from .pipeline import retarget
-from .transfer import transfer
+from .pipeline import PreparedTake, prepare_recording, retarget
+from .transfer import prepare_transfer, transfer
 
 FALLBACK_RATE = 30.0  # a one-frame take has no rate of its own
 FRAME_EPS = 1e-3  # a sample this close to a range's end frame is in the range
@@ -70,6 +70,11 @@ class Take(Protocol):
                 cancel: Callable[[], bool] | None = None) -> AvatarAnimation:
         """The avatar's animation (pure numpy). Bad input raises one BodyCalError."""
 
+    def prepare(self, avatar: BodyModel, method: str, *, plant_feet: bool = True, placement: str = "object"
+                ) -> PreparedTake:
+        """`animate` prepared once, to be solved a few frames at a time (the timeline preview):
+        `solve(start, stop)` gives the values `animate` gives for those frames."""
+
     def release(self) -> None:
         """Let go of the source's arrays: nothing will be computed from this take any more."""
 
@@ -102,9 +107,16 @@ class RecordingTake:
 
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
         check_method(method, self.kind)
-        rec = self.recording if self.filter is None else filter_recording(self.recording, self.filter)
-        return retarget(rec, self.user, avatar, method, progress=progress, cancel=cancel, plant_feet=plant_feet,
-                        placement=placement)
+        return retarget(self._filtered(), self.user, avatar, method, progress=progress, cancel=cancel,
+                        plant_feet=plant_feet, placement=placement)
+
+    def prepare(self, avatar, method, *, plant_feet=True, placement="object"):
+        check_method(method, self.kind)
+        return prepare_recording(self._filtered(), self.user, avatar, method, plant_feet=plant_feet,
+                                 placement=placement)
+
+    def _filtered(self) -> Recording:
+        return self.recording if self.filter is None else filter_recording(self.recording, self.filter)
 
     def release(self) -> None:
         self.recording = None
@@ -144,6 +156,10 @@ class CharacterTake:
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
         return transfer(self.model, self.basis, self.locations, self.time, avatar, method, plant_feet=plant_feet,
                         placement=placement, progress=progress, cancel=cancel, name=self.armature)
+
+    def prepare(self, avatar, method, *, plant_feet=True, placement="object"):
+        return prepare_transfer(self.model, self.basis, self.locations, self.time, avatar, method,
+                                plant_feet=plant_feet, placement=placement, name=self.armature)
 
     def release(self) -> None:
         self.basis = self.locations = None

@@ -22,7 +22,7 @@ from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from .avatar_pose import AvatarRig
 from .methods import check_method
-from .pipeline import run_source
+from .pipeline import PreparedTake, run_source
 from .placement import check_placement, play_area_to_world, rig_matrix, transformed_avatar
 from .pose_source import AnimationSource
 
@@ -53,6 +53,16 @@ def transfer(source: BodyModel, basis: np.ndarray, locations: np.ndarray, time: 
     if source.calibration.get("method") == "estimated":
         anim.notes.append(f"{source.name}: body surface estimated from its bone lengths (no mesh)")
     return anim
+
+
+def prepare_transfer(source: BodyModel, basis: np.ndarray, locations: np.ndarray, time: np.ndarray,
+                     avatar: BodyModel, method: str = "egocentric", *, plant_feet: bool = True,
+                     placement: str = "object", name: str | None = None) -> PreparedTake:
+    """`transfer`'s take prepared once, to be solved a few frames at a time (PreparedTake)."""
+    check_method(method, "animation")
+    moved, _ = source_in_play_area(source, placement)
+    return PreparedTake(AnimationSource(moved, basis, locations, time, name or source.name), avatar, method,
+                        plant_feet=plant_feet, placement=placement)
 
 
 FLOOR_PERCENTILE = 5.0  # of the clip's lowest sole height per frame: where a bare skeleton's floor is

@@ -283,16 +283,38 @@ def test_bad_inputs_are_one_clear_error(session):
     assert "\n" not in str(info.value)
 
 
-def test_targets_a_method_did_not_set_are_nan_not_leftover_memory():
-    """Rotation Copy sets an ankle target only in the chunks where that foot is planted: the other
-    frames are NaN (they were uninitialised memory, so figures over them changed from run to run)."""
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_planted_feet_do_not_depend_on_which_frames_are_solved_together(method):
+    """A frame's result is the same whatever chunk it is solved in (the bake's 2000 frames, the
+    preview's one): a foot with a stance plan is kept above the floor and reached by the legs in
+    every frame, not only in chunks where it is planted somewhere (a rotation copy's legs were
+    solved, and its soles kept out of the floor, only in those: a different pose per chunking)."""
     perf = synthetic.make_performer(seed=4)
     rec, truth = synthetic.record_session(perf, motions=("walk_in_place",), calibration=False, motion_seconds=2.0,
                                           noise_mm=0.0, wobble_mm=0.0)
-    anim = pl.retarget(rec, truth.body_model(), rt.procedural_avatar(), "rotations", chunk_frames=8)
-    unset = 0
-    for name, tg in anim.targets.items():
-        rows = np.isfinite(tg).all(axis=1)
-        assert (rows | np.isnan(tg).all(axis=1)).all(), name  # a row is a target or no target
-        unset += int((~rows).sum())
-    assert anim.targets and unset > 0  # a swinging foot's chunks have none
+    avatar = rt.procedural_avatar()
+    whole = pl.retarget(rec, truth.body_model(), avatar, method, chunk_frames=10_000)
+    bits = pl.retarget(rec, truth.body_model(), avatar, method, chunk_frames=8)
+    np.testing.assert_allclose(bits.rotations, whole.rotations, atol=1e-9)
+    np.testing.assert_allclose(bits.root_location, whole.root_location, atol=1e-9)
+    for s in ("l", "r"):
+        assert np.isfinite(whole.targets[f"ankle_{s}"]).all()  # every frame has its foot's target
+
+
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_a_prepared_take_solves_any_frame_as_the_bake_does(session, method):
+    """The timeline preview solves the one frame the user scrubs to (PreparedTake): the values are
+    the bake's at that frame, feet planted and the avatar's object turned, in any order."""
+    rec, _, user, _ = session
+    avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2))
+    whole = pl.retarget(rec, user, avatar, method)
+    prepared = pl.prepare_recording(rec, user, avatar, method)
+    order = np.random.default_rng(1).permutation(rec.frame_count)[:25]
+    for f in order:
+        one = prepared.solve(f, f + 1)
+        np.testing.assert_allclose(one.rotations[0], whole.rotations[f], atol=1e-9, err_msg=f"frame {f}")
+        np.testing.assert_allclose(one.root_location[0], whole.root_location[f], atol=1e-9)
+        np.testing.assert_allclose(one.joints_world["wrist_l"][0], whole.joints_world["wrist_l"][f], atol=1e-5)
+        assert one.time[0] == rec.time[f]
+    with pytest.raises(BodyCalError, match="outside the take"):
+        prepared.solve(rec.frame_count, rec.frame_count + 1)

@@ -20,7 +20,7 @@ from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.placement import transformed_avatar
 from bodycal_addon.retarget.pose_source import AnimationSource
-from bodycal_addon.retarget.transfer import stand_on_floor, transfer
+from bodycal_addon.retarget.transfer import prepare_transfer, stand_on_floor, transfer
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 from sample_rigs import procedural
@@ -170,3 +170,15 @@ def test_a_hanging_skeleton_is_stood_on_its_floor_without_moving_its_motion(sour
     np.testing.assert_allclose(after, before + [0.0, 0.0, motion], atol=1e-9)
     sole = min(stood.joints[f"ankle_{s}"].world[2] - body_estimate.sole_depth(stood, s) for s in sk.SIDES)
     assert sole == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("method", ["egocentric", "rotations"])
+def test_a_prepared_transfer_solves_any_frame_as_the_bake_does(source, method):
+    avatar, anim = source
+    big = transformed_avatar(avatar, np.diag([1.3, 1.3, 1.3, 1.0]))
+    whole = transfer(avatar, anim.rotations, anim.root_location, anim.time, big, method)
+    prepared = prepare_transfer(avatar, anim.rotations, anim.root_location, anim.time, big, method)
+    for f in np.random.default_rng(2).permutation(len(anim.time))[:15]:
+        one = prepared.solve(f, f + 1)
+        np.testing.assert_allclose(one.rotations[0], whole.rotations[f], atol=1e-9, err_msg=f"frame {f}")
+        np.testing.assert_allclose(one.root_location[0], whole.root_location[f], atol=1e-9)

@@ -1,0 +1,206 @@
+"""The timeline preview: avatars follow the scene's take as the user scrubs or plays, before any
+bake (DESIGN.md §1, "Preview").
+
+A preview prepares the take once (`Take.prepare`: the pipeline's whole-take steps, the feet plan
+included, over the frames the bake would take) and, on every frame change, solves the one sample
+under the playhead and sets it on the armature's pose bones: the values the bake would key at
+that frame, before key reduction. Nothing is keyed and no undo step is made; the pose bones'
+rotation modes and values are put back when the preview stops, and while a file is saved (so
+the preview never ends up in the file).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from ..body import naming
+from ..body.animation import AvatarAnimation
+from ..core.errors import BodyCalError
+from ..retarget.pipeline import PreparedTake
+from ..retarget.takes import Take
+from . import avatar_rig, rig_output
+from .session import Settings, Target
+
+# A preview rebuilds itself when what it was made from changes. What it was made from (the scene's
+# settings, the take, the models) is the UI's to say: `follow(key_of, rebuild)` gives the handler a
+# function that says it now (`key_of(scene, armature, key it was made with) -> tuple`) and one that
+# starts it again (`rebuild(scene, armature, key)`).
+_follow: dict = {"key_of": None, "rebuild": None}
+
+
+def follow(key_of, rebuild) -> None:
+    _follow.update(key_of=key_of, rebuild=rebuild)
+
+
+@dataclass
+class Preview:
+    armature: str  # object name
+    take: Take
+    target: Target
+    prepared: PreparedTake
+    root_motion: str
+    key: tuple
+    saved: dict[str, tuple] = field(default_factory=dict)  # pose bone -> (rotation mode, quaternion, location)
+    first: AvatarAnimation | None = None  # the take's first sample: in-place root motion holds its spot
+    solve_ms: float = 0.0  # the last frame's solve and write
+
+
+_active: dict[str, Preview] = {}
+
+
+def active(arm) -> Preview | None:
+    return _active.get(getattr(arm, "name", None))
+
+
+def any_active() -> bool:
+    return bool(_active)
+
+
+def start(arm, take: Take, target: Target, settings: Settings, root_motion: str, key: tuple) -> Preview:
+    """Prepare `take` onto `target` (an armature's avatar model) and show the current frame."""
+    if avatar_rig.is_rigify_generated(arm):
+        raise BodyCalError("the preview poses plain rigs; a generated Rigify rig is shown by its bake",
+                           source=arm.name, hint="Retarget and Bake, then scrub the baked action")
+    prepared = take.prepare(target.avatar, settings.method, plant_feet=settings.plant_feet,
+                            placement=settings.placement)
+    stop(arm.name)
+    pv = Preview(arm.name, take, target, prepared, root_motion, key)
+    pv.first = prepared.solve(0, 1)
+    for pb in arm.pose.bones:
+        pv.saved[pb.name] = (pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location))
+    _active[arm.name] = pv
+    show(pv, bpy.context.scene)
+    return pv
+
+
+def stop(name: str) -> bool:
+    """Stop the armature's preview and put its pose back as it was; False when none was on."""
+    pv = _active.pop(name, None)
+    if pv is None:
+        return False
+    _put_back(pv)
+    return True
+
+
+def stop_all() -> None:
+    for name in list(_active):
+        stop(name)
+
+
+def _put_back(pv: Preview) -> None:
+    arm = bpy.data.objects.get(pv.armature)
+    if arm is None or arm.type != "ARMATURE":
+        return
+    for pb in arm.pose.bones:
+        saved = pv.saved.get(pb.name)
+        if saved is not None:
+            pb.rotation_mode, pb.rotation_quaternion, pb.location = saved
+    arm.update_tag(refresh={"DATA"})
+
+
+def sample_at(pv: Preview, frame: float) -> int:
+    """The take's sample the scene frame `frame` shows (the nearest; the first or last outside)."""
+    t = pv.prepared.source.time
+    at = float(t[0]) + (frame - pv.take.frame_start) / pv.take.rate
+    k = int(np.searchsorted(t, at))
+    if k >= len(t) or (k > 0 and at - t[k - 1] <= t[k] - at):
+        k -= 1
+    return max(k, 0)
+
+
+def show(pv: Preview, scene) -> None:
+    """Solve the sample under the playhead and set it on the armature's pose bones."""
+    arm = bpy.data.objects.get(pv.armature)
+    if arm is None or arm.type != "ARMATURE":
+        _active.pop(pv.armature, None)  # deleted (or undone away) while previewed
+        return
+    t0 = time.perf_counter()
+    k = sample_at(pv, scene.frame_current + scene.frame_subframe)
+    anim = pv.prepared.solve(k, k + 1)
+    if pv.root_motion == "in-place":  # the travel removed relative to the take's first sample
+        anim = _joined(pv.first, anim)
+    bone_map = naming.BoneMap.from_dict(pv.target.avatar.extra["rig"]["bone_map"])
+    anim = rig_output.with_root_motion(anim, arm, bone_map, pv.root_motion, own=True)
+    write_pose(arm, anim, row=anim.frame_count - 1)
+    pv.solve_ms = (time.perf_counter() - t0) * 1000.0
+
+
+def _joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
+    return AvatarAnimation(b.armature, b.bone_names, np.concatenate([a.rotations, b.rotations]), b.root_bone,
+                           np.concatenate([a.root_location, b.root_location]), np.concatenate([a.time, b.time]),
+                           b.method, notes=list(b.notes))
+
+
+def write_pose(arm, anim: AvatarAnimation, row: int = 0) -> None:
+    """Set frame `row` of `anim` on the armature's pose bones, every bone at once (foreach_set)."""
+    bones = arm.pose.bones
+    index = {pb.name: i for i, pb in enumerate(bones)}
+    n = len(bones)
+    quats = np.empty(n * 4, np.float32)
+    locs = np.empty(n * 3, np.float32)
+    bones.foreach_get("rotation_quaternion", quats)
+    bones.foreach_get("location", locs)
+    quats, locs = quats.reshape(n, 4), locs.reshape(n, 3)
+    for name in anim.bone_names:
+        if bones[name].rotation_mode != "QUATERNION":
+            bones[name].rotation_mode = "QUATERNION"
+    quats[[index[b] for b in anim.bone_names]] = anim.rotations[row]
+    locs[index[anim.root_bone]] = anim.root_location[row]
+    for name, loc in anim.bone_locations.items():
+        locs[index[name]] = loc[row]
+    bones.foreach_set("rotation_quaternion", quats.ravel())
+    bones.foreach_set("location", locs.ravel())
+    arm.update_tag(refresh={"DATA"})
+
+
+@bpy.app.handlers.persistent
+def on_frame_change(scene, _depsgraph=None) -> None:
+    key_of, rebuild = _follow["key_of"], _follow["rebuild"]
+    for pv in list(_active.values()):
+        try:
+            arm = bpy.data.objects.get(pv.armature)
+            if arm is not None and key_of is not None and key_of(scene, arm, pv.key) != pv.key:
+                rebuild(scene, arm, pv.key)  # starts it again, showing this frame
+            else:
+                show(pv, scene)
+        except BodyCalError as exc:  # a handler must not raise: the preview stops with its reason
+            stop(pv.armature)
+            print(f"BodyCal preview stopped: {exc.line()}")
+
+
+@bpy.app.handlers.persistent
+def on_save_pre(*_args) -> None:
+    for pv in _active.values():  # the file keeps the armature as it was, never the preview
+        _put_back(pv)
+
+
+@bpy.app.handlers.persistent
+def on_save_post(*_args) -> None:
+    if _active:
+        on_frame_change(bpy.context.scene)
+
+
+@bpy.app.handlers.persistent
+def on_load_pre(*_args) -> None:
+    _active.clear()  # another file: its armatures are not the ones previewed
+
+
+HANDLERS = ((bpy.app.handlers.frame_change_post, on_frame_change), (bpy.app.handlers.save_pre, on_save_pre),
+            (bpy.app.handlers.save_post, on_save_post), (bpy.app.handlers.load_pre, on_load_pre))
+
+
+def register_handlers() -> None:
+    for handlers, fn in HANDLERS:
+        if fn not in handlers:
+            handlers.append(fn)
+
+
+def unregister_handlers() -> None:
+    stop_all()
+    for handlers, fn in HANDLERS:
+        if fn in handlers:
+            handlers.remove(fn)
