@@ -6,6 +6,7 @@ from . import (
     bake_settings,
     bone_maps,
     calibration,
+    docs,
     preferences,
     preview,
     recording,
@@ -16,7 +17,7 @@ from . import (
 from .registration import register_classes_factory
 
 _MODULES = (preferences, sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, bake_presets,
-            retarget, transfer, preview)
+            retarget, transfer, preview, docs)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = register_classes_factory(CLASSES)

@@ -3,8 +3,10 @@
 import bpy
 
 from ..bodycal_addon.blender import avatar_rig, avatar_storage, surface_helpers
+from ..bodycal_addon.core import paths
 from ..bodycal_addon.core.errors import BodyCalError
 from ..operators.avatar import context_armature
+from .conventions import draw_help
 
 _cache: dict = {}
 
@@ -30,9 +32,19 @@ class BODYCAL_PT_avatar(bpy.types.Panel):
     bl_category = "BodyCal"
     bl_parent_id = "BODYCAL_PT_main"
 
+    def draw_header_preset(self, _context):
+        draw_help(self.layout, "Avatar")
+
     def draw(self, context):
         layout = self.layout
-        layout.operator("bodycal.import_avatar", icon="IMPORT")
+        col = layout.column(align=True)
+        col.operator("bodycal.import_avatar", icon="IMPORT")
+        row = col.row(align=True)
+        row.operator("bodycal.add_procedural_avatar", text="Procedural", icon="OUTLINER_OB_ARMATURE")
+        # The samples come with the source repository, not the extension zip: an installed
+        # extension would show the button greyed out for good.
+        if paths.shared_avatar_files():
+            row.operator("bodycal.load_sample_avatars", text="Samples", icon="IMPORT")
         arm = context_armature(context)
         if arm is None:
             layout.label(text="Select an avatar's armature or mesh", icon="INFO")

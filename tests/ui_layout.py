@@ -1,6 +1,14 @@
 """A UI layout stand-in for background mode (no window draws panels there): a panel's `draw`
-given it records what it draws, as ("prop", data, name), ("operator", idname), ("label", text)
-and ("popover", panel); every sub-layout (column, row, box...) records into the same log."""
+given it records what it draws, as ("prop", data, name), ("operator", idname), ("label", text),
+("popover", panel) and ("panel", idname) (a layout panel, drawn open); every sub-layout (column,
+row, box...) records into the same log."""
+
+
+class OperatorEntry(tuple):
+    """("operator", idname), and `.props`: the operator's properties as the panel set them."""
+
+    def __init__(self, _items):
+        self.props = type("Props", (), {})()
 
 
 class RecordingLayout:
@@ -8,8 +16,9 @@ class RecordingLayout:
         self.log = log
 
     def operator(self, idname, **_kw):
-        self.log.append(("operator", idname))
-        return type("Props", (), {})()
+        entry = OperatorEntry(("operator", idname))
+        self.log.append(entry)
+        return entry.props
 
     def prop(self, data, name, **_kw):
         self.log.append(("prop", data, name))
@@ -19,6 +28,11 @@ class RecordingLayout:
 
     def popover(self, panel, **_kw):
         self.log.append(("popover", panel))
+
+    def panel(self, idname, **_kw):
+        """A layout panel (Blender 4.1+): its header and its body, drawn open."""
+        self.log.append(("panel", idname))
+        return RecordingLayout(self.log), RecordingLayout(self.log)
 
     def __getattr__(self, name):
         return lambda *a, **k: RecordingLayout(self.log)

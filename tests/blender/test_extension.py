@@ -46,6 +46,7 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     names = zipfile.ZipFile(zip_path).namelist()
     assert "blender_manifest.toml" in names and "__init__.py" in names
     assert any(n.startswith("bodycal_addon/") for n in names)
+    assert "docs/SIDEBAR.md" in names  # the panels' help buttons open it
     # Left out of the zip by [build] paths_exclude_pattern.
     assert not any(n.startswith(("tests/", "benchmarks/", ".ci/", ".venv/")) for n in names)
     assert not any(n.endswith(".truth.json") for n in names)  # the synthetic ground truth: development only

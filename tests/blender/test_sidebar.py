@@ -234,10 +234,10 @@ def test_sample_avatars_are_offered_only_where_they_are(monkeypatch):
     """An installed extension has no sample_data/: its Load Sample Avatars button was there for
     good, greyed out."""
     paths = _module("bodycal_addon.core.paths")
-    drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_main, bpy.context) if e[0] == "operator"}
+    drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_avatar, bpy.context) if e[0] == "operator"}
     assert {"bodycal.load_sample_avatars", "bodycal.add_procedural_avatar"} <= drawn
     monkeypatch.setattr(paths, "data_dir", lambda: None)
-    drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_main, bpy.context) if e[0] == "operator"}
+    drawn = {e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_avatar, bpy.context) if e[0] == "operator"}
     assert "bodycal.load_sample_avatars" not in drawn
     assert "bodycal.add_procedural_avatar" in drawn  # built from code: always there
 
@@ -374,3 +374,110 @@ def test_calibrate_avatar_shows_its_progress_and_esc_stops_it():
     job.modal(context, _Event("ESC"))
     assert _until_finished(job, context) == {"CANCELLED"}
     assert caster.rays < caster.planned and not avatar_storage.has_model(arm)
+
+
+
+def _sub_panels_of_main() -> list:
+    return [cls for cls in _subclasses(bpy.types.Panel) if getattr(cls, "bl_parent_id", "") == "BODYCAL_PT_main"]
+
+
+def test_the_panels_follow_the_work_and_a_new_one_takes_its_slot():
+    """Recording, User Calibration, Avatar, Retarget and Bake, Transfer Animation, then Live: the
+    order of panels/conventions.ORDER, whichever module a panel comes from and whenever it is
+    registered (Blender sorts a parent's sub-panels by bl_order)."""
+    conventions = _module("panels.conventions")
+    order = conventions.ORDER
+    assert order[0] == "BODYCAL_PT_recording" and order[-1] == "BODYCAL_PT_live"
+    assert order.index("BODYCAL_PT_calibration") < order.index("BODYCAL_PT_avatar") < order.index(
+        "BODYCAL_PT_retarget") < order.index("BODYCAL_PT_transfer") < order.index("BODYCAL_PT_live")
+    panels = _sub_panels_of_main()
+    assert {"BODYCAL_PT_calibration", "BODYCAL_PT_avatar", "BODYCAL_PT_retarget",
+            "BODYCAL_PT_transfer"} <= {cls.bl_idname for cls in panels}
+    for cls in panels:  # every stage has its place: a new panel is added to ORDER
+        assert cls.bl_idname in order, cls.bl_idname
+        assert cls.bl_order == order.index(cls.bl_idname), cls.bl_idname
+    # The Recording panel, merged later from its own module, slots first.
+    recording = type("BODYCAL_PT_recording", (bpy.types.Panel,), {
+        "bl_idname": "BODYCAL_PT_recording", "bl_label": "Recording", "bl_space_type": "VIEW_3D",
+        "bl_region_type": "UI", "bl_category": "BodyCal", "bl_parent_id": "BODYCAL_PT_main",
+        "draw": lambda self, context: None})
+    if not hasattr(bpy.types, "BODYCAL_PT_recording"):
+        conventions.apply_order([recording])
+        assert recording.bl_order < min(cls.bl_order for cls in panels)
+
+
+def _drawn_layout(panel, context):
+    log = []
+    layout = ui_layout.RecordingLayout(log)
+    panel.draw(type("P", (), {"layout": layout})(), context)
+    return layout, log
+
+
+def test_settings_are_laid_out_as_blenders_own_panels():
+    """Properties in two columns (label, value) without animation dots, as Blender's own editors
+    show them (`use_property_split`), in every panel that shows settings and in the preferences."""
+    for panel in (bpy.types.BODYCAL_PT_retarget, bpy.types.BODYCAL_PT_transfer, type(_prefs())):
+        layout, log = _drawn_layout(panel, bpy.context)
+        assert any(e[0] == "prop" for e in log), panel
+        assert layout.use_property_split is True and layout.use_property_decorate is False, panel
+
+
+def test_smooth_devices_is_an_optional_block_with_its_checkbox_in_its_header():
+    settings = bpy.context.scene.bodycal_retarget
+    filters = ["filter_min_cutoff", "filter_beta", "filter_rot_min_cutoff", "filter_rot_beta"]
+    for on in (False, True):
+        settings.use_filter = on
+        log = ui_layout.draw(bpy.types.BODYCAL_PT_retarget, bpy.context)
+        at = log.index(("panel", "BODYCAL_retarget_smoothing"))
+        assert log[at + 1] == ("prop", settings, "use_filter")  # the block's header
+        # Its values stay in view, greyed out while it is off, rather than appearing and vanishing.
+        assert [e[2] for e in log[at + 2:at + 6]] == filters
+    settings.use_filter = False
+
+
+class _Region:
+    def __init__(self, width):
+        self.width = width
+
+
+def _in_region(width):
+    """The context a sidebar of `width` pixels draws its panels in."""
+    return type("Context", (), {"scene": bpy.context.scene, "region": _Region(width),
+                                "preferences": bpy.context.preferences, "active_object": None})()
+
+
+def test_long_result_lines_are_wrapped_to_the_sidebar_not_cut():
+    settings = bpy.context.scene.bodycal_retarget
+    first = ("adult_male: 2304 keys on 53 bones over 240 frames (0.1 degree tolerance), root motion on root, "
+             "feet planted 61% of the frames, 3 contacts kept")
+    settings.last_result = f"{first}; child: 1880 keys"
+    try:
+        for width, most in ((300, 40), (600, 80)):
+            log = ui_layout.draw(bpy.types.BODYCAL_PT_retarget, _in_region(width))
+            labels = [e[1] for e in log if e[0] == "label"]
+            assert " ".join(labels) == f"{first} child: 1880 keys"  # nothing cut
+            assert all(len(line) <= most for line in labels), (width, labels)
+            assert labels[-1] == "child: 1880 keys"  # each avatar's line starts a line
+        assert len([e for e in ui_layout.draw(bpy.types.BODYCAL_PT_retarget, _in_region(300))
+                    if e[0] == "label"]) > 3
+    finally:
+        settings.last_result = ""
+
+
+def test_every_panel_has_a_help_button_to_its_part_of_the_docs(monkeypatch):
+    from repo_paths import REPO
+
+    sidebar = (REPO / "docs" / "SIDEBAR.md").read_text()
+    headings = {line.lstrip("#").strip() for line in sidebar.splitlines() if line.startswith("#")}
+    for cls in [bpy.types.BODYCAL_PT_main, *_sub_panels_of_main()]:
+        log = ui_layout.draw(cls, bpy.context, "draw_header_preset")
+        (help_button,) = [e for e in log if e[0] == "operator" and e[1] == "bodycal.open_docs"]
+        assert help_button.props.page == "SIDEBAR.md"
+        assert help_button.props.section in headings, (cls.bl_idname, help_button.props.section)
+    docs = _module("operators.docs")
+    opened = []
+    monkeypatch.setattr(docs, "open_url", opened.append)
+    assert bpy.ops.bodycal.open_docs(page="SIDEBAR.md", section="Avatar") == {"FINISHED"}
+    assert opened == [(REPO / "docs" / "SIDEBAR.md").resolve().as_uri()]
+    # A page is a file of docs/, never a path elsewhere.
+    assert docs.docs_path("../README.md") == docs.DOCS_DIR / "README.md"
