@@ -11,10 +11,11 @@ Figures per method and avatar:
 - reach error (mm): the avatar's wrists, ankles and fingertips after IK against their targets.
 Target for egocentric: p95 contact gap <= 10 mm on every avatar and >= 5x smaller than rotations.
 
-`--filter[=MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]`: the recordings go through the One Euro filter
-first (filters.py; its defaults without parameters), as `retarget --filter` does.
+The recordings go through the One Euro filter first, as a bake does by default (filters.py,
+DESIGN.md §6b); `--filter=MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]` gives other parameters, as
+`retarget --filter` does, and `--no-filter` measures the devices as recorded.
 
-Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_retarget_quality.py [--quick] [--filter[=...]]
+Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_retarget_quality.py [--quick] [--filter=... | --no-filter]
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.body import skeleton as sk  # noqa: E402
 from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
-from bodycal_addon.recording.filters import OneEuro, filter_recording  # noqa: E402
+from bodycal_addon.recording.filters import DEFAULT_FILTER, OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
@@ -170,4 +171,5 @@ def main(quick: bool = False, smooth: OneEuro | None = None):
 if __name__ == "__main__":
     bpy.ops.wm.read_factory_settings(use_empty=True)
     given = [a.partition("=")[2] for a in sys.argv[1:] if a.split("=")[0] == "--filter"]
-    main(quick="--quick" in sys.argv, smooth=OneEuro.parse(given[-1]) if given else None)
+    smoothing = None if "--no-filter" in sys.argv else OneEuro.parse(given[-1]) if given else DEFAULT_FILTER
+    main(quick="--quick" in sys.argv, smooth=smoothing)

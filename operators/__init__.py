@@ -4,8 +4,10 @@ from . import (
     avatar,
     bake_presets,
     bake_settings,
+    bone_map_editor,
     bone_maps,
     calibration,
+    devices,
     docs,
     preferences,
     preview,
@@ -16,8 +18,8 @@ from . import (
 )
 from .registration import register_classes_factory
 
-_MODULES = (preferences, sample_avatars, recording, calibration, avatar, bone_maps, bake_settings, bake_presets,
-            retarget, transfer, preview, docs)
+_MODULES = (preferences, sample_avatars, recording, devices, calibration, avatar, bone_maps, bake_settings,
+            bake_presets, retarget, transfer, preview, bone_map_editor, docs)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = register_classes_factory(CLASSES)

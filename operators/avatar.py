@@ -66,11 +66,15 @@ class BODYCAL_OT_detect_bone_map(bpy.types.Operator):
     @reports_errors
     def execute(self, context):
         arm = context_armature(context)
+        dropped = False
         if self.reset:
-            avatar_rig.clear_overrides(arm)
-        bm = avatar_rig.bone_map_for(arm)
+            bm, dropped = avatar_rig.reset_to_detected(arm)
+        else:
+            bm = avatar_rig.bone_map_for(arm)
         missing = bm.missing()
         mapped = len(bm.bones) + sum(1 for c in bm.chains.values() if c)
+        if dropped:
+            self.report({"WARNING"}, f"{arm.name}: {avatar_rig.MODEL_DROPPED}")
         if missing:
             self.report({"WARNING"}, f"{arm.name}: {bm.scheme} names, {mapped} segments mapped; "
                         f"missing {', '.join(missing)}: assign them in the Avatar panel")
@@ -103,8 +107,9 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
         if not bone:
             self.report({"ERROR"}, "No bone given and no active bone: select a bone in Pose Mode")
             return {"CANCELLED"}
-        avatar_rig.set_override(arm, self.segment, bone)
-        self.report({"INFO"}, f"{self.segment} -> {bone}")
+        _bm, dropped = avatar_rig.edit_segment(arm, self.segment, bone)
+        self.report({"WARNING"} if dropped else {"INFO"},
+                    f"{self.segment} -> {bone}" + (f"; {avatar_rig.MODEL_DROPPED}" if dropped else ""))
         return {"FINISHED"}
 
 

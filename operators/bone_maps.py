@@ -33,8 +33,7 @@ def _report_map(op, arm, bm, dropped: bool, what: str) -> None:
     if missing:
         op.report({"WARNING"}, f"{text}; missing {', '.join(missing)}: assign them in the Avatar panel")
     elif dropped:
-        op.report({"WARNING"}, f"{text}; its avatar model was made with another bone map and was removed: "
-                               "Calibrate Avatar again")
+        op.report({"WARNING"}, f"{text}; {avatar_rig.MODEL_DROPPED}")
     else:
         op.report({"INFO"}, text)
 

@@ -21,7 +21,7 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
 
     method: method_property(method_items(RecordingTake.kind), "Method", "How the recording drives the avatar")
     use_filter: bpy.props.BoolProperty(
-        name="Smooth Devices", default=False,
+        name="Smooth Devices", default=True,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
     filter_min_cutoff: bpy.props.FloatProperty(
         name="Min Cutoff", default=OneEuro.min_cutoff, min=0.01, soft_max=20.0,

@@ -1,5 +1,6 @@
 """A UI layout stand-in for background mode (no window draws panels there): a panel's `draw`
-given it records what it draws, as ("prop", data, name), ("operator", idname), ("label", text),
+given it records what it draws, as ("prop", data, name), ("prop_search", data, name, search_data,
+search_name), ("template_list", listtype, data, propname), ("operator", idname), ("label", text),
 ("popover", panel) and ("panel", idname) (a layout panel, drawn open); every sub-layout (column,
 row, box...) records into the same log."""
 
@@ -23,6 +24,12 @@ class RecordingLayout:
     def prop(self, data, name, **_kw):
         self.log.append(("prop", data, name))
 
+    def prop_search(self, data, name, search_data, search_name, **_kw):
+        self.log.append(("prop_search", data, name, search_data, search_name))
+
+    def template_list(self, listtype, _list_id, data, propname, *_a, **_kw):
+        self.log.append(("template_list", listtype, data, propname))
+
     def label(self, text="", **_kw):
         self.log.append(("label", text))
 
@@ -32,10 +39,10 @@ class RecordingLayout:
     def panel(self, idname, **_kw):
         """A layout panel (Blender 4.1+): its header and its body, drawn open."""
         self.log.append(("panel", idname))
-        return RecordingLayout(self.log), RecordingLayout(self.log)
+        return type(self)(self.log), type(self)(self.log)
 
     def __getattr__(self, name):
-        return lambda *a, **k: RecordingLayout(self.log)
+        return lambda *a, **k: type(self)(self.log)
 
 
 def draw(panel_type, context, method="draw") -> list:

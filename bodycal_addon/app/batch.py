@@ -164,8 +164,8 @@ class Job:
             args += ["--armature", self.armature]
         if self.bone_map is not None:
             args += ["--bone-map", str(self.bone_map)]
-        if self.filter is not None and self.user is not None:  # tracker smoothing: recordings only
-            args += ["--filter", self.filter]
+        if self.user is not None and self.filter != "on":  # tracker smoothing (recordings): "on" is the default
+            args += ["--filter", self.filter] if self.filter is not None else ["--no-filter"]
         if not self.plant_feet:
             args += ["--no-plant-feet"]
         if self.placement != "object":
@@ -369,7 +369,7 @@ def _read_defaults(check: _Checker, data: dict, base: Path) -> _Defaults:
     methods = _choices(check, defaults.get("method", "egocentric"), "defaults.method", "method", METHODS)
     out_dir = base / check.text(defaults.get("output_dir", "out/batch"), "defaults.output_dir", "a folder")
     workers = _workers(check, defaults.get("workers", os.cpu_count() or 1))
-    filt = _filter(check, defaults.get("filter", False))
+    filt = _filter(check, defaults.get("filter", True))
     plant = _flag(check, defaults, "plant_feet", True)
     overwrite = _flag(check, defaults, "overwrite", False)
     tolerance = (_number(check, defaults["tolerance"], "defaults.tolerance", 0.0, 180.0, "degrees")

@@ -99,9 +99,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one in the file)")
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
-    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
-                   help="One Euro filter on the devices before retargeting (default parameters 3,5,4,1: "
-                        "Hz, Hz per m/s, Hz, Hz per rad/s)")
+    smooth = c.add_mutually_exclusive_group()
+    smooth.add_argument("--filter", nargs="?", const="on", default="on", metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
+                        help="the One Euro filter on the devices before retargeting, on by default (parameters "
+                             "3,5,4,1: Hz, Hz per m/s, Hz, Hz per rad/s)")
+    smooth.add_argument("--no-filter", dest="filter", action="store_const", const=None,
+                        help="retarget the devices as recorded, unsmoothed")
     _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a farm")

@@ -3,9 +3,11 @@ stored on the object as `bodycal_bone_map` and `bodycal_hinge_axes`) and `read_r
 reads the rest pose into the engine's `armature.ArmatureReading` (see `bodycal_addon/avatar/armature.py`
 for the joint rules and the bones' `right`).
 
-The overrides are the one place a bone map is kept: assigning a bone writes one segment, applying
-a preset (`apply_preset`, the panel's Apply, `--bone-map`) writes every segment, so detection no
-longer decides anything for that armature until Detect Bone Map with Reset.
+The overrides are the one place a bone map is kept: an edit (`edit_segment`: the panel's bone map
+editor, Assign Bone) writes one segment, applying a preset (`apply_preset`, the panel's Apply,
+`--bone-map`) writes every segment, so detection no longer decides anything for that armature
+until Reset to Detected (`reset_to_detected`, Detect Bone Map with Reset). Each of them removes a
+stored avatar model made with another map.
 """
 
 from __future__ import annotations
@@ -17,11 +19,12 @@ import numpy as np
 from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature
 from ..body import naming
 from ..body import skeleton as sk
-from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset
+from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset, check_overrides, edit_overrides, map_with_overrides
 from ..core.errors import BodyCalError
 from . import avatar_storage
 
 BONE_MAP_PROP = "bodycal_bone_map"  # JSON {segment: avatar bone ("" = unmapped)}: user overrides
+MODEL_DROPPED = "its avatar model was made with another bone map and was removed: Calibrate Avatar again"
 HINGE_AXES_PROP = "bodycal_hinge_axes"  # JSON {canonical bone: [x, y, z] in the avatar bone's frame}
 
 
@@ -63,23 +66,51 @@ def clear_overrides(arm) -> None:
 
 def bone_map_for(arm) -> naming.BoneMap:
     """Auto-detected map with the user's overrides applied (chains: comma-separated bone lists)."""
-    names = [b.name for b in arm.data.bones]
-    bm = naming.detect_bone_map(names)
-    ov = load_overrides(arm)
-    for seg, bone in ov.items():
-        if seg in sk.CHAIN_SEGMENTS:
-            bm.chains[seg] = [b for b in bone.split(",") if b and b in arm.data.bones]
-            continue
-        if bone and bone in arm.data.bones:
-            bm.bones[seg] = bone
-        else:
-            bm.bones.pop(seg, None)
-    if ov:
-        whole = all(seg in ov for seg in (*SINGLE_SEGMENTS, *sk.CHAIN_SEGMENTS))
-        bm.scheme = "custom" if whole else f"{bm.scheme}+custom"
-        used = set(bm.bones.values()) | {b for c in bm.chains.values() for b in c}
-        bm.unmapped = [n for n in names if n not in used]
-    return bm
+    return map_with_overrides(arm.data.bones.keys(), load_overrides(arm))
+
+
+def edit_segment(arm, segment: str, value: str | None) -> tuple[naming.BoneMap, bool]:
+    """One edit of the armature's map (the bone map editor, Assign Bone): `segment` set to `value`
+    ("" unmaps it; the spine and neck take comma-separated bones, bottom-up) or given back to
+    detection (None). Checked first (`edit_overrides`: one line, nothing changed); a stored avatar
+    model made with the map before is removed, as by `apply_bone_map` (returns True)."""
+    overrides = edit_overrides(arm.data.bones.keys(), load_overrides(arm), segment, value, source=arm.name)
+    arm[BONE_MAP_PROP] = json.dumps(overrides)
+    bm = bone_map_for(arm)
+    return bm, _drop_stale_model(arm, bm)
+
+
+def reset_to_detected(arm) -> tuple[naming.BoneMap, bool]:
+    """Forget every override and preset: the map detection gives, and whether a stored avatar
+    model made with another map was removed."""
+    clear_overrides(arm)
+    bm = bone_map_for(arm)
+    return bm, _drop_stale_model(arm, bm)
+
+
+def map_problem(arm) -> str | None:
+    """What is wrong with the stored map as it is (a bone since renamed or deleted, a bone on two
+    segments), as one line; None when nothing is."""
+    try:
+        check_overrides(arm.data.bones.keys(), load_overrides(arm), source=arm.name)
+    except BodyCalError as exc:
+        return exc.line()
+    return None
+
+
+def _drop_stale_model(arm, bm: naming.BoneMap) -> bool:
+    """Remove a stored avatar model calibrated with a map other than `bm` (True when removed): it
+    no longer fits the rig; the next calibration or bake measures it again."""
+    if not avatar_storage.has_model(arm):
+        return False
+    try:
+        stored = naming.BoneMap.from_dict(avatar_storage.load_model(arm).extra.get("rig", {}).get("bone_map", {}))
+    except BodyCalError:  # damaged: the next calibration replaces it anyway
+        return False
+    if stored.same_mapping(bm):
+        return False
+    avatar_storage.clear_model(arm)
+    return True
 
 
 def apply_bone_map(arm, bm: naming.BoneMap) -> bool:
@@ -93,16 +124,7 @@ def apply_bone_map(arm, bm: naming.BoneMap) -> bool:
     ov = {seg: bm.bones.get(seg, "") for seg in SINGLE_SEGMENTS}
     ov |= {chain: ",".join(bm.chains.get(chain, [])) for chain in sk.CHAIN_SEGMENTS}
     arm[BONE_MAP_PROP] = json.dumps(ov)
-    if not avatar_storage.has_model(arm):
-        return False
-    try:
-        stored = naming.BoneMap.from_dict(avatar_storage.load_model(arm).extra.get("rig", {}).get("bone_map", {}))
-    except BodyCalError:  # damaged: the next calibration replaces it anyway
-        return False
-    if stored.same_mapping(bm):
-        return False
-    avatar_storage.clear_model(arm)
-    return True
+    return _drop_stale_model(arm, bm)
 
 
 def apply_preset(arm, preset: BonePreset) -> tuple[naming.BoneMap, bool]:

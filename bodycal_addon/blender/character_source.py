@@ -18,47 +18,19 @@ import numpy as np
 from ..avatar.estimate import ESTIMATED
 from ..core.errors import BodyCalError
 from ..core.paths import ANIMATION_SUFFIXES
-from ..core.transforms import axis_angle_to_quat, matrix_to_quat, quat_normalize
+from ..core.transforms import axis_angle_to_quat, euler_matrices, matrix_to_quat, quat_normalize
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.takes import CharacterTake
 from ..retarget.transfer import stand_on_floor
 from .avatar_calibration import avatar_model_for
 from .blendfile import open_avatar
-from .fcurves import object_fcurves, read_keys
+from .fcurves import object_fcurves, sample_fcurve
 from .process import stderr_to_stdout
 
 # Metres per file unit a BVH may be written in (m, cm, inch, CMU's inch / 0.45, mm): the one that
 # makes the skeleton's rest height closest to a human's is taken (BLENDER_NOTES.md, BVH import).
 BVH_UNITS = {"m": 1.0, "cm": 0.01, "in": 0.0254, "cmu": 0.0254 / 0.45, "mm": 0.001}
 HUMAN_HEIGHT_M = 1.7
-
-
-def _euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
-    """(F, 3, 3) of Blender Euler angles (F, 3) in rotation mode `order` ("XYZ": X applied first)."""
-    out = np.broadcast_to(np.eye(3), (len(angles), 3, 3)).copy()
-    for axis in order:
-        k = "XYZ".index(axis)
-        c, s = np.cos(angles[:, k]), np.sin(angles[:, k])
-        m = np.zeros((len(angles), 3, 3))
-        i, j = [(1, 2), (2, 0), (0, 1)][k]
-        m[:, k, k] = 1.0
-        m[:, i, i] = c
-        m[:, j, j] = c
-        m[:, i, j] = -s
-        m[:, j, i] = s
-        out = m @ out
-    return out
-
-
-def _sample(fc, frames: np.ndarray) -> np.ndarray:
-    """The F-Curve's values at `frames`: its keys where every frame is a key (no evaluation),
-    else one evaluation per frame."""
-    kf, kv = read_keys(fc)
-    if len(kf) and not fc.modifiers:
-        pos = np.clip(np.searchsorted(kf, frames - 1e-3), 0, len(kf) - 1)
-        if np.all(np.abs(kf[pos] - frames) < 1e-3):
-            return kv[pos].astype(float)
-    return np.array([fc.evaluate(float(f)) for f in frames], float)
 
 
 def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -85,7 +57,7 @@ def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.n
         out = np.empty((nf, size))
         for k in range(size):
             fc = curves.get((f'pose.bones["{bone}"].{prop}', k))
-            out[:, k] = _sample(fc, frames) if fc is not None else current[k]
+            out[:, k] = sample_fcurve(fc, frames) if fc is not None else current[k]
         return out
 
     for i, name in enumerate(names):
@@ -98,7 +70,7 @@ def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.n
             v = channel(name, "rotation_axis_angle", 4, list(pb.rotation_axis_angle))  # (angle, x, y, z)
             basis[:, i] = axis_angle_to_quat(v[:, 1:], v[:, 0])
         else:
-            basis[:, i] = matrix_to_quat(_euler_matrices(channel(name, "rotation_euler", 3, list(pb.rotation_euler)),
+            basis[:, i] = matrix_to_quat(euler_matrices(channel(name, "rotation_euler", 3, list(pb.rotation_euler)),
                                                          mode))
     return basis, locations
 

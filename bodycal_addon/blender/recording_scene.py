@@ -8,7 +8,8 @@ Layout:
   the frame mapping (frame = frame_start + (t - t0) * fps);
 - one empty per device (arrows, quaternion rotation) and per marker (small sphere), with custom
   properties `bodycal_device` / `bodycal_marker` naming what it shows, and a keyed custom property
-  `bodycal_tracked` (1 tracked, 0 not; constant interpolation);
+  `bodycal_tracked` (1 tracked, 0 not; constant interpolation); a device's role in `bodycal_role`
+  and where it came from in `bodycal_role_from` (FORMATS.md §2.5);
 - keys written with `keyframe_points.add` + `foreach_set` (BLENDER_NOTES.md), portable to slotted
   actions (4.4+ / 5.0) through `action.fcurve_ensure_for_datablock`;
 - timeline markers `bodycal:<step>[:<point>[:<by>]]` at each segment start, and `bodycal:end` where a
@@ -34,6 +35,7 @@ SCENE_KEY = "bodycal_recording"
 DEVICE_PROP = "bodycal_device"  # on a device empty: the device name
 MARKER_PROP = "bodycal_marker"  # on a marker empty: the marker name
 ROLE_PROP = "bodycal_role"  # on a device empty: its role (the user may change it; "" = identify from the T-pose)
+ROLE_FROM_PROP = "bodycal_role_from"  # on a device empty: "file", "tpose" (identified) or "user" (set in the list)
 META_KEY = "bodycal"
 TIME_KEY = "bodycal_time"
 TRACKED = "bodycal_tracked"
@@ -121,6 +123,7 @@ def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_st
         obj[DEVICE_PROP] = d.name
         obj["bodycal_kind"] = d.kind
         obj[ROLE_PROP] = d.role or ""
+        obj[ROLE_FROM_PROP] = "tpose" if d.identified else "file" if d.role else ""
         obj.rotation_mode = "QUATERNION"
         for k in range(3):
             write_keys(new_fcurve(action, obj, "location", k), frames32, pos[:, i, k])
@@ -220,9 +223,10 @@ def _check_roles_unique(devices: list[Device], source: str) -> None:
                                source=source, field=ROLE_PROP, hint="give each role to one device")
 
 
-def recording_from_scene(context_or_scene=None) -> Recording:
+def recording_from_scene(context_or_scene=None, *, role_of=device_role) -> Recording:
     """Rebuild the scene's Recording from the empties' animation, their custom properties and the
-    timeline markers (works after saving and reopening the .blend)."""
+    timeline markers (works after saving and reopening the .blend). `role_of(empty, imported)`:
+    a device's role (default: what its empty says, `device_role`)."""
     scene = _scene_of(context_or_scene)
     coll = scene_recording_collection(scene)
     if coll is None:
@@ -265,7 +269,7 @@ def recording_from_scene(context_or_scene=None) -> Recording:
         if obj is None:
             notes.append(f"device '{d['name']}' has no empty in {coll.name}: left out")
             continue
-        devices.append(Device(name=d["name"], kind=d["kind"], role=device_role(obj, d["role"])))
+        devices.append(Device(name=d["name"], kind=d["kind"], role=role_of(obj, d["role"])))
         pos.append(channels(obj, "location", 3, d["name"]))
         rot.append(channels(obj, "rotation_quaternion", 4, d["name"]))
         valid.append(channels(obj, f'["{TRACKED}"]', 1, d["name"])[:, 0] > 0.5)

@@ -27,7 +27,7 @@ from ..body.bone_presets import load_preset
 from ..core import outputs
 from ..core.errors import BodyCalError
 from ..output import metrics
-from ..recording.filters import OneEuro
+from ..recording.filters import DEFAULT_FILTER, OneEuro
 from ..recording.io import load_recording
 from ..retarget.methods import check_method
 from ..retarget.placement import avatar_warnings, check_placement
@@ -278,7 +278,7 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     return summary
 
 
-def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filter: OneEuro | None = None,
+def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filter: OneEuro | None = DEFAULT_FILTER,
                    log=print, **kwargs) -> Summary:
     """`bodycal retarget`: a recording of the performer whose body model is `user_path`."""
 

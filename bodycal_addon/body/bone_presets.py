@@ -100,17 +100,118 @@ def _check_bone(source: str, where: str, bone: str, have: set[str], names: list[
                        hint=f"did you mean {close[0]!r}?" if close else "check the bone names in the armature")
 
 
-def _check_once(source: str, bones: dict[str, str | None], chains: dict[str, list[str]], how: str = "") -> None:
-    """One bone serves one segment: two segments on one bone would pose it twice."""
+def _first_shared(entries: list[tuple[str, str]]) -> tuple[str, str, str] | None:
+    """(bone, first place, second place) of the first bone listed twice in (place, bone) entries."""
     seen: dict[str, str] = {}
-    entries = [(f"bones.{s}", b) for s, b in bones.items() if b]
-    entries += [(f"chains.{c}[{i}]", b) for c, bs in chains.items() for i, b in enumerate(bs)]
     for where, bone in entries:
         if bone in seen:
-            also = f" {how}" if how else ""
-            raise BodyCalError(f"bone {short_repr(bone)} is given to {seen[bone]} and {where}{also}",
-                               source=source, field=where, hint="a bone can serve one segment only")
+            return bone, seen[bone], where
         seen[bone] = where
+    return None
+
+
+def _check_once(source: str, bones: dict[str, str | None], chains: dict[str, list[str]], how: str = "") -> None:
+    """One bone serves one segment: two segments on one bone would pose it twice."""
+    entries = [(f"bones.{s}", b) for s, b in bones.items() if b]
+    entries += [(f"chains.{c}[{i}]", b) for c, bs in chains.items() for i, b in enumerate(bs)]
+    shared = _first_shared(entries)
+    if shared:
+        bone, first, where = shared
+        also = f" {how}" if how else ""
+        raise BodyCalError(f"bone {short_repr(bone)} is given to {first} and {where}{also}",
+                           source=source, field=where, hint="a bone can serve one segment only")
+
+
+# --- the map kept on an armature: detection plus the user's overrides --------------------------------
+# An armature stores {segment: bone} overrides ("" = unmapped, a chain's bones comma-separated,
+# bottom-up); detection maps the segments it does not list (blender/avatar_rig.py keeps them).
+
+
+def map_with_overrides(bone_names, overrides: dict[str, str]) -> naming.BoneMap:
+    """The armature's map: detection, then each overridden segment as stored; a bone the armature
+    no longer has is left out. Overriding every segment (a preset applied) makes it "custom"."""
+    names = list(dict.fromkeys(bone_names))
+    have = set(names)
+    bm = naming.detect_bone_map(names)
+    for seg, bone in overrides.items():
+        if seg in sk.CHAIN_SEGMENTS:
+            bm.chains[seg] = [b for b in (p.strip() for p in bone.split(",")) if b and b in have]
+        elif bone and bone in have:
+            bm.bones[seg] = bone
+        else:
+            bm.bones.pop(seg, None)
+    if overrides:
+        whole = all(seg in overrides for seg in (*SINGLE_SEGMENTS, *sk.CHAIN_SEGMENTS))
+        bm.scheme = "custom" if whole else f"{bm.scheme}+custom"
+        used = set(bm.bones.values()) | {b for c in bm.chains.values() for b in c}
+        bm.unmapped = [n for n in names if n not in used]
+    return bm
+
+
+def segment_value(bm: naming.BoneMap, segment: str) -> str:
+    """A segment's bone as the bone map editor shows it: a chain's bones ", "-separated, bottom-up."""
+    if segment in sk.CHAIN_SEGMENTS:
+        return ", ".join(bm.chains.get(segment, []))
+    return bm.bones.get(segment, "")
+
+
+def check_bone_map(bm: naming.BoneMap, source: str = "armature", segment: str | None = None) -> None:
+    """Each bone of the map serves one segment, else one line naming the bone and both segments.
+    With `segment` (the one just edited) only a clash of its own bones counts: one elsewhere was
+    there before the edit, and is the map's own problem (`check_overrides`)."""
+    places = [(s, b) for s, b in bm.bones.items() if b]
+    places += [(f"{c}[{i}]" if len(bs) > 1 else c, b) for c, bs in bm.chains.items() for i, b in enumerate(bs)]
+    if segment is None:
+        shared = _first_shared(places)
+    else:
+        mine = [p for p in places if p[0] == segment or p[0].startswith(segment + "[")]
+        others: dict[str, str] = {}
+        for where, bone in places:
+            if (where, bone) not in mine:
+                others.setdefault(bone, where)
+        shared = next(((b, others[b], w) for w, b in mine if b in others), None) or _first_shared(mine)
+    if shared:
+        bone, first, second = shared
+        raise BodyCalError(f"bone {short_repr(bone)} is given to {first} and {second}", source=source,
+                           hint=f"a bone can serve one segment only: clear {first} first, or pick another bone")
+
+
+def check_overrides(bone_names, overrides: dict[str, str], source: str = "armature") -> None:
+    """A stored map the armature can use as it is: every bone it names still there (a renamed or
+    deleted bone, with the nearest name), each bone on one segment; the first problem is one line."""
+    names = list(dict.fromkeys(bone_names))
+    have = set(names)
+    for seg, value in overrides.items():
+        bones = [p.strip() for p in value.split(",")] if seg in sk.CHAIN_SEGMENTS else [value]
+        for bone in bones:
+            if bone:
+                _check_bone(source, seg, bone, have, names)
+    check_bone_map(map_with_overrides(names, overrides), source)
+
+
+def edit_overrides(bone_names, overrides: dict[str, str], segment: str, value: str | None,
+                   source: str = "armature") -> dict[str, str]:
+    """The overrides after one edit: `segment` set to `value` (a bone name; a chain's bones
+    comma-separated, bottom-up; "" unmaps it) or given back to detection (None). Refused with one
+    line: an unknown segment, a bone the armature lacks (with the nearest name), a bone that would
+    serve two segments."""
+    names = list(dict.fromkeys(bone_names))
+    if segment not in sk.SEGMENTS:
+        raise BodyCalError(_unknown(str(segment), sk.SEGMENTS, "segment"), source=source,
+                           hint="segments are named as in docs/FORMATS.md §5")
+    out = dict(overrides)
+    if value is None:
+        out.pop(segment, None)
+    else:
+        # A single segment takes the name as it is (a bone name may hold a comma); a chain a list.
+        bones = [p.strip() for p in value.split(",") if p.strip()] if segment in sk.CHAIN_SEGMENTS else \
+            [value] if value else []
+        have = set(names)
+        for bone in bones:
+            _check_bone(source, segment, bone, have, names)
+        out[segment] = ",".join(bones)
+    check_bone_map(map_with_overrides(names, out), source, segment)
+    return out
 
 
 def _text(value, source: str, where: str, what: str) -> str:

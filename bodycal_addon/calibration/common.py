@@ -12,7 +12,7 @@ from ..core import transforms as tf
 from ..core.errors import BodyCalError
 from ..core.geometry import robust_mean
 from ..recording.led_gloves import led_hand_frame
-from ..recording.model import Recording, Segment
+from ..recording.model import ROLES_LIST, Recording, Segment
 
 REF_HALF_WINDOW = 0.1  # s: device poses at the reference time are robust means over this window
 SPIKE_WINDOW_S = 0.07  # running median window for glitch detection
@@ -122,7 +122,8 @@ class Session:
                 pos, rot, valid = self._led_hand(role[-1])
             else:
                 raise BodyCalError(f"the recording has no '{role}' tracker", source=self.source,
-                                   hint=f"assign the role '{role}' to a device or record without this step")
+                                   hint=f"assign the role '{role}' to a device ({ROLES_LIST}) or record "
+                                        "without this step")
             if self.despike:
                 spikes = glitch_frames(pos, valid, self.rec.fps)
                 self.spikes[role] = int(spikes.sum())
@@ -214,7 +215,8 @@ class Session:
         for role in (frame_role, point_role):
             if not self.has(role):
                 raise BodyCalError(f"needs the '{role}' tracker, the recording has none", source=self.source,
-                                   field=step, hint=f"assign the role '{role}' to a device, or drop the {step} step")
+                                   field=step, hint=f"assign the role '{role}' to a device ({ROLES_LIST}), "
+                                                    f"or drop the {step} step")
         fp, fq, fv = self.pose(frame_role)
         pp, _, pv = self.pose(point_role)
         ok = idx[fv[idx] & pv[idx]]

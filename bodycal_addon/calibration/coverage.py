@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from ..body.bodymodel import REQUIRED_USER_JOINTS, BodyModel
 from ..core.errors import BodyCalError
+from ..recording.model import ROLES_LIST
 
 # The devices every retargeting method animates the user from (retarget/user_animation.py).
 ANIMATED_ROLES = ("head", "pelvis", "hand_l", "hand_r", "foot_l", "foot_r")
@@ -76,7 +77,8 @@ def check_usable(model: BodyModel, *, allow_defaults: bool, accept: str = "pass 
             f"the recording has no {_and(missing)} {'device' if len(missing) == 1 else 'devices'}: every method "
             "animates the body from the HMD, both hands, the pelvis and both feet, so a recording without them "
             "(such as a 3-point one, HMD and two controllers) cannot drive the hips and legs", source=source,
-            hint="record with a pelvis tracker and two foot trackers, or assign these roles to the devices")
+            hint=f"record with a pelvis tracker and two foot trackers, or assign these roles to the devices "
+                 f"({ROLES_LIST})")
     cov = coverage(model.calibration)
     if cov.mostly_guessed and not allow_defaults:
         steps = [s for s in model.calibration.get("steps_used", []) if not s.endswith("from the motion")]

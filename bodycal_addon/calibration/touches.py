@@ -20,7 +20,7 @@ import numpy as np
 from ..core import transforms as tf
 from ..core.errors import BodyCalError
 from ..core.geometry import robust_mean
-from ..recording.model import Segment
+from ..recording.model import ROLES_LIST, Segment
 from .common import Session, State, other, running_median, side_of
 
 STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still
@@ -151,7 +151,7 @@ def extract(session: Session, state: State, seg: Segment, role: str | None = Non
     if not session.has(role):
         raise BodyCalError(f"needs the '{role}' tracker the point rides on, the recording has none",
                            source=session.source, field=label,
-                           hint=f"assign the role '{role}' to a device or drop this touch")
+                           hint=f"assign the role '{role}' to a device ({ROLES_LIST}) or drop this touch")
     bp, bv = by_track(session, state, by)
     fp, fq, fv = session.pose(role)
     idx = session.rec.frames(seg.start, seg.end)

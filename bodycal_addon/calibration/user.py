@@ -13,7 +13,7 @@ from ..body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, Surface
 from ..core import transforms as tf
 from ..core.errors import BodyCalError
 from ..core.transforms import EPS
-from ..recording.model import Recording
+from ..recording.model import ROLES_LIST, Recording
 from . import defaults, effectors, feet, hands, head, limbs, tpose, trunk
 from .common import Session, State
 
@@ -71,7 +71,8 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
     tpose.identify_roles(session)
     if not session.has("head"):
         raise BodyCalError("the recording has no HMD (role 'head'): the eye height and the head cannot be "
-                           "calibrated", source=session.source, hint="assign the role 'head' to the HMD device")
+                           "calibrated", source=session.source,
+                           hint=f"assign the role 'head' to the HMD device ({ROLES_LIST})")
     # Delahaye 2023, appendix B: extremities (hands, feet, head), then the limbs, then the trunk.
     _run("palms_together", hands.palms_together, session, state)
     _run("hand touches", hands.hand_touches, session, state)

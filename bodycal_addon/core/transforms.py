@@ -121,6 +121,24 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return q.T.reshape(m.shape[:-2] + (4,))
 
 
+def euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
+    """(F, 3, 3) of Blender Euler angles (F, 3) in rotation mode `order` ("XYZ": X applied first)."""
+    angles = np.asarray(angles, float)
+    out = np.broadcast_to(np.eye(3), (len(angles), 3, 3)).copy()
+    for axis in order:
+        k = "XYZ".index(axis)
+        c, s = np.cos(angles[:, k]), np.sin(angles[:, k])
+        m = np.zeros((len(angles), 3, 3))
+        i, j = [(1, 2), (2, 0), (0, 1)][k]
+        m[:, k, k] = 1.0
+        m[:, i, i] = c
+        m[:, j, j] = c
+        m[:, i, j] = -s
+        m[:, j, i] = s
+        out = m @ out
+    return out
+
+
 def axis_angle_to_quat(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Unit quaternions for turns by `angle` about `axis` (any length). A zero axis is no turn
     whatever the angle, as Blender reads a bone's axis-angle rotation."""

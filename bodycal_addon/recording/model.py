@@ -15,6 +15,8 @@ from ..core.errors import BodyCalError
 DEVICE_KINDS = ("hmd", "controller", "tracker", "rigid_body")
 ROLES = ("head", "hand_l", "hand_r", "pelvis", "chest", "upperarm_l", "upperarm_r", "forearm_l", "forearm_r",
          "thigh_l", "thigh_r", "shin_l", "shin_r", "foot_l", "foot_r")
+# Where a user assigns device roles in Blender: the hint of every error about a missing role.
+ROLES_LIST = "Sidebar > BodyCal > Recording > Devices"
 STEPS = ("tpose", "stand", "palms_together", "touch", "flex_elbow_l", "flex_elbow_r", "flex_knee_l",
          "flex_knee_r", "swing_shoulder_l", "swing_shoulder_r", "swing_hip_l", "swing_hip_r", "motion")
 
@@ -24,6 +26,7 @@ class Device:
     name: str
     kind: str
     role: str | None = None
+    identified: bool = False  # the role was found from the T-pose (roles.py), not given
 
 
 @dataclass
@@ -80,7 +83,7 @@ class Recording:
             if d.name == name_or_role:
                 return i
         raise BodyCalError(f"no device with role or name '{name_or_role}'", source=self.source or self.name,
-                           hint="assign roles in the recording or record a tpose segment")
+                           hint=f"assign device roles ({ROLES_LIST}) or record a tpose segment")
 
     def has_role(self, role: str) -> bool:
         return any(d.role == role for d in self.devices)

@@ -21,7 +21,7 @@ import numpy as np
 from ..core.errors import BodyCalError
 from ..core.geometry import fit_plane
 from ..core.transforms import rotate
-from .model import Recording
+from .model import ROLES_LIST, Recording
 
 HMD_FORWARD_LOCAL = np.array([0.0, 0.0, -1.0])
 HMD_UP_LOCAL = np.array([0.0, 1.0, 0.0])
@@ -34,7 +34,7 @@ def tpose_positions(rec: Recording) -> tuple[np.ndarray, np.ndarray, dict]:
     segs = rec.segments_of("tpose")
     if not segs:
         raise BodyCalError("no tpose segment: roles cannot be identified", source=rec.source or rec.name,
-                           field="segments", hint="record a T-pose or give every device a role")
+                           field="segments", hint=f"record a T-pose or give every device a role ({ROLES_LIST})")
     s = segs[0]
     quarter = 0.25 * (s.end - s.start)
     frames = rec.frames(s.start + quarter, s.end - quarter)
@@ -226,6 +226,7 @@ def apply_roles(rec: Recording) -> dict[str, str]:
     for d in rec.devices:
         if d.role is None and d.name in found:
             d.role = found[d.name]
+            d.identified = True
             assigned[d.name] = d.role
     missing = [d.name for d in rec.devices if d.role is None]
     text = ", ".join(f"{n}={r}" for n, r in assigned.items()) or "none"

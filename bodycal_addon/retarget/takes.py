@@ -28,7 +28,7 @@ from ..avatar.estimate import ESTIMATED
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
-from ..recording.filters import OneEuro, filter_recording
+from ..recording.filters import DEFAULT_FILTER, OneEuro, filter_recording
 from ..recording.model import Recording
 from .methods import check_method
 from .pipeline import PreparedTake, prepare_recording, retarget
@@ -84,7 +84,7 @@ class RecordingTake:
     kind: ClassVar[str] = "recording"
     recording: Recording
     user: BodyModel
-    filter: OneEuro | None = None  # One Euro on the devices before retargeting
+    filter: OneEuro | None = DEFAULT_FILTER  # One Euro on the devices before retargeting (None: as recorded)
     notes: list[str] = field(default_factory=list)
     frame_start: float = 1.0  # the import's mapping (recording_scene); a file's take starts at frame 1
     frame_rate: float | None = None  # the frames' rate when not the recording's own (a window keeps its take's)

@@ -39,7 +39,7 @@ from ..core.transforms import (
     stack_apply,
     stack_mul,
 )
-from ..recording.model import Recording
+from ..recording.model import ROLES_LIST, Recording
 from . import fingers, ik
 
 LIMB_SEGMENTS = {  # side-less limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
@@ -218,7 +218,8 @@ def _check_trackers(tr: Trackers, src: str, user_model: BodyModel) -> None:
     for role in ANIMATED_ROLES:
         if role not in tr.pos:
             raise BodyCalError(f"no tracked device with role '{role}'", source=src, field="devices",
-                               hint="assign device roles or record with the HMD, both hands, pelvis and both feet")
+                               hint=f"assign device roles ({ROLES_LIST}) or record with the HMD, both hands, "
+                                    "pelvis and both feet")
         if role not in tr.ref_rot:
             raise BodyCalError(f"no reference pose for '{role}' (body model extra.tpose)", source=user_model.name,
                                field="extra.tpose", hint="calibrate the user from this recording")

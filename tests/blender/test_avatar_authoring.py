@@ -161,12 +161,15 @@ def test_avatar_panel_draws_status_and_missing_segments():
     log = []
     panel = type("P", (), {"layout": _Layout(log)})()
     bpy.types.BODYCAL_PT_avatar.draw(panel, bpy.context)
-    assert "procedural" in log and "shin_l" in log
+    assert "procedural" in log
+    bpy.types.BODYCAL_PT_bone_map.draw(panel, bpy.context)  # its sub-panel: the bone map
+    assert "Missing: shin_l" in log
     arm.data.bones["LegLower_Left"].name = "calf_l"
     bpy.ops.bodycal.calibrate_avatar()
     log.clear()
     bpy.types.BODYCAL_PT_avatar.draw(panel, bpy.context)
-    assert "Avatar model stored on the armature" in log and "shin_l" not in log
+    bpy.types.BODYCAL_PT_bone_map.draw(panel, bpy.context)
+    assert "Avatar model stored on the armature" in log and not [t for t in log if "shin_l" in t]
 
 
 def test_operator_poll_explains_without_armature():

@@ -108,7 +108,11 @@ def test_filter_and_feet_settings_reach_every_job(tmp_path):
     (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = true\n[[recordings]]\npath="t"\nuser="u"\n'
                                         '[[avatars]]\nblend="a.blend"\n')
     (job,), _settings = load_jobs(tmp_path / "jobs.toml")
-    assert job.argv()[-2:] == ["--filter", "on"]
+    assert "--filter" not in job.argv() and "--no-filter" not in job.argv()  # the command's default
+    (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = false\n[[recordings]]\npath="t"\nuser="u"\n'
+                                        '[[avatars]]\nblend="a.blend"\n')
+    (job,), _settings = load_jobs(tmp_path / "jobs.toml")
+    assert job.argv()[-1] == "--no-filter"
     (tmp_path / "jobs.toml").write_text('[defaults]\nfilter = "soft"\n[[recordings]]\npath="t"\nuser="u"\n'
                                         '[[avatars]]\nblend="a.blend"\n')
     with pytest.raises(BodyCalError, match="--filter"):

@@ -13,6 +13,7 @@ from repo_paths import REPO
 from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene
 from bodycal_addon.body.bodymodel import BodyModel
 from bodycal_addon.core import paths
+from bodycal_addon.recording.filters import DEFAULT_FILTER, filter_recording
 from bodycal_addon.retarget.pipeline import retarget
 from bodycal_dev import synthetic
 
@@ -171,7 +172,7 @@ def test_retarget_command_end_to_end_keeps_the_hand_on_the_belly(tmp_path, belly
     avatar = avatar_storage.load_model(arm)
     # Reading the keys back through Blender: the evaluated pose in the belly-contact frames puts the
     # avatar's palm on its evaluated belly.
-    anim = retarget(rec, BodyModel.load(user_path), avatar, "egocentric")
+    anim = retarget(filter_recording(rec, DEFAULT_FILTER), BodyModel.load(user_path), avatar, "egocentric")  # smoothed
     (contact,) = [c for c in truth.contacts if c["target"].startswith("mesh:torso")]
     gaps = mesh_metrics.contact_gaps(arm, avatar, anim, [contact], max_frames=6)[0]
     assert np.all(np.abs(gaps) < 0.010), gaps  # within the quality target (bench_retarget_quality: p95 <= 10 mm)
@@ -183,8 +184,8 @@ def test_retarget_command_end_to_end_keeps_the_hand_on_the_belly(tmp_path, belly
 
 
 def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(belly_session):
-    """The One Euro filter (DESIGN.md §6b) is a panel option; it works on a copy (the scene's
-    recording keeps its samples) and changes the bake; feet can be left to the method."""
+    """The One Euro filter (DESIGN.md §6b) is a panel option, on by default; it works on a copy (the
+    scene's recording keeps its samples) and changes the bake; feet can be left to the method."""
     from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 
     rec, truth = belly_session
@@ -193,6 +194,7 @@ def test_operator_smooths_the_devices_when_asked_and_leaves_the_recording_alone(
     settings.method = "rotations"
     bake.tolerance = 0.0  # every frame keyed, so the two bakes compare key for key
     samples = recording_scene.recording_from_scene(bpy.context.scene).positions.copy()
+    assert settings.use_filter  # the default
     keys = {}
     for smooth in (False, True):
         settings.use_filter = smooth

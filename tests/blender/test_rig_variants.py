@@ -406,10 +406,10 @@ def test_the_output_may_not_be_the_bone_map(tmp_path):
     assert json.loads((tmp_path / "map.json").read_text())["scheme"] == "unreal"
 
 
-def test_the_avatar_panel_offers_the_preset_list_and_its_operators(avatar_files):
+def test_the_bone_map_panel_offers_the_preset_list_and_its_operators(avatar_files):
     arm, _mesh = rigs.load_glb_avatar(next(p for p in avatar_files if p.stem == "adult_male"))
     bpy.context.view_layer.objects.active = arm
-    log = ui_layout.draw(bpy.types.BODYCAL_PT_avatar, bpy.context)
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_bone_map, bpy.context)
     drawn_ops = {entry[1] for entry in log if entry[0] == "operator"}
     assert {"bodycal.apply_bone_map_preset", "bodycal.export_bone_map", "bodycal.import_bone_map"} <= drawn_ops
     for idname in drawn_ops:  # every button names a registered operator

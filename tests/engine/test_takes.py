@@ -45,7 +45,7 @@ def test_a_kind_refuses_a_method_it_cannot_use_in_one_line():
 def test_a_recording_take_animates_as_the_pipeline_does(recorded, method):
     rec, user = recorded
     avatar = rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(20.0, 1.1))
-    take = RecordingTake(rec, user)
+    take = RecordingTake(rec, user, filter=None)
     assert take.name == rec.name and take.rate == pytest.approx(rec.fps)
     got = take.animate(avatar, method, placement="performer")
     want = pl.retarget(rec, user, avatar, method, placement="performer")
@@ -60,8 +60,9 @@ def test_a_filtered_take_smooths_a_copy(recorded):
     rec, user = recorded
     before = rec.positions.copy()
     avatar = rt.procedural_avatar()
-    plain = RecordingTake(rec, user).animate(avatar, "rotations")
-    smooth = RecordingTake(rec, user, OneEuro()).animate(avatar, "rotations")
+    plain = RecordingTake(rec, user, filter=None).animate(avatar, "rotations")
+    smooth = RecordingTake(rec, user).animate(avatar, "rotations")  # smoothed by default (DEFAULT_FILTER)
+    assert RecordingTake(rec, user).filter == OneEuro()
     np.testing.assert_array_equal(rec.positions, before)
     dot = np.clip(np.abs(np.sum(smooth.rotations * plain.rotations, axis=-1)), 0.0, 1.0)
     turn_deg = np.degrees(2 * np.arccos(dot))

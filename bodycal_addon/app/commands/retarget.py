@@ -1,5 +1,5 @@
 """`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
-[--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]]]
+[--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]] | --no-filter]
 [--no-plant-feet] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
 [--tolerance DEG] [--location-tolerance MM] [--fps N] [--frame-range FIRST LAST]
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
