@@ -27,6 +27,7 @@ from . import console
 METHODS = methods_for("recording")  # every method, the default first (retarget/methods.py)
 TRANSFER_METHODS = methods_for("animation")
 
+VMC_PORT = 39539  # a VMC Marionette's port (recording/live/vmc.py, which the command loads when it runs)
 EXIT_OK = 0
 EXIT_USAGE = 2
 _BONE_MAP_HELP = ("bone map preset (JSON, docs/FORMATS.md §5) for an armature whose bone names no naming scheme "
@@ -122,6 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--retries", type=int, default=0, metavar="N",
                    help="with --cluster: submit a job again, up to N times, when the worker running it died")
 
+    _live_commands(sub)
+
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
     c.add_argument("-o", "--output-dir", default="out", metavar="DIR",
                    help="where demo.blend is written (default: out)")
@@ -139,6 +142,46 @@ def build_parser() -> argparse.ArgumentParser:
     for c in sub.choices.values():  # also after the command: `bodycal retarget ... --verbose`
         c.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP)
     return p
+
+
+def _live_commands(sub) -> None:
+    """`record` and `stream`: the VMC protocol (FORMATS.md §6)."""
+    c = sub.add_parser("record", help="record a live VMC stream (OSC over UDP) into a recording file")
+    c.add_argument("-o", "--output", required=True, metavar="TAKE.bcrec.json|.csv", help="the recording to write "
+                   "(docs/FORMATS.md §2; .csv also writes its sidecar .json)")
+    c.add_argument("--port", type=int, default=VMC_PORT, metavar="N",
+                   help=f"UDP port to listen on (default {VMC_PORT}, a VMC Marionette's)")
+    c.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
+                   help="address to listen on: 127.0.0.1 hears this machine only (default), 0.0.0.0 every network")
+    c.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop once the take is S seconds long (default: when Ctrl-C is pressed)")
+    c.add_argument("--role", action="append", metavar="NAME=ROLE",
+                   help="a device's role (its serial = head, hand_l, pelvis, ...); devices without one get theirs "
+                        "from the T-pose when the file is read")
+    c.add_argument("--name", metavar="NAME", help="the recording's name (default: the file's)")
+    c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+
+    c = sub.add_parser("stream", help="send a recording, or the avatar retargeted from it, as a VMC stream in real "
+                       "time")
+    c.add_argument("take", metavar="TAKE", help=REC_HELP)
+    c.add_argument("--host", default="127.0.0.1", metavar="H", help="where to send (default 127.0.0.1)")
+    c.add_argument("--port", type=int, default=VMC_PORT, metavar="N", help=f"UDP port (default {VMC_PORT})")
+    c.add_argument("--speed", type=float, default=1.0, metavar="X", help="X times real time (default 1)")
+    c.add_argument("--loop", action="store_true", help="start over at the end, until Ctrl-C")
+    c.add_argument("--local-only", action="store_true",
+                   help="send each device's /VMC/Ext/*/Pos/Local message only (default: the plain one too)")
+    c.add_argument("--retarget", action="store_true",
+                   help="send the avatar retargeted from TAKE as VMC bones (needs --user and --avatar)")
+    c.add_argument("--user", metavar="USER.body.json", help=USER_HELP)
+    c.add_argument("--avatar", metavar="AVATAR", help="the avatar: its *.body.json from calibrate-avatar, or "
+                   + AVATAR_HELP[len("the avatar: "):])
+    c.add_argument("--armature", metavar="NAME", help="the avatar file's armature (default: the only one)")
+    c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
+    c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
+    c.add_argument("--filter", nargs="?", const="on", default=None, metavar="MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]",
+                   help="One Euro filter on the devices before retargeting (as retarget --filter)")
+    c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
+                   help="let the feet follow the method (default: planted while the performer stands on them)")
 
 
 def _bake_arguments(c, rate_of: str) -> None:

@@ -19,6 +19,7 @@ from ..blender.process import stderr_to_stdout
 class _Streams:
     out: object | None = None  # None: sys.stdout / sys.stderr at the time of the call
     err: object | None = None
+    status_open: bool = False  # a status line is on the terminal without its newline yet
 
 
 _streams = _Streams()
@@ -32,16 +33,43 @@ def stderr():
 def say(line: str) -> None:
     """One line of the command's log, on stdout."""
     out = _streams.out or sys.stdout
+    _end_status(out)
     print(line, file=out, flush=True)
+
+
+def status(line: str) -> None:
+    """A progress line (`bodycal record`, `bodycal stream`): on a terminal it replaces the previous
+    one in place; elsewhere (a pipe, a log file) it is one more line of the log."""
+    out = _streams.out or sys.stdout
+    if not _isatty(out):
+        print(line, file=out, flush=True)
+        return
+    print(f"\r{line}\033[K", end="", file=out, flush=True)
+    _streams.status_open = True
+
+
+def _end_status(out) -> None:
+    if _streams.status_open:
+        print(file=out, flush=True)
+        _streams.status_open = False
+
+
+def _isatty(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
 
 
 def warn(command: str, line: str) -> None:
     """One `bodycal <command>: warning: ...` line on stderr."""
+    _end_status(_streams.out or sys.stdout)
     print(f"bodycal {command}: warning: {line}", file=_streams.err or sys.stderr, flush=True)
 
 
 def error(prog: str, line: str) -> None:
     """One `<prog>: error: ...` line on stderr (prog: `bodycal` or `bodycal <command>`)."""
+    _end_status(_streams.out or sys.stdout)
     print(f"{prog}: error: {line}", file=_streams.err or sys.stderr, flush=True)
 
 

@@ -22,6 +22,8 @@ l (with l' = P l) therefore maps to the same world point before and after conver
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..core import transforms as tf
@@ -96,18 +98,42 @@ def from_internal(positions: np.ndarray, rotations: np.ndarray | None, up="Y", h
     return pos, rot
 
 
+def turns_to_internal(rotations: np.ndarray, up="Y", handedness="right") -> np.ndarray:
+    """Quaternions (..., 4) of turns written in a file convention (a bone's rotation relative to its
+    parent's, a pose relative to a rest pose: rotations between two frames of one body, not a
+    device's frame in the room) as the same turns in the internal frame: R' = A R A^T, A the axis
+    map. Unlike a device frame there is no local mirror: the identity stays the identity, and a
+    turn about the file's up axis by +a is a turn about +Z by +a (right-handed) or -a (left-handed,
+    as a mirror reverses the sense of every turn)."""
+    a = _AXIS_MAPS[(up, handedness)]
+    return tf.matrix_to_quat(a @ tf.quat_to_matrix(np.asarray(rotations, float)) @ a.T)
+
+
+def turns_from_internal(rotations: np.ndarray, up="Y", handedness="right") -> np.ndarray:
+    """Inverse of `turns_to_internal`: R = A^T R' A."""
+    a = _AXIS_MAPS[(up, handedness)]
+    return tf.matrix_to_quat(a.T @ tf.quat_to_matrix(np.asarray(rotations, float)) @ a)
+
+
 def _convert_rotations(q: np.ndarray, a: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Quaternions of A R P (A, P orthogonal, det(A P) = +1), by quaternion products only, so that
     the sign of the input (and the continuity of a track) is kept."""
     q = np.array(q, float)
-    if np.linalg.det(p) < 0:
+    if p[2, 2] < 0:  # P is the identity or the mirror along z (`conversion`)
         # A R P = (A P)(P R P); for the mirror P = diag(1, 1, -1), P R P = (-P) R (-P)^-1 with -P a half
         # turn about z, whose quaternion keeps w and turns the vector part: (w, -x, -y, z).
         q *= np.array([1.0, -1.0, -1.0, 1.0])
         a = a @ p
-    if np.allclose(a, np.eye(3)):
-        return q
-    return tf.quat_mul(tf.matrix_to_quat(a), q)
+    qa = _turn_of(np.ascontiguousarray(a, float).tobytes())
+    return q if qa is None else tf.quat_mul(qa, q)
+
+
+@functools.lru_cache(maxsize=32)
+def _turn_of(a_bytes: bytes) -> np.ndarray | None:
+    """The quaternion of a conversion's axis map (None: the identity), once per map: a live source
+    converts every frame it receives (recording/live/vmc.py)."""
+    a = np.frombuffer(a_bytes).reshape(3, 3)
+    return None if np.allclose(a, np.eye(3)) else tf.matrix_to_quat(a)
 
 
 def check_positions(values: np.ndarray, valid: np.ndarray, unit_scale: float, source: str, fields, where_of) -> None:

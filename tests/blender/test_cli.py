@@ -8,7 +8,7 @@ from repo_paths import REPO
 
 from bodycal_addon.app import cli, cli_bridge
 
-COMMANDS = ("calibrate-user", "calibrate-avatar", "retarget", "transfer", "batch", "demo")
+COMMANDS = ("calibrate-user", "calibrate-avatar", "retarget", "transfer", "batch", "record", "stream", "demo")
 
 
 def _run(*args):

@@ -46,6 +46,8 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     names = zipfile.ZipFile(zip_path).namelist()
     assert "blender_manifest.toml" in names and "__init__.py" in names
     assert any(n.startswith("bodycal_addon/") for n in names)
+    # python-osc ships with it (the manifest's wheels): the VMC live source works offline.
+    assert "wheels/python_osc-1.10.2-py3-none-any.whl" in names
     assert "docs/SIDEBAR.md" in names  # the panels' help buttons open it
     # Left out of the zip by [build] paths_exclude_pattern.
     assert not any(n.startswith(("tests/", "benchmarks/", ".ci/", ".venv/")) for n in names)
@@ -71,6 +73,7 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     assert EXPECTED_OPERATORS <= set(report["installed"]["operators"])
     assert report["installed"]["categories"] == ["BodyCal"]
     assert "bodycal_addon" in report["installed_files"]
+    assert report["wheel"] == {"installed": True, "on_path": True, "receiver_ran": True}
     assert not report["module_enabled_after"]
     assert report["after_disable"]["classes"] == []
     assert report["after_disable"]["operators"] == []

@@ -1,6 +1,8 @@
 """Run in a fresh Python process: install the extension zip like a user, report what got
 registered, disable it, report what is left. Prints one JSON line."""
 
+import importlib
+import importlib.machinery
 import json
 import os
 import shutil
@@ -32,6 +34,18 @@ report["module_enabled"] = "bl_ext.user_default.bodycal" in bpy.context.preferen
 report["installed"] = registered()
 installed_dir = os.path.join(bpy.utils.user_resource("EXTENSIONS", path="user_default"), "bodycal")
 report["installed_files"] = sorted(os.listdir(installed_dir)) if os.path.isdir(installed_dir) else []
+# The bundled wheels go to the extensions' own site-packages, which Blender puts on sys.path; the
+# installed extension's live receiver runs from there (python-osc may also be in this Python's
+# environment: the spec below looks in the extensions' folder only).
+site = os.path.join(bpy.utils.user_resource("EXTENSIONS"), ".local", "lib",
+                    f"python{sys.version_info.major}.{sys.version_info.minor}", "site-packages")
+spec = importlib.machinery.PathFinder.find_spec("pythonosc", [site])
+report["wheel"] = {"installed": spec is not None, "on_path": site in sys.path}
+receiver = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.recording.live.receiver")
+live = receiver.VmcReceiver(port=0)
+live.start()
+report["wheel"]["receiver_ran"] = live.running
+live.stop()
 addon_utils.disable("bl_ext.user_default.bodycal", default_set=True)
 report["after_disable"] = registered()
 report["module_enabled_after"] = "bl_ext.user_default.bodycal" in bpy.context.preferences.addons

@@ -18,9 +18,12 @@ READERS = {".json": read_json, ".csv": read_csv, ".c3d": c3d.read_c3d_recording}
 RECORDING_SUFFIXES = tuple(READERS)
 
 
-def load_recording(path, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S, identify_roles: bool = True) -> Recording:
+def load_recording(path, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S, identify_roles: bool = True,
+                   raw: bool = False) -> Recording:
     """Read a recording (.bcrec.json / .json, .csv with an optional `name.json` sidecar, .c3d) into
-    the internal frame. Raises BodyCalError (one line naming file, field, frame/line) on bad input."""
+    the internal frame. Raises BodyCalError (one line naming file, field, frame/line) on bad input.
+    `raw`: the file's own frames only, as checked and converted by its reader (no gap filled, no
+    LED hand frame built, no role identified: what `bodycal stream` sends)."""
     path = Path(path)
     source = path.name
     if not path.is_file():
@@ -29,4 +32,5 @@ def load_recording(path, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S, identify_r
     if suffix not in READERS:
         raise BodyCalError(f"unknown recording type '{suffix}'", source=source,
                            hint="use .bcrec.json, .json, .csv or .c3d")
-    return finish_recording(READERS[suffix](path), fill_gaps_s=fill_gaps_s, identify_roles=identify_roles)
+    rec = READERS[suffix](path)
+    return rec if raw else finish_recording(rec, fill_gaps_s=fill_gaps_s, identify_roles=identify_roles)

@@ -13,12 +13,17 @@ from ..model import Recording
 from .header import FORMAT_NAME
 
 
-def save_recording(rec: Recording, path, *, up: str = "Y", handedness: str = "right", units: str = "m") -> list[Path]:
+def save_recording(rec: Recording, path, *, up: str = "Y", handedness: str = "right", units: str = "m",
+                   extra: dict | None = None) -> list[Path]:
     """Write `rec` as JSON (FORMATS.md §2.1), or as CSV + sidecar JSON (§2.2) for a .csv path, in the
-    declared convention. Untracked frames are written as null / empty fields. Returns the files written."""
+    declared convention. Untracked frames are written as null / empty fields; `extra` (JSON values)
+    goes to the file's `extra` field, which readers keep out of the recording. Returns the files
+    written."""
     path = Path(path)
     up, handedness, units = check_coords({"up": up, "handedness": handedness, "units": units}, str(path))
     header = _header(rec, up, handedness, units)
+    if extra is not None:
+        header["extra"] = extra
     pos, rot = from_internal(rec.positions, rec.rotations, up, handedness, units)
     mk, _ = from_internal(rec.markers, None, up, handedness, units)
     if path.suffix.lower() == ".csv":

@@ -1,0 +1,126 @@
+"""`bodycal record [--port N] [--bind ADDRESS] [--duration S] [--role NAME=ROLE ...] [--name NAME]
+-o TAKE.bcrec.json|.csv [--overwrite]` (FORMATS.md §6.2): a live VMC stream into a recording.
+
+Listens until Ctrl-C (or SIGTERM), or until the take is `--duration` seconds long; either way the
+file is written whole, then exit 0. A progress line every PROGRESS_S: the take's length, frames,
+rate, devices seen and tracked now, markers, and what the receiver skipped."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+from pathlib import Path
+
+from ...core.errors import BodyCalError
+from ...core.outputs import check_output
+from .. import console
+
+PROGRESS_S = 2.0
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """An Event set by SIGINT or SIGTERM for the block (the main thread's handlers, put back after):
+    a live command ends its loop cleanly instead of being cut anywhere by KeyboardInterrupt."""
+    stop = threading.Event()
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(ValueError):  # not the main thread: Ctrl-C stays KeyboardInterrupt
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    try:
+        yield stop
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def check_port(port: int, field: str = "--port") -> int:
+    if not 0 < port < 65536:
+        raise BodyCalError(f"{port} is not a port", field=field, hint="give 1..65535 (VMC: 39539)")
+    return port
+
+
+def parse_roles(items) -> dict[str, str]:
+    roles = {}
+    for item in items or []:
+        name, sep, role = item.partition("=")
+        if not sep or not name or not role:
+            raise BodyCalError(f"'{item}' is not NAME=ROLE", field="--role", hint="e.g. --role LHR-1A2B3C4D=pelvis")
+        roles[name] = role
+    return roles
+
+
+def run(args) -> int:
+    from ...recording.live.receiver import VmcReceiver
+    from ...recording.live.recorder import LiveRecorder
+
+    out = Path(args.output)
+    if not out.name.lower().endswith((".json", ".csv")):
+        raise BodyCalError("must be a .bcrec.json (or .json) or .csv recording", source=str(out), field="-o")
+    check_port(args.port)
+    if args.duration is not None and not args.duration > 0:
+        raise BodyCalError(f"{args.duration:g} is not a positive number of seconds", field="--duration")
+    overwrite = getattr(args, "overwrite", False)
+    for target in ([out, out.with_suffix(".json")] if out.suffix.lower() == ".csv" else [out]):
+        check_output(target, overwrite=overwrite)  # before listening: a bad path costs no take
+    recorder = LiveRecorder(args.name or out.name.split(".")[0], parse_roles(args.role), limit_s=args.duration)
+    receiver = VmcReceiver(args.port, args.bind)
+    receiver.add_sink(recorder)
+    with stop_on_signals() as stop:
+        receiver.start()
+        try:
+            console.say(f"listening for VMC on {args.bind}:{receiver.port}; Ctrl-C ends the recording")
+            _record(recorder, receiver, stop)
+        finally:
+            receiver.stop()
+    return _save(recorder, receiver, out, overwrite)
+
+
+def _record(recorder, receiver, stop: threading.Event) -> None:
+    last = (time.perf_counter(), 0)
+    while not stop.wait(0.1) and not recorder.full.is_set():
+        now = time.perf_counter()
+        if now - last[0] >= PROGRESS_S:
+            rate = (recorder.frames - last[1]) / (now - last[0])
+            last = (now, recorder.frames)
+            console.status(_progress(recorder, receiver, rate))
+        if receiver.stats.sink_error:
+            raise BodyCalError(f"recording failed: {receiver.stats.sink_error}")
+
+
+def _progress(recorder, receiver, rate: float) -> str:
+    if not recorder.frames:
+        return f"waiting for VMC on port {receiver.port}: {receiver.stats.datagrams} packets so far"
+    return (f"recording {recorder.duration:.1f} s: {recorder.frames} frames, {rate:.1f} Hz, "
+            f"{len(recorder.names)} devices ({recorder.last_tracked} tracked now), "
+            f"{len(recorder.marker_names)} markers; {receiver.stats.line()}")
+
+
+def _save(recorder, receiver, out: Path, overwrite: bool) -> int:
+    from ...recording.live.recorder import save_whole
+
+    stats = receiver.stats
+    if stats.sink_error:
+        raise BodyCalError(f"recording failed: {stats.sink_error}")
+    if not recorder.frames:
+        raise BodyCalError(f"nothing arrived on port {receiver.port} ({stats.datagrams} packets, none with a device)",
+                           hint="is the sender sending device transforms to this host and port?")
+    rec = recorder.recording()
+    for name in sorted(stats.scaled_devices):
+        console.warn("record", f"{name} came only as /VMC/Ext/*/Pos, scaled to the sender's avatar (its raw "
+                               "values are the /Local messages: enable them in the sender)")
+    if stats.bad_datagrams + stats.bad_messages:
+        console.warn("record", f"{stats.bad_datagrams} bad packets and {stats.bad_messages} bad messages skipped "
+                               f"(last: {stats.last_error})")
+    written = save_whole(rec, out, overwrite=overwrite, extra=recorder.extra())
+    for note in rec.notes:
+        console.say(note)
+    console.say(f"recorded {rec.frame_count} frames, {rec.time[-1] - rec.time[0]:.2f} s ({rec.fps:.1f} Hz, "
+                f"{'sender' if recorder.sender_clock else 'arrival'} clock), {len(rec.devices)} devices, "
+                f"{len(rec.marker_names)} markers, {len(rec.segments)} calibration steps; "
+                f"receiver CPU {stats.cpu_seconds:.2f} s")
+    for path in written:
+        console.say(f"saved {path}")
+    return 0

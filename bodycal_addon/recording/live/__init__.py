@@ -1,0 +1,14 @@
+"""Live sources of tracker frames (DESIGN.md "Live source"; FORMATS.md §6).
+
+- `source.py`: what every live source hands out (`LiveFrame`, `SourceStats`), the `LiveSource`
+  protocol and the latest-wins slot. No third-party import: a source for Blender's own XR session
+  or OpenVR implements it without the VMC code.
+- `vmc.py`: the VMC protocol (OSC over UDP) read and written with python-osc: addresses, the
+  parser that turns datagrams into frames, the message builders, Unity's axes.
+- `receiver.py`: `VmcReceiver`, a UDP receiver on its own thread.
+- `recorder.py`: `LiveRecorder`, every frame of a source into a Recording (FORMATS.md §2).
+- `sender.py`: `VmcSender` and `replay`, a Recording sent as a VMC stream in real time.
+
+Nothing else in the engine imports this package at import time (python-osc is imported at the top
+of the VMC modules): the command line's `record` and `stream` load it when they run.
+"""

@@ -1,0 +1,304 @@
+"""`LiveRecorder`: every frame of a live source, in arrival order, into a Recording (FORMATS.md §2,
+§6.2), and the calibration steps a wizard marks while it records.
+
+It is a sink (source.py): the source's thread calls it with each frame, and it copies the frame
+into arrays that grow by doubling (so a take of any length costs one copy per frame, no Python
+loop over frames afterwards). A device absent from a frame is not tracked in it, so a gap in a
+stream is a gap in the recording; a device first seen later is not tracked before.
+
+Time: the sender's clock when it gives one and it moves forward (frames then land on the sender's
+times, whatever the network did to their arrival), else the arrival clock's advance since the
+previous frame; always strictly increasing (`MIN_STEP_S`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from ...core.errors import BodyCalError
+from ...core.outputs import replacing
+from ..io.writer import save_recording
+from ..model import ROLES, Device, Recording, Segment
+from ..roles import identify_roles
+from ..segments import parse_segments
+from .source import LiveFrame
+from .vmc import check_segment
+
+MIN_STEP_S = 1e-6  # frames closer than this in time (one datagram ending two frames) are spaced by it
+
+
+class _Grow:
+    """A (frames, slots, width) array growing along both first axes by doubling."""
+
+    def __init__(self, width: int, fill=0.0, dtype=float):
+        self.width, self.fill, self.dtype = width, fill, dtype
+        self.data = np.full((256, 4) + ((width,) if width else ()), fill, dtype)
+
+    def ensure(self, frames: int, slots: int) -> np.ndarray:
+        f, s = self.data.shape[:2]
+        if frames > f or slots > s:
+            grown = np.full((max(f, 1) * 2 if frames > f else f, max(s, 1) * 2 if slots > s else s)
+                            + self.data.shape[2:], self.fill, self.dtype)
+            grown[:f, :s] = self.data
+            self.data = grown
+            return self.ensure(frames, slots)
+        return self.data
+
+
+class LiveRecorder:
+    """A sink that records (module docstring). `roles` (device name -> role) are the user's: they
+    win over roles a stream announces; devices without either get theirs from the T-pose when the
+    file is read, as for any recording (recording/roles.py). With `limit_s`, frames more than that
+    many seconds after the first are not recorded (`full` is set at the first of them)."""
+
+    def __init__(self, name: str = "live", roles: dict[str, str] | None = None, *, limit_s: float | None = None):
+        self.name = name
+        self.limit_s = limit_s  # record this many seconds from the first frame, then set `full`
+        self.full = threading.Event()
+        self.user_roles = _checked_roles(roles or {})
+        self._lock = threading.Lock()
+        self.names: list[str] = []
+        self.kinds: dict[str, str] = {}
+        self.announced_roles: dict[str, str | None] = {}
+        self.identified_roles: dict[str, str] = {}  # from the T-pose (`identify_roles`)
+        self.marker_names: list[str] = []
+        self._slot: dict[str, int] = {}
+        self._mslot: dict[str, int] = {}
+        self._times = np.zeros(256)
+        self._arrival = np.zeros(256)
+        self._sender = np.zeros(256)
+        self._pos, self._rot = _Grow(3), _Grow(4)
+        self._valid = _Grow(0, False, bool)
+        self._pts, self._pvalid = _Grow(3), _Grow(0, False, bool)
+        self.frames = 0
+        self.last_tracked = 0  # devices tracked in the last frame
+        self.segments: list[Segment] = []
+        self._open: tuple[str, str | None, str | None, float] | None = None
+        self._prev: tuple[float, float | None, float] | None = None  # (time, sender time, arrival)
+        self.sender_clock = True  # every frame's time came from the sender's clock
+
+    # --- the sink ---------------------------------------------------------------------------------
+
+    def __call__(self, frame: LiveFrame) -> None:
+        with self._lock:
+            if self.full.is_set():
+                return
+            k = self.frames
+            t = self._time_of(frame)
+            if self.limit_s is not None and k and t - self._times[0] > self.limit_s:
+                self.full.set()
+                return
+            for event in frame.events:
+                self._event(event)
+            if k >= len(self._times):
+                self._times, self._arrival, self._sender = (np.resize(a, 2 * len(a)) for a in
+                                                            (self._times, self._arrival, self._sender))
+            self._times[k], self._arrival[k] = t, frame.arrival
+            self._sender[k] = np.nan if frame.sender_time is None else frame.sender_time
+            self._put(k, frame)
+            self.frames = k + 1
+            self.last_tracked = len(frame.devices)
+
+    def _event(self, event: tuple) -> None:
+        if event[0] == "device":
+            _, name, kind, role = event
+            self._slot_of(name)
+            self.kinds[name] = kind
+            self.announced_roles[name] = role
+        elif event[0] == "marker":
+            self._marker_slot(event[1])
+        elif event[0] == "segment":
+            self.segments.append(event[1])
+
+    def _slot_of(self, name: str) -> int:
+        if name not in self._slot:
+            self._slot[name] = len(self.names)
+            self.names.append(name)
+            self.kinds.setdefault(name, "tracker")
+        return self._slot[name]
+
+    def _marker_slot(self, name: str) -> int:
+        if name not in self._mslot:
+            self._mslot[name] = len(self.marker_names)
+            self.marker_names.append(name)
+        return self._mslot[name]
+
+    def _time_of(self, frame: LiveFrame) -> float:
+        s, a = frame.sender_time, frame.arrival
+        if self._prev is None:
+            self.sender_clock = s is not None
+            t = s if s is not None else 0.0
+        else:
+            t0, s0, a0 = self._prev
+            forward = s is not None and s0 is not None and s > s0
+            self.sender_clock &= forward
+            t = max(t0 + (s - s0 if forward else a - a0), t0 + MIN_STEP_S)
+        self._prev = (t, s, a)
+        return t
+
+    def _put(self, k: int, frame: LiveFrame) -> None:
+        idx = [self._slot_of(n) for n in frame.devices]
+        n_dev = len(self.names)
+        self._pos.ensure(k + 1, n_dev)
+        self._rot.ensure(k + 1, n_dev)
+        self._valid.ensure(k + 1, n_dev)
+        if idx:
+            self._pos.data[k, idx] = frame.positions
+            self._rot.data[k, idx] = frame.rotations
+            self._valid.data[k, idx] = True
+        midx = [self._marker_slot(n) for n in frame.markers]
+        self._pts.ensure(k + 1, len(self.marker_names))
+        self._pvalid.ensure(k + 1, len(self.marker_names))
+        if midx:
+            self._pts.data[k, midx] = frame.points
+            self._pvalid.data[k, midx] = True
+
+    # --- calibration steps ---------------------------------------------------------------------------
+
+    @property
+    def now(self) -> float:
+        """The time of the last frame recorded (the recording's clock); 0 before the first."""
+        with self._lock:
+            return float(self._times[self.frames - 1]) if self.frames else 0.0
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first frame to the last (the recording's clock)."""
+        with self._lock:
+            return float(self._times[self.frames - 1] - self._times[0]) if self.frames else 0.0
+
+    def mark_segment_start(self, step: str, point: str | None = None, by: str | None = None) -> float:
+        """A calibration step (FORMATS.md §2.4) starts now (the last frame's time); returns that time.
+        A step still open is ended first."""
+        if self._open is not None:
+            self.mark_segment_end()
+        check_segment(step, point, by, 0.0, 1.0)  # the step, point and toucher, before anything is kept
+        start = self.now
+        self._open = (step, point, by, start)
+        return start
+
+    def mark_segment_end(self) -> Segment:
+        """The open step ends now; one BodyCalError when none is open or it holds no time."""
+        if self._open is None:
+            raise BodyCalError("no calibration step is open", hint="mark its start first")
+        step, point, by, start = self._open
+        self._open = None
+        return self.add_segment(check_segment(step, point, by, start, self.now))
+
+    def add_segment(self, segment: Segment) -> Segment:
+        with self._lock:
+            self.segments.append(segment)
+        return segment
+
+    # --- the result --------------------------------------------------------------------------------
+
+    def recording(self) -> Recording:
+        """What was recorded so far, as a Recording (copies: recording goes on). Roles: the user's,
+        else the stream's; segments the recording cannot hold (a toucher it never saw, a time outside
+        it) are left out and said in the notes. One BodyCalError when nothing was recorded."""
+        with self._lock:
+            n, d, m = self.frames, len(self.names), len(self.marker_names)
+            if n == 0 or d + m == 0:
+                raise BodyCalError("no device or marker arrived", hint="is the sender sending to this port?")
+            devices = [Device(nm, self.kinds[nm], self.user_roles.get(nm) or self.announced_roles.get(nm)
+                              or self.identified_roles.get(nm)) for nm in self.names]
+            rec = Recording(self.name, self._times[:n].copy(), devices, self._pos.ensure(n, d)[:n, :d].copy(),
+                            self._rot.ensure(n, d)[:n, :d].copy(), self._valid.ensure(n, d)[:n, :d].copy(),
+                            list(self.marker_names), self._pts.ensure(n, m)[:n, :m].copy(),
+                            self._pvalid.ensure(n, m)[:n, :m].copy(), source=self.name)
+            segments = list(self.segments)
+        rec.rotations[~rec.valid] = (1.0, 0.0, 0.0, 0.0)
+        _unique_roles(rec)
+        rec.segments = _segments_that_fit(rec, segments)
+        return rec
+
+    def identify_roles(self) -> dict[str, str]:
+        """Roles of the devices that have none, from the first T-pose step recorded so far (AvatarGo's
+        plane through the devices, recording/roles.py, as for a file); kept for what is recorded
+        next. Returns those found; one BodyCalError when the T-pose cannot be read."""
+        rec = self.recording()
+        found = {n: r for n, r in identify_roles(rec).items()
+                 if n not in self.user_roles and not self.announced_roles.get(n)}
+        with self._lock:
+            self.identified_roles.update(found)
+        return found
+
+    def extra(self) -> dict:
+        """What the file's `extra` keeps of the stream (FORMATS.md §6.2): each frame's arrival
+        (seconds after the first) and sender time (null when it gave none)."""
+        with self._lock:
+            n = self.frames
+            arrival = np.round(self._arrival[:n] - (self._arrival[0] if n else 0.0), 6).tolist()
+            sender = [None if np.isnan(s) else float(s) for s in self._sender[:n]]
+        return {"live": {"arrival": arrival, "sender_time": sender, "clock": "sender" if self.sender_clock
+                         else "arrival"}}
+
+    def save(self, path, *, overwrite: bool = False) -> list[Path]:
+        """Write the recording (JSON, or CSV + sidecar for a .csv path; Z up, right-handed, metres),
+        each file whole or not at all (core/outputs.py): checked, written beside, renamed."""
+        return save_whole(self.recording(), path, overwrite=overwrite, extra=self.extra())
+
+
+def save_whole(rec: Recording, path, *, overwrite: bool = False, extra: dict | None = None) -> list[Path]:
+    """`save_recording` through `outputs.replacing`: a CSV and its sidecar are each renamed into place
+    only once both are written."""
+    path = Path(path)
+    targets = [path, path.with_suffix(".json")] if path.suffix.lower() == ".csv" else [path]
+    folder = Path(tempfile.mkdtemp(prefix=".bodycal-rec-", dir=_existing_parent(path)))
+    try:
+        written = save_recording(rec, folder / path.name, up="Z", handedness="right", units="m", extra=extra)
+        with contextlib.ExitStack() as stack:
+            temps = [stack.enter_context(replacing(t, overwrite=overwrite)) for t in targets]
+            for src, tmp in zip(written, temps, strict=True):
+                os.replace(src, tmp)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    return targets
+
+
+def _existing_parent(path: Path) -> Path:
+    folder = path.absolute().parent
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def _checked_roles(roles: dict[str, str]) -> dict[str, str]:
+    seen = {}
+    for name, role in roles.items():
+        if role not in ROLES:
+            raise BodyCalError(f"unknown role {role!r} for {name!r}", field="--role",
+                               hint=f"use one of {', '.join(ROLES)}")
+        if role in seen:
+            raise BodyCalError(f"role '{role}' is given to both '{seen[role]}' and '{name}'", field="--role")
+        seen[role] = name
+    return dict(roles)
+
+
+def _unique_roles(rec: Recording) -> None:
+    """A role announced for two devices (or announced and given): the later one keeps none."""
+    taken = set()
+    for d in rec.devices:
+        if d.role in taken:
+            rec.notes.append(f"role {d.role} of {d.name} left out: another device has it")
+            d.role = None
+        elif d.role:
+            taken.add(d.role)
+
+
+def _segments_that_fit(rec: Recording, segments: list[Segment]) -> list[Segment]:
+    kept = []
+    for s in segments:
+        item = {k: v for k, v in (("step", s.step), ("start", s.start), ("end", s.end), ("point", s.point),
+                                  ("by", s.by)) if v is not None}
+        try:
+            kept += parse_segments([item], rec.time, rec.name, rec.devices, rec.marker_names)
+        except BodyCalError as exc:
+            rec.notes.append(f"calibration step left out: {exc.line()}")
+    return kept
