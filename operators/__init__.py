@@ -1,26 +1,28 @@
 """Operators: thin UI over the engine (`bodycal_addon`) and its Blender glue."""
 
-import bpy
-
 from . import (
     avatar,
+    bake_presets,
     bake_settings,
     bone_map_editor,
     bone_maps,
     calibration,
     devices,
+    docs,
+    preferences,
     preview,
     recording,
     retarget,
     sample_avatars,
     transfer,
 )
+from .registration import register_classes_factory
 
-_MODULES = (sample_avatars, recording, devices, calibration, avatar, bone_maps, bake_settings, retarget, transfer,
-            preview, bone_map_editor)
+_MODULES = (preferences, sample_avatars, recording, devices, calibration, avatar, bone_maps, bake_settings,
+            bake_presets, retarget, transfer, preview, bone_map_editor, docs)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+_register_classes, _unregister_classes = register_classes_factory(CLASSES)
 
 
 def register():

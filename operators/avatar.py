@@ -7,6 +7,8 @@ from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_stora
 from ..bodycal_addon.body.bodymodel import BodyModel
 from ..bodycal_addon.core.errors import BodyCalError
 from ..bodycal_addon.retarget.placement import avatar_warnings
+from .background_work import BackgroundWork
+from .preferences import StartsInFolder
 from .reporting import reports_errors
 
 
@@ -89,7 +91,8 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
     bl_label = "Assign Bone"
     bl_options = {"REGISTER", "UNDO"}
 
-    segment: bpy.props.StringProperty(name="Segment")
+    segment: bpy.props.StringProperty(name="Segment",
+                                      description="The canonical body segment to map (upperarm_l, spine...)")
     bone: bpy.props.StringProperty(name="Bone", description="Bone name (spine/neck: comma-separated, bottom-up); "
                                    "empty = the active bone")
 
@@ -122,8 +125,10 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
     bl_label = "Set Hinge Axis"
     bl_options = {"REGISTER", "UNDO"}
 
-    bone: bpy.props.EnumProperty(name="Hinge", items=_HINGE_ITEMS)
-    axis: bpy.props.EnumProperty(name="Axis", items=[(k, k, f"The bone's local {k}") for k in _AXES], default="X")
+    bone: bpy.props.EnumProperty(name="Hinge", items=_HINGE_ITEMS,
+                                 description="The hinge joint's bone (elbow: forearm, knee: shin)")
+    axis: bpy.props.EnumProperty(name="Axis", items=[(k, k, f"The bone's local {k}") for k in _AXES], default="X",
+                                description="The local axis of the avatar's bone the hinge flexes about")
 
     @classmethod
     def poll(cls, context):
@@ -141,10 +146,11 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
+class BODYCAL_OT_calibrate_avatar(BackgroundWork, bpy.types.Operator):
     """Measure the avatar's surface by raycasting onto its mesh (capsules, torso, jaw, skull,
     palms, soles) and store the body model on the armature"""
 
+    _doing, _cancelled = "calibrating the avatar", "Avatar calibration cancelled"
     bl_idname = "bodycal.calibrate_avatar"
     bl_label = "Calibrate Avatar"
     bl_options = {"REGISTER", "UNDO"}
@@ -153,16 +159,29 @@ class BODYCAL_OT_calibrate_avatar(bpy.types.Operator):
     def poll(cls, context):
         return _poll_armature(cls, context)
 
+    def _survey(self, context):
+        """The armature, its rig and its meshes' BVH trees, read on the main thread."""
+        arm = context_armature(context)
+        return arm, *avatar_calibration.prepare_survey(arm, depsgraph=context.evaluated_depsgraph_get())
+
     @reports_errors
     def execute(self, context):
-        arm = context_armature(context)
-        wm = context.window_manager
-        wm.progress_begin(0, 1)
-        try:
-            model = avatar_calibration.calibrate_avatar(arm, depsgraph=context.evaluated_depsgraph_get())
-            avatar_storage.store_model(arm, model)
-        finally:
-            wm.progress_end()
+        arm, rig, caster = self._survey(context)
+        return self._store(arm, avatar_calibration.measure(rig, caster, arm.name))
+
+    @reports_errors
+    def invoke(self, context, _event):
+        """The rays in a worker thread: the progress in the status bar, Esc cancels."""
+        arm, rig, caster = self._survey(context)
+        self._arm = arm
+        return self._start(context, lambda progress, cancel: avatar_calibration.measure(
+            rig, caster, arm.name, progress=progress, cancel=cancel))
+
+    def _done(self, _context, model):
+        return self._store(self._arm, model)
+
+    def _store(self, arm, model):
+        avatar_storage.store_model(arm, model)
         q = model.calibration["quality"]
         rejected = sum(v["rejected"] for v in q.values())
         note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""
@@ -222,12 +241,13 @@ class BODYCAL_OT_apply_surface_edits(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_export_avatar_model(bpy.types.Operator, ExportHelper):
+class BODYCAL_OT_export_avatar_model(StartsInFolder, bpy.types.Operator, ExportHelper):
     """Write the avatar body model stored on the armature as a *.body.json file"""
 
     bl_idname = "bodycal.export_avatar_model"
     bl_label = "Export Avatar Model"
     bl_options = {"REGISTER"}
+    _folder = "avatars_folder"
 
     filename_ext = ".json"
     filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
@@ -249,12 +269,13 @@ class BODYCAL_OT_export_avatar_model(bpy.types.Operator, ExportHelper):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_import_avatar_model(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Read a *.body.json avatar model (an authored configuration) onto the active armature"""
 
     bl_idname = "bodycal.import_avatar_model"
     bl_label = "Import Avatar Model"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "avatars_folder"
 
     filename_ext = ".json"
     filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
@@ -279,7 +300,7 @@ class BODYCAL_OT_import_avatar_model(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_import_avatar(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_import_avatar(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Import an avatar (.fbx, .glb, .gltf, or .vrm with a VRM importer add-on) with Blender's own
     importer and make its armature the active object; a .blend avatar is opened or appended as
     usual (File > Open, File > Append)"""
@@ -287,6 +308,7 @@ class BODYCAL_OT_import_avatar(bpy.types.Operator, ImportHelper):
     bl_idname = "bodycal.import_avatar"
     bl_label = "Import Avatar"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "avatars_folder"
 
     filter_glob: bpy.props.StringProperty(default="*.fbx;*.glb;*.gltf;*.vrm", options={"HIDDEN"})
 

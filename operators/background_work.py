@@ -8,6 +8,23 @@ import threading
 from ..bodycal_addon.core.errors import Cancelled
 from .reporting import reports_errors
 
+# What a running job lets through: looking around the viewport (orbit, pan, zoom, the view keys,
+# trackpad and NDOF) and Blender's own timers. Anything else (selecting, editing, undo, another
+# bake) waits until the job has finished: it writes onto the objects it read when it started.
+NAVIGATION_EVENTS = frozenset({
+    "MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "WHEELINMOUSE",
+    "WHEELOUTMOUSE", "TRACKPADPAN", "TRACKPADZOOM", "MOUSEROTATE", "MOUSESMARTZOOM", "HOME",
+    *(f"NUMPAD_{k}" for k in (*"0123456789", "PERIOD", "SLASH", "ASTERIX", "PLUS", "MINUS")),
+})
+
+
+def passes_through(context, event) -> bool:
+    kind = event.type
+    if kind in NAVIGATION_EVENTS or kind.startswith(("NDOF_", "TIMER")):
+        return True
+    # Alt + left button orbits with Emulate 3 Button Mouse (Preferences > Input).
+    return kind == "LEFTMOUSE" and event.alt and context.preferences.inputs.use_mouse_emulate_3_button
+
 
 class BackgroundWork:
     """Mixin for an operator whose `invoke` calls `self._start(context, work)`. `work(progress,
@@ -36,8 +53,14 @@ class BackgroundWork:
         self._timer = wm.event_timer_add(0.1, window=context.window)
         wm.progress_begin(0, 100)
         wm.modal_handler_add(self)
-        context.workspace.status_text_set(f"BodyCal: {self._doing}... (Esc to cancel)")
+        self._show_progress(context)
         return {"RUNNING_MODAL"}
+
+    def _show_progress(self, context):
+        percent = int(100 * self._progress)
+        context.window_manager.progress_update(percent)
+        context.workspace.status_text_set(f"BodyCal: {self._doing}... {percent}% (Esc to cancel)"
+                                          if not self._cancel.is_set() else f"BodyCal: cancelling {self._doing}...")
 
     def _cleanup(self, context):
         wm = context.window_manager
@@ -49,11 +72,12 @@ class BackgroundWork:
     def modal(self, context, event):
         if event.type == "ESC":
             self._cancel.set()
+            return {"RUNNING_MODAL"}
         if event.type != "TIMER":
-            return {"RUNNING_MODAL"}
-        context.window_manager.progress_update(int(100 * self._progress))
+            return {"PASS_THROUGH"} if passes_through(context, event) else {"RUNNING_MODAL"}
+        self._show_progress(context)
         if self._thread.is_alive():
-            return {"RUNNING_MODAL"}
+            return {"PASS_THROUGH"}  # another handler's timer may be the one that fired
         self._cleanup(context)
         error = self._result.get("error")
         if isinstance(error, Cancelled):

@@ -61,12 +61,15 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
     armature: bpy.props.PointerProperty(
         name="Avatar", type=bpy.types.Object, poll=_is_armature,
         description="Armature to animate (default: the selected armatures)")
-    placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object")
+    placement: bpy.props.EnumProperty(name="Placement", items=PLACEMENT_ITEMS, default="object",
+                                      description="Where the performance plays")
     plant_feet: bpy.props.BoolProperty(
         name="Plant Feet", default=True,
         description="Hold each foot still and on the floor while the performer stands on it (every method)")
-    root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root")
-    rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk")
+    root_motion: bpy.props.EnumProperty(name="Root Motion", items=ROOT_MOTION_ITEMS, default="root",
+                                        description="Which bone carries the travel and heading")
+    rigify_target: bpy.props.EnumProperty(name="Rigify Target", items=RIGIFY_TARGET_ITEMS, default="fk",
+                                          description="Which bones of a generated Rigify rig get the keys")
     replace: bpy.props.BoolProperty(
         name="Replace Action", default=False,
         description="Overwrite an existing action of the same name instead of creating a new one")
@@ -225,7 +228,8 @@ CLASSES = (BODYCAL_PG_bake_settings,)
 
 
 def register_properties():
-    bpy.types.Scene.bodycal_bake = bpy.props.PointerProperty(type=BODYCAL_PG_bake_settings)
+    bpy.types.Scene.bodycal_bake = bpy.props.PointerProperty(
+        type=BODYCAL_PG_bake_settings, description="BodyCal: the bake settings Retarget and Transfer share")
 
 
 def unregister_properties():

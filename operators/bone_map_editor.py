@@ -142,8 +142,9 @@ class BODYCAL_PG_bone_map_row(bpy.types.PropertyGroup):
 
     kind: bpy.props.EnumProperty(items=[("GROUP", "Group", "A group's header"),
                                         ("SEGMENT", "Segment", "A segment mapped to one bone"),
-                                        ("CHAIN", "Chain", "The spine or neck: bones bottom-up")])
-    group: bpy.props.IntProperty(min=0)
+                                        ("CHAIN", "Chain", "The spine or neck: bones bottom-up")],
+                                 description="What the row shows")
+    group: bpy.props.IntProperty(min=0, description="The row's group (operators/bone_map_editor.GROUPS)")
     bone: bpy.props.StringProperty(
         name="Bone", options=set(), get=_get_bone, set=_set_bone,
         description="The armature's bone for this segment (empty: unmapped); saved in the armature's bone map")
@@ -227,7 +228,7 @@ class BODYCAL_OT_show_bone_map(bpy.types.Operator):
 
 
 class _SegmentEdit:
-    segment: bpy.props.StringProperty(name="Segment", options={"SKIP_SAVE"})
+    segment: bpy.props.StringProperty(name="Segment", options={"SKIP_SAVE"}, description="The body segment to edit")
 
     @classmethod
     def poll(cls, context):
@@ -276,7 +277,8 @@ def register_properties():
         type=BODYCAL_PG_bone_map_row, options={"HIDDEN"},
         description="The rows of BodyCal's bone map editor (the map itself is the bodycal_bone_map property)")
     bpy.types.Object.bodycal_bone_map_index = bpy.props.IntProperty(
-        name="Active Segment", options={"HIDDEN"}, default=0, min=0)
+        name="Active Segment", options={"HIDDEN"}, default=0, min=0,
+        description="The bone map editor's active row")
 
 
 def unregister_properties():

@@ -5,6 +5,7 @@ import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..bodycal_addon.core.errors import BodyCalError
+from .preferences import StartsInFolder
 from .reporting import reports_errors
 
 # {scene name: (the last refusal's line, whether Accept Defaults would pass)}: what the panel shows
@@ -70,11 +71,12 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_save_user_model(bpy.types.Operator, ExportHelper):
+class BODYCAL_OT_save_user_model(StartsInFolder, bpy.types.Operator, ExportHelper):
     """Save the scene's user body model as a .body.json file"""
 
     bl_idname = "bodycal.save_user_model"
     bl_label = "Save User Model"
+    _folder = "recordings_folder"
     filename_ext = ".body.json"
     filter_glob: bpy.props.StringProperty(default="*.body.json", options={"HIDDEN"})
 
@@ -87,6 +89,11 @@ class BODYCAL_OT_save_user_model(bpy.types.Operator, ExportHelper):
             return False
         return True
 
+    def _suggested_name(self, context) -> str:
+        from ..bodycal_addon.blender.calibration_scene import load_user_model
+
+        return bpy.path.clean_name(load_user_model(context.scene).name) + self.filename_ext
+
     @reports_errors
     def execute(self, context):
         from ..bodycal_addon.blender.calibration_scene import load_user_model
@@ -96,12 +103,13 @@ class BODYCAL_OT_save_user_model(bpy.types.Operator, ExportHelper):
         return {"FINISHED"}
 
 
-class BODYCAL_OT_load_user_model(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_load_user_model(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Load a user body model (.body.json) into the scene"""
 
     bl_idname = "bodycal.load_user_model"
     bl_label = "Load User Model"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "recordings_folder"
     filename_ext = ".json"
     filter_glob: bpy.props.StringProperty(default="*.body.json;*.json", options={"HIDDEN"})
 

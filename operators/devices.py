@@ -109,7 +109,8 @@ def register_properties():
     bpy.types.Object.bodycal_device_role = bpy.props.EnumProperty(
         name="Role", items=ROLE_ITEMS, get=_get_role, set=_set_role,
         description="The body part this device is on (its bodycal_role): what calibration and retargeting use")
-    bpy.types.Scene.bodycal_device_index = bpy.props.IntProperty(name="Active Device", default=0, min=0)
+    bpy.types.Scene.bodycal_device_index = bpy.props.IntProperty(name="Active Device", default=0, min=0,
+                                                                 description="The Devices list's active row")
 
 
 def unregister_properties():

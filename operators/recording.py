@@ -5,6 +5,7 @@ from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 
 from ..bodycal_addon.blender import recording_scene
 from ..bodycal_addon.recording import io as recording_io
+from .preferences import StartsInFolder
 from .reporting import reports_errors
 
 STEP_MARKER_ITEMS = [  # recording_scene.STEP_MARKERS
@@ -14,12 +15,13 @@ STEP_MARKER_ITEMS = [  # recording_scene.STEP_MARKERS
 ]
 
 
-class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
+class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelper):
     """Import a tracker recording (.bcrec.json, .csv, .c3d) as one animated empty per device and marker"""
 
     bl_idname = "bodycal.import_recording"
     bl_label = "Import BodyCal Recording"
     bl_options = {"REGISTER", "UNDO"}
+    _folder = "recordings_folder"
 
     filter_glob: bpy.props.StringProperty(default=";".join(recording_io.RECORDING_GLOBS), options={"HIDDEN"})
     frame_start: bpy.props.IntProperty(
@@ -68,7 +70,7 @@ class BODYCAL_OT_import_recording(bpy.types.Operator, ImportHelper):
     @reports_errors
     def invoke(self, context, event):
         if not self.properties.is_property_set("filepath"):
-            return ImportHelper.invoke(self, context, event)
+            return StartsInFolder.invoke(self, context, event)  # the file browser, in the Recordings folder
         # A file dropped on the viewport or the outliner (Blender 4.2+ passes its path): the
         # handler claims every .json, .csv and .c3d, so only a recording goes on to the options.
         recording_io.check_recording_file(self.filepath)

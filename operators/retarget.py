@@ -1,5 +1,6 @@
 """Retarget and bake: the last step of the sidebar flow, the scene's recording as the take of the
-shared bake (operators/bake_settings.BakeOperator); and the export of a baked avatar."""
+shared bake (operators/bake_settings.BakeOperator); and the export of a baked avatar (also in
+File > Export)."""
 
 from pathlib import Path
 
@@ -11,13 +12,14 @@ from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
 from ..bodycal_addon.recording.filters import OneEuro
 from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
+from .preferences import StartsInFolder, method_property
 from .reporting import reports_errors
 
 
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     """What only a recording's bake has (the shared bake settings: scene.bodycal_bake)."""
 
-    method: bpy.props.EnumProperty(name="Method", items=method_items(RecordingTake.kind), default="egocentric")
+    method: method_property(method_items(RecordingTake.kind), "Method", "How the recording drives the avatar")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Devices", default=True,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
@@ -33,7 +35,8 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     filter_rot_beta: bpy.props.FloatProperty(
         name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
+                                          description="The last bake's figures, per avatar")
 
     def one_euro(self) -> OneEuro | None:
         if not self.use_filter:
@@ -76,18 +79,19 @@ on each"""
         return context.scene.bodycal_retarget
 
 
-class BODYCAL_OT_export_animation(bpy.types.Operator, ExportHelper):
+class BODYCAL_OT_export_animation(StartsInFolder, bpy.types.Operator, ExportHelper):
     """Export the active armature with its meshes and its baked action (FBX, glTF or BVH), with the
 options a game engine expects"""
 
     bl_idname = "bodycal.export_animation"
     bl_label = "Export Baked Avatar"
     bl_options = {"REGISTER"}
+    _folder = "export_folder"
 
     filename_ext = ".fbx"
     filter_glob: bpy.props.StringProperty(default=";".join(f"*{s}" for s in EXPORT_SUFFIXES), options={"HIDDEN"})
     file_format: bpy.props.EnumProperty(
-        name="Format", default=".fbx",
+        name="Format", default=".fbx", description="The file format: sets the file name's extension",
         items=[(".fbx", "FBX", "Armature, meshes and the action; Y up, no leaf bones (Unity, Unreal)"),
                (".glb", "glTF Binary (.glb)", "One binary file: armature, skinned meshes and the action"),
                (".gltf", "glTF (.gltf)", "One text file with its buffers embedded"),
@@ -98,6 +102,9 @@ options a game engine expects"""
         self.filename_ext = self.file_format
         if self.filepath:
             self.filepath = str(Path(self.filepath).with_suffix(self.file_format))
+
+    def _suggested_name(self, context) -> str:
+        return bpy.path.clean_name(context.active_object.name) + self.file_format
 
     def check(self, context):
         self.filename_ext = self.file_format
@@ -128,8 +135,21 @@ options a game engine expects"""
 CLASSES = (BODYCAL_PG_retarget_settings, BODYCAL_OT_retarget_bake, BODYCAL_OT_export_animation)
 
 
+def menu_export(self, _context):
+    self.layout.operator(BODYCAL_OT_export_animation.bl_idname, text="BodyCal Baked Avatar (.fbx, .glb, .gltf, .bvh)")
+
+
+def register_menus():
+    bpy.types.TOPBAR_MT_file_export.append(menu_export)
+
+
+def unregister_menus():
+    bpy.types.TOPBAR_MT_file_export.remove(menu_export)
+
+
 def register_properties():
-    bpy.types.Scene.bodycal_retarget = bpy.props.PointerProperty(type=BODYCAL_PG_retarget_settings)
+    bpy.types.Scene.bodycal_retarget = bpy.props.PointerProperty(
+        type=BODYCAL_PG_retarget_settings, description="BodyCal: what only Retarget and Bake has")
 
 
 def unregister_properties():

@@ -9,6 +9,7 @@ from ..bodycal_addon.blender.fcurves import action_bones
 from ..bodycal_addon.recording.filters import OneEuro
 from ..bodycal_addon.retarget.takes import CharacterTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
+from .preferences import method_property
 
 
 def _is_armature(_self, obj):
@@ -30,11 +31,13 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action, poll=_animates_source,
                                       description="The source's action (default: its active one); "
                                                   "only actions that animate the source's bones are listed")
-    method: bpy.props.EnumProperty(name="Method", items=method_items(CharacterTake.kind), default="egocentric")
+    method: method_property(method_items(CharacterTake.kind), "Method",
+                            "How the source character's motion drives the avatar")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Source", default=False,
         description="One Euro filter on the source's pose before transferring (its action is not changed)")
-    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"})
+    last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
+                                          description="The last transfer's figures, per avatar")
 
 
 class BODYCAL_OT_transfer_animation(BakeOperator, bpy.types.Operator):
@@ -82,7 +85,8 @@ CLASSES = (BODYCAL_PG_transfer_settings, BODYCAL_OT_transfer_animation)
 
 
 def register_properties():
-    bpy.types.Scene.bodycal_transfer = bpy.props.PointerProperty(type=BODYCAL_PG_transfer_settings)
+    bpy.types.Scene.bodycal_transfer = bpy.props.PointerProperty(
+        type=BODYCAL_PG_transfer_settings, description="BodyCal: what only Transfer Animation has")
 
 
 def unregister_properties():

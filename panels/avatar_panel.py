@@ -4,10 +4,14 @@ sub-panel, panels/bone_map_panel.py)."""
 import bpy
 
 from ..bodycal_addon.blender import avatar_storage, surface_helpers
+from ..bodycal_addon.core import paths
 from ..operators.avatar import context_armature
+from .conventions import draw_help
 
 
 class BODYCAL_PT_avatar(bpy.types.Panel):
+    """The avatar's bone map and its surface measured from its mesh"""
+
     bl_idname = "BODYCAL_PT_avatar"
     bl_label = "Avatar"
     bl_space_type = "VIEW_3D"
@@ -15,9 +19,19 @@ class BODYCAL_PT_avatar(bpy.types.Panel):
     bl_category = "BodyCal"
     bl_parent_id = "BODYCAL_PT_main"
 
+    def draw_header_preset(self, _context):
+        draw_help(self.layout, "Avatar")
+
     def draw(self, context):
         layout = self.layout
-        layout.operator("bodycal.import_avatar", icon="IMPORT")
+        col = layout.column(align=True)
+        col.operator("bodycal.import_avatar", icon="IMPORT")
+        row = col.row(align=True)
+        row.operator("bodycal.add_procedural_avatar", text="Procedural", icon="OUTLINER_OB_ARMATURE")
+        # The samples come with the source repository, not the extension zip: an installed
+        # extension would show the button greyed out for good.
+        if paths.shared_avatar_files():
+            row.operator("bodycal.load_sample_avatars", text="Samples", icon="IMPORT")
         arm = context_armature(context)
         if arm is None:
             layout.label(text="Select an avatar's armature or mesh", icon="INFO")

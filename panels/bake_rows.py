@@ -1,5 +1,7 @@
 """The sidebar rows of the bake settings Retarget and Bake and Transfer Animation share
-(`scene.bodycal_bake`, operators/bake_settings.py)."""
+(`scene.bodycal_bake`, operators/bake_settings.py), laid out for `use_property_split`."""
+
+from .conventions import wrapped_label
 
 
 def draw_placement(col, bake) -> None:
@@ -11,15 +13,14 @@ def draw_placement(col, bake) -> None:
 
 
 def draw_keys(col, bake) -> None:
-    row = col.row(align=True)
-    row.prop(bake, "replace", toggle=True)
-    row.prop(bake, "push_to_nla", toggle=True)
+    sub = col.column(heading="Action")
+    sub.prop(bake, "replace")
+    sub.prop(bake, "push_to_nla")
     sub = col.column(align=True)
     sub.prop(bake, "frame_range")
     if bake.frame_range == "custom":
-        row = sub.row(align=True)
-        row.prop(bake, "frame_first")
-        row.prop(bake, "frame_last")
+        sub.prop(bake, "frame_first")
+        sub.prop(bake, "frame_last")
     sub.prop(bake, "set_scene_range")
     sub = col.column(align=True)
     sub.prop(bake, "output_fps")
@@ -28,8 +29,9 @@ def draw_keys(col, bake) -> None:
     sub.prop(bake, "location_tolerance")
 
 
-def draw_last_result(layout, settings) -> None:
+def draw_last_result(layout, settings, context) -> None:
+    """The last bake's figures, one avatar's line at a time, wrapped to the sidebar's width."""
     if settings.last_result:
         box = layout.box()
         for part in settings.last_result.split("; "):
-            box.label(text=part)
+            wrapped_label(box, context, part)

@@ -110,6 +110,8 @@ def _summary(layout, arm, state) -> None:
 
 
 class BODYCAL_PT_bone_map(bpy.types.Panel):
+    """Which bone of the armature is each body segment: detected from the bone names, editable"""
+
     bl_idname = "BODYCAL_PT_bone_map"
     bl_label = "Bone Map"
     bl_space_type = "VIEW_3D"

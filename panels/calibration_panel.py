@@ -12,6 +12,7 @@ from ..bodycal_addon.blender.calibration_scene import MODEL_PROP
 from ..bodycal_addon.calibration import CALIBRATION_STEPS, coverage
 from ..bodycal_addon.calibration.coverage import BODY_JOINTS
 from ..operators.calibration import REFUSED
+from .conventions import draw_help, wrapped_label
 
 _STEP_ORDER = (*CALIBRATION_STEPS, "touch")
 _cache = {"raw": None, "cal": {}}
@@ -48,26 +49,18 @@ def quality_text(q: dict) -> str:
     return ", ".join(parts)
 
 
-def _wrapped(col, text: str, width: int) -> None:
-    """`text` as labels of about `width` characters, cut at spaces (a refusal is one long line)."""
-    line = ""
-    for word in text.split():
-        if line and len(line) + 1 + len(word) > width:
-            col.label(text=line)
-            line = word
-        else:
-            line = f"{line} {word}".strip()
-    if line:
-        col.label(text=line)
-
-
 class BODYCAL_PT_calibration(bpy.types.Panel):
+    """The performer's body measured from the recording's calibration steps"""
+
     bl_idname = "BODYCAL_PT_calibration"
     bl_label = "User Calibration"
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "BodyCal"
     bl_parent_id = "BODYCAL_PT_main"
+
+    def draw_header_preset(self, _context):
+        draw_help(self.layout, "User Calibration")
 
     def draw(self, context):
         layout = self.layout
@@ -93,20 +86,21 @@ class BODYCAL_PT_calibration(bpy.types.Panel):
             else:
                 row.label(text=label, icon="RADIOBUT_OFF")
         for line in cal.get("warnings", []):
-            layout.label(text=line, icon="ERROR")
+            wrapped_label(layout, context, line, icon="ERROR")
         if cal:
             cov = coverage(cal)
-            layout.label(text=f"Measured {len(cov.measured)} of {len(BODY_JOINTS)} body joints, "
-                              f"{len(cov.defaulted)} defaulted", icon="ERROR" if cov.mostly_guessed else "INFO")
+            wrapped_label(layout, context, f"Measured {len(cov.measured)} of {len(BODY_JOINTS)} body joints, "
+                                           f"{len(cov.defaulted)} defaulted",
+                          icon="ERROR" if cov.mostly_guessed else "INFO")
             if cal.get("defaulted"):
-                layout.label(text=f"{len(cal['defaulted'])} values defaulted from the eye height", icon="INFO")
+                wrapped_label(layout, context, f"{len(cal['defaulted'])} values defaulted from the eye height",
+                              icon="INFO")
         col = layout.column(align=True)
         col.operator("bodycal.calibrate_user", icon="PLAY")
         refused = REFUSED.get(scene.name)
         if refused is not None:
             line, can_accept = refused
-            width = max(context.region.width // 7, 30) if context.region else 60
-            _wrapped(layout.column(align=True), line, width)
+            wrapped_label(layout, context, line)
             if can_accept:
                 op = col.operator("bodycal.calibrate_user", text="Calibrate, Accept Defaults", icon="ERROR")
                 op.allow_defaults = True

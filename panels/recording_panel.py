@@ -16,6 +16,7 @@ from ..bodycal_addon.blender.recording_scene import (
     scene_recording_collection,
 )
 from .calibration_panel import steps_in_scene
+from .conventions import draw_help, wrapped_label
 
 KIND_LABELS = {"hmd": "HMD", "controller": "Controller", "tracker": "Tracker", "rigid_body": "Rigid Body"}
 KIND_ICONS = {"hmd": "HIDE_OFF", "controller": "OBJECT_DATA", "tracker": "EMPTY_AXIS", "rigid_body": "HAND"}
@@ -90,12 +91,17 @@ class BODYCAL_UL_devices(bpy.types.UIList):
 
 
 class BODYCAL_PT_recording(bpy.types.Panel):
+    """The scene's recording: import one or make one from animated objects, and what it holds"""
+
     bl_idname = "BODYCAL_PT_recording"
     bl_label = "Recording"
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "BodyCal"
     bl_parent_id = "BODYCAL_PT_main"
+
+    def draw_header_preset(self, _context):
+        draw_help(self.layout, "Recording")
 
     def draw(self, context):
         layout = self.layout
@@ -107,13 +113,14 @@ class BODYCAL_PT_recording(bpy.types.Panel):
             layout.label(text="No recording in this scene", icon="INFO")
             return
         box = layout.box().column(align=True)
-        box.label(text=lines[0], icon="ANIM_DATA")
+        wrapped_label(box, context, lines[0], icon="ANIM_DATA")
         for line in lines[1:]:
-            box.label(text=line)
+            wrapped_label(box, context, line)
 
 
 class BODYCAL_PT_recording_devices(bpy.types.Panel):
-    """Sidebar > BodyCal > Recording > Devices: where every error about a missing role points."""
+    """The recording's devices and markers, each device's role editable: where every error about a missing role
+    points"""
 
     bl_idname = "BODYCAL_PT_recording_devices"
     bl_label = "Devices"
@@ -132,11 +139,12 @@ class BODYCAL_PT_recording_devices(bpy.types.Panel):
         layout.template_list("BODYCAL_UL_devices", "", coll, "objects", context.scene, "bodycal_device_index",
                              rows=6)
         for name, problem in device_roles.role_problems(coll).items():
-            layout.label(text=f"{coll.objects[name].get(DEVICE_PROP, name)}: {problem}", icon="ERROR")
+            wrapped_label(layout, context, f"{coll.objects[name].get(DEVICE_PROP, name)}: {problem}", icon="ERROR")
         active = context.scene.bodycal_device_index
         if 0 <= active < len(coll.objects) and DEVICE_PROP in coll.objects[active]:
             origin = device_roles.origin_of(coll.objects[active])
-            layout.label(text=f"{coll.objects[active][DEVICE_PROP]}: role {ORIGIN_HINTS[origin]}", icon="INFO")
+            wrapped_label(layout, context, f"{coll.objects[active][DEVICE_PROP]}: role {ORIGIN_HINTS[origin]}",
+                          icon="INFO")
         row = layout.row(align=True)
         row.operator("bodycal.identify_roles", icon="OUTLINER_OB_ARMATURE")
         row.operator("bodycal.identify_roles", text="All Devices").everything = True

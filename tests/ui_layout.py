@@ -1,7 +1,15 @@
 """A UI layout stand-in for background mode (no window draws panels there): a panel's `draw`
 given it records what it draws, as ("prop", data, name), ("prop_search", data, name, search_data,
-search_name), ("template_list", listtype, data, propname), ("operator", idname) and ("label", text);
-every sub-layout (column, row, box...) records into the same log."""
+search_name), ("template_list", listtype, data, propname), ("operator", idname), ("label", text),
+("popover", panel) and ("panel", idname) (a layout panel, drawn open); every sub-layout (column,
+row, box...) records into the same log."""
+
+
+class OperatorEntry(tuple):
+    """("operator", idname), and `.props`: the operator's properties as the panel set them."""
+
+    def __init__(self, _items):
+        self.props = type("Props", (), {})()
 
 
 class RecordingLayout:
@@ -9,8 +17,9 @@ class RecordingLayout:
         self.log = log
 
     def operator(self, idname, **_kw):
-        self.log.append(("operator", idname))
-        return type("Props", (), {})()
+        entry = OperatorEntry(("operator", idname))
+        self.log.append(entry)
+        return entry.props
 
     def prop(self, data, name, **_kw):
         self.log.append(("prop", data, name))
@@ -24,17 +33,21 @@ class RecordingLayout:
     def label(self, text="", **_kw):
         self.log.append(("label", text))
 
+    def popover(self, panel, **_kw):
+        self.log.append(("popover", panel))
+
     def panel(self, idname, **_kw):
-        """A collapsible sub-panel (Blender 4.1+), open: its header and body layouts."""
+        """A layout panel (Blender 4.1+): its header and its body, drawn open."""
         self.log.append(("panel", idname))
-        return RecordingLayout(self.log), RecordingLayout(self.log)
+        return type(self)(self.log), type(self)(self.log)
 
     def __getattr__(self, name):
         return lambda *a, **k: type(self)(self.log)
 
 
-def draw(panel_type, context) -> list:
-    """What `panel_type.draw` draws in `context`, as the log above."""
+def draw(panel_type, context, method="draw") -> list:
+    """What `panel_type.draw` (or another of its draw methods: "draw_header", "draw_header_preset")
+    draws in `context`, as the log above."""
     log = []
-    panel_type.draw(type("P", (), {"layout": RecordingLayout(log)})(), context)
+    getattr(panel_type, method)(type("P", (), {"layout": RecordingLayout(log)})(), context)
     return log

@@ -87,6 +87,7 @@ SKULL_RAYS = [(180.0 + a, e) for e in (0.0, 20.0, 40.0, 60.0) for a in (-60.0, -
 # Palm ray origins: fraction of the way from the wrist to the index (I) or pinky (P) mcp.
 PALM_RAYS = (("I", 0.85), ("P", 0.85), ("P", 0.30), ("I", 0.30))
 SOLE_HEIGHT = 0.2  # of the ankle's height above the floor
+SOLE_RAYS = 6  # the sole's outline: heel, both sides of the heel and of the toe, the toe
 
 
 class RayCaster(Protocol):
@@ -178,6 +179,17 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
     model.extra["rig"] = rig.rig_dict()
     model.extra["rays_cast"] = caster.rays
     return model
+
+
+def planned_rays(rig: ArmatureReading) -> int:
+    """How many rays `surface_from_rays` casts on `rig` (a progress bar's end): each capsule's probe
+    ring and its station rings, the head top, the skull, the jaw, the torso and its belly centre,
+    and per side the palm, the two floor rays and the sole's outline."""
+    capsules = sum(1 for b in canonical_bones(rig) if b.name in sl.CAPSULE_BONES)
+    head = 1 + len(SKULL_RAYS) + len(JAW_RAYS)
+    torso = len(TORSO_RAYS) + len(sl.BELLY_CENTRE_UV)
+    per_side = len(PALM_RAYS) + 2 + SOLE_RAYS
+    return capsules * (1 + len(CAPSULE_STATIONS)) * CAPSULE_RAYS + head + torso + len(sk.SIDES) * per_side
 
 
 def _measure_capsules(survey: _Survey) -> None:

@@ -4,6 +4,10 @@ in the rest pose (the armature is shown at rest while the meshes are read, whate
 it stands in the scene (object transforms, scale and parenting included: rays are cast in world
 space and moved into each mesh object's local space). The rays and the fits are
 the engine's (`bodycal_addon/avatar/rays.py`, which documents every ray).
+
+`prepare_survey` reads everything from Blender (the main thread's part); `measure` then casts the
+rays on the BVH trees alone, so a worker thread may run it, with progress and Esc (the sidebar's
+Calibrate Avatar); `calibrate_avatar` does both.
 """
 
 from __future__ import annotations
@@ -12,10 +16,11 @@ import contextlib
 
 import numpy as np
 
+from ..avatar.armature import ArmatureReading
 from ..avatar.estimate import estimate_surface
-from ..avatar.rays import surface_from_rays
+from ..avatar.rays import planned_rays, surface_from_rays
 from ..body.bodymodel import BodyModel
-from ..core.errors import BodyCalError
+from ..core.errors import BodyCalError, Cancelled
 from ..retarget.placement import moved_to
 from . import avatar_rig, avatar_storage
 
@@ -50,9 +55,17 @@ class Caster:
             inv = np.linalg.inv(m)
             self.trees.append((tree, m, inv, Matrix(m.tolist())))
         self.rays = 0
+        self.planned = 0
+        self.progress = self.cancel = None
+
+    def watch(self, planned: int, progress=None, cancel=None) -> None:
+        """Report progress(fraction of `planned` rays cast) and raise Cancelled once cancel() is true."""
+        self.planned, self.progress, self.cancel = max(planned, 1), progress, cancel
 
     def cast(self, origin, direction, max_dist: float = 1e4):
         """(hit world, distance) of the first hit, or None."""
+        if self.cancel is not None and self.cancel():
+            raise Cancelled()
         best = None
         o4 = np.append(origin, 1.0)
         for tree, m, inv, _ in self.trees:
@@ -66,6 +79,8 @@ class Caster:
             if d <= max_dist and (best is None or d < best[1]):
                 best = (w, d)
         self.rays += 1
+        if self.progress is not None:
+            self.progress(min(self.rays / self.planned, 1.0))
         return best
 
     def nearest(self, point):
@@ -106,6 +121,20 @@ def in_rest_position(arm):
 
 def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) -> BodyModel:
     """Surface-calibrate the avatar of armature object `arm` (rest pose as it stands)."""
+    rig, caster = prepare_survey(arm, meshes, depsgraph)
+    return measure(rig, caster, name or arm.name)
+
+
+def measure(rig: ArmatureReading, caster: Caster, name: str, progress=None, cancel=None) -> BodyModel:
+    """The surface calibration's rays and fits on what `prepare_survey` read; reads no Blender
+    data. progress(f), f in [0, 1], as the rays are cast; raises Cancelled once cancel() is true."""
+    caster.watch(planned_rays(rig), progress, cancel)
+    return surface_from_rays(rig, caster, name)
+
+
+def prepare_survey(arm, meshes=None, depsgraph=None) -> tuple[ArmatureReading, Caster]:
+    """What the surface calibration of armature object `arm` reads from Blender: its rig, and the
+    BVH trees of its meshes as they stand in the rest position."""
     import bpy
 
     rig = avatar_rig.read_rig(arm)
@@ -119,7 +148,7 @@ def calibrate_avatar(arm, meshes=None, name: str | None = None, depsgraph=None) 
     if not caster.trees:
         raise BodyCalError(f"none of the meshes skinned to it ({', '.join(o.name for o in meshes)}) is in the "
                            "view layer", source=arm.name, hint="include the avatar's collection in the view layer")
-    return surface_from_rays(rig, caster, name or arm.name)
+    return rig, caster
 
 
 def avatar_model_for(arm) -> tuple[BodyModel, bool]:

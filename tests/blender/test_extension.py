@@ -49,6 +49,7 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     assert any(n.startswith("bodycal_addon/") for n in names)
     # python-osc ships with it (the manifest's wheels): the VMC live source works offline.
     assert "wheels/python_osc-1.10.2-py3-none-any.whl" in names
+    assert "docs/SIDEBAR.md" in names  # the panels' help buttons open it
     # Left out of the zip by [build] paths_exclude_pattern.
     assert not any(n.startswith(("tests/", "benchmarks/", ".ci/", ".venv/")) for n in names)
     assert not any(n.endswith(".truth.json") for n in names)  # the synthetic ground truth: development only

@@ -10,7 +10,7 @@ import pytest
 import truth_checks as tc
 
 from bodycal_addon.avatar.armature import read_armature
-from bodycal_addon.avatar.rays import surface_from_rays
+from bodycal_addon.avatar.rays import planned_rays, surface_from_rays
 from bodycal_addon.body import naming
 from bodycal_addon.core.errors import BodyCalError
 from sample_rigs import procedural
@@ -124,6 +124,19 @@ def test_the_ray_plan_measures_the_exact_shapes(kwargs):
     tc.check_truth(model, spec)
     assert model.extra["rig"]["rest_pose"] == ("A" if kwargs.get("arm_drop_deg") else "T")
     assert caster.rays > 500 and model.calibration["quality"]["capsule:forearm_l"]["spread_mm"] < 1.0
+
+
+def test_the_planned_ray_count_is_the_count_cast():
+    """The sidebar's progress bar runs to `planned_rays`: it ends at 100 %, not before or after."""
+    for spec in (procedural.build_spec(), procedural.build_spec(arm_drop_deg=40.0)):
+        bones = _rest_bones(spec)
+        rig = read_armature(spec.name, np.eye(4), bones, naming.detect_bone_map(list(bones)))
+        _model, caster = _measure(spec)
+        assert planned_rays(rig) == caster.rays
+    # A rig without fingers plans no finger capsules.
+    fingerless = {k: v for k, v in bones.items() if not k.startswith(("thumb", "index", "middle", "ring", "pinky"))}
+    rig = read_armature(spec.name, np.eye(4), fingerless, naming.detect_bone_map(list(fingerless)))
+    assert planned_rays(rig) < caster.rays - 20 * 72
 
 
 def test_a_moved_turned_scaled_armature_moves_the_measurements_with_it():

@@ -18,7 +18,9 @@ import addon_utils  # noqa: E402
 def registered():
     ops = sorted(name for name in dir(bpy.ops.bodycal) if not name.startswith("_"))
     panels = sorted(name for name in dir(bpy.types) if name.startswith("BODYCAL_PT_"))
-    categories = sorted({getattr(bpy.types, p).bl_category for p in panels})
+    # The sidebar tabs (the bake presets popover is a header panel: it has none).
+    categories = sorted({getattr(bpy.types, p).bl_category for p in panels if hasattr(getattr(bpy.types, p),
+                                                                                     "bl_category")})
     classes = sorted(name for name in dir(bpy.types) if name.startswith("BODYCAL_"))
     return {"operators": ops, "panels": panels, "categories": categories, "classes": classes}
 
