@@ -41,7 +41,7 @@ def job_settings(jobs: list[Job], settings: dict) -> dict:
         "methods": ",".join(settings["methods"]),
         "output_dir": str(settings["output_dir"]),
         "export": ",".join(settings["formats"]),
-        "filter": first.filter or "",
+        "filter": "off" if first.filter is None else first.filter,
         "plant_feet": first.plant_feet,
         "placement": first.placement,
         "root_motion": first.root_motion,

@@ -30,7 +30,14 @@ from ..recording.led_gloves import add_led_hand_frames
 from ..recording.model import DEVICE_KINDS, ROLES, ROLES_LIST, Recording
 from ..recording.roles import apply_roles
 from .fcurves import object_fcurves, sample_fcurve
-from .recording_scene import ROLE_PROP, import_recording_to_scene, segments_from_markers
+from .recording_scene import (
+    ROLE_PROP,
+    frame_mapping_in_scene,
+    import_recording_to_scene,
+    recording_from_scene,
+    scene_recording_collection,
+    segments_from_markers,
+)
 
 TRANSFORM_PATHS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale",
                    "delta_location", "delta_rotation_euler", "delta_rotation_quaternion", "delta_scale")
@@ -227,7 +234,7 @@ def recording_from_objects(scene, objects, name: str = DEFAULT_NAME) -> tuple[bp
     if len(moving) < len(objects):
         notes.append("left out (not animated): " + ", ".join(o.name for o in objects if o not in moving))
     time = (frames - frames[0]) / rate
-    segments = segments_from_markers(scene, time, 0.0, rate, f0, source=scene.name)
+    segments = segments_from_markers(scene, time, 0.0, rate, f0, _recorded_steps(scene, f0, rate), source=scene.name)
     sampled = [SampledObject(o.name, kind=_given(o, "bodycal_kind", DEVICE_KINDS), role=_given(o, ROLE_PROP, ROLES))
                for o in moving]
     rec = recording_from_matrices(name or DEFAULT_NAME, frames, rate, matrices, sampled, segments=segments,
@@ -235,3 +242,27 @@ def recording_from_objects(scene, objects, name: str = DEFAULT_NAME) -> tuple[bp
     identify_missing_roles(rec)
     add_led_hand_frames(rec)
     return import_recording_to_scene(rec, scene, frame_start=f0), rec
+
+
+def _recorded_steps(scene, f0: int, rate: float) -> list[dict] | None:
+    """The steps of the scene's recording (its markers, with the ends it stored), on the clock of a
+    take read from frame `f0` at `rate`: a marker the import placed keeps its step's end for the
+    objects' take too (the import marks only where steps start)."""
+    if scene_recording_collection(scene) is None:
+        return None
+    try:
+        old = recording_from_scene(scene)
+        frame_start, old_rate = frame_mapping_in_scene(scene)
+    except BodyCalError:  # its steps cannot be read: the markers alone say them
+        return None
+    t0 = float(old.time[0])
+
+    def clock(t: float) -> float:
+        # A bound on one of the recording's samples (its times rounded to 1e-9 s in the file) stays
+        # on that sample here, so the same samples fall in the step.
+        frames = frame_start + (t - t0) * old_rate - f0  # since the take's first frame
+        return (round(frames) if abs(frames - round(frames)) < 1e-5 else frames) / rate
+
+    return [{"step": s.step, "point": s.point or "", "by": s.by or "", "start": clock(s.start), "end": clock(s.end)}
+            for s in old.segments]
+

@@ -27,7 +27,8 @@ const JOB_TYPE = {
       description: "where every output goes (shared storage)" },
     { key: "export", type: "string", required: true, default: "blend",
       description: "comma-separated formats each job writes: blend, fbx, glb, gltf, bvh" },
-    { key: "filter", type: "string", default: "", description: "One Euro filter (retarget --filter); empty: off" },
+    { key: "filter", type: "string", default: "on",
+      description: "One Euro filter on the devices: on (the default parameters), off (retarget --no-filter), or parameters" },
     { key: "plant_feet", type: "bool", default: true, description: "hold the feet on the floor" },
     { key: "placement", type: "string", choices: ["object", "performer"], default: "object" },
     { key: "root_motion", type: "string", choices: ["root", "pelvis", "in-place"], default: "root" },
@@ -98,7 +99,8 @@ function jobArgv(spec, name, s) {
   if (s.fps !== undefined && s.fps !== "") argv.push("--fps", pyFloat(s.fps));
   if (a.armature) argv.push("--armature", a.armature);
   if (a.bone_map) argv.push("--bone-map", a.bone_map);
-  if (s.filter && spec.user !== null) argv.push("--filter", s.filter);  // tracker smoothing: recordings only
+  if (spec.user !== null && s.filter === "off") argv.push("--no-filter");  // tracker smoothing: recordings only
+  else if (spec.user !== null && s.filter && s.filter !== "on") argv.push("--filter", s.filter);
   if (s.plant_feet === false) argv.push("--no-plant-feet");
   if (s.placement && s.placement !== "object") argv.push("--placement", s.placement);
   if (s.root_motion && s.root_motion !== "root") argv.push("--root-motion", s.root_motion);

@@ -49,6 +49,8 @@ JOBS_FILES = {
                             '[[recordings]]\npath = "monday/take.bcrec.json"\nuser = "ben.body.json"\n'
                             '[[avatars]]\nfile = "Ogre Rig.fbx"\narmature = "x/../Ogre Ärmature"\n'
                             'bone_map = "unreal.bonemap.json"\n[[avatars]]\nfile = "child.glb"\n'),
+    "unsmoothed": ('[defaults]\nfilter = false\n[[recordings]]\npath = "t.bcrec.json"\nuser = "u.body.json"\n'
+                   '[[avatars]]\nfile = "a.blend"\n'),
     "animations": ('[defaults]\nmethod = ["rotations", "offsets", "egocentric"]\nfilter = true\n'
                    '[[recordings]]\npath = "walk.bcrec.json"\nuser = "u.body.json"\n'
                    '[[animations]]\npath = "clips/walk.bvh"\n'
