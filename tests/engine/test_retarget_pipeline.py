@@ -19,8 +19,10 @@ from bodycal_addon.core.errors import BodyCalError, Cancelled
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget import solver_methods
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_addon.retarget.pose_source import RecordingSource
+from bodycal_addon.retarget.solver import PreparedSolver
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -195,7 +197,7 @@ def test_a_rounding_sized_change_of_the_input_moves_the_output_by_as_little(sess
     # feet at one height) once let rounding pick between two answers millimetres apart. The bound
     # is the mapping's precision: in float32 a flipped last bit of a target (~1e-7 m) turns a 2 cm
     # phalanx by ~5e-6 rad; the jumps this guards against were 1e-3 to 2e-2.
-    monkeypatch.setattr(pl, "MAPPING_DTYPE", dtype)
+    monkeypatch.setattr(solver_methods, "MAPPING_DTYPE", dtype)
     rec, _, user, _ = session
     avatar = rt.procedural_avatar()
     nudged = copy.deepcopy(rec)
@@ -214,7 +216,7 @@ def test_a_target_sweeping_beside_the_crude_torso_moves_continuously(session):
     # motion moved the mapped target by up to 11 mm. Continuity, not smallness: a sweep 100 times
     # finer around the largest step must shrink it about as much (a jump would stay).
     rec, _, user, _ = session
-    run = pl._Run(RecordingSource(rec, user), rt.procedural_avatar(belly=0.06), "egocentric")
+    run = PreparedSolver(RecordingSource(rec, user), rt.procedural_avatar(belly=0.06), "egocentric")
     rest = {j: run.user_pos[j] for j in sk.JOINTS}
     n = 801
 

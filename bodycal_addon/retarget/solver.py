@@ -1,0 +1,305 @@
+"""The prepared solver (DESIGN.md §1 steps 1-4, "Prepared solver"): everything that depends only on
+the performer's body model, the avatar and the method (rest frames, surface layouts, correction
+matrices, the method's constants, the feet plan) is computed once, when the solver is built; then
+`solve(start, stop)` gives the pose-bone values, the joints and the targets of any frames
+[start, stop) of the take. The bake (`pipeline.run_source`) runs it over chunks of frames, a
+timeline preview over the frame being scrubbed, the live loop (`live.LiveSolver`) over each new
+frame: the same code, vectorised over a leading frame axis, whatever the block's length.
+
+The performer is a pose source (pose_source.py): a tracker recording of a calibrated user (a
+whole file, or a live buffer that grows as frames arrive), or another character's action.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body import naming
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel
+from ..body.rest_frames import complete_joints, model_rest_frames
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
+from ..core.errors import BodyCalError
+from ..core.transforms import normalize, stack_apply, stack_mul
+from ..recording.model import Recording
+from . import feet, ik
+from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
+from .methods import check_method
+from .placement import check_placement, play_area_to_world, transformed_avatar
+from .pose_source import PoseSource
+from .solver_methods import METHOD_CLASSES, surface_correction
+from .user_animation import pose_finger_chain
+
+STANCES = ("whole", "causal")  # the feet plan: from the whole take (a bake), or frame by frame (live)
+
+
+LIMBS = {  # limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
+    "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
+    "leg": ("hip", "knee", "ankle", "thigh", "shin"),
+}
+
+
+def _check_method(avatar: BodyModel, method: str) -> None:
+    check_method(method, "recording")
+    if avatar.kind != "avatar":
+        raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
+                           field="kind")
+
+
+def _check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
+    _check_method(avatar, method)
+    if user.kind != "user":
+        raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
+    if recording.frame_count == 0:
+        raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
+
+
+@dataclass
+class SolvedFrames:
+    """What the solver gives for frames [start, stop) of a take (F = stop - start): exactly the
+    bake's values for those frames."""
+
+    basis: np.ndarray  # (F, N, 4) pose-bone rotation_quaternion (w, x, y, z), the rig's bone order
+    root_location: np.ndarray  # (F, 3) the root bone's pose location (its rest frame)
+    joints: np.ndarray  # (F, J, 3) canonical joints in the world (skeleton.JOINTS order)
+    targets: dict[str, np.ndarray]  # name -> (F, 3) what the IK aimed at, world; NaN where none
+
+
+class PreparedSolver:
+    """The retargeting of one performer (a pose source) onto one avatar by one method, prepared
+    once: `solve(start, stop)` then costs only the frames asked for.
+
+    `avatar_model` is the avatar where its armature object stands (kind "avatar" with
+    `extra["rig"]`); `placement` ("object" or "performer", placement.py) says where the
+    performance plays. `plant_feet` holds the feet still and on the floor while the performer
+    stands on them (feet.py); `stance` says how the stances are found: "whole" from the whole take
+    (a bake: the easing starts before a stance and the planted place is the stance's mean),
+    "causal" frame by frame from the frames so far (a live stream, `feet.CausalStance`). Bad inputs
+    raise one `BodyCalError`."""
+
+    def __init__(self, source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *,
+                 plant_feet: bool = True, placement: str = "object", stance: str = "whole"):
+        _check_method(avatar_model, method)
+        if stance not in STANCES:
+            raise BodyCalError(f"unknown stance detection '{stance}'", field="stance",
+                               hint=f"use one of {', '.join(STANCES)}")
+        # Everything is computed in the performer's play area, with the avatar brought into it; the
+        # pose-bone values are in armature space either way, the world joints and targets go back.
+        to_world = play_area_to_world(avatar_model, check_placement(placement))
+        avatar = transformed_avatar(avatar_model, np.linalg.inv(to_world))
+        self.rot_t, self.shift = to_world[:3, :3].T, to_world[:3, 3]
+        self.placement, self.stance = placement, stance
+        self._prepare(source, avatar, method, np.zeros(3) if placement == "object" else None)
+        self.feet = self._plan_feet(avatar, complete_joints(avatar)) if plant_feet else None
+
+    def _prepare(self, source: PoseSource, avatar: BodyModel, method: str, centre: np.ndarray | None) -> None:
+        """What every frame shares: the rig, the root scale, the rest frames and the method's constants."""
+        user = source.model
+        self.src, self.user, self.avatar, self.method = source, user, avatar, method
+        self.rec = source.recording  # None: not a tracker recording
+        # An animated character (pose_source.AnimationSource): its own spine shape and limb hinges.
+        self.character = source.character
+        self.rig = AvatarRig.from_model(avatar)
+        self.k = root_scale(user, self.rig)
+        # The floor point the performer's path is scaled about (placement.py): the play area's
+        # origin, or the one under the performer's pelvis at the reference time.
+        self.centre = root_centre(user) if centre is None else np.asarray(centre, float)
+        self.user_pos = complete_joints(user)
+        self.user_frames0 = model_rest_frames(user, self.user_pos)
+        avatar_pos = complete_joints(avatar)
+        # The avatar's vertebrae at rest in its sacrum's frame: the spine IK bends that shape.
+        self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
+            self.rig.frames0[BI["sacrum"]]
+        self.notes: list[str] = []
+        bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+        self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
+                            for s in sk.SIDES}
+        self.impl = METHOD_CLASSES[method](self, avatar_pos)
+
+    @property
+    def frame_count(self) -> int:
+        """The take's frames so far (a live buffer grows)."""
+        return self.src.frame_count
+
+    @property
+    def bone_names(self) -> list[str]:
+        """The rig's bones in the order of `SolvedFrames.basis`."""
+        return list(self.rig.names)
+
+    def solve(self, start: int, stop: int) -> SolvedFrames:
+        """The pose-bone values, world joints and targets of frames [start, stop) (0 <= start <
+        stop <= frame_count): the bake's values for those frames, for any block of frames."""
+        if not 0 <= start < stop <= self.frame_count:
+            raise BodyCalError(f"frames {start}-{stop} are not within the take's 0-{self.frame_count}",
+                               source=self.src.name, field="frames")
+        pose, tg = self.chunk(start, stop)
+        return SolvedFrames(pose.basis, pose.root_location, pose.joints @ self.rot_t + self.shift,
+                            {n: v @ self.rot_t + self.shift for n, v in tg.items()})
+
+    def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> dict:
+        """The stances of the whole take from the performer's ankles (carried by the foot trackers,
+        or the source character's) and, per stance, where the avatar's foot is planted (feet.py):
+        {side: (weight (F,), planted xy (F, 2), the avatar's sole points (K, 3) in its canonical
+        foot frame)}."""
+        out = {}
+        ref = self.user_pos
+        tr = self.src.trackers()
+        placed = self.impl.ankle_places(tr) if tr is not None else None
+        corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
+        for s in sk.SIDES:
+            user_ankle = self.src.ankle(s)
+            if user_ankle is None:
+                continue
+            stance = feet.detect(user_ankle, self.src.time, float(ref[f"ankle_{s}"][2]))
+            reference = (placed[f"ankle_{s}"] if placed is not None
+                         else root_positions(user_ankle, self.k, self.centre))
+            eid = f"mesh:sole_{s}"
+            if eid in {e.id for e in avatar.surface}:
+                sole = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
+            else:  # no sole measured: one point under the ankle, as deep as the ankle stands at rest
+                sole = (np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]]) @ self.rig.frames0[BI[f"foot_{s}"]])[None]
+            out[s] = (stance.weight, feet.planted_xy(reference, stance), sole)
+        return out
+
+    def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
+             ankles: dict | None = None):
+        """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
+        onto the planted places, and the pelvis lowered where a planted foot is out of reach. Returns
+        (targets, pelvis, whether anything is planted in these frames)."""
+        if not self.feet:
+            return targets, pelvis, False
+        rig = self.rig
+        targets = dict(targets)
+        weights, aims, sides = [], [], []
+        for s, (weight, planted, sole) in self.feet.items():
+            w = weight[start:stop]
+            if not w.any():
+                continue
+            name = f"ankle_{s}"
+            base = targets[name] if name in targets else ankles[name]
+            targets[name] = feet.lock(base, planted[start:stop], w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
+            weights.append(w)
+            aims.append(targets[name])
+            sides.append(s)
+        if not sides:
+            return targets, pelvis, False
+        hips = rig.joint_positions(frames, pelvis, [f"hip_{s}" for s in sides])
+        lengths = np.array([rig.lengths[BI[f"thigh_{s}"]] + rig.lengths[BI[f"shin_{s}"]] for s in sides])
+        drop = feet.pelvis_drop(hips, np.stack(aims, axis=1), lengths, np.stack(weights, axis=1))
+        if drop.any():
+            down = drop[:, None] * np.array([0.0, 0.0, 1.0])
+            pelvis = pelvis - down
+            if "skull_base" in targets:  # the whole body comes down, the head with it
+                targets["skull_base"] = targets["skull_base"] - down
+        return targets, pelvis, True
+
+    # --- one chunk of frames ------------------------------------------------------------------
+
+    def chunk(self, start: int, stop: int):
+        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0))
+        for n in up.notes:
+            if n not in self.notes:
+                self.notes.append(n)
+        pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
+        # From here on the user's frames are the ones copied onto the avatar (step 2).
+        user_frames = up.frames if up.surface_frames is None else up.surface_frames
+        up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
+                      up.notes)
+        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
+        return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
+
+    def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
+        """Avatar IK (appendix E, DESIGN.md §6) toward the targets present: the spine when there is
+        a skull-base target, then each limb whose effector has a target, then the fingers.
+        `frames` (default: the user's, copied) are updated; `trunk` is the rig pose the limbs
+        start from (default: solved here after the spine)."""
+        rig = self.rig
+        frames = up.frames.copy() if frames is None else frames
+        # Spine aimed at the skull base (appendix D: the same two-pass solver as the user's); the
+        # clavicles keep their pose relative to vertebra 5.
+        if "skull_base" in targets:
+            spine_idx = [BI[b] for b in SPINE_BONES]
+            top_right = normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]])
+
+            def solve_spine(aim):
+                return ik.spine(pelvis, fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]], None, aim,
+                                top_right=top_right, two_pass=False, rest_segments=self.rest_spine)
+
+            res = solve_spine(targets["skull_base"])
+            frames[:, BI["sacrum"]] = res.sacrum_rot
+            if self.character:
+                # Decision (DESIGN.md §8): an animated character's spine has its own shape (an
+                # animator's curve is no IK's), so the IK only corrects it: each vertebra turns by
+                # what the IK changes between aiming at the copied skull base and at the target.
+                # Where they agree (the same body) the source's spine comes back as it was.
+                held = solve_spine(fk.joints[:, JI["skull_base"]])
+                frames[:, spine_idx] = res.rotations @ np.swapaxes(held.rotations, -1, -2) @ up.frames[:, spine_idx]
+            else:
+                frames[:, spine_idx] = res.rotations
+            v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
+            for s in sk.SIDES:
+                c = BI[f"clavicle_{s}"]
+                frames[:, c] = frames[:, v5] @ np.swapaxes(up.frames[:, v5], -1, -2) @ up.frames[:, c]
+        # The limbs hang from the trunk as solved now (or as given).
+        names = [f"{a}_{s}" for s in sk.SIDES for a, _, e, _, _ in LIMBS.values() if f"{e}_{s}" in targets]
+        at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
+        roots = {j: at[:, k] for k, j in enumerate(names)}
+        wrist_pos = {}
+        for s in sk.SIDES:
+            for limb, (a, m, e, ab, mb) in LIMBS.items():
+                eff = targets.get(f"{e}_{s}")
+                if eff is None:
+                    continue
+                root = roots[f"{a}_{s}"]
+                l1, l2 = rig.lengths[BI[f"{ab}_{s}"]], rig.lengths[BI[f"{mb}_{s}"]]
+                # Appendix E: swivel blended between the mapped intermediate target and the user's.
+                # The hinge's axis: a character's upper bones twist on their own (a user's share
+                # the hinge's right), so its hinge is the intermediate bone's +X.
+                hinge = up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
+                tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"), self._user_swivel(up, a, m, e, s),
+                                 hinge, size_ratio=self.k)
+                frames[:, BI[f"{ab}_{s}"]] = tb.rot1
+                frames[:, BI[f"{mb}_{s}"]] = tb.rot2
+                reached = tb.end
+                if limb == "arm":
+                    wrist_pos[s] = reached
+            if hands is not None and s in hands:
+                for b, fr in hands[s].items():
+                    frames[:, BI[b]] = frames[:, BI[f"hand_{s}"]] @ fr
+            elif s in wrist_pos and self.has_fingers[s]:
+                self._fingers(frames, s, wrist_pos[s], targets)
+        return frames
+
+    @staticmethod
+    def _user_swivel(up, anchor: str, mid: str, effector: str, s: str) -> np.ndarray:
+        """The user's swivel: the intermediate joint's offset from the user's own anchor-effector
+        axis. Measured from the avatar's axis instead, the offset would also hold the angle
+        between the two axes (the mapping moves the effector), whose direction turns with every
+        millimetre of target noise when the limb is nearly straight: the upper arm's roll then
+        jittered three times the user's."""
+        root = up.joints[:, JI[f"{anchor}_{s}"]]
+        axis = normalize(up.joints[:, JI[f"{effector}_{s}"]] - root)
+        v = up.joints[:, JI[f"{mid}_{s}"]] - root
+        return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
+
+    def _fingers(self, frames, s, wrist, targets):
+        rig = self.rig
+        hand = frames[:, BI[f"hand_{s}"]]
+        c0h = rig.frames0[BI[f"hand_{s}"]]
+        w0 = rig.joint_world[JI[f"wrist_{s}"]]
+        for f in sk.FINGERS:
+            tip = targets.get(f"tip_{f}_{s}")
+            if tip is None:
+                continue
+            names = [f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS]
+            p0 = [rig.joint_world[JI[n]] for n in names]
+            lens = np.array([np.linalg.norm(p0[i + 1] - p0[i]) for i in range(3)])
+            mcp = wrist + stack_apply(hand, c0h.T @ (p0[0] - w0))
+            rest = [stack_mul(hand, c0h.T @ rig.frames0[BI[f"{f}_{i}_{s}"]]) for i in (1, 2, 3)]
+            _, fr = pose_finger_chain(mcp, tip, lens, rest, thumb=f == "thumb")
+            for i in (1, 2, 3):
+                frames[:, BI[f"{f}_{i}_{s}"]] = fr[i - 1]
