@@ -95,6 +95,39 @@ def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (a.reshape(-1, 3) @ v).reshape(a.shape[:-1])
 
 
+# A stack of 3x3 products with fewer frames than this is one stacked matmul (one BLAS call per
+# product, no Python loop); with more, one BLAS call per stack (`stack_mul`): the same products,
+# bit for bit, either way.
+STACKED_FRAMES = 8
+
+
+def stacks_mul(a: np.ndarray, m: np.ndarray, rows=None) -> np.ndarray:
+    """a[k] @ m[k] for K stacks a (K, F, 3, 3) (or a[rows[k]] of a bigger stack when `rows` is
+    given) and K matrices m (K, 3, C): `stack_mul` stack by stack, with the Python loop only where
+    the stacks are long (STACKED_FRAMES)."""
+    m = np.asarray(m, float)
+    if a.shape[1] < STACKED_FRAMES:
+        return np.matmul(a if rows is None else a[rows], m[:, None])
+    idx = range(len(a)) if rows is None else rows
+    out = np.empty((len(idx),) + a.shape[1:-1] + (m.shape[-1],))
+    for k, r in enumerate(idx):
+        out[k] = (a[r].reshape(-1, 3) @ m[k]).reshape(out.shape[1:])
+    return out
+
+
+def stacks_apply(a: np.ndarray, v: np.ndarray, rows=None) -> np.ndarray:
+    """a[k] @ v[k] for K stacks a (K, F, 3, 3) (or a[rows[k]]) and K vectors v (K, 3) -> (K, F, 3):
+    `stack_apply` stack by stack (see stacks_mul)."""
+    v = np.asarray(v, float)
+    if a.shape[1] < STACKED_FRAMES:
+        return np.matmul(a if rows is None else a[rows], v[:, None, :, None])[..., 0]
+    idx = range(len(a)) if rows is None else rows
+    out = np.empty((len(idx),) + a.shape[1:-1])
+    for k, r in enumerate(idx):
+        out[k] = (a[r].reshape(-1, 3) @ v[k]).reshape(out.shape[1:])
+    return out
+
+
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) to unit quaternions, w >= 0 (Shepperd's method: per item, the
     best conditioned of the four candidates, computed for the items that pick it only)."""
