@@ -31,7 +31,8 @@ from ..core.transforms import normalize, quat_to_matrix, stack_apply, stack_mul
 from . import egocentric as ego
 from . import offsets as ofs
 from .methods import methods_for
-from .user_animation import read_trackers, sacrum_toward_hip_line
+from .trackers import read_trackers
+from .user_animation import sacrum_toward_hip_line
 
 TARGETS = tuple(
     [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
@@ -247,7 +248,7 @@ class ExactOffsets(Method):
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         run = self.run
         st = self.ofs
-        tr = read_trackers(run.rec, run.user, start, stop)
+        tr = run.src.trackers(start, stop)
         p, r = ofs.effector_targets(st, tr.pos, tr.rot)
         frames = up.frames.copy()
         for bone, fr in r.items():
