@@ -22,16 +22,30 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     float32, their vectors components first: `axis=0`). The norm sums the squared components in
     order, as `np.linalg.norm` does, one component at a time (several times faster on a short
     trailing axis)."""
-    comps = np.moveaxis(v, axis, 0)
+    last = axis in (-1, v.ndim - 1)
+    comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
     s = comps[0] * comps[0]
     for c in comps[1:]:
         s += c * c
     n = np.sqrt(s)
     ok = n > EPS
-    u = v / np.expand_dims(np.where(ok, n, 1.0), axis)
+    u = v / (np.where(ok, n, 1.0)[..., None] if last else np.expand_dims(np.where(ok, n, 1.0), axis))
     if not ok.all():
-        u = np.where(np.expand_dims(ok, axis), u, fallback)
+        u = np.where(ok[..., None] if last else np.expand_dims(ok, axis), u, fallback)
     return u, n
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
+    order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
+    a, b = np.asarray(a), np.asarray(b)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -62,19 +76,24 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, float)
     w = q[..., :1]
     u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    t = 2.0 * cross(u, v)
+    return v + w * t + cross(u, t)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, float)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    m = np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], axis=-1)
-    return m.reshape(q.shape[:-1] + (3, 3))
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    m = np.empty(q.shape[:-1] + (3, 3))
+    m[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    m[..., 0, 1] = 2 * (x * y - w * z)
+    m[..., 0, 2] = 2 * (x * z + w * y)
+    m[..., 1, 0] = 2 * (x * y + w * z)
+    m[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    m[..., 1, 2] = 2 * (y * z - w * x)
+    m[..., 2, 0] = 2 * (x * z - w * y)
+    m[..., 2, 1] = 2 * (y * z + w * x)
+    m[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return m
 
 
 def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -170,8 +189,9 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a, b = normalize(a), normalize(b)
     a, b = np.broadcast_arrays(a, b)
     d = (a * b).sum(-1)
-    c = np.cross(a, b)
-    q = np.concatenate([(1.0 + d)[..., None], c], axis=-1)
+    q = np.empty(d.shape + (4,))
+    q[..., 0] = 1.0 + d
+    q[..., 1:] = cross(a, b)
     opposite = d < -1.0 + 1e-9
     if np.any(opposite):
         perp = np.cross(a, np.array([1.0, 0.0, 0.0]))
@@ -193,8 +213,9 @@ def frame_from_axes(y_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     local +X is the flexion axis)."""
     y = normalize(y_axis)
     x = normalize(x_hint - (x_hint * y).sum(-1, keepdims=True) * y)
-    z = np.cross(x, y)
-    return np.stack([x, y, z], axis=-1)
+    out = np.empty(np.broadcast_shapes(y.shape, x.shape) + (3,))
+    out[..., 0], out[..., 1], out[..., 2] = x, y, cross(x, y)
+    return out
 
 
 def transform_points(pos: np.ndarray, rot: np.ndarray, local: np.ndarray) -> np.ndarray:

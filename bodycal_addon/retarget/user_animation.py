@@ -35,6 +35,7 @@ from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
+    cross,
     frame_from_axes,
     normalize,
     quat_between,
@@ -366,7 +367,7 @@ def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
     l2 = np.linalg.norm(rest_pos[f"{e}_{s}"] - rest_pos[f"{m}_{s}"])
     # A positive turn about the hinge's +X flexes the distal bone toward +Z = X x Y, so the joint
     # itself lies on the other side of the root-effector line: along (effector - root) x right.
-    return two_bone_mid(root, eff, l1, l2, np.cross(eff - root, right))
+    return two_bone_mid(root, eff, l1, l2, cross(eff - root, right))
 
 
 def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,

@@ -9,7 +9,7 @@ import numpy as np
 
 from ...body import skeleton as sk
 from ...core.errors import BodyCalError
-from ...core.transforms import frame_from_axes
+from ...core.transforms import cross, frame_from_axes
 from .graph import element_root
 
 
@@ -246,7 +246,7 @@ def _pose_meshes(posing: _Posing, meshes: list, first: int) -> tuple[list[str], 
     local to their bones; the triangles are gathered from them (`_mesh_triangles`). `first` is the
     element index of the first mesh (after the capsules and spheres)."""
     tri, tri_elem, slices = _mesh_triangles(posing, meshes, first)
-    n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
     nn = np.linalg.norm(n, axis=-1, keepdims=True)
     tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
 
