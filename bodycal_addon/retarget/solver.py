@@ -24,7 +24,7 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
-from ..core.transforms import normalize, stack_apply, stack_mul
+from ..core.transforms import normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
@@ -245,61 +245,99 @@ class PreparedSolver:
                 c = BI[f"clavicle_{s}"]
                 frames[:, c] = frames[:, v5] @ np.swapaxes(up.frames[:, v5], -1, -2) @ up.frames[:, c]
         # The limbs hang from the trunk as solved now (or as given).
-        names = [f"{a}_{s}" for s in sk.SIDES for a, _, e, _, _ in LIMBS.values() if f"{e}_{s}" in targets]
+        items = [(side, limb) for side in sk.SIDES for limb, (_, _, e, _, _) in LIMBS.items()
+                 if f"{e}_{side}" in targets]
+        names = [f"{LIMBS[limb][0]}_{side}" for side, limb in items]
         at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
-        roots = {j: at[:, k] for k, j in enumerate(names)}
-        wrist_pos = {}
-        for s in sk.SIDES:
-            for limb, (a, m, e, ab, mb) in LIMBS.items():
-                eff = targets.get(f"{e}_{s}")
-                if eff is None:
-                    continue
-                root = roots[f"{a}_{s}"]
-                l1, l2 = rig.lengths[BI[f"{ab}_{s}"]], rig.lengths[BI[f"{mb}_{s}"]]
-                # Appendix E: swivel blended between the mapped intermediate target and the user's.
-                # The hinge's axis: a character's upper bones twist on their own (a user's share
-                # the hinge's right), so its hinge is the intermediate bone's +X.
-                hinge = up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
-                tb = ik.two_bone(root, l1, l2, eff, targets.get(f"{m}_{s}"), self._user_swivel(up, a, m, e, s),
-                                 hinge, size_ratio=self.k)
-                frames[:, BI[f"{ab}_{s}"]] = tb.rot1
-                frames[:, BI[f"{mb}_{s}"]] = tb.rot2
-                reached = tb.end
-                if limb == "arm":
-                    wrist_pos[s] = reached
-            if hands is not None and s in hands:
-                for b, fr in hands[s].items():
-                    frames[:, BI[b]] = frames[:, BI[f"hand_{s}"]] @ fr
-            elif s in wrist_pos and self.has_fingers[s]:
-                self._fingers(frames, s, wrist_pos[s], targets)
+        reached = self._limbs(up, frames, targets, items, at)
+        grip = [side for side in sk.SIDES if hands is not None and side in hands]
+        if grip:
+            held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
+            hand_frames = np.stack([frames[:, BI[f"hand_{side}"]] for side in grip])
+            rel = stacks_mul(hand_frames, np.array([fr for _, _, fr in held]), [grip.index(x) for x, _, _ in held])
+            frames[:, [BI[b] for _, b, _ in held]] = np.swapaxes(rel, 0, 1)
+        wrists = {side: reached[side, "arm"] for side in sk.SIDES
+                  if side not in grip and (side, "arm") in reached and self.has_fingers[side]}
+        if wrists:
+            self._fingers(frames, wrists, targets)
         return frames
 
+    def _limbs(self, up, frames, targets, items, at) -> dict:
+        """Two-bone IK of the limbs `items` [(side, limb)] from their roots `at` (F, K, 3) toward
+        their effector targets, all at once (those with an intermediate target, then those
+        without); `frames` updated. Returns {(side, limb): the effector reached (F, 3)}."""
+        rig, nf = self.rig, frames.shape[0]
+        reached = {}
+        for with_pole in (True, False):
+            group = [k for k, (side, limb) in enumerate(items) if (f"{LIMBS[limb][1]}_{side}" in targets) == with_pole]
+            if not group:
+                continue
+            limbs = [(items[k][0], *LIMBS[items[k][1]]) for k in group]
+            root = np.concatenate([at[:, k] for k in group])
+            l1 = np.repeat([rig.lengths[BI[f"{ab}_{s}"]] for s, _, _, _, ab, _ in limbs], nf)
+            l2 = np.repeat([rig.lengths[BI[f"{mb}_{s}"]] for s, _, _, _, _, mb in limbs], nf)
+            eff = np.concatenate([targets[f"{e}_{s}"] for s, _, _, e, _, _ in limbs])
+            pole = np.concatenate([targets[f"{m}_{s}"] for s, _, m, _, _, _ in limbs]) if with_pole else None
+            # Appendix E: swivel blended between the mapped intermediate target and the user's.
+            # The hinge's axis: a character's upper bones twist on their own (a user's share
+            # the hinge's right), so its hinge is the intermediate bone's +X.
+            hinge = np.concatenate([up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
+                                    for s, _, _, _, ab, mb in limbs])
+            swivel = self._user_swivel(up, [(f"{a}_{s}", f"{m}_{s}", f"{e}_{s}") for s, a, m, e, _, _ in limbs])
+            tb = ik.two_bone(root, l1, l2, eff, pole, swivel, hinge, size_ratio=self.k)
+            for i, (s, _, _, _, ab, mb) in enumerate(limbs):
+                part = slice(i * nf, (i + 1) * nf)
+                frames[:, BI[f"{ab}_{s}"]] = tb.rot1[part]
+                frames[:, BI[f"{mb}_{s}"]] = tb.rot2[part]
+                reached[items[group[i]]] = tb.end[part]
+        return reached
+
     @staticmethod
-    def _user_swivel(up, anchor: str, mid: str, effector: str, s: str) -> np.ndarray:
-        """The user's swivel: the intermediate joint's offset from the user's own anchor-effector
-        axis. Measured from the avatar's axis instead, the offset would also hold the angle
-        between the two axes (the mapping moves the effector), whose direction turns with every
-        millimetre of target noise when the limb is nearly straight: the upper arm's roll then
-        jittered three times the user's."""
-        root = up.joints[:, JI[f"{anchor}_{s}"]]
-        axis = normalize(up.joints[:, JI[f"{effector}_{s}"]] - root)
-        v = up.joints[:, JI[f"{mid}_{s}"]] - root
+    def _user_swivel(up, limbs: list[tuple[str, str, str]]) -> np.ndarray:
+        """The user's swivel of the limbs [(anchor, intermediate, effector)], stacked (K F, 3): the
+        intermediate joint's offset from the user's own anchor-effector axis. Measured from the
+        avatar's axis instead, the offset would also hold the angle between the two axes (the
+        mapping moves the effector), whose direction turns with every millimetre of target noise
+        when the limb is nearly straight: the upper arm's roll then jittered three times the user's."""
+        def joints(k):
+            return np.concatenate([up.joints[:, JI[j[k]]] for j in limbs])
+
+        root = joints(0)
+        axis = normalize(joints(2) - root)
+        v = joints(1) - root
         return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
 
-    def _fingers(self, frames, s, wrist, targets):
-        rig = self.rig
-        hand = frames[:, BI[f"hand_{s}"]]
-        c0h = rig.frames0[BI[f"hand_{s}"]]
-        w0 = rig.joint_world[JI[f"wrist_{s}"]]
-        for f in sk.FINGERS:
-            tip = targets.get(f"tip_{f}_{s}")
-            if tip is None:
-                continue
-            names = [f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS]
-            p0 = [rig.joint_world[JI[n]] for n in names]
-            lens = np.array([np.linalg.norm(p0[i + 1] - p0[i]) for i in range(3)])
-            mcp = wrist + stack_apply(hand, c0h.T @ (p0[0] - w0))
-            rest = [stack_mul(hand, c0h.T @ rig.frames0[BI[f"{f}_{i}_{s}"]]) for i in (1, 2, 3)]
-            _, fr = pose_finger_chain(mcp, tip, lens, rest, thumb=f == "thumb")
-            for i in (1, 2, 3):
-                frames[:, BI[f"{f}_{i}_{s}"]] = fr[i - 1]
+    def _fingers(self, frames, wrists: dict, targets: dict) -> None:
+        """Every finger of the hands in `wrists` {side: the wrist reached (F, 3)} with a tip target,
+        posed at once (`pose_finger_chain` from the hand's rest finger frames); `frames` updated."""
+        items = [(s, f) for s in wrists for f in sk.FINGERS if f"tip_{f}_{s}" in targets]
+        if not items:
+            return
+        nf, sides = frames.shape[0], list(wrists)
+        hands = np.stack([frames[:, BI[f"hand_{s}"]] for s in sides])
+        rows = [sides.index(s) for s, _ in items]
+        mcp_local, base_rest, lens = (np.array([self._finger_rest[i][k] for i in items]) for k in range(3))
+        mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
+        ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
+        tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
+        thumb = np.repeat([f == "thumb" for _, f in items], nf)
+        _, fr = pose_finger_chain(mcp, tip, np.repeat(lens, nf, axis=0).T, [ref], thumb=thumb)
+        for i in (1, 2, 3):
+            frames[:, [BI[f"{f}_{i}_{s}"] for s, f in items]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3),
+                                                                          0, 1)
+
+    @property
+    def _finger_rest(self) -> dict:
+        """Per (side, finger), once: the MCP from the wrist and the first phalanx's rest frame, both
+        in the canonical hand frame, and the phalanx lengths."""
+        if getattr(self, "_fingers_at_rest", None) is None:
+            rig, out = self.rig, {}
+            for s in sk.SIDES:
+                c0h = rig.frames0[BI[f"hand_{s}"]]
+                w0 = rig.joint_world[JI[f"wrist_{s}"]]
+                for f in sk.FINGERS:
+                    p0 = [rig.joint_world[JI[f"{j}_{f}_{s}"]] for j in sk.FINGER_JOINTS]
+                    lens = np.array([np.linalg.norm(p0[i + 1] - p0[i]) for i in range(3)])
+                    out[s, f] = (c0h.T @ (p0[0] - w0), c0h.T @ rig.frames0[BI[f"{f}_1_{s}"]], lens)
+            self._fingers_at_rest = out
+        return self._fingers_at_rest
