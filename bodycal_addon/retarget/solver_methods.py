@@ -23,7 +23,7 @@ import numpy as np
 from ..body import skeleton as sk
 from ..body.bodymodel import BodyModel
 from ..body.skeleton import BONE_INDEX as BI
-from ..body.skeleton import BONES, JOINTS, SPINE_BONES
+from ..body.skeleton import BONES, SPINE_BONES
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.surface_layout import bone_frame
 from ..core.errors import BodyCalError
@@ -143,6 +143,12 @@ class Egocentric(Method):
         # (a skeleton with lumped hands, such as CMU's, has none: its tips would be reached by nothing).
         self.targets = [t for t in TARGETS if not t.startswith("tip_") or
                         (run.has_fingers[t[-1]] and any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have))]
+        self.lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
+        self.upper = [n for n in self.targets if n not in self.lower]
+        # Both bodies' surfaces posed by prepared posers: all elements, and the trunk's alone.
+        self.posers = {(who, part): ego.SurfacePoser(model, part_ids)
+                       for who, model in (("user", self.user_s), ("avatar", self.avatar_s))
+                       for part, part_ids in (("all", self.ids), ("trunk", self.trunk_ids)) if part_ids}
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
@@ -151,20 +157,17 @@ class Egocentric(Method):
         avatar, so a hand resting on a thigh must be mapped against the thigh where it ends up,
         not where the rotation copy had put it; and arm elements, which the IK moves last, must not
         pull the head or the feet."""
-        run = self.run
-        uj, uf = _jd(up.joints), _fd(user_frames, self.sbones)
+        run, posers = self.run, self.posers
         heads = np.take(up.joints, self.bone_heads, axis=1)
         tails = np.take(up.joints, self.bone_tails, axis=1)
         # A user's bones keep their calibrated lengths (tracked joints wobble); a character's are
         # taken as posed, like the avatar's own (a vertebra spanning two spine bones stretches).
-        vec = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]
-        ub = {b: vec[:, i] for i, b in enumerate(self.graph_bones)}
-        lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
-        upper = [n for n in self.targets if n not in lower]
+        ub = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]  # (F, NB, 3)
+        lower, upper = self.lower, self.upper
         targets = {}
         if self.trunk_ids:
-            ust = ego.pose_surface(self.user_s, uj, uf, self.trunk_ids)
-            avt = ego.pose_surface(self.avatar_s, _jd(fk.joints), _fd(fk.frames, self.sbones), self.trunk_ids)
+            ust = posers["user", "trunk"].pose(up.joints, user_frames)
+            avt = posers["avatar", "trunk"].pose(fk.joints, fk.frames)
             tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
                                      user_bones=ub, dtype=MAPPING_DTYPE)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
@@ -172,7 +175,7 @@ class Egocentric(Method):
         targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)
         frames = run.solve_ik(up, fk, pelvis, targets)
         mid = run.rig.solve(frames, pelvis, basis=False, realised=self.realised)
-        us = ego.pose_surface(self.user_s, uj, uf, self.ids)
+        us = posers["user", "all"].pose(up.joints, user_frames)
         pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
         # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
@@ -190,7 +193,7 @@ class Egocentric(Method):
         user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
         pose, tg = mid, None
         for k in range(ARM_PASSES):
-            av = ego.pose_surface(self.avatar_s, _jd(pose.joints), _fd(pose.frames, self.sbones), self.ids)
+            av = posers["avatar", "all"].pose(pose.joints, pose.frames)
             ta = user_side.map(av)
             if tg is None:
                 tg = ta
@@ -288,15 +291,6 @@ def _surface_bones(model: BodyModel) -> BodyModel:
     out = copy.copy(model)
     out.surface = fixed
     return out
-
-
-def _jd(joints: np.ndarray) -> dict[str, np.ndarray]:
-    return {j: joints[:, i] for i, j in enumerate(JOINTS)}
-
-
-def _fd(frames: np.ndarray, bones: list[int]) -> dict[str, np.ndarray]:
-    """The frames of the bones a surface rides on."""
-    return {BONES[b].name: frames[:, b] for b in bones}
 
 
 def canonical_surface(model: BodyModel, frames0: np.ndarray, pos: dict) -> BodyModel:

@@ -13,7 +13,7 @@ from ...core.errors import BodyCalError
 from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
-from .surface import PosedSurface
+from .surface import JointTable, PosedSurface
 from .weights import normalise_weights, raw_weights
 
 SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
@@ -76,10 +76,22 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
                  used, floor_bone, floor_starts)
 
 
-def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int, dtype=float) -> np.ndarray:
-    """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given, else from the surface's
-    joints), plus the zero bone."""
+_GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
+_GRAPH_TAILS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES]
+_GRAPH_NODE_INDEX = [sk.JOINT_INDEX[n] for n in GRAPH_NODES]
+
+
+def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarray:
+    """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given: a dict of (F, 3), or one
+    (F, NB, 3) array in GRAPH_BONES order; else from the surface's joints), plus the zero bone."""
     out = np.zeros((3, F, len(GRAPH_BONES) + 1), dtype)
+    if isinstance(bones, np.ndarray):
+        out[:, :, :-1] = bones.transpose(2, 0, 1)
+        return out
+    if bones is None and isinstance(surface.joints, JointTable):
+        j = surface.joints.array
+        out[:, :, :-1] = (j[:, _GRAPH_TAILS] - j[:, _GRAPH_HEADS]).transpose(2, 0, 1)
+        return out
     for i, name in enumerate(GRAPH_BONES):
         if bones is not None and name in bones:
             out[:, :, i] = np.asarray(bones[name], float).T
@@ -92,6 +104,9 @@ def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F:
 
 def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
     out = np.zeros((3, F, len(GRAPH_NODES)), dtype)
+    if isinstance(surface.joints, JointTable):
+        out[...] = surface.joints.array[:, _GRAPH_NODE_INDEX].transpose(2, 0, 1)
+        return out
     for i, name in enumerate(GRAPH_NODES):
         if name in surface.joints:
             out[:, :, i] = surface.joints[name].T
@@ -99,6 +114,8 @@ def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
 
 
 def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
+    if isinstance(surface.joints, JointTable):  # every canonical joint
+        return
     need = {GRAPH_NODES[i] for i in np.unique(plan.chain_root)} | {"ankle_l", "ankle_r"}
     for idx in np.unique(np.concatenate([plan.entry_bone, *plan.floor_bone])):
         if idx == ZERO_BONE:
