@@ -39,7 +39,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
     order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
     a, b = np.asarray(a), np.asarray(b)
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
@@ -81,19 +81,23 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4). The nine entries are the usual
+    1 - 2 (y² + z²), 2 (xy - wz), ... computed three at a time (the same products and sums, so the
+    same bits as entry by entry, in a third of the numpy calls)."""
     q = np.asarray(q, float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    m = np.empty(q.shape[:-1] + (3, 3))
-    m[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    m[..., 0, 1] = 2 * (x * y - w * z)
-    m[..., 0, 2] = 2 * (x * z + w * y)
-    m[..., 1, 0] = 2 * (x * y + w * z)
-    m[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    m[..., 1, 2] = 2 * (y * z - w * x)
-    m[..., 2, 0] = 2 * (x * z - w * y)
-    m[..., 2, 1] = 2 * (y * z + w * x)
-    m[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return m
+    sq = q * q
+    pair = q[..., _QP] * q[..., _QQ]  # xy, xz, yz
+    turn = q[..., :1] * q[..., _QW]  # wz, wy, wx
+    m = np.empty(q.shape[:-1] + (9,))
+    m[..., _DIAG] = 1 - 2 * (sq[..., _SA] + sq[..., _SB])
+    m[..., _MINUS] = 2 * (pair - turn)
+    m[..., _PLUS] = 2 * (pair + turn)
+    return m.reshape(q.shape[:-1] + (3, 3))
+
+
+_QP, _QQ, _QW = [1, 1, 2], [2, 3, 3], [3, 2, 1]
+_SA, _SB, _DIAG = [2, 1, 1], [3, 3, 2], [0, 4, 8]  # y²+z², x²+z², x²+y² on the diagonal
+_MINUS, _PLUS = [1, 6, 5], [3, 2, 7]  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
 
 
 def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -187,7 +191,8 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Shortest-arc rotation taking direction a to direction b; for opposite vectors, a half turn
     about an axis perpendicular to a."""
     a, b = normalize(a), normalize(b)
-    a, b = np.broadcast_arrays(a, b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
     d = (a * b).sum(-1)
     q = np.empty(d.shape + (4,))
     q[..., 0] = 1.0 + d
@@ -213,7 +218,7 @@ def frame_from_axes(y_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     local +X is the flexion axis)."""
     y = normalize(y_axis)
     x = normalize(x_hint - (x_hint * y).sum(-1, keepdims=True) * y)
-    out = np.empty(np.broadcast_shapes(y.shape, x.shape) + (3,))
+    out = np.empty((y.shape if y.shape == x.shape else np.broadcast_shapes(y.shape, x.shape)) + (3,))
     out[..., 0], out[..., 1], out[..., 2] = x, y, cross(x, y)
     return out
 

@@ -155,6 +155,21 @@ class _PosePlan:
     canon: np.ndarray  # their canonical bones
     fixed: np.ndarray  # (K, 3, 3) C0^-1 W M_A
     levels: list[_Level]
+    chained: bool  # the spine chain's bones are posed
+
+
+@dataclass
+class _ChainPlan:
+    """The spine chain's bones (AvatarRig._aim_chains), in order, with what aiming each one takes."""
+
+    index: dict  # bone -> its row here
+    vertebra: np.ndarray  # the canonical vertebra whose twist it takes
+    fixed: np.ndarray  # (n, 3, 3) that vertebra's C0^-1 W
+    rest: np.ndarray  # (n, 3, 3) the bone's M_A
+    aim: np.ndarray  # (n, 3) its aim point in its rest frame
+    off: np.ndarray  # (n, 3) the aim point's offset from the rest curve
+    k: np.ndarray  # (n,) the curve segment of its arc position
+    t: np.ndarray  # (n,) and the position along it
 
 
 @dataclass
@@ -370,7 +385,15 @@ class AvatarRig:
         if len(plan.driven):
             # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
             P[plan.driven] = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), plan.fixed, plan.canon))
-        curve = None
+        chain = self._chain_plan if plan.chained else None
+        if chain is not None:
+            # What a chain bone's aim needs but its parent's pose: its vertebra's turn since rest
+            # (the twist), the aim point it carries, and the offset of its target off the curve.
+            delta = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), chain.fixed, chain.vertebra))
+            twist = stacks_mul(delta, chain.rest)
+            aim = stacks_apply(twist, chain.aim)
+            off = stacks_apply(delta, chain.off)
+            target = None
         for lv in plan.levels:
             if len(lv.heads):
                 H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
@@ -381,14 +404,12 @@ class AvatarRig:
             if len(lv.follow):
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
             for i in lv.chain:
-                if curve is None:
+                if target is None:  # the canonical spine curve, once the bone it starts on is posed
                     curve = self._spine_curve(frames, P, H)
-                c = BI[SPINE_BONES[self.chain_vertebra[i]]]
-                delta = self._from_world(stack_mul(frames[:, c], self.frames0[c].T @ self.w_rot))
-                twist = stack_mul(delta, self.rest[i])
-                target = curve_point(curve, self.chain_s[i]) + stack_apply(delta, self.chain_off[i])
-                q = quat_between(stack_apply(twist, self.chain_aim[i]), target - H[i])
-                P[i] = quat_to_matrix(q) @ twist
+                    target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
+                        + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
+                j = chain.index[i]
+                P[i] = quat_to_matrix(quat_between(aim[j], target[j] - H[i])) @ twist[j]
             if lv.root:
                 H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
         return P, H
@@ -429,9 +450,22 @@ class AvatarRig:
                 np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
                 [i for i in at if rows[i][1] == "chain"], self.root in at))
         plan = _PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
-                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels)
+                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels,
+                         any(lv.chain for lv in levels))
         self._caches[("pose", bones)] = plan
         return plan
+
+    @property
+    def _chain_plan(self) -> _ChainPlan:
+        if getattr(self, "_chain_rows", None) is None:
+            bones = [i for i, d in enumerate(self.driver) if d == "chain"]
+            vert = np.array([BI[SPINE_BONES[self.chain_vertebra[i]]] for i in bones], int)
+            s = self.chain_s[bones]
+            k = np.clip(np.floor(s), 0, len(SPINE_JOINTS) - 2).astype(int)
+            self._chain_rows = _ChainPlan({b: j for j, b in enumerate(bones)}, vert,
+                                          np.array([self.frames0[c].T @ self.w_rot for c in vert]).reshape(-1, 3, 3),
+                                          self.rest[bones], self.chain_aim[bones], self.chain_off[bones], k, s - k)
+        return self._chain_rows
 
     @property
     def _bone_plan(self) -> list[tuple]:

@@ -313,15 +313,15 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
-    vt = np.ascontiguousarray(np.take(vhat, plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
+    vt = np.ascontiguousarray(vhat.take(plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
     tau = np.zeros(vt.shape[1:], vt.dtype)
     dots = []
     for bones in plan.slot_bones:
         n = len(bones)
-        dots.append(np.abs(_dot(vt[:, :n], np.take(ub, bones, axis=1))))
+        dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
         tau[:n] += dots[-1]
-    tau = np.take(tau, plan.unorder, axis=0).T
-    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - np.take(nodes_u, plan.chain_root, axis=2)))
+    tau = tau.take(plan.unorder, axis=0).T
+    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
     return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
 
@@ -329,15 +329,15 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
 def _chains(a, plan: _Plan):
     """(3, F, P, E) -> (3, F, N): the pairs that have a chain (a view when all do)."""
     flat = a.reshape(a.shape[:2] + (-1,))
-    return flat if plan.dense else np.take(flat, plan.chain_pe, axis=2)
+    return flat if plan.dense else flat.take(plan.chain_pe, axis=2)
 
 
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
     """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
     out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
     for bones, d in zip(plan.slot_bones, b.dots):
-        out[:len(bones)] += d * np.take(lratio, bones, axis=0)
-    return np.take(out, plan.unorder, axis=0).T
+        out[:len(bones)] += d * lratio.take(bones, axis=0)
+    return out.take(plan.unorder, axis=0).T
 
 
 def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v):
@@ -348,7 +348,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     E = pr.v.shape[-1]
     x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
-    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
+    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > EPS)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
@@ -370,9 +370,9 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
         ratios = []
         for side, name in enumerate(sk.SIDES):
             ent, st = plan.floor_bone[side], plan.floor_starts[side]
-            uz = np.abs(np.take(ub[2], ent, axis=0))  # (K, F)
+            uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
             tf = np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
-            tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=0), st, axis=0).T
+            tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
             tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS))
         # Decision: the two feet's ratios blended by which ankle is lower (SUPPORT_BLEND): with

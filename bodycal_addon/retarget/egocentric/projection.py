@@ -39,7 +39,8 @@ class Projections:
 def _comp(a) -> np.ndarray:
     """(..., 3) -> (3, ...) contiguous. The hot path keeps vector components first, so every
     operation runs over contiguous arrays (numpy is several times slower on a trailing axis of 3)."""
-    return np.ascontiguousarray(np.moveaxis(_floating(a), -1, 0))
+    a = _floating(a)
+    return np.ascontiguousarray(a.transpose((a.ndim - 1,) + tuple(range(a.ndim - 1))))
 
 
 def _rot_comp(rot) -> np.ndarray:
