@@ -140,30 +140,20 @@ class PreparedSolver:
         return SolvedFrames(pose.basis, pose.root_location, pose.joints @ self.rot_t + self.shift,
                             {n: v @ self.rot_t + self.shift for n, v in tg.items()})
 
-    def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> dict:
-        """The stances of the whole take from the performer's ankles (carried by the foot trackers,
-        or the source character's) and, per stance, where the avatar's foot is planted (feet.py):
-        {side: (weight (F,), planted xy (F, 2), the avatar's sole points (K, 3) in its canonical
-        foot frame)}."""
-        out = {}
-        ref = self.user_pos
-        tr = self.src.trackers()
-        placed = self.impl.ankle_places(tr) if tr is not None else None
+    def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> FeetPlan:
+        """Where the avatar's feet are planted (feet.py): per side the avatar's sole points (K, 3) in
+        its canonical foot frame, and the stances from the performer's ankles (carried by the foot
+        trackers, or the source character's), found over the whole take or frame by frame."""
         corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
+        soles = {}
         for s in sk.SIDES:
-            user_ankle = self.src.ankle(s)
-            if user_ankle is None:
-                continue
-            stance = feet.detect(user_ankle, self.src.time, float(ref[f"ankle_{s}"][2]))
-            reference = (placed[f"ankle_{s}"] if placed is not None
-                         else root_positions(user_ankle, self.k, self.centre))
             eid = f"mesh:sole_{s}"
             if eid in {e.id for e in avatar.surface}:
-                sole = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
+                soles[s] = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
             else:  # no sole measured: one point under the ankle, as deep as the ankle stands at rest
-                sole = (np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]]) @ self.rig.frames0[BI[f"foot_{s}"]])[None]
-            out[s] = (stance.weight, feet.planted_xy(reference, stance), sole)
-        return out
+                depth = np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]])
+                soles[s] = (depth @ self.rig.frames0[BI[f"foot_{s}"]])[None]
+        return FeetPlan(self, soles, causal=self.stance == "causal")
 
     def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
              ankles: dict | None = None):
@@ -175,13 +165,12 @@ class PreparedSolver:
         rig = self.rig
         targets = dict(targets)
         weights, aims, sides = [], [], []
-        for s, (weight, planted, sole) in self.feet.items():
-            w = weight[start:stop]
+        for s, (w, planted, sole) in self.feet.rows(start, stop).items():
             if not w.any():
                 continue
             name = f"ankle_{s}"
             base = targets[name] if name in targets else ankles[name]
-            targets[name] = feet.lock(base, planted[start:stop], w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
+            targets[name] = feet.lock(base, planted, w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
             weights.append(w)
             aims.append(targets[name])
             sides.append(s)
@@ -341,3 +330,60 @@ class PreparedSolver:
                     out[s, f] = (c0h.T @ (p0[0] - w0), c0h.T @ rig.frames0[BI[f"{f}_1_{s}"]], lens)
             self._fingers_at_rest = out
         return self._fingers_at_rest
+
+
+class FeetPlan:
+    """The stances of a take and where the avatar's feet are planted (feet.py), per side:
+    `rows(start, stop)` {side: (weight (F,), planted xy (F, 2), sole points (K, 3))}. Found over the
+    whole take at once (`feet.detect`, a bake), or frame by frame as the frames are asked for, in
+    order (`feet.CausalStance`, a live stream: each frame's from the frames before it only)."""
+
+    def __init__(self, solver: PreparedSolver, soles: dict, causal: bool):
+        self.solver, self.soles, self.causal = solver, soles, causal
+        src = solver.src
+        self.sides = [s for s in sk.SIDES if src.ankle(s, 0, 0) is not None]
+        self.done = 0  # frames planned so far (causal)
+        self.weight = {s: np.zeros(0) for s in self.sides}
+        self.planted = {s: np.zeros((0, 2)) for s in self.sides}
+        if causal:
+            rec = src.recording  # a live recording's nominal rate, else the take's
+            fps = getattr(rec, "rate", None) or (rec.fps if rec is not None else (len(src.time) - 1) / max(
+                float(src.time[-1] - src.time[0]), 1e-9))
+            self.stance = {s: feet.CausalStance(float(solver.user_pos[f"ankle_{s}"][2]), fps) for s in self.sides}
+        else:
+            self._extend(src.frame_count)
+
+    def _reference(self, start: int, stop: int, ankles: dict) -> dict:
+        """Where the method puts each ankle in frames [start, stop) (AvatarGo's own target, or the
+        user's ankle scaled about the root)."""
+        solver = self.solver
+        tr = solver.src.trackers(start, stop)
+        placed = solver.impl.ankle_places(tr) if tr is not None else None
+        return {s: placed[f"ankle_{s}"] if placed is not None else root_positions(a, solver.k, solver.centre)
+                for s, a in ankles.items()}
+
+    def _extend(self, stop: int) -> None:
+        """Plan the frames [done, stop)."""
+        src, start = self.solver.src, self.done
+        if stop <= start:
+            return
+        whole = not self.causal  # the whole take: its trackers read once for both feet
+        ankles = {s: src.ankle(s) if whole else src.ankle(s, start, stop) for s in self.sides}
+        reference = self._reference(0, None, ankles) if whole else self._reference(start, stop, ankles)
+        for s in self.sides:
+            if whole:
+                stance = feet.detect(ankles[s], src.time, float(self.solver.user_pos[f"ankle_{s}"][2]))
+                w, planted = stance.weight, feet.planted_xy(reference[s], stance)
+            else:
+                w, planted = self.stance[s].update(ankles[s], src.time[start:stop], reference[s])
+            self.weight[s] = np.concatenate([self.weight[s], w])
+            self.planted[s] = np.concatenate([self.planted[s], planted])
+        self.done = stop
+
+    def rows(self, start: int, stop: int) -> dict:
+        if stop > self.done:
+            self._extend(stop)
+        return {s: (self.weight[s][start:stop], self.planted[s][start:stop], self.soles[s]) for s in self.sides}
+
+    def __bool__(self) -> bool:
+        return bool(self.sides)
