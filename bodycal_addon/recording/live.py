@@ -28,6 +28,7 @@ class LiveRecording(Recording):
         d, m = len(devices), len(marker_names)
         self._cap = 0
         self._n = 0
+        self._raw: dict[str, np.ndarray] = {}  # the last frame's poses as given (held where untracked)
         self._buf = {"time": np.empty(0), "positions": np.empty((0, d, 3)), "rotations": np.empty((0, d, 4)),
                      "valid": np.zeros((0, d), bool), "markers": np.empty((0, m, 3)),
                      "marker_valid": np.zeros((0, m), bool)}
@@ -91,13 +92,13 @@ class LiveRecording(Recording):
         pose given, whatever it is)."""
         for key, flag in (("positions", "valid"), ("rotations", "valid"), ("markers", "marker_valid")):
             value, ok = new[key], new[flag]
-            if ok.all():
-                continue
-            value = value.copy()
-            for i in range(len(value)):  # the frames of one append: usually one
-                prev = value[i - 1] if i else (self._buf[key][self._n - 1] if self._n else value[0])
-                value[i] = np.where(ok[i][:, None], value[i], prev)
-            new[key] = value
+            if not ok.all():
+                value = value.copy()
+                for i in range(len(value)):  # the frames of one append: usually one
+                    prev = value[i - 1] if i else self._raw.get(key, value[0])
+                    value[i] = np.where(ok[i][:, None], value[i], prev)
+                new[key] = value
+            self._raw[key] = value[-1]  # before any filter: what the next untracked frame holds
 
     def _grow(self, n: int) -> None:
         if n <= self._cap:

@@ -158,16 +158,19 @@ class PreparedSolver:
     def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
              ankles: dict | None = None):
         """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
-        onto the planted places, and the pelvis lowered where a planted foot is out of reach. Returns
-        (targets, pelvis, whether anything is planted in these frames)."""
+        onto the planted places and kept above the floor, and the pelvis lowered where a planted foot
+        is out of reach. Returns (targets, pelvis, whether the feet are planned at all).
+
+        Decision: every frame of a planned foot is locked (`feet.lock` also keeps an unplanted sole
+        above the floor), whether or not the foot is planted anywhere in the frames asked for: once
+        a block without a stance was left alone, so a frame's result depended on the block it was
+        solved in (the bake's chunks, a preview's single frame)."""
         if not self.feet:
             return targets, pelvis, False
         rig = self.rig
         targets = dict(targets)
         weights, aims, sides = [], [], []
         for s, (w, planted, sole) in self.feet.rows(start, stop).items():
-            if not w.any():
-                continue
             name = f"ankle_{s}"
             base = targets[name] if name in targets else ankles[name]
             targets[name] = feet.lock(base, planted, w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
