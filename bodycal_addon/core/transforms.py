@@ -29,10 +29,10 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
         s += c * c
     n = np.sqrt(s)
     ok = n > EPS
+    if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
+        return v / (n[..., None] if last else np.expand_dims(n, axis)), n
     u = v / (np.where(ok, n, 1.0)[..., None] if last else np.expand_dims(np.where(ok, n, 1.0), axis))
-    if not ok.all():
-        u = np.where(ok[..., None] if last else np.expand_dims(ok, axis), u, fallback)
-    return u, n
+    return np.where(ok[..., None] if last else np.expand_dims(ok, axis), u, fallback), n
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

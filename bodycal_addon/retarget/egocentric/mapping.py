@@ -178,6 +178,7 @@ class _UserBlock:
     vhat: np.ndarray  # (3, F, N) unit v of each chain
     tau: np.ndarray  # (F, N) τ
     dots: list  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone length ratios)
+    floor_user: tuple | None = None  # the floor ratios' user side, once mapped (_floor_user)
 
 
 @dataclass
@@ -228,8 +229,8 @@ class PreparedTargets:
         lrt = np.ascontiguousarray(lratio.T)
         # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
         # differ by rotations (the pipeline's arm passes), so it is kept for the next call.
-        cached = self._bone_tau_a if self._bone_tau_a is not None and np.allclose(
-            self._bone_tau_a[0], lrt, rtol=EPS, atol=0.0) else None
+        cached = self._bone_tau_a if self._bone_tau_a is not None and np.all(
+            np.abs(self._bone_tau_a[0] - lrt) <= EPS * np.abs(lrt)) else None  # allclose(rtol=EPS, atol=0)
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F, dtype)
@@ -367,18 +368,32 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     vertical = (est[2] * b.lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
+        if b.floor_user is None:  # the user's side, the same for every map of this block
+            b.floor_user = _floor_user(b, plan, ub)
         ratios = []
         for side, name in enumerate(sk.SIDES):
             ent, st = plan.floor_bone[side], plan.floor_starts[side]
-            uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
-            tf = np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
+            uz, tf = b.floor_user[side]
             tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
             tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS))
-        # Decision: the two feet's ratios blended by which ankle is lower (SUPPORT_BLEND): with
-        # both feet on the floor, picking the lower ankle flips with millimetres of noise, and
-        # each flip moved every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm.
-        w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
+        w_left = b.floor_user[2]
         fratio = ratios[1] + w_left[:, None] * (ratios[0] - ratios[1])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
     return np.concatenate([horizontal, vertical[..., None]], axis=-1), ratio
+
+
+def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
+    """The user's side of the floor ratios of a block: per side (|b_z| of the bones from that ankle
+    (K, F), their τ with the ankle's height (F, P)), and the left foot's share of the support.
+    Decision: the two feet's ratios are blended by which ankle is lower (SUPPORT_BLEND): with both
+    feet on the floor, picking the lower ankle flips with millimetres of noise, and each flip moved
+    every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm."""
+    us = b.us
+    out = []
+    for side, name in enumerate(sk.SIDES):
+        ent, st = plan.floor_bone[side], plan.floor_starts[side]
+        uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
+        out.append((uz, np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]))
+    w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
+    return out[0], out[1], w_left
