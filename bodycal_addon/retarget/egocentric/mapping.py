@@ -280,18 +280,10 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
     ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))
     nodes_u = _node_positions(user_surface, F, dtype)
     user_surface = user_surface.astype(dtype)
-    ids = user_surface.element_ids
-    rows: dict[frozenset, list[int]] = {}
-    for i, name in enumerate(target_names):
-        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
     groups = []
-    for excluded, members in rows.items():
-        keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
-        # Decision: a target with every element excluded keeps them all (all weights zero: the
-        # user's horizontal position, the floor's vertical one, as before grouping).
-        sub = user_surface if not excluded or not len(keep) else user_surface.select(keep)
-        names = tuple(target_names[i] for i in members)
-        plan = _plan(names, tuple(sub.element_ids), tuple(sub.element_roots))
+    for members, names, keep, plan in _grouping(tuple(target_names), tuple(user_surface.element_ids),
+                                                tuple(user_surface.element_roots)):
+        sub = user_surface if keep is None else user_surface.select(keep)
         _check_joints(sub, plan, names, "user")
         step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
         step = max(1, step)
@@ -300,8 +292,29 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
             e = min(F, s + step)
             blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
                                          nodes_u[:, s:e], floor, penetration_tolerance, falloff))
-        groups.append(_Group(np.array(members, int), names, None if sub is user_surface else keep, plan, blocks))
+        groups.append(_Group(members, names, keep, plan, blocks))
     return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
+
+
+@lru_cache(maxsize=64)
+def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
+    """The targets grouped by the elements they exclude (own_chain_elements), once per target and
+    element set: [(the group's targets (indices), their names, the elements kept (None: all),
+    the group's _Plan)]."""
+    rows: dict[frozenset, list[int]] = {}
+    for i, name in enumerate(target_names):
+        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
+    out = []
+    for excluded, members in rows.items():
+        keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
+        # Decision: a target with every element excluded keeps them all (all weights zero: the
+        # user's horizontal position, the floor's vertical one, as before grouping).
+        keep = None if not excluded or not len(keep) else keep
+        names = tuple(target_names[i] for i in members)
+        cols = range(len(ids)) if keep is None else keep
+        plan = _plan(names, tuple(ids[k] for k in cols), tuple(roots[k] for k in cols))
+        out.append((np.array(members, int), names, keep, plan))
+    return out
 
 
 def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff) -> _UserBlock:
