@@ -137,8 +137,10 @@ class PreparedSolver:
             raise BodyCalError(f"frames {start}-{stop} are not within the take's 0-{self.frame_count}",
                                source=self.src.name, field="frames")
         pose, tg = self.chunk(start, stop)
+        names = list(tg)
+        world = (np.stack([tg[n] for n in names]) @ self.rot_t + self.shift) if names else ()
         return SolvedFrames(pose.basis, pose.root_location, pose.joints @ self.rot_t + self.shift,
-                            {n: v @ self.rot_t + self.shift for n, v in tg.items()})
+                            {n: world[k] for k, n in enumerate(names)})
 
     def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> FeetPlan:
         """Where the avatar's feet are planted (feet.py): per side the avatar's sole points (K, 3) in
