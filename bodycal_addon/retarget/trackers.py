@@ -83,6 +83,7 @@ class TrackerReader:
         self._marker_fill = _Fill(len(recording.marker_names))
         self.version = 0  # changes whenever the roles change (a device tracked for the first time)
         self._roles: tuple | None = None
+        self._last = None  # ((start, stop, version), Trackers) of the last read
         self._sync()
 
     def _sync(self) -> None:
@@ -133,6 +134,9 @@ class TrackerReader:
         self._sync()
         rec = self.recording
         stop = rec.frame_count if stop is None else stop
+        key = (start, stop, self.version)
+        if self._last is not None and self._last[0] == key:  # the animation's and the method's read
+            return self._last[1]
         src = self._fill.rows(start, stop, self.devices)  # (R, F)
         cols = self.devices[:, None]
         positions = rec.positions[src, cols]
@@ -145,9 +149,11 @@ class TrackerReader:
         for d_i, note in sorted(events, key=lambda e: e[0]):
             role = rec.devices[d_i].role
             notes.append(note or f"{role}: {partly[d_i]} frames without tracking held at the last valid pose")
-        return Trackers({r: positions[k] for k, r in enumerate(self.roles)},
-                        {r: rotations[k] for k, r in enumerate(self.roles)}, self.ref_rot, v.all(1), notes,
-                        self.roles, positions, rotations)
+        out = Trackers({r: positions[k] for k, r in enumerate(self.roles)},
+                       {r: rotations[k] for k, r in enumerate(self.roles)}, self.ref_rot, v.all(1), notes,
+                       self.roles, positions, rotations)
+        self._last = (key, out)
+        return out
 
     def markers(self, columns, start: int, stop: int) -> np.ndarray:
         """(len(columns), F, 3) the markers' points of frames [start, stop), forward-filled."""
