@@ -37,6 +37,7 @@ from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording.filters import DEFAULT_FILTER, OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
+from bodycal_addon.retarget import solver_methods  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 
@@ -79,8 +80,8 @@ def _model_gaps(avatar, rig: AvatarRig, anim, contacts):
     from bodycal_addon.retarget import egocentric as ego
 
     pose = rig.fk(anim.rotations, anim.root_location)
-    model = pl._surface_bones(avatar)
-    corr = pl.surface_correction(avatar, rig.frames0, complete_joints(avatar))
+    model = solver_methods._surface_bones(avatar)
+    corr = solver_methods.surface_correction(avatar, rig.frames0, complete_joints(avatar))
     joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
     frames = {b.name: pose.frames[:, i] @ corr[i] for i, b in enumerate(ap_bones())}
     out = []

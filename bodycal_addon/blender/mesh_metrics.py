@@ -28,7 +28,7 @@ from ..body.rest_frames import complete_joints
 from ..body.skeleton import BONE_INDEX as BI
 from ..core.errors import BodyCalError
 from ..retarget.avatar_pose import AvatarRig
-from ..retarget.pipeline import surface_correction
+from ..retarget.solver_methods import surface_correction
 
 
 def world_vertices(obj, depsgraph) -> np.ndarray:

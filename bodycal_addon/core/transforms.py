@@ -22,16 +22,30 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     float32, their vectors components first: `axis=0`). The norm sums the squared components in
     order, as `np.linalg.norm` does, one component at a time (several times faster on a short
     trailing axis)."""
-    comps = np.moveaxis(v, axis, 0)
+    last = axis in (-1, v.ndim - 1)
+    comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
     s = comps[0] * comps[0]
     for c in comps[1:]:
         s += c * c
     n = np.sqrt(s)
     ok = n > EPS
-    u = v / np.expand_dims(np.where(ok, n, 1.0), axis)
-    if not ok.all():
-        u = np.where(np.expand_dims(ok, axis), u, fallback)
-    return u, n
+    if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
+        return v / (n[..., None] if last else np.expand_dims(n, axis)), n
+    u = v / (np.where(ok, n, 1.0)[..., None] if last else np.expand_dims(np.where(ok, n, 1.0), axis))
+    return np.where(ok[..., None] if last else np.expand_dims(ok, axis), u, fallback), n
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
+    order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
+    a, b = np.asarray(a), np.asarray(b)
+    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -62,19 +76,28 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, float)
     w = q[..., :1]
     u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    t = 2.0 * cross(u, v)
+    return v + w * t + cross(u, t)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4). The nine entries are the usual
+    1 - 2 (y² + z²), 2 (xy - wz), ... computed three at a time (the same products and sums, so the
+    same bits as entry by entry, in a third of the numpy calls)."""
     q = np.asarray(q, float)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    m = np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], axis=-1)
+    sq = q * q
+    pair = q[..., _QP] * q[..., _QQ]  # xy, xz, yz
+    turn = q[..., :1] * q[..., _QW]  # wz, wy, wx
+    m = np.empty(q.shape[:-1] + (9,))
+    m[..., _DIAG] = 1 - 2 * (sq[..., _SA] + sq[..., _SB])
+    m[..., _MINUS] = 2 * (pair - turn)
+    m[..., _PLUS] = 2 * (pair + turn)
     return m.reshape(q.shape[:-1] + (3, 3))
+
+
+_QP, _QQ, _QW = [1, 1, 2], [2, 3, 3], [3, 2, 1]
+_SA, _SB, _DIAG = [2, 1, 1], [3, 3, 2], [0, 4, 8]  # y²+z², x²+z², x²+y² on the diagonal
+_MINUS, _PLUS = [1, 6, 5], [3, 2, 7]  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
 
 
 def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -93,6 +116,39 @@ def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     """a @ v for a stack of 3x3 matrices a (..., 3, 3) and ONE vector v (3,) (see stack_mul)."""
     a = np.asarray(a, float)
     return (a.reshape(-1, 3) @ v).reshape(a.shape[:-1])
+
+
+# A stack of 3x3 products with fewer frames than this is one stacked matmul (one BLAS call per
+# product, no Python loop); with more, one BLAS call per stack (`stack_mul`): the same products,
+# bit for bit, either way.
+STACKED_FRAMES = 8
+
+
+def stacks_mul(a: np.ndarray, m: np.ndarray, rows=None) -> np.ndarray:
+    """a[k] @ m[k] for K stacks a (K, F, 3, 3) (or a[rows[k]] of a bigger stack when `rows` is
+    given) and K matrices m (K, 3, C): `stack_mul` stack by stack, with the Python loop only where
+    the stacks are long (STACKED_FRAMES)."""
+    m = np.asarray(m, float)
+    if a.shape[1] < STACKED_FRAMES:
+        return np.matmul(a if rows is None else a[rows], m[:, None])
+    idx = range(len(a)) if rows is None else rows
+    out = np.empty((len(idx),) + a.shape[1:-1] + (m.shape[-1],))
+    for k, r in enumerate(idx):
+        out[k] = (a[r].reshape(-1, 3) @ m[k]).reshape(out.shape[1:])
+    return out
+
+
+def stacks_apply(a: np.ndarray, v: np.ndarray, rows=None) -> np.ndarray:
+    """a[k] @ v[k] for K stacks a (K, F, 3, 3) (or a[rows[k]]) and K vectors v (K, 3) -> (K, F, 3):
+    `stack_apply` stack by stack (see stacks_mul)."""
+    v = np.asarray(v, float)
+    if a.shape[1] < STACKED_FRAMES:
+        return np.matmul(a if rows is None else a[rows], v[:, None, :, None])[..., 0]
+    idx = range(len(a)) if rows is None else rows
+    out = np.empty((len(idx),) + a.shape[1:-1])
+    for k, r in enumerate(idx):
+        out[k] = (a[r].reshape(-1, 3) @ v[k]).reshape(out.shape[1:])
+    return out
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
@@ -153,10 +209,12 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Shortest-arc rotation taking direction a to direction b; for opposite vectors, a half turn
     about an axis perpendicular to a."""
     a, b = normalize(a), normalize(b)
-    a, b = np.broadcast_arrays(a, b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
     d = (a * b).sum(-1)
-    c = np.cross(a, b)
-    q = np.concatenate([(1.0 + d)[..., None], c], axis=-1)
+    q = np.empty(d.shape + (4,))
+    q[..., 0] = 1.0 + d
+    q[..., 1:] = cross(a, b)
     opposite = d < -1.0 + 1e-9
     if np.any(opposite):
         perp = np.cross(a, np.array([1.0, 0.0, 0.0]))
@@ -178,8 +236,9 @@ def frame_from_axes(y_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     local +X is the flexion axis)."""
     y = normalize(y_axis)
     x = normalize(x_hint - (x_hint * y).sum(-1, keepdims=True) * y)
-    z = np.cross(x, y)
-    return np.stack([x, y, z], axis=-1)
+    out = np.empty((y.shape if y.shape == x.shape else np.broadcast_shapes(y.shape, x.shape)) + (3,))
+    out[..., 0], out[..., 1], out[..., 2] = x, y, cross(x, y)
+    return out
 
 
 def transform_points(pos: np.ndarray, rot: np.ndarray, local: np.ndarray) -> np.ndarray:

@@ -17,7 +17,9 @@ frames, no division, so no underflow trouble).
 `two_pass=True` (the default of `filter_recording`): a take being baked is known in full, so the
 filter also runs backward in time and the two results are averaged: the forward pass lags, the
 backward one leads by as much, and contacts keep their timing. `two_pass=False` is the causal
-filter a live VR runtime uses.
+filter a live VR runtime uses; `OneEuroStream` runs it on a stream a block of frames at a time
+(a live recording, `live.LiveRecording`), the recurrences carried from one block to the next, so
+a take streamed frame by frame gets the forward filter of the whole take (to rounding).
 """
 
 from __future__ import annotations
@@ -99,23 +101,29 @@ def affine_scan(c: np.ndarray, b: np.ndarray, y0) -> np.ndarray:
     return C * y0 + B
 
 
-def _lowpass(x: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """First-order low-pass with per-frame α (F, ...) of x (F, ...); starts at x[0]."""
+def _lowpass(x: np.ndarray, alpha: np.ndarray, y0=None) -> np.ndarray:
+    """First-order low-pass with per-frame α (F, ...) of x (F, ...); starts at x[0], or goes on from
+    `y0` (the output of the frame before)."""
     a = np.array(alpha, float, copy=True)
-    a[0] = 1.0
-    return affine_scan(1.0 - a, a * x, 0.0)
+    if y0 is None:
+        a[0] = 1.0
+        y0 = 0.0
+    return affine_scan(1.0 - a, a * x, y0)
 
 
 def _one_euro(x: np.ndarray, dt: np.ndarray, velocity: np.ndarray, cfg_min: float, cfg_beta: float,
-              d_cutoff: float, extra: np.ndarray | None = None) -> np.ndarray:
+              d_cutoff: float, state: tuple | None = None, extra: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
     """x (F, D, K) signals, dt (F,) seconds since the previous frame, velocity (F, D, 3) their raw
-    rate of change (the speed is the norm of its low-passed components, as the paper filters ẋ)."""
+    rate of change (the speed is the norm of its low-passed components, as the paper filters ẋ).
+    `state`: (the low-passed velocity, the output) of the frame before, to go on from; `extra`
+    (F, D) Hz added to the cutoff. Returns (the output, the low-passed velocity)."""
     a_d = _alpha(d_cutoff, dt)[:, None, None]
-    edx = _lowpass(velocity, np.broadcast_to(a_d, velocity.shape))
+    edx = _lowpass(velocity, np.broadcast_to(a_d, velocity.shape), None if state is None else state[0])
     cutoff = cfg_min + cfg_beta * np.linalg.norm(edx, axis=-1)
     if extra is not None:
         cutoff = cutoff + extra
-    return _lowpass(x, _alpha(cutoff, dt[:, None])[..., None])
+    return _lowpass(x, _alpha(cutoff, dt[:, None])[..., None], None if state is None else state[1]), edx
 
 
 def _dt(time: np.ndarray) -> np.ndarray:
@@ -134,7 +142,7 @@ def smooth_positions(time: np.ndarray, pos: np.ndarray, min_cutoff: float, beta:
     def once(t, p):
         dt = _dt(t)
         velocity = np.diff(p, axis=0, prepend=p[:1]) / dt[:, None, None]
-        return _one_euro(p, dt, velocity, min_cutoff, beta, d_cutoff, ex)
+        return _one_euro(p, dt, velocity, min_cutoff, beta, d_cutoff, extra=ex)[0]
 
     ex = extra
     fwd = once(time, pos)
@@ -155,15 +163,53 @@ def smooth_rotations(time: np.ndarray, quat: np.ndarray, min_cutoff: float, beta
     def once(t, qq):
         dt = _dt(t)
         prev = np.concatenate([qq[:1], qq[:-1]])
-        # angular velocity ~ 2 vec(q_n conj(q_{n-1})) / dt (small turns between frames)
-        w, v = qq[..., :1], qq[..., 1:]
-        pw, pv = prev[..., :1], -prev[..., 1:]
-        vec = w * pv + pw * v + np.cross(v, pv)
-        return _one_euro(qq, dt, 2.0 * vec / dt[:, None, None], min_cutoff, beta, d_cutoff)
+        return _one_euro(qq, dt, _angular_velocity(qq, prev, dt), min_cutoff, beta, d_cutoff)[0]
 
     fwd = once(time, q)
     out = fwd if not two_pass else 0.5 * (fwd + once(-np.asarray(time, float)[::-1], q[::-1])[::-1])
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def _angular_velocity(q: np.ndarray, prev: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """(F, D, 3) angular velocity ~ 2 vec(q_n conj(q_{n-1})) / dt (small turns between frames)."""
+    w, v = q[..., :1], q[..., 1:]
+    pw, pv = prev[..., :1], -prev[..., 1:]
+    vec = w * pv + pw * v + np.cross(v, pv)
+    return 2.0 * vec / dt[:, None, None]
+
+
+class OneEuroStream:
+    """The forward One Euro filter (`two_pass=False`) of one group of signals arriving a block of
+    frames at a time: positions (F, D, 3) or unit quaternions (F, D, 4) (`rotations=True`). The
+    recurrences of `smooth_positions` / `smooth_rotations` go on from the last frame of the
+    previous block (the last sample, its time, the low-passed speed and the output), so any split
+    of a take into blocks gives its forward filter, to rounding."""
+
+    def __init__(self, cfg: OneEuro, rotations: bool = False):
+        self.cfg, self.rotations = cfg, rotations
+        self._last = None  # (time, sample, low-passed velocity, output) of the last frame
+
+    def __call__(self, time: np.ndarray, x: np.ndarray) -> np.ndarray:
+        time, x = np.asarray(time, float), np.asarray(x, float)
+        if not len(time):
+            return x.copy()
+        cfg = self.cfg
+        lo, beta = (cfg.rot_min_cutoff, cfg.rot_beta) if self.rotations else (cfg.min_cutoff, cfg.beta)
+        if self._last is None:
+            if self.rotations:
+                x = continuous_quaternions(x)
+            dt, prev, state = _dt(time), x[:1], None
+        else:
+            t0, x0, edx0, y0 = self._last
+            if self.rotations:  # the same hemisphere as the frame before
+                x = continuous_quaternions(np.concatenate([x0[None], x]))[1:]
+            dt = np.maximum(np.diff(time, prepend=t0), 1e-6)
+            prev, state = x0[None], (edx0, y0)
+        prev = np.concatenate([prev, x[:-1]])
+        velocity = _angular_velocity(x, prev, dt) if self.rotations else (x - prev) / dt[:, None, None]
+        out, edx = _one_euro(x, dt, velocity, lo, beta, cfg.d_cutoff, state)
+        self._last = (time[-1], x[-1], edx[-1], out[-1])
+        return out / np.linalg.norm(out, axis=-1, keepdims=True) if self.rotations else out
 
 
 def filter_recording(rec: Recording, cfg: OneEuro | None = None) -> Recording:

@@ -40,6 +40,8 @@ from ..core.transforms import (
     quat_to_matrix,
     stack_apply,
     stack_mul,
+    stacks_apply,
+    stacks_mul,
 )
 
 
@@ -129,6 +131,45 @@ def _drivers(bones: dict, names: list[str], idx: dict[str, int], bm: naming.Bone
             raise BodyCalError(f"no avatar bone is mapped to '{seg}'", source=src, field="rig.bone_map",
                                hint="map it in the bone map panel")
     return driver, chain
+
+
+@dataclass
+class _Level:
+    """The bones of one depth of the rig's hierarchy, by how they are posed (AvatarRig._pose_plan)."""
+
+    heads: np.ndarray  # bones whose head hangs from their parent: H_p + P_p offset
+    head_par: np.ndarray
+    head_off: np.ndarray  # (K, 3) the offsets in the parents' rest frames
+    loose: np.ndarray  # parentless bones (not the root): at their rest head
+    rest: np.ndarray  # parentless undriven bones: at rest
+    follow: np.ndarray  # undriven bones with a parent: P_p M_p^-1 M_A
+    follow_par: np.ndarray
+    follow_fixed: np.ndarray  # (K, 3, 3)
+    chain: list[int]  # spine chain bones, aimed one by one
+    root: bool  # the root bone is at this depth (placed from the pelvis once posed)
+
+
+@dataclass
+class _PosePlan:
+    driven: np.ndarray  # bones driven by a canonical bone
+    canon: np.ndarray  # their canonical bones
+    fixed: np.ndarray  # (K, 3, 3) C0^-1 W M_A
+    levels: list[_Level]
+    chained: bool  # the spine chain's bones are posed
+
+
+@dataclass
+class _ChainPlan:
+    """The spine chain's bones (AvatarRig._aim_chains), in order, with what aiming each one takes."""
+
+    index: dict  # bone -> its row here
+    vertebra: np.ndarray  # the canonical vertebra whose twist it takes
+    fixed: np.ndarray  # (n, 3, 3) that vertebra's C0^-1 W
+    rest: np.ndarray  # (n, 3, 3) the bone's M_A
+    aim: np.ndarray  # (n, 3) its aim point in its rest frame
+    off: np.ndarray  # (n, 3) the aim point's offset from the rest curve
+    k: np.ndarray  # (n,) the curve segment of its arc position
+    t: np.ndarray  # (n,) and the position along it
 
 
 @dataclass
@@ -303,59 +344,128 @@ class AvatarRig:
         """(F, len(joints), 3) world positions of a few canonical joints for the pose `solve` would
         give, posing only the bones they hang from (the IK's limb roots need the trunk only)."""
         frames = np.asarray(frames, float)
-        jidx = [JI[j] for j in joints]
-        need: set[int] = set()
+        key = tuple(joints)
+        plan = self._caches.get(("joints", key))
+        if plan is None:
+            jidx = np.array([JI[j] for j in joints], int)
+            need: set[int] = set()
 
-        def with_ancestors(b):
-            while b >= 0 and b not in need:
-                need.add(int(b))
-                b = self.parent[b]
+            def with_ancestors(b):
+                while b >= 0 and b not in need:
+                    need.add(int(b))
+                    b = self.parent[b]
 
-        for b in self.joint_bone[jidx]:
-            with_ancestors(b)
-        if any(self.driver[b] == "chain" for b in need):  # the chain aims at the spine curve
-            with_ancestors(self.joint_bone[JI["spine_root"]])
-        P, H = self._pose(frames, pelvis, sorted(need))
-        out = np.empty((frames.shape[0], len(jidx), 3))
-        for k, j in enumerate(jidx):
-            b = self.joint_bone[j]
-            out[:, k] = H[b] + stack_apply(P[b], self.joint_local[j])
-        return self.to_world(out)
+            for b in self.joint_bone[jidx]:
+                with_ancestors(b)
+            if any(self.driver[b] == "chain" for b in need):  # the chain aims at the spine curve
+                with_ancestors(self.joint_bone[JI["spine_root"]])
+            plan = (tuple(sorted(need)), self.joint_bone[jidx], self.joint_local[jidx])
+            self._caches[("joints", key)] = plan
+        bones, carriers, local = plan
+        P, H = self._pose(frames, pelvis, bones)
+        out = H[carriers] + stacks_apply(P, local, carriers)  # (K, F, 3)
+        return self.to_world(np.ascontiguousarray(np.swapaxes(out, 0, 1)))
+
+    @property
+    def _caches(self) -> dict:
+        """Per rig, once: the posing plans (`_pose_plan`) and the joints' plans of `joint_positions`."""
+        if getattr(self, "_cache", None) is None:
+            self._cache = {}
+        return self._cache
 
     def _pose(self, frames, pelvis, bones=None):
         """Bones-first armature-space pose rotations P (N, F, 3, 3) and heads H (N, F, 3) of
-        `bones` (ascending; default all, the others left unset)."""
+        `bones` (ascending; default all, the others left unset), a depth of the hierarchy at a time
+        (`_pose_plan`): each step is one stacked product over the bones of that depth."""
         nf = frames.shape[0]
         n = len(self.names)
         P = np.empty((n, nf, 3, 3))
         H = np.empty((n, nf, 3))
-        curve = None
-        pel_local = self.joint_local[JI["pelvis"]]
-        if self.joint_bone[JI["pelvis"]] != self.root:
-            # The pelvis joint rides on another bone: place the root so that bone's joint lands.
-            pel_local = self.rest[self.root].T @ (self.joint_world_arm(JI["pelvis"]) - self.head[self.root])
-        plan = self._bone_plan
-        for i in range(n) if bones is None else bones:
-            p, drv, offset, fixed = plan[i]
-            if i != self.root:
-                H[i] = self.head[i] if p < 0 else H[p] + stack_apply(P[p], offset)
-            if drv is None:
-                P[i] = self.rest[i] if p < 0 else stack_mul(P[p], fixed)
-            elif drv == "chain":
-                if curve is None:
+        plan = self._pose_plan(None if bones is None else tuple(bones))
+        if len(plan.driven):
+            # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
+            P[plan.driven] = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), plan.fixed, plan.canon))
+        chain = self._chain_plan if plan.chained else None
+        if chain is not None:
+            # What a chain bone's aim needs but its parent's pose: its vertebra's turn since rest
+            # (the twist), the aim point it carries, and the offset of its target off the curve.
+            delta = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), chain.fixed, chain.vertebra))
+            twist = stacks_mul(delta, chain.rest)
+            aim = stacks_apply(twist, chain.aim)
+            off = stacks_apply(delta, chain.off)
+            target = None
+        for lv in plan.levels:
+            if len(lv.heads):
+                H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
+            if len(lv.loose):
+                H[lv.loose] = self.head[lv.loose][:, None]
+            if len(lv.rest):
+                P[lv.rest] = self.rest[lv.rest][:, None]
+            if len(lv.follow):
+                P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
+            for i in lv.chain:
+                if target is None:  # the canonical spine curve, once the bone it starts on is posed
                     curve = self._spine_curve(frames, P, H)
-                c = BI[SPINE_BONES[self.chain_vertebra[i]]]
-                delta = self._from_world(stack_mul(frames[:, c], self.frames0[c].T @ self.w_rot))
-                twist = stack_mul(delta, self.rest[i])
-                target = curve_point(curve, self.chain_s[i]) + stack_apply(delta, self.chain_off[i])
-                q = quat_between(stack_apply(twist, self.chain_aim[i]), target - H[i])
-                P[i] = quat_to_matrix(q) @ twist
-            else:
-                # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-                P[i] = self._from_world(stack_mul(frames[:, drv], fixed))
-            if i == self.root:
-                H[i] = self.to_armature(pelvis) - stack_apply(P[i], pel_local)
+                    target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
+                        + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
+                j = chain.index[i]
+                P[i] = quat_to_matrix(quat_between(aim[j], target[j] - H[i])) @ twist[j]
+            if lv.root:
+                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
         return P, H
+
+    @property
+    def _pelvis_local(self) -> np.ndarray:
+        """The pelvis joint in the root bone's rest frame (it may ride on another bone: the root is
+        placed so that bone's joint lands)."""
+        if self.joint_bone[JI["pelvis"]] != self.root:
+            return self.rest[self.root].T @ (self.joint_world_arm(JI["pelvis"]) - self.head[self.root])
+        return self.joint_local[JI["pelvis"]]
+
+    def _pose_plan(self, bones: tuple | None) -> _PosePlan:
+        """Per rig and bone subset, once: the driven bones (W^-1 C_c(t) (C0^-1 W M_A), each on its own)
+        and, depth by depth, the heads placed from their parents (H_p + P_p offset), the bones that
+        follow their parents (P_p M_p^-1 M_A), the parentless ones (at rest) and the spine chain's
+        (aimed one by one). Bones of one depth need only shallower ones."""
+        plan = self._caches.get(("pose", bones))
+        if plan is not None:
+            return plan
+        keep = set(range(len(self.names))) if bones is None else set(bones)
+        depth = np.zeros(len(self.names), int)
+        for i, p in enumerate(self.parent):  # parents come first
+            depth[i] = depth[p] + 1 if p >= 0 else 0
+        rows = self._bone_plan
+        driven = [i for i in sorted(keep) if isinstance(rows[i][1], (int, np.integer))]
+        levels = []
+        for d in range(int(depth.max()) + 1 if len(depth) else 0):
+            at = [i for i in sorted(keep) if depth[i] == d]
+            heads = [i for i in at if i != self.root and rows[i][0] >= 0]
+            follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
+            levels.append(_Level(
+                np.array(heads, int), np.array([rows[i][0] for i in heads], int),
+                np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
+                np.array([i for i in at if i != self.root and rows[i][0] < 0], int),
+                np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
+                np.array(follow, int), np.array([rows[i][0] for i in follow], int),
+                np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
+                [i for i in at if rows[i][1] == "chain"], self.root in at))
+        plan = _PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
+                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels,
+                         any(lv.chain for lv in levels))
+        self._caches[("pose", bones)] = plan
+        return plan
+
+    @property
+    def _chain_plan(self) -> _ChainPlan:
+        if getattr(self, "_chain_rows", None) is None:
+            bones = [i for i, d in enumerate(self.driver) if d == "chain"]
+            vert = np.array([BI[SPINE_BONES[self.chain_vertebra[i]]] for i in bones], int)
+            s = self.chain_s[bones]
+            k = np.clip(np.floor(s), 0, len(SPINE_JOINTS) - 2).astype(int)
+            self._chain_rows = _ChainPlan({b: j for j, b in enumerate(bones)}, vert,
+                                          np.array([self.frames0[c].T @ self.w_rot for c in vert]).reshape(-1, 3, 3),
+                                          self.rest[bones], self.chain_aim[bones], self.chain_off[bones], k, s - k)
+        return self._chain_rows
 
     @property
     def _bone_plan(self) -> list[tuple]:
@@ -391,16 +501,25 @@ class AvatarRig:
         return self._w_id
 
     def _basis(self, P):
-        """Pose-bone quaternions from bones-first armature-space pose rotations (N, F, 3, 3):
+        """Pose-bone quaternions from bones-first armature-space pose rotations P (N, F, 3, 3):
         basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P)."""
-        rel_t = np.swapaxes(self.rest, -1, -2)
-        basis = np.empty(P.shape)
-        for i, p in enumerate(self.parent):
-            if p < 0:
-                basis[i] = mul_stack(rel_t[i], P[i])
-            else:
-                basis[i] = mul_stack(rel_t[i] @ self.rest[p], np.swapaxes(P[p], -1, -2) @ P[i])
+        kids, parents, fixed = self._basis_plan
+        rel = P.copy()
+        rel[kids] = np.swapaxes(P[parents], -1, -2) @ P[kids]
+        # M^-1 (M_p) X for each bone, one stacked product (as mul_stack, bone by bone)
+        basis = np.swapaxes(stacks_mul(np.ascontiguousarray(np.swapaxes(rel, -1, -2)), fixed), -1, -2)
         return matrix_to_quat(np.swapaxes(basis, 0, 1))
+
+    @property
+    def _basis_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(bones with a parent, their parents, per bone the fixed left factor's transpose (N, 3, 3):
+        (M^-1 M_p)^T, or (M^-1)^T for a parentless bone), once per rig."""
+        if getattr(self, "_bplan", None) is None:
+            rel_t = np.swapaxes(self.rest, -1, -2)
+            kids = np.flatnonzero(self.parent >= 0)
+            fixed = np.stack([(rel_t[i] if p < 0 else rel_t[i] @ self.rest[p]).T for i, p in enumerate(self.parent)])
+            self._bplan = (kids, self.parent[kids], np.ascontiguousarray(fixed))
+        return self._bplan
 
     def joint_world_arm(self, j):
         return self.to_armature(self.joint_world[j])
@@ -433,26 +552,33 @@ class AvatarRig:
         canonical joints riding on their bones and the realised canonical frames."""
         nf = P.shape[1]
         joints = np.empty((nf, len(JOINTS), 3))
-        for b, js, local in self._joint_groups:
-            rel = (P[b].reshape(-1, 3) @ local.T).reshape(nf, 3, len(js))
-            joints[:, js] = H[b][:, None, :] + np.swapaxes(rel, 1, 2)
+        for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
+            rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
+            joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
             frames = None
         else:
-            idx = range(len(BONES)) if realised is True else np.asarray(realised, int)
+            idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
             frames = np.full((nf, len(BONES), 3, 3), np.nan)
-            for c in idx:
-                frames[:, c] = self._to_world_rot(stack_mul(P[self.carrier[c]], self._carrier_rel[c]))
+            if len(idx):
+                rel = self._to_world_rot(stacks_mul(P, self._carrier_rel[idx], self.carrier[idx]))
+                frames[:, idx] = np.swapaxes(rel, 0, 1)
         return RigPose(basis, np.swapaxes(P, 0, 1), np.swapaxes(H, 0, 1), root_loc, joints, frames)
 
     @property
-    def _joint_groups(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
-        """(bone, the joints riding on it, their (K, 3) rest-frame offsets), once per rig."""
+    def _joint_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Once per rig: the bones carrying joints, grouped by how many they carry (K): (the bones
+        (G,), their joints (G, K), the joints' rest-frame offsets (G, 3, K))."""
         if getattr(self, "_jgroups", None) is None:
-            self._jgroups = [(int(b), np.flatnonzero(self.joint_bone == b), self.joint_local[self.joint_bone == b])
-                             for b in np.unique(self.joint_bone)]
+            by_count: dict[int, list] = {}
+            for b in np.unique(self.joint_bone):
+                js = np.flatnonzero(self.joint_bone == b)
+                by_count.setdefault(len(js), []).append((int(b), js))
+            self._jgroups = [(np.array([b for b, _ in g], int), np.stack([js for _, js in g]),
+                              np.stack([self.joint_local[js].T for _, js in g]))
+                             for _, g in sorted(by_count.items())]
         return self._jgroups
 
     @property

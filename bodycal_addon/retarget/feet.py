@@ -164,3 +164,117 @@ def pelvis_drop(hips: np.ndarray, targets: np.ndarray, lengths: np.ndarray, weig
     can = np.sqrt(np.maximum(reach * reach - dxy2, 0.0))
     need = np.maximum(-d[..., 2] - can, 0.0)
     return (need * weights).max(axis=1)
+
+
+class CausalStance:
+    """Stance detection frame by frame, from the frames so far only (a live stream; `detect` looks
+    at the whole take): the same ankle measures and thresholds, with three changes that need no
+    future frame:
+
+    - the ankle is averaged over the SMOOTH_S before each frame (`detect`: centred on it) and its
+      speed is the backward difference;
+    - a stance counts once it has lasted MIN_STANCE_S (`detect` drops shorter ones, which it can
+      only know at their end): the foot is planted from then on, its place the mean of the
+      `reference` over those first frames (`detect`: over the whole stance);
+    - the weight eases in over the BLEND_S after that (`detect`: before the stance), from whatever
+      the last stance's ease-out has left, and out over the BLEND_S after the stance ends.
+
+    So a foot is planted MIN_STANCE_S plus about half of BLEND_S later than a bake plants it, and
+    held as long after it lifts (benchmarks/bench_live_solver.py measures both). `update` takes
+    the frames in order, any number at a time: the result does not depend on how the take is
+    split (the state carried from one block to the next is the frame-by-frame state)."""
+
+    def __init__(self, ref_height: float, fps: float):
+        fps = float(fps) if fps and np.isfinite(fps) and fps > 0 else 90.0
+        self.ref_height = float(ref_height)
+        self.n_smooth = max(1, int(round(SMOOTH_S * fps)))
+        self.n_min = max(2, int(round(MIN_STANCE_S * fps)))
+        self.n_blend = max(1, int(round(BLEND_S * fps)))
+        self.frames = 0  # frames taken in
+        self._tail = None  # the last n_smooth - 1 ankles (the average's window)
+        self._last = None  # (time, averaged ankle) of the last frame
+        self._start = None  # the first frame of the stance the foot is in (None: none)
+        self._sum = np.zeros(2)  # the reference summed over that stance's first frames
+        self._mode = ("none",)  # ("in", confirmed at, place, starting weight) | ("out", left at, weight, place)
+
+    def update(self, ankle: np.ndarray, time: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The next frames: the user's ankle (K, 3), their times (K,), where the method puts the
+        ankle (K, 3). Returns (weight (K,) in [0, 1], planted xy (K, 2), NaN where not planted)."""
+        ankle, time, reference = (np.asarray(a, float) for a in (ankle, time, reference))
+        k = len(time)
+        if not k:
+            return np.zeros(0), np.zeros((0, 2))
+        enter, hold = self._measures(ankle, time)
+        stance, starts = self._stances(enter, hold)
+        weight, planted = np.zeros(k), np.full((k, 2), np.nan)
+        for i in range(k):  # a few frames at a time in a stream; only the stance bookkeeping is per frame
+            self._step(i, stance[i], starts[i], reference[i], weight, planted)
+        self.frames += k
+        return weight, planted
+
+    def _measures(self, ankle, time) -> tuple[np.ndarray, np.ndarray]:
+        """(enter, hold) per frame: the averaged ankle slow and low (to enter a stance, to stay in)."""
+        n = self.n_smooth
+        tail = np.repeat(ankle[:1], n - 1, axis=0) if self._tail is None else self._tail
+        padded = np.concatenate([tail, ankle])
+        smooth = np.lib.stride_tricks.sliding_window_view(padded, n, axis=0).sum(axis=-1) / n
+        self._tail = padded[len(padded) - (n - 1):]
+        t_prev, s_prev = self._last if self._last is not None else (time[0], smooth[0])
+        prev_t = np.concatenate([[t_prev], time[:-1]])
+        prev_s = np.concatenate([s_prev[None], smooth[:-1]])
+        dt = time - prev_t
+        speed = np.linalg.norm(smooth - prev_s, axis=1) / np.where(dt > 0, dt, 1.0)
+        self._last = (time[-1], smooth[-1])
+        height = smooth[:, 2] - self.ref_height
+        return (speed < STANCE_SPEED) & (height < STANCE_HEIGHT), (speed < EXIT_SPEED) & (height < EXIT_HEIGHT)
+
+    def _stances(self, enter, hold) -> tuple[np.ndarray, np.ndarray]:
+        """(in a stance, the frame it started) per frame, with `detect`'s hysteresis: a run of `hold`
+        frames is a stance from its first `enter` frame on (a stance carried in from the last block
+        goes on while the run does)."""
+        k = len(hold)
+        stance, starts = np.zeros(k, bool), np.full(k, -1)
+        run_starts, run_stops = _runs(hold)
+        for a, b in zip(run_starts, run_stops):
+            if a == 0 and self._start is not None:
+                first = 0
+                start = self._start
+            else:
+                entering = np.flatnonzero(enter[a:b])
+                if not len(entering):
+                    continue
+                first = a + int(entering[0])
+                start = self.frames + first
+            stance[first:b] = True
+            starts[first:b] = start
+        self._start = int(starts[-1]) if stance[-1] else None
+        return stance, starts
+
+    def _step(self, i, in_stance, start, reference, weight, planted) -> None:
+        """One frame of the weight and the planted place, from the stance it is in (if any)."""
+        t = self.frames + i
+        mode = self._mode
+        if in_stance and t - start < self.n_min:  # not a stance yet: sum the reference for its place
+            self._sum = (np.zeros(2) if t == start else self._sum) + reference[:2]
+        if in_stance and t - start == self.n_min - 1:  # it is one now: planted from here on
+            w0 = self._weight_out(t) if mode[0] == "out" else 0.0
+            mode = self._mode = ("in", t, self._sum / self.n_min, w0)
+        elif not in_stance and mode[0] == "in":  # it has ended: ease out from the last weight
+            mode = self._mode = ("out", t, self._weight_in(t - 1), mode[2])
+        if mode[0] == "in":
+            weight[i], planted[i] = self._weight_in(t), mode[2]
+        elif mode[0] == "out":
+            weight[i] = self._weight_out(t)
+            planted[i] = mode[3] if weight[i] > 0 else np.nan
+            if weight[i] <= 0:
+                self._mode = ("none",)
+
+    def _weight_in(self, t: int) -> float:
+        _, at, _, w0 = self._mode
+        s = min(max((t - at + 1) / (self.n_blend + 1.0), 0.0), 1.0)
+        return w0 + (1.0 - w0) * s * s * (3.0 - 2.0 * s)
+
+    def _weight_out(self, t: int) -> float:
+        _, left, w_exit, _ = self._mode
+        s = min(max(1.0 - (t - left + 1) / (self.n_blend + 1.0), 0.0), 1.0)
+        return w_exit * s * s * (3.0 - 2.0 * s)

@@ -97,12 +97,21 @@ def realign(target_local, flexed_local, thumb: bool = False):
     flexion plane by the yaw (about +Z), then pitches it to the target's pitch (about +X).
     Returns (rotation (F, 3, 3) in the reference frame, yaw, pitch) with the clamped target
     angles."""
-    (ylo, yhi), (plo, phi) = LIMITS["thumb" if thumb else "finger"]
+    ylo, yhi, plo, phi = _limits(thumb)
     yaw, pitch = yaw_pitch(target_local)
-    yaw = np.clip(yaw, np.deg2rad(ylo), np.deg2rad(yhi))
-    pitch = _clamp_angle(pitch, np.deg2rad(plo), np.deg2rad(phi))
+    yaw = np.clip(yaw, ylo, yhi)
+    pitch = _clamp_angle(pitch, plo, phi)
     _, flexed_pitch = yaw_pitch(flexed_local)
     return _rx_rz_rx(-pitch, -yaw, flexed_pitch), yaw, pitch
+
+
+def _limits(thumb):
+    """(yaw min, yaw max, pitch min, pitch max) in radians, for one finger or per item (`thumb`
+    a bool array)."""
+    lims = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS.items()}
+    if np.ndim(thumb) == 0:
+        return tuple(lims["thumb" if thumb else "finger"])
+    return tuple(np.where(thumb, t, f) for t, f in zip(lims["thumb"], lims["finger"]))
 
 
 def _rx_rz_rx(a, b, c):
@@ -135,12 +144,18 @@ def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll:
     mcp: (F, 3) base joint; ref_rot: (F, 3, 3) the finger's reference frame (module docstring);
     l1, l2, l3: phalanx lengths; tip_target: (F, 3) where the fingertip should be.
     thumb: use the thumb's limits and roll its reference frame about +Y by `roll` (default 45°,
-    appendix D; pass -45° for a hand whose frames are mirrored).
+    appendix D; pass -45° for a hand whose frames are mirrored); a bool array (F,) poses fingers
+    and thumbs at once (`roll` then rolls the thumbs only).
     Flexion from the MCP -> target distance (eq. 3-4, capped at 90°), then the yaw/pitch
     realignment; the tip reaches the target whenever the distance and angles are within limits."""
     mcp = np.asarray(mcp, float)
     ref = np.asarray(ref_rot, float)
-    if thumb:
+    if np.ndim(thumb):  # per item: the thumbs rolled, the other fingers as they are
+        thumb = np.asarray(thumb, bool)
+        if thumb.any():
+            ref = ref.copy()
+            ref[thumb] = stack_mul(ref[thumb], _ry(THUMB_ROLL if roll is None else roll))
+    elif thumb:
         ref = stack_mul(ref, _ry(THUMB_ROLL if roll is None else roll))
     elif roll is not None:
         ref = stack_mul(ref, _ry(roll))

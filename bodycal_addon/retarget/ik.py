@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.transforms import EPS
+from ..core.transforms import EPS, cross
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
@@ -129,7 +129,7 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     any_perp = _any_perpendicular(axis)
     hint_dir = any_perp
     if flex_axis_hint is not None:
-        hint_dir = _unit(np.cross(axis, np.asarray(flex_axis_hint, float)), any_perp)[0]
+        hint_dir = _unit(cross(axis, np.asarray(flex_axis_hint, float)), any_perp)[0]
     gamma_dir = hint_dir
     if user_swivel_dir is not None:
         w = np.asarray(user_swivel_dir, float)
@@ -147,8 +147,8 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     else:
         beta_dir, t = gamma_dir, np.zeros(F)
     # δ = t β + (1 - t) γ as angles about the axis, measured from γ (shortest way round).
-    delta = t * np.arctan2(_dot(np.cross(gamma_dir, beta_dir), axis), _dot(gamma_dir, beta_dir))
-    ortho = np.cross(axis, gamma_dir)
+    delta = t * np.arctan2(_dot(cross(gamma_dir, beta_dir), axis), _dot(gamma_dir, beta_dir))
+    ortho = cross(axis, gamma_dir)
     swivel = np.cos(delta)[..., None] * gamma_dir + np.sin(delta)[..., None] * ortho
 
     a = (l1 * l1 - l2 * l2 + d * d) / np.maximum(2.0 * d, EPS)
@@ -156,11 +156,11 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     h = np.sqrt(np.maximum(l1 * l1 - a * a, 0.0))
     mid = root + a[..., None] * axis + h[..., None] * swivel
     end = root + d[..., None] * axis
-    x = np.cross(swivel, axis)
+    x = cross(swivel, axis)
     y1 = _unit(mid - root, axis)[0]
     y2 = _unit(end - mid, axis)[0]
-    rot1 = np.stack([x, y1, np.cross(x, y1)], axis=-1)
-    rot2 = np.stack([x, y2, np.cross(x, y2)], axis=-1)
+    rot1 = np.stack([x, y1, cross(x, y1)], axis=-1)
+    rot2 = np.stack([x, y2, cross(x, y2)], axis=-1)
     return TwoBoneResult(mid, end, rot1, rot2, alpha, t, swivel, reached)
 
 
@@ -224,7 +224,7 @@ MIN_SPINE_STRETCH = 0.85
 def _rodrigues(v, axis, angle):
     """v (..., 3) turned by `angle` (...) about the unit `axis` (..., 3)."""
     c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + np.cross(axis, v) * s + axis * _dot(axis, v)[..., None] * (1 - c)
+    return v * c + cross(axis, v) * s + axis * _dot(axis, v)[..., None] * (1 - c)
 
 
 def bend_rest_spine(start, sacrum_rot, rest_segments, target):
@@ -243,14 +243,14 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     u0 = _unit(rest_segments.sum(0), np.array([0.0, 1.0, 0.0]))[0]
     local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
     ut, reach = _unit(local, u0)
-    axis, sin_phi = _unit(np.cross(u0, ut), _any_perpendicular(np.broadcast_to(u0, ut.shape)))
+    axis, sin_phi = _unit(cross(u0, ut), _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
     k = np.arange(1, len(lengths) + 1)
     delta = phi * lengths.sum() / max(float((lengths * k).sum()), EPS)
     seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
     chord = (seg * lengths[:, None]).sum(1)
     cdir, clen = _unit(chord, ut)
-    turn_axis, sin_t = _unit(np.cross(cdir, ut), axis)
+    turn_axis, sin_t = _unit(cross(cdir, ut), axis)
     seg = _rodrigues(seg, turn_axis[:, None], np.arctan2(sin_t, _dot(cdir, ut))[:, None])
     stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
     world = np.einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
@@ -292,11 +292,11 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
         first = _unit(joints[:, 1] - joints[:, 0], sacrum_rot[..., 1])[0]
         y0 = sacrum_rot[..., 1]
         fp = _perp_unit(first, x, y0)[0]
-        ang = np.arctan2(_dot(np.cross(y0, fp), x), _dot(y0, fp))
+        ang = np.arctan2(_dot(cross(y0, fp), x), _dot(y0, fp))
         c, s = np.cos(ang)[..., None], np.sin(ang)[..., None]
 
         def turn(v):  # Rodrigues about x (v perpendicular parts only matter for frame columns)
-            return v * c + np.cross(x, v) * s + x * _dot(x, v)[..., None] * (1 - c)
+            return v * c + cross(x, v) * s + x * _dot(x, v)[..., None] * (1 - c)
 
         sacrum_rot = np.stack([x, turn(sacrum_rot[..., 1]), turn(sacrum_rot[..., 2])], axis=-1)
         start = pelvis + sacrum_length * sacrum_rot[..., 1]
@@ -307,13 +307,13 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     total = np.zeros(len(pelvis))
     if top_right is not None:
         top = _perp_unit(np.asarray(top_right, float), chord, hip)[0]
-        total = np.arctan2(_dot(np.cross(hip, top), chord), _dot(hip, top))
+        total = np.arctan2(_dot(cross(hip, top), chord), _dot(hip, top))
     n = joints.shape[1] - 1
     frac = (np.arange(n) + 1.0) / n
     ang = total[:, None] * frac
-    other = np.cross(chord, hip)
+    other = cross(chord, hip)
     right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
     y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
     xk = _perp_unit(right, y, _any_perpendicular(y))[0]
-    rotations = np.stack([xk, y, np.cross(xk, y)], axis=-1)
+    rotations = np.stack([xk, y, cross(xk, y)], axis=-1)
     return SpineResult(joints, rotations, sacrum_rot, theta)

@@ -131,13 +131,10 @@ def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarra
     angle = 2 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), q[..., 0])
     axis = normalize(q[..., 1:])
     n = len(SPINE_BONES)
-    out = np.empty(sacrum.shape[:1] + (n, 3, 3))
-    for k in range(n):
-        frac = (k + 1) / n
-        half = 0.5 * angle * frac
-        qk = np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], -1)
-        out[:, k] = quat_to_matrix(qk) @ d_sac @ st.spine0[k]
-    return out
+    frac = (np.arange(n) + 1) / n
+    half = 0.5 * angle[:, None] * frac  # (F, n): vertebra k turns by (k + 1) / n of the bend
+    qk = np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis[:, None]], -1)
+    return quat_to_matrix(qk) @ d_sac[:, None] @ st.spine0
 
 
 def capsule_sdf(p, s, e, r):

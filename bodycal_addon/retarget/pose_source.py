@@ -24,7 +24,8 @@ from ..core.errors import BodyCalError
 from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
 from ..recording.model import Recording
 from .avatar_pose import AvatarRig, arc_param, curve_point
-from .user_animation import UserPose, animate_user, joint_from_trackers, read_trackers
+from .trackers import TrackerReader, joint_from_trackers
+from .user_animation import UserAnimator, UserPose
 
 ANKLE_CHUNK = 4000  # frames posed at once for the whole take's ankles
 
@@ -42,11 +43,13 @@ class PoseSource(Protocol):
     def pose(self, start: int, stop: int, rest: tuple[dict, np.ndarray]) -> UserPose:
         """Canonical joints and bone frames of frames [start, stop), in the play area."""
 
-    def ankle(self, side: str) -> np.ndarray | None:
-        """(F, 3) the performer's ankle over the whole take (None: not known)."""
+    def ankle(self, side: str, start: int = 0, stop: int | None = None) -> np.ndarray | None:
+        """(F, 3) the performer's ankle over frames [start, stop) (default the whole take; None:
+        not known)."""
 
-    def trackers(self):
-        """The whole take's trackers (user_animation.Trackers), None for an animation."""
+    def trackers(self, start: int = 0, stop: int | None = None):
+        """The trackers of frames [start, stop) (trackers.Trackers; default the whole take), None
+        for an animation."""
 
 
 class RecordingSource:
@@ -54,24 +57,39 @@ class RecordingSource:
 
     def __init__(self, recording: Recording, user: BodyModel):
         self.recording, self.model = recording, user
-        self.time = recording.time
         self.name = recording.source or recording.name
+        self._reader = None
+        self._animator = None
         self._tr = None
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.recording.time  # a live recording's grows
 
     @property
     def frame_count(self) -> int:
         return self.recording.frame_count
 
-    def pose(self, start, stop, rest):
-        return animate_user(self.recording, self.model, start, stop, rest=rest)
+    @property
+    def reader(self) -> TrackerReader:
+        if self._reader is None:
+            self._reader = TrackerReader(self.recording, self.model)
+        return self._reader
 
-    def trackers(self):
+    def pose(self, start, stop, rest):
+        if self._animator is None:
+            self._animator = UserAnimator(self.recording, self.model, rest, self.reader)
+        return self._animator.animate(start, stop)
+
+    def trackers(self, start=0, stop=None):
+        if start or stop is not None:
+            return self.reader.read(start, stop)
         if self._tr is None:
-            self._tr = read_trackers(self.recording, self.model)
+            self._tr = self.reader.read()
         return self._tr
 
-    def ankle(self, side):
-        return joint_from_trackers(self.model, self.trackers(), f"ankle_{side}", [f"foot_{side}"])
+    def ankle(self, side, start=0, stop=None):
+        return joint_from_trackers(self.model, self.trackers(start, stop), f"ankle_{side}", [f"foot_{side}"])
 
 
 class AnimationSource:
@@ -130,7 +148,7 @@ class AnimationSource:
         frames[:, idx] = frame_from_axes(self._vertebrae(fk), frames[:, idx][..., :, 0])
         return UserPose(self.time[start:stop], fk.joints, frames, np.ones(stop - start, bool), [], fk.frames)
 
-    def trackers(self):
+    def trackers(self, start=0, stop=None):
         return None
 
     def _vertebrae(self, fk) -> np.ndarray:
@@ -172,7 +190,7 @@ class AnimationSource:
             c = c + lengths[k] * out[:, k]
         return out
 
-    def ankle(self, side):
+    def ankle(self, side, start=0, stop=None):
         if self._ankles is None:
             # Blender's pose rule (AvatarRig.fk) on the ankles' bones and their ancestors only.
             rig = self.rig
@@ -200,4 +218,4 @@ class AnimationSource:
                 for s, b in carry.items():
                     out[s][a:z] = rig.to_world(H[b] + P[b] @ rig.joint_local[JI[f"ankle_{s}"]])
             self._ankles = out
-        return self._ankles[side]
+        return self._ankles[side][start:stop]

@@ -13,6 +13,10 @@ animated from the trackers, vectorised over frames.
   (`ik.spine`); clavicles from vertebra 5 to the shoulders; head rigid on the HMD.
 - Dropouts: a device's invalid frames hold its last valid pose (forward fill; leading gaps take
   the first valid pose) and `UserPose.valid` says which frames had every device.
+
+`UserAnimator` is prepared once per (recording, user model): which tracker carries each joint and
+every constant product of the rest pose; then `animate(start, stop)` costs a few stacked products
+per pass, whatever the number of frames (the prepared solver's step 1, solver.py).
 """
 
 from __future__ import annotations
@@ -31,21 +35,25 @@ from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
+    cross,
     frame_from_axes,
     normalize,
     quat_between,
-    quat_normalize,
     quat_to_matrix,
     stack_apply,
-    stack_mul,
+    stacks_apply,
+    stacks_mul,
 )
 from ..recording.model import ROLES_LIST, Recording
 from . import fingers, ik
+from .trackers import TrackerReader, Trackers
 
 LIMB_SEGMENTS = {  # side-less limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
     "leg": ("hip", "knee", "ankle", "thigh", "shin"),
 }
+
+
 
 
 @dataclass
@@ -67,149 +75,11 @@ class UserPose:
         return UserPose(self.time[s], self.joints[s], self.frames[s], self.valid[s], self.notes)
 
 
-def forward_fill(valid: np.ndarray) -> np.ndarray:
-    """(F,) index of the frame whose value to use: the last valid one (leading gaps: the first)."""
-    f = len(valid)
-    idx = np.where(valid, np.arange(f), -1)
-    idx = np.maximum.accumulate(idx)
-    first = int(np.argmax(valid)) if valid.any() else 0
-    return np.where(idx < 0, first, idx)
-
-
-@dataclass
-class Trackers:
-    pos: dict[str, np.ndarray]  # role -> (F, 3)
-    rot: dict[str, np.ndarray]  # role -> (F, 3, 3)
-    ref_rot: dict[str, np.ndarray]  # role -> (3, 3) at the reference time
-    valid: np.ndarray  # (F,)
-    notes: list[str]
-
-
-def read_trackers(recording: Recording, model: BodyModel, start: int = 0, stop: int | None = None) -> Trackers:
-    """The tracked devices of frames [start, stop) by role: positions, rotations, their rotations at
-    the reference (T-pose) time, which frames every device tracked, and notes on devices never or
-    partly tracked (their untracked frames hold the last valid pose)."""
-    stop = recording.frame_count if stop is None else stop
-    pos, rot, ref_rot, notes = {}, {}, {}, []
-    valid_all = np.ones(stop - start, bool)
-    tpose = model.extra.get("tpose") or {}
-    ref_frame = None
-    if model.reference_time is not None and recording.frame_count:
-        ref_frame = int(np.clip(np.searchsorted(recording.time, model.reference_time), 0, recording.frame_count - 1))
-    for d_i, dev in enumerate(recording.devices):
-        role = dev.role
-        if role is None or role in pos:
-            continue
-        v_full = recording.valid[:, d_i]
-        if not v_full.any():
-            notes.append(f"{role}: never tracked, ignored")
-            continue
-        idx_full = forward_fill(v_full)
-        idx = idx_full[start:stop]
-        v = v_full[start:stop]
-        p = recording.positions[idx, d_i]
-        q = quat_normalize(recording.rotations[idx, d_i])
-        pos[role], rot[role] = p, quat_to_matrix(q)
-        valid_all &= v
-        if (~v).any():
-            notes.append(f"{role}: {int((~v).sum())} frames without tracking held at the last valid pose")
-        if role in tpose:
-            ref_rot[role] = quat_to_matrix(quat_normalize(np.asarray(tpose[role][3:7], float)))
-        elif ref_frame is not None:
-            ref_rot[role] = quat_to_matrix(quat_normalize(recording.rotations[idx_full[ref_frame], d_i]))
-    return Trackers(pos, rot, ref_rot, valid_all, notes)
-
-
-def joint_from_trackers(model: BodyModel, tr: Trackers, joint: str, roles: list[str] | None = None):
-    """Mean position of `joint` over the trackers it is known in (restricted to `roles`)."""
-    j = model.joints.get(joint)
-    if j is None:
-        return None
-    ests = [tr.pos[r] + stack_apply(tr.rot[r], np.asarray(loc, float)) for r, loc in j.frames.items()
-            if r in tr.pos and (roles is None or r in roles)]
-    if not ests:
-        return None
-    return ests[0] if len(ests) == 1 else np.mean(ests, axis=0)
-
-
-def _own_frame(model: BodyModel, joint: str, tr: Trackers):
-    """Position of an effector joint from its own (first) tracker only."""
-    j = model.joints.get(joint)
-    if j is None:
-        return None
-    for r in j.frames:
-        if r in tr.pos:
-            return joint_from_trackers(model, tr, joint, [r])
-    return None
-
-
-def _rigid(tr: Trackers, role: str, frame0: np.ndarray):
-    """A bone frame rigid on a tracker: R_T(t) R_T0^-1 C0."""
-    return stack_mul(tr.rot[role], tr.ref_rot[role].T @ frame0)
-
-
-def _hinge_right(model: BodyModel, tr: Trackers, bone: str, fallback: np.ndarray) -> np.ndarray:
-    info = model.bones.get(bone)
-    ex = info.extra if info is not None else {}
-    role = ex.get("right_frame")
-    if role in tr.rot and ex.get("right_local") is not None:
-        return stack_apply(tr.rot[role], normalize(np.asarray(ex["right_local"], float)))
-    for r in ("forearm", "shin", "hand", "foot"):  # the rest right carried by the intermediate tracker
-        role = f"{r}_{bone.rsplit('_', 1)[-1]}"
-        if role in tr.rot and role in tr.ref_rot and info is not None and info.right is not None:
-            return stack_apply(tr.rot[role], tr.ref_rot[role].T @ info.right)
-    return fallback
-
-
-@dataclass
-class _Animating:
-    """What the passes of `animate_user` share: the recording's frames [start, stop), the user
-    model and its trackers, its rest joints and rest bone frames `C0` (B, 3, 3), and what the passes
-    fill: joint positions `P` (name -> (F, 3)) and bone frames `Fr` (F, B, 3, 3)."""
-
-    recording: Recording
-    model: BodyModel
-    tr: Trackers
-    rest_pos: dict[str, np.ndarray]
-    C0: np.ndarray
-    start: int
-    stop: int
-    Fr: np.ndarray
-    P: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def need(self, joint: str, value):
-        """`value`, or one error when no tracked device knows `joint`."""
-        if value is None:
-            raise BodyCalError(f"joint '{joint}' is not known in any tracked device", source=self.model.name,
-                               field=f"joints.{joint}.frames", hint="calibrate the user with these trackers")
-        return value
-
-
 def animate_user(recording: Recording, user_model: BodyModel, start: int = 0, stop: int | None = None, *,
                  rest: tuple[dict, np.ndarray] | None = None) -> UserPose:
     """Animate the user's canonical skeleton over frames [start, stop) of `recording`. `rest`: the
-    model's (complete_joints, model_rest_frames), when the caller animates it chunk by chunk."""
-    if user_model.kind != "user":
-        raise BodyCalError(f"expected a user body model, got kind '{user_model.kind}'", source=user_model.name)
-    stop = recording.frame_count if stop is None else stop
-    tr = read_trackers(recording, user_model, start, stop)
-    src = recording.source or recording.name
-    _check_trackers(tr, src, user_model)
-    if rest is None:
-        rest_pos = complete_joints(user_model)
-        rest = rest_pos, model_rest_frames(user_model, rest_pos)
-    rest_pos, C0 = rest
-    an = _Animating(recording, user_model, tr, rest_pos, C0, start, stop, np.empty((stop - start, len(BONES), 3, 3)))
-    sacrum, pelvis_rigid = _animate_head(an)
-    _animate_limbs(an)
-    _animate_trunk(an, sacrum, pelvis_rigid)
-    _animate_hands(an)
-    pos = np.stack([an.P[j] for j in JOINTS], axis=1)
-    _shortcut_frames(an)
-    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(an.Fr)):
-        raise BodyCalError("the user animation has non-finite values", source=src,
-                           hint="check the recording for broken device poses")
-    return UserPose(recording.time[start:stop], pos, an.Fr, tr.valid, tr.notes)
+    model's (complete_joints, model_rest_frames), when the caller has them."""
+    return UserAnimator(recording, user_model, rest).animate(start, stop)
 
 
 def _check_trackers(tr: Trackers, src: str, user_model: BodyModel) -> None:
@@ -225,102 +95,261 @@ def _check_trackers(tr: Trackers, src: str, user_model: BodyModel) -> None:
                                field="extra.tpose", hint="calibrate the user from this recording")
 
 
-def _animate_head(an: _Animating) -> tuple[np.ndarray, np.ndarray]:
-    """Head pass: skull base, head and the head frame rigid on the HMD. Returns the sacrum frame
-    rigid on the pelvis tracker and the pelvis joint from that tracker, for `_animate_trunk`."""
-    for j in ("skull_base", "head"):
-        an.P[j] = an.need(j, joint_from_trackers(an.model, an.tr, j, ["head"]))
-    an.Fr[:, BI["head"]] = _rigid(an.tr, "head", an.C0[BI["head"]])
-    sac = _rigid(an.tr, "pelvis", an.C0[BI["sacrum"]])
-    pel_rigid = an.need("pelvis", joint_from_trackers(an.model, an.tr, "pelvis", ["pelvis"]))
-    return sac, pel_rigid
+@dataclass
+class _Plan:
+    """What `UserAnimator` computes per block of frames, as index tables into the trackers
+    (roles first): rotation x vector products, joint estimates (a tracker's position plus a
+    product; a joint is the mean of its estimates), frames rigid on a tracker (rotation x the
+    fixed R_T0^-1 C0), and the limbs, hands and fingers built on them."""
+
+    vec_role: list = field(default_factory=list)  # products R_T(t) v: the tracker
+    vec: list = field(default_factory=list)  # and v
+    est_role: list = field(default_factory=list)  # estimates: the tracker
+    est_vec: list = field(default_factory=list)  # and the product
+    joints: dict = field(default_factory=dict)  # joint -> its estimates
+    rigid_role: list = field(default_factory=list)  # rigid frames: the tracker
+    rigid_fixed: list = field(default_factory=list)  # and R_T0^-1 C0
+    rigid: dict = field(default_factory=dict)  # (role, what) -> rigid frame index
+    limbs: list = field(default_factory=list)  # (side, limb names, right: ("vec", i) | ("rigid", i))
+    toes: dict = field(default_factory=dict)  # side -> ("joint",) | ("rigid", rigid index, vector)
+    hands: dict = field(default_factory=dict)  # side -> (joint names, vectors, bone indices, fixed matrices)
+    tips: list = field(default_factory=list)  # fingers posed from a marker: (side, finger, marker column)
+
+    def product(self, role: str, v) -> int:
+        self.vec_role.append(role)
+        self.vec.append(np.asarray(v, float))
+        return len(self.vec) - 1
+
+    def estimates(self, model: BodyModel, roles: tuple, joint: str, only=None) -> list[int] | None:
+        """`joint_from_trackers`'s estimates of `joint` (in the trackers `only`), None: none."""
+        j = model.joints.get(joint)
+        if j is None:
+            return None
+        out = []
+        for r, loc in j.frames.items():
+            if r in roles and (only is None or r in only):
+                self.est_role.append(r)
+                self.est_vec.append(self.product(r, np.asarray(loc, float)))
+                out.append(len(self.est_role) - 1)
+        return out or None
+
+    def rigid_frame(self, role: str, what: str, fixed: np.ndarray) -> int:
+        key = (role, what)
+        if key not in self.rigid:
+            self.rigid_role.append(role)
+            self.rigid_fixed.append(fixed)
+            self.rigid[key] = len(self.rigid_role) - 1
+        return self.rigid[key]
 
 
-def _animate_limbs(an: _Animating) -> None:
-    """Limbs pass, per side: anchor, intermediate and effector joints and the two limb bones' frames
-    (they join the joints and keep the hinge's right), the toe, and the hand and foot frames rigid
-    on their devices."""
-    model, tr, P, Fr, C0, rest_pos = an.model, an.tr, an.P, an.Fr, an.C0, an.rest_pos
-    for s in sk.SIDES:
-        for limb, (a, m, e, ab, mb) in LIMB_SEGMENTS.items():
-            eff_role = "hand" if limb == "arm" else "foot"
-            # The anchor rides on its limb's tracker (the root tracker's estimate ignores the
-            # clavicle / pelvis-side motion); the root tracker only when the limb has none.
-            anchor = joint_from_trackers(model, tr, f"{a}_{s}", [f"{ab}_{s}"])
-            P[f"{a}_{s}"] = an.need(f"{a}_{s}", anchor if anchor is not None else
-                                    joint_from_trackers(model, tr, f"{a}_{s}"))
-            P[f"{e}_{s}"] = an.need(f"{e}_{s}", _own_frame(model, f"{e}_{s}", tr))
-            mid = joint_from_trackers(model, tr, f"{m}_{s}")
-            right = _hinge_right(model, tr, f"{mb}_{s}",
-                                 _rigid(tr, f"{eff_role}_{s}", C0[BI[f"{mb}_{s}"]])[..., :, 0])
-            if mid is None:  # no tracker carries it (minimal profile): two-bone from the user's lengths
-                mid = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], rest_pos, a, m, e, s, right)
-            P[f"{m}_{s}"] = mid
-            Fr[:, BI[f"{ab}_{s}"]] = frame_from_axes(P[f"{m}_{s}"] - P[f"{a}_{s}"], right)
-            Fr[:, BI[f"{mb}_{s}"]] = frame_from_axes(P[f"{e}_{s}"] - P[f"{m}_{s}"], right)
-        P[f"toe_{s}"] = _own_frame(model, f"toe_{s}", tr)
-        if P[f"toe_{s}"] is None:
-            P[f"toe_{s}"] = P[f"ankle_{s}"] + stack_apply(_rigid(tr, f"foot_{s}", np.eye(3)),
-                                                          rest_pos[f"toe_{s}"] - rest_pos[f"ankle_{s}"])
-        Fr[:, BI[f"foot_{s}"]] = _rigid(tr, f"foot_{s}", C0[BI[f"foot_{s}"]])
-        Fr[:, BI[f"hand_{s}"]] = _rigid(tr, f"hand_{s}", C0[BI[f"hand_{s}"]])
+class UserAnimator:
+    """The user's canonical skeleton animated from the trackers of `recording` (a whole take, or a
+    live buffer that grows), prepared once: `animate(start, stop)` for any block of frames. The
+    plan is rebuilt when a device is tracked for the first time (its role then joins)."""
 
+    def __init__(self, recording: Recording, user_model: BodyModel, rest: tuple[dict, np.ndarray] | None = None,
+                 reader: TrackerReader | None = None):
+        if user_model.kind != "user":
+            raise BodyCalError(f"expected a user body model, got kind '{user_model.kind}'", source=user_model.name)
+        self.recording, self.model = recording, user_model
+        self.reader = reader or TrackerReader(recording, user_model)
+        if rest is None:
+            rest_pos = complete_joints(user_model)
+            rest = rest_pos, model_rest_frames(user_model, rest_pos)
+        self.rest_pos, self.C0 = rest
+        self._version = None
+        self._trunk_constants()
 
-def _animate_trunk(an: _Animating, sac: np.ndarray, pel_rigid: np.ndarray) -> None:
-    """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
-    hip line, the spine aimed at the skull base with its twist shared hips -> shoulders -> head
-    (`ik.spine`), and the clavicles from vertebra 5 to the shoulders. Needs the limbs and head."""
-    P, Fr, C0, rest_pos = an.P, an.Fr, an.C0, an.rest_pos
-    sac = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])
-    hipmid0 = 0.5 * (rest_pos["hip_l"] + rest_pos["hip_r"])
-    from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0))
-    P["pelvis"] = 0.5 * (pel_rigid + from_hips)
-    sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
-    rest_spine = np.stack([rest_pos[j] for j in SPINE_JOINTS])
-    res = ik.spine(P["pelvis"], sac, sac_len, None, P["skull_base"],
-                   top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False,
-                   rest_segments=np.diff(rest_spine, axis=0) @ C0[BI["sacrum"]])
-    Fr[:, BI["sacrum"]] = res.sacrum_rot
-    for k, j in enumerate(SPINE_JOINTS):
-        P[j] = res.joints[:, k]
-    for k, b in enumerate(SPINE_BONES):
-        Fr[:, BI[b]] = res.rotations[:, k]
-    v5 = Fr[:, BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]]
-    for s in sk.SIDES:
-        P[f"clavicle_{s}"] = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
-        Fr[:, BI[f"clavicle_{s}"]] = frame_from_axes(P[f"shoulder_{s}"] - P[f"clavicle_{s}"], v5[..., :, 2])
+    def _trunk_constants(self) -> None:
+        rest_pos, C0 = self.rest_pos, self.C0
+        hipmid0 = 0.5 * (rest_pos["hip_l"] + rest_pos["hip_r"])
+        self.hip_offset = C0[BI["sacrum"]].T @ (rest_pos["pelvis"] - hipmid0)
+        self.sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
+        rest_spine = np.stack([rest_pos[j] for j in SPINE_JOINTS])
+        self.rest_segments = np.diff(rest_spine, axis=0) @ C0[BI["sacrum"]]
 
+    @property
+    def plan(self) -> _Plan:
+        if self._version != self.reader.version:
+            self.reader.read(0, 0)  # the roles as far as the recording goes
+            self._plan = self._make_plan()
+            self._version = self.reader.version
+        return self._plan
 
-def _animate_hands(an: _Animating) -> None:
-    """Hands pass: finger joints and frames rigid on the hand as calibrated, then each finger with
-    a tip marker posed from it (`pose_user_finger`; forward-filled over its dropouts)."""
-    recording, P, Fr, C0, rest_pos = an.recording, an.P, an.Fr, an.C0, an.rest_pos
-    for s in sk.SIDES:
-        hand = Fr[:, BI[f"hand_{s}"]]
+    def _need(self, joint: str, value):
+        """`value`, or one error when no tracked device knows `joint`."""
+        if value is None:
+            raise BodyCalError(f"joint '{joint}' is not known in any tracked device", source=self.model.name,
+                               field=f"joints.{joint}.frames", hint="calibrate the user with these trackers")
+        return value
+
+    def _make_plan(self) -> _Plan:
+        rd, model, C0 = self.reader, self.model, self.C0
+        _check_trackers(rd.read(0, 0), self.recording.source or self.recording.name, model)
+        roles, plan = rd.roles, _Plan()
+        for j in ("skull_base", "head", "pelvis"):
+            plan.joints[j] = self._need(j, plan.estimates(model, roles, j, ["pelvis" if j == "pelvis" else "head"]))
+        plan.rigid_frame("head", "head", rd.ref_rot["head"].T @ C0[BI["head"]])
+        plan.rigid_frame("pelvis", "sacrum", rd.ref_rot["pelvis"].T @ C0[BI["sacrum"]])
+        for s in sk.SIDES:
+            for limb, names in LIMB_SEGMENTS.items():
+                self._plan_limb(plan, s, limb, names)
+            toe = self._own_frame(plan, f"toe_{s}")
+            if toe is not None:
+                plan.joints[f"toe_{s}"] = toe
+                plan.toes[s] = ("joint",)
+            else:
+                k = plan.rigid_frame(f"foot_{s}", "eye", rd.ref_rot[f"foot_{s}"].T @ np.eye(3))
+                plan.toes[s] = ("rigid", k, self.rest_pos[f"toe_{s}"] - self.rest_pos[f"ankle_{s}"])
+            for part in ("foot", "hand"):
+                plan.rigid_frame(f"{part}_{s}", part, rd.ref_rot[f"{part}_{s}"].T @ C0[BI[f"{part}_{s}"]])
+            self._plan_hand(plan, s)
+        return plan
+
+    def _own_frame(self, plan: _Plan, joint: str):
+        """An effector's estimate from its own (first) tracker only."""
+        j = self.model.joints.get(joint)
+        for r in (j.frames if j is not None else ()):
+            if r in self.reader.roles:
+                return plan.estimates(self.model, self.reader.roles, joint, [r])
+        return None
+
+    def _plan_limb(self, plan: _Plan, s: str, limb: str, names: tuple) -> None:
+        """Anchor, intermediate and effector joints of a limb, and the hinge's right (`_hinge_right`)."""
+        a, m, e, ab, mb = names
+        model, roles = self.model, self.reader.roles
+        # The anchor rides on its limb's tracker (the root tracker's estimate ignores the
+        # clavicle / pelvis-side motion); the root tracker only when the limb has none.
+        anchor = plan.estimates(model, roles, f"{a}_{s}", [f"{ab}_{s}"])
+        plan.joints[f"{a}_{s}"] = self._need(f"{a}_{s}", anchor or plan.estimates(model, roles, f"{a}_{s}"))
+        plan.joints[f"{e}_{s}"] = self._need(f"{e}_{s}", self._own_frame(plan, f"{e}_{s}"))
+        mid = plan.estimates(model, roles, f"{m}_{s}")
+        if mid is not None:
+            plan.joints[f"{m}_{s}"] = mid
+        eff_role = f"{'hand' if limb == 'arm' else 'foot'}_{s}"
+        plan.limbs.append((s, limb, names, self._hinge_right(plan, f"{mb}_{s}", eff_role), mid is not None))
+
+    def _hinge_right(self, plan: _Plan, bone: str, eff_role: str) -> tuple:
+        """The hinge's right: its calibrated local right in its tracker, else the rest right carried
+        by the intermediate tracker, else the effector tracker's rigid frame's +X."""
+        rd, model = self.reader, self.model
+        info = model.bones.get(bone)
+        ex = info.extra if info is not None else {}
+        role = ex.get("right_frame")
+        if role in rd.roles and ex.get("right_local") is not None:
+            return ("vec", plan.product(role, normalize(np.asarray(ex["right_local"], float))))
+        for r in ("forearm", "shin", "hand", "foot"):  # the rest right carried by the intermediate tracker
+            role = f"{r}_{bone.rsplit('_', 1)[-1]}"
+            if role in rd.roles and role in rd.ref_rot and info is not None and info.right is not None:
+                return ("vec", plan.product(role, rd.ref_rot[role].T @ info.right))
+        return ("rigid", plan.rigid_frame(eff_role, bone, rd.ref_rot[eff_role].T @ self.C0[BI[bone]]))
+
+    def _plan_hand(self, plan: _Plan, s: str) -> None:
+        """Finger joints and frames rigid on the hand as calibrated, and the fingers with a tip marker."""
+        rest_pos, C0 = self.rest_pos, self.C0
         c0h = C0[BI[f"hand_{s}"]]
+        names, vecs, bones, fixed = [], [], [], []
         for f in sk.FINGERS:
             for jn in sk.FINGER_JOINTS:
-                name = f"{jn}_{f}_{s}"
-                P[name] = P[f"wrist_{s}"] + stack_apply(hand, c0h.T @ (rest_pos[name] - rest_pos[f"wrist_{s}"]))
-            mb = f"metacarpal_{f}_{s}"
-            Fr[:, BI[mb]] = stack_mul(hand, c0h.T @ C0[BI[mb]])
-            for i in (1, 2, 3):
-                b = f"{f}_{i}_{s}"
-                Fr[:, BI[b]] = stack_mul(hand, c0h.T @ C0[BI[b]])
-            tip_name = f"{f}_tip_{s}"
-            if tip_name in recording.marker_names:
-                m, mv = recording.marker(tip_name)
-                idx = forward_fill(mv)[an.start:an.stop]
-                if mv.any():
-                    pose_user_finger(P, Fr, f, s, m[idx], rest_pos, C0, hand, an.model.bones)
+                names.append(f"{jn}_{f}_{s}")
+                vecs.append(c0h.T @ (rest_pos[names[-1]] - rest_pos[f"wrist_{s}"]))
+            for b in [f"metacarpal_{f}_{s}"] + [f"{f}_{i}_{s}" for i in (1, 2, 3)]:
+                bones.append(BI[b])
+                fixed.append(c0h.T @ C0[BI[b]])
+            tip = f"{f}_tip_{s}"
+            if tip in self.recording.marker_names:
+                col = self.recording.marker_names.index(tip)
+                if self.reader.marker_seen(col):
+                    plan.tips.append((s, f, col))
+        plan.hands[s] = (names, np.array(vecs), np.array(bones), np.array(fixed))
+
+    # --- per block of frames ------------------------------------------------------------------
+
+    def animate(self, start: int = 0, stop: int | None = None) -> UserPose:
+        """The canonical joints and bone frames of frames [start, stop)."""
+        plan = self.plan
+        stop = self.recording.frame_count if stop is None else stop
+        tr = self.reader.read(start, stop)
+        index = {r: k for k, r in enumerate(tr.roles)}
+        prod = stacks_apply(tr.rotations, np.array(plan.vec), [index[r] for r in plan.vec_role])
+        est = tr.positions[[index[r] for r in plan.est_role]] + prod[plan.est_vec]
+        rigid = stacks_mul(tr.rotations, np.array(plan.rigid_fixed), [index[r] for r in plan.rigid_role])
+        P = {j: est[e[0]] if len(e) == 1 else np.mean(est[e], axis=0) for j, e in plan.joints.items()}
+        Fr = np.empty((stop - start, len(BONES), 3, 3))
+        Fr[:, BI["head"]] = rigid[plan.rigid["head", "head"]]
+        self._limbs(plan, P, Fr, prod, rigid)
+        self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"])
+        self._hands(plan, P, Fr, start, stop)
+        pos = np.stack([P[j] for j in JOINTS], axis=1)
+        for b in _SHORTCUTS:  # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
+            Fr[:, BI[b.name]] = frame_from_axes(P[b.tail] - P[b.head], Fr[:, BI["sacrum"]][..., :, 0])
+        if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(Fr)):
+            raise BodyCalError("the user animation has non-finite values",
+                               source=self.recording.source or self.recording.name,
+                               hint="check the recording for broken device poses")
+        return UserPose(self.recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
+
+    def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
+        """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
+        the two limb bones' frames (they join the joints and keep the hinge's right), the toes, and
+        the hand and foot frames rigid on their devices."""
+        rights = {}
+        for s, limb, _, (kind, k), _ in plan.limbs:
+            rights[s, limb] = prod[k] if kind == "vec" else rigid[k][..., :, 0]
+        for s, limb, (a, m, e, _, _), _, tracked in plan.limbs:
+            if not tracked:  # no tracker carries it (minimal profile): two-bone from the user's lengths
+                P[f"{m}_{s}"] = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], self.rest_pos, a, m, e, s,
+                                              rights[s, limb])
+        ys, hints, bones = [], [], []
+        for s, limb, (a, m, e, ab, mb), _, _ in plan.limbs:
+            ys += [P[f"{m}_{s}"] - P[f"{a}_{s}"], P[f"{e}_{s}"] - P[f"{m}_{s}"]]
+            hints += [rights[s, limb]] * 2
+            bones += [BI[f"{ab}_{s}"], BI[f"{mb}_{s}"]]
+        Fr[:, bones] = np.swapaxes(frame_from_axes(np.stack(ys), np.stack(hints)), 0, 1)
+        for s in sk.SIDES:
+            toe = plan.toes[s]
+            if toe[0] == "rigid":
+                P[f"toe_{s}"] = P[f"ankle_{s}"] + stack_apply(rigid[toe[1]], toe[2])
+            for part in ("foot", "hand"):
+                Fr[:, BI[f"{part}_{s}"]] = rigid[plan.rigid[f"{part}_{s}", part]]
+
+    def _trunk(self, P: dict, Fr: np.ndarray, sac: np.ndarray, pel_rigid: np.ndarray) -> None:
+        """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
+        hip line, the spine aimed at the skull base with its twist shared hips -> shoulders -> head
+        (`ik.spine`), and the clavicles from vertebra 5 to the shoulders. Needs the limbs and head."""
+        sac = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])
+        from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, self.hip_offset)
+        P["pelvis"] = 0.5 * (pel_rigid + from_hips)
+        res = ik.spine(P["pelvis"], sac, self.sac_len, None, P["skull_base"],
+                       top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False,
+                       rest_segments=self.rest_segments)
+        Fr[:, BI["sacrum"]] = res.sacrum_rot
+        for k, j in enumerate(SPINE_JOINTS):
+            P[j] = res.joints[:, k]
+        Fr[:, [BI[b] for b in SPINE_BONES]] = res.rotations
+        v5 = Fr[:, BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]]
+        root = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
+        for s in sk.SIDES:
+            P[f"clavicle_{s}"] = root
+        ys = np.stack([P[f"shoulder_{s}"] - root for s in sk.SIDES])
+        Fr[:, [BI[f"clavicle_{s}"] for s in sk.SIDES]] = np.swapaxes(frame_from_axes(ys, v5[..., :, 2]), 0, 1)
+
+    def _hands(self, plan: _Plan, P: dict, Fr: np.ndarray, start: int, stop: int) -> None:
+        """Hands pass: finger joints and frames rigid on the hand as calibrated, then the fingers with
+        a tip marker posed from it, all at once (`pose_user_fingers`; forward-filled over its dropouts)."""
+        hands = np.stack([Fr[:, BI[f"hand_{s}"]] for s in sk.SIDES])
+        for h, s in enumerate(sk.SIDES):
+            names, vecs, bones, fixed = plan.hands[s]
+            rel = stacks_apply(hands, vecs, [h] * len(vecs))
+            for k, name in enumerate(names):
+                P[name] = P[f"wrist_{s}"] + rel[k]
+            Fr[:, bones] = np.swapaxes(stacks_mul(hands, fixed, [h] * len(fixed)), 0, 1)
+        if plan.tips:
+            tips = self.reader.markers([c for _, _, c in plan.tips], start, stop)
+            pose_user_fingers(P, Fr, [(s, f) for s, f, _ in plan.tips], tips, self.rest_pos, self.model.bones)
 
 
-def _shortcut_frames(an: _Animating) -> None:
-    """Shortcut bones (and hips): frames rigid in the sacrum's lateral, for the mapping's kinematic
-    paths. Needs the sacrum frame."""
-    for b in BONES:
-        if b.shortcut:
-            an.Fr[:, BI[b.name]] = frame_from_axes(an.P[b.tail] - an.P[b.head], an.Fr[:, BI["sacrum"]][..., :, 0])
+_SHORTCUTS = [b for b in BONES if b.shortcut]
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
@@ -339,32 +368,39 @@ def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
     l2 = np.linalg.norm(rest_pos[f"{e}_{s}"] - rest_pos[f"{m}_{s}"])
     # A positive turn about the hinge's +X flexes the distal bone toward +Z = X x Y, so the joint
     # itself lies on the other side of the root-effector line: along (effector - root) x right.
-    return two_bone_mid(root, eff, l1, l2, np.cross(eff - root, right))
+    return two_bone_mid(root, eff, l1, l2, cross(eff - root, right))
 
 
-def pose_user_finger(P, Fr, f, s, tip, rest_pos, C0, hand, model_bones):
-    """Finger joints and phalanx frames from a fingertip marker (appendix D, eq. 3-4 and the
-    yaw/pitch realignment), through `fingers.pose_finger`; a plain equal-flexion stand-in
-    (flexion from the distance, then the whole finger turned about the MCP toward the tip) runs
-    until it exists."""
-    names = [f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS]
-    lens = np.array([np.linalg.norm(rest_pos[names[i + 1]] - rest_pos[names[i]]) for i in range(3)])
-    mcp = P[names[0]]
-    bones = [f"{f}_{i}_{s}" for i in (1, 2, 3)]
-    c0h = C0[BI[f"hand_{s}"]]
-    rest_frames = [stack_mul(hand, c0h.T @ C0[BI[b]]) for b in bones]
-    thumb = f == "thumb"
-    pts, frames = pose_finger_chain(mcp, tip, lens, rest_frames, thumb=thumb)
+def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
+                      model_bones: dict) -> None:
+    """Finger joints and phalanx frames from fingertip markers (appendix D, eq. 3-4 and the yaw/pitch
+    realignment, `fingers.pose_finger`), every finger of `which` [(side, finger)] at once: `tips`
+    (K, F, 3) their markers; P and Fr hold the fingers rigid on the hand (their MCPs and rest
+    phalanx frames) and are updated."""
+    K, F = tips.shape[:2]
+    names = [[f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS] for s, f in which]
+    bones = [[BI[f"{f}_{i}_{s}"] for i in (1, 2, 3)] for s, f in which]
+    lens = np.array([[np.linalg.norm(rest_pos[n[i + 1]] - rest_pos[n[i]]) for i in range(3)] for n in names])
+    mcp = np.concatenate([P[n[0]] for n in names])
+    ref = np.concatenate([Fr[:, b[0]] for b in bones])
+    thumb = np.repeat([f == "thumb" for _, f in which], F)
+    per_frame = np.repeat(lens, F, axis=0)
+    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), per_frame.T, [ref], thumb=thumb)
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
-    info = model_bones.get(bones[2])
-    radius = info.radius_tail if info is not None and info.radius_tail else 0.0
-    if radius:
-        pts, frames = pose_finger_chain(mcp, tip + radius * frames[2][..., :, 2], lens, rest_frames, thumb=thumb)
-    for i, j in enumerate(names[1:]):
-        P[j] = pts[:, i + 1]
-    for i, b in enumerate(bones):
-        Fr[:, BI[b]] = frames[i]
+    radius = []
+    for s, f in which:
+        info = model_bones.get(f"{f}_3_{s}")
+        radius.append(info.radius_tail if info is not None and info.radius_tail else 0.0)
+    if any(radius):
+        aim = tips.reshape(-1, 3) + np.repeat(radius, F)[:, None] * frames[2][..., :, 2]
+        pts, frames = pose_finger_chain(mcp, aim, per_frame.T, [ref], thumb=thumb)
+    pts = pts.reshape(K, F, 4, 3)
+    for k, (n, b) in enumerate(zip(names, bones)):
+        for i, j in enumerate(n[1:]):
+            P[j] = pts[k, :, i + 1]
+        for i in range(3):
+            Fr[:, b[i]] = frames[i][k * F:(k + 1) * F]
 
 
 def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
@@ -372,8 +408,9 @@ def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
     reference: a finger at rest has zero yaw and pitch, so the anatomical limits bound the motion
     away from the calibrated pose. The thumb's own frame already carries its roll (roll 0).
     Returns (points (F, 4, 3), [3 frames (F, 3, 3)])."""
+    thumb = np.asarray(thumb, bool)
     fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
-                             roll=0.0 if thumb else None)
+                             roll=0.0 if thumb.ndim or thumb else None)
     return fp.joints, [fp.rotations[:, i] for i in range(3)]
 
 

@@ -19,8 +19,10 @@ from bodycal_addon.core.errors import BodyCalError, Cancelled
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import egocentric as eg
 from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget import solver_methods
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_addon.retarget.pose_source import RecordingSource
+from bodycal_addon.retarget.solver import PreparedSolver
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -195,7 +197,7 @@ def test_a_rounding_sized_change_of_the_input_moves_the_output_by_as_little(sess
     # feet at one height) once let rounding pick between two answers millimetres apart. The bound
     # is the mapping's precision: in float32 a flipped last bit of a target (~1e-7 m) turns a 2 cm
     # phalanx by ~5e-6 rad; the jumps this guards against were 1e-3 to 2e-2.
-    monkeypatch.setattr(pl, "MAPPING_DTYPE", dtype)
+    monkeypatch.setattr(solver_methods, "MAPPING_DTYPE", dtype)
     rec, _, user, _ = session
     avatar = rt.procedural_avatar()
     nudged = copy.deepcopy(rec)
@@ -214,7 +216,7 @@ def test_a_target_sweeping_beside_the_crude_torso_moves_continuously(session):
     # motion moved the mapped target by up to 11 mm. Continuity, not smallness: a sweep 100 times
     # finer around the largest step must shrink it about as much (a jump would stay).
     rec, _, user, _ = session
-    run = pl._Run(RecordingSource(rec, user), rt.procedural_avatar(belly=0.06), "egocentric")
+    run = PreparedSolver(RecordingSource(rec, user), rt.procedural_avatar(belly=0.06), "egocentric")
     rest = {j: run.user_pos[j] for j in sk.JOINTS}
     n = 801
 
@@ -318,3 +320,29 @@ def test_a_prepared_take_solves_any_frame_as_the_bake_does(session, method):
         assert one.time[0] == rec.time[f]
     with pytest.raises(BodyCalError, match="outside the take"):
         prepared.solve(rec.frame_count, rec.frame_count + 1)
+def test_targets_a_chunk_did_not_set_are_nan_not_leftover_memory(monkeypatch):
+    """A target a block of frames did not set is NaN there (it was uninitialised memory, so figures
+    over it changed from run to run). Rotation Copy's ankle targets are set in every frame of a
+    planned foot, so they are the same whatever the chunking (once only in the chunks where the
+    foot was planted: a frame's result depended on the chunk it was solved in)."""
+    perf = synthetic.make_performer(seed=4)
+    rec, truth = synthetic.record_session(perf, motions=("walk_in_place",), calibration=False, motion_seconds=2.0,
+                                          noise_mm=0.0, wobble_mm=0.0)
+    user, avatar = truth.body_model(), rt.procedural_avatar()
+    small = pl.retarget(rec, user, avatar, "rotations", chunk_frames=8)
+    whole = pl.retarget(rec, user, avatar, "rotations", chunk_frames=10_000)
+    assert set(small.targets) == {"ankle_l", "ankle_r"}
+    for name, tg in small.targets.items():
+        assert np.isfinite(tg).all(), name
+        np.testing.assert_allclose(tg, whole.targets[name], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(small.rotations, whole.rotations, rtol=0, atol=1e-9)
+    first = solver_methods.RotationCopy.chunk
+
+    def none_in_the_first_chunk(self, up, fk, pelvis, user_frames, start, stop):
+        pose, targets = first(self, up, fk, pelvis, user_frames, start, stop)
+        return pose, ({} if start == 0 else targets)
+
+    monkeypatch.setattr(solver_methods.RotationCopy, "chunk", none_in_the_first_chunk)
+    anim = pl.retarget(rec, user, avatar, "rotations", chunk_frames=8)
+    for name, tg in anim.targets.items():
+        assert np.isnan(tg[:8]).all() and np.isfinite(tg[8:]).all(), name

@@ -9,6 +9,7 @@ import pytest
 from bodycal_addon.body import skeleton as sk
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.recording.model import Recording
+from bodycal_addon.retarget import trackers
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_dev import synthetic
 
@@ -72,7 +73,7 @@ def test_spine_reaches_the_skull_base(exact):
 
 def test_forward_fill_holds_the_last_valid_frame():
     valid = np.array([False, False, True, False, False, True, True, False])
-    np.testing.assert_array_equal(ua.forward_fill(valid), [2, 2, 2, 2, 2, 5, 6, 6])
+    np.testing.assert_array_equal(trackers.forward_fill(valid), [2, 2, 2, 2, 2, 5, 6, 6])
 
 
 def test_dropouts_hold_the_last_pose_and_never_nan():

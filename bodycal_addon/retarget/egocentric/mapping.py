@@ -13,7 +13,7 @@ from ...core.errors import BodyCalError
 from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
-from .surface import PosedSurface
+from .surface import JointTable, PosedSurface
 from .weights import normalise_weights, raw_weights
 
 SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
@@ -76,10 +76,22 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
                  used, floor_bone, floor_starts)
 
 
-def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F: int, dtype=float) -> np.ndarray:
-    """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given, else from the surface's
-    joints), plus the zero bone."""
+_GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
+_GRAPH_TAILS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES]
+_GRAPH_NODE_INDEX = [sk.JOINT_INDEX[n] for n in GRAPH_NODES]
+
+
+def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarray:
+    """(3, F, NB + 1) vectors of GRAPH_BONES (from `bones` if given: a dict of (F, 3), or one
+    (F, NB, 3) array in GRAPH_BONES order; else from the surface's joints), plus the zero bone."""
     out = np.zeros((3, F, len(GRAPH_BONES) + 1), dtype)
+    if isinstance(bones, np.ndarray):
+        out[:, :, :-1] = bones.transpose(2, 0, 1)
+        return out
+    if bones is None and isinstance(surface.joints, JointTable):
+        j = surface.joints.array
+        out[:, :, :-1] = (j[:, _GRAPH_TAILS] - j[:, _GRAPH_HEADS]).transpose(2, 0, 1)
+        return out
     for i, name in enumerate(GRAPH_BONES):
         if bones is not None and name in bones:
             out[:, :, i] = np.asarray(bones[name], float).T
@@ -92,6 +104,9 @@ def _bone_vectors(surface: PosedSurface, bones: dict[str, np.ndarray] | None, F:
 
 def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
     out = np.zeros((3, F, len(GRAPH_NODES)), dtype)
+    if isinstance(surface.joints, JointTable):
+        out[...] = surface.joints.array[:, _GRAPH_NODE_INDEX].transpose(2, 0, 1)
+        return out
     for i, name in enumerate(GRAPH_NODES):
         if name in surface.joints:
             out[:, :, i] = surface.joints[name].T
@@ -99,6 +114,8 @@ def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
 
 
 def _check_joints(surface: PosedSurface, plan: _Plan, target_names, who: str):
+    if isinstance(surface.joints, JointTable):  # every canonical joint
+        return
     need = {GRAPH_NODES[i] for i in np.unique(plan.chain_root)} | {"ankle_l", "ankle_r"}
     for idx in np.unique(np.concatenate([plan.entry_bone, *plan.floor_bone])):
         if idx == ZERO_BONE:
@@ -161,6 +178,7 @@ class _UserBlock:
     vhat: np.ndarray  # (3, F, N) unit v of each chain
     tau: np.ndarray  # (F, N) τ
     dots: list  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone length ratios)
+    floor_user: tuple | None = None  # the floor ratios' user side, once mapped (_floor_user)
 
 
 @dataclass
@@ -211,8 +229,8 @@ class PreparedTargets:
         lrt = np.ascontiguousarray(lratio.T)
         # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
         # differ by rotations (the pipeline's arm passes), so it is kept for the next call.
-        cached = self._bone_tau_a if self._bone_tau_a is not None and np.allclose(
-            self._bone_tau_a[0], lrt, rtol=EPS, atol=0.0) else None
+        cached = self._bone_tau_a if self._bone_tau_a is not None and np.all(
+            np.abs(self._bone_tau_a[0] - lrt) <= EPS * np.abs(lrt)) else None  # allclose(rtol=EPS, atol=0)
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F, dtype)
@@ -262,18 +280,10 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
     ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))
     nodes_u = _node_positions(user_surface, F, dtype)
     user_surface = user_surface.astype(dtype)
-    ids = user_surface.element_ids
-    rows: dict[frozenset, list[int]] = {}
-    for i, name in enumerate(target_names):
-        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
     groups = []
-    for excluded, members in rows.items():
-        keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
-        # Decision: a target with every element excluded keeps them all (all weights zero: the
-        # user's horizontal position, the floor's vertical one, as before grouping).
-        sub = user_surface if not excluded or not len(keep) else user_surface.select(keep)
-        names = tuple(target_names[i] for i in members)
-        plan = _plan(names, tuple(sub.element_ids), tuple(sub.element_roots))
+    for members, names, keep, plan in _grouping(tuple(target_names), tuple(user_surface.element_ids),
+                                                tuple(user_surface.element_roots)):
+        sub = user_surface if keep is None else user_surface.select(keep)
         _check_joints(sub, plan, names, "user")
         step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
         step = max(1, step)
@@ -282,8 +292,29 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
             e = min(F, s + step)
             blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
                                          nodes_u[:, s:e], floor, penetration_tolerance, falloff))
-        groups.append(_Group(np.array(members, int), names, None if sub is user_surface else keep, plan, blocks))
+        groups.append(_Group(members, names, keep, plan, blocks))
     return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
+
+
+@lru_cache(maxsize=64)
+def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
+    """The targets grouped by the elements they exclude (own_chain_elements), once per target and
+    element set: [(the group's targets (indices), their names, the elements kept (None: all),
+    the group's _Plan)]."""
+    rows: dict[frozenset, list[int]] = {}
+    for i, name in enumerate(target_names):
+        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
+    out = []
+    for excluded, members in rows.items():
+        keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
+        # Decision: a target with every element excluded keeps them all (all weights zero: the
+        # user's horizontal position, the floor's vertical one, as before grouping).
+        keep = None if not excluded or not len(keep) else keep
+        names = tuple(target_names[i] for i in members)
+        cols = range(len(ids)) if keep is None else keep
+        plan = _plan(names, tuple(ids[k] for k in cols), tuple(roots[k] for k in cols))
+        out.append((np.array(members, int), names, keep, plan))
+    return out
 
 
 def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff) -> _UserBlock:
@@ -296,15 +327,15 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
-    vt = np.ascontiguousarray(np.take(vhat, plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
+    vt = np.ascontiguousarray(vhat.take(plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
     tau = np.zeros(vt.shape[1:], vt.dtype)
     dots = []
     for bones in plan.slot_bones:
         n = len(bones)
-        dots.append(np.abs(_dot(vt[:, :n], np.take(ub, bones, axis=1))))
+        dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
         tau[:n] += dots[-1]
-    tau = np.take(tau, plan.unorder, axis=0).T
-    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - np.take(nodes_u, plan.chain_root, axis=2)))
+    tau = tau.take(plan.unorder, axis=0).T
+    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
     return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
 
@@ -312,15 +343,15 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
 def _chains(a, plan: _Plan):
     """(3, F, P, E) -> (3, F, N): the pairs that have a chain (a view when all do)."""
     flat = a.reshape(a.shape[:2] + (-1,))
-    return flat if plan.dense else np.take(flat, plan.chain_pe, axis=2)
+    return flat if plan.dense else flat.take(plan.chain_pe, axis=2)
 
 
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
     """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
     out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
     for bones, d in zip(plan.slot_bones, b.dots):
-        out[:len(bones)] += d * np.take(lratio, bones, axis=0)
-    return np.take(out, plan.unorder, axis=0).T
+        out[:len(bones)] += d * lratio.take(bones, axis=0)
+    return out.take(plan.unorder, axis=0).T
 
 
 def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v):
@@ -331,7 +362,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     E = pr.v.shape[-1]
     x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
-    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - np.take(nodes_a, plan.chain_root, axis=2)))
+    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > EPS)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
@@ -350,18 +381,32 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     vertical = (est[2] * b.lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
+        if b.floor_user is None:  # the user's side, the same for every map of this block
+            b.floor_user = _floor_user(b, plan, ub)
         ratios = []
         for side, name in enumerate(sk.SIDES):
             ent, st = plan.floor_bone[side], plan.floor_starts[side]
-            uz = np.abs(np.take(ub[2], ent, axis=0))  # (K, F)
-            tf = np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]
-            tfa = np.add.reduceat(uz * np.take(lratio, ent, axis=0), st, axis=0).T
+            uz, tf = b.floor_user[side]
+            tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
             tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
             ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS))
-        # Decision: the two feet's ratios blended by which ankle is lower (SUPPORT_BLEND): with
-        # both feet on the floor, picking the lower ankle flips with millimetres of noise, and
-        # each flip moved every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm.
-        w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
+        w_left = b.floor_user[2]
         fratio = ratios[1] + w_left[:, None] * (ratios[0] - ratios[1])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
     return np.concatenate([horizontal, vertical[..., None]], axis=-1), ratio
+
+
+def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
+    """The user's side of the floor ratios of a block: per side (|b_z| of the bones from that ankle
+    (K, F), their τ with the ankle's height (F, P)), and the left foot's share of the support.
+    Decision: the two feet's ratios are blended by which ankle is lower (SUPPORT_BLEND): with both
+    feet on the floor, picking the lower ankle flips with millimetres of noise, and each flip moved
+    every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm."""
+    us = b.us
+    out = []
+    for side, name in enumerate(sk.SIDES):
+        ent, st = plan.floor_bone[side], plan.floor_starts[side]
+        uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
+        out.append((uz, np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]))
+    w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
+    return out[0], out[1], w_left

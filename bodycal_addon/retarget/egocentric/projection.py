@@ -5,6 +5,7 @@ coordinates that re-pose the projection on another body and the angular factor o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -39,7 +40,8 @@ class Projections:
 def _comp(a) -> np.ndarray:
     """(..., 3) -> (3, ...) contiguous. The hot path keeps vector components first, so every
     operation runs over contiguous arrays (numpy is several times slower on a trailing axis of 3)."""
-    return np.ascontiguousarray(np.moveaxis(_floating(a), -1, 0))
+    a = _floating(a)
+    return np.ascontiguousarray(a.transpose((a.ndim - 1,) + tuple(range(a.ndim - 1))))
 
 
 def _rot_comp(rot) -> np.ndarray:
@@ -220,6 +222,15 @@ def _triangle_frames(tri, normal):
     return np.stack([e1, np.cross(normal, e1), normal], axis=-1)
 
 
+@lru_cache(maxsize=64)
+def _mesh_pairing(user_slices: tuple, avatar_slices: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(whether each mesh has as many triangles on both bodies, the offset that takes the user's
+    triangle index to the avatar's: the same position inside the element), once per mesh layout."""
+    same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user_slices, avatar_slices)])
+    offset = np.array([as_ - us for (us, _), (as_, _) in zip(user_slices, avatar_slices)])
+    return same, offset
+
+
 def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
     """(x', v'): x' re-posed on the avatar (see `repose`); v' = v, or with `turn_v` the user's v
     carried by each element's local frame onto the avatar's (bone frame for capsules and spheres,
@@ -239,10 +250,7 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
         v_parts = [_apply(cap_rot, _apply_t(_rot_comp(user.caps_rot), pr.v[..., :C])),
                    _apply(sph_rot, _apply_t(_rot_comp(user.sph_rot), pr.v[..., C:C + S]))]
     if M:
-        same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user.mesh_slices,
-                                                                                 avatar.mesh_slices)])
-        # The user's triangle index -> the avatar's (same position inside the element).
-        offset = np.array([as_ - us for (us, _), (as_, _) in zip(user.mesh_slices, avatar.mesh_slices)])
+        same, offset = _mesh_pairing(tuple(user.mesh_slices), tuple(avatar.mesh_slices))
         idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
         fi = np.arange(F)[:, None, None]
         mesh = np.zeros((3, F, P, M), pr.v.dtype)

@@ -3,14 +3,47 @@ positions and bone frames (Delahaye 2023, appendix C)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
 from ...body import skeleton as sk
+from ...body.skeleton import BONE_INDEX as BI
+from ...body.skeleton import JOINT_INDEX as JI
+from ...body.skeleton import JOINTS
 from ...core.errors import BodyCalError
-from ...core.transforms import frame_from_axes
+from ...core.transforms import cross, frame_from_axes, stacks_mul
 from .graph import element_root
+
+
+class JointTable(Mapping):
+    """Every canonical joint of F frames as one (F, J, 3) array (`skeleton.JOINTS` order), read like
+    the dict of (F, 3) arrays `pose_surface` takes (`table[name]`): what `SurfacePoser` gives, so
+    the mapping gathers its joints by index instead of by name."""
+
+    def __init__(self, array: np.ndarray):
+        self.array = array
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.array[:, JI[name]]
+
+    def __contains__(self, name) -> bool:
+        return name in JI
+
+    def __iter__(self):
+        return iter(JOINTS)
+
+    def __len__(self) -> int:
+        return len(JOINTS)
+
+    def take(self, s: slice) -> JointTable:
+        return JointTable(self.array[s])
+
+
+def _take_joints(joints, s: slice):
+    return joints.take(s) if isinstance(joints, JointTable) else {k: v[s] for k, v in joints.items()}
 
 
 @dataclass
@@ -52,8 +85,8 @@ class PosedSurface:
         return PosedSurface(self.element_ids, self.element_bones, self.element_roots, self.caps_head[s],
                             self.caps_tail[s], self.caps_rot[s], self.caps_radius, self.sph_center[s], self.sph_rot[s],
                             self.sph_radius, self.tri[s], self.tri_normal[s], self.tri_elem, self.mesh_slices,
-                            self.mesh_head[s], self.mesh_rot[s], self.mesh_scale,
-                            {k: v[s] for k, v in self.joints.items()}, self.notes)
+                            self.mesh_head[s], self.mesh_rot[s], self.mesh_scale, _take_joints(self.joints, s),
+                            self.notes)
 
     def astype(self, dtype) -> PosedSurface:
         """The surface with its placed geometry in `dtype` (itself if already; joints unchanged)."""
@@ -67,26 +100,33 @@ class PosedSurface:
 
     def select(self, keep) -> PosedSurface:
         """The elements at indices `keep` (ascending: capsules, spheres, meshes stay in order)."""
-        keep = np.asarray(keep, int)
-        C, S, _ = self.counts
-        ci, si, mi = keep[keep < C], keep[(keep >= C) & (keep < C + S)] - C, keep[keep >= C + S] - C - S
-        rows, elem, slices = [], [], []
-        for k, m in enumerate(mi):
-            a, b = self.mesh_slices[m]
-            slices.append((len(rows), len(rows) + b - a))
-            rows += range(a, b)
-            elem += [len(ci) + len(si) + k] * (b - a)
-        rows = np.array(rows, int)
+        ci, si, mi, rows, elem, slices = _selection(tuple(int(k) for k in keep), self.counts,
+                                                    tuple(self.mesh_slices))
 
         def cols(a, idx):  # np.take along an inner axis is ~2x faster than fancy indexing
-            return np.take(a, idx, axis=1)
+            return a.take(idx, axis=1)
 
         return PosedSurface([self.element_ids[k] for k in keep], [self.element_bones[k] for k in keep],
                             [self.element_roots[k] for k in keep], cols(self.caps_head, ci), cols(self.caps_tail, ci),
                             cols(self.caps_rot, ci), self.caps_radius[ci], cols(self.sph_center, si),
                             cols(self.sph_rot, si), self.sph_radius[si], cols(self.tri, rows),
-                            cols(self.tri_normal, rows), np.array(elem, int), slices, cols(self.mesh_head, mi),
+                            cols(self.tri_normal, rows), elem, slices, cols(self.mesh_head, mi),
                             cols(self.mesh_rot, mi), self.mesh_scale[mi], self.joints, self.notes)
+
+
+@lru_cache(maxsize=256)
+def _selection(keep: tuple, counts: tuple, mesh_slices: tuple):
+    """PosedSurface.select's index arrays for elements `keep`, once per element set."""
+    keep = np.asarray(keep, int)
+    C, S, _ = counts
+    ci, si, mi = keep[keep < C], keep[(keep >= C) & (keep < C + S)] - C, keep[keep >= C + S] - C - S
+    rows, elem, slices = [], [], []
+    for k, m in enumerate(mi):
+        a, b = mesh_slices[m]
+        slices.append((len(rows), len(rows) + b - a))
+        rows += range(a, b)
+        elem += [len(ci) + len(si) + k] * (b - a)
+    return ci, si, mi, np.array(rows, int), np.array(elem, int), slices
 
 
 def common_elements(*models) -> list[str]:
@@ -246,7 +286,7 @@ def _pose_meshes(posing: _Posing, meshes: list, first: int) -> tuple[list[str], 
     local to their bones; the triangles are gathered from them (`_mesh_triangles`). `first` is the
     element index of the first mesh (after the capsules and spheres)."""
     tri, tri_elem, slices = _mesh_triangles(posing, meshes, first)
-    n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
     nn = np.linalg.norm(n, axis=-1, keepdims=True)
     tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
 
@@ -286,4 +326,90 @@ def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarr
         rot = np.ascontiguousarray(posing.cached_rotation(b))
         world[:, rows] = joints[_head_of(b, posing.model)][:, None, :] + np.swapaxes(
             (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
-    return np.take(world, np.array(tri_rows), axis=1), tri_elem, slices  # (F, T, 3, 3), C order
+    return world.take(np.array(tri_rows), axis=1), tri_elem, slices  # (F, T, 3, 3), C order
+
+
+class SurfacePoser:
+    """`pose_surface` of one body model and element list, prepared once: which joints, bone frames
+    and local points each element takes, as index arrays, so posing F frames is a few gathers and
+    stacked products (the same values as `pose_surface`, bit for bit). Every element's bones must be
+    canonical bones; `pose` takes all the canonical joints (F, J, 3) and bone frames (F, B, 3, 3)."""
+
+    def __init__(self, model, element_ids: list[str]):
+        joints = {j: np.zeros((1, 3)) for j in JOINTS}
+        posing = _Posing(model, joints, {}, 1)
+        caps, sphs, meshes, self.notes = _posable_elements(posing, element_ids)
+        ordered = caps + sphs + meshes
+        mesh_bones = [e.bone if e.bone in model.bones or e.bone in sk.BONE_BY_NAME
+                      else next(iter(e.points.values())).bone for e in meshes]
+        self.element_ids = [e.id for e in ordered]
+        self.element_bones = [e.bone for e in caps + sphs] + mesh_bones
+        self.element_roots = [element_root(e.id, b) for e, b in zip(ordered, self.element_bones)]
+        bones = [e.bone for e in caps + sphs] + mesh_bones + [p.bone for e in meshes for p in e.points.values()]
+        if any(b not in BI for b in bones):
+            raise BodyCalError("a surface element rides on a bone that is not canonical", source=model.name,
+                               hint="pose it with pose_surface")
+        self.cap_bone = np.array([BI[e.bone] for e in caps], int)
+        self.cap_ends = [np.array([JI[getattr(sk.BONE_BY_NAME[e.bone], end)] for e in caps], int)
+                         for end in ("head", "tail")]
+        self.cap_off = np.array([e.axis_offsets() for e in caps], float).reshape(-1, 2, 3)
+        self.cap_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
+                                   float).reshape(-1, 2)
+        self.sph_bone = np.array([BI[e.bone] for e in sphs], int)
+        self.sph_head = np.array([JI[_head_of(e.bone, model)] for e in sphs], int)
+        self.sph_local = np.array([e.center for e in sphs], float).reshape(-1, 3)
+        self.sph_radius = np.array([e.radius for e in sphs], float)
+        self.mesh_bone = np.array([BI[b] for b in mesh_bones], int)
+        self.mesh_head = np.array([JI[_head_of(b, model)] for b in mesh_bones], int)
+        self.mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
+        self._mesh_points(model, meshes, len(caps) + len(sphs))
+
+    def _mesh_points(self, model, meshes: list, first: int) -> None:
+        """`_mesh_triangles`' gather, prepared: the mesh points grouped by bone, the bones grouped by
+        how many points they carry (one stacked product per group), and the triangles' rows."""
+        point_bones, point_local, tri_rows, tri_elem, slices = [], [], [], [], []
+        for m, e in enumerate(meshes):
+            names = list(e.points)
+            base = len(point_bones)
+            point_bones += [e.points[n].bone for n in names]
+            point_local += [e.points[n].local for n in names]
+            start = len(tri_rows)
+            tri_rows += [[base + names.index(n) for n in t] for t in e.triangles]
+            tri_elem += [first + m] * len(e.triangles)
+            slices.append((start, len(tri_rows)))
+        local = np.array(point_local, float).reshape(-1, 3)
+        by_count: dict[int, list] = {}
+        for b in dict.fromkeys(point_bones):
+            rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
+            by_count.setdefault(len(rows), []).append((b, rows))
+        self.point_count = len(point_bones)
+        self.point_groups = [(np.array([BI[b] for b, _ in g], int),
+                              np.array([JI[_head_of(b, model)] for b, _ in g], int),
+                              np.stack([rows for _, rows in g]), np.stack([local[rows].T for _, rows in g]))
+                             for _, g in sorted(by_count.items())]
+        self.tri_rows = np.array(tri_rows, int).reshape(-1, 3)
+        self.tri_elem = np.array(tri_elem, int)
+        self.mesh_slices = slices
+
+    def pose(self, joints: np.ndarray, frames: np.ndarray) -> PosedSurface:
+        """The surface posed by canonical joints (F, J, 3) and bone frames (F, B, 3, 3), world."""
+        nf = joints.shape[0]
+        caps_rot = frames[:, self.cap_bone]
+        caps_head, caps_tail = joints[:, self.cap_ends[0]], joints[:, self.cap_ends[1]]
+        if np.any(self.cap_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
+            caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 0])
+            caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
+        sph_rot = frames[:, self.sph_bone]
+        sph_center = joints[:, self.sph_head] + np.einsum("fsij,sj->fsi", sph_rot, self.sph_local)
+        world = np.empty((nf, self.point_count, 3))
+        for bones, heads, rows, local in self.point_groups:  # per bone, its points (G bones of K points)
+            rel = stacks_mul(np.swapaxes(frames, 0, 1), local, bones)  # (G, F, 3, K)
+            world[:, rows] = joints[:, heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+        tri = world.take(self.tri_rows, axis=1) if self.point_count else np.zeros((nf, 0, 3, 3))
+        n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+        nn = np.linalg.norm(n, axis=-1, keepdims=True)
+        tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, caps_head, caps_tail, caps_rot,
+                            self.cap_radius, sph_center, sph_rot, self.sph_radius, tri, tri_normal, self.tri_elem,
+                            self.mesh_slices, joints[:, self.mesh_head], frames[:, self.mesh_bone], self.mesh_scale,
+                            JointTable(joints), self.notes)

@@ -1,0 +1,394 @@
+"""The prepared solver (DESIGN.md §1 steps 1-4, "Prepared solver"): everything that depends only on
+the performer's body model, the avatar and the method (rest frames, surface layouts, correction
+matrices, the method's constants, the feet plan) is computed once, when the solver is built; then
+`solve(start, stop)` gives the pose-bone values, the joints and the targets of any frames
+[start, stop) of the take. The bake (`pipeline.run_source`) runs it over chunks of frames, a
+timeline preview over the frame being scrubbed, the live loop (`live.LiveSolver`) over each new
+frame: the same code, vectorised over a leading frame axis, whatever the block's length.
+
+The performer is a pose source (pose_source.py): a tracker recording of a calibrated user (a
+whole file, or a live buffer that grows as frames arrive), or another character's action.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body import naming
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel
+from ..body.rest_frames import complete_joints, model_rest_frames
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
+from ..core.errors import BodyCalError
+from ..core.transforms import normalize, stacks_apply, stacks_mul
+from ..recording.model import Recording
+from . import feet, ik
+from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
+from .methods import check_method
+from .placement import check_placement, play_area_to_world, transformed_avatar
+from .pose_source import PoseSource
+from .solver_methods import METHOD_CLASSES, surface_correction
+from .user_animation import pose_finger_chain
+
+STANCES = ("whole", "causal")  # the feet plan: from the whole take (a bake), or frame by frame (live)
+
+
+LIMBS = {  # limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
+    "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
+    "leg": ("hip", "knee", "ankle", "thigh", "shin"),
+}
+
+
+def _check_method(avatar: BodyModel, method: str) -> None:
+    check_method(method, "recording")
+    if avatar.kind != "avatar":
+        raise BodyCalError(f"expected an avatar body model, got kind '{avatar.kind}'", source=avatar.name,
+                           field="kind")
+
+
+def _check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
+    _check_method(avatar, method)
+    if user.kind != "user":
+        raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")
+    if recording.frame_count == 0:
+        raise BodyCalError("the recording has no frames", source=recording.source or recording.name)
+
+
+@dataclass
+class SolvedFrames:
+    """What the solver gives for frames [start, stop) of a take (F = stop - start): exactly the
+    bake's values for those frames."""
+
+    basis: np.ndarray  # (F, N, 4) pose-bone rotation_quaternion (w, x, y, z), the rig's bone order
+    root_location: np.ndarray  # (F, 3) the root bone's pose location (its rest frame)
+    joints: np.ndarray  # (F, J, 3) canonical joints in the world (skeleton.JOINTS order)
+    targets: dict[str, np.ndarray]  # name -> (F, 3) what the IK aimed at, world; NaN where none
+
+
+class PreparedSolver:
+    """The retargeting of one performer (a pose source) onto one avatar by one method, prepared
+    once: `solve(start, stop)` then costs only the frames asked for.
+
+    `avatar_model` is the avatar where its armature object stands (kind "avatar" with
+    `extra["rig"]`); `placement` ("object" or "performer", placement.py) says where the
+    performance plays. `plant_feet` holds the feet still and on the floor while the performer
+    stands on them (feet.py); `stance` says how the stances are found: "whole" from the whole take
+    (a bake: the easing starts before a stance and the planted place is the stance's mean),
+    "causal" frame by frame from the frames so far (a live stream, `feet.CausalStance`). Bad inputs
+    raise one `BodyCalError`."""
+
+    def __init__(self, source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *,
+                 plant_feet: bool = True, placement: str = "object", stance: str = "whole"):
+        _check_method(avatar_model, method)
+        if stance not in STANCES:
+            raise BodyCalError(f"unknown stance detection '{stance}'", field="stance",
+                               hint=f"use one of {', '.join(STANCES)}")
+        # Everything is computed in the performer's play area, with the avatar brought into it; the
+        # pose-bone values are in armature space either way, the world joints and targets go back.
+        to_world = play_area_to_world(avatar_model, check_placement(placement))
+        avatar = transformed_avatar(avatar_model, np.linalg.inv(to_world))
+        self.rot_t, self.shift = to_world[:3, :3].T, to_world[:3, 3]
+        self.placement, self.stance = placement, stance
+        self._prepare(source, avatar, method, np.zeros(3) if placement == "object" else None)
+        self.feet = self._plan_feet(avatar, complete_joints(avatar)) if plant_feet else None
+
+    def _prepare(self, source: PoseSource, avatar: BodyModel, method: str, centre: np.ndarray | None) -> None:
+        """What every frame shares: the rig, the root scale, the rest frames and the method's constants."""
+        user = source.model
+        self.src, self.user, self.avatar, self.method = source, user, avatar, method
+        self.rec = source.recording  # None: not a tracker recording
+        # An animated character (pose_source.AnimationSource): its own spine shape and limb hinges.
+        self.character = source.character
+        self.rig = AvatarRig.from_model(avatar)
+        self.k = root_scale(user, self.rig)
+        # The floor point the performer's path is scaled about (placement.py): the play area's
+        # origin, or the one under the performer's pelvis at the reference time.
+        self.centre = root_centre(user) if centre is None else np.asarray(centre, float)
+        self.user_pos = complete_joints(user)
+        self.user_frames0 = model_rest_frames(user, self.user_pos)
+        avatar_pos = complete_joints(avatar)
+        # The avatar's vertebrae at rest in its sacrum's frame: the spine IK bends that shape.
+        self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
+            self.rig.frames0[BI["sacrum"]]
+        self.notes: list[str] = []
+        bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+        self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
+                            for s in sk.SIDES}
+        self.impl = METHOD_CLASSES[method](self, avatar_pos)
+
+    @property
+    def frame_count(self) -> int:
+        """The take's frames so far (a live buffer grows)."""
+        return self.src.frame_count
+
+    @property
+    def bone_names(self) -> list[str]:
+        """The rig's bones in the order of `SolvedFrames.basis`."""
+        return list(self.rig.names)
+
+    def solve(self, start: int, stop: int) -> SolvedFrames:
+        """The pose-bone values, world joints and targets of frames [start, stop) (0 <= start <
+        stop <= frame_count): the bake's values for those frames, for any block of frames."""
+        if not 0 <= start < stop <= self.frame_count:
+            raise BodyCalError(f"frames {start}-{stop} are not within the take's 0-{self.frame_count}",
+                               source=self.src.name, field="frames")
+        pose, tg = self.chunk(start, stop)
+        names = list(tg)
+        world = (np.stack([tg[n] for n in names]) @ self.rot_t + self.shift) if names else ()
+        return SolvedFrames(pose.basis, pose.root_location, pose.joints @ self.rot_t + self.shift,
+                            {n: world[k] for k, n in enumerate(names)})
+
+    def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> FeetPlan:
+        """Where the avatar's feet are planted (feet.py): per side the avatar's sole points (K, 3) in
+        its canonical foot frame, and the stances from the performer's ankles (carried by the foot
+        trackers, or the source character's), found over the whole take or frame by frame."""
+        corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
+        soles = {}
+        for s in sk.SIDES:
+            eid = f"mesh:sole_{s}"
+            if eid in {e.id for e in avatar.surface}:
+                soles[s] = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
+            else:  # no sole measured: one point under the ankle, as deep as the ankle stands at rest
+                depth = np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]])
+                soles[s] = (depth @ self.rig.frames0[BI[f"foot_{s}"]])[None]
+        return FeetPlan(self, soles, causal=self.stance == "causal")
+
+    def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
+             ankles: dict | None = None):
+        """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
+        onto the planted places and kept above the floor, and the pelvis lowered where a planted foot
+        is out of reach. Returns (targets, pelvis, whether the feet are planned at all).
+
+        Decision: every frame of a planned foot is locked (`feet.lock` also keeps an unplanted sole
+        above the floor), whether or not the foot is planted anywhere in the frames asked for: once
+        a block without a stance was left alone, so a frame's result depended on the block it was
+        solved in (the bake's chunks, a preview's single frame)."""
+        if not self.feet:
+            return targets, pelvis, False
+        rig = self.rig
+        targets = dict(targets)
+        weights, aims, sides = [], [], []
+        for s, (w, planted, sole) in self.feet.rows(start, stop).items():
+            name = f"ankle_{s}"
+            base = targets[name] if name in targets else ankles[name]
+            targets[name] = feet.lock(base, planted, w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
+            weights.append(w)
+            aims.append(targets[name])
+            sides.append(s)
+        if not sides:
+            return targets, pelvis, False
+        hips = rig.joint_positions(frames, pelvis, [f"hip_{s}" for s in sides])
+        lengths = np.array([rig.lengths[BI[f"thigh_{s}"]] + rig.lengths[BI[f"shin_{s}"]] for s in sides])
+        drop = feet.pelvis_drop(hips, np.stack(aims, axis=1), lengths, np.stack(weights, axis=1))
+        if drop.any():
+            down = drop[:, None] * np.array([0.0, 0.0, 1.0])
+            pelvis = pelvis - down
+            if "skull_base" in targets:  # the whole body comes down, the head with it
+                targets["skull_base"] = targets["skull_base"] - down
+        return targets, pelvis, True
+
+    # --- one chunk of frames ------------------------------------------------------------------
+
+    def chunk(self, start: int, stop: int):
+        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0))
+        for n in up.notes:
+            if n not in self.notes:
+                self.notes.append(n)
+        pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
+        # From here on the user's frames are the ones copied onto the avatar (step 2).
+        user_frames = up.frames if up.surface_frames is None else up.surface_frames
+        up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
+                      up.notes)
+        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
+        return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
+
+    def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
+        """Avatar IK (appendix E, DESIGN.md §6) toward the targets present: the spine when there is
+        a skull-base target, then each limb whose effector has a target, then the fingers.
+        `frames` (default: the user's, copied) are updated; `trunk` is the rig pose the limbs
+        start from (default: solved here after the spine)."""
+        rig = self.rig
+        frames = up.frames.copy() if frames is None else frames
+        # Spine aimed at the skull base (appendix D: the same two-pass solver as the user's); the
+        # clavicles keep their pose relative to vertebra 5.
+        if "skull_base" in targets:
+            spine_idx = [BI[b] for b in SPINE_BONES]
+            top_right = normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]])
+
+            def solve_spine(aim):
+                return ik.spine(pelvis, fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]], None, aim,
+                                top_right=top_right, two_pass=False, rest_segments=self.rest_spine)
+
+            res = solve_spine(targets["skull_base"])
+            frames[:, BI["sacrum"]] = res.sacrum_rot
+            if self.character:
+                # Decision (DESIGN.md §8): an animated character's spine has its own shape (an
+                # animator's curve is no IK's), so the IK only corrects it: each vertebra turns by
+                # what the IK changes between aiming at the copied skull base and at the target.
+                # Where they agree (the same body) the source's spine comes back as it was.
+                held = solve_spine(fk.joints[:, JI["skull_base"]])
+                frames[:, spine_idx] = res.rotations @ np.swapaxes(held.rotations, -1, -2) @ up.frames[:, spine_idx]
+            else:
+                frames[:, spine_idx] = res.rotations
+            v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
+            for s in sk.SIDES:
+                c = BI[f"clavicle_{s}"]
+                frames[:, c] = frames[:, v5] @ np.swapaxes(up.frames[:, v5], -1, -2) @ up.frames[:, c]
+        # The limbs hang from the trunk as solved now (or as given).
+        items = [(side, limb) for side in sk.SIDES for limb, (_, _, e, _, _) in LIMBS.items()
+                 if f"{e}_{side}" in targets]
+        names = [f"{LIMBS[limb][0]}_{side}" for side, limb in items]
+        at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
+        reached = self._limbs(up, frames, targets, items, at)
+        grip = [side for side in sk.SIDES if hands is not None and side in hands]
+        if grip:
+            held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
+            hand_frames = np.stack([frames[:, BI[f"hand_{side}"]] for side in grip])
+            rel = stacks_mul(hand_frames, np.array([fr for _, _, fr in held]), [grip.index(x) for x, _, _ in held])
+            frames[:, [BI[b] for _, b, _ in held]] = np.swapaxes(rel, 0, 1)
+        wrists = {side: reached[side, "arm"] for side in sk.SIDES
+                  if side not in grip and (side, "arm") in reached and self.has_fingers[side]}
+        if wrists:
+            self._fingers(frames, wrists, targets)
+        return frames
+
+    def _limbs(self, up, frames, targets, items, at) -> dict:
+        """Two-bone IK of the limbs `items` [(side, limb)] from their roots `at` (F, K, 3) toward
+        their effector targets, all at once (those with an intermediate target, then those
+        without); `frames` updated. Returns {(side, limb): the effector reached (F, 3)}."""
+        rig, nf = self.rig, frames.shape[0]
+        reached = {}
+        for with_pole in (True, False):
+            group = [k for k, (side, limb) in enumerate(items) if (f"{LIMBS[limb][1]}_{side}" in targets) == with_pole]
+            if not group:
+                continue
+            limbs = [(items[k][0], *LIMBS[items[k][1]]) for k in group]
+            root = np.concatenate([at[:, k] for k in group])
+            l1 = np.repeat([rig.lengths[BI[f"{ab}_{s}"]] for s, _, _, _, ab, _ in limbs], nf)
+            l2 = np.repeat([rig.lengths[BI[f"{mb}_{s}"]] for s, _, _, _, _, mb in limbs], nf)
+            eff = np.concatenate([targets[f"{e}_{s}"] for s, _, _, e, _, _ in limbs])
+            pole = np.concatenate([targets[f"{m}_{s}"] for s, _, m, _, _, _ in limbs]) if with_pole else None
+            # Appendix E: swivel blended between the mapped intermediate target and the user's.
+            # The hinge's axis: a character's upper bones twist on their own (a user's share
+            # the hinge's right), so its hinge is the intermediate bone's +X.
+            hinge = np.concatenate([up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
+                                    for s, _, _, _, ab, mb in limbs])
+            swivel = self._user_swivel(up, [(f"{a}_{s}", f"{m}_{s}", f"{e}_{s}") for s, a, m, e, _, _ in limbs])
+            tb = ik.two_bone(root, l1, l2, eff, pole, swivel, hinge, size_ratio=self.k)
+            for i, (s, _, _, _, ab, mb) in enumerate(limbs):
+                part = slice(i * nf, (i + 1) * nf)
+                frames[:, BI[f"{ab}_{s}"]] = tb.rot1[part]
+                frames[:, BI[f"{mb}_{s}"]] = tb.rot2[part]
+                reached[items[group[i]]] = tb.end[part]
+        return reached
+
+    @staticmethod
+    def _user_swivel(up, limbs: list[tuple[str, str, str]]) -> np.ndarray:
+        """The user's swivel of the limbs [(anchor, intermediate, effector)], stacked (K F, 3): the
+        intermediate joint's offset from the user's own anchor-effector axis. Measured from the
+        avatar's axis instead, the offset would also hold the angle between the two axes (the
+        mapping moves the effector), whose direction turns with every millimetre of target noise
+        when the limb is nearly straight: the upper arm's roll then jittered three times the user's."""
+        def joints(k):
+            return np.concatenate([up.joints[:, JI[j[k]]] for j in limbs])
+
+        root = joints(0)
+        axis = normalize(joints(2) - root)
+        v = joints(1) - root
+        return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
+
+    def _fingers(self, frames, wrists: dict, targets: dict) -> None:
+        """Every finger of the hands in `wrists` {side: the wrist reached (F, 3)} with a tip target,
+        posed at once (`pose_finger_chain` from the hand's rest finger frames); `frames` updated."""
+        items = [(s, f) for s in wrists for f in sk.FINGERS if f"tip_{f}_{s}" in targets]
+        if not items:
+            return
+        nf, sides = frames.shape[0], list(wrists)
+        hands = np.stack([frames[:, BI[f"hand_{s}"]] for s in sides])
+        rows = [sides.index(s) for s, _ in items]
+        mcp_local, base_rest, lens = (np.array([self._finger_rest[i][k] for i in items]) for k in range(3))
+        mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
+        ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
+        tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
+        thumb = np.repeat([f == "thumb" for _, f in items], nf)
+        _, fr = pose_finger_chain(mcp, tip, np.repeat(lens, nf, axis=0).T, [ref], thumb=thumb)
+        for i in (1, 2, 3):
+            frames[:, [BI[f"{f}_{i}_{s}"] for s, f in items]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3),
+                                                                          0, 1)
+
+    @property
+    def _finger_rest(self) -> dict:
+        """Per (side, finger), once: the MCP from the wrist and the first phalanx's rest frame, both
+        in the canonical hand frame, and the phalanx lengths."""
+        if getattr(self, "_fingers_at_rest", None) is None:
+            rig, out = self.rig, {}
+            for s in sk.SIDES:
+                c0h = rig.frames0[BI[f"hand_{s}"]]
+                w0 = rig.joint_world[JI[f"wrist_{s}"]]
+                for f in sk.FINGERS:
+                    p0 = [rig.joint_world[JI[f"{j}_{f}_{s}"]] for j in sk.FINGER_JOINTS]
+                    lens = np.array([np.linalg.norm(p0[i + 1] - p0[i]) for i in range(3)])
+                    out[s, f] = (c0h.T @ (p0[0] - w0), c0h.T @ rig.frames0[BI[f"{f}_1_{s}"]], lens)
+            self._fingers_at_rest = out
+        return self._fingers_at_rest
+
+
+class FeetPlan:
+    """The stances of a take and where the avatar's feet are planted (feet.py), per side:
+    `rows(start, stop)` {side: (weight (F,), planted xy (F, 2), sole points (K, 3))}. Found over the
+    whole take at once (`feet.detect`, a bake), or frame by frame as the frames are asked for, in
+    order (`feet.CausalStance`, a live stream: each frame's from the frames before it only)."""
+
+    def __init__(self, solver: PreparedSolver, soles: dict, causal: bool):
+        self.solver, self.soles, self.causal = solver, soles, causal
+        src = solver.src
+        self.sides = [s for s in sk.SIDES if src.ankle(s, 0, 0) is not None]
+        self.done = 0  # frames planned so far (causal)
+        self.weight = {s: np.zeros(0) for s in self.sides}
+        self.planted = {s: np.zeros((0, 2)) for s in self.sides}
+        if causal:
+            rec = src.recording  # a live recording's nominal rate, else the take's
+            fps = getattr(rec, "rate", None) or (rec.fps if rec is not None else (len(src.time) - 1) / max(
+                float(src.time[-1] - src.time[0]), 1e-9))
+            self.stance = {s: feet.CausalStance(float(solver.user_pos[f"ankle_{s}"][2]), fps) for s in self.sides}
+        else:
+            self._extend(src.frame_count)
+
+    def _reference(self, start: int, stop: int, ankles: dict) -> dict:
+        """Where the method puts each ankle in frames [start, stop) (AvatarGo's own target, or the
+        user's ankle scaled about the root)."""
+        solver = self.solver
+        tr = solver.src.trackers(start, stop)
+        placed = solver.impl.ankle_places(tr) if tr is not None else None
+        return {s: placed[f"ankle_{s}"] if placed is not None else root_positions(a, solver.k, solver.centre)
+                for s, a in ankles.items()}
+
+    def _extend(self, stop: int) -> None:
+        """Plan the frames [done, stop)."""
+        src, start = self.solver.src, self.done
+        if stop <= start:
+            return
+        whole = not self.causal  # the whole take: its trackers read once for both feet
+        ankles = {s: src.ankle(s) if whole else src.ankle(s, start, stop) for s in self.sides}
+        reference = self._reference(0, None, ankles) if whole else self._reference(start, stop, ankles)
+        for s in self.sides:
+            if whole:
+                stance = feet.detect(ankles[s], src.time, float(self.solver.user_pos[f"ankle_{s}"][2]))
+                w, planted = stance.weight, feet.planted_xy(reference[s], stance)
+            else:
+                w, planted = self.stance[s].update(ankles[s], src.time[start:stop], reference[s])
+            self.weight[s] = np.concatenate([self.weight[s], w])
+            self.planted[s] = np.concatenate([self.planted[s], planted])
+        self.done = stop
+
+    def rows(self, start: int, stop: int) -> dict:
+        if stop > self.done:
+            self._extend(stop)
+        return {s: (self.weight[s][start:stop], self.planted[s][start:stop], self.soles[s]) for s in self.sides}
+
+    def __bool__(self) -> bool:
+        return bool(self.sides)

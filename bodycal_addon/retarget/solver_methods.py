@@ -1,0 +1,325 @@
+"""The retargeting methods of the prepared solver (solver.py; DESIGN.md §1 steps 3-4 and
+"Prepared solver"), one class each with the same stages: what a method computes once for a
+(performer, avatar) pair (`__init__`, on the solver's shared state) and per block of frames
+(`chunk`: the avatar pose and the targets it aimed at).
+
+- `Egocentric` (Delahaye 2023, the default): the targets (wrists, ankles, elbows, knees,
+  fingertips, skull base) mapped through the two posed surfaces (`egocentric.retarget_points`),
+  then avatar IK: spine aimed at the skull base, two-bone limbs with the swivel blend, fingers.
+- `ExactOffsets` (AvatarGo): exact tracker-to-joint offsets for root, feet, hands and head, spine
+  bent by the root-to-head angle, limbs by IK, fingers closed on the controller (`offsets.py`).
+- `RotationCopy`: step 2 only, the baseline; the legs reach their planted feet.
+
+Also the surface helpers they share with the solver and the metrics: the models' surfaces
+re-expressed in the engine's canonical bone frames.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from ..body import skeleton as sk
+from ..body.bodymodel import BodyModel
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import BONES, SPINE_BONES
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.surface_layout import bone_frame
+from ..core.errors import BodyCalError
+from ..core.transforms import normalize, quat_to_matrix, stack_apply, stack_mul
+from . import egocentric as ego
+from . import offsets as ofs
+from .methods import methods_for
+from .trackers import read_trackers
+from .user_animation import sacrum_toward_hip_line
+
+TARGETS = tuple(
+    [f"{j}_{s}" for j in ("wrist", "elbow", "ankle", "knee") for s in sk.SIDES]
+    + [f"tip_{f}_{s}" for s in sk.SIDES for f in sk.FINGERS] + ["skull_base"])
+ARM_PASSES = 2  # arm mappings per chunk (the second sees the arms where the first put them)
+# Decision: the mapping (step 3) runs in single precision, about twice as fast; its targets agree
+# with double precision to micrometres, and the IK and the rig stay in double precision.
+MAPPING_DTYPE = np.float32
+
+
+def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.ndarray:
+    """(B, 3, 3) C0^-1 C_model0: the model's surface points are local to `bone_frame` with the
+    model's own `right`; the engine's frames fix the right by one rule. Posing with C(t) corr
+    places them as the model defined them."""
+    out = np.broadcast_to(np.eye(3), (len(BONES), 3, 3)).copy()
+    for i, b in enumerate(BONES):
+        info = model.bones.get(b.name)
+        if info is None or info.right is None:
+            continue
+        cm = bone_frame(pos[b.head], pos[b.tail], np.asarray(info.right, float))
+        if np.isfinite(cm).all() and abs(np.linalg.det(cm) - 1) < 1e-3:
+            out[i] = frames0[i].T @ cm
+    return out
+
+
+
+# --- the methods: one class each, the same stages -------------------------------------------------
+
+class Method:
+    """A retargeting method: what it computes once (`__init__`, on the run's shared state) and per
+    chunk of frames (`chunk`: the avatar pose and the targets it aimed at). `fk_basis` and
+    `realised` say how the run's rotation copy (step 2) is solved for it; `ankle_places` gives
+    the ankles the feet plan holds (None: the user's, scaled about the root)."""
+
+    name = ""
+    fk_basis = False
+    realised: bool | list[int] = False
+
+    def __init__(self, run, avatar_pos: dict):
+        self.run = run
+
+    def ankle_places(self, trackers) -> dict | None:
+        return None
+
+    def chunk(self, up, fk, pelvis, user_frames, start: int, stop: int):
+        raise NotImplementedError
+
+
+class RotationCopy(Method):
+    """Step 2 only, the baseline every other tool does; the legs reach their planted feet."""
+
+    name = "rotations"
+    fk_basis = True
+
+    def chunk(self, up, fk, pelvis, user_frames, start, stop):
+        run = self.run
+        ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
+        targets, pelvis, planted = run.plant({}, up.frames, pelvis, start, stop, ankles)
+        if not planted:
+            return fk, {}
+        # The legs reach their planted feet (and only the legs: the rest stays a rotation copy).
+        legs = {n: v for n, v in targets.items() if n.startswith("ankle_")}
+        frames = run.solve_ik(up, fk, pelvis, legs)
+        return run.rig.solve(frames, pelvis, realised=False), legs
+
+
+class Egocentric(Method):
+    """Delahaye 2023: the targets mapped through the user's and the avatar's posed surfaces, then IK."""
+
+    name = "egocentric"
+
+    def __init__(self, run, avatar_pos: dict):
+        super().__init__(run, avatar_pos)
+        # Both surfaces re-expressed in the engine's canonical bone frames: the mapping's surface
+        # coordinates (capsule angles, sphere directions) must mean the same side of the body
+        # on the user and on the avatar, whatever `right` each model's producer chose.
+        self.user_s = canonical_surface(_surface_bones(run.user), run.user_frames0, run.user_pos)
+        self.avatar_s = canonical_surface(_surface_bones(run.avatar), run.rig.frames0, avatar_pos)
+        self.ids = ego.common_elements(run.user, run.avatar)
+        # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
+        # against the body without the arms: arm, hand and finger elements are moved by the IK
+        # afterwards, and a hand resting on the head would otherwise drag the head toward where
+        # the FK copy happened to put the avatar's hand.
+        arm_parts = ("capsule:upperarm_", "capsule:forearm_", "mesh:palm_") + tuple(
+            f"capsule:{f}_" for f in sk.FINGERS)
+        self.trunk_ids = [i for i in self.ids if not i.startswith(arm_parts)]
+        if not self.ids:
+            raise BodyCalError("the user and the avatar share no surface elements", source=run.avatar.name,
+                               field="surface", hint="calibrate the avatar's surface")
+        self.graph_bones = list(ego.GRAPH_BONES)
+        self.bone_heads = [JI[sk.BONE_BY_NAME[b].head] for b in self.graph_bones]
+        self.bone_tails = [JI[sk.BONE_BY_NAME[b].tail] for b in self.graph_bones]
+        self.user_lengths = np.array([np.linalg.norm(run.user_pos[sk.BONE_BY_NAME[b].tail] -
+                                                     run.user_pos[sk.BONE_BY_NAME[b].head])
+                                      for b in self.graph_bones])
+        self.sbones = surface_bone_indices(self.user_s, self.avatar_s)
+        # The frames the avatar's posed surface and the IK read (the rest stay unrealised).
+        self.realised = sorted(set(self.sbones) | {BI["sacrum"]} | {BI[f"hand_{s}"] for s in sk.SIDES})
+        have = {e.id for e in run.user.surface}
+        self.palm_local = {}  # side -> (user, avatar) palm centre in the canonical hand frame
+        for s in sk.SIDES:
+            eid = f"mesh:palm_{s}"
+            if eid in self.ids:
+                self.palm_local[s] = tuple(
+                    np.mean([p.local for p in m.element(eid).points.values()], axis=0)
+                    for m in (self.user_s, self.avatar_s))
+        # A fingertip is a target when the user has that finger and the avatar finger bones to reach it
+        # (a skeleton with lumped hands, such as CMU's, has none: its tips would be reached by nothing).
+        self.targets = [t for t in TARGETS if not t.startswith("tip_") or
+                        (run.has_fingers[t[-1]] and any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have))]
+        self.lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
+        self.upper = [n for n in self.targets if n not in self.lower]
+        # Both bodies' surfaces posed by prepared posers: all elements, and the trunk's alone.
+        self.posers = {(who, part): ego.SurfacePoser(model, part_ids)
+                       for who, model in (("user", self.user_s), ("avatar", self.avatar_s))
+                       for part, part_ids in (("all", self.ids), ("trunk", self.trunk_ids)) if part_ids}
+
+    def chunk(self, up, fk, pelvis, user_frames, start, stop):
+        """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
+        without the arms and solved; then the arms and fingers, mapped against the body with the
+        trunk and legs already where the IK put them. Targets are mapped relative to the posed
+        avatar, so a hand resting on a thigh must be mapped against the thigh where it ends up,
+        not where the rotation copy had put it; and arm elements, which the IK moves last, must not
+        pull the head or the feet."""
+        run, posers = self.run, self.posers
+        heads = np.take(up.joints, self.bone_heads, axis=1)
+        tails = np.take(up.joints, self.bone_tails, axis=1)
+        # A user's bones keep their calibrated lengths (tracked joints wobble); a character's are
+        # taken as posed, like the avatar's own (a vertebra spanning two spine bones stretches).
+        ub = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]  # (F, NB, 3)
+        lower, upper = self.lower, self.upper
+        targets = {}
+        if self.trunk_ids:
+            ust = posers["user", "trunk"].pose(up.joints, user_frames)
+            avt = posers["avatar", "trunk"].pose(fk.joints, fk.frames)
+            tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
+                                     user_bones=ub, dtype=MAPPING_DTYPE)
+            targets.update({n: tg[:, i] for i, n in enumerate(lower)})
+        ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
+        targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)
+        frames = run.solve_ik(up, fk, pelvis, targets)
+        mid = run.rig.solve(frames, pelvis, basis=False, realised=self.realised)
+        us = posers["user", "all"].pose(up.joints, user_frames)
+        pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
+        # Decision: the hand is mapped through the centre of its palm, the part that touches, and
+        # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
+        # is copied): wrist and palm are a hand's size apart, and hands differ.
+        for s, (u_loc, _) in self.palm_local.items():
+            pts[:, upper.index(f"wrist_{s}")] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
+        # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
+        # passes re-map the wrists, against the arms where the previous pass put them, so a
+        # hand touching the other hand (or arm) meets it where that one ends up; both hands move
+        # toward each other at once, so those passes go half way (no overshoot).
+        # The fingertips are re-mapped in full: their nearest elements are mostly their own hand's
+        # palm and fingers, which pass 1 saw where the rotation copy had put the hand.
+        wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
+        tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
+        user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
+        pose, tg = mid, None
+        for k in range(ARM_PASSES):
+            av = posers["avatar", "all"].pose(pose.joints, pose.frames)
+            ta = user_side.map(av)
+            if tg is None:
+                tg = ta
+            else:
+                tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, wrists])
+                tg[:, tips] = ta[:, tips]
+            arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
+            for s, (_, a_loc) in self.palm_local.items():
+                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
+                                                                                    a_loc)
+            arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
+            if k + 1 < ARM_PASSES:
+                pose = run.rig.solve(arm_frames, pelvis, basis=False, realised=self.realised)
+        frames = arm_frames
+        targets.update(arm_targets)
+        return run.rig.solve(frames, pelvis, realised=False), targets
+
+
+class ExactOffsets(Method):
+    """AvatarGo: exact tracker-to-joint offsets from the T-pose, the spine bent by the root-to-head
+    vector, limbs by IK, fingers closed on the controller (offsets.py)."""
+
+    name = "offsets"
+
+    def __init__(self, run, avatar_pos: dict):
+        super().__init__(run, avatar_pos)
+        if run.rec is None:
+            raise BodyCalError("the offsets method needs a tracker recording (AvatarGo's offsets are from "
+                               "trackers)", source=run.user.name, field="method", hint="use egocentric or rotations")
+        tpose = {}
+        raw = run.user.extra.get("tpose") or {}
+        tr0 = None
+        for role in ("pelvis", "head", "hand_l", "hand_r", "foot_l", "foot_r"):
+            if role in raw:
+                v = np.asarray(raw[role], float)
+                tpose[role] = (v[:3], quat_to_matrix(v[3:7] / np.linalg.norm(v[3:7])))
+            else:
+                if tr0 is None and run.user.reference_time is not None:
+                    f0 = int(np.clip(np.searchsorted(run.rec.time, run.user.reference_time), 0,
+                                     run.rec.frame_count - 1))
+                    tr0 = read_trackers(run.rec, run.user, f0, f0 + 1)
+                if tr0 is not None and role in tr0.pos:
+                    tpose[role] = (tr0.pos[role][0], tr0.rot[role][0])
+        # The user's sacrum at the T-pose as the other methods see it (halfway to the hip line),
+        # so that eq. 3 turns the avatar's pelvis the way theirs turns.
+        ref = run.user_frames0.copy()
+        ref[BI["sacrum"]] = sacrum_toward_hip_line(ref[BI["sacrum"]], run.user_pos["hip_l"], run.user_pos["hip_r"])
+        self.ofs = ofs.setup(run.user, run.rig, ref, tpose, run.centre)
+        self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
+
+    def ankle_places(self, trackers) -> dict:
+        placed, _ = ofs.effector_targets(self.ofs, trackers.pos, trackers.rot)
+        return placed
+
+    def chunk(self, up, fk, pelvis, user_frames, start, stop):
+        run = self.run
+        st = self.ofs
+        tr = run.src.trackers(start, stop)
+        p, r = ofs.effector_targets(st, tr.pos, tr.rot)
+        frames = up.frames.copy()
+        for bone, fr in r.items():
+            frames[:, BI[bone]] = fr
+        sf = ofs.spine_frames(st, tr.pos, r["sacrum"])
+        frames[:, [BI[b] for b in SPINE_BONES]] = sf
+        v5 = sk.CLAVICLE_VERTEBRA - 1
+        for s in sk.SIDES:
+            c = BI[f"clavicle_{s}"]
+            frames[:, c] = stack_mul(sf[:, v5], st.spine0[v5].T @ st.ref_frames[c])
+        targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
+        # AvatarGo stands its avatar on the floor: planted feet on it, the pelvis lowered to reach.
+        targets, pelvis, _ = run.plant(targets, frames, p["pelvis"], start, stop)
+        up2 = type(up)(up.time, up.joints, frames, up.valid, up.notes)
+        frames = run.solve_ik(up2, fk, pelvis, targets, hands=self.grip)
+        targets["skull_base"] = p["skull_base"]
+        return run.rig.solve(frames, pelvis, realised=False), targets
+
+
+METHOD_CLASSES: dict[str, type[Method]] = {m.name: m for m in (Egocentric, ExactOffsets, RotationCopy)}
+METHODS = methods_for("recording")  # every method (a recording takes them all), the default first
+
+
+def _surface_bones(model: BodyModel) -> BodyModel:
+    """The model with every mesh element's `bone` a canonical bone (FORMATS.md allows a pattern such
+    as "spine_*" for the torso, whose points each name their own vertebra)."""
+    fixed = []
+    changed = False
+    for e in model.surface:
+        if e.type == "mesh" and e.bone not in sk.BONE_BY_NAME and e.points:
+            e = copy.copy(e)
+            e.bone = next(iter(e.points.values())).bone
+            changed = True
+        fixed.append(e)
+    if not changed:
+        return model
+    out = copy.copy(model)
+    out.surface = fixed
+    return out
+
+
+def canonical_surface(model: BodyModel, frames0: np.ndarray, pos: dict) -> BodyModel:
+    """A copy of `model` whose sphere centres, capsule axis offsets and mesh points are local to the
+    engine's canonical rest frames `frames0` (and whose bones' `right` are those frames' +X)."""
+    corr = surface_correction(model, frames0, pos)
+    out = copy.copy(model)
+    out.bones = {k: copy.copy(v) for k, v in model.bones.items()}
+    for name, b in out.bones.items():
+        if name in BI:
+            b.right = frames0[BI[name]][:, 0].copy()
+    out.surface = []
+    for e in model.surface:
+        e = copy.deepcopy(e)
+        if e.center is not None and e.bone in BI:
+            e.center = corr[BI[e.bone]] @ e.center
+        if e.type == "capsule" and e.bone in BI and ("axis_head" in e.extra or "axis_tail" in e.extra):
+            e.set_axis_offsets(*(corr[BI[e.bone]] @ e.axis_offsets().T).T)
+        for p in e.points.values():
+            if p.bone in BI:
+                p.local = corr[BI[p.bone]] @ p.local
+        out.surface.append(e)
+    return out
+
+
+def surface_bone_indices(*models: BodyModel) -> list[int]:
+    names = set()
+    for m in models:
+        for e in m.surface:
+            names.add(e.bone)
+            names |= {p.bone for p in e.points.values()}
+    return sorted(BI[n] for n in names if n in BI)
