@@ -34,6 +34,8 @@ from ..body import skeleton as sk
 from ..body.bodymodel import BodyModel, Joint
 from ..body.rest_frames import canonical_rest_frames, complete_joints
 from ..core.errors import BodyCalError
+from ..core.transforms import normalize
+from .template import TEMPLATE
 
 HINGE_BONES = tuple(b.name for b in sk.BONES if b.hinge)
 A_POSE_DEG = 20.0  # an upper arm further than this below horizontal makes the rest pose an A-pose
@@ -51,6 +53,8 @@ class ArmatureReading:
     hinges: dict[str, np.ndarray] = field(default_factory=dict)  # hinge bone -> world flexion axis
     rest_pose: str = "T"
     missing: list[str] = field(default_factory=list)  # optional segments the rig lacks (fingers, toes)
+    estimated: list[str] = field(default_factory=list)  # end joints placed by proportion (chain_end)
+    derived_hinges: list[str] = field(default_factory=list)  # hinges whose axis came from bend_axis
 
     # -- frames ---------------------------------------------------------------------------------
     def bone_world_matrix(self, bone: str) -> np.ndarray:
@@ -175,14 +179,52 @@ def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dic
     return rig
 
 
+# Where a chain's last bone ends (a fingertip, the top of the head, the toes without a toe bone) is
+# its tail only when the tail is a plausible length: an importer sets the tails of glTF and FBX
+# bones by a guess (glTF nodes have no length), so a 0.01-scaled Mixamo thumb tip came out 2 m
+# away and a Quaternius head 9 mm tall. (shortest, longest, fallback) as fractions of the
+# reference length: the previous phalanx, the expected head (HEAD_OF_TRUNK x the trunk), the shin.
+END_RANGES = {"tip": (0.4, 2.0, 0.85), "head": (0.5, 3.0, 1.0), "toe": (0.2, 1.0, 0.4)}
+HEAD_OF_TRUNK = TEMPLATE["scale:head"][0]  # skull base to the top of the head, over pelvis to skull base
+IN_LINE_DEG = 35.0  # an end bone's child this close to its direction marks where it ends (HeadTop_End)
+
+
+def chain_end(rig: ArmatureReading, bone: str, reference: float, kind: str,
+              direction: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """World point where `bone` ends, and how it was found ("tail", "child", "estimated"): the head
+    of a child bone in line with it (a Mixamo `*_End` or `Thumb4` leaf) within the plausible
+    range of `kind` (END_RANGES, times `reference` m), else its tail when that is in range, else
+    its head plus `direction` (default: the bone's own +Y) times the fallback length."""
+    lo, hi, fallback = (reference * f for f in END_RANGES[kind])
+    head = rig.to_world(rig.bones[bone]["head"])
+    axis = rig.axis_world(bone, (0.0, 1.0, 0.0)) if direction is None else normalize(direction)
+    best = None
+    for name, b in rig.bones.items():
+        if b["parent"] != bone:
+            continue
+        d = rig.to_world(b["head"]) - head
+        n = float(np.linalg.norm(d))
+        if lo <= n <= hi and np.dot(d, axis) >= n * np.cos(np.radians(IN_LINE_DEG)) and (best is None or n > best[0]):
+            best = (n, head + d)
+    if best is not None:
+        return best[1], "child"
+    tail = rig.to_world(rig.bones[bone]["tail"])
+    if lo <= np.linalg.norm(tail - head) <= hi:
+        return tail, "tail"
+    return head + axis * fallback, "estimated"
+
+
 def _canonical_joints(rig: ArmatureReading) -> None:
     bm, bones = rig.bone_map, rig.bones
 
     def head(bone):
         return rig.to_world(bones[bone]["head"])
 
-    def tail(bone):
-        return rig.to_world(bones[bone]["tail"])
+    def end(joint, bone, reference, kind, direction=None):
+        point, how = chain_end(rig, bone, reference, kind, direction)
+        if how == "estimated":
+            rig.estimated.append(joint)
+        put(joint, point, bone)
 
     def put(joint, world, frame):
         rig.joints[joint] = np.asarray(world, float)
@@ -205,7 +247,8 @@ def _canonical_joints(rig: ArmatureReading) -> None:
         put(sk.spine_joint(k), spine[k], chain[i])
     put(sk.spine_joint(sk.SPINE_COUNT), head(seg["head"]), seg["head"])  # the top of the spine
     put("skull_base", head(seg["head"]), seg["head"])
-    put("head", tail(seg["head"]), seg["head"])
+    trunk = float(np.linalg.norm(rig.joints["skull_base"] - rig.joints["pelvis"]))
+    end("head", seg["head"], HEAD_OF_TRUNK * trunk, "head", rig.joints["skull_base"] - rig.joints["pelvis"])
     for s in sk.SIDES:
         for joint, segment in (("clavicle", "clavicle"), ("shoulder", "upperarm"), ("elbow", "forearm"),
                                ("wrist", "hand")):
@@ -217,18 +260,60 @@ def _canonical_joints(rig: ArmatureReading) -> None:
                 continue
             for joint, b in zip(("mcp", "pip", "dip"), names):
                 put(f"{joint}_{f}_{s}", head(b), b)
-            put(f"tip_{f}_{s}", tail(names[2]), names[2])
+            phalanx = rig.joints[f"dip_{f}_{s}"] - rig.joints[f"pip_{f}_{s}"]
+            end(f"tip_{f}_{s}", names[2], float(np.linalg.norm(phalanx)), "tip", phalanx)
         put(f"knee_{s}", head(seg[f"shin_{s}"]), seg[f"shin_{s}"])
         put(f"ankle_{s}", head(seg[f"foot_{s}"]), seg[f"foot_{s}"])
         if seg.get(f"toe_{s}"):
             put(f"toe_{s}", head(seg[f"toe_{s}"]), seg[f"toe_{s}"])
         else:
-            put(f"toe_{s}", tail(seg[f"foot_{s}"]), seg[f"foot_{s}"])
+            shin = float(np.linalg.norm(rig.joints[f"ankle_{s}"] - rig.joints[f"knee_{s}"]))
+            end(f"toe_{s}", seg[f"foot_{s}"], shin, "toe")
             rig.missing.append(f"toe_{s} (foot tail used)")
 
 
 def canonical_bones(rig: ArmatureReading) -> list[sk.Bone]:
     return [b for b in sk.BONES if b.head in rig.joints and b.tail in rig.joints]
+
+
+BENT_DEG = 8.0  # a rest chain bent less than this says nothing of its hinge's axis
+# A bone's local X is its hinge axis (FORMATS.md §1) when it is within 60 degrees of the axis the
+# chain's bend or the anatomy gives. Blender-made rigs agree (the shared avatars: 0.76-1.00 on every
+# finger, 1.00 on elbows and knees); a glTF or FBX import's bone roll is the file's joint axes,
+# arbitrary for this purpose (a Mixamo Xbot's knees point their X the other way, a Soldier's left
+# and right forearms opposite ways). The thumb's axis is not the palm line's: only one along the
+# bone is replaced.
+HINGE_AGREE = 0.5
+
+
+def bend_axis(rig: ArmatureReading, hinge: str) -> np.ndarray:
+    """A hinge's flexion axis (world) where the avatar bone's local X cannot be it (it runs along
+    the bone: an importer's bone roll). From the chain's bend at rest (parent x bone: the rest
+    bend is taken as flexion) when it is bent, else by anatomy: an elbow flexes the forearm
+    forward, a knee the shin back, a finger towards the palm (about the line from the index's
+    knuckle to the pinky's, left hand; the mirror on the right). The bend is kept only where it
+    does not contradict the anatomy."""
+    b = sk.BONE_BY_NAME[hinge]
+    parent = sk.BONE_BY_NAME[b.parent]
+    p = rig.joints[b.head] - rig.joints[parent.head]
+    d = normalize(rig.joints[b.tail] - rig.joints[b.head])
+    side = hinge[-1]
+    if hinge.startswith("forearm_"):
+        anatomical = np.cross(d, rig.forward)
+    elif hinge.startswith("shin_"):
+        anatomical = np.cross(d, -rig.forward)
+    elif f"mcp_index_{side}" in rig.joints and f"mcp_pinky_{side}" in rig.joints:
+        across = rig.joints[f"mcp_pinky_{side}"] - rig.joints[f"mcp_index_{side}"]
+        anatomical = across if side == "l" else -across
+    else:
+        anatomical = rig.lateral if side == "l" else -rig.lateral
+    anatomical = normalize(anatomical - np.dot(anatomical, d) * d)
+    bend = np.cross(p, d)
+    if np.linalg.norm(bend) > np.sin(np.radians(BENT_DEG)) * np.linalg.norm(p):
+        bend = normalize(bend)
+        if np.dot(bend, anatomical) > -0.3:
+            return bend
+    return anatomical
 
 
 def _rights(rig: ArmatureReading, overrides: dict[str, np.ndarray]) -> None:
@@ -242,7 +327,15 @@ def _rights(rig: ArmatureReading, overrides: dict[str, np.ndarray]) -> None:
         avatar_bone = seg.get(name)
         if avatar_bone is None or sk.BONE_BY_NAME[name].tail not in rig.joints:
             continue
-        hinge_world[name] = rig.axis_world(avatar_bone, overrides.get(name, (1.0, 0.0, 0.0)))
+        axis = rig.axis_world(avatar_bone, overrides.get(name, (1.0, 0.0, 0.0)))
+        d = normalize(rig.joints[sk.BONE_BY_NAME[name].tail] - rig.joints[sk.BONE_BY_NAME[name].head])
+        if name not in overrides:
+            derived = bend_axis(rig, name)
+            along = np.linalg.norm(axis - np.dot(axis, d) * d) < 0.5
+            if along or (not name.startswith("thumb_") and np.dot(axis, derived) < HINGE_AGREE):
+                axis = derived
+                rig.derived_hinges.append(name)
+        hinge_world[name] = axis
     pos = complete_joints(BodyModel("avatar", rig.armature, {j: Joint(p) for j, p in rig.joints.items()}))
     rig.hinges = hinge_world
     frames = canonical_rest_frames(pos, hinge_world)

@@ -62,6 +62,7 @@ from ..body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, Surface
 from ..core.errors import BodyCalError
 from .armature import ArmatureReading, canonical_bones
 from .surface_fit import cross_sections, linear_offsets, linear_radii, robust_keep, sphere_fit
+from .template import TEMPLATE
 
 CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)  # count; the span adapts (see below)
 CAPSULE_RAYS = 12
@@ -113,6 +114,10 @@ def skeleton_model(rig: ArmatureReading, name: str, method: str = "raycast") -> 
     for miss in rig.missing:
         if miss.startswith("toe_"):
             defaulted[miss.split()[0]] = "the foot bone's tail (the rig has no toe bone)"
+    for joint in rig.estimated:
+        defaulted[joint] = "placed by proportion (the bone's tail is an importer's guess)"
+    for bone in rig.derived_hinges:
+        defaulted[f"hinge:{bone}"] = "flexion axis from the chain's bend or the anatomy (the bone's local X is not it)"
     model.calibration = {"method": method, "steps_used": [method], "defaulted": defaulted,
                          "missing": [m for m in rig.missing if m.startswith("fingers")], "quality": quality}
     # Joints: exact rest positions, and where they ride on the avatar's own bones.
@@ -167,12 +172,19 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
     model, frames = skeleton_model(rig, name)
     survey = _Survey(rig, caster, model, frames)
     _measure_capsules(survey)
-    centre, head_h = _head_centre(survey)
-    _measure_skull(survey, centre, head_h)
-    _measure_jaw(survey, centre, head_h)
+    try:
+        centre, head_h = _head_centre(survey)
+        _measure_skull(survey, centre, head_h)
+        _measure_jaw(survey, centre, head_h)
+    except BodyCalError as exc:  # a helmet, hair or a mask around the head: its proportions stand in
+        model.surface[:] = [e for e in model.surface if e.id not in ("sphere:skull", "mesh:jaw")]
+        _estimate_head(survey, exc.message)
     _measure_torso(survey)
     for s in sk.SIDES:  # palm then sole, side by side: the order the rays are cast and reported in
-        _measure_palm(survey, s)
+        try:
+            _measure_palm(survey, s)
+        except BodyCalError as exc:  # a mitten hand, a glove: the hand's proportions stand in
+            _estimate_palm(survey, s, exc.message)
         _measure_sole(survey, s)
     model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
     model.extra["rig"] = rig.rig_dict()
@@ -240,6 +252,11 @@ def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
     spreads = [np.linalg.norm(pts[i][keep[i]] - centres[i], axis=1) - radii[i] for i in np.flatnonzero(used)]
     rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
     avatar_bone = rig.bone_map.bones.get(bone, bone)
+    if (n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2) and bone.split("_")[0] in sk.FINGERS:
+        # A finger the mesh does not model (a mitten hand), or too thin for the rings: its
+        # proportions to its bone stand in, and the calibration says so.
+        _estimate_capsule(survey, bone, f"only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh")
+        return
     if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
         raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
                            source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
@@ -252,6 +269,50 @@ def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
     model.surface.append(element)
     survey.quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
                                          "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
+
+
+# --- what the rays could not measure: the shared avatars' proportions (avatar/template.py) ------------
+
+def _note_estimated(survey: _Survey, element: str, why: str) -> None:
+    survey.model.calibration["defaulted"][element] = f"estimated from the body's proportions ({why})"
+    survey.quality[element] = {"estimated": True}
+
+
+def _estimate_capsule(survey: _Survey, bone: str, why: str) -> None:
+    """`capsule:<bone>` from the template's radii and axis offsets over the bone's length."""
+    info = survey.model.bones[bone]
+    v = np.asarray(TEMPLATE[f"capsule:{bone}"], float) * info.length
+    info.radius_head, info.radius_tail = float(v[0]), float(v[1])
+    element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
+    element.set_axis_offsets(v[2:5], v[5:8])
+    survey.model.surface.append(element)
+    _note_estimated(survey, f"capsule:{bone}", why)
+
+
+def _estimate_head(survey: _Survey, why: str) -> None:
+    """The skull sphere and the jaw from the template, scaled by the head size the trunk implies
+    (the template's head over trunk: a rig's head bone may end anywhere from the skull's middle
+    to its top)."""
+    J = survey.J
+    size = TEMPLATE["scale:head"][0] * float(np.linalg.norm(J["skull_base"] - J["pelvis"]))
+    v = np.asarray(TEMPLATE["sphere:skull"], float) * size
+    survey.model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=v[:3], radius=float(v[3])))
+    survey.model.surface.append(SurfaceElement(
+        "mesh:jaw", "mesh", "head", triangles=list(sl.JAW_TRIANGLES),
+        points={p: SurfacePoint("head", np.asarray(TEMPLATE[f"mesh:jaw/{p}"], float) * size) for p in sl.JAW_POINTS}))
+    for element in ("sphere:skull", "mesh:jaw"):
+        _note_estimated(survey, element, why)
+
+
+def _estimate_palm(survey: _Survey, s: str, why: str) -> None:
+    """`mesh:palm_<s>` from the template over the hand's length (wrist to middle knuckle)."""
+    hand, J = f"hand_{s}", survey.J
+    size = float(np.linalg.norm(J[f"mcp_middle_{s}"] - J[f"wrist_{s}"]))
+    names = sl.palm_points(len(PALM_RAYS), s)
+    survey.model.surface.append(SurfaceElement(
+        f"mesh:palm_{s}", "mesh", hand, triangles=sl.fan_triangles(names),
+        points={p: SurfacePoint(hand, np.asarray(TEMPLATE[f"mesh:palm_{s}/{p}"], float) * size) for p in names}))
+    _note_estimated(survey, f"mesh:palm_{s}", why)
 
 
 def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:
