@@ -199,7 +199,7 @@ def chain_end(rig: ArmatureReading, bone: str, reference: float, kind: str,
     head = rig.to_world(rig.bones[bone]["head"])
     axis = rig.axis_world(bone, (0.0, 1.0, 0.0)) if direction is None else normalize(direction)
     best = None
-    for name, b in rig.bones.items():
+    for b in rig.bones.values():
         if b["parent"] != bone:
             continue
         d = rig.to_world(b["head"]) - head
