@@ -159,6 +159,30 @@ def check_pelvis_is_root(name: str, bm: naming.BoneMap, parent: dict[str, str | 
                        "would leave them behind", source=name, field="pelvis", hint=hint)
 
 
+def settle_pelvis(bm: naming.BoneMap, parent: dict[str, str | None]) -> str | None:
+    """A detected map whose pelvis bone is not the one the thighs and the spine hang from takes
+    that bone instead (Quaternius: Root or Body -> Hips -> Abdomen, Body -> UpperLeg), as a rig
+    would be mapped by hand; a `root` segment that was that bone is dropped (nothing above the
+    pelvis carries the travel then). Changes `bm` in place and returns a note, or None when the map
+    needed nothing or no such bone exists (`check_pelvis_is_root` then says so)."""
+    pelvis = bm.bones.get("pelvis")
+    spine = (list(bm.chains.get("spine", [])) + list(bm.chains.get("neck", [])))[:1]
+    thighs = [bm.bones.get("thigh_l"), bm.bones.get("thigh_r")]
+    if pelvis is None or not spine or not all(thighs):
+        return None
+    hanging = [*thighs, *spine]
+    if all(pelvis in _ancestors(b, parent) for b in hanging):
+        return None
+    common = [a for a in _ancestors(hanging[0], parent) if all(a in _ancestors(b, parent) for b in hanging[1:])]
+    if not common or common[0] in bm.bones.values() and common[0] != bm.bones.get("root"):
+        return None
+    if bm.bones.get("root") == common[0]:
+        del bm.bones["root"]
+    bm.bones["pelvis"] = common[0]
+    bm.unmapped = [n for n in bm.unmapped if n != common[0]] + [pelvis]
+    return f"pelvis: '{common[0]}', the bone the spine and both thighs hang from ('{pelvis}' follows it)"
+
+
 def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dict], bone_map: naming.BoneMap,
                   hinge_overrides: dict[str, np.ndarray] | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature in its rest pose. `rest_bones`: per bone
@@ -184,7 +208,8 @@ def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dic
 # bones by a guess (glTF nodes have no length), so a 0.01-scaled Mixamo thumb tip came out 2 m
 # away and a Quaternius head 9 mm tall. (shortest, longest, fallback) as fractions of the
 # reference length: the previous phalanx, the expected head (HEAD_OF_TRUNK x the trunk), the shin.
-END_RANGES = {"tip": (0.4, 2.0, 0.85), "head": (0.5, 3.0, 1.0), "toe": (0.2, 1.0, 0.4)}
+END_RANGES = {"tip": (0.4, 2.0, 0.85), "head": (0.5, 3.0, 1.0), "toe": (0.2, 1.0, 0.3)}
+TOE_DROP_DEG = 10.0  # an estimated ball of the foot: this far below the horizontal from the ankle
 HEAD_OF_TRUNK = TEMPLATE["scale:head"][0]  # skull base to the top of the head, over pelvis to skull base
 IN_LINE_DEG = 35.0  # an end bone's child this close to its direction marks where it ends (HeadTop_End)
 
@@ -268,7 +293,9 @@ def _canonical_joints(rig: ArmatureReading) -> None:
             put(f"toe_{s}", head(seg[f"toe_{s}"]), seg[f"toe_{s}"])
         else:
             shin = float(np.linalg.norm(rig.joints[f"ankle_{s}"] - rig.joints[f"knee_{s}"]))
-            end(f"toe_{s}", seg[f"foot_{s}"], shin, "toe")
+            # the foot's own +Y is an importer's guess too: forward and down to the ball
+            down = np.radians(TOE_DROP_DEG)
+            end(f"toe_{s}", seg[f"foot_{s}"], shin, "toe", np.cos(down) * rig.forward - np.sin(down) * rig.up)
             rig.missing.append(f"toe_{s} (foot tail used)")
 
 

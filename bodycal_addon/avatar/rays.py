@@ -88,6 +88,7 @@ SKULL_RAYS = [(180.0 + a, e) for e in (0.0, 20.0, 40.0, 60.0) for a in (-60.0, -
 # Palm ray origins: fraction of the way from the wrist to the index (I) or pinky (P) mcp.
 PALM_RAYS = (("I", 0.85), ("P", 0.85), ("P", 0.30), ("I", 0.30))
 SOLE_HEIGHT = 0.2  # of the ankle's height above the floor
+SOLE_RAYS = 6  # the outline's points (the table's sole_1..6)
 
 
 class RayCaster(Protocol):
@@ -184,8 +185,11 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
         try:
             _measure_palm(survey, s)
         except BodyCalError as exc:  # a mitten hand, a glove: the hand's proportions stand in
-            _estimate_palm(survey, s, exc.message)
-        _measure_sole(survey, s)
+            _estimate_hand_or_foot(survey, "palm", s, exc.message)
+        try:
+            _measure_sole(survey, s)
+        except BodyCalError as exc:  # a stylised shoe the outline rays miss: the foot's proportions
+            _estimate_hand_or_foot(survey, "sole", s, exc.message)
     model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
     model.extra["rig"] = rig.rig_dict()
     model.extra["rays_cast"] = caster.rays
@@ -304,15 +308,22 @@ def _estimate_head(survey: _Survey, why: str) -> None:
         _note_estimated(survey, element, why)
 
 
-def _estimate_palm(survey: _Survey, s: str, why: str) -> None:
-    """`mesh:palm_<s>` from the template over the hand's length (wrist to middle knuckle)."""
-    hand, J = f"hand_{s}", survey.J
-    size = float(np.linalg.norm(J[f"mcp_middle_{s}"] - J[f"wrist_{s}"]))
-    names = sl.palm_points(len(PALM_RAYS), s)
+def _estimate_hand_or_foot(survey: _Survey, part: str, s: str, why: str) -> None:
+    """`mesh:palm_<s>` or `mesh:sole_<s>` from the template over the hand's length (wrist to middle
+    knuckle) or the foot's (ankle to toe), in the hand or foot bone's frame."""
+    J = survey.J
+    if part == "palm":
+        bone, names = f"hand_{s}", sl.palm_points(len(PALM_RAYS), s)
+        size = float(np.linalg.norm(J[f"mcp_middle_{s}"] - J[f"wrist_{s}"]))
+    else:
+        bone, names = f"foot_{s}", sl.sole_points(SOLE_RAYS, s)
+        size = float(np.linalg.norm(J[f"toe_{s}"] - J[f"ankle_{s}"]))
+    element = f"mesh:{part}_{s}"
+    survey.model.surface[:] = [e for e in survey.model.surface if e.id != element]
     survey.model.surface.append(SurfaceElement(
-        f"mesh:palm_{s}", "mesh", hand, triangles=sl.fan_triangles(names),
-        points={p: SurfacePoint(hand, np.asarray(TEMPLATE[f"mesh:palm_{s}/{p}"], float) * size) for p in names}))
-    _note_estimated(survey, f"mesh:palm_{s}", why)
+        element, "mesh", bone, triangles=sl.fan_triangles(names),
+        points={p: SurfacePoint(bone, np.asarray(TEMPLATE[f"{element}/{p}"], float) * size) for p in names}))
+    _note_estimated(survey, element, why)
 
 
 def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:

@@ -14,7 +14,7 @@ import json
 
 import numpy as np
 
-from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature
+from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature, settle_pelvis
 from ..body import naming
 from ..body import skeleton as sk
 from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset
@@ -66,6 +66,8 @@ def bone_map_for(arm) -> naming.BoneMap:
     names = [b.name for b in arm.data.bones]
     bm = naming.detect_bone_map(names)
     ov = load_overrides(arm)
+    if "pelvis" not in ov:
+        settle_pelvis(bm, skeleton_parents(arm))
     for seg, bone in ov.items():
         if seg in sk.CHAIN_SEGMENTS:
             bm.chains[seg] = [b for b in bone.split(",") if b and b in arm.data.bones]
@@ -173,14 +175,21 @@ def deform_parents(arm) -> dict[str, str | None]:
     return out
 
 
+def skeleton_parents(arm) -> dict[str, str | None]:
+    """Each bone's parent in the skeleton the engine reads: the armature's own, or for a generated
+    Rigify rig its DEF- skeleton (`deform_parents`)."""
+    if is_rigify_generated(arm):
+        return deform_parents(arm)
+    return {b.name: b.parent.name if b.parent else None for b in arm.data.bones}
+
+
 def read_rig(arm, bone_map: naming.BoneMap | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature object in its rest pose (a generated Rigify
     rig: of its DEF- bones, `deform_parents`)."""
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
     bm = bone_map or bone_map_for(arm)
-    parents = ({b.name: b.parent.name if b.parent else None for b in arm.data.bones}
-               if not is_rigify_generated(arm) else deform_parents(arm))
+    parents = skeleton_parents(arm)
     rest = {name: {"parent": parent, "head": np.array(arm.data.bones[name].head_local[:]),
                    "tail": np.array(arm.data.bones[name].tail_local[:]),
                    "matrix": np.array([arm.data.bones[name].matrix_local[i][:3] for i in range(3)], dtype=float)}
