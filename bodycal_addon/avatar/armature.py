@@ -159,6 +159,30 @@ def check_pelvis_is_root(name: str, bm: naming.BoneMap, parent: dict[str, str | 
                        "would leave them behind", source=name, field="pelvis", hint=hint)
 
 
+LIMB_LINKS = tuple((f"{child}_{s}", f"{parent}_{s}") for s in sk.SIDES
+                   for child, parent in (("forearm", "upperarm"), ("hand", "forearm"), ("shin", "thigh"),
+                                         ("foot", "shin")))
+
+
+def check_limbs_hang(name: str, bm: naming.BoneMap, parent: dict[str, str | None]) -> None:
+    """Each limb bone must hang from the one before it (at any depth): a rig whose foot is an IK
+    control beside the leg (Quaternius' robot and knight: Foot.L under the root, the leg reaching
+    it through a constraint a glTF file does not keep) would leave the foot where it stood while
+    the leg moves."""
+    for child, above in LIMB_LINKS:
+        if bm.bones[child] not in _descendants_of(bm.bones[above], parent):
+            raise BodyCalError(
+                f"the {child.split('_')[0]} bone '{bm.bones[child]}' does not hang from the {above.split('_')[0]} "
+                f"bone '{bm.bones[above]}' (an IK control beside the limb): the retargeted limb would leave it behind",
+                source=name, field=child,
+                hint=f"parent '{bm.bones[child]}' to '{bm.bones[above]}' in Blender (Keep Offset), or map {child} "
+                     "to a bone that hangs from it")
+
+
+def _descendants_of(bone: str, parent: dict[str, str | None]) -> set[str]:
+    return {b for b in parent if bone in _ancestors(b, parent)}
+
+
 def settle_pelvis(bm: naming.BoneMap, parent: dict[str, str | None]) -> str | None:
     """A detected map whose pelvis bone is not the one the thighs and the spine hang from takes
     that bone instead (Quaternius: Root or Body -> Hips -> Abdomen, Body -> UpperLeg), as a rig
@@ -189,6 +213,7 @@ def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dic
     {"parent", "head", "tail" (armature space), "matrix" (3x3, the bone's rest axes as columns)}."""
     check_humanoid(name, bone_map)
     check_pelvis_is_root(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
+    check_limbs_hang(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
     seg_of = _segment_of(bone_map)
     chain_index = {n: i for names in bone_map.chains.values() for i, n in enumerate(names)}
     bones = {n: {"parent": b["parent"], "head": np.asarray(b["head"], float), "tail": np.asarray(b["tail"], float),
@@ -275,8 +300,11 @@ def _canonical_joints(rig: ArmatureReading) -> None:
     trunk = float(np.linalg.norm(rig.joints["skull_base"] - rig.joints["pelvis"]))
     end("head", seg["head"], HEAD_OF_TRUNK * trunk, "head", rig.joints["skull_base"] - rig.joints["pelvis"])
     for s in sk.SIDES:
-        for joint, segment in (("clavicle", "clavicle"), ("shoulder", "upperarm"), ("elbow", "forearm"),
-                               ("wrist", "hand")):
+        if seg.get(f"clavicle_{s}"):
+            put(f"clavicle_{s}", head(seg[f"clavicle_{s}"]), seg[f"clavicle_{s}"])
+        else:
+            rig.missing.append(f"clavicle_{s} (the arm hangs from the spine)")
+        for joint, segment in (("shoulder", "upperarm"), ("elbow", "forearm"), ("wrist", "hand")):
             put(f"{joint}_{s}", head(seg[f"{segment}_{s}"]), seg[f"{segment}_{s}"])
         for f in sk.FINGERS:
             names = [seg.get(f"{f}_{i}_{s}") for i in (1, 2, 3)]

@@ -68,6 +68,7 @@ CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)  # count; the span adapts (see bel
 CAPSULE_RAYS = 12
 LIMB_EXTRAPOLATION = 1.0  # a limb capsule's radius/axis line may reach this many station ranges beyond them
 MIN_CAPSULE_HITS = 0.5  # fraction of a capsule's rays that must hit
+CAPSULE_MAX = 1.0  # a fitted radius above this many bone lengths (or an axis offset above one) is no limb's
 
 # (height fraction, azimuth degrees): see the table in the module docstring.
 TORSO_RAYS = {
@@ -266,9 +267,16 @@ def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
                            source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
     extend = LIMB_EXTRAPOLATION if bone in sl.LIMB_CAPSULE_BONES else 0.0
     rh, rt = linear_radii(station_t, station_r, extend)
+    ch, ct = linear_offsets(station_t, station_c, extend)
+    length = model.bones[bone].length
+    fitted = np.array([rh, rt, *ch, *ct], float)
+    if not np.all(np.isfinite(fitted)) or max(rh, rt) > CAPSULE_MAX * length or np.abs(fitted[2:]).max() > length:
+        # A few rays grazing a stylised or low-poly part can fit a line that runs off (a base
+        # mesh's fingertip came out 96 m thick): the bone's proportions stand in.
+        _estimate_capsule(survey, bone, f"its rings fit a radius of {max(rh, rt):.3g} m on a {length:.3g} m bone")
+        return
     model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
     element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
-    ch, ct = linear_offsets(station_t, station_c, extend)
     element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
     model.surface.append(element)
     survey.quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
@@ -353,6 +361,10 @@ def _measure_skull(survey: _Survey, c: np.ndarray, head_h: float) -> None:
                            f"(bone {rig.bone_map.bones['head']}) hit the mesh", source=rig.armature)
     pts = np.array(pts)
     centre, radius, keep = sphere_fit(pts)
+    if not (np.all(np.isfinite(centre)) and radius <= head_h and np.linalg.norm(centre - c) <= head_h):
+        # hits on a nearly flat back of the head (a stylised, low-poly one) fit any sphere
+        raise BodyCalError(f"sphere:skull: the rays' hits fit a sphere of {radius:.3g} m, not a skull",
+                           source=rig.armature)
     survey.model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=survey.local("head", centre),
                                                radius=radius))
     res = np.linalg.norm(pts[keep] - centre, axis=1) - radius

@@ -15,6 +15,7 @@ import json
 import numpy as np
 
 from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature, settle_pelvis
+from ..avatar.structure import map_by_structure
 from ..body import naming
 from ..body import skeleton as sk
 from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset
@@ -66,6 +67,9 @@ def bone_map_for(arm) -> naming.BoneMap:
     names = [b.name for b in arm.data.bones]
     bm = naming.detect_bone_map(names)
     ov = load_overrides(arm)
+    if bm.missing() and not is_rigify_generated(arm):  # names no scheme reads: the rig's shape
+        bm = map_by_structure({b.name: (b.parent.name if b.parent else None, np.array(b.head_local))
+                               for b in arm.data.bones}, armature_up(arm)) or bm
     if "pelvis" not in ov:
         settle_pelvis(bm, skeleton_parents(arm))
     for seg, bone in ov.items():
@@ -173,6 +177,12 @@ def deform_parents(arm) -> dict[str, str | None]:
             p = p.parent
         out[b.name] = p.name if p is not None else None
     return out
+
+
+def armature_up(arm) -> np.ndarray:
+    """The world's up in the armature's space (an FBX import's bones stand along its Y)."""
+    up = np.linalg.solve(np.array(arm.matrix_world, float)[:3, :3], np.array([0.0, 0.0, 1.0]))
+    return up / np.linalg.norm(up)
 
 
 def skeleton_parents(arm) -> dict[str, str | None]:
