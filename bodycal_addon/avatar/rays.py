@@ -89,7 +89,6 @@ SKULL_RAYS = [(180.0 + a, e) for e in (0.0, 20.0, 40.0, 60.0) for a in (-60.0, -
 # Palm ray origins: fraction of the way from the wrist to the index (I) or pinky (P) mcp.
 PALM_RAYS = (("I", 0.85), ("P", 0.85), ("P", 0.30), ("I", 0.30))
 SOLE_HEIGHT = 0.2  # of the ankle's height above the floor
-SOLE_RAYS = 6  # the outline's points (the table's sole_1..6)
 
 
 class RayCaster(Protocol):
@@ -183,14 +182,8 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
         _estimate_head(survey, exc.message)
     _measure_torso(survey)
     for s in sk.SIDES:  # palm then sole, side by side: the order the rays are cast and reported in
-        try:
-            _measure_palm(survey, s)
-        except BodyCalError as exc:  # a mitten hand, a glove: the hand's proportions stand in
-            _estimate_hand_or_foot(survey, "palm", s, exc.message)
-        try:
-            _measure_sole(survey, s)
-        except BodyCalError as exc:  # a stylised shoe the outline rays miss: the foot's proportions
-            _estimate_hand_or_foot(survey, "sole", s, exc.message)
+        _measure_palm(survey, s)
+        _measure_sole(survey, s)
     model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
     model.extra["rig"] = rig.rig_dict()
     model.extra["rays_cast"] = caster.rays
@@ -314,24 +307,6 @@ def _estimate_head(survey: _Survey, why: str) -> None:
         points={p: SurfacePoint("head", np.asarray(TEMPLATE[f"mesh:jaw/{p}"], float) * size) for p in sl.JAW_POINTS}))
     for element in ("sphere:skull", "mesh:jaw"):
         _note_estimated(survey, element, why)
-
-
-def _estimate_hand_or_foot(survey: _Survey, part: str, s: str, why: str) -> None:
-    """`mesh:palm_<s>` or `mesh:sole_<s>` from the template over the hand's length (wrist to middle
-    knuckle) or the foot's (ankle to toe), in the hand or foot bone's frame."""
-    J = survey.J
-    if part == "palm":
-        bone, names = f"hand_{s}", sl.palm_points(len(PALM_RAYS), s)
-        size = float(np.linalg.norm(J[f"mcp_middle_{s}"] - J[f"wrist_{s}"]))
-    else:
-        bone, names = f"foot_{s}", sl.sole_points(SOLE_RAYS, s)
-        size = float(np.linalg.norm(J[f"toe_{s}"] - J[f"ankle_{s}"]))
-    element = f"mesh:{part}_{s}"
-    survey.model.surface[:] = [e for e in survey.model.surface if e.id != element]
-    survey.model.surface.append(SurfaceElement(
-        element, "mesh", bone, triangles=sl.fan_triangles(names),
-        points={p: SurfacePoint(bone, np.asarray(TEMPLATE[f"{element}/{p}"], float) * size) for p in names}))
-    _note_estimated(survey, element, why)
 
 
 def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:

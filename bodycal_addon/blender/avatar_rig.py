@@ -62,12 +62,19 @@ def clear_overrides(arm) -> None:
         del arm[BONE_MAP_PROP]
 
 
+# The names read too few segments to go on (at least this share of the required ones missing):
+# the map comes from the rig's shape. A rig with one bone named its own way keeps its name-based
+# map, and the bone map panel says which segment to assign.
+STRUCTURE_WHEN_MISSING = 0.5
+
+
 def bone_map_for(arm) -> naming.BoneMap:
     """Auto-detected map with the user's overrides applied (chains: comma-separated bone lists)."""
     names = [b.name for b in arm.data.bones]
     bm = naming.detect_bone_map(names)
     ov = load_overrides(arm)
-    if bm.missing() and not is_rigify_generated(arm):  # names no scheme reads: the rig's shape
+    if len(bm.missing()) >= STRUCTURE_WHEN_MISSING * len(sk.required_segments()) and not is_rigify_generated(arm):
+        # names no scheme reads (a COLLADA export's): the rig's shape says which bone is which
         bm = map_by_structure({b.name: (b.parent.name if b.parent else None, np.array(b.head_local))
                                for b in arm.data.bones}, armature_up(arm)) or bm
     if "pelvis" not in ov:
