@@ -109,10 +109,12 @@ def _riders(check: BakeCheck, obj) -> list[tuple[str, str, np.ndarray]]:
     return out
 
 
-def verify(check: BakeCheck | None, obj, frames: np.ndarray) -> None:
+def verify(check: BakeCheck | None, obj, frames: np.ndarray, in_place: bool = False) -> None:
     """Evaluate `obj` at the scene frames of the check's samples (`frames`: the scene frame of
     every animation frame) and raise one BodyCalError when a joint of a bone that deforms the
-    mesh is further than the tolerance from the engine's. The scene's frame is put back."""
+    mesh is further than the tolerance from the engine's. `in_place`: the bake took the travel out
+    (root motion `in-place`), so the joints are compared about the pelvis. The scene's frame is
+    put back."""
     import bpy
 
     if check is None:
@@ -126,12 +128,19 @@ def verify(check: BakeCheck | None, obj, frames: np.ndarray) -> None:
             f = float(frames[i])
             scene.frame_set(int(np.floor(f)), subframe=f - np.floor(f))
             mw = np.array(obj.matrix_world)
+            got = {}
             for joint, bone, local in riders:
                 pm = np.array(obj.pose.bones[bone].matrix)
-                got = (mw @ np.append(pm[:3, :3] @ local + pm[:3, 3], 1.0))[:3]
-                err = float(np.linalg.norm(got - check.joints[joint][k]))
-                if err > worst[0]:
-                    worst = (err, f"{joint} (bone {bone})", f)
+                point = (mw @ np.append(pm[:3, :3] @ local + pm[:3, 3], 1.0))[:3]
+                got.setdefault(joint, []).append((bone, point))
+            shift = np.zeros(3)
+            if in_place and "pelvis" in got:  # the travel on the floor is gone; the pelvis's height is kept
+                shift[:2] = (got["pelvis"][0][1] - check.joints["pelvis"][k])[:2]
+            for joint, seen in got.items():
+                for bone, point in seen:
+                    err = float(np.linalg.norm(point - shift - check.joints[joint][k]))
+                    if err > worst[0]:
+                        worst = (err, f"{joint} (bone {bone})", f)
     finally:
         scene.frame_set(was[0], subframe=was[1])
     err, what, frame = worst

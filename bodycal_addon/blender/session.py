@@ -157,7 +157,8 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
     check = bake_check.plan(anim, target.avatar)  # before the joints are let go
 
     def verify():
-        bake_check.verify(check, arm, baking.key_frames(anim.time, rate, frame_start))
+        bake_check.verify(check, arm, baking.key_frames(anim.time, rate, frame_start),
+                          in_place=options.root_motion == "in-place")
 
     if release:
         take.release()
