@@ -63,7 +63,7 @@ def editor_state(arm) -> EditorState:
     key = (tuple(arm.data.bones.keys()), str(arm.get(avatar_rig.BONE_MAP_PROP, "")))
     state = _states.get(key)
     if state is None:
-        detected = naming.detect_bone_map(list(key[0]))
+        detected = avatar_rig.detected_map(arm)
         try:
             state = EditorState(avatar_rig.bone_map_for(arm), detected, avatar_rig.load_overrides(arm),
                                 avatar_rig.map_problem(arm))

@@ -34,6 +34,8 @@ from ..body import skeleton as sk
 from ..body.bodymodel import BodyModel, Joint
 from ..body.rest_frames import canonical_rest_frames, complete_joints
 from ..core.errors import BodyCalError
+from ..core.transforms import normalize
+from .template import TEMPLATE
 
 HINGE_BONES = tuple(b.name for b in sk.BONES if b.hinge)
 A_POSE_DEG = 20.0  # an upper arm further than this below horizontal makes the rest pose an A-pose
@@ -51,6 +53,8 @@ class ArmatureReading:
     hinges: dict[str, np.ndarray] = field(default_factory=dict)  # hinge bone -> world flexion axis
     rest_pose: str = "T"
     missing: list[str] = field(default_factory=list)  # optional segments the rig lacks (fingers, toes)
+    estimated: list[str] = field(default_factory=list)  # end joints placed by proportion (chain_end)
+    derived_hinges: list[str] = field(default_factory=list)  # hinges whose axis came from bend_axis
 
     # -- frames ---------------------------------------------------------------------------------
     def bone_world_matrix(self, bone: str) -> np.ndarray:
@@ -155,12 +159,61 @@ def check_pelvis_is_root(name: str, bm: naming.BoneMap, parent: dict[str, str | 
                        "would leave them behind", source=name, field="pelvis", hint=hint)
 
 
+LIMB_LINKS = tuple((f"{child}_{s}", f"{parent}_{s}") for s in sk.SIDES
+                   for child, parent in (("forearm", "upperarm"), ("hand", "forearm"), ("shin", "thigh"),
+                                         ("foot", "shin")))
+
+
+def check_limbs_hang(name: str, bm: naming.BoneMap, parent: dict[str, str | None]) -> None:
+    """Each limb bone must hang from the one before it (at any depth): a rig whose foot is an IK
+    control beside the leg (Quaternius' robot and knight: Foot.L under the root, the leg reaching
+    it through a constraint a glTF file does not keep) would leave the foot where it stood while
+    the leg moves."""
+    for child, above in LIMB_LINKS:
+        if bm.bones[child] not in _descendants_of(bm.bones[above], parent):
+            raise BodyCalError(
+                f"the {child.split('_')[0]} bone '{bm.bones[child]}' does not hang from the {above.split('_')[0]} "
+                f"bone '{bm.bones[above]}' (an IK control beside the limb): the retargeted limb would leave it behind",
+                source=name, field=child,
+                hint=f"parent '{bm.bones[child]}' to '{bm.bones[above]}' in Blender (Keep Offset), or map {child} "
+                     "to a bone that hangs from it")
+
+
+def _descendants_of(bone: str, parent: dict[str, str | None]) -> set[str]:
+    return {b for b in parent if bone in _ancestors(b, parent)}
+
+
+def settle_pelvis(bm: naming.BoneMap, parent: dict[str, str | None]) -> str | None:
+    """A detected map whose pelvis bone is not the one the thighs and the spine hang from takes
+    that bone instead (Quaternius: Root or Body -> Hips -> Abdomen, Body -> UpperLeg), as a rig
+    would be mapped by hand; a `root` segment that was that bone is dropped (nothing above the
+    pelvis carries the travel then). Changes `bm` in place and returns a note, or None when the map
+    needed nothing or no such bone exists (`check_pelvis_is_root` then says so)."""
+    pelvis = bm.bones.get("pelvis")
+    spine = (list(bm.chains.get("spine", [])) + list(bm.chains.get("neck", [])))[:1]
+    thighs = [bm.bones.get("thigh_l"), bm.bones.get("thigh_r")]
+    if pelvis is None or not spine or not all(thighs):
+        return None
+    hanging = [*thighs, *spine]
+    if all(pelvis in _ancestors(b, parent) for b in hanging):
+        return None
+    common = [a for a in _ancestors(hanging[0], parent) if all(a in _ancestors(b, parent) for b in hanging[1:])]
+    if not common or common[0] in bm.bones.values() and common[0] != bm.bones.get("root"):
+        return None
+    if bm.bones.get("root") == common[0]:
+        del bm.bones["root"]
+    bm.bones["pelvis"] = common[0]
+    bm.unmapped = [n for n in bm.unmapped if n != common[0]] + [pelvis]
+    return f"pelvis: '{common[0]}', the bone the spine and both thighs hang from ('{pelvis}' follows it)"
+
+
 def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dict], bone_map: naming.BoneMap,
                   hinge_overrides: dict[str, np.ndarray] | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature in its rest pose. `rest_bones`: per bone
     {"parent", "head", "tail" (armature space), "matrix" (3x3, the bone's rest axes as columns)}."""
     check_humanoid(name, bone_map)
     check_pelvis_is_root(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
+    check_limbs_hang(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
     seg_of = _segment_of(bone_map)
     chain_index = {n: i for names in bone_map.chains.values() for i, n in enumerate(names)}
     bones = {n: {"parent": b["parent"], "head": np.asarray(b["head"], float), "tail": np.asarray(b["tail"], float),
@@ -175,14 +228,53 @@ def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dic
     return rig
 
 
+# Where a chain's last bone ends (a fingertip, the top of the head, the toes without a toe bone) is
+# its tail only when the tail is a plausible length: an importer sets the tails of glTF and FBX
+# bones by a guess (glTF nodes have no length), so a 0.01-scaled Mixamo thumb tip came out 2 m
+# away and a Quaternius head 9 mm tall. (shortest, longest, fallback) as fractions of the
+# reference length: the previous phalanx, the expected head (HEAD_OF_TRUNK x the trunk), the shin.
+END_RANGES = {"tip": (0.4, 2.0, 0.85), "head": (0.5, 3.0, 1.0), "toe": (0.2, 1.0, 0.3)}
+TOE_DROP_DEG = 10.0  # an estimated ball of the foot: this far below the horizontal from the ankle
+HEAD_OF_TRUNK = TEMPLATE["scale:head"][0]  # skull base to the top of the head, over pelvis to skull base
+IN_LINE_DEG = 35.0  # an end bone's child this close to its direction marks where it ends (HeadTop_End)
+
+
+def chain_end(rig: ArmatureReading, bone: str, reference: float, kind: str,
+              direction: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """World point where `bone` ends, and how it was found ("tail", "child", "estimated"): the head
+    of a child bone in line with it (a Mixamo `*_End` or `Thumb4` leaf) within the plausible
+    range of `kind` (END_RANGES, times `reference` m), else its tail when that is in range, else
+    its head plus `direction` (default: the bone's own +Y) times the fallback length."""
+    lo, hi, fallback = (reference * f for f in END_RANGES[kind])
+    head = rig.to_world(rig.bones[bone]["head"])
+    axis = rig.axis_world(bone, (0.0, 1.0, 0.0)) if direction is None else normalize(direction)
+    best = None
+    for b in rig.bones.values():
+        if b["parent"] != bone:
+            continue
+        d = rig.to_world(b["head"]) - head
+        n = float(np.linalg.norm(d))
+        if lo <= n <= hi and np.dot(d, axis) >= n * np.cos(np.radians(IN_LINE_DEG)) and (best is None or n > best[0]):
+            best = (n, head + d)
+    if best is not None:
+        return best[1], "child"
+    tail = rig.to_world(rig.bones[bone]["tail"])
+    if lo <= np.linalg.norm(tail - head) <= hi:
+        return tail, "tail"
+    return head + axis * fallback, "estimated"
+
+
 def _canonical_joints(rig: ArmatureReading) -> None:
     bm, bones = rig.bone_map, rig.bones
 
     def head(bone):
         return rig.to_world(bones[bone]["head"])
 
-    def tail(bone):
-        return rig.to_world(bones[bone]["tail"])
+    def end(joint, bone, reference, kind, direction=None):
+        point, how = chain_end(rig, bone, reference, kind, direction)
+        if how == "estimated":
+            rig.estimated.append(joint)
+        put(joint, point, bone)
 
     def put(joint, world, frame):
         rig.joints[joint] = np.asarray(world, float)
@@ -205,10 +297,14 @@ def _canonical_joints(rig: ArmatureReading) -> None:
         put(sk.spine_joint(k), spine[k], chain[i])
     put(sk.spine_joint(sk.SPINE_COUNT), head(seg["head"]), seg["head"])  # the top of the spine
     put("skull_base", head(seg["head"]), seg["head"])
-    put("head", tail(seg["head"]), seg["head"])
+    trunk = float(np.linalg.norm(rig.joints["skull_base"] - rig.joints["pelvis"]))
+    end("head", seg["head"], HEAD_OF_TRUNK * trunk, "head", rig.joints["skull_base"] - rig.joints["pelvis"])
     for s in sk.SIDES:
-        for joint, segment in (("clavicle", "clavicle"), ("shoulder", "upperarm"), ("elbow", "forearm"),
-                               ("wrist", "hand")):
+        if seg.get(f"clavicle_{s}"):
+            put(f"clavicle_{s}", head(seg[f"clavicle_{s}"]), seg[f"clavicle_{s}"])
+        else:
+            rig.missing.append(f"clavicle_{s} (the arm hangs from the spine)")
+        for joint, segment in (("shoulder", "upperarm"), ("elbow", "forearm"), ("wrist", "hand")):
             put(f"{joint}_{s}", head(seg[f"{segment}_{s}"]), seg[f"{segment}_{s}"])
         for f in sk.FINGERS:
             names = [seg.get(f"{f}_{i}_{s}") for i in (1, 2, 3)]
@@ -217,18 +313,62 @@ def _canonical_joints(rig: ArmatureReading) -> None:
                 continue
             for joint, b in zip(("mcp", "pip", "dip"), names):
                 put(f"{joint}_{f}_{s}", head(b), b)
-            put(f"tip_{f}_{s}", tail(names[2]), names[2])
+            phalanx = rig.joints[f"dip_{f}_{s}"] - rig.joints[f"pip_{f}_{s}"]
+            end(f"tip_{f}_{s}", names[2], float(np.linalg.norm(phalanx)), "tip", phalanx)
         put(f"knee_{s}", head(seg[f"shin_{s}"]), seg[f"shin_{s}"])
         put(f"ankle_{s}", head(seg[f"foot_{s}"]), seg[f"foot_{s}"])
         if seg.get(f"toe_{s}"):
             put(f"toe_{s}", head(seg[f"toe_{s}"]), seg[f"toe_{s}"])
         else:
-            put(f"toe_{s}", tail(seg[f"foot_{s}"]), seg[f"foot_{s}"])
+            shin = float(np.linalg.norm(rig.joints[f"ankle_{s}"] - rig.joints[f"knee_{s}"]))
+            # the foot's own +Y is an importer's guess too: forward and down to the ball
+            down = np.radians(TOE_DROP_DEG)
+            end(f"toe_{s}", seg[f"foot_{s}"], shin, "toe", np.cos(down) * rig.forward - np.sin(down) * rig.up)
             rig.missing.append(f"toe_{s} (foot tail used)")
 
 
 def canonical_bones(rig: ArmatureReading) -> list[sk.Bone]:
     return [b for b in sk.BONES if b.head in rig.joints and b.tail in rig.joints]
+
+
+BENT_DEG = 8.0  # a rest chain bent less than this says nothing of its hinge's axis
+# A bone's local X is its hinge axis (FORMATS.md §1) when it is within 60 degrees of the axis the
+# chain's bend or the anatomy gives. Blender-made rigs agree (the shared avatars: 0.76-1.00 on every
+# finger, 1.00 on elbows and knees); a glTF or FBX import's bone roll is the file's joint axes,
+# arbitrary for this purpose (a Mixamo Xbot's knees point their X the other way, a Soldier's left
+# and right forearms opposite ways). The thumb's axis is not the palm line's: only one along the
+# bone is replaced.
+HINGE_AGREE = 0.5
+
+
+def bend_axis(rig: ArmatureReading, hinge: str) -> np.ndarray:
+    """A hinge's flexion axis (world) where the avatar bone's local X cannot be it (it runs along
+    the bone: an importer's bone roll). From the chain's bend at rest (parent x bone: the rest
+    bend is taken as flexion) when it is bent, else by anatomy: an elbow flexes the forearm
+    forward, a knee the shin back, a finger towards the palm (about the line from the index's
+    knuckle to the pinky's, left hand; the mirror on the right). The bend is kept only where it
+    does not contradict the anatomy."""
+    b = sk.BONE_BY_NAME[hinge]
+    parent = sk.BONE_BY_NAME[b.parent]
+    p = rig.joints[b.head] - rig.joints[parent.head]
+    d = normalize(rig.joints[b.tail] - rig.joints[b.head])
+    side = hinge[-1]
+    if hinge.startswith("forearm_"):
+        anatomical = np.cross(d, rig.forward)
+    elif hinge.startswith("shin_"):
+        anatomical = np.cross(d, -rig.forward)
+    elif f"mcp_index_{side}" in rig.joints and f"mcp_pinky_{side}" in rig.joints:
+        across = rig.joints[f"mcp_pinky_{side}"] - rig.joints[f"mcp_index_{side}"]
+        anatomical = across if side == "l" else -across
+    else:
+        anatomical = rig.lateral if side == "l" else -rig.lateral
+    anatomical = normalize(anatomical - np.dot(anatomical, d) * d)
+    bend = np.cross(p, d)
+    if np.linalg.norm(bend) > np.sin(np.radians(BENT_DEG)) * np.linalg.norm(p):
+        bend = normalize(bend)
+        if np.dot(bend, anatomical) > -0.3:
+            return bend
+    return anatomical
 
 
 def _rights(rig: ArmatureReading, overrides: dict[str, np.ndarray]) -> None:
@@ -242,7 +382,15 @@ def _rights(rig: ArmatureReading, overrides: dict[str, np.ndarray]) -> None:
         avatar_bone = seg.get(name)
         if avatar_bone is None or sk.BONE_BY_NAME[name].tail not in rig.joints:
             continue
-        hinge_world[name] = rig.axis_world(avatar_bone, overrides.get(name, (1.0, 0.0, 0.0)))
+        axis = rig.axis_world(avatar_bone, overrides.get(name, (1.0, 0.0, 0.0)))
+        d = normalize(rig.joints[sk.BONE_BY_NAME[name].tail] - rig.joints[sk.BONE_BY_NAME[name].head])
+        if name not in overrides:
+            derived = bend_axis(rig, name)
+            along = np.linalg.norm(axis - np.dot(axis, d) * d) < 0.5
+            if along or (not name.startswith("thumb_") and np.dot(axis, derived) < HINGE_AGREE):
+                axis = derived
+                rig.derived_hinges.append(name)
+        hinge_world[name] = axis
     pos = complete_joints(BodyModel("avatar", rig.armature, {j: Joint(p) for j, p in rig.joints.items()}))
     rig.hinges = hinge_world
     frames = canonical_rest_frames(pos, hinge_world)

@@ -62,11 +62,13 @@ from ..body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, Surface
 from ..core.errors import BodyCalError
 from .armature import ArmatureReading, canonical_bones
 from .surface_fit import cross_sections, linear_offsets, linear_radii, robust_keep, sphere_fit
+from .template import TEMPLATE
 
 CAPSULE_STATIONS = np.linspace(0.25, 0.75, 5)  # count; the span adapts (see below)
 CAPSULE_RAYS = 12
 LIMB_EXTRAPOLATION = 1.0  # a limb capsule's radius/axis line may reach this many station ranges beyond them
 MIN_CAPSULE_HITS = 0.5  # fraction of a capsule's rays that must hit
+CAPSULE_MAX = 1.0  # a fitted radius above this many bone lengths (or an axis offset above one) is no limb's
 
 # (height fraction, azimuth degrees): see the table in the module docstring.
 TORSO_RAYS = {
@@ -114,6 +116,10 @@ def skeleton_model(rig: ArmatureReading, name: str, method: str = "raycast") -> 
     for miss in rig.missing:
         if miss.startswith("toe_"):
             defaulted[miss.split()[0]] = "the foot bone's tail (the rig has no toe bone)"
+    for joint in rig.estimated:
+        defaulted[joint] = "placed by proportion (the bone's tail is an importer's guess)"
+    for bone in rig.derived_hinges:
+        defaulted[f"hinge:{bone}"] = "flexion axis from the chain's bend or the anatomy (the bone's local X is not it)"
     model.calibration = {"method": method, "steps_used": [method], "defaulted": defaulted,
                          "missing": [m for m in rig.missing if m.startswith("fingers")], "quality": quality}
     # Joints: exact rest positions, and where they ride on the avatar's own bones.
@@ -168,9 +174,13 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
     model, frames = skeleton_model(rig, name)
     survey = _Survey(rig, caster, model, frames)
     _measure_capsules(survey)
-    centre, head_h = _head_centre(survey)
-    _measure_skull(survey, centre, head_h)
-    _measure_jaw(survey, centre, head_h)
+    try:
+        centre, head_h = _head_centre(survey)
+        _measure_skull(survey, centre, head_h)
+        _measure_jaw(survey, centre, head_h)
+    except BodyCalError as exc:  # a helmet, hair or a mask around the head: its proportions stand in
+        model.surface[:] = [e for e in model.surface if e.id not in ("sphere:skull", "mesh:jaw")]
+        _estimate_head(survey, exc.message)
     _measure_torso(survey)
     for s in sk.SIDES:  # palm then sole, side by side: the order the rays are cast and reported in
         _measure_palm(survey, s)
@@ -252,18 +262,63 @@ def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
     spreads = [np.linalg.norm(pts[i][keep[i]] - centres[i], axis=1) - radii[i] for i in np.flatnonzero(used)]
     rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
     avatar_bone = rig.bone_map.bones.get(bone, bone)
+    if (n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2) and bone.split("_")[0] in sk.FINGERS:
+        # A finger the mesh does not model (a mitten hand), or too thin for the rings: its
+        # proportions to its bone stand in, and the calibration says so.
+        _estimate_capsule(survey, bone, f"only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh")
+        return
     if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
         raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
                            source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
     extend = LIMB_EXTRAPOLATION if bone in sl.LIMB_CAPSULE_BONES else 0.0
     rh, rt = linear_radii(station_t, station_r, extend)
+    ch, ct = linear_offsets(station_t, station_c, extend)
+    length = model.bones[bone].length
+    fitted = np.array([rh, rt, *ch, *ct], float)
+    if not np.all(np.isfinite(fitted)) or max(rh, rt) > CAPSULE_MAX * length or np.abs(fitted[2:]).max() > length:
+        # A few rays grazing a stylised or low-poly part can fit a line that runs off (a base
+        # mesh's fingertip came out 96 m thick): the bone's proportions stand in.
+        _estimate_capsule(survey, bone, f"its rings fit a radius of {max(rh, rt):.3g} m on a {length:.3g} m bone")
+        return
     model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
     element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
-    ch, ct = linear_offsets(station_t, station_c, extend)
     element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
     model.surface.append(element)
     survey.quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
                                          "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
+
+
+# --- what the rays could not measure: the shared avatars' proportions (avatar/template.py) ------------
+
+def _note_estimated(survey: _Survey, element: str, why: str) -> None:
+    survey.model.calibration["defaulted"][element] = f"estimated from the body's proportions ({why})"
+    survey.quality[element] = {"estimated": True}
+
+
+def _estimate_capsule(survey: _Survey, bone: str, why: str) -> None:
+    """`capsule:<bone>` from the template's radii and axis offsets over the bone's length."""
+    info = survey.model.bones[bone]
+    v = np.asarray(TEMPLATE[f"capsule:{bone}"], float) * info.length
+    info.radius_head, info.radius_tail = float(v[0]), float(v[1])
+    element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
+    element.set_axis_offsets(v[2:5], v[5:8])
+    survey.model.surface.append(element)
+    _note_estimated(survey, f"capsule:{bone}", why)
+
+
+def _estimate_head(survey: _Survey, why: str) -> None:
+    """The skull sphere and the jaw from the template, scaled by the head size the trunk implies
+    (the template's head over trunk: a rig's head bone may end anywhere from the skull's middle
+    to its top)."""
+    J = survey.J
+    size = TEMPLATE["scale:head"][0] * float(np.linalg.norm(J["skull_base"] - J["pelvis"]))
+    v = np.asarray(TEMPLATE["sphere:skull"], float) * size
+    survey.model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=v[:3], radius=float(v[3])))
+    survey.model.surface.append(SurfaceElement(
+        "mesh:jaw", "mesh", "head", triangles=list(sl.JAW_TRIANGLES),
+        points={p: SurfacePoint("head", np.asarray(TEMPLATE[f"mesh:jaw/{p}"], float) * size) for p in sl.JAW_POINTS}))
+    for element in ("sphere:skull", "mesh:jaw"):
+        _note_estimated(survey, element, why)
 
 
 def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:
@@ -293,6 +348,10 @@ def _measure_skull(survey: _Survey, c: np.ndarray, head_h: float) -> None:
                            f"(bone {rig.bone_map.bones['head']}) hit the mesh", source=rig.armature)
     pts = np.array(pts)
     centre, radius, keep = sphere_fit(pts)
+    if not (np.all(np.isfinite(centre)) and radius <= head_h and np.linalg.norm(centre - c) <= head_h):
+        # hits on a nearly flat back of the head (a stylised, low-poly one) fit any sphere
+        raise BodyCalError(f"sphere:skull: the rays' hits fit a sphere of {radius:.3g} m, not a skull",
+                           source=rig.armature)
     survey.model.surface.append(SurfaceElement("sphere:skull", "sphere", "head", center=survey.local("head", centre),
                                                radius=radius))
     res = np.linalg.norm(pts[keep] - centre, axis=1) - radius

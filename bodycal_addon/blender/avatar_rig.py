@@ -16,7 +16,8 @@ import json
 
 import numpy as np
 
-from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature
+from ..avatar.armature import HINGE_BONES, ArmatureReading, read_armature, settle_pelvis
+from ..avatar.structure import map_by_structure
 from ..body import naming
 from ..body import skeleton as sk
 from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset, check_overrides, edit_overrides, map_with_overrides
@@ -64,9 +65,29 @@ def clear_overrides(arm) -> None:
         del arm[BONE_MAP_PROP]
 
 
+# The names read too few segments to go on (at least this share of the required ones missing):
+# the map comes from the rig's shape. A rig with one bone named its own way keeps its name-based
+# map, and the bone map panel says which segment to assign.
+STRUCTURE_WHEN_MISSING = 0.5
+
+
 def bone_map_for(arm) -> naming.BoneMap:
     """Auto-detected map with the user's overrides applied (chains: comma-separated bone lists)."""
-    return map_with_overrides(arm.data.bones.keys(), load_overrides(arm))
+    overrides = load_overrides(arm)
+    return map_with_overrides(arm.data.bones.keys(), overrides, detected=detected_map(arm, "pelvis" in overrides))
+
+
+def detected_map(arm, pelvis_given: bool = False) -> naming.BoneMap:
+    """The map detection gives the armature: by its bones' names, or by its shape when the names
+    read too few segments (a COLLADA export's); the pelvis settled on the bone the thighs hang from
+    unless the user gave it."""
+    bm = naming.detect_bone_map([b.name for b in arm.data.bones])
+    if len(bm.missing()) >= STRUCTURE_WHEN_MISSING * len(sk.required_segments()) and not is_rigify_generated(arm):
+        bm = map_by_structure({b.name: (b.parent.name if b.parent else None, np.array(b.head_local))
+                               for b in arm.data.bones}, armature_up(arm)) or bm
+    if not pelvis_given:
+        settle_pelvis(bm, skeleton_parents(arm))
+    return bm
 
 
 def edit_segment(arm, segment: str, value: str | None) -> tuple[naming.BoneMap, bool]:
@@ -195,14 +216,27 @@ def deform_parents(arm) -> dict[str, str | None]:
     return out
 
 
+def armature_up(arm) -> np.ndarray:
+    """The world's up in the armature's space (an FBX import's bones stand along its Y)."""
+    up = np.linalg.solve(np.array(arm.matrix_world, float)[:3, :3], np.array([0.0, 0.0, 1.0]))
+    return up / np.linalg.norm(up)
+
+
+def skeleton_parents(arm) -> dict[str, str | None]:
+    """Each bone's parent in the skeleton the engine reads: the armature's own, or for a generated
+    Rigify rig its DEF- skeleton (`deform_parents`)."""
+    if is_rigify_generated(arm):
+        return deform_parents(arm)
+    return {b.name: b.parent.name if b.parent else None for b in arm.data.bones}
+
+
 def read_rig(arm, bone_map: naming.BoneMap | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature object in its rest pose (a generated Rigify
     rig: of its DEF- bones, `deform_parents`)."""
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("not an armature object", source=getattr(arm, "name", "object"))
     bm = bone_map or bone_map_for(arm)
-    parents = ({b.name: b.parent.name if b.parent else None for b in arm.data.bones}
-               if not is_rigify_generated(arm) else deform_parents(arm))
+    parents = skeleton_parents(arm)
     rest = {name: {"parent": parent, "head": np.array(arm.data.bones[name].head_local[:]),
                    "tail": np.array(arm.data.bones[name].tail_local[:]),
                    "matrix": np.array([arm.data.bones[name].matrix_local[i][:3] for i in range(3)], dtype=float)}

@@ -14,6 +14,7 @@ if writing fails half way the new action is removed and the previous assignment 
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import bpy
@@ -203,7 +204,8 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
                    fps: float | None = None, frame_start: float | None = None, push_to_nla: bool = False,
                    tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
                    location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM, own: bool = False,
-                   set_scene_range: bool = False, interpolation: str = "linear") -> BakeResult:
+                   set_scene_range: bool = False, interpolation: str = "linear",
+                   verify: Callable[[], None] | None = None) -> BakeResult:
     """Bake `anim` onto armature `obj` as a new action and make it the active action; one key per
     sample at frame_start (default: the scene's first frame) + (t - t0) x fps, reduced within the
     tolerances (0 keeps every sample). The scene's frame range becomes the action's only with
@@ -215,6 +217,8 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
 
     An existing action of the same name is kept (the new one gets Blender's `.001` suffix) unless
     `replace` is True, in which case the old action is removed once the new one is written.
+    `verify()` runs once the keys are written and the action assigned, before anything else is
+    changed (`bake_check.verify`); when it raises, the new action is removed as on a failed write.
     """
     validate(anim, obj)
     check_interpolation(interpolation)
@@ -268,6 +272,8 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
         for path, value in anim.constant_keys.items():  # switches: one key holds for the whole action
             write_keys(new_fcurve(action, obj, path, 0), frames32[:1], np.array([value], np.float32))
             fcurves, keys = fcurves + 1, keys + 1
+        if verify is not None:
+            verify()
     except Exception:
         if had_animation_data:
             obj.animation_data.action = previous_action

@@ -192,13 +192,30 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
                            [*anim.notes, note], located, switches)
 
 
+def controls_drive_deform(obj) -> bool:
+    """Whether a generated Rigify rig's controls still move its DEF- bones: only its constraints
+    do (DEF- follows ORG-, ORG- the FK or IK chain). A rig exported and imported again (glTF, FBX:
+    a game engine's round trip) keeps every bone and none of the constraints, so its FK controls
+    drive nothing and only its DEF- bones deform the mesh."""
+    return any(pb.constraints for pb in obj.pose.bones if pb.name.startswith(("DEF-", "ORG-", "MCH-")))
+
+
+ROUND_TRIP_NOTE = ("Rigify rig without its constraints (exported and imported again): its controls drive nothing, "
+                   "so the keys are on its DEF- bones, the ones that deform the mesh")
+
+
 def for_bake(anim: AvatarAnimation, obj, bone_map: naming.BoneMap, root_motion: str, rigify_target: str,
              own: bool = False) -> AvatarAnimation:
     """The animation the bake keys on `obj`: travel where `root_motion` says, and a generated
-    Rigify rig's DEF- pose carried onto its controls or DEF- bones. `bone_map`: the map the
-    animation was solved with (the avatar model's). `own`: `anim` is given away and may be changed
-    in place."""
+    Rigify rig's DEF- pose carried onto its controls or DEF- bones (its DEF- bones whatever
+    `rigify_target` says when its constraints are gone, `controls_drive_deform`). `bone_map`: the
+    map the animation was solved with (the avatar model's). `own`: `anim` is given away and may be
+    changed in place."""
     anim = with_root_motion(anim, obj, bone_map, root_motion, own)
     if avatar_rig.is_rigify_generated(obj):
-        anim = rigify_animation(anim, obj, rigify_target)
+        if rigify_target == "fk" and not controls_drive_deform(obj):
+            anim = rigify_animation(anim, obj, "def")
+            anim.notes[-1] = ROUND_TRIP_NOTE
+        else:
+            anim = rigify_animation(anim, obj, rigify_target)
     return anim

@@ -32,7 +32,7 @@ from ..recording.io import load_recording
 from ..retarget.methods import check_method
 from ..retarget.placement import avatar_warnings, check_placement
 from ..retarget.takes import CharacterTake, RecordingTake, Take
-from . import avatar_storage, calibration_scene, process, recording_scene, rig_output
+from . import avatar_storage, bake_check, calibration_scene, process, recording_scene, rig_output
 from . import bake as baking
 from .avatar_calibration import avatar_model_for
 from .avatar_rig import apply_preset
@@ -156,6 +156,12 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
     fps, fps_base, rate, resampled = key_rate(take, options.fps)
     frame_start = take.frame_start
     figures = quality_figures(anim)
+    check = bake_check.plan(anim, target.avatar)  # before the joints are let go
+
+    def verify():
+        bake_check.verify(check, arm, baking.key_frames(anim.time, rate, frame_start),
+                          in_place=options.root_motion == "in-place")
+
     if release:
         take.release()
         anim.joints_world, anim.targets = {}, {}
@@ -177,7 +183,7 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
                                        fps=rate, frame_start=frame_start, tolerance_deg=options.tolerance_deg,
                                        location_tolerance_mm=options.location_tolerance_mm,
                                        own=resampled or release, set_scene_range=set_scene_range,
-                                       interpolation=options.interpolation)
+                                       interpolation=options.interpolation, verify=verify)
     if target.calibrated_now:
         avatar_storage.store_model(arm, target.avatar)
         target.calibrated_now = False

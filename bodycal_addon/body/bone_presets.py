@@ -127,12 +127,14 @@ def _check_once(source: str, bones: dict[str, str | None], chains: dict[str, lis
 # bottom-up); detection maps the segments it does not list (blender/avatar_rig.py keeps them).
 
 
-def map_with_overrides(bone_names, overrides: dict[str, str]) -> naming.BoneMap:
-    """The armature's map: detection, then each overridden segment as stored; a bone the armature
-    no longer has is left out. Overriding every segment (a preset applied) makes it "custom"."""
+def map_with_overrides(bone_names, overrides: dict[str, str], detected: naming.BoneMap | None = None
+                       ) -> naming.BoneMap:
+    """The armature's map: detection (`detected`, default: by the bones' names), then each
+    overridden segment as stored; a bone the armature no longer has is left out. Overriding every
+    segment (a preset applied) makes it "custom"."""
     names = list(dict.fromkeys(bone_names))
     have = set(names)
-    bm = naming.detect_bone_map(names)
+    bm = naming.detect_bone_map(names) if detected is None else detected
     for seg, bone in overrides.items():
         if seg in sk.CHAIN_SEGMENTS:
             bm.chains[seg] = [b for b in (p.strip() for p in bone.split(",")) if b and b in have]

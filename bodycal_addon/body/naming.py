@@ -41,6 +41,10 @@ class NamingScheme:
     side_tokens: dict[str, str]  # canonical side -> how the scheme writes it
     patterns: tuple[tuple[str, tuple[str, ...]], ...]
     chains: tuple[tuple[str, str, object], ...] = ()
+    # Fingers numbered from wherever the rig starts (Quaternius: Index1..3 on one character,
+    # Index2..4 on the next): (regex with {finger}, {s} and one group, the number; finger -> word).
+    # The three lowest-numbered bones of a finger are its phalanges 1..3; fewer than three map none.
+    digits: tuple[str, dict[str, str]] | None = None
 
 
 def _p(segment: str, *regexes: str) -> tuple[str, tuple[str, ...]]:
@@ -394,8 +398,36 @@ CHARACTER_CREATOR = NamingScheme(
      ("neck", r"CC_Base_NeckTwist(\d+)", None)),
 )
 
+# Rigs made in Blender with its .L / .R side suffix and plain words (Quaternius' characters, game
+# rigs: Hips, Abdomen / Torso / Chest or Spine, UpperArm.L, LowerArm.L, Hand.L or Palm.L, UpperLeg.L,
+# LowerLeg.L, Foot.L); fingers numbered from 1 or 2 (`digits`). Listed after the VRM add-on's
+# scheme, whose snake_case names it also reads: a tie keeps that one.
+BLENDER_SIDED = NamingScheme(
+    "blender_sided", "Blender .L/.R names (Quaternius, game rigs: Hips, UpperArm.L, LowerLeg.L)",
+    {"l": "L", "r": "R"},
+    (
+        _p("root", r"root"),
+        _p("pelvis", r"hips", r"pelvis"),
+        _p("head", r"head"),
+        _p("clavicle_{s}", r"shoulder\.{s}", r"clavicle\.{s}"),
+        _p("upperarm_{s}", r"upper_?arm\.{s}", r"arm\.{s}"),
+        _p("forearm_{s}", r"(?:lower_?|fore_?)arm\.{s}"),
+        _p("hand_{s}", r"hand\.{s}", r"palm\.{s}", r"palm2\.{s}"),
+        _p("thigh_{s}", r"upper_?leg\.{s}", r"thigh\.{s}"),
+        _p("shin_{s}", r"lower_?leg\.{s}", r"shin\.{s}", r"calf\.{s}", r"leg\.{s}"),
+        _p("foot_{s}", r"foot\.{s}"),
+        _p("toe_{s}", r"toes?\.{s}", r"toe_?base\.{s}", r"ball\.{s}"),
+    ),
+    (("spine", r"(spine\d?|abdomen|torso|chest|upper_?chest)",
+      {"spine": 0, "spine1": 1, "spine2": 2, "spine3": 3, "abdomen": 0, "torso": 1, "chest": 2, "upperchest": 3}),
+     ("neck", r"neck(\d*)", None)),
+    (r"{finger}(\d*)\.{s}", {"thumb": "thumb", "index": "index", "middle": "middle", "ring": "ring",
+                              "pinky": "(?:pinky|little)"}),
+)
+
 SCHEMES: tuple[NamingScheme, ...] = (UNREAL, RIGIFY_METARIG, RIGIFY, MIXAMO, CMU_MB, CMU_JOINTS, VRM_HUMANOID, VROID,
-                                     VRM_ADDON, MAKEHUMAN, DAZ_GENESIS8, DAZ_GENESIS9, CHARACTER_CREATOR)
+                                     VRM_ADDON, BLENDER_SIDED, MAKEHUMAN, DAZ_GENESIS8, DAZ_GENESIS9,
+                                     CHARACTER_CREATOR)
 SCHEME_BY_NAME: dict[str, NamingScheme] = {s.name: s for s in SCHEMES}
 
 
@@ -499,6 +531,8 @@ def map_with_scheme(bone_names: list[str], scheme: NamingScheme) -> BoneMap:
         if free:
             bones[seg] = free[0][1]
             taken.add(free[0][1])
+    if scheme.digits:
+        _map_digits(names, scheme, bones, taken)
     chain_hits: dict[str, list[tuple[float, str]]] = {c: [] for c, _rx, _o in comp.chains}
     unmapped = []
     for n in names:
@@ -513,9 +547,38 @@ def map_with_scheme(bone_names: list[str], scheme: NamingScheme) -> BoneMap:
     return BoneMap(scheme.name, bones, chains, unmapped)
 
 
+def _map_digits(names: list[str], scheme: NamingScheme, bones: dict[str, str], taken: set[str]) -> None:
+    """Phalanges 1..3 of each finger from `scheme.digits`: its three lowest-numbered free bones
+    (no number counts as 0), for a finger none of whose phalanges is mapped yet."""
+    template, words = scheme.digits
+    for finger in FINGERS:
+        for side, token in scheme.side_tokens.items():
+            segments = [f"{finger}_{i}_{side}" for i in (1, 2, 3)]
+            if any(seg in bones for seg in segments):
+                continue
+            rx = re.compile(template.replace("{finger}", words[finger]).replace("{s}", token), re.I)
+            hits = sorted((int(m.group(1) or 0), n) for n in names if n not in taken and (m := rx.fullmatch(n)))
+            if len(hits) >= 3:
+                for seg, (_num, n) in zip(segments, hits):
+                    bones[seg] = n
+                    taken.add(n)
+
+
+def head_from_neck(bm: BoneMap) -> bool:
+    """A map without a head bone takes the top of its neck chain as the head (a base mesh's
+    metarig with its head bone removed: spine.004-005 and no spine.006; the head's skin then
+    rides on that bone). Changes `bm` in place; True when it did."""
+    neck = bm.chains.get("neck") or []
+    if "head" in bm.bones or len(neck) < 2:
+        return False
+    bm.bones["head"] = neck[-1]
+    bm.chains["neck"] = neck[:-1]
+    return True
+
+
 def detect_bone_map(bone_names: list[str]) -> BoneMap:
     """The scheme that maps the most bones (ties: the fewest missing required segments, then the
-    first in SCHEMES)."""
+    first in SCHEMES); without a head bone, the top of the neck is the head (`head_from_neck`)."""
     best = None
     names = list(dict.fromkeys(bone_names))
     for scheme in SCHEMES:
@@ -523,4 +586,5 @@ def detect_bone_map(bone_names: list[str]) -> BoneMap:
         score = (len(names) - len(bm.unmapped), -len(bm.missing()))
         if best is None or score > best[0]:
             best = (score, bm)
+    head_from_neck(best[1])
     return best[1]

@@ -117,7 +117,9 @@ SEGMENTS: tuple[str, ...] = _segments()
 AUXILIARY_SEGMENTS = frozenset(
     s for s in SEGMENTS if s == "root" or s.startswith(("breast_", "pelvis_side_", "heel_", "metacarpal_"))
 )
-OPTIONAL_SEGMENTS = AUXILIARY_SEGMENTS | {"neck"} | {f"toe_{s}" for s in SIDES}
+# A rig without clavicles (CesiumMan's arms hang from the chest) is retargeted with the clavicle
+# joint where the spine puts it (rest_frames.complete_joints: spine_05), riding on the chest.
+OPTIONAL_SEGMENTS = AUXILIARY_SEGMENTS | {"neck"} | {f"{part}_{s}" for part in ("toe", "clavicle") for s in SIDES}
 
 
 def required_segments(with_fingers: bool = False) -> tuple[str, ...]:

@@ -36,6 +36,14 @@ def shared_avatar_files() -> list[Path]:
     return sorted((d / "avatars" / "mpfb2_variants").glob("*.glb"))
 
 
+def outside_avatar_files() -> list[Path]:
+    """Characters no one on the project made (sample_data/avatars/outside/README.md)."""
+    d = data_dir()
+    if d is None:
+        return []
+    return sorted((d / "avatars" / "outside").glob("*.glb"))
+
+
 def extension_package() -> str | None:
     """The extension's package ("bl_ext.<repository>.bodycal", what Blender's
     `bpy.utils.extension_path_user` wants) when BodyCal runs as an installed extension; None when

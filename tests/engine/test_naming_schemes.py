@@ -169,6 +169,28 @@ def daz_genesis9() -> list[str]:
     return names
 
 
+def quaternius(first_finger: int) -> list[str]:
+    """A Quaternius character (exported from Blender, .L/.R names): the men's fingers are numbered
+    2..4 and their two-bone thumbs 2..3, the women's 1..3; the root carries a weapon socket."""
+    names = ["Root", "Hips", "Abdomen", "Torso", "Chest", "Neck", "Head", "Weapon"]
+    for s in ("L", "R"):
+        names += [f"{b}.{s}" for b in ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot")]
+        names += [f"{f}{n}.{s}" for f in ("Index", "Middle", "Ring", "Pinky")
+                  for n in range(first_finger, first_finger + 3)]
+        names += [f"Thumb{n}.{s}" for n in (range(2, 4) if first_finger == 2 else range(1, 4))]
+    return names
+
+
+def _quaternius_expect(first_finger: int) -> dict:
+    limbs = {"clavicle": "Shoulder.{s}", "upperarm": "UpperArm.{s}", "forearm": "LowerArm.{s}", "hand": "Hand.{s}",
+             "thigh": "UpperLeg.{s}", "shin": "LowerLeg.{s}", "foot": "Foot.{s}"}
+    fingers = ("Thumb", "Index", "Middle", "Ring", "Pinky")[1 if first_finger == 2 else 0:]
+    for f, w in zip(sk.FINGERS[5 - len(fingers):], fingers):
+        for i in (1, 2, 3):
+            limbs[f"{f}_{i}"] = f"{w}{first_finger + i - 1}.{{s}}"
+    return expect("Hips", "Head", ["Abdomen", "Torso", "Chest"], ["Neck"], limbs, 0, {"root": "Root"})
+
+
 def character_creator(fingers: str = "named") -> list[str]:
     names = ["CC_Base_BoneRoot", "CC_Base_Hip", "CC_Base_Pelvis", "CC_Base_Waist", "CC_Base_Spine01",
              "CC_Base_Spine02", "CC_Base_NeckTwist01", "CC_Base_NeckTwist02", "CC_Base_Head", "CC_Base_FacialBone",
@@ -342,6 +364,9 @@ CASES = {
     "daz_genesis9": (daz_genesis9(), "daz_genesis9", DAZ9_EXPECT),
     "character_creator": (character_creator(), "character_creator", _cc_expect("named")),
     "character_creator_numbered": (character_creator("numbered"), "character_creator", _cc_expect("numbered")),
+    # Blender's .L/.R side suffix with plain words; fingers numbered from wherever the rig starts
+    "quaternius_men": (quaternius(2), "blender_sided", _quaternius_expect(2)),
+    "quaternius_women": (quaternius(1), "blender_sided", _quaternius_expect(1)),
 }
 
 
@@ -456,3 +481,15 @@ def test_every_scheme_maps_any_order_of_its_own_names_the_same(seed):
 def test_scheme_names_are_unique_and_titled():
     assert len(naming.SCHEME_BY_NAME) == len(naming.SCHEMES)
     assert all(s.title for s in naming.SCHEMES)
+
+
+def test_a_metarig_without_its_head_bone_takes_the_top_of_its_neck():
+    """A base mesh's metarig with spine.006 removed was refused for a missing head: the neck's top
+    bone carries the head's skin."""
+    names = ["spine", *[f"spine.00{k}" for k in range(1, 6)]]
+    names += [f"{b}.{s}" for s in "LR" for b in ("shoulder", "upper_arm", "forearm", "hand", "thigh", "shin", "foot",
+                                                 "toe", "pelvis", "heel.02")]
+    bm = naming.detect_bone_map(names)
+    assert bm.scheme == "rigify_metarig" and bm.missing() == []
+    assert bm.bones["head"] == "spine.005" and bm.chains["neck"] == ["spine.004"]
+    assert naming.detect_bone_map([*names, "spine.006"]).bones["head"] == "spine.006"  # a full metarig is unchanged

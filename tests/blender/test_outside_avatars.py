@@ -1,0 +1,252 @@
+"""Rigs as users bring them (DESIGN.md §2 "Rigs no scheme names", §1 "Verified bakes"): characters
+no one on the project made (sample_data/avatars/outside), a generated Rigify rig after a game
+engine's round trip, a Mixamo-named rig exported to .glb, Blender's .L/.R names; each is calibrated
+and retargeted with no option, or refused with one line; and a bake whose keys drive nothing is an
+error that leaves nothing behind."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+from repo_paths import REPO
+
+from bodycal_addon.blender import avatar_rig, blendfile, mesh_metrics, rig_output, session
+from bodycal_addon.blender.fcurves import object_fcurves
+from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.core import paths
+from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.recording.io import load_recording
+from bodycal_addon.retarget.takes import RecordingTake
+from bodycal_dev import synthetic
+
+OUTSIDE = {p.stem: p for p in paths.outside_avatar_files()}
+SAMPLE_TAKE = REPO / "sample_rigs" / "recordings" / "demo_full.bcrec.json"
+WINDOW = (1800, 1960)  # frames of the sample take where the performer moves (not its deep squat)
+
+
+@pytest.fixture(scope="module")
+def sample_take():
+    rec = load_recording(SAMPLE_TAKE)
+    return RecordingTake(rec, calibrate_user(rec)).window(*WINDOW)
+
+
+@pytest.fixture(scope="module")
+def belly():
+    performer = synthetic.make_performer(seed=5)
+    rec, truth = synthetic.record_session(performer, profile="full", motions=("hand_on_belly",),
+                                          calibration=["tpose"], seed=5, motion_seconds=1.5)
+    return rec, truth
+
+
+def _retarget(take, arm):
+    """Calibrate and bake as the command line does (no option): the summary and the target."""
+    target = session.prepare_target(arm)
+    computed = session.compute(take, target, session.Settings())
+    return session.bake(take, target, computed), target
+
+
+@pytest.mark.parametrize("name, scheme", [("cesium_man", "structure"), ("male_base_mesh", "rigify_metarig")])
+def test_an_outside_character_calibrates_and_retargets_with_no_option(sample_take, name, scheme):
+    """Cesium Man (COLLADA names, no clavicles) was 'not a humanoid rig this version can map'; the
+    base mesh on Rigify's metarig without its head bone was refused for a missing head."""
+    blendfile.open_avatar(OUTSIDE[name])
+    arm = blendfile.find_armature(None, name)
+    summary, target = _retarget(sample_take, arm)
+    assert target.avatar.extra["rig"]["scheme"] == scheme
+    assert summary.frames > 100 and summary.keys > 0
+    assert arm.animation_data.action.name == summary.action
+    reach = summary.figures["reach p95"]
+    assert np.isfinite(reach) and reach < 250.0, reach
+
+
+def test_cesium_man_is_mapped_from_its_shape():
+    blendfile.open_avatar(OUTSIDE["cesium_man"])
+    bm = avatar_rig.bone_map_for(blendfile.find_armature(None, "cesium_man"))
+    assert bm.scheme == "structure"
+    assert bm.bones["pelvis"] == "Skeleton_torso_joint_1" and bm.bones["head"] == "Skeleton_neck_joint_2"
+    assert [bm.bones[f"{s}_l"] for s in ("upperarm", "forearm", "hand")] == [
+        "Skeleton_arm_joint_L__4_", "Skeleton_arm_joint_L__3_", "Skeleton_arm_joint_L__2_"]
+    assert [bm.bones[f"{s}_r"] for s in ("thigh", "shin", "foot", "toe")] == [
+        "leg_joint_R_1", "leg_joint_R_2", "leg_joint_R_3", "leg_joint_R_5"]
+    assert "clavicle_l" not in bm.bones and bm.chains["spine"][-1] == "torso_joint_3"
+
+
+def test_a_robot_whose_feet_are_ik_controls_is_one_line():
+    blendfile.open_avatar(OUTSIDE["robot_expressive"])
+    arm = blendfile.find_armature(None, "robot_expressive")
+    with pytest.raises(BodyCalError, match=r"foot bone 'Foot\.L' does not hang from the shin bone 'LowerLeg\.L'"):
+        session.prepare_target(arm)
+
+
+# --- a generated Rigify rig after a round trip through glTF or FBX -------------------------------------
+
+@pytest.fixture(scope="module")
+def round_trips(tmp_path_factory):
+    """The generated Rigify rig (sample_rigs/rigify_rig.py, in a subprocess) exported to .glb and
+    .fbx with every bone, as a game engine gets it: DEF-/ORG-/MCH- names, no constraints."""
+    tmp = tmp_path_factory.mktemp("rigify_round_trip")
+    blend = tmp / "rigify_avatar.blend"
+    out = subprocess.run([sys.executable, "-m", "sample_rigs.rigify_rig", str(blend)], cwd=REPO, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0 and blend.is_file(), out.stderr[-2000:]
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    rig = bpy.data.objects["rigify_avatar"]
+    keep = {rig, *blendfile.deformed_meshes(rig)}
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj in keep)
+    files = {"glb": tmp / "rigify.glb", "fbx": tmp / "rigify.fbx"}
+    bpy.ops.export_scene.gltf(filepath=str(files["glb"]), export_format="GLB", use_selection=True,
+                              export_animations=False, export_def_bones=False)
+    bpy.ops.export_scene.fbx(filepath=str(files["fbx"]), use_selection=True, bake_anim=False, add_leaf_bones=False)
+    return files
+
+
+@pytest.fixture(scope="module")
+def plain_gaps(belly):
+    """The same body as a plain (Unreal-style) rig: the contact gaps the round trip must keep."""
+    from sample_rigs import build_procedural_avatar
+    from sample_rigs.rigify_rig import bent_spec
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, _mesh, _spec = build_procedural_avatar(bent_spec())
+    return _gaps(arm, belly)[0]
+
+
+def _gaps(arm, belly):
+    rec, truth = belly
+    take = RecordingTake(rec, truth.body_model())
+    target = session.prepare_target(arm)
+    anim = session.compute(take, target, session.Settings()).animation
+    keyed = rig_output.for_bake(anim, arm, avatar_rig.bone_map_for(arm), "root", "fk")
+    contacts = [c for c in truth.contacts if c["target"].startswith("mesh:")]
+    gaps = mesh_metrics.contact_gaps(arm, target.avatar, anim, contacts, max_frames=6, posed=keyed)
+    return np.abs(np.concatenate(gaps)), keyed, (take, target, anim)
+
+
+def _round_trip(path):
+    bpy.ops.wm.read_homefile(use_empty=True)
+    blendfile.import_avatar_file(path)
+    arm = blendfile.find_armature(None, path.name)
+    assert avatar_rig.is_rigify_generated(arm) and not rig_output.controls_drive_deform(arm)
+    return arm
+
+
+def test_a_rigify_rig_without_its_constraints_is_keyed_on_what_deforms(round_trips, belly, plain_gaps):
+    """The round trip through glTF keeps DEF-/ORG-/MCH- names and drops every constraint: it is
+    still detected as Rigify, but its FK controls drive nothing (the hand stayed 380 mm from the
+    belly, exit 0). The keys go on its DEF- bones, the bake's check passes on the evaluated rig,
+    and the hand-on-belly contact is the plain rig's."""
+    arm = _round_trip(round_trips["glb"])
+    gaps, keyed, (take, target, anim) = _gaps(arm, belly)
+    assert keyed.bone_names and all(n.startswith("DEF-") for n in keyed.bone_names)
+    assert rig_output.ROUND_TRIP_NOTE in keyed.notes
+    assert abs(np.median(gaps) - np.median(plain_gaps)) < 0.005
+    assert np.percentile(gaps, 95) < np.percentile(plain_gaps, 95) + 0.02
+    summary = session.bake(take, target, session.Computed(anim, 0.0))  # checked against the evaluated rig
+    keyed_paths = {p.split('"')[1] for p, _i in object_fcurves(arm) if p.startswith("pose.bones")}
+    assert "DEF-hand.R" in keyed_paths and "hand_fk.R" not in keyed_paths and summary.keys > 0
+
+
+def test_the_same_rig_through_fbx_is_keyed_on_its_def_bones(round_trips, belly):
+    arm = _round_trip(round_trips["fbx"])
+    rec, truth = belly
+    target = session.prepare_target(arm)
+    anim = session.compute(RecordingTake(rec, truth.body_model()), target, session.Settings()).animation
+    keyed = rig_output.for_bake(anim, arm, avatar_rig.bone_map_for(arm), "root", "fk")
+    assert {"DEF-hand.R", "DEF-thigh.L", "DEF-spine.003"} <= set(keyed.bone_names)
+    assert not any(n.startswith(("ORG-", "MCH-")) or n.endswith("_fk.L") for n in keyed.bone_names)
+
+
+# --- rigs that were refused: Mixamo names through glTF, Blender's .L/.R names ---------------------------
+
+def test_a_mixamo_rig_exported_to_glb_calibrates_its_fingers(tmp_path, sample_take):
+    """FBX's 0.01 scale and centimetre bones carried through glTF: the importer guesses every
+    bone's tail (a thumb's came out 2 m long) and its bone rolls ('capsule:thumb_3_l: only 0 of 60
+    rays ... hit the mesh')."""
+    from mathutils import Matrix
+
+    from sample_rigs import build_procedural_avatar
+
+    arm, mesh, _spec = build_procedural_avatar()
+    words = {"thumb": "Thumb", "index": "Index", "middle": "Middle", "ring": "Ring", "pinky": "Pinky"}
+    names = {"pelvis": "Hips", "spine_01": "Spine", "spine_02": "Spine1", "spine_03": "Spine2", "neck_01": "Neck",
+             "head": "Head"}
+    limbs = {"clavicle": "Shoulder", "upperarm": "Arm", "lowerarm": "ForeArm", "hand": "Hand", "thigh": "UpLeg",
+             "calf": "Leg", "foot": "Foot", "ball": "ToeBase"}
+    for s, side in (("l", "Left"), ("r", "Right")):
+        names |= {f"{b}_{s}": f"{side}{w}" for b, w in limbs.items()}
+        names |= {f"{f}_0{i}_{s}": f"{side}Hand{w}{i}" for f, w in words.items() for i in (1, 2, 3)}
+    for old, new in names.items():
+        arm.data.bones[old].name = "mixamorig:" + new
+    m = Matrix.Rotation(np.pi / 2, 4, "X") @ Matrix.Scale(0.01, 4)  # as Blender's FBX import of a Mixamo rig
+    arm.data.transform(m.inverted())
+    arm.matrix_world = m
+    mesh.matrix_parent_inverse = m.inverted()
+    bpy.context.view_layer.update()
+    path = tmp_path / "mixamo.glb"
+    bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", export_animations=False)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    blendfile.import_avatar_file(path)
+    arm = blendfile.find_armature(None, "mixamo.glb")
+    summary, target = _retarget(sample_take, arm)
+    model = target.avatar
+    assert model.extra["rig"]["scheme"] == "mixamo"
+    assert {f"capsule:thumb_{i}_l" for i in (1, 2, 3)} <= {e.id for e in model.surface}
+    tips = [np.linalg.norm(model.joints[f"tip_{f}_l"].world - model.joints[f"dip_{f}_l"].world)
+            for f in ("thumb", "index", "middle")]
+    assert max(tips) < 0.06, tips  # a fingertip, not the importer's 2 m guess
+    assert summary.keys > 0
+
+
+def test_blender_side_suffixes_map_and_retarget(sample_take):
+    """Hips, Abdomen / Torso / Chest, UpperArm.L, LowerLeg.R, fingers numbered from 2 (Quaternius'
+    characters) were 'not a humanoid rig this version can map'."""
+    from sample_rigs import build_procedural_avatar
+
+    arm, _mesh, _spec = build_procedural_avatar()
+    names = {"Root": "Root", "pelvis": "Hips", "spine_01": "Abdomen", "spine_02": "Torso", "spine_03": "Chest",
+             "neck_01": "Neck", "head": "Head"}
+    parts = {"clavicle": "Shoulder", "upperarm": "UpperArm", "lowerarm": "LowerArm", "hand": "Hand",
+             "thigh": "UpperLeg", "calf": "LowerLeg", "foot": "Foot", "ball": "Toes"}
+    for s, side in (("l", "L"), ("r", "R")):
+        names |= {f"{p}_{s}": f"{w}.{side}" for p, w in parts.items()}
+        names |= {f"{f}_0{i}_{s}": f"{f.title()}{i + 1}.{side}" for f in ("thumb", "index", "middle", "ring", "pinky")
+                  for i in (1, 2, 3)}
+    for old, new in names.items():
+        arm.data.bones[old].name = new
+    bm = avatar_rig.bone_map_for(arm)
+    assert bm.scheme == "blender_sided" and bm.missing(with_fingers=True) == []
+    assert bm.bones["index_1_l"] == "Index2.L" and bm.bones["pinky_3_r"] == "Pinky4.R"
+    assert bm.chains["spine"] == ["Abdomen", "Torso", "Chest"] and bm.bones["pelvis"] == "Hips"
+    summary, _target = _retarget(sample_take, arm)
+    assert summary.keys > 0
+
+
+# --- a bake whose keys drive nothing -------------------------------------------------------------------
+
+def test_a_bake_that_does_not_move_the_deforming_bones_is_an_error_and_leaves_nothing(sample_take):
+    """The right forearm, which the mesh follows, copies an unkeyed control bone (a control rig
+    the bake does not know): its keys do nothing. The bake is one error, the new action is
+    removed and the armature keeps its own action."""
+    from sample_rigs import build_procedural_avatar
+
+    arm, _mesh, _spec = build_procedural_avatar()
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    src = arm.data.edit_bones["lowerarm_r"]
+    ctrl = arm.data.edit_bones.new("ctrl_lowerarm_r")
+    ctrl.head, ctrl.tail, ctrl.roll, ctrl.parent = src.head, src.tail, src.roll, src.parent
+    bpy.ops.object.mode_set(mode="OBJECT")
+    arm.data.bones["ctrl_lowerarm_r"].use_deform = False
+    c = arm.pose.bones["lowerarm_r"].constraints.new("COPY_TRANSFORMS")
+    c.target, c.subtarget = arm, "ctrl_lowerarm_r"
+    mine = bpy.data.actions.new("animator's")
+    arm.animation_data_create().action = mine
+    before = set(bpy.data.actions)
+    with pytest.raises(BodyCalError, match=r"do not move the bones that deform the mesh.*(elbow|wrist)_r"):
+        _retarget(sample_take, arm)
+    assert set(bpy.data.actions) == before and arm.animation_data.action == mine
