@@ -39,6 +39,8 @@ def effectors(session: Session, state: State) -> None:
             except BodyCalError:
                 continue  # not enough motion at the joint: the default stands
             state.set_local(name, dev_role, fit.local_b)
+            if not fit.weak_axis:  # limbs.straighten places the hinge above with it
+                state.extra.setdefault("effector_in_limb", {})[name] = (limb_role, fit.local_a)
             q = {"rms_mm": round(fit.rms * 1000, 3), "kept": fit.kept, "of": fit.of,
                  "range_deg": round(fit.range_deg, 1), "frames": f"{dev_role} and {limb_role}"}
             if fit.weak_axis:

@@ -36,10 +36,16 @@ the two is reported as `circle_axis_deg`; test_calibration.test_hinge_axis_from_
 **Decision** (hinge position along its axis): with both `<joint>_in` / `_out` touches the joint is
 their mean (Delahaye 2023). Without them, the circle's centre is where the axis meets the plane of the
 anchored TRACKER's circle, which sits wherever it was strapped (47-50 mm off on real captures);
-instead the joint is put where the axis meets the limb's flexion plane, the plane through the
-anchor joint (shoulder / hip) perpendicular to the axis: the upper arm and the thigh run from the
-anchor to the hinge square to the hinge's axis (CMU subjects: 88-90°). Only without an anchor is
-the circle's centre kept (reported as a default).
+instead the joint is put where the limb is straight with the joint straightened (`straighten`):
+the anchor (shoulder / hip) and the effector (wrist / ankle, fitted from the motion in the same
+intermediate tracker's frame, effectors.py) make equal angles with the axis, so the joint is where
+the axis meets the anchor-effector line once the anchor is turned about the axis into the
+effector's half-plane. Without a measured effector the joint is where the axis meets the anchor's
+flexion plane (the plane through the anchor perpendicular to the axis: the two agree when the
+axis is square to the bones). A hinge axis is not always square: CMU subject 5's elbows and right
+knee turn 3-4.4° off it, and the flexion plane alone put them 15-27 mm along the axis from the
+truth (evaluation/, 05_06), the straight limb within 6 mm. Only without an anchor is the
+circle's centre kept (reported as a default).
 
 A step whose data cannot be used (too little motion, a device missing, points that fit no circle
 or sphere) is reported in `calibration.warnings`, left out, and what it would have given is
@@ -63,6 +69,7 @@ HINGES = {"elbow": ("forearm", "hand", "upperarm", "forearm"), "knee": ("shin", 
 ANCHORS = {"shoulder": ("upperarm",), "hip": ("thigh",)}
 ANCHOR_OF = {"elbow": "shoulder", "knee": "hip"}
 END_DEVICE = {"shoulder": "hand", "hip": "foot"}  # the device at the far end of the limb
+END_JOINT = {"elbow": "wrist", "knee": "ankle"}
 TRUNK_FRAMES = {"shoulder": ("chest", "pelvis", "head"), "hip": ("pelvis",), "elbow": ("chest", "pelvis", "head"),
                 "knee": ("pelvis",)}
 
@@ -236,6 +243,8 @@ def hinge(session: Session, state: State, side: str, joint: str, touches: dict) 
     else:
         pos = _along_axis(session, state, joint, side, anchor_joint, frame_role, used, centre, right, q,
                           f"circle plane of the {anch_role} tracker")
+        if "along_axis" in q:  # `straighten` may move it once the wrist / ankle is known
+            state.extra.setdefault("hinge_lines", {})[f"{joint}_{side}"] = (frame_role, centre, right, used, anch_role)
     name = f"{joint}_{side}"
     state.set_local(name, frame_role, pos)
     if anch_role == f"{anchored}_{side}":
@@ -254,6 +263,42 @@ def _along_axis(session, state, joint, side, anchor_joint, frame_role, used, cen
     q["along_axis"] = f"{anchor_joint} flexion plane"
     q["axis_shift_mm"] = round(float(abs((plane - centre) @ right)) * 1000, 1)
     return centre + ((plane - centre) @ right) * right
+
+
+def straighten(session: Session, state: State) -> None:
+    """Each hinge placed by the anchor's flexion plane (`_along_axis`) whose effector (wrist /
+    ankle) was fitted from the motion in the same tracker's frame moves along its axis to where
+    the limb would be straight with the joint straightened (module docstring, Decision): the
+    anchor S and the effector W make equal angles with the axis, so with h the coordinates along
+    it and r the distances from it, the joint is at (h_S r_W + h_W r_S) / (r_S + r_W)."""
+    for name, (frame, centre, right, used, anch_role) in state.extra.get("hinge_lines", {}).items():
+        joint, side = name[:-2], name[-1]
+        end = state.extra.get("effector_in_limb", {}).get(f"{END_JOINT[joint]}_{side}")
+        anchor_joint = f"{ANCHOR_OF[joint]}_{side}"
+        track = _carried_track(session, state, anchor_joint, frame, used)
+        if end is None or end[0] != frame or track is None:
+            continue
+        h_s, r_s = _axial(track, centre, right)
+        h_w, r_w = _axial(end[1][None], centre, right)
+        if r_s + r_w < EPS:
+            continue
+        t = (h_s * r_w + h_w * r_s) / (r_s + r_w)
+        before = state.local[name][frame]
+        pos = centre + t * right
+        state.set_local(name, frame, pos)
+        if anch_role in state.local[name] and anch_role != frame:
+            state.set_local(name, anch_role, session.carry(pos, frame, anch_role, used))
+        q = session.quality.get(f"flex_{joint}_{side}", {})
+        q["along_axis"] = f"straight {anchor_joint} - {END_JOINT[joint]}_{side}"
+        q["axis_shift_mm"] = round(float(abs(t)) * 1000, 1)
+        q["straightened_mm"] = round(float(np.linalg.norm(pos - before)) * 1000, 1)
+
+
+def _axial(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> tuple[float, float]:
+    """Mean coordinate of `points` along the line (centre, unit axis) and mean distance from it."""
+    d = np.asarray(points, float) - centre
+    h = d @ axis
+    return float(h.mean()), float(np.linalg.norm(d - h[:, None] * axis, axis=1).mean())
 
 
 def _hinge_from_end_device(session: Session, state: State, side: str, joint: str, step: str, idx) -> None:

@@ -80,6 +80,7 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
     _run("head", head.head, session, state)
     _run("limbs", limbs.limbs, session, state)
     _run("wrists and ankles", effectors.effectors, session, state)
+    _run("limbs", limbs.straighten, session, state)
     _run("digits", hands.digits, session, state)
     _run("trunk", trunk.sacrum, session, state)
     _run("torso", trunk.torso_touches, session, state)

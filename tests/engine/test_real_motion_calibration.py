@@ -1,0 +1,84 @@
+"""The user calibration on recordings an outside tool made from real motion (`evaluation/`: a CMU
+clip, the calibration steps performed by its own skeleton, trackers strapped at random angles,
+0.5 mm / 0.3 degree noise, soft tissue, dropouts; the BVH joints are the truth). Numpy only: the
+evaluation package and the calibration need no Blender. DESIGN.md §3 has the figures.
+
+05_06 (CMU subject 5, modern dance) is a skeleton the engine was not tuned on: its elbows and
+its right knee turn about axes 3-4.4 degrees off square to the bones (the clip's own rotations),
+and its wrists twist far more than they bend."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.recording import io as recording_io
+from evaluation import bvh, capture, performer, rot, session
+
+DANCE = "05_06_dance.bvh"
+WALK = "02_01_walk.bvh"
+STOP = "131_01_start_walk_stop.bvh"
+LIMB_JOINTS = ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")
+
+
+@pytest.fixture(scope="module")
+def performers(data_dir):
+    folder = {DANCE: "cmu_bvh_held_out", WALK: "cmu_bvh", STOP: "cmu_bvh"}
+    return {name: performer.Performer(bvh.read(data_dir / "motion" / d / name).resampled(90.0))
+            for name, d in folder.items()}
+
+
+def calibrated(perf, tmp_path, profile: str, seed: int):
+    sess = session.build_session(perf, seed=seed)
+    cap = capture.capture(sess, perf, profile, seed=seed)
+    rec = recording_io.load_recording(cap.write(tmp_path / f"{perf.clip.name}_{profile}_{seed}.bcrec.json",
+                                                up="Y" if seed % 2 == 0 else "Z"))
+    user = calibrate_user(rec)
+    truth = cap.truth()
+    ref = int(round(user.reference_time * truth["fps"]))
+    err = {n: 1000 * float(np.linalg.norm(user.joints[n].world - truth["positions"][ref, k]))
+           for k, n in enumerate(truth["joints"]) if n in user.joints}
+    return user, err
+
+
+def _skew_deg(perf, joint: str) -> float:
+    """How far the evaluation's hinge axis (fitted to the clip's own rotations) is from square to
+    the bone above it, in degrees."""
+    axis, _ = perf.hinge[joint]
+    return abs(90.0 - float(np.degrees(np.arccos(axis @ rot.unit(perf.offsets[perf.j(joint)])))))
+
+
+@pytest.mark.parametrize("seed", (0, 3))
+def test_a_skewed_hinge_is_placed_where_the_limb_is_straight(performers, tmp_path, seed):
+    """With limb trackers and no touches the elbow / knee is where its axis meets the straight
+    limb from the anchor to the wrist / ankle fitted from the motion (limbs.straighten). The
+    anchor's flexion plane alone (square to the upper arm / thigh) put 05_06's elbows 15-24 mm
+    and knees 9-27 mm off: their axes are 3-4.4 degrees off square (read from the BVH here), 21 mm
+    along the axis over an upper arm."""
+    dance = performers[DANCE]
+    assert min(_skew_deg(dance, j) for j in ("elbow_l", "elbow_r", "knee_r")) > 2.9  # the premise
+    user, err = calibrated(dance, tmp_path, "full", seed)
+    worst = {j: round(err[j], 1) for j in ("elbow_l", "elbow_r", "knee_l", "knee_r") if err[j] > 8.0}
+    assert not worst, worst
+    q = user.calibration["quality"]
+    assert q["flex_elbow_l"]["along_axis"] == "straight shoulder_l - wrist_l"
+    assert q["flex_knee_r"]["along_axis"] == "straight hip_r - ankle_r"
+
+
+def test_a_wrist_that_mostly_twists_is_not_slid_onto_the_elbow(performers, tmp_path):
+    """05_06's left wrist turns 34 degrees about the forearm and 2 across it: one direction far
+    weaker than the others, but still determined to 0.2 mm by 5,000 frames. Called a hinge, it
+    was slid along that direction (the forearm) to the elbow's coordinate: 197 mm off."""
+    user, err = calibrated(performers[DANCE], tmp_path, "full", 0)
+    assert err["wrist_l"] < 5.0 and err["wrist_r"] < 5.0, (err["wrist_l"], err["wrist_r"])
+    assert "along_axis" not in user.calibration["quality"]["wrist_l from the motion"]
+
+
+@pytest.mark.parametrize("clip, seed", ((DANCE, 1), (WALK, 0), (STOP, 2)))
+def test_limb_trackers_place_every_limb_joint_within_10_mm_on_both_sides(performers, tmp_path, clip, seed):
+    """The full profile without touches, on both sides of three real skeletons (the issue's
+    target: every joint <= 10 mm, left and right alike)."""
+    _, err = calibrated(performers[clip], tmp_path, "full", seed)
+    bad = {f"{j}_{s}": round(err[f"{j}_{s}"], 1) for j in LIMB_JOINTS for s in "lr" if err[f"{j}_{s}"] > 10.0}
+    assert not bad, bad
