@@ -70,6 +70,7 @@ ANCHORS = {"shoulder": ("upperarm",), "hip": ("thigh",)}
 ANCHOR_OF = {"elbow": "shoulder", "knee": "hip"}
 END_DEVICE = {"shoulder": "hand", "hip": "foot"}  # the device at the far end of the limb
 END_JOINT = {"elbow": "wrist", "knee": "ankle"}
+UPPER_FROM_CIRCLE = ("elbow",)  # hinges whose end-device circle gives the upper bone's length (see below)
 TRUNK_FRAMES = {"shoulder": ("chest", "pelvis", "head"), "hip": ("pelvis",), "elbow": ("chest", "pelvis", "head"),
                 "knee": ("pelvis",)}
 
@@ -308,10 +309,14 @@ def _hinge_from_end_device(session: Session, state: State, side: str, joint: str
     device it would move a trunk tracker half a metre away by centimetres). What it gives is the
     hinge's axis, carried by the device, which sets the limb's bend in the animation.
 
-    **Decision**: not the joint's place. A few degrees of thigh wander move the circle's centre by
-    centimetres (the thigh lengths it gave on real clips were off by up to 50 mm), so the joint is
+    **Decision**: not the knee's place. A few degrees of thigh wander move the circle's centre by
+    centimetres (the thigh lengths it gave on real clips were off by up to 50 mm), so the knee is
     placed on the anchor-effector line in the anthropometric ratio (defaults.py), which on the same
-    clips is within 14 mm (median) of the truth where the measured lengths were within 37."""
+    clips is within 14 mm (median) of the truth where the measured lengths were within 37. The
+    elbow's circle is steadier (a shorter upper arm wandering about a shoulder measured within a
+    few millimetres): its distance from the shoulder measures the upper arm (`UPPER_FROM_CIRCLE`;
+    defaults.py weighs it with the ratio), within 14 mm of the truth on five CMU clips (median 5),
+    where the ratio was up to 22 mm short on subjects 2 and 5."""
     _, effector, anchored, bone = HINGES[joint]
     device = f"{effector}_{side}"
     if not session.has(device):
@@ -337,6 +342,9 @@ def _hinge_from_end_device(session: Session, state: State, side: str, joint: str
     right = axis if float(np.mean(np.cross(u, v) @ axis)) > 0 else -axis
     right_dev = tf.normalize(np.mean(tf.rotate(tf.quat_conj(dq[keep]), tf.rotate(fq[keep], right)), axis=0))
     state.hinge_right[f"{bone}_{side}"] = (device, right_dev)
+    if joint in UPPER_FROM_CIRCLE and frame in known:
+        state.extra.setdefault("upper_lengths", {})[f"{joint}_{side}"] = float(np.linalg.norm(u))
+        q["upper_mm"] = round(float(np.linalg.norm(u)) * 1000, 1)
     session.use(step, q)
 
 
