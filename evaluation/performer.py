@@ -102,13 +102,16 @@ def repair_glitches(clip: Clip) -> Clip:
     return Clip(clip.name, clip.joints, clip.parents, clip.offsets, local, clip.root, clip.fps)
 
 
-def _rigid_pelvis(clip: Clip, hips: list[int]) -> Clip:
-    """The clip with a rigid pelvis. Some CMU conversions (02_01) turn the `LHipJoint` /
-    `RHipJoint` bones between the root and the hips by 5-13 degrees per frame, which moves a hip
-    joint by centimetres against the pelvis: no tracker on a pelvis could see that. Those bones are
-    held at their mean rotation and the thighs keep their world orientation."""
+def _rigid_pelvis(clip: Clip, hips: list[int]) -> tuple[Clip, dict[int, np.ndarray]]:
+    """The clip with a rigid pelvis, and the fixed local rotations it holds. Some CMU conversions
+    (02_01) turn the `LHipJoint` / `RHipJoint` bones between the root and the hips by 5-13 degrees
+    per frame, which moves a hip joint by centimetres against the pelvis: no tracker on a pelvis
+    could see that. Those bones are held at their mean rotation and the thighs keep their world
+    orientation. The calibration poses hold them the same way (`Performer.pose`): at the BVH's
+    rest instead, 02_01's hips sat 14-19 mm elsewhere on the pelvis than in the clip."""
     local = clip.local.copy()
     root = int(np.flatnonzero(clip.parents < 0)[0])
+    held = {}
     for h in hips:
         between = clip.parents[h]
         if between != root and clip.parents[between] == root and np.linalg.norm(clip.offsets[between]) < 1e-9:
@@ -116,7 +119,8 @@ def _rigid_pelvis(clip: Clip, hips: list[int]) -> Clip:
             fixed = u @ vt
             local[:, h] = fixed.T @ local[:, between] @ local[:, h]
             local[:, between] = fixed
-    return Clip(clip.name, clip.joints, clip.parents, clip.offsets, local, clip.root, clip.fps)
+            held[int(between)] = fixed
+    return Clip(clip.name, clip.joints, clip.parents, clip.offsets, local, clip.root, clip.fps), held
 
 
 def _smooth_noise(rng, n: int, fps: float, dims: int, rms: float, low=0.2, high=1.2) -> np.ndarray:
@@ -135,7 +139,7 @@ class Performer:
 
     def __init__(self, clip: Clip):
         self.parts = _scheme(clip.joints)
-        clip = _rigid_pelvis(repair_glitches(clip), [self.parts["hip_l"], self.parts["hip_r"]])
+        clip, self.held = _rigid_pelvis(repair_glitches(clip), [self.parts["hip_l"], self.parts["hip_r"]])
         self.clip = clip
         self.parents = clip.parents
         self.offsets = clip.offsets
@@ -274,8 +278,8 @@ class Performer:
                 G[:, j] = fixed[j]
             elif p < 0:
                 G[:, j] = np.eye(3)
-            else:
-                G[:, j] = G[:, p]
+            else:  # the rest pose, the pelvis as rigid as the clip's (`_rigid_pelvis`)
+                G[:, j] = G[:, p] @ self.held[j] if j in self.held else G[:, p]
         root = np.zeros((n, 3))
         if rng is not None and sway_mm:
             root += _smooth_noise(rng, n, self.clip.fps, 3, sway_mm / 1000.0, 0.1, 0.6) * np.array([1, 1, 0.3])

@@ -14,7 +14,9 @@ import pytest
 
 from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.recording import io as recording_io
-from evaluation import bvh, capture, performer, rot, session
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_dev import retarget_fixtures as rt
+from evaluation import bvh, capture, measure, performer, rot, session
 
 DANCE = "05_06_dance.bvh"
 WALK = "02_01_walk.bvh"
@@ -29,17 +31,36 @@ def performers(data_dir):
             for name, d in folder.items()}
 
 
-def calibrated(perf, tmp_path, profile: str, seed: int):
+def recorded(perf, tmp_path, profile: str, seed: int):
     sess = session.build_session(perf, seed=seed)
     cap = capture.capture(sess, perf, profile, seed=seed)
     rec = recording_io.load_recording(cap.write(tmp_path / f"{perf.clip.name}_{profile}_{seed}.bcrec.json",
                                                 up="Y" if seed % 2 == 0 else "Z"))
+    return rec, cap.truth()
+
+
+def calibrated(perf, tmp_path, profile: str, seed: int, with_recording: bool = False):
+    rec, truth = recorded(perf, tmp_path, profile, seed)
     user = calibrate_user(rec)
-    truth = cap.truth()
     ref = int(round(user.reference_time * truth["fps"]))
     err = {n: 1000 * float(np.linalg.norm(user.joints[n].world - truth["positions"][ref, k]))
            for k, n in enumerate(truth["joints"]) if n in user.joints}
-    return user, err
+    return (user, err, rec, truth) if with_recording else (user, err)
+
+
+def hip_line_worst_deg(rec, user, truth, methods=("offsets", "egocentric")) -> dict[str, float]:
+    """The avatar's hip line against the clip's over the clip (its own frames only, in the room),
+    worst frame, per method."""
+    a, b = truth["motion"]
+    J = truth["joints"]
+    src = truth["positions"][a:b]
+    avatar = rt.procedural_avatar()
+    out = {}
+    for m in methods:
+        anim = pl.retarget(rec.window(a, b), user, avatar, m, placement="performer")
+        out[m] = measure.hip_line_deg(anim.joints_world["hip_l"], anim.joints_world["hip_r"],
+                                      src[:, J.index("hip_l")], src[:, J.index("hip_r")])["max"]
+    return out
 
 
 def _skew_deg(perf, joint: str) -> float:
@@ -96,3 +117,16 @@ def test_six_devices_measure_the_upper_arm_in_the_elbow_flex(performers, tmp_pat
     for s in "lr":
         assert user.calibration["quality"][f"flex_elbow_{s}"]["upper_mm"] > 0
         assert "mean of its flex step's" in user.calibration["defaulted"][f"elbow_{s}"]
+
+
+def test_the_evaluation_pelvis_keeps_its_shape_from_the_calibration_to_the_clip(performers):
+    """The truth itself: 02_01's `LHipJoint` / `RHipJoint` are held at their mean rotation in the
+    clip (`performer._rigid_pelvis`) and were at the BVH's rest in the calibration steps, so the
+    hips sat 14-19 mm elsewhere on the pelvis in the clip than where the steps measured them (the
+    offsets method's hip line followed the pelvis tracker 2 degrees off). One pelvis throughout."""
+    perf = performers[WALK]
+    sess = session.build_session(perf, seed=0)
+    root = perf.j("pelvis")
+    for s in "lr":
+        local = np.einsum("fji,fj->fi", sess.G[:, root], sess.P[:, perf.j(f"hip_{s}")] - sess.P[:, root])
+        assert np.ptp(local, axis=0).max() < 1e-6, (s, np.ptp(local, axis=0))
