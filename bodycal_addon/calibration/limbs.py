@@ -392,6 +392,23 @@ def touch_only(session: Session, state: State, side: str, joint: str, touches: d
     session.use(f"{joint}_{side} touches", q)
 
 
+def level_hips(session: Session, state: State) -> None:
+    """Both hips swung on the foot device (no thigh trackers): each at their mean height at the
+    reference pose. **Decision**: the foot traces a cap of the hip's sphere no wider than the leg
+    swings (40° from hanging on real clips), which fixes the hip in the pelvis frame well across
+    the leg and poorly along it: a knee bending a few degrees during the swing moves the fitted
+    hip up or down by up to 40 mm (evaluation/, CMU 02_01 and 131_01), while a person standing on
+    both feet in the reference pose holds the pelvis level within a few millimetres. A hip fitted
+    low also rolled the hip line, which the sacrum turned into a yaw (5-6° on the avatar)."""
+    if any(session.quality.get(f"swing_hip_{s}", {}).get("frames") != f"foot_{s} in pelvis" for s in sk.SIDES):
+        return
+    world = {s: session.to_world("pelvis", state.local[f"hip_{s}"]["pelvis"]) for s in sk.SIDES}
+    height = float(np.mean([w[2] for w in world.values()]))
+    for s, w in world.items():
+        state.set_local(f"hip_{s}", "pelvis", session.to_local("pelvis", np.array([w[0], w[1], height])))
+        session.quality[f"swing_hip_{s}"]["levelled_mm"] = round((height - float(w[2])) * 1000, 1)
+
+
 def limbs(session: Session, state: State) -> None:
     touches = T.collect(session, state, ("elbow_", "knee_", "shoulder_", "hip_"))
     for s in sk.SIDES:
@@ -401,3 +418,4 @@ def limbs(session: Session, state: State) -> None:
             _try(session, f"flex_{j}_{s}", hinge, session, state, s, j, touches)
         for j in (*HINGES, *ANCHORS):
             touch_only(session, state, s, j, touches)
+    level_hips(session, state)
