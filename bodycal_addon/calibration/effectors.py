@@ -3,9 +3,10 @@ from touches only): with a tracker on the forearm (shin) and the hand device (fo
 wrist (ankle) is the point fixed in both frames over every frame the two are tracked together,
 the performance included (`geometry.fit_rigid_point`). The touches, when recorded, win.
 
-The ankle turns mostly about one axis and a wrist may too: along that axis the point is free, and
-it is put where the knee (elbow) is along it, the shin (forearm) running from one joint to the
-other square to the distal joint's axis. Without the limb tracker, or with too little motion at
+The ankle turns mostly about one axis and a wrist may too: when the data leave the point free
+along that axis (geometry.fit_rigid_point), it is put where the knee (elbow) is along it, the shin
+(forearm) running from one joint to the other square to the distal joint's axis. A point the
+motion determines is kept in the limb tracker's frame too, for `limbs.straighten`. Without the limb tracker, or with too little motion at
 the joint, nothing is measured and the defaults apply (defaults.py), reported as usual.
 """
 
