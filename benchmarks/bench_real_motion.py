@@ -63,12 +63,13 @@ from evaluation import bvh, capture, measure, performer, session  # noqa: E402
 AVATARS = ("child_10y", "long_arms_male")
 PROFILES = ("full", "six")
 FPS = 90.0
-JOINT_TARGETS = {  # without touch steps: (profile, joints, mm)
-    "knees_elbows_full": ("full", ("knee_l", "knee_r", "elbow_l", "elbow_r"), 15.0),
-    "ankles_full": ("full", ("ankle_l", "ankle_r"), 20.0),
-    "wrists_full": ("full", ("wrist_l", "wrist_r"), 10.0),
-    "hips_shoulders_knees_elbows_six": ("six", ("hip_l", "hip_r", "shoulder_l", "shoulder_r", "knee_l", "knee_r",
-                                                "elbow_l", "elbow_r"), 25.0),
+LIMB_JOINTS = tuple(f"{j}_{s}" for j in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist") for s in "lr")
+JOINT_TARGETS = {  # without touch steps: (profile, joints, mm); DESIGN.md §3 "Outside recordings"
+    "every_limb_joint_full": ("full", LIMB_JOINTS, 10.0),
+    "hips_knees_ankles_shoulders_elbows_six": ("six", tuple(j for j in LIMB_JOINTS if not j.startswith("wrist")),
+                                               20.0),
+    "skull_base_full": ("full", ("skull_base",), 20.0),
+    "skull_base_six": ("six", ("skull_base",), 20.0),
 }
 
 

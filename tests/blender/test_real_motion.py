@@ -124,8 +124,9 @@ def test_six_devices_calibrate_every_step_from_the_devices_there(walk_six):
 @pytest.mark.slow
 def test_full_profile_without_touches_places_the_joints(walk_full):
     """The real-motion targets without touch steps: knees and elbows within 15 mm (their place along
-    the hinge axis from the anchor's flexion plane), ankles within 20 mm and wrists within 10 mm
-    (fitted from the motion between the limb tracker and the hand / foot device)."""
+    the hinge axis where the limb is straight from the anchor to the wrist / ankle), ankles within
+    20 mm and wrists within 10 mm (fitted from the motion between the limb tracker and the hand /
+    foot device)."""
     rec, truth = walk_full
     user = calibrate_user(rec)
     err = _joint_errors_mm(user, truth)
@@ -133,7 +134,7 @@ def test_full_profile_without_touches_places_the_joints(walk_full):
     bad = {j: round(e, 1) for j, e in err.items() if j.split("_")[0] in limits and e > limits[j.split("_")[0]]}
     assert not bad, bad
     q = user.calibration["quality"]
-    assert q["flex_knee_l"]["along_axis"] == "hip_l flexion plane"
+    assert q["flex_knee_l"]["along_axis"] == "straight hip_l - ankle_l"
     assert "ankle_r from the motion" in q and "wrist_l from the motion" in q
 
 
