@@ -6,8 +6,9 @@ the performance included (`geometry.fit_rigid_point`). The touches, when recorde
 The ankle turns mostly about one axis and a wrist may too: when the data leave the point free
 along that axis (geometry.fit_rigid_point), it is put where the knee (elbow) is along it, the shin
 (forearm) running from one joint to the other square to the distal joint's axis. A point the
-motion determines is kept in the limb tracker's frame too, for `limbs.straighten`. Without the limb tracker, or with too little motion at
-the joint, nothing is measured and the defaults apply (defaults.py), reported as usual.
+motion determines is kept in the limb tracker's frame too, for `limbs.straighten`. Without the
+limb tracker, or with too little motion at the joint, nothing is measured and the defaults apply
+(defaults.py), reported as usual.
 """
 
 from __future__ import annotations
