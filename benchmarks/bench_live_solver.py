@@ -144,7 +144,7 @@ def streamed_vs_bake(rec, user, avatar, contacts, methods) -> tuple[dict, dict]:
     and the ms per live push (planting on)."""
     out, push = {}, {}
     settings = {"filter_and_planting_off": (None, False, None), "defaults": (None, True, None),
-                "filtered": (OneEuro(two_pass=False), True, OneEuro())}
+                "filtered": (OneEuro(two_pass=False, anchored=False), True, OneEuro())}
     for method in methods:
         out[method] = {}
         for name, (live_filter, plant, bake_filter) in settings.items():
@@ -171,8 +171,8 @@ def streamed_vs_bake(rec, user, avatar, contacts, methods) -> tuple[dict, dict]:
 def filter_lag_ms(rec) -> float:
     """The forward One Euro's lag behind the two-pass one: per hand and foot device, the shift (in
     frames, refined to a parabola's vertex) that best lines up their velocities; median, in ms."""
-    fwd = filter_recording(rec, OneEuro(two_pass=False)).positions
-    both = filter_recording(rec, OneEuro()).positions
+    fwd = filter_recording(rec, OneEuro(two_pass=False, anchored=False)).positions
+    both = filter_recording(rec, OneEuro(anchored=False)).positions
     dt = float(np.median(np.diff(rec.time)))
     lags = []
     for d, dev in enumerate(rec.devices):

@@ -141,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _live_commands(sub) -> None:
-    """`record` and `stream`: the VMC protocol (FORMATS.md §6)."""
+    """`record`, `stream` and `live`: the VMC protocol (FORMATS.md §6)."""
     c = sub.add_parser("record", help="record a live VMC stream (OSC over UDP) into a recording file")
     c.add_argument("-o", "--output", required=True, metavar="TAKE.bcrec.json|.csv", help="the recording to write "
                    "(docs/FORMATS.md §2; .csv also writes its sidecar .json)")
@@ -175,6 +175,23 @@ def _live_commands(sub) -> None:
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
     _filter_argument(c, "the devices before retargeting", on=True)
+    c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
+                   help="let the feet follow the method (default: planted while the performer stands on them)")
+
+    c = sub.add_parser("live", help="retarget a live VMC stream frame by frame and send the avatar on as VMC bones")
+    c.add_argument("--user", required=True, metavar="USER.body.json", help=USER_HELP)
+    c.add_argument("--avatar", required=True, metavar="AVATAR.body.json",
+                   help="the avatar's body model (calibrate-avatar's output: its surface and rig)")
+    c.add_argument("--send", required=True, metavar="HOST:PORT", help="where the avatar's VMC bones go")
+    c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
+    c.add_argument("--port", type=int, default=VMC_PORT, metavar="N",
+                   help=f"UDP port to listen on for the performer's devices (default {VMC_PORT})")
+    c.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
+                   help="address to listen on: 127.0.0.1 hears this machine only (default), 0.0.0.0 every network")
+    c.add_argument("--role", action="append", metavar="NAME=ROLE",
+                   help="a device's role (its serial = head, hand_l, pelvis, ...) when the stream does not say it")
+    c.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: Ctrl-C)")
+    _filter_argument(c, "the devices (forward only, as they arrive)", on=True)
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: planted while the performer stands on them)")
 

@@ -232,6 +232,14 @@ class AvatarVmcOut:
         msgs = self.humanoid.messages(local[0], hips[0])
         self.sender.send(bundles([*msgs, message(AVAILABLE, 1), message(TIME, float(t))]))
 
+    def send_pose_values(self, basis: np.ndarray, root_location: np.ndarray, t: float) -> None:
+        """One pose as a solve gives it: pose-bone quaternions (N, 4) in the avatar rig's bone order
+        and the root bone's location (3,), posed by the rig's FK where the armature stands."""
+        if self._rig is None:
+            self._rig = AvatarRig.from_model(self._avatar)
+        pose = self._rig.fk(np.asarray(basis, float)[None], np.asarray(root_location, float)[None])
+        self.send_pose(pose.frames[0], pose.joints[0], t)
+
     def send_animation_frame(self, anim: AvatarAnimation, k: int) -> None:
         if self._rig is None:
             self._rig = AvatarRig.from_model(self._avatar)

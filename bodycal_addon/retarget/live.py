@@ -2,7 +2,7 @@
 pushed as they arrive and each is solved once, from the frames so far only.
 
 `LiveSolver.push` appends the frame's device poses (and finger markers) to a
-`recording.live.LiveRecording`, forward-filtered when asked (the causal One Euro), and solves the
+`recording.live.buffer.LiveRecording`, forward-filtered when asked (the causal One Euro), and solves the
 new frames with a `PreparedSolver` whose stances are found frame by frame (`feet.CausalStance`).
 The solver is prepared once every device the methods need (HMD, both hands, pelvis, both feet)
 has been tracked; the frames before that are not solved (`push` returns None).
@@ -15,7 +15,7 @@ import numpy as np
 from ..body.bodymodel import BodyModel
 from ..calibration.coverage import ANIMATED_ROLES
 from ..recording.filters import OneEuro
-from ..recording.live import LiveRecording
+from ..recording.live.buffer import LiveRecording
 from ..recording.model import Device
 from .pose_source import RecordingSource
 from .solver import PreparedSolver, SolvedFrames

@@ -5,7 +5,7 @@ read from a tracker recording.
 A `TrackerReader` finds each role's device (the first device with that role that was ever
 tracked), its rotation at the reference (T-pose) time, and for every frame the frame whose pose
 to use: the last tracked one (forward fill; a leading gap takes the first tracked pose). A
-recording that grows (`recording.live.LiveRecording`, frames appended as they arrive) is read as
+recording that grows (`recording.live.buffer.LiveRecording`, frames appended as they arrive) is read as
 far as it goes: the fill is extended by the new frames only, and a device tracked for the first
 time joins its role then.
 """

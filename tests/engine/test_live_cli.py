@@ -148,3 +148,42 @@ def test_stream_retarget_sends_the_avatars_bones(tmp_path):
     bones = [args[0] for a, args in srv.messages if a == "/VMC/Ext/Bone/Pos"]
     assert len(bones) == 30 * len(HUMANOID) and "LeftUpperArm" in bones
     assert "the avatar's bones" in r.stdout.splitlines()[-2]
+
+
+def test_live_retargets_a_stream_and_sends_the_avatar(tmp_path):
+    """`bodycal live`: a take streamed by `bodycal stream` (its devices' roles announced) is solved
+    frame by frame and the avatar's bones arrive at python-osc's server; the summary line counts
+    the frames solved."""
+    perf = synthetic.make_performer(seed=0)
+    rec, truth = synthetic.record_session(perf, motions=("clap",), calibration=["tpose"], noise_mm=0.0,
+                                          wobble_mm=0.0)
+    save_recording(rec.window(0, 120), tmp_path / "take.bcrec.json")
+    truth.body_model().save(tmp_path / "user.body.json")
+    procedural_avatar().save(tmp_path / "avatar.body.json")
+    listen = free_port()
+    with OscServer() as srv:
+        live = subprocess.Popen(command("live", "--user", tmp_path / "user.body.json", "--avatar",
+                                        tmp_path / "avatar.body.json", "--port", listen, "--send",
+                                        f"127.0.0.1:{srv.port}", "--duration", 8),
+                                cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        first = live.stdout.readline()
+        assert "listening on" in first, first + live.stderr.read()
+        sent = bodycal("stream", tmp_path / "take.bcrec.json", "--port", listen, timeout=60)
+        assert sent.returncode == 0, sent.stderr
+        out, err = live.communicate(timeout=30)
+    assert live.returncode == 0, err
+    solved = [a for a, _ in srv.messages if a == "/VMC/Ext/T"]
+    bones = {args[0] for a, args in srv.messages if a == "/VMC/Ext/Bone/Pos"}
+    assert len(solved) >= 30, out  # a loaded machine may drop some: the receiver says how many
+    assert {"Hips", "LeftUpperArm", "RightHand"} <= bones
+    assert f"solved and sent {len(solved)} frames" in out.splitlines()[-1]
+
+
+def test_live_refuses_what_cannot_work_in_one_line(tmp_path):
+    procedural_avatar().save(tmp_path / "avatar.body.json")
+    r = bodycal("live", "--user", tmp_path / "avatar.body.json", "--avatar", tmp_path / "avatar.body.json",
+                "--send", "127.0.0.1:40000")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "user body model" in r.stderr
+    r = bodycal("live", "--user", tmp_path / "avatar.body.json", "--avatar", tmp_path / "avatar.body.json",
+                "--send", "nowhere")
+    assert r.returncode == 2 and "HOST:PORT" in r.stderr

@@ -8,6 +8,8 @@
 - `receiver.py`: `VmcReceiver`, a UDP receiver on its own thread.
 - `recorder.py`: `LiveRecorder`, every frame of a source into a Recording (FORMATS.md §2).
 - `sender.py`: `VmcSender` and `replay`, a Recording sent as a VMC stream in real time.
+- `buffer.py`: `LiveRecording`, an append-only Recording a stream fills for the live solve
+  (retarget/live.py); numpy only.
 
 Nothing else in the engine imports this package at import time (python-osc is imported at the top
 of the VMC modules): the command line's `record` and `stream` load it when they run.

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.errors import BodyCalError
-from .filters import OneEuro, OneEuroStream
-from .model import Device, Recording
+from ...core.errors import BodyCalError
+from ..filters import OneEuro, OneEuroStream
+from ..model import Device, Recording
 
 
 class LiveRecording(Recording):
@@ -35,9 +35,9 @@ class LiveRecording(Recording):
         super().__init__(name, self._buf["time"], list(devices), self._buf["positions"], self._buf["rotations"],
                          self._buf["valid"], marker_names, self._buf["markers"], self._buf["marker_valid"],
                          source=name)
-        if smooth is not None and smooth.two_pass:
-            raise BodyCalError("a live stream can only be filtered forward", field="filter",
-                               hint="use OneEuro(two_pass=False)")
+        if smooth is not None and (smooth.two_pass or smooth.anchored):
+            raise BodyCalError("a live stream can only be filtered forward, each device in the room's frame",
+                               field="filter", hint="use OneEuro(two_pass=False, anchored=False)")
         self.rate = float(rate)
         self._smooth = None if smooth is None else (OneEuroStream(smooth), OneEuroStream(smooth, rotations=True),
                                                     OneEuroStream(smooth))
