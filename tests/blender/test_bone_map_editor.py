@@ -35,7 +35,8 @@ class IconLayout(ui_layout.RecordingLayout):
 
 def _avatar(twin: bool = False):
     """The procedural avatar, active, its editor's rows made. `twin`: a second left forearm bone
-    (same rest as lowerarm_l, the hand under it) that no naming scheme maps."""
+    (same rest as lowerarm_l, which hangs from it with the hand) that no naming scheme maps: either
+    may be the forearm, the hand hanging from both (a limb bone must hang from the one before it)."""
     arm, _mesh, _spec = rigs.build_procedural_avatar()
     bpy.context.view_layer.objects.active = arm
     arm.select_set(True)
@@ -46,7 +47,8 @@ def _avatar(twin: bool = False):
         new = bones.new("forearm_twin_l")
         new.head, new.tail, new.roll = src.head, src.tail, src.roll
         new.parent, new.use_connect = src.parent, src.use_connect
-        bones["hand_l"].parent = new
+        src.use_connect = False
+        src.parent = new
         bpy.ops.object.mode_set(mode="OBJECT")
     assert bpy.ops.bodycal.show_bone_map() == {"FINISHED"}
     return arm
