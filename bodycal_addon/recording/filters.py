@@ -139,17 +139,15 @@ def smooth_positions(time: np.ndarray, pos: np.ndarray, min_cutoff: float, beta:
     if len(pos) < 2:
         return pos.copy()
 
-    def once(t, p):
+    def once(t, p, ex):
         dt = _dt(t)
         velocity = np.diff(p, axis=0, prepend=p[:1]) / dt[:, None, None]
         return _one_euro(p, dt, velocity, min_cutoff, beta, d_cutoff, extra=ex)[0]
 
-    ex = extra
-    fwd = once(time, pos)
+    fwd = once(time, pos, extra)
     if not two_pass:
         return fwd
-    ex = None if extra is None else extra[::-1]
-    bwd = once(-np.asarray(time, float)[::-1], pos[::-1])[::-1]
+    bwd = once(-np.asarray(time, float)[::-1], pos[::-1], None if extra is None else extra[::-1])[::-1]
     return 0.5 * (fwd + bwd)
 
 
