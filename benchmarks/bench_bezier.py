@@ -44,21 +44,12 @@ def _linear(keep, values):
     return np.stack([keyreduce.interpolate(frames, keep[:, k], values[:, k]) for k in range(keep.shape[1])], axis=1)
 
 
-def _rig_basis(rig: AvatarRig, anim, rotations) -> np.ndarray:
-    basis = np.zeros((anim.frame_count, len(rig.names), 4))
-    basis[..., 0] = 1.0
-    index = {n: i for i, n in enumerate(anim.bone_names)}
-    for j, name in enumerate(rig.names):
-        if name in index:
-            basis[:, j] = rotations[:, index[name]]
-    return basis
-
-
 def _figures(anim, rig, q, approx) -> dict:
     approx = approx / np.linalg.norm(approx, axis=-1, keepdims=True)
     err = np.degrees(keyreduce.rotation_error(q, approx))
-    full = rig.fk(_rig_basis(rig, anim, q), anim.root_location).joints
-    dev = np.linalg.norm(full - rig.fk(_rig_basis(rig, anim, approx), anim.root_location).joints, axis=-1) * 1000
+    full = rig.fk(rig.basis_of(anim.bone_names, q), anim.root_location).joints
+    drawn = rig.fk(rig.basis_of(anim.bone_names, approx), anim.root_location).joints
+    dev = np.linalg.norm(full - drawn, axis=-1) * 1000
     return {"error_deg_max": round(float(err.max()), 3), "error_deg_p99": round(float(np.percentile(err, 99)), 3),
             "over_tolerance": round(float((err > TOL_DEG * (1 + 1e-6)).mean()), 4),
             "joint_deviation_mm_max": round(float(dev.max()), 2),

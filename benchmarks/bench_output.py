@@ -59,16 +59,6 @@ TOL_DEG = keyreduce.DEFAULT_TOLERANCE_DEG
 TOL_MM = keyreduce.DEFAULT_LOCATION_TOLERANCE_MM
 
 
-def _rig_basis(rig: AvatarRig, anim, rotations) -> np.ndarray:
-    basis = np.zeros((anim.frame_count, len(rig.names), 4))
-    basis[..., 0] = 1.0
-    index = {n: i for i, n in enumerate(anim.bone_names)}
-    for j, name in enumerate(rig.names):
-        if name in index:
-            basis[:, j] = rotations[:, index[name]]
-    return basis
-
-
 def reduction_figures(anim, avatar) -> dict:
     q = continuous_quaternions(anim.rotations)
     t0 = time.perf_counter()
@@ -84,8 +74,8 @@ def reduction_figures(anim, avatar) -> dict:
     dev = []
     for s in range(0, anim.frame_count, 5000):  # in chunks: the FK holds (F, bones, 3, 3)
         e = slice(s, s + 5000)
-        full = rig.fk(_rig_basis(rig, anim, q)[e], anim.root_location[e]).joints
-        reduced = rig.fk(_rig_basis(rig, anim, approx)[e], root[e]).joints
+        full = rig.fk(rig.basis_of(anim.bone_names, q)[e], anim.root_location[e]).joints
+        reduced = rig.fk(rig.basis_of(anim.bone_names, approx)[e], root[e]).joints
         dev.append(np.linalg.norm(full - reduced, axis=-1).ravel())
     dev = np.concatenate(dev) * 1000.0
     every = q.shape[0] * q.shape[1] * 4 + anim.frame_count * 3

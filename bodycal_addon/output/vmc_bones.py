@@ -175,10 +175,7 @@ def animation_pose(anim: AvatarAnimation, rig: AvatarRig, lo: int = 0, hi: int |
     engine animation of `rig`'s armature, by the rig's own FK (retarget/avatar_pose.py)."""
     hi = anim.frame_count if hi is None else hi
     index = rig.bone_index
-    basis = np.zeros((hi - lo, len(rig.names), 4))
-    basis[..., 0] = 1.0
-    cols = [(index[n], k) for k, n in enumerate(anim.bone_names) if n in index]
-    basis[:, [c for c, _ in cols]] = anim.rotations[lo:hi][:, [k for _, k in cols]]
+    basis = rig.basis_of(anim.bone_names, anim.rotations[lo:hi])
     locations = np.zeros((hi - lo, len(rig.names), 3))
     locations[:, rig.root] = anim.root_location[lo:hi]
     for name, loc in anim.bone_locations.items():

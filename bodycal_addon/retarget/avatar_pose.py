@@ -321,6 +321,16 @@ class AvatarRig:
     def bone_index(self) -> dict[str, int]:
         return {n: i for i, n in enumerate(self.names)}
 
+    def basis_of(self, bone_names: list[str], rotations: np.ndarray) -> np.ndarray:
+        """(F, N, 4) pose-bone quaternions in this rig's bone order from `rotations` (F, B, 4) of
+        the bones `bone_names` (an animation's keyed bones); the rig's other bones at rest."""
+        basis = np.zeros((len(rotations), len(self.names), 4))
+        basis[..., 0] = 1.0
+        index = self.bone_index
+        cols = [(index[n], k) for k, n in enumerate(bone_names) if n in index]
+        basis[:, [c for c, _ in cols]] = np.asarray(rotations)[:, [k for _, k in cols]]
+        return basis
+
     def leg_length(self) -> float:
         return _leg_length(self.joint_world)
 

@@ -302,10 +302,10 @@ def _pose_meshes(posing: _Posing, meshes: list, first: int) -> tuple[list[str], 
                         "mesh_slices": slices, "mesh_head": mesh_head, "mesh_rot": mesh_rot, "mesh_scale": mesh_scale}
 
 
-def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarray, list[int], list[tuple[int, int]]]:
-    """(triangle corners (F, T, 3, 3), element index of each triangle, each mesh's triangle range):
-    every point of every mesh placed in one gather, per bone."""
-    frames, joints = posing.frames, posing.joints
+def _mesh_rows(meshes: list, first: int) -> tuple[list, list, list, list, list[tuple[int, int]]]:
+    """Every mesh's points in one list (their bones, their local positions), each triangle as rows
+    of that list, the element index of each triangle (`first` for the first mesh) and each mesh's
+    triangle range."""
     point_bones, point_local, tri_rows, tri_elem, slices = [], [], [], [], []
     for m, e in enumerate(meshes):
         names = list(e.points)
@@ -316,6 +316,14 @@ def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarr
         tri_rows += [[base + names.index(n) for n in t] for t in e.triangles]
         tri_elem += [first + m] * len(e.triangles)
         slices.append((start, len(tri_rows)))
+    return point_bones, point_local, tri_rows, tri_elem, slices
+
+
+def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarray, list[int], list[tuple[int, int]]]:
+    """(triangle corners (F, T, 3, 3), element index of each triangle, each mesh's triangle range):
+    every point of every mesh placed in one gather, per bone."""
+    frames, joints = posing.frames, posing.joints
+    point_bones, point_local, tri_rows, tri_elem, slices = _mesh_rows(meshes, first)
     if not point_bones:
         return np.zeros((frames, 0, 3, 3)), tri_elem, slices
     # Per bone, its points in one BLAS call (frames stay the outer axis: C order throughout).
@@ -367,16 +375,7 @@ class SurfacePoser:
     def _mesh_points(self, model, meshes: list, first: int) -> None:
         """`_mesh_triangles`' gather, prepared: the mesh points grouped by bone, the bones grouped by
         how many points they carry (one stacked product per group), and the triangles' rows."""
-        point_bones, point_local, tri_rows, tri_elem, slices = [], [], [], [], []
-        for m, e in enumerate(meshes):
-            names = list(e.points)
-            base = len(point_bones)
-            point_bones += [e.points[n].bone for n in names]
-            point_local += [e.points[n].local for n in names]
-            start = len(tri_rows)
-            tri_rows += [[base + names.index(n) for n in t] for t in e.triangles]
-            tri_elem += [first + m] * len(e.triangles)
-            slices.append((start, len(tri_rows)))
+        point_bones, point_local, tri_rows, tri_elem, slices = _mesh_rows(meshes, first)
         local = np.array(point_local, float).reshape(-1, 3)
         by_count: dict[int, list] = {}
         for b in dict.fromkeys(point_bones):
