@@ -248,9 +248,10 @@ def _sphere_lsq(p: np.ndarray) -> tuple[np.ndarray, float, float]:
     return m + s * centre, float(s * np.sqrt(max(r2, 0.0))), inv_cond
 
 
-def _swing_deg(rel: np.ndarray) -> tuple[float, float]:
+def swing_deg(rel: np.ndarray) -> tuple[float, float]:
     """Angular extent of directions from a centre along their two principal tangent directions
-    (major, minor), from the 2nd to the 98th percentile so single outliers do not count."""
+    (major, minor), from the 2nd to the 98th percentile so single outliers do not count (the sphere
+    fit's check, and the live wizard's swing progress, recording/live/wizard.py)."""
     u = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), EPS)
     mean = u.mean(axis=0)
     mean /= max(np.linalg.norm(mean), EPS)
@@ -288,7 +289,7 @@ def fit_sphere(points, *, name: str = "sphere", robust: bool = True, passes: int
     if len(q) > 4:
         r = float(dist.mean())  # Delahaye 2023: radius = mean distance to the centre
     rms = float(np.sqrt(np.mean((dist - r) ** 2)))
-    major, minor = _swing_deg(q - centre) if len(q) > 4 else (None, None)
+    major, minor = swing_deg(q - centre) if len(q) > 4 else (None, None)
     fit = SphereFit("sphere", rms, int(keep.sum()), len(p), inv_cond, keep, major, center=centre, radius=r)
     if len(q) > 4:
         if major < min_swing_deg:
