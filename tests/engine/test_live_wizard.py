@@ -301,3 +301,31 @@ def test_a_take_streamed_over_udp_runs_the_wizard_by_itself(demo):
     for i, s in enumerate(segs):  # each ended inside the performer's step (a frame late at most: polling)
         assert s.start - frame <= wizard.segments[i].start and wizard.segments[i].end <= s.end + frame
     assert [s.step for s in recorder.recording().segments] == [s.step for s in segs]
+
+
+def test_record_wizard_runs_the_steps_of_a_streamed_take_and_saves_them(demo, tmp_path):
+    """`bodycal record --wizard` hearing `bodycal stream` of the take's first seconds (no segments
+    sent): each step's instruction and progress printed, the steps ended by themselves, the take
+    saved with them."""
+    from test_live_cli import Recording, bodycal, free_port
+
+    from bodycal_addon.recording.io import save_recording
+
+    segs = steps_of(demo)[:3]  # tpose, stand, palms_together
+    part = demo.window(0, int(demo.frames(0.0, segs[-1].end + 0.6)[-1]) + 1)
+    part.segments = []
+    take, out, port = tmp_path / "part.bcrec.json", tmp_path / "wizard.bcrec.json", free_port()
+    save_recording(part, take)
+    rec = Recording("--port", port, "--wizard", "--pause", "0.1", "--duration", f"{segs[-1].end + 0.5:.2f}", "-o", out)
+    assert rec.first and rec.first[0].startswith("listening for VMC")
+    sent = bodycal("stream", take, "--port", port, "--speed", "4")
+    assert sent.returncode == 0, sent.stderr
+    code, stdout, stderr = rec.finish()
+    assert code == 0 and stderr == "", stderr
+    assert "step 1/87 T-pose: Stand straight, arms out" in stdout and "step 4/87 Flex the left elbow" in stdout
+    assert stdout.count("  done: ") == 3 and "  done: palms together 0.5 of 0.5 s" in stdout
+    saved = load_recording(out)
+    frame = float(np.median(np.diff(demo.time))) + 1e-6  # a frame, and the file's float32 times
+    assert [s.step for s in saved.segments] == [s.step for s in segs]
+    for mine, theirs in zip(saved.segments, segs, strict=True):  # inside the performer's step
+        assert theirs.start - frame <= mine.start < mine.end <= theirs.end + frame, (mine, theirs)

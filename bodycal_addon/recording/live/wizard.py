@@ -203,7 +203,7 @@ _TITLES = {"tpose": ("T-pose", "Stand straight, arms out to the sides at shoulde
                      "still."),
            "stand": ("Stand", "Stand relaxed, arms hanging by your sides, feet hip-width apart, and hold still."),
            "palms_together": ("Palms together", "Press your palms flat together in front of your chest, "
-                              "fingers straight, and hold still.")}
+                              "fingers straight, and keep them together.")}
 
 
 def _step(step: str, point: str | None = None, by: str | None = None) -> WizardStep:
@@ -355,8 +355,12 @@ def flex_progress(rel: np.ndarray, joint: str) -> StepProgress:
         except BodyCalError:
             arc = 0.0
     done = arc >= FLEX_TARGET_DEG and len(rel) >= MIN_STEP_FRAMES
-    return StepProgress(min(1.0, arc / FLEX_TARGET_DEG), f"{joint} bent through {arc:.0f} of {FLEX_TARGET_DEG:.0f}°",
-                        done)
+    figure = f"{joint} bent through {arc:.0f} of {FLEX_TARGET_DEG:.0f}°" + _frames_short(len(rel))
+    return StepProgress(min(1.0, arc / FLEX_TARGET_DEG), figure, done)
+
+
+def _frames_short(n: int) -> str:
+    return f" ({n} of {MIN_STEP_FRAMES} frames)" if n < MIN_STEP_FRAMES else ""
 
 
 def rotation_extent(rel: np.ndarray) -> tuple[float, float]:
@@ -406,7 +410,7 @@ def swing_progress(rel: np.ndarray, points: np.ndarray, joint: str, span_s: floa
     spread = centre_spread_mm(rel, span_s)
     frac = min(main / SWING_TARGET_DEG, across / SWING_ACROSS_TARGET_DEG, SWING_CENTRE_MM / spread)
     figure = (f"{joint} swung {main:.0f} of {SWING_TARGET_DEG:.0f}° and {across:.0f} of {SWING_ACROSS_TARGET_DEG:g}° "
-              f"across, centre ±{min(spread, 999):.1f} of {SWING_CENTRE_MM:.1f} mm")
+              f"across, centre ±{min(spread, 999):.1f} of {SWING_CENTRE_MM:.1f} mm" + _frames_short(len(points)))
     done = frac >= 1.0 and len(points) >= MIN_STEP_FRAMES
     if done:  # the sphere check the calibration runs (only now: it costs more than the rest)
         try:
@@ -441,7 +445,8 @@ class LiveWizard:
         self.segments: dict[int, Segment] = {}  # step index -> the segment it kept
         self.completed: dict[int, str] = {}  # step index -> "auto", "ended" or "skipped"
         self._began_at = 0.0
-        self._ended_at: float | None = None
+        # with auto_begin_s, the first step waits its pause from now too
+        self._ended_at: float | None = recorder.now if auto_begin_s is not None else None
 
     # --- state ---
 
@@ -452,6 +457,17 @@ class LiveWizard:
     @property
     def finished(self) -> bool:
         return self.index >= len(self.steps)
+
+    def replan(self, roles: dict[str, str], markers: Sequence[str] = ()) -> None:
+        """New roles or markers (roles found from the T-pose, a device or glove seen late): the steps
+        still to come are planned again; those done, skipped or being recorded stay."""
+        self.roles = dict(roles)
+        self.device_of = {r: n for n, r in self.roles.items()}
+        self.markers = list(markers)
+        keep = self.index + (1 if self.active else 0)
+        done = {s.label for s in self.steps[:keep]}
+        self.steps = self.steps[:keep] + [s for s in plan_steps(list(self.device_of), self.markers)
+                                          if s.label not in done]
 
     # --- the operator ---
 
@@ -556,7 +572,8 @@ class LiveWizard:
         else:
             frames = rec.frames_since(self._began_at, max_frames=MAX_FIT_FRAMES)
         if step.step in ("tpose", "stand"):
-            slots = [k for k, n in enumerate(frames.names) if n in self.roles and frames.count and frames.valid[-1, k]]
+            # every device tracked now, with a role or not yet (the T-pose is where roles are found)
+            slots = [k for k in range(len(frames.names)) if frames.count and frames.valid[-1, k]]
             return hold_progress(frames, slots, [frames.names[k] for k in slots], begin=self._began_at)
         if step.step == "palms_together":
             hands = (self._slot(frames, "hand_l"), self._slot(frames, "hand_r"))
