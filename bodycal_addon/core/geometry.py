@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .errors import BodyCalError
 from .transforms import EPS, matrix_to_quat, quat_angle, quat_conj, quat_mul, quat_normalize
@@ -518,3 +519,13 @@ def robust_mean(points, *, name: str = "points", minimum: int = 1) -> tuple[np.n
     if keep.sum() == 0:
         keep[:] = True
     return p[keep].mean(axis=0), keep
+
+
+def running_median(x: np.ndarray, w: int) -> np.ndarray:
+    """Centred running median over the leading axis (edges padded with the end values): the
+    calibration's glitch and touch filters, and the live wizard's speeds."""
+    if len(x) < w:
+        return np.repeat(np.median(x, axis=0, keepdims=True), len(x), axis=0)
+    pad = w // 2
+    xp = np.concatenate([np.repeat(x[:1], pad, 0), x, np.repeat(x[-1:], pad, 0)])
+    return np.median(sliding_window_view(xp, w, axis=0), axis=-1)

@@ -1,4 +1,4 @@
-"""The calibration wizard, live (recording/live/wizard.py; DESIGN.md "Live calibration wizard"): the
+"""The calibration wizard, live (recording/live/wizard.py and progress.py; DESIGN.md "Live calibration wizard"): the
 sample take's frames fed to a LiveRecorder one by one as a live source would, the wizard driven by
 the take's own segment times (the operator) or by itself (auto), and the recordings calibrated as
 `bodycal calibrate-user` does."""
@@ -18,6 +18,7 @@ from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.calibration import common as calibration_common
 from bodycal_addon.calibration import touches as calibration_touches
 from bodycal_addon.recording.io import load_recording
+from bodycal_addon.recording.live import progress as pg
 from bodycal_addon.recording.live import wizard as wz
 from bodycal_addon.recording.live.recorder import LiveRecorder
 from bodycal_addon.recording.live.source import LiveFrame
@@ -106,10 +107,10 @@ def test_six_devices_get_every_motion_step_and_no_touch_or_palms():
 
 
 def test_the_wizards_copies_of_the_calibrations_rules_agree_with_it():
-    assert (wz.STILL_SPEED, wz.STILL_MIN_S, wz.MEDIAN_S) == (calibration_touches.STILL_SPEED,
+    assert (pg.STILL_SPEED, pg.STILL_MIN_S, pg.MEDIAN_S) == (calibration_touches.STILL_SPEED,
                                                              calibration_touches.STILL_MIN_S,
                                                              calibration_touches.MEDIAN_S)
-    assert wz.MIN_STEP_FRAMES == calibration_common.MIN_STEP_FRAMES
+    assert pg.MIN_STEP_FRAMES == calibration_common.MIN_STEP_FRAMES
     assert wz.HEAD_POINTS == calibration_touches.HEAD_POINTS and wz.TORSO_LOW == calibration_touches.TORSO_LOW
     full = ["head", "chest", "pelvis"] + [f"{p}_{s}" for p in ("hand", "upperarm", "forearm", "thigh", "shin", "foot")
                                            for s in "lr"]
