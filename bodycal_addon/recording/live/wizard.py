@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...body import surface_layout as sl
 from ...body.skeleton import FINGERS
 from ...core.errors import BodyCalError
 from ..model import Segment
@@ -48,8 +49,7 @@ __all__ = ["LiveWizard", "StepProgress", "WizardStep", "plan_steps"]
 
 TRUNK = ("chest", "pelvis", "head")
 SIDE_WORD = {"l": "left", "r": "right"}
-HEAD_POINTS = ("ear_l", "ear_r", "upper_lip", "chin", "jaw_l", "jaw_r", "skull_top", "skull_left", "skull_right",
-               "skull_back", "skull_base_l", "skull_base_r")  # calibration/touches.py HEAD_POINTS
+HEAD_POINTS = sl.JAW_POINTS + sl.SKULL_POINTS + ("skull_base_l", "skull_base_r")  # calibration/touches.py's
 TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")  # calibration/touches.py TORSO_LOW
 
 
@@ -67,9 +67,7 @@ def _touch_protocol() -> tuple[tuple[str, str], ...]:
         out += [(f"{p}_{s}", f"index_tip_{o}") for p in ("hip_front", "hip_back", "knee_in", "knee_out", "ankle_in",
                                                          "ankle_out", "sole_1", "sole_2", "sole_3", "sole_4")]
     out += [(p, "index_tip_l" if p.endswith("_r") else "index_tip_r") for p in HEAD_POINTS]
-    out += [(p, "palm_l" if p == "chest_r" else "palm_r") for p in
-            ("sternum", "chest_l", "chest_r", "belly_ul", "belly_ur", "belly_ll", "belly_lr", "belly_c1", "belly_c2",
-             "belly_c3", "belly_c4", "back_ul", "back_ur", "back_low")]
+    out += [(p, "palm_l" if p == "chest_r" else "palm_r") for p in sl.TORSO_POINTS]
     return tuple(out)
 
 
