@@ -36,6 +36,7 @@ STILL_SPEED = 0.05  # m/s, calibration/touches.py STILL_SPEED: slower than this 
 STILL_MIN_S = 0.2  # s, calibration/touches.py STILL_MIN_S: a touch held this long is usable
 MEDIAN_S = 0.15  # s, calibration/touches.py MEDIAN_S: positions are median-filtered over this before speeds
 MIN_STEP_FRAMES = 20  # calibration/common.py MIN_STEP_FRAMES: a flex / swing needs this many frames
+STEP_FRAMES = 30  # the wizard asks this many: the calibration drops glitch frames before it counts
 HOLD_S = 0.5  # s a reference pose is held still: the calibration averages +-0.1 s around its middle
 PALMS_GAP_M = 0.10  # m: paired glove LEDs closer than this on average = palms together (DESIGN.md)
 MARGIN = 1.5  # the wizard asks this much more motion than the fits refuse below (see DESIGN.md)
@@ -173,13 +174,13 @@ def flex_progress(rel: np.ndarray, joint: str) -> StepProgress:
             arc = float(fit_rotation_axis(rel, name="flex")[1])
         except BodyCalError:
             arc = 0.0
-    done = arc >= FLEX_TARGET_DEG and len(rel) >= MIN_STEP_FRAMES
+    done = arc >= FLEX_TARGET_DEG and len(rel) >= STEP_FRAMES
     figure = f"{joint} bent through {arc:.0f} of {FLEX_TARGET_DEG:.0f}°" + _frames_short(len(rel))
     return StepProgress(min(1.0, arc / FLEX_TARGET_DEG), figure, done)
 
 
 def _frames_short(n: int) -> str:
-    return f" ({n} of {MIN_STEP_FRAMES} frames)" if n < MIN_STEP_FRAMES else ""
+    return f" ({n} of {STEP_FRAMES} frames)" if n < STEP_FRAMES else ""
 
 
 def rotation_extent(rel: np.ndarray) -> tuple[float, float]:
@@ -230,7 +231,7 @@ def swing_progress(rel: np.ndarray, points: np.ndarray, joint: str, span_s: floa
     frac = min(main / SWING_TARGET_DEG, across / SWING_ACROSS_TARGET_DEG, SWING_CENTRE_MM / spread)
     figure = (f"{joint} swung {main:.0f} of {SWING_TARGET_DEG:.0f}° and {across:.0f} of {SWING_ACROSS_TARGET_DEG:g}° "
               f"across, centre ±{min(spread, 999):.1f} of {SWING_CENTRE_MM:.1f} mm" + _frames_short(len(points)))
-    done = frac >= 1.0 and len(points) >= MIN_STEP_FRAMES
+    done = frac >= 1.0 and len(points) >= STEP_FRAMES
     if done:  # the sphere check the calibration runs (only now: it costs more than the rest)
         try:
             fit_sphere(points, name="swing", robust=False)
