@@ -7,6 +7,9 @@ the time it took against the take's segment (median and max of the ratio), the s
 complete inside their segment, and the body model calibrated from the live recording against the
 take's own (mm per joint: max and median).
 
+`six`: the same with the take cut to AvatarGo's six devices (HMD, hands, pelvis, feet) and no
+marker: the flexes and swings fitted from the end devices.
+
 `cost`: the CPU time of one `update()` (process time, the mean of many calls) for each kind of step
 after two seconds of it, early in a 90 Hz session (5 s in) and late (after `--minutes`, 10 by
 default), and the late/early ratio, which should stay near 1 (update() reads only its window).
@@ -21,6 +24,7 @@ import json
 import pathlib
 import sys
 import time
+from dataclasses import replace
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -49,6 +53,18 @@ def frame(rec, k: int, t: float | None = None) -> LiveFrame:
 
 def roles(rec) -> dict[str, str]:
     return {d.name: d.role for d in rec.devices if d.role}
+
+
+SIX = ("head", "hand_l", "hand_r", "pelvis", "foot_l", "foot_r")
+
+
+def six_devices(rec):
+    """The take with only the six AvatarGo devices, no marker, and the steps they allow."""
+    keep = [i for i, d in enumerate(rec.devices) if d.role in SIX]
+    return replace(rec, devices=[rec.devices[i] for i in keep], positions=rec.positions[:, keep],
+                   rotations=rec.rotations[:, keep], valid=rec.valid[:, keep], marker_names=[],
+                   markers=rec.markers[:, :0], marker_valid=rec.marker_valid[:, :0], notes=[],
+                   segments=[s for s in rec.segments if s.step not in ("touch", "palms_together")])
 
 
 def demo_section(rec) -> dict:
@@ -130,7 +146,8 @@ def main(argv=None) -> int:
     ap.add_argument("--minutes", type=float, default=10.0, help="the long session's length (default 10)")
     args = ap.parse_args(argv)
     rec = load_recording(DEMO)
-    print(json.dumps({"demo": demo_section(rec), "cost": cost_section(rec, args.minutes)}))
+    print(json.dumps({"demo": demo_section(rec), "six": demo_section(six_devices(rec)),
+                      "cost": cost_section(rec, args.minutes)}))
     return 0
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -26,6 +27,10 @@ from bodycal_addon.recording.live.wizard import LiveWizard
 
 DEMO = REPO / "sample_rigs" / "recordings" / "demo_full.bcrec.json"
 AUTO_BODY_MM = 6.0  # measured: 4.9 mm at most (shoulder_l) over every joint, see test_auto_mode_...
+# measured: 17.2 mm (shoulder_l) with the six devices: the end devices' sphere fit needs more of the
+# swing than the centre figure asks for (DESIGN.md "Live calibration wizard", a known limit)
+SIX_BODY_MM = 20.0
+SIX = ("head", "hand_l", "hand_r", "pelvis", "foot_l", "foot_r")
 
 
 @pytest.fixture(scope="module")
@@ -165,6 +170,23 @@ def test_auto_mode_completes_every_step_inside_the_performers_movement(demo, dem
     diff = joint_differences_mm(model, demo_model)
     assert max(diff.values()) <= AUTO_BODY_MM, sorted(diff.items(), key=lambda kv: -kv[1])[:3]
     assert set(REQUIRED_USER_JOINTS) <= set(diff)
+
+
+def test_auto_mode_with_the_six_avatargo_devices(demo):
+    keep = [i for i, d in enumerate(demo.devices) if d.role in SIX]
+    six = replace(demo, devices=[demo.devices[i] for i in keep], positions=demo.positions[:, keep],
+                  rotations=demo.rotations[:, keep], valid=demo.valid[:, keep], marker_names=[],
+                  markers=demo.markers[:, :0], marker_valid=demo.marker_valid[:, :0], notes=[],
+                  segments=[s for s in demo.segments if s.step not in ("touch", "palms_together")])
+    recorder, wizard, ended = drive(six, auto=True)
+    segs = steps_of(six)
+    assert [s.label for s in wizard.steps] == [s.label for s in segs]  # tpose, stand and the eight motions
+    assert set(wizard.completed.values()) == {"auto"}
+    assert all(ended[i] <= s.end - s.start + 1e-9 for i, s in enumerate(segs))
+    model, base = calibrate_user(recorder.recording(), name="six"), calibrate_user(six, name="six")
+    assert not model.calibration["warnings"] and model.calibration["missing"] == base.calibration["missing"]
+    diff = joint_differences_mm(model, base)
+    assert max(diff.values()) <= SIX_BODY_MM, sorted(diff.items(), key=lambda kv: -kv[1])[:3]
 
 
 def still_take(rec, seconds: float):
