@@ -16,6 +16,7 @@ frame; the run's start (`StepProgress.still_from`) lets the wizard keep only tha
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,7 +30,9 @@ from ...core.geometry import (
     fit_sphere,
     running_median,
 )
-from .recorder import RecentFrames
+
+if TYPE_CHECKING:  # the recorder imports python-osc; the measures need numpy only
+    from .recorder import RecentFrames
 
 # --- what the offline calibration needs (thresholds; DESIGN.md "Live calibration wizard") ----------
 STILL_SPEED = 0.05  # m/s, calibration/touches.py STILL_SPEED: slower than this counts as still

@@ -204,13 +204,16 @@ class LiveRecorder:
         self._open = (step, point, by, start)
         return start
 
-    def mark_segment_end(self) -> Segment:
-        """The open step ends now; one BodyCalError when none is open or it holds no time."""
+    def mark_segment_end(self, start: float | None = None) -> Segment:
+        """The open step ends now; with `start` (a time after the marked one), it is kept from then
+        (the wizard keeps a hold's still stretch only). One BodyCalError when none is open or it
+        holds no time."""
         if self._open is None:
             raise BodyCalError("no calibration step is open", hint="mark its start first")
-        step, point, by, start = self._open
+        step, point, by, marked = self._open
         self._open = None
-        return self.add_segment(check_segment(step, point, by, start, self.now))
+        return self.add_segment(check_segment(step, point, by, marked if start is None else max(marked, start),
+                                              self.now))
 
     def add_segment(self, segment: Segment) -> Segment:
         with self._lock:

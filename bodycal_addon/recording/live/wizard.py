@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,8 +43,9 @@ from .progress import (
     swing_progress,
     touch_progress,
 )
-from .recorder import LiveRecorder, RecentFrames
-from .vmc import check_segment
+
+if TYPE_CHECKING:  # the recorder reads VMC's segments with python-osc; the wizard runs without it
+    from .recorder import LiveRecorder, RecentFrames
 
 __all__ = ["LiveWizard", "StepProgress", "WizardStep", "plan_steps"]
 
@@ -333,13 +335,8 @@ class LiveWizard:
     # --- internals ---
 
     def _finish(self, how: str, trim: float | None = None) -> None:
-        step = self.current
-        if trim is not None and trim > self._began_at and trim < self.recorder.now:
-            # a hold keeps its still stretch only: the reference pose is its middle
-            self.recorder.cancel_segment()
-            seg = self.recorder.add_segment(check_segment(step.step, step.point, step.by, trim, self.recorder.now))
-        else:
-            seg = self.recorder.mark_segment_end()
+        # a hold keeps its still stretch only: the reference pose is its middle
+        seg = self.recorder.mark_segment_end(trim if trim is not None and trim < self.recorder.now else None)
         self.segments[self.index] = seg
         self.completed[self.index] = how
         self.active = False
