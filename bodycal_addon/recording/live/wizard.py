@@ -182,11 +182,43 @@ _TITLES = {"tpose": ("T-pose", "Stand straight, arms out to the sides at shoulde
                               "fingers straight, and keep them together.")}
 
 
+# How the operator names a touched point ({side}: the performer's left / right).
+_POINT_WORDS = {
+    "wrist_top": "the top of your {side} wrist", "wrist_bottom": "the inside of your {side} wrist",
+    "elbow_in": "the inner side of your {side} elbow", "elbow_out": "the outer side of your {side} elbow",
+    "shoulder_front": "the front of your {side} shoulder", "shoulder_back": "the back of your {side} shoulder",
+    "hip_front": "the front of your {side} hip", "hip_back": "the back of your {side} hip",
+    "knee_in": "the inner side of your {side} knee", "knee_out": "the outer side of your {side} knee",
+    "ankle_in": "your {side} inner ankle bone", "ankle_out": "your {side} outer ankle bone",
+    "ear": "your {side} ear", "jaw": "the corner of your {side} jaw", "chest": "the {side} side of your chest",
+    "skull_base": "the base of your skull, {side} side", "upper_lip": "your upper lip", "chin": "your chin",
+    "skull_top": "the top of your head", "skull_left": "the left side of your head",
+    "skull_right": "the right side of your head", "skull_back": "the back of your head", "sternum": "your sternum",
+    "belly_ul": "your belly, upper left", "belly_ur": "your belly, upper right", "belly_ll": "your belly, lower left",
+    "belly_lr": "your belly, lower right", "back_ul": "your upper back, left", "back_ur": "your upper back, right",
+    "back_low": "your lower back",
+}
+
+
+def point_words(point: str) -> str:
+    """A touched point as the operator says it: `mcp_index_l` -> "your left index knuckle"."""
+    side = SIDE_WORD.get(point[-1]) if point[-2:] in ("_l", "_r") else None
+    base = point[:-2] if side else point
+    if base.startswith("mcp_"):
+        return f"your {side} {base[4:]} knuckle"
+    for part in ("palm", "sole", "belly_c"):
+        if base.startswith(part) and base[len(part):].lstrip("_").isdigit():
+            where = {"palm": f"your {side} palm", "sole": f"the sole of your {side} foot",
+                     "belly_c": "the middle of your belly"}[part]
+            return f"{where}, point {base[len(part):].lstrip('_')}"
+    return _POINT_WORDS.get(base, point.replace("_", " ")).format(side=side)
+
+
 def _step(step: str, point: str | None = None, by: str | None = None) -> WizardStep:
     if step in _TITLES:
         return WizardStep(step, None, None, *_TITLES[step])
     if step == "touch":
-        where = point.replace("_", " ")
+        where = point_words(point)
         if by.startswith("palm_"):
             finger = f"the palm of your {SIDE_WORD[by[-1]]} hand"
         elif "_tip_" in by:
@@ -194,8 +226,8 @@ def _step(step: str, point: str | None = None, by: str | None = None) -> WizardS
             finger = f"your {SIDE_WORD.get(side, side)} {name} fingertip"
         else:
             finger = by.replace("_", " ")
-        return WizardStep(step, point, by, f"Touch {where}",
-                          f"Put {finger} on your {where} and hold it there for a moment.")
+        title = "Touch " + where.replace("your ", "the ", 1)
+        return WizardStep(step, point, by, title, f"Put {finger} on {where} and hold it there for a moment.")
     kind, joint, s = step.split("_")
     side = SIDE_WORD[s]
     if kind == "flex":
@@ -364,7 +396,7 @@ class LiveWizard:
             pairs = [(frames.marker_names.index(f"{n}_l"), frames.marker_names.index(f"{n}_r"))
                      for n in palm_pairs(frames.marker_names)]
             if None in hands or len(pairs) < 3:
-                return hold_figure(0.0, HOLD_S, "waiting for both gloves")
+                return hold_figure(0.0, HOLD_S, "waiting for both gloves").with_figure("palms together")
             return palms_progress(frames, hands, pairs, begin=self._began_at)
         if step.step == "touch":
             part = self._slot(frames, touched_role(step.point, self.device_of) or "")
