@@ -352,3 +352,20 @@ def test_record_wizard_runs_the_steps_of_a_streamed_take_and_saves_them(demo, tm
     assert [s.step for s in saved.segments] == [s.step for s in segs]
     for mine, theirs in zip(saved.segments, segs, strict=True):  # inside the performer's step
         assert theirs.start - frame <= mine.start < mine.end <= theirs.end + frame, (mine, theirs)
+
+
+def test_replan_keeps_what_is_done_and_plans_the_rest_for_the_new_roles(demo):
+    """Roles found from the T-pose (or a device seen late): the steps to come are planned again."""
+    recorder = LiveRecorder("live")
+    head_only = {"hmd": "head"}
+    wizard = LiveWizard(recorder, head_only, auto=False)
+    assert [s.step for s in wizard.steps] == ["tpose", "stand"]
+    for k in range(30):
+        recorder(live_frame(demo, k))
+    wizard.begin()
+    for k in range(30, 40):
+        recorder(live_frame(demo, k))
+    wizard.end_step()
+    wizard.replan(roles_of(demo), demo.marker_names)
+    assert [s.label for s in wizard.steps] == [s.label for s in steps_of(demo)]
+    assert wizard.index == 1 and wizard.current.step == "stand" and wizard.segments[0].step == "tpose"
