@@ -369,3 +369,13 @@ def test_replan_keeps_what_is_done_and_plans_the_rest_for_the_new_roles(demo):
     wizard.replan(roles_of(demo), demo.marker_names)
     assert [s.label for s in wizard.steps] == [s.label for s in steps_of(demo)]
     assert wizard.index == 1 and wizard.current.step == "stand" and wizard.segments[0].step == "tpose"
+
+
+def test_record_wizard_refuses_bad_pauses_in_one_line_before_listening(tmp_path):
+    from test_live_cli import bodycal, free_port
+
+    out = tmp_path / "never.bcrec.json"
+    for flag, value in (("--pause", "-1"), ("--step-timeout", "0")):
+        done = bodycal("record", "--wizard", flag, value, "--port", free_port(), "-o", out)
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and flag in done.stderr
+        assert not out.exists()
