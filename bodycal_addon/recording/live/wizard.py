@@ -404,8 +404,8 @@ class LiveWizard:
             if part is None or track is None:
                 return hold_figure(0.0, STILL_MIN_S, f"waiting for {step.by}")
             return touch_progress(frames, part, *track, begin=self._began_at)
-        frame_role, point_role = motion_pair(step.step, self.device_of)
-        a, b = self._slot(frames, frame_role), self._slot(frames, point_role)
+        pair = motion_pair(step.step, self.device_of)  # None: its devices lost their roles (replan)
+        a, b = (self._slot(frames, pair[0]), self._slot(frames, pair[1])) if pair else (None, None)
         if a is None or b is None:
             rel, pts = np.zeros((0, 3, 3)), np.zeros((0, 3))
         else:
