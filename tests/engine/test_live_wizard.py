@@ -346,7 +346,7 @@ def test_record_wizard_runs_the_steps_of_a_streamed_take_and_saves_them(demo, tm
     code, stdout, stderr = rec.finish()
     assert code == 0 and stderr == "", stderr
     assert "step 1/87 T-pose: Stand straight, arms out" in stdout and "step 4/87 Flex the left elbow" in stdout
-    assert stdout.count("  done: ") == 3 and "  done: palms together 0.5 of 0.5 s" in stdout
+    assert stdout.count("  done: ") == 3 and "  done: palms together 0.50 of 0.50 s" in stdout
     saved = load_recording(out)
     frame = float(np.median(np.diff(demo.time))) + 1e-6  # a frame, and the file's float32 times
     assert [s.step for s in saved.segments] == [s.step for s in segs]

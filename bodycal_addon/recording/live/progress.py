@@ -57,7 +57,7 @@ PREROLL_S = 2.0 * MEDIAN_S  # frames read from before the step began, so its fir
 @dataclass(frozen=True)
 class StepProgress:
     fraction: float  # 0..1 toward automatic completion
-    figure: str  # one line: "elbow bent through 34 of 60°", "hold still 0.3 of 0.5 s"
+    figure: str  # one line: "elbow bent through 34 of 60°", "hold still 0.30 of 0.50 s"
     done: bool  # enough data is in
     still_from: float | None = None  # hold steps: when the still stretch began (recording clock)
 
@@ -99,7 +99,7 @@ def trailing_run(still: np.ndarray, t: np.ndarray) -> tuple[float, float | None]
 
 
 def hold_figure(held: float, need: float, extra: str = "", still_from: float | None = None) -> StepProgress:
-    fig = f"hold still {min(held, need):.1f} of {need:.1f} s" + (f" ({extra})" if extra else "")
+    fig = f"hold still {min(held, need):.2f} of {need:.2f} s" + (f" ({extra})" if extra else "")
     return StepProgress(min(1.0, held / need), fig, held >= need - 1e-9, still_from)
 
 
