@@ -151,23 +151,29 @@ def test_six_devices_place_the_ankle_across_the_leg_from_the_hip_swing(performer
     stands vary: 05_06's right foot, stood pitched toes down, put that ankle 54-56 mm off. The
     hip swing's moving-point sphere sees the point of the foot the tracker wanders about (the
     ankle) across the leg, not along it; the ankle now goes half way to it across the leg
-    (defaults._with_swing_point). Both sides of a clip the engine was tuned on and of a held-out
-    one."""
+    (defaults._with_swing_point), and the wrist likewise to the shoulder swing's point of the
+    controller. Both sides of a clip the engine was tuned on and of a held-out one."""
     from bodycal_addon.calibration import defaults
 
-    def ankle_errors(weight):
+    def errors(weight):
         monkeypatch.setattr(defaults, "SWING_POINT_WEIGHT", weight)
-        errs = []
+        ankles, wrists = [], []
         for clip, seed in ((WALK, 0), (WALK, 1), (DANCE, 0), (DANCE, 2)):
             user, err = calibrated(performers[clip], tmp_path, "six", seed)
-            errs += [err["ankle_l"], err["ankle_r"]]
-        return np.array(errs), user
+            ankles += [err["ankle_l"], err["ankle_r"]]
+            wrists += [err["wrist_l"], err["wrist_r"]]
+        return np.array(ankles), np.array(wrists), user
 
-    before, _ = ankle_errors(0.0)
-    after, user = ankle_errors(0.5)
+    def rms(x):
+        return float(np.sqrt(np.mean(x ** 2)))
+
+    before, wrists_before, _ = errors(0.0)
+    after, wrists_after, user = errors(0.5)
     assert before.max() > 50.0, before.round(1)  # the premise: the default alone
     assert after.max() < 30.0, after.round(1)
-    assert np.sqrt(np.mean(after ** 2)) < 0.7 * np.sqrt(np.mean(before ** 2)), (after.round(1), before.round(1))
-    for s in "lr":
-        assert user.calibration["quality"][f"ankle_{s} from the swing"]["across_limb_mm"] > 0
-        assert "its swing kept at one distance" in user.calibration["defaulted"][f"ankle_{s}"]
+    assert rms(after) < 0.7 * rms(before), (after.round(1), before.round(1))
+    assert rms(wrists_after) < rms(wrists_before), (wrists_after.round(1), wrists_before.round(1))
+    for j in ("ankle", "wrist"):
+        for s in "lr":
+            assert user.calibration["quality"][f"{j}_{s} from the swing"]["across_limb_mm"] > 0
+            assert "its swing kept at one distance" in user.calibration["defaulted"][f"{j}_{s}"]
