@@ -70,6 +70,7 @@ ANCHORS = {"shoulder": ("upperarm",), "hip": ("thigh",)}
 ANCHOR_OF = {"elbow": "shoulder", "knee": "hip"}
 END_DEVICE = {"shoulder": "hand", "hip": "foot"}  # the device at the far end of the limb
 END_JOINT = {"elbow": "wrist", "knee": "ankle"}
+SWING_POINT = {"shoulder": "wrist", "hip": "ankle"}  # the joint the end device wanders about in a swing
 UPPER_FROM_CIRCLE = ("elbow",)  # hinges whose end-device circle gives the upper bone's length (see below)
 TRUNK_FRAMES = {"shoulder": ("chest", "pelvis", "head"), "hip": ("pelvis",), "elbow": ("chest", "pelvis", "head"),
                 "knee": ("pelvis",)}
@@ -185,6 +186,13 @@ def _anchor_from_end_device(session: Session, state: State, side: str, joint: st
     moving = fit_sphere_moving_point(pts, rel, name=step, robust=session.robust)
     name = f"{joint}_{side}"
     _place_anchor(session, state, name, frame, moving.center, used)
+    # The point the swing found (the wrist / ankle the device wanders about), in the device's
+    # frame, with the limb's direction there (toward the anchor): defaults.py weighs it across
+    # the limb with the anatomical default (the swing cannot see it along the limb).
+    toward = np.einsum("nji,nj->i", rel[moving.inliers], moving.center - pts[moving.inliers]
+                       - np.einsum("nij,j->ni", rel[moving.inliers], moving.local))
+    state.extra.setdefault("swing_points", {})[f"{SWING_POINT[joint]}_{side}"] = (
+        device, moving.local, toward / max(float(np.linalg.norm(toward)), EPS))
     q = fit.quality()
     q.update({"frames": f"{device} in {frame}", "reach_mm": round(moving.radius * 1000, 1),
               "moving_point_rms_mm": round(moving.rms * 1000, 3),

@@ -143,3 +143,37 @@ def test_six_devices_hold_the_hips_level_at_the_reference(performers, tmp_path):
     assert user.calibration["quality"]["swing_hip_r"]["levelled_mm"] > 10.0
     worst = hip_line_worst_deg(rec, user, truth)
     assert max(worst.values()) < 2.5, worst
+
+
+def test_six_devices_place_the_ankle_across_the_leg_from_the_hip_swing(performers, tmp_path, monkeypatch):
+    """Without shin trackers the ankle was the anatomical default alone: 0.035 H behind the foot
+    tracker along a foot toed out 10°. Where the tracker sits on the instep and how the foot
+    stands vary: 05_06's right foot, stood pitched toes down, put that ankle 54-56 mm off. The
+    hip swing's moving-point sphere sees the point of the foot the tracker wanders about (the
+    ankle) across the leg, not along it; the ankle now goes half way to it across the leg
+    (defaults._with_swing_point), and the wrist likewise to the shoulder swing's point of the
+    controller. Both sides of a clip the engine was tuned on and of a held-out one."""
+    from bodycal_addon.calibration import defaults
+
+    def errors(weight):
+        monkeypatch.setattr(defaults, "SWING_POINT_WEIGHT", weight)
+        ankles, wrists = [], []
+        for clip, seed in ((WALK, 0), (WALK, 1), (DANCE, 0), (DANCE, 2)):
+            user, err = calibrated(performers[clip], tmp_path, "six", seed)
+            ankles += [err["ankle_l"], err["ankle_r"]]
+            wrists += [err["wrist_l"], err["wrist_r"]]
+        return np.array(ankles), np.array(wrists), user
+
+    def rms(x):
+        return float(np.sqrt(np.mean(x ** 2)))
+
+    before, wrists_before, _ = errors(0.0)
+    after, wrists_after, user = errors(0.5)
+    assert before.max() > 50.0, before.round(1)  # the premise: the default alone
+    assert after.max() < 30.0, after.round(1)
+    assert rms(after) < 0.7 * rms(before), (after.round(1), before.round(1))
+    assert rms(wrists_after) < rms(wrists_before), (wrists_after.round(1), wrists_before.round(1))
+    for j in ("ankle", "wrist"):
+        for s in "lr":
+            assert user.calibration["quality"][f"{j}_{s} from the swing"]["across_limb_mm"] > 0
+            assert "its swing kept at one distance" in user.calibration["defaulted"][f"{j}_{s}"]
