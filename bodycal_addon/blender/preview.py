@@ -122,14 +122,14 @@ def show(pv: Preview, scene) -> None:
     k = sample_at(pv, scene.frame_current + scene.frame_subframe)
     anim = pv.prepared.solve(k, k + 1)
     if pv.root_motion == "in-place":  # the travel removed relative to the take's first sample
-        anim = _joined(pv.first, anim)
+        anim = joined(pv.first, anim)
     bone_map = naming.BoneMap.from_dict(pv.target.avatar.extra["rig"]["bone_map"])
     anim = rig_output.with_root_motion(anim, arm, bone_map, pv.root_motion, own=True)
     write_pose(arm, anim, row=anim.frame_count - 1)
     pv.solve_ms = (time.perf_counter() - t0) * 1000.0
 
 
-def _joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
+def joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
     return AvatarAnimation(b.armature, b.bone_names, np.concatenate([a.rotations, b.rotations]), b.root_bone,
                            np.concatenate([a.root_location, b.root_location]), np.concatenate([a.time, b.time]),
                            b.method, notes=list(b.notes))
@@ -137,24 +137,39 @@ def _joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
 
 def write_pose(arm, anim: AvatarAnimation, row: int = 0) -> None:
     """Set frame `row` of `anim` on the armature's pose bones, every bone at once (foreach_set)."""
-    bones = arm.pose.bones
-    index = {pb.name: i for i, pb in enumerate(bones)}
-    n = len(bones)
-    quats = np.empty(n * 4, np.float32)
-    locs = np.empty(n * 3, np.float32)
-    bones.foreach_get("rotation_quaternion", quats)
-    bones.foreach_get("location", locs)
-    quats, locs = quats.reshape(n, 4), locs.reshape(n, 3)
-    for name in anim.bone_names:
-        if bones[name].rotation_mode != "QUATERNION":
-            bones[name].rotation_mode = "QUATERNION"
-    quats[[index[b] for b in anim.bone_names]] = anim.rotations[row]
-    locs[index[anim.root_bone]] = anim.root_location[row]
-    for name, loc in anim.bone_locations.items():
-        locs[index[name]] = loc[row]
-    bones.foreach_set("rotation_quaternion", quats.ravel())
-    bones.foreach_set("location", locs.ravel())
-    arm.update_tag(refresh={"DATA"})
+    PoseWriter(arm, anim).write(arm, anim, row)
+
+
+class PoseWriter:
+    """Frames of animations with the bones of `like` (the same names, root and located bones)
+    set on the armature's pose bones: the rows found once, then per frame one foreach_get and one
+    foreach_set per channel, no loop over bones (the live follow writes every frame). The bones'
+    rotation modes become quaternions here."""
+
+    def __init__(self, arm, like: AvatarAnimation):
+        bones = arm.pose.bones
+        index = {pb.name: i for i, pb in enumerate(bones)}
+        self.count = len(bones)
+        self.rows = np.array([index[b] for b in like.bone_names], int)
+        self.root = index[like.root_bone]
+        self.located = {name: index[name] for name in like.bone_locations}
+        self.quats = np.empty((self.count, 4), np.float32)
+        self.locs = np.empty((self.count, 3), np.float32)
+        for name in like.bone_names:
+            if bones[name].rotation_mode != "QUATERNION":
+                bones[name].rotation_mode = "QUATERNION"
+
+    def write(self, arm, anim: AvatarAnimation, row: int = 0) -> None:
+        bones = arm.pose.bones
+        bones.foreach_get("rotation_quaternion", self.quats.ravel())
+        bones.foreach_get("location", self.locs.ravel())
+        self.quats[self.rows] = anim.rotations[row]
+        self.locs[self.root] = anim.root_location[row]
+        for name, i in self.located.items():
+            self.locs[i] = anim.bone_locations[name][row]
+        bones.foreach_set("rotation_quaternion", self.quats.ravel())
+        bones.foreach_set("location", self.locs.ravel())
+        arm.update_tag(refresh={"DATA"})
 
 
 @bpy.app.handlers.persistent

@@ -1,0 +1,261 @@
+"""Live in Blender, driven by the explicit pump (background Blender has no timers): a take sent over
+UDP as VMC frame by frame, its devices as live empties at the sent poses, two avatars following
+with exactly LiveSolver's poses, a take recorded and imported equal to what was sent, Bake Take
+equal to a bake of the saved file done the normal way, and every armature put back exactly as it
+was (after Stop, and in a file saved while following)."""
+
+import importlib
+import time
+
+import bpy
+import numpy as np
+import pytest
+
+from bodycal_addon.blender import calibration_scene, recording_scene
+from bodycal_addon.blender.fcurves import object_fcurves, read_keys
+from bodycal_addon.core import paths
+from bodycal_addon.recording.io import load_recording
+from bodycal_addon.recording.live.sender import RecordingMessages, VmcSender
+from bodycal_addon.recording.live.vmc import AVAILABLE, TIME, bundles, message
+from bodycal_addon.recording.model import Device
+from bodycal_addon.retarget.live import LiveSolver
+from bodycal_dev import synthetic
+
+rigs = paths.sample_rigs()
+live = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.blender.live")  # the extension's state
+F32 = 2.0 ** -23
+
+
+@pytest.fixture(scope="module")
+def take():
+    performer = synthetic.make_performer(seed=3)
+    rec, truth = synthetic.record_session(performer, profile="full", motions=("walk_in_place",),
+                                          calibration=["tpose"], seed=3, motion_seconds=1.0)
+    rec.name = "sent"
+    return rec, truth
+
+
+@pytest.fixture(autouse=True)
+def disconnected():
+    yield
+    live.disconnect()
+
+
+class Stream:
+    """The take sent one frame at a time, each pumped once it has arrived: no frame is dropped,
+    so the test knows what every pump saw."""
+
+    def __init__(self, rec):
+        self.rec, self.messages = rec, RecordingMessages(rec)
+        self.sender = VmcSender("127.0.0.1", live.port())
+        self.updates = []
+
+    def send(self, k: int):
+        msgs = (self.messages.announcements() if k == 0 else []) + self.messages.messages(k, 0.0)
+        self.sender.send(bundles(msgs + [message(AVAILABLE, 1), message(TIME, float(self.rec.time[k]))]))
+        for _ in range(2000):
+            update = live.pump_once()
+            if update is not None:
+                self.updates.append(update)
+                return update
+            time.sleep(0.001)
+        raise AssertionError(f"frame {k} never arrived")
+
+
+def _scene(take, tmp_path):
+    rec, truth = take
+    scene = bpy.context.scene
+    calibration_scene.store_user_model(scene, truth.body_model())
+    a, _mesh, _spec = rigs.build_procedural_avatar()
+    b, _mesh, _spec = rigs.build_procedural_avatar(name="tall", scale=1.1)
+    b.location.x = 1.5
+    for arm in (a, b):  # calibrated as the sidebar does (a bake then reads the stored model, as does Follow)
+        bpy.context.view_layer.objects.active = arm
+        assert bpy.ops.bodycal.calibrate_avatar() == {"FINISHED"}
+    scene.bodycal_retarget.use_filter = False  # the poses compared below are LiveSolver's on the raw frames
+    scene.bodycal_bake.root_motion = "pelvis"
+    scene.bodycal_live.folder = str(tmp_path)
+    scene.bodycal_live.port = 0
+    return a, b
+
+
+def _pose(arm):
+    bones = arm.pose.bones
+    out = {}
+    for name, width in (("rotation_quaternion", 4), ("rotation_euler", 3), ("location", 3), ("scale", 3)):
+        buf = np.empty(len(bones) * width, np.float32)
+        bones.foreach_get(name, buf)
+        out[name] = buf.reshape(-1, width)
+    out["modes"] = [pb.rotation_mode for pb in bones]
+    return out
+
+
+def _same_pose(a, b):
+    assert a["modes"] == b["modes"]
+    for key in ("rotation_quaternion", "rotation_euler", "location", "scale"):
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def _as_user_left_it(arm):
+    """An armature as a user may leave it: an action, a bone in Euler angles, a pose set."""
+    arm.animation_data_create()
+    arm.animation_data.action = bpy.data.actions.new(f"{arm.name}_own")
+    pb = arm.pose.bones[3]
+    pb.rotation_mode = "XYZ"
+    pb.rotation_euler = (0.1, 0.2, 0.3)
+    arm.pose.bones[0].location = (0.01, 0.02, 0.03)
+    return arm.animation_data.action
+
+
+def _follow(arms):
+    for arm in arms:
+        bpy.context.scene.bodycal_bake.armature = arm
+        assert bpy.ops.bodycal.follow_live() == {"FINISHED"}
+    bpy.context.scene.bodycal_bake.armature = None
+
+
+def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_poses(take, tmp_path):
+    rec, truth = take
+    a, b = _scene(take, tmp_path)
+    actions = {arm.name: _as_user_left_it(arm) for arm in (a, b)}
+    before = {arm.name: (_pose(arm), actions[arm.name]) for arm in (a, b)}
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([a, b])
+    stream = Stream(rec)
+    n = 40
+    for k in range(n):
+        stream.send(k)
+    # The empties, named and drawn as the importer's, at the sent poses (OSC carries float32).
+    for i, d in enumerate(rec.devices):
+        obj = bpy.data.objects[f"live.{d.name}"]
+        assert obj.empty_display_type == "ARROWS" and obj[recording_scene.DEVICE_PROP] == d.name
+        assert obj[recording_scene.ROLE_PROP] == (d.role or "")
+        if rec.valid[n - 1, i]:
+            np.testing.assert_allclose(obj.location, rec.positions[n - 1, i], atol=4 * F32 * 2)
+            q = np.array(obj.rotation_quaternion)
+            assert abs(abs(q @ rec.rotations[n - 1, i]) - 1.0) < 1e-6
+    assert live.last_error() == ""
+    # Each armature shows exactly what LiveSolver gives for the same frames.
+    session = live.session()
+    for arm in (a, b):
+        follower = session.followers[arm.name]
+        devices = [Device(d.name, d.kind, d.role) for d in follower.solver.recording.devices]
+        ref = LiveSolver(follower.user, follower.avatar, "egocentric", devices=devices, plant_feet=True)
+        order = {d.name: i for i, d in enumerate(devices)}
+        for update in stream.updates:
+            frame = update.frame
+            pos, rot, valid = np.zeros((len(devices), 3)), np.tile([1.0, 0, 0, 0], (len(devices), 1)), \
+                np.zeros(len(devices), bool)
+            for j, name in enumerate(frame.devices):
+                if name in order:
+                    pos[order[name]], rot[order[name]], valid[order[name]] = frame.positions[j], \
+                        frame.rotations[j], True
+            solved = ref.push(frame.sender_time, pos, rot, valid)
+        assert solved is not None and follower.stats.frames > 0
+        bones = arm.pose.bones
+        rows = [bones.find(n) for n in follower.bone_names]
+        np.testing.assert_allclose(_pose(arm)["rotation_quaternion"][rows], solved.basis[0], atol=2 * F32)
+        root = bones.find(follower.bone_names[ref.solver.rig.root])
+        np.testing.assert_allclose(_pose(arm)["location"][root], solved.root_location[0], atol=1e-6)
+        assert len(follower.stats.latency_ms) == follower.stats.frames and len(live.following()[arm.name].write_ms)
+    # Stop: each armature exactly as it was, its action back.
+    assert bpy.ops.bodycal.stop_following() == {"FINISHED"}
+    for arm in (a, b):
+        pose, action = before[arm.name]
+        _same_pose(_pose(arm), pose)
+        assert arm.animation_data.action == action and arm.animation_data.use_nla
+    assert bpy.ops.bodycal.disconnect_live() == {"FINISHED"}
+    assert not [o for o in bpy.data.objects if o.name.startswith("live.")]
+    assert "BodyCal Live" not in bpy.data.collections
+
+
+def test_a_file_saved_while_following_holds_no_live_pose_and_no_live_empty(take, tmp_path):
+    rec, _truth = take
+    a, _b = _scene(take, tmp_path)
+    _as_user_left_it(a)
+    pose = _pose(a)
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([a])
+    stream = Stream(rec)
+    for k in range(10):
+        stream.send(k)
+    moved = _pose(a)
+    assert not np.array_equal(moved["rotation_quaternion"], pose["rotation_quaternion"])
+    path = tmp_path / "saved.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    stream.send(10)  # following again after the save
+    assert not np.array_equal(_pose(a)["rotation_quaternion"], pose["rotation_quaternion"])
+    assert a.animation_data.action is None
+    with bpy.data.libraries.load(str(path)) as (src, dst):
+        assert not [n for n in src.objects if n.startswith("live.")]
+        assert "BodyCal Live" not in src.collections
+        dst.objects = [a.name]
+    saved = dst.objects[0]
+    _same_pose(_pose(saved), pose)
+    assert saved.animation_data.action is not None and saved.animation_data.action.name.startswith(a.name)
+
+
+def test_record_stop_and_bake_take_equal_the_saved_file_baked_the_normal_way(take, tmp_path):
+    rec, _truth = take
+    a, b = _scene(take, tmp_path)
+    scene = bpy.context.scene
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([a, b])
+    stream = Stream(rec)
+    stream.send(0)
+    assert bpy.ops.bodycal.record_take() == {"FINISHED"}
+    first, last = 1, 45
+    for k in range(first, last):
+        stream.send(k)
+    assert bpy.ops.bodycal.stop_recording() == {"FINISHED"}
+    (path,) = tmp_path.glob("take_*.bcrec.json")
+    saved = load_recording(path, raw=True)
+    sent = rec.window(first, last)
+    assert saved.frame_count == last - first and [d.name for d in saved.devices] == [d.name for d in sent.devices]
+    np.testing.assert_allclose(saved.time, sent.time, rtol=F32)
+    v = sent.valid
+    assert (saved.valid == v).all()
+    np.testing.assert_allclose(saved.positions[v], sent.positions[v], atol=4 * F32 * 2)
+    dots = np.abs(np.einsum("ni,ni->n", saved.rotations[v], sent.rotations[v]))
+    assert dots.min() > 1.0 - 1e-6
+    assert recording_scene.scene_recording_collection(scene) is not None  # imported: Calibrate and bakes see it
+    # Bake Take: onto the avatars that followed (they stop following first).
+    scene.bodycal_bake.tolerance = 0.0
+    assert bpy.ops.bodycal.bake_take() == {"FINISHED"}
+    assert not live.following()
+    live_action = a.animation_data.action
+    assert live_action is not None and b.animation_data.action is not None
+    ours = {key: read_keys(fc) for key, fc in object_fcurves(a).items()}
+    # The same file imported and baked the normal way.
+    assert bpy.ops.bodycal.import_recording(filepath=str(path)) == {"FINISHED"}
+    scene.bodycal_bake.armature = a
+    scene.bodycal_retarget.method = scene.bodycal_live.method
+    assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
+    normal = a.animation_data.action
+    assert normal != live_action
+    theirs = {key: read_keys(fc) for key, fc in object_fcurves(a).items()}
+    assert ours.keys() == theirs.keys()
+    for key in ours:
+        for x, y in zip(ours[key], theirs[key], strict=True):
+            np.testing.assert_array_equal(x, y, err_msg=str(key))
+
+
+def test_what_cannot_work_is_one_line(take, tmp_path):
+    a, _b = _scene(take, tmp_path)
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    port = live.port()
+    live.disconnect()
+    from bodycal_addon.recording.live.receiver import VmcReceiver
+
+    with VmcReceiver(port):  # another receiver on the port: refused in one line
+        bpy.context.scene.bodycal_live.port = port
+        with pytest.raises(RuntimeError, match="in use"):
+            bpy.ops.bodycal.connect_live()
+    assert not live.connected()
+    bpy.context.scene.bodycal_live.port = 0
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    del bpy.context.scene[calibration_scene.MODEL_PROP]
+    bpy.context.scene.bodycal_bake.armature = a
+    with pytest.raises(RuntimeError, match="no performer calibrated"):
+        bpy.ops.bodycal.follow_live()
+    assert not live.following()
