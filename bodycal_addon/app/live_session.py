@@ -158,6 +158,7 @@ class LiveSession:
         self._first_frame: dict[str, int] = {}
         self._arrivals: dict[str, deque] = {}
         self._stream_frames = 0
+        self.recording_from = 0  # frames_seen when the recording started
         self.last_frame: LiveFrame | None = None
         source.add_sink(self._on_frame)
 
@@ -192,6 +193,11 @@ class LiveSession:
             recorder = self.recorder
         if recorder is not None:
             recorder(frame)
+
+    @property
+    def frames_seen(self) -> int:
+        """Frames the source made since the session started (every one reached the sink)."""
+        return self._stream_frames
 
     @property
     def kinds(self) -> dict[str, str]:
@@ -252,6 +258,7 @@ class LiveSession:
             recorder.kinds.update(self._kinds)  # devices announced before: their kinds and roles
             recorder.announced_roles.update(self._announced)
             self.recorder = recorder
+            self.recording_from = self._stream_frames
         return recorder
 
     def stop_recording(self):

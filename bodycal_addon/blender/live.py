@@ -53,7 +53,8 @@ class Following:
     writer: preview.PoseWriter | None = None
     rest: object = None  # output.root_motion.RootRest, read at the first write
     first: AvatarAnimation | None = None  # the first solved frame: in-place root motion holds its spot
-    write_ms: deque = field(default_factory=lambda: deque(maxlen=512))
+    write_ms: deque = field(default_factory=lambda: deque(maxlen=512))  # root motion + the pose write, wall clock
+    write_cpu_ms: deque = field(default_factory=lambda: deque(maxlen=512))  # the same, this thread's CPU time
 
 
 class _State:
@@ -242,9 +243,10 @@ def pump_once() -> LiveUpdate | None:
             _state.following.pop(name, None)
             live.unfollow(name)
             continue
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         _write(f, arm, live.followers[name], solved, update)
         done = time.perf_counter()
+        f.write_cpu_ms.append((time.thread_time() - c0) * 1000.0)
         f.write_ms.append((done - t0) * 1000.0)
         live.posed(update, name, done)
     _tag_redraw()

@@ -259,3 +259,25 @@ def test_what_cannot_work_is_one_line(take, tmp_path):
     with pytest.raises(RuntimeError, match="no performer calibrated"):
         bpy.ops.bodycal.follow_live()
     assert not live.following()
+
+
+def test_the_live_panel_shows_connect_then_the_devices_and_each_followers_figures(take, tmp_path):
+    import ui_layout
+
+    rec, _truth = take
+    a, _b = _scene(take, tmp_path)
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)
+    assert ("operator", "bodycal.connect_live") in [e[:2] for e in log]
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([a])
+    stream = Stream(rec)
+    for k in range(5):
+        stream.send(k)
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)
+    labels = " | ".join(e[1] for e in log if e[0] == "label")
+    assert f"Listening on 127.0.0.1:{live.port()}" in labels
+    for d in rec.devices:  # every device's row: name, kind and role
+        assert d.name in labels and f"{d.kind}, {d.role}" in labels
+    assert f"{a.name}: write" in labels and "latency" in labels
+    ops = [e[1] for e in log if e[0] == "operator"]
+    assert {"bodycal.disconnect_live", "bodycal.stop_following", "bodycal.record_take", "bodycal.bake_take"} <= set(ops)
