@@ -1,7 +1,8 @@
 """An armature as it was, to put back exactly: every pose bone's rotation mode and values (all three
 rotation kinds, location, scale) and what animates it (the action, its slot on Blender 4.4+, and
 whether the NLA is evaluated). Used by the live follow (live.py), which sets pose values the
-action would otherwise overwrite on the next frame change (DESIGN.md "Live session").
+action would otherwise overwrite on the next frame change (DESIGN.md "Live session in Blender"),
+and by the timeline preview (preview.py), which puts back the pose only.
 
 Modes are put back before the values: setting `rotation_mode` converts the current rotation into
 the new kind, so the saved values of every kind are written once the mode is back."""
@@ -48,7 +49,11 @@ class PoseState:
             ad.use_nla = False
 
     def restore(self, arm) -> None:
-        """The armature exactly as captured (bones added since are left alone)."""
+        """The armature exactly as captured: what animates it and its pose."""
+        self.restore_animation(arm)
+        self.restore_pose(arm)
+
+    def restore_animation(self, arm) -> None:
         ad = arm.animation_data
         if ad is None and self.had_animation_data:
             ad = arm.animation_data_create()
@@ -61,6 +66,9 @@ class PoseState:
             ad.use_nla = self.use_nla
             if not self.had_animation_data:
                 arm.animation_data_clear()
+
+    def restore_pose(self, arm) -> None:
+        """The pose bones' modes and values as captured (bones added since are left alone)."""
         bones = arm.pose.bones
         if [pb.name for pb in bones] == self.bones:
             for pb, mode in zip(bones, self.modes, strict=True):

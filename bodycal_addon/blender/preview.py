@@ -12,7 +12,7 @@ the preview never ends up in the file).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
@@ -23,6 +23,7 @@ from ..core.errors import BodyCalError
 from ..retarget.pipeline import PreparedTake
 from ..retarget.takes import Take
 from . import avatar_rig, rig_output
+from .pose_state import PoseState
 from .session import Settings, Target
 
 # A preview rebuilds itself when what it was made from changes. What it was made from (the scene's
@@ -44,7 +45,7 @@ class Preview:
     prepared: PreparedTake
     root_motion: str
     key: tuple
-    saved: dict[str, tuple] = field(default_factory=dict)  # pose bone -> (rotation mode, quaternion, location)
+    saved: PoseState | None = None  # the pose as it was (modes and every rotation kind's values)
     first: AvatarAnimation | None = None  # the take's first sample: in-place root motion holds its spot
     solve_ms: float = 0.0  # the last frame's solve and write
 
@@ -70,8 +71,7 @@ def start(arm, take: Take, target: Target, settings: Settings, root_motion: str,
     stop(arm.name)
     pv = Preview(arm.name, take, target, prepared, root_motion, key)
     pv.first = prepared.solve(0, 1)
-    for pb in arm.pose.bones:
-        pv.saved[pb.name] = (pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location))
+    pv.saved = PoseState.capture(arm)
     _active[arm.name] = pv
     show(pv, bpy.context.scene)
     return pv
@@ -95,11 +95,7 @@ def _put_back(pv: Preview) -> None:
     arm = bpy.data.objects.get(pv.armature)
     if arm is None or arm.type != "ARMATURE":
         return
-    for pb in arm.pose.bones:
-        saved = pv.saved.get(pb.name)
-        if saved is not None:
-            pb.rotation_mode, pb.rotation_quaternion, pb.location = saved
-    arm.update_tag(refresh={"DATA"})
+    pv.saved.restore_pose(arm)
 
 
 def sample_at(pv: Preview, frame: float) -> int:
