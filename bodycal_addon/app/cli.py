@@ -155,6 +155,13 @@ def _live_commands(sub) -> None:
                    help="a device's role (its serial = head, hand_l, pelvis, ...); devices without one get theirs "
                         "from the T-pose when the file is read")
     c.add_argument("--name", metavar="NAME", help="the recording's name (default: the file's)")
+    c.add_argument("--wizard", action="store_true",
+                   help="run the calibration steps with the performer: each step's instruction, its progress, "
+                        "ended by itself once enough data is in; the take ends after the last step")
+    c.add_argument("--pause", type=float, default=3.0, metavar="S",
+                   help="--wizard: seconds between a step's instruction and its start (default 3)")
+    c.add_argument("--step-timeout", type=float, default=None, metavar="S",
+                   help="--wizard: skip a step not done after S seconds (default: wait, Ctrl-C ends the take)")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("stream", help="send a recording, or the avatar retargeted from it, as a VMC stream in real "

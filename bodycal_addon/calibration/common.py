@@ -10,7 +10,7 @@ import numpy as np
 
 from ..core import transforms as tf
 from ..core.errors import BodyCalError
-from ..core.geometry import robust_mean
+from ..core.geometry import robust_mean, running_median
 from ..recording.led_gloves import led_hand_frame
 from ..recording.model import ROLES_LIST, Recording, Segment
 
@@ -30,17 +30,6 @@ def side_of(name: str) -> str | None:
     if name.endswith("_r"):
         return "r"
     return None
-
-
-def running_median(x: np.ndarray, w: int) -> np.ndarray:
-    """Centred running median over the leading axis (edges padded with the end values)."""
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    if len(x) < w:
-        return np.repeat(np.median(x, axis=0, keepdims=True), len(x), axis=0)
-    pad = w // 2
-    xp = np.concatenate([np.repeat(x[:1], pad, 0), x, np.repeat(x[-1:], pad, 0)])
-    return np.median(sliding_window_view(xp, w, axis=0), axis=-1)
 
 
 def glitch_frames(pos: np.ndarray, valid: np.ndarray, fps: float) -> np.ndarray:

@@ -19,9 +19,9 @@ import numpy as np
 
 from ..core import transforms as tf
 from ..core.errors import BodyCalError
-from ..core.geometry import robust_mean
+from ..core.geometry import robust_mean, running_median
 from ..recording.model import ROLES_LIST, Segment
-from .common import Session, State, other, running_median, side_of
+from .common import Session, State, other, side_of
 
 STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still
 STILL_MIN_S = 0.2  # the touch must hold still this long (or half the segment, if shorter)

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .errors import BodyCalError
 from .transforms import EPS, matrix_to_quat, quat_angle, quat_conj, quat_mul, quat_normalize
@@ -248,9 +249,10 @@ def _sphere_lsq(p: np.ndarray) -> tuple[np.ndarray, float, float]:
     return m + s * centre, float(s * np.sqrt(max(r2, 0.0))), inv_cond
 
 
-def _swing_deg(rel: np.ndarray) -> tuple[float, float]:
+def swing_deg(rel: np.ndarray) -> tuple[float, float]:
     """Angular extent of directions from a centre along their two principal tangent directions
-    (major, minor), from the 2nd to the 98th percentile so single outliers do not count."""
+    (major, minor), from the 2nd to the 98th percentile so single outliers do not count (the sphere
+    fit's check, and the live wizard's swing progress, recording/live/wizard.py)."""
     u = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), EPS)
     mean = u.mean(axis=0)
     mean /= max(np.linalg.norm(mean), EPS)
@@ -288,7 +290,7 @@ def fit_sphere(points, *, name: str = "sphere", robust: bool = True, passes: int
     if len(q) > 4:
         r = float(dist.mean())  # Delahaye 2023: radius = mean distance to the centre
     rms = float(np.sqrt(np.mean((dist - r) ** 2)))
-    major, minor = _swing_deg(q - centre) if len(q) > 4 else (None, None)
+    major, minor = swing_deg(q - centre) if len(q) > 4 else (None, None)
     fit = SphereFit("sphere", rms, int(keep.sum()), len(p), inv_cond, keep, major, center=centre, radius=r)
     if len(q) > 4:
         if major < min_swing_deg:
@@ -517,3 +519,13 @@ def robust_mean(points, *, name: str = "points", minimum: int = 1) -> tuple[np.n
     if keep.sum() == 0:
         keep[:] = True
     return p[keep].mean(axis=0), keep
+
+
+def running_median(x: np.ndarray, w: int) -> np.ndarray:
+    """Centred running median over the leading axis (edges padded with the end values): the
+    calibration's glitch and touch filters, and the live wizard's speeds."""
+    if len(x) < w:
+        return np.repeat(np.median(x, axis=0, keepdims=True), len(x), axis=0)
+    pad = w // 2
+    xp = np.concatenate([np.repeat(x[:1], pad, 0), x, np.repeat(x[-1:], pad, 0)])
+    return np.median(sliding_window_view(xp, w, axis=0), axis=-1)

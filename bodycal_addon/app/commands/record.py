@@ -1,9 +1,16 @@
 """`bodycal record [--port N] [--bind ADDRESS] [--duration S] [--role NAME=ROLE ...] [--name NAME]
--o TAKE.bcrec.json|.csv [--overwrite]` (FORMATS.md §6.2): a live VMC stream into a recording.
+[--wizard [--pause S] [--step-timeout S]] -o TAKE.bcrec.json|.csv [--overwrite]` (FORMATS.md §6.2): a
+live VMC stream into a recording.
 
 Listens until Ctrl-C (or SIGTERM), or until the take is `--duration` seconds long; either way the
 file is written whole, then exit 0. A progress line every PROGRESS_S: the take's length, frames,
-rate, devices seen and tracked now, markers, and what the receiver skipped."""
+rate, devices seen and tracked now, markers, and what the receiver skipped.
+
+With `--wizard`, the calibration steps the devices allow are run with the performer
+(recording/live/wizard.py): each step's instruction is printed, it begins `--pause` seconds later
+(the take's clock), its progress line follows, and it ends by itself once enough data is in (or is
+skipped after `--step-timeout`); the take ends when the last step is done and is saved with the
+steps as its segments."""
 
 from __future__ import annotations
 
@@ -62,6 +69,11 @@ def run(args) -> int:
     check_port(args.port)
     if args.duration is not None and not args.duration > 0:
         raise BodyCalError(f"{args.duration:g} is not a positive number of seconds", field="--duration")
+    if getattr(args, "wizard", False):
+        if not args.pause >= 0:
+            raise BodyCalError(f"{args.pause:g} is not a number of seconds", field="--pause", hint="give 0 or more")
+        if args.step_timeout is not None and not args.step_timeout > 0:
+            raise BodyCalError(f"{args.step_timeout:g} is not a positive number of seconds", field="--step-timeout")
     overwrite = getattr(args, "overwrite", False)
     for target in ([out, out.with_suffix(".json")] if out.suffix.lower() == ".csv" else [out]):
         check_output(target, overwrite=overwrite)  # before listening: a bad path costs no take
@@ -72,7 +84,10 @@ def run(args) -> int:
         receiver.start()
         try:
             console.say(f"listening for VMC on {args.bind}:{receiver.port}; Ctrl-C ends the recording")
-            _record(recorder, receiver, stop)
+            if getattr(args, "wizard", False):
+                _record_wizard(recorder, receiver, stop, args.pause, args.step_timeout)
+            else:
+                _record(recorder, receiver, stop)
         finally:
             receiver.stop()
     return _save(recorder, receiver, out, overwrite)
@@ -88,6 +103,71 @@ def _record(recorder, receiver, stop: threading.Event) -> None:
             console.status(_progress(recorder, receiver, rate))
         if receiver.stats.sink_error:
             raise BodyCalError(f"recording failed: {receiver.stats.sink_error}")
+
+
+WIZARD_POLL_S = 1.0 / 30.0  # the wizard's update rate (a UI timer's)
+
+
+def _record_wizard(recorder, receiver, stop: threading.Event, pause: float, step_timeout: float | None) -> None:
+    """The calibration wizard over the stream (module docstring): waits for the first frame (the
+    roles and markers a BodyCal sender announces come with it), then runs every step."""
+    from ...recording.live.wizard import LiveWizard
+
+    while not stop.wait(WIZARD_POLL_S) and not recorder.frames:
+        if receiver.stats.sink_error:
+            raise BodyCalError(f"recording failed: {receiver.stats.sink_error}")
+    if not recorder.frames:
+        return
+    wizard = LiveWizard(recorder, _known_roles(recorder), recorder.marker_names, auto=True, auto_begin_s=pause)
+    console.say(f"calibration wizard: {len(wizard.steps)} steps for {len(recorder.names)} devices and "
+                f"{len(recorder.marker_names)} markers")
+    shown, last_status, began = -1, 0.0, None
+    while not wizard.finished and not stop.wait(WIZARD_POLL_S) and not recorder.full.is_set():
+        if receiver.stats.sink_error:
+            raise BodyCalError(f"recording failed: {receiver.stats.sink_error}")
+        if wizard.index != shown:
+            shown, step = wizard.index, wizard.current
+            console.say(f"step {shown + 1}/{len(wizard.steps)} {step.title}: {step.instruction} "
+                        f"(begins in {pause:g} s)")
+        index = wizard.index
+        progress = wizard.update()
+        if wizard.active and began is None:
+            began = recorder.now
+        if wizard.index != index:  # the step ended by itself
+            seg = wizard.segments.get(index)
+            console.say(f"  done: {progress.figure}" + (f" ({seg.end - seg.start:.2f} s kept)" if seg else ""))
+            began = None
+            if wizard.steps[index].step == "tpose":
+                _roles_from_the_tpose(recorder, wizard)
+        elif wizard.active and step_timeout is not None and recorder.now - began > step_timeout:
+            console.warn("record", f"{wizard.current.title} skipped: not done after {step_timeout:g} s "
+                                   f"({progress.figure if progress else 'no progress'})")
+            wizard.skip_step()
+            began = None
+        elif progress is not None and time.perf_counter() - last_status >= 0.5:
+            last_status = time.perf_counter()
+            console.status(f"  {wizard.status_line()}")
+    console.say(wizard.status_line())
+
+
+def _known_roles(recorder) -> dict[str, str]:
+    """Device name -> role: the user's, else what the stream announced, else found from the T-pose."""
+    return {n: r for n in recorder.names if (r := recorder.user_roles.get(n) or recorder.announced_roles.get(n)
+                                             or recorder.identified_roles.get(n))}
+
+
+def _roles_from_the_tpose(recorder, wizard) -> None:
+    """Devices without a role get theirs from the T-pose just recorded; the steps are planned again."""
+    if all(n in _known_roles(recorder) for n in recorder.names):
+        return
+    try:
+        found = recorder.identify_roles()
+    except BodyCalError as exc:
+        console.warn("record", f"roles not found from the T-pose: {exc.line()}")
+        return
+    if found:
+        console.say("  roles from the T-pose: " + ", ".join(f"{n}={r}" for n, r in found.items()))
+        wizard.replan(_known_roles(recorder), recorder.marker_names)
 
 
 def _progress(recorder, receiver, rate: float) -> str:

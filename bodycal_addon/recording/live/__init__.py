@@ -7,6 +7,9 @@
   parser that turns datagrams into frames, the message builders, Unity's axes.
 - `receiver.py`: `VmcReceiver`, a UDP receiver on its own thread.
 - `recorder.py`: `LiveRecorder`, every frame of a source into a Recording (FORMATS.md §2).
+- `wizard.py`: `LiveWizard`, the calibration steps run with a performer while the recorder records:
+  the steps the devices allow, their instructions, auto-completion; `progress.py`: how far a step
+  is, measured on the frames since it began against what the offline fit needs.
 - `sender.py`: `VmcSender` and `replay`, a Recording sent as a VMC stream in real time.
 - `buffer.py`: `LiveRecording`, an append-only Recording a stream fills for the live solve
   (retarget/live.py); numpy only.

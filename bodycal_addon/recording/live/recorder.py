@@ -18,6 +18,7 @@ import os
 import shutil
 import tempfile
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,25 @@ from .source import LiveFrame
 from .vmc import check_segment
 
 MIN_STEP_S = 1e-6  # frames closer than this in time (one datagram ending two frames) are spaced by it
+
+
+@dataclass
+class RecentFrames:
+    """Frames of a recording in progress (`LiveRecorder.frames_since`): arrays with a leading frame
+    axis over the devices `names` and the markers `marker_names` known when it was taken."""
+
+    time: np.ndarray  # (F,) seconds, the recording's clock
+    names: list[str]
+    positions: np.ndarray  # (F, D, 3)
+    rotations: np.ndarray  # (F, D, 4) w, x, y, z (meaningless where not valid)
+    valid: np.ndarray  # (F, D)
+    marker_names: list[str]
+    points: np.ndarray  # (F, M, 3)
+    points_valid: np.ndarray  # (F, M)
+
+    @property
+    def count(self) -> int:
+        return len(self.time)
 
 
 class _Grow:
@@ -184,18 +204,62 @@ class LiveRecorder:
         self._open = (step, point, by, start)
         return start
 
-    def mark_segment_end(self) -> Segment:
-        """The open step ends now; one BodyCalError when none is open or it holds no time."""
+    def mark_segment_end(self, start: float | None = None) -> Segment:
+        """The open step ends now; with `start` (a time after the marked one), it is kept from then
+        (the wizard keeps a hold's still stretch only). One BodyCalError when none is open or it
+        holds no time."""
         if self._open is None:
             raise BodyCalError("no calibration step is open", hint="mark its start first")
-        step, point, by, start = self._open
+        step, point, by, marked = self._open
         self._open = None
-        return self.add_segment(check_segment(step, point, by, start, self.now))
+        return self.add_segment(check_segment(step, point, by, marked if start is None else max(marked, start),
+                                              self.now))
 
     def add_segment(self, segment: Segment) -> Segment:
         with self._lock:
             self.segments.append(segment)
         return segment
+
+    @property
+    def open_segment(self) -> tuple[str, str | None, str | None, float] | None:
+        """The step marked started and not yet ended: (step, point, by, start), else None."""
+        return self._open
+
+    def cancel_segment(self) -> None:
+        """Forget the open step, if any (no segment is kept: the wizard's skip and redo)."""
+        self._open = None
+
+    def remove_segment(self, segment: Segment) -> bool:
+        """Drop one kept segment (the very object `add_segment` or `mark_segment_end` returned);
+        False when it is not there."""
+        with self._lock:
+            for k, s in enumerate(self.segments):
+                if s is segment:
+                    del self.segments[k]
+                    return True
+        return False
+
+    # --- reading while recording ---------------------------------------------------------------
+
+    def frames_since(self, start: float, *, max_frames: int | None = None) -> RecentFrames:
+        """Copies of the frames recorded at or after `start` (the recording's clock), for a consumer
+        that looks at the data while the take goes on (the calibration wizard, wizard.py). Only
+        those frames are copied (the first is found by bisection), so the cost follows the window,
+        never the take's length; with `max_frames`, a longer window is thinned evenly to that many
+        (its first and last frames kept)."""
+        with self._lock:
+            n, d, m = self.frames, len(self.names), len(self.marker_names)
+            first = int(np.searchsorted(self._times[:n], start, side="left"))
+            if max_frames is not None and n - first > max_frames:
+                rows = np.unique(np.linspace(first, n - 1, max(int(max_frames), 2)).round().astype(int))
+            else:
+                rows = slice(first, n)
+            dev = [g.ensure(n, d)[:n, :d][rows] for g in (self._pos, self._rot, self._valid)]
+            mark = [g.ensure(n, m)[:n, :m][rows] for g in (self._pts, self._pvalid)]
+            # fancy indexing (thinned rows) copies already; a slice is a view: copy it
+            dev, mark = ([a.copy() if isinstance(rows, slice) else a for a in grp] for grp in (dev, mark))
+            return RecentFrames(self._times[:n][rows].copy(), list(self.names), *dev, list(self.marker_names),
+                                *mark)
 
     # --- the result --------------------------------------------------------------------------------
 

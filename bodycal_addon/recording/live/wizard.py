@@ -1,0 +1,427 @@
+"""`LiveWizard`: the calibration steps (FORMATS.md §2.4) run with a performer, live (DESIGN.md
+"Live calibration wizard"). numpy only, no bpy: the Blender Live panel and `bodycal record
+--wizard` drive the same object.
+
+The wizard lists the steps the devices (by role) and the markers allow, in protocol order, each
+with an instruction the operator reads aloud. `begin` opens the current step's segment on the
+recorder (`LiveRecorder.mark_segment_start`); `update`, called at any rate, reads the frames
+recorded since the step began (`LiveRecorder.frames_since`: only those, thinned to a fixed count
+for the long steps, so a call costs the same early and late in a session) and measures progress
+toward what the offline fit of the step needs (progress.py: holds, palms together, touches held,
+the hinge's arc, the swing's extent and how well it pins the joint's centre).
+
+With `auto`, a step whose progress is done ends by itself; a hold step then keeps only the still
+stretch (its middle is the reference pose, calibration/common.py). The next step begins only
+when the consumer calls `begin`, or by itself `auto_begin_s` seconds (recording clock) after the
+previous ended when that is given: the operator must have time to read the instruction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ...body import surface_layout as sl
+from ...body.skeleton import FINGERS
+from ...core.errors import BodyCalError
+from ..model import Segment
+from .progress import (
+    HOLD_S,
+    HOLD_WINDOW_S,
+    MAX_FIT_FRAMES,
+    PREROLL_S,
+    STILL_MIN_S,
+    StepProgress,
+    flex_progress,
+    hold_figure,
+    hold_progress,
+    palms_progress,
+    relative_motion,
+    swing_progress,
+    touch_progress,
+)
+
+if TYPE_CHECKING:  # the recorder reads VMC's segments with python-osc; the wizard runs without it
+    from .recorder import LiveRecorder, RecentFrames
+
+__all__ = ["LiveWizard", "StepProgress", "WizardStep", "plan_steps"]
+
+TRUNK = ("chest", "pelvis", "head")
+SIDE_WORD = {"l": "left", "r": "right"}
+HEAD_POINTS = sl.JAW_POINTS + sl.SKULL_POINTS + ("skull_base_l", "skull_base_r")  # calibration/touches.py's
+TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")  # calibration/touches.py TORSO_LOW
+
+
+def _touch_protocol() -> tuple[tuple[str, str], ...]:
+    """(point, toucher) in the protocol's order (the sample take's, FORMATS.md §2.4): each hand by
+    the other index tip, the arms, the legs, the head, then the torso by a palm."""
+    out = []
+    for s, o in (("l", "r"), ("r", "l")):
+        out += [(f"wrist_top_{s}", f"index_tip_{o}"), (f"wrist_bottom_{s}", f"index_tip_{o}")]
+        out += [(f"mcp_{f}_{s}", f"index_tip_{o}") for f in FINGERS]
+        out += [(f"palm_{k}_{s}", f"index_tip_{o}") for k in range(1, 5)]
+    for s, o in (("l", "r"), ("r", "l")):
+        out += [(f"{p}_{s}", f"index_tip_{o}") for p in ("elbow_in", "elbow_out", "shoulder_front", "shoulder_back")]
+    for s, o in (("l", "r"), ("r", "l")):
+        out += [(f"{p}_{s}", f"index_tip_{o}") for p in ("hip_front", "hip_back", "knee_in", "knee_out", "ankle_in",
+                                                         "ankle_out", "sole_1", "sole_2", "sole_3", "sole_4")]
+    out += [(p, "index_tip_l" if p.endswith("_r") else "index_tip_r") for p in HEAD_POINTS]
+    out += [(p, "palm_l" if p == "chest_r" else "palm_r") for p in sl.TORSO_POINTS]
+    return tuple(out)
+
+
+TOUCH_PROTOCOL = _touch_protocol()
+MOTION_STEPS = ("flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r", "swing_shoulder_l", "swing_shoulder_r",
+                "swing_hip_l", "swing_hip_r")
+
+
+@dataclass(frozen=True)
+class WizardStep:
+    step: str  # FORMATS §2.4 step name
+    point: str | None  # touch: the body point
+    by: str | None  # touch: the touching marker / device tip
+    title: str  # short, e.g. "Flex the left elbow"
+    instruction: str  # one or two sentences the operator reads aloud to the performer
+
+    @property
+    def label(self) -> str:
+        return ":".join(p for p in (self.step, self.point, self.by) if p)
+
+
+# --- which steps the devices allow --------------------------------------------------------------------
+
+
+def _first(have, names) -> str | None:
+    return next((n for n in names if n in have), None)
+
+
+def motion_pair(step: str, have) -> tuple[str, str] | None:
+    """(frame role, point role): the device whose origin a flex / swing step's fit follows in the
+    other's frame, as the calibration fits it (calibration/limbs.py): the limb's own trackers, else
+    the end device (hand / foot) in the trunk's frame; None when the roles present cannot give it."""
+    kind, joint, s = step.split("_")
+    if kind == "flex" and joint == "elbow":
+        if f"forearm_{s}" in have:
+            other = f"upperarm_{s}" if f"upperarm_{s}" in have else _first(have, TRUNK)
+            return (f"forearm_{s}", other) if other else None
+        trunk = _first(have, TRUNK)
+        return (trunk, f"hand_{s}") if trunk and f"hand_{s}" in have else None
+    if kind == "flex":  # knee
+        if f"shin_{s}" in have:
+            other = f"thigh_{s}" if f"thigh_{s}" in have else _first(have, ("pelvis",))
+            return (f"shin_{s}", other) if other else None
+        return ("pelvis", f"foot_{s}") if "pelvis" in have and f"foot_{s}" in have else None
+    if joint == "shoulder":
+        if f"upperarm_{s}" in have:
+            root = _first(have, ("chest", "pelvis"))
+            return (f"upperarm_{s}", root) if root else None
+        trunk = _first(have, TRUNK)
+        return (trunk, f"hand_{s}") if trunk and f"hand_{s}" in have else None
+    if f"thigh_{s}" in have:  # hip
+        return (f"thigh_{s}", "pelvis") if "pelvis" in have else None
+    return ("pelvis", f"foot_{s}") if "pelvis" in have and f"foot_{s}" in have else None
+
+
+def touched_role(point: str, have) -> str | None:
+    """The device a touched point rides on (mirrors calibration/touches.touched_role, which a test
+    keeps in step), or None when it is not present."""
+    s = point[-1] if point[-2:] in ("_l", "_r") else None
+    if point.startswith(("wrist_", "mcp_", "palm_")):
+        role = f"hand_{s}"
+    elif point.startswith(("sole_", "ankle_")):
+        role = f"foot_{s}"
+    elif point.startswith("elbow_"):
+        role = f"forearm_{s}" if f"forearm_{s}" in have else f"hand_{s}"
+    elif point.startswith("knee_"):
+        role = f"shin_{s}" if f"shin_{s}" in have else f"foot_{s}"
+    elif point.startswith("shoulder_"):
+        role = f"upperarm_{s}" if f"upperarm_{s}" in have else ("chest" if "chest" in have else "pelvis")
+    elif point.startswith("hip_"):
+        role = f"thigh_{s}" if f"thigh_{s}" in have else "pelvis"
+    elif point in HEAD_POINTS:
+        role = "head"
+    elif point in TORSO_LOW:
+        role = "pelvis" if "pelvis" in have else "chest"
+    else:
+        role = "chest" if "chest" in have else "pelvis"
+    return role if role in have else None
+
+
+def palm_pairs(markers) -> list[str]:
+    """The glove markers present on both hands (calibration/hands.py palms_together needs three)."""
+    names = [f"hand_led{k}" for k in (1, 2, 3)] + [f"{f}_tip" for f in FINGERS]
+    return [n for n in names if f"{n}_l" in markers and f"{n}_r" in markers]
+
+
+def plan_steps(roles: Sequence[str], markers: Sequence[str] = ()) -> list[WizardStep]:
+    """The steps the device roles and markers allow, in protocol order (module docstring)."""
+    have, markers = set(roles), set(markers)
+    steps = [_step("tpose"), _step("stand")]
+    palms = len(palm_pairs(markers)) >= 3 and {"hand_l", "hand_r"} <= have
+    if palms:
+        steps.append(_step("palms_together"))
+    steps += [_step(s) for s in MOTION_STEPS if motion_pair(s, have)]
+    for point, by in TOUCH_PROTOCOL:
+        if touched_role(point, have) is None:
+            continue
+        if by.startswith("palm_") and not (palms and f"hand_{by[-1]}" in have):
+            continue  # the palm centre comes from palms_together (calibration/touches.by_track)
+        if not by.startswith("palm_") and by not in markers:
+            continue
+        steps.append(_step("touch", point, by))
+    return steps
+
+
+_TITLES = {"tpose": ("T-pose", "Stand straight, arms out to the sides at shoulder height, palms down, and hold "
+                     "still."),
+           "stand": ("Stand", "Stand relaxed, arms hanging by your sides, feet hip-width apart, and hold still."),
+           "palms_together": ("Palms together", "Press your palms flat together in front of your chest, "
+                              "fingers straight, and keep them together.")}
+
+
+# How the operator names a touched point ({side}: the performer's left / right).
+_POINT_WORDS = {
+    "wrist_top": "the top of your {side} wrist", "wrist_bottom": "the inside of your {side} wrist",
+    "elbow_in": "the inner side of your {side} elbow", "elbow_out": "the outer side of your {side} elbow",
+    "shoulder_front": "the front of your {side} shoulder", "shoulder_back": "the back of your {side} shoulder",
+    "hip_front": "the front of your {side} hip", "hip_back": "the back of your {side} hip",
+    "knee_in": "the inner side of your {side} knee", "knee_out": "the outer side of your {side} knee",
+    "ankle_in": "your {side} inner ankle bone", "ankle_out": "your {side} outer ankle bone",
+    "ear": "your {side} ear", "jaw": "the corner of your {side} jaw", "chest": "the {side} side of your chest",
+    "skull_base": "the base of your skull, {side} side", "upper_lip": "your upper lip", "chin": "your chin",
+    "skull_top": "the top of your head", "skull_left": "the left side of your head",
+    "skull_right": "the right side of your head", "skull_back": "the back of your head", "sternum": "your sternum",
+    "belly_ul": "your belly, upper left", "belly_ur": "your belly, upper right", "belly_ll": "your belly, lower left",
+    "belly_lr": "your belly, lower right", "back_ul": "your upper back, left", "back_ur": "your upper back, right",
+    "back_low": "your lower back",
+}
+
+
+def point_words(point: str) -> str:
+    """A touched point as the operator says it: `mcp_index_l` -> "your left index knuckle"."""
+    side = SIDE_WORD.get(point[-1]) if point[-2:] in ("_l", "_r") else None
+    base = point[:-2] if side else point
+    if base.startswith("mcp_"):
+        return f"your {side} {base[4:]} knuckle"
+    for part in ("palm", "sole", "belly_c"):
+        if base.startswith(part) and base[len(part):].lstrip("_").isdigit():
+            where = {"palm": f"your {side} palm", "sole": f"the sole of your {side} foot",
+                     "belly_c": "the middle of your belly"}[part]
+            return f"{where}, point {base[len(part):].lstrip('_')}"
+    return _POINT_WORDS.get(base, point.replace("_", " ")).format(side=side)
+
+
+def _step(step: str, point: str | None = None, by: str | None = None) -> WizardStep:
+    if step in _TITLES:
+        return WizardStep(step, None, None, *_TITLES[step])
+    if step == "touch":
+        where = point_words(point)
+        if by.startswith("palm_"):
+            finger = f"the palm of your {SIDE_WORD[by[-1]]} hand"
+        elif "_tip_" in by:
+            name, side = by.split("_tip_")
+            finger = f"your {SIDE_WORD.get(side, side)} {name} fingertip"
+        else:
+            finger = by.replace("_", " ")
+        title = "Touch " + where.replace("your ", "the ", 1)
+        return WizardStep(step, point, by, title, f"Put {finger} on {where} and hold it there for a moment.")
+    kind, joint, s = step.split("_")
+    side = SIDE_WORD[s]
+    if kind == "flex":
+        limb = "upper arm" if joint == "elbow" else "thigh"
+        text = (f"Keep your {side} {limb} still and bend your {side} {joint} as far as it goes, then straighten it, "
+                "two or three times.")
+        return WizardStep(step, None, None, f"Flex the {side} {joint}", text)
+    limb = "arm" if joint == "shoulder" else "leg"
+    text = (f"Keep your {side} {limb} straight and swing it from the {joint} forward and back, then out to the "
+            "side and around in a wide circle; keep the rest of the body still.")
+    return WizardStep(step, None, None, f"Swing the {side} {joint}", text)
+
+
+# --- the wizard ------------------------------------------------------------------------------------------
+
+
+class LiveWizard:
+    """The calibration steps with a performer (module docstring). `roles`: device name -> role (the
+    user's, or what the stream announced); `markers`: the marker names the stream has (touch steps
+    and palms_together need them). With `auto`, a step ends by itself once its progress is done;
+    with `auto_begin_s`, the next step begins by itself that many seconds after the previous ended
+    (recording clock), else when `begin` is called."""
+
+    def __init__(self, recorder: LiveRecorder, roles: dict[str, str], markers: Sequence[str] = (), *,
+                 auto: bool = True, auto_begin_s: float | None = None):
+        self.recorder = recorder
+        self.roles = dict(roles)
+        self.device_of = {r: n for n, r in self.roles.items()}
+        self.markers = list(markers)
+        self.auto = auto
+        self.auto_begin_s = auto_begin_s
+        self.steps: list[WizardStep] = plan_steps(list(self.device_of), self.markers)
+        self.index = 0
+        self.active = False
+        self.progress: StepProgress | None = None
+        self.segments: dict[int, Segment] = {}  # step index -> the segment it kept
+        self.completed: dict[int, str] = {}  # step index -> "auto", "ended" or "skipped"
+        self._began_at = 0.0
+        # with auto_begin_s, the first step waits its pause from now too
+        self._ended_at: float | None = recorder.now if auto_begin_s is not None else None
+
+    # --- state ---
+
+    @property
+    def current(self) -> WizardStep | None:
+        return self.steps[self.index] if self.index < len(self.steps) else None
+
+    @property
+    def finished(self) -> bool:
+        return self.index >= len(self.steps)
+
+    def replan(self, roles: dict[str, str], markers: Sequence[str] = ()) -> None:
+        """New roles or markers (roles found from the T-pose, a device or glove seen late): the steps
+        still to come are planned again; those done, skipped or being recorded stay."""
+        self.roles = dict(roles)
+        self.device_of = {r: n for n, r in self.roles.items()}
+        self.markers = list(markers)
+        keep = self.index + (1 if self.active else 0)
+        done = {s.label for s in self.steps[:keep]}
+        self.steps = self.steps[:keep] + [s for s in plan_steps(list(self.device_of), self.markers)
+                                          if s.label not in done]
+
+    # --- the operator ---
+
+    def begin(self) -> None:
+        """Start recording the current step now (its segment opens on the recorder)."""
+        step = self.current
+        if step is None:
+            raise BodyCalError("the calibration wizard has no step left", hint="save the take or redo a step")
+        if self.active:
+            return
+        self._began_at = self.recorder.mark_segment_start(step.step, step.point, step.by)
+        self.active = True
+        self.progress = None
+
+    def update(self) -> StepProgress | None:
+        """Progress of the current step from the frames since it began; with `auto`, ends it when
+        done (and with `auto_begin_s`, begins the next step when its pause is over). None when no
+        step is being recorded."""
+        if not self.active:
+            if (self.auto_begin_s is not None and not self.finished and self._ended_at is not None
+                    and self.recorder.now - self._ended_at >= self.auto_begin_s):
+                self.begin()
+            else:
+                return None
+        self.progress = self.measure()
+        if self.auto and self.progress.done:
+            self._finish("auto", trim=self.progress.still_from)
+        return self.progress
+
+    def end_step(self) -> None:
+        """The operator ends the current step now: its segment is kept as recorded."""
+        if not self.active:
+            raise BodyCalError("no calibration step is being recorded", hint="begin the step first")
+        self._finish("ended")
+
+    def skip_step(self) -> None:
+        """Leave the current step out (no segment) and go to the next."""
+        if self.finished:
+            return
+        if self.active:
+            self.recorder.cancel_segment()
+            self.active = False
+        self.completed[self.index] = "skipped"
+        self.index += 1
+        self._ended_at = self.recorder.now
+        self.progress = None
+
+    def redo_step(self) -> None:
+        """Drop the current step's recording (when active) or, when none is being recorded, the
+        previous step's segment, and make that step current again (it begins as any step does)."""
+        if self.active:
+            self.recorder.cancel_segment()
+            self.active = False
+        elif self.index > 0:
+            self.index -= 1
+            seg = self.segments.pop(self.index, None)
+            if seg is not None:
+                self.recorder.remove_segment(seg)
+        else:
+            return
+        self.completed.pop(self.index, None)
+        self._ended_at = self.recorder.now
+        self.progress = None
+
+    def status_line(self) -> str:
+        """One line for a status bar / the command line."""
+        if self.finished:
+            kept = len(self.segments)
+            return f"calibration wizard finished: {kept} of {len(self.steps)} steps recorded"
+        step = self.current
+        head = f"step {self.index + 1}/{len(self.steps)} {step.title}"
+        if not self.active:
+            return head + ": ready (begin when the performer is)"
+        return head + (f": {self.progress.figure}" if self.progress else ": recording")
+
+    # --- internals ---
+
+    def _finish(self, how: str, trim: float | None = None) -> None:
+        # a hold keeps its still stretch only: the reference pose is its middle
+        seg = self.recorder.mark_segment_end(trim if trim is not None and trim < self.recorder.now else None)
+        self.segments[self.index] = seg
+        self.completed[self.index] = how
+        self.active = False
+        self.index += 1
+        self._ended_at = self.recorder.now
+
+    def _slot(self, frames: RecentFrames, role: str) -> int | None:
+        name = self.device_of.get(role)
+        return frames.names.index(name) if name in frames.names else None
+
+    def measure(self) -> StepProgress:
+        """The current step's progress from the frames since it began (module docstring)."""
+        step = self.current
+        rec = self.recorder
+        if step.step in ("tpose", "stand", "palms_together", "touch"):
+            frames = rec.frames_since(max(self._began_at, rec.now - HOLD_WINDOW_S) - PREROLL_S)
+        else:
+            frames = rec.frames_since(self._began_at, max_frames=MAX_FIT_FRAMES)
+        if step.step in ("tpose", "stand"):
+            # every device tracked now, with a role or not yet (the T-pose is where roles are found)
+            slots = [k for k in range(len(frames.names)) if frames.count and frames.valid[-1, k]]
+            return hold_progress(frames, slots, [frames.names[k] for k in slots], begin=self._began_at)
+        if step.step == "palms_together":
+            hands = (self._slot(frames, "hand_l"), self._slot(frames, "hand_r"))
+            pairs = [(frames.marker_names.index(f"{n}_l"), frames.marker_names.index(f"{n}_r"))
+                     for n in palm_pairs(frames.marker_names)]
+            if None in hands or len(pairs) < 3:
+                return hold_figure(0.0, HOLD_S, "waiting for both gloves").with_figure("palms together")
+            return palms_progress(frames, hands, pairs, begin=self._began_at)
+        if step.step == "touch":
+            part = self._slot(frames, touched_role(step.point, self.device_of) or "")
+            track = self._toucher(frames, step.by)
+            if part is None or track is None:
+                return hold_figure(0.0, STILL_MIN_S, f"waiting for {step.by}")
+            return touch_progress(frames, part, *track, begin=self._began_at)
+        pair = motion_pair(step.step, self.device_of)  # None: its devices lost their roles (replan)
+        a, b = (self._slot(frames, pair[0]), self._slot(frames, pair[1])) if pair else (None, None)
+        if a is None or b is None:
+            rel, pts = np.zeros((0, 3, 3)), np.zeros((0, 3))
+        else:
+            rel, pts = relative_motion(frames, a, b)
+        joint = step.step.split("_")[1]
+        if step.step.startswith("flex"):
+            return flex_progress(rel, joint)
+        return swing_progress(rel, pts, joint, float(frames.time[-1] - frames.time[0]) if frames.count else 0.0)
+
+    def _toucher(self, frames: RecentFrames, by: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """World track and validity of the touching point: its marker, or the palm's hand device
+        (the palm centre rides on it)."""
+        if by in frames.marker_names:
+            k = frames.marker_names.index(by)
+            return frames.points[:, k], frames.points_valid[:, k]
+        if by.startswith("palm_"):
+            k = self._slot(frames, f"hand_{by[-1]}")
+            return None if k is None else (frames.positions[:, k], frames.valid[:, k])
+        return None
