@@ -41,6 +41,10 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
         description="Timeline markers for the calibration steps of the recorded take")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last Bake Take's figures, per avatar")
+    wizard_pause: bpy.props.FloatProperty(
+        name="Begin Steps After", default=0.0, min=0.0, soft_max=10.0, unit="TIME_ABSOLUTE",
+        description="The calibration wizard begins each step by itself this many seconds after the previous one "
+                    "ended (time to read the instruction); 0: each step begins when you press Begin")
 
 
 def _settings(context):
@@ -220,6 +224,122 @@ imported into the scene, ready for Calibrate User and Bake Take"""
         return {"FINISHED"}
 
 
+class BODYCAL_OT_start_wizard(bpy.types.Operator):
+    """Record a calibration take with the performer: the protocol's steps the connected devices allow, each with
+its instruction and progress, each ending by itself when enough data is in"""
+
+    bl_idname = "bodycal.start_wizard"
+    bl_label = "Calibration Wizard"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if not _poll_connected(cls):
+            return False
+        if live.wizard() is not None:
+            cls.poll_message_set("The calibration wizard is running")
+            return False
+        return True
+
+    @reports_errors
+    def execute(self, context):
+        settings = _settings(context)
+        live.take_folder(settings.folder)  # said now, not when the take is over
+        w = live.start_wizard(settings.take_name or "calibration", settings.wizard_pause or None)
+        self.report({"INFO"}, f"Calibration wizard: {len(w.steps)} steps")
+        return {"FINISHED"}
+
+
+class _WizardStepOperator:
+    """What Begin, End, Skip and Redo share: they act on the running wizard."""
+
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if live.wizard() is None:
+            cls.poll_message_set("Start the calibration wizard first")
+            return False
+        return cls._can(live.wizard())
+
+    @classmethod
+    def _can(cls, wizard) -> bool:
+        return True
+
+    @reports_errors
+    def execute(self, context):
+        self._act(live.wizard())
+        return {"FINISHED"}
+
+
+class BODYCAL_OT_begin_step(_WizardStepOperator, bpy.types.Operator):
+    """Begin recording the current calibration step (read its instruction to the performer first)"""
+
+    bl_idname = "bodycal.begin_step"
+    bl_label = "Begin"
+
+    @classmethod
+    def _can(cls, wizard):
+        if wizard.finished or wizard.active:
+            cls.poll_message_set("No step is waiting to begin")
+            return False
+        return True
+
+    def _act(self, wizard):
+        wizard.begin()
+
+
+class BODYCAL_OT_end_step(_WizardStepOperator, bpy.types.Operator):
+    """End the current step now and keep what was recorded of it"""
+
+    bl_idname = "bodycal.end_step"
+    bl_label = "End"
+
+    @classmethod
+    def _can(cls, wizard):
+        if not wizard.active:
+            cls.poll_message_set("No step is being recorded")
+            return False
+        return True
+
+    def _act(self, wizard):
+        wizard.end_step()
+
+
+class BODYCAL_OT_skip_step(_WizardStepOperator, bpy.types.Operator):
+    """Leave the current step out and go to the next"""
+
+    bl_idname = "bodycal.skip_step"
+    bl_label = "Skip"
+
+    @classmethod
+    def _can(cls, wizard):
+        if wizard.finished:
+            cls.poll_message_set("Every step is done")
+            return False
+        return True
+
+    def _act(self, wizard):
+        wizard.skip_step()
+
+
+class BODYCAL_OT_redo_step(_WizardStepOperator, bpy.types.Operator):
+    """Record the current step again (or, between steps, the previous one)"""
+
+    bl_idname = "bodycal.redo_step"
+    bl_label = "Redo"
+
+    @classmethod
+    def _can(cls, wizard):
+        if not wizard.active and wizard.index == 0:
+            cls.poll_message_set("No step to redo yet")
+            return False
+        return True
+
+    def _act(self, wizard):
+        wizard.redo_step()
+
+
 class BODYCAL_OT_bake_take(BakeOperator, bpy.types.Operator):
     """Retarget the recorded take (the scene's recording) onto the avatars that followed it, with the whole
 offline pipeline, and bake a new action on each"""
@@ -273,7 +393,8 @@ offline pipeline, and bake a new action on each"""
 
 
 CLASSES = (BODYCAL_PG_live_settings, BODYCAL_OT_connect_live, BODYCAL_OT_disconnect_live, BODYCAL_OT_follow_live,
-           BODYCAL_OT_stop_following, BODYCAL_OT_record_take, BODYCAL_OT_stop_recording, BODYCAL_OT_bake_take)
+           BODYCAL_OT_stop_following, BODYCAL_OT_record_take, BODYCAL_OT_stop_recording, BODYCAL_OT_start_wizard,
+           BODYCAL_OT_begin_step, BODYCAL_OT_end_step, BODYCAL_OT_skip_step, BODYCAL_OT_redo_step, BODYCAL_OT_bake_take)
 
 
 def register_properties():

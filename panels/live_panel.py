@@ -8,6 +8,8 @@ from ..bodycal_addon.blender import live
 from .bake_rows import draw_last_result
 from .conventions import draw_help, wrapped_label
 
+STEPS_BEFORE, STEPS_AFTER = 2, 5  # the wizard's steps shown around the current one (a glove kit has ~70)
+
 
 class BODYCAL_PT_live(bpy.types.Panel):
     """Live capture: the performer's VMC stream in the viewport, avatars following, takes recorded"""
@@ -42,6 +44,8 @@ class BODYCAL_PT_live(bpy.types.Panel):
         col.operator("bodycal.disconnect_live", icon="UNLINKED")
         draw_devices(layout, session)
 
+        draw_wizard(layout, context, settings)
+
         col = layout.column()
         col.prop(settings, "user")
         if settings.user == "file":
@@ -64,6 +68,49 @@ class BODYCAL_PT_live(bpy.types.Panel):
             col.operator("bodycal.stop_recording", icon="SNAP_FACE")
         col.operator("bodycal.bake_take", icon="ACTION")
         draw_last_result(layout, settings, context)
+
+
+def draw_wizard(layout, context, settings) -> None:
+    """The calibration wizard: its steps with the current one, the instruction to read aloud, the
+    step's progress, Begin / End / Skip / Redo."""
+    header, body = layout.panel("BODYCAL_live_wizard", default_closed=False)
+    header.label(text="Calibration Wizard")
+    if body is None:
+        return
+    wizard = live.wizard()
+    if wizard is None:
+        body.prop(settings, "wizard_pause")
+        body.operator("bodycal.start_wizard", icon="OUTLINER_OB_ARMATURE")
+        return
+    steps = body.column(align=True)
+    first, last = max(0, wizard.index - STEPS_BEFORE), min(len(wizard.steps), wizard.index + STEPS_AFTER + 1)
+    if first:
+        steps.label(text=f"{first} steps before", icon="BLANK1")
+    for k, step in zip(range(first, last), wizard.steps[first:last], strict=True):
+        done = wizard.completed.get(k)
+        icon = ("CHECKMARK" if done in {"auto", "ended"} else "FORWARD" if done == "skipped"
+                else "REC" if k == wizard.index and wizard.active else "RIGHTARROW" if k == wizard.index
+                else "BLANK1")
+        row = steps.row()
+        row.active = k >= wizard.index
+        row.label(text=f"{k + 1}. {step.title}", icon=icon)
+    if last < len(wizard.steps):
+        steps.label(text=f"{len(wizard.steps) - last} steps after", icon="BLANK1")
+    step = wizard.current
+    if step is None:
+        wrapped_label(body, context, wizard.status_line(), icon="CHECKMARK")
+        return
+    box = body.box()
+    wrapped_label(box, context, step.instruction, icon="INFO")
+    progress = wizard.progress
+    if wizard.active:
+        box.progress(factor=progress.fraction if progress else 0.0,
+                     text=progress.figure if progress else "recording")
+    row = body.row(align=True)
+    row.operator("bodycal.begin_step", icon="PLAY")
+    row.operator("bodycal.end_step", icon="CHECKMARK")
+    row.operator("bodycal.skip_step", icon="FORWARD")
+    row.operator("bodycal.redo_step", icon="LOOP_BACK")
 
 
 def draw_devices(layout, session) -> None:

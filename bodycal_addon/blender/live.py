@@ -2,10 +2,11 @@
 
     connect(port, bind)              # a VMC receiver on its own thread; a timer pumps it (not in background)
     follow(arm, user, method, ...)   # the armature's pose set from every solved frame
+    start_recording(name) / start_wizard(name); stop_recording(folder)   # a take, saved and imported
     pump_once()                      # what the timer does; background Blender (tests, headless stations) calls it
     stop_following(); disconnect()   # every armature exactly as it was
 
-Each pump takes the stream's newest frame (app/live_session.py), moves the live empties (one per
+Each pump takes the stream's newest frame (retarget/live_session.py), moves the live empties (one per
 device and marker, named and drawn as the importer makes them, in their own collection) and sets
 each follower's solved pose on its armature with `foreach_set` (preview.PoseWriter). Nothing here
 is an operator: no undo step is made and the file is not marked changed; the viewport is only
@@ -26,17 +27,21 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..app.live_session import LiveSession, LiveUpdate
 from ..body import naming
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..output.root_motion import apply_root_motion, check_root_motion
 from ..recording.filters import OneEuro
+from ..recording.io import load_recording
+from ..recording.live.receiver import VmcReceiver
+from ..recording.live.vmc import DEFAULT_PORT
+from ..recording.live.wizard import LiveWizard
+from ..retarget.live_session import LiveSession, LiveUpdate
 from . import avatar_rig, preview, recording_scene, rig_output
 from .pose_state import PoseState
+from .session import prepare_target
 
-DEFAULT_PORT = 39539  # VMC's (recording/live/vmc.DEFAULT_PORT), without importing python-osc here
 TICK_HZ = 90.0  # the timer's rate: a frame is taken as soon after its arrival as the UI allows
 LIVE_COLLECTION = "BodyCal Live"
 LIVE_PREFIX = "live"  # the empties are "live.<device>", as the importer names "<recording>.<device>"
@@ -63,6 +68,7 @@ class _State:
     timer: bool = False
     port: int = 0
     recorded_for: list[str] = []
+    wizard = None  # recording.live.wizard.LiveWizard while the calibration wizard runs
     error: str = ""  # the last pump's failure, one line (the panel shows it)
 
 
@@ -92,8 +98,6 @@ def connect(port: int = DEFAULT_PORT, bind: str = "127.0.0.1", roles: dict[str, 
             timer: bool | None = None) -> LiveSession:
     """Listen for a VMC stream on `bind`:`port` (0: a free port; `port()` says which). `timer`:
     pump from a timer on the main thread (default: unless Blender runs in the background)."""
-    from ..recording.live.receiver import VmcReceiver
-
     if _state.session is not None:
         raise BodyCalError("already connected", hint="Disconnect first")
     rx = VmcReceiver(port, bind)
@@ -121,6 +125,7 @@ def disconnect():
     if live is None:
         return None
     recorder = live.stop_recording()
+    _state.wizard = None
     live.stop()
     remove_empties()
     return recorder
@@ -133,8 +138,6 @@ def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro 
            plant_feet: bool = True, placement: str = "object", root_motion: str = "root") -> Following:
     """`arm` follows the stream from the next frame: `user` (the performer's model) onto the
     armature's avatar model (measured now when it has none stored) by `method`."""
-    from .session import prepare_target
-
     live = _need_session()
     check_root_motion(root_motion)
     if avatar_rig.is_rigify_generated(arm):
@@ -177,6 +180,41 @@ def start_recording(name: str = "take"):
     return _need_session().start_recording(name)
 
 
+def start_wizard(name: str = "calibration", auto_begin_s: float | None = None):
+    """The calibration wizard (recording/live/wizard.py) over the take being recorded (recording
+    starts now when it is not): the steps the devices and markers allow, in protocol order. A step
+    begins when `begin` is called (the operator's Begin), or by itself `auto_begin_s` seconds after
+    the previous one ended; each ends by itself when enough data is in."""
+    live = _need_session()
+    if not live.kinds:
+        raise BodyCalError("no device has arrived yet", hint="is the sender sending to this port?")
+    recorder = live.recorder or start_recording(name)
+    _state.wizard = LiveWizard(recorder, live.roles, live.markers, auto=True, auto_begin_s=auto_begin_s)
+    return _state.wizard
+
+
+def wizard():
+    """The running calibration wizard, or None."""
+    return _state.wizard
+
+
+def _update_wizard(live: LiveSession) -> None:
+    """The wizard's progress from the frames recorded so far; after the T-pose, the roles it gives
+    to devices that had none, and the steps planned again for them."""
+    w = _state.wizard
+    if w is None or w.finished:
+        return
+    index = w.index
+    w.update()
+    if w.index != index and w.steps[index].step == "tpose" and any(n not in live.roles for n in live.kinds):
+        try:
+            live.recorder.identify_roles()
+        except BodyCalError as exc:
+            _state.error = f"roles not found from the T-pose: {exc.line()}"
+            return
+        w.replan(live.roles, live.markers)
+
+
 def recording():
     """The running recorder, or None."""
     return _state.session.recorder if _state.session is not None else None
@@ -202,12 +240,13 @@ def stop_recording(folder: str = "", scene=None, step_markers: str = "starts"):
     """Stop recording, save the take as a recording file (FORMATS.md §2; its steps as segments) in
     `take_folder(folder)`, import it into the scene as a file would be (recording_scene.py), so
     Calibrate and the bakes work on it. Returns (path, collection)."""
-    from ..recording.io import load_recording
-
     live = _need_session()
     if live.recorder is None:
         raise BodyCalError("not recording", hint="press Record first")
     where = take_folder(folder)  # before the recorder is let go: a missing folder keeps it recording
+    w, _state.wizard = _state.wizard, None
+    if w is not None and w.active:  # a step cut short is left out, not kept half done
+        w.skip_step()
     recorder = live.stop_recording()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     path = where / f"{bpy.path.clean_name(recorder.name)}_{stamp}.bcrec.json"
@@ -230,6 +269,8 @@ def pump_once() -> LiveUpdate | None:
     live = _state.session
     if live is None:
         return None
+    if live.recorder is not None:
+        _update_wizard(live)
     update = live.pump()
     if update is None:
         return None

@@ -10,6 +10,8 @@ import time
 import bpy
 import numpy as np
 import pytest
+import ui_layout
+from repo_paths import REPO
 
 from bodycal_addon.blender import calibration_scene, recording_scene
 from bodycal_addon.blender.fcurves import object_fcurves, read_keys
@@ -262,8 +264,6 @@ def test_what_cannot_work_is_one_line(take, tmp_path):
 
 
 def test_the_live_panel_shows_connect_then_the_devices_and_each_followers_figures(take, tmp_path):
-    import ui_layout
-
     rec, _truth = take
     a, _b = _scene(take, tmp_path)
     log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)
@@ -281,3 +281,47 @@ def test_the_live_panel_shows_connect_then_the_devices_and_each_followers_figure
     assert f"{a.name}: write" in labels and "latency" in labels
     ops = [e[1] for e in log if e[0] == "operator"]
     assert {"bodycal.disconnect_live", "bodycal.stop_following", "bodycal.record_take", "bodycal.bake_take"} <= set(ops)
+
+
+def test_the_calibration_wizard_runs_its_steps_from_the_panel_and_the_take_keeps_them(tmp_path):
+    """The sample take's first steps (T-pose, stand, palms together, the left elbow's flex) streamed
+    without their segments: the operator presses Begin as the performer starts each step, each
+    ends by itself, and the saved, imported take has the four steps as its segments and markers."""
+    demo = load_recording(REPO / "sample_rigs" / "recordings" / "demo_full.bcrec.json")
+    segs = [s for s in demo.segments if s.step != "motion"][:4]
+    part = demo.window(0, int(demo.frames(0.0, segs[-1].end + 0.3)[-1]) + 1)
+    part.segments = []  # the wizard marks the steps, not the sender
+    scene = bpy.context.scene
+    scene.bodycal_live.folder, scene.bodycal_live.port = str(tmp_path), 0
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    stream = Stream(part)
+    stream.send(0)
+    assert bpy.ops.bodycal.start_wizard() == {"FINISHED"}
+    wizard = live.wizard()
+    assert [s.step for s in wizard.steps[:4]] == [s.step for s in segs]
+    shown = False
+    for k in range(1, part.frame_count):
+        stream.send(k)
+        i = wizard.index
+        if i < len(segs) and not wizard.active and live.recording().now >= segs[i].start:
+            assert bpy.ops.bodycal.begin_step() == {"FINISHED"}
+        if wizard.active and wizard.progress is not None and not shown:  # the panel shows the step being recorded
+            log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)
+            labels = " | ".join(e[1] for e in log if e[0] == "label")
+            assert wizard.current.instruction.split()[0] in labels and wizard.current.title in labels
+            assert {"bodycal.end_step", "bodycal.skip_step", "bodycal.redo_step"} <= {e[1] for e in log
+                                                                                       if e[0] == "operator"}
+            shown = True
+    for _ in range(20):
+        live.pump_once()
+    assert shown and [wizard.completed.get(i) for i in range(4)] == ["auto"] * 4
+    assert bpy.ops.bodycal.stop_recording() == {"FINISHED"}
+    assert live.wizard() is None
+    (path,) = tmp_path.glob("*.bcrec.json")
+    saved = load_recording(path)
+    assert [s.step for s in saved.segments] == [s.step for s in segs]
+    frame = float(np.median(np.diff(demo.time)))
+    for got, want in zip(saved.segments, segs, strict=True):  # inside the performer's step, a frame late at most
+        assert want.start - frame <= got.start and got.end <= want.end + frame
+    assert [m.name for m in sorted(scene.timeline_markers, key=lambda m: m.frame)] == [
+        f"bodycal:{s.label}" for s in segs]

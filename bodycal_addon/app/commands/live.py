@@ -2,7 +2,7 @@
 [--bind ADDRESS] [--role NAME=ROLE ...] [--duration S] [--no-filter] [--no-plant-feet]` (FORMATS.md §6):
 a performer's VMC stream retargeted frame by frame and sent on as the avatar's VMC bones.
 
-The receiver's latest frame is solved as soon as it is taken (`app.live_session.LiveSession`, whose
+The receiver's latest frame is solved as soon as it is taken (`retarget.live_session.LiveSession`, whose
 follower runs `retarget.live.LiveSolver`: the
 causal stance and, unless `--no-filter`, the forward One Euro), and the pose goes out at once
 (`output.vmc_bones.AvatarVmcOut`); frames that arrive while a solve runs are dropped by the
@@ -47,7 +47,7 @@ def run(args) -> int:
     from ...recording.filters import OneEuro
     from ...recording.live.receiver import VmcReceiver
     from ...recording.live.sender import VmcSender
-    from ..live_session import LiveSession
+    from ...retarget.live_session import LiveSession
 
     host, out_port = send_target(args.send)  # the arguments first, then the files
     roles = parse_roles(args.role)

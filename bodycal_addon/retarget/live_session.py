@@ -15,6 +15,9 @@ to the recorder when one runs; it copies, it does not compute. `pump` takes the 
 consumer that falls behind gets the newest one: the source counts those it missed) and solves it
 for each follower with its `LiveSolver` (retarget/live.py): the causal stance and the forward One
 Euro, from the frames so far only.
+
+It imports the recorder, hence python-osc (recording/live/__init__.py): only what runs a live
+session imports it.
 """
 
 from __future__ import annotations
@@ -30,9 +33,11 @@ from ..body.bodymodel import BodyModel
 from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro
+from ..recording.live.recorder import LiveRecorder
 from ..recording.live.source import LiveFrame, LiveSource
 from ..recording.model import Device
-from ..retarget.solver import SolvedFrames
+from .live import LiveSolver
+from .solver import SolvedFrames
 
 RATE_WINDOW_S = 1.0  # a device's rate: its frames over the last second
 STATS_WINDOW = 512  # solve times and latencies kept per follower (the figures shown are over these)
@@ -99,8 +104,6 @@ class Follower:
 
     def prepare(self, kinds: dict[str, str], roles: dict[str, str]) -> bool:
         """The solver, once every role the methods need has a device the stream has named."""
-        from ..retarget.live import LiveSolver
-
         if self.solver is not None:
             return True
         named = {n: r for n, r in roles.items() if n in kinds and r}
@@ -157,6 +160,8 @@ class LiveSession:
         self._frames: dict[str, int] = {}
         self._first_frame: dict[str, int] = {}
         self._arrivals: dict[str, deque] = {}
+        self._markers: list[str] = []
+        self._marker_set: set[str] = set()
         self._stream_frames = 0
         self.recording_from = 0  # frames_seen when the recording started
         self.last_frame: LiveFrame | None = None
@@ -183,6 +188,13 @@ class LiveSession:
                     self._kinds[name] = kind
                     if role:
                         self._announced[name] = role
+                elif event[0] == "marker" and event[1] not in self._marker_set:
+                    self._marker_set.add(event[1])
+                    self._markers.append(event[1])
+            for name in frame.markers:
+                if name not in self._marker_set:
+                    self._marker_set.add(name)
+                    self._markers.append(name)
             k = self._stream_frames
             for name in frame.devices:
                 self._kinds.setdefault(name, "tracker")
@@ -203,6 +215,12 @@ class LiveSession:
     def kinds(self) -> dict[str, str]:
         with self._lock:
             return dict(self._kinds)
+
+    @property
+    def markers(self) -> list[str]:
+        """The markers the stream has named or sent, in the order first seen."""
+        with self._lock:
+            return list(self._markers)
 
     @property
     def roles(self) -> dict[str, str]:
@@ -249,8 +267,6 @@ class LiveSession:
     def start_recording(self, name: str = "live"):
         """Every frame from now on into a LiveRecorder (recording/live/recorder.py), with the roles
         the user gave."""
-        from ..recording.live.recorder import LiveRecorder
-
         if self.recorder is not None:
             raise BodyCalError("already recording", hint="stop the recording first")
         recorder = LiveRecorder(name, roles=self.user_roles)
