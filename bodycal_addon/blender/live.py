@@ -58,6 +58,9 @@ class Following:
     writer: preview.PoseWriter | None = None
     rest: object = None  # output.root_motion.RootRest, read at the first write
     first: AvatarAnimation | None = None  # the first solved frame: in-place root motion holds its spot
+    rigify_target: str | None = None  # a generated Rigify rig: "fk" (its controls) or "def" (no constraints left)
+    rigify: rig_output.RigifyPlan | None = None  # made at the first write (it sets the rig up)
+    def_muted: bool = False  # the rig's DEF- constraints were muted (a DEF bake): so again on Stop
     write_ms: deque = field(default_factory=lambda: deque(maxlen=512))  # root motion + the pose write, wall clock
     write_cpu_ms: deque = field(default_factory=lambda: deque(maxlen=512))  # the same, this thread's CPU time
 
@@ -140,9 +143,6 @@ def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro 
     armature's avatar model (measured now when it has none stored) by `method`."""
     live = _need_session()
     check_root_motion(root_motion)
-    if avatar_rig.is_rigify_generated(arm):
-        raise BodyCalError("the live follow poses plain rigs; a generated Rigify rig is shown by its bake",
-                           source=arm.name, hint="follow its metarig, or Record and Bake Take")
     preview.stop(arm.name)  # the preview's pose put back first: the armature as the user left it
     target = prepare_target(arm)
     stop_following(arm.name)  # a second Follow: put back as it was before the first
@@ -150,8 +150,12 @@ def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro 
     saved = PoseState.capture(arm)
     saved.detach(arm)
     bone_map = naming.BoneMap.from_dict(target.avatar.extra["rig"]["bone_map"])
-    _state.following[arm.name] = Following(arm.name, bone_map, root_motion, saved)
-    return _state.following[arm.name]
+    f = Following(arm.name, bone_map, root_motion, saved)
+    if avatar_rig.is_rigify_generated(arm):  # as the bake keys it (rig_output.for_bake): its FK controls
+        f.rigify_target = "fk" if rig_output.controls_drive_deform(arm) else "def"
+        f.def_muted = bool(arm.get(rig_output.DEF_MUTED_PROP))
+    _state.following[arm.name] = f
+    return f
 
 
 def stop_following(name: str | None = None) -> None:
@@ -162,7 +166,13 @@ def stop_following(name: str | None = None) -> None:
             _state.session.unfollow(key)
         arm = bpy.data.objects.get(key)
         if f is not None and arm is not None and arm.type == "ARMATURE":
-            f.saved.restore(arm)
+            _put_back(f, arm)
+
+
+def _put_back(f: Following, arm) -> None:
+    f.saved.restore(arm)
+    if f.rigify_target is not None and bool(arm.get(rig_output.DEF_MUTED_PROP)) != f.def_muted:
+        rig_output.mute_deform(arm, f.def_muted)
 
 
 def _need_session() -> LiveSession:
@@ -307,6 +317,10 @@ def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
     if f.root_motion == "in-place":  # the travel removed relative to the first frame followed
         anim = preview.joined(f.first, anim)
     anim = apply_root_motion(anim, f.rest, f.root_motion, own=True)
+    if f.rigify_target is not None:  # the DEF- skeleton's pose carried onto the controls
+        if f.rigify is None:
+            f.rigify = rig_output.RigifyPlan(arm, f.rigify_target, anim.bone_names)
+        anim = f.rigify.animation(anim)
     if f.writer is None:
         f.writer = preview.PoseWriter(arm, anim)
     f.writer.write(arm, anim, row=anim.frame_count - 1)
@@ -403,7 +417,7 @@ def on_save_pre(*_args) -> None:
     for name, f in _state.following.items():
         arm = bpy.data.objects.get(name)
         if arm is not None and arm.type == "ARMATURE":
-            f.saved.restore(arm)
+            _put_back(f, arm)
     remove_empties()
 
 
@@ -415,7 +429,7 @@ def on_save_post(*_args) -> None:
         if arm is not None and arm.type == "ARMATURE":
             f.saved = PoseState.capture(arm)  # what the file now holds is what Stop puts back
             f.saved.detach(arm)
-            f.writer = None
+            f.writer, f.rigify = None, None
 
 
 @bpy.app.handlers.persistent

@@ -1,5 +1,6 @@
 """An armature as it was, to put back exactly: every pose bone's rotation mode and values (all three
-rotation kinds, location, scale) and what animates it (the action, its slot on Blender 4.4+, and
+rotation kinds, location, scale) and its numeric custom properties (a Rigify rig's IK/FK
+switches), and what animates it (the action, its slot on Blender 4.4+, and
 whether the NLA is evaluated). Used by the live follow (live.py), which sets pose values the
 action would otherwise overwrite on the next frame change (DESIGN.md "Live session in Blender"),
 and by the timeline preview (preview.py), which puts back the pose only.
@@ -27,6 +28,7 @@ class PoseState:
     action: object  # bpy.types.Action or None
     slot: object  # its slot (Blender 4.4+) or None
     use_nla: bool
+    props: dict  # (pose bone, custom property) -> its number (a Rigify rig's IK_FK switches, ...)
 
     @classmethod
     def capture(cls, arm) -> PoseState:
@@ -37,9 +39,11 @@ class PoseState:
             bones.foreach_get(name, buf)
             values[name] = buf
         ad = arm.animation_data
+        props = {(pb.name, key): pb[key] for pb in bones for key in pb.keys()
+                 if isinstance(pb[key], (int, float)) and not isinstance(pb[key], bool)}
         return cls([pb.name for pb in bones], [pb.rotation_mode for pb in bones], values, ad is not None,
                    ad.action if ad else None, getattr(ad, "action_slot", None) if ad else None,
-                   bool(ad.use_nla) if ad else True)
+                   bool(ad.use_nla) if ad else True, props)
 
     def detach(self, arm) -> None:
         """Nothing animates the armature while its pose is set from outside: no action, no NLA."""
@@ -85,4 +89,8 @@ class PoseState:
                 pb.rotation_mode = self.modes[i]
                 for name, width in _CHANNELS:
                     setattr(pb, name, self.values[name][i * width:(i + 1) * width].tolist())
+        for (bone, key), value in self.props.items():
+            pb = bones.get(bone)
+            if pb is not None and pb.get(key) != value:
+                pb[key] = value
         arm.update_tag(refresh={"DATA"})

@@ -109,6 +109,23 @@ def _as_user_left_it(arm):
     return arm.animation_data.action
 
 
+def _live_solver_on(follower, updates):
+    """A LiveSolver of the follower's models and devices pushed the frames the pumps took; returns
+    it and its last solved frame."""
+    devices = [Device(d.name, d.kind, d.role) for d in follower.solver.recording.devices]
+    ref = LiveSolver(follower.user, follower.avatar, "egocentric", devices=devices, plant_feet=True)
+    order = {d.name: i for i, d in enumerate(devices)}
+    for update in updates:
+        frame = update.frame
+        pos, rot, valid = np.zeros((len(devices), 3)), np.tile([1.0, 0, 0, 0], (len(devices), 1)), \
+            np.zeros(len(devices), bool)
+        for j, name in enumerate(frame.devices):
+            if name in order:
+                pos[order[name]], rot[order[name]], valid[order[name]] = frame.positions[j], frame.rotations[j], True
+        solved = ref.push(frame.sender_time, pos, rot, valid)
+    return ref, solved
+
+
 def _follow(arms):
     for arm in arms:
         bpy.context.scene.bodycal_bake.armature = arm
@@ -141,18 +158,7 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
     session = live.session()
     for arm in (a, b):
         follower = session.followers[arm.name]
-        devices = [Device(d.name, d.kind, d.role) for d in follower.solver.recording.devices]
-        ref = LiveSolver(follower.user, follower.avatar, "egocentric", devices=devices, plant_feet=True)
-        order = {d.name: i for i, d in enumerate(devices)}
-        for update in stream.updates:
-            frame = update.frame
-            pos, rot, valid = np.zeros((len(devices), 3)), np.tile([1.0, 0, 0, 0], (len(devices), 1)), \
-                np.zeros(len(devices), bool)
-            for j, name in enumerate(frame.devices):
-                if name in order:
-                    pos[order[name]], rot[order[name]], valid[order[name]] = frame.positions[j], \
-                        frame.rotations[j], True
-            solved = ref.push(frame.sender_time, pos, rot, valid)
+        ref, solved = _live_solver_on(follower, stream.updates)
         assert solved is not None and follower.stats.frames > 0
         bones = arm.pose.bones
         rows = [bones.find(n) for n in follower.bone_names]
@@ -325,3 +331,60 @@ def test_the_calibration_wizard_runs_its_steps_from_the_panel_and_the_take_keeps
         assert want.start - frame <= got.start and got.end <= want.end + frame
     assert [m.name for m in sorted(scene.timeline_markers, key=lambda m: m.frame)] == [
         f"bodycal:{s.label}" for s in segs]
+
+
+@pytest.fixture(scope="module")
+def rigify_blend(tmp_path_factory):
+    """tests/blender/test_rigify.py's generated rig (built in a subprocess: Rigify hangs 4.5 at exit)."""
+    import subprocess
+    import sys
+
+    path = tmp_path_factory.mktemp("rigify") / "rigify_avatar.blend"
+    out = subprocess.run([sys.executable, "-m", "sample_rigs.rigify_rig", str(path)], cwd=REPO, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0 and path.is_file(), out.stderr[-2000:]
+    return path
+
+
+@pytest.mark.slow
+def test_a_generated_rigify_rig_follows_on_its_fk_controls_and_is_put_back(take, tmp_path, rigify_blend):
+    """The bake's Rigify path live: the DEF- pose carried onto the FK controls (IK switched to FK),
+    so Blender's own evaluation of the DEF- bones shows LiveSolver's pose; Stop puts the switches
+    and the pose back."""
+    from bodycal_addon.blender import rig_output
+    from bodycal_addon.body.animation import AvatarAnimation
+
+    rec, truth = take
+    bpy.ops.wm.open_mainfile(filepath=str(rigify_blend))
+    arm = bpy.data.objects["rigify_avatar"]
+    scene = bpy.context.scene
+    calibration_scene.store_user_model(scene, truth.body_model())
+    scene.bodycal_retarget.use_filter = False
+    scene.bodycal_bake.root_motion = "pelvis"
+    scene.bodycal_live.port = 0
+    switch = arm.pose.bones["upper_arm_parent.L"]["IK_FK"]
+    assert switch != 1.0  # the rig as generated: IK; following switches it to FK
+    before = _pose(arm)
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([arm])
+    stream = Stream(rec)
+    for k in range(15):
+        stream.send(k)
+    assert arm.pose.bones["upper_arm_parent.L"]["IK_FK"] == 1.0
+    follower = live.session().followers[arm.name]
+    ref, solved = _live_solver_on(follower, stream.updates)
+    rig = ref.solver.rig
+    anim = AvatarAnimation(rig.armature, list(rig.names), solved.basis, rig.names[rig.root],
+                           np.asarray(solved.root_location, float), np.array([0.0]), "egocentric")
+    poses, _rest = rig_output.rigify_deform_pose(anim, arm)
+    bpy.context.view_layer.update()
+    main = [n for n in poses if n.startswith("DEF-") and not any(k in n for k in (
+        ".001", "DEF-spine.005", "DEF-palm.", "DEF-breast.", "DEF-pelvis."))]  # test_rigify's IN_BETWEEN
+    for n in main:  # every controlled DEF- bone's head and tail within 1 mm, as the FK bake's
+        got, want = np.array(arm.pose.bones[n].matrix), poses[n][0]
+        length = arm.data.bones[n].length
+        assert np.linalg.norm(got[:3, 3] - want[:3, 3]) < 1e-3, n
+        assert np.linalg.norm(got[:3, 3] + got[:3, 1] * length - want[:3, 3] - want[:3, 1] * length) < 1e-3, n
+    assert bpy.ops.bodycal.stop_following() == {"FINISHED"}
+    _same_pose(_pose(arm), before)
+    assert arm.pose.bones["upper_arm_parent.L"]["IK_FK"] == switch
