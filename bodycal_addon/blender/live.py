@@ -334,8 +334,12 @@ def _tick():
     try:
         pump_once()
         _state.error = ""
-    except BodyCalError as exc:  # a timer must not raise: the panel shows the line, the stream goes on
+    except BodyCalError as exc:  # bad input: the panel shows the line, the stream goes on
         _state.error = exc.line()
+    except Exception as exc:  # a bug: said in the panel; Blender prints it and drops the timer
+        _state.error = f"the live view stopped: {type(exc).__name__}: {exc}"
+        _state.timer = False
+        raise
     return 1.0 / TICK_HZ
 
 

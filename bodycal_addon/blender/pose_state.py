@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass
 
+import bpy
 import numpy as np
 
 _CHANNELS = (("rotation_quaternion", 4), ("rotation_euler", 3), ("rotation_axis_angle", 4), ("location", 3),
@@ -25,8 +26,8 @@ class PoseState:
     modes: list[str]
     values: dict[str, np.ndarray]  # channel -> (n * width,) float32, the pose bones' order
     had_animation_data: bool
-    action: object  # bpy.types.Action or None
-    slot: object  # its slot (Blender 4.4+) or None
+    action: str | None  # the action's name: an undo replaces every datablock, a name finds it again
+    slot: str | None  # its slot's identifier (Blender 4.4+)
     use_nla: bool
     props: dict  # (pose bone, custom property) -> its number (a Rigify rig's IK_FK switches, ...)
 
@@ -41,8 +42,10 @@ class PoseState:
         ad = arm.animation_data
         props = {(pb.name, key): pb[key] for pb in bones for key in pb.keys()
                  if isinstance(pb[key], (int, float)) and not isinstance(pb[key], bool)}
+        action = ad.action if ad else None
+        slot = getattr(ad, "action_slot", None) if ad else None
         return cls([pb.name for pb in bones], [pb.rotation_mode for pb in bones], values, ad is not None,
-                   ad.action if ad else None, getattr(ad, "action_slot", None) if ad else None,
+                   action.name if action else None, slot.identifier if slot else None,
                    bool(ad.use_nla) if ad else True, props)
 
     def detach(self, arm) -> None:
@@ -62,11 +65,13 @@ class PoseState:
         if ad is None and self.had_animation_data:
             ad = arm.animation_data_create()
         if ad is not None:
-            if ad.action != self.action:
-                ad.action = self.action
-            if self.slot is not None and getattr(ad, "action_slot", None) != self.slot:
-                with contextlib.suppress(AttributeError, TypeError, RuntimeError):
-                    ad.action_slot = self.slot
+            action = bpy.data.actions.get(self.action) if self.action else None
+            if ad.action != action:
+                ad.action = action
+            slot = getattr(ad, "action_slot", None)
+            if action is not None and self.slot is not None and (slot is None or slot.identifier != self.slot):
+                with contextlib.suppress(AttributeError, TypeError, RuntimeError, KeyError):
+                    ad.action_slot = action.slots[self.slot]
             ad.use_nla = self.use_nla
             if not self.had_animation_data:
                 arm.animation_data_clear()

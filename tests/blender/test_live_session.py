@@ -102,6 +102,7 @@ def _as_user_left_it(arm):
     """An armature as a user may leave it: an action, a bone in Euler angles, a pose set."""
     arm.animation_data_create()
     arm.animation_data.action = bpy.data.actions.new(f"{arm.name}_own")
+    arm.keyframe_insert("location", frame=1)  # keyed: on 4.4+ the action has a slot for the armature
     pb = arm.pose.bones[3]
     pb.rotation_mode = "XYZ"
     pb.rotation_euler = (0.1, 0.2, 0.3)
@@ -172,6 +173,8 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
         pose, action = before[arm.name]
         _same_pose(_pose(arm), pose)
         assert arm.animation_data.action == action and arm.animation_data.use_nla
+        if hasattr(arm.animation_data, "action_slot"):  # Blender 4.4+
+            assert arm.animation_data.action_slot == action.slots[0]
     assert bpy.ops.bodycal.disconnect_live() == {"FINISHED"}
     assert not [o for o in bpy.data.objects if o.name.startswith("live.")]
     assert "BodyCal Live" not in bpy.data.collections

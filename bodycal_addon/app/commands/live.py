@@ -2,9 +2,9 @@
 [--bind ADDRESS] [--role NAME=ROLE ...] [--duration S] [--no-filter] [--no-plant-feet]` (FORMATS.md §6):
 a performer's VMC stream retargeted frame by frame and sent on as the avatar's VMC bones.
 
-The receiver's latest frame is solved as soon as it is taken (`retarget.live_session.LiveSession`, whose
-follower runs `retarget.live.LiveSolver`: the
-causal stance and, unless `--no-filter`, the forward One Euro), and the pose goes out at once
+The receiver's latest frame is solved as soon as it is taken (`retarget.live_session.LiveSession`,
+the Live panel's too, whose follower runs `retarget.live.LiveSolver`: the causal stance and, unless
+`--no-filter`, the forward One Euro), and the pose goes out at once
 (`output.vmc_bones.AvatarVmcOut`); frames that arrive while a solve runs are dropped by the
 receiver, counted and said. Devices get their roles from the stream's announcements (`bodycal
 stream` sends them) or `--role NAME=ROLE`; the solve starts once the HMD, both hands, the pelvis and
