@@ -391,3 +391,40 @@ def test_a_generated_rigify_rig_follows_on_its_fk_controls_and_is_put_back(take,
     assert bpy.ops.bodycal.stop_following() == {"FINISHED"}
     _same_pose(_pose(arm), before)
     assert arm.pose.bones["upper_arm_parent.L"]["IK_FK"] == switch
+
+
+@pytest.mark.slow
+def test_the_wizard_through_every_step_then_calibrate_user_gives_the_offline_body(tmp_path):
+    """The whole sample take streamed without its segments, the wizard through every step it plans
+    (Begin pressed as the performer starts each, each ending by itself), the take imported, then
+    Calibrate User in the scene: the body model of `calibrate_user` on the saved file, within 1 mm."""
+    from bodycal_addon.calibration import calibrate_user
+
+    demo = load_recording(REPO / "sample_rigs" / "recordings" / "demo_full.bcrec.json")
+    segs = [s for s in demo.segments if s.step != "motion"]
+    part = load_recording(REPO / "sample_rigs" / "recordings" / "demo_full.bcrec.json", raw=True)
+    part.segments = []
+    scene = bpy.context.scene
+    scene.bodycal_live.folder, scene.bodycal_live.port = str(tmp_path), 0
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    stream = Stream(part)
+    stream.send(0)
+    assert bpy.ops.bodycal.start_wizard() == {"FINISHED"}
+    wizard = live.wizard()
+    assert [s.label for s in wizard.steps] == [s.label for s in segs]
+    for k in range(1, part.frame_count):
+        stream.send(k)
+        i = wizard.index
+        if i < len(segs) and not wizard.active and live.recording().now >= segs[i].start:
+            assert bpy.ops.bodycal.begin_step() == {"FINISHED"}
+    for _ in range(20):
+        live.pump_once()
+    assert wizard.finished and set(wizard.completed.values()) == {"auto"}
+    assert bpy.ops.bodycal.stop_recording() == {"FINISHED"}
+    (path,) = tmp_path.glob("*.bcrec.json")
+    assert bpy.ops.bodycal.calibrate_user(show_helpers=False) == {"FINISHED"}
+    in_scene = calibration_scene.load_user_model(scene)
+    offline = calibrate_user(load_recording(path), name=in_scene.name)
+    assert set(in_scene.joints) == set(offline.joints)
+    diff = {j: float(np.linalg.norm(in_scene.joints[j].world - offline.joints[j].world)) for j in offline.joints}
+    assert max(diff.values()) <= 1e-3, sorted(diff.items(), key=lambda kv: -kv[1])[:3]
