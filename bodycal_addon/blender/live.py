@@ -65,13 +65,16 @@ class Following:
     write_cpu_ms: deque = field(default_factory=lambda: deque(maxlen=512))  # the same, this thread's CPU time
 
 
+@dataclass
 class _State:
+    """The process's live session and what follows it (one per Blender process)."""
+
     session: LiveSession | None = None
-    following: dict[str, Following] = {}
+    following: dict[str, Following] = field(default_factory=dict)
     timer: bool = False
     port: int = 0
-    recorded_for: list[str] = []
-    wizard = None  # recording.live.wizard.LiveWizard while the calibration wizard runs
+    recorded_for: list[str] = field(default_factory=list)
+    wizard: object = None  # recording.live.wizard.LiveWizard while the calibration wizard runs
     error: str = ""  # the last pump's failure, one line (the panel shows it)
 
 
@@ -107,7 +110,9 @@ def connect(port: int = DEFAULT_PORT, bind: str = "127.0.0.1", roles: dict[str, 
     live = LiveSession(rx, roles)
     live.start()  # a port in use: one line, nothing kept
     _state.session, _state.port, _state.error = live, rx.port, ""
-    if timer if timer is not None else not bpy.app.background:
+    if timer is None:
+        timer = not bpy.app.background  # background Blender runs no timers: its scripts pump
+    if timer:
         bpy.app.timers.register(_tick, first_interval=0.0, persistent=True)
         _state.timer = True
     return live

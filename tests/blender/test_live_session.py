@@ -428,3 +428,22 @@ def test_the_wizard_through_every_step_then_calibrate_user_gives_the_offline_bod
     assert set(in_scene.joints) == set(offline.joints)
     diff = {j: float(np.linalg.norm(in_scene.joints[j].world - offline.joints[j].world)) for j in offline.joints}
     assert max(diff.values()) <= 1e-3, sorted(diff.items(), key=lambda kv: -kv[1])[:3]
+
+
+def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
+    """What the UI's timer does (background Blender runs no timers: it is called here): a pump, then
+    again in 1/90 s; after Disconnect it ends itself."""
+    rec, _truth = take
+    _scene(take, tmp_path)
+    live.connect(0, timer=False)
+    stream = Stream(rec)
+    stream.sender.send(bundles(stream.messages.announcements() + stream.messages.messages(0, 0.0)
+                               + [message(AVAILABLE, 1), message(TIME, float(rec.time[0]))]))
+    for _ in range(2000):
+        assert live._tick() == pytest.approx(1.0 / live.TICK_HZ)
+        if f"live.{rec.devices[0].name}" in bpy.data.objects:
+            break
+        time.sleep(0.001)
+    assert f"live.{rec.devices[0].name}" in bpy.data.objects and live.last_error() == ""
+    live.disconnect()
+    assert live._tick() is None
