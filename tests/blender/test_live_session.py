@@ -447,3 +447,17 @@ def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
     assert f"live.{rec.devices[0].name}" in bpy.data.objects and live.last_error() == ""
     live.disconnect()
     assert live._tick() is None
+
+
+def test_only_what_writes_the_take_or_the_bake_makes_an_undo_step():
+    """The live view (connect, follow, the wizard's buttons, record) makes no undo step; Stop
+    Recording (it imports the take) and Bake Take (new actions) do, as the importer and the bakes."""
+    def options(name):
+        return set(bpy.types.Operator.bl_rna_get_subclass_py(f"BODYCAL_OT_{name}").bl_options)
+
+    for name in ("connect_live", "disconnect_live", "follow_live", "stop_following", "record_take", "start_wizard",
+                 "begin_step", "end_step", "skip_step", "redo_step"):
+        assert "UNDO" not in options(name), name
+        assert f"bodycal.{name}" == bpy.types.Operator.bl_rna_get_subclass_py(f"BODYCAL_OT_{name}").bl_idname
+    for name in ("stop_recording", "bake_take"):
+        assert {"REGISTER", "UNDO"} <= options(name), name
