@@ -265,6 +265,13 @@ def test_what_cannot_work_is_one_line(take, tmp_path):
     assert not live.connected()
     bpy.context.scene.bodycal_live.port = 0
     assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    with pytest.raises(RuntimeError, match="no device has arrived yet"):  # nothing sent yet
+        bpy.ops.bodycal.start_wizard()
+    assert live.wizard() is None and live.recording() is None
+    bpy.context.scene.bodycal_live.folder = ""  # an unsaved .blend and no takes folder: said at Record
+    with pytest.raises(RuntimeError, match="the .blend is not saved"):
+        bpy.ops.bodycal.record_take()
+    assert live.recording() is None
     del bpy.context.scene[calibration_scene.MODEL_PROP]
     bpy.context.scene.bodycal_bake.armature = a
     with pytest.raises(RuntimeError, match="no performer calibrated"):
