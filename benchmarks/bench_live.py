@@ -8,19 +8,41 @@ the sent take (within OSC's float32), the receiver thread's CPU at most 10 % of 
 (`time.thread_time` of that thread over the take's length). Ten minutes by default; `--quick`
 streams 30 s.
 
-Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]`.
+`blender`: the Live panel's session in background Blender (bodycal_addon/blender/live.py), pumped
+at 90 Hz by an explicit loop as a headless station does (the timer's rate in the UI), while `bodycal
+stream --loop` sends a synthetic full-profile take (15 devices with their roles, 16 markers) at 90
+Hz in its own process. `one_avatar` and `three_avatars`: procedural avatars following with the
+egocentric method, feet planted, root motion on the root bone; per frame, from its arrival
+(`LiveFrame.arrival`, the receiver's clock) to the last avatar's pose set on its armature
+(`foreach_set` done): median and p95; the pose write per avatar (root motion + `PoseWriter.write`),
+wall clock and the main thread's CPU time; the solve per avatar; the pump's CPU time per frame.
+Targets: p95 <= 11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per
+avatar. `memory`: `--minutes` (default 3; the issue's figure is 10) of one avatar following while
+the take is recorded: the process's resident memory growth from the end of a 10 s warm-up to the
+end, with what the recorder and the solver's frame buffer hold (both grow with the take: "the
+recording itself"), and frames lost to the recording (sent by the stream, not in the recorder).
+Target: growth besides those <= 50 MB, no frame lost. Every figure is wall-clock time on a shared
+machine: the solve competes with the other processes for the cores.
+
+Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]
+[--sections stream blender] [--minutes M]`.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import pathlib
-import resource
-import subprocess
-import sys
-import tempfile
-import time
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one core per solve, as measured
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import pathlib  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -111,8 +133,117 @@ def stream_section(args) -> dict:
     }
 
 
+def _rss_mb() -> float:
+    for line in pathlib.Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _pump_for(live, seconds: float, hz: float, names: list[str]) -> dict:
+    """Pump at `hz` for `seconds`; per frame: arrival -> the last avatar's pose set (ms), and each
+    avatar's write (ms)."""
+    latency, writes, write_cpu, solves, cpu = [], [], [], [], []
+    tick, end = 1.0 / hz, time.perf_counter() + seconds
+    due = time.perf_counter()
+    while time.perf_counter() < end:
+        c0 = time.thread_time()
+        update = live.pump_once()
+        c1 = time.thread_time()
+        if update is not None and all(update.poses.get(n) is not None for n in names):
+            session = live.session()
+            latency.append(max(session.followers[n].stats.latency_ms[-1] for n in names))
+            writes += [live.following()[n].write_ms[-1] for n in names]
+            write_cpu += [live.following()[n].write_cpu_ms[-1] for n in names]
+            solves += [session.followers[n].stats.solve_ms[-1] for n in names]
+            cpu.append((c1 - c0) * 1000.0)
+        due += tick
+        time.sleep(max(0.0, due - time.perf_counter()))
+    lat, wr = np.asarray(latency), np.asarray(writes)
+    return {"frames": len(lat), "latency_ms_median": round(float(np.median(lat)), 2),
+            "latency_ms_p95": round(float(np.percentile(lat, 95)), 2),
+            "write_ms_per_avatar_median": round(float(np.median(wr)), 3),
+            "write_ms_per_avatar_p95": round(float(np.percentile(wr, 95)), 3),
+            "write_cpu_ms_per_avatar_median": round(float(np.median(write_cpu)), 3),
+            "write_cpu_ms_per_avatar_p95": round(float(np.percentile(write_cpu, 95)), 3),
+            "solve_ms_per_avatar_median": round(float(np.median(solves)), 2),
+            "pump_cpu_ms_per_frame_median": round(float(np.median(cpu)), 2),
+            "pump_cpu_ms_per_frame_p95": round(float(np.percentile(cpu, 95)), 2)}
+
+
+def blender_section(args) -> dict:
+    import signal
+
+    import bpy
+
+    from bodycal_addon.blender import live
+    from bodycal_dev import synthetic
+    from sample_rigs import build_procedural_avatar
+
+    hz = 90.0
+    seconds = args.seconds or (10.0 if args.quick else 30.0)
+    performer = synthetic.make_performer(seed=1)
+    take, truth = synthetic.record_session(performer, profile="full", motions=("walk_in_place", "clap"),
+                                           calibration=["tpose"], seed=1)
+    folder = pathlib.Path(tempfile.mkdtemp(prefix="bodycal-bench-live-blender-"))
+    save_recording(take, folder / "take.bcrec.json", up="Z")
+    user = truth.body_model()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arms = [build_procedural_avatar(name=f"avatar{k}", scale=s)[0] for k, s in enumerate((1.0, 0.9, 1.1))]
+    for k, arm in enumerate(arms):
+        arm.location.x = 1.5 * k
+    live.connect(0, timer=False)
+    sender = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "stream", str(folder / "take.bcrec.json"),
+                               "--port", str(live.port()), "--loop"], cwd=ROOT, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    out = {"pump_hz": hz, "seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
+           "stream_hz": round(take.fps, 1)}
+    try:
+        live.follow(arms[0], user, "egocentric")
+        _pump_for(live, 3.0, hz, [arms[0].name])  # warm-up: the solver prepared, the stances found
+        out["one_avatar"] = _pump_for(live, seconds, hz, [arms[0].name])
+        for arm in arms[1:]:
+            live.follow(arm, user, "egocentric")
+        _pump_for(live, 3.0, hz, [a.name for a in arms])
+        out["three_avatars"] = _pump_for(live, seconds, hz, [a.name for a in arms])
+        out["targets"] = {"one_avatar_p95_ms": 11.1, "three_avatars_p95_ms": 22.2, "write_ms_per_avatar": 1.0}
+        live.stop_following()
+        if args.minutes:
+            live.follow(arms[0], user, "egocentric")
+            recorder = live.start_recording("bench")
+            _pump_for(live, 10.0, hz, [arms[0].name])
+            rss0, buf0, rec0 = _rss_mb(), live.session().followers[arms[0].name].solver.recording.nbytes, \
+                recorder.nbytes
+            _pump_for(live, args.minutes * 60.0, hz, [arms[0].name])
+            sender.send_signal(signal.SIGINT)
+            sent_out, _ = sender.communicate(timeout=30)
+            for _ in range(50):  # what is still in flight
+                live.pump_once()
+                time.sleep(0.01)
+            rss1 = _rss_mb()
+            buf1 = live.session().followers[arms[0].name].solver.recording.nbytes
+            grown_recordings = (buf1 - buf0 + recorder.nbytes - rec0) / 2 ** 20
+            sent = int(sent_out.rsplit("sent ", 1)[1].split()[0]) if "sent " in sent_out else -1
+            session = live.session()
+            while_recording = session.frames_seen - session.recording_from
+            out["memory"] = {"minutes": args.minutes, "rss_growth_mb": round(rss1 - rss0, 1),
+                             "recorder_and_solver_buffer_growth_mb": round(grown_recordings, 1),
+                             "growth_besides_recordings_mb": round(rss1 - rss0 - grown_recordings, 1),
+                             "target_mb": 50, "frames_received_while_recording": while_recording,
+                             "frames_recorded": recorder.frames,
+                             "frames_lost_to_recording": while_recording - recorder.frames,
+                             "frames_sent_whole_run": sent, "frames_lost_by_receiver": sent - session.frames_seen,
+                             "frames_the_pump_skipped": session.stats.dropped}
+    finally:
+        if sender.poll() is None:
+            sender.send_signal(signal.SIGINT)
+            sender.communicate(timeout=30)
+        live.disconnect()
+    return out
+
+
 # name -> function(parsed arguments) -> the section's dict
-SECTIONS = {"stream": stream_section}
+SECTIONS = {"stream": stream_section, "blender": blender_section}
 
 
 def main():
@@ -120,6 +251,8 @@ def main():
     p.add_argument("--quick", action="store_true", help="a short run while iterating (stream: 30 s, not 10 minutes)")
     p.add_argument("--seconds", type=float, default=None, help="the stream's length (overrides --quick)")
     p.add_argument("--sections", nargs="*", default=list(SECTIONS), choices=list(SECTIONS))
+    p.add_argument("--minutes", type=float, default=3.0,
+                   help="blender: the memory run's length (the issue's figure is 10 minutes; 0 skips it)")
     args = p.parse_args()
     print(json.dumps({name: SECTIONS[name](args) for name in args.sections}))
 

@@ -9,6 +9,7 @@ from . import (
     calibration,
     devices,
     docs,
+    live,
     preferences,
     preview,
     recording,
@@ -19,7 +20,7 @@ from . import (
 from .registration import register_classes_factory
 
 _MODULES = (preferences, sample_avatars, recording, devices, calibration, avatar, bone_maps, bake_settings,
-            bake_presets, retarget, transfer, preview, bone_map_editor, docs)
+            bake_presets, retarget, transfer, preview, bone_map_editor, docs, live)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 
 _register_classes, _unregister_classes = register_classes_factory(CLASSES)

@@ -7,6 +7,7 @@ from . import (
     bone_map_panel,
     calibration_panel,
     conventions,
+    live_panel,
     main_panel,
     recording_panel,
     retarget_panel,
@@ -14,7 +15,8 @@ from . import (
 )
 
 CLASSES = (main_panel.CLASSES + recording_panel.CLASSES + calibration_panel.CLASSES + avatar_panel.CLASSES
-           + bone_map_panel.CLASSES + retarget_panel.CLASSES + transfer_panel.CLASSES + bake_presets.CLASSES)
+           + bone_map_panel.CLASSES + retarget_panel.CLASSES + transfer_panel.CLASSES + bake_presets.CLASSES
+           + live_panel.CLASSES)
 
 conventions.apply_order(CLASSES)
 register, unregister = register_classes_factory(CLASSES)

@@ -12,7 +12,7 @@ the preview never ends up in the file).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
@@ -23,6 +23,7 @@ from ..core.errors import BodyCalError
 from ..retarget.pipeline import PreparedTake
 from ..retarget.takes import Take
 from . import avatar_rig, rig_output
+from .pose_state import PoseState
 from .session import Settings, Target
 
 # A preview rebuilds itself when what it was made from changes. What it was made from (the scene's
@@ -44,7 +45,7 @@ class Preview:
     prepared: PreparedTake
     root_motion: str
     key: tuple
-    saved: dict[str, tuple] = field(default_factory=dict)  # pose bone -> (rotation mode, quaternion, location)
+    saved: PoseState | None = None  # the pose as it was (modes and every rotation kind's values)
     first: AvatarAnimation | None = None  # the take's first sample: in-place root motion holds its spot
     solve_ms: float = 0.0  # the last frame's solve and write
 
@@ -70,8 +71,7 @@ def start(arm, take: Take, target: Target, settings: Settings, root_motion: str,
     stop(arm.name)
     pv = Preview(arm.name, take, target, prepared, root_motion, key)
     pv.first = prepared.solve(0, 1)
-    for pb in arm.pose.bones:
-        pv.saved[pb.name] = (pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location))
+    pv.saved = PoseState.capture(arm)
     _active[arm.name] = pv
     show(pv, bpy.context.scene)
     return pv
@@ -95,11 +95,7 @@ def _put_back(pv: Preview) -> None:
     arm = bpy.data.objects.get(pv.armature)
     if arm is None or arm.type != "ARMATURE":
         return
-    for pb in arm.pose.bones:
-        saved = pv.saved.get(pb.name)
-        if saved is not None:
-            pb.rotation_mode, pb.rotation_quaternion, pb.location = saved
-    arm.update_tag(refresh={"DATA"})
+    pv.saved.restore_pose(arm)
 
 
 def sample_at(pv: Preview, frame: float) -> int:
@@ -122,14 +118,14 @@ def show(pv: Preview, scene) -> None:
     k = sample_at(pv, scene.frame_current + scene.frame_subframe)
     anim = pv.prepared.solve(k, k + 1)
     if pv.root_motion == "in-place":  # the travel removed relative to the take's first sample
-        anim = _joined(pv.first, anim)
+        anim = joined(pv.first, anim)
     bone_map = naming.BoneMap.from_dict(pv.target.avatar.extra["rig"]["bone_map"])
     anim = rig_output.with_root_motion(anim, arm, bone_map, pv.root_motion, own=True)
     write_pose(arm, anim, row=anim.frame_count - 1)
     pv.solve_ms = (time.perf_counter() - t0) * 1000.0
 
 
-def _joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
+def joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
     return AvatarAnimation(b.armature, b.bone_names, np.concatenate([a.rotations, b.rotations]), b.root_bone,
                            np.concatenate([a.root_location, b.root_location]), np.concatenate([a.time, b.time]),
                            b.method, notes=list(b.notes))
@@ -137,24 +133,39 @@ def _joined(a: AvatarAnimation, b: AvatarAnimation) -> AvatarAnimation:
 
 def write_pose(arm, anim: AvatarAnimation, row: int = 0) -> None:
     """Set frame `row` of `anim` on the armature's pose bones, every bone at once (foreach_set)."""
-    bones = arm.pose.bones
-    index = {pb.name: i for i, pb in enumerate(bones)}
-    n = len(bones)
-    quats = np.empty(n * 4, np.float32)
-    locs = np.empty(n * 3, np.float32)
-    bones.foreach_get("rotation_quaternion", quats)
-    bones.foreach_get("location", locs)
-    quats, locs = quats.reshape(n, 4), locs.reshape(n, 3)
-    for name in anim.bone_names:
-        if bones[name].rotation_mode != "QUATERNION":
-            bones[name].rotation_mode = "QUATERNION"
-    quats[[index[b] for b in anim.bone_names]] = anim.rotations[row]
-    locs[index[anim.root_bone]] = anim.root_location[row]
-    for name, loc in anim.bone_locations.items():
-        locs[index[name]] = loc[row]
-    bones.foreach_set("rotation_quaternion", quats.ravel())
-    bones.foreach_set("location", locs.ravel())
-    arm.update_tag(refresh={"DATA"})
+    PoseWriter(arm, anim).write(arm, anim, row)
+
+
+class PoseWriter:
+    """Frames of animations with the bones of `like` (the same names, root and located bones)
+    set on the armature's pose bones: the rows found once, then per frame one foreach_get and one
+    foreach_set per channel, no loop over bones (the live follow writes every frame). The bones'
+    rotation modes become quaternions here."""
+
+    def __init__(self, arm, like: AvatarAnimation):
+        bones = arm.pose.bones
+        index = {pb.name: i for i, pb in enumerate(bones)}
+        self.count = len(bones)
+        self.rows = np.array([index[b] for b in like.bone_names], int)
+        self.root = index[like.root_bone]
+        self.located = {name: index[name] for name in like.bone_locations}
+        self.quats = np.empty((self.count, 4), np.float32)
+        self.locs = np.empty((self.count, 3), np.float32)
+        for name in like.bone_names:
+            if bones[name].rotation_mode != "QUATERNION":
+                bones[name].rotation_mode = "QUATERNION"
+
+    def write(self, arm, anim: AvatarAnimation, row: int = 0) -> None:
+        bones = arm.pose.bones
+        bones.foreach_get("rotation_quaternion", self.quats.ravel())
+        bones.foreach_get("location", self.locs.ravel())
+        self.quats[self.rows] = anim.rotations[row]
+        self.locs[self.root] = anim.root_location[row]
+        for name, i in self.located.items():
+            self.locs[i] = anim.bone_locations[name][row]
+        bones.foreach_set("rotation_quaternion", self.quats.ravel())
+        bones.foreach_set("location", self.locs.ravel())
+        arm.update_tag(refresh={"DATA"})
 
 
 @bpy.app.handlers.persistent

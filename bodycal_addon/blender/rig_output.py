@@ -101,7 +101,8 @@ def _rules(obj) -> dict[str, list[rigify.Rule]]:
 DEF_MUTED_PROP = "bodycal_def_muted"  # set on a Rigify rig whose DEF- constraints a DEF bake muted
 
 
-def _mute_deform(obj, mute: bool) -> None:
+def mute_deform(obj, mute: bool) -> None:
+    """Mute (or unmute) the constraints of the rig's DEF- bones, and say so on the object."""
     for pb in obj.pose.bones:
         if pb.name.startswith("DEF-"):
             for c in pb.constraints:
@@ -112,11 +113,13 @@ def _mute_deform(obj, mute: bool) -> None:
         del obj[DEF_MUTED_PROP]
 
 
-def rigify_deform_pose(anim: AvatarAnimation, obj) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """(armature-space poses (F, 4, 4) of the DEF- skeleton the engine animated, their rests)."""
-    parents = avatar_rig.deform_parents(obj)
+def rigify_deform_pose(anim: AvatarAnimation, obj, parents: dict | None = None, rest: dict | None = None
+                       ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(armature-space poses (F, 4, 4) of the DEF- skeleton the engine animated, their rests).
+    `parents` (avatar_rig.deform_parents) and `rest` (bone -> 4x4 rest) when already read."""
+    parents = avatar_rig.deform_parents(obj) if parents is None else parents
     names = [n for n in anim.bone_names if n in parents]
-    rest = {n: _rest4(obj, n) for n in names}
+    rest = {n: _rest4(obj, n) for n in names} if rest is None else {n: rest[n] for n in names}
     index = {n: i for i, n in enumerate(anim.bone_names)}
     basis = {}
     for n in names:
@@ -140,56 +143,72 @@ def rigify_animation(anim: AvatarAnimation, obj, target: str) -> AvatarAnimation
     """The engine's animation of a generated Rigify rig's DEF- skeleton, as keys on the rig itself:
     its FK controls (`fk`, the rig switched to FK) or its DEF- bones (`def`, their constraints
     muted). Sets the pose of every other bone to rest, the switches and the mutes on the rig."""
-    rigify.check_rigify_target(target)
-    import bpy
+    return RigifyPlan(obj, target, anim.bone_names).animation(anim)
 
-    bones = obj.data.bones
-    deform = avatar_rig.deform_parents(obj)
-    for pb in obj.pose.bones:  # an unkeyed control keeps its pose in a new action: rest it
-        pb.location = (0.0, 0.0, 0.0)
-        pb.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
-        pb.rotation_euler = (0.0, 0.0, 0.0)
-        pb.scale = (1.0, 1.0, 1.0)
-    if target == "fk":
-        if obj.get(DEF_MUTED_PROP):  # a DEF bake muted them: the controls drive the DEF- bones again
-            _mute_deform(obj, False)
-        for (bone_t, prop), value in rigify.FK_SWITCHES.items():
-            for bone in rigify.sided(bone_t):
-                if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
-                    obj.pose.bones[bone][prop] = value
-        pairs = [(c, d) for ct, dt in rigify.FK_CONTROLS.items() for c, d in zip(rigify.sided(ct), rigify.sided(dt))
-                 if c in bones and d in deform and d in anim.bone_names]
-    else:
-        _mute_deform(obj, True)
-        pairs = [(n, n) for n in deform if n.startswith("DEF-") and n in anim.bone_names]
-    bpy.context.view_layer.update()
-    rest = {b.name: _rest4(obj, b.name) for b in bones}
-    parents = {b.name: b.parent.name if b.parent else None for b in bones}
-    lengths = {b.name: b.length for b in bones}
-    rules = _rules(obj)
-    names = [c for c, _d in pairs]
-    quats = np.empty((anim.frame_count, len(names), 4))
-    locs = np.empty((anim.frame_count, len(names), 3))
-    for start in range(0, anim.frame_count, CHUNK_FRAMES):  # (F, 4, 4) per bone: bounded memory on long takes
-        stop = min(anim.frame_count, start + CHUNK_FRAMES)
-        poses, _ = rigify_deform_pose(_frames(anim, start, stop), obj)
-        targets = {c: poses[d] @ (np.linalg.inv(rest[d]) @ rest[c]) for c, d in pairs}
-        basis = rigify.solve_basis(targets, rest, parents, rules, stop - start, lengths)
-        for k, n in enumerate(names):
-            quats[start:stop, k], locs[start:stop, k] = rigify.basis_values(basis[n])
-    values = {n: (quats[:, k], locs[:, k]) for k, n in enumerate(names)}
-    root = "torso" if target == "fk" and "torso" in values else names[0]
-    located = {n: values[n][1] for n in names if n != root and not bones[n].use_connect}
-    switches = {}
-    if target == "fk":
-        for (bone_t, prop), value in rigify.FK_SWITCHES.items():
-            for bone in rigify.sided(bone_t):
-                if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
-                    switches[f'pose.bones["{bpy.utils.escape_identifier(bone)}"]["{prop}"]'] = float(value)
-    note = f"Rigify rig: keys on its {'FK controls' if target == 'fk' else 'DEF- bones'}"
-    return AvatarAnimation(anim.armature, names, np.stack([values[n][0] for n in names], axis=1), root,
-                           values[root][1], anim.time, anim.method, anim.joints_world, anim.targets,
-                           [*anim.notes, note], located, switches)
+
+class RigifyPlan:
+    """What carrying a DEF- pose onto a generated Rigify rig needs, read once (`rigify_animation`
+    for a take; the live follow for every frame): the rig set up for `target` (every pose bone at
+    rest, the FK switches or the DEF- mutes), the controls paired with the DEF- bones the engine
+    animates (`bone_names`), the rests, parents, lengths and constraint rules."""
+
+    def __init__(self, obj, target: str, bone_names):
+        rigify.check_rigify_target(target)
+        import bpy
+
+        self.obj, self.target = obj, target
+        bones = obj.data.bones
+        self.deform = avatar_rig.deform_parents(obj)
+        for pb in obj.pose.bones:  # an unkeyed control keeps its pose in a new action: rest it
+            pb.location = (0.0, 0.0, 0.0)
+            pb.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
+            pb.rotation_euler = (0.0, 0.0, 0.0)
+            pb.scale = (1.0, 1.0, 1.0)
+        if target == "fk":
+            if obj.get(DEF_MUTED_PROP):  # a DEF bake muted them: the controls drive the DEF- bones again
+                mute_deform(obj, False)
+            for (bone_t, prop), value in rigify.FK_SWITCHES.items():
+                for bone in rigify.sided(bone_t):
+                    if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
+                        obj.pose.bones[bone][prop] = value
+            self.pairs = [(c, d) for ct, dt in rigify.FK_CONTROLS.items()
+                          for c, d in zip(rigify.sided(ct), rigify.sided(dt)) if c in bones and d in self.deform
+                          and d in bone_names]
+        else:
+            mute_deform(obj, True)
+            self.pairs = [(n, n) for n in self.deform if n.startswith("DEF-") and n in bone_names]
+        bpy.context.view_layer.update()
+        self.rest = {b.name: _rest4(obj, b.name) for b in bones}
+        self.parents = {b.name: b.parent.name if b.parent else None for b in bones}
+        self.lengths = {b.name: b.length for b in bones}
+        self.rules = _rules(obj)
+        self.names = [c for c, _d in self.pairs]
+        self.root = "torso" if target == "fk" and "torso" in self.names else self.names[0]
+        self.located = [n for n in self.names if n != self.root and not bones[n].use_connect]
+        self.switches = {}
+        if target == "fk":
+            for (bone_t, prop), value in rigify.FK_SWITCHES.items():
+                for bone in rigify.sided(bone_t):
+                    if bone in obj.pose.bones and prop in obj.pose.bones[bone]:
+                        self.switches[f'pose.bones["{bpy.utils.escape_identifier(bone)}"]["{prop}"]'] = float(value)
+
+    def animation(self, anim: AvatarAnimation) -> AvatarAnimation:
+        """`anim` (the DEF- skeleton's) as the controls' (or DEF- bones') values."""
+        quats = np.empty((anim.frame_count, len(self.names), 4))
+        locs = np.empty((anim.frame_count, len(self.names), 3))
+        for start in range(0, anim.frame_count, CHUNK_FRAMES):  # (F, 4, 4) per bone: bounded memory on long takes
+            stop = min(anim.frame_count, start + CHUNK_FRAMES)
+            poses, _ = rigify_deform_pose(_frames(anim, start, stop), self.obj, self.deform, self.rest)
+            targets = {c: poses[d] @ (np.linalg.inv(self.rest[d]) @ self.rest[c]) for c, d in self.pairs}
+            basis = rigify.solve_basis(targets, self.rest, self.parents, self.rules, stop - start, self.lengths)
+            for k, n in enumerate(self.names):
+                quats[start:stop, k], locs[start:stop, k] = rigify.basis_values(basis[n])
+        values = {n: (quats[:, k], locs[:, k]) for k, n in enumerate(self.names)}
+        located = {n: values[n][1] for n in self.located}
+        note = f"Rigify rig: keys on its {'FK controls' if self.target == 'fk' else 'DEF- bones'}"
+        return AvatarAnimation(anim.armature, list(self.names), np.stack([values[n][0] for n in self.names], axis=1),
+                               self.root, values[self.root][1], anim.time, anim.method, anim.joints_world,
+                               anim.targets, [*anim.notes, note], located, dict(self.switches))
 
 
 def controls_drive_deform(obj) -> bool:

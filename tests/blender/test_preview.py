@@ -79,6 +79,8 @@ def test_the_preview_shows_what_the_bake_keys_and_puts_the_pose_back(session):
     scene = bpy.context.scene
     arm = _ready(session)
     arm.pose.bones[0].rotation_mode = "XYZ"  # the user's own setting: back when the preview stops
+    arm.pose.bones[0].rotation_euler = (0.1, 0.2, 0.3)  # its angles too (a mode change converts them)
+    euler = tuple(arm.pose.bones[0].rotation_euler)
     before = _pose(arm)
     frames = [130, 101, 160, 175, 131]  # scrubbing: any order, back and forth
     scene.frame_start, scene.frame_end = 101, 180
@@ -96,6 +98,7 @@ def test_the_preview_shows_what_the_bake_keys_and_puts_the_pose_back(session):
     np.testing.assert_array_equal(after[0], before[0])
     np.testing.assert_array_equal(after[1], before[1])
     assert after[2] == before[2]
+    assert tuple(arm.pose.bones[0].rotation_euler) == euler
 
     assert bpy.ops.bodycal.retarget_bake() == {"FINISHED"}
     for f in frames:

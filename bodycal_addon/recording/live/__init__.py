@@ -15,5 +15,7 @@
   (retarget/live.py); numpy only.
 
 Nothing else in the engine imports this package at import time (python-osc is imported at the top
-of the VMC modules): the command line's `record` and `stream` load it when they run.
+of the VMC modules) but the live session (retarget/live_session.py) and its Blender glue
+(blender/live.py, loaded with the Live panel): the command line's `record`, `stream` and `live` load
+it when they run.
 """

@@ -43,6 +43,11 @@ class LiveRecording(Recording):
                                                     OneEuroStream(smooth))
 
     @property
+    def nbytes(self) -> int:
+        """Memory the frames hold (grown by doubling: up to twice the frames appended)."""
+        return sum(buf.nbytes for buf in self._buf.values())
+
+    @property
     def fps(self) -> float:
         return super().fps if self._n >= 2 else self.rate
 

@@ -283,6 +283,13 @@ class LiveRecorder:
         rec.segments = _segments_that_fit(rec, segments)
         return rec
 
+    @property
+    def nbytes(self) -> int:
+        """Memory the recorded arrays hold (grown by doubling: up to twice the frames recorded)."""
+        with self._lock:
+            return sum(a.nbytes for a in (self._times, self._arrival, self._sender, self._pos.data, self._rot.data,
+                                          self._valid.data, self._pts.data, self._pvalid.data))
+
     def identify_roles(self) -> dict[str, str]:
         """Roles of the devices that have none, from the first T-pose step recorded so far (AvatarGo's
         plane through the devices, recording/roles.py, as for a file); kept for what is recorded
