@@ -164,11 +164,13 @@ def test_live_retargets_a_stream_and_sends_the_avatar(tmp_path):
     with OscServer() as srv:
         live = subprocess.Popen(command("live", "--user", tmp_path / "user.body.json", "--avatar",
                                         tmp_path / "avatar.body.json", "--port", listen, "--send",
-                                        f"127.0.0.1:{srv.port}", "--duration", 8),
+                                        f"127.0.0.1:{srv.port}", "--duration", 14),
                                 cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         first = live.stdout.readline()
         assert "listening on" in first, first + live.stderr.read()
-        sent = bodycal("stream", tmp_path / "take.bcrec.json", "--port", listen, timeout=60)
+        # At a quarter of real time (44 ms a frame) a solve keeps up even on a loaded machine: the
+        # test is that frames are solved and sent, not how fast (bench_live_solver measures that).
+        sent = bodycal("stream", tmp_path / "take.bcrec.json", "--port", listen, "--speed", 0.25, timeout=60)
         assert sent.returncode == 0, sent.stderr
         out, err = live.communicate(timeout=30)
     assert live.returncode == 0, err
