@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..body.bodymodel import BodyModel
-from ..core.transforms import quat_mul, quat_normalize, quat_to_matrix, rotate, stack_apply
+from ..core.transforms import quat_conj, quat_mul, quat_normalize, quat_to_matrix, rotate, stack_apply
 from ..recording.gaps import fill_gaps, hold_untracked, ride_gaps
 from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
@@ -247,9 +247,9 @@ class TrackerReader:
         if on_hips is not None:  # the hip line beats any bridge: lost at all, the pelvis rides on it
             bridged[:, on_hips] = valid[:, on_hips]
         how = np.where(valid, 0, np.where(bridged, 1, 3)).astype(np.intp)
-        hold = ~bridged & (self.carriers < 0)[None, :]  # no carrier: held (first, they carry others)
-        if hold.any():
-            hold_untracked(pos, ~hold, quat)
+        # Every lost frame held first: the devices without carrier stay so, the others carry
+        # finite poses (a file's untracked values may be anything) until they ride below.
+        hold_untracked(pos, bridged, quat)
         for k in self._carrier_order():
             cp, cq = self._carrier_pose(k, pos, quat)
             col = [k]
@@ -343,7 +343,7 @@ class TrackerReader:
             if self.roles[c] in HEADING_CARRIERS:
                 cq_then, cq_now = heading(cq_then), heading(cq_now)
             cq_then, cq_now = quat_normalize(cq_then), quat_normalize(cq_now)
-            inv = cq_then * np.array([1.0, -1.0, -1.0, -1.0])
+            inv = quat_conj(cq_then)
             rel_p = rotate(inv, pos[k, f] - rec.positions[c_then, dev])
             rel_q = quat_mul(inv, quat[k, f])
             pos[k, f] = rec.positions[c_now, dev] + rotate(cq_now, rel_p)
