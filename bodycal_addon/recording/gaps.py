@@ -187,8 +187,10 @@ def ride_gaps(time, values, valid, rotations, carrier_values, carrier_rotations,
 def extrapolate_gaps(time, values, valid, rotations, decay_s: float) -> int:
     """Untracked frames (in place) carried on from the last tracked frame at the device's own
     velocity and angular velocity there, decaying with time constant `decay_s` (the pose comes
-    to rest `decay_s` times the speed further on): what a live stream can do without the far end.
-    Frames before the first tracked one are left alone. Returns the frames moved."""
+    to rest `decay_s` times the speed further on): what a live stream could do without the far
+    end. Measured against riding on a carrier (benchmarks/bench_lost_devices.py) and not used by
+    the readers: it only delays the hold (DESIGN.md §6 "Lost devices"). Frames before the first
+    tracked one are left alone. Returns the frames moved."""
     f = len(time)
     if values.shape[1] == 0 or f < 2:
         return 0
