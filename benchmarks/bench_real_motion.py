@@ -28,8 +28,14 @@ filter's defaults on the devices (`filtered`: the default settings, DESIGN.md §
 noise alone puts the raw controller at 1.5-2x the source's acceleration. The feet on the evaluated
 mesh (`skin_figures`) are measured on the default. Targets are checked in `targets`.
 
+`--seeds N ...`: every clip recorded in these sessions (the evaluation's seed: mounting, facing,
+noise, dropouts) instead of one per clip (its index); `--only-clips`: the clips given with --clips
+alone. A quick run through the sessions that lose a pelvis or thigh tracker mid-motion (DESIGN.md
+§6 "Lost devices"): `--avatars child_10y --only-clips --clips sample_data/motion/cmu_bvh_held_out/05_06_dance.bvh
+sample_data/motion/cmu_bvh/131_01_start_walk_stop.bvh --seeds 2 3`.
+
 Prints ONE JSON line. Run: .venv/bin/python benchmarks/bench_real_motion.py [--quick] [--clips F ...]
-[--avatars NAME ...] [--filter]
+[--only-clips] [--seeds N ...] [--avatars NAME ...] [--filter]
 """
 
 from __future__ import annotations
@@ -73,9 +79,9 @@ JOINT_TARGETS = {  # without touch steps: (profile, joints, mm); DESIGN.md §3 "
 }
 
 
-def _clips(extra: list[str]) -> list[Path]:
+def _clips(extra: list[str], only: bool = False) -> list[Path]:
     d = paths.data_dir()
-    found = sorted((d / "motion" / "cmu_bvh").glob("*.bvh")) if d else []
+    found = sorted((d / "motion" / "cmu_bvh").glob("*.bvh")) if d and not only else []
     return found + [Path(p) for p in extra]
 
 
@@ -155,15 +161,16 @@ def motion_figures(anim, avatar, truth, k: dict, user_pose, limb_k: dict | None 
     return out
 
 
-def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
+def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS, seeds=(), only_clips: bool = False):
     t0 = time.time()
-    clips = _clips(list(clips_extra))
+    clips = _clips(list(clips_extra), only_clips)
     if quick:
         clips = clips[:1]
     avatars = _avatars(avatar_names[:1] if quick else avatar_names)
     workdir = Path(tempfile.mkdtemp(prefix="bodycal-real-"))
     calib, motion, notes = {}, {}, []
-    for ci, clip_path in enumerate(clips):
+    runs = [(clip_path, seed) for ci, clip_path in enumerate(clips) for seed in (seeds or [ci])]
+    for clip_path, ci in runs:
         clip = bvh.read(clip_path).resampled(FPS)
         perf = performer.Performer(clip)
         sess = session.build_session(perf, seed=ci)
@@ -173,7 +180,7 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
             path = cap.write(workdir / f"{clip.name}_{profile}.bcrec.json", up=up)
             truth = cap.truth()
             rec = recording_io.load_recording(path)
-            key = f"{clip.name}/{profile}"
+            key = f"{clip.name}/seed{ci}/{profile}" if seeds else f"{clip.name}/{profile}"
             try:
                 user = calibrate_user(rec)
             except BodyCalError as exc:
@@ -202,7 +209,8 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS):
                         motion[f"{method}/{name}/{key}/{variant}"] = motion_figures(
                             anim, avatar, truth, k, user_poses[variant], limb_k if by_eye else None,
                             arm=_arm if variant == "filtered" else None)
-    out = {"bench": "real_motion", "clips": [p.stem for p in clips], "avatars": [a for a, *_ in avatars],
+    out = {"bench": "real_motion", "clips": [p.stem for p in clips], "seeds": list(seeds) or None,
+           "avatars": [a for a, *_ in avatars],
            "profiles": list(PROFILES), "noise": {"mm": 0.5, "deg": 0.3, "wobble_mm": 1.5},
            "calibration": calib, "targets": _targets(calib, motion), "motion": motion, "notes": notes,
            "seconds": round(time.time() - t0, 1)}
@@ -289,4 +297,5 @@ if __name__ == "__main__":
             i += 1
         return out
 
-    main(quick="--quick" in args, clips_extra=values("--clips"), avatar_names=tuple(values("--avatars")) or AVATARS)
+    main(quick="--quick" in args, clips_extra=values("--clips"), avatar_names=tuple(values("--avatars")) or AVATARS,
+         seeds=tuple(int(v) for v in values("--seeds")), only_clips="--only-clips" in args)

@@ -3,11 +3,16 @@ model) and then per block of frames: what the user animation, AvatarGo's offsets
 read from a tracker recording.
 
 A `TrackerReader` finds each role's device (the first device with that role that was ever
-tracked), its rotation at the reference (T-pose) time, and for every frame the frame whose pose
-to use: the last tracked one (forward fill; a leading gap takes the first tracked pose). A
-recording that grows (`recording.live.buffer.LiveRecording`, frames appended as they arrive) is read as
-far as it goes: the fill is extended by the new frames only, and a device tracked for the first
-time joins its role then.
+tracked) and its rotation at the reference (T-pose) time. Lost devices (DESIGN.md §6 "Lost
+devices"): in a whole take (both ends of every gap known) a gap shorter than `BRIDGE_S` is bridged
+by cubic Hermite curves at the device's own velocity (`recording.gaps.fill_gaps`), a longer one
+rides on its carrier (`CARRIERS`: the device's pose in the carrier's frame blended from one end of
+the gap to the other, `recording.gaps.ride_gaps`), and a device without a carrier (HMD, hands,
+feet) holds its last pose. A recording that grows (`recording.live.buffer.LiveRecording`, frames
+appended as they arrive) cannot see a gap's far end: its devices ride on their carriers with the
+relation of the last tracked frame from the first lost frame on (held where there is no carrier);
+the fill is extended by the new frames only, and a device tracked for the first time joins its
+role then. `Trackers.tracked` says which frames carry a device's own (or bridged) pose.
 """
 
 from __future__ import annotations
@@ -17,8 +22,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..body.bodymodel import BodyModel
-from ..core.transforms import quat_normalize, quat_to_matrix, stack_apply
+from ..core.transforms import quat_conj, quat_mul, quat_normalize, quat_to_matrix, rotate, stack_apply
+from ..recording.gaps import fill_gaps, hold_untracked, ride_gaps
+from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
+
+# Gaps bridged by Hermite curves in a whole take, up to this length; longer ones ride on their
+# carrier. Measured (benchmarks/bench_lost_devices.py, DESIGN.md §6): the limb trackers' position
+# error over a gap is lower bridged up to 0.3-0.4 s and lower riding from 0.5 s on.
+BRIDGE_S = 0.4
 
 
 def forward_fill(valid: np.ndarray) -> np.ndarray:
@@ -28,6 +40,51 @@ def forward_fill(valid: np.ndarray) -> np.ndarray:
     idx = np.maximum.accumulate(idx)
     first = int(np.argmax(valid)) if valid.any() else 0
     return np.where(idx < 0, first, idx)
+
+
+# What a lost device rides on (DESIGN.md §6 "Lost devices"), side-less, first tracked carrier
+# wins: the limb trackers on the body part their joint hangs from or rests on, the chest on the
+# pelvis, the pelvis on the HMD's heading (its turn about the vertical only: a nod does not tilt
+# the hips).
+CARRIERS = {"pelvis": ("head",), "chest": ("pelvis",), "thigh": ("pelvis",), "shin": ("foot",),
+            "upperarm": ("chest", "pelvis"), "forearm": ("hand",)}
+HEADING_CARRIERS = ("head",)
+# The joint a limb tracker hangs from: while the tracker is lost (bridged or ridden) this point
+# rides on the carrier (the hip on the pelvis, the shoulder on the chest) and the tracker's
+# position follows it at its bridged rotation: a Hermite-bridged thigh turning 4 degrees off over
+# 0.2 s moved the hip 10-20 mm, the hip line 9.5 degrees (DESIGN.md §6 "Lost devices").
+ANCHORS = {"thigh": "hip", "upperarm": "shoulder"}
+
+
+def heading(quat: np.ndarray) -> np.ndarray:
+    """The turn about the vertical (+Z) of rotations (..., 4) w x y z: their twist about Z."""
+    q = np.zeros_like(quat)
+    q[..., 0], q[..., 3] = quat[..., 0], quat[..., 3]
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(n > 1e-9, q / np.where(n > 1e-9, n, 1.0), np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+def carrier_of(role: str, roles) -> str | None:
+    """The role a lost `role` rides on among `roles` (CARRIERS), None: it holds."""
+    base, _, side = role.rpartition("_") if role.endswith(("_l", "_r")) else (role, "", "")
+    for c in CARRIERS.get(base, ()):
+        name = f"{c}_{side}" if c in ("foot", "hand") else c
+        if name in roles:
+            return name
+    return None
+
+
+def carrier_poses(roles, positions: np.ndarray, quats: np.ndarray):
+    """(F, D, 3) positions and (F, D, 4) rotations each column rides on when lost (`carrier_of`;
+    a column with none rides on itself, i.e. holds), from positions (F, D, 3) and quats (F, D, 4)
+    of the devices of `roles` (D)."""
+    roles = list(roles)
+    idx = [roles.index(c) if (c := carrier_of(r, roles)) is not None else d for d, r in enumerate(roles)]
+    cp, cq = positions[:, idx], quats[:, idx].copy()
+    head = [k for k, c in enumerate(idx) if roles[c] in HEADING_CARRIERS and c != k]
+    if head:
+        cq[:, head] = heading(cq[:, head])
+    return cp, cq
 
 
 @dataclass
@@ -41,6 +98,8 @@ class Trackers:
     roles: tuple[str, ...] = ()
     positions: np.ndarray | None = None  # (R, F, 3)
     rotations: np.ndarray | None = None  # (R, F, 3, 3)
+    # (R, F) the device's own pose or a Hermite bridge (not ridden on a carrier, not held)
+    tracked: np.ndarray | None = None
 
 
 class _Fill:
@@ -84,6 +143,7 @@ class TrackerReader:
         self.version = 0  # changes whenever the roles change (a device tracked for the first time)
         self._roles: tuple | None = None
         self._last = None  # ((start, stop, version), Trackers) of the last read
+        self.live = isinstance(recording, LiveRecording)  # it grows: gaps read causally
         self._sync()
 
     def _sync(self) -> None:
@@ -110,6 +170,9 @@ class TrackerReader:
             self.roles, self.devices = tuple(roles), np.array(devs, np.intp)
             self._never = never
             self.ref_rot = self._reference_rotations()
+            self.carriers = np.array([self.roles.index(c) if (c := carrier_of(r, self.roles)) is not None else -1
+                                      for r in self.roles], np.intp)
+            self._whole = None if self.live else self._bridge_whole()
             self.version += 1
 
     def _reference_rotations(self) -> dict[str, np.ndarray]:
@@ -137,23 +200,156 @@ class TrackerReader:
         key = (start, stop, self.version)
         if self._last is not None and self._last[0] == key:  # the animation's and the method's read
             return self._last[1]
-        src = self._fill.rows(start, stop, self.devices)  # (R, F)
-        cols = self.devices[:, None]
-        positions = rec.positions[src, cols]
-        rotations = quat_to_matrix(quat_normalize(rec.rotations[src, cols]))
+        if self._whole is not None:
+            pos, quat, tracked, how = (a[start:stop].swapaxes(0, 1) for a in self._whole)
+            tracked = tracked.copy()
+        else:
+            pos, quat, tracked, how = self._read_causal(start, stop)
+        positions, rotations = np.ascontiguousarray(pos), quat_to_matrix(quat)
         v = rec.valid[start:stop][:, self.devices]
         missing = (~v).sum(0)
         notes = []
-        partly = {int(d): int(k) for d, k in zip(self.devices, missing) if k}
+        partly = {int(d): (k, int(n)) for k, (d, n) in enumerate(zip(self.devices, missing)) if n}
         events = self._never + [(d, None) for d in partly]
         for d_i, note in sorted(events, key=lambda e: e[0]):
-            role = rec.devices[d_i].role
-            notes.append(note or f"{role}: {partly[d_i]} frames without tracking held at the last valid pose")
+            notes.append(note or self._lost_note(*partly[d_i], how))
         out = Trackers({r: positions[k] for k, r in enumerate(self.roles)},
                        {r: rotations[k] for k, r in enumerate(self.roles)}, self.ref_rot, v.all(1), notes,
-                       self.roles, positions, rotations)
+                       self.roles, positions, rotations, tracked)
         self._last = (key, out)
         return out
+
+    def _lost_note(self, k: int, lost: int, how: np.ndarray) -> str:
+        """The note on role `k`'s `lost` untracked frames of a read: how many were bridged, ridden
+        on the carrier, held (`how` (R, F): 1 bridged, 2 ridden, 3 held)."""
+        role = self.roles[k]
+        counts = np.bincount(how[k], minlength=4)
+        parts = [f"{counts[1]} bridged (cubic Hermite)"] if counts[1] else []
+        if counts[2]:
+            on = "the hip line" if not self.live and k == self._rides_on_hips() else self.roles[self.carriers[k]]
+            parts.append(f"{counts[2]} ridden on {on}")
+        if counts[3]:
+            parts.append(f"{counts[3]} held at the last valid pose")
+        return f"{role}: {lost} frames without tracking: " + ", ".join(parts)
+
+    def _bridge_whole(self):
+        """The whole take's poses of the roles' devices with every gap bridged, ridden or held
+        (the module's docstring): (F, R, 3) positions, (F, R, 4) rotations, (F, R) tracked or
+        bridged, (F, R) how each frame was filled (0 tracked, 1 bridged, 2 ridden, 3 held)."""
+        rec = self.recording
+        n = rec.frame_count
+        pos = np.array(rec.positions[:n][:, self.devices], float)
+        quat = quat_normalize(np.array(rec.rotations[:n][:, self.devices], float))
+        valid = np.array(rec.valid[:n][:, self.devices], bool)
+        bridged = valid.copy()
+        on_hips = self._rides_on_hips()
+        fill_gaps(rec.time[:n], pos, bridged, BRIDGE_S, quat)
+        if on_hips is not None:  # the hip line beats any bridge: lost at all, the pelvis rides on it
+            bridged[:, on_hips] = valid[:, on_hips]
+        how = np.where(valid, 0, np.where(bridged, 1, 3)).astype(np.intp)
+        # Every lost frame held first: the devices without carrier stay so, the others carry
+        # finite poses (a file's untracked values may be anything) until they ride below.
+        hold_untracked(pos, bridged, quat)
+        for k in self._carrier_order():
+            cp, cq = self._carrier_pose(k, pos, quat)
+            col = [k]
+            p, q = pos[:, col], quat[:, col]  # copies (fancy indexing): written back below
+            ride_gaps(rec.time[:n], p, bridged[:, col], q, cp, cq)
+            pos[:, k], quat[:, k] = p[:, 0], q[:, 0]
+            how[~bridged[:, k], k] = 2
+        self._ride_anchors(pos, quat, valid)
+        return pos, quat, bridged, how
+
+    def _ride_anchors(self, pos: np.ndarray, quat: np.ndarray, valid: np.ndarray) -> None:
+        """(in place) Over a limb tracker's untracked frames, its anchor joint (`ANCHORS`, as
+        calibrated in the tracker) rides on the carrier, and the tracker's position follows it."""
+        t = self.recording.time[:len(pos)]
+        for k in range(len(self.roles)):
+            local = self._anchor_local(k)
+            if self.carriers[k] < 0 or local is None or valid[:, k].all():
+                continue
+            anchor = pos[:, [k]] + rotate(quat[:, [k]], local)
+            ride_gaps(t, anchor, valid[:, [k]], quat[:, [k]].copy(), *self._carrier_pose(k, pos, quat))
+            lost = ~valid[:, k]
+            pos[lost, k] = anchor[lost, 0] - rotate(quat[lost, k], local)
+
+    def _carrier_pose(self, k: int, pos: np.ndarray, quat: np.ndarray):
+        """(F, 1, 3) positions and (F, 1, 4) rotations role `k` rides on: its carrier's pose, the
+        HMD's heading; the pelvis, with both thighs' hips calibrated, on the hip line (their mid
+        point, turned as the line between them about the vertical): the hips turn under a still
+        head (a dancer reversing her turn left the HMD-carried hips 5.4 degrees behind)."""
+        c = self.carriers[k]
+        if k == self._rides_on_hips():
+            kl, kr = self.roles.index("thigh_l"), self.roles.index("thigh_r")
+            hl = pos[:, kl] + rotate(quat[:, kl], self._anchor_local(kl))
+            hr = pos[:, kr] + rotate(quat[:, kr], self._anchor_local(kr))
+            line = hl - hr
+            half = 0.5 * np.arctan2(line[:, 1], line[:, 0])
+            q = np.zeros((len(pos), 1, 4))
+            q[:, 0, 0], q[:, 0, 3] = np.cos(half), np.sin(half)
+            return 0.5 * (hl + hr)[:, None], q
+        cq = heading(quat[:, [c]]) if self.roles[c] in HEADING_CARRIERS else quat[:, [c]]
+        return pos[:, [c]], cq
+
+    def _rides_on_hips(self) -> int | None:
+        """The pelvis's index when both thighs' hips are calibrated (it rides on the hip line)."""
+        if "pelvis" not in self.roles or not all(f"thigh_{s}" in self.roles for s in "lr"):
+            return None
+        if any(self._anchor_local(self.roles.index(f"thigh_{s}")) is None for s in "lr"):
+            return None
+        return self.roles.index("pelvis")
+
+    def _anchor_local(self, k: int):
+        """The anchor joint of limb tracker role `k` (`ANCHORS`) in that tracker, None: none."""
+        base, _, side = self.roles[k].rpartition("_")
+        joint = self.model.joints.get(f"{ANCHORS.get(base, '')}_{side}")
+        if not base or joint is None or self.roles[k] not in joint.frames:
+            return None
+        return np.asarray(joint.frames[self.roles[k]], float)
+
+    def _carrier_order(self) -> list[int]:
+        """The roles with a carrier, each after its own carrier (the pelvis before the thighs)."""
+        done, order = set(), []
+        todo = [k for k in range(len(self.roles)) if self.carriers[k] >= 0]
+        while todo:
+            ready = [k for k in todo if self.carriers[k] not in todo]
+            if not ready:  # a cycle (none in CARRIERS): take them as they come
+                ready = todo
+            order += ready
+            done.update(ready)
+            todo = [k for k in todo if k not in done]
+        return order
+
+    def _read_causal(self, start: int, stop: int):
+        """(R, F, 3) positions, (R, F, 4) rotations, (R, F) tracked, (R, F) how filled of frames
+        [start, stop) of a growing recording: the last tracked pose, ridden on the carrier with
+        the relation of that frame (the carrier's own last tracked pose then and now)."""
+        rec = self.recording
+        src = self._fill.rows(start, stop, self.devices)  # (R, F)
+        cols = self.devices[:, None]
+        pos = np.array(rec.positions[src, cols], float)
+        quat = quat_normalize(rec.rotations[src, cols])
+        tracked = rec.valid[start:stop][:, self.devices].T.copy()
+        how = np.where(tracked, 0, 3).astype(np.intp)
+        for k in np.nonzero((self.carriers >= 0) & ~tracked.all(1))[0]:
+            c = self.carriers[k]
+            f = np.nonzero(~tracked[k])[0]
+            then = src[k, f]  # the frame whose pose is held
+            dev = self.devices[c]
+            c_then = self._fill.idx[then, dev]
+            c_then = np.where(c_then < 0, self._fill.first[dev], c_then)
+            c_now = src[c, f]
+            cq_then, cq_now = rec.rotations[c_then, dev], rec.rotations[c_now, dev]
+            if self.roles[c] in HEADING_CARRIERS:
+                cq_then, cq_now = heading(cq_then), heading(cq_now)
+            cq_then, cq_now = quat_normalize(cq_then), quat_normalize(cq_now)
+            inv = quat_conj(cq_then)
+            rel_p = rotate(inv, pos[k, f] - rec.positions[c_then, dev])
+            rel_q = quat_mul(inv, quat[k, f])
+            pos[k, f] = rec.positions[c_now, dev] + rotate(cq_now, rel_p)
+            quat[k, f] = quat_normalize(quat_mul(cq_now, rel_q))
+            how[k, f] = 2
+        return pos, quat, tracked, how
 
     def markers(self, columns, start: int, stop: int) -> np.ndarray:
         """(len(columns), F, 3) the markers' points of frames [start, stop), forward-filled."""

@@ -11,8 +11,9 @@ animated from the trackers, vectorised over frames.
 - Trunk: sacrum rigid on the pelvis tracker, its lateral direction and origin averaged with the hip
   line (appendix D "Trunk animation"); spine aimed at the skull base carried by the HMD
   (`ik.spine`); clavicles from vertebra 5 to the shoulders; head rigid on the HMD.
-- Dropouts: a device's invalid frames hold its last valid pose (forward fill; leading gaps take
-  the first valid pose) and `UserPose.valid` says which frames had every device.
+- Dropouts: the reader bridges, rides or holds a lost device (trackers.py, DESIGN.md §6 "Lost
+  devices"); a joint known in several trackers is the mean of those tracking it that frame, and
+  `UserPose.valid` says which frames had every device.
 
 `UserAnimator` is prepared once per (recording, user model): which tracker carries each joint and
 every constant product of the rest pose; then `animate(start, stop)` costs a few stacked products
@@ -274,7 +275,8 @@ class UserAnimator:
         prod = stacks_apply(tr.rotations, np.array(plan.vec), [index[r] for r in plan.vec_role])
         est = tr.positions[[index[r] for r in plan.est_role]] + prod[plan.est_vec]
         rigid = stacks_mul(tr.rotations, np.array(plan.rigid_fixed), [index[r] for r in plan.rigid_role])
-        P = {j: est[e[0]] if len(e) == 1 else np.mean(est[e], axis=0) for j, e in plan.joints.items()}
+        P = {j: est[e[0]] if len(e) == 1 else self._mean_estimate(est, e, plan, tr, index)
+             for j, e in plan.joints.items()}
         Fr = np.empty((stop - start, len(BONES), 3, 3))
         Fr[:, BI["head"]] = rigid[plan.rigid["head", "head"]]
         self._limbs(plan, P, Fr, prod, rigid)
@@ -288,6 +290,17 @@ class UserAnimator:
                                source=self.recording.source or self.recording.name,
                                hint="check the recording for broken device poses")
         return UserPose(self.recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
+
+    @staticmethod
+    def _mean_estimate(est: np.ndarray, e: list, plan: _Plan, tr: Trackers, index: dict) -> np.ndarray:
+        """The mean of a joint's estimates `e` over the trackers tracking it each frame (a lost one
+        rides on its carrier, DESIGN.md §6 "Lost devices": the knee follows the shin while the thigh
+        is lost), over all of them where none is."""
+        if tr.tracked is None:
+            return np.mean(est[e], axis=0)
+        w = tr.tracked[[index[plan.est_role[i]] for i in e]].astype(float)  # (E, F)
+        w[:, ~w.any(0)] = 1.0
+        return np.einsum("ef,efi->fi", w, est[e]) / w.sum(0)[:, None]
 
     def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),

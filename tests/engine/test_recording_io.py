@@ -248,11 +248,19 @@ def test_dropouts_kept_invalid_and_short_gaps_filled(tmp_path):
     i = rec.device_index("pelvis")
     assert rec.valid[10:13, i].all()  # filled
     assert not rec.valid[20:35, i].any() and rec.valid[35:, i].all()
-    # Linear positions between frames 9 and 13, slerp rotations (the fixture's wobble is a yaw).
+    # Positions on the cubic Hermite curve from frame 9 to 13 at the device's own velocity there
+    # (one-frame differences 8->9 and 13->14); rotations unit, near the slerp (the fixture's wobble
+    # is a slow yaw: within a degree of it).
+    dt = 1 / 90
+    v0, v1 = (truth[9, :3] - truth[8, :3]) / dt, (truth[14, :3] - truth[13, :3]) / dt
     for k in (10, 11, 12):
-        a = (k - 9) / 4
-        np.testing.assert_allclose(rec.positions[k, i], (1 - a) * truth[9, :3] + a * truth[13, :3], atol=1e-12)
-        np.testing.assert_allclose(rec.rotations[k, i], tf.slerp(truth[9, 3:], truth[13, 3:], a), atol=1e-12)
+        s = (k - 9) / 4
+        h = (2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2)
+        want = h[0] * truth[9, :3] + h[1] * 4 * dt * v0 + h[2] * truth[13, :3] + h[3] * 4 * dt * v1
+        np.testing.assert_allclose(rec.positions[k, i], want, atol=1e-9)
+        assert abs(np.linalg.norm(rec.rotations[k, i]) - 1) < 1e-12
+        off = tf.quat_angle(tf.quat_mul(tf.quat_conj(tf.slerp(truth[9, 3:], truth[13, 3:], s)), rec.rotations[k, i]))
+        assert np.degrees(off) < 1.0
     # Untracked frames hold the last tracked value (never NaN).
     np.testing.assert_allclose(rec.positions[20:35, i], np.tile(truth[19, :3], (15, 1)))
     assert any("filled 1 gaps" in n and "3 frames" in n for n in rec.notes)

@@ -76,7 +76,7 @@ def test_forward_fill_holds_the_last_valid_frame():
     np.testing.assert_array_equal(trackers.forward_fill(valid), [2, 2, 2, 2, 2, 5, 6, 6])
 
 
-def test_dropouts_hold_the_last_pose_and_never_nan():
+def test_dropouts_are_bridged_and_never_nan():
     perf = synthetic.make_performer(seed=1)
     rec, truth = synthetic.record_session(perf, motions=("clap",), calibration=False, motion_seconds=1.0,
                                           dropout_rate=0.05, seed=3)
@@ -90,9 +90,9 @@ def test_dropouts_hold_the_last_pose_and_never_nan():
     assert (~up.valid).any() and up.notes
     hand = rec.device_index("hand_l")
     bad = np.flatnonzero(~rec.valid[:, hand] & (np.arange(rec.frame_count) > np.argmax(rec.valid[:, hand])))
-    if len(bad):
+    if len(bad):  # bridged from the last tracked pose on (DESIGN.md §6 "Lost devices"): no jump
         f = bad[0]
-        np.testing.assert_allclose(up.joint("wrist_l")[f], up.joint("wrist_l")[f - 1])
+        assert np.linalg.norm(up.joint("wrist_l")[f] - up.joint("wrist_l")[f - 1]) < 0.02
 
 
 def test_missing_device_is_one_clear_error(exact):

@@ -24,7 +24,7 @@ def finish_recording(rec: Recording, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S
         n_mk, frames_mk = fill_gaps(rec.time, rec.markers, rec.marker_valid, fill_gaps_s)
         if n_dev or n_mk:
             rec.notes.append(f"filled {n_dev + n_mk} gaps shorter than {fill_gaps_s:g} s ({frames_dev + frames_mk} "
-                             f"frames: positions linear, rotations slerp)")
+                             f"frames: cubic Hermite curves at each device's own velocity)")
     hold_untracked(rec.positions, rec.valid, rec.rotations)
     hold_untracked(rec.markers, rec.marker_valid)
     add_led_hand_frames(rec)
