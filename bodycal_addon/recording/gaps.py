@@ -46,16 +46,20 @@ def quat_exp(v: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half)[..., None], v * k[..., None]], axis=-1)
 
 
+def _neighbour(time, valid, end, step, ci):
+    """The frame `end + step` beside each gap end (clipped to the take), whether it is tracked in
+    column `ci` and comes at a later time than the other, and the time between the two."""
+    f = len(time)
+    nb = end + step
+    nbc = np.clip(nb, 0, f - 1)
+    dt = (time[end] - time[nbc]) * -step
+    return (nb >= 0) & (nb < f) & valid[nbc, ci] & (dt > 0), nbc, dt
+
+
 def _end_velocity(time, values, valid, end, step, ci, chord):
     """The velocity of column `ci` at tracked frame `end` from its neighbour `end + step` when that
     one is tracked too (else `chord`, the gap's own straight line)."""
-    f = len(time)
-    nb = end + step
-    ok = (nb >= 0) & (nb < f)
-    nbc = np.clip(nb, 0, f - 1)
-    ok &= valid[nbc, ci]
-    dt = (time[end] - time[nbc]) * -step
-    ok &= dt > 0
+    ok, nbc, dt = _neighbour(time, valid, end, step, ci)
     v = (values[np.where(step > 0, nbc, end), ci] - values[np.where(step > 0, end, nbc), ci]) / \
         np.where(ok, dt, 1.0)[:, None]
     return np.where(ok[:, None], v, chord)
@@ -63,13 +67,7 @@ def _end_velocity(time, values, valid, end, step, ci, chord):
 
 def _angular_velocity(time, quats, valid, end, step, ci, chord):
     """The body-frame angular velocity of column `ci` at tracked frame `end` (see `_end_velocity`)."""
-    f = len(time)
-    nb = end + step
-    ok = (nb >= 0) & (nb < f)
-    nbc = np.clip(nb, 0, f - 1)
-    ok &= valid[nbc, ci]
-    dt = (time[end] - time[nbc]) * -step
-    ok &= dt > 0
+    ok, nbc, dt = _neighbour(time, valid, end, step, ci)
     a = quats[np.where(step > 0, end, nbc), ci]
     b = quats[np.where(step > 0, nbc, end), ci]
     w = quat_log(tf.quat_mul(tf.quat_conj(a), b)) / np.where(ok, dt, 1.0)[:, None]
