@@ -23,10 +23,14 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     order, as `np.linalg.norm` does, one component at a time (several times faster on a short
     trailing axis)."""
     last = axis in (-1, v.ndim - 1)
-    comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
-    s = comps[0] * comps[0]
-    for c in comps[1:]:
-        s += c * c
+    if last and v.shape[-1] < 8:
+        # numpy sums fewer than 8 items one after the other: the same sum in two numpy calls
+        s = (v * v).sum(-1)
+    else:
+        comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
+        s = comps[0] * comps[0]
+        for c in comps[1:]:
+            s += c * c
     n = np.sqrt(s)
     ok = n > EPS
     if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
