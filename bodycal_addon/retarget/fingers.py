@@ -108,10 +108,13 @@ def realign(target_local, flexed_local, thumb: bool = False):
 def _limits(thumb):
     """(yaw min, yaw max, pitch min, pitch max) in radians, for one finger or per item (`thumb`
     a bool array)."""
-    lims = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS.items()}
+    lims = _LIMITS_RAD
     if np.ndim(thumb) == 0:
         return tuple(lims["thumb" if thumb else "finger"])
     return tuple(np.where(thumb, t, f) for t, f in zip(lims["thumb"], lims["finger"]))
+
+
+_LIMITS_RAD = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS.items()}  # _limits', once
 
 
 def _rx_rz_rx(a, b, c):
