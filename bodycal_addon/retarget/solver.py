@@ -203,7 +203,8 @@ class PreparedSolver:
         user_frames = up.frames if up.surface_frames is None else up.surface_frames
         up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
                       up.notes)
-        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
+        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised) \
+            if self.impl.uses_fk else None
         return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
 
     def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
