@@ -33,6 +33,9 @@ class _Plan:
     order: np.ndarray  # (N,)
     unorder: np.ndarray  # (N,) its inverse
     slot_bones: list[np.ndarray]
+    # The same as one (L, N) table, each slot's row padded with ZERO_BONE (whose vector is zero):
+    # a few frames sum every slot in one call (adding the padding's exact zeros changes no bit).
+    slot_table: np.ndarray
     entry_bone: np.ndarray  # every GRAPH_BONES index used (for the joint check)
     floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
     floor_starts: list[np.ndarray]  # per side: (P,)
@@ -66,6 +69,9 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
     order = np.array(sorted(range(len(paths)), key=lambda i: -len(paths[i])), int)
     longest = len(paths[order[0]]) if paths else 0
     slots = [np.array([paths[i][j] for i in order if len(paths[i]) > j], int) for j in range(longest)]
+    table = np.full((longest, len(paths)), ZERO_BONE, int)
+    for j, bones in enumerate(slots):
+        table[j, :len(bones)] = bones
     used = np.array(sorted({b for path in paths for b in path}), int)
     floor_bone, floor_starts = [], []
     for s in sk.SIDES:
@@ -73,7 +79,7 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
         floor_bone.append(b)
         floor_starts.append(st)
     return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
-                 used, floor_bone, floor_starts)
+                 table, used, floor_bone, floor_starts)
 
 
 _GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
@@ -177,7 +183,8 @@ class _UserBlock:
     lam_gf: np.ndarray  # (F, P) λg of the floor
     vhat: np.ndarray  # (3, F, N) unit v of each chain
     tau: np.ndarray  # (F, N) τ
-    dots: list  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone length ratios)
+    dots: list | np.ndarray  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone
+    # length ratios); or all at once, (L, N, F) in `_Plan.slot_table`'s layout
     floor_user: tuple | None = None  # the floor ratios' user side, once mapped (_floor_user)
 
 
@@ -370,12 +377,18 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
     vt = np.ascontiguousarray(vhat.take(plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
-    tau = np.zeros(vt.shape[1:], vt.dtype)
-    dots = []
-    for bones in plan.slot_bones:
-        n = len(bones)
-        dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
-        tau[:n] += dots[-1]
+    if F * vt.shape[1] <= MERGED_PAIRS and len(plan.slot_table):
+        # A few frames: every slot at once (the padding's dots are exact zeros; the sum over the
+        # slots runs in their order, as the loop below adds them).
+        dots = np.abs(_dot(vt[:, None], ub.take(plan.slot_table, axis=1)))  # (L, N, F)
+        tau = np.add.reduce(dots, axis=0)
+    else:
+        tau = np.zeros(vt.shape[1:], vt.dtype)
+        dots = []
+        for bones in plan.slot_bones:
+            n = len(bones)
+            dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
+            tau[:n] += dots[-1]
     tau = tau.take(plan.unorder, axis=0).T
     tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
@@ -390,9 +403,12 @@ def _chains(a, plan: _Plan):
 
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
     """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
-    out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
-    for bones, d in zip(plan.slot_bones, b.dots):
-        out[:len(bones)] += d * lratio.take(bones, axis=0)
+    if isinstance(b.dots, np.ndarray):  # every slot at once (_prepare_block)
+        out = np.add.reduce(b.dots * lratio.take(plan.slot_table, axis=0), axis=0)
+    else:
+        out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
+        for bones, d in zip(plan.slot_bones, b.dots):
+            out[:len(bones)] += d * lratio.take(bones, axis=0)
     return out.take(plan.unorder, axis=0).T
 
 
