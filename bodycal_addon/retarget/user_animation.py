@@ -363,8 +363,7 @@ class UserAnimator:
         for h, s in enumerate(sk.SIDES):
             names, vecs, bones, fixed = plan.hands[s]
             rel = stacks_apply(hands, vecs, [h] * len(vecs))
-            for k, name in enumerate(names):
-                P[name] = P[f"wrist_{s}"] + rel[k]
+            P.update(zip(names, P[f"wrist_{s}"] + rel))
             Fr[:, bones] = np.swapaxes(stacks_mul(hands, fixed, [h] * len(fixed)), 0, 1)
         if plan.tips:
             tab = self._tables
