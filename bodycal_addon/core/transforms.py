@@ -169,16 +169,18 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
             continue
         if len(cols) == len(best):
             cols = slice(None)
-        m00, m01, m02, m10, m11, m12, m20, m21, m22 = comp[:, cols]
-        q[:, cols] = [
-            (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
-            (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20),
-            (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21),
-            (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22),
-        ][k]
+        q[:, cols] = _SHEPPERD[k](*comp[:, cols])  # only the candidate these items pick
     q /= np.sqrt((q * q).sum(0))
     q *= np.where(q[0] < 0, -1.0, 1.0)
     return q.T.reshape(m.shape[:-2] + (4,))
+
+
+_SHEPPERD = (  # matrix_to_quat's four candidates (w, x, y, z) from m00, m01, ..., m22
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20),
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21),
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22),
+)
 
 
 def euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
@@ -220,7 +222,7 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     q[..., 0] = 1.0 + d
     q[..., 1:] = cross(a, b)
     opposite = d < -1.0 + 1e-9
-    if np.any(opposite):
+    if opposite.any():
         perp = np.cross(a, np.array([1.0, 0.0, 0.0]))
         small = np.linalg.norm(perp, axis=-1, keepdims=True) < 1e-6
         perp = np.where(small, np.cross(a, np.array([0.0, 1.0, 0.0])), perp)
