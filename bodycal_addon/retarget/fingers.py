@@ -141,6 +141,12 @@ class FingerPose:
     pitch: np.ndarray  # (F,) clamped realignment pitch
 
 
+def _per_item(v, n: int) -> np.ndarray:
+    """(n,) floats of a length given per item or once."""
+    v = np.asarray(v, float)
+    return v if v.shape == (n,) else np.broadcast_to(v, (n,))
+
+
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:
     """Pose one finger for F frames (appendix D).
 
@@ -163,10 +169,10 @@ def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll:
     elif roll is not None:
         ref = stack_mul(ref, _ry(roll))
     n = len(mcp)
-    l1, l2, l3 = (np.broadcast_to(np.asarray(v, float), (n,)) for v in (l1, l2, l3))
+    l1, l2, l3 = (_per_item(v, n) for v in (l1, l2, l3))
     rel = np.asarray(tip_target, float) - mcp
     local = np.einsum("fji,fj->fi", ref, rel)
-    alpha = flexion_from_distance(l1, l2, l3, np.linalg.norm(rel, axis=-1))
+    alpha = flexion_from_distance(l1, l2, l3, np.sqrt((rel * rel).sum(-1)))  # np.linalg.norm's sum
     # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
     # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
     c1, s1, c2, s2 = np.cos(alpha), np.sin(alpha), np.cos(2 * alpha), np.sin(2 * alpha)
