@@ -6,6 +6,8 @@ rotations: `rotate(q, v)` turns vector v by q. Matrices act on column vectors: `
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 EPS = 1e-12
@@ -43,13 +45,22 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
     order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
     a, b = np.asarray(a), np.asarray(b)
-    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    if math.prod(shape[:-1]) <= SMALL_CROSS:
+        # A few vectors: the components gathered in rolled order, the same three products and
+        # differences in seven numpy calls instead of fifteen.
+        return a[..., _ROLL1] * b[..., _ROLL2] - a[..., _ROLL2] * b[..., _ROLL1]
+    out = np.empty(shape, np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
     np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
     np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
     return out
+
+
+_ROLL1, _ROLL2 = [1, 2, 0], [2, 0, 1]  # cross: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0)
+SMALL_CROSS = 64  # vectors up to which `cross` gathers (beyond: views and in-place differences)
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

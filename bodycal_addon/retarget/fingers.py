@@ -22,6 +22,7 @@ yaw limits from frame to frame. In this order the pole is at yaw ±90°, far out
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -63,9 +64,22 @@ def flexion_from_distance(l1, l2, l3, d) -> np.ndarray:
 
 
 def _ry(angle):
+    if isinstance(angle, float):  # one roll for every finger (pose_finger's): built once
+        return _ry_once(float(angle))
+    return _ry_built(angle)
+
+
+def _ry_built(angle):
     c, s = np.cos(angle), np.sin(angle)
     z, o = np.zeros_like(c), np.ones_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+@lru_cache(maxsize=8)
+def _ry_once(angle: float) -> np.ndarray:
+    m = _ry_built(angle)
+    m.setflags(write=False)  # shared by every call
+    return m
 
 
 def yaw_pitch(direction) -> tuple[np.ndarray, np.ndarray]:

@@ -48,7 +48,8 @@ def _unit(v, fallback):
     vanishes (the usual case has none: its fallback would be computed for nothing)."""
     n = np.sqrt(_dot(v, v))
     ok = n > EPS
-    if ok.all() and (callable(fallback) or np.broadcast_shapes(np.shape(fallback), v.shape) == v.shape):
+    if ok.all() and (callable(fallback) or np.shape(fallback) == v.shape
+                     or np.broadcast_shapes(np.shape(fallback), v.shape) == v.shape):
         return v / n[..., None], n  # np.where's values when every vector is kept
     fallback = fallback() if callable(fallback) else fallback
     return np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback), n
