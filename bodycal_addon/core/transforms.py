@@ -48,8 +48,11 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
     if math.prod(shape[:-1]) <= SMALL_CROSS:
         # A few vectors: the components gathered in rolled order, the same three products and
-        # differences in seven numpy calls instead of fifteen.
-        return a[..., _ROLL1] * b[..., _ROLL2] - a[..., _ROLL2] * b[..., _ROLL1]
+        # differences in eight numpy calls instead of fifteen. The result is still allocated
+        # first: a later 3x3 product's BLAS path depends on its operands' alignment, and a result
+        # allocated after the temporaries moved one-frame solves by 1e-16.
+        out = np.empty(shape, np.result_type(a, b))
+        return np.subtract(a[..., _ROLL1] * b[..., _ROLL2], a[..., _ROLL2] * b[..., _ROLL1], out=out)
     out = np.empty(shape, np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
