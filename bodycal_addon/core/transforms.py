@@ -6,6 +6,8 @@ rotations: `rotate(q, v)` turns vector v by q. Matrices act on column vectors: `
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 EPS = 1e-12
@@ -23,10 +25,14 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     order, as `np.linalg.norm` does, one component at a time (several times faster on a short
     trailing axis)."""
     last = axis in (-1, v.ndim - 1)
-    comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
-    s = comps[0] * comps[0]
-    for c in comps[1:]:
-        s += c * c
+    if last and v.shape[-1] < 8:
+        # numpy sums fewer than 8 items one after the other: the same sum in two numpy calls
+        s = (v * v).sum(-1)
+    else:
+        comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
+        s = comps[0] * comps[0]
+        for c in comps[1:]:
+            s += c * c
     n = np.sqrt(s)
     ok = n > EPS
     if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
@@ -39,13 +45,25 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
     order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
     a, b = np.asarray(a), np.asarray(b)
-    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    if math.prod(shape[:-1]) <= SMALL_CROSS:
+        # A few vectors: the components gathered in rolled order, the same three products and
+        # differences in eight numpy calls instead of fifteen. The result is still allocated
+        # first: a later 3x3 product's BLAS path depends on its operands' alignment, and a result
+        # allocated after the temporaries moved one-frame solves by 1e-16.
+        out = np.empty(shape, np.result_type(a, b))
+        return np.subtract(a[..., _ROLL1] * b[..., _ROLL2], a[..., _ROLL2] * b[..., _ROLL1], out=out)
+    out = np.empty(shape, np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
     np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
     np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
     return out
+
+
+_ROLL1, _ROLL2 = [1, 2, 0], [2, 0, 1]  # cross: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0)
+SMALL_CROSS = 64  # vectors up to which `cross` gathers (beyond: views and in-place differences)
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -165,16 +183,18 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
             continue
         if len(cols) == len(best):
             cols = slice(None)
-        m00, m01, m02, m10, m11, m12, m20, m21, m22 = comp[:, cols]
-        q[:, cols] = [
-            (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
-            (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20),
-            (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21),
-            (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22),
-        ][k]
+        q[:, cols] = _SHEPPERD[k](*comp[:, cols])  # only the candidate these items pick
     q /= np.sqrt((q * q).sum(0))
     q *= np.where(q[0] < 0, -1.0, 1.0)
     return q.T.reshape(m.shape[:-2] + (4,))
+
+
+_SHEPPERD = (  # matrix_to_quat's four candidates (w, x, y, z) from m00, m01, ..., m22
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20),
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21),
+    lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22),
+)
 
 
 def euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
@@ -216,7 +236,7 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     q[..., 0] = 1.0 + d
     q[..., 1:] = cross(a, b)
     opposite = d < -1.0 + 1e-9
-    if np.any(opposite):
+    if opposite.any():
         perp = np.cross(a, np.array([1.0, 0.0, 0.0]))
         small = np.linalg.norm(perp, axis=-1, keepdims=True) < 1e-6
         perp = np.where(small, np.cross(a, np.array([0.0, 1.0, 0.0])), perp)

@@ -170,6 +170,7 @@ class _ChainPlan:
     off: np.ndarray  # (n, 3) the aim point's offset from the rest curve
     k: np.ndarray  # (n,) the curve segment of its arc position
     t: np.ndarray  # (n,) and the position along it
+    inputs: np.ndarray  # every canonical bone whose frame the chain's rotations read (with the pelvis)
 
 
 @dataclass
@@ -396,14 +397,25 @@ class AvatarRig:
             # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
             P[plan.driven] = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), plan.fixed, plan.canon))
         chain = self._chain_plan if plan.chained else None
+        held = None
         if chain is not None:
-            # What a chain bone's aim needs but its parent's pose: its vertebra's turn since rest
-            # (the twist), the aim point it carries, and the offset of its target off the curve.
-            delta = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), chain.fixed, chain.vertebra))
-            twist = stacks_mul(delta, chain.rest)
-            aim = stacks_apply(twist, chain.aim)
-            off = stacks_apply(delta, chain.off)
-            target = None
+            # Decision (speed): the chain's rotations are the costliest part of a pose and a solve
+            # often poses the same trunk again (the egocentric method poses the avatar four times a
+            # block, the arms alone changing after the first IK): when every input they read is
+            # the last pose's, bit for bit, they are the last pose's.
+            key = (frames[:, chain.inputs], np.array(pelvis, float))
+            memo = getattr(self, "_chain_memo", None)
+            if memo is not None and all(np.array_equal(a, b) for a, b in zip(key, memo[0])):
+                held = memo[1]
+            else:
+                # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
+                # rest (the twist), the aim point it carries, and the offset of its target off the curve.
+                delta = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), chain.fixed, chain.vertebra))
+                twist = stacks_mul(delta, chain.rest)
+                aim = stacks_apply(twist, chain.aim)
+                off = stacks_apply(delta, chain.off)
+                target = None
+                aimed = {}
         for lv in plan.levels:
             if len(lv.heads):
                 H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
@@ -414,14 +426,19 @@ class AvatarRig:
             if len(lv.follow):
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
             for i in lv.chain:
+                j = chain.index[i]
+                if held is not None:
+                    P[i] = held[j]
+                    continue
                 if target is None:  # the canonical spine curve, once the bone it starts on is posed
                     curve = self._spine_curve(frames, P, H)
                     target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
                         + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
-                j = chain.index[i]
-                P[i] = quat_to_matrix(quat_between(aim[j], target[j] - H[i])) @ twist[j]
+                P[i] = aimed[j] = quat_to_matrix(quat_between(aim[j], target[j] - H[i])) @ twist[j]
             if lv.root:
                 H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
+        if held is None and chain is not None and len(aimed) == len(chain.index):
+            self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
         return P, H
 
     @property
@@ -472,9 +489,21 @@ class AvatarRig:
             vert = np.array([BI[SPINE_BONES[self.chain_vertebra[i]]] for i in bones], int)
             s = self.chain_s[bones]
             k = np.clip(np.floor(s), 0, len(SPINE_JOINTS) - 2).astype(int)
+            # What the chain's rotations read: the canonical frames driving the chain's ancestors
+            # and the bone the spine curve starts on (and its ancestors), the vertebrae's twists,
+            # and the spine bones the curve is built along.
+            above: set[int] = set()
+            for b in bones + [int(self.joint_bone[JI["spine_root"]])]:
+                b = self.parent[b] if b in bones else b
+                while b >= 0 and b not in above:
+                    above.add(int(b))
+                    b = self.parent[b]
+            inputs = {int(self.driver[b]) for b in above if isinstance(self.driver[b], (int, np.integer))}
+            inputs |= {int(v) for v in vert} | {BI[b] for b in SPINE_BONES}
             self._chain_rows = _ChainPlan({b: j for j, b in enumerate(bones)}, vert,
                                           np.array([self.frames0[c].T @ self.w_rot for c in vert]).reshape(-1, 3, 3),
-                                          self.rest[bones], self.chain_aim[bones], self.chain_off[bones], k, s - k)
+                                          self.rest[bones], self.chain_aim[bones], self.chain_off[bones], k, s - k,
+                                          np.array(sorted(inputs), int))
         return self._chain_rows
 
     @property

@@ -22,6 +22,7 @@ yaw limits from frame to frame. In this order the pole is at yaw ±90°, far out
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -63,9 +64,22 @@ def flexion_from_distance(l1, l2, l3, d) -> np.ndarray:
 
 
 def _ry(angle):
+    if isinstance(angle, float):  # one roll for every finger (pose_finger's): built once
+        return _ry_once(float(angle))
+    return _ry_built(angle)
+
+
+def _ry_built(angle):
     c, s = np.cos(angle), np.sin(angle)
     z, o = np.zeros_like(c), np.ones_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+@lru_cache(maxsize=8)
+def _ry_once(angle: float) -> np.ndarray:
+    m = _ry_built(angle)
+    m.setflags(write=False)  # shared by every call
+    return m
 
 
 def yaw_pitch(direction) -> tuple[np.ndarray, np.ndarray]:
@@ -108,10 +122,13 @@ def realign(target_local, flexed_local, thumb: bool = False):
 def _limits(thumb):
     """(yaw min, yaw max, pitch min, pitch max) in radians, for one finger or per item (`thumb`
     a bool array)."""
-    lims = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS.items()}
+    lims = _LIMITS_RAD
     if np.ndim(thumb) == 0:
         return tuple(lims["thumb" if thumb else "finger"])
     return tuple(np.where(thumb, t, f) for t, f in zip(lims["thumb"], lims["finger"]))
+
+
+_LIMITS_RAD = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS.items()}  # _limits', once
 
 
 def _rx_rz_rx(a, b, c):
@@ -138,6 +155,12 @@ class FingerPose:
     pitch: np.ndarray  # (F,) clamped realignment pitch
 
 
+def _per_item(v, n: int) -> np.ndarray:
+    """(n,) floats of a length given per item or once."""
+    v = np.asarray(v, float)
+    return v if v.shape == (n,) else np.broadcast_to(v, (n,))
+
+
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:
     """Pose one finger for F frames (appendix D).
 
@@ -160,10 +183,10 @@ def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll:
     elif roll is not None:
         ref = stack_mul(ref, _ry(roll))
     n = len(mcp)
-    l1, l2, l3 = (np.broadcast_to(np.asarray(v, float), (n,)) for v in (l1, l2, l3))
+    l1, l2, l3 = (_per_item(v, n) for v in (l1, l2, l3))
     rel = np.asarray(tip_target, float) - mcp
     local = np.einsum("fji,fj->fi", ref, rel)
-    alpha = flexion_from_distance(l1, l2, l3, np.linalg.norm(rel, axis=-1))
+    alpha = flexion_from_distance(l1, l2, l3, np.sqrt((rel * rel).sum(-1)))  # np.linalg.norm's sum
     # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
     # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
     c1, s1, c2, s2 = np.cos(alpha), np.sin(alpha), np.cos(2 * alpha), np.sin(2 * alpha)

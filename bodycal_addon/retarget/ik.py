@@ -15,6 +15,7 @@ the hinge is the flexion axis; a positive rotation about +X flexes (FORMATS.md �
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -43,9 +44,14 @@ def _unit(v, fallback):
     """Unit vectors (vectors last) and their norms, `fallback` where they vanish: the contract of
     `transforms.unit_and_norm`, kept apart because its norm is the einsum `_dot` of every other
     product here, which rounds differently in the last bit (unit_and_norm here moved 62 of the
-    demo's 4108 baked curves)."""
+    demo's 4108 baked curves). `fallback` may be a function giving it, called only when a vector
+    vanishes (the usual case has none: its fallback would be computed for nothing)."""
     n = np.sqrt(_dot(v, v))
     ok = n > EPS
+    if ok.all() and (callable(fallback) or np.shape(fallback) == v.shape
+                     or np.broadcast_shapes(np.shape(fallback), v.shape) == v.shape):
+        return v / n[..., None], n  # np.where's values when every vector is kept
+    fallback = fallback() if callable(fallback) else fallback
     return np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback), n
 
 
@@ -126,10 +132,10 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     alpha = flexion_angle(l1, l2, d)
 
     # γ: the user's swivel direction, perpendicular to this axis.
-    any_perp = _any_perpendicular(axis)
-    hint_dir = any_perp
     if flex_axis_hint is not None:
-        hint_dir = _unit(cross(axis, np.asarray(flex_axis_hint, float)), any_perp)[0]
+        hint_dir = _unit(cross(axis, np.asarray(flex_axis_hint, float)), lambda: _any_perpendicular(axis))[0]
+    else:
+        hint_dir = _any_perpendicular(axis)
     gamma_dir = hint_dir
     if user_swivel_dir is not None:
         w = np.asarray(user_swivel_dir, float)
@@ -204,7 +210,7 @@ def _place_arc(start, lengths, target, bend_dir, fallback_side):
     chord_vec = target - start
     chord_dir, chord_len = _unit(chord_vec, np.array([0.0, 0.0, 1.0]))
     theta = _solve_arc(lengths, np.minimum(chord_len, lengths.sum()))
-    fallback = _perp_unit(fallback_side, chord_dir, _any_perpendicular(chord_dir))[0]
+    fallback = _perp_unit(fallback_side, chord_dir, lambda: _any_perpendicular(chord_dir))[0]
     side = _perp_unit(bend_dir, chord_dir, fallback)[0]
     local = _arc_chord(lengths, theta)  # the chord seen from the first segment
     phi = np.arctan2(local[:, 1], local[:, 0])
@@ -227,6 +233,21 @@ def _rodrigues(v, axis, angle):
     return v * c + cross(axis, v) * s + axis * _dot(axis, v)[..., None] * (1 - c)
 
 
+@lru_cache(maxsize=16)
+def _rest_spine(data: bytes, shape: tuple) -> tuple:
+    """What `bend_rest_spine` reads of a rest spine (n, 3), once per spine: the vertebrae's lengths
+    and unit directions, the rest chord's direction, the segment numbers 1..n and the
+    (numerator, denominator) of the bend's share per segment."""
+    rest_segments = np.frombuffer(data, float).reshape(shape)
+    lengths = np.linalg.norm(rest_segments, axis=-1)
+    seg0 = rest_segments / np.maximum(lengths, EPS)[:, None]
+    u0 = _unit(rest_segments.sum(0), np.array([0.0, 1.0, 0.0]))[0]
+    k = np.arange(1, len(lengths) + 1)
+    for a in (lengths, seg0, u0, k):
+        a.setflags(write=False)  # shared by every call
+    return lengths, seg0, u0, k, (lengths.sum(), max(float((lengths * k).sum()), EPS))
+
+
 def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     """The rest spine bent by one equal angle per vertebra so that its chord points at `target`
     (Decision, replacing the equal-angle arc's chord-LENGTH match of appendix D when the rest
@@ -238,15 +259,13 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     MIN/MAX_SPINE_STRETCH) put the top on the target. At the rest chord the rest shape comes back
     exactly. start (F, 3), sacrum_rot (F, 3, 3), rest_segments (n, 3) in the sacrum's frame,
     target (F, 3) -> joints (F, n + 1, 3), δ (F,)."""
-    lengths = np.linalg.norm(rest_segments, axis=-1)
-    seg0 = rest_segments / np.maximum(lengths, EPS)[:, None]
-    u0 = _unit(rest_segments.sum(0), np.array([0.0, 1.0, 0.0]))[0]
+    rest_segments = np.ascontiguousarray(rest_segments, float)
+    lengths, seg0, u0, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
     local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
     ut, reach = _unit(local, u0)
-    axis, sin_phi = _unit(cross(u0, ut), _any_perpendicular(np.broadcast_to(u0, ut.shape)))
+    axis, sin_phi = _unit(cross(u0, ut), lambda: _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
-    k = np.arange(1, len(lengths) + 1)
-    delta = phi * lengths.sum() / max(float((lengths * k).sum()), EPS)
+    delta = phi * ratio[0] / ratio[1]
     seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
     chord = (seg * lengths[:, None]).sum(1)
     cdir, clen = _unit(chord, ut)
@@ -303,7 +322,7 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
         joints, theta = _place_arc(start, lengths, target, sacrum_rot[..., 1], -sacrum_rot[..., 2])
     # Uniform twist from the hip axis to the top's right, about the chord.
     chord = _unit(joints[:, -1] - joints[:, 0], sacrum_rot[..., 1])[0]
-    hip = _perp_unit(sacrum_rot[..., 0], chord, _any_perpendicular(chord))[0]
+    hip = _perp_unit(sacrum_rot[..., 0], chord, lambda: _any_perpendicular(chord))[0]
     total = np.zeros(len(pelvis))
     if top_right is not None:
         top = _perp_unit(np.asarray(top_right, float), chord, hip)[0]
@@ -314,6 +333,6 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     other = cross(chord, hip)
     right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
     y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
-    xk = _perp_unit(right, y, _any_perpendicular(y))[0]
+    xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
     rotations = np.stack([xk, y, cross(xk, y)], axis=-1)
     return SpineResult(joints, rotations, sacrum_rot, theta)

@@ -203,7 +203,8 @@ class PreparedSolver:
         user_frames = up.frames if up.surface_frames is None else up.surface_frames
         up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
                       up.notes)
-        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised)
+        fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised) \
+            if self.impl.uses_fk else None
         return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
 
     def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
@@ -309,16 +310,28 @@ class PreparedSolver:
             return
         nf, sides = frames.shape[0], list(wrists)
         hands = np.stack([frames[:, BI[f"hand_{s}"]] for s in sides])
-        rows = [sides.index(s) for s, _ in items]
-        mcp_local, base_rest, lens = (np.array([self._finger_rest[i][k] for i in items]) for k in range(3))
+        rows, mcp_local, base_rest, lens, thumbs, bones = self._finger_rows(tuple(items), tuple(sides))
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        thumb = np.repeat([f == "thumb" for _, f in items], nf)
+        thumb = np.repeat(thumbs, nf)
         _, fr = pose_finger_chain(mcp, tip, np.repeat(lens, nf, axis=0).T, [ref], thumb=thumb)
         for i in (1, 2, 3):
-            frames[:, [BI[f"{f}_{i}_{s}"] for s, f in items]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3),
-                                                                          0, 1)
+            frames[:, bones[i - 1]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3), 0, 1)
+
+    def _finger_rows(self, items: tuple, sides: tuple) -> tuple:
+        """What `_fingers` gathers for the fingers `items` [(side, finger)] of the hands `sides`, once
+        per such set: each finger's hand (its row in `sides`), its `_finger_rest` constants stacked
+        (MCP offsets, first phalanx rest frames, lengths), which are thumbs, and the canonical bones
+        of phalanges 1, 2, 3."""
+        cache = self.__dict__.setdefault("_finger_rows_cache", {})
+        if (items, sides) not in cache:
+            rest = self._finger_rest
+            cache[items, sides] = ([sides.index(s) for s, _ in items],
+                                   *(np.array([rest[i][k] for i in items]) for k in range(3)),
+                                   [f == "thumb" for _, f in items],
+                                   [[BI[f"{f}_{i}_{s}"] for s, f in items] for i in (1, 2, 3)])
+        return cache[items, sides]
 
     @property
     def _finger_rest(self) -> dict:

@@ -64,12 +64,14 @@ def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.n
 class Method:
     """A retargeting method: what it computes once (`__init__`, on the run's shared state) and per
     chunk of frames (`chunk`: the avatar pose and the targets it aimed at). `fk_basis` and
-    `realised` say how the run's rotation copy (step 2) is solved for it; `ankle_places` gives
-    the ankles the feet plan holds (None: the user's, scaled about the root)."""
+    `realised` say how the run's rotation copy (step 2) is solved for it (`uses_fk` False: not
+    at all); `ankle_places` gives the ankles the feet plan holds (None: the user's, scaled about
+    the root)."""
 
     name = ""
     fk_basis = False
     realised: bool | list[int] = False
+    uses_fk = True  # reads the rotation copy's pose (`chunk`'s fk; None when not)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -217,6 +219,7 @@ class ExactOffsets(Method):
     vector, limbs by IK, fingers closed on the controller (offsets.py)."""
 
     name = "offsets"
+    uses_fk = False  # the limbs hang from the offsets' own trunk, and there is no skull-base IK
 
     def __init__(self, run, avatar_pos: dict):
         super().__init__(run, avatar_pos)

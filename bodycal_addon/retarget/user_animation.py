@@ -174,8 +174,26 @@ class UserAnimator:
         if self._version != self.reader.version:
             self.reader.read(0, 0)  # the roles as far as the recording goes
             self._plan = self._make_plan()
+            self._tables = self._make_tables(self._plan)
             self._version = self.reader.version
         return self._plan
+
+    def _make_tables(self, plan: _Plan) -> dict:
+        """The plan as the index arrays `animate` gathers with, once per plan: the products' and
+        rigid frames' trackers (rows of `Trackers.rotations`, roles in the reader's order), the
+        joints with one estimate, and those with k estimates, by k (each the mean of its own)."""
+        index = {r: k for k, r in enumerate(self.reader.roles)}
+        by_count: dict[int, list] = {}
+        for j, e in plan.joints.items():
+            by_count.setdefault(len(e), []).append((j, e))
+        which = [(s, f) for s, f, _ in plan.tips]
+        return {"vec": np.array(plan.vec), "vec_rows": [index[r] for r in plan.vec_role],
+                "est_rows": np.array([index[r] for r in plan.est_role], int), "est_vec": np.array(plan.est_vec, int),
+                "rigid": np.array(plan.rigid_fixed), "rigid_rows": [index[r] for r in plan.rigid_role],
+                "joints": [(k, [j for j, _ in g], np.array([e for _, e in g], int))
+                           for k, g in sorted(by_count.items())],
+                "tips": which, "tip_columns": [c for _, _, c in plan.tips],
+                "fingers": finger_constants(which, self.rest_pos, self.model.bones) if which else None}
 
     def _need(self, joint: str, value):
         """`value`, or one error when no tracked device knows `joint`."""
@@ -269,22 +287,25 @@ class UserAnimator:
     def animate(self, start: int = 0, stop: int | None = None) -> UserPose:
         """The canonical joints and bone frames of frames [start, stop)."""
         plan = self.plan
+        tab = self._tables
         stop = self.recording.frame_count if stop is None else stop
         tr = self.reader.read(start, stop)
-        index = {r: k for k, r in enumerate(tr.roles)}
-        prod = stacks_apply(tr.rotations, np.array(plan.vec), [index[r] for r in plan.vec_role])
-        est = tr.positions[[index[r] for r in plan.est_role]] + prod[plan.est_vec]
-        rigid = stacks_mul(tr.rotations, np.array(plan.rigid_fixed), [index[r] for r in plan.rigid_role])
-        P = {j: est[e[0]] if len(e) == 1 else self._mean_estimate(est, e, plan, tr, index)
-             for j, e in plan.joints.items()}
+        prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
+        est = tr.positions[tab["est_rows"]] + prod[tab["est_vec"]]
+        rigid = stacks_mul(tr.rotations, tab["rigid"], tab["rigid_rows"])
+        P = {}
+        for k, names, rows in tab["joints"]:  # a joint is the mean of its estimates (np.mean's sum / k)
+            value = est[rows[:, 0]] if k == 1 else self._mean_estimates(est, rows, tab["est_rows"], tr)
+            P.update(zip(names, value))
         Fr = np.empty((stop - start, len(BONES), 3, 3))
         Fr[:, BI["head"]] = rigid[plan.rigid["head", "head"]]
         self._limbs(plan, P, Fr, prod, rigid)
         self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"])
         self._hands(plan, P, Fr, start, stop)
         pos = np.stack([P[j] for j in JOINTS], axis=1)
-        for b in _SHORTCUTS:  # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
-            Fr[:, BI[b.name]] = frame_from_axes(P[b.tail] - P[b.head], Fr[:, BI["sacrum"]][..., :, 0])
+        # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
+        ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
+        Fr[:, _SHORTCUT_INDEX] = np.swapaxes(frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]), 0, 1)
         if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(Fr)):
             raise BodyCalError("the user animation has non-finite values",
                                source=self.recording.source or self.recording.name,
@@ -292,15 +313,19 @@ class UserAnimator:
         return UserPose(self.recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
 
     @staticmethod
-    def _mean_estimate(est: np.ndarray, e: list, plan: _Plan, tr: Trackers, index: dict) -> np.ndarray:
-        """The mean of a joint's estimates `e` over the trackers tracking it each frame (a lost one
-        rides on its carrier, DESIGN.md §6 "Lost devices": the knee follows the shin while the thigh
-        is lost), over all of them where none is."""
+    @staticmethod
+    def _mean_estimates(est: np.ndarray, rows: np.ndarray, est_rows: np.ndarray, tr: Trackers) -> np.ndarray:
+        """The mean of each joint's estimates (`rows`, (J, k) into `est`) over the trackers tracking
+        it each frame (a lost one rides on its carrier, DESIGN.md §6 "Lost devices": the knee follows
+        the shin while the thigh is lost), over all of them where none is."""
+        k = rows.shape[1]
         if tr.tracked is None:
-            return np.mean(est[e], axis=0)
-        w = tr.tracked[[index[plan.est_role[i]] for i in e]].astype(float)  # (E, F)
-        w[:, ~w.any(0)] = 1.0
-        return np.einsum("ef,efi->fi", w, est[e]) / w.sum(0)[:, None]
+            return est[rows].sum(axis=1) / k
+        w = tr.tracked[est_rows[rows]]  # (J, k, F)
+        if w.all():
+            return est[rows].sum(axis=1) / k
+        w = np.where(w.any(axis=1, keepdims=True), w, True).astype(float)
+        return np.einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
 
     def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
@@ -354,15 +379,16 @@ class UserAnimator:
         for h, s in enumerate(sk.SIDES):
             names, vecs, bones, fixed = plan.hands[s]
             rel = stacks_apply(hands, vecs, [h] * len(vecs))
-            for k, name in enumerate(names):
-                P[name] = P[f"wrist_{s}"] + rel[k]
+            P.update(zip(names, P[f"wrist_{s}"] + rel))
             Fr[:, bones] = np.swapaxes(stacks_mul(hands, fixed, [h] * len(fixed)), 0, 1)
         if plan.tips:
-            tips = self.reader.markers([c for _, _, c in plan.tips], start, stop)
-            pose_user_fingers(P, Fr, [(s, f) for s, f, _ in plan.tips], tips, self.rest_pos, self.model.bones)
+            tab = self._tables
+            tips = self.reader.markers(tab["tip_columns"], start, stop)
+            pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
 
 
 _SHORTCUTS = [b for b in BONES if b.shortcut]
+_SHORTCUT_INDEX = [BI[b.name] for b in _SHORTCUTS]
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
@@ -384,16 +410,29 @@ def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
     return two_bone_mid(root, eff, l1, l2, cross(eff - root, right))
 
 
-def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
-                      model_bones: dict) -> None:
-    """Finger joints and phalanx frames from fingertip markers (appendix D, eq. 3-4 and the yaw/pitch
-    realignment, `fingers.pose_finger`), every finger of `which` [(side, finger)] at once: `tips`
-    (K, F, 3) their markers; P and Fr hold the fingers rigid on the hand (their MCPs and rest
-    phalanx frames) and are updated."""
-    K, F = tips.shape[:2]
+def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: dict) -> tuple:
+    """What `pose_user_fingers` reads of the model for the fingers `which`, computed once: their
+    joints' names, their phalanges' canonical bones, the phalanx lengths (K, 3) and the fingertip
+    radii (K,) (the LED's offset from the tip joint)."""
     names = [[f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS] for s, f in which]
     bones = [[BI[f"{f}_{i}_{s}"] for i in (1, 2, 3)] for s, f in which]
     lens = np.array([[np.linalg.norm(rest_pos[n[i + 1]] - rest_pos[n[i]]) for i in range(3)] for n in names])
+    radius = []
+    for s, f in which:
+        info = model_bones.get(f"{f}_3_{s}")
+        radius.append(info.radius_tail if info is not None and info.radius_tail else 0.0)
+    return names, bones, lens, radius
+
+
+def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
+                      model_bones: dict, constants: tuple | None = None) -> None:
+    """Finger joints and phalanx frames from fingertip markers (appendix D, eq. 3-4 and the yaw/pitch
+    realignment, `fingers.pose_finger`), every finger of `which` [(side, finger)] at once: `tips`
+    (K, F, 3) their markers; P and Fr hold the fingers rigid on the hand (their MCPs and rest
+    phalanx frames) and are updated. `constants`: `finger_constants(which, ...)`, when the caller
+    keeps them."""
+    K, F = tips.shape[:2]
+    names, bones, lens, radius = constants or finger_constants(which, rest_pos, model_bones)
     mcp = np.concatenate([P[n[0]] for n in names])
     ref = np.concatenate([Fr[:, b[0]] for b in bones])
     thumb = np.repeat([f == "thumb" for _, f in which], F)
@@ -401,10 +440,6 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
     pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), per_frame.T, [ref], thumb=thumb)
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
-    radius = []
-    for s, f in which:
-        info = model_bones.get(f"{f}_3_{s}")
-        radius.append(info.radius_tail if info is not None and info.radius_tail else 0.0)
     if any(radius):
         aim = tips.reshape(-1, 3) + np.repeat(radius, F)[:, None] * frames[2][..., :, 2]
         pts, frames = pose_finger_chain(mcp, aim, per_frame.T, [ref], thumb=thumb)

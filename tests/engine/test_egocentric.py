@@ -376,3 +376,31 @@ def test_one_prepared_user_side_maps_onto_several_avatars(user):
         av = eg.pose_surface(rb.scale_model(user, s), {k: v * s for k, v in joints.items()}, rots)
         np.testing.assert_allclose(prepared.map(av), s * pts, atol=1e-9, rtol=0)
         np.testing.assert_allclose(prepared.map(av), eg.retarget_points(pts, TARGETS, us, av), atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("frames", [1, 3])
+def test_a_few_frames_map_as_the_groups_apart_do(user, monkeypatch, dtype, frames):
+    # A few frames take the speed paths (every target projected and re-posed on every element at
+    # once, each exclusion group taking its pairs; τ summed over the padded path slots at once;
+    # the rotated vectors three rows at a time): the same values, bit for bit, as each group
+    # projected on its own elements with the slot by slot sums, weights included.
+    from bodycal_addon.retarget.egocentric import mapping as egm
+
+    avatar = rb.scale_model(user, 1.2)
+    joints, rots = _posed(user, frames, 5)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * 1.2 + 0.01 for k, v in joints.items()}, rots)
+    pts = _targets(joints, 5, spread=0.1)
+    fast, fast_details = [], {}
+    for turn_v in (False, True):
+        fast.append(eg.retarget_points(pts, TARGETS, us, av, turn_v=turn_v, dtype=dtype, details=fast_details))
+    assert egm.MERGED_PAIRS >= frames * len(TARGETS) * len(us.element_ids)  # the fast paths were taken
+    monkeypatch.setattr(egm, "MERGED_PAIRS", 0)
+    monkeypatch.setattr(egp, "SMALL_ROWS", 0)
+    apart_details = {}
+    for k, turn_v in enumerate((False, True)):
+        apart = eg.retarget_points(pts, TARGETS, us, av, turn_v=turn_v, dtype=dtype, details=apart_details)
+        np.testing.assert_array_equal(fast[k], apart)
+    for name in apart_details:
+        np.testing.assert_array_equal(fast_details[name], apart_details[name], err_msg=name)

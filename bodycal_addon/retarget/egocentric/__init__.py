@@ -53,9 +53,11 @@ Conventions and decisions (each one named in the code where it applies):
 Speed: the hot path keeps vector components first ((3, F, P, E) arrays) and runs blocks of
 BLOCK_PAIRS frames x targets x elements so the temporaries stay in the CPU caches; everything
 frame-independent (exclusions, kinematic paths as index arrays sorted by length) is computed once
-per target/element set; targets that exclude the same elements are mapped on the others only;
-the user's side is prepared once (`prepare_targets`) and mapped onto each avatar pose; the
-pipeline computes it in float32 (`dtype`).
+per target/element set; targets that exclude the same elements are mapped on the others only,
+but a few frames (up to MERGED_PAIRS frames x targets x elements: a live frame) are projected and
+re-posed for every target on every element in one pass, each group taking its pairs (the same
+values, fewer numpy calls); the user's side is prepared once (`prepare_targets`) and mapped onto
+each avatar pose; the pipeline computes it in float32 (`dtype`).
 """
 
 from .graph import GRAPH_BONES, GRAPH_INDEX, GRAPH_NODES, TORSO_ROOT, element_root, kinematic_path, own_chain_elements

@@ -13,7 +13,7 @@ from ...core.errors import BodyCalError
 from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
-from .surface import JointTable, PosedSurface
+from .surface import JointTable, PosedSurface, _selection
 from .weights import normalise_weights, raw_weights
 
 SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
@@ -33,6 +33,9 @@ class _Plan:
     order: np.ndarray  # (N,)
     unorder: np.ndarray  # (N,) its inverse
     slot_bones: list[np.ndarray]
+    # The same as one (L, N) table, each slot's row padded with ZERO_BONE (whose vector is zero):
+    # a few frames sum every slot in one call (adding the padding's exact zeros changes no bit).
+    slot_table: np.ndarray
     entry_bone: np.ndarray  # every GRAPH_BONES index used (for the joint check)
     floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
     floor_starts: list[np.ndarray]  # per side: (P,)
@@ -66,6 +69,9 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
     order = np.array(sorted(range(len(paths)), key=lambda i: -len(paths[i])), int)
     longest = len(paths[order[0]]) if paths else 0
     slots = [np.array([paths[i][j] for i in order if len(paths[i]) > j], int) for j in range(longest)]
+    table = np.full((longest, len(paths)), ZERO_BONE, int)
+    for j, bones in enumerate(slots):
+        table[j, :len(bones)] = bones
     used = np.array(sorted({b for path in paths for b in path}), int)
     floor_bone, floor_starts = [], []
     for s in sk.SIDES:
@@ -73,7 +79,7 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
         floor_bone.append(b)
         floor_starts.append(st)
     return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
-                 used, floor_bone, floor_starts)
+                 table, used, floor_bone, floor_starts)
 
 
 _GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
@@ -177,7 +183,8 @@ class _UserBlock:
     lam_gf: np.ndarray  # (F, P) λg of the floor
     vhat: np.ndarray  # (3, F, N) unit v of each chain
     tau: np.ndarray  # (F, N) τ
-    dots: list  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone length ratios)
+    dots: list | np.ndarray  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone
+    # length ratios); or all at once, (L, N, F) in `_Plan.slot_table`'s layout
     floor_user: tuple | None = None  # the floor ratios' user side, once mapped (_floor_user)
 
 
@@ -200,8 +207,9 @@ class PreparedTargets:
     pipeline maps the arms twice (against the arms where the first pass put them) and pays for
     the user's side once. Built by `prepare_targets`."""
 
-    def __init__(self, pts, names, user_surface, ub, floor, groups):
+    def __init__(self, pts, names, user_surface, ub, floor, groups, whole=None):
         self.pts, self.names, self.user_surface, self.floor, self.groups = pts, names, user_surface, floor, groups
+        self.whole = whole  # every target on every element at once (_project), when the groups share it
         self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
         self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the gathers
         self._bone_tau_a = None  # (length ratios, {(group, block): τ' over the bones}) of the last map
@@ -236,19 +244,23 @@ class PreparedTargets:
         nodes_a = _node_positions(avatar_surface, F, dtype)
         avatar_surface = avatar_surface.astype(dtype)
         out = np.empty_like(self.pts)
+        # Every target re-posed on every element at once, each group's pairs taken from it (the
+        # same values: the re-posing is per pair); see prepare_targets.
+        whole = None if self.whole is None else _repose(self.whole, us, avatar_surface, turn_v)
         if details is not None:
             E = len(us.element_ids)
             P = len(self.names)
             details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
                            ratio=np.ones((F, P, E)))
         for gi, g in enumerate(self.groups):
-            av = avatar_surface if g.elements is None else avatar_surface.select(g.elements)
+            av = avatar_surface if g.elements is None or whole is not None else avatar_surface.select(g.elements)
             for bi, b in enumerate(g.blocks):
                 s, e = b.start, b.stop
                 if (gi, bi) not in bone_tau_a[1]:
                     bone_tau_a[1][gi, bi] = _bone_tau(b, g.plan, lrt[:, s:e])
+                reposed = None if whole is None else tuple(_pairs(a, g.targets, g.elements) for a in whole)
                 res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
-                                        bone_tau_a[1][gi, bi], nodes_a[:, s:e], self.floor, turn_v)
+                                        bone_tau_a[1][gi, bi], nodes_a[:, s:e], self.floor, turn_v, reposed)
                 out[s:e, g.targets] = res
                 if details is not None:
                     cols = slice(None) if g.elements is None else g.elements
@@ -281,19 +293,54 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
     nodes_u = _node_positions(user_surface, F, dtype)
     user_surface = user_surface.astype(dtype)
     groups = []
-    for members, names, keep, plan in _grouping(tuple(target_names), tuple(user_surface.element_ids),
-                                                tuple(user_surface.element_roots)):
+    # Decision (speed, the same values): a few frames (a live frame, a preview) are projected and
+    # re-posed for every target on every element at once, and each group takes its pairs from
+    # that: the projection is per (target, element) pair, so the values are the group's own, and
+    # one pass over a few more pairs costs far less than one pass per group when numpy's per-call
+    # overhead is the cost. Longer blocks (the bake's chunks) project each group on its own
+    # elements only: there the pairs are the cost.
+    ids = user_surface.element_ids
+    whole = (_project(pts, user_surface, penetration_tolerance)
+             if not chunk and F * len(target_names) * len(ids) <= MERGED_PAIRS else None)
+    for members, names, keep, plan in _grouping(tuple(target_names), tuple(ids), tuple(user_surface.element_roots)):
         sub = user_surface if keep is None else user_surface.select(keep)
         _check_joints(sub, plan, names, "user")
         step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
-        step = max(1, step)
+        step = max(1, F if whole is not None else step)
         blocks = []
         for s in range(0, F, step):
             e = min(F, s + step)
+            pr = None if whole is None else _proj_pairs(whole, members, keep, user_surface)
             blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
-                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff))
+                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff, pr))
         groups.append(_Group(members, names, keep, plan, blocks))
-    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
+    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+
+
+MERGED_PAIRS = 2_000  # frames x targets x elements up to which every group shares one projection
+
+
+def _pairs(a: np.ndarray, targets: np.ndarray, elements: np.ndarray | None) -> np.ndarray:
+    """(..., P, E) -> the pairs of `targets` (and `elements`, None: all) of the last two axes."""
+    a = a.take(targets, axis=-2)
+    return a if elements is None else a.take(elements, axis=-1)
+
+
+def _proj_pairs(whole: _Proj, targets: np.ndarray, keep: np.ndarray | None, surface: PosedSurface) -> _Proj:
+    """A group's projections taken from every target's on every element (`_project` of the whole
+    `surface`): its targets, its elements (`keep`, as `PosedSurface.select` orders them), the
+    closest triangles renumbered as in the selected surface."""
+    if keep is None:
+        cap, sph, mesh, tri_index = None, None, None, whole.tri_index.take(targets, axis=1)
+    else:
+        cap, sph, mesh, _, _, slices = _selection(tuple(int(k) for k in keep), surface.counts,
+                                                  tuple(surface.mesh_slices))
+        shift = np.array([b[0] - surface.mesh_slices[m][0] for m, b in zip(mesh, slices)], int)
+        tri_index = _pairs(whole.tri_index, targets, mesh) + shift
+    return _Proj(_pairs(whole.x, targets, keep), _pairs(whole.v, targets, keep), _pairs(whole.dist, targets, keep),
+                 _pairs(whole.factor, targets, keep), _pairs(whole.cap_t, targets, cap),
+                 _pairs(whole.cap_dir, targets, cap), _pairs(whole.sph_dir, targets, sph), tri_index,
+                 _pairs(whole.tri_bary, targets, mesh))
 
 
 @lru_cache(maxsize=64)
@@ -317,9 +364,11 @@ def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
     return out
 
 
-def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff) -> _UserBlock:
+def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff,
+                   pr: _Proj | None = None) -> _UserBlock:
+    """The user's side of one block of one group (`pr`: its projections, when already made)."""
     F, P = p.shape[:2]
-    pr = _project(p, us, tol)
+    pr = _project(p, us, tol) if pr is None else pr
     lam_raw, floor_raw = raw_weights(pr, p[..., 2], plan.exclude, falloff)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
@@ -328,12 +377,18 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
     vt = np.ascontiguousarray(vhat.take(plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
-    tau = np.zeros(vt.shape[1:], vt.dtype)
-    dots = []
-    for bones in plan.slot_bones:
-        n = len(bones)
-        dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
-        tau[:n] += dots[-1]
+    if F * vt.shape[1] <= MERGED_PAIRS and len(plan.slot_table):
+        # A few frames: every slot at once (the padding's dots are exact zeros; the sum over the
+        # slots runs in their order, as the loop below adds them).
+        dots = np.abs(_dot(vt[:, None], ub.take(plan.slot_table, axis=1)))  # (L, N, F)
+        tau = np.add.reduce(dots, axis=0)
+    else:
+        tau = np.zeros(vt.shape[1:], vt.dtype)
+        dots = []
+        for bones in plan.slot_bones:
+            n = len(bones)
+            dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
+            tau[:n] += dots[-1]
     tau = tau.take(plan.unorder, axis=0).T
     tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
@@ -348,19 +403,23 @@ def _chains(a, plan: _Plan):
 
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
     """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
-    out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
-    for bones, d in zip(plan.slot_bones, b.dots):
-        out[:len(bones)] += d * lratio.take(bones, axis=0)
+    if isinstance(b.dots, np.ndarray):  # every slot at once (_prepare_block)
+        out = np.add.reduce(b.dots * lratio.take(plan.slot_table, axis=0), axis=0)
+    else:
+        out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
+        for bones, d in zip(plan.slot_bones, b.dots):
+            out[:len(bones)] += d * lratio.take(bones, axis=0)
     return out.take(plan.unorder, axis=0).T
 
 
-def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v):
-    """One block of frames against the avatar: eq. 1 with τ'/τ of eq. 2 (`bone_tau_a`: `_bone_tau`).
-    Returns ((F, P, 3), ratio)."""
+def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v,
+               reposed=None):
+    """One block of frames against the avatar: eq. 1 with τ'/τ of eq. 2 (`bone_tau_a`: `_bone_tau`;
+    `reposed`: the block's (x', v') when already made). Returns ((F, P, 3), ratio)."""
     p, us, pr = b.p, b.us, b.pr
     F, P = p.shape[:2]
     E = pr.v.shape[-1]
-    x_av, v_av = _repose(pr, us, av, turn_v)  # (3, F, P, E)
+    x_av, v_av = _repose(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
     tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > EPS)

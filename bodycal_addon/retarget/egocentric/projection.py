@@ -69,8 +69,20 @@ def _apply_t(rc, v):
     return _rows_dot(rc, v, transpose=True)
 
 
+SMALL_ROWS = 4096  # items per row up to which `_rows_dot` computes the three rows at once
+
+
 def _rows_dot(rc, v, transpose):
-    out = np.empty((3,) + np.broadcast_shapes(rc.shape[2:], v.shape[1:]), np.result_type(rc, v))
+    shape = np.broadcast_shapes(rc.shape[2:], v.shape[1:])
+    if np.prod(shape) <= SMALL_ROWS:
+        # A few items (a live frame): the three rows in three products and two sums, each row's
+        # the same r0 v0 + r1 v1 + r2 v2 in the same order as the loop below, in a fifth of the calls.
+        r = rc if transpose else np.swapaxes(rc, 0, 1)  # r[k] holds every row's k-th entry
+        out = r[0] * v[0]
+        out += r[1] * v[1]
+        out += r[2] * v[2]
+        return out
+    out = np.empty((3,) + shape, np.result_type(rc, v))
     tmp = np.empty(out.shape[1:], out.dtype)
     for i in range(3):
         r = rc[:, i] if transpose else rc[i]
@@ -168,11 +180,16 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         bv, bw = _closest_on_triangles(tap, tab, tac)
         tv = tap - bv * tab - bw * tac  # p - x
         td2 = _dot(tv, tv)
-        sel = np.stack([np.argmin(td2[..., s:e], axis=-1) + s for s, e in surface.mesh_slices], axis=-1)
-        starts = np.array([s for s, _ in surface.mesh_slices])
-        of_tri = np.repeat(np.arange(M), [e - s for s, e in surface.mesh_slices])
-        mesh_v = np.stack([np.take_along_axis(tv[i], sel, axis=2) for i in range(3)])
-        bv, bw = np.take_along_axis(bv, sel, axis=2), np.take_along_axis(bw, sel, axis=2)
+        starts, of_tri, padded = _mesh_layout(tuple(surface.mesh_slices))
+        T = td2.shape[-1]
+        # Each mesh's closest triangle: one argmin over the meshes' triangles side by side, each
+        # row padded with +inf (argmin takes the first minimum, as it would on the mesh alone).
+        rows = np.concatenate([td2, np.full((F, P, 1), np.inf, td2.dtype)], axis=-1).take(padded, axis=-1)
+        sel = rows.argmin(axis=-1) + starts  # (F, P, M)
+        # The closest triangles' values gathered by one flat index (F P T -> F P M).
+        flat = (np.arange(F * P)[:, None] * T + sel.reshape(F * P, M)).reshape(-1)
+        mesh_v = tv.reshape(3, -1).take(flat, axis=1).reshape(3, F, P, M)
+        bv, bw = bv.reshape(-1).take(flat).reshape(F, P, M), bw.reshape(-1).take(flat).reshape(F, P, M)
         tri_bary = np.stack([1.0 - bv - bw, bv, bw])
         # Decision: the angular factor is every triangle's own, weighted by how close the triangle
         # is to being the nearest (exp(-(d_t - d_min) / FACTOR_BLEND)). A closest point on an
@@ -183,7 +200,7 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         # distance move continuously, so the blend does.
         tri_factor = _triangle_factor(tv, _comp(surface.tri_normal)[:, :, None, :], tol)  # (F, P, T)
         td = np.sqrt(td2)
-        closest = np.take(np.take_along_axis(td, sel, axis=2), of_tri, axis=2)  # (F, P, T) its mesh's min
+        closest = td.reshape(-1).take(flat).reshape(F, P, M).take(of_tri, axis=2)  # (F, P, T) its mesh's min
         near = np.exp((closest - td) * (1.0 / FACTOR_BLEND))
         mesh_factor = np.add.reduceat(near * tri_factor, starts, axis=2) / np.add.reduceat(near, starts, axis=2)
     else:
@@ -196,6 +213,19 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     factor = np.concatenate([cap_factor, np.ones((F, P, S), pc.dtype), mesh_factor], axis=-1)
     # Surface coordinates in the bone frames: what re-poses the projection on another body.
     return _Proj(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
+
+
+@lru_cache(maxsize=64)
+def _mesh_layout(mesh_slices: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Once per mesh layout: each mesh's first triangle (M,), each triangle's mesh (T,), and each
+    mesh's triangles as a row (M, longest), padded with T (a column of +inf in `_project`)."""
+    starts = np.array([a for a, _ in mesh_slices], int)
+    sizes = [b - a for a, b in mesh_slices]
+    total = mesh_slices[-1][1] if mesh_slices else 0
+    padded = np.full((len(mesh_slices), max(sizes, default=0)), total, int)
+    for m, (a, b) in enumerate(mesh_slices):
+        padded[m, :b - a] = np.arange(a, b)
+    return starts, np.repeat(np.arange(len(mesh_slices)), sizes), padded
 
 
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
