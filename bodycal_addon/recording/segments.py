@@ -70,3 +70,18 @@ def parse_segments(items, time, source, devices, marker_names) -> list[Segment]:
 
 
 # ----------------------------------------------------------------------------------------------
+
+
+def check_segment(step, point, by, start, end) -> Segment:
+    """A calibration step as a live source announces it or a wizard marks it, checked as a file's
+    segment would be (recording/segments.py); one BodyCalError otherwise."""
+    item = {"step": step, "start": start, "end": end}
+    if point:
+        item["point"] = point
+    if by:
+        item["by"] = by
+    numbers = all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in (start, end))
+    span = np.array([start, end], float) if numbers else np.zeros(2)  # else parse_segments names the bad time
+    # Any name may touch here (the devices and markers of a stream are not all known yet); the
+    # recorder checks the touchers again against what it recorded (recorder.py).
+    return parse_segments([item], span, "segment", [], [by] if isinstance(by, str) else [])[0]

@@ -28,9 +28,8 @@ from ...core.outputs import replacing
 from ..io.writer import save_recording
 from ..model import ROLES, Device, Recording, Segment
 from ..roles import identify_roles
-from ..segments import parse_segments
+from ..segments import check_segment, parse_segments
 from .source import LiveFrame
-from .vmc import check_segment
 
 MIN_STEP_S = 1e-6  # frames closer than this in time (one datagram ending two frames) are spaced by it
 

@@ -38,8 +38,8 @@ from pythonosc.parsing.osc_types import ParseError as TypeParseError
 
 from ...core.errors import BodyCalError
 from ..coords import MAX_POSITION_M, QUAT_TOLERANCE, from_internal, to_internal
-from ..model import DEVICE_KINDS, ROLES, Segment
-from ..segments import parse_segments
+from ..model import DEVICE_KINDS, ROLES
+from ..segments import check_segment
 from .source import LiveFrame, SourceStats
 
 DEFAULT_PORT = 39539  # a Marionette's port (the specification)
@@ -148,21 +148,6 @@ def _pose(args, known=frozenset()) -> tuple[str | None, list[float] | None, str]
     if abs(norm - 1.0) > QUAT_TOLERANCE:
         return serial, None, f"quaternion not unit length (|q| = {norm:.6g})"
     return serial, [px, py, pz, qx / norm, qy / norm, qz / norm, qw / norm], ""
-
-
-def check_segment(step, point, by, start, end) -> Segment:
-    """A calibration step as a live source announces it or a wizard marks it, checked as a file's
-    segment would be (recording/segments.py); one BodyCalError otherwise."""
-    item = {"step": step, "start": start, "end": end}
-    if point:
-        item["point"] = point
-    if by:
-        item["by"] = by
-    numbers = all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in (start, end))
-    span = np.array([start, end], float) if numbers else np.zeros(2)  # else parse_segments names the bad time
-    # Any name may touch here (the devices and markers of a stream are not all known yet); the
-    # recorder checks the touchers again against what it recorded (recorder.py).
-    return parse_segments([item], span, "segment", [], [by] if isinstance(by, str) else [])[0]
 
 
 class FrameAssembler:
