@@ -42,6 +42,7 @@ from ..core.transforms import (
     stack_mul,
     stacks_apply,
     stacks_mul,
+    turn_between_one,
 )
 
 
@@ -434,7 +435,12 @@ class AvatarRig:
                     curve = self._spine_curve(frames, P, H)
                     target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
                         + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
-                P[i] = aimed[j] = quat_to_matrix(quat_between(aim[j], target[j] - H[i])) @ twist[j]
+                turn = turn_between_one(aim[j, 0].tolist(), (target[j, 0] - H[i, 0]).tolist()) if nf == 1 else None
+                if turn is None:
+                    turn = quat_to_matrix(quat_between(aim[j], target[j] - H[i]))
+                else:  # one frame: the same bits in Python floats (turn_between_one)
+                    turn = np.array([turn])
+                P[i] = aimed[j] = turn @ twist[j]
             if lv.root:
                 H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
         if held is None and chain is not None and len(aimed) == len(chain.index):
