@@ -157,6 +157,16 @@ class _PosePlan:
     fixed: np.ndarray  # (K, 3, 3) C0^-1 W M_A
     levels: list[_Level]
     chained: bool  # the spine chain's bones are posed
+    # A few frames (fewer than FEW_FRAMES): `levels` placing only the heads the chain reads (`few`),
+    # the others in one pass after it (`deferred`: rows, parents, offsets, the padded sum table).
+    few: list[_Level] | None = None
+    deferred: tuple | None = None
+
+
+# Poses of fewer frames than this place the heads the spine chain does not read in one padded
+# pass after the levels (_PosePlan.deferred: a few numpy calls instead of a few per level, where
+# the per-call overhead is the cost); longer ones level by level. The same sums in the same order.
+FEW_FRAMES = 16
 
 
 @dataclass
@@ -417,7 +427,8 @@ class AvatarRig:
                 off = stacks_apply(delta, chain.off)
                 target = None
                 aimed = {}
-        for lv in plan.levels:
+        few = plan.deferred is not None and nf < FEW_FRAMES
+        for lv in plan.few if few else plan.levels:
             if len(lv.heads):
                 H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
@@ -443,6 +454,10 @@ class AvatarRig:
                 P[i] = aimed[j] = turn @ twist[j]
             if lv.root:
                 H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
+        if few:
+            late, par, off, table = plan.deferred
+            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
+            H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
         if held is None and chain is not None and len(aimed) == len(chain.index):
             self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
         return P, H
@@ -469,22 +484,54 @@ class AvatarRig:
             depth[i] = depth[p] + 1 if p >= 0 else 0
         rows = self._bone_plan
         driven = [i for i in sorted(keep) if isinstance(rows[i][1], (int, np.integer))]
-        levels = []
-        for d in range(int(depth.max()) + 1 if len(depth) else 0):
-            at = [i for i in sorted(keep) if depth[i] == d]
-            heads = [i for i in at if i != self.root and rows[i][0] >= 0]
-            follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
-            levels.append(_Level(
-                np.array(heads, int), np.array([rows[i][0] for i in heads], int),
-                np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
-                np.array([i for i in at if i != self.root and rows[i][0] < 0], int),
-                np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
-                np.array(follow, int), np.array([rows[i][0] for i in follow], int),
-                np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
-                [i for i in at if rows[i][1] == "chain"], self.root in at))
+        chained = any(rows[i][1] == "chain" for i in keep)
+        # The heads the spine chain reads while it is aimed: its bones' and the spine curve's
+        # start bone's, with their ancestors'. A few frames place only these level by level.
+        early: set[int] = set()
+        if chained:
+            for b in [i for i in keep if rows[i][1] == "chain"] + [int(self.joint_bone[JI["spine_root"]])]:
+                while b >= 0 and b not in early:
+                    early.add(int(b))
+                    b = self.parent[b]
+
+        def levels_of(placed):
+            out = []
+            for d in range(int(depth.max()) + 1 if len(depth) else 0):
+                at = [i for i in sorted(keep) if depth[i] == d]
+                heads = [i for i in at if i != self.root and rows[i][0] >= 0 and placed(i)]
+                follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
+                out.append(_Level(
+                    np.array(heads, int), np.array([rows[i][0] for i in heads], int),
+                    np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
+                    np.array([i for i in at if i != self.root and rows[i][0] < 0], int),
+                    np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
+                    np.array(follow, int), np.array([rows[i][0] for i in follow], int),
+                    np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
+                    [i for i in at if rows[i][1] == "chain"], self.root in at))
+            return out
+
+        levels = levels_of(lambda i: True)
         plan = _PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
-                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels,
-                         any(lv.chain for lv in levels))
+                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained)
+        # The other heads, for a few frames: each is its anchor's head (the nearest ancestor placed
+        # in the levels: an early bone, the root or a parentless one) plus the offsets P_p o down
+        # the path, added in the levels' order (H_a + c_1) + c_2 + ..., padded with exact zeros.
+        late = [i for i in sorted(keep) if i != self.root and rows[i][0] >= 0 and i not in early]
+        if late:
+            row = {b: k for k, b in enumerate(late)}
+            n = len(self.names)
+            paths = []
+            for b in late:
+                path = [b]
+                while path[-1] in row and self.parent[path[-1]] in row:
+                    path.append(int(self.parent[path[-1]]))
+                paths.append((int(self.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
+            width = max(len(p) for _, p in paths)
+            zero = n + len(late)
+            table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
+            plan.few = levels_of(lambda i: i in early)
+            plan.deferred = (np.array(late, int), np.array([rows[i][0] for i in late], int),
+                             np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
         self._caches[("pose", bones)] = plan
         return plan
 
