@@ -52,7 +52,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         # first: a later 3x3 product's BLAS path depends on its operands' alignment, and a result
         # allocated after the temporaries moved one-frame solves by 1e-16.
         out = np.empty(shape, np.result_type(a, b))
-        return np.subtract(a[..., _ROLL1] * b[..., _ROLL2], a[..., _ROLL2] * b[..., _ROLL1], out=out)
+        return np.subtract(a.take(_ROLL1, -1) * b.take(_ROLL2, -1), a.take(_ROLL2, -1) * b.take(_ROLL1, -1), out=out)
     out = np.empty(shape, np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
@@ -62,7 +62,9 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-_ROLL1, _ROLL2 = [1, 2, 0], [2, 0, 1]  # cross: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0)
+# cross: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0); index arrays, gathered with `take` (a list
+# index is converted on every call: several times slower on a few vectors)
+_ROLL1, _ROLL2 = np.array([1, 2, 0]), np.array([2, 0, 1])
 SMALL_CROSS = 64  # vectors up to which `cross` gathers (beyond: views and in-place differences)
 
 
@@ -104,18 +106,19 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     same bits as entry by entry, in a third of the numpy calls)."""
     q = np.asarray(q, float)
     sq = q * q
-    pair = q[..., _QP] * q[..., _QQ]  # xy, xz, yz
-    turn = q[..., :1] * q[..., _QW]  # wz, wy, wx
+    pair = q.take(_QP, -1) * q.take(_QQ, -1)  # xy, xz, yz
+    turn = q[..., :1] * q.take(_QW, -1)  # wz, wy, wx
     m = np.empty(q.shape[:-1] + (9,))
-    m[..., _DIAG] = 1 - 2 * (sq[..., _SA] + sq[..., _SB])
+    m[..., _DIAG] = 1 - 2 * (sq.take(_SA, -1) + sq.take(_SB, -1))
     m[..., _MINUS] = 2 * (pair - turn)
     m[..., _PLUS] = 2 * (pair + turn)
     return m.reshape(q.shape[:-1] + (3, 3))
 
 
-_QP, _QQ, _QW = [1, 1, 2], [2, 3, 3], [3, 2, 1]
-_SA, _SB, _DIAG = [2, 1, 1], [3, 3, 2], [0, 4, 8]  # y²+z², x²+z², x²+y² on the diagonal
-_MINUS, _PLUS = [1, 6, 5], [3, 2, 7]  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
+# quat_to_matrix's index arrays (arrays, not lists: see cross)
+_QP, _QQ, _QW = np.array([1, 1, 2]), np.array([2, 3, 3]), np.array([3, 2, 1])
+_SA, _SB, _DIAG = np.array([2, 1, 1]), np.array([3, 3, 2]), np.array([0, 4, 8])  # y²+z², x²+z², x²+y² on the diagonal
+_MINUS, _PLUS = np.array([1, 6, 5]), np.array([3, 2, 7])  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
 
 
 def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
