@@ -1,6 +1,7 @@
-"""AvatarRig's posing (DESIGN.md "Prepared solver"): a pose of a few frames (fewer than
-avatar_pose.FEW_FRAMES: the heads the spine chain does not read placed in one padded pass, a
-one-frame chain aimed in Python floats) is the level-by-level pose of the same frames, to the bit."""
+"""Posing a few frames (DESIGN.md "Prepared solver"). AvatarRig: a pose of fewer than
+avatar_pose.FEW_FRAMES frames (the heads the spine chain does not read placed in one padded pass,
+a one-frame chain aimed in Python floats) is the level-by-level pose of the same frames, to the
+bit; SurfacePoser: its padded mesh points are the per-group ones."""
 
 from __future__ import annotations
 
@@ -39,3 +40,26 @@ def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
                 monkeypatch.undo()
                 for name in ("basis", "root_location", "joints", "frames"):
                     assert np.array_equal(getattr(poses[0], name), getattr(poses[1], name)), (name, f, n)
+
+
+def test_a_few_frames_surface_is_the_grouped_one(monkeypatch):
+    # egocentric.SurfacePoser: fewer than surface.FEW_FRAMES frames pose every mesh point in one
+    # padded product; the same points as the product per group of bones (to rounding: the BLAS
+    # kernel may change with the padded width).
+    from bodycal_addon.retarget import egocentric as ego
+    from bodycal_addon.retarget.egocentric import surface
+
+    perf = synthetic.make_performer(seed=2)
+    rec, truth = synthetic.record_session(perf, motions=("clap",), calibration=False, motion_seconds=1.0)
+    up = ua.animate_user(rec, truth.body_model())
+    for model in (truth.body_model(), rt.procedural_avatar()):
+        poser = ego.SurfacePoser(model, ego.common_elements(truth.body_model(), rt.procedural_avatar()))
+        assert len(poser.point_groups) > 1  # bones carrying different counts of points
+        for f in range(0, 60, 13):
+            few = poser.pose(up.joints[f:f + 2], up.frames[f:f + 2])
+            monkeypatch.setattr(surface, "FEW_FRAMES", 0)
+            grouped = poser.pose(up.joints[f:f + 2], up.frames[f:f + 2])
+            monkeypatch.undo()
+            assert few.tri.shape == grouped.tri.shape and few.tri.size
+            np.testing.assert_allclose(few.tri, grouped.tri, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(few.tri_normal, grouped.tri_normal, rtol=0, atol=1e-12)
