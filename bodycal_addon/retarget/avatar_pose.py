@@ -643,10 +643,16 @@ class AvatarRig:
         """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
         canonical joints riding on their bones and the realised canonical frames."""
         nf = P.shape[1]
-        joints = np.empty((nf, len(JOINTS), 3))
-        for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
+        if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
+            bones, local, order = self._joint_table
             rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-            joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
+            ride = H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2)  # (G, F, K, 3)
+            joints = np.swapaxes(ride, 0, 1).reshape(nf, -1, 3).take(order, axis=1)
+        else:
+            joints = np.empty((nf, len(JOINTS), 3))
+            for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
+                rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
+                joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
@@ -672,6 +678,23 @@ class AvatarRig:
                               np.stack([self.joint_local[js].T for _, js in g]))
                              for _, g in sorted(by_count.items())]
         return self._jgroups
+
+    @property
+    def _joint_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_joint_groups` as one padded group, once per rig: (the carrying bones (G,), their joints'
+        offsets padded with zeros (G, 3, K), each joint's row in the (G K) padded rows)."""
+        if getattr(self, "_jtable", None) is None:
+            width = max(js.shape[1] for _, js, _ in self._joint_groups)
+            bones = np.concatenate([b for b, _, _ in self._joint_groups])
+            local = np.zeros((len(bones), 3, width))
+            order = np.zeros(len(JOINTS), int)
+            g0 = 0
+            for b, js, loc in self._joint_groups:
+                local[g0:g0 + len(b), :, :js.shape[1]] = loc
+                order[js] = (g0 + np.arange(len(b)))[:, None] * width + np.arange(js.shape[1])
+                g0 += len(b)
+            self._jtable = (bones, local, order)
+        return self._jtable
 
     @property
     def _carrier_rel(self):

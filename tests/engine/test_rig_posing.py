@@ -1,7 +1,8 @@
 """Posing a few frames (DESIGN.md "Prepared solver"). AvatarRig: a pose of fewer than
 avatar_pose.FEW_FRAMES frames (the heads the spine chain does not read placed in one padded pass,
-a one-frame chain aimed in Python floats) is the level-by-level pose of the same frames, to the
-bit; SurfacePoser: its padded mesh points are the per-group ones."""
+a one-frame chain aimed in Python floats, the joints on their carriers in one padded product) is
+the level-by-level pose of the same frames, to the bit; SurfacePoser: its padded mesh points are
+the per-group ones."""
 
 from __future__ import annotations
 
