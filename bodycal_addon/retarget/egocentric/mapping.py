@@ -449,12 +449,11 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
             b.floor_user = _floor_user(b, plan, ub)
         # both sides at once: (F, 2P), the left side's targets first (as _floor_user stacks them)
         ent, st = plan.floor_both
-        uz, tf = b.floor_user[3]
+        uz, tf, w_left = b.floor_user
         tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
         ankles = np.stack([av.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
         tfa += np.abs(ankles).repeat(P, axis=1)
         ratios = np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS)
-        w_left = b.floor_user[2]
         fratio = ratios[:, P:] + w_left[:, None] * (ratios[:, :P] - ratios[:, P:])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
     out[..., 2] = vertical
@@ -462,17 +461,16 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
 
 
 def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
-    """The user's side of the floor ratios of a block: per side (|b_z| of the bones from that ankle
-    (K, F), their τ with the ankle's height (F, P)), and the left foot's share of the support.
+    """The user's side of the floor ratios of a block, both sides at once (`_Plan.floor_both`: the
+    left side's paths, then the right's): (|b_z| of the bones from each ankle (K, F), their τ with
+    the ankle's height (F, 2P)), and the left foot's share of the support (F,).
     Decision: the two feet's ratios are blended by which ankle is lower (SUPPORT_BLEND): with both
     feet on the floor, picking the lower ankle flips with millimetres of noise, and each flip moved
     every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm."""
     us = b.us
-    out = []
-    for side, name in enumerate(sk.SIDES):
-        ent, st = plan.floor_bone[side], plan.floor_starts[side]
-        uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
-        out.append((uz, np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]))
-    w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
-    both = (np.concatenate([out[0][0], out[1][0]]), np.concatenate([out[0][1], out[1][1]], axis=1))
-    return out[0], out[1], w_left, both
+    ent, st = plan.floor_both
+    uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
+    ankles = np.stack([us.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+    tau = np.add.reduceat(uz, st, axis=0).T + np.abs(ankles).repeat(len(st) // 2, axis=1)
+    w_left = 0.5 + 0.5 * np.tanh((ankles[:, 1] - ankles[:, 0]) / SUPPORT_BLEND)
+    return uz, tau, w_left
