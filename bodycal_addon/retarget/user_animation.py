@@ -444,11 +444,12 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
         aim = tips.reshape(-1, 3) + np.repeat(radius, F)[:, None] * frames[2][..., :, 2]
         pts, frames = pose_finger_chain(mcp, aim, per_frame.T, [ref], thumb=thumb)
     pts = pts.reshape(K, F, 4, 3)
-    for k, (n, b) in enumerate(zip(names, bones)):
+    for k, n in enumerate(names):
         for i, j in enumerate(n[1:]):
             P[j] = pts[k, :, i + 1]
-        for i in range(3):
-            Fr[:, b[i]] = frames[i][k * F:(k + 1) * F]
+    phalanges = np.array(bones, int).reshape(K, -1)
+    for i in range(3):  # each phalanx of every finger in one assignment
+        Fr[:, phalanges[:, i]] = np.swapaxes(frames[i].reshape(K, F, 3, 3), 0, 1)
 
 
 def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
