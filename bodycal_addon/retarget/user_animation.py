@@ -44,6 +44,7 @@ from ..core.transforms import (
     stack_apply,
     stacks_apply,
     stacks_mul,
+    turn_between_one,
 )
 from ..recording.model import ROLES_LIST, Recording
 from . import fingers, ik
@@ -396,7 +397,12 @@ def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndar
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
     hip centres each carry their own error, and their average is never worse than the worse of them."""
     x_rigid = sacrum[..., :, 0]
-    fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + normalize(hip_l - hip_r))))
+    toward = normalize(x_rigid + normalize(hip_l - hip_r))
+    fix = turn_between_one(x_rigid[0].tolist(), toward[0].tolist()) if sacrum.shape[:-2] == (1,) else None
+    if fix is None:
+        fix = quat_to_matrix(quat_between(x_rigid, toward))
+    else:  # one frame: the same bits in Python floats
+        fix = np.array([fix])
     return fix @ sacrum
 
 
