@@ -303,7 +303,9 @@ class UserAnimator:
         self._limbs(plan, P, Fr, prod, rigid)
         self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"])
         self._hands(plan, P, Fr, start, stop)
-        pos = np.stack([P[j] for j in JOINTS], axis=1)
+        # every joint's (F, 3) side by side, then split: np.stack's per-array bookkeeping over ~70
+        # joints was a tenth of a one-frame animation
+        pos = np.concatenate([P[j] for j in JOINTS], axis=1).reshape(stop - start, len(JOINTS), 3)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
         Fr[:, _SHORTCUT_INDEX] = np.swapaxes(frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]), 0, 1)
