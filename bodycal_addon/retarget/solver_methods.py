@@ -194,6 +194,7 @@ class Egocentric(Method):
         tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
         user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
         pose, tg = mid, None
+        arms_user = {}  # what the arms' IK reads of the user, the same every pass
         for k in range(ARM_PASSES):
             av = posers["avatar", "all"].pose(pose.joints, pose.frames)
             ta = user_side.map(av)
@@ -206,7 +207,8 @@ class Egocentric(Method):
             for s, (_, a_loc) in self.palm_local.items():
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
                                                                                     a_loc)
-            arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
+            arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid,
+                                      user_side=arms_user)
             if k + 1 < ARM_PASSES:
                 pose = run.rig.solve(arm_frames, pelvis, basis=False, realised=self.realised)
         frames = arm_frames
