@@ -529,7 +529,8 @@ class AvatarRig:
             width = max(len(p) for _, p in paths)
             zero = n + len(late)
             table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
-            plan.few = levels_of(lambda i: i in early)
+            plan.few = [lv for lv in levels_of(lambda i: i in early)  # the depths with work left
+                        if len(lv.heads) or len(lv.loose) or len(lv.rest) or len(lv.follow) or lv.chain or lv.root]
             plan.deferred = (np.array(late, int), np.array([rows[i][0] for i in late], int),
                              np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
         self._caches[("pose", bones)] = plan
