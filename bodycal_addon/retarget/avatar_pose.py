@@ -816,8 +816,22 @@ def copy_frames(user_frames: np.ndarray, user_frames0: np.ndarray, avatar_frames
     reference pose applied to the avatar's rest turned to face as the user did (`facing_turn` Y):
     C_u(t) C_u0^-1 Y C_a0. Without Y a performer who faced anywhere but the avatar's rest facing
     got a trunk turned against the limbs (legs crossed; DESIGN.md §1, "Frame of reference")."""
-    out = np.array(user_frames, float, copy=True)
+    return copy_frames_by(user_frames, copy_factor(user_frames0, avatar_frames0))
+
+
+def copy_factor(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndarray:
+    """(len(DELTA_COPY), 3, 3) `copy_frames`' right factor C_u0^-1 Y C_a0 of the trunk bones, which
+    depends on the rest frames only (the prepared solver computes it once)."""
     idx = list(DELTA_COPY)
     turn = facing_turn(user_frames0, avatar_frames0)
-    out[:, idx] = out[:, idx] @ (np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx]))
+    return np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx])
+
+
+def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """`copy_frames` with its right factor given (`copy_factor`)."""
+    out = np.array(user_frames, float, copy=True)
+    out[:, _DELTA_COPY_ROWS] = out[:, _DELTA_COPY_ROWS] @ factor
     return out
+
+
+_DELTA_COPY_ROWS = np.array(DELTA_COPY, int)

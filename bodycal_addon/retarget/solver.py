@@ -27,7 +27,7 @@ from ..core.errors import BodyCalError
 from ..core.transforms import normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
-from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
+from .avatar_pose import AvatarRig, copy_factor, copy_frames_by, root_centre, root_positions, root_scale
 from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
@@ -110,6 +110,7 @@ class PreparedSolver:
         self.centre = root_centre(user) if centre is None else np.asarray(centre, float)
         self.user_pos = complete_joints(user)
         self.user_frames0 = model_rest_frames(user, self.user_pos)
+        self._copy_factor = copy_factor(self.user_frames0, self.rig.frames0)  # step 2's trunk copy
         avatar_pos = complete_joints(avatar)
         # The avatar's vertebrae at rest in its sacrum's frame: the spine IK bends that shape.
         self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
@@ -201,7 +202,7 @@ class PreparedSolver:
         pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
         # From here on the user's frames are the ones copied onto the avatar (step 2).
         user_frames = up.frames if up.surface_frames is None else up.surface_frames
-        up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
+        up = type(up)(up.time, up.joints, copy_frames_by(up.frames, self._copy_factor), up.valid,
                       up.notes)
         fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised) \
             if self.impl.uses_fk else None
