@@ -636,7 +636,7 @@ class AvatarRig:
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
-        ys = frames[:, [BI[s] for s in SPINE_BONES]][..., :, 1] * self.lengths[[BI[s] for s in SPINE_BONES]][:, None]
+        ys = frames[:, _SPINE_ROWS][..., :, 1] * self.lengths[_SPINE_ROWS][:, None]
         steps = ys @ self.w_inv.T  # world steps in armature units
         return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
 
@@ -835,3 +835,4 @@ def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
 
 
 _DELTA_COPY_ROWS = np.array(DELTA_COPY, int)
+_SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)  # the canonical vertebrae (_spine_curve)
