@@ -52,7 +52,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         # first: a later 3x3 product's BLAS path depends on its operands' alignment, and a result
         # allocated after the temporaries moved one-frame solves by 1e-16.
         out = np.empty(shape, np.result_type(a, b))
-        return np.subtract(a[..., _ROLL1] * b[..., _ROLL2], a[..., _ROLL2] * b[..., _ROLL1], out=out)
+        return np.subtract(a.take(_ROLL1, -1) * b.take(_ROLL2, -1), a.take(_ROLL2, -1) * b.take(_ROLL1, -1), out=out)
     out = np.empty(shape, np.result_type(a, b))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
@@ -62,7 +62,9 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-_ROLL1, _ROLL2 = [1, 2, 0], [2, 0, 1]  # cross: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0)
+# cross: (a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0); index arrays, gathered with `take` (a list
+# index is converted on every call: several times slower on a few vectors)
+_ROLL1, _ROLL2 = np.array([1, 2, 0]), np.array([2, 0, 1])
 SMALL_CROSS = 64  # vectors up to which `cross` gathers (beyond: views and in-place differences)
 
 
@@ -104,18 +106,19 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     same bits as entry by entry, in a third of the numpy calls)."""
     q = np.asarray(q, float)
     sq = q * q
-    pair = q[..., _QP] * q[..., _QQ]  # xy, xz, yz
-    turn = q[..., :1] * q[..., _QW]  # wz, wy, wx
+    pair = q.take(_QP, -1) * q.take(_QQ, -1)  # xy, xz, yz
+    turn = q[..., :1] * q.take(_QW, -1)  # wz, wy, wx
     m = np.empty(q.shape[:-1] + (9,))
-    m[..., _DIAG] = 1 - 2 * (sq[..., _SA] + sq[..., _SB])
+    m[..., _DIAG] = 1 - 2 * (sq.take(_SA, -1) + sq.take(_SB, -1))
     m[..., _MINUS] = 2 * (pair - turn)
     m[..., _PLUS] = 2 * (pair + turn)
     return m.reshape(q.shape[:-1] + (3, 3))
 
 
-_QP, _QQ, _QW = [1, 1, 2], [2, 3, 3], [3, 2, 1]
-_SA, _SB, _DIAG = [2, 1, 1], [3, 3, 2], [0, 4, 8]  # y²+z², x²+z², x²+y² on the diagonal
-_MINUS, _PLUS = [1, 6, 5], [3, 2, 7]  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
+# quat_to_matrix's index arrays (arrays, not lists: see cross)
+_QP, _QQ, _QW = np.array([1, 1, 2]), np.array([2, 3, 3]), np.array([3, 2, 1])
+_SA, _SB, _DIAG = np.array([2, 1, 1]), np.array([3, 3, 2]), np.array([0, 4, 8])  # y²+z², x²+z², x²+y² on the diagonal
+_MINUS, _PLUS = np.array([1, 6, 5]), np.array([3, 2, 7])  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
 
 
 def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -242,6 +245,36 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         perp = np.where(small, np.cross(a, np.array([0.0, 1.0, 0.0])), perp)
         q = np.where(opposite[..., None], np.concatenate([np.zeros(d.shape + (1,)), normalize(perp)], -1), q)
     return normalize(q)
+
+
+def turn_between_one(a, b) -> list | None:
+    """`quat_to_matrix(quat_between(a, b))` of ONE pair of 3-vectors (sequences of floats) as a
+    3x3 nested list, in Python floats: the same operations in the same order as those two numpy
+    functions (numpy sums fewer than 8 items one after the other), so the same bits, in a few
+    microseconds instead of about forty numpy calls' overhead (the rig's spine chain aims one bone
+    at a time). None where `quat_between` takes another path (a vector of norm EPS or less, or
+    opposite directions): the caller then uses the numpy functions."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    if not (na > EPS and nb > EPS):
+        return None
+    a0, a1, a2 = a0 / na, a1 / na, a2 / na
+    b0, b1, b2 = b0 / nb, b1 / nb, b2 / nb
+    d = a0 * b0 + a1 * b1 + a2 * b2
+    if not d >= -1.0 + 1e-9:
+        return None
+    w, x, y, z = 1.0 + d, a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not n > EPS:
+        return None
+    w, x, y, z = w / n, x / n, y / n, z / n
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wz, wy, wx = x * y, x * z, y * z, w * z, w * y, w * x
+    return [[1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)],
+            [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)],
+            [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)]]
 
 
 def quat_angle(q: np.ndarray) -> np.ndarray:

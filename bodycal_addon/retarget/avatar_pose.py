@@ -42,6 +42,7 @@ from ..core.transforms import (
     stack_mul,
     stacks_apply,
     stacks_mul,
+    turn_between_one,
 )
 
 
@@ -156,6 +157,16 @@ class _PosePlan:
     fixed: np.ndarray  # (K, 3, 3) C0^-1 W M_A
     levels: list[_Level]
     chained: bool  # the spine chain's bones are posed
+    # A few frames (fewer than FEW_FRAMES): `levels` placing only the heads the chain reads (`few`),
+    # the others in one pass after it (`deferred`: rows, parents, offsets, the padded sum table).
+    few: list[_Level] | None = None
+    deferred: tuple | None = None
+
+
+# Poses of fewer frames than this place the heads the spine chain does not read in one padded
+# pass after the levels (_PosePlan.deferred: a few numpy calls instead of a few per level, where
+# the per-call overhead is the cost); longer ones level by level. The same sums in the same order.
+FEW_FRAMES = 16
 
 
 @dataclass
@@ -416,7 +427,8 @@ class AvatarRig:
                 off = stacks_apply(delta, chain.off)
                 target = None
                 aimed = {}
-        for lv in plan.levels:
+        few = plan.deferred is not None and nf < FEW_FRAMES
+        for lv in plan.few if few else plan.levels:
             if len(lv.heads):
                 H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
@@ -434,9 +446,18 @@ class AvatarRig:
                     curve = self._spine_curve(frames, P, H)
                     target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
                         + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
-                P[i] = aimed[j] = quat_to_matrix(quat_between(aim[j], target[j] - H[i])) @ twist[j]
+                turn = turn_between_one(aim[j, 0].tolist(), (target[j, 0] - H[i, 0]).tolist()) if nf == 1 else None
+                if turn is None:
+                    turn = quat_to_matrix(quat_between(aim[j], target[j] - H[i]))
+                else:  # one frame: the same bits in Python floats (turn_between_one)
+                    turn = np.array([turn])
+                P[i] = aimed[j] = turn @ twist[j]
             if lv.root:
                 H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
+        if few:
+            late, par, off, table = plan.deferred
+            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
+            H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
         if held is None and chain is not None and len(aimed) == len(chain.index):
             self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
         return P, H
@@ -463,22 +484,55 @@ class AvatarRig:
             depth[i] = depth[p] + 1 if p >= 0 else 0
         rows = self._bone_plan
         driven = [i for i in sorted(keep) if isinstance(rows[i][1], (int, np.integer))]
-        levels = []
-        for d in range(int(depth.max()) + 1 if len(depth) else 0):
-            at = [i for i in sorted(keep) if depth[i] == d]
-            heads = [i for i in at if i != self.root and rows[i][0] >= 0]
-            follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
-            levels.append(_Level(
-                np.array(heads, int), np.array([rows[i][0] for i in heads], int),
-                np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
-                np.array([i for i in at if i != self.root and rows[i][0] < 0], int),
-                np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
-                np.array(follow, int), np.array([rows[i][0] for i in follow], int),
-                np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
-                [i for i in at if rows[i][1] == "chain"], self.root in at))
+        chained = any(rows[i][1] == "chain" for i in keep)
+        # The heads the spine chain reads while it is aimed: its bones' and the spine curve's
+        # start bone's, with their ancestors'. A few frames place only these level by level.
+        early: set[int] = set()
+        if chained:
+            for b in [i for i in keep if rows[i][1] == "chain"] + [int(self.joint_bone[JI["spine_root"]])]:
+                while b >= 0 and b not in early:
+                    early.add(int(b))
+                    b = self.parent[b]
+
+        def levels_of(placed):
+            out = []
+            for d in range(int(depth.max()) + 1 if len(depth) else 0):
+                at = [i for i in sorted(keep) if depth[i] == d]
+                heads = [i for i in at if i != self.root and rows[i][0] >= 0 and placed(i)]
+                follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
+                out.append(_Level(
+                    np.array(heads, int), np.array([rows[i][0] for i in heads], int),
+                    np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
+                    np.array([i for i in at if i != self.root and rows[i][0] < 0], int),
+                    np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
+                    np.array(follow, int), np.array([rows[i][0] for i in follow], int),
+                    np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
+                    [i for i in at if rows[i][1] == "chain"], self.root in at))
+            return out
+
+        levels = levels_of(lambda i: True)
         plan = _PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
-                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels,
-                         any(lv.chain for lv in levels))
+                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained)
+        # The other heads, for a few frames: each is its anchor's head (the nearest ancestor placed
+        # in the levels: an early bone, the root or a parentless one) plus the offsets P_p o down
+        # the path, added in the levels' order (H_a + c_1) + c_2 + ..., padded with exact zeros.
+        late = [i for i in sorted(keep) if i != self.root and rows[i][0] >= 0 and i not in early]
+        if late:
+            row = {b: k for k, b in enumerate(late)}
+            n = len(self.names)
+            paths = []
+            for b in late:
+                path = [b]
+                while path[-1] in row and self.parent[path[-1]] in row:
+                    path.append(int(self.parent[path[-1]]))
+                paths.append((int(self.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
+            width = max(len(p) for _, p in paths)
+            zero = n + len(late)
+            table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
+            plan.few = [lv for lv in levels_of(lambda i: i in early)  # the depths with work left
+                        if len(lv.heads) or len(lv.loose) or len(lv.rest) or len(lv.follow) or lv.chain or lv.root]
+            plan.deferred = (np.array(late, int), np.array([rows[i][0] for i in late], int),
+                             np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
         self._caches[("pose", bones)] = plan
         return plan
 
@@ -582,7 +636,7 @@ class AvatarRig:
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
-        ys = frames[:, [BI[s] for s in SPINE_BONES]][..., :, 1] * self.lengths[[BI[s] for s in SPINE_BONES]][:, None]
+        ys = frames[:, _SPINE_ROWS][..., :, 1] * self.lengths[_SPINE_ROWS][:, None]
         steps = ys @ self.w_inv.T  # world steps in armature units
         return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
 
@@ -590,10 +644,16 @@ class AvatarRig:
         """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
         canonical joints riding on their bones and the realised canonical frames."""
         nf = P.shape[1]
-        joints = np.empty((nf, len(JOINTS), 3))
-        for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
+        if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
+            bones, local, order = self._joint_table
             rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-            joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
+            ride = H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2)  # (G, F, K, 3)
+            joints = np.swapaxes(ride, 0, 1).reshape(nf, -1, 3).take(order, axis=1)
+        else:
+            joints = np.empty((nf, len(JOINTS), 3))
+            for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
+                rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
+                joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
@@ -619,6 +679,23 @@ class AvatarRig:
                               np.stack([self.joint_local[js].T for _, js in g]))
                              for _, g in sorted(by_count.items())]
         return self._jgroups
+
+    @property
+    def _joint_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_joint_groups` as one padded group, once per rig: (the carrying bones (G,), their joints'
+        offsets padded with zeros (G, 3, K), each joint's row in the (G K) padded rows)."""
+        if getattr(self, "_jtable", None) is None:
+            width = max(js.shape[1] for _, js, _ in self._joint_groups)
+            bones = np.concatenate([b for b, _, _ in self._joint_groups])
+            local = np.zeros((len(bones), 3, width))
+            order = np.zeros(len(JOINTS), int)
+            g0 = 0
+            for b, js, loc in self._joint_groups:
+                local[g0:g0 + len(b), :, :js.shape[1]] = loc
+                order[js] = (g0 + np.arange(len(b)))[:, None] * width + np.arange(js.shape[1])
+                g0 += len(b)
+            self._jtable = (bones, local, order)
+        return self._jtable
 
     @property
     def _carrier_rel(self):
@@ -739,8 +816,23 @@ def copy_frames(user_frames: np.ndarray, user_frames0: np.ndarray, avatar_frames
     reference pose applied to the avatar's rest turned to face as the user did (`facing_turn` Y):
     C_u(t) C_u0^-1 Y C_a0. Without Y a performer who faced anywhere but the avatar's rest facing
     got a trunk turned against the limbs (legs crossed; DESIGN.md §1, "Frame of reference")."""
-    out = np.array(user_frames, float, copy=True)
+    return copy_frames_by(user_frames, copy_factor(user_frames0, avatar_frames0))
+
+
+def copy_factor(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndarray:
+    """(len(DELTA_COPY), 3, 3) `copy_frames`' right factor C_u0^-1 Y C_a0 of the trunk bones, which
+    depends on the rest frames only (the prepared solver computes it once)."""
     idx = list(DELTA_COPY)
     turn = facing_turn(user_frames0, avatar_frames0)
-    out[:, idx] = out[:, idx] @ (np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx]))
+    return np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx])
+
+
+def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """`copy_frames` with its right factor given (`copy_factor`)."""
+    out = np.array(user_frames, float, copy=True)
+    out[:, _DELTA_COPY_ROWS] = out[:, _DELTA_COPY_ROWS] @ factor
     return out
+
+
+_DELTA_COPY_ROWS = np.array(DELTA_COPY, int)
+_SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)  # the canonical vertebrae (_spine_curve)

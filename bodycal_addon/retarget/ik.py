@@ -40,6 +40,14 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
+def _columns(x, y, z):
+    """The matrices (..., 3, 3) with columns x, y, z (..., 3): np.stack(axis=-1)'s values, in a
+    few assignments instead of its bookkeeping (which dominates on a few frames)."""
+    out = np.empty(x.shape + (3,), np.result_type(x, y, z))
+    out[..., 0], out[..., 1], out[..., 2] = x, y, z
+    return out
+
+
 def _unit(v, fallback):
     """Unit vectors (vectors last) and their norms, `fallback` where they vanish: the contract of
     `transforms.unit_and_norm`, kept apart because its norm is the einsum `_dot` of every other
@@ -165,8 +173,8 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     x = cross(swivel, axis)
     y1 = _unit(mid - root, axis)[0]
     y2 = _unit(end - mid, axis)[0]
-    rot1 = np.stack([x, y1, cross(x, y1)], axis=-1)
-    rot2 = np.stack([x, y2, cross(x, y2)], axis=-1)
+    rot1 = _columns(x, y1, cross(x, y1))
+    rot2 = _columns(x, y2, cross(x, y2))
     return TwoBoneResult(mid, end, rot1, rot2, alpha, t, swivel, reached)
 
 
@@ -334,5 +342,5 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
     y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
     xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
-    rotations = np.stack([xk, y, cross(xk, y)], axis=-1)
+    rotations = _columns(xk, y, cross(xk, y))
     return SpineResult(joints, rotations, sacrum_rot, theta)

@@ -27,7 +27,7 @@ from ..core.errors import BodyCalError
 from ..core.transforms import normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
-from .avatar_pose import AvatarRig, copy_frames, root_centre, root_positions, root_scale
+from .avatar_pose import AvatarRig, copy_factor, copy_frames_by, root_centre, root_positions, root_scale
 from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
@@ -110,6 +110,7 @@ class PreparedSolver:
         self.centre = root_centre(user) if centre is None else np.asarray(centre, float)
         self.user_pos = complete_joints(user)
         self.user_frames0 = model_rest_frames(user, self.user_pos)
+        self._copy_factor = copy_factor(self.user_frames0, self.rig.frames0)  # step 2's trunk copy
         avatar_pos = complete_joints(avatar)
         # The avatar's vertebrae at rest in its sacrum's frame: the spine IK bends that shape.
         self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
@@ -201,17 +202,19 @@ class PreparedSolver:
         pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
         # From here on the user's frames are the ones copied onto the avatar (step 2).
         user_frames = up.frames if up.surface_frames is None else up.surface_frames
-        up = type(up)(up.time, up.joints, copy_frames(up.frames, self.user_frames0, self.rig.frames0), up.valid,
+        up = type(up)(up.time, up.joints, copy_frames_by(up.frames, self._copy_factor), up.valid,
                       up.notes)
         fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised) \
             if self.impl.uses_fk else None
         return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)
 
-    def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None):
+    def solve_ik(self, up, fk, pelvis, targets, hands=None, frames=None, trunk=None, user_side=None):
         """Avatar IK (appendix E, DESIGN.md §6) toward the targets present: the spine when there is
         a skull-base target, then each limb whose effector has a target, then the fingers.
         `frames` (default: the user's, copied) are updated; `trunk` is the rig pose the limbs
-        start from (default: solved here after the spine)."""
+        start from (default: solved here after the spine). `user_side`: a dict kept by a caller
+        that solves the same limbs of the same `up` again (the egocentric arm passes): what the
+        limbs' IK reads of the user (lengths, hinges, swivels) is computed once into it."""
         rig = self.rig
         frames = up.frames.copy() if frames is None else frames
         # Spine aimed at the skull base (appendix D: the same two-pass solver as the user's); the
@@ -244,7 +247,7 @@ class PreparedSolver:
                  if f"{e}_{side}" in targets]
         names = [f"{LIMBS[limb][0]}_{side}" for side, limb in items]
         at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
-        reached = self._limbs(up, frames, targets, items, at)
+        reached = self._limbs(up, frames, targets, items, at, {} if user_side is None else user_side)
         grip = [side for side in sk.SIDES if hands is not None and side in hands]
         if grip:
             held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
@@ -257,10 +260,11 @@ class PreparedSolver:
             self._fingers(frames, wrists, targets)
         return frames
 
-    def _limbs(self, up, frames, targets, items, at) -> dict:
+    def _limbs(self, up, frames, targets, items, at, user_side: dict) -> dict:
         """Two-bone IK of the limbs `items` [(side, limb)] from their roots `at` (F, K, 3) toward
         their effector targets, all at once (those with an intermediate target, then those
-        without); `frames` updated. Returns {(side, limb): the effector reached (F, 3)}."""
+        without); `frames` updated. Returns {(side, limb): the effector reached (F, 3)}.
+        `user_side` keeps what the IK reads of the user per limb set (see solve_ik)."""
         rig, nf = self.rig, frames.shape[0]
         reached = {}
         for with_pole in (True, False):
@@ -269,22 +273,26 @@ class PreparedSolver:
                 continue
             limbs = [(items[k][0], *LIMBS[items[k][1]]) for k in group]
             root = np.concatenate([at[:, k] for k in group])
-            l1 = np.repeat([rig.lengths[BI[f"{ab}_{s}"]] for s, _, _, _, ab, _ in limbs], nf)
-            l2 = np.repeat([rig.lengths[BI[f"{mb}_{s}"]] for s, _, _, _, _, mb in limbs], nf)
             eff = np.concatenate([targets[f"{e}_{s}"] for s, _, _, e, _, _ in limbs])
             pole = np.concatenate([targets[f"{m}_{s}"] for s, _, m, _, _, _ in limbs]) if with_pole else None
-            # Appendix E: swivel blended between the mapped intermediate target and the user's.
-            # The hinge's axis: a character's upper bones twist on their own (a user's share
-            # the hinge's right), so its hinge is the intermediate bone's +X.
-            hinge = np.concatenate([up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
-                                    for s, _, _, _, ab, mb in limbs])
-            swivel = self._user_swivel(up, [(f"{a}_{s}", f"{m}_{s}", f"{e}_{s}") for s, a, m, e, _, _ in limbs])
+            key = tuple(limbs)
+            if key not in user_side:
+                # Appendix E: swivel blended between the mapped intermediate target and the user's.
+                # The hinge's axis: a character's upper bones twist on their own (a user's share
+                # the hinge's right), so its hinge is the intermediate bone's +X.
+                hinge = np.concatenate([up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
+                                        for s, _, _, _, ab, mb in limbs])
+                swivel = self._user_swivel(up, [(f"{a}_{s}", f"{m}_{s}", f"{e}_{s}") for s, a, m, e, _, _ in limbs])
+                user_side[key] = (np.repeat([rig.lengths[BI[f"{ab}_{s}"]] for s, _, _, _, ab, _ in limbs], nf),
+                                  np.repeat([rig.lengths[BI[f"{mb}_{s}"]] for s, _, _, _, _, mb in limbs], nf),
+                                  swivel, hinge, np.array([BI[f"{ab}_{s}"] for s, _, _, _, ab, _ in limbs]),
+                                  np.array([BI[f"{mb}_{s}"] for s, _, _, _, _, mb in limbs]))
+            l1, l2, swivel, hinge, upper, lower = user_side[key]
             tb = ik.two_bone(root, l1, l2, eff, pole, swivel, hinge, size_ratio=self.k)
-            for i, (s, _, _, _, ab, mb) in enumerate(limbs):
-                part = slice(i * nf, (i + 1) * nf)
-                frames[:, BI[f"{ab}_{s}"]] = tb.rot1[part]
-                frames[:, BI[f"{mb}_{s}"]] = tb.rot2[part]
-                reached[items[group[i]]] = tb.end[part]
+            frames[:, upper] = np.swapaxes(tb.rot1.reshape(len(limbs), nf, 3, 3), 0, 1)
+            frames[:, lower] = np.swapaxes(tb.rot2.reshape(len(limbs), nf, 3, 3), 0, 1)
+            for i, k in enumerate(group):
+                reached[items[k]] = tb.end[i * nf:(i + 1) * nf]
         return reached
 
     @staticmethod

@@ -125,8 +125,8 @@ class Egocentric(Method):
             raise BodyCalError("the user and the avatar share no surface elements", source=run.avatar.name,
                                field="surface", hint="calibrate the avatar's surface")
         self.graph_bones = list(ego.GRAPH_BONES)
-        self.bone_heads = [JI[sk.BONE_BY_NAME[b].head] for b in self.graph_bones]
-        self.bone_tails = [JI[sk.BONE_BY_NAME[b].tail] for b in self.graph_bones]
+        self.bone_heads = np.array([JI[sk.BONE_BY_NAME[b].head] for b in self.graph_bones], int)
+        self.bone_tails = np.array([JI[sk.BONE_BY_NAME[b].tail] for b in self.graph_bones], int)
         self.user_lengths = np.array([np.linalg.norm(run.user_pos[sk.BONE_BY_NAME[b].tail] -
                                                      run.user_pos[sk.BONE_BY_NAME[b].head])
                                       for b in self.graph_bones])
@@ -147,6 +147,8 @@ class Egocentric(Method):
                         (run.has_fingers[t[-1]] and any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have))]
         self.lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
         self.upper = [n for n in self.targets if n not in self.lower]
+        self.lower_joints = np.array([JI[n] for n in self.lower], int)
+        self.upper_joints = np.array([JI[n] for n in self.upper], int)
         # Both bodies' surfaces posed by prepared posers: all elements, and the trunk's alone.
         self.posers = {(who, part): ego.SurfacePoser(model, part_ids)
                        for who, model in (("user", self.user_s), ("avatar", self.avatar_s))
@@ -170,7 +172,7 @@ class Egocentric(Method):
         if self.trunk_ids:
             ust = posers["user", "trunk"].pose(up.joints, user_frames)
             avt = posers["avatar", "trunk"].pose(fk.joints, fk.frames)
-            tg = ego.retarget_points(np.take(up.joints, [JI[n] for n in lower], axis=1), lower, ust, avt,
+            tg = ego.retarget_points(np.take(up.joints, self.lower_joints, axis=1), lower, ust, avt,
                                      user_bones=ub, dtype=MAPPING_DTYPE)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
@@ -178,7 +180,7 @@ class Egocentric(Method):
         frames = run.solve_ik(up, fk, pelvis, targets)
         mid = run.rig.solve(frames, pelvis, basis=False, realised=self.realised)
         us = posers["user", "all"].pose(up.joints, user_frames)
-        pts = np.take(up.joints, [JI[n] for n in upper], axis=1)
+        pts = np.take(up.joints, self.upper_joints, axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
         # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
         # is copied): wrist and palm are a hand's size apart, and hands differ.
@@ -194,6 +196,7 @@ class Egocentric(Method):
         tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
         user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
         pose, tg = mid, None
+        arms_user = {}  # what the arms' IK reads of the user, the same every pass
         for k in range(ARM_PASSES):
             av = posers["avatar", "all"].pose(pose.joints, pose.frames)
             ta = user_side.map(av)
@@ -206,7 +209,8 @@ class Egocentric(Method):
             for s, (_, a_loc) in self.palm_local.items():
                 arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
                                                                                     a_loc)
-            arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid)
+            arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid,
+                                      user_side=arms_user)
             if k + 1 < ARM_PASSES:
                 pose = run.rig.solve(arm_frames, pelvis, basis=False, realised=self.realised)
         frames = arm_frames

@@ -44,6 +44,7 @@ from ..core.transforms import (
     stack_apply,
     stacks_apply,
     stacks_mul,
+    turn_between_one,
 )
 from ..recording.model import ROLES_LIST, Recording
 from . import fingers, ik
@@ -302,7 +303,9 @@ class UserAnimator:
         self._limbs(plan, P, Fr, prod, rigid)
         self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"])
         self._hands(plan, P, Fr, start, stop)
-        pos = np.stack([P[j] for j in JOINTS], axis=1)
+        # every joint's (F, 3) side by side, then split: np.stack's per-array bookkeeping over ~70
+        # joints was a tenth of a one-frame animation
+        pos = np.concatenate([P[j] for j in JOINTS], axis=1).reshape(stop - start, len(JOINTS), 3)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
         Fr[:, _SHORTCUT_INDEX] = np.swapaxes(frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]), 0, 1)
@@ -396,7 +399,12 @@ def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndar
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
     hip centres each carry their own error, and their average is never worse than the worse of them."""
     x_rigid = sacrum[..., :, 0]
-    fix = quat_to_matrix(quat_between(x_rigid, normalize(x_rigid + normalize(hip_l - hip_r))))
+    toward = normalize(x_rigid + normalize(hip_l - hip_r))
+    fix = turn_between_one(x_rigid[0].tolist(), toward[0].tolist()) if sacrum.shape[:-2] == (1,) else None
+    if fix is None:
+        fix = quat_to_matrix(quat_between(x_rigid, toward))
+    else:  # one frame: the same bits in Python floats
+        fix = np.array([fix])
     return fix @ sacrum
 
 
@@ -444,11 +452,12 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
         aim = tips.reshape(-1, 3) + np.repeat(radius, F)[:, None] * frames[2][..., :, 2]
         pts, frames = pose_finger_chain(mcp, aim, per_frame.T, [ref], thumb=thumb)
     pts = pts.reshape(K, F, 4, 3)
-    for k, (n, b) in enumerate(zip(names, bones)):
+    for k, n in enumerate(names):
         for i, j in enumerate(n[1:]):
             P[j] = pts[k, :, i + 1]
-        for i in range(3):
-            Fr[:, b[i]] = frames[i][k * F:(k + 1) * F]
+    phalanges = np.array(bones, int).reshape(K, -1)
+    for i in range(3):  # each phalanx of every finger in one assignment
+        Fr[:, phalanges[:, i]] = np.swapaxes(frames[i].reshape(K, F, 3, 3), 0, 1)
 
 
 def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):

@@ -57,7 +57,11 @@ per target/element set; targets that exclude the same elements are mapped on the
 but a few frames (up to MERGED_PAIRS frames x targets x elements: a live frame) are projected and
 re-posed for every target on every element in one pass, each group taking its pairs (the same
 values, fewer numpy calls); the user's side is prepared once (`prepare_targets`) and mapped onto
-each avatar pose; the pipeline computes it in float32 (`dtype`).
+each avatar pose; the pipeline computes it in float32 (`dtype`). A few frames' surfaces pose
+every mesh point in one padded product (`SurfacePoser`, surface.FEW_FRAMES). The groups' eq. 1-2
+stay one pass per group: their sums over the elements are numpy's pairwise sums, whose
+association follows the element count, so padding the groups to one width would move float32
+targets by rounding (DESIGN.md "Prepared solver").
 """
 
 from .graph import GRAPH_BONES, GRAPH_INDEX, GRAPH_NODES, TORSO_ROOT, element_root, kinematic_path, own_chain_elements

@@ -39,6 +39,8 @@ class _Plan:
     entry_bone: np.ndarray  # every GRAPH_BONES index used (for the joint check)
     floor_bone: list[np.ndarray]  # per side: entries of the paths ankle_s -> target
     floor_starts: list[np.ndarray]  # per side: (P,)
+    # Both sides' entries one after the other, and their starts (2P,): one reduceat for both
+    floor_both: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _entries(paths):
@@ -78,8 +80,9 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
         b, st = _entries([kinematic_path(f"ankle_{s}", name) for name in target_names])
         floor_bone.append(b)
         floor_starts.append(st)
+    both = (np.concatenate(floor_bone), np.concatenate([floor_starts[0], floor_starts[1] + len(floor_bone[0])]))
     return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
-                 table, used, floor_bone, floor_starts)
+                 table, used, floor_bone, floor_starts, both)
 
 
 _GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
@@ -432,40 +435,42 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
 
     est = x_av + v_av * ratio  # (3, F, P, E)
     lam = b.lam
-    horizontal = np.stack([(est[i] * lam).sum(-1) for i in range(2)], axis=-1)
+    out = np.empty((F, P, 3), est.dtype)
+    # x and y in one product and sum (each row summed on its own, as apart)
+    out[..., :2] = np.moveaxis((est[:2] * lam).sum(-1), 0, -1)
     # No element with weight (all excluded): keep the user's horizontal position.
     none = lam.sum(-1) <= 0
     if none.any():
-        horizontal = np.where(none[..., None], p[..., :2], horizontal)
+        out[..., :2] = np.where(none[..., None], p[..., :2], out[..., :2])
     vertical = (est[2] * b.lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
         if b.floor_user is None:  # the user's side, the same for every map of this block
             b.floor_user = _floor_user(b, plan, ub)
-        ratios = []
-        for side, name in enumerate(sk.SIDES):
-            ent, st = plan.floor_bone[side], plan.floor_starts[side]
-            uz, tf = b.floor_user[side]
-            tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
-            tfa += np.abs(av.joints[f"ankle_{name}"][:, 2])[:, None]
-            ratios.append(np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS))
-        w_left = b.floor_user[2]
-        fratio = ratios[1] + w_left[:, None] * (ratios[0] - ratios[1])
+        # both sides at once: (F, 2P), the left side's targets first (as _floor_user stacks them)
+        ent, st = plan.floor_both
+        uz, tf, w_left = b.floor_user
+        tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
+        ankles = np.stack([av.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+        tfa += np.abs(ankles).repeat(P, axis=1)
+        ratios = np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS)
+        fratio = ratios[:, P:] + w_left[:, None] * (ratios[:, :P] - ratios[:, P:])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
-    return np.concatenate([horizontal, vertical[..., None]], axis=-1), ratio
+    out[..., 2] = vertical
+    return out, ratio
 
 
 def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
-    """The user's side of the floor ratios of a block: per side (|b_z| of the bones from that ankle
-    (K, F), their τ with the ankle's height (F, P)), and the left foot's share of the support.
+    """The user's side of the floor ratios of a block, both sides at once (`_Plan.floor_both`: the
+    left side's paths, then the right's): (|b_z| of the bones from each ankle (K, F), their τ with
+    the ankle's height (F, 2P)), and the left foot's share of the support (F,).
     Decision: the two feet's ratios are blended by which ankle is lower (SUPPORT_BLEND): with both
     feet on the floor, picking the lower ankle flips with millimetres of noise, and each flip moved
     every target's height by h (τ'_l/τ_l - τ'_r/τ_r), up to a few mm."""
     us = b.us
-    out = []
-    for side, name in enumerate(sk.SIDES):
-        ent, st = plan.floor_bone[side], plan.floor_starts[side]
-        uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
-        out.append((uz, np.add.reduceat(uz, st, axis=0).T + np.abs(us.joints[f"ankle_{name}"][:, 2])[:, None]))
-    w_left = 0.5 + 0.5 * np.tanh((us.joints["ankle_r"][:, 2] - us.joints["ankle_l"][:, 2]) / SUPPORT_BLEND)
-    return out[0], out[1], w_left
+    ent, st = plan.floor_both
+    uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
+    ankles = np.stack([us.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+    tau = np.add.reduceat(uz, st, axis=0).T + np.abs(ankles).repeat(len(st) // 2, axis=1)
+    w_left = 0.5 + 0.5 * np.tanh((ankles[:, 1] - ankles[:, 0]) / SUPPORT_BLEND)
+    return uz, tau, w_left

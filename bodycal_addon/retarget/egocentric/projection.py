@@ -283,11 +283,12 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
         same, offset = _mesh_pairing(tuple(user.mesh_slices), tuple(avatar.mesh_slices))
         idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
         fi = np.arange(F)[:, None, None]
-        mesh = np.zeros((3, F, P, M), pr.v.dtype)
-        for k in range(3):
-            corner = _comp(avatar.tri[:, :, k])
-            for i in range(3):
-                mesh[i] += pr.tri_bary[k] * corner[i][fi, idx]
+        # The corners of every pair's triangle in one gather, (corner, component, F, P, M); the
+        # barycentric sum corner by corner as before (0 + b0 c0 + b1 c1 + b2 c2, the same bits).
+        corners = avatar.tri[fi, idx].transpose(3, 4, 0, 1, 2)
+        mesh = (pr.tri_bary[0] * corners[0]).astype(pr.v.dtype, copy=False)
+        mesh += pr.tri_bary[1] * corners[1]
+        mesh += pr.tri_bary[2] * corners[2]
         if turn_v:
             to_avatar = np.concatenate([np.arange(us, ue) + (as_ - us) if ok else np.full(ue - us, as_)
                                         for (us, ue), (as_, _), ok in zip(user.mesh_slices, avatar.mesh_slices, same)])

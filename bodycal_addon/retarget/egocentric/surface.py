@@ -337,11 +337,15 @@ def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarr
     return world.take(np.array(tri_rows), axis=1), tri_elem, slices  # (F, T, 3, 3), C order
 
 
+FEW_FRAMES = 16  # SurfacePoser.pose: fewer frames than this pose the mesh points in one padded product
+
+
 class SurfacePoser:
     """`pose_surface` of one body model and element list, prepared once: which joints, bone frames
     and local points each element takes, as index arrays, so posing F frames is a few gathers and
-    stacked products (the same values as `pose_surface`, bit for bit). Every element's bones must be
-    canonical bones; `pose` takes all the canonical joints (F, J, 3) and bone frames (F, B, 3, 3)."""
+    stacked products (the same values as `pose_surface`, bit for bit; fewer than FEW_FRAMES frames
+    to rounding). Every element's bones must be canonical bones; `pose` takes all the canonical
+    joints (F, J, 3) and bone frames (F, B, 3, 3)."""
 
     def __init__(self, model, element_ids: list[str]):
         joints = {j: np.zeros((1, 3)) for j in JOINTS}
@@ -389,6 +393,20 @@ class SurfacePoser:
         self.tri_rows = np.array(tri_rows, int).reshape(-1, 3)
         self.tri_elem = np.array(tri_elem, int)
         self.mesh_slices = slices
+        # A few frames: every point bone in one product, its points padded to the most any bone
+        # carries (zero columns), and the triangles' corners gathered from that padded table.
+        width = max((rows.shape[1] for _, _, rows, _ in self.point_groups), default=0)
+        self.pad_bones = np.concatenate([g[0] for g in self.point_groups]) if self.point_groups else np.zeros(0, int)
+        self.pad_heads = np.concatenate([g[1] for g in self.point_groups]) if self.point_groups else np.zeros(0, int)
+        self.pad_local = np.zeros((len(self.pad_bones), 3, width))
+        flat = np.zeros(self.point_count, int)
+        g0 = 0
+        for _, _, rows, loc in self.point_groups:
+            k = rows.shape[1]
+            self.pad_local[g0:g0 + len(rows), :, :k] = loc
+            flat[rows] = (g0 + np.arange(len(rows)))[:, None] * width + np.arange(k)
+            g0 += len(rows)
+        self.pad_tri = flat[self.tri_rows] if self.point_count else self.tri_rows
 
     def pose(self, joints: np.ndarray, frames: np.ndarray) -> PosedSurface:
         """The surface posed by canonical joints (F, J, 3) and bone frames (F, B, 3, 3), world."""
@@ -400,11 +418,21 @@ class SurfacePoser:
             caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
         sph_rot = frames[:, self.sph_bone]
         sph_center = joints[:, self.sph_head] + np.einsum("fsij,sj->fsi", sph_rot, self.sph_local)
-        world = np.empty((nf, self.point_count, 3))
-        for bones, heads, rows, local in self.point_groups:  # per bone, its points (G bones of K points)
-            rel = stacks_mul(np.swapaxes(frames, 0, 1), local, bones)  # (G, F, 3, K)
-            world[:, rows] = joints[:, heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
-        tri = world.take(self.tri_rows, axis=1) if self.point_count else np.zeros((nf, 0, 3, 3))
+        if not self.point_count:
+            tri = np.zeros((nf, 0, 3, 3))
+        elif nf < FEW_FRAMES and len(self.point_groups) > 1:
+            # Decision (speed): a few frames (a live frame) pose every point bone in one padded
+            # product (a few numpy calls, not a few per group); the products' BLAS kernels differ
+            # with the padded width, so points move by rounding (1e-16 m) against the groups'.
+            rel = stacks_mul(np.swapaxes(frames, 0, 1), self.pad_local, self.pad_bones)  # (G, F, 3, K)
+            pts = joints[:, self.pad_heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+            tri = pts.reshape(nf, -1, 3).take(self.pad_tri, axis=1)
+        else:
+            world = np.empty((nf, self.point_count, 3))
+            for bones, heads, rows, local in self.point_groups:  # per bone, its points (G bones of K points)
+                rel = stacks_mul(np.swapaxes(frames, 0, 1), local, bones)  # (G, F, 3, K)
+                world[:, rows] = joints[:, heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+            tri = world.take(self.tri_rows, axis=1)
         n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
         nn = np.linalg.norm(n, axis=-1, keepdims=True)
         tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)

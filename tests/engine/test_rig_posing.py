@@ -1,0 +1,66 @@
+"""Posing a few frames (DESIGN.md "Prepared solver"). AvatarRig: a pose of fewer than
+avatar_pose.FEW_FRAMES frames (the heads the spine chain does not read placed in one padded pass,
+a one-frame chain aimed in Python floats, the joints on their carriers in one padded product) is
+the level-by-level pose of the same frames, to the bit; SurfacePoser: its padded mesh points are
+the per-group ones."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bodycal_addon.body.rest_frames import model_rest_frames
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import retarget_fixtures as rt
+from bodycal_dev import synthetic
+
+
+def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
+    perf = synthetic.make_performer(seed=2)
+    rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
+                                          motion_seconds=1.0)
+    user = truth.body_model()
+    up = ua.animate_user(rec, user)
+    for avatar in (rt.procedural_avatar(), rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2),
+                                                                arm_drop_deg=30.0)):
+        rig = ap.AvatarRig.from_model(avatar)
+        assert rig._pose_plan(None).deferred is not None  # the padded pass is taken
+        frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
+        pelvis = up.joints[:, JI["pelvis"]] * 1.1
+        for f in range(0, len(frames) - 3, 7):
+            for n in (1, 3):
+                poses = []
+                for few in (ap.FEW_FRAMES, 0):  # the padded pass, then level by level
+                    monkeypatch.setattr(ap, "FEW_FRAMES", few)
+                    rig._chain_memo = None  # the chain aimed each time (not the last pose's, reused)
+                    poses.append(rig.solve(frames[f:f + n], pelvis[f:f + n]))
+                    if few:
+                        # the one-frame chain's Python floats against numpy's turn
+                        monkeypatch.setattr(ap, "turn_between_one", lambda a, b: None)
+                monkeypatch.undo()
+                for name in ("basis", "root_location", "joints", "frames"):
+                    assert np.array_equal(getattr(poses[0], name), getattr(poses[1], name)), (name, f, n)
+
+
+def test_a_few_frames_surface_is_the_grouped_one(monkeypatch):
+    # egocentric.SurfacePoser: fewer than surface.FEW_FRAMES frames pose every mesh point in one
+    # padded product; the same points as the product per group of bones (to rounding: the BLAS
+    # kernel may change with the padded width).
+    from bodycal_addon.retarget import egocentric as ego
+    from bodycal_addon.retarget.egocentric import surface
+
+    perf = synthetic.make_performer(seed=2)
+    rec, truth = synthetic.record_session(perf, motions=("clap",), calibration=False, motion_seconds=1.0)
+    up = ua.animate_user(rec, truth.body_model())
+    for model in (truth.body_model(), rt.procedural_avatar()):
+        poser = ego.SurfacePoser(model, ego.common_elements(truth.body_model(), rt.procedural_avatar()))
+        assert len(poser.point_groups) > 1  # bones carrying different counts of points
+        for f in range(0, 60, 13):
+            few = poser.pose(up.joints[f:f + 2], up.frames[f:f + 2])
+            monkeypatch.setattr(surface, "FEW_FRAMES", 0)
+            grouped = poser.pose(up.joints[f:f + 2], up.frames[f:f + 2])
+            monkeypatch.undo()
+            assert few.tri.shape == grouped.tri.shape and few.tri.size
+            np.testing.assert_allclose(few.tri, grouped.tri, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(few.tri_normal, grouped.tri_normal, rtol=0, atol=1e-12)
