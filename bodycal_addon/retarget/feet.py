@@ -46,6 +46,7 @@ class Stance:
     weight: np.ndarray  # (F,) in [0, 1]
     label: np.ndarray  # (F,) int: the stance a frame belongs to, -1 outside
     count: int
+    inner: np.ndarray | None = None  # (F,) in [0, 1]: eased in and out over the stance's own first and last frames
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
@@ -68,7 +69,7 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
     """Stance of one foot from the user's ankle (F, 3) carried by its foot tracker."""
     F = len(ankle)
     if F < 3:
-        return Stance(np.zeros(F), np.full(F, -1), 0)
+        return Stance(np.zeros(F), np.full(F, -1), 0, np.zeros(F))
     fps = (F - 1) / max(float(time[-1] - time[0]), 1e-9)
     smooth = _moving_average(np.asarray(ankle, float), max(1, int(round(SMOOTH_S * fps))))
     speed = np.linalg.norm(np.gradient(smooth, time, axis=0), axis=1)
@@ -98,7 +99,7 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         stance = np.cumsum(d[:-1]) > 0
     starts, stops = _runs(stance)
     label = np.full(F, -1)
-    weight = np.zeros(F)
+    weight, inner = np.zeros(F), np.zeros(F)
     if len(starts):
         n = max(1, int(round(BLEND_S * fps)))
         # Each stance eases in over the n frames before it and out over the n after it; where two
@@ -111,13 +112,21 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         before = np.where(t < starts[0], starts[0] - t, before)
         gap = np.minimum(np.where(t < starts[0], np.iinfo(np.int64).max, after), before)
         gap = np.where(stance, 0, gap)
-        s = np.clip(1.0 - gap / (n + 1.0), 0.0, 1.0)
+        # Between two stances closer than two easings each eases over half the gap, so the weight
+        # is 0 where the planted place changes from one stance's to the next (it jumped there).
+        span = np.where((t >= stops[k]) & (k + 1 < len(starts)), starts[k2] - stops[k], 2 * n)
+        span = np.where(t < starts[0], 2 * n, span)
+        s = np.clip(1.0 - gap / (np.minimum(n, span // 2) + 1.0), 0.0, 1.0)
         weight = s * s * (3.0 - 2.0 * s)
+        # inside a stance: frames to its nearer end
+        depth = np.where(stance, np.minimum(t - starts[k] + 1, stops[k] - t), 0)
+        s = np.clip(depth / (n + 1.0), 0.0, 1.0)
+        inner = s * s * (3.0 - 2.0 * s)
         # the stance each frame eases toward (inside: its own)
         near_next = before < np.where(t < starts[0], np.iinfo(np.int64).max, after)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
-    return Stance(weight, label, len(starts))
+    return Stance(weight, label, len(starts), inner)
 
 
 def planted_xy(reference: np.ndarray, stance: Stance) -> np.ndarray:
@@ -141,6 +150,62 @@ def sole_lift(foot_frames: np.ndarray, sole_local: np.ndarray) -> np.ndarray:
     foot frames (F, 3, 3)): where the ankle stands when that point is on the floor."""
     z = np.einsum("fj,kj->fk", foot_frames[:, 2, :], sole_local)  # the points' heights below the ankle
     return -z.min(axis=1)
+
+
+@dataclass
+class Contact:
+    """The avatar's foot on the floor, in its canonical foot frame about the ankle: the heel's and
+    the ball's contact points (3,) and the skin points that may touch the floor (K, 3)."""
+    heel: np.ndarray
+    ball: np.ndarray
+    support: np.ndarray
+
+
+def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
+    """(F, P, 3) points rigid on a foot, from where they are at rest (P, 3): the ankle (F, 3) plus
+    the foot's rotation since rest (F, 3, 3) applied to their rest offsets from the ankle."""
+    return ankle[:, None] + np.einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
+
+
+def rolling(heel: np.ndarray, ball: np.ndarray, heel_inner: np.ndarray | None = None,
+            ball_inner: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(weight (F,), ball share (F,)) from the heel's and the ball's stance weights (F,): the foot
+    is planted while either is down (the weights eased outside the stances: while the foot still
+    moves); it pivots about the heel where only the heel is down (the strike), about the ball where
+    only the ball is (the toe-off), about both where both are (flat). The share blends by the
+    stances' inner weights (eased inside them, `Stance.inner`): a point hands its pivot over while
+    it is still down, so the foot never turns about a point that has left the floor."""
+    weight = np.maximum(heel, ball)
+    hi = heel if heel_inner is None else heel_inner
+    bi = ball if ball_inner is None else ball_inner
+    total = hi + bi
+    share = np.divide(bi, total, out=np.zeros_like(total), where=total > 0)
+    # Where neither is down (the easings outside the stances) the last share holds: the foot leaves
+    # the floor about the point it pivoted on last.
+    known = np.flatnonzero(total > 0)
+    if len(known):
+        last = np.maximum.accumulate(np.where(total > 0, np.arange(len(total)), -1))
+        share = share[np.where(last >= 0, last, known[0])]
+    return weight, share
+
+
+def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np.ndarray, share: np.ndarray,
+         foot_frames: np.ndarray, contact: Contact) -> np.ndarray:
+    """(F, 3) the ankle target of a rolling foot: the method's `ankle` (F, 3) eased by `weight` (F,)
+    onto where the ankle stands with the heel's contact point on the floor at `heel_at` (F, 2) and
+    the ball's at `ball_at` (F, 2) (NaN: not planted), blended by the ball's `share` (F,), the foot
+    turned as `foot_frames` (F, 3, 3) say; never lower than `sole_lift` (no skin under the floor)."""
+    def stand(at, local):  # the ankle with that contact point at `at` on the floor
+        pinned = np.concatenate([np.nan_to_num(at), np.zeros((len(at), 1))], axis=1)
+        return pinned - np.einsum("fij,j->fi", foot_frames, local)
+
+    share = np.where(np.isfinite(ball_at[:, 0]), np.where(np.isfinite(heel_at[:, 0]), share, 1.0), 0.0)
+    place = stand(heel_at, contact.heel) + share[:, None] * (stand(ball_at, contact.ball) - stand(heel_at,
+                                                                                                  contact.heel))
+    w = np.where(np.isfinite(heel_at[:, 0]) | np.isfinite(ball_at[:, 0]), weight, 0.0)[:, None]
+    out = ankle + w * (place - ankle)
+    out[:, 2] = np.maximum(out[:, 2], sole_lift(foot_frames, contact.support))
+    return out
 
 
 def lock(ankle: np.ndarray, planted: np.ndarray, weight: np.ndarray, lift: np.ndarray) -> np.ndarray:

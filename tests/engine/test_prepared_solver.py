@@ -72,10 +72,19 @@ def test_the_bake_is_the_one_before_the_prepared_solver():
                     list(perf_rec.marker_names), ref["markers"], ref["marker_valid"])
     user = synthetic.record_session(synthetic.make_performer(seed=0), motions=("clap",), calibration=False,
                                     seed=0, motion_seconds=0.2)[1].body_model()
+    # The feet's plan changed on purpose since (rolling feet about their heel and ball contact
+    # points, feet.py): the legs are not compared; what their new targets carry over elsewhere
+    # (the egocentric mapping's soles, AvatarGo's pelvis drop) stays within 2e-4 (quaternion
+    # components) and 0.1 mm; the rotation copy's other bones and root are exact.
+    legs = ("thigh_", "calf_", "foot_", "ball_")
     for method in pl.METHODS:
         anim = pl.retarget(rec, user, procedural_avatar(), method, chunk_frames=7)
-        np.testing.assert_allclose(anim.rotations, ref[f"{method}_basis"], rtol=0, atol=1e-9, err_msg=method)
-        np.testing.assert_allclose(anim.root_location, ref[f"{method}_root"], rtol=0, atol=1e-9, err_msg=method)
+        keep = [i for i, n in enumerate(anim.bone_names) if not n.startswith(legs)]
+        atol = 1e-9 if method == "rotations" else 2e-4
+        np.testing.assert_allclose(anim.rotations[:, keep], ref[f"{method}_basis"][:, keep], rtol=0, atol=atol,
+                                   err_msg=method)
+        np.testing.assert_allclose(anim.root_location, ref[f"{method}_root"], rtol=0,
+                                   atol=1e-9 if method == "rotations" else 1e-4, err_msg=method)
 
 
 def test_solve_refuses_frames_outside_the_take(take):
