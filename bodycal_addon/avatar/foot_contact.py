@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
-GRID_ALONG = 14
-GRID_ACROSS = 5
+GRID_ALONG = 24
+GRID_ACROSS = 7
 BEHIND = 0.6  # ankle-to-toe lengths behind the ankle (a heel's round lies 0.3-0.45 behind)
 BEYOND = 0.8  # ankle-to-toe lengths past the toe joint (the toes' tips: 0.4-0.6)
-HALF_WIDTH = 0.35  # ankle-to-toe lengths either side of the foot's line
+HALF_WIDTH = 0.6  # ankle-to-toe lengths either side of the foot's line (a foot is 0.4-0.45 wide)
 BELOW = 0.05  # m: the rays start this far under the floor
 MAX_HEIGHT = 0.5  # of the ankle's height above the floor: skin higher up is not the sole's
 LOW_BAND = 0.01  # m

@@ -32,7 +32,7 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 | sole floor              | ankle, toe joint - U * (leg length + 0.1)| U (first hit from below)        |
 | sole_1..6_<s>           | ankle / 15 % to toe / toe / toe / toe /  | -f / +lat / +lat / +f / -lat /  |
 |                         | 15 %, at 20 % of the ankle's height (***)| -lat                            |
-| sole contact (70 rays)  | a grid under the floor over the foot's   | U (foot_contact.py)             |
+| sole contact (168 rays) | a grid under the floor over the foot's   | U (foot_contact.py)             |
 |                         | footprint                                |                                 |
 
 (*) the bilinear default of surface_layout.belly_centre_points from the four measured corners.

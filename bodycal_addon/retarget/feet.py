@@ -39,6 +39,8 @@ SMOOTH_S = 0.06  # s: the ankle's position is averaged over this before its spee
 MIN_STANCE_S = 0.15  # s
 BLEND_S = 0.12  # s
 REACH = 0.999  # a planted leg is stretched to at most this fraction of its length
+SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
+FLOOR_BLEND = 0.006  # m: how softly `above` keeps the sole on the floor
 
 
 @dataclass
@@ -97,11 +99,21 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         np.add.at(d, a, 1)
         np.add.at(d, b, -1)
         stance = np.cumsum(d[:-1]) > 0
+    return eased(stance, blend_frames(fps))
+
+
+def blend_frames(fps: float) -> int:
+    """BLEND_S in frames at `fps`."""
+    return max(1, int(round(BLEND_S * fps)))
+
+
+def eased(stance: np.ndarray, n: int) -> Stance:
+    """The Stance of the frames `stance` (F,) bool: weights eased over `n` frames."""
+    F = len(stance)
     starts, stops = _runs(stance)
     label = np.full(F, -1)
     weight, inner = np.zeros(F), np.zeros(F)
     if len(starts):
-        n = max(1, int(round(BLEND_S * fps)))
         # Each stance eases in over the n frames before it and out over the n after it; where two
         # stances' easings meet the weight is the larger. Distance in frames to the nearest stance:
         t = np.arange(F)
@@ -145,6 +157,50 @@ def planted_xy(reference: np.ndarray, stance: Stance) -> np.ndarray:
     return out
 
 
+def rolling_places(heel_ref: np.ndarray, ball_ref: np.ndarray, heel: Stance, ball: Stance
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(heel's place (F, 2), ball's place (F, 2), NaN where not planted) of a rolling foot, from
+    where the method puts the avatar's heel and ball contact points (F, 3) and the two stances.
+
+    A stance that begins while the other point is down takes its place from that point's, plus the
+    avatar's own heel-to-ball offset (its foot turned as in the frames both are down, averaged): a
+    heel strike then the ball coming down, a toe-off, a foot turning on its heel or its ball, each
+    hands the pivot over between places that agree with the foot, so nothing slides. A stance that
+    begins alone (a heel strike, a ball landing first) is placed by the mean of its own reference.
+    One step per stance (a few per second of a walk), not per frame."""
+    refs, stances = (heel_ref, ball_ref), (heel, ball)
+    places = [np.full((max(st.count, 0), 2), np.nan) for st in stances]
+    inside = [(st.weight >= 1.0) & (st.label >= 0) for st in stances]
+    runs = []
+    for kind, st in enumerate(stances):
+        if st.count == 0:
+            continue
+        starts, stops = _runs(inside[kind])
+        total = np.bincount(st.label[inside[kind]], minlength=st.count)
+        for a, b in zip(starts, stops):
+            runs.append((int(a), int(b), kind, int(st.label[a])))
+        for k in range(2):
+            mean = np.bincount(st.label[inside[kind]], refs[kind][inside[kind], k], st.count) / np.maximum(total, 1)
+            places[kind][:, k] = np.where(total > 0, mean, np.nan)
+    for a, b, kind, lab in sorted(runs):
+        other = 1 - kind
+        o_st = stances[other]
+        if not (o_st.count and inside[other][a]):
+            continue  # begins alone: its own mean
+        o_lab = int(o_st.label[a])
+        both = np.flatnonzero(inside[kind][a:b] & (o_st.label[a:b] == o_lab) & inside[other][a:b]) + a
+        offset = (refs[kind][both, :2] - refs[other][both, :2]).mean(axis=0)
+        places[kind][lab] = places[other][o_lab] + offset
+    out = []
+    for kind, st in enumerate(stances):
+        at = np.full((len(st.label), 2), np.nan)
+        on = st.label >= 0
+        if st.count:
+            at[on] = places[kind][st.label[on]]
+        out.append(at)
+    return out[0], out[1]
+
+
 def sole_lift(foot_frames: np.ndarray, sole_local: np.ndarray) -> np.ndarray:
     """(F,) the ankle's height above the lowest of the sole points (K, 3) (local to the canonical
     foot frames (F, 3, 3)): where the ankle stands when that point is on the floor."""
@@ -167,26 +223,68 @@ def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, res
     return ankle[:, None] + np.einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
 
 
-def rolling(heel: np.ndarray, ball: np.ndarray, heel_inner: np.ndarray | None = None,
-            ball_inner: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(weight (F,), ball share (F,)) from the heel's and the ball's stance weights (F,): the foot
-    is planted while either is down (the weights eased outside the stances: while the foot still
-    moves); it pivots about the heel where only the heel is down (the strike), about the ball where
-    only the ball is (the toe-off), about both where both are (flat). The share blends by the
-    stances' inner weights (eased inside them, `Stance.inner`): a point hands its pivot over while
-    it is still down, so the foot never turns about a point that has left the floor."""
-    weight = np.maximum(heel, ball)
-    hi = heel if heel_inner is None else heel_inner
-    bi = ball if ball_inner is None else ball_inner
+def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(weight (F,), ball share (F,), heel's place (F, 2), ball's place (F, 2)) of a rolling foot
+    from its heel's and its ball's stances and places: the foot is planted while either is down (a
+    contact: `eased` over `n` frames around the union of the two); it pivots about the heel where
+    only the heel is down (the strike), about the ball where only the ball is (the toe-off), about
+    both where both are (flat). The share blends by the stances' inner weights (eased inside
+    them): a point hands its pivot over while it is still down, so the foot never turns about a
+    point that has left the floor. Outside a contact the share and the places hold what it began or
+    ended with. Two contacts less than two easings apart (a shuffle, a foot lifted for a moment)
+    are one: across the gap the share and the places go smoothly from the first's end to the
+    second's start, so the ankle never dips to the method's and back in a few frames."""
+    share = pivot_share(heel.inner, ball.inner, heel.weight, ball.weight)
+    down = (heel.weight >= 1.0) | (ball.weight >= 1.0)
+    starts, stops = _runs(down)
+    t = np.arange(len(share))
+    if len(starts) > 1:
+        short = (starts[1:] - stops[:-1]) < 2 * n
+        prev, nxt = stops[:-1][short] - 1, starts[1:][short]  # the edges of each short gap
+        d = np.zeros(len(share) + 1, int)
+        np.add.at(d, prev + 1, 1)
+        np.add.at(d, nxt, -1)
+        gap = np.cumsum(d[:-1]) > 0
+        g = np.clip(np.searchsorted(prev, t, side="right") - 1, 0, max(len(prev) - 1, 0))
+        if gap.any():
+            a, b = prev[g], nxt[g]
+            u = np.clip((t - a) / np.maximum(b - a, 1), 0.0, 1.0)
+            u = u * u * (3.0 - 2.0 * u)
+
+            def across(x):
+                p, q = x[a], x[b]
+                p, q = np.where(np.isnan(p), q, p), np.where(np.isnan(q), p, q)
+                return p + (u[:, None] if x.ndim > 1 else u) * (q - p)
+
+            share = np.where(gap, across(share), share)
+            heel_at = np.where(gap[:, None], across(heel_at), heel_at)
+            ball_at = np.where(gap[:, None], across(ball_at), ball_at)
+            down = down | gap
+            starts, stops = _runs(down)
+    union = eased(down, n)
+    on = union.weight >= 1.0
+    if len(starts):
+        k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(starts) - 1)
+        before_first = t < starts[0]
+        ended = (t >= stops[k]) & ~before_first
+        nxt = np.clip(k + 1, 0, len(starts) - 1)
+        # off the contact: its nearer end's (the union's label says which contact)
+        toward_next = union.label > k
+        edge = np.where(before_first, starts[0], np.where(ended & toward_next, starts[nxt], stops[k] - 1))
+        share = np.where(on, share, share[edge])
+        heel_at = np.where(on[:, None], heel_at, heel_at[edge])
+        ball_at = np.where(on[:, None], ball_at, ball_at[edge])
+    return union.weight, share, heel_at, ball_at
+
+
+def pivot_share(heel_inner: np.ndarray, ball_inner: np.ndarray, heel: np.ndarray, ball: np.ndarray) -> np.ndarray:
+    """(F,) the ball's share of the pivot from the stances' inner weights, and their outer weights
+    counted SHARE_OUTER as much where neither is inside (a live stream has only those)."""
+    hi = heel_inner + SHARE_OUTER * heel
+    bi = ball_inner + SHARE_OUTER * ball
     total = hi + bi
-    share = np.divide(bi, total, out=np.zeros_like(total), where=total > 0)
-    # Where neither is down (the easings outside the stances) the last share holds: the foot leaves
-    # the floor about the point it pivoted on last.
-    known = np.flatnonzero(total > 0)
-    if len(known):
-        last = np.maximum.accumulate(np.where(total > 0, np.arange(len(total)), -1))
-        share = share[np.where(last >= 0, last, known[0])]
-    return weight, share
+    return np.divide(bi, total, out=np.zeros_like(total), where=total > 0)
 
 
 def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np.ndarray, share: np.ndarray,
@@ -204,8 +302,17 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
                                                                                                   contact.heel))
     w = np.where(np.isfinite(heel_at[:, 0]) | np.isfinite(ball_at[:, 0]), weight, 0.0)[:, None]
     out = ankle + w * (place - ankle)
-    out[:, 2] = np.maximum(out[:, 2], sole_lift(foot_frames, contact.support))
+    out[:, 2] = above(out[:, 2], sole_lift(foot_frames, contact.support))
     return out
+
+
+def above(z: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """`z` kept above `floor` (F,) without a kink where it meets it (a hard max turned a foot
+    lifting off its guard into an acceleration spike): within FLOOR_BLEND either side of the floor
+    a parabola joins the two smoothly (C1), so a point pinned exactly on the floor stands a quarter
+    of FLOOR_BLEND above it; `z` further up is kept as it is."""
+    d, e = z - floor, FLOOR_BLEND
+    return np.where(d >= e, z, floor + np.where(d <= -e, 0.0, (d + e) ** 2 / (4.0 * e)))
 
 
 def lock(ankle: np.ndarray, planted: np.ndarray, weight: np.ndarray, lift: np.ndarray) -> np.ndarray:

@@ -389,16 +389,17 @@ class FeetPlan:
             self._extend(src.frame_count)
 
     def _rest_points(self, s: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(the performer's ankle (3,), its heel and ball (2, 3), the avatar's heel and ball about
-        the ankle in the performer's rest foot frame (2, 3)) at rest."""
+        """(the performer's ankle (3,), its heel and ball (2, 3) at the reference time, the avatar's
+        heel and ball about its ankle as its foot lies when the performer stands so (2, 3))."""
         solver = self.solver
         ankle = np.asarray(solver.user_pos[f"ankle_{s}"], float)
         toe = solver.user_pos.get(f"toe_{s}")
         ball = np.asarray(toe, float) if toe is not None else ankle + solver.user_frames0[BI[f"foot_{s}"]][:, 1] * 0.1
         heel = ankle * [1.0, 1.0, 0.0]  # on the floor under the ankle
         c = self.contacts[s]
-        avatar = solver.user_frames0[BI[f"foot_{s}"]] @ np.stack([c.heel, c.ball]).T
-        return ankle, np.stack([heel, ball]), avatar.T
+        # the avatar's foot frame when the performer stands as at the reference time (step 2's copy)
+        rest = copy_frames(solver.user_frames0[None], solver.user_frames0, solver.rig.frames0)[0, BI[f"foot_{s}"]]
+        return ankle, np.stack([heel, ball]), np.stack([c.heel, c.ball]) @ rest.T
 
     def _extend(self, stop: int) -> None:
         """Plan the frames [done, stop)."""
@@ -419,15 +420,15 @@ class FeetPlan:
             rest_ankle, performer, avatar = self.rest[s]
             own = feet.foot_points(ankles[s], turn, rest_ankle, performer)  # (F, 2, 3) the performer's
             theirs = reference[:, None] + np.einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
-            rows = []
-            for i, k in enumerate(("heel", "ball")):
-                if whole:
-                    stance = feet.detect(own[:, i], src.time, float(performer[i, 2]))
-                    rows.append((stance.weight, feet.planted_xy(theirs[:, i], stance), stance.inner))
-                else:  # live: no look-ahead, the weights are the inner ones
-                    rows.append((*self.stance[s, k].update(own[:, i], src.time[start:stop], theirs[:, i]), None))
-            (wh, heel_at, ih), (wb, ball_at, ib) = rows
-            weight, share = feet.rolling(wh, wb, ih, ib)
+            if whole:
+                heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
+                heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)
+                fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it
+                weight, share, heel_at, ball_at = feet.rolling(heel, ball, feet.blend_frames(fps), heel_at, ball_at)
+            else:  # live: no look-ahead, no inner weights
+                (wh, heel_at), (wb, ball_at) = (self.stance[s, k].update(own[:, i], src.time[start:stop], theirs[:, i])
+                                                for i, k in enumerate(("heel", "ball")))
+                weight, share = np.maximum(wh, wb), feet.pivot_share(0.0 * wh, 0.0 * wb, wh, wb)
             self.rows_so_far[s] = [np.concatenate([old, new]) for old, new in
                                    zip(self.rows_so_far[s], (weight, share, heel_at, ball_at))]
         self.done = stop

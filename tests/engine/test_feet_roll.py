@@ -44,20 +44,22 @@ def test_contact_points_of_a_foot_shaped_underside():
 
 
 def test_rolling_pivots_about_the_point_that_is_down():
-    """Heel down only: the ball's share is 0; ball only: 1; both: between; the share holds where
-    neither is down; the foot stands with the pinned contact point on the floor."""
-    F = 9
-    heel_w = np.array([0, 1, 1, 1, 1, 0, 0, 0, 0], float)
-    ball_w = np.array([0, 0, 0, 1, 1, 1, 1, 0, 0], float)
-    weight, share = feet.rolling(heel_w, ball_w)
-    assert np.allclose(weight, np.maximum(heel_w, ball_w))
-    assert share[1] == 0.0 and share[3] == 0.5 and share[5] == 1.0 and share[8] == 1.0
+    """Heel down only: the ball's share is 0; ball only: 1; both: between; the weight eases around
+    the contact; the foot stands with the pinned contact point on the floor; the share changes
+    smoothly (no step larger than an easing's)."""
+    F, n = 80, 6
+    heel = feet.eased((np.arange(F) >= 10) & (np.arange(F) < 40), n)
+    ball = feet.eased((np.arange(F) >= 25) & (np.arange(F) < 60), n)
+    heel_at, ball_at = np.tile([0.1, 0.0], (F, 1)), np.tile([0.1, 0.15], (F, 1))
+    weight, share, h_at, b_at = feet.rolling(heel, ball, n, heel_at, ball_at)
+    assert weight[10:60].min() == 1.0 and weight[:10 - n].max() == 0.0 and weight[60 + n:].max() == 0.0
+    assert share[15] < 0.1 and abs(share[32] - 0.5) < 0.01 and share[50] > 0.9
+    assert np.abs(np.diff(share)).max() < 0.35
     frames = np.repeat(np.eye(3)[None], F, axis=0)
     contact = feet.Contact(np.array([0.0, -0.03, -0.08]), np.array([0.0, 0.12, -0.08]),
                            np.array([[0.0, -0.03, -0.08], [0.0, 0.12, -0.08], [0.0, 0.18, -0.07]]))
-    heel_at, ball_at = np.tile([0.1, 0.0], (F, 1)), np.tile([0.1, 0.15], (F, 1))
-    out = feet.roll(np.tile([0.5, 0.5, 0.5], (F, 1)), heel_at, ball_at, weight, share, frames, contact)
-    assert np.allclose(out[1], [0.1, 0.03, 0.08]) and np.allclose(out[5], [0.1, 0.03, 0.08])
+    out = feet.roll(np.tile([0.5, 0.5, 0.5], (F, 1)), h_at, b_at, weight, share, frames, contact)
+    assert np.allclose(out[32, :2], [0.1, 0.03]) and abs(out[32, 2] - 0.08) < feet.FLOOR_BLEND
     assert np.allclose(out[0], [0.5, 0.5, 0.5])
 
 
