@@ -49,6 +49,7 @@ class Stance:
     label: np.ndarray  # (F,) int: the stance a frame belongs to, -1 outside
     count: int
     inner: np.ndarray | None = None  # (F,) in [0, 1]: eased in and out over the stance's own first and last frames
+    lead: np.ndarray | None = None  # (F,) `weight` before and in the stances, 0 after them (easing out)
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
@@ -138,7 +139,9 @@ def eased(stance: np.ndarray, n: int) -> Stance:
         near_next = before < np.where(t < starts[0], np.iinfo(np.int64).max, after)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
-    return Stance(weight, label, len(starts), inner)
+        lead = np.where(near_next | stance | (t < starts[0]), weight, 0.0)
+        return Stance(weight, label, len(starts), inner, lead)
+    return Stance(weight, label, len(starts), inner, weight)
 
 
 def planted_xy(reference: np.ndarray, stance: Stance) -> np.ndarray:
@@ -235,7 +238,7 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
     ended with. Two contacts less than two easings apart (a shuffle, a foot lifted for a moment)
     are one: across the gap the share and the places go smoothly from the first's end to the
     second's start, so the ankle never dips to the method's and back in a few frames."""
-    share = pivot_share(heel.inner, ball.inner, heel.weight, ball.weight)
+    share = pivot_share(heel.inner, ball.inner, heel.lead, ball.lead)
     down = (heel.weight >= 1.0) | (ball.weight >= 1.0)
     starts, stops = _runs(down)
     t = np.arange(len(share))
@@ -280,7 +283,8 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
 
 def pivot_share(heel_inner: np.ndarray, ball_inner: np.ndarray, heel: np.ndarray, ball: np.ndarray) -> np.ndarray:
     """(F,) the ball's share of the pivot from the stances' inner weights, and their outer weights
-    counted SHARE_OUTER as much where neither is inside (a live stream has only those)."""
+    counted SHARE_OUTER as much where neither is inside (a bake counts a stance's easing in only: a
+    point easing out has left the floor; a live stream has the outer weights only)."""
     hi = heel_inner + SHARE_OUTER * heel
     bi = ball_inner + SHARE_OUTER * ball
     total = hi + bi
@@ -301,8 +305,12 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
     place = stand(heel_at, contact.heel) + share[:, None] * (stand(ball_at, contact.ball) - stand(heel_at,
                                                                                                   contact.heel))
     w = np.where(np.isfinite(heel_at[:, 0]) | np.isfinite(ball_at[:, 0]), weight, 0.0)[:, None]
+    lift = sole_lift(foot_frames, contact.support)
+    # The place itself stands on the floor (a foot pitched past its ball stands on its toes' tips),
+    # so that easing away from it never meets the guard below (a kink: an acceleration spike).
+    place[:, 2] = above(place[:, 2], lift)
     out = ankle + w * (place - ankle)
-    out[:, 2] = above(out[:, 2], sole_lift(foot_frames, contact.support))
+    out[:, 2] = above(out[:, 2], lift)
     return out
 
 
