@@ -387,6 +387,7 @@ class CausalStance:
         enter, hold = self._measures(ankle, time)
         stance, starts = self._stances(enter, hold)
         weight, planted = np.zeros(k), np.full((k, 2), np.nan)
+        self.lead = np.zeros(k)  # the weight while a stance holds, 0 while it eases out (feet.rolling's lead)
         for i in range(k):  # a few frames at a time in a stream; only the stance bookkeeping is per frame
             self._step(i, stance[i], starts[i], reference[i], weight, planted)
         self.frames += k
@@ -443,6 +444,7 @@ class CausalStance:
             mode = self._mode = ("out", t, self._weight_in(t - 1), mode[2])
         if mode[0] == "in":
             weight[i], planted[i] = self._weight_in(t), mode[2]
+            self.lead[i] = weight[i]
         elif mode[0] == "out":
             weight[i] = self._weight_out(t)
             planted[i] = mode[3] if weight[i] > 0 else np.nan

@@ -87,7 +87,11 @@ class RecordingSource:
 
     def trackers(self, start=0, stop=None):
         if start or stop is not None:
-            return self.reader.read(start, stop)
+            # the feet's plan asks for the same frames' ankles, feet and trackers in turn (a live
+            # stream: every frame): read once
+            if getattr(self, "_block", (None,))[0] != (start, stop, self.frame_count):
+                self._block = ((start, stop, self.frame_count), self.reader.read(start, stop))
+            return self._block[1]
         if self._tr is None:
             self._tr = self.reader.read()
         return self._tr

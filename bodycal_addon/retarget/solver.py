@@ -425,10 +425,14 @@ class FeetPlan:
                 heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)
                 fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it
                 weight, share, heel_at, ball_at = feet.rolling(heel, ball, feet.blend_frames(fps), heel_at, ball_at)
-            else:  # live: no look-ahead, no inner weights
-                (wh, heel_at), (wb, ball_at) = (self.stance[s, k].update(own[:, i], src.time[start:stop], theirs[:, i])
-                                                for i, k in enumerate(("heel", "ball")))
-                weight, share = np.maximum(wh, wb), feet.pivot_share(0.0 * wh, 0.0 * wb, wh, wb)
+            else:  # live: no look-ahead, no inner weights; the ball placed from the heel's place
+                t = src.time[start:stop]
+                heel, ball = self.stance[s, "heel"], self.stance[s, "ball"]
+                wh, heel_at = heel.update(own[:, 0], t, theirs[:, 0])
+                chained = np.isfinite(heel_at[:, :1])
+                ball_ref = np.where(chained, heel_at + theirs[:, 1, :2] - theirs[:, 0, :2], theirs[:, 1, :2])
+                wb, ball_at = ball.update(own[:, 1], t, ball_ref)
+                weight, share = np.maximum(wh, wb), feet.pivot_share(0.0 * wh, 0.0 * wb, heel.lead, ball.lead)
             self.rows_so_far[s] = [np.concatenate([old, new]) for old, new in
                                    zip(self.rows_so_far[s], (weight, share, heel_at, ball_at))]
         self.done = stop
