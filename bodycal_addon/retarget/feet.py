@@ -1,28 +1,30 @@
-"""Planted feet (DESIGN.md §6; beyond Delahaye 2023 and AvatarGo, whose feet follow their targets).
+"""Planted feet: a walking foot rolls heel -> flat -> ball (DESIGN.md §6 "Planted feet"; beyond
+Delahaye 2023 and AvatarGo, whose feet follow their targets). In every method and in transfer:
 
-While the performer stands on a foot, the avatar's foot stays put and on the floor, in every
-method:
-
-1. Stance from the foot tracker (`detect`): the user's ankle, carried by its foot tracker,
-   low (within STANCE_HEIGHT of where it stood at the reference time) and slow (its position,
-   averaged over SMOOTH_S, moving slower than STANCE_SPEED), with hysteresis (a stance that has
-   begun lasts until the ankle is faster than EXIT_SPEED or higher than EXIT_HEIGHT) and no stance
-   shorter than MIN_STANCE_S.
-2. A weight per frame (`Stance.weight`): 1 throughout a stance, easing in over the BLEND_S before
-   it and out over the BLEND_S after it (smoothstep), so nothing pops and the easing happens while
-   the foot still moves (a bake sees the whole take: it can look ahead).
-3. The planted place (`planted_xy`): per stance, the mean over its frames of where the method puts the
-   ankle (the rotation copy's and the mapping's: the user's ankle scaled like the root; AvatarGo's:
-   its own eq. 2 target); the height: the ankle's height above its lowest sole point in the foot's
-   current orientation (`sole_lift`), so the sole touches the floor whatever the foot does.
-4. `pelvis_drop`: where a planted foot is out of the leg's reach (an avatar whose root rides too
+1. Stances (`detect`) of two points of the performer's foot, each carried by the foot tracker
+   (a source character's foot bone): the heel and the ball, low (within STANCE_HEIGHT of where
+   it stood at the reference time) and slow (averaged over SMOOTH_S, slower than STANCE_SPEED),
+   with hysteresis (until faster than EXIT_SPEED or higher than EXIT_HEIGHT), none shorter than
+   MIN_STANCE_S; `eased` gives each a weight easing over BLEND_S outside it (a bake looks ahead)
+   and an inner weight easing over BLEND_S inside it.
+2. Places (`rolling_places`): where the method puts the avatar's heel and ball contact points
+   (measured on its skin, avatar/foot_contact.py), averaged over a stance that begins alone; a
+   stance that begins while the other point is down is placed from the other's place, so the two
+   agree with the avatar's foot.
+3. The contact (`rolling`): planted while either point is down (eased around their union; two
+   contacts closer than two easings are one); the ball's share of the pivot from the inner weights
+   (`pivot_share`): heel strike about the heel, flat about both, toe-off about the ball.
+4. The ankle target (`roll`): where the ankle stands with the pivot's contact point on the floor,
+   the foot turned as the method turns it, eased from the method's ankle by the weight, and never
+   lower than the support points allow (`sole_lift`, `above`: the skin stays above the floor,
+   planted or not).
+5. `pelvis_drop`: where a planted foot is out of the leg's reach (an avatar whose root rides too
    high: AvatarGo's eye-height scaling, long-legged users), the pelvis comes down as much as
    needed, weighted like the feet.
-5. `lock` also keeps every sole above the floor when the foot is not planted (a swinging foot
-   scuffing, a rotation copy whose legs are longer than the user's).
 
-Everything is an array over frames; the stance of the whole recording is found once (it needs
-the frames on both sides of a chunk's ends).
+Everything is an array over frames (the places: one step per stance); the stances of the whole
+recording are found once (they need the frames on both sides of a chunk's ends). `CausalStance`
+finds them frame by frame for a live stream.
 """
 
 from __future__ import annotations
@@ -142,22 +144,6 @@ def eased(stance: np.ndarray, n: int) -> Stance:
         lead = np.where(near_next | stance | (t < starts[0]), weight, 0.0)
         return Stance(weight, label, len(starts), inner, lead)
     return Stance(weight, label, len(starts), inner, weight)
-
-
-def planted_xy(reference: np.ndarray, stance: Stance) -> np.ndarray:
-    """(F, 2) the planted place of each stance (the weighted mean of `reference` (F, 3) over it),
-    NaN outside stances."""
-    out = np.full((len(reference), 2), np.nan)
-    if stance.count == 0:
-        return out
-    inside = stance.label >= 0
-    lab = stance.label[inside]
-    w = (stance.weight[inside] >= 1.0) + 1e-9  # the stance itself; its easings only where it has no frame
-    total = np.bincount(lab, w, stance.count)
-    for k in range(2):
-        mean = np.bincount(lab, w * reference[inside, k], stance.count) / total
-        out[inside, k] = mean[lab]
-    return out
 
 
 def rolling_places(heel_ref: np.ndarray, ball_ref: np.ndarray, heel: Stance, ball: Stance
@@ -321,17 +307,6 @@ def above(z: np.ndarray, floor: np.ndarray) -> np.ndarray:
     of FLOOR_BLEND above it; `z` further up is kept as it is."""
     d, e = z - floor, FLOOR_BLEND
     return np.where(d >= e, z, floor + np.where(d <= -e, 0.0, (d + e) ** 2 / (4.0 * e)))
-
-
-def lock(ankle: np.ndarray, planted: np.ndarray, weight: np.ndarray, lift: np.ndarray) -> np.ndarray:
-    """(F, 3) the ankle target: the method's `ankle` (F, 3) eased onto the planted place (F, 2)
-    at the height `lift` (F,) by `weight` (F,), and never lower than `lift` (no sole under the
-    floor)."""
-    w = weight[:, None]
-    on_floor = np.concatenate([np.where(np.isfinite(planted), planted, ankle[:, :2]), lift[:, None]], axis=1)
-    out = ankle + w * (on_floor - ankle)
-    out[:, 2] = np.maximum(out[:, 2], lift)
-    return out
 
 
 def pelvis_drop(hips: np.ndarray, targets: np.ndarray, lengths: np.ndarray, weights: np.ndarray) -> np.ndarray:
