@@ -41,6 +41,8 @@ SMOOTH_S = 0.06  # s: the ankle's position is averaged over this before its spee
 MIN_STANCE_S = 0.15  # s
 BLEND_S = 0.12  # s
 REACH = 0.999  # a planted leg is stretched to at most this fraction of its length
+RELEASE = 2.0  # a contact eases out over this many BLEND_S (`rolling`: a foot leaving the floor catches up with
+# the method's ankle, which its toe-off held back: over 0.12 s the ankle's acceleration rose to 1.35x the source's)
 SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
 FLOOR_BLEND = 0.006  # m: how softly `above` keeps the sole on the floor
 
@@ -110,8 +112,10 @@ def blend_frames(fps: float) -> int:
     return max(1, int(round(BLEND_S * fps)))
 
 
-def eased(stance: np.ndarray, n: int) -> Stance:
-    """The Stance of the frames `stance` (F,) bool: weights eased over `n` frames."""
+def eased(stance: np.ndarray, n: int, n_out: int | None = None) -> Stance:
+    """The Stance of the frames `stance` (F,) bool: weights eased over `n` frames (`n_out` after a
+    stance, default `n`)."""
+    n_out = n if n_out is None else n_out
     F = len(stance)
     starts, stops = _runs(stance)
     label = np.full(F, -1)
@@ -131,14 +135,15 @@ def eased(stance: np.ndarray, n: int) -> Stance:
         # is 0 where the planted place changes from one stance's to the next (it jumped there).
         span = np.where((t >= stops[k]) & (k + 1 < len(starts)), starts[k2] - stops[k], 2 * n)
         span = np.where(t < starts[0], 2 * n, span)
-        s = np.clip(1.0 - gap / (np.minimum(n, span // 2) + 1.0), 0.0, 1.0)
+        near_next = before < np.where(t < starts[0], np.iinfo(np.int64).max, after)
+        length = np.where(near_next | stance, n, n_out)
+        s = np.clip(1.0 - gap / (np.minimum(length, span // 2) + 1.0), 0.0, 1.0)
         weight = s * s * (3.0 - 2.0 * s)
         # inside a stance: frames to its nearer end
         depth = np.where(stance, np.minimum(t - starts[k] + 1, stops[k] - t), 0)
         s = np.clip(depth / (n + 1.0), 0.0, 1.0)
         inner = s * s * (3.0 - 2.0 * s)
         # the stance each frame eases toward (inside: its own)
-        near_next = before < np.where(t < starts[0], np.iinfo(np.int64).max, after)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
         lead = np.where(near_next | stance | (t < starts[0]), weight, 0.0)
@@ -221,7 +226,8 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
     both where both are (flat). The share blends by the stances' inner weights (eased inside
     them): a point hands its pivot over while it is still down, so the foot never turns about a
     point that has left the floor. Outside a contact the share and the places hold what it began or
-    ended with. Two contacts less than two easings apart (a shuffle, a foot lifted for a moment)
+    ended with; it eases out over RELEASE times as long as it eases in. Two contacts less than two
+    easings apart (a shuffle, a foot lifted for a moment)
     are one: across the gap the share and the places go smoothly from the first's end to the
     second's start, so the ankle never dips to the method's and back in a few frames."""
     share = pivot_share(heel.inner, ball.inner, heel.lead, ball.lead)
@@ -251,7 +257,7 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
             ball_at = np.where(gap[:, None], across(ball_at), ball_at)
             down = down | gap
             starts, stops = _runs(down)
-    union = eased(down, n)
+    union = eased(down, n, int(round(n * RELEASE)))
     on = union.weight >= 1.0
     if len(starts):
         k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(starts) - 1)
