@@ -44,7 +44,7 @@ REACH = 0.999  # a planted leg is stretched to at most this fraction of its leng
 RELEASE = 2.0  # a contact eases out over this many BLEND_S (`rolling`: a foot leaving the floor catches up with
 # the method's ankle, which its toe-off held back: over 0.12 s the ankle's acceleration rose to 1.35x the source's)
 SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
-FLOOR_BLEND = 0.006  # m: how softly `above` keeps the sole on the floor
+FLOOR_BLEND = 0.075  # of the heel's depth under the ankle (6 mm on an adult): how softly `above` keeps the sole up
 
 
 @dataclass
@@ -210,6 +210,12 @@ class Contact:
     ball: np.ndarray
     support: np.ndarray
 
+    @property
+    def floor_blend(self) -> float:
+        """(m) how softly the sole is kept above the floor (`above`): FLOOR_BLEND of the heel's
+        depth under the ankle, so an avatar scaled up keeps its feet as the same avatar does."""
+        return FLOOR_BLEND * float(np.linalg.norm(self.heel))
+
 
 def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
     """(F, P, 3) points rigid on a foot, from where they are at rest (P, 3): the ankle (F, 3) plus
@@ -300,18 +306,18 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
     lift = sole_lift(foot_frames, contact.support)
     # The place itself stands on the floor (a foot pitched past its ball stands on its toes' tips),
     # so that easing away from it never meets the guard below (a kink: an acceleration spike).
-    place[:, 2] = above(place[:, 2], lift)
+    place[:, 2] = above(place[:, 2], lift, contact.floor_blend)
     out = ankle + w * (place - ankle)
-    out[:, 2] = above(out[:, 2], lift)
+    out[:, 2] = above(out[:, 2], lift, contact.floor_blend)
     return out
 
 
-def above(z: np.ndarray, floor: np.ndarray) -> np.ndarray:
+def above(z: np.ndarray, floor: np.ndarray, blend: float) -> np.ndarray:
     """`z` kept above `floor` (F,) without a kink where it meets it (a hard max turned a foot
-    lifting off its guard into an acceleration spike): within FLOOR_BLEND either side of the floor
-    a parabola joins the two smoothly (C1), so a point pinned exactly on the floor stands a quarter
-    of FLOOR_BLEND above it; `z` further up is kept as it is."""
-    d, e = z - floor, FLOOR_BLEND
+    lifting off its guard into an acceleration spike): within `blend` either side of the floor a
+    parabola joins the two smoothly (C1), so a point pinned exactly on the floor stands a quarter
+    of `blend` above it; `z` further up is kept as it is."""
+    d, e = z - floor, max(float(blend), 1e-9)
     return np.where(d >= e, z, floor + np.where(d <= -e, 0.0, (d + e) ** 2 / (4.0 * e)))
 
 

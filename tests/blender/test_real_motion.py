@@ -179,7 +179,6 @@ def test_planted_feet_hold_still_on_the_floor(walk_full, method):
     test can fail). (The ankle moves in the rest of the stance: the foot rolls about its heel, then
     its ball.)"""
     from bodycal_addon.blender import mesh_metrics
-    from bodycal_addon.retarget import feet
     from bodycal_addon.retarget.avatar_pose import AvatarRig
     from evaluation import measure
 
@@ -214,8 +213,9 @@ def test_planted_feet_hold_still_on_the_floor(walk_full, method):
     source_mm = np.percentile(np.concatenate(source), 95) * 1000 * AvatarRig.from_model(avatar).leg_length() / leg
     assert slide_mm <= 1.5 * source_mm, (slide_mm, source_mm)
     # on the floor: the guard's smooth blend (feet.above) stands a pinned point up to half of
-    # FLOOR_BLEND above it, never under
-    assert 0.0 <= np.median(low_mm) < 1000 * feet.FLOOR_BLEND / 2 and low_mm.min() > -1.0, \
+    # its floor blend above it, never under
+    blend = pl.prepare_recording(rec, user, avatar, method).solver.feet.contacts["l"].floor_blend
+    assert 0.0 <= np.median(low_mm) < 1000 * blend / 2 and low_mm.min() > -1.0, \
         (np.median(low_mm), low_mm.min())
     unplanted_slide, unplanted_low = figures[False]
     assert unplanted_slide > 1.0 or abs(np.median(unplanted_low)) > 5.0, (unplanted_slide, np.median(unplanted_low))

@@ -55,7 +55,7 @@ def test_planted_ankle_holds_still_on_the_floor_and_never_sinks():
     full = weight == 1.0
     assert np.ptp(out[full & (t < 0.9)], axis=0).max() < 1e-9
     # on the floor, within the guard's smooth blend above it
-    assert np.all((out[full, 2] >= 0.085) & (out[full, 2] <= 0.085 + feet.FLOOR_BLEND / 2))
+    assert np.all((out[full, 2] >= 0.085) & (out[full, 2] <= 0.085 + contact.floor_blend / 2))
     assert out[:, 2].min() >= 0.085 - 1e-12  # never below the floor, planted or not
     assert np.linalg.norm(np.diff(out, axis=0), axis=1).max() < 0.02  # no pop at the easings
 

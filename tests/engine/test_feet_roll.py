@@ -59,7 +59,7 @@ def test_rolling_pivots_about_the_point_that_is_down():
     contact = feet.Contact(np.array([0.0, -0.03, -0.08]), np.array([0.0, 0.12, -0.08]),
                            np.array([[0.0, -0.03, -0.08], [0.0, 0.12, -0.08], [0.0, 0.18, -0.07]]))
     out = feet.roll(np.tile([0.5, 0.5, 0.5], (F, 1)), h_at, b_at, weight, share, frames, contact)
-    assert np.allclose(out[32, :2], [0.1, 0.03]) and abs(out[32, 2] - 0.08) < feet.FLOOR_BLEND
+    assert np.allclose(out[32, :2], [0.1, 0.03]) and abs(out[32, 2] - 0.08) < contact.floor_blend
     assert np.allclose(out[0], [0.5, 0.5, 0.5])
 
 
