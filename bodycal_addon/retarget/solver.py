@@ -199,7 +199,9 @@ class PreparedSolver:
             name = f"ankle_{s}"
             base = targets[name] if name in targets else ankles[name]
             targets[name] = feet.roll(base, heel_at, ball_at, w, share, frames[:, BI[f"foot_{s}"]], contact)
-            weights.append(w)
+            # a foot on its ball lets its heel rise rather than pull the pelvis down (a walker's
+            # pelvis does not dip at toe-off; the drop bobbed it, and the hands with it)
+            weights.append(w * (1.0 - share))
             aims.append(targets[name])
             sides.append(s)
         if not sides:
