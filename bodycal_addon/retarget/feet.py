@@ -308,7 +308,8 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
     # so that easing away from it never meets the guard below (a kink: an acceleration spike).
     place[:, 2] = above(place[:, 2], lift, contact.floor_blend)
     out = ankle + w * (place - ankle)
-    out[:, 2] = above(out[:, 2], lift, contact.floor_blend)
+    # both ends above the floor, so is their blend (guarding the blend again raised a pinned foot twice)
+    out[:, 2] = w[:, 0] * place[:, 2] + (1.0 - w[:, 0]) * above(ankle[:, 2], lift, contact.floor_blend)
     return out
 
 

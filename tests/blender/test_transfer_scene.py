@@ -13,7 +13,7 @@ import pytest
 from repo_paths import REPO
 
 from bodycal_addon.avatar.estimate import estimate_surface
-from bodycal_addon.blender import avatar_rig, avatar_storage, blendfile
+from bodycal_addon.blender import avatar_rig, avatar_storage, blendfile, mesh_metrics
 from bodycal_addon.blender import character_source as ts
 from bodycal_addon.blender.avatar_calibration import avatar_model_for
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
@@ -109,7 +109,7 @@ def test_a_bvh_transfers_with_no_nan_and_the_feet_on_the_floor(data_dir, avatar)
         anim = src.animate(model, method)
         assert np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all()
         assert any("estimated" in n for n in anim.notes)
-        points = _contact_points(model, anim)
+        points = {s: mesh_metrics.contact_points(model, anim, s) for s in "lr"}
         for s in "lr":
             low = points[s]["support"][..., 2].min(axis=1)[stance[s]]
             assert np.percentile(np.abs(low), 95) < 0.005, (method, s)
@@ -130,26 +130,6 @@ def measure_contact(point: np.ndarray, fps: float) -> np.ndarray:
     from evaluation import measure
 
     return measure.contact(point, fps)
-
-
-def _contact_points(model, anim) -> dict:
-    """{side: {"heel", "ball": (F, 3), "support": (F, K, 3)}} the avatar's contact points (its sole's
-    `contact`, FORMATS.md §3) where the animation puts them."""
-    from bodycal_addon.body.rest_frames import complete_joints
-    from bodycal_addon.body.skeleton import BONE_INDEX as BI
-    from bodycal_addon.retarget.solver_methods import surface_correction
-
-    rig = ap.AvatarRig.from_model(model)
-    pose = rig.fk(anim.rotations, anim.root_location)
-    corr = surface_correction(model, rig.frames0, complete_joints(model))
-    out = {}
-    for s in "lr":
-        c = model.element(f"mesh:sole_{s}").extra["contact"]
-        frame = pose.frames[:, BI[f"foot_{s}"]] @ corr[BI[f"foot_{s}"]]
-        ankle = pose.joints[:, JI[f"ankle_{s}"]]
-        out[s] = {k: ankle + frame @ np.asarray(c[k]) for k in ("heel", "ball")}
-        out[s]["support"] = ankle[:, None] + np.einsum("fij,kj->fki", frame, np.asarray(c["support"]))
-    return out
 
 
 def test_a_skinned_characters_action_transfers_onto_another_avatar(data_dir, tmp_path):
