@@ -120,3 +120,22 @@ def test_heel_and_ball_planted_on_the_floor_on_a_real_walk(walk, method):
         assert abs(np.median(support[down["heel"] | down["ball"], :, 2].min(axis=1))) < 0.005, (method, s)
         # (the heel's and the ball's slide and steps: bench_real_motion; on this take the left heel
         # still slides ~2.5x the source's and steps up to 13 mm between frames, DESIGN.md §6 "Feet")
+
+
+def test_an_avatar_file_without_contact_points_still_plants_and_says_so(walk):
+    """An avatar model from before the contact points were measured: its sole's outline stands in
+    (the feet still planted, the sole above the floor) and the run says so in one note."""
+    rec, user, truth = walk
+    avatar = rt.procedural_avatar()
+    assert all("contact" not in avatar.element(f"mesh:sole_{s}").extra for s in "lr")
+    anim = pl.retarget(rec.window(0, 400), user, avatar, "rotations", placement="performer")
+    notes = [n for n in anim.notes if "contact points were not measured" in n]
+    assert len(notes) == 1 and "calibrate the avatar again" in notes[0]
+    rig = AvatarRig.from_model(avatar)
+    pose = rig.fk(anim.rotations, anim.root_location)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
+    for s in "lr":
+        outline = np.array([p.local for p in avatar.element(f"mesh:sole_{s}").points.values()])
+        frame = pose.frames[:, BI[f"foot_{s}"]] @ corr[BI[f"foot_{s}"]]
+        low = (pose.joints[:, JI[f"ankle_{s}"], None] + np.einsum("fij,kj->fki", frame, outline))[..., 2].min(axis=1)
+        assert low.min() > -0.002, s
