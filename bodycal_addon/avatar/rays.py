@@ -32,6 +32,8 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 | sole floor              | ankle, toe joint - U * (leg length + 0.1)| U (first hit from below)        |
 | sole_1..6_<s>           | ankle / 15 % to toe / toe / toe / toe /  | -f / +lat / +lat / +f / -lat /  |
 |                         | 15 %, at 20 % of the ankle's height (***)| -lat                            |
+| sole contact (168 rays) | a grid under the floor over the foot's   | U (foot_contact.py)             |
+|                         | footprint                                |                                 |
 
 (*) the bilinear default of surface_layout.belly_centre_points from the four measured corners.
 (**) out of the palm: the side the fingers flex to (a positive rotation about a finger's +X).
@@ -60,6 +62,7 @@ from ..body import skeleton as sk
 from ..body import surface_layout as sl
 from ..body.bodymodel import BodyModel, BoneInfo, Joint, SurfaceElement, SurfacePoint
 from ..core.errors import BodyCalError
+from . import foot_contact
 from .armature import ArmatureReading, canonical_bones
 from .surface_fit import cross_sections, linear_offsets, linear_radii, robust_keep, sphere_fit
 from .template import TEMPLATE
@@ -194,11 +197,11 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
 def planned_rays(rig: ArmatureReading) -> int:
     """How many rays `surface_from_rays` casts on `rig` (a progress bar's end): each capsule's probe
     ring and its station rings, the head top, the skull, the jaw, the torso and its belly centre,
-    and per side the palm, the two floor rays and the sole's outline."""
+    and per side the palm, the two floor rays, the sole's outline and its contact grid."""
     capsules = sum(1 for b in canonical_bones(rig) if b.name in sl.CAPSULE_BONES)
     head = 1 + len(SKULL_RAYS) + len(JAW_RAYS)
     torso = len(TORSO_RAYS) + len(sl.BELLY_CENTRE_UV)
-    per_side = len(PALM_RAYS) + 2 + SOLE_RAYS
+    per_side = len(PALM_RAYS) + 2 + SOLE_RAYS + foot_contact.RAYS
     return capsules * (1 + len(CAPSULE_STATIONS)) * CAPSULE_RAYS + head + torso + len(sk.SIDES) * per_side
 
 
@@ -462,12 +465,30 @@ def _measure_sole(survey: _Survey, s: str) -> None:
                for p, (o, d) in zip(names, rays)]
     outline = [x + U * (floor - float(x @ U)) for x in outline]  # on the floor plane
     outline = _wind(outline, -U)
-    survey.model.surface.append(SurfaceElement(
+    element = SurfaceElement(
         f"mesh:sole_{s}", "mesh", foot,
         points={p: SurfacePoint(foot, survey.local(foot, x)) for p, x in zip(names, outline)},
-        triangles=sl.fan_triangles(names)))
-    survey.quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2, "hit": len(rays) + 2, "rejected": 0,
-                                        "spread_mm": round(float(np.ptp([x @ U for x in floor_hits]) * 1000), 3)}
+        triangles=sl.fan_triangles(names))
+    # The skin's contact points (foot_contact.py): a grid of rays from under the floor.
+    grid = []
+    for o in foot_contact.grid_origins(a, toe, floor, f, lat, U):
+        r = survey.caster.cast(o, U, float(a @ U) - floor + foot_contact.BELOW)
+        grid.append(r[0] if r is not None else np.full(3, np.nan))
+    contact = foot_contact.contact_points(np.array(grid), a, toe, floor, f, lat, U)
+    if contact is not None:
+        element.extra["contact"] = {
+            "heel": _list3(survey.local(foot, contact["heel"])), "ball": _list3(survey.local(foot, contact["ball"])),
+            "support": [_list3(survey.local(foot, x)) for x in contact["support"]]}
+    survey.model.surface.append(element)
+    hit = int(np.isfinite(np.array(grid)).all(axis=1).sum())
+    survey.quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2 + len(grid), "hit": len(rays) + 2 + hit,
+                                        "rejected": 0,
+                                        "spread_mm": round(float(np.ptp([x @ U for x in floor_hits]) * 1000), 3),
+                                        "contact_points": 0 if contact is None else len(contact["support"])}
+
+
+def _list3(x) -> list[float]:
+    return [round(float(v), 7) for v in x]
 
 
 _ORDER = {eid: i for i, eid in enumerate(sl.element_ids())}

@@ -266,6 +266,25 @@ def sole_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> np.ndarr
     return ankle[:, None] + np.einsum("fij,kj->fki", frame, local)
 
 
+def contact_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> dict[str, np.ndarray]:
+    """World positions of the avatar's sole contact points (`mesh:sole_<side>` `contact`, FORMATS.md
+    §3: measured on its skin) in the baked pose: "heel", "ball" (F, 3) and "support" (F, K, 3); the
+    sole's outline stands in (its points, heel and ball its middle) on a model without them."""
+    rig = AvatarRig.from_model(avatar)
+    el = avatar.element(f"mesh:sole_{side}")
+    pose = rig.fk(anim.rotations, anim.root_location)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"foot_{side}"]]
+    frame = pose.frames[:, BI[f"foot_{side}"]] @ corr
+    ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
+    c = el.extra.get("contact")
+    if not isinstance(c, dict):
+        outline = np.stack([p.local for p in el.points.values()])
+        c = {"heel": outline.mean(0), "ball": outline.mean(0), "support": outline}
+    out = {k: ankle + frame @ np.asarray(c[k], float) for k in ("heel", "ball")}
+    out["support"] = ankle[:, None] + np.einsum("fij,kj->fki", frame, np.asarray(c["support"], float))
+    return out
+
+
 def foot_skin(arm, avatar: BodyModel, anim: AvatarAnimation, frames, mesh: EvaluatedMesh | None = None
               ) -> dict[str, dict[str, np.ndarray]]:
     """What the animator sees of the feet (DESIGN.md §7, "Real motion"), on the evaluated mesh at

@@ -795,7 +795,7 @@ def root_positions(user_pelvis: np.ndarray, k: float, centre: np.ndarray) -> np.
 # Bones whose canonical frame depends on where each calibration put the trunk's joints (spine root
 # behind the sacrum, resampled vertebrae, clavicle root): the avatar takes the user's rotation
 # since the reference pose, not the user's orientation, so both stand as they were calibrated.
-DELTA_COPY = tuple(BI[b] for b in ["sacrum", "head", *SPINE_BONES, "clavicle_l", "clavicle_r"])
+DELTA_COPY = tuple(BI[b] for b in ["sacrum", "head", *SPINE_BONES, "clavicle_l", "clavicle_r", "foot_l", "foot_r"])
 
 
 def facing_turn(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndarray:

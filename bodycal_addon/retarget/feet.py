@@ -1,28 +1,30 @@
-"""Planted feet (DESIGN.md §6; beyond Delahaye 2023 and AvatarGo, whose feet follow their targets).
+"""Planted feet: a walking foot rolls heel -> flat -> ball (DESIGN.md §6 "Planted feet"; beyond
+Delahaye 2023 and AvatarGo, whose feet follow their targets). In every method and in transfer:
 
-While the performer stands on a foot, the avatar's foot stays put and on the floor, in every
-method:
-
-1. Stance from the foot tracker (`detect`): the user's ankle, carried by its foot tracker,
-   low (within STANCE_HEIGHT of where it stood at the reference time) and slow (its position,
-   averaged over SMOOTH_S, moving slower than STANCE_SPEED), with hysteresis (a stance that has
-   begun lasts until the ankle is faster than EXIT_SPEED or higher than EXIT_HEIGHT) and no stance
-   shorter than MIN_STANCE_S.
-2. A weight per frame (`Stance.weight`): 1 throughout a stance, easing in over the BLEND_S before
-   it and out over the BLEND_S after it (smoothstep), so nothing pops and the easing happens while
-   the foot still moves (a bake sees the whole take: it can look ahead).
-3. The planted place (`planted_xy`): per stance, the mean over its frames of where the method puts the
-   ankle (the rotation copy's and the mapping's: the user's ankle scaled like the root; AvatarGo's:
-   its own eq. 2 target); the height: the ankle's height above its lowest sole point in the foot's
-   current orientation (`sole_lift`), so the sole touches the floor whatever the foot does.
-4. `pelvis_drop`: where a planted foot is out of the leg's reach (an avatar whose root rides too
+1. Stances (`detect`) of two points of the performer's foot, each carried by the foot tracker
+   (a source character's foot bone): the heel and the ball, low (within STANCE_HEIGHT of where
+   it stood at the reference time) and slow (averaged over SMOOTH_S, slower than STANCE_SPEED),
+   with hysteresis (until faster than EXIT_SPEED or higher than EXIT_HEIGHT), none shorter than
+   MIN_STANCE_S; `eased` gives each a weight easing over BLEND_S outside it (a bake looks ahead)
+   and an inner weight easing over BLEND_S inside it.
+2. Places (`rolling_places`): where the method puts the avatar's heel and ball contact points
+   (measured on its skin, avatar/foot_contact.py), averaged over a stance that begins alone; a
+   stance that begins while the other point is down is placed from the other's place, so the two
+   agree with the avatar's foot.
+3. The contact (`rolling`): planted while either point is down (eased around their union; two
+   contacts closer than two easings are one); the ball's share of the pivot from the inner weights
+   (`pivot_share`): heel strike about the heel, flat about both, toe-off about the ball.
+4. The ankle target (`roll`): where the ankle stands with the pivot's contact point on the floor,
+   the foot turned as the method turns it, eased from the method's ankle by the weight, and never
+   lower than the support points allow (`sole_lift`, `above`: the skin stays above the floor,
+   planted or not).
+5. `pelvis_drop`: where a planted foot is out of the leg's reach (an avatar whose root rides too
    high: AvatarGo's eye-height scaling, long-legged users), the pelvis comes down as much as
    needed, weighted like the feet.
-5. `lock` also keeps every sole above the floor when the foot is not planted (a swinging foot
-   scuffing, a rotation copy whose legs are longer than the user's).
 
-Everything is an array over frames; the stance of the whole recording is found once (it needs
-the frames on both sides of a chunk's ends).
+Everything is an array over frames (the places: one step per stance); the stances of the whole
+recording are found once (they need the frames on both sides of a chunk's ends). `CausalStance`
+finds them frame by frame for a live stream.
 """
 
 from __future__ import annotations
@@ -39,6 +41,10 @@ SMOOTH_S = 0.06  # s: the ankle's position is averaged over this before its spee
 MIN_STANCE_S = 0.15  # s
 BLEND_S = 0.12  # s
 REACH = 0.999  # a planted leg is stretched to at most this fraction of its length
+RELEASE = 2.0  # a contact eases out over this many BLEND_S (`rolling`: a foot leaving the floor catches up with
+# the method's ankle, which its toe-off held back: over 0.12 s the ankle's acceleration rose to 1.35x the source's)
+SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
+FLOOR_BLEND = 0.075  # of the heel's depth under the ankle (6 mm on an adult): how softly `above` keeps the sole up
 
 
 @dataclass
@@ -46,6 +52,8 @@ class Stance:
     weight: np.ndarray  # (F,) in [0, 1]
     label: np.ndarray  # (F,) int: the stance a frame belongs to, -1 outside
     count: int
+    inner: np.ndarray | None = None  # (F,) in [0, 1]: eased in and out over the stance's own first and last frames
+    lead: np.ndarray | None = None  # (F,) `weight` before and in the stances, 0 after them (easing out)
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
@@ -68,7 +76,7 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
     """Stance of one foot from the user's ankle (F, 3) carried by its foot tracker."""
     F = len(ankle)
     if F < 3:
-        return Stance(np.zeros(F), np.full(F, -1), 0)
+        return Stance(np.zeros(F), np.full(F, -1), 0, np.zeros(F))
     fps = (F - 1) / max(float(time[-1] - time[0]), 1e-9)
     smooth = _moving_average(np.asarray(ankle, float), max(1, int(round(SMOOTH_S * fps))))
     speed = np.linalg.norm(np.gradient(smooth, time, axis=0), axis=1)
@@ -96,11 +104,23 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         np.add.at(d, a, 1)
         np.add.at(d, b, -1)
         stance = np.cumsum(d[:-1]) > 0
+    return eased(stance, blend_frames(fps))
+
+
+def blend_frames(fps: float) -> int:
+    """BLEND_S in frames at `fps`."""
+    return max(1, int(round(BLEND_S * fps)))
+
+
+def eased(stance: np.ndarray, n: int, n_out: int | None = None) -> Stance:
+    """The Stance of the frames `stance` (F,) bool: weights eased over `n` frames (`n_out` after a
+    stance, default `n`)."""
+    n_out = n if n_out is None else n_out
+    F = len(stance)
     starts, stops = _runs(stance)
     label = np.full(F, -1)
-    weight = np.zeros(F)
+    weight, inner = np.zeros(F), np.zeros(F)
     if len(starts):
-        n = max(1, int(round(BLEND_S * fps)))
         # Each stance eases in over the n frames before it and out over the n after it; where two
         # stances' easings meet the weight is the larger. Distance in frames to the nearest stance:
         t = np.arange(F)
@@ -111,29 +131,68 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         before = np.where(t < starts[0], starts[0] - t, before)
         gap = np.minimum(np.where(t < starts[0], np.iinfo(np.int64).max, after), before)
         gap = np.where(stance, 0, gap)
-        s = np.clip(1.0 - gap / (n + 1.0), 0.0, 1.0)
-        weight = s * s * (3.0 - 2.0 * s)
-        # the stance each frame eases toward (inside: its own)
+        # Between two stances closer than two easings each eases over half the gap, so the weight
+        # is 0 where the planted place changes from one stance's to the next (it jumped there).
+        span = np.where((t >= stops[k]) & (k + 1 < len(starts)), starts[k2] - stops[k], 2 * n)
+        span = np.where(t < starts[0], 2 * n, span)
         near_next = before < np.where(t < starts[0], np.iinfo(np.int64).max, after)
+        length = np.where(near_next | stance, n, n_out)
+        s = np.clip(1.0 - gap / (np.minimum(length, span // 2) + 1.0), 0.0, 1.0)
+        weight = s * s * (3.0 - 2.0 * s)
+        # inside a stance: frames to its nearer end
+        depth = np.where(stance, np.minimum(t - starts[k] + 1, stops[k] - t), 0)
+        s = np.clip(depth / (n + 1.0), 0.0, 1.0)
+        inner = s * s * (3.0 - 2.0 * s)
+        # the stance each frame eases toward (inside: its own)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
-    return Stance(weight, label, len(starts))
+        lead = np.where(near_next | stance | (t < starts[0]), weight, 0.0)
+        return Stance(weight, label, len(starts), inner, lead)
+    return Stance(weight, label, len(starts), inner, weight)
 
 
-def planted_xy(reference: np.ndarray, stance: Stance) -> np.ndarray:
-    """(F, 2) the planted place of each stance (the weighted mean of `reference` (F, 3) over it),
-    NaN outside stances."""
-    out = np.full((len(reference), 2), np.nan)
-    if stance.count == 0:
-        return out
-    inside = stance.label >= 0
-    lab = stance.label[inside]
-    w = (stance.weight[inside] >= 1.0) + 1e-9  # the stance itself; its easings only where it has no frame
-    total = np.bincount(lab, w, stance.count)
-    for k in range(2):
-        mean = np.bincount(lab, w * reference[inside, k], stance.count) / total
-        out[inside, k] = mean[lab]
-    return out
+def rolling_places(heel_ref: np.ndarray, ball_ref: np.ndarray, heel: Stance, ball: Stance
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(heel's place (F, 2), ball's place (F, 2), NaN where not planted) of a rolling foot, from
+    where the method puts the avatar's heel and ball contact points (F, 3) and the two stances.
+
+    A stance that begins while the other point is down takes its place from that point's, plus the
+    avatar's own heel-to-ball offset (its foot turned as in the frames both are down, averaged): a
+    heel strike then the ball coming down, a toe-off, a foot turning on its heel or its ball, each
+    hands the pivot over between places that agree with the foot, so nothing slides. A stance that
+    begins alone (a heel strike, a ball landing first) is placed by the mean of its own reference.
+    One step per stance (a few per second of a walk), not per frame."""
+    refs, stances = (heel_ref, ball_ref), (heel, ball)
+    places = [np.full((max(st.count, 0), 2), np.nan) for st in stances]
+    inside = [(st.weight >= 1.0) & (st.label >= 0) for st in stances]
+    runs = []
+    for kind, st in enumerate(stances):
+        if st.count == 0:
+            continue
+        starts, stops = _runs(inside[kind])
+        total = np.bincount(st.label[inside[kind]], minlength=st.count)
+        for a, b in zip(starts, stops):
+            runs.append((int(a), int(b), kind, int(st.label[a])))
+        for k in range(2):
+            mean = np.bincount(st.label[inside[kind]], refs[kind][inside[kind], k], st.count) / np.maximum(total, 1)
+            places[kind][:, k] = np.where(total > 0, mean, np.nan)
+    for a, b, kind, lab in sorted(runs):
+        other = 1 - kind
+        o_st = stances[other]
+        if not (o_st.count and inside[other][a]):
+            continue  # begins alone: its own mean
+        o_lab = int(o_st.label[a])
+        both = np.flatnonzero(inside[kind][a:b] & (o_st.label[a:b] == o_lab) & inside[other][a:b]) + a
+        offset = (refs[kind][both, :2] - refs[other][both, :2]).mean(axis=0)
+        places[kind][lab] = places[other][o_lab] + offset
+    out = []
+    for kind, st in enumerate(stances):
+        at = np.full((len(st.label), 2), np.nan)
+        on = st.label >= 0
+        if st.count:
+            at[on] = places[kind][st.label[on]]
+        out.append(at)
+    return out[0], out[1]
 
 
 def sole_lift(foot_frames: np.ndarray, sole_local: np.ndarray) -> np.ndarray:
@@ -143,15 +202,124 @@ def sole_lift(foot_frames: np.ndarray, sole_local: np.ndarray) -> np.ndarray:
     return -z.min(axis=1)
 
 
-def lock(ankle: np.ndarray, planted: np.ndarray, weight: np.ndarray, lift: np.ndarray) -> np.ndarray:
-    """(F, 3) the ankle target: the method's `ankle` (F, 3) eased onto the planted place (F, 2)
-    at the height `lift` (F,) by `weight` (F,), and never lower than `lift` (no sole under the
-    floor)."""
-    w = weight[:, None]
-    on_floor = np.concatenate([np.where(np.isfinite(planted), planted, ankle[:, :2]), lift[:, None]], axis=1)
-    out = ankle + w * (on_floor - ankle)
-    out[:, 2] = np.maximum(out[:, 2], lift)
+@dataclass
+class Contact:
+    """The avatar's foot on the floor, in its canonical foot frame about the ankle: the heel's and
+    the ball's contact points (3,) and the skin points that may touch the floor (K, 3)."""
+    heel: np.ndarray
+    ball: np.ndarray
+    support: np.ndarray
+
+    @property
+    def floor_blend(self) -> float:
+        """(m) how softly the sole is kept above the floor (`above`): FLOOR_BLEND of the heel's
+        depth under the ankle, so an avatar scaled up keeps its feet as the same avatar does."""
+        return FLOOR_BLEND * float(np.linalg.norm(self.heel))
+
+
+def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
+    """(F, P, 3) points rigid on a foot, from where they are at rest (P, 3): the ankle (F, 3) plus
+    the foot's rotation since rest (F, 3, 3) applied to their rest offsets from the ankle."""
+    return ankle[:, None] + np.einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
+
+
+def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(weight (F,), ball share (F,), heel's place (F, 2), ball's place (F, 2)) of a rolling foot
+    from its heel's and its ball's stances and places: the foot is planted while either is down (a
+    contact: `eased` over `n` frames around the union of the two); it pivots about the heel where
+    only the heel is down (the strike), about the ball where only the ball is (the toe-off), about
+    both where both are (flat). The share blends by the stances' inner weights (eased inside
+    them): a point hands its pivot over while it is still down, so the foot never turns about a
+    point that has left the floor. Outside a contact the share and the places hold what it began or
+    ended with; it eases out over RELEASE times as long as it eases in. Two contacts less than two
+    easings apart (a shuffle, a foot lifted for a moment)
+    are one: across the gap the share and the places go smoothly from the first's end to the
+    second's start, so the ankle never dips to the method's and back in a few frames."""
+    share = pivot_share(heel.inner, ball.inner, heel.lead, ball.lead)
+    down = (heel.weight >= 1.0) | (ball.weight >= 1.0)
+    starts, stops = _runs(down)
+    t = np.arange(len(share))
+    if len(starts) > 1:
+        short = (starts[1:] - stops[:-1]) < 2 * n
+        prev, nxt = stops[:-1][short] - 1, starts[1:][short]  # the edges of each short gap
+        d = np.zeros(len(share) + 1, int)
+        np.add.at(d, prev + 1, 1)
+        np.add.at(d, nxt, -1)
+        gap = np.cumsum(d[:-1]) > 0
+        g = np.clip(np.searchsorted(prev, t, side="right") - 1, 0, max(len(prev) - 1, 0))
+        if gap.any():
+            a, b = prev[g], nxt[g]
+            u = np.clip((t - a) / np.maximum(b - a, 1), 0.0, 1.0)
+            u = u * u * (3.0 - 2.0 * u)
+
+            def across(x):
+                p, q = x[a], x[b]
+                p, q = np.where(np.isnan(p), q, p), np.where(np.isnan(q), p, q)
+                return p + (u[:, None] if x.ndim > 1 else u) * (q - p)
+
+            share = np.where(gap, across(share), share)
+            heel_at = np.where(gap[:, None], across(heel_at), heel_at)
+            ball_at = np.where(gap[:, None], across(ball_at), ball_at)
+            down = down | gap
+            starts, stops = _runs(down)
+    union = eased(down, n, int(round(n * RELEASE)))
+    on = union.weight >= 1.0
+    if len(starts):
+        k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(starts) - 1)
+        before_first = t < starts[0]
+        ended = (t >= stops[k]) & ~before_first
+        nxt = np.clip(k + 1, 0, len(starts) - 1)
+        # off the contact: its nearer end's (the union's label says which contact)
+        toward_next = union.label > k
+        edge = np.where(before_first, starts[0], np.where(ended & toward_next, starts[nxt], stops[k] - 1))
+        share = np.where(on, share, share[edge])
+        heel_at = np.where(on[:, None], heel_at, heel_at[edge])
+        ball_at = np.where(on[:, None], ball_at, ball_at[edge])
+    return union.weight, share, heel_at, ball_at
+
+
+def pivot_share(heel_inner: np.ndarray, ball_inner: np.ndarray, heel: np.ndarray, ball: np.ndarray) -> np.ndarray:
+    """(F,) the ball's share of the pivot from the stances' inner weights, and their outer weights
+    counted SHARE_OUTER as much where neither is inside (a bake counts a stance's easing in only: a
+    point easing out has left the floor; a live stream has the outer weights only)."""
+    hi = heel_inner + SHARE_OUTER * heel
+    bi = ball_inner + SHARE_OUTER * ball
+    total = hi + bi
+    return np.divide(bi, total, out=np.zeros_like(total), where=total > 0)
+
+
+def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np.ndarray, share: np.ndarray,
+         foot_frames: np.ndarray, contact: Contact) -> np.ndarray:
+    """(F, 3) the ankle target of a rolling foot: the method's `ankle` (F, 3) eased by `weight` (F,)
+    onto where the ankle stands with the heel's contact point on the floor at `heel_at` (F, 2) and
+    the ball's at `ball_at` (F, 2) (NaN: not planted), blended by the ball's `share` (F,), the foot
+    turned as `foot_frames` (F, 3, 3) say; never lower than `sole_lift` (no skin under the floor)."""
+    def stand(at, local):  # the ankle with that contact point at `at` on the floor
+        pinned = np.concatenate([np.nan_to_num(at), np.zeros((len(at), 1))], axis=1)
+        return pinned - np.einsum("fij,j->fi", foot_frames, local)
+
+    share = np.where(np.isfinite(ball_at[:, 0]), np.where(np.isfinite(heel_at[:, 0]), share, 1.0), 0.0)
+    place = stand(heel_at, contact.heel) + share[:, None] * (stand(ball_at, contact.ball) - stand(heel_at,
+                                                                                                  contact.heel))
+    w = np.where(np.isfinite(heel_at[:, 0]) | np.isfinite(ball_at[:, 0]), weight, 0.0)[:, None]
+    lift = sole_lift(foot_frames, contact.support)
+    # The place itself stands on the floor (a foot pitched past its ball stands on its toes' tips),
+    # so that easing away from it never meets the guard below (a kink: an acceleration spike).
+    place[:, 2] = above(place[:, 2], lift, contact.floor_blend)
+    out = ankle + w * (place - ankle)
+    # both ends above the floor, so is their blend (guarding the blend again raised a pinned foot twice)
+    out[:, 2] = w[:, 0] * place[:, 2] + (1.0 - w[:, 0]) * above(ankle[:, 2], lift, contact.floor_blend)
     return out
+
+
+def above(z: np.ndarray, floor: np.ndarray, blend: float) -> np.ndarray:
+    """`z` kept above `floor` (F,) without a kink where it meets it (a hard max turned a foot
+    lifting off its guard into an acceleration spike): within `blend` either side of the floor a
+    parabola joins the two smoothly (C1), so a point pinned exactly on the floor stands a quarter
+    of `blend` above it; `z` further up is kept as it is."""
+    d, e = z - floor, max(float(blend), 1e-9)
+    return np.where(d >= e, z, floor + np.where(d <= -e, 0.0, (d + e) ** 2 / (4.0 * e)))
 
 
 def pelvis_drop(hips: np.ndarray, targets: np.ndarray, lengths: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -207,6 +375,7 @@ class CausalStance:
         enter, hold = self._measures(ankle, time)
         stance, starts = self._stances(enter, hold)
         weight, planted = np.zeros(k), np.full((k, 2), np.nan)
+        self.lead = np.zeros(k)  # the weight while a stance holds, 0 while it eases out (feet.rolling's lead)
         for i in range(k):  # a few frames at a time in a stream; only the stance bookkeeping is per frame
             self._step(i, stance[i], starts[i], reference[i], weight, planted)
         self.frames += k
@@ -263,6 +432,7 @@ class CausalStance:
             mode = self._mode = ("out", t, self._weight_in(t - 1), mode[2])
         if mode[0] == "in":
             weight[i], planted[i] = self._weight_in(t), mode[2]
+            self.lead[i] = weight[i]
         elif mode[0] == "out":
             weight[i] = self._weight_out(t)
             planted[i] = mode[3] if weight[i] > 0 else np.nan

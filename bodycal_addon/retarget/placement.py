@@ -149,6 +149,8 @@ def transformed_avatar(model: BodyModel, m: np.ndarray) -> BodyModel:
             e.radius = e.radius * s
         if e.type == "capsule" and ("axis_head" in e.extra or "axis_tail" in e.extra):
             e.set_axis_offsets(*(e.axis_offsets() * s))
+        if isinstance(e.extra.get("contact"), dict):  # a sole's contact points (foot_contact.py)
+            e.extra["contact"] = {k: (np.asarray(v, float) * s).tolist() for k, v in e.extra["contact"].items()}
         for p in e.points.values():
             p.local = np.asarray(p.local, float) * s
     if isinstance(out.extra.get("rig"), dict):

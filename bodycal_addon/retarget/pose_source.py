@@ -47,6 +47,10 @@ class PoseSource(Protocol):
         """(F, 3) the performer's ankle over frames [start, stop) (default the whole take; None:
         not known)."""
 
+    def foot_turn(self, side: str, start: int = 0, stop: int | None = None) -> np.ndarray | None:
+        """(F, 3, 3) the performer's foot's rotation since its rest pose (world) over frames [start,
+        stop): its canonical frame is this times its rest frame (None: not known)."""
+
     def trackers(self, start: int = 0, stop: int | None = None):
         """The trackers of frames [start, stop) (trackers.Trackers; default the whole take), None
         for an animation."""
@@ -83,13 +87,24 @@ class RecordingSource:
 
     def trackers(self, start=0, stop=None):
         if start or stop is not None:
-            return self.reader.read(start, stop)
+            # the feet's plan asks for the same frames' ankles, feet and trackers in turn (a live
+            # stream: every frame): read once
+            if getattr(self, "_block", (None,))[0] != (start, stop, self.frame_count):
+                self._block = ((start, stop, self.frame_count), self.reader.read(start, stop))
+            return self._block[1]
         if self._tr is None:
             self._tr = self.reader.read()
         return self._tr
 
     def ankle(self, side, start=0, stop=None):
         return joint_from_trackers(self.model, self.trackers(start, stop), f"ankle_{side}", [f"foot_{side}"])
+
+    def foot_turn(self, side, start=0, stop=None):
+        # the foot's frame rides on its tracker (user_animation: R_T(t) R_T0^-1 C0)
+        tr, role = self.trackers(start, stop), f"foot_{side}"
+        if tr is None or role not in tr.rot or role not in tr.ref_rot:
+            return None
+        return tr.rot[role] @ tr.ref_rot[role].T
 
 
 class AnimationSource:
@@ -130,7 +145,7 @@ class AnimationSource:
             locations = full
         self.locations = locations
         self.time = time
-        self._ankles = None
+        self._ankles = self._foot_turns = None
         self._chain = None
 
     @property
@@ -201,6 +216,8 @@ class AnimationSource:
                     need.add(b)
                     b = int(rig.parent[b])
             out = {s: np.empty((self.frame_count, 3)) for s in sk.SIDES}
+            turns = {s: np.empty((self.frame_count, 3, 3)) for s in sk.SIDES}  # the feet's, since rest
+            turn_world = np.asarray(rig.w_rot, float)  # armature to world, without its scale
             for a in range(0, self.frame_count, ANKLE_CHUNK):
                 z = min(a + ANKLE_CHUNK, self.frame_count)
                 B = quat_to_matrix(self.basis[a:z])
@@ -217,5 +234,10 @@ class AnimationSource:
                             + (pr @ loc[..., None])[..., 0]
                 for s, b in carry.items():
                     out[s][a:z] = rig.to_world(H[b] + P[b] @ rig.joint_local[JI[f"ankle_{s}"]])
-            self._ankles = out
+                    turns[s][a:z] = turn_world @ (P[b] @ rig.rest[b].T) @ turn_world.T
+            self._ankles, self._foot_turns = out, turns
         return self._ankles[side][start:stop]
+
+    def foot_turn(self, side, start=0, stop=None):
+        self.ankle(side)
+        return self._foot_turns[side][start:stop]

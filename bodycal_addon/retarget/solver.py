@@ -144,27 +144,50 @@ class PreparedSolver:
                             {n: world[k] for k, n in enumerate(names)})
 
     def _plan_feet(self, avatar: BodyModel, avatar_pos: dict) -> FeetPlan:
-        """Where the avatar's feet are planted (feet.py): per side the avatar's sole points (K, 3) in
-        its canonical foot frame, and the stances from the performer's ankles (carried by the foot
-        trackers, or the source character's), found over the whole take or frame by frame."""
+        """Where the avatar's feet are planted (feet.py): per side the avatar's contact points
+        (feet.Contact) in its canonical foot frame, and the stances of the performer's heels and
+        balls (carried by the foot trackers, or the source character's feet), found over the whole
+        take or frame by frame."""
         corr = surface_correction(avatar, self.rig.frames0, avatar_pos)
-        soles = {}
+        contacts = {}
         for s in sk.SIDES:
+            c = corr[BI[f"foot_{s}"]]
             eid = f"mesh:sole_{s}"
-            if eid in {e.id for e in avatar.surface}:
-                soles[s] = np.stack([corr[BI[f"foot_{s}"]] @ p.local for p in avatar.element(eid).points.values()])
-            else:  # no sole measured: one point under the ankle, as deep as the ankle stands at rest
-                depth = np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]])
-                soles[s] = (depth @ self.rig.frames0[BI[f"foot_{s}"]])[None]
-        return FeetPlan(self, soles, causal=self.stance == "causal")
+            if eid not in {e.id for e in avatar.surface}:
+                # no sole measured: one point under the ankle, as deep as the ankle stands at rest
+                depth = (np.array([0.0, 0.0, -avatar_pos[f"ankle_{s}"][2]]) @ self.rig.frames0[BI[f"foot_{s}"]])
+                contacts[s] = feet.Contact(depth, depth, depth[None])
+                continue
+            el = avatar.element(eid)
+            measured = el.extra.get("contact")
+            if isinstance(measured, dict) and {"heel", "ball", "support"} <= set(measured):
+                heel, ball, support = (np.asarray(measured[k], float) for k in ("heel", "ball", "support"))
+                contacts[s] = feet.Contact(c @ heel, c @ ball, support @ c.T)
+                continue
+            # An avatar calibrated before the skin's contact points were measured: its sole's outline
+            # (rays.py: sole_1 the heel, sole_3 / sole_5 either side of the toe joint) stands in.
+            pts = {k: c @ p.local for k, p in el.points.items()}
+            outline = np.stack(list(pts.values()))
+            heel, ball = pts.get(f"sole_1_{s}"), [pts[k] for k in (f"sole_3_{s}", f"sole_5_{s}") if k in pts]
+            contacts[s] = feet.Contact(outline.mean(0) if heel is None else heel,
+                                       np.mean(ball, axis=0) if len(ball) == 2 else outline.mean(0), outline)
+            if avatar.calibration.get("method") != "estimated" and not self._old_soles_said:
+                self._old_soles_said = True
+                self.notes.append(f"{avatar.name}: the soles' contact points were not measured on its skin (an "
+                                  "avatar file from before they were): the sole's outline stands in; calibrate "
+                                  "the avatar again to plant its skin on the floor")
+        return FeetPlan(self, contacts, causal=self.stance == "causal")
+
+    _old_soles_said = False
 
     def plant(self, targets: dict, frames: np.ndarray, pelvis: np.ndarray, start: int, stop: int,
-             ankles: dict | None = None):
-        """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none) eased
-        onto the planted places and kept above the floor, and the pelvis lowered where a planted foot
-        is out of reach. Returns (targets, pelvis, whether the feet are planned at all).
+              ankles: dict | None = None):
+        """Feet planted (feet.py): the ankle targets (the method's, or `ankles` when it has none)
+        eased onto where a rolling foot stands (its heel's, then its ball's contact point on the
+        floor where the performer's are down) and kept above the floor, and the pelvis lowered where
+        a planted foot is out of reach. Returns (targets, pelvis, whether the feet are planned at all).
 
-        Decision: every frame of a planned foot is locked (`feet.lock` also keeps an unplanted sole
+        Decision: every frame of a planned foot is locked (`feet.roll` also keeps an unplanted sole
         above the floor), whether or not the foot is planted anywhere in the frames asked for: once
         a block without a stance was left alone, so a frame's result depended on the block it was
         solved in (the bake's chunks, a preview's single frame)."""
@@ -173,11 +196,13 @@ class PreparedSolver:
         rig = self.rig
         targets = dict(targets)
         weights, aims, sides = [], [], []
-        for s, (w, planted, sole) in self.feet.rows(start, stop).items():
+        for s, (w, share, heel_at, ball_at, contact) in self.feet.rows(start, stop).items():
             name = f"ankle_{s}"
             base = targets[name] if name in targets else ankles[name]
-            targets[name] = feet.lock(base, planted, w, feet.sole_lift(frames[:, BI[f"foot_{s}"]], sole))
-            weights.append(w)
+            targets[name] = feet.roll(base, heel_at, ball_at, w, share, frames[:, BI[f"foot_{s}"]], contact)
+            # a foot on its ball lets its heel rise rather than pull the pelvis down (a walker's
+            # pelvis does not dip at toe-off; the drop bobbed it, and the hands with it)
+            weights.append(w * (1.0 - share))
             aims.append(targets[name])
             sides.append(s)
         if not sides:
@@ -359,57 +384,91 @@ class PreparedSolver:
 
 
 class FeetPlan:
-    """The stances of a take and where the avatar's feet are planted (feet.py), per side:
-    `rows(start, stop)` {side: (weight (F,), planted xy (F, 2), sole points (K, 3))}. Found over the
-    whole take at once (`feet.detect`, a bake), or frame by frame as the frames are asked for, in
-    order (`feet.CausalStance`, a live stream: each frame's from the frames before it only)."""
+    """The stances of a take's heels and balls and where the avatar's feet are planted (feet.py),
+    per side: `rows(start, stop)` {side: (weight (F,), the ball's share (F,), the heel's place (F, 2),
+    the ball's place (F, 2), feet.Contact)}. Found over the whole take at once (`feet.detect`, a
+    bake), or frame by frame as the frames are asked for, in order (`feet.CausalStance`, a live
+    stream: each frame's from the frames before it only).
 
-    def __init__(self, solver: PreparedSolver, soles: dict, causal: bool):
-        self.solver, self.soles, self.causal = solver, soles, causal
+    The performer's heel (under the ankle, on the floor) and ball (the toe joint) ride on the foot
+    (its tracker, or the source character's foot bone) from where they are at rest; each has its
+    stance like the ankle once had. The places are the avatar's heel and ball contact points where
+    the method puts the ankle, the foot turned as the performer's, averaged over their stance."""
+
+    def __init__(self, solver: PreparedSolver, contacts: dict, causal: bool):
+        self.solver, self.contacts, self.causal = solver, contacts, causal
         src = solver.src
-        self.sides = [s for s in sk.SIDES if src.ankle(s, 0, 0) is not None]
+        self.sides = [s for s in sk.SIDES if src.ankle(s, 0, 0) is not None and src.foot_turn(s, 0, 0) is not None]
         self.done = 0  # frames planned so far (causal)
-        self.weight = {s: np.zeros(0) for s in self.sides}
-        self.planted = {s: np.zeros((0, 2)) for s in self.sides}
+        self.rows_so_far = {s: [np.zeros((0,) + shape) for shape in ((), (), (2,), (2,))] for s in self.sides}
+        self.rest = {s: self._rest_points(s) for s in self.sides}
         if causal:
             rec = src.recording  # a live recording's nominal rate, else the take's
             fps = getattr(rec, "rate", None) or (rec.fps if rec is not None else (len(src.time) - 1) / max(
                 float(src.time[-1] - src.time[0]), 1e-9))
-            self.stance = {s: feet.CausalStance(float(solver.user_pos[f"ankle_{s}"][2]), fps) for s in self.sides}
+            self.stance = {(s, k): feet.CausalStance(float(self.rest[s][1][i, 2]), fps)
+                           for s in self.sides for i, k in enumerate(("heel", "ball"))}
         else:
             self._extend(src.frame_count)
 
-    def _reference(self, start: int, stop: int, ankles: dict) -> dict:
-        """Where the method puts each ankle in frames [start, stop) (AvatarGo's own target, or the
-        user's ankle scaled about the root)."""
+    def _rest_points(self, s: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the performer's ankle (3,), its heel and ball (2, 3) at the reference time, the avatar's
+        heel and ball about its ankle as its foot lies when the performer stands so (2, 3))."""
         solver = self.solver
-        tr = solver.src.trackers(start, stop)
-        placed = solver.impl.ankle_places(tr) if tr is not None else None
-        return {s: placed[f"ankle_{s}"] if placed is not None else root_positions(a, solver.k, solver.centre)
-                for s, a in ankles.items()}
+        ankle = np.asarray(solver.user_pos[f"ankle_{s}"], float)
+        toe = solver.user_pos.get(f"toe_{s}")
+        ball = np.asarray(toe, float) if toe is not None else ankle + solver.user_frames0[BI[f"foot_{s}"]][:, 1] * 0.1
+        heel = ankle * [1.0, 1.0, 0.0]  # on the floor under the ankle
+        c = self.contacts[s]
+        # the avatar's foot frame when the performer stands as at the reference time (step 2's copy)
+        rest = copy_frames(solver.user_frames0[None], solver.user_frames0, solver.rig.frames0)[0, BI[f"foot_{s}"]]
+        return ankle, np.stack([heel, ball]), np.stack([c.heel, c.ball]) @ rest.T
 
     def _extend(self, stop: int) -> None:
         """Plan the frames [done, stop)."""
-        src, start = self.solver.src, self.done
+        solver, start = self.solver, self.done
+        src = solver.src
         if stop <= start:
             return
         whole = not self.causal  # the whole take: its trackers read once for both feet
-        ankles = {s: src.ankle(s) if whole else src.ankle(s, start, stop) for s in self.sides}
-        reference = self._reference(0, None, ankles) if whole else self._reference(start, stop, ankles)
+        a, b = (0, None) if whole else (start, stop)
+        ankles = {s: src.ankle(s, a, b) for s in self.sides}
+        tr = src.trackers(a, b)
+        placed = solver.impl.ankle_places(tr) if tr is not None else None
         for s in self.sides:
+            # where the method puts the ankle (AvatarGo's own target, or the user's ankle scaled about the root)
+            reference = placed[f"ankle_{s}"] if placed is not None else root_positions(ankles[s], solver.k,
+                                                                                        solver.centre)
+            turn = src.foot_turn(s, a, b)
+            rest_ankle, performer, avatar = self.rest[s]
+            own = feet.foot_points(ankles[s], turn, rest_ankle, performer)  # (F, 2, 3) the performer's
+            theirs = reference[:, None] + np.einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
             if whole:
-                stance = feet.detect(ankles[s], src.time, float(self.solver.user_pos[f"ankle_{s}"][2]))
-                w, planted = stance.weight, feet.planted_xy(reference[s], stance)
-            else:
-                w, planted = self.stance[s].update(ankles[s], src.time[start:stop], reference[s])
-            self.weight[s] = np.concatenate([self.weight[s], w])
-            self.planted[s] = np.concatenate([self.planted[s], planted])
+                heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
+                heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)
+                fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it
+                weight, share, heel_at, ball_at = feet.rolling(heel, ball, feet.blend_frames(fps), heel_at, ball_at)
+            else:  # live: no look-ahead, no inner weights; the ball placed from the heel's place
+                t = src.time[start:stop]
+                heel, ball = self.stance[s, "heel"], self.stance[s, "ball"]
+                wh, heel_at = heel.update(own[:, 0], t, theirs[:, 0])
+                chained = np.isfinite(heel_at[:, :1])
+                ball_ref = np.where(chained, heel_at + theirs[:, 1, :2] - theirs[:, 0, :2], theirs[:, 1, :2])
+                wb, ball_at = ball.update(own[:, 1], t, ball_ref)
+                weight, share = np.maximum(wh, wb), feet.pivot_share(0.0 * wh, 0.0 * wb, heel.lead, ball.lead)
+            self.rows_so_far[s] = [np.concatenate([old, new]) for old, new in
+                                   zip(self.rows_so_far[s], (weight, share, heel_at, ball_at))]
         self.done = stop
+
+    @property
+    def weight(self) -> dict:
+        """{side: (F,) the plant's weight of the frames planned so far}."""
+        return {s: r[0] for s, r in self.rows_so_far.items()}
 
     def rows(self, start: int, stop: int) -> dict:
         if stop > self.done:
             self._extend(stop)
-        return {s: (self.weight[s][start:stop], self.planted[s][start:stop], self.soles[s]) for s in self.sides}
+        return {s: (*(r[start:stop] for r in self.rows_so_far[s]), self.contacts[s]) for s in self.sides}
 
     def __bool__(self) -> bool:
         return bool(self.sides)

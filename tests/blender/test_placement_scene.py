@@ -12,12 +12,14 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
+from bodycal_addon.avatar.estimate import sole_depth
 from bodycal_addon.blender import avatar_storage, calibration_scene, mesh_metrics, recording_scene
 from bodycal_addon.blender import session as bake_session
 from bodycal_addon.blender.avatar_calibration import calibrate_avatar
 from bodycal_addon.core import paths
 from bodycal_addon.output import metrics
 from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import feet
 from bodycal_addon.retarget.takes import RecordingTake
 from bodycal_dev import synthetic
 
@@ -68,10 +70,12 @@ def _figures(arm, target, anim, truth, floor_z: float) -> dict[str, float]:
            for c, g in zip(truth.contacts, gaps) if len(g)}
     low = []
     for s in ("l", "r"):
-        soles = mesh_metrics.sole_points(target.avatar, anim, s)
+        # what the feet stand on: the skin's contact points (DESIGN.md §6 "Planted feet")
+        soles = mesh_metrics.contact_points(target.avatar, anim, s)["support"]
         low.append(metrics.floor_error(soles - [0.0, 0.0, floor_z], truth.planted[f"foot_{s}"]))
     low = np.concatenate(low) * 1000
     out["floor median"] = float(np.nanmedian(low))
+    out["sole depth"] = sole_depth(target.avatar, "l")  # m
     out["floor worst"] = float(np.nanmax(np.abs(low)))
     return out
 
@@ -99,7 +103,10 @@ def test_a_scaled_moved_turned_armature_is_the_same_body_at_that_size(session):
     lifted, original = results["lifted"][1], results["original"][1]
     np.testing.assert_allclose(lifted, original @ rigid[:3, :3].T + rigid[:3, 3] + [0.0, 0.0, 0.1], atol=1e-3)
     base = results["original"][0]
-    assert abs(base["floor median"]) < 1.0 and base["floor worst"] < 4.0, base
+    # a planted contact point stands a quarter of the floor guard's blend above the floor (feet.above:
+    # FLOOR_BLEND of the heel's depth under the ankle)
+    stand = 1000 * feet.FLOOR_BLEND * base["sole depth"] / 4
+    assert abs(base["floor median"] - stand) < 1.0 and base["floor worst"] < 4.0 + stand, base
     for name in ("object x1.1", "body x1.1", "lifted"):
         figures = results[name][0]
         for key, value in base.items():

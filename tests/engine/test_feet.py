@@ -1,5 +1,5 @@
 """Planted feet (bodycal_addon/retarget/feet.py): stance from the foot tracker, the weights, the
-planted place, the pelvis coming down."""
+planted place, the rolling foot's ankle, the pelvis coming down."""
 
 from __future__ import annotations
 
@@ -33,21 +33,29 @@ def test_stances_are_found_and_eased_outside_them():
 def test_planted_place_is_the_stance_s_own():
     t, ankle = _walk()
     st = feet.detect(ankle, t, 0.09)
-    xy = feet.planted_xy(ankle, st)
+    none = feet.eased(np.zeros(len(t), bool), 10)
+    xy, other = feet.rolling_places(ankle, ankle, st, none)
     np.testing.assert_allclose(xy[t < 0.9, 0], 0.0, atol=1e-6)
     np.testing.assert_allclose(xy[(t > 1.7) & (t < 2.3), 0], 0.4, atol=1e-6)
     np.testing.assert_allclose(xy[t > 3.2, 0], 0.8, atol=1e-6)
+    assert np.isnan(other).all()
 
 
-def test_locked_ankle_holds_still_on_the_floor_and_never_sinks():
+def test_planted_ankle_holds_still_on_the_floor_and_never_sinks():
     t, ankle = _walk()
     st = feet.detect(ankle, t, 0.09)
+    none = feet.eased(np.zeros(len(t), bool), 10)
     wander = ankle + np.stack([0.01 * np.sin(7 * t), 0.01 * np.cos(5 * t), -0.03 + 0.0 * t], axis=1)
-    lift = np.full(len(t), 0.085)
-    out = feet.lock(wander, feet.planted_xy(ankle, st), st.weight, lift)
-    full = st.weight == 1.0
+    heel_at, ball_at = feet.rolling_places(ankle, ankle, st, none)
+    weight, share, heel_at, ball_at = feet.rolling(st, none, feet.blend_frames(FPS), heel_at, ball_at)
+    under = np.array([0.0, 0.0, -0.085])
+    contact = feet.Contact(under, under, under[None])
+    frames = np.repeat(np.eye(3)[None], len(t), axis=0)
+    out = feet.roll(wander, heel_at, ball_at, weight, share, frames, contact)
+    full = weight == 1.0
     assert np.ptp(out[full & (t < 0.9)], axis=0).max() < 1e-9
-    np.testing.assert_allclose(out[full, 2], 0.085)
+    # on the floor, within the guard's smooth blend above it
+    assert np.all((out[full, 2] >= 0.085) & (out[full, 2] <= 0.085 + contact.floor_blend / 2))
     assert out[:, 2].min() >= 0.085 - 1e-12  # never below the floor, planted or not
     assert np.linalg.norm(np.diff(out, axis=0), axis=1).max() < 0.02  # no pop at the easings
 

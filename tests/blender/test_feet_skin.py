@@ -1,0 +1,118 @@
+"""The rolling feet on the evaluated mesh (DESIGN.md §6 "Planted feet"): a shared avatar calibrated
+in Blender (its soles' contact points measured on its skin), a CMU clip the synthetic performer did
+not make (131_01: start, walk, stop; `evaluation/`), every method: the skin of the feet on the
+floor while the clip's feet are down, the heel and the ball staying put."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+import numpy as np
+import pytest
+
+from bodycal_addon.avatar import foot_contact
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.core import paths
+from bodycal_addon.recording import io as recording_io
+from bodycal_addon.recording.filters import OneEuro, filter_recording
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget.avatar_pose import AvatarRig
+from evaluation import bvh, capture, measure, performer, session
+
+STOP = "131_01_start_walk_stop.bvh"
+FPS = 90.0
+
+
+@pytest.fixture
+def child():
+    """The avatar in this test's scene (every test starts from an empty file), calibrated."""
+    from bodycal_addon.blender.avatar_calibration import calibrate_avatar
+    from sample_rigs import load_glb_avatar
+
+    f = next((p for p in paths.shared_avatar_files() if p.name.startswith("child_10y")), None)
+    if f is None:
+        pytest.skip("the shared avatars are not there")
+    with contextlib.redirect_stdout(io.StringIO()):
+        arm, _ = load_glb_avatar(f)
+    return arm, calibrate_avatar(arm)
+
+
+@pytest.fixture(scope="module")
+def walk(data_dir, tmp_path_factory):
+    perf = performer.Performer(bvh.read(data_dir / "motion" / "cmu_bvh" / STOP).resampled(FPS))
+    sess = session.build_session(perf, seed=1)
+    cap = capture.capture(sess, perf, "full", seed=1)
+    rec = recording_io.load_recording(cap.write(tmp_path_factory.mktemp("feet") / "stop.bcrec.json", up="Z"))
+    # the default settings: the devices smoothed (DESIGN.md §6b), as bench_real_motion judges them
+    return filter_recording(rec, OneEuro()), calibrate_user(rec), cap.truth()
+
+
+def test_the_soles_contact_points_are_on_the_skin_at_rest(child):
+    """The heel behind the ball, both at the lowest skin of the foot at rest (within the band they
+    are picked in)."""
+    from bodycal_addon.blender import mesh_metrics
+    from bodycal_addon.body.rest_frames import complete_joints
+    from bodycal_addon.body.skeleton import BONE_INDEX as BI
+    from bodycal_addon.retarget.solver_methods import surface_correction
+
+    arm, avatar = child
+    rig = AvatarRig.from_model(avatar)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
+    rest = mesh_metrics.foot_skin(arm, avatar, _rest_animation(rig), [0])
+    for s in "lr":
+        c = avatar.element(f"mesh:sole_{s}").extra["contact"]
+        frame = rig.frames0[BI[f"foot_{s}"]] @ corr[BI[f"foot_{s}"]]
+        ankle = rig.joint_world[JI[f"ankle_{s}"]]
+        heel, ball = (ankle + frame @ np.asarray(c[k]) for k in ("heel", "ball"))
+        toe = rig.joint_world[JI[f"toe_{s}"]]
+        forward = (toe - ankle) * [1.0, 1.0, 0.0]
+        assert (ball - heel) @ forward > 0.5 * (forward @ forward), s
+        low = rest[s]["low"][0]
+        # picked among the ray hits that low (the lowest hit lies a little above the lowest vertex)
+        band = foot_contact.LOW_BAND + 0.002
+        assert abs(heel[2] - low) < band and abs(ball[2] - low) < band, (s, heel[2], ball[2], low)
+        assert len(c["support"]) >= 3
+
+
+def _rest_animation(rig):
+    from bodycal_addon.body.animation import AvatarAnimation
+
+    rot = np.zeros((1, len(rig.names), 4))
+    rot[..., 0] = 1.0  # every bone at rest
+    return AvatarAnimation(rig.armature, list(rig.names), rot, rig.names[rig.root], np.zeros((1, 3)),
+                           np.zeros(1), "rotations", {}, {}, [])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_the_skin_of_the_feet_stays_on_the_floor_and_put(child, walk, method):
+    from bodycal_addon.blender import mesh_metrics
+
+    arm, avatar = child
+    rec, user, truth = walk
+    anim = pl.retarget(rec, user, avatar, method, placement="performer")
+    a, b = truth["motion"]
+    J = {n: i for i, n in enumerate(truth["joints"])}
+    T = truth["positions"][a:b]
+    rig = AvatarRig.from_model(avatar)
+    leg_src = np.mean([np.linalg.norm(T[0, J[f"hip_{s}"]] - T[0, J[f"knee_{s}"]])
+                       + np.linalg.norm(T[0, J[f"knee_{s}"]] - T[0, J[f"ankle_{s}"]]) + T[0, J[f"ankle_{s}"], 2]
+                       for s in "lr"])
+    k = rig.leg_length() / leg_src
+    skin = mesh_metrics.foot_skin(arm, avatar, anim, np.arange(a, b))
+    for s in "lr":
+        down = {part: measure.contact(T[:, J[f"{joint}_{s}"]], FPS) for part, joint in (("heel", "ankle"),
+                                                                                        ("ball", "toe"))}
+        low = skin[s]["low"][down["heel"] | down["ball"]] * 1000
+        assert abs(np.median(low)) <= 5.0 and low.min() >= -10.0, (method, s, np.median(low), low.min())
+        for part, joint in (("heel", "ankle"), ("ball", "toe")):
+            mine = measure.slide_p95_mm(skin[s][part], down[part], FPS)
+            src = measure.slide_p95_mm(T[:, J[f"{joint}_{s}"]], down[part], FPS) * k
+            assert mine <= 1.5 * src, (method, s, part, mine, src)
+            # continuity: the skin point's step between two frames both down, against the source's own
+            both = down[part][1:] & down[part][:-1]
+            step = np.linalg.norm(np.diff(skin[s][part][:, :2], axis=0), axis=1)[both]
+            src_step = np.linalg.norm(np.diff(T[:, J[f"{joint}_{s}"], :2], axis=0), axis=1)[both] * k
+            assert step.max() <= 3.0 * src_step.max() + 0.002, (method, s, part, step.max(), src_step.max())
