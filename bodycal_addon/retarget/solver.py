@@ -27,7 +27,7 @@ from ..core.errors import BodyCalError
 from ..core.transforms import normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
-from .avatar_pose import AvatarRig, copy_factor, copy_frames_by, root_centre, root_positions, root_scale
+from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
 from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
