@@ -140,35 +140,78 @@ def _rss_mb() -> float:
     return float("nan")
 
 
-def _pump_for(live, seconds: float, hz: float, names: list[str]) -> dict:
-    """Pump at `hz` for `seconds`; per frame: arrival -> the last avatar's pose set (ms), and each
-    avatar's write (ms)."""
-    latency, writes, write_cpu, solves, cpu = [], [], [], [], []
-    tick, end = 1.0 / hz, time.perf_counter() + seconds
-    due = time.perf_counter()
-    while time.perf_counter() < end:
-        c0 = time.thread_time()
-        update = live.pump_once()
-        c1 = time.thread_time()
-        if update is not None and all(update.poses.get(n) is not None for n in names):
-            session = live.session()
-            latency.append(max(session.followers[n].stats.latency_ms[-1] for n in names))
-            writes += [live.following()[n].write_ms[-1] for n in names]
-            write_cpu += [live.following()[n].write_cpu_ms[-1] for n in names]
-            solves += [session.followers[n].stats.solve_ms[-1] for n in names]
-            cpu.append((c1 - c0) * 1000.0)
-        due += tick
-        time.sleep(max(0.0, due - time.perf_counter()))
-    lat, wr = np.asarray(latency), np.asarray(writes)
-    return {"frames": len(lat), "latency_ms_median": round(float(np.median(lat)), 2),
-            "latency_ms_p95": round(float(np.percentile(lat, 95)), 2),
-            "write_ms_per_avatar_median": round(float(np.median(wr)), 3),
-            "write_ms_per_avatar_p95": round(float(np.percentile(wr, 95)), 3),
-            "write_cpu_ms_per_avatar_median": round(float(np.median(write_cpu)), 3),
-            "write_cpu_ms_per_avatar_p95": round(float(np.percentile(write_cpu, 95)), 3),
-            "solve_ms_per_avatar_median": round(float(np.median(solves)), 2),
-            "pump_cpu_ms_per_frame_median": round(float(np.median(cpu)), 2),
-            "pump_cpu_ms_per_frame_p95": round(float(np.percentile(cpu, 95)), 2)}
+def _pct(values, q) -> float:
+    return round(float(np.percentile(values, q)), 2) if len(values) else float("nan")
+
+
+def _stage(values) -> dict:
+    return {"median": _pct(values, 50), "p95": _pct(values, 95)}
+
+
+PUMP_MODES = ("fixed", "timer", "event")  # how the loop decides when to pump (module docstring)
+
+
+def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> dict:
+    """Pump for `seconds` in `mode`; per frame with every avatar posed: arrival -> the last avatar's
+    pose set (ms) and its stages, each avatar's solve and write (wall and CPU ms)."""
+    rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "wait_idle", "stamp")}
+    last = {"done": -np.inf}  # when the previous pump ended: a frame that arrived after it found the pump idle
+    per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu")}
+    by_position = [[] for _ in names]  # arrival -> pose set of the 1st, 2nd, ... avatar written
+
+    def note(update):
+        if not all(update.poses.get(n) is not None for n in names):
+            return
+        session, following = live.session(), live.following()
+        lat = [session.followers[n].stats.latency_ms[-1] for n in names]
+        arrival = update.frame.arrival
+        solved = max(update.solved_at[n] for n in names)
+        rows["latency"].append(max(lat))
+        rows["wait"].append((update.taken - arrival) * 1000.0)
+        if arrival >= last["done"]:  # the scheduling's own wait, not the rest of a solve in progress
+            rows["wait_idle"].append((update.taken - arrival) * 1000.0)
+        last["done"] = time.perf_counter()
+        if update.frame.sender_time is not None:
+            rows["stamp"].append((arrival - update.frame.sender_time) * 1000.0)
+        rows["solve"].append((solved - update.taken) * 1000.0)
+        rows["write"].append(max(lat) - (solved - arrival) * 1000.0)
+        solve_cpu = [session.followers[n].stats.solve_cpu_ms[-1] for n in names]
+        write_cpu = [following[n].write_cpu_ms[-1] for n in names]
+        rows["cpu_path"].append(sum(solve_cpu) + sum(write_cpu))
+        per_avatar["solve"] += [session.followers[n].stats.solve_ms[-1] for n in names]
+        per_avatar["solve_cpu"] += solve_cpu
+        per_avatar["write"] += [following[n].write_ms[-1] for n in names]
+        per_avatar["write_cpu"] += write_cpu
+        for k, v in enumerate(lat):
+            by_position[k].append(v)
+
+    c0, w0 = time.thread_time(), time.perf_counter()
+    if mode == "fixed":  # the loop before the clock: a pump every 1/90 s whatever the stream does
+        tick, end = 1.0 / FPS, w0 + seconds
+        due = w0
+        while time.perf_counter() < end:
+            update = live.pump_once()
+            if update is not None:
+                note(update)
+            due += tick
+            time.sleep(max(0.0, due - time.perf_counter()))
+    else:
+        live.pump_for(seconds, wake_on_arrival=mode == "event", on_update=note)
+    cpu, wall = time.thread_time() - c0, time.perf_counter() - w0
+    n = len(rows["latency"])
+    stamp = np.asarray(rows["stamp"]) - (min(rows["stamp"]) if rows["stamp"] else 0.0)
+    return {"mode": mode, "frames": n, "frames_per_s": round(n / wall, 1),
+            "latency_ms": _stage(rows["latency"]),
+            "stages_ms": {"arrival_to_taken": _stage(rows["wait"]), "taken_to_solved": _stage(rows["solve"]),
+                          "solved_to_posed": _stage(rows["write"]),
+                          "arrival_to_taken_pump_idle": _stage(rows["wait_idle"]),
+                          "frames_arriving_pump_idle_percent": round(100.0 * len(rows["wait_idle"]) / max(n, 1), 1),
+                          "arrival_behind_sender_beat": _stage(stamp)},
+            "cpu_ms_on_the_path": _stage(rows["cpu_path"]),
+            "latency_ms_by_avatar_written": [_stage(v) for v in by_position] if len(names) > 1 else None,
+            "per_avatar_ms": {k: _stage(v) for k, v in per_avatar.items()},
+            "pump_thread_cpu_percent": round(100.0 * cpu / wall, 1),
+            "load_average": round(os.getloadavg()[0], 2)}
 
 
 def blender_section(args) -> dict:
@@ -180,7 +223,6 @@ def blender_section(args) -> dict:
     from bodycal_dev import synthetic
     from sample_rigs import build_procedural_avatar
 
-    hz = 90.0
     seconds = args.seconds or (10.0 if args.quick else 30.0)
     performer = synthetic.make_performer(seed=1)
     take, truth = synthetic.record_session(performer, profile="full", motions=("walk_in_place", "clap"),
@@ -196,25 +238,25 @@ def blender_section(args) -> dict:
     sender = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "stream", str(folder / "take.bcrec.json"),
                                "--port", str(live.port()), "--loop"], cwd=ROOT, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
-    out = {"pump_hz": hz, "seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
+    out = {"seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
            "stream_hz": round(take.fps, 1)}
     try:
-        live.follow(arms[0], user, "egocentric")
-        _pump_for(live, 3.0, hz, [arms[0].name])  # warm-up: the solver prepared, the stances found
-        out["one_avatar"] = _pump_for(live, seconds, hz, [arms[0].name])
-        for arm in arms[1:]:
-            live.follow(arm, user, "egocentric")
-        _pump_for(live, 3.0, hz, [a.name for a in arms])
-        out["three_avatars"] = _pump_for(live, seconds, hz, [a.name for a in arms])
+        for key, avatars in (("one_avatar", arms[:1]), ("three_avatars", arms)):
+            for arm in avatars:
+                if arm.name not in live.following():
+                    live.follow(arm, user, "egocentric")
+            names = [a.name for a in avatars]
+            _pump_for(live, 3.0, names)  # warm-up: the solvers prepared, the stances found
+            out[key] = {mode: _pump_for(live, seconds, names, mode) for mode in args.modes}
         out["targets"] = {"one_avatar_p95_ms": 11.1, "three_avatars_p95_ms": 22.2, "write_ms_per_avatar": 1.0}
         live.stop_following()
         if args.minutes:
             live.follow(arms[0], user, "egocentric")
             recorder = live.start_recording("bench")
-            _pump_for(live, 10.0, hz, [arms[0].name])
+            _pump_for(live, 10.0, [arms[0].name])
             rss0, buf0, rec0 = _rss_mb(), live.session().followers[arms[0].name].solver.recording.nbytes, \
                 recorder.nbytes
-            _pump_for(live, args.minutes * 60.0, hz, [arms[0].name])
+            _pump_for(live, args.minutes * 60.0, [arms[0].name])
             sender.send_signal(signal.SIGINT)
             sent_out, _ = sender.communicate(timeout=30)
             for _ in range(50):  # what is still in flight
@@ -251,6 +293,8 @@ def main():
     p.add_argument("--quick", action="store_true", help="a short run while iterating (stream: 30 s, not 10 minutes)")
     p.add_argument("--seconds", type=float, default=None, help="the stream's length (overrides --quick)")
     p.add_argument("--sections", nargs="*", default=list(SECTIONS), choices=list(SECTIONS))
+    p.add_argument("--modes", nargs="*", default=list(PUMP_MODES), choices=PUMP_MODES,
+                   help="blender: the pump loops measured (fixed 90 Hz, the timer's clock, woken by arrivals)")
     p.add_argument("--minutes", type=float, default=3.0,
                    help="blender: the memory run's length (the issue's figure is 10 minutes; 0 skips it)")
     args = p.parse_args()
