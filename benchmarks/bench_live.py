@@ -163,18 +163,17 @@ def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> di
         if not all(update.poses.get(n) is not None for n in names):
             return
         session, following = live.session(), live.following()
-        lat = [session.followers[n].stats.latency_ms[-1] for n in names]
-        arrival = update.frame.arrival
-        solved = max(update.solved_at[n] for n in names)
-        rows["latency"].append(max(lat))
+        arrival, order = update.frame.arrival, sorted(names, key=update.posed_at.get)  # as solved and set
+        lat = [(update.posed_at[n] - arrival) * 1000.0 for n in order]
+        rows["latency"].append(lat[-1])
         rows["wait"].append((update.taken - arrival) * 1000.0)
         if arrival >= last["done"]:  # the scheduling's own wait, not the rest of a solve in progress
             rows["wait_idle"].append((update.taken - arrival) * 1000.0)
         last["done"] = time.perf_counter()
         if update.frame.sender_time is not None:
             rows["stamp"].append((arrival - update.frame.sender_time) * 1000.0)
-        rows["solve"].append((solved - update.taken) * 1000.0)
-        rows["write"].append(max(lat) - (solved - arrival) * 1000.0)
+        rows["solve"].append((update.solved_at[order[-1]] - update.taken) * 1000.0)
+        rows["write"].append((update.posed_at[order[-1]] - update.solved_at[order[-1]]) * 1000.0)
         solve_cpu = [session.followers[n].stats.solve_cpu_ms[-1] for n in names]
         write_cpu = [following[n].write_cpu_ms[-1] for n in names]
         rows["cpu_path"].append(sum(solve_cpu) + sum(write_cpu))

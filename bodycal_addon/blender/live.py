@@ -287,33 +287,39 @@ def stop_recording(folder: str = "", scene=None, step_markers: str = "starts"):
 
 
 def pump_once() -> LiveUpdate | None:
-    """Take the newest frame, move the empties, set each follower's pose; None when no frame came."""
+    """Take the newest frame, set each follower's pose as soon as it is solved, then move the
+    empties and update the wizard (what nobody waits for comes last); None when no frame came."""
     live = _state.session
     if live is None:
         return None
+    update = live.pump(on_pose=_set_pose)
+    if update is not None:
+        for name in [n for n in update.poses if n not in _state.following]:  # gone while following
+            live.unfollow(name)
+        update_empties(update.frame, live.roles, live.kinds)
     if live.recorder is not None:
         _update_wizard(live)
-    update = live.pump()
-    if update is None:
-        return None
-    update_empties(update.frame, live.roles, live.kinds)
-    for name, solved in update.poses.items():
-        f = _state.following.get(name)
-        if solved is None or f is None:
-            continue
-        arm = bpy.data.objects.get(name)
-        if arm is None or arm.type != "ARMATURE":  # deleted (or undone away) while following
-            _state.following.pop(name, None)
-            live.unfollow(name)
-            continue
-        t0, c0 = time.perf_counter(), time.thread_time()
-        _write(f, arm, live.followers[name], solved, update)
-        done = time.perf_counter()
-        f.write_cpu_ms.append((time.thread_time() - c0) * 1000.0)
-        f.write_ms.append((done - t0) * 1000.0)
-        live.posed(update, name, done)
-    _tag_redraw()
+    if update is not None:
+        _tag_redraw()
     return update
+
+
+def _set_pose(update: LiveUpdate, name: str) -> None:
+    """`name`'s solved pose of `update` on its armature (the session's `on_pose`)."""
+    f = _state.following.get(name)
+    if f is None:
+        return
+    arm = bpy.data.objects.get(name)
+    if arm is None or arm.type != "ARMATURE":  # deleted (or undone away) while following
+        _state.following.pop(name, None)
+        return
+    live = _state.session
+    t0, c0 = time.perf_counter(), time.thread_time()
+    _write(f, arm, live.followers[name], update.poses[name], update)
+    done = time.perf_counter()
+    f.write_cpu_ms.append((time.thread_time() - c0) * 1000.0)
+    f.write_ms.append((done - t0) * 1000.0)
+    live.posed(update, name, done)
 
 
 def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:

@@ -146,12 +146,14 @@ class Follower:
 class LiveUpdate:
     """What one pump brings: the frame (its device poses, internal frame) and each follower's
     solved pose (None while it waits for devices or skipped the frame), with when (perf_counter)
-    the pump took the frame and when each follower's solve was done: the latency's stages."""
+    the pump took the frame, when each follower's solve was done and when its pose was set
+    (`LiveSession.posed`): the latency's stages."""
 
     frame: LiveFrame
     poses: dict[str, SolvedFrames | None]
     taken: float = 0.0
     solved_at: dict[str, float] = field(default_factory=dict)
+    posed_at: dict[str, float] = field(default_factory=dict)
 
 
 class LiveSession:
@@ -305,29 +307,32 @@ class LiveSession:
         waits, else its expected arrival from the stream's beat."""
         return self.clock.next_delay(time.perf_counter() if now is None else now, self.source.wait(0))
 
-    def pump(self) -> LiveUpdate | None:
-        """Take the latest frame and solve it for every follower; None when no new frame came."""
+    def pump(self, on_pose=None) -> LiveUpdate | None:
+        """Take the latest frame and solve it for every follower; None when no new frame came.
+        `on_pose(update, name)` is called as soon as each follower's pose is solved (before the
+        next follower's solve: the first avatar is set while the others are solved)."""
         frame = self.source.latest()
         if frame is None:
             return None
-        taken = time.perf_counter()
+        update = LiveUpdate(frame, {}, time.perf_counter())
         self.clock.taken(frame.index, frame.arrival)
         self.last_frame = frame
-        poses: dict[str, SolvedFrames | None] = {}
-        solved_at: dict[str, float] = {}
         kinds, roles = None, None
-        for name, follower in self.followers.items():
+        for name, follower in list(self.followers.items()):
             if follower.solver is None:
                 kinds, roles = kinds or self.kinds, roles or self.roles
                 if not follower.prepare(kinds, roles):
-                    poses[name] = None
+                    update.poses[name] = None
                     continue
-            poses[name] = follower.push(frame)
-            solved_at[name] = time.perf_counter()
-        return LiveUpdate(frame, poses, taken, solved_at)
+            update.poses[name] = follower.push(frame)
+            update.solved_at[name] = time.perf_counter()
+            if on_pose is not None and update.poses[name] is not None:
+                on_pose(update, name)
+        return update
 
     def posed(self, update: LiveUpdate, name: str, at: float | None = None) -> None:
         """Note that `name`'s pose of `update` is now set (on the armature, or sent): the latency
         from the frame's arrival to `at` (now when None)."""
         at = time.perf_counter() if at is None else at
+        update.posed_at[name] = at
         self.followers[name].stats.latency_ms.append((at - update.frame.arrival) * 1000.0)

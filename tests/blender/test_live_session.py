@@ -159,6 +159,10 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
             q = np.array(obj.rotation_quaternion)
             assert abs(abs(q @ rec.rotations[n - 1, i]) - 1.0) < 1e-6
     assert live.last_error() == ""
+    # Each avatar's pose is set as soon as it is solved, before the next avatar's solve.
+    for u in stream.updates[-5:]:
+        assert u.frame.arrival <= u.taken <= u.solved_at[a.name] <= u.posed_at[a.name] <= u.solved_at[b.name] \
+            <= u.posed_at[b.name]
     # Each armature shows exactly what LiveSolver gives for the same frames.
     session = live.session()
     for arm in (a, b):
