@@ -465,8 +465,8 @@ def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
 
 
 def test_the_pump_takes_each_frame_once_the_moment_it_waits_and_the_timer_keeps_to_the_beat(take, tmp_path):
-    """`pump_for` (a headless station's loop) and the timer share `tick`: a frame waiting is taken at
-    once, never twice; between frames the timer waits what the session's clock says, never longer
+    """`pump_for` (a headless station's loop) and the timer share `tick`: a turn takes the frame
+    waiting, never one twice; between frames the timer waits what the session's clock says, never longer
     than a display interval (retarget/pump_clock.py: the schedule itself is tested on an injected
     clock in tests/engine/test_pump_clock.py)."""
     rec, _truth = take
@@ -477,8 +477,7 @@ def test_the_pump_takes_each_frame_once_the_moment_it_waits_and_the_timer_keeps_
     for k in range(12):
         stream.put(k)
         assert session.wait(30.0)  # the receiver signals the frame (the timeout only guards a broken test)
-        assert session.next_delay() == 0.0  # a frame waits: the next turn is now
-        assert live.pump_for(0.0, on_update=updates.append) == 1
+        assert live.pump_for(0.0, on_update=updates.append) == 1  # a turn takes the frame waiting
         assert live.pump_for(0.0) == 0  # nothing new: no frame pumped twice
     assert [u.frame.index for u in updates] == list(range(12))
     assert all(u.frame.arrival <= u.taken for u in updates)
