@@ -8,24 +8,35 @@ the sent take (within OSC's float32), the receiver thread's CPU at most 10 % of 
 (`time.thread_time` of that thread over the take's length). Ten minutes by default; `--quick`
 streams 30 s.
 
-`blender`: the Live panel's session in background Blender (bodycal_addon/blender/live.py), pumped
-at 90 Hz by an explicit loop as a headless station does (the timer's rate in the UI), while `bodycal
-stream --loop` sends a synthetic full-profile take (15 devices with their roles, 16 markers) at 90
-Hz in its own process. `one_avatar` and `three_avatars`: procedural avatars following with the
-egocentric method, feet planted, root motion on the root bone; per frame, from its arrival
-(`LiveFrame.arrival`, the receiver's clock) to the last avatar's pose set on its armature
-(`foreach_set` done): median and p95; the pose write per avatar (root motion + `PoseWriter.write`),
-wall clock and the main thread's CPU time; the solve per avatar; the pump's CPU time per frame.
-Targets: p95 <= 11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per
-avatar. `memory`: `--minutes` (default 3; the issue's figure is 10) of one avatar following while
-the take is recorded: the process's resident memory growth from the end of a 10 s warm-up to the
-end, with what the recorder and the solver's frame buffer hold (both grow with the take: "the
-recording itself"), and frames lost to the recording (sent by the stream, not in the recorder).
-Target: growth besides those <= 50 MB, no frame lost. Every figure is wall-clock time on a shared
-machine: the solve competes with the other processes for the cores.
+`blender`: the Live panel's session in background Blender (bodycal_addon/blender/live.py) while
+`bodycal stream --loop` sends a synthetic full-profile take (15 devices with their roles, 16 markers)
+at 90 Hz in its own process, pumped in three modes (`--modes`): `fixed`, a pump every 1/90 s
+whatever the stream does (the loop before the pump's clock); `timer`, the UI timer's loop
+(`live.pump_for(wake_on_arrival=False)`: the pump's clock, retarget/pump_clock.py, says when to
+look, the loop sleeps until then); `event`, a headless station's loop (`pump_for`'s default: the
+same clock, the sleep cut short by a frame's arrival). `no_avatar`: nobody follows, so a frame's
+wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
+`three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
+on the root bone; per frame with every avatar posed, from its arrival (`LiveFrame.arrival`, the
+receiver's clock) to the last avatar's pose set (`foreach_set` done), median and p95, and its
+stages: arrival -> taken by the pump (also over the frames that found the pump idle, and the share
+of those), taken -> the last avatar solved (the earlier avatars' writes included: each is set as
+soon as it is solved), solved -> posed; each avatar's arrival -> pose in the order written; per
+avatar the solve and the write (wall and the main thread's CPU time); the CPU time on the path
+(the solves and writes); and how far behind the sender's beat the receiver stamped the arrival
+(`arrival - sender time`, less its least value: the receiver's thread waits for the GIL while the
+solve runs, and that wait is before the arrival stamp, so outside the latency measured).
+`summary`: the p95s, and what a machine with the cores free would see (`_summary`). Targets: p95 <=
+11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per avatar. `memory`:
+`--minutes` (default 3; the issue's figure is 10) of one avatar following while the take is
+recorded: the process's resident memory growth from the end of a 10 s warm-up to the end, with
+what the recorder and the solver's frame buffer hold (both grow with the take: "the recording
+itself"), and frames lost to the recording (sent by the stream, not in the recorder). Target:
+growth besides those <= 50 MB, no frame lost. Wall-clock figures on a shared machine carry the
+other processes' time: the CPU figures and the scheduling wait with no solve are what hold.
 
 Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]
-[--sections stream blender] [--minutes M]`.
+[--sections stream blender] [--modes fixed timer event] [--minutes M]`.
 """
 
 from __future__ import annotations
@@ -151,6 +162,29 @@ def _stage(values) -> dict:
 PUMP_MODES = ("fixed", "timer", "event")  # how the loop decides when to pump (module docstring)
 
 
+def _run(live, seconds: float, mode: str, note) -> None:
+    """The pump's loop for `seconds` in `mode`, `note(update)` after each frame pumped."""
+    if mode == "fixed":  # the loop before the clock: a pump every 1/90 s whatever the stream does
+        tick, end = 1.0 / FPS, time.perf_counter() + seconds
+        due = time.perf_counter()
+        while time.perf_counter() < end:
+            update = live.pump_once()
+            if update is not None:
+                note(update)
+            due += tick
+            time.sleep(max(0.0, due - time.perf_counter()))
+    else:
+        live.pump_for(seconds, wake_on_arrival=mode == "event", on_update=note)
+
+
+def _schedule_for(live, seconds: float, mode: str) -> dict:
+    """No avatar following: the pump only moves the empties, so a frame's wait from its arrival to
+    the pump taking it is the loop's scheduling alone (the rest of a solve in progress is not in it)."""
+    waits = []
+    _run(live, seconds, mode, lambda u: waits.append((u.taken - u.frame.arrival) * 1000.0))
+    return {"frames": len(waits), "arrival_to_taken_ms": _stage(waits), "load_average": round(os.getloadavg()[0], 2)}
+
+
 def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> dict:
     """Pump for `seconds` in `mode`; per frame with every avatar posed: arrival -> the last avatar's
     pose set (ms) and its stages, each avatar's solve and write (wall and CPU ms)."""
@@ -185,17 +219,7 @@ def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> di
             by_position[k].append(v)
 
     c0, w0 = time.thread_time(), time.perf_counter()
-    if mode == "fixed":  # the loop before the clock: a pump every 1/90 s whatever the stream does
-        tick, end = 1.0 / FPS, w0 + seconds
-        due = w0
-        while time.perf_counter() < end:
-            update = live.pump_once()
-            if update is not None:
-                note(update)
-            due += tick
-            time.sleep(max(0.0, due - time.perf_counter()))
-    else:
-        live.pump_for(seconds, wake_on_arrival=mode == "event", on_update=note)
+    _run(live, seconds, mode, note)
     cpu, wall = time.thread_time() - c0, time.perf_counter() - w0
     n = len(rows["latency"])
     stamp = np.asarray(rows["stamp"]) - (min(rows["stamp"]) if rows["stamp"] else 0.0)
@@ -211,6 +235,26 @@ def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> di
             "per_avatar_ms": {k: _stage(v) for k, v in per_avatar.items()},
             "pump_thread_cpu_percent": round(100.0 * cpu / wall, 1),
             "load_average": round(os.getloadavg()[0], 2)}
+
+
+def _summary(out: dict) -> dict:
+    """The headline figures: arrival -> pose p95 as measured (each mode), and what a machine with
+    the cores free would see: the loop's scheduling wait with no solve in the way (`no_avatar`)
+    plus the CPU time on the path, plus half a period when that path is longer than a period (the
+    pump then cannot keep up: a frame arrives while it works and the clock takes it at most half
+    a period old, pump_clock.py)."""
+    summary = {}
+    for key in ("one_avatar", "three_avatars"):
+        for mode, r in out.get(key, {}).items():
+            summary[f"{key}_p95_ms_{mode}"] = r["latency_ms"]["p95"]
+            sched = out["no_avatar"][mode]["arrival_to_taken_ms"]
+            cpu = r["cpu_ms_on_the_path"]
+            behind = 500.0 / FPS if cpu["median"] > 1000.0 / FPS else 0.0
+            summary[f"{key}_p95_ms_{mode}_cores_free_estimate"] = round(sched["p95"] + cpu["p95"] + behind, 1)
+        if out.get(key):
+            summary[f"{key}_write_cpu_ms_per_avatar_p95"] = max(r["per_avatar_ms"]["write_cpu"]["p95"]
+                                                                for r in out[key].values())
+    return summary
 
 
 def blender_section(args) -> dict:
@@ -240,6 +284,8 @@ def blender_section(args) -> dict:
     out = {"seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
            "stream_hz": round(take.fps, 1)}
     try:
+        _schedule_for(live, 2.0, "timer")  # warm-up: the empties made
+        out["no_avatar"] = {mode: _schedule_for(live, seconds, mode) for mode in args.modes}
         for key, avatars in (("one_avatar", arms[:1]), ("three_avatars", arms)):
             for arm in avatars:
                 if arm.name not in live.following():
@@ -248,6 +294,7 @@ def blender_section(args) -> dict:
             _pump_for(live, 3.0, names)  # warm-up: the solvers prepared, the stances found
             out[key] = {mode: _pump_for(live, seconds, names, mode) for mode in args.modes}
         out["targets"] = {"one_avatar_p95_ms": 11.1, "three_avatars_p95_ms": 22.2, "write_ms_per_avatar": 1.0}
+        out["summary"] = _summary(out)
         live.stop_following()
         if args.minutes:
             live.follow(arms[0], user, "egocentric")
