@@ -357,7 +357,7 @@ def _turn(block_s: float) -> tuple[LiveUpdate | None, float | None]:
         return None, None
     soon = live.next_delay()
     if 0.0 < soon <= block_s:
-        _wait(live, soon)
+        live.wait(soon)
     update = pump_once()
     return update, live.next_delay()
 
@@ -379,20 +379,9 @@ def pump_for(seconds: float, wake_on_arrival: bool = True, on_update=None) -> in
             return frames
         delay = min(delay, left)
         if wake_on_arrival:
-            _wait(_state.session, delay)
+            _state.session.wait(delay)
         elif delay > 0:
             time.sleep(delay)
-
-
-def _wait(live: LiveSession, delay: float) -> None:
-    """`delay` seconds, cut short by a frame's arrival; a frame already waiting (the clock chose
-    to wait for the next one, pump_clock.py) is no arrival to wake on: then a plain sleep."""
-    if delay <= 0.0:
-        return
-    if live.wait(0):
-        time.sleep(delay)
-    else:
-        live.wait(delay)
 
 
 def _tick():

@@ -176,7 +176,6 @@ class LiveSession:
         self._stream_frames = 0
         self.recording_from = 0  # frames_seen when the recording started
         self.last_frame: LiveFrame | None = None
-        self._newest: tuple[int, float] | None = None  # the last frame the sink saw: (index, arrival)
         self.clock = PumpClock()
         source.add_sink(self._on_frame)
 
@@ -215,7 +214,6 @@ class LiveSession:
                 self._first_frame.setdefault(name, k)
                 self._arrivals.setdefault(name, deque(maxlen=1024)).append(frame.arrival)
             self._stream_frames = k + 1
-            self._newest = (frame.index, frame.arrival)  # the sink runs before the frame is in the slot
             recorder = self.recorder
         if recorder is not None:
             recorder(frame)
@@ -306,10 +304,8 @@ class LiveSession:
 
     def next_delay(self, now: float | None = None) -> float:
         """Seconds until the pump should look for the next frame (pump_clock.PumpClock): 0 when one
-        waits (unless it waited longer than the next will take to come), else the next frame's
-        expected arrival from the stream's beat."""
-        waiting = self._newest if self.source.wait(0) else None
-        return self.clock.next_delay(time.perf_counter() if now is None else now, waiting)
+        waits, else its expected arrival from the stream's beat."""
+        return self.clock.next_delay(time.perf_counter() if now is None else now, self.source.wait(0))
 
     def pump(self, on_pose=None) -> LiveUpdate | None:
         """Take the latest frame and solve it for every follower; None when no new frame came.

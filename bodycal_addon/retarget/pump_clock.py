@@ -14,11 +14,7 @@ expected arrival plus `margin_s`. A frame not there by then is late: the pump lo
 `poll_s` until it comes, for up to `late_periods` periods; after that the stream has paused and
 the pump runs at the display rate (`display_hz`) until a frame relocks it. It never waits longer
 than one display interval (the viewport and the wizard's progress are refreshed at least that
-often). A frame already waiting is taken at once, unless it has waited longer than the next frame
-has still to come (more than half a period: the pump was busy when it came): then the next one is
-waited for and taken instead (latest wins: the waiting one is skipped, counted as dropped). Its pose
-is then shown that much later, but a whole period fresher; while the pump keeps up with the stream
-(its work shorter than a period) no frame waits that long and none is skipped for it.
+often), and a frame already waiting (`pending`) is taken at once.
 """
 
 from __future__ import annotations
@@ -47,7 +43,6 @@ class PumpClock:
         self._index: deque[int] = deque(maxlen=window)
         self._arrival: deque[float] = deque(maxlen=window)
         self.period: float | None = None  # seconds between the stream's frames, once two were taken
-        self._beat = 0.0  # frame i is expected to arrive at _beat + i * period
         self.expected: float | None = None  # the next frame's expected arrival (the clock's time)
 
     def taken(self, index: int, arrival: float) -> None:
@@ -71,22 +66,11 @@ class PumpClock:
             return
         self.period = span / (idx[-1] - idx[0])
         recent = slice(-self.phase_frames, None)
-        self._beat = float(np.min(arr[recent] - idx[recent] * self.period))
-        self.expected = self.arrival_of(index + 1)
+        self.expected = float(np.min(arr[recent] + (idx[-1] + 1 - idx[recent]) * self.period))
 
-    def arrival_of(self, index: int) -> float | None:
-        """When frame `index` is expected to arrive, on the beat; None before there is one."""
-        return None if self.period is None else self._beat + index * self.period
-
-    def next_delay(self, now: float, waiting: tuple[int, float] | None = None) -> float:
-        """Seconds from `now` until the pump should look for a frame. `waiting`: the (index,
-        arrival) of a frame waiting to be taken, if one does: 0 (at once) unless the next frame
-        comes sooner than that one has waited (module docstring)."""
-        if waiting is not None:
-            index, arrival = waiting
-            following = self.arrival_of(index + 1)
-            if following is not None and 0.0 < following + self.margin_s - now < now - arrival:
-                return following + self.margin_s - now
+    def next_delay(self, now: float, pending: bool = False) -> float:
+        """Seconds from `now` until the pump should look for a frame; 0 when one is `pending`."""
+        if pending:
             return 0.0
         if self.expected is None:  # no beat yet: the display rate
             return self.display_s

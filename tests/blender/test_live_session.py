@@ -477,6 +477,7 @@ def test_the_pump_takes_each_frame_once_the_moment_it_waits_and_the_timer_keeps_
     for k in range(12):
         stream.put(k)
         assert session.wait(30.0)  # the receiver signals the frame (the timeout only guards a broken test)
+        assert session.next_delay() == 0.0  # a frame waits: the next turn is now
         assert live.pump_for(0.0, on_update=updates.append) == 1  # a turn takes the frame waiting
         assert live.pump_for(0.0) == 0  # nothing new: no frame pumped twice
     assert [u.frame.index for u in updates] == list(range(12))
