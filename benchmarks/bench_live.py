@@ -14,7 +14,8 @@ at 90 Hz in its own process, pumped in three modes (`--modes`): `fixed`, a pump 
 whatever the stream does (the loop before the pump's clock); `timer`, the UI timer's loop
 (`live.pump_for(wake_on_arrival=False)`: the pump's clock, retarget/pump_clock.py, says when to
 look, the loop sleeps until then); `event`, a headless station's loop (`pump_for`'s default: the
-same clock, the sleep cut short by a frame's arrival). `no_avatar`: nobody follows, so a frame's
+same clock, the sleep cut short by a frame's arrival); each mode's time is taken in `--rounds`
+turns in rotation, so the load's drift falls on every mode alike. `no_avatar`: nobody follows, so a frame's
 wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
 `three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
 on the root bone; per frame with every avatar posed, from its arrival (`LiveFrame.arrival`, the
@@ -36,7 +37,7 @@ growth besides those <= 50 MB, no frame lost. Wall-clock figures on a shared mac
 other processes' time: the CPU figures and the scheduling wait with no solve are what hold.
 
 Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]
-[--sections stream blender] [--modes fixed timer event] [--minutes M]`.
+[--sections stream blender] [--modes fixed timer event] [--rounds N] [--minutes M]`.
 """
 
 from __future__ import annotations
@@ -177,33 +178,43 @@ def _run(live, seconds: float, mode: str, note) -> None:
         live.pump_for(seconds, wake_on_arrival=mode == "event", on_update=note)
 
 
-def _schedule_for(live, seconds: float, mode: str) -> dict:
-    """No avatar following: the pump only moves the empties, so a frame's wait from its arrival to
-    the pump taking it is the loop's scheduling alone (the rest of a solve in progress is not in it)."""
-    waits = []
-    _run(live, seconds, mode, lambda u: waits.append((u.taken - u.frame.arrival) * 1000.0))
-    return {"frames": len(waits), "arrival_to_taken_ms": _stage(waits), "load_average": round(os.getloadavg()[0], 2)}
+class _Frames:
+    """The frames one mode pumped, over one or more runs: per frame with every avatar posed,
+    arrival -> the last avatar's pose set (ms) and its stages, each avatar's solve and write (wall
+    and CPU ms). With no avatar (`names` empty) only arrival -> taken: the loop's scheduling alone
+    (no solve in progress for a frame to wait for)."""
 
+    def __init__(self, live, names: list[str]):
+        self.live, self.names = live, names
+        self.rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "wait_idle", "stamp")}
+        self.per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu")}
+        self.by_position = [[] for _ in names]  # arrival -> pose set of the 1st, 2nd, ... avatar written
+        self.cpu = self.wall = 0.0
+        self.loads = []
+        self.last_done = -np.inf  # when the previous pump ended: a frame arriving after it found the pump idle
 
-def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> dict:
-    """Pump for `seconds` in `mode`; per frame with every avatar posed: arrival -> the last avatar's
-    pose set (ms) and its stages, each avatar's solve and write (wall and CPU ms)."""
-    rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "wait_idle", "stamp")}
-    last = {"done": -np.inf}  # when the previous pump ended: a frame that arrived after it found the pump idle
-    per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu")}
-    by_position = [[] for _ in names]  # arrival -> pose set of the 1st, 2nd, ... avatar written
+    def run(self, seconds: float, mode: str) -> None:
+        c0, w0, self.last_done = time.thread_time(), time.perf_counter(), -np.inf
+        _run(self.live, seconds, mode, self.note)
+        self.cpu += time.thread_time() - c0
+        self.wall += time.perf_counter() - w0
+        self.loads.append(os.getloadavg()[0])
 
-    def note(update):
+    def note(self, update) -> None:
+        rows, names, arrival = self.rows, self.names, update.frame.arrival
+        if not names:
+            rows["wait"].append((update.taken - arrival) * 1000.0)
+            return
         if not all(update.poses.get(n) is not None for n in names):
             return
-        session, following = live.session(), live.following()
-        arrival, order = update.frame.arrival, sorted(names, key=update.posed_at.get)  # as solved and set
+        session, following = self.live.session(), self.live.following()
+        order = sorted(names, key=update.posed_at.get)  # as solved and set
         lat = [(update.posed_at[n] - arrival) * 1000.0 for n in order]
         rows["latency"].append(lat[-1])
         rows["wait"].append((update.taken - arrival) * 1000.0)
-        if arrival >= last["done"]:  # the scheduling's own wait, not the rest of a solve in progress
+        if arrival >= self.last_done:  # the scheduling's own wait, not the rest of a solve in progress
             rows["wait_idle"].append((update.taken - arrival) * 1000.0)
-        last["done"] = time.perf_counter()
+        self.last_done = time.perf_counter()
         if update.frame.sender_time is not None:
             rows["stamp"].append((arrival - update.frame.sender_time) * 1000.0)
         rows["solve"].append((update.solved_at[order[-1]] - update.taken) * 1000.0)
@@ -211,30 +222,47 @@ def _pump_for(live, seconds: float, names: list[str], mode: str = "timer") -> di
         solve_cpu = [session.followers[n].stats.solve_cpu_ms[-1] for n in names]
         write_cpu = [following[n].write_cpu_ms[-1] for n in names]
         rows["cpu_path"].append(sum(solve_cpu) + sum(write_cpu))
-        per_avatar["solve"] += [session.followers[n].stats.solve_ms[-1] for n in names]
-        per_avatar["solve_cpu"] += solve_cpu
-        per_avatar["write"] += [following[n].write_ms[-1] for n in names]
-        per_avatar["write_cpu"] += write_cpu
+        self.per_avatar["solve"] += [session.followers[n].stats.solve_ms[-1] for n in names]
+        self.per_avatar["solve_cpu"] += solve_cpu
+        self.per_avatar["write"] += [following[n].write_ms[-1] for n in names]
+        self.per_avatar["write_cpu"] += write_cpu
         for k, v in enumerate(lat):
-            by_position[k].append(v)
+            self.by_position[k].append(v)
 
-    c0, w0 = time.thread_time(), time.perf_counter()
-    _run(live, seconds, mode, note)
-    cpu, wall = time.thread_time() - c0, time.perf_counter() - w0
-    n = len(rows["latency"])
-    stamp = np.asarray(rows["stamp"]) - (min(rows["stamp"]) if rows["stamp"] else 0.0)
-    return {"mode": mode, "frames": n, "frames_per_s": round(n / wall, 1),
-            "latency_ms": _stage(rows["latency"]),
-            "stages_ms": {"arrival_to_taken": _stage(rows["wait"]), "taken_to_solved": _stage(rows["solve"]),
-                          "solved_to_posed": _stage(rows["write"]),
-                          "arrival_to_taken_pump_idle": _stage(rows["wait_idle"]),
-                          "frames_arriving_pump_idle_percent": round(100.0 * len(rows["wait_idle"]) / max(n, 1), 1),
-                          "arrival_behind_sender_beat": _stage(stamp)},
-            "cpu_ms_on_the_path": _stage(rows["cpu_path"]),
-            "latency_ms_by_avatar_written": [_stage(v) for v in by_position] if len(names) > 1 else None,
-            "per_avatar_ms": {k: _stage(v) for k, v in per_avatar.items()},
-            "pump_thread_cpu_percent": round(100.0 * cpu / wall, 1),
-            "load_average": round(os.getloadavg()[0], 2)}
+    def report(self) -> dict:
+        rows, n = self.rows, len(self.rows["wait"])
+        load = round(float(np.mean(self.loads)), 2) if self.loads else float("nan")
+        if not self.names:
+            return {"frames": n, "arrival_to_taken_ms": _stage(rows["wait"]), "load_average": load}
+        stamp = np.asarray(rows["stamp"]) - (min(rows["stamp"]) if rows["stamp"] else 0.0)
+        return {"frames": n, "frames_per_s": round(n / max(self.wall, 1e-9), 1),
+                "latency_ms": _stage(rows["latency"]),
+                "stages_ms": {"arrival_to_taken": _stage(rows["wait"]), "taken_to_solved": _stage(rows["solve"]),
+                              "solved_to_posed": _stage(rows["write"]),
+                              "arrival_to_taken_pump_idle": _stage(rows["wait_idle"]),
+                              "frames_arriving_pump_idle_percent": round(100.0 * len(rows["wait_idle"]) / max(n, 1), 1),
+                              "arrival_behind_sender_beat": _stage(stamp)},
+                "cpu_ms_on_the_path": _stage(rows["cpu_path"]),
+                "latency_ms_by_avatar_written": [_stage(v) for v in self.by_position] if len(self.names) > 1 else None,
+                "per_avatar_ms": {k: _stage(v) for k, v in self.per_avatar.items()},
+                "pump_thread_cpu_percent": round(100.0 * self.cpu / max(self.wall, 1e-9), 1),
+                "load_average": load}
+
+
+def _pump_for(live, seconds: float, names: list[str], mode: str = "event") -> dict:
+    frames = _Frames(live, names)
+    frames.run(seconds, mode)
+    return frames.report()
+
+
+def _alternated(live, seconds: float, names: list[str], modes, rounds: int) -> dict:
+    """Each mode for `seconds` in all, in `rounds` turns taken in rotation, so that the load's
+    drift over the run falls on every mode alike."""
+    frames = {m: _Frames(live, names) for m in modes}
+    for r in range(rounds):
+        for m in modes[r % len(modes):] + modes[:r % len(modes)]:
+            frames[m].run(seconds / rounds, m)
+    return {m: frames[m].report() for m in modes}
 
 
 def _summary(out: dict) -> dict:
@@ -283,15 +311,15 @@ def blender_section(args) -> dict:
     out = {"seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
            "stream_hz": round(take.fps, 1)}
     try:
-        _schedule_for(live, 2.0, "timer")  # warm-up: the empties made
-        out["no_avatar"] = {mode: _schedule_for(live, seconds, mode) for mode in args.modes}
+        _pump_for(live, 2.0, [])  # warm-up: the empties made
+        out["no_avatar"] = _alternated(live, seconds, [], args.modes, args.rounds)
         for key, avatars in (("one_avatar", arms[:1]), ("three_avatars", arms)):
             for arm in avatars:
                 if arm.name not in live.following():
                     live.follow(arm, user, "egocentric")
             names = [a.name for a in avatars]
             _pump_for(live, 3.0, names)  # warm-up: the solvers prepared, the stances found
-            out[key] = {mode: _pump_for(live, seconds, names, mode) for mode in args.modes}
+            out[key] = _alternated(live, seconds, names, args.modes, args.rounds)
         out["targets"] = {"one_avatar_p95_ms": 11.1, "three_avatars_p95_ms": 22.2, "write_ms_per_avatar": 1.0}
         out["summary"] = _summary(out)
         live.stop_following()
@@ -340,6 +368,7 @@ def main():
     p.add_argument("--sections", nargs="*", default=list(SECTIONS), choices=list(SECTIONS))
     p.add_argument("--modes", nargs="*", default=list(PUMP_MODES), choices=PUMP_MODES,
                    help="blender: the pump loops measured (fixed 90 Hz, the timer's clock, woken by arrivals)")
+    p.add_argument("--rounds", type=int, default=4, help="blender: each mode's time in this many turns, in rotation")
     p.add_argument("--minutes", type=float, default=3.0,
                    help="blender: the memory run's length (the issue's figure is 10 minutes; 0 skips it)")
     args = p.parse_args()
