@@ -375,7 +375,7 @@ def pump_for(seconds: float, wake_on_arrival: bool = True, on_update=None) -> in
             if on_update is not None:
                 on_update(update)
         left = end - time.perf_counter()
-        if delay is None or left <= 0:
+        if delay is None or left <= 0 or _state.session is None:  # disconnected by `on_update`, say
             return frames
         delay = min(delay, left)
         if wake_on_arrival:
