@@ -8,24 +8,36 @@ the sent take (within OSC's float32), the receiver thread's CPU at most 10 % of 
 (`time.thread_time` of that thread over the take's length). Ten minutes by default; `--quick`
 streams 30 s.
 
-`blender`: the Live panel's session in background Blender (bodycal_addon/blender/live.py), pumped
-at 90 Hz by an explicit loop as a headless station does (the timer's rate in the UI), while `bodycal
-stream --loop` sends a synthetic full-profile take (15 devices with their roles, 16 markers) at 90
-Hz in its own process. `one_avatar` and `three_avatars`: procedural avatars following with the
-egocentric method, feet planted, root motion on the root bone; per frame, from its arrival
-(`LiveFrame.arrival`, the receiver's clock) to the last avatar's pose set on its armature
-(`foreach_set` done): median and p95; the pose write per avatar (root motion + `PoseWriter.write`),
-wall clock and the main thread's CPU time; the solve per avatar; the pump's CPU time per frame.
-Targets: p95 <= 11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per
-avatar. `memory`: `--minutes` (default 3; the issue's figure is 10) of one avatar following while
-the take is recorded: the process's resident memory growth from the end of a 10 s warm-up to the
-end, with what the recorder and the solver's frame buffer hold (both grow with the take: "the
-recording itself"), and frames lost to the recording (sent by the stream, not in the recorder).
-Target: growth besides those <= 50 MB, no frame lost. Every figure is wall-clock time on a shared
-machine: the solve competes with the other processes for the cores.
+`blender`: the Live panel's session in background Blender (bodycal_addon/blender/live.py) while
+`bodycal stream --loop` sends a synthetic full-profile take (15 devices with their roles, 16 markers)
+at 90 Hz in its own process, pumped in three modes (`--modes`): `fixed`, a pump every 1/90 s
+whatever the stream does (the loop before the pump's clock); `timer`, the UI timer's loop
+(`live.pump_for(wake_on_arrival=False)`: the pump's clock, retarget/pump_clock.py, says when to
+look, the loop sleeps until then); `event`, a headless station's loop (`pump_for`'s default: the
+same clock, the sleep cut short by a frame's arrival); each mode's time is taken in `--rounds`
+turns in rotation, so the load's drift falls on every mode alike. `no_avatar`: nobody follows, so a frame's
+wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
+`three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
+on the root bone; per frame with every avatar posed, from its arrival (`LiveFrame.arrival`, the
+receiver's clock) to the last avatar's pose set (`foreach_set` done), median and p95, and its
+stages: arrival -> taken by the pump (also over the frames that found the pump idle, and the share
+of those), taken -> the last avatar solved (the earlier avatars' writes included: each is set as
+soon as it is solved), solved -> posed; each avatar's arrival -> pose in the order written; per
+avatar the solve and the write (wall and the main thread's CPU time); the CPU time on the path
+(the solves and writes); and how far behind the sender's beat the receiver stamped the arrival
+(`arrival - sender time`, less its least value: the receiver's thread waits for the GIL while the
+solve runs, and that wait is before the arrival stamp, so outside the latency measured).
+`summary`: the p95s, and what a machine with the cores free would see (`_summary`). Targets: p95 <=
+11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per avatar. `memory`:
+`--minutes` (default 3; the issue's figure is 10) of one avatar following while the take is
+recorded: the process's resident memory growth from the end of a 10 s warm-up to the end, with
+what the recorder and the solver's frame buffer hold (both grow with the take: "the recording
+itself"), and frames lost to the recording (sent by the stream, not in the recorder). Target:
+growth besides those <= 50 MB, no frame lost. Wall-clock figures on a shared machine carry the
+other processes' time: the CPU figures and the scheduling wait with no solve are what hold.
 
 Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]
-[--sections stream blender] [--minutes M]`.
+[--sections stream blender] [--modes fixed timer event] [--rounds N] [--minutes M]`.
 """
 
 from __future__ import annotations
@@ -140,35 +152,136 @@ def _rss_mb() -> float:
     return float("nan")
 
 
-def _pump_for(live, seconds: float, hz: float, names: list[str]) -> dict:
-    """Pump at `hz` for `seconds`; per frame: arrival -> the last avatar's pose set (ms), and each
-    avatar's write (ms)."""
-    latency, writes, write_cpu, solves, cpu = [], [], [], [], []
-    tick, end = 1.0 / hz, time.perf_counter() + seconds
-    due = time.perf_counter()
-    while time.perf_counter() < end:
-        c0 = time.thread_time()
-        update = live.pump_once()
-        c1 = time.thread_time()
-        if update is not None and all(update.poses.get(n) is not None for n in names):
-            session = live.session()
-            latency.append(max(session.followers[n].stats.latency_ms[-1] for n in names))
-            writes += [live.following()[n].write_ms[-1] for n in names]
-            write_cpu += [live.following()[n].write_cpu_ms[-1] for n in names]
-            solves += [session.followers[n].stats.solve_ms[-1] for n in names]
-            cpu.append((c1 - c0) * 1000.0)
-        due += tick
-        time.sleep(max(0.0, due - time.perf_counter()))
-    lat, wr = np.asarray(latency), np.asarray(writes)
-    return {"frames": len(lat), "latency_ms_median": round(float(np.median(lat)), 2),
-            "latency_ms_p95": round(float(np.percentile(lat, 95)), 2),
-            "write_ms_per_avatar_median": round(float(np.median(wr)), 3),
-            "write_ms_per_avatar_p95": round(float(np.percentile(wr, 95)), 3),
-            "write_cpu_ms_per_avatar_median": round(float(np.median(write_cpu)), 3),
-            "write_cpu_ms_per_avatar_p95": round(float(np.percentile(write_cpu, 95)), 3),
-            "solve_ms_per_avatar_median": round(float(np.median(solves)), 2),
-            "pump_cpu_ms_per_frame_median": round(float(np.median(cpu)), 2),
-            "pump_cpu_ms_per_frame_p95": round(float(np.percentile(cpu, 95)), 2)}
+def _pct(values, q) -> float:
+    return round(float(np.percentile(values, q)), 2) if len(values) else float("nan")
+
+
+def _stage(values) -> dict:
+    return {"median": _pct(values, 50), "p95": _pct(values, 95)}
+
+
+PUMP_MODES = ("fixed", "timer", "event")  # how the loop decides when to pump (module docstring)
+
+
+def _run(live, seconds: float, mode: str, note) -> None:
+    """The pump's loop for `seconds` in `mode`, `note(update)` after each frame pumped."""
+    if mode == "fixed":  # the loop before the clock: a pump every 1/90 s whatever the stream does
+        tick, end = 1.0 / FPS, time.perf_counter() + seconds
+        due = time.perf_counter()
+        while time.perf_counter() < end:
+            update = live.pump_once()
+            if update is not None:
+                note(update)
+            due += tick
+            time.sleep(max(0.0, due - time.perf_counter()))
+    else:
+        live.pump_for(seconds, wake_on_arrival=mode == "event", on_update=note)
+
+
+class _Frames:
+    """The frames one mode pumped, over one or more runs: per frame with every avatar posed,
+    arrival -> the last avatar's pose set (ms) and its stages, each avatar's solve and write (wall
+    and CPU ms). With no avatar (`names` empty) only arrival -> taken: the loop's scheduling alone
+    (no solve in progress for a frame to wait for)."""
+
+    def __init__(self, live, names: list[str]):
+        self.live, self.names = live, names
+        self.rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "wait_idle", "stamp")}
+        self.per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu")}
+        self.by_position = [[] for _ in names]  # arrival -> pose set of the 1st, 2nd, ... avatar written
+        self.cpu = self.wall = 0.0
+        self.loads = []
+        self.last_done = -np.inf  # when the previous pump ended: a frame arriving after it found the pump idle
+
+    def run(self, seconds: float, mode: str) -> None:
+        c0, w0, self.last_done = time.thread_time(), time.perf_counter(), -np.inf
+        _run(self.live, seconds, mode, self.note)
+        self.cpu += time.thread_time() - c0
+        self.wall += time.perf_counter() - w0
+        self.loads.append(os.getloadavg()[0])
+
+    def note(self, update) -> None:
+        rows, names, arrival = self.rows, self.names, update.frame.arrival
+        if not names:
+            rows["wait"].append((update.taken - arrival) * 1000.0)
+            return
+        if not all(update.poses.get(n) is not None for n in names):
+            return
+        session, following = self.live.session(), self.live.following()
+        order = sorted(names, key=update.posed_at.get)  # as solved and set
+        lat = [(update.posed_at[n] - arrival) * 1000.0 for n in order]
+        rows["latency"].append(lat[-1])
+        rows["wait"].append((update.taken - arrival) * 1000.0)
+        if arrival >= self.last_done:  # the scheduling's own wait, not the rest of a solve in progress
+            rows["wait_idle"].append((update.taken - arrival) * 1000.0)
+        self.last_done = time.perf_counter()
+        if update.frame.sender_time is not None:
+            rows["stamp"].append((arrival - update.frame.sender_time) * 1000.0)
+        rows["solve"].append((update.solved_at[order[-1]] - update.taken) * 1000.0)
+        rows["write"].append((update.posed_at[order[-1]] - update.solved_at[order[-1]]) * 1000.0)
+        solve_cpu = [session.followers[n].stats.solve_cpu_ms[-1] for n in names]
+        write_cpu = [following[n].write_cpu_ms[-1] for n in names]
+        rows["cpu_path"].append(sum(solve_cpu) + sum(write_cpu))
+        self.per_avatar["solve"] += [session.followers[n].stats.solve_ms[-1] for n in names]
+        self.per_avatar["solve_cpu"] += solve_cpu
+        self.per_avatar["write"] += [following[n].write_ms[-1] for n in names]
+        self.per_avatar["write_cpu"] += write_cpu
+        for k, v in enumerate(lat):
+            self.by_position[k].append(v)
+
+    def report(self) -> dict:
+        rows, n = self.rows, len(self.rows["wait"])
+        load = round(float(np.mean(self.loads)), 2) if self.loads else float("nan")
+        if not self.names:
+            return {"frames": n, "arrival_to_taken_ms": _stage(rows["wait"]), "load_average": load}
+        stamp = np.asarray(rows["stamp"]) - (min(rows["stamp"]) if rows["stamp"] else 0.0)
+        return {"frames": n, "frames_per_s": round(n / max(self.wall, 1e-9), 1),
+                "latency_ms": _stage(rows["latency"]),
+                "stages_ms": {"arrival_to_taken": _stage(rows["wait"]), "taken_to_solved": _stage(rows["solve"]),
+                              "solved_to_posed": _stage(rows["write"]),
+                              "arrival_to_taken_pump_idle": _stage(rows["wait_idle"]),
+                              "frames_arriving_pump_idle_percent": round(100.0 * len(rows["wait_idle"]) / max(n, 1), 1),
+                              "arrival_behind_sender_beat": _stage(stamp)},
+                "cpu_ms_on_the_path": _stage(rows["cpu_path"]),
+                "latency_ms_by_avatar_written": [_stage(v) for v in self.by_position] if len(self.names) > 1 else None,
+                "per_avatar_ms": {k: _stage(v) for k, v in self.per_avatar.items()},
+                "pump_thread_cpu_percent": round(100.0 * self.cpu / max(self.wall, 1e-9), 1),
+                "load_average": load}
+
+
+def _pump_for(live, seconds: float, names: list[str], mode: str = "event") -> dict:
+    frames = _Frames(live, names)
+    frames.run(seconds, mode)
+    return frames.report()
+
+
+def _alternated(live, seconds: float, names: list[str], modes, rounds: int) -> dict:
+    """Each mode for `seconds` in all, in `rounds` turns taken in rotation, so that the load's
+    drift over the run falls on every mode alike."""
+    frames = {m: _Frames(live, names) for m in modes}
+    for r in range(rounds):
+        for m in modes[r % len(modes):] + modes[:r % len(modes)]:
+            frames[m].run(seconds / rounds, m)
+    return {m: frames[m].report() for m in modes}
+
+
+def _summary(out: dict) -> dict:
+    """The headline figures: arrival -> pose p95 as measured (each mode), and what a machine with
+    the cores free would see: the loop's scheduling wait with no solve in the way (`no_avatar`)
+    plus the CPU time on the path, plus a period when that path is longer than a period (the pump
+    then cannot keep up: the newest frame, taken when it is free, came up to a period before)."""
+    summary = {}
+    for key in ("one_avatar", "three_avatars"):
+        for mode, r in out.get(key, {}).items():
+            summary[f"{key}_p95_ms_{mode}"] = r["latency_ms"]["p95"]
+            sched = out["no_avatar"][mode]["arrival_to_taken_ms"]
+            cpu = r["cpu_ms_on_the_path"]
+            behind = 1000.0 / FPS if cpu["median"] > 1000.0 / FPS else 0.0
+            summary[f"{key}_p95_ms_{mode}_cores_free_estimate"] = round(sched["p95"] + cpu["p95"] + behind, 1)
+        if out.get(key):
+            summary[f"{key}_write_cpu_ms_per_avatar_p95"] = max(r["per_avatar_ms"]["write_cpu"]["p95"]
+                                                                for r in out[key].values())
+    return summary
 
 
 def blender_section(args) -> dict:
@@ -180,7 +293,6 @@ def blender_section(args) -> dict:
     from bodycal_dev import synthetic
     from sample_rigs import build_procedural_avatar
 
-    hz = 90.0
     seconds = args.seconds or (10.0 if args.quick else 30.0)
     performer = synthetic.make_performer(seed=1)
     take, truth = synthetic.record_session(performer, profile="full", motions=("walk_in_place", "clap"),
@@ -196,25 +308,28 @@ def blender_section(args) -> dict:
     sender = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "stream", str(folder / "take.bcrec.json"),
                                "--port", str(live.port()), "--loop"], cwd=ROOT, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
-    out = {"pump_hz": hz, "seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
+    out = {"seconds_each": seconds, "devices": len(take.devices), "markers": len(take.marker_names),
            "stream_hz": round(take.fps, 1)}
     try:
-        live.follow(arms[0], user, "egocentric")
-        _pump_for(live, 3.0, hz, [arms[0].name])  # warm-up: the solver prepared, the stances found
-        out["one_avatar"] = _pump_for(live, seconds, hz, [arms[0].name])
-        for arm in arms[1:]:
-            live.follow(arm, user, "egocentric")
-        _pump_for(live, 3.0, hz, [a.name for a in arms])
-        out["three_avatars"] = _pump_for(live, seconds, hz, [a.name for a in arms])
+        _pump_for(live, 2.0, [])  # warm-up: the empties made
+        out["no_avatar"] = _alternated(live, seconds, [], args.modes, args.rounds)
+        for key, avatars in (("one_avatar", arms[:1]), ("three_avatars", arms)):
+            for arm in avatars:
+                if arm.name not in live.following():
+                    live.follow(arm, user, "egocentric")
+            names = [a.name for a in avatars]
+            _pump_for(live, 3.0, names)  # warm-up: the solvers prepared, the stances found
+            out[key] = _alternated(live, seconds, names, args.modes, args.rounds)
         out["targets"] = {"one_avatar_p95_ms": 11.1, "three_avatars_p95_ms": 22.2, "write_ms_per_avatar": 1.0}
+        out["summary"] = _summary(out)
         live.stop_following()
         if args.minutes:
             live.follow(arms[0], user, "egocentric")
             recorder = live.start_recording("bench")
-            _pump_for(live, 10.0, hz, [arms[0].name])
+            _pump_for(live, 10.0, [arms[0].name])
             rss0, buf0, rec0 = _rss_mb(), live.session().followers[arms[0].name].solver.recording.nbytes, \
                 recorder.nbytes
-            _pump_for(live, args.minutes * 60.0, hz, [arms[0].name])
+            _pump_for(live, args.minutes * 60.0, [arms[0].name])
             sender.send_signal(signal.SIGINT)
             sent_out, _ = sender.communicate(timeout=30)
             for _ in range(50):  # what is still in flight
@@ -251,6 +366,9 @@ def main():
     p.add_argument("--quick", action="store_true", help="a short run while iterating (stream: 30 s, not 10 minutes)")
     p.add_argument("--seconds", type=float, default=None, help="the stream's length (overrides --quick)")
     p.add_argument("--sections", nargs="*", default=list(SECTIONS), choices=list(SECTIONS))
+    p.add_argument("--modes", nargs="*", default=list(PUMP_MODES), choices=PUMP_MODES,
+                   help="blender: the pump loops measured (fixed 90 Hz, the timer's clock, woken by arrivals)")
+    p.add_argument("--rounds", type=int, default=4, help="blender: each mode's time in this many turns, in rotation")
     p.add_argument("--minutes", type=float, default=3.0,
                    help="blender: the memory run's length (the issue's figure is 10 minutes; 0 skips it)")
     args = p.parse_args()

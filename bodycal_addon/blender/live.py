@@ -3,7 +3,8 @@
     connect(port, bind)              # a VMC receiver on its own thread; a timer pumps it (not in background)
     follow(arm, user, method, ...)   # the armature's pose set from every solved frame
     start_recording(name) / start_wizard(name); stop_recording(folder)   # a take, saved and imported
-    pump_once()                      # what the timer does; background Blender (tests, headless stations) calls it
+    pump_once()                      # take the newest frame now, if one came (tests)
+    pump_for(seconds)                # background Blender (headless stations, the bench): the timer's loop
     stop_following(); disconnect()   # every armature exactly as it was
 
 Each pump takes the stream's newest frame (retarget/live_session.py), moves the live empties (one per
@@ -15,6 +16,11 @@ system would overwrite the pose on the next frame change) and put back with its 
 modes and values when it stops (pose_state.PoseState). A file saved while live holds neither the
 live pose nor the live empties (save_pre puts everything back, save_post takes it up again);
 loading another file ends the session.
+
+The pump is locked onto the stream (retarget/pump_clock.py): `tick` pumps and says when to look
+again, at the next frame's expected arrival; the UI's timer returns that delay to Blender (a frame
+due within `UI_BLOCK_S` is waited for, never longer), `pump_for` sleeps it, or wakes as soon as a
+frame arrives (`wake_on_arrival`, a loop that may block).
 """
 
 from __future__ import annotations
@@ -42,7 +48,8 @@ from . import avatar_rig, preview, recording_scene, rig_output
 from .pose_state import PoseState
 from .session import prepare_target
 
-TICK_HZ = 90.0  # the timer's rate: a frame is taken as soon after its arrival as the UI allows
+TICK_HZ = 90.0  # the display rate: the timer's rate while no stream sets the beat (pump_clock.DISPLAY_HZ)
+UI_BLOCK_S = 0.001  # the longest the UI thread waits for a frame due in that time
 LIVE_COLLECTION = "BodyCal Live"
 LIVE_PREFIX = "live"  # the empties are "live.<device>", as the importer names "<recording>.<device>"
 
@@ -280,33 +287,39 @@ def stop_recording(folder: str = "", scene=None, step_markers: str = "starts"):
 
 
 def pump_once() -> LiveUpdate | None:
-    """Take the newest frame, move the empties, set each follower's pose; None when no frame came."""
+    """Take the newest frame, set each follower's pose as soon as it is solved, then move the
+    empties and update the wizard (what nobody waits for comes last); None when no frame came."""
     live = _state.session
     if live is None:
         return None
+    update = live.pump(on_pose=_set_pose)
+    if update is not None:
+        for name in [n for n in update.poses if n not in _state.following]:  # gone while following
+            live.unfollow(name)
+        update_empties(update.frame, live.roles, live.kinds)
     if live.recorder is not None:
         _update_wizard(live)
-    update = live.pump()
-    if update is None:
-        return None
-    update_empties(update.frame, live.roles, live.kinds)
-    for name, solved in update.poses.items():
-        f = _state.following.get(name)
-        if solved is None or f is None:
-            continue
-        arm = bpy.data.objects.get(name)
-        if arm is None or arm.type != "ARMATURE":  # deleted (or undone away) while following
-            _state.following.pop(name, None)
-            live.unfollow(name)
-            continue
-        t0, c0 = time.perf_counter(), time.thread_time()
-        _write(f, arm, live.followers[name], solved, update)
-        done = time.perf_counter()
-        f.write_cpu_ms.append((time.thread_time() - c0) * 1000.0)
-        f.write_ms.append((done - t0) * 1000.0)
-        live.posed(update, name, done)
-    _tag_redraw()
+    if update is not None:
+        _tag_redraw()
     return update
+
+
+def _set_pose(update: LiveUpdate, name: str) -> None:
+    """`name`'s solved pose of `update` on its armature (the session's `on_pose`)."""
+    f = _state.following.get(name)
+    if f is None:
+        return
+    arm = bpy.data.objects.get(name)
+    if arm is None or arm.type != "ARMATURE":  # deleted (or undone away) while following
+        _state.following.pop(name, None)
+        return
+    live = _state.session
+    t0, c0 = time.perf_counter(), time.thread_time()
+    _write(f, arm, live.followers[name], update.poses[name], update)
+    done = time.perf_counter()
+    f.write_cpu_ms.append((time.thread_time() - c0) * 1000.0)
+    f.write_ms.append((done - t0) * 1000.0)
+    live.posed(update, name, done)
 
 
 def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
@@ -331,13 +344,54 @@ def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
     f.writer.write(arm, anim, row=anim.frame_count - 1)
 
 
+def tick(block_s: float = UI_BLOCK_S) -> float | None:
+    """One turn of the pump's loop, the timer's and `pump_for`'s: a frame expected within
+    `block_s` is waited for (no longer), the newest frame pumped; returns the seconds until the
+    next turn (the session's clock: the next frame's expected arrival), None when not connected."""
+    return _turn(block_s)[1]
+
+
+def _turn(block_s: float) -> tuple[LiveUpdate | None, float | None]:
+    live = _state.session
+    if live is None:
+        return None, None
+    soon = live.next_delay()
+    if 0.0 < soon <= block_s:
+        live.wait(soon)
+    update = pump_once()
+    return update, live.next_delay()
+
+
+def pump_for(seconds: float, wake_on_arrival: bool = True, on_update=None) -> int:
+    """Pump for `seconds` as the UI's timer does (background Blender runs no timers): `tick`, then
+    sleep until the next turn; with `wake_on_arrival` the sleep ends when a frame arrives (a
+    headless loop may block; the UI may not). `on_update(update)` after each frame pumped.
+    Returns the frames pumped (one turn at least is taken: a frame waiting is pumped)."""
+    end, frames = time.perf_counter() + seconds, 0
+    while True:  # one turn at least: a frame waiting is pumped whatever `seconds`
+        update, delay = _turn(UI_BLOCK_S)
+        if update is not None:
+            frames += 1
+            if on_update is not None:
+                on_update(update)
+        left = end - time.perf_counter()
+        if delay is None or left <= 0 or _state.session is None:  # disconnected by `on_update`, say
+            return frames
+        delay = min(delay, left)
+        if wake_on_arrival:
+            _state.session.wait(delay)
+        elif delay > 0:
+            time.sleep(delay)
+
+
 def _tick():
-    """The timer: one pump, then again in 1/TICK_HZ s; stops when the session ends."""
+    """The timer: `tick`, then again when the session's clock says; stops when the session ends."""
     if _state.session is None:
         _state.timer = False
         return None
+    delay = None
     try:
-        pump_once()
+        delay = tick()
         _state.error = ""
     except BodyCalError as exc:  # bad input: the panel shows the line, the stream goes on
         _state.error = exc.line()
@@ -345,7 +399,7 @@ def _tick():
         _state.error = f"the live view stopped: {type(exc).__name__}: {exc}"
         _state.timer = False
         raise
-    return 1.0 / TICK_HZ
+    return 1.0 / TICK_HZ if delay is None else delay
 
 
 def _tag_redraw() -> None:

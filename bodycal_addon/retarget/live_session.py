@@ -6,6 +6,7 @@ headless station's explicit pump (bodycal_addon/blender/live.py). No bpy.
     session.start()
     session.follow("avatar", user_model, avatar_model, "egocentric")
     update = session.pump()          # the newest frame, its device poses, each follower's solved pose
+    delay = session.next_delay()     # when to look again (pump_clock.PumpClock, locked onto the stream)
     session.start_recording("take"); ...; recorder = session.stop_recording()
     session.stop()
 
@@ -14,7 +15,9 @@ device's frames (its rate), keeps the kinds and roles the stream announces and h
 to the recorder when one runs; it copies, it does not compute. `pump` takes the latest frame (a
 consumer that falls behind gets the newest one: the source counts those it missed) and solves it
 for each follower with its `LiveSolver` (retarget/live.py): the causal stance and the forward One
-Euro, from the frames so far only.
+Euro, from the frames so far only. The session's `clock` (pump_clock.PumpClock) learns the stream's
+beat from the frames taken and says when the next pump should look (`next_delay`); `wait` blocks
+until a frame is there, for a loop that may block.
 
 It imports the recorder, hence python-osc (recording/live/__init__.py): only what runs a live
 session imports it.
@@ -37,6 +40,7 @@ from ..recording.live.recorder import LiveRecorder
 from ..recording.live.source import LiveFrame, LiveSource
 from ..recording.model import Device
 from .live import LiveSolver
+from .pump_clock import PumpClock
 from .solver import SolvedFrames
 
 RATE_WINDOW_S = 1.0  # a device's rate: its frames over the last second
@@ -67,7 +71,8 @@ class DeviceStatus:
 @dataclass
 class FollowerStats:
     frames: int = 0  # frames solved
-    solve_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+    solve_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # wall clock
+    solve_cpu_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # the pump thread's CPU time
     latency_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # arrival -> pose set
 
     def line(self) -> str:
@@ -128,9 +133,10 @@ class Follower:
         t = frame.sender_time if frame.sender_time is not None else frame.arrival
         if self.solver.recording.frame_count and t <= self.solver.recording.time[-1]:
             return None  # a sender's clock that went back (a replay looping): not a new moment
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         solved = self.solver.push(t, pos, rot, valid)
         if solved is not None:
+            self.stats.solve_cpu_ms.append((time.thread_time() - c0) * 1000.0)
             self.stats.solve_ms.append((time.perf_counter() - t0) * 1000.0)
             self.stats.frames += 1
         return solved
@@ -139,10 +145,15 @@ class Follower:
 @dataclass
 class LiveUpdate:
     """What one pump brings: the frame (its device poses, internal frame) and each follower's
-    solved pose (None while it waits for devices or skipped the frame)."""
+    solved pose (None while it waits for devices or skipped the frame), with when (perf_counter)
+    the pump took the frame, when each follower's solve was done and when its pose was set
+    (`LiveSession.posed`): the latency's stages."""
 
     frame: LiveFrame
     poses: dict[str, SolvedFrames | None]
+    taken: float = 0.0
+    solved_at: dict[str, float] = field(default_factory=dict)
+    posed_at: dict[str, float] = field(default_factory=dict)
 
 
 class LiveSession:
@@ -165,6 +176,7 @@ class LiveSession:
         self._stream_frames = 0
         self.recording_from = 0  # frames_seen when the recording started
         self.last_frame: LiveFrame | None = None
+        self.clock = PumpClock()
         source.add_sink(self._on_frame)
 
     # --- the source ---------------------------------------------------------------------------------
@@ -285,25 +297,42 @@ class LiveSession:
 
     # --- the pump -------------------------------------------------------------------------------------
 
-    def pump(self) -> LiveUpdate | None:
-        """Take the latest frame and solve it for every follower; None when no new frame came."""
+    def wait(self, timeout: float) -> bool:
+        """Block until a frame waits to be taken (True), at most `timeout` s (False); `wait(0)` only
+        says whether one does."""
+        return self.source.wait(timeout)
+
+    def next_delay(self, now: float | None = None) -> float:
+        """Seconds until the pump should look for the next frame (pump_clock.PumpClock): 0 when one
+        waits, else its expected arrival from the stream's beat."""
+        return self.clock.next_delay(time.perf_counter() if now is None else now, self.source.wait(0))
+
+    def pump(self, on_pose=None) -> LiveUpdate | None:
+        """Take the latest frame and solve it for every follower; None when no new frame came.
+        `on_pose(update, name)` is called as soon as each follower's pose is solved (before the
+        next follower's solve: the first avatar is set while the others are solved)."""
         frame = self.source.latest()
         if frame is None:
             return None
+        update = LiveUpdate(frame, {}, time.perf_counter())
+        self.clock.taken(frame.index, frame.arrival)
         self.last_frame = frame
-        poses: dict[str, SolvedFrames | None] = {}
         kinds, roles = None, None
-        for name, follower in self.followers.items():
+        for name, follower in list(self.followers.items()):
             if follower.solver is None:
                 kinds, roles = kinds or self.kinds, roles or self.roles
                 if not follower.prepare(kinds, roles):
-                    poses[name] = None
+                    update.poses[name] = None
                     continue
-            poses[name] = follower.push(frame)
-        return LiveUpdate(frame, poses)
+            update.poses[name] = follower.push(frame)
+            update.solved_at[name] = time.perf_counter()
+            if on_pose is not None and update.poses[name] is not None:
+                on_pose(update, name)
+        return update
 
     def posed(self, update: LiveUpdate, name: str, at: float | None = None) -> None:
         """Note that `name`'s pose of `update` is now set (on the armature, or sent): the latency
         from the frame's arrival to `at` (now when None)."""
         at = time.perf_counter() if at is None else at
+        update.posed_at[name] = at
         self.followers[name].stats.latency_ms.append((at - update.frame.arrival) * 1000.0)

@@ -52,9 +52,13 @@ class Stream:
         self.sender = VmcSender("127.0.0.1", live.port())
         self.updates = []
 
-    def send(self, k: int):
+    def put(self, k: int):
+        """Frame k sent, not pumped."""
         msgs = (self.messages.announcements() if k == 0 else []) + self.messages.messages(k, 0.0)
         self.sender.send(bundles(msgs + [message(AVAILABLE, 1), message(TIME, float(self.rec.time[k]))]))
+
+    def send(self, k: int):
+        self.put(k)
         for _ in range(2000):
             update = live.pump_once()
             if update is not None:
@@ -155,6 +159,10 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
             q = np.array(obj.rotation_quaternion)
             assert abs(abs(q @ rec.rotations[n - 1, i]) - 1.0) < 1e-6
     assert live.last_error() == ""
+    # Each avatar's pose is set as soon as it is solved, before the next avatar's solve.
+    for u in stream.updates[-5:]:
+        assert u.frame.arrival <= u.taken <= u.solved_at[a.name] <= u.posed_at[a.name] <= u.solved_at[b.name] \
+            <= u.posed_at[b.name]
     # Each armature shows exactly what LiveSolver gives for the same frames.
     session = live.session()
     for arm in (a, b):
@@ -439,7 +447,7 @@ def test_the_wizard_through_every_step_then_calibrate_user_gives_the_offline_bod
 
 def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
     """What the UI's timer does (background Blender runs no timers: it is called here): a pump, then
-    again in 1/90 s; after Disconnect it ends itself."""
+    again in 1/90 s while the stream has no beat yet (one frame); after Disconnect it ends itself."""
     rec, _truth = take
     _scene(take, tmp_path)
     live.connect(0, timer=False)
@@ -454,6 +462,33 @@ def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
     assert f"live.{rec.devices[0].name}" in bpy.data.objects and live.last_error() == ""
     live.disconnect()
     assert live._tick() is None
+
+
+def test_the_pump_takes_each_frame_once_the_moment_it_waits_and_the_timer_keeps_to_the_beat(take, tmp_path):
+    """`pump_for` (a headless station's loop) and the timer share `tick`: a turn takes the frame
+    waiting, never one twice; between frames the timer waits what the session's clock says, never longer
+    than a display interval (retarget/pump_clock.py: the schedule itself is tested on an injected
+    clock in tests/engine/test_pump_clock.py)."""
+    rec, _truth = take
+    live.connect(0, timer=False)
+    session = live.session()
+    stream = Stream(rec)
+    updates = []
+    for k in range(12):
+        stream.put(k)
+        assert session.wait(30.0)  # the receiver signals the frame (the timeout only guards a broken test)
+        assert session.next_delay() == 0.0  # a frame waits: the next turn is now
+        assert live.pump_for(0.0, on_update=updates.append) == 1  # a turn takes the frame waiting
+        assert live.pump_for(0.0) == 0  # nothing new: no frame pumped twice
+    assert [u.frame.index for u in updates] == list(range(12))
+    assert all(u.frame.arrival <= u.taken for u in updates)
+    assert session.clock.period is not None  # the beat learned from the frames taken
+    assert 0.0 <= live._tick() <= 1.0 / live.TICK_HZ + 1e-12
+    stream.put(12)
+    assert session.wait(30.0)
+    assert live._tick() is not None and session.last_frame.index == 12  # the timer took the waiting frame
+    live.disconnect()
+    assert live.tick() is None and live.pump_for(1.0) == 0
 
 
 def test_only_what_writes_the_take_or_the_bake_makes_an_undo_step():

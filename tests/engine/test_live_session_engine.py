@@ -29,6 +29,9 @@ class Source:
     def latest(self):
         return self.slot.take()
 
+    def wait(self, timeout):
+        return self.slot.wait(timeout)
+
     def add_sink(self, sink):
         self.sinks.append(sink)
 
@@ -117,3 +120,18 @@ def test_a_follower_waits_for_its_roles_then_gives_live_solvers_poses(take):
     assert follower.waiting_for == [] and follower.stats.frames == 29
     np.testing.assert_array_equal(solved.basis, want.basis)
     assert len(follower.stats.latency_ms) == 29 and "latency" in follower.stats.line()
+
+
+def test_the_pump_learns_the_streams_beat_and_says_when_to_look_again(take):
+    rec, _user = take
+    source = Source()
+    session = LiveSession(source)
+    for k in range(10):  # frames arriving every 1/90 s (the arrival clock is the test's), each pumped
+        source.deliver(frame_of(rec, k, arrival=1.0 + k / 90.0))
+        assert session.next_delay(now=1.0 + k / 90.0) == 0.0  # a frame waits: at once
+        update = session.pump()
+        assert update.frame.index == k and update.solved_at == {}
+        assert session.pump() is None  # never the same frame twice
+    assert session.clock.period == pytest.approx(1 / 90.0)
+    now = 1.0 + 9 / 90.0 + 0.004  # 4 ms after the last frame: the next is due 1/90 s after it
+    assert session.next_delay(now) == pytest.approx(1 / 90.0 - 0.004 + session.clock.margin_s)

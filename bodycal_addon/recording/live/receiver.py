@@ -80,6 +80,9 @@ class VmcReceiver:
     def latest(self) -> LiveFrame | None:
         return self._slot.take()
 
+    def wait(self, timeout: float) -> bool:
+        return self._slot.wait(timeout)
+
     def add_sink(self, sink: Callable[[LiveFrame], None]) -> None:
         self._sinks.append(sink)
 

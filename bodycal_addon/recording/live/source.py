@@ -10,10 +10,13 @@ sender gives one. Two ways to consume them:
 - `latest()`: the newest frame nobody has taken yet, for a consumer that runs at its own pace (a
   Blender timer, the live solve). The hand-off is latest-wins: a new frame replaces one not yet
   taken, which is counted in `stats.dropped`, so the consumer never works through a backlog that
-  grows while it falls behind, and the count says how far behind it was.
+  grows while it falls behind, and the count says how far behind it was. `wait(timeout)` blocks
+  until such a frame is there (at once when one is; False after `timeout`): a consumer that may
+  block (a headless loop) takes a frame the moment it is complete, one that may not (Blender's UI
+  timer) asks `wait(0)` whether one is there.
 
 `LiveSource` is the protocol: `VmcReceiver` (receiver.py) implements it for the VMC protocol; a
-source for Blender's own XR session or for OpenVR implements the same five members (DESIGN.md
+source for Blender's own XR session or for OpenVR implements the same six members (DESIGN.md
 "Live source" says how).
 """
 
@@ -78,6 +81,7 @@ class LatestSlot:
 
     def __init__(self):
         self._lock = threading.Lock()
+        self._ready = threading.Event()  # set while a frame waits: `wait` wakes on it
         self._frame: LiveFrame | None = None
         self._consumed = False
         self.dropped = 0
@@ -87,12 +91,18 @@ class LatestSlot:
             if self._frame is not None and self._consumed:
                 self.dropped += 1
             self._frame = frame
+            self._ready.set()
 
     def take(self) -> LiveFrame | None:
         with self._lock:
             frame, self._frame = self._frame, None
             self._consumed = True
+            self._ready.clear()
             return frame
+
+    def wait(self, timeout: float) -> bool:
+        """True once a frame waits to be taken (at once when one does), False after `timeout` s."""
+        return self._ready.wait(max(timeout, 0.0)) if timeout > 0 else self._ready.is_set()
 
 
 class LiveSource(Protocol):
@@ -107,5 +117,7 @@ class LiveSource(Protocol):
     def stop(self) -> None: ...
 
     def latest(self) -> LiveFrame | None: ...
+
+    def wait(self, timeout: float) -> bool: ...
 
     def add_sink(self, sink: Callable[[LiveFrame], None]) -> None: ...
