@@ -209,8 +209,11 @@ def _assert_same_model(model: BodyModel, ref: BodyModel, names: dict[str, str]):
 # straight: at frame 31 the right arm is straight within 0.5 deg, its elbow sits 1 mm off the
 # shoulder-wrist axis and turns about it with the swivel, and moves 17 um (measured since the
 # finger realignment's angle order changed, which moved that elbow by 1 mm), hence 20 um there.
+# The same holds for a leg since the feet roll (heel -> flat -> ball, DESIGN.md §6): at frame 271
+# the right knee is straight within 0.3 deg, 1.1 mm off the hip-ankle axis, and moves 30 um, hence
+# 40 um (30.1-30.2 um on Blender 4.2, 4.5 and 5.0).
 RENAMED_ATOL = 1e-9
-EDITED_ATOL = 2e-5
+EDITED_ATOL = 4e-5
 
 
 def _assert_same_animation(anim, ref, names: dict[str, str], atol: float):
