@@ -104,6 +104,8 @@ def affine_scan(c: np.ndarray, b: np.ndarray, y0) -> np.ndarray:
 def _lowpass(x: np.ndarray, alpha: np.ndarray, y0=None) -> np.ndarray:
     """First-order low-pass with per-frame α (F, ...) of x (F, ...); starts at x[0], or goes on from
     `y0` (the output of the frame before)."""
+    if y0 is not None and len(x) == 1:  # a stream's frame: affine_scan's one step, without its copies
+        return (1.0 - alpha) * y0 + alpha * x
     a = np.array(alpha, float, copy=True)
     if y0 is None:
         a[0] = 1.0
