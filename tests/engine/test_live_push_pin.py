@@ -91,3 +91,25 @@ def test_a_pushed_frame_gives_the_values_it_gave_before_the_speed_ups(pushed, me
 
 if __name__ == "__main__" and "--write" in sys.argv:
     np.savez_compressed(REFERENCE, **_reference(_push_all(*_take())))
+
+
+def test_a_push_copies_nothing_that_grows_with_the_session():
+    # The fill indices and the feet plan's rows were copied whole on every push (a cost that grew
+    # with the session's length): they live in buffers that double when full, so between two
+    # doublings a push writes its frame into the same arrays.
+    rec, user, avatar = _take()
+    live = LiveSolver(user, avatar, "rotations", devices=rec.devices, marker_names=rec.marker_names, rate=rec.fps,
+                      smooth=forward_filter(OneEuro()), plant_feet=True)
+
+    def buffers():
+        reader, plan = live.solver.src.reader, live.solver.feet
+        return [reader._fill._buf, reader._marker_fill._buf] + [b for bufs in plan._rows.values() for b in bufs]
+
+    for f in range(300):
+        live.push(rec.time[f], rec.positions[f], rec.rotations[f], rec.valid[f], rec.markers[f], rec.marker_valid[f])
+    before = buffers()
+    assert live.solver.feet and len(before) == 2 + 4 * len(live.solver.feet.sides)
+    for f in range(300, 400):  # within one doubling (512 rows after 256)
+        live.push(rec.time[f], rec.positions[f], rec.rotations[f], rec.valid[f], rec.markers[f], rec.marker_valid[f])
+    assert all(a is b for a, b in zip(before, buffers()))
+    assert len(live.solver.feet.weight["l"]) == 400  # every frame planned, none twice
