@@ -386,11 +386,17 @@ class CausalStance:
         n = self.n_smooth
         tail = np.repeat(ankle[:1], n - 1, axis=0) if self._tail is None else self._tail
         padded = np.concatenate([tail, ankle])
-        smooth = np.lib.stride_tricks.sliding_window_view(padded, n, axis=0).sum(axis=-1) / n
+        if len(ankle) == 1:  # a stream's frame: its one window is the padded block itself (the same sums)
+            smooth = padded.T[None].sum(axis=-1) / n
+        else:
+            smooth = np.lib.stride_tricks.sliding_window_view(padded, n, axis=0).sum(axis=-1) / n
         self._tail = padded[len(padded) - (n - 1):]
         t_prev, s_prev = self._last if self._last is not None else (time[0], smooth[0])
-        prev_t = np.concatenate([[t_prev], time[:-1]])
-        prev_s = np.concatenate([s_prev[None], smooth[:-1]])
+        if len(ankle) == 1:
+            prev_t, prev_s = t_prev, s_prev[None]
+        else:
+            prev_t = np.concatenate([[t_prev], time[:-1]])
+            prev_s = np.concatenate([s_prev[None], smooth[:-1]])
         dt = time - prev_t
         speed = np.linalg.norm(smooth - prev_s, axis=1) / np.where(dt > 0, dt, 1.0)
         self._last = (time[-1], smooth[-1])
@@ -402,6 +408,12 @@ class CausalStance:
         frames is a stance from its first `enter` frame on (a stance carried in from the last block
         goes on while the run does)."""
         k = len(hold)
+        if k == 1:  # a stream's frame: its run is itself (the loop below, without the runs' search)
+            start = None
+            if hold[0]:
+                start = self._start if self._start is not None else (self.frames if enter[0] else None)
+            self._start = start
+            return np.array([start is not None]), np.array([-1 if start is None else start])
         stance, starts = np.zeros(k, bool), np.full(k, -1)
         run_starts, run_stops = _runs(hold)
         for a, b in zip(run_starts, run_stops):

@@ -400,7 +400,9 @@ class FeetPlan:
         src = solver.src
         self.sides = [s for s in sk.SIDES if src.ankle(s, 0, 0) is not None and src.foot_turn(s, 0, 0) is not None]
         self.done = 0  # frames planned so far (causal)
-        self.rows_so_far = {s: [np.zeros((0,) + shape) for shape in ((), (), (2,), (2,))] for s in self.sides}
+        # per side: weight, share, heel's and ball's places of the frames planned so far, in buffers
+        # that double when full (a live stream adds a frame at a time: never copied per frame)
+        self._rows = {s: [np.zeros((0,) + shape) for shape in ((), (), (2,), (2,))] for s in self.sides}
         self.rest = {s: self._rest_points(s) for s in self.sides}
         if causal:
             rec = src.recording  # a live recording's nominal rate, else the take's
@@ -456,9 +458,25 @@ class FeetPlan:
                 ball_ref = np.where(chained, heel_at + theirs[:, 1, :2] - theirs[:, 0, :2], theirs[:, 1, :2])
                 wb, ball_at = ball.update(own[:, 1], t, ball_ref)
                 weight, share = np.maximum(wh, wb), feet.pivot_share(0.0 * wh, 0.0 * wb, heel.lead, ball.lead)
-            self.rows_so_far[s] = [np.concatenate([old, new]) for old, new in
-                                   zip(self.rows_so_far[s], (weight, share, heel_at, ball_at))]
+            self._store(s, start, stop, (weight, share, heel_at, ball_at))
         self.done = stop
+
+    def _store(self, s: str, start: int, stop: int, rows: tuple) -> None:
+        bufs = self._rows[s]
+        if stop > len(bufs[0]):
+            cap = max(stop, 2 * len(bufs[0]), 256) if start else stop  # a whole take: exactly its frames
+            for k, old in enumerate(bufs):
+                bigger = np.empty((cap,) + old.shape[1:])
+                bigger[:start] = old[:start]
+                bufs[k] = bigger
+        for buf, new in zip(bufs, rows):
+            buf[start:stop] = new
+
+    @property
+    def rows_so_far(self) -> dict:
+        """{side: [weight (F,), share (F,), heel's place (F, 2), ball's place (F, 2)]} of the frames
+        planned so far."""
+        return {s: [b[:self.done] for b in bufs] for s, bufs in self._rows.items()}
 
     @property
     def weight(self) -> dict:
@@ -468,7 +486,7 @@ class FeetPlan:
     def rows(self, start: int, stop: int) -> dict:
         if stop > self.done:
             self._extend(stop)
-        return {s: (*(r[start:stop] for r in self.rows_so_far[s]), self.contacts[s]) for s in self.sides}
+        return {s: (*(r[start:stop] for r in self._rows[s]), self.contacts[s]) for s in self.sides}
 
     def __bool__(self) -> bool:
         return bool(self.sides)

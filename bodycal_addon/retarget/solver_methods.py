@@ -252,14 +252,20 @@ class ExactOffsets(Method):
         self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
 
     def ankle_places(self, trackers) -> dict:
-        placed, _ = ofs.effector_targets(self.ofs, trackers.pos, trackers.rot)
-        return placed
+        return self._effector_targets(trackers)[0]
+
+    def _effector_targets(self, trackers) -> tuple[dict, dict]:
+        """`offsets.effector_targets` of these trackers, kept for the last trackers read: the chunk
+        and its feet plan (a live stream's frame: the same read) ask for the same frames in turn."""
+        if getattr(self, "_last_effectors", (None,))[0] is not trackers:
+            self._last_effectors = (trackers, ofs.effector_targets(self.ofs, trackers.pos, trackers.rot))
+        return self._last_effectors[1]
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         run = self.run
         st = self.ofs
         tr = run.src.trackers(start, stop)
-        p, r = ofs.effector_targets(st, tr.pos, tr.rot)
+        p, r = self._effector_targets(tr)
         frames = up.frames.copy()
         for bone, fr in r.items():
             frames[:, BI[bone]] = fr

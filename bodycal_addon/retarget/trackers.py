@@ -103,10 +103,13 @@ class Trackers:
 
 
 class _Fill:
-    """Forward-fill indices of the columns of a (F, C) validity array, extended as it grows."""
+    """Forward-fill indices of the columns of a (F, C) validity array, extended as it grows (a
+    live stream: a frame at a time, into a buffer that doubles when full, so a frame's rows are
+    written once and never copied per frame again; the copy grew with the take)."""
 
     def __init__(self, columns: int):
-        self.idx = np.zeros((0, columns), np.intp)  # -1 before a column's first valid frame
+        self._buf = np.zeros((0, columns), np.intp)
+        self.idx = self._buf  # (F, C) the rows filled so far; -1 before a column's first valid frame
         self.first = np.zeros(columns, np.intp)  # its first valid frame (0 while none)
         self.seen = np.zeros(columns, bool)  # valid at least once
 
@@ -123,7 +126,16 @@ class _Fill:
         fresh = ~self.seen & new.any(0)
         self.first[fresh] = np.argmax(new[:, fresh], axis=0) + done
         self.seen |= fresh
-        self.idx = np.concatenate([self.idx, rows]) if done else rows
+        n = len(valid)
+        if not done:  # the first block (a whole take: the only one)
+            self._buf = rows
+        elif n > len(self._buf):
+            bigger = np.empty((max(n, 2 * len(self._buf), 256),) + self._buf.shape[1:], np.intp)
+            bigger[:done] = self._buf[:done]
+            self._buf = bigger
+        if done:
+            self._buf[done:n] = rows
+        self.idx = self._buf[:n]
 
     def rows(self, start: int, stop: int, columns) -> np.ndarray:
         """(len(columns), stop - start) the frames to read for these columns."""

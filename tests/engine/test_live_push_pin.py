@@ -1,0 +1,115 @@
+"""`LiveSolver.push`'s outputs pinned before the work around the solve was cut (DESIGN.md "Prepared
+solver", issue 28's arrival -> pose budget): the speed-ups change how the frame is appended, filtered,
+read and planted (no per-frame Python loops, nothing recomputed that changes only with the roles),
+never what. A fixed take (fingers from markers, a walk for the stances, a few dropouts) pushed
+frame by frame, every method, planting on, the forward One Euro on (as `bodycal live --filter`
+runs it): every frame's pose-bone values, root, joints and targets stay bit for bit those the code
+gave before (a SHA-256 of each array's bytes; every SAMPLE-th frame's values kept too, to show
+where a difference is), `tests/engine/data/live_push_before_speedup.npz`, written by
+`PYTHONPATH=. .venv/bin/python tests/engine/test_live_push_pin.py --write` on commit f2e7cad."""
+
+from __future__ import annotations
+
+import hashlib
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+
+from bodycal_addon.recording.filters import OneEuro
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget.live import LiveSolver
+from bodycal_addon.retarget.live_session import forward_filter
+from bodycal_dev import synthetic
+from bodycal_dev.retarget_fixtures import procedural_avatar
+
+REFERENCE = pathlib.Path(__file__).parent / "data" / "live_push_before_speedup.npz"
+FRAMES = slice(0, 700)  # the take's first frames: the stances of the walk, a clap
+PAIRS = 2  # frames pushed two at a time at the end (a late burst: a block of frames in one push)
+SAMPLE = 25  # every SAMPLE-th frame's values kept in the reference (the digests cover every frame)
+
+
+def _digest(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    return np.frombuffer(hashlib.sha256(str((a.dtype.str, a.shape)).encode() + a.tobytes()).digest(), np.uint8)
+
+
+def _take():
+    rec, truth = synthetic.record_session(synthetic.make_performer(seed=3), motions=("walk_in_place", "clap"),
+                                          calibration=False, seed=3, dropout_rate=0.02)
+    return rec, truth.body_model(), procedural_avatar()
+
+
+def _push_all(rec, user, avatar) -> dict:
+    out = {}
+    idx = np.arange(rec.frame_count)[FRAMES]
+    for method in pl.METHODS:
+        live = LiveSolver(user, avatar, method, devices=rec.devices, marker_names=rec.marker_names, rate=rec.fps,
+                          smooth=forward_filter(OneEuro()), plant_feet=True)
+        parts = []
+        blocks = [idx[i:i + 1] for i in idx[:-20]] + [idx[i:i + PAIRS] for i in range(len(idx) - 20, len(idx), PAIRS)]
+        for b in blocks:
+            f = slice(b[0], b[-1] + 1)
+            got = live.push(rec.time[f], rec.positions[f], rec.rotations[f], rec.valid[f], rec.markers[f],
+                            rec.marker_valid[f])
+            if got is not None:
+                parts.append(got)
+        out[f"{method}_first"] = np.array(live.first_solved)
+        out[f"{method}_basis"] = np.concatenate([p.basis for p in parts])
+        out[f"{method}_root"] = np.concatenate([p.root_location for p in parts])
+        out[f"{method}_joints"] = np.concatenate([p.joints for p in parts])
+        for name in parts[0].targets:
+            out[f"{method}_target_{name}"] = np.concatenate([p.targets[name] for p in parts])
+    return out
+
+
+def _reference(out: dict) -> dict:
+    ref = {}
+    for k, v in out.items():
+        ref[f"{k}.sha256"] = _digest(v)
+        ref[f"{k}.sampled"] = v[::SAMPLE] if v.ndim else v
+    return ref
+
+
+@pytest.fixture(scope="module")
+def pushed():
+    return _push_all(*_take())
+
+
+@pytest.mark.parametrize("method", pl.METHODS)
+def test_a_pushed_frame_gives_the_values_it_gave_before_the_speed_ups(pushed, method):
+    ref = np.load(REFERENCE)
+    keys = sorted(k for k in pushed if k.startswith(method + "_"))
+    assert keys and sorted(f"{k}.sha256" for k in keys) == sorted(
+        k for k in ref.files if k.startswith(method + "_") and k.endswith(".sha256"))  # the same targets aimed at
+    for k in keys:
+        v = pushed[k]
+        np.testing.assert_array_equal(v[::SAMPLE] if v.ndim else v, ref[f"{k}.sampled"], err_msg=k)
+        assert np.array_equal(_digest(v), ref[f"{k}.sha256"]), f"{k}: some frame differs from before, bit for bit"
+
+
+if __name__ == "__main__" and "--write" in sys.argv:
+    np.savez_compressed(REFERENCE, **_reference(_push_all(*_take())))
+
+
+def test_a_push_copies_nothing_that_grows_with_the_session():
+    # The fill indices and the feet plan's rows were copied whole on every push (a cost that grew
+    # with the session's length): they live in buffers that double when full, so between two
+    # doublings a push writes its frame into the same arrays.
+    rec, user, avatar = _take()
+    live = LiveSolver(user, avatar, "rotations", devices=rec.devices, marker_names=rec.marker_names, rate=rec.fps,
+                      smooth=forward_filter(OneEuro()), plant_feet=True)
+
+    def buffers():
+        reader, plan = live.solver.src.reader, live.solver.feet
+        return [reader._fill._buf, reader._marker_fill._buf] + [b for bufs in plan._rows.values() for b in bufs]
+
+    for f in range(300):
+        live.push(rec.time[f], rec.positions[f], rec.rotations[f], rec.valid[f], rec.markers[f], rec.marker_valid[f])
+    before = buffers()
+    assert live.solver.feet and len(before) == 2 + 4 * len(live.solver.feet.sides)
+    for f in range(300, 400):  # within one doubling (512 rows after 256)
+        live.push(rec.time[f], rec.positions[f], rec.rotations[f], rec.valid[f], rec.markers[f], rec.marker_valid[f])
+    assert all(a is b for a, b in zip(before, buffers()))
+    assert len(live.solver.feet.weight["l"]) == 400  # every frame planned, none twice
