@@ -253,15 +253,20 @@ def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[d
     return [g - o for g, o in zip(gaps, offsets)]
 
 
-def sole_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> np.ndarray:
-    """World positions (F, N, 3) of the avatar's sole outline (`mesh:sole_<side>`) in the baked
-    pose: the floor-error measurement of DESIGN.md §7."""
+def _sole_frame(avatar: BodyModel, anim: AvatarAnimation, side: str):
+    """The foot's sole element, the ankle (F, 3) and the foot's surface frame (F, 3, 3) in the baked
+    pose: where the sole's points (local to the ankle in that frame) are."""
     rig = AvatarRig.from_model(avatar)
-    el = avatar.element(f"mesh:sole_{side}")
     pose = rig.fk(anim.rotations, anim.root_location)
     corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"foot_{side}"]]
     frame = pose.frames[:, BI[f"foot_{side}"]] @ corr
-    ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
+    return avatar.element(f"mesh:sole_{side}"), pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]], frame
+
+
+def sole_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> np.ndarray:
+    """World positions (F, N, 3) of the avatar's sole outline (`mesh:sole_<side>`) in the baked
+    pose: the floor-error measurement of DESIGN.md §7."""
+    el, ankle, frame = _sole_frame(avatar, anim, side)
     local = np.stack([p.local for p in el.points.values()])
     return ankle[:, None] + np.einsum("fij,kj->fki", frame, local)
 
@@ -270,12 +275,7 @@ def contact_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> dict[
     """World positions of the avatar's sole contact points (`mesh:sole_<side>` `contact`, FORMATS.md
     §3: measured on its skin) in the baked pose: "heel", "ball" (F, 3) and "support" (F, K, 3); the
     sole's outline stands in (its points, heel and ball its middle) on a model without them."""
-    rig = AvatarRig.from_model(avatar)
-    el = avatar.element(f"mesh:sole_{side}")
-    pose = rig.fk(anim.rotations, anim.root_location)
-    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"foot_{side}"]]
-    frame = pose.frames[:, BI[f"foot_{side}"]] @ corr
-    ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
+    el, ankle, frame = _sole_frame(avatar, anim, side)
     c = el.extra.get("contact")
     if not isinstance(c, dict):
         outline = np.stack([p.local for p in el.points.values()])
