@@ -99,6 +99,7 @@ class Follower:
         self.smooth, self.plant_feet, self.placement = smooth, plant_feet, placement
         self.solver = None  # retarget.live.LiveSolver, once prepared
         self.order: dict[str, int] = {}  # device name -> its column in the solver's arrays
+        self.marker_order: dict[str, int] = {}  # marker name -> its column (LED gloves: the fingers)
         self.stats = FollowerStats()
         self.waiting_for: list[str] = sorted(ANIMATED_ROLES)
 
@@ -107,8 +108,9 @@ class Follower:
         prepared = self.solver.solver if self.solver is not None else None  # made at the first solve
         return list(prepared.rig.names) if prepared is not None else []
 
-    def prepare(self, kinds: dict[str, str], roles: dict[str, str]) -> bool:
-        """The solver, once every role the methods need has a device the stream has named."""
+    def prepare(self, kinds: dict[str, str], roles: dict[str, str], markers: list[str] | tuple = ()) -> bool:
+        """The solver, once every role the methods need has a device the stream has named; the
+        `markers` named by then pose the fingers (a marker first seen later is not read)."""
         if self.solver is not None:
             return True
         named = {n: r for n, r in roles.items() if n in kinds and r}
@@ -117,8 +119,9 @@ class Follower:
             return False
         devices = [Device(n, kinds[n], r) for n, r in named.items()]
         self.order = {d.name: i for i, d in enumerate(devices)}
-        self.solver = LiveSolver(self.user, self.avatar, self.method, devices=devices, smooth=self.smooth,
-                                 plant_feet=self.plant_feet, placement=self.placement)
+        self.marker_order = {m: i for i, m in enumerate(markers)}
+        self.solver = LiveSolver(self.user, self.avatar, self.method, devices=devices, marker_names=list(markers),
+                                 smooth=self.smooth, plant_feet=self.plant_feet, placement=self.placement)
         return True
 
     def push(self, frame: LiveFrame) -> SolvedFrames | None:
@@ -133,8 +136,14 @@ class Follower:
         t = frame.sender_time if frame.sender_time is not None else frame.arrival
         if self.solver.recording.frame_count and t <= self.solver.recording.time[-1]:
             return None  # a sender's clock that went back (a replay looping): not a new moment
+        m = len(self.marker_order)
+        points, seen = (np.zeros((m, 3)), np.zeros(m, bool)) if m else (None, None)
+        for k, name in enumerate(frame.markers if m else ()):
+            i = self.marker_order.get(name)
+            if i is not None:
+                points[i], seen[i] = frame.points[k], True
         t0, c0 = time.perf_counter(), time.thread_time()
-        solved = self.solver.push(t, pos, rot, valid)
+        solved = self.solver.push(t, pos, rot, valid, points, seen)
         if solved is not None:
             self.stats.solve_cpu_ms.append((time.thread_time() - c0) * 1000.0)
             self.stats.solve_ms.append((time.perf_counter() - t0) * 1000.0)
@@ -321,7 +330,7 @@ class LiveSession:
         for name, follower in list(self.followers.items()):
             if follower.solver is None:
                 kinds, roles = kinds or self.kinds, roles or self.roles
-                if not follower.prepare(kinds, roles):
+                if not follower.prepare(kinds, roles, self.markers):
                     update.poses[name] = None
                     continue
             update.poses[name] = follower.push(frame)

@@ -118,8 +118,11 @@ def _live_solver_on(follower, updates):
     """A LiveSolver of the follower's models and devices pushed the frames the pumps took; returns
     it and its last solved frame."""
     devices = [Device(d.name, d.kind, d.role) for d in follower.solver.recording.devices]
-    ref = LiveSolver(follower.user, follower.avatar, "egocentric", devices=devices, plant_feet=True)
+    markers = list(follower.solver.recording.marker_names)  # the gloves' markers pose the fingers
+    ref = LiveSolver(follower.user, follower.avatar, "egocentric", devices=devices, marker_names=markers,
+                     plant_feet=True)
     order = {d.name: i for i, d in enumerate(devices)}
+    mcol = {m: i for i, m in enumerate(markers)}
     for update in updates:
         frame = update.frame
         pos, rot, valid = np.zeros((len(devices), 3)), np.tile([1.0, 0, 0, 0], (len(devices), 1)), \
@@ -127,7 +130,11 @@ def _live_solver_on(follower, updates):
         for j, name in enumerate(frame.devices):
             if name in order:
                 pos[order[name]], rot[order[name]], valid[order[name]] = frame.positions[j], frame.rotations[j], True
-        solved = ref.push(frame.sender_time, pos, rot, valid)
+        points, seen = np.zeros((len(markers), 3)), np.zeros(len(markers), bool)
+        for j, name in enumerate(frame.markers):
+            if name in mcol:
+                points[mcol[name]], seen[mcol[name]] = frame.points[j], True
+        solved = ref.push(frame.sender_time, pos, rot, valid, points if markers else None, seen if markers else None)
     return ref, solved
 
 

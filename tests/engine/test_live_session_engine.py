@@ -50,12 +50,14 @@ def take():
     return rec, truth.body_model()
 
 
-def frame_of(rec, k, *, announce=False, arrival=None):
+def frame_of(rec, k, *, announce=False, arrival=None, markers=False):
     v = rec.valid[k]
     events = tuple(("device", d.name, d.kind, d.role) for d in rec.devices) if announce else ()
+    mv = rec.marker_valid[k] if markers else np.zeros(len(rec.marker_names), bool)
     return LiveFrame(k, float(rec.time[k]) if arrival is None else arrival, float(rec.time[k]),
                      tuple(d.name for d, ok in zip(rec.devices, v, strict=True) if ok), rec.positions[k, v],
-                     rec.rotations[k, v], events=events)
+                     rec.rotations[k, v], tuple(n for n, ok in zip(rec.marker_names, mv, strict=True) if ok),
+                     rec.markers[k, mv], events=events)
 
 
 def test_the_device_table_says_kinds_roles_rates_and_frames_missed(take):
@@ -120,6 +122,33 @@ def test_a_follower_waits_for_its_roles_then_gives_live_solvers_poses(take):
     assert follower.waiting_for == [] and follower.stats.frames == 29
     np.testing.assert_array_equal(solved.basis, want.basis)
     assert len(follower.stats.latency_ms) == 29 and "latency" in follower.stats.line()
+
+
+def test_a_follower_poses_the_fingers_from_the_streams_markers(take):
+    """LED glove markers in the stream pose the avatar's fingers as they do in a bake: the follower
+    gives what a LiveSolver fed the same markers gives, and not what one without them gives."""
+    rec, user = take
+    assert rec.marker_names  # the full profile's gloves
+    avatar = procedural_avatar()
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    follower = session.follow("avatar", user, avatar, "egocentric")
+    order = [i for i, d in enumerate(rec.devices) if d.role]
+    devices = [rec.devices[i] for i in order]
+    with_markers = LiveSolver(user, avatar, "egocentric", devices=devices, marker_names=list(rec.marker_names))
+    without = LiveSolver(user, avatar, "egocentric", devices=devices)
+    for k in range(20):
+        source.deliver(frame_of(rec, k, markers=True))
+        solved = session.pump().poses["avatar"]
+        f = slice(k, k + 1)
+        want = with_markers.push(rec.time[f], rec.positions[f][:, order], rec.rotations[f][:, order],
+                                 rec.valid[f][:, order], rec.markers[f], rec.marker_valid[f])
+        bare = without.push(rec.time[f], rec.positions[f][:, order], rec.rotations[f][:, order],
+                            rec.valid[f][:, order])
+    assert list(follower.marker_order) == list(rec.marker_names)
+    np.testing.assert_array_equal(solved.basis, want.basis)
+    fingers = [i for i, n in enumerate(follower.bone_names) if "index" in n.lower() or "thumb" in n.lower()]
+    assert fingers and np.abs(solved.basis[:, fingers] - bare.basis[:, fingers]).max() > 1e-3
 
 
 def test_the_pump_learns_the_streams_beat_and_says_when_to_look_again(take):
