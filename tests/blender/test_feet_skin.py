@@ -14,7 +14,6 @@ import pytest
 from bodycal_addon.avatar import foot_contact
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.core import paths
 from bodycal_addon.recording import io as recording_io
 from bodycal_addon.recording.filters import OneEuro, filter_recording
 from bodycal_addon.retarget import pipeline as pl
@@ -26,14 +25,12 @@ FPS = 90.0
 
 
 @pytest.fixture
-def child():
+def child(avatar_files):
     """The avatar in this test's scene (every test starts from an empty file), calibrated."""
     from bodycal_addon.blender.avatar_calibration import calibrate_avatar
     from sample_rigs import load_glb_avatar
 
-    f = next((p for p in paths.shared_avatar_files() if p.name.startswith("child_10y")), None)
-    if f is None:
-        pytest.skip("the shared avatars are not there")
+    f = next(p for p in avatar_files if p.name.startswith("child_10y"))
     with contextlib.redirect_stdout(io.StringIO()):
         arm, _ = load_glb_avatar(f)
     return arm, calibrate_avatar(arm)
