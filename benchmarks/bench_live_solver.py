@@ -50,17 +50,13 @@ import numpy as np  # noqa: E402
 
 from bodycal_addon.body import skeleton as sk  # noqa: E402
 from bodycal_addon.body.rest_frames import complete_joints  # noqa: E402
-from bodycal_addon.body.skeleton import BONE_INDEX as BI  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording.filters import OneEuro, filter_recording  # noqa: E402
-from bodycal_addon.retarget import egocentric as ego  # noqa: E402
 from bodycal_addon.retarget import feet  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
-from bodycal_addon.retarget.avatar_pose import AvatarRig  # noqa: E402
 from bodycal_addon.retarget.live import LiveSolver  # noqa: E402
 from bodycal_addon.retarget.pose_source import RecordingSource  # noqa: E402
 from bodycal_addon.retarget.solver import PreparedSolver  # noqa: E402
-from bodycal_addon.retarget.solver_methods import _surface_bones, surface_correction  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 from bodycal_dev.retarget_fixtures import procedural_avatar  # noqa: E402
 
@@ -120,37 +116,9 @@ def stream(rec, user, avatar, method: str, smooth=None, plant: bool = True):
     return pad, [o for o in outs[first:]], ms[first:]
 
 
-def _effector(avatar, rig, pose, effector):
-    """(F, 3) the avatar's effector point and its skin offset (bench_retarget_quality's, numpy)."""
-    if effector.startswith("palm_"):
-        side = effector[-1]
-        corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"hand_{side}"]]
-        local = np.mean([p.local for p in avatar.element(f"mesh:palm_{side}").points.values()], axis=0)
-        wrist = pose.joints[:, sk.JOINT_INDEX[f"wrist_{side}"]]
-        return wrist + (pose.frames[:, BI[f"hand_{side}"]] @ corr) @ local, 0.0
-    radius = next((avatar.bones[b.name].radius_tail or 0.0 for b in sk.BONES
-                   if b.tail == effector and b.name in avatar.bones and not b.shortcut), 0.0)
-    return pose.joints[:, sk.JOINT_INDEX[effector]], float(radius)
-
-
 def contact_gaps(avatar, basis, root, contacts) -> np.ndarray:
     """|gap| (m) of the performer's hand contacts on the avatar's surface model posed by the result."""
-    rig = AvatarRig.from_model(avatar)
-    pose = rig.fk(basis, root)
-    model = _surface_bones(avatar)
-    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
-    joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
-    frames = {b.name: pose.frames[:, i] @ corr[i] for i, b in enumerate(sk.BONES)}
-    out = []
-    for c in contacts:
-        idx = np.flatnonzero(np.asarray(c["frames"], bool))
-        eid = c["target"].split("/", 1)[0]
-        if len(idx) == 0 or eid not in {e.id for e in avatar.surface}:
-            continue
-        pts, off = _effector(avatar, rig, pose, c["effector"])
-        surf = ego.pose_surface(model, {k: v[idx] for k, v in joints.items()}, {k: v[idx] for k, v in frames.items()},
-                                [eid])
-        out.append(metrics.signed_distances(pts[idx][:, None], surf)[:, 0, 0] - off)
+    out = metrics.model_contact_gaps(avatar, basis, root, contacts)
     return np.abs(np.concatenate(out)) if out else np.array([np.nan])
 
 

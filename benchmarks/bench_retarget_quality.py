@@ -37,8 +37,6 @@ from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording.filters import DEFAULT_FILTER, OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
-from bodycal_addon.retarget import solver_methods  # noqa: E402
-from bodycal_addon.retarget.avatar_pose import AvatarRig, complete_joints  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402
 
 CONTACT_MOTIONS = ("clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "squat")
@@ -73,36 +71,6 @@ def _avatars():
     return out, notes
 
 
-def _model_gaps(avatar, rig: AvatarRig, anim, contacts):
-    """The same contacts measured against the avatar's calibrated surface model (capsules, skull
-    sphere, crude meshes) posed like the mesh: separates the retargeting's accuracy from how well
-    the calibrated model fits the skin."""
-    from bodycal_addon.retarget import egocentric as ego
-
-    pose = rig.fk(anim.rotations, anim.root_location)
-    model = solver_methods._surface_bones(avatar)
-    corr = solver_methods.surface_correction(avatar, rig.frames0, complete_joints(avatar))
-    joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
-    frames = {b.name: pose.frames[:, i] @ corr[i] for i, b in enumerate(ap_bones())}
-    out = []
-    for c in contacts:
-        idx = np.flatnonzero(np.asarray(c["frames"], bool))
-        eid = c["target"].split("/", 1)[0]
-        if len(idx) == 0 or eid not in {e.id for e in avatar.surface}:
-            continue
-        pts, off = mesh_metrics.effector_points(avatar, rig, anim, c["effector"])
-        surf = ego.pose_surface(model, {k: v[idx] for k, v in joints.items()}, {k: v[idx] for k, v in frames.items()},
-                                [eid])
-        out.append(metrics.signed_distances(pts[idx][:, None], surf)[:, 0, 0] - off)
-    return out
-
-
-def ap_bones():
-    from bodycal_addon.retarget.avatar_pose import BONES
-
-    return BONES
-
-
 def main(quick: bool = False, smooth: OneEuro | None = None):
     t0 = time.time()
     avatars, notes = _avatars()
@@ -118,7 +86,6 @@ def main(quick: bool = False, smooth: OneEuro | None = None):
     fps = {m: [] for m in pl.METHODS}
     for name, arm, avatar in avatars:
         mesh = mesh_metrics.EvaluatedMesh(arm)
-        rig = AvatarRig.from_model(avatar)
         for method in pl.METHODS:
             gaps, floors, reach, model_gaps = [], [], [], []
             for _build, rec, truth, user in sessions:
@@ -129,7 +96,8 @@ def main(quick: bool = False, smooth: OneEuro | None = None):
                 for g in mesh_metrics.contact_gaps(arm, avatar, anim, contacts, max_frames=8 if quick else 12,
                                                    mesh=mesh):
                     gaps.append(g)
-                model_gaps += _model_gaps(avatar, rig, anim, contacts)
+                model_gaps += metrics.model_contact_gaps(avatar, anim.rotations, anim.root_location, contacts,
+                                                         anim.joints_world)
                 for s in sk.SIDES:
                     soles = mesh_metrics.sole_points(avatar, anim, s)
                     floors.append(metrics.floor_error(soles, truth.planted[f"foot_{s}"]))

@@ -27,6 +27,7 @@ from ..body.bodymodel import BodyModel
 from ..body.rest_frames import complete_joints
 from ..body.skeleton import BONE_INDEX as BI
 from ..core.errors import BodyCalError
+from ..output import metrics
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.solver_methods import surface_correction
 
@@ -81,27 +82,10 @@ def _segment_bones(bone_map: naming.BoneMap, segments) -> set[str]:
 
 
 def effector_points(avatar: BodyModel, rig: AvatarRig, anim: AvatarAnimation, effector: str):
-    """(F, 3) world points of the avatar's effector and its skin offset (m): "palm_<s>" is the
-    centre of the avatar's palm surface (on the skin, offset 0); a joint (wrist, fingertip) lies
-    inside its limb, offset = that limb's radius at the joint."""
-    if effector.startswith("palm_"):
-        side = effector[-1]
-        el = avatar.element(f"mesh:palm_{side}")
-        pose = rig.fk(anim.rotations, anim.root_location)
-        # Palm points are local to the model's own hand frame (its `right`): correct the engine's.
-        corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"hand_{side}"]]
-        frame = pose.frames[:, BI[f"hand_{side}"]] @ corr
-        wrist = pose.joints[:, sk.JOINT_INDEX[f"wrist_{side}"]]
-        local = np.mean([p.local for p in el.points.values()], axis=0)
-        return wrist + frame @ local, 0.0
-    if effector not in anim.joints_world:
-        raise BodyCalError(f"unknown effector '{effector}'", field="effector")
-    radius = 0.0
-    for b in sk.BONES:
-        if b.tail == effector and b.name in avatar.bones and not b.shortcut:
-            radius = avatar.bones[b.name].radius_tail or 0.0
-            break
-    return np.asarray(anim.joints_world[effector], float), float(radius)
+    """(F, 3) world points of the avatar's effector in a baked animation and its skin offset (m):
+    `output.metrics.effector_points` on the animation's pose and joints."""
+    pose = rig.fk(anim.rotations, anim.root_location) if effector.startswith("palm_") else None
+    return metrics.effector_points(avatar, rig, pose, effector, anim.joints_world)
 
 
 class EvaluatedMesh:

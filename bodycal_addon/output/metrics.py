@@ -13,7 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..retarget.egocentric import own_chain_elements, project
+from ..body import skeleton as sk
+from ..body.rest_frames import complete_joints
+from ..core.errors import BodyCalError
+from ..retarget.avatar_pose import AvatarRig
+from ..retarget.egocentric import own_chain_elements, pose_surface, project
+from ..retarget.solver_methods import _surface_bones, surface_correction
 
 
 def stats_mm(values) -> dict:
@@ -120,3 +125,52 @@ def planted_frames(point, speed_threshold: float = 0.05, height_threshold: float
 def reach_error(effector, target) -> np.ndarray:
     """Distance (m) between the avatar's effectors after IK and their retargeted targets."""
     return np.linalg.norm(np.asarray(effector, float) - np.asarray(target, float), axis=-1)
+
+
+def effector_points(avatar, rig: AvatarRig, pose, effector: str, joints: dict | None = None):
+    """(F, 3) world points of the avatar's effector in `pose` (`rig.fk`'s) and its skin offset (m):
+    "palm_<s>" is the centre of the avatar's palm surface (on the skin, offset 0); a joint (wrist,
+    fingertip) lies inside its limb, offset = that limb's radius at the joint. `joints` (name ->
+    (F, 3)) gives the joints where the caller has them (a baked animation's `joints_world`), else
+    the pose's."""
+    if effector.startswith("palm_"):
+        side = effector[-1]
+        el = avatar.element(f"mesh:palm_{side}")
+        # Palm points are local to the model's own hand frame (its `right`): correct the engine's.
+        corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[sk.BONE_INDEX[f"hand_{side}"]]
+        frame = pose.frames[:, sk.BONE_INDEX[f"hand_{side}"]] @ corr
+        wrist = pose.joints[:, sk.JOINT_INDEX[f"wrist_{side}"]]
+        local = np.mean([p.local for p in el.points.values()], axis=0)
+        return wrist + frame @ local, 0.0
+    if effector not in (joints if joints is not None else sk.JOINT_INDEX):
+        raise BodyCalError(f"unknown effector '{effector}'", field="effector")
+    radius = next((avatar.bones[b.name].radius_tail or 0.0 for b in sk.BONES
+                   if b.tail == effector and b.name in avatar.bones and not b.shortcut), 0.0)
+    point = joints[effector] if joints is not None else pose.joints[:, sk.JOINT_INDEX[effector]]
+    return np.asarray(point, float), float(radius)
+
+
+def model_contact_gaps(avatar, rotations, root_location, contacts: list[dict], joints: dict | None = None
+                       ) -> list[np.ndarray]:
+    """Signed gap (m) per contact of a ground truth (`{"effector", "target", "frames" (F,) bool}`) on
+    the avatar's calibrated surface model (capsules, skull sphere, crude meshes) posed by the pose-bone
+    `rotations` and `root_location`, in the contact's frames: separates the retargeting's accuracy from
+    how well the calibrated model fits the skin (the evaluated mesh's gap is Blender's,
+    blender/mesh_metrics.contact_gaps). Contacts on an element the model lacks are left out."""
+    rig = AvatarRig.from_model(avatar)
+    pose = rig.fk(rotations, root_location)
+    model = _surface_bones(avatar)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
+    posed_joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
+    frames = {b.name: pose.frames[:, i] @ corr[i] for i, b in enumerate(sk.BONES)}
+    out = []
+    for c in contacts:
+        idx = np.flatnonzero(np.asarray(c["frames"], bool))
+        eid = c["target"].split("/", 1)[0]
+        if len(idx) == 0 or eid not in {e.id for e in avatar.surface}:
+            continue
+        pts, off = effector_points(avatar, rig, pose, c["effector"], joints)
+        surf = pose_surface(model, {k: v[idx] for k, v in posed_joints.items()},
+                            {k: v[idx] for k, v in frames.items()}, [eid])
+        out.append(signed_distances(pts[idx][:, None], surf)[:, 0, 0] - off)
+    return out
