@@ -10,15 +10,15 @@ import io
 
 import numpy as np
 import pytest
+from outside_takes import clip_performer, outside_recording
 
 from bodycal_addon.avatar import foot_contact
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.recording import io as recording_io
 from bodycal_addon.recording.filters import OneEuro, filter_recording
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.avatar_pose import AvatarRig
-from evaluation import bvh, capture, measure, performer, session
+from evaluation import measure
 
 STOP = "131_01_start_walk_stop.bvh"
 FPS = 90.0
@@ -38,10 +38,8 @@ def child(avatar_files):
 
 @pytest.fixture(scope="module")
 def walk(data_dir, tmp_path_factory):
-    perf = performer.Performer(bvh.read(data_dir / "motion" / "cmu_bvh" / STOP).resampled(FPS))
-    sess = session.build_session(perf, seed=1)
-    cap = capture.capture(sess, perf, "full", seed=1)
-    rec = recording_io.load_recording(cap.write(tmp_path_factory.mktemp("feet") / "stop.bcrec.json", up="Z"))
+    rec, cap = outside_recording(clip_performer(data_dir, STOP), tmp_path_factory.mktemp("feet"), "full", seed=1,
+                                 up="Z")
     # the default settings: the devices smoothed (DESIGN.md §6b), as bench_real_motion judges them
     return filter_recording(rec, OneEuro()), calibrate_user(rec), cap.truth()
 

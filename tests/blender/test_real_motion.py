@@ -9,6 +9,7 @@ import copy
 
 import numpy as np
 import pytest
+from outside_takes import clip_performer, outside_recording
 
 from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.core import transforms as tf
@@ -16,22 +17,18 @@ from bodycal_addon.recording import io as recording_io
 from bodycal_addon.recording.model import Recording
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_dev import retarget_fixtures as rt
-from evaluation import bvh, capture, performer, session
 
 WALK = "02_01_walk.bvh"
 
 
 @pytest.fixture(scope="module")
 def walker(data_dir):
-    clip = bvh.read(data_dir / "motion" / "cmu_bvh" / WALK).resampled(90.0)
-    return performer.Performer(clip)
+    return clip_performer(data_dir, WALK)
 
 
-def outside_recording(perf, tmp_path, profile: str = "full", seed: int = 0, up: str = "Y", **kw) -> tuple:
-    sess = session.build_session(perf, seed=seed, **kw)
-    cap = capture.capture(sess, perf, profile, seed=seed)
-    path = cap.write(tmp_path / f"outside_{profile}_{seed}.bcrec.json", up=up)
-    return recording_io.load_recording(path), cap.truth()
+def outside_truth(perf, tmp_path, profile: str = "full", seed: int = 0, up: str = "Y", **kw) -> tuple:
+    rec, cap = outside_recording(perf, tmp_path, profile, seed, up, **kw)
+    return rec, cap.truth()
 
 
 def moved(rec: Recording, yaw_deg: float, offset) -> Recording:
@@ -49,7 +46,7 @@ def moved(rec: Recording, yaw_deg: float, offset) -> Recording:
 
 @pytest.fixture(scope="module")
 def walk_full(walker, tmp_path_factory):
-    return outside_recording(walker, tmp_path_factory.mktemp("outside"), "full", seed=0, yaw=np.radians(90.0))
+    return outside_truth(walker, tmp_path_factory.mktemp("outside"), "full", seed=0, yaw=np.radians(90.0))
 
 
 @pytest.mark.slow
@@ -73,7 +70,7 @@ def test_turning_and_moving_the_room_turns_and_moves_the_animation(walk_full, me
 def test_a_performer_facing_forward_keeps_the_pelvis_with_the_legs(walker, tmp_path):
     """Facing FORMATS.md's forward (internal +Y) the pelvis used to turn 180 degrees against the
     torso and the legs crossed. The avatar's hip line follows the source's."""
-    rec, truth = outside_recording(walker, tmp_path, "full", seed=1, yaw=np.radians(180.0))
+    rec, truth = outside_truth(walker, tmp_path, "full", seed=1, yaw=np.radians(180.0))
     user = calibrate_user(rec)
     avatar = rt.procedural_avatar()
     a, b = truth["motion"]
@@ -95,7 +92,7 @@ def _joint_errors_mm(user, truth) -> dict[str, float]:
 
 @pytest.fixture(scope="module")
 def walk_six(walker, tmp_path_factory):
-    return outside_recording(walker, tmp_path_factory.mktemp("outside_six"), "six", seed=0, up="Z")
+    return outside_truth(walker, tmp_path_factory.mktemp("outside_six"), "six", seed=0, up="Z")
 
 
 @pytest.mark.slow

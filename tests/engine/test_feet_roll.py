@@ -7,19 +7,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from outside_takes import clip_performer, outside_recording
 
 from bodycal_addon.avatar import foot_contact
 from bodycal_addon.body.rest_frames import complete_joints
 from bodycal_addon.body.skeleton import BONE_INDEX as BI
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.recording import io as recording_io
 from bodycal_addon.retarget import feet
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.avatar_pose import AvatarRig
 from bodycal_addon.retarget.solver_methods import surface_correction
 from bodycal_dev import retarget_fixtures as rt
-from evaluation import bvh, capture, measure, performer, session
+from evaluation import measure
 
 STOP = "131_01_start_walk_stop.bvh"
 FPS = 90.0
@@ -65,10 +65,8 @@ def test_rolling_pivots_about_the_point_that_is_down():
 
 @pytest.fixture(scope="module")
 def walk(data_dir, tmp_path_factory):
-    perf = performer.Performer(bvh.read(data_dir / "motion" / "cmu_bvh" / STOP).resampled(FPS))
-    sess = session.build_session(perf, seed=1)
-    cap = capture.capture(sess, perf, "full", seed=1)
-    rec = recording_io.load_recording(cap.write(tmp_path_factory.mktemp("roll") / "stop.bcrec.json", up="Z"))
+    rec, cap = outside_recording(clip_performer(data_dir, STOP), tmp_path_factory.mktemp("roll"), "full", seed=1,
+                                 up="Z")
     return rec, calibrate_user(rec), cap.truth()
 
 

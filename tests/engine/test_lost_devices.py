@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from outside_takes import clip_performer, outside_recording
 
 from bodycal_addon.calibration import calibrate_user
 from bodycal_addon.core import transforms as tf
 from bodycal_addon.recording import gaps
-from bodycal_addon.recording import io as recording_io
 from bodycal_addon.recording.live.buffer import LiveRecording
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.trackers import BRIDGE_S, TrackerReader
 from bodycal_addon.retarget.user_animation import animate_user
 from bodycal_dev import retarget_fixtures as rt
-from evaluation import bvh, capture, measure, performer, session
+from evaluation import measure
 
 FPS = 90.0
 
@@ -146,7 +146,7 @@ def test_extrapolation_comes_to_rest_after_the_decay():
 
 @pytest.fixture(scope="module")
 def clips(data_dir):
-    return {name: performer.Performer(bvh.read(data_dir / "motion" / folder / name).resampled(FPS))
+    return {name: clip_performer(data_dir, name, folder, FPS)
             for name, folder in (("02_01_walk.bvh", "cmu_bvh"), ("131_01_start_walk_stop.bvh", "cmu_bvh"),
                                  ("05_06_dance.bvh", "cmu_bvh_held_out"))}
 
@@ -154,12 +154,7 @@ def clips(data_dir):
 def _record(perf, tmp_path, profile, seed, cut=None):
     """The evaluation's recording of `perf` (session `seed`), with `cut(capture)` changing what was
     tracked before it is written."""
-    sess = session.build_session(perf, seed=seed)
-    cap = capture.capture(sess, perf, profile, seed=seed)
-    if cut is not None:
-        cut(cap)
-    path = cap.write(tmp_path / f"{perf.clip.name}_{profile}_{seed}.bcrec.json", up="Y" if seed % 2 == 0 else "Z")
-    return recording_io.load_recording(path), cap
+    return outside_recording(perf, tmp_path, profile, seed, "Y" if seed % 2 == 0 else "Z", cut)
 
 
 def _hip_line_worst(rec, user, truth) -> dict[str, float]:

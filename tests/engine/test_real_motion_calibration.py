@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from outside_takes import clip_performer, outside_recording
 
 from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.recording import io as recording_io
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_dev import retarget_fixtures as rt
-from evaluation import bvh, capture, measure, performer, rot, session
+from evaluation import measure, rot, session
 
 DANCE = "05_06_dance.bvh"
 WALK = "02_01_walk.bvh"
@@ -27,15 +27,11 @@ LIMB_JOINTS = ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")
 @pytest.fixture(scope="module")
 def performers(data_dir):
     folder = {DANCE: "cmu_bvh_held_out", WALK: "cmu_bvh", STOP: "cmu_bvh"}
-    return {name: performer.Performer(bvh.read(data_dir / "motion" / d / name).resampled(90.0))
-            for name, d in folder.items()}
+    return {name: clip_performer(data_dir, name, d) for name, d in folder.items()}
 
 
 def recorded(perf, tmp_path, profile: str, seed: int):
-    sess = session.build_session(perf, seed=seed)
-    cap = capture.capture(sess, perf, profile, seed=seed)
-    rec = recording_io.load_recording(cap.write(tmp_path / f"{perf.clip.name}_{profile}_{seed}.bcrec.json",
-                                                up="Y" if seed % 2 == 0 else "Z"))
+    rec, cap = outside_recording(perf, tmp_path, profile, seed, "Y" if seed % 2 == 0 else "Z")
     return rec, cap.truth()
 
 
