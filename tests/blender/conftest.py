@@ -66,3 +66,17 @@ def empty_scene():
     """Every test starts from an empty file (keeps enabled extensions)."""
     bpy.ops.wm.read_homefile(use_empty=True)
     yield
+
+
+@pytest.fixture(scope="session")
+def rigify_blend(tmp_path_factory):
+    """A generated Rigify rig on a skinned body, saved (sample_rigs/rigify_rig.py; built in a
+    subprocess: Rigify hangs 4.5 at exit)."""
+    import subprocess
+    import sys
+
+    path = tmp_path_factory.mktemp("rigify") / "rigify_avatar.blend"
+    out = subprocess.run([sys.executable, "-m", "sample_rigs.rigify_rig", str(path)], cwd=REPO, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0 and path.is_file(), out.stderr[-2000:]
+    return path

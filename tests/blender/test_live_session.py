@@ -358,19 +358,6 @@ def test_the_calibration_wizard_runs_its_steps_from_the_panel_and_the_take_keeps
         f"bodycal:{s.label}" for s in segs]
 
 
-@pytest.fixture(scope="module")
-def rigify_blend(tmp_path_factory):
-    """tests/blender/test_rigify.py's generated rig (built in a subprocess: Rigify hangs 4.5 at exit)."""
-    import subprocess
-    import sys
-
-    path = tmp_path_factory.mktemp("rigify") / "rigify_avatar.blend"
-    out = subprocess.run([sys.executable, "-m", "sample_rigs.rigify_rig", str(path)], cwd=REPO, capture_output=True,
-                         text=True, timeout=600)
-    assert out.returncode == 0 and path.is_file(), out.stderr[-2000:]
-    return path
-
-
 @pytest.mark.slow
 def test_a_generated_rigify_rig_follows_on_its_fk_controls_and_is_put_back(take, tmp_path, rigify_blend):
     """The bake's Rigify path live: the DEF- pose carried onto the FK controls (IK switched to FK),

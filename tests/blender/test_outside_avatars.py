@@ -6,9 +6,6 @@ error that leaves nothing behind."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import bpy
 import numpy as np
 import pytest
@@ -85,15 +82,11 @@ def test_a_robot_whose_feet_are_ik_controls_is_one_line():
 # --- a generated Rigify rig after a round trip through glTF or FBX -------------------------------------
 
 @pytest.fixture(scope="module")
-def round_trips(tmp_path_factory):
-    """The generated Rigify rig (sample_rigs/rigify_rig.py, in a subprocess) exported to .glb and
-    .fbx with every bone, as a game engine gets it: DEF-/ORG-/MCH- names, no constraints."""
+def round_trips(tmp_path_factory, rigify_blend):
+    """The generated Rigify rig (conftest's) exported to .glb and .fbx with every bone, as a game
+    engine gets it: DEF-/ORG-/MCH- names, no constraints."""
     tmp = tmp_path_factory.mktemp("rigify_round_trip")
-    blend = tmp / "rigify_avatar.blend"
-    out = subprocess.run([sys.executable, "-m", "sample_rigs.rigify_rig", str(blend)], cwd=REPO, capture_output=True,
-                         text=True, timeout=600)
-    assert out.returncode == 0 and blend.is_file(), out.stderr[-2000:]
-    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    bpy.ops.wm.open_mainfile(filepath=str(rigify_blend))
     rig = bpy.data.objects["rigify_avatar"]
     keep = {rig, *blendfile.deformed_meshes(rig)}
     for obj in bpy.context.view_layer.objects:

@@ -27,15 +27,6 @@ from bodycal_dev import synthetic
 IN_BETWEEN = (".001", "DEF-spine.005", "DEF-palm.", "DEF-breast.", "DEF-pelvis.")
 
 
-@pytest.fixture(scope="session")
-def rigify_blend(tmp_path_factory):
-    path = tmp_path_factory.mktemp("rigify") / "rigify_avatar.blend"
-    out = subprocess.run([sys.executable, "-m", "sample_rigs.rigify_rig", str(path)], cwd=REPO, capture_output=True,
-                         text=True, timeout=600)
-    assert out.returncode == 0 and path.is_file(), out.stderr[-2000:]
-    return path
-
-
 @pytest.fixture(scope="module")
 def belly():
     performer = synthetic.make_performer(seed=5)
