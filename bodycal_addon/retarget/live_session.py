@@ -45,7 +45,7 @@ from ..recording.live.recorder import LiveRecorder
 from ..recording.live.source import LiveFrame, LiveSource
 from ..recording.model import Device
 from .live import LiveSolver
-from .live_worker import SolverProcess, frame_message, prepare_message, solved_from
+from .live_worker import SolverProcess, frame_message, pickled, prepare_message, solved_from
 from .pump_clock import PumpClock
 from .solver import SolvedFrames
 
@@ -96,6 +96,19 @@ class FollowerStats:
         solve, lat = np.asarray(self.solve_ms), np.asarray(self.latency_ms or [np.nan])
         return (f"solve {np.median(solve):.1f} ms, latency {np.median(lat):.1f} ms "
                 f"(p95 {np.percentile(lat, 95):.1f} ms)")
+
+
+def _scatter(names, columns: dict[str, int], first, second, seen) -> None:
+    """The frame's rows of `names` into their columns of the solver's arrays (`first` and `second`
+    are (the frame's rows, the solver's array) pairs), `seen` set where written."""
+    if not names:
+        return
+    cols = np.array([columns.get(name, -1) for name in names])
+    keep = cols >= 0
+    cols = cols[keep]
+    for rows, out in (first, second) if second is not None else (first,):
+        out[cols] = rows[keep]
+    seen[cols] = True
 
 
 @dataclass(frozen=True)
@@ -182,20 +195,21 @@ class Follower:
     def arrays(self, frame: LiveFrame) -> tuple:
         """The frame as the solver's arrays: (time, positions (D, 3), rotations (D, 4), valid (D,),
         marker points (M, 3) and seen (M,), or None without markers)."""
-        n = len(self.order)
-        pos, rot, valid = np.zeros((n, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), np.zeros(n, bool)
-        for k, name in enumerate(frame.devices):
-            i = self.order.get(name)
-            if i is not None:
-                pos[i], rot[i], valid[i] = frame.positions[k], frame.rotations[k], True
+        n, m = len(self.order), len(self.marker_order)
+        pos, rot, valid = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros(n, bool)
+        rot[:, 0] = 1.0
+        _scatter(frame.devices, self.order, (frame.positions, pos), (frame.rotations, rot), valid)
         t = frame.sender_time if frame.sender_time is not None else frame.arrival
-        m = len(self.marker_order)
-        points, seen = (np.zeros((m, 3)), np.zeros(m, bool)) if m else (None, None)
-        for k, name in enumerate(frame.markers if m else ()):
-            i = self.marker_order.get(name)
-            if i is not None:
-                points[i], seen[i] = frame.points[k], True
+        if not m:
+            return t, pos, rot, valid, None, None
+        points, seen = np.zeros((m, 3)), np.zeros(m, bool)
+        _scatter(frame.markers, self.marker_order, (frame.points, points), None, seen)
         return t, pos, rot, valid, points, seen
+
+    @property
+    def columns(self) -> tuple:
+        """What `arrays` depends on besides the frame: followers with the same share them."""
+        return tuple(self.order), tuple(self.marker_order)
 
     def push(self, frame: LiveFrame) -> SolvedFrames | None:
         """The frame solved (one row), or None: a frame not newer than the last (a replay looping)
@@ -295,11 +309,17 @@ class WorkerFollower(Follower):
         except (EOFError, OSError):
             return self._fall_back(self._ended())
 
-    def send(self, frame: LiveFrame) -> bool:
-        """The frame sent to the worker (True), or not: busy with the one before, or ended."""
+    def send(self, frame: LiveFrame, shared: dict | None = None) -> bool:
+        """The frame sent to the worker (True), or not: busy with the one before, or ended.
+        `shared` keeps the message made for one worker for the others with the same `columns`
+        (made and pickled once a frame)."""
         if self.process is None or self._in_flight is not None:
             return False
-        return self._send(frame_message(*self.arrays(frame)), "frame")
+        shared = {} if shared is None else shared
+        message = shared.get(self.columns)
+        if message is None:
+            message = shared[self.columns] = pickled(frame_message(*self.arrays(frame)))
+        return self._send(message, "frame")
 
     def receive(self) -> tuple[SolvedFrames | None, str | None]:
         """The worker's answer to the frame sent (it is there: `connection` is ready): the pose or
@@ -313,9 +333,12 @@ class WorkerFollower(Follower):
         """No answer in ANSWER_S: the worker is killed."""
         return self._fall_back(f"its worker process gave no answer in {ANSWER_S:g} s", kill=True)
 
-    def _send(self, message: tuple, what: str) -> bool:
+    def _send(self, message: tuple | memoryview, what: str) -> bool:
         try:
-            self.process.connection.send(message)
+            if not isinstance(message, tuple):  # pickled already: what `send` would write
+                self.process.connection.send_bytes(message)
+            else:
+                self.process.connection.send(message)
         except (OSError, ValueError):
             self.note = self._fall_back(self._ended())
             return False
@@ -553,7 +576,7 @@ class LiveSession:
         self.clock.taken(frame.index, frame.arrival)
         self.last_frame = frame
         kinds = roles = markers = None
-        here, sent = [], []
+        here, sent, shared = [], [], {}
         for name, follower in list(self.followers.items()):
             update.poses[name] = None
             if follower.in_worker:
@@ -565,7 +588,7 @@ class LiveSession:
                     continue
             if not follower.in_worker:
                 here.append(follower)
-            elif follower.send(frame):
+            elif follower.send(frame, shared):
                 update.pushed.add(name)
                 if follower.solving:  # its answer is waited for (not a preparation's)
                     sent.append(follower)

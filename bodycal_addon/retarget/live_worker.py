@@ -39,6 +39,7 @@ import threading
 import time
 import traceback
 from multiprocessing.connection import Client, Listener
+from multiprocessing.reduction import ForkingPickler
 from pathlib import Path
 
 import numpy as np
@@ -187,6 +188,12 @@ def prepare_message(user: BodyModel, avatar: BodyModel, method: str, devices: li
 
 def frame_message(t: float, positions, rotations, valid, points, seen) -> tuple:
     return ("frame", float(t), positions, rotations, valid, points, seen)
+
+
+def pickled(message: tuple) -> memoryview:
+    """A message as `Connection.send` writes it (`Connection.recv` reads it back): made once, sent
+    to every worker that reads the same columns with `send_bytes`."""
+    return ForkingPickler.dumps(message)
 
 
 def solved_from(reply: tuple) -> SolvedFrames:
