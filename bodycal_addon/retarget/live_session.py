@@ -143,6 +143,7 @@ class Follower:
         self.stats = FollowerStats()
         self.waiting_for: list[str] = sorted(ANIMATED_ROLES)
         self.note = ""  # the last thing to say about it (a worker that ended), one line
+        self._unsaid: list[str] = []  # lines for the pump to say (`said`)
 
     @property
     def ready(self) -> bool:
@@ -223,6 +224,15 @@ class Follower:
             self.stats.frames += 1
         return solved
 
+    def said(self) -> list[str]:
+        """The lines to say since the last call (a worker that ended, a solve that failed)."""
+        lines, self._unsaid = self._unsaid, []
+        return lines
+
+    def _say(self, line: str) -> None:
+        self.note = line
+        self._unsaid.append(line)
+
     def close(self) -> None:
         """Nothing to end here (a WorkerFollower ends its process)."""
 
@@ -288,26 +298,26 @@ class WorkerFollower(Follower):
             self._prepare_sent = True
         return False
 
-    def poll(self) -> str | None:
+    def poll(self) -> None:
         """Take an answer that came since (the preparation's, or a frame's not waited for) and
-        notice a worker that could not start or has ended; returns a line to say, if any."""
+        notice a worker that could not start or has ended."""
         if self.process is None:
-            return None
+            return
         if self.process.error:
-            return self._fall_back(self.process.error)
+            self._fall_back(self.process.error)
+            return
         connection = self.process.connection
         if connection is None:
-            return None
+            return
         if self._in_flight is None:
             if not self.process.alive():
-                return self._fall_back(f"its worker process ended (exit code {self.process.exit_code()})")
-            return None
+                self._fall_back(self._ended())
+            return
         try:
-            if not connection.poll():
-                return None
-            return self._take(connection.recv(), waited=False)[1]  # a pose of an older frame: not set
+            if connection.poll():
+                self._take(connection.recv(), waited=False)  # a pose of an older frame: not set
         except (EOFError, OSError):
-            return self._fall_back(self._ended())
+            self._fall_back(self._ended())
 
     def send(self, frame: LiveFrame, shared: dict | None = None) -> bool:
         """The frame sent to the worker (True), or not: busy with the one before, or ended.
@@ -321,17 +331,18 @@ class WorkerFollower(Follower):
             message = shared[self.columns] = pickled(frame_message(*self.arrays(frame)))
         return self._send(message, "frame")
 
-    def receive(self) -> tuple[SolvedFrames | None, str | None]:
-        """The worker's answer to the frame sent (it is there: `connection` is ready): the pose or
-        None, and a line to say, if any."""
+    def receive(self) -> SolvedFrames | None:
+        """The worker's answer to the frame sent (it is there: `connection` is ready): the pose, or
+        None."""
         try:
             return self._take(self.process.connection.recv())
         except (EOFError, OSError):
-            return None, self._fall_back(self._ended())
+            self._fall_back(self._ended())
+            return None
 
-    def stuck(self) -> str:
+    def stuck(self) -> None:
         """No answer in ANSWER_S: the worker is killed."""
-        return self._fall_back(f"its worker process gave no answer in {ANSWER_S:g} s", kill=True)
+        self._fall_back(f"its worker process gave no answer in {ANSWER_S:g} s", kill=True)
 
     def _send(self, message: tuple | memoryview, what: str) -> bool:
         try:
@@ -340,44 +351,44 @@ class WorkerFollower(Follower):
             else:
                 self.process.connection.send(message)
         except (OSError, ValueError):
-            self.note = self._fall_back(self._ended())
+            self._fall_back(self._ended())
             return False
         self._in_flight, self._sent_at = what, time.perf_counter()
         return True
 
-    def _take(self, reply: tuple, waited: bool = True) -> tuple[SolvedFrames | None, str | None]:
+    def _take(self, reply: tuple, waited: bool = True) -> SolvedFrames | None:
         what, self._in_flight = self._in_flight, None
         kind = reply[0]
         if kind == "ready":
             self._layout = RigLayout(reply[1]["armature"], tuple(reply[1]["names"]), int(reply[1]["root"]))
-            return None, None
+            return None
         if kind == "error":
             if what == "prepare":  # this process makes the same solver and says what is wrong with it
-                return None, self._fall_back(f"its worker could not prepare ({reply[1]})")
-            self.note = f"{self.name}: {reply[1]}"
-            return None, self.note
+                self._fall_back(f"its worker could not prepare ({reply[1]})")
+            else:
+                self._say(f"{self.name}: {reply[1]}")
+            return None
         if kind == "pose":
             self.solving = True
             if not waited:
-                return None, None
+                return None
             self.stats.solve_ms.append((time.perf_counter() - self._sent_at) * 1000.0)
             self.stats.solve_cpu_ms.append(reply[6])
             self.stats.worker_ms.append(reply[7])
             self.stats.frames += 1
-            return solved_from(reply), None
-        return None, None  # "none": not newer than the last, or a needed device not tracked yet
+            return solved_from(reply)
+        return None  # "none": not newer than the last, or a needed device not tracked yet
 
     def _ended(self) -> str:
         code = self.process.exit_code() if self.process is not None else None
         return "its worker process ended" + (f" (exit code {code})" if code is not None else "")
 
-    def _fall_back(self, reason: str, kill: bool = False) -> str:
+    def _fall_back(self, reason: str, kill: bool = False) -> None:
         process, self.process = self.process, None
         if process is not None:
             process.close(kill=kill)
         self.solver, self._in_flight, self.solving = None, None, False
-        self.note = f"{self.name}: {reason}; solving it in this process from now on"
-        return self.note
+        self._say(f"{self.name}: {reason}; solving it in this process from now on")
 
     def close(self) -> None:
         if self.process is not None:
@@ -577,10 +588,12 @@ class LiveSession:
         self.last_frame = frame
         kinds = roles = markers = None
         here, sent, shared = [], [], {}
-        for name, follower in list(self.followers.items()):
+        followers = list(self.followers.values())
+        for follower in followers:
+            name = follower.name
             update.poses[name] = None
             if follower.in_worker:
-                self._say(update, follower.poll())
+                follower.poll()
             if not follower.ready:
                 if kinds is None:
                     kinds, roles, markers = self.kinds, self.roles, self.markers
@@ -592,8 +605,6 @@ class LiveSession:
                 update.pushed.add(name)
                 if follower.solving:  # its answer is waited for (not a preparation's)
                     sent.append(follower)
-            else:
-                self._say(update, follower.note if follower.process is None else None)
         for follower in here:
             update.pushed.add(follower.name)
             update.poses[follower.name] = follower.push(frame)
@@ -601,6 +612,8 @@ class LiveSession:
             if on_pose is not None and update.poses[follower.name] is not None:
                 on_pose(update, follower.name)
         self._collect(update, sent, on_pose)
+        for follower in followers:
+            update.notes += follower.said()
         update.cpu_ms = (time.thread_time() - c0) * 1000.0
         return update
 
@@ -612,22 +625,16 @@ class LiveSession:
             ready = wait_for_connections(list(waiting), timeout=max(0.0, deadline - time.perf_counter()))
             if not ready:
                 for follower in waiting.values():
-                    self._say(update, follower.stuck())
+                    follower.stuck()
                 return
             for connection in ready:
                 follower = waiting.pop(connection)
-                solved, line = follower.receive()
-                self._say(update, line)
+                solved = follower.receive()
                 update.poses[follower.name] = solved
                 if solved is not None:
                     update.solved_at[follower.name] = time.perf_counter()
                     if on_pose is not None:
                         on_pose(update, follower.name)
-
-    @staticmethod
-    def _say(update: LiveUpdate, line: str | None) -> None:
-        if line:
-            update.notes.append(line)
 
     def posed(self, update: LiveUpdate, name: str, at: float | None = None) -> None:
         """Note that `name`'s pose of `update` is now set (on the armature, or sent): the latency

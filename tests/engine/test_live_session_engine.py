@@ -292,6 +292,21 @@ def test_stop_and_unfollow_end_the_worker_processes_even_while_they_start(take):
     assert still_alive([p for p in (a.process.pid, starting.process.pid, replaced.process.pid) if p]) == []
 
 
+def test_a_worker_ends_when_the_process_that_started_it_dies():
+    """No orphan: a process killed while its worker runs (a crash) takes the worker with it (the
+    worker sees its stdin close)."""
+    code = ("import os, signal, sys, time; sys.path.insert(0, sys.argv[1])\n"
+            "from bodycal_addon.retarget.live_worker import SolverProcess\n"
+            "p = SolverProcess('x')\n"
+            "while p.starting: time.sleep(0.01)\n"
+            "print(p.pid, p.alive(), flush=True)\n"
+            "os.kill(os.getpid(), signal.SIGKILL)\n")
+    out = subprocess.run([sys.executable, "-c", code, str(ENGINE_DIR)], capture_output=True, text=True, timeout=120)
+    pid, alive = out.stdout.split()
+    assert alive == "True" and out.returncode == -signal.SIGKILL, out.stderr
+    assert still_alive([int(pid)]) == []
+
+
 def test_a_worker_that_cannot_start_is_one_line_and_the_avatar_is_solved_here(take, tmp_path):
     rec, user = take
     source = Source()
