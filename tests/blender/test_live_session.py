@@ -219,6 +219,9 @@ def test_two_avatars_follow_from_worker_processes_over_udp_until_disconnect_or_a
     assert bpy.ops.bodycal.follow_live() == {"FINISHED"}
     session = live.session()
     assert all(session.followers[n].in_worker for n in (a.name, b.name))
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)  # before the stream: no pose yet, no role
+    labels = " | ".join(e[1] for e in log if e[0] == "label")
+    assert f"{a.name}: starting its worker process" in labels or f"{a.name}: waiting for devices" in labels
     sender = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "stream", str(path), "--port", str(live.port()),
                                "--loop"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     updates, deadline = [], time.monotonic() + 120.0  # a guard against a broken worker, not a timing
