@@ -18,15 +18,21 @@ same clock, the sleep cut short by a frame's arrival); each mode's time is taken
 turns in rotation, so the load's drift falls on every mode alike. `no_avatar`: nobody follows, so a frame's
 wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
 `three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
-on the root bone; per frame with every avatar posed, from its arrival (`LiveFrame.arrival`, the
+on the root bone, solved in the pump's process; `three_avatars_processes`: the same three, each
+solved in a worker process of its own (retarget/live_worker.py; `--rows` picks the rows); per frame
+with every avatar posed, from its arrival (`LiveFrame.arrival`, the
 receiver's clock) to the last avatar's pose set (`foreach_set` done), median and p95, and its
 stages: arrival -> taken by the pump (also over the frames that found the pump idle, and the share
 of those), taken -> the last avatar solved (the earlier avatars' writes included: each is set as
 soon as it is solved), solved -> posed; each avatar's arrival -> pose in the order written; per
-avatar the solve and the write (wall and the main thread's CPU time); the CPU time on the path
-(the solves and writes); and how far behind the sender's beat the receiver stamped the arrival
-(`arrival - sender time`, less its least value: the receiver's thread waits for the GIL while the
-solve runs, and that wait is before the arrival stamp, so outside the latency measured).
+avatar the solve and the write (wall and the main thread's CPU time; a worker's solve: wall from
+the frame sent to its answer, CPU the worker's, and `worker_wall` its own push); the CPU time on
+the path (the solves and writes, whichever process did them), the pump thread's own CPU (solves
+here, hand-overs to the workers, writes) and the critical path (the pump thread's plus the longest
+worker solve: the workers side by side on cores of their own); and how far behind the sender's
+beat the receiver stamped the arrival (`arrival - sender time`, less its least value: the
+receiver's thread waits for the GIL while a solve runs in its process, and that wait is before the
+arrival stamp, so outside the latency measured).
 `summary`: the p95s, and what a machine with the cores free would see (`_summary`). Targets: p95 <=
 11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per avatar. `memory`:
 `--minutes` (default 3; the issue's figure is 10) of one avatar following while the take is
@@ -37,7 +43,8 @@ growth besides those <= 50 MB, no frame lost. Wall-clock figures on a shared mac
 other processes' time: the CPU figures and the scheduling wait with no solve are what hold.
 
 Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]
-[--sections stream blender] [--modes fixed timer event] [--rounds N] [--minutes M]`.
+[--sections stream blender] [--modes fixed timer event] [--rounds N] [--minutes M]
+[--rows one_avatar three_avatars three_avatars_processes]`.
 """
 
 from __future__ import annotations
