@@ -292,8 +292,12 @@ class WorkerFollower(Follower):
         devices = self._devices(kinds, roles, markers)
         if devices is None:
             return False
-        message = prepare_message(self.user, self.avatar, self.method, devices, list(markers), self.smooth,
-                                  self.plant_feet, self.placement)
+        try:
+            message = prepare_message(self.user, self.avatar, self.method, devices, list(markers), self.smooth,
+                                      self.plant_feet, self.placement)
+        except (TypeError, ValueError) as exc:  # a model JSON cannot hold (NaN): this process says what is wrong
+            self._fall_back(f"its models could not be sent to its worker ({exc})")
+            return False
         if self._send(message, "prepare"):
             self._prepare_sent = True
         return False

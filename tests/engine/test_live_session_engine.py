@@ -325,6 +325,26 @@ def test_a_worker_that_cannot_start_is_one_line_and_the_avatar_is_solved_here(ta
     assert follower.note == notes[0] and not follower.in_worker and poses[-1] is not None
 
 
+def test_a_model_json_cannot_carry_is_one_line_and_the_avatar_is_solved_here(take):
+    rec, user = take
+    avatar = procedural_avatar()
+    avatar.extra["note_from_a_tool"] = float("nan")  # kept in a model, refused by JSON
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    follower = session.follow("a", user, avatar, worker=True)
+    try:
+        _start_workers(session, ["a"], time.monotonic() + 120.0)
+        notes = []
+        for k in range(3):
+            source.deliver(frame_of(rec, k))
+            update = session.pump()
+            notes += update.notes
+        assert len(notes) == 1 and notes[0].startswith("a: its models could not be sent to its worker"), notes
+        assert not follower.in_worker and update.poses["a"] is not None
+    finally:
+        session.stop()
+
+
 def test_the_worker_imports_numpy_and_the_engine_only():
     """What the child process imports (live_worker.py as a top-level `bodycal_addon`, as BOOTSTRAP
     does): no bpy (it runs outside Blender), no python-osc (not on its path in Blender)."""
