@@ -18,15 +18,21 @@ same clock, the sleep cut short by a frame's arrival); each mode's time is taken
 turns in rotation, so the load's drift falls on every mode alike. `no_avatar`: nobody follows, so a frame's
 wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
 `three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
-on the root bone; per frame with every avatar posed, from its arrival (`LiveFrame.arrival`, the
+on the root bone, solved in the pump's process; `three_avatars_processes`: the same three, each
+solved in a worker process of its own (retarget/live_worker.py; `--rows` picks the rows); per frame
+with every avatar posed, from its arrival (`LiveFrame.arrival`, the
 receiver's clock) to the last avatar's pose set (`foreach_set` done), median and p95, and its
 stages: arrival -> taken by the pump (also over the frames that found the pump idle, and the share
 of those), taken -> the last avatar solved (the earlier avatars' writes included: each is set as
 soon as it is solved), solved -> posed; each avatar's arrival -> pose in the order written; per
-avatar the solve and the write (wall and the main thread's CPU time); the CPU time on the path
-(the solves and writes); and how far behind the sender's beat the receiver stamped the arrival
-(`arrival - sender time`, less its least value: the receiver's thread waits for the GIL while the
-solve runs, and that wait is before the arrival stamp, so outside the latency measured).
+avatar the solve and the write (wall and the main thread's CPU time; a worker's solve: wall from
+the frame sent to its answer, CPU the worker's, and `worker_wall` its own push); the CPU time on
+the path (the solves and writes, whichever process did them), the pump thread's own CPU (solves
+here, hand-overs to the workers, writes) and the critical path (the pump thread's plus the longest
+worker solve: the workers side by side on cores of their own); and how far behind the sender's
+beat the receiver stamped the arrival (`arrival - sender time`, less its least value: the
+receiver's thread waits for the GIL while a solve runs in its process, and that wait is before the
+arrival stamp, so outside the latency measured).
 `summary`: the p95s, and what a machine with the cores free would see (`_summary`). Targets: p95 <=
 11.1 ms (one frame) with one avatar, <= 22.2 ms with three; write <= 1 ms per avatar. `memory`:
 `--minutes` (default 3; the issue's figure is 10) of one avatar following while the take is
@@ -37,7 +43,8 @@ growth besides those <= 50 MB, no frame lost. Wall-clock figures on a shared mac
 other processes' time: the CPU figures and the scheduling wait with no solve are what hold.
 
 Run from the repository root: `.venv/bin/python benchmarks/bench_live.py [--quick] [--seconds S]
-[--sections stream blender] [--modes fixed timer event] [--rounds N] [--minutes M]`.
+[--sections stream blender] [--modes fixed timer event] [--rounds N] [--minutes M]
+[--rows one_avatar three_avatars three_avatars_processes]`.
 """
 
 from __future__ import annotations
@@ -161,6 +168,7 @@ def _stage(values) -> dict:
 
 
 PUMP_MODES = ("fixed", "timer", "event")  # how the loop decides when to pump (module docstring)
+ROWS = ("one_avatar", "three_avatars", "three_avatars_processes")  # who follows (module docstring)
 
 
 def _run(live, seconds: float, mode: str, note) -> None:
@@ -186,8 +194,9 @@ class _Frames:
 
     def __init__(self, live, names: list[str]):
         self.live, self.names = live, names
-        self.rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "wait_idle", "stamp")}
-        self.per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu")}
+        self.rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "cpu_pump", "cpu_critical",
+                                     "wait_idle", "stamp")}
+        self.per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu", "worker_wall")}
         self.by_position = [[] for _ in names]  # arrival -> pose set of the 1st, 2nd, ... avatar written
         self.cpu = self.wall = 0.0
         self.loads = []
@@ -221,7 +230,12 @@ class _Frames:
         rows["write"].append((update.posed_at[order[-1]] - update.solved_at[order[-1]]) * 1000.0)
         solve_cpu = [session.followers[n].stats.solve_cpu_ms[-1] for n in names]
         write_cpu = [following[n].write_cpu_ms[-1] for n in names]
-        rows["cpu_path"].append(sum(solve_cpu) + sum(write_cpu))
+        rows["cpu_path"].append(sum(solve_cpu) + sum(write_cpu))  # all the work, whichever process did it
+        rows["cpu_pump"].append(update.cpu_ms)  # the pump's thread: solves here, hand-overs, writes
+        in_workers = [c for n, c in zip(names, solve_cpu, strict=True) if session.followers[n].in_worker]
+        rows["cpu_critical"].append(update.cpu_ms + max(in_workers, default=0.0))  # the workers side by side
+        self.per_avatar["worker_wall"] += [session.followers[n].stats.worker_ms[-1] for n in names
+                                           if session.followers[n].in_worker]
         self.per_avatar["solve"] += [session.followers[n].stats.solve_ms[-1] for n in names]
         self.per_avatar["solve_cpu"] += solve_cpu
         self.per_avatar["write"] += [following[n].write_ms[-1] for n in names]
@@ -243,8 +257,10 @@ class _Frames:
                               "frames_arriving_pump_idle_percent": round(100.0 * len(rows["wait_idle"]) / max(n, 1), 1),
                               "arrival_behind_sender_beat": _stage(stamp)},
                 "cpu_ms_on_the_path": _stage(rows["cpu_path"]),
+                "cpu_ms_pump_thread": _stage(rows["cpu_pump"]),
+                "cpu_ms_critical_path": _stage(rows["cpu_critical"]),
                 "latency_ms_by_avatar_written": [_stage(v) for v in self.by_position] if len(self.names) > 1 else None,
-                "per_avatar_ms": {k: _stage(v) for k, v in self.per_avatar.items()},
+                "per_avatar_ms": {k: _stage(v) for k, v in self.per_avatar.items() if v},
                 "pump_thread_cpu_percent": round(100.0 * self.cpu / max(self.wall, 1e-9), 1),
                 "load_average": load}
 
@@ -268,14 +284,16 @@ def _alternated(live, seconds: float, names: list[str], modes, rounds: int) -> d
 def _summary(out: dict) -> dict:
     """The headline figures: arrival -> pose p95 as measured (each mode), and what a machine with
     the cores free would see: the loop's scheduling wait with no solve in the way (`no_avatar`)
-    plus the CPU time on the path, plus a period when that path is longer than a period (the pump
-    then cannot keep up: the newest frame, taken when it is free, came up to a period before)."""
+    plus the CPU time on the critical path (the pump's thread, and the longest worker's solve when
+    the avatars solve in worker processes side by side, one core each), plus a period when that
+    path is longer than a period (the pump then cannot keep up: the newest frame, taken when it is
+    free, came up to a period before)."""
     summary = {}
-    for key in ("one_avatar", "three_avatars"):
+    for key in ("one_avatar", "three_avatars", "three_avatars_processes"):
         for mode, r in out.get(key, {}).items():
             summary[f"{key}_p95_ms_{mode}"] = r["latency_ms"]["p95"]
             sched = out["no_avatar"][mode]["arrival_to_taken_ms"]
-            cpu = r["cpu_ms_on_the_path"]
+            cpu = r["cpu_ms_critical_path"]
             behind = 1000.0 / FPS if cpu["median"] > 1000.0 / FPS else 0.0
             summary[f"{key}_p95_ms_{mode}_cores_free_estimate"] = round(sched["p95"] + cpu["p95"] + behind, 1)
         if out.get(key):
@@ -313,14 +331,24 @@ def blender_section(args) -> dict:
     try:
         _pump_for(live, 2.0, [])  # warm-up: the empties made
         out["no_avatar"] = _alternated(live, seconds, [], args.modes, args.rounds)
-        for key, avatars in (("one_avatar", arms[:1]), ("three_avatars", arms)):
+        rows = (("one_avatar", arms[:1], False), ("three_avatars", arms, False),
+                ("three_avatars_processes", arms, True))
+        for key, avatars, worker in rows:
+            if key not in args.rows:
+                continue
             for arm in avatars:
-                if arm.name not in live.following():
-                    live.follow(arm, user, "egocentric")
+                follower = live.session().followers.get(arm.name)
+                if follower is None or follower.in_worker != worker:
+                    live.follow(arm, user, "egocentric", worker=worker)
             names = [a.name for a in avatars]
+            deadline = time.perf_counter() + 60.0
+            while any(live.session().followers[n].state != "running" for n in names):  # the workers started
+                assert time.perf_counter() < deadline, [live.session().followers[n].state for n in names]
+                live.pump_for(0.1)
             _pump_for(live, 3.0, names)  # warm-up: the solvers prepared, the stances found
             out[key] = _alternated(live, seconds, names, args.modes, args.rounds)
         out["targets"] = {"one_avatar_p95_ms": 11.1, "three_avatars_p95_ms": 22.2, "write_ms_per_avatar": 1.0}
+        out["cores"] = os.cpu_count()
         out["summary"] = _summary(out)
         live.stop_following()
         if args.minutes:
@@ -369,6 +397,8 @@ def main():
     p.add_argument("--modes", nargs="*", default=list(PUMP_MODES), choices=PUMP_MODES,
                    help="blender: the pump loops measured (fixed 90 Hz, the timer's clock, woken by arrivals)")
     p.add_argument("--rounds", type=int, default=4, help="blender: each mode's time in this many turns, in rotation")
+    p.add_argument("--rows", nargs="*", default=list(ROWS), choices=ROWS,
+                   help="blender: the avatar rows measured (no_avatar always, for the scheduling wait)")
     p.add_argument("--minutes", type=float, default=3.0,
                    help="blender: the memory run's length (the issue's figure is 10 minutes; 0 skips it)")
     args = p.parse_args()

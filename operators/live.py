@@ -6,6 +6,7 @@ import bpy
 
 from ..bodycal_addon.blender import live
 from ..bodycal_addon.core.errors import BodyCalError
+from ..bodycal_addon.retarget.live_session import solve_in_workers
 from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property
@@ -41,6 +42,10 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
         description="Timeline markers for the calibration steps of the recorded take")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last Bake Take's figures, per avatar")
+    use_workers: bpy.props.BoolProperty(
+        name="Solve in Worker Processes", default=True,
+        description="When more than one avatar follows, solve each in a process of its own so that they use several "
+                    "cores (a machine with one core solves them here)")
     wizard_pause: bpy.props.FloatProperty(
         name="Begin Steps After", default=0.0, min=0.0, soft_max=10.0, unit="TIME_ABSOLUTE",
         description="The calibration wizard begins each step by itself this many seconds after the previous one "
@@ -146,10 +151,13 @@ class BODYCAL_OT_follow_live(bpy.types.Operator):
         settings, bake = _settings(context), context.scene.bodycal_bake
         user = user_model(context)
         smooth = context.scene.bodycal_retarget.one_euro()
+        arms = selected_armatures(context)
+        others = [n for n in live.following() if n not in {arm.name for arm in arms}]
+        worker = solve_in_workers(settings.use_workers, len(arms) + len(others))
         names = []
-        for arm in selected_armatures(context):
+        for arm in arms:
             live.follow(arm, user, settings.method, smooth=smooth, plant_feet=bake.plant_feet,
-                        placement=bake.placement, root_motion=bake.root_motion)
+                        placement=bake.placement, root_motion=bake.root_motion, worker=worker)
             names.append(arm.name)
         self.report({"INFO"}, f"Following with {', '.join(names)}")
         return {"FINISHED"}

@@ -54,6 +54,7 @@ class BODYCAL_PT_live(bpy.types.Panel):
         col.prop(settings, "method")
         col.prop(bake, "plant_feet")
         col.prop(bake, "root_motion")
+        col.prop(settings, "use_workers")
         draw_followers(layout, context, session)
 
         col = layout.column()
@@ -138,12 +139,22 @@ def draw_followers(layout, context, session) -> None:
         follower = session.followers.get(name)
         if follower is None:
             continue
-        if follower.solver is None:
+        if follower.note:  # a worker process that ended: it solves here now
+            wrapped_label(box, context, follower.note, icon="ERROR")
+        state = follower.state
+        if state == "starting":
+            wrapped_label(box, context, f"{name}: starting its worker process", icon="TIME")
+            continue
+        if state == "waiting":
             wrapped_label(box, context, f"{name}: waiting for devices with the roles "
                                         f"{', '.join(follower.waiting_for)}", icon="TIME")
             continue
+        if state == "preparing":
+            wrapped_label(box, context, f"{name}: preparing its solver in its worker process", icon="TIME")
+            continue
         write = f" write {np.median(f.write_ms):.2f} ms," if f.write_ms else ""
-        wrapped_label(box, context, f"{name}:{write} {follower.stats.line()}", icon="ARMATURE_DATA")
+        where = " (worker process)" if follower.in_worker else ""
+        wrapped_label(box, context, f"{name}{where}:{write} {follower.stats.line()}", icon="ARMATURE_DATA")
     row = col.row(align=True)
     row.operator("bodycal.follow_live", text="Follow Again", icon="FILE_REFRESH")
     row.operator("bodycal.stop_following", icon="PAUSE")

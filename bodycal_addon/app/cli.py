@@ -198,6 +198,8 @@ def _live_commands(sub) -> None:
     c.add_argument("--role", action="append", metavar="NAME=ROLE",
                    help="a device's role (its serial = head, hand_l, pelvis, ...) when the stream does not say it")
     c.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: Ctrl-C)")
+    c.add_argument("--worker", action="store_true",
+                   help="solve in a worker process of its own (the receiver's thread then never waits for the solve)")
     _filter_argument(c, "the devices (forward only, as they arrive)", on=True)
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: planted while the performer stands on them)")

@@ -150,15 +150,18 @@ def disconnect():
 
 
 def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro | None = None,
-           plant_feet: bool = True, placement: str = "object", root_motion: str = "root") -> Following:
+           plant_feet: bool = True, placement: str = "object", root_motion: str = "root",
+           worker: bool = False) -> Following:
     """`arm` follows the stream from the next frame: `user` (the performer's model) onto the
-    armature's avatar model (measured now when it has none stored) by `method`."""
+    armature's avatar model (measured now when it has none stored) by `method`; `worker`: solved
+    in a process of its own (retarget/live_worker.py: several avatars on several cores)."""
     live = _need_session()
     check_root_motion(root_motion)
     preview.stop(arm.name)  # the preview's pose put back first: the armature as the user left it
     target = prepare_target(arm)
     stop_following(arm.name)  # a second Follow: put back as it was before the first
-    live.follow(arm.name, user, target.avatar, method, smooth=smooth, plant_feet=plant_feet, placement=placement)
+    live.follow(arm.name, user, target.avatar, method, smooth=smooth, plant_feet=plant_feet, placement=placement,
+                worker=worker)
     saved = PoseState.capture(arm)
     saved.detach(arm)
     bone_map = naming.BoneMap.from_dict(target.avatar.extra["rig"]["bone_map"])
@@ -294,6 +297,8 @@ def pump_once() -> LiveUpdate | None:
         return None
     update = live.pump(on_pose=_set_pose)
     if update is not None:
+        for line in update.notes:  # a worker process that ended, a solve that failed (the panel shows it too)
+            print(f"BodyCal live: {line}")
         for name in [n for n in update.poses if n not in _state.following]:  # gone while following
             live.unfollow(name)
         update_empties(update.frame, live.roles, live.kinds)
@@ -324,8 +329,7 @@ def _set_pose(update: LiveUpdate, name: str) -> None:
 
 def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
     """The solved frame as the bake would key it (root motion where asked) on the pose bones."""
-    prepared = follower.solver.solver
-    rig = prepared.rig
+    rig = follower.layout  # the rig's names and root (from the worker, when the follower solves in one)
     t = np.array([update.frame.arrival])
     anim = AvatarAnimation(rig.armature, list(rig.names), solved.basis, rig.names[rig.root],
                            np.asarray(solved.root_location, float), t, follower.method)

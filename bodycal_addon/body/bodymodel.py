@@ -37,6 +37,8 @@ engine consumes it):
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import json
 import math
 import numbers
@@ -76,8 +78,27 @@ def _vec(value, source, field_name, n=3) -> np.ndarray:
     return arr
 
 
+# Numbers are written to 7 decimals (0.1 µm, 1e-7 rad: far below any measurement); `exact` JSON keeps
+# every float64 as it is (repr round-trips exactly), for a model sent to another process that must
+# solve what this one would (retarget/live_worker.py).
+_EXACT = contextvars.ContextVar("bodycal_exact_json", default=False)
+
+
+@contextlib.contextmanager
+def _exactly(exact: bool):
+    token = _EXACT.set(exact)
+    try:
+        yield
+    finally:
+        _EXACT.reset(token)
+
+
+def _num(x, digits: int = 7) -> float:
+    return float(x) if _EXACT.get() else round(float(x), digits)
+
+
 def _list(v):
-    return None if v is None else [round(float(x), 7) for x in np.asarray(v).ravel()]
+    return None if v is None else [_num(x) for x in np.asarray(v).ravel()]
 
 
 @dataclass
@@ -113,13 +134,13 @@ class BoneInfo:
     extra: dict = field(default_factory=dict)
 
     def to_dict(self):
-        d = {"head": self.head, "tail": self.tail, "length": round(float(self.length), 7)}
+        d = {"head": self.head, "tail": self.tail, "length": _num(self.length)}
         if self.right is not None:
             d["right"] = _list(self.right)
         if self.radius_head is not None:
-            d["radius_head"] = round(float(self.radius_head), 7)
+            d["radius_head"] = _num(self.radius_head)
         if self.radius_tail is not None:
-            d["radius_tail"] = round(float(self.radius_tail), 7)
+            d["radius_tail"] = _num(self.radius_tail)
         d.update(self.extra)
         return d
 
@@ -149,7 +170,7 @@ class SurfaceElement:
         if self.center is not None:
             d["center"] = _list(self.center)
         if self.radius is not None:
-            d["radius"] = round(float(self.radius), 7)
+            d["radius"] = _num(self.radius)
         if self.points:
             d["points"] = {k: p.to_dict() for k, p in self.points.items()}
         if self.triangles:
@@ -209,10 +230,15 @@ class BodyModel:
 
     # --- JSON ------------------------------------------------------------------------------
 
-    def to_dict(self) -> dict:
+    def to_dict(self, exact: bool = False) -> dict:
+        """The model as FORMATS.md §3's JSON object; `exact`: every number as it is (not to 7 decimals)."""
+        with _exactly(exact):
+            return self._to_dict()
+
+    def _to_dict(self) -> dict:
         d = {"format": FORMAT, "version": VERSION, "kind": self.kind, "name": self.name}
         if self.reference_time is not None:
-            d["reference_time"] = round(float(self.reference_time), 6)
+            d["reference_time"] = _num(self.reference_time, 6)
         d["joints"] = {k: j.to_dict() for k, j in self.joints.items()}
         d["bones"] = {k: b.to_dict() for k, b in self.bones.items()}
         d["surface"] = [e.to_dict() for e in self.surface]
@@ -222,7 +248,9 @@ class BodyModel:
         d.update(self.extra)
         return d
 
-    def to_json(self) -> str:
+    def to_json(self, exact: bool = False) -> str:
+        if exact:  # for another process, not a file: compact
+            return json.dumps(self.to_dict(exact=True), allow_nan=False)
         return json.dumps(self.to_dict(), indent=1, allow_nan=False)
 
     def save(self, path, *, overwrite: bool = True, inputs=(), field: str = "-o") -> Path:
@@ -261,7 +289,14 @@ class BodyModel:
         return cls.from_dict(data, source=source)
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "body model") -> BodyModel:
+    def from_dict(cls, data: dict, source: str = "body model", exact: bool = False) -> BodyModel:
+        """A model from its JSON object, checked field by field (one BodyCalError naming the field);
+        `exact`: the numbers kept as they are (`to_dict(exact=True)`'s), none rounded on the way."""
+        with _exactly(exact):
+            return cls._from_dict(data, source)
+
+    @classmethod
+    def _from_dict(cls, data: dict, source: str) -> BodyModel:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise BodyCalError(f"not a body model (format must be '{FORMAT}')", source=source, field="format")
         _check_tree(data, source)

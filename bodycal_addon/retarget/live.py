@@ -52,6 +52,14 @@ class LiveSolver:
             self.first_solved = new.start
         return self.solver.solve(new.start, new.stop)
 
+    def push_newer(self, time: float, positions, rotations, valid, markers=None, marker_valid=None
+                   ) -> SolvedFrames | None:
+        """`push` one frame unless it is not newer than the last pushed (a sender's clock that went
+        back, a replay looping: not a new moment; None then)."""
+        if self.recording.frame_count and time <= self.recording.time[-1]:
+            return None
+        return self.push(time, positions, rotations, valid, markers, marker_valid)
+
     @property
     def notes(self) -> list[str]:
         return self.solver.notes if self.solver is not None else []

@@ -78,6 +78,8 @@ def test_zip_built_by_blender_tool_installs_and_uninstalls_cleanly(tmp_path):
     assert "bodycal_addon" in report["installed_files"]
     assert report["wheel"] == {"installed": True, "on_path": True, "receiver_ran": True}
     assert "tqdm" in report["wheel_packages"]
+    # A live follower's worker process runs the installed engine (not the repository's) and solves.
+    assert report["worker"] == {"engine_dir": True, "error": "", "poses": 3, "prepared": "ready", "ended": True}
     assert not report["module_enabled_after"]
     assert report["after_disable"]["classes"] == []
     assert report["after_disable"]["operators"] == []

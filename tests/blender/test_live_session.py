@@ -5,18 +5,22 @@ equal to a bake of the saved file done the normal way, and every armature put ba
 was (after Stop, and in a file saved while following)."""
 
 import importlib
+import os
+import subprocess
+import sys
 import time
 
 import bpy
 import numpy as np
 import pytest
 import ui_layout
+from processes import still_alive
 from repo_paths import REPO
 
 from bodycal_addon.blender import calibration_scene, recording_scene
 from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 from bodycal_addon.core import paths
-from bodycal_addon.recording.io import load_recording
+from bodycal_addon.recording.io import load_recording, save_recording
 from bodycal_addon.recording.live.sender import RecordingMessages, VmcSender
 from bodycal_addon.recording.live.vmc import AVAILABLE, TIME, bundles, message
 from bodycal_addon.recording.model import Device
@@ -82,6 +86,7 @@ def _scene(take, tmp_path):
     scene.bodycal_bake.root_motion = "pelvis"
     scene.bodycal_live.folder = str(tmp_path)
     scene.bodycal_live.port = 0
+    scene.bodycal_live.use_workers = False  # solved here, every frame pumped (the worker test turns it on)
     return a, b
 
 
@@ -193,6 +198,75 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
     assert bpy.ops.bodycal.disconnect_live() == {"FINISHED"}
     assert not [o for o in bpy.data.objects if o.name.startswith("live.")]
     assert "BodyCal Live" not in bpy.data.collections
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="followers solve in worker processes on 2 cores or more")
+def test_two_avatars_follow_from_worker_processes_over_udp_until_disconnect_or_a_file_load(take, tmp_path):
+    """`bodycal stream` in its own process sends the take over UDP; Follow with two avatars selected
+    solves each in a worker process (the panel's default): each armature shows exactly what a
+    LiveSolver here gives for the frames its worker was sent, and Disconnect, then a file loaded
+    while following, leave no worker running."""
+    rec, _truth = take
+    a, b = _scene(take, tmp_path)
+    path = tmp_path / "sent.bcrec.json"
+    save_recording(rec, path, up="Z")
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    scene = bpy.context.scene
+    scene.bodycal_live.use_workers = True
+    scene.bodycal_bake.armature = None
+    for arm in (a, b):
+        arm.select_set(True)
+    assert bpy.ops.bodycal.follow_live() == {"FINISHED"}
+    session = live.session()
+    assert all(session.followers[n].in_worker for n in (a.name, b.name))
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)  # before the stream: no pose yet, no role
+    labels = " | ".join(e[1] for e in log if e[0] == "label")
+    assert f"{a.name}: starting its worker process" in labels or f"{a.name}: waiting for devices" in labels
+    sender = subprocess.Popen([sys.executable, "-m", "bodycal_addon", "stream", str(path), "--port", str(live.port()),
+                               "--loop"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    updates, deadline = [], time.monotonic() + 120.0  # a guard against a broken worker, not a timing
+    try:
+        while min(session.followers[n].stats.frames for n in (a.name, b.name)) < 10:
+            assert time.monotonic() < deadline and sender.poll() is None, [f.state for f in session.followers.values()]
+            live.pump_for(0.2, on_update=updates.append)
+    finally:
+        sender.terminate()
+        sender.communicate(timeout=30)
+    assert live.last_error() == ""
+    for arm in (a, b):
+        follower = session.followers[arm.name]
+        assert follower.in_worker and not follower.note
+        ref = LiveSolver(follower.user, follower.avatar, "egocentric", plant_feet=True,
+                         devices=[Device(n, session.kinds[n], session.roles[n]) for n in follower.order],
+                         marker_names=list(follower.marker_order))
+        shown = None
+        for update in updates:
+            if arm.name in update.pushed:
+                want = ref.push_newer(*follower.arrays(update.frame))
+                if update.poses[arm.name] is not None:
+                    np.testing.assert_array_equal(update.poses[arm.name].basis, want.basis)
+                    shown = want
+        bones = arm.pose.bones
+        rows = [bones.find(n) for n in follower.bone_names]
+        np.testing.assert_allclose(_pose(arm)["rotation_quaternion"][rows], shown.basis[0], atol=2 * F32)
+        root = bones.find(follower.bone_names[ref.solver.rig.root])
+        np.testing.assert_allclose(_pose(arm)["location"][root], shown.root_location[0], atol=1e-6)
+    log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)
+    labels = " | ".join(e[1] for e in log if e[0] == "label")
+    assert f"{a.name} (worker process): write" in labels
+    pids = [session.followers[n].process.pid for n in (a.name, b.name)]
+    assert bpy.ops.bodycal.disconnect_live() == {"FINISHED"}
+    assert still_alive(pids) == []
+    # Following again, then another file loaded: the session ends with its workers.
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    assert bpy.ops.bodycal.follow_live() == {"FINISHED"}
+    followers = list(live.session().followers.values())
+    while any(f.process.pid is None and f.state == "starting" for f in followers):
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    pids = [f.process.pid for f in followers]
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert not live.connected() and still_alive(pids) == []
 
 
 def test_a_file_saved_while_following_holds_no_live_pose_and_no_live_empty(take, tmp_path):

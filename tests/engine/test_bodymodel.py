@@ -92,6 +92,28 @@ def test_capsule_axis_offsets_round_trip(tmp_path):
     np.testing.assert_allclose(back.element("capsule:forearm_l").axis_offsets(), [[0.001, 0, -0.02], [0, 0, -0.015]])
 
 
+def test_exact_json_carries_every_float_as_it_is_and_files_keep_seven_decimals():
+    """What a live worker process is sent (retarget/live_worker.py): a model made in memory (not to
+    7 decimals) read back from its exact JSON has every number bit for bit; a file still rounds."""
+    data = json.loads(json.dumps(EXAMPLE))
+    model = BodyModel.from_dict(data)
+    third = np.array([1 / 3, 2 / 3, -1 / 7])
+    model.joints["shoulder_l"].world = third.copy()
+    model.bones["forearm_l"].length = 0.26 + 1e-12
+    model.element("sphere:skull").center = third / 10
+    model.offsets["hip_l"] = Offset("pelvis", third, np.array([1, 1e-9, 0, 0.0]), np.array([0.6, 0.8, 0, 1 / 3]))
+    model.reference_time = 1 / 3
+    back = BodyModel.from_dict(json.loads(model.to_json(exact=True)), exact=True)
+    assert back.joints["shoulder_l"].world.tolist() == third.tolist()
+    assert back.bones["forearm_l"].length == 0.26 + 1e-12 and back.reference_time == 1 / 3
+    assert back.element("sphere:skull").center.tolist() == (third / 10).tolist()
+    assert back.offsets["hip_l"].r0_joint.tolist() == [0.6, 0.8, 0, 1 / 3]
+    assert back.to_json(exact=True) == model.to_json(exact=True)
+    filed = BodyModel.from_dict(json.loads(model.to_json()))  # a file's precision: 7 decimals (6 for the time)
+    assert filed.joints["shoulder_l"].world.tolist() == [0.3333333, 0.6666667, -0.1428571]
+    assert filed.bones["forearm_l"].length == 0.26 and filed.reference_time == 0.333333
+
+
 # Every bad body.json gets one line naming the file and the field (FORMATS.md §3).
 
 @pytest.mark.parametrize("mutate, field, words", [

@@ -151,34 +151,44 @@ def test_stream_retarget_sends_the_avatars_bones(tmp_path):
 
 
 def test_live_retargets_a_stream_and_sends_the_avatar(tmp_path):
-    """`bodycal live`: a take streamed by `bodycal stream` (its devices' roles announced) is solved
-    frame by frame and the avatar's bones arrive at python-osc's server; the summary line counts
-    the frames solved."""
+    """`bodycal live`, solving here and with `--worker` (side by side, each with its own stream): a
+    take streamed by `bodycal stream` (its devices' roles announced) is solved frame by frame and
+    the avatar's bones arrive at python-osc's server; the summary line counts the frames solved."""
     perf = synthetic.make_performer(seed=0)
     rec, truth = synthetic.record_session(perf, motions=("clap",), calibration=["tpose"], noise_mm=0.0,
                                           wobble_mm=0.0)
     save_recording(rec.window(0, 120), tmp_path / "take.bcrec.json")
     truth.body_model().save(tmp_path / "user.body.json")
     procedural_avatar().save(tmp_path / "avatar.body.json")
-    listen = free_port()
-    with OscServer() as srv:
-        live = subprocess.Popen(command("live", "--user", tmp_path / "user.body.json", "--avatar",
-                                        tmp_path / "avatar.body.json", "--port", listen, "--send",
-                                        f"127.0.0.1:{srv.port}", "--duration", 14),
-                                cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        first = live.stdout.readline()
-        assert "listening on" in first, first + live.stderr.read()
+    ways = ((), ("--worker",))
+    listen = [free_port() for _ in ways]
+    with OscServer() as here, OscServer() as there:
+        servers = (here, there)
+        lives = [subprocess.Popen(command("live", "--user", tmp_path / "user.body.json", "--avatar",
+                                          tmp_path / "avatar.body.json", "--port", port, "--send",
+                                          f"127.0.0.1:{srv.port}", "--duration", 14, *extra),
+                                  cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for port, srv, extra in zip(listen, servers, ways, strict=True)]
+        for live in lives:
+            first = live.stdout.readline()
+            assert "listening on" in first, first + live.stderr.read()
         # At a quarter of real time (44 ms a frame) a solve keeps up even on a loaded machine: the
         # test is that frames are solved and sent, not how fast (bench_live_solver measures that).
-        sent = bodycal("stream", tmp_path / "take.bcrec.json", "--port", listen, "--speed", 0.25, timeout=60)
-        assert sent.returncode == 0, sent.stderr
-        out, err = live.communicate(timeout=30)
-    assert live.returncode == 0, err
-    solved = [a for a, _ in srv.messages if a == "/VMC/Ext/T"]
-    bones = {args[0] for a, args in srv.messages if a == "/VMC/Ext/Bone/Pos"}
-    assert len(solved) >= 30, out  # a loaded machine may drop some: the receiver says how many
-    assert {"Hips", "LeftUpperArm", "RightHand"} <= bones
-    assert f"solved and sent {len(solved)} frames" in out.splitlines()[-1]
+        streams = [subprocess.Popen(command("stream", tmp_path / "take.bcrec.json", "--port", port, "--speed", 0.25),
+                                    cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                   for port in listen]
+        for stream in streams:
+            _out, err = stream.communicate(timeout=60)
+            assert stream.returncode == 0, err
+        outs = [live.communicate(timeout=30) for live in lives]
+    for live, (out, err), srv, extra in zip(lives, outs, servers, ways, strict=True):
+        assert live.returncode == 0, err
+        solved = [a for a, _ in srv.messages if a == "/VMC/Ext/T"]
+        bones = {args[0] for a, args in srv.messages if a == "/VMC/Ext/Bone/Pos"}
+        assert len(solved) >= 30, out  # a loaded machine may drop some: the receiver says how many
+        assert {"Hips", "LeftUpperArm", "RightHand"} <= bones
+        last = out.splitlines()[-1]
+        assert f"solved and sent {len(solved)} frames" in last and ("in the worker process" in last) == bool(extra)
 
 
 def test_live_refuses_what_cannot_work_in_one_line(tmp_path):

@@ -1,15 +1,26 @@
 """The live session (retarget/live_session.py), fed by a source stand-in on this thread: the device
 table (kinds, roles with the user's first, rates, frames missed), the recorder seeing every frame
-while the pump takes only the newest, and a follower that waits for the roles it needs and then
-gives LiveSolver's poses."""
+while the pump takes only the newest, a follower that waits for the roles it needs and then
+gives LiveSolver's poses, and followers solved in worker processes: the same poses, a worker that
+ends, hangs or cannot start said in one line, none left running after Stop."""
+
+import ast
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
+from processes import still_alive
 
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.recording.live.source import LatestSlot, LiveFrame, SourceStats
+from bodycal_addon.recording.model import Device
 from bodycal_addon.retarget.live import LiveSolver
-from bodycal_addon.retarget.live_session import LiveSession
+from bodycal_addon.retarget.live_session import LiveSession, RigLayout, WorkerFollower
+from bodycal_addon.retarget.live_worker import ENGINE_DIR
 from bodycal_dev import synthetic
 from bodycal_dev.retarget_fixtures import procedural_avatar
 
@@ -164,3 +175,183 @@ def test_the_pump_learns_the_streams_beat_and_says_when_to_look_again(take):
     assert session.clock.period == pytest.approx(1 / 90.0)
     now = 1.0 + 9 / 90.0 + 0.004  # 4 ms after the last frame: the next is due 1/90 s after it
     assert session.next_delay(now) == pytest.approx(1 / 90.0 - 0.004 + session.clock.margin_s)
+
+
+# --- followers in worker processes (retarget/live_worker.py) ------------------------------------------
+
+
+def _start_workers(session, names, deadline):
+    """Until every worker process is up (the follower then waits for devices)."""
+    while any(session.followers[n].state == "starting" for n in names):
+        assert time.monotonic() < deadline, [session.followers[n].process.error for n in names]
+        time.sleep(0.01)
+
+
+def _stream_until_solving(session, source, rec, names, solved: int, deadline, k=0):
+    """Frames delivered and pumped until each named follower has given `solved` poses; the
+    updates. While a worker prepares, the frames it is not sent are skipped, so the test waits a
+    little between frames then (a guard only: nothing is timed)."""
+    updates = []
+    while min(sum(u.poses.get(n) is not None for u in updates) for n in names) < solved:
+        assert time.monotonic() < deadline and k < rec.frame_count, [session.followers[n].state for n in names]
+        source.deliver(frame_of(rec, k, markers=True))
+        updates.append(session.pump())
+        k += 1
+        if any(session.followers[n].state != "running" for n in names):
+            time.sleep(0.005)
+    return updates, k
+
+
+def test_followers_in_worker_processes_give_live_solvers_poses_bit_for_bit(take):
+    """Two avatars solved in worker processes: every pose (bone values, root, joints, targets) is
+    what a LiveSolver of this process gives for the frames each worker was sent, to the last bit
+    (the models cross as exact JSON), and the rig's names and root the worker reports are the
+    solver's."""
+    rec, user = take
+    models = {"a": procedural_avatar(), "b": procedural_avatar(name="tall", scale=1.1)}
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    followers = {n: session.follow(n, user, m, "egocentric", worker=True) for n, m in models.items()}
+    try:
+        deadline = time.monotonic() + 120.0
+        _start_workers(session, list(models), deadline)
+        updates, _k = _stream_until_solving(session, source, rec, list(models), 12, deadline)
+        assert all(f.in_worker and not f.note for f in followers.values())
+        kinds, roles = session.kinds, session.roles
+        for name, follower in followers.items():
+            devices = [Device(n, kinds[n], roles[n]) for n in follower.order]
+            ref = LiveSolver(user, models[name], "egocentric", devices=devices,
+                             marker_names=list(follower.marker_order))
+            compared = 0
+            for update in updates:
+                if name not in update.pushed:
+                    continue
+                want, got = ref.push_newer(*follower.arrays(update.frame)), update.poses[name]
+                if got is None:
+                    continue
+                for x, y in ((got.basis, want.basis), (got.root_location, want.root_location),
+                             (got.joints, want.joints)):
+                    np.testing.assert_array_equal(x, y)
+                assert got.targets.keys() == want.targets.keys()
+                for key in want.targets:
+                    np.testing.assert_array_equal(got.targets[key], want.targets[key])
+                compared += 1
+            assert compared >= 12 and follower.stats.frames == compared
+            rig = ref.solver.rig
+            assert follower.layout == RigLayout(rig.armature, tuple(rig.names), rig.root)
+            assert follower.bone_names == list(rig.names)
+    finally:
+        session.stop()
+
+
+def test_a_worker_that_ends_or_hangs_is_one_line_and_its_avatar_goes_on_here(take, monkeypatch):
+    """One worker killed, one stopped (it gives no answer) mid-session: each is said once, the
+    stopped one is killed, and both avatars go on being solved in this process."""
+    from bodycal_addon.retarget import live_session
+
+    monkeypatch.setattr(live_session, "ANSWER_S", 0.5)
+    rec, user = take
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    followers = {n: session.follow(n, user, procedural_avatar(), "egocentric", worker=True) for n in ("a", "b")}
+    try:
+        deadline = time.monotonic() + 120.0
+        _start_workers(session, ["a", "b"], deadline)
+        _updates, first = _stream_until_solving(session, source, rec, ["a", "b"], 2, deadline)
+        pids = {n: f.process.pid for n, f in followers.items()}
+        os.kill(pids["a"], signal.SIGKILL)
+        os.kill(pids["b"], signal.SIGSTOP)
+        notes = []
+        for k in range(first, first + 10):
+            source.deliver(frame_of(rec, k, markers=True))
+            update = session.pump()
+            notes += update.notes
+        assert len(notes) == 2, notes
+        assert any(line.startswith("a: its worker process ended") for line in notes)
+        assert any(line.startswith("b: its worker process gave no answer in 0.5 s") for line in notes)
+        assert all("solving it in this process" in line for line in notes)
+        assert not followers["a"].in_worker and not followers["b"].in_worker
+        assert update.poses["a"] is not None and update.poses["b"] is not None  # solved here now
+        assert still_alive(pids.values()) == []  # the stopped one killed and reaped
+    finally:
+        session.stop()
+
+
+def test_stop_and_unfollow_end_the_worker_processes_even_while_they_start(take):
+    rec, user = take
+    session = LiveSession(Source())
+    a = session.follow("a", user, procedural_avatar(), worker=True)
+    _start_workers(session, ["a"], time.monotonic() + 120.0)
+    starting = session.follow("b", user, procedural_avatar(), worker=True)  # stopped before it is up
+    replaced = session.follow("c", user, procedural_avatar(), worker=True)
+    session.follow("c", user, procedural_avatar(), worker=False)  # a follower replaced ends its worker
+    assert replaced.process.connection is None and not replaced.process.alive()
+    session.unfollow("a")
+    assert not a.process.alive()
+    session.stop()
+    assert still_alive([p for p in (a.process.pid, starting.process.pid, replaced.process.pid) if p]) == []
+
+
+def test_a_worker_ends_when_the_process_that_started_it_dies():
+    """No orphan: a process killed while its worker runs (a crash) takes the worker with it (the
+    worker sees its stdin close)."""
+    code = ("import os, signal, sys, time; sys.path.insert(0, sys.argv[1])\n"
+            "from bodycal_addon.retarget.live_worker import SolverProcess\n"
+            "p = SolverProcess('x')\n"
+            "while p.starting: time.sleep(0.01)\n"
+            "print(p.pid, p.alive(), flush=True)\n"
+            "os.kill(os.getpid(), signal.SIGKILL)\n")
+    out = subprocess.run([sys.executable, "-c", code, str(ENGINE_DIR)], capture_output=True, text=True, timeout=120)
+    pid, alive = out.stdout.split()
+    assert alive == "True" and out.returncode == -signal.SIGKILL, out.stderr
+    assert still_alive([int(pid)]) == []
+
+
+def test_a_worker_that_cannot_start_is_one_line_and_the_avatar_is_solved_here(take, tmp_path):
+    rec, user = take
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    follower = WorkerFollower("a", user, procedural_avatar(), executable=str(tmp_path / "no-python"))
+    session.followers["a"] = follower
+    notes, poses = [], []
+    for k in range(5):
+        time.sleep(0.02)  # the start fails on its thread
+        source.deliver(frame_of(rec, k))
+        update = session.pump()
+        notes += update.notes
+        poses.append(update.poses["a"])
+    assert len(notes) == 1 and notes[0].startswith("a: no worker process (FileNotFoundError") and \
+        notes[0].endswith("solving it in this process from now on"), notes
+    assert follower.note == notes[0] and not follower.in_worker and poses[-1] is not None
+
+
+def test_a_model_json_cannot_carry_is_one_line_and_the_avatar_is_solved_here(take):
+    rec, user = take
+    avatar = procedural_avatar()
+    avatar.extra["note_from_a_tool"] = float("nan")  # kept in a model, refused by JSON
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    follower = session.follow("a", user, avatar, worker=True)
+    try:
+        _start_workers(session, ["a"], time.monotonic() + 120.0)
+        notes = []
+        for k in range(3):
+            source.deliver(frame_of(rec, k))
+            update = session.pump()
+            notes += update.notes
+        assert len(notes) == 1 and notes[0].startswith("a: its models could not be sent to its worker"), notes
+        assert not follower.in_worker and update.poses["a"] is not None
+    finally:
+        session.stop()
+
+
+def test_the_worker_imports_numpy_and_the_engine_only():
+    """What the child process imports (live_worker.py as a top-level `bodycal_addon`, as BOOTSTRAP
+    does): no bpy (it runs outside Blender), no python-osc (not on its path in Blender)."""
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import bodycal_addon.retarget.live_worker; "
+            "print(sorted({m.split('.')[0] for m in sys.modules}))")
+    out = subprocess.run([sys.executable, "-I", "-c", code, str(ENGINE_DIR)], capture_output=True, text=True,
+                         check=True)
+    top = set(ast.literal_eval(out.stdout.strip()))
+    assert {"numpy", "bodycal_addon"} <= top
+    assert not top & {"bpy", "mathutils", "pythonosc", "bodycal_dev", "tqdm", "dask"}

@@ -25,6 +25,39 @@ def registered():
     return {"operators": ops, "panels": panels, "categories": categories, "classes": classes}
 
 
+def worker_probe(installed_dir):
+    import time
+
+    sys.path.append(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))  # bodycal_dev
+    from bodycal_dev import synthetic
+    from bodycal_dev.retarget_fixtures import procedural_avatar
+
+    worker = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.retarget.live_worker")
+    model = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.recording.model")
+    rec, truth = synthetic.record_session(synthetic.make_performer(seed=1), motions=("clap",),
+                                          calibration=["tpose"], motion_seconds=0.5)
+    process = worker.SolverProcess("probe")
+    deadline = time.monotonic() + 120.0
+    while process.starting and time.monotonic() < deadline:
+        time.sleep(0.01)
+    out = {"engine_dir": str(worker.ENGINE_DIR) == os.path.realpath(installed_dir), "error": process.error,
+           "poses": 0}
+    if process.connection is not None:
+        used = [i for i, d in enumerate(rec.devices) if d.role]
+        devices = [model.Device(rec.devices[i].name, rec.devices[i].kind, rec.devices[i].role) for i in used]
+        process.connection.send(worker.prepare_message(truth.body_model(), procedural_avatar(), "egocentric",
+                                                       devices, [], None, True, "object"))
+        out["prepared"] = process.connection.recv()[0]
+        for k in range(3):
+            process.connection.send(worker.frame_message(rec.time[k], rec.positions[k, used],
+                                                         rec.rotations[k, used], rec.valid[k, used], None, None))
+            out["poses"] += process.connection.recv()[0] == "pose"
+    pid = process.pid
+    process.close()
+    out["ended"] = pid is not None and process.exit_code() is not None
+    return out
+
+
 zip_path = sys.argv[1]
 report = {"before": registered()}
 result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
@@ -46,6 +79,9 @@ live = receiver.VmcReceiver(port=0)
 live.start()
 report["wheel"]["receiver_ran"] = live.running
 live.stop()
+# A live follower's worker process from the installed files: the child imports the engine from the
+# installed extension's folder as a top-level package (no bl_ext there) and solves a frame.
+report["worker"] = worker_probe(installed_dir)
 # The manifest's wheels, unpacked by Blender into the user extensions' own site-packages.
 user_files = os.walk(os.environ["BLENDER_USER_RESOURCES"])
 report["wheel_packages"] = sorted({os.path.basename(d) for d, _sub, files in user_files

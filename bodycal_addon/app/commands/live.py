@@ -1,5 +1,5 @@
 """`bodycal live --user USER.body.json --avatar AVATAR.body.json --send HOST:PORT [--method M] [--port N]
-[--bind ADDRESS] [--role NAME=ROLE ...] [--duration S] [--no-filter] [--no-plant-feet]` (FORMATS.md §6):
+[--bind ADDRESS] [--role NAME=ROLE ...] [--duration S] [--worker] [--no-filter] [--no-plant-feet]` (FORMATS.md §6):
 a performer's VMC stream retargeted frame by frame and sent on as the avatar's VMC bones.
 
 The receiver's latest frame is solved as soon as it is taken (`retarget.live_session.LiveSession`,
@@ -8,8 +8,10 @@ the Live panel's too, whose follower runs `retarget.live.LiveSolver`: the causal
 (`output.vmc_bones.AvatarVmcOut`); frames that arrive while a solve runs are dropped by the
 receiver, counted and said. Devices get their roles from the stream's announcements (`bodycal
 stream` sends them) or `--role NAME=ROLE`; the solve starts once the HMD, both hands, the pelvis and
-both feet have roles and have been seen. Ctrl-C (or `--duration`) ends it; a summary line says how
-many frames were solved and how long a solve took."""
+both feet have roles and have been seen. `--worker` solves in a worker process of its own
+(`retarget.live_worker`): the receiver's thread then never waits for the solve to let go of the
+GIL. Ctrl-C (or `--duration`) ends it; a summary line says how many frames were solved and how
+long a solve took."""
 
 from __future__ import annotations
 
@@ -55,11 +57,14 @@ def run(args) -> int:
     smooth = None if args.filter is None else OneEuro.parse(args.filter)
     rx = VmcReceiver(check_port(args.port), args.bind)
     live = LiveSession(rx, roles)  # the one live path: Blender's Live panel pumps the same session
-    live.follow(AVATAR, user, avatar, args.method, smooth=smooth, plant_feet=args.plant_feet)
+    live.follow(AVATAR, user, avatar, args.method, smooth=smooth, plant_feet=args.plant_feet, worker=args.worker)
     loop = _Loop(live, args)
-    with stop_on_signals() as stop, rx, VmcSender(host, out_port) as tx:
-        console.say(f"listening on {args.bind}:{args.port}, sending the avatar to {host}:{out_port}")
-        loop.run(tx, stop)
+    try:
+        with stop_on_signals() as stop, rx, VmcSender(host, out_port) as tx:
+            console.say(f"listening on {args.bind}:{args.port}, sending the avatar to {host}:{out_port}")
+            loop.run(tx, stop)
+    finally:
+        live.stop()  # the worker process ends with the command
     console.say(loop.summary())
     return 0
 
@@ -88,6 +93,8 @@ class _Loop:
             if update is None:
                 time.sleep(POLL_S)
                 continue
+            for line in update.notes:  # a worker process that ended: solved here from then on
+                console.say(line)
             solved = update.poses.get(AVATAR)
             if solved is not None:
                 t = update.frame.sender_time if update.frame.sender_time is not None else update.frame.arrival
@@ -97,9 +104,14 @@ class _Loop:
 
     def progress(self) -> str:
         follower = self.live.followers[AVATAR]
-        if follower.solver is None:
+        state = follower.state
+        if state == "starting":
+            return "starting the worker process"
+        if state == "waiting":
             return (f"waiting for devices with the roles {', '.join(follower.waiting_for)} "
                     f"({len(self.live.kinds)} devices seen)")
+        if state == "preparing":
+            return "preparing the solver in the worker process"
         return f"{follower.stats.frames} frames solved, {self.live.stats.line()}"
 
     def summary(self) -> str:
@@ -107,5 +119,6 @@ class _Loop:
         if not self.sent:
             return f"no frame solved ({self.live.stats.line()})"
         ms = np.asarray(stats.solve_ms)
+        where = " in the worker process" if self.live.followers[AVATAR].in_worker else ""
         return (f"solved and sent {self.sent} frames ({self.live.stats.line()}); a solve took {np.median(ms):.1f} ms "
-                f"median, {np.percentile(ms, 99):.1f} ms p99 (the last {len(ms)})")
+                f"median, {np.percentile(ms, 99):.1f} ms p99{where} (the last {len(ms)})")
