@@ -13,7 +13,7 @@ from ...core.errors import BodyCalError
 from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
-from .surface import JointTable, PosedSurface, _selection
+from .surface import JointTable, PosedSurface
 from .weights import normalise_weights, raw_weights
 
 SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
@@ -56,18 +56,27 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
     """Everything frame-independent: exclusions and kinematic paths as index arrays (Delahaye 2023,
     appendix C: "chains are pre-computed and stored so that the tree search is not performed in
     every frame"). Excluded (own-chain) pairs have no chain at all: their weight is zero."""
-    P, E = len(target_names), len(element_ids)
+    P = len(target_names)
+    return _row_plan(target_names, (element_ids,) * P, (roots,) * P,
+                     tuple(own_chain_elements(n) for n in target_names))
+
+
+@lru_cache(maxsize=64)
+def _row_plan(target_names: tuple[str, ...], row_ids: tuple[tuple[str, ...], ...],
+              row_roots: tuple[tuple[str, ...], ...], row_excluded: tuple[frozenset, ...]) -> _Plan:
+    """`_plan` with each target's own elements (`row_ids`, as many per target) and roots, and the
+    elements it excludes (`row_excluded`): several groups' targets side by side (_fused_groups)."""
+    P, E = len(target_names), len(row_ids[0]) if row_ids else 0
     exclude = np.zeros((P, E), bool)
     pe, cr, paths = [], [], []
     for p, name in enumerate(target_names):
-        own = own_chain_elements(name)
-        for e, eid in enumerate(element_ids):
-            if eid in own:
+        for e, (eid, root) in enumerate(zip(row_ids[p], row_roots[p])):
+            if eid in row_excluded[p]:
                 exclude[p, e] = True
                 continue
-            paths.append(kinematic_path(roots[e], name))
+            paths.append(kinematic_path(root, name))
             pe.append(p * E + e)
-            cr.append(GRAPH_NODES.index(roots[e]))
+            cr.append(GRAPH_NODES.index(root))
     order = np.array(sorted(range(len(paths)), key=lambda i: -len(paths[i])), int)
     longest = len(paths[order[0]]) if paths else 0
     slots = [np.array([paths[i][j] for i in order if len(paths[i]) > j], int) for j in range(longest)]
@@ -194,13 +203,25 @@ class _UserBlock:
 @dataclass
 class _Group:
     """Targets that exclude the same elements (own_chain_elements), mapped on the others only:
-    an excluded pair has no weight, so projecting on it is wasted work."""
+    an excluded pair has no weight, so projecting on it is wasted work. Or, for a few frames,
+    several such groups side by side (`_fused_groups`), each target on its own elements."""
 
     targets: np.ndarray  # indices into the target names
     names: tuple[str, ...]
-    elements: np.ndarray | None  # indices of the elements kept (None: all)
+    elements: np.ndarray | None  # indices of the elements kept (None: all), the same for every target
     plan: _Plan
     blocks: list[_UserBlock]
+    # Fused groups: (P E') each pair's flat index p E + e into every target on every element (E'
+    # elements per target), and (P, E') each pair's element
+    pairs: np.ndarray | None = None
+    columns: np.ndarray | None = None
+
+    def cols(self, E: int) -> np.ndarray:
+        """(P, E') the element of each of the group's pairs."""
+        if self.columns is not None:
+            return self.columns
+        keep = np.arange(E) if self.elements is None else self.elements
+        return np.broadcast_to(keep, (len(self.targets), len(keep)))
 
 
 class PreparedTargets:
@@ -222,9 +243,10 @@ class PreparedTargets:
         return self.pts.shape[0]
 
     def map(self, avatar_surface: PosedSurface, avatar_bones: dict[str, np.ndarray] | None = None, *,
-            turn_v: bool = False, details: dict | None = None) -> np.ndarray:
+            turn_v: bool = False, details: dict | None = None, targets: list[str] | None = None) -> np.ndarray:
         """The avatar's targets (F, P, 3) for the avatar posed as `avatar_surface` (same frames and
-        element_ids as the user's surface); see retarget_points."""
+        element_ids as the user's surface); see retarget_points. `targets`: map only these (of the
+        names prepared), (F, len(targets), 3) in their order."""
         us = self.user_surface
         if us.element_ids != avatar_surface.element_ids:
             raise BodyCalError("user and avatar surfaces have different elements",
@@ -232,7 +254,10 @@ class PreparedTargets:
         F = self.frames
         if avatar_surface.frames != F:
             raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
-        for g in self.groups:
+        wanted = None if targets is None else [self.names.index(n) for n in targets]
+        todo = [(gi, g) for gi, g in enumerate(self.groups)
+                if wanted is None or not set(wanted).isdisjoint(g.targets.tolist())]
+        for _, g in todo:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         dtype = self.pts.dtype
         ab = _bone_vectors(avatar_surface, avatar_bones, F, dtype)
@@ -250,38 +275,41 @@ class PreparedTargets:
         # Every target re-posed on every element at once, each group's pairs taken from it (the
         # same values: the re-posing is per pair); see prepare_targets.
         whole = None if self.whole is None else _repose(self.whole, us, avatar_surface, turn_v)
+        E = len(us.element_ids)
         if details is not None:
-            E = len(us.element_ids)
             P = len(self.names)
             details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
                            ratio=np.ones((F, P, E)))
-        for gi, g in enumerate(self.groups):
+        for gi, g in todo:
             av = avatar_surface if g.elements is None or whole is not None else avatar_surface.select(g.elements)
             for bi, b in enumerate(g.blocks):
                 s, e = b.start, b.stop
                 if (gi, bi) not in bone_tau_a[1]:
                     bone_tau_a[1][gi, bi] = _bone_tau(b, g.plan, lrt[:, s:e])
-                reposed = None if whole is None else tuple(_pairs(a, g.targets, g.elements) for a in whole)
+                reposed = None
+                if whole is not None:
+                    reposed = (_take_pairs(whole[0], g.pairs, g.columns.shape),
+                               _take_pairs(whole[1], g.pairs, g.columns.shape) if turn_v else b.pr.v)
                 res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
                                         bone_tau_a[1][gi, bi], nodes_a[:, s:e], self.floor, turn_v, reposed)
                 out[s:e, g.targets] = res
                 if details is not None:
-                    cols = slice(None) if g.elements is None else g.elements
-                    rows = np.ix_(np.arange(s, e), g.targets, np.arange(E)[cols])
+                    rows = (np.arange(s, e)[:, None, None], g.targets[:, None], g.cols(E))
                     details["lam"][rows] = b.lam
                     details["lam_g"][rows] = b.lam_g
                     details["ratio"][rows] = ratio
                     details["lam_g_floor"][np.ix_(np.arange(s, e), g.targets)] = b.lam_gf
-        return out
+        return out if wanted is None else out[:, wanted]
 
 
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     user_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
                     chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE,
-                    dtype=np.float64) -> PreparedTargets:
+                    dtype=np.float64, exclude: dict[str, set[str]] | None = None) -> PreparedTargets:
     """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses.
     `dtype` float32 maps in single precision (about twice as fast; positions agree with float64
-    to a few micrometres, the pipeline's choice)."""
+    to a few micrometres, the pipeline's choice). `exclude`: target name -> element ids it is not
+    mapped on, besides its own chain's (the egocentric method's trunk targets: the arms)."""
     dtype = np.dtype(dtype)
     if dtype not in (np.float32, np.float64):
         raise BodyCalError(f"the mapping computes in float32 or float64, not {dtype}")
@@ -297,63 +325,57 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
     user_surface = user_surface.astype(dtype)
     groups = []
     # Decision (speed, the same values): a few frames (a live frame, a preview) are projected and
-    # re-posed for every target on every element at once, and each group takes its pairs from
-    # that: the projection is per (target, element) pair, so the values are the group's own, and
-    # one pass over a few more pairs costs far less than one pass per group when numpy's per-call
-    # overhead is the cost. Longer blocks (the bake's chunks) project each group on its own
-    # elements only: there the pairs are the cost.
-    ids = user_surface.element_ids
-    whole = (_project(pts, user_surface, penetration_tolerance)
-             if not chunk and F * len(target_names) * len(ids) <= MERGED_PAIRS else None)
-    for members, names, keep, plan in _grouping(tuple(target_names), tuple(ids), tuple(user_surface.element_roots)):
+    # re-posed for every target on every element at once, and the groups whose targets keep as
+    # many elements run side by side, each target on its own elements (`_fused_groups`): the
+    # projection is per (target, element) pair and a target's sums run over its own elements in
+    # their order, so the values are the group's own, and one pass over a few more pairs costs far
+    # less than one pass per group when numpy's per-call overhead is the cost. Longer blocks (the
+    # bake's chunks) project each group on its own elements only: there the pairs are the cost.
+    ids = tuple(user_surface.element_ids)
+    names = tuple(target_names)
+    extra = None if not exclude else tuple(frozenset(exclude.get(n, ())) for n in names)
+    roots = tuple(user_surface.element_roots)
+    if not chunk and F * len(names) * len(ids) <= MERGED_PAIRS:
+        whole = _project(pts, user_surface, penetration_tolerance)
+        for members, group_names, pairs, columns, plan in _fused_groups(names, ids, roots, extra):
+            _check_joints(user_surface, plan, group_names, "user")
+            pr = _Proj(*(_take_pairs(a, pairs, columns.shape) for a in (whole.x, whole.v, whole.dist, whole.factor)),
+                       *([None] * 5))
+            blocks = [_prepare_block(0, F, pts[:, members], plan, user_surface, ubt, nodes_u, floor,
+                                     penetration_tolerance, falloff, pr)] if F else []
+            groups.append(_Group(members, group_names, None, plan, blocks, pairs, columns))
+        return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+    for members, group_names, keep, plan, _ in _grouping(names, ids, roots, extra):
         sub = user_surface if keep is None else user_surface.select(keep)
-        _check_joints(sub, plan, names, "user")
+        _check_joints(sub, plan, group_names, "user")
         step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
-        step = max(1, F if whole is not None else step)
         blocks = []
-        for s in range(0, F, step):
+        for s in range(0, F, max(1, step)):
             e = min(F, s + step)
-            pr = None if whole is None else _proj_pairs(whole, members, keep, user_surface)
             blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
-                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff, pr))
-        groups.append(_Group(members, names, keep, plan, blocks))
-    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff))
+        groups.append(_Group(members, group_names, keep, plan, blocks))
+    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
 
 
 MERGED_PAIRS = 2_000  # frames x targets x elements up to which every group shares one projection
 
 
-def _pairs(a: np.ndarray, targets: np.ndarray, elements: np.ndarray | None) -> np.ndarray:
-    """(..., P, E) -> the pairs of `targets` (and `elements`, None: all) of the last two axes."""
-    a = a.take(targets, axis=-2)
-    return a if elements is None else a.take(elements, axis=-1)
-
-
-def _proj_pairs(whole: _Proj, targets: np.ndarray, keep: np.ndarray | None, surface: PosedSurface) -> _Proj:
-    """A group's projections taken from every target's on every element (`_project` of the whole
-    `surface`): its targets, its elements (`keep`, as `PosedSurface.select` orders them), the
-    closest triangles renumbered as in the selected surface."""
-    if keep is None:
-        cap, sph, mesh, tri_index = None, None, None, whole.tri_index.take(targets, axis=1)
-    else:
-        cap, sph, mesh, _, _, slices = _selection(tuple(int(k) for k in keep), surface.counts,
-                                                  tuple(surface.mesh_slices))
-        shift = np.array([b[0] - surface.mesh_slices[m][0] for m, b in zip(mesh, slices)], int)
-        tri_index = _pairs(whole.tri_index, targets, mesh) + shift
-    return _Proj(_pairs(whole.x, targets, keep), _pairs(whole.v, targets, keep), _pairs(whole.dist, targets, keep),
-                 _pairs(whole.factor, targets, keep), _pairs(whole.cap_t, targets, cap),
-                 _pairs(whole.cap_dir, targets, cap), _pairs(whole.sph_dir, targets, sph), tri_index,
-                 _pairs(whole.tri_bary, targets, mesh))
+def _take_pairs(a: np.ndarray, pairs: np.ndarray, shape: tuple) -> np.ndarray:
+    """(..., P, E) -> (..., *shape): the pairs at flat indices `pairs` (p E + e) of the last two axes."""
+    lead = a.shape[:-2]
+    return a.reshape(lead + (a.shape[-2] * a.shape[-1],)).take(pairs, axis=-1).reshape(lead + shape)
 
 
 @lru_cache(maxsize=64)
-def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
-    """The targets grouped by the elements they exclude (own_chain_elements), once per target and
-    element set: [(the group's targets (indices), their names, the elements kept (None: all),
-    the group's _Plan)]."""
+def _grouping(target_names: tuple, ids: tuple, roots: tuple, extra: tuple | None = None) -> list:
+    """The targets grouped by the elements they exclude (own_chain_elements, and `extra`: per
+    target, more element ids), once per target and element set: [(the group's targets (indices),
+    their names, the elements kept (None: all), the group's _Plan, the element ids it excludes)]."""
     rows: dict[frozenset, list[int]] = {}
     for i, name in enumerate(target_names):
-        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
+        excluded = own_chain_elements(name) | (extra[i] if extra else frozenset())
+        rows.setdefault(excluded & set(ids), []).append(i)
     out = []
     for excluded, members in rows.items():
         keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
@@ -362,8 +384,34 @@ def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
         keep = None if not excluded or not len(keep) else keep
         names = tuple(target_names[i] for i in members)
         cols = range(len(ids)) if keep is None else keep
-        plan = _plan(names, tuple(ids[k] for k in cols), tuple(roots[k] for k in cols))
-        out.append((np.array(members, int), names, keep, plan))
+        plan = _row_plan(names, (tuple(ids[k] for k in cols),) * len(names),
+                         (tuple(roots[k] for k in cols),) * len(names), (excluded,) * len(names))
+        out.append((np.array(members, int), names, keep, plan, excluded))
+    return out
+
+
+@lru_cache(maxsize=64)
+def _fused_groups(target_names: tuple, ids: tuple, roots: tuple, extra: tuple | None = None) -> list:
+    """`_grouping`'s groups side by side where their targets keep as many elements (each target's
+    sums then run over its own elements, in their order, as in its group): [(the targets (indices),
+    their names, each pair's flat index p E + e into every target on every element (P E'), each
+    pair's element (P, E'), the _Plan of the targets on their own elements)], once per target and
+    element set."""
+    E = len(ids)
+    by_width: dict[int, list] = {}
+    for members, names, keep, _, excluded in _grouping(target_names, ids, roots, extra):
+        cols = np.arange(E) if keep is None else keep
+        for i, name in zip(members, names):
+            by_width.setdefault(len(cols), []).append((int(i), name, cols, excluded))
+    out = []
+    for rows in by_width.values():
+        members = np.array([i for i, _, _, _ in rows], int)
+        columns = np.stack([cols for _, _, cols, _ in rows])
+        plan = _row_plan(tuple(n for _, n, _, _ in rows), tuple(tuple(ids[k] for k in c) for _, _, c, _ in rows),
+                         tuple(tuple(roots[k] for k in c) for _, _, c, _ in rows),
+                         tuple(x for _, _, _, x in rows))
+        pairs = (members[:, None] * E + columns).reshape(-1)
+        out.append((members, tuple(n for _, n, _, _ in rows), pairs, columns, plan))
     return out
 
 
