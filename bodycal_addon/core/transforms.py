@@ -12,6 +12,14 @@ import numpy as np
 
 EPS = 1e-12
 
+# `np.einsum` without its Python wrapper: with the default `optimize=False` np.einsum is this
+# function called with the same operands (the same kernel, the same bits), and the wrapper's
+# checks cost about as much as the product on a few vectors (the live solve makes ~80 a frame).
+try:
+    from numpy._core._multiarray_umath import c_einsum as einsum
+except ImportError:  # pragma: no cover - a numpy without it
+    einsum = np.einsum
+
 
 def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
     """Unit vectors; zero vectors stay zero (never NaN)."""
@@ -310,7 +318,7 @@ def continuous_quaternions(q: np.ndarray, *, in_place: bool = False) -> np.ndarr
     components (F-Curves, low-pass filters, key reduction) would swing through a half turn between
     them. Returns a new array, or `q` itself changed with `in_place` (a float64 array)."""
     q = q if in_place else np.array(q, dtype=float, copy=True)
-    dots = np.einsum("...i,...i->...", q[1:], q[:-1])
+    dots = einsum("...i,...i->...", q[1:], q[:-1])
     q[1:] *= np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)[..., None]
     return q
 

@@ -19,7 +19,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import EPS, cross
+from ..core.transforms import EPS, cross, einsum
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
@@ -37,7 +37,7 @@ SWIVEL_HINT_WEIGHT = 0.1
 
 
 def _dot(a, b):
-    return np.einsum("...i,...i->...", a, b)
+    return einsum("...i,...i->...", a, b)
 
 
 def _columns(x, y, z):
@@ -269,7 +269,7 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     target (F, 3) -> joints (F, n + 1, 3), δ (F,)."""
     rest_segments = np.ascontiguousarray(rest_segments, float)
     lengths, seg0, u0, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
-    local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
+    local = einsum("fji,fj->fi", sacrum_rot, target - start)
     ut, reach = _unit(local, u0)
     axis, sin_phi = _unit(cross(u0, ut), lambda: _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
@@ -280,7 +280,7 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     turn_axis, sin_t = _unit(cross(cdir, ut), axis)
     seg = _rodrigues(seg, turn_axis[:, None], np.arctan2(sin_t, _dot(cdir, ut))[:, None])
     stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
-    world = np.einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
+    world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
     joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
     return joints, delta
 

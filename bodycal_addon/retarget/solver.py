@@ -24,7 +24,7 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
-from ..core.transforms import normalize, stacks_apply, stacks_mul
+from ..core.transforms import einsum, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
@@ -32,7 +32,7 @@ from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
 from .solver_methods import METHOD_CLASSES, surface_correction
-from .user_animation import pose_finger_chain
+from .user_animation import finger_set, pose_finger_chain
 
 STANCES = ("whole", "causal")  # the feet plan: from the whole take (a bake), or frame by frame (live)
 
@@ -333,7 +333,7 @@ class PreparedSolver:
         root = joints(0)
         axis = normalize(joints(2) - root)
         v = joints(1) - root
-        return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
+        return v - einsum("fi,fi->f", v, axis)[:, None] * axis
 
     def _fingers(self, frames, wrists: dict, targets: dict) -> None:
         """Every finger of the hands in `wrists` {side: the wrist reached (F, 3)} with a tip target,
@@ -347,8 +347,11 @@ class PreparedSolver:
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        thumb = np.repeat(thumbs, nf)
-        _, fr = pose_finger_chain(mcp, tip, np.repeat(lens, nf, axis=0).T, [ref], thumb=thumb)
+        key = (tuple(items), nf)
+        chains = self.__dict__.setdefault("_finger_sets", {})
+        if key not in chains:
+            chains[key] = finger_set(np.repeat(lens, nf, axis=0).T, np.repeat(thumbs, nf))
+        _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chains[key])
         for i in (1, 2, 3):
             frames[:, bones[i - 1]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3), 0, 1)
 
@@ -444,7 +447,7 @@ class FeetPlan:
             turn = src.foot_turn(s, a, b)
             rest_ankle, performer, avatar = self.rest[s]
             own = feet.foot_points(ankles[s], turn, rest_ankle, performer)  # (F, 2, 3) the performer's
-            theirs = reference[:, None] + np.einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
+            theirs = reference[:, None] + einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
             if whole:
                 heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
                 heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)

@@ -37,6 +37,7 @@ from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
     cross,
+    einsum,
     frame_from_axes,
     normalize,
     quat_between,
@@ -328,7 +329,7 @@ class UserAnimator:
         if w.all():
             return est[rows].sum(axis=1) / k
         w = np.where(w.any(axis=1, keepdims=True), w, True).astype(float)
-        return np.einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
+        return einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
 
     def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
@@ -420,8 +421,9 @@ def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
 
 def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: dict) -> tuple:
     """What `pose_user_fingers` reads of the model for the fingers `which`, computed once: their
-    joints' names, their phalanges' canonical bones, the phalanx lengths (K, 3) and the fingertip
-    radii (K,) (the LED's offset from the tip joint)."""
+    joints' names, their phalanges' canonical bones, the phalanx lengths (K, 3), the fingertip
+    radii (K,) (the LED's offset from the tip joint), and a dict that keeps the fingers'
+    `fingers.FingerSet` per frame count."""
     names = [[f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS] for s, f in which]
     bones = [[BI[f"{f}_{i}_{s}"] for i in (1, 2, 3)] for s, f in which]
     lens = np.array([[np.linalg.norm(rest_pos[n[i + 1]] - rest_pos[n[i]]) for i in range(3)] for n in names])
@@ -429,7 +431,7 @@ def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: 
     for s, f in which:
         info = model_bones.get(f"{f}_3_{s}")
         radius.append(info.radius_tail if info is not None and info.radius_tail else 0.0)
-    return names, bones, lens, radius
+    return names, bones, lens, radius, {}
 
 
 def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
@@ -440,17 +442,18 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
     phalanx frames) and are updated. `constants`: `finger_constants(which, ...)`, when the caller
     keeps them."""
     K, F = tips.shape[:2]
-    names, bones, lens, radius = constants or finger_constants(which, rest_pos, model_bones)
+    names, bones, lens, radius, sets = constants or finger_constants(which, rest_pos, model_bones)
+    if F not in sets:
+        sets[F] = finger_set(np.repeat(lens, F, axis=0).T, np.repeat([f == "thumb" for _, f in which], F))
+        sets[F, "radius"] = np.repeat(radius, F)[:, None]
     mcp = np.concatenate([P[n[0]] for n in names])
     ref = np.concatenate([Fr[:, b[0]] for b in bones])
-    thumb = np.repeat([f == "thumb" for _, f in which], F)
-    per_frame = np.repeat(lens, F, axis=0)
-    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), per_frame.T, [ref], thumb=thumb)
+    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), None, [ref], finger_set=sets[F])
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
     if any(radius):
-        aim = tips.reshape(-1, 3) + np.repeat(radius, F)[:, None] * frames[2][..., :, 2]
-        pts, frames = pose_finger_chain(mcp, aim, per_frame.T, [ref], thumb=thumb)
+        aim = tips.reshape(-1, 3) + sets[F, "radius"] * frames[2][..., :, 2]
+        pts, frames = pose_finger_chain(mcp, aim, None, [ref], finger_set=sets[F])
     pts = pts.reshape(K, F, 4, 3)
     for k, n in enumerate(names):
         for i, j in enumerate(n[1:]):
@@ -460,14 +463,25 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
         Fr[:, phalanges[:, i]] = np.swapaxes(frames[i].reshape(K, F, 3, 3), 0, 1)
 
 
-def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
+def finger_set(lens, thumb) -> fingers.FingerSet:
+    """`pose_finger_chain`'s constants (`fingers.FingerSet`) for phalanx lengths `lens` (3, n) and
+    `thumb` (n,) bool, for a caller that poses the same fingers again."""
+    thumb = np.asarray(thumb, bool)
+    return fingers.FingerSet(lens[0], lens[1], lens[2], thumb=thumb, roll=0.0 if thumb.ndim or thumb else None)
+
+
+def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False, finger_set: fingers.FingerSet | None = None):
     """`fingers.pose_finger` with the first phalanx's rest frame (moved with the hand) as the
     reference: a finger at rest has zero yaw and pitch, so the anatomical limits bound the motion
     away from the calibrated pose. The thumb's own frame already carries its roll (roll 0).
+    `finger_set`: `finger_set(lens, thumb)` kept by the caller (then `lens` and `thumb` are not read).
     Returns (points (F, 4, 3), [3 frames (F, 3, 3)])."""
-    thumb = np.asarray(thumb, bool)
-    fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
-                             roll=0.0 if thumb.ndim or thumb else None)
+    if finger_set is None:
+        thumb = np.asarray(thumb, bool)
+        fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
+                                 roll=0.0 if thumb.ndim or thumb else None)
+    else:
+        fp = finger_set.pose(mcp, rest_frames[0], tip)
     return fp.joints, [fp.rotations[:, i] for i in range(3)]
 
 
