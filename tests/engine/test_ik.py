@@ -252,3 +252,36 @@ def test_a_nearly_straight_limb_keeps_its_bend_plane_under_joint_noise():
     turn = np.degrees(np.arccos(np.clip(np.einsum("fi,fi->f", res.swivel_dir, expected), -1, 1)))
     assert turn.max() < 8.0, turn.max()
     assert np.linalg.norm(np.diff(res.mid, axis=0), axis=1).max() < 0.008  # at a 1 cm weight: 13°, 14 mm
+
+
+def test_a_few_limbs_in_python_floats_are_numpy_s_two_bone_to_the_bit(monkeypatch):
+    # A live frame's limbs (ik.FEW_LIMBS items or fewer) are solved in Python floats: the same
+    # operations in the same order as the numpy path, so the same bits, degenerate limbs included
+    # (target on the root, pole and user swivel on the axis, hint along the axis, out of reach).
+    rng = np.random.default_rng(7)
+    n = 400
+    root = rng.normal(size=(n, 3))
+    target = root + rng.normal(size=(n, 3)) * rng.uniform(0.0, 0.4, (n, 1))
+    pole = root + rng.normal(size=(n, 3)) * 0.2
+    user = rng.normal(size=(n, 3))
+    hint = rng.normal(size=(n, 3))
+    axis = target - root
+    target[:8] = root[:8]  # on the root
+    pole[8:16] = root[8:16] + 0.5 * axis[8:16]  # on the root-effector axis
+    user[16:24] = axis[16:24]
+    hint[24:32] = axis[24:32]
+    user[32:40] = 0.0
+    target[40:48] = root[40:48] + [0.0, 0.0, -2.0]  # out of reach
+    l1, l2 = rng.uniform(0.2, 0.35, n), rng.uniform(0.2, 0.35, n)
+    for kw in ({"pole_target": pole, "user_swivel_dir": user, "flex_axis_hint": hint}, {"user_swivel_dir": user},
+               {"pole_target": pole, "flex_axis_hint": hint}, {}):
+        monkeypatch.setattr(ik, "FEW_LIMBS", 0)
+        whole = ik.two_bone(root, l1, l2, target, size_ratio=1.3, **kw)
+        monkeypatch.setattr(ik, "FEW_LIMBS", 4)
+        for k in range(0, n, 2):
+            few = ik.two_bone(root[k:k + 2], l1[k:k + 2], l2[k:k + 2], target[k:k + 2], size_ratio=1.3,
+                              **{a: v[k:k + 2] for a, v in kw.items()})
+            for got, want in ((few.mid, whole.mid), (few.end, whole.end), (few.rot1, whole.rot1),
+                              (few.rot2, whole.rot2), (few.blend, whole.blend), (few.swivel_dir, whole.swivel_dir),
+                              (few.flexion, whole.flexion), (few.reached, whole.reached)):
+                np.testing.assert_array_equal(got, want[k:k + 2])
