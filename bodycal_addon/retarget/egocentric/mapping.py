@@ -393,26 +393,56 @@ def _grouping(target_names: tuple, ids: tuple, roots: tuple, extra: tuple | None
 @lru_cache(maxsize=64)
 def _fused_groups(target_names: tuple, ids: tuple, roots: tuple, extra: tuple | None = None) -> list:
     """`_grouping`'s groups side by side where their targets keep as many elements (each target's
-    sums then run over its own elements, in their order, as in its group): [(the targets (indices),
-    their names, each pair's flat index p E + e into every target on every element (P E'), each
-    pair's element (P, E'), the _Plan of the targets on their own elements)], once per target and
-    element set."""
+    sums then run over its own elements, in their order, as in its group), or all fewer than
+    SEQUENTIAL_SUM, padded to the widest of them with pairs of no weight (`_padding_is_exact`):
+    [(the targets (indices), their names, each pair's flat index p E + e into every target on every
+    element (P E'), each pair's element (P, E'), the _Plan of the targets on their own elements)],
+    once per target and element set."""
     E = len(ids)
+    pad = _padding_is_exact()
     by_width: dict[int, list] = {}
     for members, names, keep, _, excluded in _grouping(target_names, ids, roots, extra):
         cols = np.arange(E) if keep is None else keep
         for i, name in zip(members, names):
-            by_width.setdefault(len(cols), []).append((int(i), name, cols, excluded))
+            key = 0 if pad and len(cols) < SEQUENTIAL_SUM else len(cols)
+            by_width.setdefault(key, []).append((int(i), name, cols, excluded))
     out = []
     for rows in by_width.values():
-        members = np.array([i for i, _, _, _ in rows], int)
-        columns = np.stack([cols for _, _, cols, _ in rows])
-        plan = _row_plan(tuple(n for _, n, _, _ in rows), tuple(tuple(ids[k] for k in c) for _, _, c, _ in rows),
-                         tuple(tuple(roots[k] for k in c) for _, _, c, _ in rows),
-                         tuple(x for _, _, _, x in rows))
+        width = max(len(cols) for _, _, cols, _ in rows)
+        padded = []
+        for i, name, cols, excluded in rows:
+            # a padding pair: an element the target is not mapped on (its weight is zero; its
+            # values are a real projection's, finite), marked excluded by the sentinel id ""
+            spare = [k for k in range(E) if k not in set(cols.tolist())][:1] * (width - len(cols))
+            padded.append((i, name, np.concatenate([cols, np.array(spare, int)]),
+                           tuple(ids[k] for k in cols) + ("",) * len(spare),
+                           tuple(roots[k] for k in cols) + tuple(roots[k] for k in spare),
+                           excluded | {""} if spare else excluded))
+        members = np.array([r[0] for r in padded], int)
+        columns = np.stack([r[2] for r in padded])
+        plan = _row_plan(tuple(r[1] for r in padded), tuple(r[3] for r in padded), tuple(r[4] for r in padded),
+                         tuple(r[5] for r in padded))
         pairs = (members[:, None] * E + columns).reshape(-1)
-        out.append((members, tuple(n for _, n, _, _ in rows), pairs, columns, plan))
+        out.append((members, tuple(r[1] for r in padded), pairs, columns, plan))
     return out
+
+
+SEQUENTIAL_SUM = 8  # numpy sums a contiguous row of fewer items than this one after the other
+
+
+@lru_cache(maxsize=1)
+def _padding_is_exact() -> bool:
+    """Whether this numpy sums a row of fewer than SEQUENTIAL_SUM float32 or float64 items one after
+    the other, so that zeros after them change no bit (its pairwise sum does; checked once)."""
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        for n in range(1, SEQUENTIAL_SUM):
+            a = (rng.standard_normal((64, n)) * 10.0 ** rng.uniform(-6, 2, (64, n))).astype(dtype)
+            padded = np.zeros((64, SEQUENTIAL_SUM - 1), dtype)
+            padded[:, :n] = a
+            if not np.array_equal(a.sum(-1), padded.sum(-1)):
+                return False
+    return True
 
 
 def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff,
