@@ -37,16 +37,19 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
         # numpy sums fewer than 8 items one after the other: the same sum in two numpy calls
         s = (v * v).sum(-1)
     else:
-        comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
+        comps = [v[..., k] for k in range(v.shape[-1])] if last else v if axis == 0 else np.moveaxis(v, axis, 0)
         s = comps[0] * comps[0]
         for c in comps[1:]:
             s += c * c
     n = np.sqrt(s)
     ok = n > EPS
+
+    def along(a):  # (..., ) -> broadcast against v along `axis`
+        return a[..., None] if last else a[None] if axis == 0 else np.expand_dims(a, axis)
+
     if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
-        return v / (n[..., None] if last else np.expand_dims(n, axis)), n
-    u = v / (np.where(ok, n, 1.0)[..., None] if last else np.expand_dims(np.where(ok, n, 1.0), axis))
-    return np.where(ok[..., None] if last else np.expand_dims(ok, axis), u, fallback), n
+        return v / along(n), n
+    return np.where(along(ok), v / along(np.where(ok, n, 1.0)), fallback), n
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -138,7 +141,7 @@ def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 def mul_stack(m: np.ndarray, a: np.ndarray) -> np.ndarray:
     """m @ a for ONE 3x3 m and a stack a (..., 3, 3) (see stack_mul)."""
-    return np.swapaxes(stack_mul(np.swapaxes(a, -1, -2), np.asarray(m).T), -1, -2)
+    return stack_mul(np.asarray(a).swapaxes(-1, -2), np.asarray(m).T).swapaxes(-1, -2)
 
 
 def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:

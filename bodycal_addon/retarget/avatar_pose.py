@@ -386,7 +386,7 @@ class AvatarRig:
         bones, carriers, local = plan
         P, H = self._pose(frames, pelvis, bones)
         out = H[carriers] + stacks_apply(P, local, carriers)  # (K, F, 3)
-        return self.to_world(np.ascontiguousarray(np.swapaxes(out, 0, 1)))
+        return self.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
 
     @property
     def _caches(self) -> dict:
@@ -406,7 +406,7 @@ class AvatarRig:
         plan = self._pose_plan(None if bones is None else tuple(bones))
         if len(plan.driven):
             # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-            P[plan.driven] = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), plan.fixed, plan.canon))
+            P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
         chain = self._chain_plan if plan.chained else None
         held = None
         if chain is not None:
@@ -421,7 +421,7 @@ class AvatarRig:
             else:
                 # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
                 # rest (the twist), the aim point it carries, and the offset of its target off the curve.
-                delta = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), chain.fixed, chain.vertebra))
+                delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
                 twist = stacks_mul(delta, chain.rest)
                 aim = stacks_apply(twist, chain.aim)
                 off = stacks_apply(delta, chain.off)
@@ -598,17 +598,17 @@ class AvatarRig:
         basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P)."""
         kids, parents, fixed = self._basis_plan
         rel = P.copy()
-        rel[kids] = np.swapaxes(P[parents], -1, -2) @ P[kids]
+        rel[kids] = P[parents].swapaxes(-1, -2) @ P[kids]
         # M^-1 (M_p) X for each bone, one stacked product (as mul_stack, bone by bone)
-        basis = np.swapaxes(stacks_mul(np.ascontiguousarray(np.swapaxes(rel, -1, -2)), fixed), -1, -2)
-        return matrix_to_quat(np.swapaxes(basis, 0, 1))
+        basis = stacks_mul(np.ascontiguousarray(rel.swapaxes(-1, -2)), fixed).swapaxes(-1, -2)
+        return matrix_to_quat(basis.swapaxes(0, 1))
 
     @property
     def _basis_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(bones with a parent, their parents, per bone the fixed left factor's transpose (N, 3, 3):
         (M^-1 M_p)^T, or (M^-1)^T for a parentless bone), once per rig."""
         if getattr(self, "_bplan", None) is None:
-            rel_t = np.swapaxes(self.rest, -1, -2)
+            rel_t = self.rest.swapaxes(-1, -2)
             kids = np.flatnonzero(self.parent >= 0)
             fixed = np.stack([(rel_t[i] if p < 0 else rel_t[i] @ self.rest[p]).T for i, p in enumerate(self.parent)])
             self._bplan = (kids, self.parent[kids], np.ascontiguousarray(fixed))
@@ -621,7 +621,7 @@ class AvatarRig:
         i, p = self.root, self.parent[self.root]
         if p < 0:
             return (H[i] - self.head[i]) @ self.rest[i]
-        local = (np.swapaxes(P[p], -1, -2) @ (H[i] - H[p])[..., None])[..., 0]
+        local = (P[p].swapaxes(-1, -2) @ (H[i] - H[p])[..., None])[..., 0]
         rel = local @ (self.rest[i].T @ self.rest[p]).T
         return rel - self.rest[i].T @ (self.head[i] - self.head[p])
 
@@ -647,13 +647,13 @@ class AvatarRig:
         if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
             bones, local, order = self._joint_table
             rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-            ride = H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2)  # (G, F, K, 3)
-            joints = np.swapaxes(ride, 0, 1).reshape(nf, -1, 3).take(order, axis=1)
+            ride = H[bones][:, :, None, :] + rel.swapaxes(-1, -2)  # (G, F, K, 3)
+            joints = ride.swapaxes(0, 1).reshape(nf, -1, 3).take(order, axis=1)
         else:
             joints = np.empty((nf, len(JOINTS), 3))
             for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
                 rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-                joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
+                joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
@@ -663,8 +663,8 @@ class AvatarRig:
             frames = np.full((nf, len(BONES), 3, 3), np.nan)
             if len(idx):
                 rel = self._to_world_rot(stacks_mul(P, self._carrier_rel[idx], self.carrier[idx]))
-                frames[:, idx] = np.swapaxes(rel, 0, 1)
-        return RigPose(basis, np.swapaxes(P, 0, 1), np.swapaxes(H, 0, 1), root_loc, joints, frames)
+                frames[:, idx] = rel.swapaxes(0, 1)
+        return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
 
     @property
     def _joint_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -701,7 +701,7 @@ class AvatarRig:
     def _carrier_rel(self):
         if getattr(self, "_car_rel", None) is None:
             car = self.carrier
-            self._car_rel = np.swapaxes(self.rest[car], -1, -2) @ self.w_rot.T @ self.frames0
+            self._car_rel = self.rest[car].swapaxes(-1, -2) @ self.w_rot.T @ self.frames0
         return self._car_rel
 
     # --- pose -> joints (Blender's FK, for checks and for the offsets method) --------------------
@@ -713,7 +713,7 @@ class AvatarRig:
         animated character's: a bone above the pelvis may carry the motion), the root's included."""
         basis = np.asarray(basis, float)
         nf, n = basis.shape[:2]
-        B = np.swapaxes(quat_to_matrix(basis), 0, 1)
+        B = quat_to_matrix(basis).swapaxes(0, 1)
         P = np.empty((n, nf, 3, 3))
         H = np.empty((n, nf, 3))
         zero = np.zeros((nf, 3))
@@ -824,7 +824,7 @@ def copy_factor(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndar
     depends on the rest frames only (the prepared solver computes it once)."""
     idx = list(DELTA_COPY)
     turn = facing_turn(user_frames0, avatar_frames0)
-    return np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx])
+    return user_frames0[idx].swapaxes(-1, -2) @ (turn @ avatar_frames0[idx])
 
 
 def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:

@@ -260,13 +260,13 @@ class PreparedSolver:
                 # what the IK changes between aiming at the copied skull base and at the target.
                 # Where they agree (the same body) the source's spine comes back as it was.
                 held = solve_spine(fk.joints[:, JI["skull_base"]])
-                frames[:, spine_idx] = res.rotations @ np.swapaxes(held.rotations, -1, -2) @ up.frames[:, spine_idx]
+                frames[:, spine_idx] = res.rotations @ held.rotations.swapaxes(-1, -2) @ up.frames[:, spine_idx]
             else:
                 frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
             for s in sk.SIDES:
                 c = BI[f"clavicle_{s}"]
-                frames[:, c] = frames[:, v5] @ np.swapaxes(up.frames[:, v5], -1, -2) @ up.frames[:, c]
+                frames[:, c] = frames[:, v5] @ up.frames[:, v5].swapaxes(-1, -2) @ up.frames[:, c]
         # The limbs hang from the trunk as solved now (or as given).
         items = [(side, limb) for side in sk.SIDES for limb, (_, _, e, _, _) in LIMBS.items()
                  if f"{e}_{side}" in targets]
@@ -278,7 +278,7 @@ class PreparedSolver:
             held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
             hand_frames = np.stack([frames[:, BI[f"hand_{side}"]] for side in grip])
             rel = stacks_mul(hand_frames, np.array([fr for _, _, fr in held]), [grip.index(x) for x, _, _ in held])
-            frames[:, [BI[b] for _, b, _ in held]] = np.swapaxes(rel, 0, 1)
+            frames[:, [BI[b] for _, b, _ in held]] = rel.swapaxes(0, 1)
         wrists = {side: reached[side, "arm"] for side in sk.SIDES
                   if side not in grip and (side, "arm") in reached and self.has_fingers[side]}
         if wrists:
@@ -314,8 +314,8 @@ class PreparedSolver:
                                   np.array([BI[f"{mb}_{s}"] for s, _, _, _, _, mb in limbs]))
             l1, l2, swivel, hinge, upper, lower = user_side[key]
             tb = ik.two_bone(root, l1, l2, eff, pole, swivel, hinge, size_ratio=self.k)
-            frames[:, upper] = np.swapaxes(tb.rot1.reshape(len(limbs), nf, 3, 3), 0, 1)
-            frames[:, lower] = np.swapaxes(tb.rot2.reshape(len(limbs), nf, 3, 3), 0, 1)
+            frames[:, upper] = tb.rot1.reshape(len(limbs), nf, 3, 3).swapaxes(0, 1)
+            frames[:, lower] = tb.rot2.reshape(len(limbs), nf, 3, 3).swapaxes(0, 1)
             for i, k in enumerate(group):
                 reached[items[k]] = tb.end[i * nf:(i + 1) * nf]
         return reached
@@ -353,7 +353,7 @@ class PreparedSolver:
             chains[key] = finger_set(np.repeat(lens, nf, axis=0).T, np.repeat(thumbs, nf))
         _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chains[key])
         for i in (1, 2, 3):
-            frames[:, bones[i - 1]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3), 0, 1)
+            frames[:, bones[i - 1]] = fr[i - 1].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
 
     def _finger_rows(self, items: tuple, sides: tuple) -> tuple:
         """What `_fingers` gathers for the fingers `items` [(side, finger)] of the hands `sides`, once

@@ -309,7 +309,7 @@ class UserAnimator:
         pos = np.concatenate([P[j] for j in JOINTS], axis=1).reshape(stop - start, len(JOINTS), 3)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
-        Fr[:, _SHORTCUT_INDEX] = np.swapaxes(frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]), 0, 1)
+        Fr[:, _SHORTCUT_INDEX] = frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]).swapaxes(0, 1)
         if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(Fr)):
             raise BodyCalError("the user animation has non-finite values",
                                source=self.recording.source or self.recording.name,
@@ -347,7 +347,7 @@ class UserAnimator:
             ys += [P[f"{m}_{s}"] - P[f"{a}_{s}"], P[f"{e}_{s}"] - P[f"{m}_{s}"]]
             hints += [rights[s, limb]] * 2
             bones += [BI[f"{ab}_{s}"], BI[f"{mb}_{s}"]]
-        Fr[:, bones] = np.swapaxes(frame_from_axes(np.stack(ys), np.stack(hints)), 0, 1)
+        Fr[:, bones] = frame_from_axes(np.stack(ys), np.stack(hints)).swapaxes(0, 1)
         for s in sk.SIDES:
             toe = plan.toes[s]
             if toe[0] == "rigid":
@@ -374,7 +374,7 @@ class UserAnimator:
         for s in sk.SIDES:
             P[f"clavicle_{s}"] = root
         ys = np.stack([P[f"shoulder_{s}"] - root for s in sk.SIDES])
-        Fr[:, [BI[f"clavicle_{s}"] for s in sk.SIDES]] = np.swapaxes(frame_from_axes(ys, v5[..., :, 2]), 0, 1)
+        Fr[:, [BI[f"clavicle_{s}"] for s in sk.SIDES]] = frame_from_axes(ys, v5[..., :, 2]).swapaxes(0, 1)
 
     def _hands(self, plan: _Plan, P: dict, Fr: np.ndarray, start: int, stop: int) -> None:
         """Hands pass: finger joints and frames rigid on the hand as calibrated, then the fingers with
@@ -384,7 +384,7 @@ class UserAnimator:
             names, vecs, bones, fixed = plan.hands[s]
             rel = stacks_apply(hands, vecs, [h] * len(vecs))
             P.update(zip(names, P[f"wrist_{s}"] + rel))
-            Fr[:, bones] = np.swapaxes(stacks_mul(hands, fixed, [h] * len(fixed)), 0, 1)
+            Fr[:, bones] = stacks_mul(hands, fixed, [h] * len(fixed)).swapaxes(0, 1)
         if plan.tips:
             tab = self._tables
             tips = self.reader.markers(tab["tip_columns"], start, stop)
@@ -460,7 +460,7 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
             P[j] = pts[k, :, i + 1]
     phalanges = np.array(bones, int).reshape(K, -1)
     for i in range(3):  # each phalanx of every finger in one assignment
-        Fr[:, phalanges[:, i]] = np.swapaxes(frames[i].reshape(K, F, 3, 3), 0, 1)
+        Fr[:, phalanges[:, i]] = frames[i].reshape(K, F, 3, 3).swapaxes(0, 1)
 
 
 def finger_set(lens, thumb) -> fingers.FingerSet:

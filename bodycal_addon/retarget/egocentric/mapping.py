@@ -94,9 +94,11 @@ def _row_plan(target_names: tuple[str, ...], row_ids: tuple[tuple[str, ...], ...
                  table, used, floor_bone, floor_starts, both)
 
 
-_GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
-_GRAPH_TAILS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES]
-_GRAPH_NODE_INDEX = [sk.JOINT_INDEX[n] for n in GRAPH_NODES]
+# index arrays (a list index is converted on every call)
+_GRAPH_HEADS = np.array([sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES], int)
+_GRAPH_TAILS = np.array([sk.JOINT_INDEX[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES], int)
+_GRAPH_NODE_INDEX = np.array([sk.JOINT_INDEX[n] for n in GRAPH_NODES], int)
+_ANKLES = np.array([sk.JOINT_INDEX[f"ankle_{s}"] for s in sk.SIDES], int)
 
 
 def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarray:
@@ -108,7 +110,7 @@ def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarr
         return out
     if bones is None and isinstance(surface.joints, JointTable):
         j = surface.joints.array
-        out[:, :, :-1] = (j[:, _GRAPH_TAILS] - j[:, _GRAPH_HEADS]).transpose(2, 0, 1)
+        out[:, :, :-1] = (j.take(_GRAPH_TAILS, axis=1) - j.take(_GRAPH_HEADS, axis=1)).transpose(2, 0, 1)
         return out
     for i, name in enumerate(GRAPH_BONES):
         if bones is not None and name in bones:
@@ -123,7 +125,7 @@ def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarr
 def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
     out = np.zeros((3, F, len(GRAPH_NODES)), dtype)
     if isinstance(surface.joints, JointTable):
-        out[...] = surface.joints.array[:, _GRAPH_NODE_INDEX].transpose(2, 0, 1)
+        out[...] = surface.joints.array.take(_GRAPH_NODE_INDEX, axis=1).transpose(2, 0, 1)
         return out
     for i, name in enumerate(GRAPH_NODES):
         if name in surface.joints:
@@ -198,6 +200,9 @@ class _UserBlock:
     dots: list | np.ndarray  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone
     # length ratios); or all at once, (L, N, F) in `_Plan.slot_table`'s layout
     floor_user: tuple | None = None  # the floor ratios' user side, once mapped (_floor_user)
+    tau_ok: np.ndarray | None = None  # (F, N) τ > EPS (the chains whose ratio is not 1)
+    none: np.ndarray | None = None  # (F, P) targets with no element of weight (None: there are none)
+    floor_ok: np.ndarray | None = None  # (F, 2P) the floor's τ > EPS, once mapped
 
 
 @dataclass
@@ -254,9 +259,7 @@ class PreparedTargets:
         F = self.frames
         if avatar_surface.frames != F:
             raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
-        wanted = None if targets is None else [self.names.index(n) for n in targets]
-        todo = [(gi, g) for gi, g in enumerate(self.groups)
-                if wanted is None or not set(wanted).isdisjoint(g.targets.tolist())]
+        wanted, todo = self._todo(None if targets is None else tuple(targets))
         for _, g in todo:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         dtype = self.pts.dtype
@@ -270,7 +273,7 @@ class PreparedTargets:
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F, dtype)
-        avatar_surface = avatar_surface.astype(dtype)
+        avatar_surface = avatar_surface.astype(dtype, normals=turn_v)
         out = np.empty_like(self.pts)
         # Every target re-posed on every element at once, each group's pairs taken from it (the
         # same values: the re-posing is per pair); see prepare_targets.
@@ -299,7 +302,17 @@ class PreparedTargets:
                     details["lam_g"][rows] = b.lam_g
                     details["ratio"][rows] = ratio
                     details["lam_g_floor"][np.ix_(np.arange(s, e), g.targets)] = b.lam_gf
-        return out if wanted is None else out[:, wanted]
+        return out if wanted is None else out.take(wanted, axis=1)
+
+    def _todo(self, targets: tuple | None) -> tuple:
+        """(the rows of `targets` (None: all), [(index, group)] of the groups that map them]), once
+        per target set."""
+        cache = self.__dict__.setdefault("_todo_cache", {})
+        if targets not in cache:
+            wanted = None if targets is None else np.array([self.names.index(n) for n in targets], int)
+            cache[targets] = (wanted, [(gi, g) for gi, g in enumerate(self.groups)
+                                       if wanted is None or not set(wanted.tolist()).isdisjoint(g.targets.tolist())])
+        return cache[targets]
 
 
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
@@ -473,7 +486,9 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     tau = tau.take(plan.unorder, axis=0).T
     tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
-    return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
+    none = lam.sum(-1) <= 0  # no element with weight (all excluded)
+    return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots, tau_ok=tau > EPS,
+                      none=none if none.any() else None)
 
 
 def _chains(a, plan: _Plan):
@@ -503,7 +518,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     x_av, v_av = _repose(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
     tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
-    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > EPS)
+    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau_ok)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
     else:
@@ -515,27 +530,34 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     lam = b.lam
     out = np.empty((F, P, 3), est.dtype)
     # x and y in one product and sum (each row summed on its own, as apart)
-    out[..., :2] = np.moveaxis((est[:2] * lam).sum(-1), 0, -1)
+    out[..., :2] = (est[:2] * lam).sum(-1).transpose(1, 2, 0)
     # No element with weight (all excluded): keep the user's horizontal position.
-    none = lam.sum(-1) <= 0
-    if none.any():
-        out[..., :2] = np.where(none[..., None], p[..., :2], out[..., :2])
+    if b.none is not None:
+        out[..., :2] = np.where(b.none[..., None], p[..., :2], out[..., :2])
     vertical = (est[2] * b.lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
         if b.floor_user is None:  # the user's side, the same for every map of this block
             b.floor_user = _floor_user(b, plan, ub)
+            b.floor_ok = b.floor_user[1] > EPS
         # both sides at once: (F, 2P), the left side's targets first (as _floor_user stacks them)
         ent, st = plan.floor_both
         uz, tf, w_left = b.floor_user
         tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
-        ankles = np.stack([av.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+        ankles = _ankle_heights(av)  # (F, 2)
         tfa += np.abs(ankles).repeat(P, axis=1)
-        ratios = np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS)
+        ratios = np.divide(tfa, tf, out=np.ones_like(tf), where=b.floor_ok)
         fratio = ratios[:, P:] + w_left[:, None] * (ratios[:, :P] - ratios[:, P:])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
     out[..., 2] = vertical
     return out, ratio
+
+
+def _ankle_heights(surface: PosedSurface) -> np.ndarray:
+    """(F, 2) both ankles' heights, left first."""
+    if isinstance(surface.joints, JointTable):
+        return surface.joints.array.take(_ANKLES, axis=1)[..., 2]
+    return np.stack([surface.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)
 
 
 def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
@@ -548,7 +570,7 @@ def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
     us = b.us
     ent, st = plan.floor_both
     uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
-    ankles = np.stack([us.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+    ankles = _ankle_heights(us)  # (F, 2)
     tau = np.add.reduceat(uz, st, axis=0).T + np.abs(ankles).repeat(len(st) // 2, axis=1)
     w_left = 0.5 + 0.5 * np.tanh((ankles[:, 1] - ankles[:, 0]) / SUPPORT_BLEND)
     return uz, tau, w_left

@@ -70,6 +70,9 @@ class PosedSurface:
     mesh_scale: np.ndarray  # (M,) length of each mesh element's bone (re-posing fallback)
     joints: dict[str, np.ndarray]  # canonical joint -> (F, 3)
     notes: list[str] = field(default_factory=list)
+    # dtype -> (caps_radius, sph_radius, mesh_scale) in it: the frame-independent fields converted
+    # once for every pose of a SurfacePoser (shared between its poses; None: converted each time)
+    constants: dict | None = None
 
     @property
     def frames(self) -> int:
@@ -86,17 +89,27 @@ class PosedSurface:
                             self.caps_tail[s], self.caps_rot[s], self.caps_radius, self.sph_center[s], self.sph_rot[s],
                             self.sph_radius, self.tri[s], self.tri_normal[s], self.tri_elem, self.mesh_slices,
                             self.mesh_head[s], self.mesh_rot[s], self.mesh_scale, _take_joints(self.joints, s),
-                            self.notes)
+                            self.notes, self.constants)
 
-    def astype(self, dtype) -> PosedSurface:
-        """The surface with its placed geometry in `dtype` (itself if already; joints unchanged)."""
+    def astype(self, dtype, normals: bool = True) -> PosedSurface:
+        """The surface with its placed geometry in `dtype` (itself if already; joints unchanged).
+        `normals` False leaves the triangles' normals as they are (a caller that reads none)."""
         if self.caps_head.dtype == dtype:
             return self
-        c = [np.asarray(a, dtype) for a in (self.caps_head, self.caps_tail, self.caps_rot, self.caps_radius,
-                                            self.sph_center, self.sph_rot, self.sph_radius, self.tri, self.tri_normal)]
-        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, *c, self.tri_elem,
-                            self.mesh_slices, np.asarray(self.mesh_head, dtype), np.asarray(self.mesh_rot, dtype),
-                            np.asarray(self.mesh_scale, dtype), self.joints, self.notes)
+        if self.constants is not None and dtype in self.constants:
+            caps_radius, sph_radius, mesh_scale = self.constants[dtype]
+        else:
+            caps_radius, sph_radius, mesh_scale = (np.asarray(a, dtype) for a in (self.caps_radius, self.sph_radius,
+                                                                                 self.mesh_scale))
+            if self.constants is not None:
+                self.constants[dtype] = (caps_radius, sph_radius, mesh_scale)
+        normal = np.asarray(self.tri_normal, dtype) if normals else self.tri_normal
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, np.asarray(self.caps_head, dtype),
+                            np.asarray(self.caps_tail, dtype), np.asarray(self.caps_rot, dtype), caps_radius,
+                            np.asarray(self.sph_center, dtype), np.asarray(self.sph_rot, dtype), sph_radius,
+                            np.asarray(self.tri, dtype), normal, self.tri_elem, self.mesh_slices,
+                            np.asarray(self.mesh_head, dtype), np.asarray(self.mesh_rot, dtype), mesh_scale,
+                            self.joints, self.notes, self.constants)
 
     def select(self, keep) -> PosedSurface:
         """The elements at indices `keep` (ascending: capsules, spheres, meshes stay in order)."""
@@ -332,8 +345,8 @@ def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarr
     for b in dict.fromkeys(point_bones):
         rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
         rot = np.ascontiguousarray(posing.cached_rotation(b))
-        world[:, rows] = joints[_head_of(b, posing.model)][:, None, :] + np.swapaxes(
-            (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
+        world[:, rows] = joints[_head_of(b, posing.model)][:, None, :] + (
+            rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)).swapaxes(1, 2)
     return world.take(np.array(tri_rows), axis=1), tri_elem, slices  # (F, T, 3, 3), C order
 
 
@@ -374,6 +387,7 @@ class SurfacePoser:
         self.mesh_bone = np.array([BI[b] for b in mesh_bones], int)
         self.mesh_head = np.array([JI[_head_of(b, model)] for b in mesh_bones], int)
         self.mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
+        self.constants: dict = {}  # PosedSurface.constants, shared by every pose
         self._mesh_points(model, meshes, len(caps) + len(sphs))
 
     def _mesh_points(self, model, meshes: list, first: int) -> None:
@@ -424,14 +438,14 @@ class SurfacePoser:
             # Decision (speed): a few frames (a live frame) pose every point bone in one padded
             # product (a few numpy calls, not a few per group); the products' BLAS kernels differ
             # with the padded width, so points move by rounding (1e-16 m) against the groups'.
-            rel = stacks_mul(np.swapaxes(frames, 0, 1), self.pad_local, self.pad_bones)  # (G, F, 3, K)
-            pts = joints[:, self.pad_heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+            rel = stacks_mul(frames.swapaxes(0, 1), self.pad_local, self.pad_bones)  # (G, F, 3, K)
+            pts = joints[:, self.pad_heads][:, :, None, :] + rel.swapaxes(-1, -2).swapaxes(0, 1)
             tri = pts.reshape(nf, -1, 3).take(self.pad_tri, axis=1)
         else:
             world = np.empty((nf, self.point_count, 3))
             for bones, heads, rows, local in self.point_groups:  # per bone, its points (G bones of K points)
-                rel = stacks_mul(np.swapaxes(frames, 0, 1), local, bones)  # (G, F, 3, K)
-                world[:, rows] = joints[:, heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+                rel = stacks_mul(frames.swapaxes(0, 1), local, bones)  # (G, F, 3, K)
+                world[:, rows] = joints[:, heads][:, :, None, :] + rel.swapaxes(-1, -2).swapaxes(0, 1)
             tri = world.take(self.tri_rows, axis=1)
         n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
         nn = np.linalg.norm(n, axis=-1, keepdims=True)
@@ -439,4 +453,4 @@ class SurfacePoser:
         return PosedSurface(self.element_ids, self.element_bones, self.element_roots, caps_head, caps_tail, caps_rot,
                             self.cap_radius, sph_center, sph_rot, self.sph_radius, tri, tri_normal, self.tri_elem,
                             self.mesh_slices, joints[:, self.mesh_head], frames[:, self.mesh_bone], self.mesh_scale,
-                            JointTable(joints), self.notes)
+                            JointTable(joints), self.notes, self.constants)
