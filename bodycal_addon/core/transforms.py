@@ -162,7 +162,7 @@ def stacks_mul(a: np.ndarray, m: np.ndarray, rows=None) -> np.ndarray:
     the stacks are long (STACKED_FRAMES)."""
     m = np.asarray(m, float)
     if a.shape[1] < STACKED_FRAMES:
-        return np.matmul(a if rows is None else a[rows], m[:, None])
+        return np.matmul(a if rows is None else _rows(a, rows), m[:, None])
     idx = range(len(a)) if rows is None else rows
     out = np.empty((len(idx),) + a.shape[1:-1] + (m.shape[-1],))
     for k, r in enumerate(idx):
@@ -170,12 +170,18 @@ def stacks_mul(a: np.ndarray, m: np.ndarray, rows=None) -> np.ndarray:
     return out
 
 
+def _rows(a: np.ndarray, rows) -> np.ndarray:
+    """a[rows] (a copy): `take` on an index array (fancy indexing's bookkeeping costs several times
+    more on a few rows)."""
+    return a.take(rows, axis=0) if isinstance(rows, np.ndarray) else a[rows]
+
+
 def stacks_apply(a: np.ndarray, v: np.ndarray, rows=None) -> np.ndarray:
     """a[k] @ v[k] for K stacks a (K, F, 3, 3) (or a[rows[k]]) and K vectors v (K, 3) -> (K, F, 3):
     `stack_apply` stack by stack (see stacks_mul)."""
     v = np.asarray(v, float)
     if a.shape[1] < STACKED_FRAMES:
-        return np.matmul(a if rows is None else a[rows], v[:, None, :, None])[..., 0]
+        return np.matmul(a if rows is None else _rows(a, rows), v[:, None, :, None])[..., 0]
     idx = range(len(a)) if rows is None else rows
     out = np.empty((len(idx),) + a.shape[1:-1])
     for k, r in enumerate(idx):

@@ -148,6 +148,8 @@ class _Level:
     follow_fixed: np.ndarray  # (K, 3, 3)
     chain: list[int]  # spine chain bones, aimed one by one
     root: bool  # the root bone is at this depth (placed from the pelvis once posed)
+    loose_at: np.ndarray | None = None  # (K, 1, 3) the loose bones' rest heads
+    rest_at: np.ndarray | None = None  # (K, 1, 3, 3) the rest bones' rest matrices
 
 
 @dataclass
@@ -322,12 +324,22 @@ class AvatarRig:
     # --- coordinates ----------------------------------------------------------------------------
 
     def to_armature(self, p):
-        p = np.asarray(p, float) - self.world[:3, 3]
-        return (p.reshape(-1, 3) @ self.w_inv.T).reshape(p.shape)
+        shift, _, inv_t = self._world_parts
+        p = np.asarray(p, float) - shift
+        return (p.reshape(-1, 3) @ inv_t).reshape(p.shape)
 
     def to_world(self, p):
+        shift, lin_t, _ = self._world_parts
         p = np.asarray(p, float)  # one BLAS call on (N, 3) rows (einsum is several times slower)
-        return (p.reshape(-1, 3) @ self.world[:3, :3].T).reshape(p.shape) + self.world[:3, 3]
+        return (p.reshape(-1, 3) @ lin_t).reshape(p.shape) + shift
+
+    @property
+    def _world_parts(self) -> tuple:
+        """(the armature's translation, its linear part transposed, its inverse transposed): views
+        of `world` and `w_inv` as the coordinate maps take them, once."""
+        if getattr(self, "_wparts", None) is None:
+            self._wparts = (self.world[:3, 3], self.world[:3, :3].T, self.w_inv.T)
+        return self._wparts
 
     @property
     def bone_index(self) -> dict[str, int]:
@@ -414,9 +426,9 @@ class AvatarRig:
             # often poses the same trunk again (the egocentric method poses the avatar four times a
             # block, the arms alone changing after the first IK): when every input they read is
             # the last pose's, bit for bit, they are the last pose's.
-            key = (frames[:, chain.inputs], np.array(pelvis, float))
+            key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
             memo = getattr(self, "_chain_memo", None)
-            if memo is not None and all(np.array_equal(a, b) for a, b in zip(key, memo[0])):
+            if memo is not None and memo[0] == key:  # bit for bit
                 held = memo[1]
             else:
                 # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
@@ -430,11 +442,11 @@ class AvatarRig:
         few = plan.deferred is not None and nf < FEW_FRAMES
         for lv in plan.few if few else plan.levels:
             if len(lv.heads):
-                H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
+                H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
-                H[lv.loose] = self.head[lv.loose][:, None]
+                H[lv.loose] = lv.loose_at
             if len(lv.rest):
-                P[lv.rest] = self.rest[lv.rest][:, None]
+                P[lv.rest] = lv.rest_at
             if len(lv.follow):
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
             for i in lv.chain:
@@ -453,7 +465,7 @@ class AvatarRig:
                     turn = np.array([turn])
                 P[i] = aimed[j] = turn @ twist[j]
             if lv.root:
-                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
+                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
         if few:
             late, par, off, table = plan.deferred
             terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
@@ -461,6 +473,13 @@ class AvatarRig:
         if held is None and chain is not None and len(aimed) == len(chain.index):
             self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
         return P, H
+
+    @property
+    def _pelvis_at(self) -> np.ndarray:
+        """`_pelvis_local`, once."""
+        if getattr(self, "_pelvis_loc", None) is None:
+            self._pelvis_loc = self._pelvis_local
+        return self._pelvis_loc
 
     @property
     def _pelvis_local(self) -> np.ndarray:
@@ -508,6 +527,8 @@ class AvatarRig:
                     np.array(follow, int), np.array([rows[i][0] for i in follow], int),
                     np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
                     [i for i in at if rows[i][1] == "chain"], self.root in at))
+                out[-1].loose_at = self.head[out[-1].loose][:, None]
+                out[-1].rest_at = self.rest[out[-1].rest][:, None]
             return out
 
         levels = levels_of(lambda i: True)
@@ -659,12 +680,22 @@ class AvatarRig:
         if realised is False or realised is None:
             frames = None
         else:
-            idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
+            idx, car_rel, car = self._realised_rows(realised)
             frames = np.full((nf, len(BONES), 3, 3), np.nan)
             if len(idx):
-                rel = self._to_world_rot(stacks_mul(P, self._carrier_rel[idx], self.carrier[idx]))
+                rel = self._to_world_rot(stacks_mul(P, car_rel, car))
                 frames[:, idx] = rel.swapaxes(0, 1)
         return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
+
+    def _realised_rows(self, realised) -> tuple:
+        """(the canonical bones realised (True: all; a list of indices), their carriers' fixed factors,
+        their carriers), once per set."""
+        key = "all" if realised is True else tuple(int(i) for i in realised)
+        rows = self._caches.get(("realised", key))
+        if rows is None:
+            idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
+            rows = self._caches[("realised", key)] = (idx, self._carrier_rel[idx], self.carrier[idx])
+        return rows
 
     @property
     def _joint_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
