@@ -184,7 +184,7 @@ class Egocentric(Method):
                                         exclude=self.trunk_exclude)
         targets = {}
         if self.trunk_ids:
-            tg = user_side.map(posers["avatar"].pose(fk.joints, fk.frames), targets=lower)
+            tg = user_side.map(posers["avatar"].pose(fk.joints, fk.frames, normals=False), targets=lower)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
         targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)
@@ -195,7 +195,7 @@ class Egocentric(Method):
         pose, tg = mid, None
         arms_user = {}  # what the arms' IK reads of the user, the same every pass
         for k in range(ARM_PASSES):
-            ta = user_side.map(posers["avatar"].pose(pose.joints, pose.frames), targets=upper)
+            ta = user_side.map(posers["avatar"].pose(pose.joints, pose.frames, normals=False), targets=upper)
             if tg is None:
                 tg = ta
             else:
