@@ -35,7 +35,7 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     last = axis in (-1, v.ndim - 1)
     if last and v.shape[-1] < 8:
         # numpy sums fewer than 8 items one after the other: the same sum in two numpy calls
-        s = (v * v).sum(-1)
+        s = np.add.reduce(v * v, -1)  # ndarray.sum's reduction
     else:
         comps = [v[..., k] for k in range(v.shape[-1])] if last else v if axis == 0 else np.moveaxis(v, axis, 0)
         s = comps[0] * comps[0]
@@ -47,16 +47,35 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     def along(a):  # (..., ) -> broadcast against v along `axis`
         return a[..., None] if last else a[None] if axis == 0 else np.expand_dims(a, axis)
 
-    if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
+    if all_true(ok):  # the usual case: no vector to replace, nothing to guard the division against
         return v / along(n), n
     return np.where(along(ok), v / along(np.where(ok, n, 1.0)), fallback), n
+
+
+def broadcast_shape(a: tuple, b: tuple) -> tuple:
+    """np.broadcast_shapes of two shapes, in Python for those of as many axes (numpy's builds
+    arrays to find it: several microseconds, on the live solve's every few-vector product)."""
+    if len(a) != len(b):
+        return np.broadcast_shapes(a, b)
+    out = []
+    for x, y in zip(a, b):
+        if x != y and x != 1 and y != 1:
+            return np.broadcast_shapes(a, b)  # raises numpy's error
+        out.append(y if x == 1 else x)
+    return tuple(out)
+
+
+def all_true(a: np.ndarray) -> bool:
+    """a.all() of a bool array; a few items in Python (the method's wrapper costs more than the
+    test on the live solve's one-frame arrays)."""
+    return a.all() if a.size > 32 else False not in a.ravel().tolist()
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
     order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
     a, b = np.asarray(a), np.asarray(b)
-    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    shape = a.shape if a.shape == b.shape else broadcast_shape(a.shape, b.shape)
     if math.prod(shape[:-1]) <= SMALL_CROSS:
         # A few vectors: the components gathered in rolled order, the same three products and
         # differences in eight numpy calls instead of fifteen. The result is still allocated

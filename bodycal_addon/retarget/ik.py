@@ -20,7 +20,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import EPS, cross, einsum
+from ..core.transforms import EPS, all_true, broadcast_shape, cross, einsum
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
@@ -57,8 +57,8 @@ def _unit(v, fallback):
     vanishes (the usual case has none: its fallback would be computed for nothing)."""
     n = np.sqrt(_dot(v, v))
     ok = n > EPS
-    if ok.all() and (callable(fallback) or np.shape(fallback) == v.shape
-                     or np.broadcast_shapes(np.shape(fallback), v.shape) == v.shape):
+    if all_true(ok) and (callable(fallback) or np.shape(fallback) == v.shape
+                         or broadcast_shape(np.shape(fallback), v.shape) == v.shape):
         return v / n[..., None], n  # np.where's values when every vector is kept
     fallback = fallback() if callable(fallback) else fallback
     return np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback), n

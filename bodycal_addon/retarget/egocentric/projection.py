@@ -4,12 +4,13 @@ coordinates that re-pose the projection on another body and the angular factor o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
-from ...core.transforms import EPS, unit_and_norm
+from ...core.transforms import EPS, broadcast_shape, unit_and_norm
 from .surface import PosedSurface
 
 FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)
@@ -73,8 +74,8 @@ SMALL_ROWS = 4096  # items per row up to which `_rows_dot` computes the three ro
 
 
 def _rows_dot(rc, v, transpose):
-    shape = np.broadcast_shapes(rc.shape[2:], v.shape[1:])
-    if np.prod(shape) <= SMALL_ROWS:
+    shape = broadcast_shape(rc.shape[2:], v.shape[1:])
+    if math.prod(shape) <= SMALL_ROWS:
         # A few items (a live frame): the three rows in three products and two sums, each row's
         # the same r0 v0 + r1 v1 + r2 v2 in the same order as the loop below, in a fifth of the calls.
         r = rc if transpose else rc.swapaxes(0, 1)  # r[k] holds every row's k-th entry
