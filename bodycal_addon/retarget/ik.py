@@ -367,6 +367,7 @@ def _place_arc(start, lengths, target, bend_dir, fallback_side):
     return joints, theta
 
 
+ONE_FRAME_FLOATS = True  # spine: one frame's single vectors in Python floats (_spine_one; False: numpy's path)
 MAX_SPINE_STRETCH = 1.05  # the spine reaches a skull base at most this much farther than its rest chord
 MIN_SPINE_STRETCH = 0.85
 
@@ -446,6 +447,8 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     target = np.asarray(skull_base, float)
     start = pelvis + sacrum_length * sacrum_rot[..., 1]
     if rest_segments is not None:
+        if len(start) == 1 and ONE_FRAME_FLOATS:  # one frame: its single vectors in Python floats
+            return _spine_one(start, sacrum_rot, np.asarray(rest_segments, float), target, top_right)
         joints, theta = bend_rest_spine(start, sacrum_rot, np.asarray(rest_segments, float), target)
         two_pass = False
     else:
@@ -480,3 +483,59 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
     rotations = _columns(xk, y, cross(xk, y))
     return SpineResult(joints, rotations, sacrum_rot, theta)
+
+
+def _f_dot_seq(a, b):
+    """`_dot` with an operand that is a strided view: einsum's generic kernel adds in order."""
+    return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+
+
+def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
+    """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame: the
+    vertebrae's arrays in numpy as there, the single vectors between them (the chord's direction in
+    the sacrum, the bend and turn axes, the twist's hip and top) in Python floats, each the numpy
+    path's operations in their order (so its bits: tests/engine/test_ik.py)."""
+    lengths, seg0, u0a, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
+    u0 = u0a.tolist()
+    rot = sacrum_rot[0].tolist()
+    s0, t0 = start[0].tolist(), target[0].tolist()
+    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
+    # einsum "fji,fj->fi" of one frame adds its three products in order
+    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
+    ut, reach = _f_unit(local, u0)
+    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
+    phi = np.arctan2([sin_phi], [_f_dot(u0, ut)])
+    delta = phi * ratio[0] / ratio[1]
+    seg = _rodrigues(seg0[None], np.array([[axis]]), delta[:, None] * k)  # (1, n, 3)
+    chord = (seg * lengths[:, None]).sum(1)[0].tolist()
+    cdir, clen = _f_unit(chord, ut)
+    turn_axis, sin_t = _f_unit(_f_cross(cdir, ut), axis)
+    seg = _rodrigues(seg, np.array([[turn_axis]]), np.arctan2([sin_t], [_f_dot(cdir, ut)])[:, None])
+    stretch = _f_clip(reach / _f_max(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * np.array([stretch])[:, None])[..., None]
+    joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
+    # the twist (spine's), its chord, hip and top in floats
+    j0, j1 = joints[0, 0].tolist(), joints[0, -1].tolist()
+    y_sac = [rot[0][1], rot[1][1], rot[2][1]]
+    x_sac = [rot[0][0], rot[1][0], rot[2][0]]  # a strided view in the numpy path
+    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
+    kx = _f_dot_seq(x_sac, chord)
+    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
+                  lambda: _f_any_perpendicular(chord))[0]
+    if top_right is not None:
+        tr = np.asarray(top_right, float)
+        tr_l = tr[0].tolist()
+        kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
+        top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
+        total = np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)])
+    else:
+        total = np.zeros(1)
+    n = joints.shape[1] - 1
+    frac = (np.arange(n) + 1.0) / n
+    ang = total[:, None] * frac
+    hip_a, other_a, chord_a = np.array([[hip]]), np.array([[_f_cross(chord, hip)]]), np.array([[chord]])
+    right = np.cos(ang)[..., None] * hip_a + np.sin(ang)[..., None] * other_a
+    y = _unit(joints[:, 1:] - joints[:, :-1], chord_a)[0]
+    xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
+    rotations = _columns(xk, y, cross(xk, y))
+    return SpineResult(joints, rotations, sacrum_rot, delta)
