@@ -133,16 +133,20 @@ _LIMITS_RAD = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS
 
 def _rx_rz_rx(a, b, c):
     """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
-    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    angles = np.empty(np.shape(a) + (3,))
+    angles[..., 0], angles[..., 1], angles[..., 2] = a, b, c
+    cos, sin = np.cos(angles), np.sin(angles)  # the six in two calls (elementwise: the same values)
+    ca, cb, cc = cos[..., 0], cos[..., 1], cos[..., 2]
+    sa, sb, sc = sin[..., 0], sin[..., 1], sin[..., 2]
     out = np.empty(np.shape(a) + (3, 3))
     # Rz(b) Rx(c) has rows (cb, -sb cc, sb sc), (sb, cb cc, -cb sc), (0, sc, cc); Rx(a) mixes the
-    # last two.
-    r1 = (sb, cb * cc, -cb * sc)
-    r2 = (0.0, sc, cc)
+    # last two, column by column as ca r1 - sa r2 and sa r1 + ca r2.
     out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = cb, -sb * cc, sb * sc
-    for j in range(3):
-        out[..., 1, j] = ca * r1[j] - sa * r2[j]
-        out[..., 2, j] = sa * r1[j] + ca * r2[j]
+    r1, r2 = np.empty(np.shape(a) + (3,)), np.empty(np.shape(a) + (3,))
+    r1[..., 0], r1[..., 1], r1[..., 2] = sb, cb * cc, -cb * sc
+    r2[..., 0], r2[..., 1], r2[..., 2] = 0.0, sc, cc
+    out[..., 1, :] = ca[..., None] * r1 - sa[..., None] * r2
+    out[..., 2, :] = sa[..., None] * r1 + ca[..., None] * r2
     return out
 
 
@@ -212,7 +216,10 @@ class FingerSet:
         alpha = np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
         # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
         # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
-        c1, s1, c2, s2 = np.cos(alpha), np.sin(alpha), np.cos(2 * alpha), np.sin(2 * alpha)
+        twice = np.empty((self.n, 2))  # α and 2α: their cosines and sines in two calls
+        twice[:, 0], twice[:, 1] = alpha, 2 * alpha
+        cos, sin = np.cos(twice), np.sin(twice)
+        c1, c2, s1, s2 = cos[:, 0], cos[:, 1], sin[:, 0], sin[:, 1]
         # realign: the target's yaw and pitch clamped, the flexed tip's pitch (its yaw is zero)
         ly, lz = local[..., 1], local[..., 2]
         pitch = np.arctan2(-lz, ly)
@@ -226,10 +233,10 @@ class FingerSet:
         n = self.n
         rots = np.empty((n, 3, 3, 3))
         rots[:, 0] = base
-        for k, (c, s) in enumerate(((c1, s1), (c2, s2)), start=1):
-            rots[:, k, :, 0] = bx
-            rots[:, k, :, 1] = c[:, None] * by + s[:, None] * bz
-            rots[:, k, :, 2] = c[:, None] * bz - s[:, None] * by
+        c, s = cos[:, :, None], sin[:, :, None]  # phalanges 2 and 3 at once: (n, 2, 1)
+        rots[:, 1:, :, 0] = bx[:, None]
+        rots[:, 1:, :, 1] = c * by[:, None] + s * bz[:, None]
+        rots[:, 1:, :, 2] = c * bz[:, None] - s * by[:, None]
         joints = np.empty((n, 4, 3))
         joints[:, 0] = mcp
         joints[:, 1:] = mcp[:, None] + np.cumsum(rots[..., :, 1] * self.lens, axis=1)
