@@ -159,10 +159,16 @@ class _PosePlan:
     fixed: np.ndarray  # (K, 3, 3) C0^-1 W M_A
     levels: list[_Level]
     chained: bool  # the spine chain's bones are posed
+    has_root: bool = False  # the root bone is posed
     # A few frames (fewer than FEW_FRAMES): `levels` placing only the heads the chain reads (`few`),
     # the others in one pass after it (`deferred`: rows, parents, offsets, the padded sum table).
     few: list[_Level] | None = None
     deferred: tuple | None = None
+    # A few frames whose spine chain needs no aiming (its rotations held, or no chain): every
+    # rotation first, then every head in one padded pass from the root and the parentless bones
+    # (`_pose`); (rest bones, their matrices, loose bones, their heads, [(follow bones, parents,
+    # fixed)] by depth, and the heads' rows, parents, offsets and padded sum table)
+    flat: tuple | None = None
 
 
 # Poses of fewer frames than this place the heads the spine chain does not read in one padded
@@ -184,6 +190,7 @@ class _ChainPlan:
     k: np.ndarray  # (n,) the curve segment of its arc position
     t: np.ndarray  # (n,) and the position along it
     inputs: np.ndarray  # every canonical bone whose frame the chain's rotations read (with the pelvis)
+    order: np.ndarray | None = None  # the bones by their row here
 
 
 @dataclass
@@ -440,6 +447,24 @@ class AvatarRig:
                 target = None
                 aimed = {}
         few = plan.deferred is not None and nf < FEW_FRAMES
+        if few and (chain is None or held is not None):
+            # Decision (speed, the same values): no chain to aim (a solve's later poses hold its
+            # rotations): every rotation, then every head in one padded pass, each the same sum
+            # in the same order as level by level (H_anchor + c_1) + c_2 + ...
+            rest, rest_at, loose, loose_at, follows, late, par, off, table = plan.flat
+            if len(rest):
+                P[rest] = rest_at
+            if chain is not None:
+                P[chain.order] = held
+            for bones_f, par_f, fixed_f in follows:
+                P[bones_f] = stacks_mul(P, fixed_f, par_f)
+            if len(loose):
+                H[loose] = loose_at
+            if plan.has_root:
+                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
+            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
+            H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)
+            return P, H
         for lv in plan.few if few else plan.levels:
             if len(lv.heads):
                 H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
@@ -533,29 +558,45 @@ class AvatarRig:
 
         levels = levels_of(lambda i: True)
         plan = _PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
-                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained)
+                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained,
+                         self.root in keep)
         # The other heads, for a few frames: each is its anchor's head (the nearest ancestor placed
         # in the levels: an early bone, the root or a parentless one) plus the offsets P_p o down
         # the path, added in the levels' order (H_a + c_1) + c_2 + ..., padded with exact zeros.
         late = [i for i in sorted(keep) if i != self.root and rows[i][0] >= 0 and i not in early]
         if late:
-            row = {b: k for k, b in enumerate(late)}
-            n = len(self.names)
-            paths = []
-            for b in late:
-                path = [b]
-                while path[-1] in row and self.parent[path[-1]] in row:
-                    path.append(int(self.parent[path[-1]]))
-                paths.append((int(self.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
-            width = max(len(p) for _, p in paths)
-            zero = n + len(late)
-            table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
             plan.few = [lv for lv in levels_of(lambda i: i in early)  # the depths with work left
                         if len(lv.heads) or len(lv.loose) or len(lv.rest) or len(lv.follow) or lv.chain or lv.root]
-            plan.deferred = (np.array(late, int), np.array([rows[i][0] for i in late], int),
-                             np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
+            plan.deferred = self._head_table(late, rows)
+            # With no chain to aim, every head in that one pass: each its root's or parentless
+            # ancestor's head plus the offsets down the path, the same sums in the same order.
+            hanging = [i for i in sorted(keep) if i != self.root and rows[i][0] >= 0]
+            follows = [(lv.follow, lv.follow_par, lv.follow_fixed) for lv in levels if len(lv.follow)]
+            rest = np.array([i for lv in levels for i in lv.rest.tolist()], int)
+            loose = np.array([i for lv in levels for i in lv.loose.tolist()], int)
+            plan.flat = (rest, self.rest[rest][:, None], loose, self.head[loose][:, None], follows,
+                         *self._head_table(hanging, rows))
         self._caches[("pose", bones)] = plan
         return plan
+
+    def _head_table(self, late: list[int], rows: list) -> tuple:
+        """For the heads of bones `late`, placed in one pass (`_pose`): (the bones, their parents,
+        the offsets in the parents' rest frames, the padded sum table: per bone its anchor's row in
+        H (the nearest ancestor not in `late`) and its path's offsets' rows after H's, top down,
+        padded with the row of a zero)."""
+        row = {b: k for k, b in enumerate(late)}
+        n = len(self.names)
+        paths = []
+        for b in late:
+            path = [b]
+            while path[-1] in row and self.parent[path[-1]] in row:
+                path.append(int(self.parent[path[-1]]))
+            paths.append((int(self.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
+        width = max(len(p) for _, p in paths)
+        zero = n + len(late)
+        table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
+        return (np.array(late, int), np.array([rows[i][0] for i in late], int),
+                np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
 
     @property
     def _chain_plan(self) -> _ChainPlan:
@@ -578,7 +619,7 @@ class AvatarRig:
             self._chain_rows = _ChainPlan({b: j for j, b in enumerate(bones)}, vert,
                                           np.array([self.frames0[c].T @ self.w_rot for c in vert]).reshape(-1, 3, 3),
                                           self.rest[bones], self.chain_aim[bones], self.chain_off[bones], k, s - k,
-                                          np.array(sorted(inputs), int))
+                                          np.array(sorted(inputs), int), np.array(bones, int))
         return self._chain_rows
 
     @property
