@@ -152,7 +152,7 @@ class Egocentric(Method):
         self.mapped = (self.lower if self.trunk_ids else []) + self.upper
         self.mapped_joints = np.array([JI[n] for n in self.mapped], int)
         arms = frozenset(self.ids) - frozenset(self.trunk_ids)
-        self.trunk_exclude = {n: arms for n in self.lower}
+        self.trunk_exclude = tuple(arms if n in self.lower else frozenset() for n in self.mapped)
         self.wrist_rows = {s: self.mapped.index(f"wrist_{s}") for s in self.palm_local}
         # Both bodies' surfaces posed by prepared posers (all elements).
         self.posers = {who: ego.SurfacePoser(model, self.ids) for who, model in (("user", self.user_s),

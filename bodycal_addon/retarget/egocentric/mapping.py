@@ -318,11 +318,12 @@ class PreparedTargets:
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     user_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
                     chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE,
-                    dtype=np.float64, exclude: dict[str, set[str]] | None = None) -> PreparedTargets:
+                    dtype=np.float64, exclude: dict[str, set[str]] | tuple | None = None) -> PreparedTargets:
     """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses.
     `dtype` float32 maps in single precision (about twice as fast; positions agree with float64
     to a few micrometres, the pipeline's choice). `exclude`: target name -> element ids it is not
-    mapped on, besides its own chain's (the egocentric method's trunk targets: the arms)."""
+    mapped on, besides its own chain's (the egocentric method's trunk targets: the arms); or, per
+    target name in order, a frozenset of them (a caller that prepares the same targets again)."""
     dtype = np.dtype(dtype)
     if dtype not in (np.float32, np.float64):
         raise BodyCalError(f"the mapping computes in float32 or float64, not {dtype}")
@@ -346,7 +347,8 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
     # bake's chunks) project each group on its own elements only: there the pairs are the cost.
     ids = tuple(user_surface.element_ids)
     names = tuple(target_names)
-    extra = None if not exclude else tuple(frozenset(exclude.get(n, ())) for n in names)
+    extra = None if not exclude else exclude if isinstance(exclude, tuple) else tuple(
+        frozenset(exclude.get(n, ())) for n in names)
     roots = tuple(user_surface.element_roots)
     if not chunk and F * len(names) * len(ids) <= MERGED_PAIRS:
         whole = _project(pts, user_surface, penetration_tolerance)

@@ -259,7 +259,7 @@ def _mesh_pairing(user_slices: tuple, avatar_slices: tuple) -> tuple[np.ndarray,
     triangle index to the avatar's: the same position inside the element), once per mesh layout."""
     same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user_slices, avatar_slices)])
     offset = np.array([as_ - us for (us, _), (as_, _) in zip(user_slices, avatar_slices)])
-    return same, offset
+    return same, offset, bool(same.all())
 
 
 def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
@@ -281,8 +281,8 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
         v_parts = [_apply(cap_rot, _apply_t(_rot_comp(user.caps_rot), pr.v[..., :C])),
                    _apply(sph_rot, _apply_t(_rot_comp(user.sph_rot), pr.v[..., C:C + S]))]
     if M:
-        same, offset = _mesh_pairing(tuple(user.mesh_slices), tuple(avatar.mesh_slices))
-        idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
+        same, offset, all_same = _mesh_pairing(tuple(user.mesh_slices), tuple(avatar.mesh_slices))
+        idx = pr.tri_index + offset if all_same else np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
         fi = np.arange(F)[:, None, None]
         # The corners of every pair's triangle in one gather, (corner, component, F, P, M); the
         # barycentric sum corner by corner as before (0 + b0 c0 + b1 c1 + b2 c2, the same bits).
@@ -297,7 +297,7 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
                    @ _triangle_frames(user.tri, user.tri_normal).swapaxes(-1, -2))  # (F, T, 3, 3)
             rel = np.ascontiguousarray(rel.transpose(2, 3, 0, 1))[:, :, fi, pr.tri_index]  # (3, 3, F, P, M)
             mesh_v = _apply(rel, pr.v[..., C + S:])
-        if not same.all():
+        if not all_same:
             # Different triangles (e.g. palms with other point counts): the element bone's frame,
             # scaled by the bone length ratio.
             bad = np.flatnonzero(~same)
