@@ -721,8 +721,10 @@ class AvatarRig:
         if realised is False or realised is None:
             frames = None
         else:
-            idx, car_rel, car = self._realised_rows(realised)
-            frames = np.full((nf, len(BONES), 3, 3), np.nan)
+            idx, car_rel, car, unrealised = self._realised_rows(realised)
+            frames = np.empty((nf, len(BONES), 3, 3))  # NaN where not realised (written once)
+            if len(unrealised):
+                frames[:, unrealised] = np.nan
             if len(idx):
                 rel = self._to_world_rot(stacks_mul(P, car_rel, car))
                 frames[:, idx] = rel.swapaxes(0, 1)
@@ -730,12 +732,13 @@ class AvatarRig:
 
     def _realised_rows(self, realised) -> tuple:
         """(the canonical bones realised (True: all; a list of indices), their carriers' fixed factors,
-        their carriers), once per set."""
+        their carriers, the bones not realised), once per set."""
         key = "all" if realised is True else tuple(int(i) for i in realised)
         rows = self._caches.get(("realised", key))
         if rows is None:
             idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
-            rows = self._caches[("realised", key)] = (idx, self._carrier_rel[idx], self.carrier[idx])
+            rows = self._caches[("realised", key)] = (idx, self._carrier_rel[idx], self.carrier[idx],
+                                                      np.setdiff1d(np.arange(len(BONES)), idx))
         return rows
 
     @property
