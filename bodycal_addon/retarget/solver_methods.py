@@ -154,9 +154,12 @@ class Egocentric(Method):
         arms = frozenset(self.ids) - frozenset(self.trunk_ids)
         self.trunk_exclude = tuple(arms if n in self.lower else frozenset() for n in self.mapped)
         self.wrist_rows = {s: self.mapped.index(f"wrist_{s}") for s in self.palm_local}
-        # Both bodies' surfaces posed by prepared posers (all elements).
+        # Both bodies' surfaces posed by prepared posers (all elements; and the avatar's trunk
+        # alone, which a bake's trunk stage maps on: a few frames map from every element at once).
         self.posers = {who: ego.SurfacePoser(model, self.ids) for who, model in (("user", self.user_s),
                                                                                  ("avatar", self.avatar_s))}
+        if self.trunk_ids:
+            self.posers["avatar_trunk"] = ego.SurfacePoser(self.avatar_s, self.trunk_ids)
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
@@ -184,7 +187,8 @@ class Egocentric(Method):
                                         exclude=self.trunk_exclude)
         targets = {}
         if self.trunk_ids:
-            tg = user_side.map(posers["avatar"].pose(fk.joints, fk.frames, normals=False), targets=lower)
+            poser = posers["avatar" if user_side.whole is not None else "avatar_trunk"]
+            tg = user_side.map(poser.pose(fk.joints, fk.frames, normals=False), targets=lower)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
         targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)

@@ -435,3 +435,21 @@ def test_a_few_frames_mapped_side_by_side_are_each_group_s_own_values_to_the_bit
         np.testing.assert_array_equal(few.map(av.take(f, f + 1)), grouped[f:f + 1])
         np.testing.assert_array_equal(few.map(av.take(f, f + 1), targets=lower),
                                       grouped[f:f + 1, [TARGETS.index(n) for n in lower]])
+
+
+def test_a_block_mapped_by_group_takes_an_avatar_surface_of_the_elements_its_targets_use(user):
+    # A bake's trunk stage maps its targets group by group on an avatar surface posed with the
+    # elements they use only (the body without the arms): the values of the whole surface's map.
+    joints, rots = _posed(user, 40, 12)
+    avatar = rb.scale_model(user, 1.1)
+    us = eg.pose_surface(user, joints, rots)
+    pts = _targets(joints, 12)
+    arms = {e for e in us.element_ids if e.startswith(("capsule:upperarm_", "capsule:forearm_", "mesh:palm_"))}
+    lower = ["skull_base", "ankle_l", "knee_r"]
+    prepared = eg.prepare_targets(pts, TARGETS, us, exclude={n: arms for n in lower}, chunk=40)
+    av_joints = {k: v * 1.1 for k, v in joints.items()}
+    whole = prepared.map(eg.pose_surface(avatar, av_joints, rots), targets=lower)
+    trunk = [e for e in us.element_ids if e not in arms]
+    np.testing.assert_array_equal(prepared.map(eg.pose_surface(avatar, av_joints, rots, trunk), targets=lower), whole)
+    with pytest.raises(BodyCalError, match="lacks elements"):
+        prepared.map(eg.pose_surface(avatar, av_joints, rots, trunk), targets=["wrist_l"])

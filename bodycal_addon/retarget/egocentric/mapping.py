@@ -251,15 +251,15 @@ class PreparedTargets:
             turn_v: bool = False, details: dict | None = None, targets: list[str] | None = None) -> np.ndarray:
         """The avatar's targets (F, P, 3) for the avatar posed as `avatar_surface` (same frames and
         element_ids as the user's surface); see retarget_points. `targets`: map only these (of the
-        names prepared), (F, len(targets), 3) in their order."""
+        names prepared), (F, len(targets), 3) in their order; a block of frames mapped group by
+        group (not `whole`) may then take an avatar surface of fewer elements, those the groups of
+        these targets are mapped on (the bake's trunk stage: the body without the arms)."""
         us = self.user_surface
-        if us.element_ids != avatar_surface.element_ids:
-            raise BodyCalError("user and avatar surfaces have different elements",
-                               hint="pose both with element_ids=common_elements(user_model, avatar_model)")
         F = self.frames
         if avatar_surface.frames != F:
             raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
         wanted, todo = self._todo(None if targets is None else tuple(targets))
+        rows = self._avatar_rows(None if targets is None else tuple(targets), tuple(avatar_surface.element_ids))
         for _, g in todo:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         dtype = self.pts.dtype
@@ -273,6 +273,9 @@ class PreparedTargets:
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F, dtype)
+        union, local = rows
+        if union is not None:  # only the elements these groups are mapped on, converted
+            avatar_surface = avatar_surface.select(union)
         avatar_surface = avatar_surface.astype(dtype, normals=turn_v)
         out = np.empty_like(self.pts)
         # Every target re-posed on every element at once, each group's pairs taken from it (the
@@ -284,7 +287,7 @@ class PreparedTargets:
             details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
                            ratio=np.ones((F, P, E)))
         for gi, g in todo:
-            av = avatar_surface if g.elements is None or whole is not None else avatar_surface.select(g.elements)
+            av = avatar_surface if local[gi] is None else avatar_surface.select(local[gi])
             for bi, b in enumerate(g.blocks):
                 s, e = b.start, b.stop
                 if (gi, bi) not in bone_tau_a[1]:
@@ -303,6 +306,42 @@ class PreparedTargets:
                     details["ratio"][rows] = ratio
                     details["lam_g_floor"][np.ix_(np.arange(s, e), g.targets)] = b.lam_gf
         return out if wanted is None else out.take(wanted, axis=1)
+
+    def _avatar_rows(self, targets: tuple | None, avatar_ids: tuple) -> tuple:
+        """(the avatar surface's elements the groups of `targets` are mapped on, ascending (None:
+        all of them), {group: its elements among those (None: all)}), once per target set and
+        avatar element list; refuses a surface that lacks an element a group is mapped on."""
+        cache = self.__dict__.setdefault("_rows_cache", {})
+        key = (targets, avatar_ids)
+        if key not in cache:
+            user_ids = tuple(self.user_surface.element_ids)
+            at = {eid: i for i, eid in enumerate(avatar_ids)}
+            _, todo = self._todo(targets)
+            if self.whole is not None or avatar_ids == user_ids:
+                if avatar_ids != user_ids:
+                    raise BodyCalError("user and avatar surfaces have different elements",
+                                       hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+                # a few frames map from every element at once; a block by group selects each group's
+                cache[key] = (None, {gi: None if g.elements is None or self.whole is not None else g.elements
+                                     for gi, g in todo})
+                return cache[key]
+            need = sorted({int(e) for _, g in todo for e in (range(len(user_ids)) if g.elements is None
+                                                            else g.elements)})
+            if any(user_ids[e] not in at for e in need):
+                raise BodyCalError("the avatar surface lacks elements the targets are mapped on",
+                                   hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+            union = np.array([at[user_ids[e]] for e in need], int)
+            if np.any(np.diff(union) <= 0):
+                raise BodyCalError("the avatar surface's elements are not in the user surface's order",
+                                   hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+            row = {e: k for k, e in enumerate(need)}
+            local = {gi: np.array([row[int(e)] for e in (range(len(user_ids)) if g.elements is None else g.elements)],
+                                  int) for gi, g in todo}
+            whole_set = len(union) == len(avatar_ids)
+            kept_all = {gi for gi, g in todo if g.elements is None}
+            cache[key] = (None if whole_set else union,
+                          {gi: None if whole_set and gi in kept_all else v for gi, v in local.items()})
+        return cache[key]
 
     def _todo(self, targets: tuple | None) -> tuple:
         """(the rows of `targets` (None: all), [(index, group)] of the groups that map them]), once
