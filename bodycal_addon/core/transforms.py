@@ -184,8 +184,8 @@ def stacks_mul(a: np.ndarray, m: np.ndarray, rows=None) -> np.ndarray:
         return np.matmul(a if rows is None else _rows(a, rows), m[:, None])
     idx = range(len(a)) if rows is None else rows
     out = np.empty((len(idx),) + a.shape[1:-1] + (m.shape[-1],))
-    for k, r in enumerate(idx):
-        out[k] = (a[r].reshape(-1, 3) @ m[k]).reshape(out.shape[1:])
+    for k, r in enumerate(idx):  # each product written where it goes (no temporary to copy)
+        np.matmul(a[r].reshape(-1, 3), m[k], out=out[k].reshape(-1, m.shape[-1]))
     return out
 
 
@@ -204,7 +204,7 @@ def stacks_apply(a: np.ndarray, v: np.ndarray, rows=None) -> np.ndarray:
     idx = range(len(a)) if rows is None else rows
     out = np.empty((len(idx),) + a.shape[1:-1])
     for k, r in enumerate(idx):
-        out[k] = (a[r].reshape(-1, 3) @ v[k]).reshape(out.shape[1:])
+        np.matmul(a[r].reshape(-1, 3), v[k], out=out[k].reshape(-1))
     return out
 
 
