@@ -694,7 +694,12 @@ class AvatarRig:
         b = self.joint_bone[j0]
         if self.driver[b] == "chain":  # not posed yet: its head is placed, orient it as at rest
             p = self.parent[b]
-            rot = self.rest[b] if p < 0 else P[p] @ (self.rest[p].T @ self.rest[b])
+            if p < 0:
+                rot = self.rest[b]
+            else:
+                if getattr(self, "_start_rel", None) is None:  # M_p^-1 M_b, once
+                    self._start_rel = self.rest[p].T @ self.rest[b]
+                rot = P[p] @ self._start_rel
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
