@@ -448,23 +448,7 @@ class AvatarRig:
                 aimed = {}
         few = plan.deferred is not None and nf < FEW_FRAMES
         if few and (chain is None or held is not None):
-            # Decision (speed, the same values): no chain to aim (a solve's later poses hold its
-            # rotations): every rotation, then every head in one padded pass, each the same sum
-            # in the same order as level by level (H_anchor + c_1) + c_2 + ...
-            rest, rest_at, loose, loose_at, follows, late, par, off, table = plan.flat
-            if len(rest):
-                P[rest] = rest_at
-            if chain is not None:
-                P[chain.order] = held
-            for bones_f, par_f, fixed_f in follows:
-                P[bones_f] = stacks_mul(P, fixed_f, par_f)
-            if len(loose):
-                H[loose] = loose_at
-            if plan.has_root:
-                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
-            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
-            H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)
-            return P, H
+            return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis)
         for lv in plan.few if few else plan.levels:
             if len(lv.heads):
                 H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
@@ -497,6 +481,26 @@ class AvatarRig:
             H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
         if held is None and chain is not None and len(aimed) == len(chain.index):
             self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
+        return P, H
+
+    def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis):
+        """`_pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
+        rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
+        later poses hold the chain's rotations, so nothing is aimed level by level; each head is
+        the same sum in the same order as level by level, (H_anchor + c_1) + c_2 + ..."""
+        rest, rest_at, loose, loose_at, follows, late, par, off, table = plan.flat
+        if len(rest):
+            P[rest] = rest_at
+        if chain_bones is not None:
+            P[chain_bones] = held
+        for bones_f, par_f, fixed_f in follows:
+            P[bones_f] = stacks_mul(P, fixed_f, par_f)
+        if len(loose):
+            H[loose] = loose_at
+        if plan.has_root:
+            H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
+        terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
+        H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)
         return P, H
 
     @property
