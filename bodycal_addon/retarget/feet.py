@@ -302,16 +302,17 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
         return pinned - einsum("fij,j->fi", foot_frames, local)
 
     share = np.where(np.isfinite(ball_at[:, 0]), np.where(np.isfinite(heel_at[:, 0]), share, 1.0), 0.0)
-    place = stand(heel_at, contact.heel) + share[:, None] * (stand(ball_at, contact.ball) - stand(heel_at,
-                                                                                                  contact.heel))
+    on_heel = stand(heel_at, contact.heel)
+    place = on_heel + share[:, None] * (stand(ball_at, contact.ball) - on_heel)
     w = np.where(np.isfinite(heel_at[:, 0]) | np.isfinite(ball_at[:, 0]), weight, 0.0)[:, None]
     lift = sole_lift(foot_frames, contact.support)
     # The place itself stands on the floor (a foot pitched past its ball stands on its toes' tips),
     # so that easing away from it never meets the guard below (a kink: an acceleration spike).
-    place[:, 2] = above(place[:, 2], lift, contact.floor_blend)
+    blend = contact.floor_blend
+    place[:, 2] = above(place[:, 2], lift, blend)
     out = ankle + w * (place - ankle)
     # both ends above the floor, so is their blend (guarding the blend again raised a pinned foot twice)
-    out[:, 2] = w[:, 0] * place[:, 2] + (1.0 - w[:, 0]) * above(ankle[:, 2], lift, contact.floor_blend)
+    out[:, 2] = w[:, 0] * place[:, 2] + (1.0 - w[:, 0]) * above(ankle[:, 2], lift, blend)
     return out
 
 
@@ -400,7 +401,8 @@ class CausalStance:
             prev_t = np.concatenate([[t_prev], time[:-1]])
             prev_s = np.concatenate([s_prev[None], smooth[:-1]])
         dt = time - prev_t
-        speed = np.linalg.norm(smooth - prev_s, axis=1) / np.where(dt > 0, dt, 1.0)
+        step = smooth - prev_s
+        speed = np.sqrt(np.add.reduce(step * step, axis=1)) / np.where(dt > 0, dt, 1.0)  # np.linalg.norm's
         self._last = (time[-1], smooth[-1])
         height = smooth[:, 2] - self.ref_height
         return (speed < STANCE_SPEED) & (height < STANCE_HEIGHT), (speed < EXIT_SPEED) & (height < EXIT_HEIGHT)
