@@ -12,6 +12,14 @@ import numpy as np
 
 EPS = 1e-12
 
+# `np.einsum` without its Python wrapper: with the default `optimize=False` np.einsum is this
+# function called with the same operands (the same kernel, the same bits), and the wrapper's
+# checks cost about as much as the product on a few vectors (the live solve makes ~80 a frame).
+try:
+    from numpy._core._multiarray_umath import c_einsum as einsum
+except ImportError:  # pragma: no cover - a numpy without it
+    einsum = np.einsum
+
 
 def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
     """Unit vectors; zero vectors stay zero (never NaN)."""
@@ -27,25 +35,47 @@ def unit_and_norm(v: np.ndarray, fallback=0.0, axis: int = -1) -> tuple[np.ndarr
     last = axis in (-1, v.ndim - 1)
     if last and v.shape[-1] < 8:
         # numpy sums fewer than 8 items one after the other: the same sum in two numpy calls
-        s = (v * v).sum(-1)
+        s = np.add.reduce(v * v, -1)  # ndarray.sum's reduction
     else:
-        comps = [v[..., k] for k in range(v.shape[-1])] if last else np.moveaxis(v, axis, 0)
+        comps = [v[..., k] for k in range(v.shape[-1])] if last else v if axis == 0 else np.moveaxis(v, axis, 0)
         s = comps[0] * comps[0]
         for c in comps[1:]:
             s += c * c
     n = np.sqrt(s)
     ok = n > EPS
-    if ok.all():  # the usual case: no vector to replace, nothing to guard the division against
-        return v / (n[..., None] if last else np.expand_dims(n, axis)), n
-    u = v / (np.where(ok, n, 1.0)[..., None] if last else np.expand_dims(np.where(ok, n, 1.0), axis))
-    return np.where(ok[..., None] if last else np.expand_dims(ok, axis), u, fallback), n
+
+    def along(a):  # (..., ) -> broadcast against v along `axis`
+        return a[..., None] if last else a[None] if axis == 0 else np.expand_dims(a, axis)
+
+    if all_true(ok):  # the usual case: no vector to replace, nothing to guard the division against
+        return v / along(n), n
+    return np.where(along(ok), v / along(np.where(ok, n, 1.0)), fallback), n
+
+
+def broadcast_shape(a: tuple, b: tuple) -> tuple:
+    """np.broadcast_shapes of two shapes, in Python for those of as many axes (numpy's builds
+    arrays to find it: several microseconds, on the live solve's every few-vector product)."""
+    if len(a) != len(b):
+        return np.broadcast_shapes(a, b)
+    out = []
+    for x, y in zip(a, b):
+        if x != y and x != 1 and y != 1:
+            return np.broadcast_shapes(a, b)  # raises numpy's error
+        out.append(y if x == 1 else x)
+    return tuple(out)
+
+
+def all_true(a: np.ndarray) -> bool:
+    """a.all() of a bool array; a few items in Python (the method's wrapper costs more than the
+    test on the live solve's one-frame arrays)."""
+    return a.all() if a.size > 32 else False not in a.ravel().tolist()
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`np.cross` of (..., 3) vectors, written out: the same products and differences in the same
     order (so the same bits), without its bookkeeping, which dominates on a few vectors."""
     a, b = np.asarray(a), np.asarray(b)
-    shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+    shape = a.shape if a.shape == b.shape else broadcast_shape(a.shape, b.shape)
     if math.prod(shape[:-1]) <= SMALL_CROSS:
         # A few vectors: the components gathered in rolled order, the same three products and
         # differences in eight numpy calls instead of fifteen. The result is still allocated
@@ -130,7 +160,7 @@ def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 def mul_stack(m: np.ndarray, a: np.ndarray) -> np.ndarray:
     """m @ a for ONE 3x3 m and a stack a (..., 3, 3) (see stack_mul)."""
-    return np.swapaxes(stack_mul(np.swapaxes(a, -1, -2), np.asarray(m).T), -1, -2)
+    return stack_mul(np.asarray(a).swapaxes(-1, -2), np.asarray(m).T).swapaxes(-1, -2)
 
 
 def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -151,12 +181,18 @@ def stacks_mul(a: np.ndarray, m: np.ndarray, rows=None) -> np.ndarray:
     the stacks are long (STACKED_FRAMES)."""
     m = np.asarray(m, float)
     if a.shape[1] < STACKED_FRAMES:
-        return np.matmul(a if rows is None else a[rows], m[:, None])
+        return np.matmul(a if rows is None else _rows(a, rows), m[:, None])
     idx = range(len(a)) if rows is None else rows
     out = np.empty((len(idx),) + a.shape[1:-1] + (m.shape[-1],))
-    for k, r in enumerate(idx):
-        out[k] = (a[r].reshape(-1, 3) @ m[k]).reshape(out.shape[1:])
+    for k, r in enumerate(idx):  # each product written where it goes (no temporary to copy)
+        np.matmul(a[r].reshape(-1, 3), m[k], out=out[k].reshape(-1, m.shape[-1]))
     return out
+
+
+def _rows(a: np.ndarray, rows) -> np.ndarray:
+    """a[rows] (a copy): `take` on an index array (fancy indexing's bookkeeping costs several times
+    more on a few rows)."""
+    return a.take(rows, axis=0) if isinstance(rows, np.ndarray) else a[rows]
 
 
 def stacks_apply(a: np.ndarray, v: np.ndarray, rows=None) -> np.ndarray:
@@ -164,11 +200,11 @@ def stacks_apply(a: np.ndarray, v: np.ndarray, rows=None) -> np.ndarray:
     `stack_apply` stack by stack (see stacks_mul)."""
     v = np.asarray(v, float)
     if a.shape[1] < STACKED_FRAMES:
-        return np.matmul(a if rows is None else a[rows], v[:, None, :, None])[..., 0]
+        return np.matmul(a if rows is None else _rows(a, rows), v[:, None, :, None])[..., 0]
     idx = range(len(a)) if rows is None else rows
     out = np.empty((len(idx),) + a.shape[1:-1])
     for k, r in enumerate(idx):
-        out[k] = (a[r].reshape(-1, 3) @ v[k]).reshape(out.shape[1:])
+        np.matmul(a[r].reshape(-1, 3), v[k], out=out[k].reshape(-1))
     return out
 
 
@@ -310,7 +346,7 @@ def continuous_quaternions(q: np.ndarray, *, in_place: bool = False) -> np.ndarr
     components (F-Curves, low-pass filters, key reduction) would swing through a half turn between
     them. Returns a new array, or `q` itself changed with `in_place` (a float64 array)."""
     q = q if in_place else np.array(q, dtype=float, copy=True)
-    dots = np.einsum("...i,...i->...", q[1:], q[:-1])
+    dots = einsum("...i,...i->...", q[1:], q[:-1])
     q[1:] *= np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)[..., None]
     return q
 

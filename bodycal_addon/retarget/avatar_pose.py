@@ -148,6 +148,8 @@ class _Level:
     follow_fixed: np.ndarray  # (K, 3, 3)
     chain: list[int]  # spine chain bones, aimed one by one
     root: bool  # the root bone is at this depth (placed from the pelvis once posed)
+    loose_at: np.ndarray | None = None  # (K, 1, 3) the loose bones' rest heads
+    rest_at: np.ndarray | None = None  # (K, 1, 3, 3) the rest bones' rest matrices
 
 
 @dataclass
@@ -157,10 +159,16 @@ class _PosePlan:
     fixed: np.ndarray  # (K, 3, 3) C0^-1 W M_A
     levels: list[_Level]
     chained: bool  # the spine chain's bones are posed
+    has_root: bool = False  # the root bone is posed
     # A few frames (fewer than FEW_FRAMES): `levels` placing only the heads the chain reads (`few`),
     # the others in one pass after it (`deferred`: rows, parents, offsets, the padded sum table).
     few: list[_Level] | None = None
     deferred: tuple | None = None
+    # A few frames whose spine chain needs no aiming (its rotations held, or no chain): every
+    # rotation first, then every head in one padded pass from the root and the parentless bones
+    # (`_pose`); (rest bones, their matrices, loose bones, their heads, [(follow bones, parents,
+    # fixed)] by depth, and the heads' rows, parents, offsets and padded sum table)
+    flat: tuple | None = None
 
 
 # Poses of fewer frames than this place the heads the spine chain does not read in one padded
@@ -182,6 +190,7 @@ class _ChainPlan:
     k: np.ndarray  # (n,) the curve segment of its arc position
     t: np.ndarray  # (n,) and the position along it
     inputs: np.ndarray  # every canonical bone whose frame the chain's rotations read (with the pelvis)
+    order: np.ndarray | None = None  # the bones by their row here
 
 
 @dataclass
@@ -322,12 +331,22 @@ class AvatarRig:
     # --- coordinates ----------------------------------------------------------------------------
 
     def to_armature(self, p):
-        p = np.asarray(p, float) - self.world[:3, 3]
-        return (p.reshape(-1, 3) @ self.w_inv.T).reshape(p.shape)
+        shift, _, inv_t = self._world_parts
+        p = np.asarray(p, float) - shift
+        return (p.reshape(-1, 3) @ inv_t).reshape(p.shape)
 
     def to_world(self, p):
+        shift, lin_t, _ = self._world_parts
         p = np.asarray(p, float)  # one BLAS call on (N, 3) rows (einsum is several times slower)
-        return (p.reshape(-1, 3) @ self.world[:3, :3].T).reshape(p.shape) + self.world[:3, 3]
+        return (p.reshape(-1, 3) @ lin_t).reshape(p.shape) + shift
+
+    @property
+    def _world_parts(self) -> tuple:
+        """(the armature's translation, its linear part transposed, its inverse transposed): views
+        of `world` and `w_inv` as the coordinate maps take them, once."""
+        if getattr(self, "_wparts", None) is None:
+            self._wparts = (self.world[:3, 3], self.world[:3, :3].T, self.w_inv.T)
+        return self._wparts
 
     @property
     def bone_index(self) -> dict[str, int]:
@@ -386,7 +405,7 @@ class AvatarRig:
         bones, carriers, local = plan
         P, H = self._pose(frames, pelvis, bones)
         out = H[carriers] + stacks_apply(P, local, carriers)  # (K, F, 3)
-        return self.to_world(np.ascontiguousarray(np.swapaxes(out, 0, 1)))
+        return self.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
 
     @property
     def _caches(self) -> dict:
@@ -406,7 +425,7 @@ class AvatarRig:
         plan = self._pose_plan(None if bones is None else tuple(bones))
         if len(plan.driven):
             # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-            P[plan.driven] = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), plan.fixed, plan.canon))
+            P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
         chain = self._chain_plan if plan.chained else None
         held = None
         if chain is not None:
@@ -414,27 +433,29 @@ class AvatarRig:
             # often poses the same trunk again (the egocentric method poses the avatar four times a
             # block, the arms alone changing after the first IK): when every input they read is
             # the last pose's, bit for bit, they are the last pose's.
-            key = (frames[:, chain.inputs], np.array(pelvis, float))
+            key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
             memo = getattr(self, "_chain_memo", None)
-            if memo is not None and all(np.array_equal(a, b) for a, b in zip(key, memo[0])):
+            if memo is not None and memo[0] == key:  # bit for bit
                 held = memo[1]
             else:
                 # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
                 # rest (the twist), the aim point it carries, and the offset of its target off the curve.
-                delta = self._from_world(stacks_mul(np.swapaxes(frames, 0, 1), chain.fixed, chain.vertebra))
+                delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
                 twist = stacks_mul(delta, chain.rest)
                 aim = stacks_apply(twist, chain.aim)
                 off = stacks_apply(delta, chain.off)
                 target = None
                 aimed = {}
         few = plan.deferred is not None and nf < FEW_FRAMES
+        if few and (chain is None or held is not None):
+            return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis)
         for lv in plan.few if few else plan.levels:
             if len(lv.heads):
-                H[lv.heads] = H[lv.head_par] + stacks_apply(P, lv.head_off, lv.head_par)
+                H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
-                H[lv.loose] = self.head[lv.loose][:, None]
+                H[lv.loose] = lv.loose_at
             if len(lv.rest):
-                P[lv.rest] = self.rest[lv.rest][:, None]
+                P[lv.rest] = lv.rest_at
             if len(lv.follow):
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
             for i in lv.chain:
@@ -453,7 +474,7 @@ class AvatarRig:
                     turn = np.array([turn])
                 P[i] = aimed[j] = turn @ twist[j]
             if lv.root:
-                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_local)
+                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
         if few:
             late, par, off, table = plan.deferred
             terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
@@ -461,6 +482,33 @@ class AvatarRig:
         if held is None and chain is not None and len(aimed) == len(chain.index):
             self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
         return P, H
+
+    def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis):
+        """`_pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
+        rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
+        later poses hold the chain's rotations, so nothing is aimed level by level; each head is
+        the same sum in the same order as level by level, (H_anchor + c_1) + c_2 + ..."""
+        rest, rest_at, loose, loose_at, follows, late, par, off, table = plan.flat
+        if len(rest):
+            P[rest] = rest_at
+        if chain_bones is not None:
+            P[chain_bones] = held
+        for bones_f, par_f, fixed_f in follows:
+            P[bones_f] = stacks_mul(P, fixed_f, par_f)
+        if len(loose):
+            H[loose] = loose_at
+        if plan.has_root:
+            H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
+        terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
+        H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)
+        return P, H
+
+    @property
+    def _pelvis_at(self) -> np.ndarray:
+        """`_pelvis_local`, once."""
+        if getattr(self, "_pelvis_loc", None) is None:
+            self._pelvis_loc = self._pelvis_local
+        return self._pelvis_loc
 
     @property
     def _pelvis_local(self) -> np.ndarray:
@@ -508,33 +556,51 @@ class AvatarRig:
                     np.array(follow, int), np.array([rows[i][0] for i in follow], int),
                     np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
                     [i for i in at if rows[i][1] == "chain"], self.root in at))
+                out[-1].loose_at = self.head[out[-1].loose][:, None]
+                out[-1].rest_at = self.rest[out[-1].rest][:, None]
             return out
 
         levels = levels_of(lambda i: True)
         plan = _PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
-                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained)
+                         np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained,
+                         self.root in keep)
         # The other heads, for a few frames: each is its anchor's head (the nearest ancestor placed
         # in the levels: an early bone, the root or a parentless one) plus the offsets P_p o down
         # the path, added in the levels' order (H_a + c_1) + c_2 + ..., padded with exact zeros.
         late = [i for i in sorted(keep) if i != self.root and rows[i][0] >= 0 and i not in early]
         if late:
-            row = {b: k for k, b in enumerate(late)}
-            n = len(self.names)
-            paths = []
-            for b in late:
-                path = [b]
-                while path[-1] in row and self.parent[path[-1]] in row:
-                    path.append(int(self.parent[path[-1]]))
-                paths.append((int(self.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
-            width = max(len(p) for _, p in paths)
-            zero = n + len(late)
-            table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
             plan.few = [lv for lv in levels_of(lambda i: i in early)  # the depths with work left
                         if len(lv.heads) or len(lv.loose) or len(lv.rest) or len(lv.follow) or lv.chain or lv.root]
-            plan.deferred = (np.array(late, int), np.array([rows[i][0] for i in late], int),
-                             np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
+            plan.deferred = self._head_table(late, rows)
+            # With no chain to aim, every head in that one pass: each its root's or parentless
+            # ancestor's head plus the offsets down the path, the same sums in the same order.
+            hanging = [i for i in sorted(keep) if i != self.root and rows[i][0] >= 0]
+            follows = [(lv.follow, lv.follow_par, lv.follow_fixed) for lv in levels if len(lv.follow)]
+            rest = np.array([i for lv in levels for i in lv.rest.tolist()], int)
+            loose = np.array([i for lv in levels for i in lv.loose.tolist()], int)
+            plan.flat = (rest, self.rest[rest][:, None], loose, self.head[loose][:, None], follows,
+                         *self._head_table(hanging, rows))
         self._caches[("pose", bones)] = plan
         return plan
+
+    def _head_table(self, late: list[int], rows: list) -> tuple:
+        """For the heads of bones `late`, placed in one pass (`_pose`): (the bones, their parents,
+        the offsets in the parents' rest frames, the padded sum table: per bone its anchor's row in
+        H (the nearest ancestor not in `late`) and its path's offsets' rows after H's, top down,
+        padded with the row of a zero)."""
+        row = {b: k for k, b in enumerate(late)}
+        n = len(self.names)
+        paths = []
+        for b in late:
+            path = [b]
+            while path[-1] in row and self.parent[path[-1]] in row:
+                path.append(int(self.parent[path[-1]]))
+            paths.append((int(self.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
+        width = max(len(p) for _, p in paths)
+        zero = n + len(late)
+        table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
+        return (np.array(late, int), np.array([rows[i][0] for i in late], int),
+                np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
 
     @property
     def _chain_plan(self) -> _ChainPlan:
@@ -557,7 +623,7 @@ class AvatarRig:
             self._chain_rows = _ChainPlan({b: j for j, b in enumerate(bones)}, vert,
                                           np.array([self.frames0[c].T @ self.w_rot for c in vert]).reshape(-1, 3, 3),
                                           self.rest[bones], self.chain_aim[bones], self.chain_off[bones], k, s - k,
-                                          np.array(sorted(inputs), int))
+                                          np.array(sorted(inputs), int), np.array(bones, int))
         return self._chain_rows
 
     @property
@@ -598,17 +664,17 @@ class AvatarRig:
         basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P)."""
         kids, parents, fixed = self._basis_plan
         rel = P.copy()
-        rel[kids] = np.swapaxes(P[parents], -1, -2) @ P[kids]
+        rel[kids] = P[parents].swapaxes(-1, -2) @ P[kids]
         # M^-1 (M_p) X for each bone, one stacked product (as mul_stack, bone by bone)
-        basis = np.swapaxes(stacks_mul(np.ascontiguousarray(np.swapaxes(rel, -1, -2)), fixed), -1, -2)
-        return matrix_to_quat(np.swapaxes(basis, 0, 1))
+        basis = stacks_mul(np.ascontiguousarray(rel.swapaxes(-1, -2)), fixed).swapaxes(-1, -2)
+        return matrix_to_quat(basis.swapaxes(0, 1))
 
     @property
     def _basis_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(bones with a parent, their parents, per bone the fixed left factor's transpose (N, 3, 3):
         (M^-1 M_p)^T, or (M^-1)^T for a parentless bone), once per rig."""
         if getattr(self, "_bplan", None) is None:
-            rel_t = np.swapaxes(self.rest, -1, -2)
+            rel_t = self.rest.swapaxes(-1, -2)
             kids = np.flatnonzero(self.parent >= 0)
             fixed = np.stack([(rel_t[i] if p < 0 else rel_t[i] @ self.rest[p]).T for i, p in enumerate(self.parent)])
             self._bplan = (kids, self.parent[kids], np.ascontiguousarray(fixed))
@@ -621,7 +687,7 @@ class AvatarRig:
         i, p = self.root, self.parent[self.root]
         if p < 0:
             return (H[i] - self.head[i]) @ self.rest[i]
-        local = (np.swapaxes(P[p], -1, -2) @ (H[i] - H[p])[..., None])[..., 0]
+        local = (P[p].swapaxes(-1, -2) @ (H[i] - H[p])[..., None])[..., 0]
         rel = local @ (self.rest[i].T @ self.rest[p]).T
         return rel - self.rest[i].T @ (self.head[i] - self.head[p])
 
@@ -632,7 +698,12 @@ class AvatarRig:
         b = self.joint_bone[j0]
         if self.driver[b] == "chain":  # not posed yet: its head is placed, orient it as at rest
             p = self.parent[b]
-            rot = self.rest[b] if p < 0 else P[p] @ (self.rest[p].T @ self.rest[b])
+            if p < 0:
+                rot = self.rest[b]
+            else:
+                if getattr(self, "_start_rel", None) is None:  # M_p^-1 M_b, once
+                    self._start_rel = self.rest[p].T @ self.rest[b]
+                rot = P[p] @ self._start_rel
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
@@ -647,24 +718,37 @@ class AvatarRig:
         if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
             bones, local, order = self._joint_table
             rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-            ride = H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2)  # (G, F, K, 3)
-            joints = np.swapaxes(ride, 0, 1).reshape(nf, -1, 3).take(order, axis=1)
+            ride = H[bones][:, :, None, :] + rel.swapaxes(-1, -2)  # (G, F, K, 3)
+            joints = ride.swapaxes(0, 1).reshape(nf, -1, 3).take(order, axis=1)
         else:
             joints = np.empty((nf, len(JOINTS), 3))
             for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
                 rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-                joints[:, js] = np.swapaxes(H[bones][:, :, None, :] + np.swapaxes(rel, -1, -2), 0, 1)
+                joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
             frames = None
         else:
-            idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
-            frames = np.full((nf, len(BONES), 3, 3), np.nan)
+            idx, car_rel, car, unrealised = self._realised_rows(realised)
+            frames = np.empty((nf, len(BONES), 3, 3))  # NaN where not realised (written once)
+            if len(unrealised):
+                frames[:, unrealised] = np.nan
             if len(idx):
-                rel = self._to_world_rot(stacks_mul(P, self._carrier_rel[idx], self.carrier[idx]))
-                frames[:, idx] = np.swapaxes(rel, 0, 1)
-        return RigPose(basis, np.swapaxes(P, 0, 1), np.swapaxes(H, 0, 1), root_loc, joints, frames)
+                rel = self._to_world_rot(stacks_mul(P, car_rel, car))
+                frames[:, idx] = rel.swapaxes(0, 1)
+        return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
+
+    def _realised_rows(self, realised) -> tuple:
+        """(the canonical bones realised (True: all; a list of indices), their carriers' fixed factors,
+        their carriers, the bones not realised), once per set."""
+        key = "all" if realised is True else tuple(int(i) for i in realised)
+        rows = self._caches.get(("realised", key))
+        if rows is None:
+            idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
+            rows = self._caches[("realised", key)] = (idx, self._carrier_rel[idx], self.carrier[idx],
+                                                      np.setdiff1d(np.arange(len(BONES)), idx))
+        return rows
 
     @property
     def _joint_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -701,7 +785,7 @@ class AvatarRig:
     def _carrier_rel(self):
         if getattr(self, "_car_rel", None) is None:
             car = self.carrier
-            self._car_rel = np.swapaxes(self.rest[car], -1, -2) @ self.w_rot.T @ self.frames0
+            self._car_rel = self.rest[car].swapaxes(-1, -2) @ self.w_rot.T @ self.frames0
         return self._car_rel
 
     # --- pose -> joints (Blender's FK, for checks and for the offsets method) --------------------
@@ -713,7 +797,7 @@ class AvatarRig:
         animated character's: a bone above the pelvis may carry the motion), the root's included."""
         basis = np.asarray(basis, float)
         nf, n = basis.shape[:2]
-        B = np.swapaxes(quat_to_matrix(basis), 0, 1)
+        B = quat_to_matrix(basis).swapaxes(0, 1)
         P = np.empty((n, nf, 3, 3))
         H = np.empty((n, nf, 3))
         zero = np.zeros((nf, 3))
@@ -824,7 +908,7 @@ def copy_factor(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndar
     depends on the rest frames only (the prepared solver computes it once)."""
     idx = list(DELTA_COPY)
     turn = facing_turn(user_frames0, avatar_frames0)
-    return np.swapaxes(user_frames0[idx], -1, -2) @ (turn @ avatar_frames0[idx])
+    return user_frames0[idx].swapaxes(-1, -2) @ (turn @ avatar_frames0[idx])
 
 
 def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:

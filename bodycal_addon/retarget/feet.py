@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.transforms import einsum
+
 STANCE_SPEED = 0.20  # m/s
 EXIT_SPEED = 0.40  # m/s
 STANCE_HEIGHT = 0.04  # m above the ankle's height at the reference time
@@ -198,7 +200,7 @@ def rolling_places(heel_ref: np.ndarray, ball_ref: np.ndarray, heel: Stance, bal
 def sole_lift(foot_frames: np.ndarray, sole_local: np.ndarray) -> np.ndarray:
     """(F,) the ankle's height above the lowest of the sole points (K, 3) (local to the canonical
     foot frames (F, 3, 3)): where the ankle stands when that point is on the floor."""
-    z = np.einsum("fj,kj->fk", foot_frames[:, 2, :], sole_local)  # the points' heights below the ankle
+    z = einsum("fj,kj->fk", foot_frames[:, 2, :], sole_local)  # the points' heights below the ankle
     return -z.min(axis=1)
 
 
@@ -220,7 +222,7 @@ class Contact:
 def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
     """(F, P, 3) points rigid on a foot, from where they are at rest (P, 3): the ankle (F, 3) plus
     the foot's rotation since rest (F, 3, 3) applied to their rest offsets from the ankle."""
-    return ankle[:, None] + np.einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
+    return ankle[:, None] + einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
 
 
 def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np.ndarray
@@ -297,19 +299,20 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
     turned as `foot_frames` (F, 3, 3) say; never lower than `sole_lift` (no skin under the floor)."""
     def stand(at, local):  # the ankle with that contact point at `at` on the floor
         pinned = np.concatenate([np.nan_to_num(at), np.zeros((len(at), 1))], axis=1)
-        return pinned - np.einsum("fij,j->fi", foot_frames, local)
+        return pinned - einsum("fij,j->fi", foot_frames, local)
 
     share = np.where(np.isfinite(ball_at[:, 0]), np.where(np.isfinite(heel_at[:, 0]), share, 1.0), 0.0)
-    place = stand(heel_at, contact.heel) + share[:, None] * (stand(ball_at, contact.ball) - stand(heel_at,
-                                                                                                  contact.heel))
+    on_heel = stand(heel_at, contact.heel)
+    place = on_heel + share[:, None] * (stand(ball_at, contact.ball) - on_heel)
     w = np.where(np.isfinite(heel_at[:, 0]) | np.isfinite(ball_at[:, 0]), weight, 0.0)[:, None]
     lift = sole_lift(foot_frames, contact.support)
     # The place itself stands on the floor (a foot pitched past its ball stands on its toes' tips),
     # so that easing away from it never meets the guard below (a kink: an acceleration spike).
-    place[:, 2] = above(place[:, 2], lift, contact.floor_blend)
+    blend = contact.floor_blend
+    place[:, 2] = above(place[:, 2], lift, blend)
     out = ankle + w * (place - ankle)
     # both ends above the floor, so is their blend (guarding the blend again raised a pinned foot twice)
-    out[:, 2] = w[:, 0] * place[:, 2] + (1.0 - w[:, 0]) * above(ankle[:, 2], lift, contact.floor_blend)
+    out[:, 2] = w[:, 0] * place[:, 2] + (1.0 - w[:, 0]) * above(ankle[:, 2], lift, blend)
     return out
 
 
@@ -398,7 +401,8 @@ class CausalStance:
             prev_t = np.concatenate([[t_prev], time[:-1]])
             prev_s = np.concatenate([s_prev[None], smooth[:-1]])
         dt = time - prev_t
-        speed = np.linalg.norm(smooth - prev_s, axis=1) / np.where(dt > 0, dt, 1.0)
+        step = smooth - prev_s
+        speed = np.sqrt(np.add.reduce(step * step, axis=1)) / np.where(dt > 0, dt, 1.0)  # np.linalg.norm's
         self._last = (time[-1], smooth[-1])
         height = smooth[:, 2] - self.ref_height
         return (speed < STANCE_SPEED) & (height < STANCE_HEIGHT), (speed < EXIT_SPEED) & (height < EXIT_HEIGHT)

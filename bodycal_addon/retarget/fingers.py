@@ -26,7 +26,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import stack_mul
+from ..core.transforms import einsum, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4
@@ -133,16 +133,20 @@ _LIMITS_RAD = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS
 
 def _rx_rz_rx(a, b, c):
     """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
-    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    angles = np.empty(np.shape(a) + (3,))
+    angles[..., 0], angles[..., 1], angles[..., 2] = a, b, c
+    cos, sin = np.cos(angles), np.sin(angles)  # the six in two calls (elementwise: the same values)
+    ca, cb, cc = cos[..., 0], cos[..., 1], cos[..., 2]
+    sa, sb, sc = sin[..., 0], sin[..., 1], sin[..., 2]
     out = np.empty(np.shape(a) + (3, 3))
     # Rz(b) Rx(c) has rows (cb, -sb cc, sb sc), (sb, cb cc, -cb sc), (0, sc, cc); Rx(a) mixes the
-    # last two.
-    r1 = (sb, cb * cc, -cb * sc)
-    r2 = (0.0, sc, cc)
+    # last two, column by column as ca r1 - sa r2 and sa r1 + ca r2.
     out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = cb, -sb * cc, sb * sc
-    for j in range(3):
-        out[..., 1, j] = ca * r1[j] - sa * r2[j]
-        out[..., 2, j] = sa * r1[j] + ca * r2[j]
+    r1, r2 = np.empty(np.shape(a) + (3,)), np.empty(np.shape(a) + (3,))
+    r1[..., 0], r1[..., 1], r1[..., 2] = sb, cb * cc, -cb * sc
+    r2[..., 0], r2[..., 1], r2[..., 2] = 0.0, sc, cc
+    out[..., 1, :] = ca[..., None] * r1 - sa[..., None] * r2
+    out[..., 2, :] = sa[..., None] * r1 + ca[..., None] * r2
     return out
 
 
@@ -161,6 +165,84 @@ def _per_item(v, n: int) -> np.ndarray:
     return v if v.shape == (n,) else np.broadcast_to(v, (n,))
 
 
+class FingerSet:
+    """`pose_finger`'s constants for one set of items (fingers x frames) posed together, computed
+    once: the phalanx lengths, the parts of eq. 3-4's quadratic that do not depend on the distance,
+    each item's limits and which items are thumbs rolled by how much. A live solve poses the same
+    fingers every frame, so the solver keeps one per finger set; `pose` gives the same values,
+    operation for operation, as pose_finger always did."""
+
+    def __init__(self, l1, l2, l3, thumb=False, roll: float | None = None):
+        """l1, l2, l3: (n,) the items' phalanx lengths; thumb, roll: as pose_finger takes them."""
+        l1, l2, l3 = (np.asarray(v, float) for v in (l1, l2, l3))  # (n,) each
+        self.n = len(l1)
+        self.l1, self.l2, self.l3 = l1, l2, l3
+        # flexion_from_distance's a, b and c without d² (each evaluated as it writes them)
+        a = 4.0 * l1 * l3
+        b = -2.0 * l2 * (l1 + l3)
+        self.c0 = l1 * l1 + l2 * l2 + l3 * l3 - 2.0 * l1 * l3
+        self.bb, self.a4, self.minus_b = b * b, 4.0 * a, -b
+        self.den = np.maximum(2.0 * a, 1e-18)
+        ylo, yhi, plo, phi = _limits(np.asarray(thumb, bool) if np.ndim(thumb) else bool(thumb))
+        self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi = ylo, yhi, plo, phi
+        self.half_excluded = (2 * np.pi - (phi - plo)) / 2  # _clamp_angle's excluded arc, halved
+        self.lens = np.stack([l1, l2, l3], axis=-1)[..., None]  # (n, 3, 1)
+        # the thumbs' roll (appendix D): every item, the thumbs (rows), or none
+        if np.ndim(thumb):
+            self.roll_rows = np.flatnonzero(np.asarray(thumb, bool))
+            self.roll = _ry(THUMB_ROLL if roll is None else roll) if len(self.roll_rows) else None
+        else:
+            self.roll_rows = None
+            self.roll = _ry(THUMB_ROLL if roll is None else roll) if thumb or roll is not None else None
+
+    def pose(self, mcp, ref_rot, tip_target) -> FingerPose:
+        """pose_finger of these items: mcp (n, 3), ref_rot (n, 3, 3), tip_target (n, 3)."""
+        mcp = np.asarray(mcp, float)
+        ref = np.asarray(ref_rot, float)
+        if self.roll is not None:
+            if self.roll_rows is None:
+                ref = stack_mul(ref, self.roll)
+            else:
+                rows = self.roll_rows
+                ref = ref.copy()
+                ref[rows] = stack_mul(ref.take(rows, axis=0), self.roll)
+        l1, l2, l3 = self.l1, self.l2, self.l3
+        rel = np.asarray(tip_target, float) - mcp
+        local = einsum("fji,fj->fi", ref, rel)
+        d = np.sqrt((rel * rel).sum(-1))  # np.linalg.norm's sum
+        # eq. 3-4 (flexion_from_distance, its constant parts kept)
+        disc = np.maximum(self.bb - self.a4 * (self.c0 - d * d), 0.0)
+        x = np.minimum(np.maximum((self.minus_b - np.sqrt(disc)) / self.den, -X_CLAMP), X_CLAMP)
+        alpha = np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
+        # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
+        # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
+        twice = np.empty((self.n, 2))  # α and 2α: their cosines and sines in two calls
+        twice[:, 0], twice[:, 1] = alpha, 2 * alpha
+        cos, sin = np.cos(twice), np.sin(twice)
+        c1, c2, s1, s2 = cos[:, 0], cos[:, 1], sin[:, 0], sin[:, 1]
+        # realign: the target's yaw and pitch clamped, the flexed tip's pitch (its yaw is zero)
+        ly, lz = local[..., 1], local[..., 2]
+        pitch = np.arctan2(-lz, ly)
+        yaw = np.minimum(np.maximum(np.arctan2(local[..., 0], np.hypot(ly, lz)), self.yaw_lo), self.yaw_hi)
+        inside = (pitch >= self.pitch_lo) & (pitch <= self.pitch_hi)
+        beyond_hi = np.mod(pitch - self.pitch_hi, 2 * np.pi)
+        pitch = np.where(inside, pitch, np.where(beyond_hi < self.half_excluded, self.pitch_hi, self.pitch_lo))
+        flexed_pitch = np.arctan2(-(l2 * s1 + l3 * s2), l1 + l2 * c1 + l3 * c2)
+        base = ref @ _rx_rz_rx(-pitch, -yaw, flexed_pitch)
+        bx, by, bz = base[..., 0], base[..., 1], base[..., 2]
+        n = self.n
+        rots = np.empty((n, 3, 3, 3))
+        rots[:, 0] = base
+        c, s = cos[:, :, None], sin[:, :, None]  # phalanges 2 and 3 at once: (n, 2, 1)
+        rots[:, 1:, :, 0] = bx[:, None]
+        rots[:, 1:, :, 1] = c * by[:, None] + s * bz[:, None]
+        rots[:, 1:, :, 2] = c * bz[:, None] - s * by[:, None]
+        joints = np.empty((n, 4, 3))
+        joints[:, 0] = mcp
+        joints[:, 1:] = mcp[:, None] + np.cumsum(rots[..., :, 1] * self.lens, axis=1)
+        return FingerPose(joints, rots, alpha, yaw, pitch)
+
+
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:
     """Pose one finger for F frames (appendix D).
 
@@ -170,36 +252,9 @@ def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll:
     appendix D; pass -45° for a hand whose frames are mirrored); a bool array (F,) poses fingers
     and thumbs at once (`roll` then rolls the thumbs only).
     Flexion from the MCP -> target distance (eq. 3-4, capped at 90°), then the yaw/pitch
-    realignment; the tip reaches the target whenever the distance and angles are within limits."""
+    realignment; the tip reaches the target whenever the distance and angles are within limits.
+    (`FingerSet(l1, l2, l3, thumb, roll).pose(...)`: a caller posing the same fingers again keeps
+    the FingerSet.)"""
     mcp = np.asarray(mcp, float)
-    ref = np.asarray(ref_rot, float)
-    if np.ndim(thumb):  # per item: the thumbs rolled, the other fingers as they are
-        thumb = np.asarray(thumb, bool)
-        if thumb.any():
-            ref = ref.copy()
-            ref[thumb] = stack_mul(ref[thumb], _ry(THUMB_ROLL if roll is None else roll))
-    elif thumb:
-        ref = stack_mul(ref, _ry(THUMB_ROLL if roll is None else roll))
-    elif roll is not None:
-        ref = stack_mul(ref, _ry(roll))
-    n = len(mcp)
-    l1, l2, l3 = (_per_item(v, n) for v in (l1, l2, l3))
-    rel = np.asarray(tip_target, float) - mcp
-    local = np.einsum("fji,fj->fi", ref, rel)
-    alpha = flexion_from_distance(l1, l2, l3, np.sqrt((rel * rel).sum(-1)))  # np.linalg.norm's sum
-    # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
-    # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
-    c1, s1, c2, s2 = np.cos(alpha), np.sin(alpha), np.cos(2 * alpha), np.sin(2 * alpha)
-    flexed = np.stack([np.zeros(n), l1 + l2 * c1 + l3 * c2, l2 * s1 + l3 * s2], axis=-1)
-    corr, yaw, pitch = realign(local, flexed, thumb)
-    base = ref @ corr
-    bx, by, bz = base[..., 0], base[..., 1], base[..., 2]
-    rots = np.empty((n, 3, 3, 3))
-    rots[:, 0] = base
-    for k, (c, s) in enumerate(((c1, s1), (c2, s2)), start=1):
-        rots[:, k, :, 0] = bx
-        rots[:, k, :, 1] = c[:, None] * by + s[:, None] * bz
-        rots[:, k, :, 2] = c[:, None] * bz - s[:, None] * by
-    seg = rots[..., :, 1] * np.stack([l1, l2, l3], axis=-1)[..., None]
-    joints = np.concatenate([mcp[:, None], mcp[:, None] + np.cumsum(seg, axis=1)], axis=1)
-    return FingerPose(joints, rots, alpha, yaw, pitch)
+    return FingerSet(_per_item(l1, len(mcp)), _per_item(l2, len(mcp)), _per_item(l3, len(mcp)), thumb,
+                     roll).pose(mcp, ref_rot, tip_target)

@@ -14,12 +14,13 @@ the hinge is the flexion axis; a positive rotation about +X flexes (FORMATS.md �
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import EPS, cross
+from ..core.transforms import EPS, all_true, broadcast_shape, cross, einsum
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
@@ -37,7 +38,7 @@ SWIVEL_HINT_WEIGHT = 0.1
 
 
 def _dot(a, b):
-    return np.einsum("...i,...i->...", a, b)
+    return einsum("...i,...i->...", a, b)
 
 
 def _columns(x, y, z):
@@ -56,8 +57,8 @@ def _unit(v, fallback):
     vanishes (the usual case has none: its fallback would be computed for nothing)."""
     n = np.sqrt(_dot(v, v))
     ok = n > EPS
-    if ok.all() and (callable(fallback) or np.shape(fallback) == v.shape
-                     or np.broadcast_shapes(np.shape(fallback), v.shape) == v.shape):
+    if all_true(ok) and (callable(fallback) or np.shape(fallback) == v.shape
+                         or broadcast_shape(np.shape(fallback), v.shape) == v.shape):
         return v / n[..., None], n  # np.where's values when every vector is kept
     fallback = fallback() if callable(fallback) else fallback
     return np.where(ok[..., None], v / np.where(ok, n, 1.0)[..., None], fallback), n
@@ -94,14 +95,31 @@ class TwoBoneResult:
     end: np.ndarray  # (F, 3) effector joint (wrist / ankle)
     rot1: np.ndarray  # (F, 3, 3) world frame of the first bone (+Y root -> mid, +X flexion axis)
     rot2: np.ndarray  # (F, 3, 3) world frame of the second bone (+Y mid -> end, same +X)
-    flexion: np.ndarray  # (F,) α, radians
     blend: np.ndarray  # (F,) t of eq. 7
     swivel_dir: np.ndarray  # (F, 3) unit direction from the root-effector axis to the mid joint
-    reached: np.ndarray  # (F,) bool: the target was within reach
+    # (l1, l2, the root-target distance clamped to the limb's reach, unclamped) (F,) each: the
+    # flexion and whether the target was reached are computed from these when asked for (the
+    # solver reads neither)
+    lengths: tuple
+
+    @property
+    def flexion(self) -> np.ndarray:
+        """(F,) α, radians (eq. 5-6)."""
+        l1, l2, d, _ = self.lengths
+        return flexion_angle(l1, l2, d)
+
+    @property
+    def reached(self) -> np.ndarray:
+        """(F,) bool: the target was within reach."""
+        l1, l2, _, dist = self.lengths
+        return (dist >= np.abs(l1 - l2) - 1e-9) & (dist <= l1 + l2 + 1e-9)
 
     def __iter__(self):
         """`mid, end, rot1, rot2 = two_bone(...)` unpacks the joints and the bone frames."""
         return iter((self.mid, self.end, self.rot1, self.rot2))
+
+
+FEW_LIMBS = 4  # two_bone of this many items (limbs x frames) or fewer runs in Python floats
 
 
 def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None,
@@ -124,20 +142,24 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     taken toward the pole target (else straight down). Never NaN.
 
     The mid joint lies in the half-plane through the axis and `swivel_dir`; the hinge axis is
-    `swivel_dir x axis`, so the flexion is positive about +X of both bones (rot2 = rot1 Rx(α))."""
+    `swivel_dir x axis`, so the flexion is positive about +X of both bones (rot2 = rot1 Rx(α)).
+
+    Decision (speed, the same values): a few items (FEW_LIMBS: a live frame's two arms or legs)
+    are solved in Python floats (`_two_bone_floats`: the same operations in the same order, the
+    trigonometry still numpy's), where numpy's per-call overhead was the whole cost."""
     root = np.asarray(root, float)
     target = np.asarray(target, float)
     F = root.shape[0]
     l1 = np.broadcast_to(np.asarray(l1, float), (F,))
     l2 = np.broadcast_to(np.asarray(l2, float), (F,))
+    if F <= FEW_LIMBS:
+        return _two_bone_floats(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio)
     down = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (F, 3))
     fallback_axis = down
     if pole_target is not None:
         fallback_axis = _unit(np.asarray(pole_target, float) - root, down)[0]
     axis, dist = _unit(target - root, fallback_axis)
     d = np.clip(dist, np.abs(l1 - l2), l1 + l2)
-    reached = (dist >= np.abs(l1 - l2) - 1e-9) & (dist <= l1 + l2 + 1e-9)
-    alpha = flexion_angle(l1, l2, d)
 
     # γ: the user's swivel direction, perpendicular to this axis.
     if flex_axis_hint is not None:
@@ -175,7 +197,121 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     y2 = _unit(end - mid, axis)[0]
     rot1 = _columns(x, y1, cross(x, y1))
     rot2 = _columns(x, y2, cross(x, y2))
-    return TwoBoneResult(mid, end, rot1, rot2, alpha, t, swivel, reached)
+    return TwoBoneResult(mid, end, rot1, rot2, t, swivel, (l1, l2, d, dist))
+
+
+# --- two_bone in Python floats (a few items): each helper is its numpy counterpart's operations on
+# one 3-vector, in their order (so their bits) ---------------------------------------------------
+
+def _f_dot(a, b):
+    """`_dot` (einsum "...i,...i->..."), whose kernel adds the products as (0 + 2) + 1."""
+    return (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]
+
+
+def _f_cross(a, b):
+    """`transforms.cross`."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _f_unit(v, fallback):
+    """`_unit` of one vector: (unit, norm); `fallback` (a vector, or a function giving it) where the
+    norm is EPS or less (NaN included)."""
+    n = math.sqrt(_f_dot(v, v))
+    if n > EPS:
+        return [v[0] / n, v[1] / n, v[2] / n], n
+    return list(fallback() if callable(fallback) else fallback), n
+
+
+def _f_perp_unit(v, axis, fallback):
+    k = _f_dot(v, axis)
+    return _f_unit([v[0] - k * axis[0], v[1] - k * axis[1], v[2] - k * axis[2]], fallback)
+
+
+def _f_any_perpendicular(axis):
+    ref = [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0]
+    return _f_perp_unit(ref, axis, [0.0, 0.0, 1.0])[0]
+
+
+def _f_max(x, floor):
+    """np.maximum(x, floor) (NaN stays NaN)."""
+    return floor if x < floor else x
+
+
+def _f_clip(x, lo, hi):
+    """np.clip(x, lo, hi) (NaN stays NaN)."""
+    return lo if x < lo else hi if x > hi else x
+
+
+def _two_bone_floats(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio):
+    """`two_bone` of a few items in Python floats: per item, its operations in their order; the
+    arctangent, cosine and sine of every item in one numpy call each (numpy's values)."""
+    F = root.shape[0]
+    R, T, L1, L2 = root.tolist(), target.tolist(), l1.tolist(), l2.tolist()
+    pole = None if pole_target is None else np.asarray(pole_target, float).tolist()
+    user = None if user_swivel_dir is None else np.asarray(user_swivel_dir, float).tolist()
+    hint = None if flex_axis_hint is None else np.asarray(flex_axis_hint, float).tolist()
+    down = [0.0, 0.0, -1.0]
+    axes, dists, ds, gammas, ts, ys, xs = [], [], [], [], [], [], []
+    for k in range(F):
+        r0 = R[k]
+        fallback = down
+        if pole is not None:
+            p = pole[k]
+            fallback = _f_unit([p[0] - r0[0], p[1] - r0[1], p[2] - r0[2]], down)[0]
+        tk = T[k]
+        axis, dist = _f_unit([tk[0] - r0[0], tk[1] - r0[1], tk[2] - r0[2]], fallback)
+        d = _f_clip(dist, abs(L1[k] - L2[k]), L1[k] + L2[k])
+        if hint is not None:
+            hint_dir = _f_unit(_f_cross(axis, hint[k]), lambda axis=axis: _f_any_perpendicular(axis))[0]
+        else:
+            hint_dir = _f_any_perpendicular(axis)
+        gamma = hint_dir
+        if user is not None:
+            w = user[k]
+            c = _f_dot(w, axis)
+            w = [w[0] - c * axis[0], w[1] - c * axis[1], w[2] - c * axis[2]]
+            if hint is not None:
+                w = [w[0] + SWIVEL_HINT_WEIGHT * hint_dir[0], w[1] + SWIVEL_HINT_WEIGHT * hint_dir[1],
+                     w[2] + SWIVEL_HINT_WEIGHT * hint_dir[2]]
+            gamma = _f_unit(w, hint_dir)[0]
+        if pole is not None:
+            p = pole[k]
+            beta, r = _f_perp_unit([p[0] - r0[0], p[1] - r0[1], p[2] - r0[2]], axis, gamma)
+            t = _f_clip((r / size_ratio - BLEND_START) / BLEND_WIDTH, 0.0, 1.0)
+        else:
+            beta, t = gamma, 0.0
+        axes.append(axis)
+        dists.append(dist)
+        ds.append(d)
+        gammas.append(gamma)
+        ts.append(t)
+        ys.append(_f_dot(_f_cross(gamma, beta), axis))
+        xs.append(_f_dot(gamma, beta))
+    t_arr = np.array(ts, float)
+    delta = t_arr * np.arctan2(ys, xs)
+    cos_d, sin_d = np.cos(delta).tolist(), np.sin(delta).tolist()
+    mids, ends, rot1, rot2, swivels = [], [], [], [], []
+    for k in range(F):
+        r0, axis, gamma, d, l1k = R[k], axes[k], gammas[k], ds[k], L1[k]
+        ortho = _f_cross(axis, gamma)
+        c, s = cos_d[k], sin_d[k]
+        swivel = [c * gamma[0] + s * ortho[0], c * gamma[1] + s * ortho[1], c * gamma[2] + s * ortho[2]]
+        a = (l1k * l1k - L2[k] * L2[k] + d * d) / _f_max(2.0 * d, EPS)
+        a = a if d > EPS else 0.0
+        h = math.sqrt(_f_max(l1k * l1k - a * a, 0.0))
+        mid = [r0[i] + a * axis[i] + h * swivel[i] for i in range(3)]
+        end = [r0[i] + d * axis[i] for i in range(3)]
+        x = _f_cross(swivel, axis)
+        y1 = _f_unit([mid[0] - r0[0], mid[1] - r0[1], mid[2] - r0[2]], axis)[0]
+        y2 = _f_unit([end[0] - mid[0], end[1] - mid[1], end[2] - mid[2]], axis)[0]
+        z1, z2 = _f_cross(x, y1), _f_cross(x, y2)
+        rot1.append([[x[i], y1[i], z1[i]] for i in range(3)])
+        rot2.append([[x[i], y2[i], z2[i]] for i in range(3)])
+        mids.append(mid)
+        ends.append(end)
+        swivels.append(swivel)
+    return TwoBoneResult(np.array(mids), np.array(ends), np.array(rot1), np.array(rot2), t_arr, np.array(swivels),
+                         (l1, l2, np.array(ds), np.array(dists)))
 
 
 # --- spine ----------------------------------------------------------------------------------------
@@ -231,6 +367,7 @@ def _place_arc(start, lengths, target, bend_dir, fallback_side):
     return joints, theta
 
 
+ONE_FRAME_FLOATS = True  # spine: one frame's single vectors in Python floats (_spine_one; False: numpy's path)
 MAX_SPINE_STRETCH = 1.05  # the spine reaches a skull base at most this much farther than its rest chord
 MIN_SPINE_STRETCH = 0.85
 
@@ -269,7 +406,7 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     target (F, 3) -> joints (F, n + 1, 3), δ (F,)."""
     rest_segments = np.ascontiguousarray(rest_segments, float)
     lengths, seg0, u0, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
-    local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
+    local = einsum("fji,fj->fi", sacrum_rot, target - start)
     ut, reach = _unit(local, u0)
     axis, sin_phi = _unit(cross(u0, ut), lambda: _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
@@ -280,7 +417,7 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     turn_axis, sin_t = _unit(cross(cdir, ut), axis)
     seg = _rodrigues(seg, turn_axis[:, None], np.arctan2(sin_t, _dot(cdir, ut))[:, None])
     stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
-    world = np.einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
+    world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
     joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
     return joints, delta
 
@@ -310,6 +447,8 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     target = np.asarray(skull_base, float)
     start = pelvis + sacrum_length * sacrum_rot[..., 1]
     if rest_segments is not None:
+        if len(start) == 1 and ONE_FRAME_FLOATS:  # one frame: its single vectors in Python floats
+            return _spine_one(start, sacrum_rot, np.asarray(rest_segments, float), target, top_right)
         joints, theta = bend_rest_spine(start, sacrum_rot, np.asarray(rest_segments, float), target)
         two_pass = False
     else:
@@ -344,3 +483,59 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
     rotations = _columns(xk, y, cross(xk, y))
     return SpineResult(joints, rotations, sacrum_rot, theta)
+
+
+def _f_dot_seq(a, b):
+    """`_dot` with an operand that is a strided view: einsum's generic kernel adds in order."""
+    return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+
+
+def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
+    """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame: the
+    vertebrae's arrays in numpy as there, the single vectors between them (the chord's direction in
+    the sacrum, the bend and turn axes, the twist's hip and top) in Python floats, each the numpy
+    path's operations in their order (so its bits: tests/engine/test_ik.py)."""
+    lengths, seg0, u0a, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
+    u0 = u0a.tolist()
+    rot = sacrum_rot[0].tolist()
+    s0, t0 = start[0].tolist(), target[0].tolist()
+    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
+    # einsum "fji,fj->fi" of one frame adds its three products in order
+    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
+    ut, reach = _f_unit(local, u0)
+    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
+    phi = np.arctan2([sin_phi], [_f_dot(u0, ut)])
+    delta = phi * ratio[0] / ratio[1]
+    seg = _rodrigues(seg0[None], np.array([[axis]]), delta[:, None] * k)  # (1, n, 3)
+    chord = (seg * lengths[:, None]).sum(1)[0].tolist()
+    cdir, clen = _f_unit(chord, ut)
+    turn_axis, sin_t = _f_unit(_f_cross(cdir, ut), axis)
+    seg = _rodrigues(seg, np.array([[turn_axis]]), np.arctan2([sin_t], [_f_dot(cdir, ut)])[:, None])
+    stretch = _f_clip(reach / _f_max(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * np.array([stretch])[:, None])[..., None]
+    joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
+    # the twist (spine's), its chord, hip and top in floats
+    j0, j1 = joints[0, 0].tolist(), joints[0, -1].tolist()
+    y_sac = [rot[0][1], rot[1][1], rot[2][1]]
+    x_sac = [rot[0][0], rot[1][0], rot[2][0]]  # a strided view in the numpy path
+    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
+    kx = _f_dot_seq(x_sac, chord)
+    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
+                  lambda: _f_any_perpendicular(chord))[0]
+    if top_right is not None:
+        tr = np.asarray(top_right, float)
+        tr_l = tr[0].tolist()
+        kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
+        top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
+        total = np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)])
+    else:
+        total = np.zeros(1)
+    n = joints.shape[1] - 1
+    frac = (np.arange(n) + 1.0) / n
+    ang = total[:, None] * frac
+    hip_a, other_a, chord_a = np.array([[hip]]), np.array([[_f_cross(chord, hip)]]), np.array([[chord]])
+    right = np.cos(ang)[..., None] * hip_a + np.sin(ang)[..., None] * other_a
+    y = _unit(joints[:, 1:] - joints[:, :-1], chord_a)[0]
+    xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
+    rotations = _columns(xk, y, cross(xk, y))
+    return SpineResult(joints, rotations, sacrum_rot, delta)

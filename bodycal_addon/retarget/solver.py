@@ -24,7 +24,7 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
-from ..core.transforms import normalize, stacks_apply, stacks_mul
+from ..core.transforms import einsum, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
@@ -32,11 +32,12 @@ from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
 from .solver_methods import METHOD_CLASSES, surface_correction
-from .user_animation import pose_finger_chain
+from .user_animation import finger_set, pose_finger_chain
 
 STANCES = ("whole", "causal")  # the feet plan: from the whole take (a bake), or frame by frame (live)
 
 
+_SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
 LIMBS = {  # limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
     "leg": ("hip", "knee", "ankle", "thigh", "shin"),
@@ -245,7 +246,7 @@ class PreparedSolver:
         # Spine aimed at the skull base (appendix D: the same two-pass solver as the user's); the
         # clavicles keep their pose relative to vertebra 5.
         if "skull_base" in targets:
-            spine_idx = [BI[b] for b in SPINE_BONES]
+            spine_idx = _SPINE_ROWS
             top_right = normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]])
 
             def solve_spine(aim):
@@ -260,25 +261,23 @@ class PreparedSolver:
                 # what the IK changes between aiming at the copied skull base and at the target.
                 # Where they agree (the same body) the source's spine comes back as it was.
                 held = solve_spine(fk.joints[:, JI["skull_base"]])
-                frames[:, spine_idx] = res.rotations @ np.swapaxes(held.rotations, -1, -2) @ up.frames[:, spine_idx]
+                frames[:, spine_idx] = res.rotations @ held.rotations.swapaxes(-1, -2) @ up.frames[:, spine_idx]
             else:
                 frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
             for s in sk.SIDES:
                 c = BI[f"clavicle_{s}"]
-                frames[:, c] = frames[:, v5] @ np.swapaxes(up.frames[:, v5], -1, -2) @ up.frames[:, c]
+                frames[:, c] = frames[:, v5] @ up.frames[:, v5].swapaxes(-1, -2) @ up.frames[:, c]
         # The limbs hang from the trunk as solved now (or as given).
-        items = [(side, limb) for side in sk.SIDES for limb, (_, _, e, _, _) in LIMBS.items()
-                 if f"{e}_{side}" in targets]
-        names = [f"{LIMBS[limb][0]}_{side}" for side, limb in items]
-        at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints[:, [JI[j] for j in names]]
+        items, names, rows = self._limb_items(tuple(targets))
+        at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints.take(rows, axis=1)
         reached = self._limbs(up, frames, targets, items, at, {} if user_side is None else user_side)
         grip = [side for side in sk.SIDES if hands is not None and side in hands]
         if grip:
             held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
             hand_frames = np.stack([frames[:, BI[f"hand_{side}"]] for side in grip])
             rel = stacks_mul(hand_frames, np.array([fr for _, _, fr in held]), [grip.index(x) for x, _, _ in held])
-            frames[:, [BI[b] for _, b, _ in held]] = np.swapaxes(rel, 0, 1)
+            frames[:, [BI[b] for _, b, _ in held]] = rel.swapaxes(0, 1)
         wrists = {side: reached[side, "arm"] for side in sk.SIDES
                   if side not in grip and (side, "arm") in reached and self.has_fingers[side]}
         if wrists:
@@ -292,15 +291,11 @@ class PreparedSolver:
         `user_side` keeps what the IK reads of the user per limb set (see solve_ik)."""
         rig, nf = self.rig, frames.shape[0]
         reached = {}
-        for with_pole in (True, False):
-            group = [k for k, (side, limb) in enumerate(items) if (f"{LIMBS[limb][1]}_{side}" in targets) == with_pole]
-            if not group:
-                continue
-            limbs = [(items[k][0], *LIMBS[items[k][1]]) for k in group]
-            root = np.concatenate([at[:, k] for k in group])
-            eff = np.concatenate([targets[f"{e}_{s}"] for s, _, _, e, _, _ in limbs])
-            pole = np.concatenate([targets[f"{m}_{s}"] for s, _, m, _, _, _ in limbs]) if with_pole else None
-            key = tuple(limbs)
+        for group, limbs, eff_names, pole_names in self._limb_groups(tuple(items), tuple(targets)):
+            root = at.take(group, axis=1).swapaxes(0, 1).reshape(-1, 3)
+            eff = np.concatenate([targets[n] for n in eff_names])
+            pole = np.concatenate([targets[n] for n in pole_names]) if pole_names else None
+            key = limbs
             if key not in user_side:
                 # Appendix E: swivel blended between the mapped intermediate target and the user's.
                 # The hinge's axis: a character's upper bones twist on their own (a user's share
@@ -314,11 +309,42 @@ class PreparedSolver:
                                   np.array([BI[f"{mb}_{s}"] for s, _, _, _, _, mb in limbs]))
             l1, l2, swivel, hinge, upper, lower = user_side[key]
             tb = ik.two_bone(root, l1, l2, eff, pole, swivel, hinge, size_ratio=self.k)
-            frames[:, upper] = np.swapaxes(tb.rot1.reshape(len(limbs), nf, 3, 3), 0, 1)
-            frames[:, lower] = np.swapaxes(tb.rot2.reshape(len(limbs), nf, 3, 3), 0, 1)
-            for i, k in enumerate(group):
+            frames[:, upper] = tb.rot1.reshape(len(limbs), nf, 3, 3).swapaxes(0, 1)
+            frames[:, lower] = tb.rot2.reshape(len(limbs), nf, 3, 3).swapaxes(0, 1)
+            for i, k in enumerate(group.tolist()):
                 reached[items[k]] = tb.end[i * nf:(i + 1) * nf]
         return reached
+
+    def _limb_items(self, names: tuple) -> tuple:
+        """(the limbs [(side, limb)] whose effector has a target among `names`, their roots' joints,
+        the roots' rows in skeleton.JOINTS), once per target set."""
+        cache = self.__dict__.setdefault("_limb_items_cache", {})
+        if names not in cache:
+            present = set(names)
+            items = [(side, limb) for side in sk.SIDES for limb, (_, _, e, _, _) in LIMBS.items()
+                     if f"{e}_{side}" in present]
+            roots = [f"{LIMBS[limb][0]}_{side}" for side, limb in items]
+            cache[names] = (items, roots, np.array([JI[j] for j in roots], int))
+        return cache[names]
+
+    def _limb_groups(self, items: tuple, names: tuple) -> list:
+        """`_limbs`' groups of the limbs `items` for the targets `names`, once per such set: those
+        with an intermediate target, then those without: [(their rows in `items`, the limbs
+        (side, anchor, intermediate, effector, bones), the effector targets, the intermediate ones
+        (empty: none))]."""
+        cache = self.__dict__.setdefault("_limb_plans", {})
+        if (items, names) not in cache:
+            present, out = set(names), []
+            for with_pole in (True, False):
+                group = [k for k, (side, limb) in enumerate(items)
+                         if (f"{LIMBS[limb][1]}_{side}" in present) == with_pole]
+                if not group:
+                    continue
+                limbs = tuple((items[k][0], *LIMBS[items[k][1]]) for k in group)
+                out.append((np.array(group, int), limbs, [f"{e}_{s}" for s, _, _, e, _, _ in limbs],
+                            [f"{m}_{s}" for s, _, m, _, _, _ in limbs] if with_pole else []))
+            cache[items, names] = out
+        return cache[items, names]
 
     @staticmethod
     def _user_swivel(up, limbs: list[tuple[str, str, str]]) -> np.ndarray:
@@ -333,38 +359,45 @@ class PreparedSolver:
         root = joints(0)
         axis = normalize(joints(2) - root)
         v = joints(1) - root
-        return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
+        return v - einsum("fi,fi->f", v, axis)[:, None] * axis
 
     def _fingers(self, frames, wrists: dict, targets: dict) -> None:
         """Every finger of the hands in `wrists` {side: the wrist reached (F, 3)} with a tip target,
         posed at once (`pose_finger_chain` from the hand's rest finger frames); `frames` updated."""
-        items = [(s, f) for s in wrists for f in sk.FINGERS if f"tip_{f}_{s}" in targets]
-        if not items:
+        nf, sides = frames.shape[0], tuple(wrists)
+        plan = self._finger_plan(sides, tuple(targets), nf)
+        if plan is None:
             return
-        nf, sides = frames.shape[0], list(wrists)
-        hands = np.stack([frames[:, BI[f"hand_{s}"]] for s in sides])
-        rows, mcp_local, base_rest, lens, thumbs, bones = self._finger_rows(tuple(items), tuple(sides))
+        items, hand_bones, rows, mcp_local, base_rest, bones, chain = plan
+        hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        thumb = np.repeat(thumbs, nf)
-        _, fr = pose_finger_chain(mcp, tip, np.repeat(lens, nf, axis=0).T, [ref], thumb=thumb)
+        _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chain)
         for i in (1, 2, 3):
-            frames[:, bones[i - 1]] = np.swapaxes(fr[i - 1].reshape(len(items), nf, 3, 3), 0, 1)
+            frames[:, bones[i - 1]] = fr[i - 1].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
 
-    def _finger_rows(self, items: tuple, sides: tuple) -> tuple:
-        """What `_fingers` gathers for the fingers `items` [(side, finger)] of the hands `sides`, once
-        per such set: each finger's hand (its row in `sides`), its `_finger_rest` constants stacked
-        (MCP offsets, first phalanx rest frames, lengths), which are thumbs, and the canonical bones
-        of phalanges 1, 2, 3."""
-        cache = self.__dict__.setdefault("_finger_rows_cache", {})
-        if (items, sides) not in cache:
+    def _finger_plan(self, sides: tuple, names: tuple, nf: int) -> tuple | None:
+        """What `_fingers` gathers for the fingers with a tip target (`names`: the targets') of the
+        hands `sides`, once per such set and frame count: the fingers [(side, finger)], the hands'
+        canonical bones, each finger's hand (its row in `sides`), its `_finger_rest` constants
+        stacked (MCP offsets, first phalanx rest frames), the canonical bones of phalanges 1, 2, 3,
+        and the fingers' `FingerSet`; None: no finger has a target."""
+        cache = self.__dict__.setdefault("_finger_plans", {})
+        key = (sides, names, nf)
+        if key not in cache:
+            present = set(names)
+            items = tuple((s, f) for s in sides for f in sk.FINGERS if f"tip_{f}_{s}" in present)
+            if not items:
+                cache[key] = None
+                return None
             rest = self._finger_rest
-            cache[items, sides] = ([sides.index(s) for s, _ in items],
-                                   *(np.array([rest[i][k] for i in items]) for k in range(3)),
-                                   [f == "thumb" for _, f in items],
-                                   [[BI[f"{f}_{i}_{s}"] for s, f in items] for i in (1, 2, 3)])
-        return cache[items, sides]
+            mcp_local, base_rest, lens = (np.array([rest[i][k] for i in items]) for k in range(3))
+            cache[key] = (items, np.array([BI[f"hand_{s}"] for s in sides], int),
+                          np.array([sides.index(s) for s, _ in items], int), mcp_local, base_rest,
+                          [np.array([BI[f"{f}_{i}_{s}"] for s, f in items], int) for i in (1, 2, 3)],
+                          finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)))
+        return cache[key]
 
     @property
     def _finger_rest(self) -> dict:
@@ -444,7 +477,7 @@ class FeetPlan:
             turn = src.foot_turn(s, a, b)
             rest_ankle, performer, avatar = self.rest[s]
             own = feet.foot_points(ankles[s], turn, rest_ankle, performer)  # (F, 2, 3) the performer's
-            theirs = reference[:, None] + np.einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
+            theirs = reference[:, None] + einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
             if whole:
                 heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
                 heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)

@@ -147,12 +147,19 @@ class Egocentric(Method):
                         (run.has_fingers[t[-1]] and any(i.startswith(f"capsule:{t.split('_')[1]}_") for i in have))]
         self.lower = [n for n in self.targets if n.startswith(("skull_base", "ankle_", "knee_"))]
         self.upper = [n for n in self.targets if n not in self.lower]
-        self.lower_joints = np.array([JI[n] for n in self.lower], int)
-        self.upper_joints = np.array([JI[n] for n in self.upper], int)
-        # Both bodies' surfaces posed by prepared posers: all elements, and the trunk's alone.
-        self.posers = {(who, part): ego.SurfacePoser(model, part_ids)
-                       for who, model in (("user", self.user_s), ("avatar", self.avatar_s))
-                       for part, part_ids in (("all", self.ids), ("trunk", self.trunk_ids)) if part_ids}
+        # Both stages' targets are prepared on the user's side at once (the trunk's first), the
+        # trunk's not mapped on the arms' elements.
+        self.mapped = (self.lower if self.trunk_ids else []) + self.upper
+        self.mapped_joints = np.array([JI[n] for n in self.mapped], int)
+        arms = frozenset(self.ids) - frozenset(self.trunk_ids)
+        self.trunk_exclude = tuple(arms if n in self.lower else frozenset() for n in self.mapped)
+        self.wrist_rows = {s: self.mapped.index(f"wrist_{s}") for s in self.palm_local}
+        # Both bodies' surfaces posed by prepared posers (all elements; and the avatar's trunk
+        # alone, which a bake's trunk stage maps on: a few frames map from every element at once).
+        self.posers = {who: ego.SurfacePoser(model, self.ids) for who, model in (("user", self.user_s),
+                                                                                 ("avatar", self.avatar_s))}
+        if self.trunk_ids:
+            self.posers["avatar_trunk"] = ego.SurfacePoser(self.avatar_s, self.trunk_ids)
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
@@ -168,38 +175,31 @@ class Egocentric(Method):
         # taken as posed, like the avatar's own (a vertebra spanning two spine bones stretches).
         ub = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]  # (F, NB, 3)
         lower, upper = self.lower, self.upper
+        us = posers["user"].pose(up.joints, user_frames)
+        pts = np.take(up.joints, self.mapped_joints, axis=1)
+        # Decision: the hand is mapped through the centre of its palm, the part that touches, and
+        # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
+        # is copied): wrist and palm are a hand's size apart, and hands differ.
+        for s, (u_loc, _) in self.palm_local.items():
+            pts[:, self.wrist_rows[s]] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
+        # The user's side of every target, once: the same for the trunk's map and the arms' passes.
+        user_side = ego.prepare_targets(pts, self.mapped, us, user_bones=ub, dtype=MAPPING_DTYPE,
+                                        exclude=self.trunk_exclude)
         targets = {}
         if self.trunk_ids:
-            ust = posers["user", "trunk"].pose(up.joints, user_frames)
-            avt = posers["avatar", "trunk"].pose(fk.joints, fk.frames)
-            tg = ego.retarget_points(np.take(up.joints, self.lower_joints, axis=1), lower, ust, avt,
-                                     user_bones=ub, dtype=MAPPING_DTYPE)
+            poser = posers["avatar" if user_side.whole is not None else "avatar_trunk"]
+            tg = user_side.map(poser.pose(fk.joints, fk.frames, normals=False), targets=lower)
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
         targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)
         frames = run.solve_ik(up, fk, pelvis, targets)
         mid = run.rig.solve(frames, pelvis, basis=False, realised=self.realised)
-        us = posers["user", "all"].pose(up.joints, user_frames)
-        pts = np.take(up.joints, self.upper_joints, axis=1)
-        # Decision: the hand is mapped through the centre of its palm, the part that touches, and
-        # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
-        # is copied): wrist and palm are a hand's size apart, and hands differ.
-        for s, (u_loc, _) in self.palm_local.items():
-            pts[:, upper.index(f"wrist_{s}")] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
-        # Pass 1 maps every arm target against the avatar with its trunk and legs solved. Later
-        # passes re-map the wrists, against the arms where the previous pass put them, so a
-        # hand touching the other hand (or arm) meets it where that one ends up; both hands move
-        # toward each other at once, so those passes go half way (no overshoot).
-        # The fingertips are re-mapped in full: their nearest elements are mostly their own hand's
-        # palm and fingers, which pass 1 saw where the rotation copy had put the hand.
         wrists = [i for i, n in enumerate(upper) if n.startswith("wrist_")]
         tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
-        user_side = ego.prepare_targets(pts, upper, us, user_bones=ub, dtype=MAPPING_DTYPE)  # the same for every pass
         pose, tg = mid, None
         arms_user = {}  # what the arms' IK reads of the user, the same every pass
         for k in range(ARM_PASSES):
-            av = posers["avatar", "all"].pose(pose.joints, pose.frames)
-            ta = user_side.map(av)
+            ta = user_side.map(posers["avatar"].pose(pose.joints, pose.frames, normals=False), targets=upper)
             if tg is None:
                 tg = ta
             else:

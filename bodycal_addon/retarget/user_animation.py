@@ -37,6 +37,7 @@ from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
     cross,
+    einsum,
     frame_from_axes,
     normalize,
     quat_between,
@@ -194,7 +195,10 @@ class UserAnimator:
                 "joints": [(k, [j for j, _ in g], np.array([e for _, e in g], int))
                            for k, g in sorted(by_count.items())],
                 "tips": which, "tip_columns": [c for _, _, c in plan.tips],
-                "fingers": finger_constants(which, self.rest_pos, self.model.bones) if which else None}
+                "fingers": finger_constants(which, self.rest_pos, self.model.bones) if which else None,
+                "limb_bones": np.array([BI[f"{b}_{s}"] for s, _, names, _, _ in plan.limbs for b in names[3:5]], int),
+                "hand_rows": {s: (np.full(len(plan.hands[s][1]), h), np.full(len(plan.hands[s][3]), h))
+                              for h, s in enumerate(sk.SIDES)}}
 
     def _need(self, joint: str, value):
         """`value`, or one error when no tracked device knows `joint`."""
@@ -292,11 +296,11 @@ class UserAnimator:
         stop = self.recording.frame_count if stop is None else stop
         tr = self.reader.read(start, stop)
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
-        est = tr.positions[tab["est_rows"]] + prod[tab["est_vec"]]
+        est = tr.positions.take(tab["est_rows"], axis=0) + prod.take(tab["est_vec"], axis=0)
         rigid = stacks_mul(tr.rotations, tab["rigid"], tab["rigid_rows"])
         P = {}
         for k, names, rows in tab["joints"]:  # a joint is the mean of its estimates (np.mean's sum / k)
-            value = est[rows[:, 0]] if k == 1 else self._mean_estimates(est, rows, tab["est_rows"], tr)
+            value = est.take(rows[:, 0], axis=0) if k == 1 else self._mean_estimates(est, rows, tab["est_rows"], tr)
             P.update(zip(names, value))
         Fr = np.empty((stop - start, len(BONES), 3, 3))
         Fr[:, BI["head"]] = rigid[plan.rigid["head", "head"]]
@@ -308,8 +312,8 @@ class UserAnimator:
         pos = np.concatenate([P[j] for j in JOINTS], axis=1).reshape(stop - start, len(JOINTS), 3)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
-        Fr[:, _SHORTCUT_INDEX] = np.swapaxes(frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]), 0, 1)
-        if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(Fr)):
+        Fr[:, _SHORTCUT_INDEX] = frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]).swapaxes(0, 1)
+        if not np.isfinite(pos).all() or not np.isfinite(Fr).all():
             raise BodyCalError("the user animation has non-finite values",
                                source=self.recording.source or self.recording.name,
                                hint="check the recording for broken device poses")
@@ -328,7 +332,7 @@ class UserAnimator:
         if w.all():
             return est[rows].sum(axis=1) / k
         w = np.where(w.any(axis=1, keepdims=True), w, True).astype(float)
-        return np.einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
+        return einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
 
     def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
@@ -341,12 +345,11 @@ class UserAnimator:
             if not tracked:  # no tracker carries it (minimal profile): two-bone from the user's lengths
                 P[f"{m}_{s}"] = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], self.rest_pos, a, m, e, s,
                                               rights[s, limb])
-        ys, hints, bones = [], [], []
-        for s, limb, (a, m, e, ab, mb), _, _ in plan.limbs:
+        ys, hints = [], []
+        for s, limb, (a, m, e, _, _), _, _ in plan.limbs:
             ys += [P[f"{m}_{s}"] - P[f"{a}_{s}"], P[f"{e}_{s}"] - P[f"{m}_{s}"]]
             hints += [rights[s, limb]] * 2
-            bones += [BI[f"{ab}_{s}"], BI[f"{mb}_{s}"]]
-        Fr[:, bones] = np.swapaxes(frame_from_axes(np.stack(ys), np.stack(hints)), 0, 1)
+        Fr[:, self._tables["limb_bones"]] = frame_from_axes(np.stack(ys), np.stack(hints)).swapaxes(0, 1)
         for s in sk.SIDES:
             toe = plan.toes[s]
             if toe[0] == "rigid":
@@ -367,23 +370,24 @@ class UserAnimator:
         Fr[:, BI["sacrum"]] = res.sacrum_rot
         for k, j in enumerate(SPINE_JOINTS):
             P[j] = res.joints[:, k]
-        Fr[:, [BI[b] for b in SPINE_BONES]] = res.rotations
+        Fr[:, _SPINE_ROWS] = res.rotations
         v5 = Fr[:, BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]]
         root = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
         for s in sk.SIDES:
             P[f"clavicle_{s}"] = root
         ys = np.stack([P[f"shoulder_{s}"] - root for s in sk.SIDES])
-        Fr[:, [BI[f"clavicle_{s}"] for s in sk.SIDES]] = np.swapaxes(frame_from_axes(ys, v5[..., :, 2]), 0, 1)
+        Fr[:, _CLAVICLE_ROWS] = frame_from_axes(ys, v5[..., :, 2]).swapaxes(0, 1)
 
     def _hands(self, plan: _Plan, P: dict, Fr: np.ndarray, start: int, stop: int) -> None:
         """Hands pass: finger joints and frames rigid on the hand as calibrated, then the fingers with
         a tip marker posed from it, all at once (`pose_user_fingers`; forward-filled over its dropouts)."""
-        hands = np.stack([Fr[:, BI[f"hand_{s}"]] for s in sk.SIDES])
-        for h, s in enumerate(sk.SIDES):
+        hands = Fr.take(_HAND_ROWS, axis=1).swapaxes(0, 1)  # (2, F, 3, 3)
+        for s in sk.SIDES:
             names, vecs, bones, fixed = plan.hands[s]
-            rel = stacks_apply(hands, vecs, [h] * len(vecs))
+            vec_rows, fixed_rows = self._tables["hand_rows"][s]  # the products' hand: this side's
+            rel = stacks_apply(hands, vecs, vec_rows)
             P.update(zip(names, P[f"wrist_{s}"] + rel))
-            Fr[:, bones] = np.swapaxes(stacks_mul(hands, fixed, [h] * len(fixed)), 0, 1)
+            Fr[:, bones] = stacks_mul(hands, fixed, fixed_rows).swapaxes(0, 1)
         if plan.tips:
             tab = self._tables
             tips = self.reader.markers(tab["tip_columns"], start, stop)
@@ -391,7 +395,10 @@ class UserAnimator:
 
 
 _SHORTCUTS = [b for b in BONES if b.shortcut]
-_SHORTCUT_INDEX = [BI[b.name] for b in _SHORTCUTS]
+_SHORTCUT_INDEX = np.array([BI[b.name] for b in _SHORTCUTS], int)
+_SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
+_CLAVICLE_ROWS = np.array([BI[f"clavicle_{s}"] for s in sk.SIDES], int)
+_HAND_ROWS = np.array([BI[f"hand_{s}"] for s in sk.SIDES], int)
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
@@ -420,8 +427,9 @@ def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
 
 def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: dict) -> tuple:
     """What `pose_user_fingers` reads of the model for the fingers `which`, computed once: their
-    joints' names, their phalanges' canonical bones, the phalanx lengths (K, 3) and the fingertip
-    radii (K,) (the LED's offset from the tip joint)."""
+    joints' names, their phalanges' canonical bones, the phalanx lengths (K, 3), the fingertip
+    radii (K,) (the LED's offset from the tip joint), and a dict that keeps the fingers'
+    `fingers.FingerSet` per frame count."""
     names = [[f"{j}_{f}_{s}" for j in sk.FINGER_JOINTS] for s, f in which]
     bones = [[BI[f"{f}_{i}_{s}"] for i in (1, 2, 3)] for s, f in which]
     lens = np.array([[np.linalg.norm(rest_pos[n[i + 1]] - rest_pos[n[i]]) for i in range(3)] for n in names])
@@ -429,7 +437,7 @@ def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: 
     for s, f in which:
         info = model_bones.get(f"{f}_3_{s}")
         radius.append(info.radius_tail if info is not None and info.radius_tail else 0.0)
-    return names, bones, lens, radius
+    return names, bones, lens, radius, {}
 
 
 def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
@@ -440,34 +448,48 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
     phalanx frames) and are updated. `constants`: `finger_constants(which, ...)`, when the caller
     keeps them."""
     K, F = tips.shape[:2]
-    names, bones, lens, radius = constants or finger_constants(which, rest_pos, model_bones)
+    names, bones, lens, radius, sets = constants or finger_constants(which, rest_pos, model_bones)
+    if F not in sets:
+        sets[F] = finger_set(np.repeat(lens, F, axis=0).T, np.repeat([f == "thumb" for _, f in which], F))
+        sets[F, "radius"] = np.repeat(radius, F)[:, None]
     mcp = np.concatenate([P[n[0]] for n in names])
     ref = np.concatenate([Fr[:, b[0]] for b in bones])
-    thumb = np.repeat([f == "thumb" for _, f in which], F)
-    per_frame = np.repeat(lens, F, axis=0)
-    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), per_frame.T, [ref], thumb=thumb)
+    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), None, [ref], finger_set=sets[F])
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
     if any(radius):
-        aim = tips.reshape(-1, 3) + np.repeat(radius, F)[:, None] * frames[2][..., :, 2]
-        pts, frames = pose_finger_chain(mcp, aim, per_frame.T, [ref], thumb=thumb)
+        aim = tips.reshape(-1, 3) + sets[F, "radius"] * frames[2][..., :, 2]
+        pts, frames = pose_finger_chain(mcp, aim, None, [ref], finger_set=sets[F])
     pts = pts.reshape(K, F, 4, 3)
     for k, n in enumerate(names):
         for i, j in enumerate(n[1:]):
             P[j] = pts[k, :, i + 1]
-    phalanges = np.array(bones, int).reshape(K, -1)
+    phalanges = sets.get("phalanges")
+    if phalanges is None:
+        phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
     for i in range(3):  # each phalanx of every finger in one assignment
-        Fr[:, phalanges[:, i]] = np.swapaxes(frames[i].reshape(K, F, 3, 3), 0, 1)
+        Fr[:, phalanges[:, i]] = frames[i].reshape(K, F, 3, 3).swapaxes(0, 1)
 
 
-def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False):
+def finger_set(lens, thumb) -> fingers.FingerSet:
+    """`pose_finger_chain`'s constants (`fingers.FingerSet`) for phalanx lengths `lens` (3, n) and
+    `thumb` (n,) bool, for a caller that poses the same fingers again."""
+    thumb = np.asarray(thumb, bool)
+    return fingers.FingerSet(lens[0], lens[1], lens[2], thumb=thumb, roll=0.0 if thumb.ndim or thumb else None)
+
+
+def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False, finger_set: fingers.FingerSet | None = None):
     """`fingers.pose_finger` with the first phalanx's rest frame (moved with the hand) as the
     reference: a finger at rest has zero yaw and pitch, so the anatomical limits bound the motion
     away from the calibrated pose. The thumb's own frame already carries its roll (roll 0).
+    `finger_set`: `finger_set(lens, thumb)` kept by the caller (then `lens` and `thumb` are not read).
     Returns (points (F, 4, 3), [3 frames (F, 3, 3)])."""
-    thumb = np.asarray(thumb, bool)
-    fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
-                             roll=0.0 if thumb.ndim or thumb else None)
+    if finger_set is None:
+        thumb = np.asarray(thumb, bool)
+        fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
+                                 roll=0.0 if thumb.ndim or thumb else None)
+    else:
+        fp = finger_set.pose(mcp, rest_frames[0], tip)
     return fp.joints, [fp.rotations[:, i] for i in range(3)]
 
 

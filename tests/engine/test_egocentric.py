@@ -404,3 +404,52 @@ def test_a_few_frames_map_as_the_groups_apart_do(user, monkeypatch, dtype, frame
         np.testing.assert_array_equal(fast[k], apart)
     for name in apart_details:
         np.testing.assert_array_equal(fast_details[name], apart_details[name], err_msg=name)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_a_few_frames_mapped_side_by_side_are_each_group_s_own_values_to_the_bit(user, dtype):
+    # A few frames (a live frame) project every target on every element at once and map the
+    # exclusion groups side by side, padding the narrow ones with pairs of no weight
+    # (mapping._fused_groups); a bake's chunks map each group on its own elements. Each target's
+    # sums still run over its own elements in their order, so the two give the same bits, also
+    # with targets kept off some elements (`exclude`) and mapped a subset at a time (`targets`).
+    from bodycal_addon.retarget.egocentric import mapping
+
+    joints, rots = _posed(user, 24, 11)
+    avatar = rb.scale_model(user, 1.2)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * 1.2 for k, v in joints.items()}, rots)
+    pts = _targets(joints, 11)
+    arms = {e for e in us.element_ids if e.startswith(("capsule:upperarm_", "capsule:forearm_", "mesh:palm_"))}
+    exclude = {n: arms for n in ("skull_base", "ankle_l", "knee_r")}
+    groups = mapping._fused_groups(tuple(TARGETS), tuple(us.element_ids), tuple(us.element_roots),
+                                   tuple(frozenset(exclude.get(n, ())) for n in TARGETS))
+    assert any(len(set(np.diff(c, axis=1).ravel().tolist())) > 1 or len(g) > 1 for _, g, _, c, _ in groups)
+    assert len(groups) < len(mapping._grouping(tuple(TARGETS), tuple(us.element_ids), tuple(us.element_roots),
+                                               tuple(frozenset(exclude.get(n, ())) for n in TARGETS)))
+    grouped = eg.prepare_targets(pts, TARGETS, us, exclude=exclude, chunk=24, dtype=dtype).map(av)
+    lower = ["skull_base", "ankle_l", "knee_r"]
+    for f in range(0, 24, 3):
+        few = eg.prepare_targets(pts[f:f + 1], TARGETS, us.take(f, f + 1), exclude=exclude, dtype=dtype)
+        assert few.whole is not None  # the side-by-side path
+        np.testing.assert_array_equal(few.map(av.take(f, f + 1)), grouped[f:f + 1])
+        np.testing.assert_array_equal(few.map(av.take(f, f + 1), targets=lower),
+                                      grouped[f:f + 1, [TARGETS.index(n) for n in lower]])
+
+
+def test_a_block_mapped_by_group_takes_an_avatar_surface_of_the_elements_its_targets_use(user):
+    # A bake's trunk stage maps its targets group by group on an avatar surface posed with the
+    # elements they use only (the body without the arms): the values of the whole surface's map.
+    joints, rots = _posed(user, 40, 12)
+    avatar = rb.scale_model(user, 1.1)
+    us = eg.pose_surface(user, joints, rots)
+    pts = _targets(joints, 12)
+    arms = {e for e in us.element_ids if e.startswith(("capsule:upperarm_", "capsule:forearm_", "mesh:palm_"))}
+    lower = ["skull_base", "ankle_l", "knee_r"]
+    prepared = eg.prepare_targets(pts, TARGETS, us, exclude={n: arms for n in lower}, chunk=40)
+    av_joints = {k: v * 1.1 for k, v in joints.items()}
+    whole = prepared.map(eg.pose_surface(avatar, av_joints, rots), targets=lower)
+    trunk = [e for e in us.element_ids if e not in arms]
+    np.testing.assert_array_equal(prepared.map(eg.pose_surface(avatar, av_joints, rots, trunk), targets=lower), whole)
+    with pytest.raises(BodyCalError, match="lacks elements"):
+        prepared.map(eg.pose_surface(avatar, av_joints, rots, trunk), targets=["wrist_l"])

@@ -252,3 +252,75 @@ def test_a_nearly_straight_limb_keeps_its_bend_plane_under_joint_noise():
     turn = np.degrees(np.arccos(np.clip(np.einsum("fi,fi->f", res.swivel_dir, expected), -1, 1)))
     assert turn.max() < 8.0, turn.max()
     assert np.linalg.norm(np.diff(res.mid, axis=0), axis=1).max() < 0.008  # at a 1 cm weight: 13°, 14 mm
+
+
+def test_a_few_limbs_in_python_floats_are_numpy_s_two_bone_to_the_bit(monkeypatch):
+    # A live frame's limbs (ik.FEW_LIMBS items or fewer) are solved in Python floats: the same
+    # operations in the same order as the numpy path, so the same bits, degenerate limbs included
+    # (target on the root, pole and user swivel on the axis, hint along the axis, out of reach).
+    rng = np.random.default_rng(7)
+    n = 400
+    root = rng.normal(size=(n, 3))
+    target = root + rng.normal(size=(n, 3)) * rng.uniform(0.0, 0.4, (n, 1))
+    pole = root + rng.normal(size=(n, 3)) * 0.2
+    user = rng.normal(size=(n, 3))
+    hint = rng.normal(size=(n, 3))
+    axis = target - root
+    target[:8] = root[:8]  # on the root
+    pole[8:16] = root[8:16] + 0.5 * axis[8:16]  # on the root-effector axis
+    user[16:24] = axis[16:24]
+    hint[24:32] = axis[24:32]
+    user[32:40] = 0.0
+    target[40:48] = root[40:48] + [0.0, 0.0, -2.0]  # out of reach
+    l1, l2 = rng.uniform(0.2, 0.35, n), rng.uniform(0.2, 0.35, n)
+    for kw in ({"pole_target": pole, "user_swivel_dir": user, "flex_axis_hint": hint}, {"user_swivel_dir": user},
+               {"pole_target": pole, "flex_axis_hint": hint}, {}):
+        monkeypatch.setattr(ik, "FEW_LIMBS", 0)
+        whole = ik.two_bone(root, l1, l2, target, size_ratio=1.3, **kw)
+        monkeypatch.setattr(ik, "FEW_LIMBS", 4)
+        for k in range(0, n, 2):
+            few = ik.two_bone(root[k:k + 2], l1[k:k + 2], l2[k:k + 2], target[k:k + 2], size_ratio=1.3,
+                              **{a: v[k:k + 2] for a, v in kw.items()})
+            for got, want in ((few.mid, whole.mid), (few.end, whole.end), (few.rot1, whole.rot1),
+                              (few.rot2, whole.rot2), (few.blend, whole.blend), (few.swivel_dir, whole.swivel_dir),
+                              (few.flexion, whole.flexion), (few.reached, whole.reached)):
+                np.testing.assert_array_equal(got, want[k:k + 2])
+
+
+def _rotations(rng, n):
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def test_one_frame_s_spine_in_python_floats_is_numpy_s_to_the_bit(monkeypatch):
+    # A live frame's spine (ik.ONE_FRAME_FLOATS) computes its single vectors in Python floats:
+    # the numpy path's operations in their order, so its bits, degenerate frames included (the
+    # skull base on the rest chord, on the spine's start, a top right along the chord).
+    rng = np.random.default_rng(11)
+    rest = np.cumsum(np.tile([0.0, 0.045, 0.0], (12, 1)) + rng.normal(scale=0.004, size=(12, 3)), axis=0)
+    rest_segments = np.diff(np.concatenate([np.zeros((1, 3)), rest]), axis=0)
+    n = 120
+    pelvis = rng.normal(size=(n, 3))
+    sac = _rotations(rng, n)
+    start = pelvis + 0.1 * sac[..., 1]
+    aim = start + np.einsum("fij,j->fi", sac, rest_segments.sum(0)) + rng.normal(scale=0.08, size=(n, 3))
+    aim[:6] = start[:6] + 0.5 * np.einsum("fij,j->fi", sac[:6], rest_segments.sum(0))  # on the rest chord
+    aim[6:10] = start[6:10]  # on the spine's start
+    right = rng.normal(size=(n, 3))
+    right[10:14] = aim[10:14] - start[10:14]  # along the chord
+    for top in (right, None):
+        for f in range(n):
+            args = (pelvis[f:f + 1], sac[f:f + 1], 0.1, None, aim[f:f + 1])
+            kw = {"top_right": None if top is None else top[f:f + 1] / np.linalg.norm(top[f]),
+                  "two_pass": False, "rest_segments": rest_segments}
+            monkeypatch.setattr(ik, "ONE_FRAME_FLOATS", False)
+            want = ik.spine(*args, **kw)
+            monkeypatch.setattr(ik, "ONE_FRAME_FLOATS", True)
+            got = ik.spine(*args, **kw)
+            for a, b in ((got.joints, want.joints), (got.rotations, want.rotations), (got.bend, want.bend),
+                         (got.sacrum_rot, want.sacrum_rot)):
+                np.testing.assert_array_equal(a, b)

@@ -1,7 +1,8 @@
 """Posing a few frames (DESIGN.md "Prepared solver"). AvatarRig: a pose of fewer than
 avatar_pose.FEW_FRAMES frames (the heads the spine chain does not read placed in one padded pass,
-a one-frame chain aimed in Python floats, the joints on their carriers in one padded product) is
-the level-by-level pose of the same frames, to the bit; SurfacePoser: its padded mesh points are
+every head in that pass when the chain's rotations are held from the last pose, a one-frame chain
+aimed in Python floats, the joints on their carriers in one padded product) is the level-by-level
+pose of the same frames, to the bit; SurfacePoser: its padded mesh points are
 the per-group ones."""
 
 from __future__ import annotations
@@ -39,8 +40,12 @@ def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
                         # the one-frame chain's Python floats against numpy's turn
                         monkeypatch.setattr(ap, "turn_between_one", lambda a, b: None)
                 monkeypatch.undo()
+                # again with the chain's rotations held from that pose: every head in one pass
+                held = rig.solve(frames[f:f + n], pelvis[f:f + n])
+                assert rig._chain_memo is not None and rig._pose_plan(None).flat is not None
                 for name in ("basis", "root_location", "joints", "frames"):
                     assert np.array_equal(getattr(poses[0], name), getattr(poses[1], name)), (name, f, n)
+                    assert np.array_equal(getattr(held, name), getattr(poses[1], name)), (name, f, n)
 
 
 def test_a_few_frames_surface_is_the_grouped_one(monkeypatch):

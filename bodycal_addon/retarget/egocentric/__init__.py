@@ -55,13 +55,15 @@ BLOCK_PAIRS frames x targets x elements so the temporaries stay in the CPU cache
 frame-independent (exclusions, kinematic paths as index arrays sorted by length) is computed once
 per target/element set; targets that exclude the same elements are mapped on the others only,
 but a few frames (up to MERGED_PAIRS frames x targets x elements: a live frame) are projected and
-re-posed for every target on every element in one pass, each group taking its pairs (the same
-values, fewer numpy calls); the user's side is prepared once (`prepare_targets`) and mapped onto
-each avatar pose; the pipeline computes it in float32 (`dtype`). A few frames' surfaces pose
-every mesh point in one padded product (`SurfacePoser`, surface.FEW_FRAMES). The groups' eq. 1-2
-stay one pass per group: their sums over the elements are numpy's pairwise sums, whose
-association follows the element count, so padding the groups to one width would move float32
-targets by rounding (DESIGN.md "Prepared solver").
+re-posed for every target on every element in one pass, and the groups run side by side, each
+target on its own elements (`mapping._fused_groups`: groups keeping as many elements, or all
+fewer than 8, padded with pairs of no weight, since numpy sums fewer than 8 items one after the
+other): each target's sums run over its own elements in their order, so the values are its
+group's, bit for bit, in a third of the numpy calls. The user's side is prepared once
+(`prepare_targets`, several stages' targets at once with `exclude`) and mapped onto each avatar
+pose (`map(targets=...)`); the pipeline computes it in float32 (`dtype`). A few frames' surfaces
+pose every mesh point in one padded product (`SurfacePoser`, surface.FEW_FRAMES) (DESIGN.md
+"Prepared solver").
 """
 
 from .graph import GRAPH_BONES, GRAPH_INDEX, GRAPH_NODES, TORSO_ROOT, element_root, kinematic_path, own_chain_elements

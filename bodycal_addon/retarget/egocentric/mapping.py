@@ -13,7 +13,7 @@ from ...core.errors import BodyCalError
 from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
 from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
-from .surface import JointTable, PosedSurface, _selection
+from .surface import JointTable, PosedSurface
 from .weights import normalise_weights, raw_weights
 
 SUPPORT_BLEND = 0.02  # m: ankle height difference over which the supporting foot hands over (_map_block)
@@ -56,18 +56,27 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
     """Everything frame-independent: exclusions and kinematic paths as index arrays (Delahaye 2023,
     appendix C: "chains are pre-computed and stored so that the tree search is not performed in
     every frame"). Excluded (own-chain) pairs have no chain at all: their weight is zero."""
-    P, E = len(target_names), len(element_ids)
+    P = len(target_names)
+    return _row_plan(target_names, (element_ids,) * P, (roots,) * P,
+                     tuple(own_chain_elements(n) for n in target_names))
+
+
+@lru_cache(maxsize=64)
+def _row_plan(target_names: tuple[str, ...], row_ids: tuple[tuple[str, ...], ...],
+              row_roots: tuple[tuple[str, ...], ...], row_excluded: tuple[frozenset, ...]) -> _Plan:
+    """`_plan` with each target's own elements (`row_ids`, as many per target) and roots, and the
+    elements it excludes (`row_excluded`): several groups' targets side by side (_fused_groups)."""
+    P, E = len(target_names), len(row_ids[0]) if row_ids else 0
     exclude = np.zeros((P, E), bool)
     pe, cr, paths = [], [], []
     for p, name in enumerate(target_names):
-        own = own_chain_elements(name)
-        for e, eid in enumerate(element_ids):
-            if eid in own:
+        for e, (eid, root) in enumerate(zip(row_ids[p], row_roots[p])):
+            if eid in row_excluded[p]:
                 exclude[p, e] = True
                 continue
-            paths.append(kinematic_path(roots[e], name))
+            paths.append(kinematic_path(root, name))
             pe.append(p * E + e)
-            cr.append(GRAPH_NODES.index(roots[e]))
+            cr.append(GRAPH_NODES.index(root))
     order = np.array(sorted(range(len(paths)), key=lambda i: -len(paths[i])), int)
     longest = len(paths[order[0]]) if paths else 0
     slots = [np.array([paths[i][j] for i in order if len(paths[i]) > j], int) for j in range(longest)]
@@ -85,9 +94,11 @@ def _plan(target_names: tuple[str, ...], element_ids: tuple[str, ...], roots: tu
                  table, used, floor_bone, floor_starts, both)
 
 
-_GRAPH_HEADS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES]
-_GRAPH_TAILS = [sk.JOINT_INDEX[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES]
-_GRAPH_NODE_INDEX = [sk.JOINT_INDEX[n] for n in GRAPH_NODES]
+# index arrays (a list index is converted on every call)
+_GRAPH_HEADS = np.array([sk.JOINT_INDEX[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES], int)
+_GRAPH_TAILS = np.array([sk.JOINT_INDEX[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES], int)
+_GRAPH_NODE_INDEX = np.array([sk.JOINT_INDEX[n] for n in GRAPH_NODES], int)
+_ANKLES = np.array([sk.JOINT_INDEX[f"ankle_{s}"] for s in sk.SIDES], int)
 
 
 def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarray:
@@ -99,7 +110,7 @@ def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarr
         return out
     if bones is None and isinstance(surface.joints, JointTable):
         j = surface.joints.array
-        out[:, :, :-1] = (j[:, _GRAPH_TAILS] - j[:, _GRAPH_HEADS]).transpose(2, 0, 1)
+        out[:, :, :-1] = (j.take(_GRAPH_TAILS, axis=1) - j.take(_GRAPH_HEADS, axis=1)).transpose(2, 0, 1)
         return out
     for i, name in enumerate(GRAPH_BONES):
         if bones is not None and name in bones:
@@ -114,7 +125,7 @@ def _bone_vectors(surface: PosedSurface, bones, F: int, dtype=float) -> np.ndarr
 def _node_positions(surface: PosedSurface, F: int, dtype=float) -> np.ndarray:
     out = np.zeros((3, F, len(GRAPH_NODES)), dtype)
     if isinstance(surface.joints, JointTable):
-        out[...] = surface.joints.array[:, _GRAPH_NODE_INDEX].transpose(2, 0, 1)
+        out[...] = surface.joints.array.take(_GRAPH_NODE_INDEX, axis=1).transpose(2, 0, 1)
         return out
     for i, name in enumerate(GRAPH_NODES):
         if name in surface.joints:
@@ -189,18 +200,33 @@ class _UserBlock:
     dots: list | np.ndarray  # per path slot (_Plan.slot_bones), (n, F) |v̂·b_k| (τ' weighs them by the bone
     # length ratios); or all at once, (L, N, F) in `_Plan.slot_table`'s layout
     floor_user: tuple | None = None  # the floor ratios' user side, once mapped (_floor_user)
+    tau_ok: np.ndarray | None = None  # (F, N) τ > EPS (the chains whose ratio is not 1)
+    none: np.ndarray | None = None  # (F, P) targets with no element of weight (None: there are none)
+    floor_ok: np.ndarray | None = None  # (F, 2P) the floor's τ > EPS, once mapped
 
 
 @dataclass
 class _Group:
     """Targets that exclude the same elements (own_chain_elements), mapped on the others only:
-    an excluded pair has no weight, so projecting on it is wasted work."""
+    an excluded pair has no weight, so projecting on it is wasted work. Or, for a few frames,
+    several such groups side by side (`_fused_groups`), each target on its own elements."""
 
     targets: np.ndarray  # indices into the target names
     names: tuple[str, ...]
-    elements: np.ndarray | None  # indices of the elements kept (None: all)
+    elements: np.ndarray | None  # indices of the elements kept (None: all), the same for every target
     plan: _Plan
     blocks: list[_UserBlock]
+    # Fused groups: (P E') each pair's flat index p E + e into every target on every element (E'
+    # elements per target), and (P, E') each pair's element
+    pairs: np.ndarray | None = None
+    columns: np.ndarray | None = None
+
+    def cols(self, E: int) -> np.ndarray:
+        """(P, E') the element of each of the group's pairs."""
+        if self.columns is not None:
+            return self.columns
+        keep = np.arange(E) if self.elements is None else self.elements
+        return np.broadcast_to(keep, (len(self.targets), len(keep)))
 
 
 class PreparedTargets:
@@ -222,17 +248,19 @@ class PreparedTargets:
         return self.pts.shape[0]
 
     def map(self, avatar_surface: PosedSurface, avatar_bones: dict[str, np.ndarray] | None = None, *,
-            turn_v: bool = False, details: dict | None = None) -> np.ndarray:
+            turn_v: bool = False, details: dict | None = None, targets: list[str] | None = None) -> np.ndarray:
         """The avatar's targets (F, P, 3) for the avatar posed as `avatar_surface` (same frames and
-        element_ids as the user's surface); see retarget_points."""
+        element_ids as the user's surface); see retarget_points. `targets`: map only these (of the
+        names prepared), (F, len(targets), 3) in their order; a block of frames mapped group by
+        group (not `whole`) may then take an avatar surface of fewer elements, those the groups of
+        these targets are mapped on (the bake's trunk stage: the body without the arms)."""
         us = self.user_surface
-        if us.element_ids != avatar_surface.element_ids:
-            raise BodyCalError("user and avatar surfaces have different elements",
-                               hint="pose both with element_ids=common_elements(user_model, avatar_model)")
         F = self.frames
         if avatar_surface.frames != F:
             raise BodyCalError(f"targets have {F} frames, avatar surface {avatar_surface.frames}")
-        for g in self.groups:
+        wanted, todo = self._todo(None if targets is None else tuple(targets))
+        rows = self._avatar_rows(None if targets is None else tuple(targets), tuple(avatar_surface.element_ids))
+        for _, g in todo:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         dtype = self.pts.dtype
         ab = _bone_vectors(avatar_surface, avatar_bones, F, dtype)
@@ -245,43 +273,96 @@ class PreparedTargets:
         bone_tau_a = (lrt, cached[1] if cached else {})
         self._bone_tau_a = bone_tau_a
         nodes_a = _node_positions(avatar_surface, F, dtype)
-        avatar_surface = avatar_surface.astype(dtype)
+        union, local = rows
+        if union is not None:  # only the elements these groups are mapped on, converted
+            avatar_surface = avatar_surface.select(union)
+        avatar_surface = avatar_surface.astype(dtype, normals=turn_v)
         out = np.empty_like(self.pts)
         # Every target re-posed on every element at once, each group's pairs taken from it (the
         # same values: the re-posing is per pair); see prepare_targets.
         whole = None if self.whole is None else _repose(self.whole, us, avatar_surface, turn_v)
+        E = len(us.element_ids)
         if details is not None:
-            E = len(us.element_ids)
             P = len(self.names)
             details.update(lam=np.zeros((F, P, E)), lam_g=np.zeros((F, P, E)), lam_g_floor=np.zeros((F, P)),
                            ratio=np.ones((F, P, E)))
-        for gi, g in enumerate(self.groups):
-            av = avatar_surface if g.elements is None or whole is not None else avatar_surface.select(g.elements)
+        for gi, g in todo:
+            av = avatar_surface if local[gi] is None else avatar_surface.select(local[gi])
             for bi, b in enumerate(g.blocks):
                 s, e = b.start, b.stop
                 if (gi, bi) not in bone_tau_a[1]:
                     bone_tau_a[1][gi, bi] = _bone_tau(b, g.plan, lrt[:, s:e])
-                reposed = None if whole is None else tuple(_pairs(a, g.targets, g.elements) for a in whole)
+                reposed = None
+                if whole is not None:
+                    reposed = (_take_pairs(whole[0], g.pairs, g.columns.shape),
+                               _take_pairs(whole[1], g.pairs, g.columns.shape) if turn_v else b.pr.v)
                 res, ratio = _map_block(b, g.plan, av.take(s, e), self.ubt[:, :, s:e], lrt[:, s:e],
                                         bone_tau_a[1][gi, bi], nodes_a[:, s:e], self.floor, turn_v, reposed)
                 out[s:e, g.targets] = res
                 if details is not None:
-                    cols = slice(None) if g.elements is None else g.elements
-                    rows = np.ix_(np.arange(s, e), g.targets, np.arange(E)[cols])
+                    rows = (np.arange(s, e)[:, None, None], g.targets[:, None], g.cols(E))
                     details["lam"][rows] = b.lam
                     details["lam_g"][rows] = b.lam_g
                     details["ratio"][rows] = ratio
                     details["lam_g_floor"][np.ix_(np.arange(s, e), g.targets)] = b.lam_gf
-        return out
+        return out if wanted is None else out.take(wanted, axis=1)
+
+    def _avatar_rows(self, targets: tuple | None, avatar_ids: tuple) -> tuple:
+        """(the avatar surface's elements the groups of `targets` are mapped on, ascending (None:
+        all of them), {group: its elements among those (None: all)}), once per target set and
+        avatar element list; refuses a surface that lacks an element a group is mapped on."""
+        cache = self.__dict__.setdefault("_rows_cache", {})
+        key = (targets, avatar_ids)
+        if key not in cache:
+            user_ids = tuple(self.user_surface.element_ids)
+            at = {eid: i for i, eid in enumerate(avatar_ids)}
+            _, todo = self._todo(targets)
+            if self.whole is not None or avatar_ids == user_ids:
+                if avatar_ids != user_ids:
+                    raise BodyCalError("user and avatar surfaces have different elements",
+                                       hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+                # a few frames map from every element at once; a block by group selects each group's
+                cache[key] = (None, {gi: None if g.elements is None or self.whole is not None else g.elements
+                                     for gi, g in todo})
+                return cache[key]
+            need = sorted({int(e) for _, g in todo for e in (range(len(user_ids)) if g.elements is None
+                                                            else g.elements)})
+            if any(user_ids[e] not in at for e in need):
+                raise BodyCalError("the avatar surface lacks elements the targets are mapped on",
+                                   hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+            union = np.array([at[user_ids[e]] for e in need], int)
+            if np.any(np.diff(union) <= 0):
+                raise BodyCalError("the avatar surface's elements are not in the user surface's order",
+                                   hint="pose both with element_ids=common_elements(user_model, avatar_model)")
+            row = {e: k for k, e in enumerate(need)}
+            local = {gi: np.array([row[int(e)] for e in (range(len(user_ids)) if g.elements is None else g.elements)],
+                                  int) for gi, g in todo}
+            whole_set = len(union) == len(avatar_ids)
+            kept_all = {gi for gi, g in todo if g.elements is None}
+            cache[key] = (None if whole_set else union,
+                          {gi: None if whole_set and gi in kept_all else v for gi, v in local.items()})
+        return cache[key]
+
+    def _todo(self, targets: tuple | None) -> tuple:
+        """(the rows of `targets` (None: all), [(index, group)] of the groups that map them]), once
+        per target set."""
+        cache = self.__dict__.setdefault("_todo_cache", {})
+        if targets not in cache:
+            wanted = None if targets is None else np.array([self.names.index(n) for n in targets], int)
+            cache[targets] = (wanted, [(gi, g) for gi, g in enumerate(self.groups)
+                                       if wanted is None or not set(wanted.tolist()).isdisjoint(g.targets.tolist())])
+        return cache[targets]
 
 
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
                     user_bones: dict[str, np.ndarray] | None = None, *, floor: bool = True, falloff: float = 2.0,
                     chunk: int | None = None, penetration_tolerance: float = PENETRATION_TOLERANCE,
-                    dtype=np.float64) -> PreparedTargets:
+                    dtype=np.float64, exclude: dict[str, set[str]] | tuple | None = None) -> PreparedTargets:
     """The user's side of `retarget_points` (same arguments), to `map` onto avatar poses.
     `dtype` float32 maps in single precision (about twice as fast; positions agree with float64
-    to a few micrometres, the pipeline's choice)."""
+    to a few micrometres, the pipeline's choice). `exclude`: target name -> element ids it is not
+    mapped on, besides its own chain's (the egocentric method's trunk targets: the arms); or, per
+    target name in order, a frozenset of them (a caller that prepares the same targets again)."""
     dtype = np.dtype(dtype)
     if dtype not in (np.float32, np.float64):
         raise BodyCalError(f"the mapping computes in float32 or float64, not {dtype}")
@@ -297,63 +378,58 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
     user_surface = user_surface.astype(dtype)
     groups = []
     # Decision (speed, the same values): a few frames (a live frame, a preview) are projected and
-    # re-posed for every target on every element at once, and each group takes its pairs from
-    # that: the projection is per (target, element) pair, so the values are the group's own, and
-    # one pass over a few more pairs costs far less than one pass per group when numpy's per-call
-    # overhead is the cost. Longer blocks (the bake's chunks) project each group on its own
-    # elements only: there the pairs are the cost.
-    ids = user_surface.element_ids
-    whole = (_project(pts, user_surface, penetration_tolerance)
-             if not chunk and F * len(target_names) * len(ids) <= MERGED_PAIRS else None)
-    for members, names, keep, plan in _grouping(tuple(target_names), tuple(ids), tuple(user_surface.element_roots)):
+    # re-posed for every target on every element at once, and the groups whose targets keep as
+    # many elements run side by side, each target on its own elements (`_fused_groups`): the
+    # projection is per (target, element) pair and a target's sums run over its own elements in
+    # their order, so the values are the group's own, and one pass over a few more pairs costs far
+    # less than one pass per group when numpy's per-call overhead is the cost. Longer blocks (the
+    # bake's chunks) project each group on its own elements only: there the pairs are the cost.
+    ids = tuple(user_surface.element_ids)
+    names = tuple(target_names)
+    extra = None if not exclude else exclude if isinstance(exclude, tuple) else tuple(
+        frozenset(exclude.get(n, ())) for n in names)
+    roots = tuple(user_surface.element_roots)
+    if not chunk and F * len(names) * len(ids) <= MERGED_PAIRS:
+        whole = _project(pts, user_surface, penetration_tolerance)
+        for members, group_names, pairs, columns, plan in _fused_groups(names, ids, roots, extra):
+            _check_joints(user_surface, plan, group_names, "user")
+            pr = _Proj(*(_take_pairs(a, pairs, columns.shape) for a in (whole.x, whole.v, whole.dist, whole.factor)),
+                       *([None] * 5))
+            blocks = [_prepare_block(0, F, pts[:, members], plan, user_surface, ubt, nodes_u, floor,
+                                     penetration_tolerance, falloff, pr)] if F else []
+            groups.append(_Group(members, group_names, None, plan, blocks, pairs, columns))
+        return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+    for members, group_names, keep, plan, _ in _grouping(names, ids, roots, extra):
         sub = user_surface if keep is None else user_surface.select(keep)
-        _check_joints(sub, plan, names, "user")
+        _check_joints(sub, plan, group_names, "user")
         step = int(chunk) if chunk else max(32, BLOCK_PAIRS // max(1, len(members) * len(sub.element_ids)))
-        step = max(1, F if whole is not None else step)
         blocks = []
-        for s in range(0, F, step):
+        for s in range(0, F, max(1, step)):
             e = min(F, s + step)
-            pr = None if whole is None else _proj_pairs(whole, members, keep, user_surface)
             blocks.append(_prepare_block(s, e, pts[s:e, members], plan, sub.take(s, e), ubt[:, :, s:e],
-                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff, pr))
-        groups.append(_Group(members, names, keep, plan, blocks))
-    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+                                         nodes_u[:, s:e], floor, penetration_tolerance, falloff))
+        groups.append(_Group(members, group_names, keep, plan, blocks))
+    return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups)
 
 
 MERGED_PAIRS = 2_000  # frames x targets x elements up to which every group shares one projection
 
 
-def _pairs(a: np.ndarray, targets: np.ndarray, elements: np.ndarray | None) -> np.ndarray:
-    """(..., P, E) -> the pairs of `targets` (and `elements`, None: all) of the last two axes."""
-    a = a.take(targets, axis=-2)
-    return a if elements is None else a.take(elements, axis=-1)
-
-
-def _proj_pairs(whole: _Proj, targets: np.ndarray, keep: np.ndarray | None, surface: PosedSurface) -> _Proj:
-    """A group's projections taken from every target's on every element (`_project` of the whole
-    `surface`): its targets, its elements (`keep`, as `PosedSurface.select` orders them), the
-    closest triangles renumbered as in the selected surface."""
-    if keep is None:
-        cap, sph, mesh, tri_index = None, None, None, whole.tri_index.take(targets, axis=1)
-    else:
-        cap, sph, mesh, _, _, slices = _selection(tuple(int(k) for k in keep), surface.counts,
-                                                  tuple(surface.mesh_slices))
-        shift = np.array([b[0] - surface.mesh_slices[m][0] for m, b in zip(mesh, slices)], int)
-        tri_index = _pairs(whole.tri_index, targets, mesh) + shift
-    return _Proj(_pairs(whole.x, targets, keep), _pairs(whole.v, targets, keep), _pairs(whole.dist, targets, keep),
-                 _pairs(whole.factor, targets, keep), _pairs(whole.cap_t, targets, cap),
-                 _pairs(whole.cap_dir, targets, cap), _pairs(whole.sph_dir, targets, sph), tri_index,
-                 _pairs(whole.tri_bary, targets, mesh))
+def _take_pairs(a: np.ndarray, pairs: np.ndarray, shape: tuple) -> np.ndarray:
+    """(..., P, E) -> (..., *shape): the pairs at flat indices `pairs` (p E + e) of the last two axes."""
+    lead = a.shape[:-2]
+    return a.reshape(lead + (a.shape[-2] * a.shape[-1],)).take(pairs, axis=-1).reshape(lead + shape)
 
 
 @lru_cache(maxsize=64)
-def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
-    """The targets grouped by the elements they exclude (own_chain_elements), once per target and
-    element set: [(the group's targets (indices), their names, the elements kept (None: all),
-    the group's _Plan)]."""
+def _grouping(target_names: tuple, ids: tuple, roots: tuple, extra: tuple | None = None) -> list:
+    """The targets grouped by the elements they exclude (own_chain_elements, and `extra`: per
+    target, more element ids), once per target and element set: [(the group's targets (indices),
+    their names, the elements kept (None: all), the group's _Plan, the element ids it excludes)]."""
     rows: dict[frozenset, list[int]] = {}
     for i, name in enumerate(target_names):
-        rows.setdefault(own_chain_elements(name) & set(ids), []).append(i)
+        excluded = own_chain_elements(name) | (extra[i] if extra else frozenset())
+        rows.setdefault(excluded & set(ids), []).append(i)
     out = []
     for excluded, members in rows.items():
         keep = np.array([k for k, eid in enumerate(ids) if eid not in excluded], int)
@@ -362,9 +438,65 @@ def _grouping(target_names: tuple, ids: tuple, roots: tuple) -> list:
         keep = None if not excluded or not len(keep) else keep
         names = tuple(target_names[i] for i in members)
         cols = range(len(ids)) if keep is None else keep
-        plan = _plan(names, tuple(ids[k] for k in cols), tuple(roots[k] for k in cols))
-        out.append((np.array(members, int), names, keep, plan))
+        plan = _row_plan(names, (tuple(ids[k] for k in cols),) * len(names),
+                         (tuple(roots[k] for k in cols),) * len(names), (excluded,) * len(names))
+        out.append((np.array(members, int), names, keep, plan, excluded))
     return out
+
+
+@lru_cache(maxsize=64)
+def _fused_groups(target_names: tuple, ids: tuple, roots: tuple, extra: tuple | None = None) -> list:
+    """`_grouping`'s groups side by side where their targets keep as many elements (each target's
+    sums then run over its own elements, in their order, as in its group), or all fewer than
+    SEQUENTIAL_SUM, padded to the widest of them with pairs of no weight (`_padding_is_exact`):
+    [(the targets (indices), their names, each pair's flat index p E + e into every target on every
+    element (P E'), each pair's element (P, E'), the _Plan of the targets on their own elements)],
+    once per target and element set."""
+    E = len(ids)
+    pad = _padding_is_exact()
+    by_width: dict[int, list] = {}
+    for members, names, keep, _, excluded in _grouping(target_names, ids, roots, extra):
+        cols = np.arange(E) if keep is None else keep
+        for i, name in zip(members, names):
+            key = 0 if pad and len(cols) < SEQUENTIAL_SUM else len(cols)
+            by_width.setdefault(key, []).append((int(i), name, cols, excluded))
+    out = []
+    for rows in by_width.values():
+        width = max(len(cols) for _, _, cols, _ in rows)
+        padded = []
+        for i, name, cols, excluded in rows:
+            # a padding pair: an element the target is not mapped on (its weight is zero; its
+            # values are a real projection's, finite), marked excluded by the sentinel id ""
+            spare = [k for k in range(E) if k not in set(cols.tolist())][:1] * (width - len(cols))
+            padded.append((i, name, np.concatenate([cols, np.array(spare, int)]),
+                           tuple(ids[k] for k in cols) + ("",) * len(spare),
+                           tuple(roots[k] for k in cols) + tuple(roots[k] for k in spare),
+                           excluded | {""} if spare else excluded))
+        members = np.array([r[0] for r in padded], int)
+        columns = np.stack([r[2] for r in padded])
+        plan = _row_plan(tuple(r[1] for r in padded), tuple(r[3] for r in padded), tuple(r[4] for r in padded),
+                         tuple(r[5] for r in padded))
+        pairs = (members[:, None] * E + columns).reshape(-1)
+        out.append((members, tuple(r[1] for r in padded), pairs, columns, plan))
+    return out
+
+
+SEQUENTIAL_SUM = 8  # numpy sums a contiguous row of fewer items than this one after the other
+
+
+@lru_cache(maxsize=1)
+def _padding_is_exact() -> bool:
+    """Whether this numpy sums a row of fewer than SEQUENTIAL_SUM float32 or float64 items one after
+    the other, so that zeros after them change no bit (its pairwise sum does; checked once)."""
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        for n in range(1, SEQUENTIAL_SUM):
+            a = (rng.standard_normal((64, n)) * 10.0 ** rng.uniform(-6, 2, (64, n))).astype(dtype)
+            padded = np.zeros((64, SEQUENTIAL_SUM - 1), dtype)
+            padded[:, :n] = a
+            if not np.array_equal(a.sum(-1), padded.sum(-1)):
+                return False
+    return True
 
 
 def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff,
@@ -395,7 +527,9 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     tau = tau.take(plan.unorder, axis=0).T
     tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
     pr.dist = pr.factor = None  # spent on the weights
-    return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots)
+    none = lam.sum(-1) <= 0  # no element with weight (all excluded)
+    return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots, tau_ok=tau > EPS,
+                      none=none if none.any() else None)
 
 
 def _chains(a, plan: _Plan):
@@ -425,7 +559,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     x_av, v_av = _repose(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
     tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
-    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau > EPS)
+    chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau_ok)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
     else:
@@ -437,27 +571,34 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     lam = b.lam
     out = np.empty((F, P, 3), est.dtype)
     # x and y in one product and sum (each row summed on its own, as apart)
-    out[..., :2] = np.moveaxis((est[:2] * lam).sum(-1), 0, -1)
+    out[..., :2] = (est[:2] * lam).sum(-1).transpose(1, 2, 0)
     # No element with weight (all excluded): keep the user's horizontal position.
-    none = lam.sum(-1) <= 0
-    if none.any():
-        out[..., :2] = np.where(none[..., None], p[..., :2], out[..., :2])
+    if b.none is not None:
+        out[..., :2] = np.where(b.none[..., None], p[..., :2], out[..., :2])
     vertical = (est[2] * b.lam_g).sum(-1)
     if floor:
         # h'_j = h_j τ'/τ along the path from the supporting (lower) ankle, v̂ = up (DESIGN.md §5).
         if b.floor_user is None:  # the user's side, the same for every map of this block
             b.floor_user = _floor_user(b, plan, ub)
+            b.floor_ok = b.floor_user[1] > EPS
         # both sides at once: (F, 2P), the left side's targets first (as _floor_user stacks them)
         ent, st = plan.floor_both
         uz, tf, w_left = b.floor_user
         tfa = np.add.reduceat(uz * lratio.take(ent, axis=0), st, axis=0).T
-        ankles = np.stack([av.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+        ankles = _ankle_heights(av)  # (F, 2)
         tfa += np.abs(ankles).repeat(P, axis=1)
-        ratios = np.divide(tfa, tf, out=np.ones_like(tf), where=tf > EPS)
+        ratios = np.divide(tfa, tf, out=np.ones_like(tf), where=b.floor_ok)
         fratio = ratios[:, P:] + w_left[:, None] * (ratios[:, :P] - ratios[:, P:])
         vertical = vertical + p[..., 2] * fratio * b.lam_gf
     out[..., 2] = vertical
     return out, ratio
+
+
+def _ankle_heights(surface: PosedSurface) -> np.ndarray:
+    """(F, 2) both ankles' heights, left first."""
+    if isinstance(surface.joints, JointTable):
+        return surface.joints.array.take(_ANKLES, axis=1)[..., 2]
+    return np.stack([surface.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)
 
 
 def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
@@ -470,7 +611,7 @@ def _floor_user(b: _UserBlock, plan: _Plan, ub) -> tuple:
     us = b.us
     ent, st = plan.floor_both
     uz = np.abs(ub[2].take(ent, axis=0))  # (K, F)
-    ankles = np.stack([us.joints[f"ankle_{name}"][:, 2] for name in sk.SIDES], axis=1)  # (F, 2)
+    ankles = _ankle_heights(us)  # (F, 2)
     tau = np.add.reduceat(uz, st, axis=0).T + np.abs(ankles).repeat(len(st) // 2, axis=1)
     w_left = 0.5 + 0.5 * np.tanh((ankles[:, 1] - ankles[:, 0]) / SUPPORT_BLEND)
     return uz, tau, w_left

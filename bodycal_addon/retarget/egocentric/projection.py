@@ -4,12 +4,13 @@ coordinates that re-pose the projection on another body and the angular factor o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
-from ...core.transforms import EPS, unit_and_norm
+from ...core.transforms import EPS, broadcast_shape, unit_and_norm
 from .surface import PosedSurface
 
 FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)
@@ -73,11 +74,11 @@ SMALL_ROWS = 4096  # items per row up to which `_rows_dot` computes the three ro
 
 
 def _rows_dot(rc, v, transpose):
-    shape = np.broadcast_shapes(rc.shape[2:], v.shape[1:])
-    if np.prod(shape) <= SMALL_ROWS:
+    shape = broadcast_shape(rc.shape[2:], v.shape[1:])
+    if math.prod(shape) <= SMALL_ROWS:
         # A few items (a live frame): the three rows in three products and two sums, each row's
         # the same r0 v0 + r1 v1 + r2 v2 in the same order as the loop below, in a fifth of the calls.
-        r = rc if transpose else np.swapaxes(rc, 0, 1)  # r[k] holds every row's k-th entry
+        r = rc if transpose else rc.swapaxes(0, 1)  # r[k] holds every row's k-th entry
         out = r[0] * v[0]
         out += r[1] * v[1]
         out += r[2] * v[2]
@@ -159,13 +160,13 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
     ab = _comp(surface.caps_tail)[:, :, None, :] - a
     abab = np.maximum(_dot(ab, ab), 1e-24)
     ap = pc - a
-    t = np.clip(_dot(ap, ab) / abab, 0.0, 1.0)
+    t = np.minimum(np.maximum(_dot(ap, ab) / abab, 0.0), 1.0)  # np.clip's values
     rc = _rot_comp(surface.caps_rot)
     d, n = unit_and_norm(ap - t * ab, rc[:, 0], axis=0)  # on the axis: the bone's +X
     r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
     cap_v = (n - r) * d
     cos_ax = _dot(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
-    cap_factor = np.sqrt(np.clip(1.0 - cos_ax * cos_ax, 0.0, 1.0))
+    cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
     # Spheres.
     sc = _comp(surface.sph_center)[:, :, None, :]
     src = _rot_comp(surface.sph_rot)
@@ -258,7 +259,7 @@ def _mesh_pairing(user_slices: tuple, avatar_slices: tuple) -> tuple[np.ndarray,
     triangle index to the avatar's: the same position inside the element), once per mesh layout."""
     same = np.array([(ue - us) == (ae - as_) for (us, ue), (as_, ae) in zip(user_slices, avatar_slices)])
     offset = np.array([as_ - us for (us, _), (as_, _) in zip(user_slices, avatar_slices)])
-    return same, offset
+    return same, offset, bool(same.all())
 
 
 def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
@@ -280,8 +281,8 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
         v_parts = [_apply(cap_rot, _apply_t(_rot_comp(user.caps_rot), pr.v[..., :C])),
                    _apply(sph_rot, _apply_t(_rot_comp(user.sph_rot), pr.v[..., C:C + S]))]
     if M:
-        same, offset = _mesh_pairing(tuple(user.mesh_slices), tuple(avatar.mesh_slices))
-        idx = np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
+        same, offset, all_same = _mesh_pairing(tuple(user.mesh_slices), tuple(avatar.mesh_slices))
+        idx = pr.tri_index + offset if all_same else np.where(same, pr.tri_index + offset, avatar.mesh_slices[0][0])
         fi = np.arange(F)[:, None, None]
         # The corners of every pair's triangle in one gather, (corner, component, F, P, M); the
         # barycentric sum corner by corner as before (0 + b0 c0 + b1 c1 + b2 c2, the same bits).
@@ -293,17 +294,17 @@ def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = 
             to_avatar = np.concatenate([np.arange(us, ue) + (as_ - us) if ok else np.full(ue - us, as_)
                                         for (us, ue), (as_, _), ok in zip(user.mesh_slices, avatar.mesh_slices, same)])
             rel = (_triangle_frames(avatar.tri, avatar.tri_normal)[:, to_avatar]
-                   @ np.swapaxes(_triangle_frames(user.tri, user.tri_normal), -1, -2))  # (F, T, 3, 3)
+                   @ _triangle_frames(user.tri, user.tri_normal).swapaxes(-1, -2))  # (F, T, 3, 3)
             rel = np.ascontiguousarray(rel.transpose(2, 3, 0, 1))[:, :, fi, pr.tri_index]  # (3, 3, F, P, M)
             mesh_v = _apply(rel, pr.v[..., C + S:])
-        if not same.all():
+        if not all_same:
             # Different triangles (e.g. palms with other point counts): the element bone's frame,
             # scaled by the bone length ratio.
             bad = np.flatnonzero(~same)
             xm = pr.x[:, :, :, C + S + bad]
             local = _apply_t(_rot_comp(user.mesh_rot[:, bad]), xm - _comp(user.mesh_head[:, bad])[:, :, None, :])
             scale = avatar.mesh_scale[bad] / np.maximum(user.mesh_scale[bad], 1e-9)
-            bone_rel = _rot_comp(avatar.mesh_rot[:, bad] @ np.swapaxes(user.mesh_rot[:, bad], -1, -2))
+            bone_rel = _rot_comp(avatar.mesh_rot[:, bad] @ user.mesh_rot[:, bad].swapaxes(-1, -2))
             mesh[:, :, :, bad] = (_comp(avatar.mesh_head[:, bad])[:, :, None, :]
                                   + _apply(_rot_comp(avatar.mesh_rot[:, bad]), local * scale))
             if turn_v:

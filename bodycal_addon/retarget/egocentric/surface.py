@@ -14,7 +14,7 @@ from ...body.skeleton import BONE_INDEX as BI
 from ...body.skeleton import JOINT_INDEX as JI
 from ...body.skeleton import JOINTS
 from ...core.errors import BodyCalError
-from ...core.transforms import cross, frame_from_axes, stacks_mul
+from ...core.transforms import cross, einsum, frame_from_axes, stacks_mul
 from .graph import element_root
 
 
@@ -62,7 +62,7 @@ class PosedSurface:
     sph_rot: np.ndarray  # (F, S, 3, 3)
     sph_radius: np.ndarray  # (S,)
     tri: np.ndarray  # (F, T, 3, 3) triangle corners, outward winding
-    tri_normal: np.ndarray  # (F, T, 3) unit outward normals
+    tri_normal: np.ndarray | None  # (F, T, 3) unit outward normals (None: not posed, SurfacePoser.pose)
     tri_elem: np.ndarray  # (T,) element index (into element_ids) of each triangle
     mesh_slices: list[tuple[int, int]]  # per mesh element, its triangle range in `tri`
     mesh_head: np.ndarray  # (F, M, 3) head joint of each mesh element's bone
@@ -70,6 +70,9 @@ class PosedSurface:
     mesh_scale: np.ndarray  # (M,) length of each mesh element's bone (re-posing fallback)
     joints: dict[str, np.ndarray]  # canonical joint -> (F, 3)
     notes: list[str] = field(default_factory=list)
+    # dtype -> (caps_radius, sph_radius, mesh_scale) in it: the frame-independent fields converted
+    # once for every pose of a SurfacePoser (shared between its poses; None: converted each time)
+    constants: dict | None = None
 
     @property
     def frames(self) -> int:
@@ -84,19 +87,29 @@ class PosedSurface:
         s = slice(start, stop)
         return PosedSurface(self.element_ids, self.element_bones, self.element_roots, self.caps_head[s],
                             self.caps_tail[s], self.caps_rot[s], self.caps_radius, self.sph_center[s], self.sph_rot[s],
-                            self.sph_radius, self.tri[s], self.tri_normal[s], self.tri_elem, self.mesh_slices,
-                            self.mesh_head[s], self.mesh_rot[s], self.mesh_scale, _take_joints(self.joints, s),
-                            self.notes)
+                            self.sph_radius, self.tri[s], None if self.tri_normal is None else self.tri_normal[s],
+                            self.tri_elem, self.mesh_slices, self.mesh_head[s], self.mesh_rot[s], self.mesh_scale,
+                            _take_joints(self.joints, s), self.notes, self.constants)
 
-    def astype(self, dtype) -> PosedSurface:
-        """The surface with its placed geometry in `dtype` (itself if already; joints unchanged)."""
+    def astype(self, dtype, normals: bool = True) -> PosedSurface:
+        """The surface with its placed geometry in `dtype` (itself if already; joints unchanged).
+        `normals` False leaves the triangles' normals as they are (a caller that reads none)."""
         if self.caps_head.dtype == dtype:
             return self
-        c = [np.asarray(a, dtype) for a in (self.caps_head, self.caps_tail, self.caps_rot, self.caps_radius,
-                                            self.sph_center, self.sph_rot, self.sph_radius, self.tri, self.tri_normal)]
-        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, *c, self.tri_elem,
-                            self.mesh_slices, np.asarray(self.mesh_head, dtype), np.asarray(self.mesh_rot, dtype),
-                            np.asarray(self.mesh_scale, dtype), self.joints, self.notes)
+        if self.constants is not None and dtype in self.constants:
+            caps_radius, sph_radius, mesh_scale = self.constants[dtype]
+        else:
+            caps_radius, sph_radius, mesh_scale = (np.asarray(a, dtype) for a in (self.caps_radius, self.sph_radius,
+                                                                                 self.mesh_scale))
+            if self.constants is not None:
+                self.constants[dtype] = (caps_radius, sph_radius, mesh_scale)
+        normal = np.asarray(self.tri_normal, dtype) if normals and self.tri_normal is not None else self.tri_normal
+        return PosedSurface(self.element_ids, self.element_bones, self.element_roots, np.asarray(self.caps_head, dtype),
+                            np.asarray(self.caps_tail, dtype), np.asarray(self.caps_rot, dtype), caps_radius,
+                            np.asarray(self.sph_center, dtype), np.asarray(self.sph_rot, dtype), sph_radius,
+                            np.asarray(self.tri, dtype), normal, self.tri_elem, self.mesh_slices,
+                            np.asarray(self.mesh_head, dtype), np.asarray(self.mesh_rot, dtype), mesh_scale,
+                            self.joints, self.notes, self.constants)
 
     def select(self, keep) -> PosedSurface:
         """The elements at indices `keep` (ascending: capsules, spheres, meshes stay in order)."""
@@ -110,8 +123,9 @@ class PosedSurface:
                             [self.element_roots[k] for k in keep], cols(self.caps_head, ci), cols(self.caps_tail, ci),
                             cols(self.caps_rot, ci), self.caps_radius[ci], cols(self.sph_center, si),
                             cols(self.sph_rot, si), self.sph_radius[si], cols(self.tri, rows),
-                            cols(self.tri_normal, rows), elem, slices, cols(self.mesh_head, mi),
-                            cols(self.mesh_rot, mi), self.mesh_scale[mi], self.joints, self.notes)
+                            None if self.tri_normal is None else cols(self.tri_normal, rows), elem, slices,
+                            cols(self.mesh_head, mi), cols(self.mesh_rot, mi), self.mesh_scale[mi], self.joints,
+                            self.notes)
 
 
 @lru_cache(maxsize=256)
@@ -264,8 +278,8 @@ def _pose_capsules(posing: _Posing, caps: list) -> dict[str, np.ndarray]:
     caps_head = posing.stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
     caps_tail = posing.stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
     if np.any(caps_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
-        caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
-        caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
+        caps_head = caps_head + einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
+        caps_tail = caps_tail + einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
     caps_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
                            float).reshape(-1, 2)
     return {"caps_head": caps_head, "caps_tail": caps_tail, "caps_rot": caps_rot, "caps_radius": caps_radius}
@@ -276,7 +290,7 @@ def _pose_spheres(posing: _Posing, sphs: list) -> dict[str, np.ndarray]:
     sph_rot = posing.stack([posing.rotation(e.bone) for e in sphs], (3, 3))
     sph_origin = posing.stack([posing.head(e.bone) for e in sphs], (3,))
     sph_local = np.array([e.center for e in sphs], float).reshape(-1, 3)
-    sph_center = sph_origin + np.einsum("fsij,sj->fsi", sph_rot, sph_local)
+    sph_center = sph_origin + einsum("fsij,sj->fsi", sph_rot, sph_local)
     sph_radius = np.array([e.radius for e in sphs], float)
     return {"sph_center": sph_center, "sph_rot": sph_rot, "sph_radius": sph_radius}
 
@@ -332,8 +346,8 @@ def _mesh_triangles(posing: _Posing, meshes: list, first: int) -> tuple[np.ndarr
     for b in dict.fromkeys(point_bones):
         rows = np.array([i for i, pb in enumerate(point_bones) if pb == b])
         rot = np.ascontiguousarray(posing.cached_rotation(b))
-        world[:, rows] = joints[_head_of(b, posing.model)][:, None, :] + np.swapaxes(
-            (rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)), 1, 2)
+        world[:, rows] = joints[_head_of(b, posing.model)][:, None, :] + (
+            rot.reshape(-1, 3) @ local[rows].T).reshape(frames, 3, len(rows)).swapaxes(1, 2)
     return world.take(np.array(tri_rows), axis=1), tri_elem, slices  # (F, T, 3, 3), C order
 
 
@@ -365,6 +379,7 @@ class SurfacePoser:
         self.cap_ends = [np.array([JI[getattr(sk.BONE_BY_NAME[e.bone], end)] for e in caps], int)
                          for end in ("head", "tail")]
         self.cap_off = np.array([e.axis_offsets() for e in caps], float).reshape(-1, 2, 3)
+        self.cap_offset = bool(np.any(self.cap_off))
         self.cap_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
                                    float).reshape(-1, 2)
         self.sph_bone = np.array([BI[e.bone] for e in sphs], int)
@@ -374,6 +389,7 @@ class SurfacePoser:
         self.mesh_bone = np.array([BI[b] for b in mesh_bones], int)
         self.mesh_head = np.array([JI[_head_of(b, model)] for b in mesh_bones], int)
         self.mesh_scale = np.array([model.bones[b].length if b in model.bones else 1.0 for b in mesh_bones], float)
+        self.constants: dict = {}  # PosedSurface.constants, shared by every pose
         self._mesh_points(model, meshes, len(caps) + len(sphs))
 
     def _mesh_points(self, model, meshes: list, first: int) -> None:
@@ -408,35 +424,39 @@ class SurfacePoser:
             g0 += len(rows)
         self.pad_tri = flat[self.tri_rows] if self.point_count else self.tri_rows
 
-    def pose(self, joints: np.ndarray, frames: np.ndarray) -> PosedSurface:
-        """The surface posed by canonical joints (F, J, 3) and bone frames (F, B, 3, 3), world."""
+    def pose(self, joints: np.ndarray, frames: np.ndarray, normals: bool = True) -> PosedSurface:
+        """The surface posed by canonical joints (F, J, 3) and bone frames (F, B, 3, 3), world.
+        `normals` False leaves the triangles' normals out (None: a caller that reads none, as
+        `PreparedTargets.map` without `turn_v`)."""
         nf = joints.shape[0]
-        caps_rot = frames[:, self.cap_bone]
-        caps_head, caps_tail = joints[:, self.cap_ends[0]], joints[:, self.cap_ends[1]]
-        if np.any(self.cap_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
-            caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 0])
-            caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
-        sph_rot = frames[:, self.sph_bone]
-        sph_center = joints[:, self.sph_head] + np.einsum("fsij,sj->fsi", sph_rot, self.sph_local)
+        caps_rot = frames.take(self.cap_bone, axis=1)
+        caps_head, caps_tail = joints.take(self.cap_ends[0], axis=1), joints.take(self.cap_ends[1], axis=1)
+        if self.cap_offset:  # axes off the bone line (bodymodel: axis_head / axis_tail)
+            caps_head = caps_head + einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 0])
+            caps_tail = caps_tail + einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
+        sph_rot = frames.take(self.sph_bone, axis=1)
+        sph_center = joints.take(self.sph_head, axis=1) + einsum("fsij,sj->fsi", sph_rot, self.sph_local)
         if not self.point_count:
             tri = np.zeros((nf, 0, 3, 3))
         elif nf < FEW_FRAMES and len(self.point_groups) > 1:
             # Decision (speed): a few frames (a live frame) pose every point bone in one padded
             # product (a few numpy calls, not a few per group); the products' BLAS kernels differ
             # with the padded width, so points move by rounding (1e-16 m) against the groups'.
-            rel = stacks_mul(np.swapaxes(frames, 0, 1), self.pad_local, self.pad_bones)  # (G, F, 3, K)
-            pts = joints[:, self.pad_heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+            rel = stacks_mul(frames.swapaxes(0, 1), self.pad_local, self.pad_bones)  # (G, F, 3, K)
+            pts = joints.take(self.pad_heads, axis=1)[:, :, None, :] + rel.swapaxes(-1, -2).swapaxes(0, 1)
             tri = pts.reshape(nf, -1, 3).take(self.pad_tri, axis=1)
         else:
             world = np.empty((nf, self.point_count, 3))
             for bones, heads, rows, local in self.point_groups:  # per bone, its points (G bones of K points)
-                rel = stacks_mul(np.swapaxes(frames, 0, 1), local, bones)  # (G, F, 3, K)
-                world[:, rows] = joints[:, heads][:, :, None, :] + np.swapaxes(np.swapaxes(rel, -1, -2), 0, 1)
+                rel = stacks_mul(frames.swapaxes(0, 1), local, bones)  # (G, F, 3, K)
+                world[:, rows] = joints[:, heads][:, :, None, :] + rel.swapaxes(-1, -2).swapaxes(0, 1)
             tri = world.take(self.tri_rows, axis=1)
-        n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-        nn = np.linalg.norm(n, axis=-1, keepdims=True)
-        tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
+        tri_normal = None
+        if normals:
+            n = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+            nn = np.sqrt(np.add.reduce(n * n, axis=-1, keepdims=True))  # np.linalg.norm's
+            tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
         return PosedSurface(self.element_ids, self.element_bones, self.element_roots, caps_head, caps_tail, caps_rot,
                             self.cap_radius, sph_center, sph_rot, self.sph_radius, tri, tri_normal, self.tri_elem,
-                            self.mesh_slices, joints[:, self.mesh_head], frames[:, self.mesh_bone], self.mesh_scale,
-                            JointTable(joints), self.notes)
+                            self.mesh_slices, joints.take(self.mesh_head, axis=1), frames.take(self.mesh_bone, axis=1),
+                            self.mesh_scale, JointTable(joints), self.notes, self.constants)

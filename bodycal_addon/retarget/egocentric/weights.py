@@ -20,7 +20,7 @@ def raw_weights(proj: Projections, heights: np.ndarray, exclude: np.ndarray | No
     else:
         lam = proj.factor / np.maximum(proj.dist, MIN_DISTANCE) ** falloff
         floor = 1.0 / np.maximum(np.abs(heights), MIN_DISTANCE) ** falloff
-    if exclude is not None:
+    if exclude is not None and exclude.any():
         lam = np.where(exclude, 0.0, lam)
     return lam, floor
 
