@@ -28,6 +28,7 @@ from ...core.geometry import (
     MIN_SWING_MINOR_DEG,
     fit_rotation_axis,
     fit_sphere,
+    fixed_point_spread,
     running_median,
 )
 
@@ -214,14 +215,7 @@ def centre_spread_mm(rel: np.ndarray, span_s: float) -> float:
     inverse is (N (I - C C^T))^-1 with C their mean: infinite for one rotation or a hinge (the
     centre slides along the axis), shrinking as the swing covers two directions. N counts at most
     `INDEPENDENT_HZ` frames per second, so the figure does not depend on the stream's rate."""
-    if len(rel) < 2:
-        return float("inf")
-    c = rel.mean(axis=0)
-    w = np.linalg.eigvalsh(np.eye(3) - c @ c.T)
-    if w[0] <= 1e-12:
-        return float("inf")
-    n = min(len(rel), max(span_s, 1e-9) * INDEPENDENT_HZ)
-    return float(NOISE_MM * np.sqrt(np.sum(1.0 / w) / n))
+    return fixed_point_spread(rel, NOISE_MM, min(len(rel), max(span_s, 1e-9) * INDEPENDENT_HZ))
 
 
 def swing_progress(rel: np.ndarray, points: np.ndarray, joint: str, span_s: float) -> StepProgress:
