@@ -34,6 +34,7 @@ CONTROLLER_TIP_LOCAL = np.array([0.0, 0.09, 0.0])
 PIVOT_MAX_SE_MM = 2.0  # the pivot must fix the tip to this (standard error) or it is not used
 PIVOT_INDEPENDENT_HZ = 20.0  # frames closer than this share their slip and wobble (progress.INDEPENDENT_HZ)
 PIVOT_MAX_TIP_M = 0.35  # a tip farther than this from the controller's origin is not a controller's
+PIVOT_HINT = "keep the tip on one spot and circle the controller around it, tilting it every way, for a few seconds"
 
 TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")
 HEAD_POINTS = ("ear_l", "ear_r", "upper_lip", "chin", "jaw_l", "jaw_r", "skull_top", "skull_left", "skull_right",
@@ -156,15 +157,16 @@ def _pivot(session: Session, state: State, s: str, step: str, segs) -> None:
         idx = idx[v[idx]]
         rot = tf.quat_to_matrix(q[idx])
         room = np.broadcast_to(np.eye(3), rot.shape)
-        fit = fit_rigid_point(rot, p[idx], room, np.zeros((len(idx), 3)), name=step, robust=session.robust)
+        try:
+            fit = fit_rigid_point(rot, p[idx], room, np.zeros((len(idx), 3)), name=step, robust=session.robust)
+        except BodyCalError as exc:  # its hint speaks of limbs
+            raise BodyCalError(exc.message, source=session.source, field=step, hint=PIVOT_HINT) from None
         t = session.rec.time[idx[fit.inliers]]
         count = min(len(t), max(float(t[-1] - t[0]), 1e-9) * PIVOT_INDEPENDENT_HZ)
         se_mm = fixed_point_spread(rot[fit.inliers], fit.rms * 1000.0, count)
         if se_mm > PIVOT_MAX_SE_MM:
             raise BodyCalError(f"the controller turned too little about its tip to fix it (±{se_mm:.1f} mm, at most "
-                               f"±{PIVOT_MAX_SE_MM:g} mm)", source=session.source, field=step,
-                               hint="keep the tip on one spot and circle the controller around it, tilting it "
-                                    "every way, for a few seconds")
+                               f"±{PIVOT_MAX_SE_MM:g} mm)", source=session.source, field=step, hint=PIVOT_HINT)
         if np.linalg.norm(fit.local_a) > PIVOT_MAX_TIP_M:
             raise BodyCalError(f"the point the controller turned about is {np.linalg.norm(fit.local_a):.2f} m from "
                                "it: the tip left its spot", source=session.source, field=step,
