@@ -293,10 +293,10 @@ def toucher(point: str) -> str:
     return f"controller_tip_{s if point.startswith(('knee_out', 'ankle_out')) else OTHER[s]}"
 
 
-# (point, by) in the order they are performed
-TOUCHES = tuple((f"{p}_{s}", toucher(f"{p}_{s}")) for s in SIDES
-                for p in ("wrist_top", "wrist_bottom", "elbow_in", "elbow_out", "knee_in", "knee_out", "ankle_in",
-                          "ankle_out"))
+# (point, by) in the order they are performed: both arms, then both legs (one posture each)
+TOUCHES = tuple((f"{p}_{s}", toucher(f"{p}_{s}")) for points in (("wrist_top", "wrist_bottom", "elbow_in", "elbow_out"),
+                                                                  ("knee_in", "knee_out", "ankle_in", "ankle_out"))
+                for s in SIDES for p in points)
 
 
 def touch_poses(perf: Performer, rng, fps: float, lift, stance: float, bends, tips: dict[str, np.ndarray]):
