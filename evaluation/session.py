@@ -1,6 +1,7 @@
 """A whole session of a performer (`performer.Performer`): the calibration steps of FORMATS.md §2.4
-(no touches) then the clip itself as the `motion`, with smooth transitions, placed anywhere in the
-play area and facing any way.
+(no touches; with `touches`, then a six-device user's controller pivots and touches, `touching`)
+then the clip itself as the `motion`, with smooth transitions, placed anywhere in the play area and
+facing any way.
 
 Each step is performed by the clip's skeleton the way a person does it, never perfectly: the
 body sways, the limb that should stay still wanders a few degrees, the straight limb of a swing
