@@ -41,6 +41,11 @@ wrist, median 9.7 -> 9.1 mm, worst 21 -> 21. The knee's flex step adds nothing h
 circle leaves a sphere undetermined, and a moving-point circle of the foot about the knee put the
 ankle 57-320 mm off (the thigh wanders as much as the ankle). Beyond Delahaye 2023 (appendix B
 takes the ankle from two touches); the same functional idea as its limb joints.
+
+With the six-device touches (lengths.py; DESIGN.md §3 "Touches with six devices") the wrists and
+ankles are measured (no default), the knees and elbows placed here with the thigh, shin and
+forearm the touches measured, and the hips the foot's swing placed raised or lowered to the
+standing legs' reach (`_legs_from_touches`).
 """
 
 from __future__ import annotations
@@ -314,9 +319,9 @@ def _place_arms(placing: _Placement) -> None:
             (l1, l2), how = touched
         elif upper is not None:  # the module docstring's Decision: the mean of the two estimates
             reach = float(np.linalg.norm(wr - sh))
-            lengths = _bent_lengths(0.5 * upper + 0.5 * reach * l1 / (l1 + l2), reach)
-            if lengths is not None:
-                (l1, l2), how = lengths, "the upper arm as long as the mean of its flex step's and the ratio's"
+            bent = _bent_lengths(0.5 * upper + 0.5 * reach * l1 / (l1 + l2), reach)
+            if bent is not None:
+                (l1, l2), how = bent, "the upper arm as long as the mean of its flex step's and the ratio's"
         put(f"elbow_{s}", _relaxed_mid(session, placing.state, sh, wr, l1, l2, f"forearm_{s}"),
             f"between the shoulder and the wrist, {how}, bent {R['reference_bend_deg']:.0f}° (nobody locks "
             f"the elbow straight)")
