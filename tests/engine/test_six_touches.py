@@ -6,6 +6,8 @@ engine is not told). 05_06 (CMU subject 5) is held out of the default benchmarks
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 from outside_takes import clip_performer, outside_recording
@@ -25,6 +27,23 @@ def performers(data_dir):
     return {DANCE: clip_performer(data_dir, DANCE, "cmu_bvh_held_out"), WALK: clip_performer(data_dir, WALK)}
 
 
+@pytest.fixture(scope="module")
+def recorded(performers, tmp_path_factory):
+    """(recording, capture) of a clip's session, with or without the touches, made once per module
+    (a test that changes the recording changes a copy)."""
+    made = {}
+
+    def get(clip: str, seed: int, touches: bool = False):
+        key = (clip, seed, touches)
+        if key not in made:
+            folder = tmp_path_factory.mktemp("six")
+            made[key] = outside_recording(performers[clip], folder, "six", seed, touches=touches)
+        rec, cap = made[key]
+        return copy.copy(rec), cap
+
+    return get
+
+
 def errors_mm(user, cap) -> dict[str, float]:
     truth = cap.truth()
     ref = int(round(user.reference_time * truth["fps"]))
@@ -38,14 +57,13 @@ def worst(err: dict[str, float]) -> tuple[str, float]:
 
 
 @pytest.mark.parametrize("clip", (WALK, DANCE))
-def test_the_touches_bring_every_hip_knee_ankle_shoulder_and_elbow_within_20_mm(performers, tmp_path, clip):
+def test_the_touches_bring_every_hip_knee_ankle_shoulder_and_elbow_within_20_mm(recorded, clip):
     """Session 3 of both clips without the touches: 02_01's left knee 29.9 mm off, 05_06's left
     ankle 32.7 (the ankle's height and the knee's place between hip and ankle, which a foot tracker
     alone does not observe). With the pivots and the touches every one of these joints is within the
     issue's 20 mm, and the report says what measured them."""
-    perf = performers[clip]
-    before, cap0 = outside_recording(perf, tmp_path, "six", 3)
-    after, cap1 = outside_recording(perf, tmp_path, "six", 3, touches=True)
+    before, cap0 = recorded(clip, 3)
+    after, cap1 = recorded(clip, 3, touches=True)
     assert worst(errors_mm(calibrate_user(before), cap0))[1] > 25.0  # the premise
     user = calibrate_user(after)
     assert worst(errors_mm(user, cap1))[1] <= 20.0, worst(errors_mm(user, cap1))
@@ -59,11 +77,11 @@ def test_the_touches_bring_every_hip_knee_ankle_shoulder_and_elbow_within_20_mm(
         assert cal["quality"][f"swing_hip_{s}"]["height_from_legs_mm"] != 0.0
 
 
-def test_the_pivot_finds_the_controller_tip_the_engine_is_not_told(performers, tmp_path):
+def test_the_pivot_finds_the_controller_tip_the_engine_is_not_told(recorded):
     """The tip is a point of the controller past the thumb, fixed in the hand for the session; the
     capture straps the controller at a random angle, so its place in the controller's frame is
     unknown (7-13 cm from the origin). The pivot finds it within a millimetre."""
-    rec, cap = outside_recording(performers[DANCE], tmp_path, "six", 1, touches=True)
+    rec, cap = recorded(DANCE, 1, touches=True)
     session, state = Session(rec), State()
     calibration_touches.controller_tips(session, state)
     for s in "lr":
@@ -74,11 +92,11 @@ def test_the_pivot_finds_the_controller_tip_the_engine_is_not_told(performers, t
         assert session.quality[f"pivot_tip_{s}"]["tip_se_mm"] < calibration_touches.PIVOT_MAX_SE_MM
 
 
-def test_a_pivot_that_hardly_turns_is_refused_and_the_touches_say_their_tip_was_assumed(performers, tmp_path):
+def test_a_pivot_that_hardly_turns_is_refused_and_the_touches_say_their_tip_was_assumed(recorded):
     """The left pivot's segment moved onto the `stand` step, where the controller hangs still: the
     fit cannot fix a tip, the step is left out with one line saying what to redo, and the left
     controller's touches are read at the assumed tip (reported among the defaults)."""
-    rec, _ = outside_recording(performers[WALK], tmp_path, "six", 0, touches=True)
+    rec, _ = recorded(WALK, 0, touches=True)
     stand = rec.segments_of("stand")[0]
     rec.segments = [Segment("pivot_tip_l", stand.start, stand.end) if s.step == "pivot_tip_l" else s
                     for s in rec.segments]
@@ -89,11 +107,11 @@ def test_a_pivot_that_hardly_turns_is_refused_and_the_touches_say_their_tip_was_
     assert "controller_tip_l" in cal["defaulted"] and "controller_tip_r" not in cal["defaulted"]
 
 
-def test_without_the_touches_six_devices_calibrate_as_before_and_say_what_was_assumed(performers, tmp_path):
+def test_without_the_touches_six_devices_calibrate_as_before_and_say_what_was_assumed(recorded):
     """The touches are optional: a six-device recording without them takes the knees at the
     thigh : shin ratio, the ankles behind the foot trackers, the elbows from the flex step and the
     ratio, and says so."""
-    rec, _ = outside_recording(performers[WALK], tmp_path, "six", 0)
+    rec, _ = recorded(WALK, 0)
     cal = calibrate_user(rec).calibration
     for s in "lr":
         assert "thigh : shin ratio" in cal["defaulted"][f"knee_{s}"]
@@ -103,14 +121,13 @@ def test_without_the_touches_six_devices_calibrate_as_before_and_say_what_was_as
         assert "height_from_legs_mm" not in cal["quality"][f"swing_hip_{s}"]
 
 
-def test_the_knee_touches_measure_thigh_and_shin_and_hold_the_hips_at_the_legs_height(performers, tmp_path):
+def test_the_knee_touches_measure_thigh_and_shin_and_hold_the_hips_at_the_legs_height(recorded):
     """Without a shin or thigh tracker the knee touches, taken in the foot tracker's frame, measure
     the thigh from the hip (pelvis tracker) and the shin from the ankle (foot tracker); the foot's
     swing had left this session's hips 12 and 16 mm low, the legs' reach above the ankles puts
     them within 6 mm of the clip's height."""
-    perf = performers[WALK]
-    before, _ = outside_recording(perf, tmp_path, "six", 3)
-    rec, cap = outside_recording(perf, tmp_path, "six", 3, touches=True)
+    before, _ = recorded(WALK, 3)
+    rec, cap = recorded(WALK, 3, touches=True)
     user = calibrate_user(rec)
     truth = cap.truth()
     ref = int(round(user.reference_time * truth["fps"]))
