@@ -6,8 +6,8 @@ The controller's tip is a point of the controller (its front, past the thumb sid
 fixed in the hand's frame for a session (`tip_in_hand`); where it sits in the controller's own
 frame follows from the capture's random mounting, so nothing tells the engine where it is: the
 pivot step is there to find it. In the pivot the performer holds the tip on one spot of a table in
-front of them and circles the controller around it, tilted 20-40 degrees and twisting (the tip
-slips `SLIP_MM` on the table).
+front of them and circles the controller around it, tilted 17-33 degrees, turning it about its
+own axis as the wrist finds easiest (the tip slips `SLIP_MM` on the table).
 
 A touch puts the tip on a landmark of the skin, not on the joint: the two epicondyles of the knee
 and of the elbow, the two malleoli, the back and the front of the wrist, each half the joint's
@@ -18,9 +18,11 @@ is placed with a person's imprecision (`PLACEMENT_MM` per axis across the skin, 
 centimetre, pressed 0-3 mm into it) and held a second with a millimetre of tremor, the segment
 reaching a little into the hand's coming and going.
 
-The touching arm is placed by inverse kinematics on the clip's own bones (`reach`): the hand's
-orientation is chosen (the tip pointing into the skin the way the arm reaches, the hand turned
-10-25 degrees at random), the wrist follows from the tip, the elbow from the two bone lengths.
+The touching arm is placed by inverse kinematics on the clip's own bones (`reach`): of the hand
+orientations that point the tip into the skin (within 40 degrees of straight in) the one whose
+wrist the arm's inverse kinematics bends least (`_best_hand`: at most 60 degrees), turned 3-8
+degrees at random; the wrist follows from the tip, the elbow from the two bone lengths (in the
+pivot, the controller turns about its axis the way the wrist bends least as the turns go on).
 Wrists and elbows are touched by the other hand, the touched arm's upper arm 35 degrees forward
 and in, its elbow bent 90 degrees (the forearm across the front of the body). Knees and ankles
 are touched with that foot up on a chair (the thigh 65-90 degrees up, the shin about upright, the
@@ -47,6 +49,9 @@ LANDMARK_MM = 3.0  # the two landmarks' midpoint vs the skeleton's joint, per ax
 TREMOR_MM = 1.0  # the held tip's tremor
 SLIP_MM = 1.5  # the tip's slip on the table during the pivot
 WOBBLE_DEG = 1.5  # hands and feet in these postures (a foot on a chair, an arm held out to be touched)
+TIP_TILT_STEPS_DEG = (20.0, 40.0)  # the touching tip may come in this far off straight into the skin ...
+WRIST_BEND_MAX_DEG = 60.0  # ... for a hand whose wrist bends at most this (flexion reaches ~80°, deviation ~30°)
+HAND_TURN_DEG = (3.0, 8.0)  # then turned at random this much (nobody holds a controller the same way twice)
 PIVOT_S = 6.0
 TOUCH_HOLD_S = 1.0
 TOUCH_SEGMENT_PAD_S = 0.2  # a touch's segment reaches this far into the motion before and after the hold
@@ -78,23 +83,48 @@ def tip_in_hand(perf: Performer, s: str, rng) -> np.ndarray:
     return grip + thumb * rng.uniform(*TIP_FROM_GRIP) * k + along * rng.uniform(0.0, 0.03) * k
 
 
+_ARMS: dict[tuple[int, str], tuple] = {}
+
+
+def _arm(perf: Performer, s: str):
+    """(elbow in the upper arm's frame, wrist in the forearm's, hinge axis, elbow angles, the
+    shoulder-to-wrist span at each angle) of arm `s` on the clip's bones."""
+    key = (id(perf), s)
+    if key not in _ARMS or _ARMS[key][0] is not perf:
+        _ARMS[key] = (perf, _arm_table(perf, s))
+    return _ARMS[key][1]
+
+
+def _arm_table(perf: Performer, s: str):
+    off_e = perf.child_offset(perf.j(f"shoulder_{s}"))
+    off_w = perf.child_offset(perf.j(f"elbow_{s}"))
+    axis0 = perf.hinge[f"elbow_{s}"][0]
+    table = np.radians(np.arange(0.0, 160.0, 0.05))
+    span = np.linalg.norm(off_e[None] + np.einsum("nij,j->ni", rot.axis_angle(axis0, table), off_w), axis=1)
+    return off_e, off_w, axis0, table, span
+
+
+def _solve_arm(arm, shoulder: np.ndarray, wrist: np.ndarray, elbow_toward: np.ndarray):
+    """(upper arm's world rotation (n, 3, 3), elbow angle (n,), reachable (n,)) for `reach`."""
+    off_e, off_w, axis0, table, span = arm
+    d = np.linalg.norm(wrist - shoulder, axis=1)
+    ok = (d <= 0.985 * span[0]) & (d >= 1.02 * span[-1])
+    angle = np.interp(d, span[::-1], table[::-1])
+    v = off_e[None] + np.einsum("nij,j->ni", rot.axis_angle(axis0, angle), off_w)
+    bend = off_e[None] - np.sum(off_e[None] * rot.unit(v), -1, keepdims=True) * rot.unit(v)
+    return rot.basis(v, bend, wrist - shoulder, elbow_toward), angle, ok
+
+
 def reach(perf: Performer, s: str, shoulder: np.ndarray, wrist: np.ndarray, elbow_toward: np.ndarray):
     """Inverse kinematics of arm `s` on the clip's bones: (world rotation (n, 3, 3) of the upper arm,
     elbow angle (n,)) putting the wrist joint at `wrist` (n, 3) from the shoulder joint at
     `shoulder`, the elbow off the shoulder-wrist line toward `elbow_toward` (n, 3). Raises
     ValueError when the wrist is out of reach."""
-    off_e = perf.child_offset(perf.j(f"shoulder_{s}"))  # the elbow in the upper arm's frame
-    off_w = perf.child_offset(perf.j(f"elbow_{s}"))  # the wrist in the forearm's
-    axis0 = perf.hinge[f"elbow_{s}"][0]
-    table = np.radians(np.arange(0.0, 160.0, 0.05))
-    span = np.linalg.norm(off_e[None] + np.einsum("nij,j->ni", rot.axis_angle(axis0, table), off_w), axis=1)
-    d = np.linalg.norm(wrist - shoulder, axis=1)
-    if d.max() > 0.985 * span[0] or d.min() < 1.02 * span[-1]:
-        raise ValueError(f"arm {s} cannot reach: {d.min():.3f}-{d.max():.3f} m for an arm of {span[0]:.3f} m")
-    angle = np.interp(d, span[::-1], table[::-1])
-    v = off_e[None] + np.einsum("nij,j->ni", rot.axis_angle(axis0, angle), off_w)
-    bend = off_e[None] - np.sum(off_e[None] * rot.unit(v), -1, keepdims=True) * rot.unit(v)
-    return rot.basis(v, bend, wrist - shoulder, elbow_toward), angle
+    g1, angle, ok = _solve_arm(_arm(perf, s), shoulder, wrist, elbow_toward)
+    if not ok.all():
+        d = np.linalg.norm(wrist - shoulder, axis=1)
+        raise ValueError(f"arm {s} cannot reach: {d.min():.3f}-{d.max():.3f} m")
+    return g1, angle
 
 
 def _tremor(n: int, fps: float, rng, rms_mm: float) -> np.ndarray:
@@ -106,6 +136,36 @@ def _placement(rng, normal: np.ndarray) -> np.ndarray:
     e = np.clip(rng.normal(0.0, PLACEMENT_MM, 3), -PLACEMENT_MAX_MM, PLACEMENT_MAX_MM) / 1000.0
     e -= (e @ normal) * normal
     return e - normal * rng.uniform(*PRESS_MM) / 1000.0
+
+
+def _best_hand(perf: Performer, s: str, tip: np.ndarray, normal: np.ndarray, shoulder: np.ndarray,
+               tip_hand: np.ndarray, elbow_toward: np.ndarray) -> np.ndarray | None:
+    """The world rotation (3, 3) of hand `s` holding its controller's tip on `tip` (3,) with the tip
+    pointing into the skin (within `TIP_TILT_DEG` of straight in, against the outward `normal`) that
+    the arm reaches with the wrist bent least (the hand's axis against the forearm's, by the arm's
+    inverse kinematics); None when no such hand leaves the wrist bent under `WRIST_BEND_MAX_DEG`."""
+    h_along, _, h_thumb = hand_axes(perf, s)
+    ref = rot.unit(np.cross(normal, UP if abs(normal @ UP) < 0.9 else LEFT))
+    tilt = np.concatenate([[0.0], np.repeat(np.radians(TIP_TILT_STEPS_DEG), 8)])
+    az = np.concatenate([[0.0], np.tile(np.radians(np.arange(0.0, 360.0, 45.0)), len(TIP_TILT_STEPS_DEG))])
+    side = np.einsum("kij,j->ki", rot.axis_angle(np.broadcast_to(-normal, (len(az), 3)), az), ref)
+    intos = -normal[None] * np.cos(tilt)[:, None] + side * np.sin(tilt)[:, None]
+    rolls = np.radians(np.arange(0.0, 360.0, 30.0))
+    into = np.repeat(intos, len(rolls), axis=0)
+    cost = np.repeat(np.degrees(tilt) / 3.0, len(rolls))
+    across = rot.unit(np.cross(into, ref))
+    along = np.einsum("kij,kj->ki", rot.axis_angle(into, np.tile(rolls, len(intos))), across)
+    G = rot.basis(np.broadcast_to(h_thumb, into.shape), np.broadcast_to(h_along, into.shape), into, along)
+    wrist = tip[None] - np.einsum("kij,j->ki", G, tip_hand)
+    arm = _arm(perf, s)
+    g1, _, ok = _solve_arm(arm, np.broadcast_to(shoulder, wrist.shape), wrist, np.broadcast_to(elbow_toward,
+                                                                                                 wrist.shape))
+    elbow = shoulder[None] + np.einsum("kij,j->ki", g1, arm[0])
+    forearm = rot.unit(wrist - elbow)
+    bend = np.degrees(np.arccos(np.clip(np.sum(forearm * np.einsum("kij,j->ki", G, h_along), -1), -1.0, 1.0)))
+    score = np.where(ok & (bend <= WRIST_BEND_MAX_DEG), bend + cost, np.inf)
+    k = int(np.argmin(score))
+    return G[k] if np.isfinite(score[k]) else None
 
 
 def _hand_turned(perf: Performer, s: str, into: np.ndarray, along: np.ndarray, rng, n: int) -> np.ndarray:
@@ -187,22 +247,58 @@ class _Body:
 
 def pivot_pose(body: _Body, s: str, tip_hand: np.ndarray) -> Pose:
     """`pivot_tip_<s>`: the tip held on a spot of a table in front, the controller circled around it
-    (about two turns, tilted 20-40 degrees from pointing straight down, twisting +-25 degrees)."""
+    (about two turns, tilted 17-33 degrees from pointing straight down), turning about its own
+    axis as the wrist finds easiest."""
     perf, rng, fps = body.perf, body.rng, body.fps
     n = int(round(PIVOT_S * fps))
     pose = body.posed(n, arm={a: body.arm_down(n, a) for a in SIDES})
     shoulder = perf.positions(pose)[0, perf.j(f"shoulder_{s}")]
-    spot = shoulder + (FORWARD * 0.30 - UP * 0.36 + _lateral(s) * 0.04) * _k(perf)
+    spot = shoulder + (FORWARD * 0.35 - UP * 0.30 + _lateral(s) * 0.04) * _k(perf)
     t = np.arange(n) / fps
     azimuth = 2 * np.pi * rng.uniform(0.3, 0.4) * t + rng.uniform(0, 2 * np.pi)
-    tilt = np.radians(30.0 + 10.0 * np.sin(2 * np.pi * rng.uniform(0.15, 0.25) * t + rng.uniform(0, 2 * np.pi)))
-    twist = np.radians(25.0) * np.sin(2 * np.pi * rng.uniform(0.1, 0.2) * t + rng.uniform(0, 2 * np.pi))
+    tilt = np.radians(25.0 + 8.0 * np.sin(2 * np.pi * rng.uniform(0.15, 0.25) * t + rng.uniform(0, 2 * np.pi)))
     horiz = np.cos(azimuth)[:, None] * FORWARD + np.sin(azimuth)[:, None] * LEFT
     into = -UP * np.cos(tilt)[:, None] + horiz * np.sin(tilt)[:, None]  # the tip points down into the table
     fingers = rot.unit(np.broadcast_to(FORWARD + 0.3 * _lateral(OTHER[s]), (n, 3)))
-    hand = rot.axis_angle(into, twist) @ _hand_turned(perf, s, into, fingers, rng, n)
-    elbow = np.broadcast_to(rot.unit(_lateral(s) - 0.5 * UP - 0.3 * FORWARD), (n, 3))
-    return body.with_reach(pose, s, spot + _tremor(n, fps, rng, SLIP_MM), hand, tip_hand, elbow)
+    base = _hand_turned(perf, s, into, fingers, rng, n)
+    elbow = np.broadcast_to(rot.unit(_lateral(s) * 0.6 - 0.2 * UP - 0.8 * FORWARD), (n, 3))
+    tip = spot + _tremor(n, fps, rng, SLIP_MM)
+    # the controller turned about its tip the way the wrist bends least as the turns go on (a
+    # path through the rolls, changing it slowly: `_roll_path`), `_best_hand`'s measure
+    arm, h_along = _arm(perf, s), hand_axes(perf, s)[0]
+    rolls = np.radians(np.arange(0.0, 360.0, 10.0))
+    bends = np.empty((n, len(rolls)))
+    for k, roll in enumerate(rolls):
+        turned = rot.axis_angle(into, np.full(n, roll)) @ base
+        wrist = tip - np.einsum("nij,j->ni", turned, tip_hand)
+        g1, _, ok = _solve_arm(arm, np.broadcast_to(shoulder, wrist.shape), wrist, elbow)
+        forearm = rot.unit(wrist - shoulder - np.einsum("nij,j->ni", g1, arm[0]))
+        cos = np.sum(forearm * np.einsum("nij,j->ni", turned, h_along), -1)
+        bends[:, k] = np.where(ok, np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), 1e6)
+    roll = _roll_path(bends, rolls, fps)
+    hand = rot.axis_angle(into, roll) @ base
+    return body.with_reach(pose, s, tip, hand, tip_hand, elbow)
+
+
+def _roll_path(cost: np.ndarray, rolls: np.ndarray, fps: float, change: float = 2.0) -> np.ndarray:
+    """(n,) a roll per frame through `rolls` (K,) minimising the summed `cost` (n, K) plus `change`
+    per step to a neighbouring roll (one step per frame at most: dynamic programming), then
+    smoothed over 0.3 s so the controller turns, not jumps."""
+    n, k = cost.shape
+    total, back = cost[0].copy(), np.zeros((n, k), int)
+    for f in range(1, n):
+        stay = np.stack([total, np.roll(total, 1) + change, np.roll(total, -1) + change])
+        pick = np.argmin(stay, axis=0)
+        back[f] = (np.arange(k) - np.array([0, 1, -1])[pick]) % k
+        total = stay[pick, np.arange(k)] + cost[f]
+    path = np.empty(n, int)
+    path[-1] = int(np.argmin(total))
+    for f in range(n - 1, 0, -1):
+        path[f - 1] = back[f, path[f]]
+    angle = np.unwrap(rolls[path])
+    w = max(1, int(round(0.3 * fps)))
+    padded = np.concatenate([np.full(w, angle[0]), angle, np.full(w, angle[-1])])
+    return np.convolve(padded, np.ones(2 * w + 1) / (2 * w + 1), mode="same")[w:-w]
 
 
 def _touched_arm(n: int, s: str):
@@ -274,13 +370,14 @@ def touch_pose(body: _Body, point: str, by: str, tip_hand: np.ndarray) -> Pose:
             place = _placement(rng, normal[0])
         tip_world = spot + place + _tremor(n, fps, rng, TREMOR_MM)
         shoulder = perf.positions(pose)[:, perf.j(f"shoulder_{t}")]
-        reach_dir = rot.unit(tip_world - shoulder)
-        into = rot.unit(-normal + 0.8 * reach_dir)  # the tip goes into the skin the way the arm reaches
-        along = reach_dir - np.sum(reach_dir * into, -1, keepdims=True) * into
-        hand = _hand_turned(perf, t, into, rot.unit(along), rng, n)
-        elbow = np.broadcast_to(rot.unit(_lateral(t) - 0.6 * UP), (n, 3))
+        elbow = rot.unit(_lateral(t) - 0.6 * UP)
+        best = _best_hand(perf, t, tip_world[0], normal[0], shoulder[0], tip_hand, elbow)
+        if best is None:
+            continue
+        turn = rot.axis_angle(rot.unit(rng.normal(size=3)), np.radians(rng.uniform(*HAND_TURN_DEG)))
+        hand = np.broadcast_to(best @ turn, (n, 3, 3))
         try:
-            return body.with_reach(pose, t, tip_world, hand, tip_hand, elbow)
+            return body.with_reach(pose, t, tip_world, hand, tip_hand, np.broadcast_to(elbow, (n, 3)))
         except ValueError:
             continue
     raise ValueError(f"{by} cannot reach {point} of {perf.clip.name}")
