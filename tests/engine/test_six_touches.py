@@ -80,7 +80,8 @@ def test_the_touches_bring_every_hip_knee_ankle_shoulder_and_elbow_within_20_mm(
 def test_the_pivot_finds_the_controller_tip_the_engine_is_not_told(recorded):
     """The tip is a point of the controller past the thumb, fixed in the hand for the session; the
     capture straps the controller at a random angle, so its place in the controller's frame is
-    unknown (7-13 cm from the origin). The pivot finds it within a millimetre."""
+    unknown (7-13 cm from the origin). The pivot finds it within a millimetre here (0.3 mm; 1.6 mm
+    at most over 36 pivots, its standard error 0.7-1.0 mm)."""
     rec, cap = recorded(DANCE, 1, touches=True)
     session, state = Session(rec), State()
     calibration_touches.controller_tips(session, state)
@@ -125,7 +126,8 @@ def test_the_knee_touches_measure_thigh_and_shin_and_hold_the_hips_at_the_legs_h
     """Without a shin or thigh tracker the knee touches, taken in the foot tracker's frame, measure
     the thigh from the hip (pelvis tracker) and the shin from the ankle (foot tracker); the foot's
     swing had left this session's hips 12 and 16 mm low, the legs' reach above the ankles puts
-    them within 6 mm of the clip's height."""
+    them within 8 mm of the clip's height (measured: 2.3 and 5.9 mm low; 7 mm at most over
+    sessions 0-5 of three clips, DESIGN.md)."""
     before, _ = recorded(WALK, 3)
     rec, cap = recorded(WALK, 3, touches=True)
     user = calibrate_user(rec)
@@ -136,7 +138,7 @@ def test_the_knee_touches_measure_thigh_and_shin_and_hold_the_hips_at_the_legs_h
     low = calibrate_user(before)
     for s in "lr":
         assert low.joints[f"hip_{s}"].world[2] - T[J[f"hip_{s}"]][2] < -0.010  # the premise
-        assert abs(user.joints[f"hip_{s}"].world[2] - T[J[f"hip_{s}"]][2]) < 0.006
+        assert abs(user.joints[f"hip_{s}"].world[2] - T[J[f"hip_{s}"]][2]) < 0.008
         q = user.calibration["quality"][f"knee_{s} touches"]
         thigh = 1000 * np.linalg.norm(T[J[f"knee_{s}"]] - T[J[f"hip_{s}"]])
         shin = 1000 * np.linalg.norm(T[J[f"ankle_{s}"]] - T[J[f"knee_{s}"]])
