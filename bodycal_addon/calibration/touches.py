@@ -9,6 +9,10 @@ times' rounding in a file cannot turn a touch held exactly that long into one he
 short: the first and last samples' times no longer decide it). A touch that never stops
 moving is not used: `extract` raises an error saying what to redo, and `collect` reports it as a
 warning and leaves the point to its default rather than giving a wrong body or aborting.
+
+A controller touches with its tip (`controller_tip_<s>`): a marker of that name when the recording
+has one, else the point its `pivot_tip_<s>` step found (`controller_tips`), else an assumed one,
+reported among the defaults.
 """
 
 from __future__ import annotations
