@@ -10,6 +10,14 @@ take's own (mm per joint: max and median).
 `six`: the same with the take cut to AvatarGo's six devices (HMD, hands, pelvis, feet) and no
 marker: the flexes and swings fitted from the end devices.
 
+`six_touches`: an outside recording of the six devices with the controller pivots and touches
+(evaluation/touching.py on CMU 02_01, session 0; DESIGN.md §3 "Touches with six devices"), its
+calibration part fed frame by frame: the holds, flexes and swings ended at the take's times (their
+six-device limit is the `six` section's; the performer does them in another order than the wizard
+plans, which follows the take), each pivot and touch ended by the wizard itself: per kind the time
+it took against its segment, the body from the live recording against the file's, the tips the
+pivots found against the calibration's, and the CPU time of a pivot's `update()` after 2 s of it.
+
 `cost`: the CPU time of one `update()` (process time, the mean of many calls) for each kind of step
 after two seconds of it, early in a 90 Hz session (5 s in) and late (after `--minutes`, 10 by
 default), and the late/early ratio, which should stay near 1 (update() reads only its window).
@@ -23,6 +31,7 @@ import argparse
 import json
 import pathlib
 import sys
+import tempfile
 import time
 from dataclasses import replace
 
@@ -103,6 +112,66 @@ def demo_section(rec) -> dict:
             "warnings": len(live.calibration["warnings"])}
 
 
+def touches_section(calls: int = 200) -> dict:
+    from bodycal_addon.calibration import touches
+    from bodycal_addon.calibration.common import Session, State
+    from bodycal_addon.core import paths
+    from evaluation import bvh, capture, performer, session
+
+    perf = performer.Performer(bvh.read(paths.data_dir() / "motion" / "cmu_bvh" / "02_01_walk.bvh").resampled(FPS))
+    cap = capture.capture(session.build_session(perf, seed=0, touches=True), perf, "six", seed=0)
+    path = cap.write(pathlib.Path(tempfile.mkdtemp(prefix="bodycal-wizard-")) / "six.bcrec.json")
+    rec = load_recording(path)
+    part = rec.window(0, int(rec.frames(0.0, rec.segments_of("motion")[0].start)[-1]))
+    part.segments = [s for s in rec.segments if s.step != "motion"]
+    segs = {s.label: s for s in part.segments}
+    recorder = LiveRecorder("live", roles(part))
+    wizard = LiveWizard(recorder, roles(part), part.marker_names, auto=True)
+    planned_as_performed = sorted(s.label for s in wizard.steps) == sorted(segs)
+    wizard.steps.sort(key=lambda st: list(segs).index(st.label))
+    took, pivot_ms = {}, None
+    for k in range(part.frame_count):
+        recorder(frame(part, k))
+        step, t = wizard.current, float(part.time[k])
+        if step is None or t < segs[step.label].start:
+            continue
+        if not wizard.active:
+            wizard.begin()
+        if step.step.startswith(("tpose", "stand", "flex", "swing")):
+            if t >= segs[step.label].end:
+                wizard.end_step()
+            continue
+        if pivot_ms is None and step.step.startswith("pivot") and t - segs[step.label].start >= 2.0:
+            t0 = time.process_time()
+            for _ in range(calls):
+                wizard.measure()
+            pivot_ms = (time.process_time() - t0) / calls * 1000
+        wizard.update()
+        if not wizard.active:
+            took[step.label] = t - segs[step.label].start
+    kinds = {}
+    for kind in ("pivot", "touch"):
+        labels = [label for label in segs if label.startswith(kind)]
+        ratio = [took.get(label, np.nan) / (segs[label].end - segs[label].start) for label in labels]
+        kinds[kind] = {"steps": len(labels), "segment_s": round(float(np.median([segs[x].end - segs[x].start
+                                                                               for x in labels])), 3),
+                       "took_s_median": round(float(np.nanmedian([took.get(x, np.nan) for x in labels])), 3),
+                       "took_s_max": round(float(np.nanmax([took.get(x, np.nan) for x in labels])), 3),
+                       "not_inside_segment": [x for x, r in zip(labels, ratio, strict=True) if not r <= 1.0]}
+    base = calibrate_user(part, name="six")
+    live = calibrate_user(recorder.recording(), name="six")
+    diff = {j: float(np.linalg.norm(live.joints[j].world - base.joints[j].world)) * 1000 for j in base.joints}
+    worst = max(diff, key=diff.get)
+    ses, state = Session(part), State()
+    touches.controller_tips(ses, state)
+    tips = {s: round(float(np.linalg.norm(wizard.tips[s] - state.extra["controller_tip_local"][s])) * 1000, 2)
+            for s in wizard.tips}
+    return {"planned_as_performed": planned_as_performed, "kinds": kinds, "body_mm_max": round(diff[worst], 2),
+            "body_mm_worst": worst, "body_mm_median": round(float(np.median(list(diff.values()))), 2),
+            "warnings": len(live.calibration["warnings"]), "tip_vs_calibration_mm": tips,
+            "pivot_update_ms": None if pivot_ms is None else round(pivot_ms, 3)}
+
+
 def cost_section(rec, minutes: float, calls: int = 200) -> dict:
     recorder = LiveRecorder("long", roles(rec))
     wizard = LiveWizard(recorder, roles(rec), rec.marker_names, auto=False)
@@ -147,7 +216,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     rec = load_recording(DEMO)
     print(json.dumps({"demo": demo_section(rec), "six": demo_section(six_devices(rec)),
-                      "cost": cost_section(rec, args.minutes)}))
+                      "six_touches": touches_section(), "cost": cost_section(rec, args.minutes)}))
     return 0
 
 

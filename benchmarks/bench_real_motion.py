@@ -6,9 +6,12 @@ recording through `evaluation/` (code that shares nothing with synthetic.py): th
 steps performed by the clip's own skeleton, then the clip; trackers at random mounting rotations
 and offsets, the performer at a random facing and place in the play area, the file written Y up
 (SteamVR) or Z up; tracker noise 0.5 mm / 0.3 degrees, soft-tissue motion 1.5 mm, dropouts. Two
-profiles: `full` (15 devices) and `six` (HMD, controllers, pelvis and feet). The file goes through
-the public reader, `calibrate_user` (no touch steps) and `retarget` onto shared avatars calibrated
-in Blender, with every method.
+profiles: `full` (15 devices, no touch steps: its limb trackers measure these joints from the motion)
+and `six` (HMD, controllers, pelvis and feet) with the six-device protocol's controller pivots and
+touches (evaluation/touching.py; DESIGN.md §3 "Touches with six devices"); and, calibration only,
+`six_without_touches` (the same devices and seed without those steps: the anthropometric defaults).
+The file goes through the public reader, `calibrate_user` and `retarget` onto shared avatars
+calibrated in Blender, with every method.
 
 Figures, per clip x profile (calibration) and per method x avatar x clip x profile (motion only):
 - joint-centre error (mm) at the reference time, per joint;
@@ -70,7 +73,7 @@ AVATARS = ("child_10y", "long_arms_male")
 PROFILES = ("full", "six")
 FPS = 90.0
 LIMB_JOINTS = tuple(f"{j}_{s}" for j in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist") for s in "lr")
-JOINT_TARGETS = {  # without touch steps: (profile, joints, mm); DESIGN.md §3 "Outside recordings"
+JOINT_TARGETS = {  # (profile, joints, mm); DESIGN.md §3 "Outside recordings", "Touches with six devices"
     "every_limb_joint_full": ("full", LIMB_JOINTS, 10.0),
     "hips_knees_ankles_shoulders_elbows_six": ("six", tuple(j for j in LIMB_JOINTS if not j.startswith("wrist")),
                                                20.0),
@@ -174,8 +177,10 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS, seeds=(), on
         clip = bvh.read(clip_path).resampled(FPS)
         perf = performer.Performer(clip)
         sess = session.build_session(perf, seed=ci)
-        for profile in PROFILES:
-            cap = capture.capture(sess, perf, profile, seed=ci)
+        touched = session.build_session(perf, seed=ci, touches=True)
+        sessions = {"full": sess, "six": touched, "six_without_touches": sess}
+        for profile in (*PROFILES, "six_without_touches"):
+            cap = capture.capture(sessions[profile], perf, "six" if profile.startswith("six") else profile, seed=ci)
             up = "Y" if ci % 2 == 0 else "Z"
             path = cap.write(workdir / f"{clip.name}_{profile}.bcrec.json", up=up)
             truth = cap.truth()
@@ -191,6 +196,8 @@ def main(quick: bool = False, clips_extra=(), avatar_names=AVATARS, seeds=(), on
                                                                     truth["joints"], truth["positions"][ref]),
                           "yaw_deg": round(float(np.degrees(truth["yaw"])), 1), "file_up": up,
                           "warnings": user.calibration.get("warnings", [])}
+            if profile not in PROFILES:
+                continue  # calibration only
             filtered = filter_recording(rec, OneEuro())
             user_poses = {"raw": animate_user(rec, user), "filtered": animate_user(filtered, user)}
             for name, _arm, avatar in avatars:  # noqa: B007 (the armature: the skin figures)
@@ -245,6 +252,10 @@ def _targets(calib, motion) -> dict:
         failed = [key for key, c in calib.items() if key.endswith(f"/{profile}") and "error" in c]
         out[tname] = {"worst_mm": max(worst) if worst else None, "limit_mm": limit,
                       "met": bool(worst) and max(worst) <= limit and not failed}
+    # for comparison, no target: the six devices without the pivots and touches (the defaults)
+    plain = [max(c["joint_error_mm"].get(j, np.inf) for j in JOINT_TARGETS["hips_knees_ankles_shoulders_elbows_six"][1])
+             for key, c in calib.items() if key.endswith("/six_without_touches") and "joint_error_mm" in c]
+    out["six_without_touches_worst_mm"] = max(plain) if plain else None
     raw = [m for k, m in motion.items() if "error" not in m and k.endswith("/raw")]
     filt = [m for k, m in motion.items() if "error" not in m and k.endswith("/filtered")]
     hip = [m["hip_line_deg"]["max"] for m in raw]

@@ -11,6 +11,9 @@ skeleton; the BVH joints are the truth.
 
 - `bvh`: read a BVH file, forward kinematics, resampling.
 - `performer`: the clip's skeleton as a body (joint centres, hinge axes, calibration poses).
+- `session`: the calibration steps then the clip, placed in the play area.
+- `touching`: a six-device user's controller pivots and touches on the skin (with a person's
+  imprecision), the touching arm placed by inverse kinematics on the clip's bones.
 - `capture`: devices strapped on the body, noise and dropouts, the recording file and its truth.
 
 Not part of the extension (excluded from the zip); used by tests and `benchmarks/bench_real_motion.py`.

@@ -86,7 +86,7 @@ class Capture:
             "devices": devices, "markers": [],
             "time": [round(k / fps, 9) for k in range(F)],
             "poses": poses, "points": {},
-            "segments": [{"step": s["step"], "start": round(s["start"], 6), "end": round(s["end"], 6)}
+            "segments": [{**s, "start": round(s["start"], 6), "end": round(s["end"], 6)}
                          for s in self.session.segments],
         }
         path = Path(path)

@@ -134,6 +134,20 @@ def _smooth_noise(rng, n: int, fps: float, dims: int, rms: float, low=0.2, high=
     return out * rms / np.sqrt(2.0)
 
 
+def hanging(theta, alpha, side: str, down_flex):
+    """Direction of a limb raised `theta` from hanging down, toward azimuth `alpha` (0 = forward,
+    +90° = out to its side), and its hinge's flexion direction: the hanging one carried along."""
+    lateral = LEFT * (1.0 if side == "l" else -1.0)
+    theta, alpha = np.asarray(theta, float), np.asarray(alpha, float)
+    horiz = np.cos(alpha)[..., None] * FORWARD + np.sin(alpha)[..., None] * lateral
+    d = -np.cos(theta)[..., None] * UP + np.sin(theta)[..., None] * horiz
+    # the minimal rotation from down to d, applied to the hanging flexion direction
+    axis = np.cross(-UP, d)
+    flex = np.where(np.linalg.norm(axis, axis=-1, keepdims=True) > 1e-9,
+                    np.einsum("...ij,j->...i", rot.axis_angle(axis, theta), down_flex), down_flex)
+    return d, flex
+
+
 class Performer:
     """A CMU clip's skeleton as a performer."""
 
@@ -242,17 +256,23 @@ class Performer:
                          direction, a)
 
     def pose(self, n: int, *, arm=None, leg=None, root_offset=None, rng=None, sway_mm: float = 3.0,
-             wobble_deg: float = 4.0, stance_deg: float = 0.0, bends_deg=(5.0, 3.0)) -> Pose:
+             wobble_deg: float = 4.0, stance_deg: float = 0.0, bends_deg=(5.0, 3.0), root_rot=None,
+             held=None) -> Pose:
         """A pose held or moving over n frames. `arm` / `leg`: {side: (direction (n, 3) of the
         upper arm / thigh, flexion direction (n, 3), hinge angle (n,) radians)}; defaults: T-pose
         arms, straight legs `stance_deg` out from under the hips, elbows and knees bent by
         `bends_deg`. With `rng`, the body sways and the hands and feet wander `wobble_deg` at the
-        wrists and ankles (nobody holds them still)."""
+        wrists and ankles (nobody holds them still). `root_rot` (n, 3, 3): the pelvis turned (the
+        trunk bent at the hips; the legs keep their world directions); `held`: {(limb, side):
+        (world rotation (n, 3, 3) of the upper arm / thigh, hinge angle (n,), world rotation of
+        the hand / foot or None)}, a limb placed by `touching.reach` (its hand held where a touch
+        puts it: no wander)."""
         J = len(self.parents)
         G = np.empty((n, J, 3, 3))
         fixed = {}
         arm = dict(arm or {})
         leg = dict(leg or {})
+        held = dict(held or {})
         for s in SIDES:
             arm.setdefault(s, (np.broadcast_to(LEFT * (1 if s == "l" else -1), (n, 3)),
                                np.broadcast_to(FORWARD, (n, 3)), np.full(n, np.radians(bends_deg[0]))))
@@ -262,12 +282,21 @@ class Performer:
         for s in SIDES:
             for limb, (prox, dist, end) in (("arm", ("shoulder", "elbow", "wrist")), ("leg", ("hip", "knee",
                                                                                             "ankle"))):
-                direction, flex_dir, angle = (arm if limb == "arm" else leg)[s]
-                g1 = self._segment_rotation(f"{prox}_{s}", direction, flex_dir)
                 axis0 = self.hinge[f"{dist}_{s}"][0]
-                g2 = g1 @ rot.axis_angle(axis0, angle)
-                fixed[self.j(f"{prox}_{s}")] = g1
-                fixed[self.j(f"{dist}_{s}")] = g2
+                if (limb, s) in held:
+                    g1, angle, end_rot = held[(limb, s)]
+                    g2 = g1 @ rot.axis_angle(axis0, angle)
+                    fixed[self.j(f"{prox}_{s}")] = g1
+                    fixed[self.j(f"{dist}_{s}")] = g2
+                    if end_rot is not None:
+                        fixed[self.j(f"{end}_{s}")] = end_rot
+                        continue
+                else:
+                    direction, flex_dir, angle = (arm if limb == "arm" else leg)[s]
+                    g1 = self._segment_rotation(f"{prox}_{s}", direction, flex_dir)
+                    g2 = g1 @ rot.axis_angle(axis0, angle)
+                    fixed[self.j(f"{prox}_{s}")] = g1
+                    fixed[self.j(f"{dist}_{s}")] = g2
                 wander = np.broadcast_to(np.eye(3), (n, 3, 3))
                 if rng is not None and wobble_deg:
                     wander = rot.exp(_smooth_noise(rng, n, self.clip.fps, 3, np.radians(wobble_deg), 0.2, 1.0))
@@ -277,7 +306,7 @@ class Performer:
             if j in fixed:
                 G[:, j] = fixed[j]
             elif p < 0:
-                G[:, j] = np.eye(3)
+                G[:, j] = np.eye(3) if root_rot is None else root_rot
             else:  # the rest pose, the pelvis as rigid as the clip's (`_rigid_pelvis`)
                 G[:, j] = G[:, p] @ self.held[j] if j in self.held else G[:, p]
         root = np.zeros((n, 3))

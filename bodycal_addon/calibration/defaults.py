@@ -41,6 +41,11 @@ wrist, median 9.7 -> 9.1 mm, worst 21 -> 21. The knee's flex step adds nothing h
 circle leaves a sphere undetermined, and a moving-point circle of the foot about the knee put the
 ankle 57-320 mm off (the thigh wanders as much as the ankle). Beyond Delahaye 2023 (appendix B
 takes the ankle from two touches); the same functional idea as its limb joints.
+
+With the six-device touches (lengths.py; DESIGN.md §3 "Touches with six devices") the wrists and
+ankles are measured (no default), the knees and elbows placed here with the thigh, shin and
+forearm the touches measured, and the hips the foot's swing placed raised or lowered to the
+standing legs' reach (`_legs_from_touches`).
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ import numpy as np
 from ..body import skeleton as sk
 from ..core import transforms as tf
 from ..core.transforms import EPS
+from . import lengths
 from .common import Session, State
 from .hands import PHALANX_FRACTIONS
 
@@ -167,6 +173,7 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
     """World positions of every canonical joint the steps did not measure (not spine vertebrae,
     clavicles or spine_root: the trunk rules place those)."""
     placing = _Placement(session, state, body, dict(state.world))
+    _legs_from_touches(placing)
     _place_pelvis_and_hips(placing)
     _place_legs(placing)
     _place_arms(placing)
@@ -193,27 +200,94 @@ def _place_pelvis_and_hips(placing: _Placement) -> None:
             f"{R['hip_half_width']} H beside the pelvis")
 
 
+def _place_ankle(placing: _Placement, s: str) -> None:
+    """The ankle of side `s`, unless measured: behind the foot tracker on the instep (moved toward
+    the hip swing's point), or under the hip."""
+    session, body, H, put = placing.session, placing.body, placing.H, placing.put
+    if session.has(f"foot_{s}"):
+        # On the instep the tracker is ahead of the ankle along the foot; the height is the
+        # ankle's above the floor, whatever the tracker's.
+        p = session.ref_pose(f"foot_{s}")[0]
+        toe_out = np.radians(R["foot_toe_out_deg"])
+        along = body.forward * np.cos(toe_out) + body.left * _SIGN[s] * np.sin(toe_out)
+        back = p - along * R["ankle_behind_foot_tracker"] * H
+        ankle, how = _with_swing_point(placing, f"ankle_{s}", np.array([back[0], back[1], R["ankle_height"] * H]))
+        put(f"ankle_{s}", ankle, f"{R['ankle_height']} H above the floor, {R['ankle_behind_foot_tracker']} H "
+            f"behind the foot tracker along the foot{how}")
+    else:
+        put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H),
+            f"{R['ankle_height']} H high under the hip")
+
+
+def _legs_from_touches(placing: _Placement) -> None:
+    """Six devices with the knee touches (lengths.py): each touched leg's thigh and shin measured
+    from the hip (pelvis tracker's frame) and the ankle (foot tracker's, measured or defaulted
+    here); and when the foot's swing placed the hips, their height from the standing legs
+    (lengths.py, Decision), both at the mean of the touched legs' heights, the thighs measured
+    again from the moved hips until they settle. A hip from touches or a thigh tracker is not
+    weak along the leg and stays. Moves measured hips: `state.world` and their pelvis frame too."""
+    session, state, w = placing.session, placing.state, placing.world
+    pairs = {}
+    for s in sk.SIDES:
+        foot = f"foot_{s}"
+        if session.has(f"shin_{s}") or not session.has(foot) or "pelvis" not in state.local.get(f"hip_{s}", {}):
+            continue
+        pair = lengths.touch_pair(session, state, "knee", s, foot)
+        if pair is not None:
+            pairs[s] = pair
+    if not pairs:
+        return
+    radius = RADII["knee"] * placing.H
+    for s in pairs:
+        _place_ankle(placing, s)
+    ankle_local = {s: session.to_local(f"foot_{s}", w[f"ankle_{s}"]) for s in pairs}
+    moved = [s for s in sk.SIDES if session.quality.get(f"swing_hip_{s}", {}).get("frames") == f"foot_{s} in pelvis"]
+    before = {s: float(w[f"hip_{s}"][2]) for s in moved}
+    found = {}
+    for _ in range(lengths.SETTLE_PASSES if moved else 1):
+        found = {}
+        for s, pair in pairs.items():
+            l1 = lengths.length_to(session, pair, "pelvis", state.local[f"hip_{s}"]["pelvis"], radius)
+            l2 = lengths.length_to(session, pair, f"foot_{s}", ankle_local[s], radius)
+            if l1 is not None and l2 is not None:
+                found[s] = (l1, l2)
+        heights = []
+        for s, (l1, l2) in found.items():
+            reach = lengths.two_bone_reach(l1, l2, R["reference_bend_deg"])
+            a, h = w[f"ankle_{s}"], w[f"hip_{s}"]
+            across = float(np.linalg.norm((h - a)[:2]))
+            if reach > across:
+                heights.append(float(a[2]) + float(np.sqrt(reach * reach - across * across)))
+        if not moved or not heights:
+            break
+        z = float(np.mean(heights))
+        for s in moved:
+            h = w[f"hip_{s}"].copy()
+            h[2] = z
+            w[f"hip_{s}"] = state.world[f"hip_{s}"] = h
+            state.set_local(f"hip_{s}", "pelvis", session.to_local("pelvis", h))
+    state.extra["leg_lengths"] = found
+    for s in moved:
+        if w[f"hip_{s}"][2] != before[s]:
+            session.quality.setdefault(f"swing_hip_{s}", {})["height_from_legs_mm"] = round(
+                (float(w[f"hip_{s}"][2]) - before[s]) * 1000, 1)
+    for s, (l1, l2) in found.items():
+        session.use(f"knee_{s} touches", {"thigh_mm": round(l1 * 1000, 1), "shin_mm": round(l2 * 1000, 1),
+                                           "frames": f"hip in pelvis, ankle in foot_{s}"})
+
+
 def _place_legs(placing: _Placement) -> None:
     """Legs pass, side by side: the ankle behind the foot tracker on the instep (or under the hip),
     the knee between hip and ankle, slightly bent, and the toe ahead of the ankle. Needs the hips."""
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     for s in sk.SIDES:
-        if session.has(f"foot_{s}"):
-            # On the instep the tracker is ahead of the ankle along the foot; the height is the
-            # ankle's above the floor, whatever the tracker's.
-            p = session.ref_pose(f"foot_{s}")[0]
-            toe_out = np.radians(R["foot_toe_out_deg"])
-            along = body.forward * np.cos(toe_out) + body.left * _SIGN[s] * np.sin(toe_out)
-            back = p - along * R["ankle_behind_foot_tracker"] * H
-            ankle, how = _with_swing_point(placing, f"ankle_{s}", np.array([back[0], back[1], R["ankle_height"] * H]))
-            put(f"ankle_{s}", ankle, f"{R['ankle_height']} H above the floor, {R['ankle_behind_foot_tracker']} H "
-                f"behind the foot tracker along the foot{how}")
-        else:
-            put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H),
-                f"{R['ankle_height']} H high under the hip")
+        _place_ankle(placing, s)
         a, h = w[f"ankle_{s}"], w[f"hip_{s}"]
-        put(f"knee_{s}", _relaxed_mid(session, placing.state, h, a, R["thigh"] * H, R["shin"] * H, f"shin_{s}"),
-            f"between the hip and the ankle at the thigh : shin ratio, bent {R['reference_bend_deg']:.0f}° "
+        measured = placing.state.extra.get("leg_lengths", {}).get(s)
+        l1, l2 = measured if measured else (R["thigh"] * H, R["shin"] * H)
+        how = ("its thigh and shin from the knee touches" if measured else "at the thigh : shin ratio")
+        put(f"knee_{s}", _relaxed_mid(session, placing.state, h, a, l1, l2, f"shin_{s}"),
+            f"between the hip and the ankle, {how}, bent {R['reference_bend_deg']:.0f}° "
             f"(standing, nobody locks the knee straight)")
         put(f"toe_{s}", body.at(R["toe_height"] * H, 0, R["toe_forward"] * H, w[f"ankle_{s}"]),
             f"{R['toe_forward']} H in front of the ankle")
@@ -240,14 +314,39 @@ def _place_arms(placing: _Placement) -> None:
         l1, l2 = R["upperarm"] * H, R["forearm"] * H
         how = "at the upper arm : forearm ratio"
         upper = placing.state.extra.get("upper_lengths", {}).get(f"elbow_{s}")
-        if upper is not None:  # the module docstring's Decision: the mean of the two estimates
+        touched = _arm_from_touches(placing, s, sh, wr)
+        if touched is not None:
+            (l1, l2), how = touched
+        elif upper is not None:  # the module docstring's Decision: the mean of the two estimates
             reach = float(np.linalg.norm(wr - sh))
-            lengths = _bent_lengths(0.5 * upper + 0.5 * reach * l1 / (l1 + l2), reach)
-            if lengths is not None:
-                (l1, l2), how = lengths, "the upper arm as long as the mean of its flex step's and the ratio's"
+            bent = _bent_lengths(0.5 * upper + 0.5 * reach * l1 / (l1 + l2), reach)
+            if bent is not None:
+                (l1, l2), how = bent, "the upper arm as long as the mean of its flex step's and the ratio's"
         put(f"elbow_{s}", _relaxed_mid(session, placing.state, sh, wr, l1, l2, f"forearm_{s}"),
             f"between the shoulder and the wrist, {how}, bent {R['reference_bend_deg']:.0f}° (nobody locks "
             f"the elbow straight)")
+
+
+def _arm_from_touches(placing: _Placement, s: str, sh: np.ndarray, wr: np.ndarray):
+    """Six devices with the elbow touches (lengths.py): ((upper arm, forearm), how) with the forearm
+    from the touches and the wrist in the hand device's frame, the upper arm closing the T-pose's
+    reach; None without them."""
+    session, state = placing.session, placing.state
+    hand = f"hand_{s}"
+    if session.has(f"forearm_{s}") or not session.has(hand):
+        return None
+    pair = lengths.touch_pair(session, state, "elbow", s, hand)
+    if pair is None:
+        return None
+    l2 = lengths.length_to(session, pair, hand, session.to_local(hand, wr), RADII["elbow"] * placing.H)
+    if l2 is None:
+        return None
+    l1 = lengths.upper_closing_reach(l2, float(np.linalg.norm(wr - sh)), R["reference_bend_deg"])
+    if l1 is None:
+        return None
+    session.use(f"elbow_{s} touches", {"forearm_mm": round(l2 * 1000, 1), "upper_arm_mm": round(l1 * 1000, 1),
+                                       "frames": f"wrist in {hand}"})
+    return (l1, l2), "its forearm from the elbow touches"
 
 
 SWING_POINT_WEIGHT = 0.5  # the module docstring's Decision (a wrist / ankle without a limb tracker)

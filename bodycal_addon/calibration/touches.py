@@ -9,6 +9,10 @@ times' rounding in a file cannot turn a touch held exactly that long into one he
 short: the first and last samples' times no longer decide it). A touch that never stops
 moving is not used: `extract` raises an error saying what to redo, and `collect` reports it as a
 warning and leaves the point to its default rather than giving a wrong body or aborting.
+
+A controller touches with its tip (`controller_tip_<s>`): a marker of that name when the recording
+has one, else the point its `pivot_tip_<s>` step found (`controller_tips`), else an assumed one,
+reported among the defaults.
 """
 
 from __future__ import annotations
@@ -19,17 +23,22 @@ import numpy as np
 
 from ..core import transforms as tf
 from ..core.errors import BodyCalError
-from ..core.geometry import robust_mean, running_median
+from ..core.geometry import fit_rigid_point, fixed_point_spread, robust_mean, running_median
 from ..recording.model import ROLES_LIST, Segment
 from .common import Session, State, other, side_of
 
 STILL_SPEED = 0.05  # m/s: slower than this (after a 0.15 s running median) counts as holding still
 STILL_MIN_S = 0.2  # the touch must hold still this long (or half the segment, if shorter)
 MEDIAN_S = 0.15
-# `controller_tip_<s>` when the recording has no marker of that name: the point 9 cm along the
-# controller's +Y (the convention of synthetic.CONTROLLER_TIP_LOCAL); a recording that knows its
+# `controller_tip_<s>` when the recording has no marker of that name and no `pivot_tip_<s>` step:
+# the point 9 cm along the controller's +Y (the convention of synthetic.CONTROLLER_TIP_LOCAL), which
+# no real controller need follow (the report says it was assumed); a recording that knows its
 # controller's tip records it as a marker, which always wins.
 CONTROLLER_TIP_LOCAL = np.array([0.0, 0.09, 0.0])
+PIVOT_MAX_SE_MM = 2.0  # the pivot must fix the tip to this (standard error) or it is not used
+PIVOT_INDEPENDENT_HZ = 20.0  # frames closer than this share their slip and wobble (progress.INDEPENDENT_HZ)
+PIVOT_MAX_TIP_M = 0.35  # a tip farther than this from the controller's origin is not a controller's
+PIVOT_HINT = "keep the tip on one spot and circle the controller around it, tilting it every way, for a few seconds"
 
 TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")
 HEAD_POINTS = ("ear_l", "ear_r", "upper_lip", "chin", "jaw_l", "jaw_r", "skull_top", "skull_left", "skull_right",
@@ -110,7 +119,11 @@ def by_track(session: Session, state: State, by: str) -> tuple[np.ndarray, np.nd
     if by.startswith("controller_tip_"):
         s = by[-1]
         p, q, v = session.pose(f"hand_{s}")
-        tip = state.extra.get("controller_tip_local", {}).get(s, CONTROLLER_TIP_LOCAL)
+        tip = state.extra.get("controller_tip_local", {}).get(s)
+        if tip is None:
+            tip = CONTROLLER_TIP_LOCAL
+            session.default(by, f"{CONTROLLER_TIP_LOCAL[1] * 100:.0f} cm along the controller's +Y (no pivot_tip_{s} "
+                            "step, no marker)")
         return tf.transform_points(p, q, tip), v
     for d in rec.devices:
         if by in (d.name, d.role):
@@ -118,6 +131,59 @@ def by_track(session: Session, state: State, by: str) -> tuple[np.ndarray, np.nd
             return p, v
     raise BodyCalError(f"the recording has no marker or device '{by}' to touch with", source=session.source,
                        field="segments.by", hint="name a fingertip marker (index_tip_r) or palm_<s>")
+
+
+def controller_tips(session: Session, state: State) -> None:
+    """The tip each controller touches with (`controller_tip_<s>`), from its `pivot_tip_<s>` step:
+    the tip held on one spot of the room while the controller turns about it is the point fixed
+    both in the controller's frame and in the room (`geometry.fit_rigid_point` with the room as
+    the second frame: pivot calibration, as for a tracked stylus). **Decision** (DESIGN.md §3,
+    "Touches with six devices"): measured, not assumed at a known offset from the controller's
+    origin: where that origin and its axes sit differs between controllers and runtimes (OpenXR's
+    grip pose is the fist's centre, its axes the runtime's), and a touch inherits the tip's whole
+    error. A controller whose recording has a `controller_tip_<s>` marker keeps it."""
+    for s in ("l", "r"):
+        step = f"pivot_tip_{s}"
+        segs = session.rec.segments_of(step)
+        if not segs or f"controller_tip_{s}" in session.rec.marker_names:
+            continue
+        _pivot(session, state, s, step, segs)
+
+
+def _pivot(session: Session, state: State, s: str, step: str, segs) -> None:
+    role = f"hand_{s}"
+    try:
+        if not session.has(role):
+            raise BodyCalError(f"needs the '{role}' controller", source=session.source, field=step,
+                               hint=f"assign the role '{role}' to the controller ({ROLES_LIST})")
+        p, q, v = session.pose(role)
+        idx = session.frames(segs)
+        idx = idx[v[idx]]
+        rot = tf.quat_to_matrix(q[idx])
+        room = np.broadcast_to(np.eye(3), rot.shape)
+        try:
+            fit = fit_rigid_point(rot, p[idx], room, np.zeros((len(idx), 3)), name=step, robust=session.robust)
+        except BodyCalError as exc:  # its hint speaks of limbs
+            raise BodyCalError(exc.message, source=session.source, field=step, hint=PIVOT_HINT) from None
+        t = session.rec.time[idx[fit.inliers]]
+        count = min(len(t), max(float(t[-1] - t[0]), 1e-9) * PIVOT_INDEPENDENT_HZ)
+        se_mm = fixed_point_spread(rot[fit.inliers], fit.rms * 1000.0, count)
+        if se_mm > PIVOT_MAX_SE_MM:
+            raise BodyCalError(f"the controller turned too little about its tip to fix it (±{se_mm:.1f} mm, at most "
+                               f"±{PIVOT_MAX_SE_MM:g} mm)", source=session.source, field=step, hint=PIVOT_HINT)
+        if np.linalg.norm(fit.local_a) > PIVOT_MAX_TIP_M:
+            raise BodyCalError(f"the point the controller turned about is {np.linalg.norm(fit.local_a):.2f} m from "
+                               "it: the tip left its spot", source=session.source, field=step,
+                               hint="keep the tip on one spot while the controller turns")
+    except BodyCalError as exc:
+        session.warn(f"{step} not used: {exc.message}" + (f" ({exc.hint})" if exc.hint else ""))
+        if step not in session.missing:
+            session.missing.append(step)
+        return
+    state.extra.setdefault("controller_tip_local", {})[s] = fit.local_a
+    session.use(step, {"rms_mm": round(fit.rms * 1000, 3), "kept": fit.kept, "of": fit.of,
+                       "range_deg": round(fit.range_deg, 1),
+                       "tip_mm": round(float(np.linalg.norm(fit.local_a)) * 1000, 1), "tip_se_mm": round(se_mm, 2)})
 
 
 def _speed(track: np.ndarray, t: np.ndarray, w: int) -> np.ndarray:

@@ -14,7 +14,7 @@ from ..core import transforms as tf
 from ..core.errors import BodyCalError
 from ..core.transforms import EPS
 from ..recording.model import ROLES_LIST, Recording
-from . import defaults, effectors, feet, hands, head, limbs, tpose, trunk
+from . import defaults, effectors, feet, hands, head, limbs, touches, tpose, trunk
 from .common import Session, State
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -74,6 +74,7 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
                            "calibrated", source=session.source,
                            hint=f"assign the role 'head' to the HMD device ({ROLES_LIST})")
     # Delahaye 2023, appendix B: extremities (hands, feet, head), then the limbs, then the trunk.
+    _run("controller tips", touches.controller_tips, session, state)
     _run("palms_together", hands.palms_together, session, state)
     _run("hand touches", hands.hand_touches, session, state)
     _run("feet", feet.feet, session, state)

@@ -466,6 +466,23 @@ def fit_rigid_point(rot_a, pos_a, rot_b, pos_b, *, name: str = "joint", robust: 
                          keep, rng_deg, local_a=x[:3], local_b=x[3:], weak_axis=bool(weak[0]))
 
 
+def fixed_point_spread(rotations, noise: float, count: float) -> float:
+    """How well rotations `rotations` (N, 3, 3) of one frame relative to another fix the point
+    `fit_rigid_point` finds: its standard error for `noise` of independent misfit per frame over
+    `count` independent frames. The fit's normal matrix depends on the rotations only, [[N I, -S],
+    [-S^T, N I]] with S their sum, so the point's block of its inverse is (N (I - C C^T))^-1 with C
+    their mean: infinite for one rotation or rotations about one axis (the point slides along it),
+    shrinking as they turn about two directions. Same units as `noise`."""
+    rel = np.asarray(rotations, float)
+    if len(rel) < 2 or count <= 0:
+        return float("inf")
+    c = rel.mean(axis=0)
+    w = np.linalg.eigvalsh(np.eye(3) - c @ c.T)
+    if w[0] <= 1e-12:
+        return float("inf")
+    return float(noise * np.sqrt(np.sum(1.0 / w) / count))
+
+
 def fit_rotation_axis(rotations, *, name: str = "hinge") -> tuple[np.ndarray, float]:
     """Axis of a hinge from relative rotations (F, 3, 3) of one bone's frame seen from the other:
     each of the three axes of the moving frame sweeps a circle about the hinge axis, so the axis

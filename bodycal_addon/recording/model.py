@@ -18,7 +18,8 @@ ROLES = ("head", "hand_l", "hand_r", "pelvis", "chest", "upperarm_l", "upperarm_
 # Where a user assigns device roles in Blender: the hint of every error about a missing role.
 ROLES_LIST = "Sidebar > BodyCal > Recording > Devices"
 STEPS = ("tpose", "stand", "palms_together", "touch", "flex_elbow_l", "flex_elbow_r", "flex_knee_l",
-         "flex_knee_r", "swing_shoulder_l", "swing_shoulder_r", "swing_hip_l", "swing_hip_r", "motion")
+         "flex_knee_r", "swing_shoulder_l", "swing_shoulder_r", "swing_hip_l", "swing_hip_r", "pivot_tip_l",
+         "pivot_tip_r", "motion")
 
 
 @dataclass

@@ -97,18 +97,29 @@ def test_the_steps_of_the_sample_takes_devices_are_its_protocol_in_order(demo):
     assert all(s.title and s.instruction.endswith(".") for s in steps)
 
 
-def test_six_devices_get_every_motion_step_and_no_touch_or_palms():
+def test_six_devices_get_every_motion_step_the_controller_pivots_and_touches_and_no_palms():
     six = ["head", "hand_l", "hand_r", "pelvis", "foot_l", "foot_r"]
-    steps = [s.step for s in wz.plan_steps(six)]
-    assert steps == ["tpose", "stand", *wz.MOTION_STEPS]  # the calibration's end-device fits (limbs.py)
+    steps = wz.plan_steps(six)
+    # the calibration's end-device fits (limbs.py), then each controller's tip, then its touches
+    assert [s.step for s in steps] == ["tpose", "stand", *wz.MOTION_STEPS, "pivot_tip_l", "pivot_tip_r",
+                                       *["touch"] * len(wz.CONTROLLER_PROTOCOL)]
+    assert [(s.point, s.by) for s in steps if s.step == "touch"] == list(wz.CONTROLLER_PROTOCOL)
+    knee = next(s for s in steps if s.point == "knee_in_l")
+    assert knee.instruction == ("With your left foot up on a chair, put the tip of your right controller on the "
+                                "inner side of your left knee and hold it there for a moment.")
+    assert all(s.title and s.instruction.endswith(".") for s in steps)
     no_pelvis = [s.step for s in wz.plan_steps(["head", "hand_l", "hand_r", "foot_l", "foot_r"])]
-    assert no_pelvis == ["tpose", "stand", "flex_elbow_l", "flex_elbow_r", "swing_shoulder_l", "swing_shoulder_r"]
-    # index tips without the gloves' LEDs: the fingertip touches of the parts tracked, no palm touches
+    assert no_pelvis[:6] == ["tpose", "stand", "flex_elbow_l", "flex_elbow_r", "swing_shoulder_l", "swing_shoulder_r"]
+    # index tips without the gloves' LEDs: the fingertip touches of the parts tracked, no palm touches,
+    # no controller tips
     with_tips = wz.plan_steps(six, ["index_tip_l", "index_tip_r"])
     touches = [s for s in with_tips if s.step == "touch"]
     assert touches and all(s.by.startswith("index_tip_") for s in touches)
-    assert "palms_together" not in [s.step for s in with_tips]
+    assert not {"palms_together", "pivot_tip_l", "pivot_tip_r"} & {s.step for s in with_tips}
     assert all(wz.touched_role(s.point, set(six)) for s in touches)
+    # limb trackers measure these joints from the motion, better than a touch: no controller touches
+    full = six + [f"{p}_{s}" for p in ("upperarm", "forearm", "thigh", "shin") for s in "lr"]
+    assert [s.step for s in wz.plan_steps(full)] == ["tpose", "stand", *wz.MOTION_STEPS]
 
 
 def test_the_wizards_copies_of_the_calibrations_rules_agree_with_it():
@@ -116,6 +127,9 @@ def test_the_wizards_copies_of_the_calibrations_rules_agree_with_it():
                                                              calibration_touches.STILL_MIN_S,
                                                              calibration_touches.MEDIAN_S)
     assert pg.MIN_STEP_FRAMES == calibration_common.MIN_STEP_FRAMES
+    assert np.array_equal(wz.CONTROLLER_TIP_LOCAL, calibration_touches.CONTROLLER_TIP_LOCAL)
+    assert pg.INDEPENDENT_HZ == calibration_touches.PIVOT_INDEPENDENT_HZ
+    assert pg.PIVOT_TIP_MM == calibration_touches.PIVOT_MAX_SE_MM / 2  # the wizard's margin
     assert wz.HEAD_POINTS == calibration_touches.HEAD_POINTS and wz.TORSO_LOW == calibration_touches.TORSO_LOW
     full = ["head", "chest", "pelvis"] + [f"{p}_{s}" for p in ("hand", "upperarm", "forearm", "thigh", "shin", "foot")
                                            for s in "lr"]
@@ -180,13 +194,58 @@ def test_auto_mode_with_the_six_avatargo_devices(demo):
                   segments=[s for s in demo.segments if s.step not in ("touch", "palms_together")])
     recorder, wizard, ended = drive(six, auto=True)
     segs = steps_of(six)
-    assert [s.label for s in wizard.steps] == [s.label for s in segs]  # tpose, stand and the eight motions
-    assert set(wizard.completed.values()) == {"auto"}
+    # tpose, stand and the eight motions; then the pivots and touches the take does not have
+    assert [s.label for s in wizard.steps[:len(segs)]] == [s.label for s in segs]
+    assert {s.step for s in wizard.steps[len(segs):]} == {"pivot_tip_l", "pivot_tip_r", "touch"}
+    assert set(wizard.completed.values()) == {"auto"} and len(wizard.completed) == len(segs)
     assert all(ended[i] <= s.end - s.start + 1e-9 for i, s in enumerate(segs))
     model, base = calibrate_user(recorder.recording(), name="six"), calibrate_user(six, name="six")
     assert not model.calibration["warnings"] and model.calibration["missing"] == base.calibration["missing"]
     diff = joint_differences_mm(model, base)
     assert max(diff.values()) <= SIX_BODY_MM, sorted(diff.items(), key=lambda kv: -kv[1])[:3]
+
+
+def test_six_devices_pivots_and_touches_end_by_themselves_on_an_outside_recording(data_dir, tmp_path):
+    """A six-device session an outside tool made from real motion (evaluation/touching.py: CMU 02_01's
+    skeleton pivots each controller's tip on a table, then touches wrists, elbows, knees and ankles
+    with it), its calibration part fed frame by frame. The wizard plans exactly what the performer
+    did; every pivot and touch ends by itself inside the performer's step (the flexes and swings,
+    whose six-device limit is known, and the holds are ended at the take's times: the performer does
+    them in another order than the wizard plans, so the plan follows the take); the tips the pivots
+    found read the touches, and the body is the file's within 2 mm."""
+    from outside_takes import clip_performer, outside_recording
+
+    rec, _ = outside_recording(clip_performer(data_dir, "02_01_walk.bvh"), tmp_path, "six", 0, touches=True)
+    part = rec.window(0, int(rec.frames(0.0, rec.segments_of("motion")[0].start)[-1]))
+    part.segments = steps_of(rec)
+    segs = {s.label: s for s in part.segments}
+    recorder = LiveRecorder("live", roles_of(part))
+    wizard = LiveWizard(recorder, roles_of(part), part.marker_names, auto=True)
+    assert sorted(s.label for s in wizard.steps) == sorted(segs)
+    wizard.steps.sort(key=lambda st: list(segs).index(st.label))
+    took = {}
+    for k in range(part.frame_count):
+        recorder(live_frame(part, k))
+        step, t = wizard.current, float(part.time[k])
+        if step is None or t < segs[step.label].start:
+            continue
+        if not wizard.active:
+            wizard.begin()
+        if step.step.startswith(("tpose", "stand", "flex", "swing")):
+            if t >= segs[step.label].end:
+                wizard.end_step()
+            continue
+        wizard.update()
+        if not wizard.active:
+            took[step.label] = t - segs[step.label].start
+    ours = [label for label in segs if label.startswith(("pivot", "touch"))]
+    assert wizard.finished and sorted(took) == sorted(ours)
+    assert all(took[label] <= segs[label].end - segs[label].start for label in ours), took
+    assert set(wizard.tips) == {"l", "r"}
+    model, base = calibrate_user(recorder.recording(), name="six"), calibrate_user(part, name="six")
+    assert not model.calibration["warnings"]
+    diff = joint_differences_mm(model, base)
+    assert max(diff.values()) <= 2.0, sorted(diff.items(), key=lambda kv: -kv[1])[:3]
 
 
 def still_take(rec, seconds: float):

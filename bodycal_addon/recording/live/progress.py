@@ -7,7 +7,8 @@ what the offline fit of the step needs (calibration/, core/geometry.py), as a `S
 - touches: the toucher still relative to the touched part's device (or the room) for `STILL_MIN_S`;
 - flexes: the arc about the hinge axis fitted from the two devices' relative rotations;
 - swings: the extent of the relative rotation along and across its main direction, how well the
-  frames pin the joint's centre (`centre_spread_mm`), then the sphere check the calibration runs.
+  frames pin the joint's centre (`centre_spread_mm`), then the sphere check the calibration runs;
+- pivots: the controller's turns about its tip, how well they pin the tip, then the pivot fit.
 
 Holds, palms and touches count a trailing run: how long the condition has held up to the newest
 frame; the run's start (`StepProgress.still_from`) lets the wizard keep only that stretch.
@@ -26,8 +27,10 @@ from ...core.geometry import (
     MIN_ARC_DEG,
     MIN_SWING_DEG,
     MIN_SWING_MINOR_DEG,
+    fit_rigid_point,
     fit_rotation_axis,
     fit_sphere,
+    fixed_point_spread,
     running_median,
 )
 
@@ -49,7 +52,11 @@ SWING_ACROSS_TARGET_DEG = MARGIN * MIN_SWING_MINOR_DEG  # 22.5 deg across it
 SWING_CENTRE_MM = 3.0  # a swing is done once it fixes the joint centre to this (centre_spread_mm)
 NOISE_MM = 3.0  # tracker noise and soft-tissue wobble per frame assumed by centre_spread_mm
 INDEPENDENT_HZ = 20.0  # frames closer than 1/20 s share their wobble: they count as one
-MAX_FIT_FRAMES = 600  # a flex / swing window is thinned to this many frames (update() stays cheap)
+MAX_FIT_FRAMES = 600  # a flex / swing / pivot window is thinned to this many frames (update() stays cheap)
+PIVOT_NOISE_MM = 2.0  # the tip's slip on its spot and the tracking, per frame (evaluation/: misfit 1.5-1.8 mm)
+PIVOT_TIP_MM = 1.0  # a pivot is done once it fixes the tip to this: calibration/touches.PIVOT_MAX_SE_MM / 2
+PIVOT_TURN_DEG = 30.0  # ... and the controller turned this much about two directions
+PIVOT_MAX_RMS_MM = 5.0  # the tip's misfit above this: it left its spot
 HOLD_WINDOW_S = 2.0 * HOLD_S  # a hold or touch reads only the last this many seconds
 PREROLL_S = 2.0 * MEDIAN_S  # frames read from before the step began, so its first frames have a speed
 
@@ -214,14 +221,33 @@ def centre_spread_mm(rel: np.ndarray, span_s: float) -> float:
     inverse is (N (I - C C^T))^-1 with C their mean: infinite for one rotation or a hinge (the
     centre slides along the axis), shrinking as the swing covers two directions. N counts at most
     `INDEPENDENT_HZ` frames per second, so the figure does not depend on the stream's rate."""
-    if len(rel) < 2:
-        return float("inf")
-    c = rel.mean(axis=0)
-    w = np.linalg.eigvalsh(np.eye(3) - c @ c.T)
-    if w[0] <= 1e-12:
-        return float("inf")
-    n = min(len(rel), max(span_s, 1e-9) * INDEPENDENT_HZ)
-    return float(NOISE_MM * np.sqrt(np.sum(1.0 / w) / n))
+    return fixed_point_spread(rel, NOISE_MM, min(len(rel), max(span_s, 1e-9) * INDEPENDENT_HZ))
+
+
+def pivot_progress(rot: np.ndarray, pos: np.ndarray, span_s: float) -> tuple[StepProgress, np.ndarray | None]:
+    """The controller turned about its tip (rotations `rot` (N, 3, 3) and positions `pos` (N, 3) in
+    the room) toward what the calibration's pivot fit needs (calibration/touches.controller_tips):
+    `PIVOT_TURN_DEG` about two directions and the tip fixed to `PIVOT_TIP_MM` (the fit's standard
+    error for `PIVOT_NOISE_MM` per frame, `geometry.fixed_point_spread`), then the fit itself with
+    the tip staying on its spot. Returns the progress and, once done, the tip in the controller's
+    frame."""
+    main, across = rotation_extent(rot)
+    spread = fixed_point_spread(rot, PIVOT_NOISE_MM, min(len(rot), max(span_s, 1e-9) * INDEPENDENT_HZ))
+    frac = min(main / PIVOT_TURN_DEG, across / PIVOT_TURN_DEG, PIVOT_TIP_MM / spread)
+    figure = (f"controller turned {main:.0f} and {across:.0f} of {PIVOT_TURN_DEG:.0f}° about its tip, tip "
+              f"±{min(spread, 999):.1f} of {PIVOT_TIP_MM:.1f} mm" + _frames_short(len(rot)))
+    done = frac >= 1.0 and len(rot) >= STEP_FRAMES
+    tip = None
+    if done:  # the fit the calibration runs (only now)
+        try:
+            fit = fit_rigid_point(rot, pos, np.broadcast_to(np.eye(3), rot.shape), np.zeros_like(pos), name="pivot")
+            if fit.rms * 1000.0 > PIVOT_MAX_RMS_MM:
+                done, figure = False, f"{figure}; the tip moved {fit.rms * 1000:.0f} mm: keep it on one spot"
+            else:
+                tip = fit.local_a
+        except BodyCalError as exc:
+            done, figure = False, f"{figure}; {exc.message}"
+    return StepProgress(min(1.0, frac) if done else min(frac, 0.99), figure, done), tip
 
 
 def swing_progress(rel: np.ndarray, points: np.ndarray, joint: str, span_s: float) -> StepProgress:

@@ -26,12 +26,15 @@ import numpy as np
 
 from ...body import surface_layout as sl
 from ...body.skeleton import FINGERS
+from ...core import transforms as tf
 from ...core.errors import BodyCalError
+from ...core.geometry import fit_rigid_point
 from ..model import Segment
 from .progress import (
     HOLD_S,
     HOLD_WINDOW_S,
     MAX_FIT_FRAMES,
+    MIN_STEP_FRAMES,
     PREROLL_S,
     STILL_MIN_S,
     StepProgress,
@@ -39,6 +42,7 @@ from .progress import (
     hold_figure,
     hold_progress,
     palms_progress,
+    pivot_progress,
     relative_motion,
     swing_progress,
     touch_progress,
@@ -50,6 +54,7 @@ if TYPE_CHECKING:  # the recorder reads VMC's segments with python-osc; the wiza
 __all__ = ["LiveWizard", "StepProgress", "WizardStep", "plan_steps"]
 
 TRUNK = ("chest", "pelvis", "head")
+CONTROLLER_TIP_LOCAL = np.array([0.0, 0.09, 0.0])  # calibration/touches.py's, for a controller not pivoted
 SIDE_WORD = {"l": "left", "r": "right"}
 HEAD_POINTS = sl.JAW_POINTS + sl.SKULL_POINTS + ("skull_base_l", "skull_base_r")  # calibration/touches.py's
 TORSO_LOW = ("belly_ll", "belly_lr", "belly_c3", "belly_c4", "back_low")  # calibration/touches.py TORSO_LOW
@@ -74,6 +79,24 @@ def _touch_protocol() -> tuple[tuple[str, str], ...]:
 
 
 TOUCH_PROTOCOL = _touch_protocol()
+
+
+def _controller_protocol() -> tuple[tuple[str, str], ...]:
+    """(point, toucher) a six-device user touches with a controller's tip (DESIGN.md §3, "Touches
+    with six devices"), in the protocol's order: the arms (each by the other hand), then the legs
+    with that foot up on a chair (the inner side by the other hand, the outer by the same side's)."""
+    out = []
+    for s, o in (("l", "r"), ("r", "l")):
+        out += [(f"{p}_{s}", f"controller_tip_{o}") for p in ("wrist_top", "wrist_bottom", "elbow_in", "elbow_out")]
+    for s, o in (("l", "r"), ("r", "l")):
+        out += [(f"knee_in_{s}", f"controller_tip_{o}"), (f"knee_out_{s}", f"controller_tip_{s}"),
+                (f"ankle_in_{s}", f"controller_tip_{o}"), (f"ankle_out_{s}", f"controller_tip_{s}")]
+    return tuple(out)
+
+
+CONTROLLER_PROTOCOL = _controller_protocol()
+# the limb tracker that measures a controller-touched joint better than a touch (from the motion)
+MEASURED_BY = {"wrist": "forearm", "elbow": "forearm", "knee": "shin", "ankle": "shin"}
 MOTION_STEPS = ("flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r", "swing_shoulder_l", "swing_shoulder_r",
                 "swing_hip_l", "swing_hip_r")
 
@@ -164,6 +187,7 @@ def plan_steps(roles: Sequence[str], markers: Sequence[str] = ()) -> list[Wizard
     if palms:
         steps.append(_step("palms_together"))
     steps += [_step(s) for s in MOTION_STEPS if motion_pair(s, have)]
+    touches = []
     for point, by in TOUCH_PROTOCOL:
         if touched_role(point, have) is None:
             continue
@@ -171,12 +195,38 @@ def plan_steps(roles: Sequence[str], markers: Sequence[str] = ()) -> list[Wizard
             continue  # the palm centre comes from palms_together (calibration/touches.by_track)
         if not by.startswith("palm_") and by not in markers:
             continue
-        steps.append(_step("touch", point, by))
+        touches.append((point, by))
+    touches += controller_touches(have, markers, {p for p, _ in touches})
+    for s in ("l", "r"):  # the tip a controller touches with, found first (calibration/touches.controller_tips)
+        if any(by == f"controller_tip_{s}" for _, by in touches) and f"controller_tip_{s}" not in markers:
+            steps.append(_step(f"pivot_tip_{s}"))
+    steps += [_step("touch", point, by) for point, by in touches]
     return steps
+
+
+def controller_touches(have, markers, touched=()) -> list[tuple[str, str]]:
+    """The controller-tip touches of `CONTROLLER_PROTOCOL` the devices allow: the point's part
+    tracked, the joint measured by no limb tracker (`MEASURED_BY`), no fingertip marker on the
+    touching hand, the point not touched otherwise (`touched`)."""
+    out = []
+    for point, by in CONTROLLER_PROTOCOL:
+        s, t = point[-1], by[-1]
+        if point in touched or touched_role(point, have) is None or f"hand_{t}" not in have:
+            continue
+        if f"{MEASURED_BY[point.split('_')[0]]}_{s}" in have or f"index_tip_{t}" in markers:
+            continue
+        out.append((point, by))
+    return out
 
 
 _TITLES = {"tpose": ("T-pose", "Stand straight, arms out to the sides at shoulder height, palms down, and hold "
                      "still."),
+           "pivot_tip_l": ("Pivot the left controller's tip", "Put the tip of your left controller on one spot of a "
+                           "table and keep it there while you circle the controller around it, tilting it every way, "
+                           "for a few seconds."),
+           "pivot_tip_r": ("Pivot the right controller's tip", "Put the tip of your right controller on one spot of "
+                           "a table and keep it there while you circle the controller around it, tilting it every "
+                           "way, for a few seconds."),
            "stand": ("Stand", "Stand relaxed, arms hanging by your sides, feet hip-width apart, and hold still."),
            "palms_together": ("Palms together", "Press your palms flat together in front of your chest, "
                               "fingers straight, and keep them together.")}
@@ -221,13 +271,20 @@ def _step(step: str, point: str | None = None, by: str | None = None) -> WizardS
         where = point_words(point)
         if by.startswith("palm_"):
             finger = f"the palm of your {SIDE_WORD[by[-1]]} hand"
+        elif by.startswith("controller_tip_"):
+            finger = f"the tip of your {SIDE_WORD[by[-1]]} controller"
         elif "_tip_" in by:
             name, side = by.split("_tip_")
             finger = f"your {SIDE_WORD.get(side, side)} {name} fingertip"
         else:
             finger = by.replace("_", " ")
         title = "Touch " + where.replace("your ", "the ", 1)
-        return WizardStep(step, point, by, title, f"Put {finger} on {where} and hold it there for a moment.")
+        text = f"put {finger} on {where} and hold it there for a moment."
+        if by.startswith("controller_tip_") and point.startswith(("knee_", "ankle_", "elbow_", "wrist_")):
+            posture = (f"your {SIDE_WORD[point[-1]]} foot up on a chair" if point.startswith(("knee_", "ankle_"))
+                       else f"your {SIDE_WORD[point[-1]]} elbow bent in front of you")
+            return WizardStep(step, point, by, title, f"With {posture}, {text}")
+        return WizardStep(step, point, by, title, text[0].upper() + text[1:])
     kind, joint, s = step.split("_")
     side = SIDE_WORD[s]
     if kind == "flex":
@@ -266,6 +323,7 @@ class LiveWizard:
         self.segments: dict[int, Segment] = {}  # step index -> the segment it kept
         self.completed: dict[int, str] = {}  # step index -> "auto", "ended" or "skipped"
         self._began_at = 0.0
+        self.tips: dict[str, np.ndarray] = {}  # side -> controller tip found by its pivot step (controller's frame)
         # with auto_begin_s, the first step waits its pause from now too
         self._ended_at: float | None = recorder.now if auto_begin_s is not None else None
 
@@ -367,6 +425,12 @@ class LiveWizard:
     # --- internals ---
 
     def _finish(self, how: str, trim: float | None = None) -> None:
+        step = self.current
+        if step.step.startswith("pivot_tip_"):  # the tip the next touches are read with
+            _, tip = self._pivot(self.recorder.frames_since(self._began_at, max_frames=MAX_FIT_FRAMES), step.step[-1],
+                                 force=True)
+            if tip is not None:
+                self.tips[step.step[-1]] = tip
         # a hold keeps its still stretch only: the reference pose is its middle
         seg = self.recorder.mark_segment_end(trim if trim is not None and trim < self.recorder.now else None)
         self.segments[self.index] = seg
@@ -404,6 +468,8 @@ class LiveWizard:
             if part is None or track is None:
                 return hold_figure(0.0, STILL_MIN_S, f"waiting for {step.by}")
             return touch_progress(frames, part, *track, begin=self._began_at)
+        if step.step.startswith("pivot_tip_"):
+            return self._pivot(frames, step.step[-1])[0]
         pair = motion_pair(step.step, self.device_of)  # None: its devices lost their roles (replan)
         a, b = (self._slot(frames, pair[0]), self._slot(frames, pair[1])) if pair else (None, None)
         if a is None or b is None:
@@ -415,12 +481,39 @@ class LiveWizard:
             return flex_progress(rel, joint)
         return swing_progress(rel, pts, joint, float(frames.time[-1] - frames.time[0]) if frames.count else 0.0)
 
+    def _pivot(self, frames: RecentFrames, s: str, force: bool = False):
+        """(progress, tip) of a pivot step on `frames` (progress.pivot_progress); with `force`, the
+        tip whenever the fit can give one (the operator ended the step)."""
+        k = self._slot(frames, f"hand_{s}")
+        if k is None or frames.count == 0:
+            return hold_figure(0.0, 1.0, f"waiting for the {SIDE_WORD[s]} controller").with_figure("pivot"), None
+        ok = frames.valid[:, k]
+        rot = tf.quat_to_matrix(tf.quat_normalize(frames.rotations[ok, k]))
+        pos = frames.positions[ok, k]
+        span = float(frames.time[-1] - frames.time[0])
+        progress, tip = pivot_progress(rot, pos, span)
+        if tip is None and force and len(pos) >= MIN_STEP_FRAMES:
+            try:
+                tip = fit_rigid_point(rot, pos, np.broadcast_to(np.eye(3), rot.shape), np.zeros_like(pos),
+                                      name="pivot").local_a
+            except BodyCalError:
+                tip = None
+        return progress, tip
+
     def _toucher(self, frames: RecentFrames, by: str) -> tuple[np.ndarray, np.ndarray] | None:
-        """World track and validity of the touching point: its marker, or the palm's hand device
-        (the palm centre rides on it)."""
+        """World track and validity of the touching point: its marker, the palm's hand device (the
+        palm centre rides on it), or a controller's tip (its pivot's, else the calibration's
+        default: a still controller holds any of its points still)."""
         if by in frames.marker_names:
             k = frames.marker_names.index(by)
             return frames.points[:, k], frames.points_valid[:, k]
+        if by.startswith("controller_tip_"):
+            k = self._slot(frames, f"hand_{by[-1]}")
+            if k is None:
+                return None
+            tip = self.tips.get(by[-1], CONTROLLER_TIP_LOCAL)
+            return (tf.transform_points(frames.positions[:, k], tf.quat_normalize(frames.rotations[:, k]), tip),
+                    frames.valid[:, k])
         if by.startswith("palm_"):
             k = self._slot(frames, f"hand_{by[-1]}")
             return None if k is None else (frames.positions[:, k], frames.valid[:, k])
