@@ -44,8 +44,9 @@ MIN_STANCE_S = 0.15  # s
 BLEND_S = 0.12  # s
 REACH = 0.999  # a planted leg is stretched to at most this fraction of its length
 RELEASE = 2.0  # a contact eases out over this many BLEND_S (`rolling`: the offset the plant made at its end fades
-# out; over 0.12 s the ankle's acceleration p95 was 1.16x the source's at worst on 131_01, over 0.24 s 1.13x)
-FOLLOW = 0.25  # of BLEND_S (3 frames at 90 Hz): how soon a pinned point off its contact moves as the method's
+# out; over 0.12 s the ankle's acceleration p95 was 1.17x the source's at worst on 131_01, over 0.24 s 1.12x)
+FOLLOW = 0.25  # of BLEND_S (3 frames at 90 Hz): how soon a pinned point off its contact moves as the method's, and
+# how soon a point that has left the floor stops counting in the pivot's share (`eased`'s lead)
 SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
 FLOOR_BLEND = 0.075  # of the heel's depth under the ankle (6 mm on an adult): how softly `above` keeps the sole up
 
@@ -56,7 +57,8 @@ class Stance:
     label: np.ndarray  # (F,) int: the stance a frame belongs to, -1 outside
     count: int
     inner: np.ndarray | None = None  # (F,) in [0, 1]: eased in and out over the stance's own first and last frames
-    lead: np.ndarray | None = None  # (F,) `weight` before and in the stances, 0 after them (easing out)
+    lead: np.ndarray | None = None  # (F,) `weight` before and in the stances, after them eased out over
+    # FOLLOW of an easing (not the whole easing out: a point easing out has left the floor)
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
@@ -149,7 +151,11 @@ def eased(stance: np.ndarray, n: int, n_out: int | None = None) -> Stance:
         # the stance each frame eases toward (inside: its own)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
-        lead = np.where(near_next | stance | (t < starts[0]), weight, 0.0)
+        # the weight easing in and in the stance; after it a point has left the floor, but its weight
+        # fades over a few frames rather than stopping (`pivot_share` counts it: a step there was a
+        # step in the pivot; over the whole easing out it pulled the pivot toward a lifted point)
+        s = np.clip(1.0 - after / (max(1, int(round(n * FOLLOW))) + 1.0), 0.0, 1.0)
+        lead = np.where(near_next | stance | (t < starts[0]), weight, s * s * (3.0 - 2.0 * s))
         return Stance(weight, label, len(starts), inner, lead)
     return Stance(weight, label, len(starts), inner, weight)
 
@@ -319,8 +325,9 @@ def _follow_weights(t: np.ndarray, edge: np.ndarray, m: int) -> np.ndarray:
 
 def pivot_share(heel_inner: np.ndarray, ball_inner: np.ndarray, heel: np.ndarray, ball: np.ndarray) -> np.ndarray:
     """(F,) the ball's share of the pivot from the stances' inner weights, and their outer weights
-    counted SHARE_OUTER as much where neither is inside (a bake counts a stance's easing in only: a
-    point easing out has left the floor; a live stream has the outer weights only)."""
+    counted SHARE_OUTER as much where neither is inside (a bake counts a stance's easing in, and its
+    easing out only over its first frames: a point easing out has left the floor; a live stream has
+    the outer weights only)."""
     hi = heel_inner + SHARE_OUTER * heel
     bi = ball_inner + SHARE_OUTER * ball
     total = hi + bi

@@ -129,3 +129,20 @@ def test_off_the_contact_the_planted_point_moves_as_the_method_moves_it():
     assert acc_p95(out) <= 1.3 * acc_p95(method), (acc_p95(out), acc_p95(method))
     assert acc_p95(before) > 1.5 * acc_p95(method)  # what it was: the easing caught up with the swing
     assert np.linalg.norm(np.diff(out, axis=0), axis=1).max() < 0.04  # no pop at the contact's edges
+
+
+def test_the_pivot_hands_over_without_a_step():
+    """The ball's share of the pivot changes smoothly inside a contact (0.057 a frame at most here):
+    where the heel lifts before the ball (a toe-off) and where both lift within a frame (a foot
+    lifted flat). The outer weights' tenth the share counts stopped at a stance's end: a step of
+    0.098 at a toe-off, and 0.41 where both lifted together (both inner weights at ~0 there, the
+    tenths were all the ratio had)."""
+    F, n = 120, 11
+    frame = np.arange(F)
+    for heel_stop, ball_stop in ((50, 80), (79, 80), (80, 80), (80, 79)):
+        heel = feet.eased((frame >= 20) & (frame < heel_stop), n)
+        ball = feet.eased((frame >= 30) & (frame < ball_stop), n)
+        here = np.tile([0.0, 0.0], (F, 1))
+        weight, share, _, _ = feet.rolling(heel, ball, n, here, here)
+        assert np.abs(np.diff(share)).max() < 0.09, (heel_stop, ball_stop, np.abs(np.diff(share)).max())
+        assert share[25] < 0.1 and (heel_stop > 60 or share[70] > 0.9)
