@@ -127,7 +127,7 @@ def test_the_planted_ankle_moves_as_smoothly_as_the_clip_s_on_a_real_walk(walk, 
     no rougher than the clip's (acceleration p95 within 1.3x the clip's ankle's, scaled as the
     method scales motion: the legs' ratio, AvatarGo's eye-height ratio for offsets), and where the
     plant eases in or out it adds little to the method's own ankle (p95 over those frames within
-    1.3x the unplanted ankle's). Now 1.03-1.27x and 1.02-1.23x; before the planted points followed
+    1.3x the unplanted ankle's). Now 1.04-1.27x and 1.02-1.22x; before the planted points followed
     the method off the contact (DESIGN.md §6 "Planted feet"): 1.27-1.40x and 1.29-1.55x."""
     rec, user, truth = walk
     smoothed = filter_recording(rec, OneEuro())
