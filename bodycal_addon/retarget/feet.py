@@ -13,7 +13,9 @@ Delahaye 2023 and AvatarGo, whose feet follow their targets). In every method an
    agree with the avatar's foot.
 3. The contact (`rolling`): planted while either point is down (eased around their union; two
    contacts closer than two easings are one); the ball's share of the pivot from the inner weights
-   (`pivot_share`): heel strike about the heel, flat about both, toe-off about the ball.
+   (`pivot_share`): heel strike about the heel, flat about both, toe-off about the ball. Off the
+   contact (the easings) the places move over the floor as the method moves its contact points
+   from the contact's edge on, so the easing only takes away the plant's offset at the edge.
 4. The ankle target (`roll`): where the ankle stands with the pivot's contact point on the floor,
    the foot turned as the method turns it, eased from the method's ankle by the weight, and never
    lower than the support points allow (`sole_lift`, `above`: the skin stays above the floor,
@@ -43,8 +45,10 @@ SMOOTH_S = 0.06  # s: the ankle's position is averaged over this before its spee
 MIN_STANCE_S = 0.15  # s
 BLEND_S = 0.12  # s
 REACH = 0.999  # a planted leg is stretched to at most this fraction of its length
-RELEASE = 2.0  # a contact eases out over this many BLEND_S (`rolling`: a foot leaving the floor catches up with
-# the method's ankle, which its toe-off held back: over 0.12 s the ankle's acceleration rose to 1.35x the source's)
+RELEASE = 2.0  # a contact eases out over this many BLEND_S (`rolling`: the offset the plant made at its end fades
+# out; over 0.12 s the ankle's acceleration p95 was 1.17x the source's at worst on 131_01, over 0.24 s 1.12x)
+FOLLOW = 0.25  # of BLEND_S (3 frames at 90 Hz): how soon a pinned point off its contact moves as the method's, and
+# how soon a point that has left the floor stops counting in the pivot's share (`eased`'s lead)
 SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
 FLOOR_BLEND = 0.075  # of the heel's depth under the ankle (6 mm on an adult): how softly `above` keeps the sole up
 
@@ -55,7 +59,8 @@ class Stance:
     label: np.ndarray  # (F,) int: the stance a frame belongs to, -1 outside
     count: int
     inner: np.ndarray | None = None  # (F,) in [0, 1]: eased in and out over the stance's own first and last frames
-    lead: np.ndarray | None = None  # (F,) `weight` before and in the stances, 0 after them (easing out)
+    lead: np.ndarray | None = None  # (F,) `weight` before and in the stances, after them eased out over
+    # FOLLOW of an easing (not the whole easing out: a point easing out has left the floor)
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
@@ -148,7 +153,11 @@ def eased(stance: np.ndarray, n: int, n_out: int | None = None) -> Stance:
         # the stance each frame eases toward (inside: its own)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
-        lead = np.where(near_next | stance | (t < starts[0]), weight, 0.0)
+        # the weight easing in and in the stance; after it a point has left the floor, but its weight
+        # fades over a few frames rather than stopping (`pivot_share` counts it: a step there was a
+        # step in the pivot; over the whole easing out it pulled the pivot toward a lifted point)
+        s = np.clip(1.0 - after / (max(1, int(round(n * FOLLOW))) + 1.0), 0.0, 1.0)
+        lead = np.where(near_next | stance | (t < starts[0]), weight, s * s * (3.0 - 2.0 * s))
         return Stance(weight, label, len(starts), inner, lead)
     return Stance(weight, label, len(starts), inner, weight)
 
@@ -225,7 +234,8 @@ def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, res
     return ankle[:, None] + einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
 
 
-def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np.ndarray
+def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np.ndarray,
+            heel_ref: np.ndarray | None = None, ball_ref: np.ndarray | None = None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(weight (F,), ball share (F,), heel's place (F, 2), ball's place (F, 2)) of a rolling foot
     from its heel's and its ball's stances and places: the foot is planted while either is down (a
@@ -233,11 +243,22 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
     only the heel is down (the strike), about the ball where only the ball is (the toe-off), about
     both where both are (flat). The share blends by the stances' inner weights (eased inside
     them): a point hands its pivot over while it is still down, so the foot never turns about a
-    point that has left the floor. Outside a contact the share and the places hold what it began or
-    ended with; it eases out over RELEASE times as long as it eases in. Two contacts less than two
+    point that has left the floor. Outside a contact the share holds what it began or ended with;
+    it eases out over RELEASE times as long as it eases in. Two contacts less than two
     easings apart (a shuffle, a foot lifted for a moment)
     are one: across the gap the share and the places go smoothly from the first's end to the
-    second's start, so the ankle never dips to the method's and back in a few frames."""
+    second's start, so the ankle never dips to the method's and back in a few frames.
+
+    Outside a contact each place starts from the one at the contact's nearer edge and moves from
+    there over the floor as the method's contact point does (`heel_ref` / `ball_ref` (F, 3): where
+    the method puts it), taking the method's velocity up smoothly over FOLLOW of an easing: the
+    ankle then eases from the plant's offset at the edge to the method's, and keeps the method's
+    speed (a place held still while the method's point swung away left a gap growing with the
+    swing, which the easing closed late and fast: the ankle's acceleration p95 up to 1.36x the
+    source's, DESIGN.md §6 "Planted feet"). The places stay on the floor: following the method's
+    height too was rougher (the method's point already rising or falling at the contact's edge,
+    taken up in 3 frames) and landed the foot later (its descent is the smoothed devices', rounded
+    off near the floor). Without references the places hold still off the contact."""
     share = pivot_share(heel.inner, ball.inner, heel.lead, ball.lead)
     down = (heel.weight >= 1.0) | (ball.weight >= 1.0)
     starts, stops = _runs(down)
@@ -276,15 +297,39 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
         toward_next = union.label > k
         edge = np.where(before_first, starts[0], np.where(ended & toward_next, starts[nxt], stops[k] - 1))
         share = np.where(on, share, share[edge])
-        heel_at = np.where(on[:, None], heel_at, heel_at[edge])
-        ball_at = np.where(on[:, None], ball_at, ball_at[edge])
+        follow = _follow_weights(t, edge, max(1, int(round(n * FOLLOW))))
+        heel_at, ball_at = (_off_contact(at, ref, on, edge, follow) for at, ref in ((heel_at, heel_ref),
+                                                                                   (ball_at, ball_ref)))
     return union.weight, share, heel_at, ball_at
+
+
+def _off_contact(at: np.ndarray, ref: np.ndarray | None, on: np.ndarray, edge: np.ndarray, follow: np.ndarray
+                 ) -> np.ndarray:
+    """(F, 2) a point's places `at` in the contact (`on`), and off it its place at the contact's
+    `edge` (F,) moved as the method moves the point over the floor (`ref` (F, 3); None: held still)
+    from the edge on, each step by its `follow` weight (`_follow_weights`): what the easing takes
+    away is then the offset the plant made at the edge, not a gap growing with the foot's swing."""
+    held = at[edge]
+    if ref is not None:
+        moved = np.cumsum(np.nan_to_num(np.diff(ref[:, :2], axis=0, prepend=ref[:1, :2])) * follow[:, None], axis=0)
+        held = held + moved - moved[edge]
+    return np.where(on[:, None], at, held)
+
+
+def _follow_weights(t: np.ndarray, edge: np.ndarray, m: int) -> np.ndarray:
+    """(F,) how much of the step from frame t-1 to t a pinned point off its contact takes from the
+    method's: 0 at the contact's `edge` (F,), rising smoothly to 1 `m` frames from it (the step's
+    frame further from the edge counts: t after the edge, t-1 before it)."""
+    u = np.clip(np.abs(t - edge) / float(m), 0.0, 1.0)
+    r = u * u * (3.0 - 2.0 * u)
+    return np.where(t > edge, r, np.concatenate([r[:1], r[:-1]]))
 
 
 def pivot_share(heel_inner: np.ndarray, ball_inner: np.ndarray, heel: np.ndarray, ball: np.ndarray) -> np.ndarray:
     """(F,) the ball's share of the pivot from the stances' inner weights, and their outer weights
-    counted SHARE_OUTER as much where neither is inside (a bake counts a stance's easing in only: a
-    point easing out has left the floor; a live stream has the outer weights only)."""
+    counted SHARE_OUTER as much where neither is inside (a bake counts a stance's easing in, and its
+    easing out only over its first frames: a point easing out has left the floor; a live stream has
+    the outer weights only)."""
     hi = heel_inner + SHARE_OUTER * heel
     bi = ball_inner + SHARE_OUTER * ball
     total = hi + bi

@@ -482,7 +482,8 @@ class FeetPlan:
                 heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
                 heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)
                 fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it
-                weight, share, heel_at, ball_at = feet.rolling(heel, ball, feet.blend_frames(fps), heel_at, ball_at)
+                weight, share, heel_at, ball_at = feet.rolling(heel, ball, feet.blend_frames(fps), heel_at, ball_at,
+                                                               theirs[:, 0], theirs[:, 1])
             else:  # live: no look-ahead, no inner weights; the ball placed from the heel's place
                 t = src.time[start:stop]
                 heel, ball = self.stance[s, "heel"], self.stance[s, "ball"]

@@ -79,3 +79,70 @@ def test_pelvis_comes_down_only_as_far_as_a_planted_leg_needs():
     need_l = 0.95 - 0.09 - feet.REACH * 0.82
     need_r = 0.95 - 0.09 - np.sqrt((feet.REACH * 0.82) ** 2 - 0.04)
     np.testing.assert_allclose(drop, [max(need_l, need_r), 0.5 * need_l, 0.0])
+
+
+def _swing(step=0.7, swing_s=0.4):
+    """A foot swinging in, standing a second, swinging out: `step` m forward (lifting 10 cm) in
+    `swing_s`, smooth (C1) and as fast as a walker's (2.6 m/s at most); one stance."""
+    t = np.arange(int(round(1.95 * FPS))) / FPS
+    ease = [np.clip((t - a) / swing_s, 0, 1) for a in (-0.1, 1.5)]
+    x = sum(step * u * u * (3 - 2 * u) for u in ease)
+    z = 0.09 + sum(0.1 * np.sin(np.pi * u) ** 2 for u in ease)
+    return t, np.stack([x, np.zeros(len(t)), z], axis=1)
+
+
+def test_off_the_contact_the_planted_point_moves_as_the_method_moves_it():
+    """Where the method slides the foot while it stands (a child's ankle scaled about the root), the
+    plant holds it and the method's ankle is elsewhere when the foot lifts: off the contact the
+    pinned point moves as the method's from the contact's edge on, so the easing takes away only
+    the offset the plant made there, and the ankle keeps about the method's acceleration (held still
+    off the contact, the place fell behind the swing and the easing closed the gap late)."""
+    t, ankle = _swing()
+    st = feet.detect(ankle, t, 0.09)
+    assert st.count == 1
+    none = feet.eased(np.zeros(len(t), bool), 10)
+    under = np.array([0.0, 0.0, -0.085])
+    contact = feet.Contact(under, under, under[None])
+    frames = np.repeat(np.eye(3)[None], len(t), axis=0)
+    method = ankle + np.stack([0.1 * t, 0 * t, 0 * t], axis=1)  # slides 10 cm/s
+    ref = method + under  # where the method puts the contact point
+    n = feet.blend_frames(FPS)
+    heel_at, ball_at = feet.rolling_places(ref, ref, st, none)
+    held = feet.rolling(st, none, n, heel_at, ball_at)
+    weight, share, h_at, b_at = feet.rolling(st, none, n, heel_at, ball_at, ref, ref)
+    on = weight >= 1.0
+    # in the contact: the plant's own places
+    np.testing.assert_array_equal(h_at[on], held[2][on])
+    # off it, past the first frames (where it takes the method's velocity up): the method's steps
+    # over the floor
+    far = np.abs(np.arange(len(t))[:, None] - np.flatnonzero(on)[None]).min(axis=1) > int(round(n * feet.FOLLOW))
+    steps = far[1:] & far[:-1]
+    assert steps.sum() > 40
+    np.testing.assert_allclose(np.diff(h_at, axis=0)[steps], np.diff(ref[:, :2], axis=0)[steps], atol=1e-12)
+
+    def acc_p95(p):
+        return np.percentile(np.linalg.norm(np.diff(p, 2, axis=0), axis=1), 95) * FPS * FPS
+
+    out = feet.roll(method, h_at, b_at, weight, share, frames, contact)
+    before = feet.roll(method, held[2], held[3], held[0], held[1], frames, contact)
+    # 1.22x (the height still eases from the floor to the method's), held still 1.69x
+    assert acc_p95(out) <= 1.3 * acc_p95(method), (acc_p95(out), acc_p95(method))
+    assert acc_p95(before) > 1.5 * acc_p95(method)  # what it was: the easing caught up with the swing
+    assert np.linalg.norm(np.diff(out, axis=0), axis=1).max() < 0.04  # no pop at the contact's edges
+
+
+def test_the_pivot_hands_over_without_a_step():
+    """The ball's share of the pivot changes smoothly inside a contact (0.057 a frame at most here):
+    where the heel lifts before the ball (a toe-off) and where both lift within a frame (a foot
+    lifted flat). The outer weights' tenth the share counts stopped at a stance's end: a step of
+    0.098 at a toe-off, and 0.41 where both lifted together (both inner weights at ~0 there, the
+    tenths were all the ratio had)."""
+    F, n = 120, 11
+    frame = np.arange(F)
+    for heel_stop, ball_stop in ((50, 80), (79, 80), (80, 80), (80, 79)):
+        heel = feet.eased((frame >= 20) & (frame < heel_stop), n)
+        ball = feet.eased((frame >= 30) & (frame < ball_stop), n)
+        here = np.tile([0.0, 0.0], (F, 1))
+        weight, share, _, _ = feet.rolling(heel, ball, n, here, here)
+        assert np.abs(np.diff(share)).max() < 0.09, (heel_stop, ball_stop, np.abs(np.diff(share)).max())
+        assert share[25] < 0.1 and (heel_stop > 60 or share[70] > 0.9)
