@@ -19,12 +19,17 @@ turns in rotation, so the load's drift falls on every mode alike. `no_avatar`: n
 wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
 `three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
 on the root bone, solved in the pump's process; `three_avatars_processes`: the same three, each
-solved in a worker process of its own (retarget/live_worker.py; `--rows` picks the rows); per frame
-with every avatar posed, from its arrival (`LiveFrame.arrival`, the
-receiver's clock) to the last avatar's pose set (`foreach_set` done), median and p95, and its
-stages: arrival -> taken by the pump (also over the frames that found the pump idle, and the share
-of those), taken -> the last avatar solved (the earlier avatars' writes included: each is set as
-soon as it is solved), solved -> posed; each avatar's arrival -> pose in the order written; per
+solved in a worker process of its own (retarget/live_worker.py; `--rows` picks the rows). Latency:
+every pose set, from the arrival (`LiveFrame.arrival`, the receiver's clock) of the frame the
+avatar was solved from (the pump's own, or for an avatar solved in the pump's process after
+another, the newest there was when its turn came, or the one a pump catching up gave it:
+`LiveUpdate.frame_of`) to its pose set (`foreach_set` done): per avatar (`latency_ms_by_avatar`, in
+the order they follow), `latency_ms` the slowest avatar's median and p95 (what the targets read),
+`poses_per_s_per_avatar` the fewest poses an avatar got a second; over the pumps that set every
+avatar, the slowest avatar's (`latency_ms_pumps_setting_every_avatar`) and the stages: arrival ->
+taken by the pump (the pump's first frame; also over the frames that found the pump idle, and the
+share of those), taken -> the last avatar solved (from when its frame was taken; the earlier
+avatars' writes included: each is set as soon as it is solved), solved -> posed; per
 avatar the solve and the write (wall and the main thread's CPU time; a worker's solve: wall from
 the frame sent to its answer, CPU the worker's, and `worker_wall` its own push); the CPU time on
 the path (the solves and writes, whichever process did them), the pump thread's own CPU (solves
@@ -197,7 +202,7 @@ class _Frames:
         self.rows = {k: [] for k in ("latency", "wait", "solve", "write", "cpu_path", "cpu_pump", "cpu_critical",
                                      "wait_idle", "stamp")}
         self.per_avatar = {k: [] for k in ("solve", "solve_cpu", "write", "write_cpu", "worker_wall")}
-        self.by_position = [[] for _ in names]  # arrival -> pose set of the 1st, 2nd, ... avatar written
+        self.by_avatar = {n: [] for n in names}  # every pose set: its frame's arrival -> set (ms)
         self.cpu = self.wall = 0.0
         self.loads = []
         self.last_done = -np.inf  # when the previous pump ended: a frame arriving after it found the pump idle
@@ -210,23 +215,27 @@ class _Frames:
         self.loads.append(os.getloadavg()[0])
 
     def note(self, update) -> None:
-        rows, names, arrival = self.rows, self.names, update.frame.arrival
+        rows, names = self.rows, self.names
         if not names:
-            rows["wait"].append((update.taken - arrival) * 1000.0)
+            rows["wait"].append((update.taken - update.frame.arrival) * 1000.0)
             return
+        for n in names:  # every pose set, whether the pump set the others' or not (catching up)
+            if n in update.posed_at:
+                self.by_avatar[n].append((update.posed_at[n] - update.frame_of(n).arrival) * 1000.0)
         if not all(update.poses.get(n) is not None for n in names):
-            return
+            return  # the stages below: pumps that set every avatar's pose
         session, following = self.live.session(), self.live.following()
         order = sorted(names, key=update.posed_at.get)  # as solved and set
-        lat = [(update.posed_at[n] - arrival) * 1000.0 for n in order]
-        rows["latency"].append(lat[-1])
+        rows["latency"].append(max((update.posed_at[n] - update.frame_of(n).arrival) * 1000.0 for n in names))
+        first = update.frame_of(order[0])  # the pump's own frame (a later avatar may have a newer one)
+        arrival = first.arrival
         rows["wait"].append((update.taken - arrival) * 1000.0)
         if arrival >= self.last_done:  # the scheduling's own wait, not the rest of a solve in progress
             rows["wait_idle"].append((update.taken - arrival) * 1000.0)
         self.last_done = time.perf_counter()
-        if update.frame.sender_time is not None:
-            rows["stamp"].append((arrival - update.frame.sender_time) * 1000.0)
-        rows["solve"].append((update.solved_at[order[-1]] - update.taken) * 1000.0)
+        if first.sender_time is not None:
+            rows["stamp"].append((arrival - first.sender_time) * 1000.0)
+        rows["solve"].append((update.solved_at[order[-1]] - update.taken_at[order[-1]]) * 1000.0)
         rows["write"].append((update.posed_at[order[-1]] - update.solved_at[order[-1]]) * 1000.0)
         solve_cpu = [session.followers[n].stats.solve_cpu_ms[-1] for n in names]
         write_cpu = [following[n].write_cpu_ms[-1] for n in names]
@@ -240,8 +249,6 @@ class _Frames:
         self.per_avatar["solve_cpu"] += solve_cpu
         self.per_avatar["write"] += [following[n].write_ms[-1] for n in names]
         self.per_avatar["write_cpu"] += write_cpu
-        for k, v in enumerate(lat):
-            self.by_position[k].append(v)
 
     def report(self) -> dict:
         rows, n = self.rows, len(self.rows["wait"])
@@ -249,8 +256,12 @@ class _Frames:
         if not self.names:
             return {"frames": n, "arrival_to_taken_ms": _stage(rows["wait"]), "load_average": load}
         stamp = np.asarray(rows["stamp"]) - (min(rows["stamp"]) if rows["stamp"] else 0.0)
-        return {"frames": n, "frames_per_s": round(n / max(self.wall, 1e-9), 1),
-                "latency_ms": _stage(rows["latency"]),
+        by_avatar = [_stage(self.by_avatar[name]) for name in self.names]
+        poses = min(len(v) for v in self.by_avatar.values())
+        return {"frames": n, "poses_per_s_per_avatar": round(poses / max(self.wall, 1e-9), 1),
+                "latency_ms": {"median": max(b["median"] for b in by_avatar), "p95": max(b["p95"] for b in by_avatar)},
+                "latency_ms_by_avatar": by_avatar,
+                "latency_ms_pumps_setting_every_avatar": _stage(rows["latency"]),
                 "stages_ms": {"arrival_to_taken": _stage(rows["wait"]), "taken_to_solved": _stage(rows["solve"]),
                               "solved_to_posed": _stage(rows["write"]),
                               "arrival_to_taken_pump_idle": _stage(rows["wait_idle"]),
@@ -259,7 +270,6 @@ class _Frames:
                 "cpu_ms_on_the_path": _stage(rows["cpu_path"]),
                 "cpu_ms_pump_thread": _stage(rows["cpu_pump"]),
                 "cpu_ms_critical_path": _stage(rows["cpu_critical"]),
-                "latency_ms_by_avatar_written": [_stage(v) for v in self.by_position] if len(self.names) > 1 else None,
                 "per_avatar_ms": {k: _stage(v) for k, v in self.per_avatar.items() if v},
                 "pump_thread_cpu_percent": round(100.0 * self.cpu / max(self.wall, 1e-9), 1),
                 "load_average": load}
@@ -287,7 +297,8 @@ def _summary(out: dict) -> dict:
     plus the CPU time on the critical path (the pump's thread, and the longest worker's solve when
     the avatars solve in worker processes side by side, one core each), plus a period when that
     path is longer than a period (the pump then cannot keep up: the newest frame, taken when it is
-    free, came up to a period before)."""
+    free, came up to a period before). For avatars solved one after the other in the pump's process
+    it is a bound, not an estimate: each after the first takes the newest frame when its turn comes."""
     summary = {}
     for key in ("one_avatar", "three_avatars", "three_avatars_processes"):
         for mode, r in out.get(key, {}).items():

@@ -330,7 +330,7 @@ def _set_pose(update: LiveUpdate, name: str) -> None:
 def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
     """The solved frame as the bake would key it (root motion where asked) on the pose bones."""
     rig = follower.layout  # the rig's names and root (from the worker, when the follower solves in one)
-    t = np.array([update.frame.arrival])
+    t = np.array([update.frame_of(follower.name).arrival])
     anim = AvatarAnimation(rig.armature, list(rig.names), solved.basis, rig.names[rig.root],
                            np.asarray(solved.root_location, float), t, follower.method)
     if f.rest is None:

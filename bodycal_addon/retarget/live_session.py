@@ -18,9 +18,15 @@ for each follower with its `LiveSolver` (retarget/live.py): the causal stance an
 Euro, from the frames so far only. A follower made with `worker=True` (`WorkerFollower`) solves in a
 process of its own (retarget/live_worker.py), so several avatars use several cores: the pump sends
 the frame to every worker first, solves the followers of this process meanwhile, then sets each
-worker's pose as its answer comes. The session's `clock` (pump_clock.PumpClock) learns the stream's
-beat from the frames taken and says when the next pump should look (`next_delay`); `wait` blocks
-until a frame is there, for a loop that may block.
+worker's pose as its answer comes. Each follower of this process after the first solves the newest
+frame there is when its turn comes (a frame that came during the solves before it): its pose is
+then one solve behind the stream, not the sum of the solves before it; the avatars of one pump
+show moments at most a few frames apart (`LiveUpdate.frames`). A follower left behind that way
+(solved before the newer frame came) is `behind`: the next pump is due at once and, if no newer
+frame has come by then, gives it the newest taken, so every avatar is still solved once a round of
+the others. The session's `clock`
+(pump_clock.PumpClock) learns the stream's beat from the frames taken and says when the next pump
+should look (`next_delay`); `wait` blocks until a frame is there, for a loop that may block.
 
 It imports the recorder, hence python-osc (recording/live/__init__.py): only what runs a live
 session imports it.
@@ -141,6 +147,7 @@ class Follower:
         self.order: dict[str, int] = {}  # device name -> its column in the solver's arrays
         self.marker_order: dict[str, int] = {}  # marker name -> its column (LED gloves: the fingers)
         self.stats = FollowerStats()
+        self.last_index = -1  # the newest frame (LiveFrame.index) pushed to its solver or sent to its worker
         self.waiting_for: list[str] = sorted(ANIMATED_ROLES)
         self.note = ""  # the last thing to say about it (a worker that ended), one line
         self._unsaid: list[str] = []  # lines for the pump to say (`said`)
@@ -224,6 +231,11 @@ class Follower:
             self.stats.frames += 1
         return solved
 
+    @property
+    def busy(self) -> bool:
+        """Solving a frame sent before (a worker): not to be sent the next."""
+        return False
+
     def said(self) -> list[str]:
         """The lines to say since the last call (a worker that ended, a solve that failed)."""
         lines, self._unsaid = self._unsaid, []
@@ -263,6 +275,10 @@ class WorkerFollower(Follower):
     @property
     def connection(self):
         return self.process.connection if self.process is not None else None
+
+    @property
+    def busy(self) -> bool:
+        return self.process is not None and self._in_flight is not None
 
     @property
     def ready(self) -> bool:
@@ -401,19 +417,27 @@ class WorkerFollower(Follower):
 
 @dataclass
 class LiveUpdate:
-    """What one pump brings: the frame (its device poses, internal frame) and each follower's
-    solved pose (None while it waits for devices or skipped the frame), with when (perf_counter)
-    the pump took the frame, when each follower's solve was done and when its pose was set
+    """What one pump brings: the newest frame it took (its device poses, internal frame) and each
+    follower's solved pose (None while it waits for devices or skipped the frame), with the frame
+    each pose was solved from (`frames`: the pump's first frame, or a newer one taken before a
+    follower's turn; `frame_of`), when (perf_counter) the pump took the first frame (`taken`) and
+    each follower's (`taken_at`), when each follower's solve was done and when its pose was set
     (`LiveSession.posed`): the latency's stages."""
 
     frame: LiveFrame
     poses: dict[str, SolvedFrames | None]
     taken: float = 0.0
+    frames: dict[str, LiveFrame] = field(default_factory=dict)
+    taken_at: dict[str, float] = field(default_factory=dict)
     solved_at: dict[str, float] = field(default_factory=dict)
     posed_at: dict[str, float] = field(default_factory=dict)
     pushed: set[str] = field(default_factory=set)  # the followers the frame was pushed to (here or sent)
     notes: list[str] = field(default_factory=list)  # lines to say (a worker that ended, a solve that failed)
     cpu_ms: float = 0.0  # the pump's own CPU time (this thread: solves here, hand-overs, the on_pose calls)
+
+    def frame_of(self, name: str) -> LiveFrame:
+        """The frame `name`'s pose was solved from."""
+        return self.frames.get(name, self.frame)
 
 
 class LiveSession:
@@ -568,28 +592,33 @@ class LiveSession:
     # --- the pump -------------------------------------------------------------------------------------
 
     def wait(self, timeout: float) -> bool:
-        """Block until a frame waits to be taken (True), at most `timeout` s (False); `wait(0)` only
-        says whether one does."""
-        return self.source.wait(timeout)
+        """Block until a frame waits to be taken or a follower is `behind` (True), at most `timeout`
+        s (False); `wait(0)` only says whether one does."""
+        return self.behind() or self.source.wait(timeout)
 
     def next_delay(self, now: float | None = None) -> float:
         """Seconds until the pump should look for the next frame (pump_clock.PumpClock): 0 when one
         waits, else its expected arrival from the stream's beat."""
-        return self.clock.next_delay(time.perf_counter() if now is None else now, self.source.wait(0))
+        return self.clock.next_delay(time.perf_counter() if now is None else now, self.wait(0))
 
     def pump(self, on_pose=None) -> LiveUpdate | None:
-        """Take the latest frame and solve it for every follower; None when no new frame came.
+        """Take the latest frame and solve it for every follower; None when no new frame came and
+        no follower is `behind` (else those solve the newest taken: a pump catching up).
         `on_pose(update, name)` is called as soon as each follower's pose is solved: the frame goes
         to every worker first, the followers of this process are solved (each set before the next
-        solve) while the workers solve theirs, then each worker's pose is set as its answer comes
-        (the first avatar does not wait for the others)."""
+        solve; each after the first on the newest frame there is by then) while the workers solve
+        theirs, then each worker's pose is set as its answer comes (the first avatar does not wait
+        for the others)."""
         frame = self.source.latest()
-        if frame is None:
-            return None
+        catching_up = frame is None
+        if catching_up:  # no new frame: the followers that have not solved the newest taken solve it
+            frame = self.last_frame
+            if frame is None or not self.behind():
+                return None
         c0 = time.thread_time()
         update = LiveUpdate(frame, {}, time.perf_counter())
-        self.clock.taken(frame.index, frame.arrival)
-        self.last_frame = frame
+        if not catching_up:
+            self._took(frame)
         kinds = roles = markers = None
         here, sent, shared = [], [], {}
         followers = list(self.followers.values())
@@ -605,12 +634,23 @@ class LiveSession:
                     continue
             if not follower.in_worker:
                 here.append(follower)
-            elif follower.send(frame, shared):
+            elif follower.last_index < frame.index and follower.send(frame, shared):
+                follower.last_index = frame.index
                 update.pushed.add(name)
+                update.frames[name], update.taken_at[name] = frame, update.taken
                 if follower.solving:  # its answer is waited for (not a preparation's)
                     sent.append(follower)
-        for follower in here:
+        taken = update.taken
+        for k, follower in enumerate(here):
+            newer = self.source.latest() if k else None  # came while the ones before solved
+            if newer is not None:
+                frame, update.frame, taken = newer, newer, time.perf_counter()
+                self._took(frame)
+            if follower.last_index >= frame.index:  # solved it in the pump before (this one catches up)
+                continue
+            follower.last_index = frame.index
             update.pushed.add(follower.name)
+            update.frames[follower.name], update.taken_at[follower.name] = frame, taken
             update.poses[follower.name] = follower.push(frame)
             update.solved_at[follower.name] = time.perf_counter()
             if on_pose is not None and update.poses[follower.name] is not None:
@@ -620,6 +660,17 @@ class LiveSession:
             update.notes += follower.said()
         update.cpu_ms = (time.thread_time() - c0) * 1000.0
         return update
+
+    def behind(self) -> bool:
+        """Whether a follower ready for a frame has not been given the newest one taken (an avatar
+        solved before a newer frame came, in the same pump): the next pump is due at once."""
+        frame = self.last_frame
+        return frame is not None and any(f.ready and f.last_index < frame.index and not f.busy
+                                         for f in self.followers.values())
+
+    def _took(self, frame: LiveFrame) -> None:
+        self.clock.taken(frame.index, frame.arrival)
+        self.last_frame = frame
 
     def _collect(self, update: LiveUpdate, sent: list, on_pose) -> None:
         """Each worker's pose of the frame, set as its answer comes."""
@@ -645,4 +696,4 @@ class LiveSession:
         from the frame's arrival to `at` (now when None)."""
         at = time.perf_counter() if at is None else at
         update.posed_at[name] = at
-        self.followers[name].stats.latency_ms.append((at - update.frame.arrival) * 1000.0)
+        self.followers[name].stats.latency_ms.append((at - update.frame_of(name).arrival) * 1000.0)

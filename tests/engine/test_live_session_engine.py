@@ -162,6 +162,68 @@ def test_a_follower_poses_the_fingers_from_the_streams_markers(take):
     assert fingers and np.abs(solved.basis[:, fingers] - bare.basis[:, fingers]).max() > 1e-3
 
 
+def test_each_follower_here_solves_the_newest_frame_when_its_turn_comes(take):
+    """Followers solved in this process one after the other: a frame that comes while the first
+    solves is what the next one solves (its pose one solve behind the stream, not two), and the
+    first, left behind, solves it in the next pump, due at once; each pose what a LiveSolver fed the
+    frames that follower got, its latency counted from its own frame."""
+    rec, user = take
+    avatar = procedural_avatar()
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    names = ("first", "second", "third")
+    for name in names:
+        session.follow(name, user, avatar, "egocentric")
+    arrivals = {}
+
+    def deliver(k):
+        arrivals[k] = time.perf_counter()
+        source.deliver(frame_of(rec, k, arrival=arrivals[k]))
+
+    def on_pose(update, name):
+        session.posed(update, name)
+        if name == "first" and update.frame.index % 4 == 0:  # a frame comes while the first one solves
+            deliver(update.frame.index + 1)
+
+    def pump():
+        update = session.pump(on_pose)
+        for name in update.pushed:
+            got[name].append(update.frame_of(name).index)
+            last[name] = update.poses[name]
+            assert update.frame_of(name).arrival <= update.taken_at[name] <= update.solved_at[name] \
+                <= update.posed_at[name]
+        return update
+
+    got, last = {name: [] for name in names}, {}
+    k = 0
+    for _ in range(8):
+        deliver(k)
+        update = pump()
+        assert update.frame.index == update.frame_of("third").index  # the newest the pump took
+        k = update.frame.index + 1
+        assert session.behind() == (update.frame_of("first").index < k - 1)
+        if session.behind():
+            assert session.next_delay() == 0.0 and session.wait(0.0)
+            assert pump().pushed == {"first"}  # no new frame: the one behind catches up
+        assert not session.behind() and session.pump() is None
+    # The frames delivered mid-pump (after 0, 4, 8) went to the second and third, the pump's own to
+    # the first, which then caught up.
+    assert got["first"] == list(range(11))
+    assert got["second"] == got["third"] == [1, 2, 3, 5, 6, 7, 9, 10]
+    assert source.stats.dropped == 0  # every frame taken by one follower or another
+    order = [i for i, d in enumerate(rec.devices) if d.role]
+    devices = [rec.devices[i] for i in order]
+    for name in names:
+        ref = LiveSolver(user, avatar, "egocentric", devices=devices, marker_names=list(rec.marker_names))
+        follower = session.followers[name]
+        for j in got[name]:
+            f = slice(j, j + 1)
+            want = ref.push(rec.time[f], rec.positions[f][:, order], rec.rotations[f][:, order],
+                            rec.valid[f][:, order], rec.markers[f], np.zeros((1, len(rec.marker_names)), bool))
+        assert follower.stats.frames == len(got[name]) and len(follower.stats.latency_ms) == len(got[name])
+        np.testing.assert_array_equal(last[name].basis, want.basis)
+
+
 def test_the_pump_learns_the_streams_beat_and_says_when_to_look_again(take):
     rec, _user = take
     source = Source()
@@ -226,7 +288,7 @@ def test_followers_in_worker_processes_give_live_solvers_poses_bit_for_bit(take)
             for update in updates:
                 if name not in update.pushed:
                     continue
-                want, got = ref.push_newer(*follower.arrays(update.frame)), update.poses[name]
+                want, got = ref.push_newer(*follower.arrays(update.frame_of(name))), update.poses[name]
                 if got is None:
                     continue
                 for x, y in ((got.basis, want.basis), (got.root_location, want.root_location),

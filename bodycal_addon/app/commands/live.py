@@ -97,7 +97,8 @@ class _Loop:
                 console.say(line)
             solved = update.poses.get(AVATAR)
             if solved is not None:
-                t = update.frame.sender_time if update.frame.sender_time is not None else update.frame.arrival
+                frame = update.frame_of(AVATAR)
+                t = frame.sender_time if frame.sender_time is not None else frame.arrival
                 out.send_pose_values(solved.basis[0], solved.root_location[0], t)
                 self.live.posed(update, AVATAR)
                 self.sent += 1
