@@ -45,7 +45,7 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
     use_workers: bpy.props.BoolProperty(
         name="Solve in Worker Processes", default=True,
         description="When more than one avatar follows, solve each in a process of its own so that they use several "
-                    "cores (a machine with one core solves them here)")
+                    "cores (a machine with fewer cores than avatars solves them here)")
     wizard_pause: bpy.props.FloatProperty(
         name="Begin Steps After", default=0.0, min=0.0, soft_max=10.0, unit="TIME_ABSOLUTE",
         description="The calibration wizard begins each step by itself this many seconds after the previous one "

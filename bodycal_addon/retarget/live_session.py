@@ -62,9 +62,11 @@ ANSWER_S = 2.0  # a worker that solved before and gives no answer to a frame in 
 
 def solve_in_workers(wanted: bool, avatars: int, cores: int | None = None) -> bool:
     """Whether followers should solve in worker processes: when asked, more than one avatar follows
-    and the machine has more than one core (one avatar solves fastest here: no hand-over)."""
+    and the machine has a core for each (one avatar solves fastest here: no hand-over; with fewer
+    cores than avatars the workers wait for each other's cores, and the avatars solved here one
+    after the other, each on the newest frame at its turn, are set sooner: DESIGN.md section 9)."""
     cores = os.cpu_count() if cores is None else cores
-    return bool(wanted) and avatars > 1 and (cores or 1) > 1
+    return bool(wanted) and avatars > 1 and (cores or 1) >= avatars
 
 
 def forward_filter(smooth: OneEuro | None) -> OneEuro | None:

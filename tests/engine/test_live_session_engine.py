@@ -19,7 +19,7 @@ from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.recording.live.source import LatestSlot, LiveFrame, SourceStats
 from bodycal_addon.recording.model import Device
 from bodycal_addon.retarget.live import LiveSolver
-from bodycal_addon.retarget.live_session import LiveSession, RigLayout, WorkerFollower
+from bodycal_addon.retarget.live_session import LiveSession, RigLayout, WorkerFollower, solve_in_workers
 from bodycal_addon.retarget.live_worker import ENGINE_DIR
 from bodycal_dev import synthetic
 from bodycal_dev.retarget_fixtures import procedural_avatar
@@ -417,3 +417,11 @@ def test_the_worker_imports_numpy_and_the_engine_only():
     top = set(ast.literal_eval(out.stdout.strip()))
     assert {"numpy", "bodycal_addon"} <= top
     assert not top & {"bpy", "mathutils", "pythonosc", "bodycal_dev", "tqdm", "dask"}
+
+
+def test_followers_solve_in_workers_only_with_a_core_for_each():
+    """Workers when asked, for more than one avatar, with a core each (DESIGN.md §9 "When"): three
+    avatars on two cores are solved in the pump's process, where each takes the newest frame."""
+    assert solve_in_workers(True, 2, cores=2) and solve_in_workers(True, 3, cores=4)
+    assert not solve_in_workers(True, 3, cores=2)
+    assert not solve_in_workers(True, 1, cores=8) and not solve_in_workers(False, 3, cores=8)
