@@ -215,10 +215,10 @@ class FingerSet:
         alpha = np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
         # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
         # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
-        twice = np.empty((self.n, 2))  # α and 2α: their cosines and sines in two calls
-        twice[:, 0], twice[:, 1] = alpha, 2 * alpha
+        twice = np.empty((2, self.n))  # α and 2α: their cosines and sines in two calls
+        twice[0], twice[1] = alpha, 2 * alpha
         cos, sin = np.cos(twice), np.sin(twice)
-        c1, c2, s1, s2 = cos[:, 0], cos[:, 1], sin[:, 0], sin[:, 1]
+        (c1, c2), (s1, s2) = cos, sin
         # realign: the target's yaw and pitch clamped, the flexed tip's pitch (its yaw is zero)
         ly, lz = local[..., 1], local[..., 2]
         pitch = np.arctan2(-lz, ly)
@@ -232,7 +232,7 @@ class FingerSet:
         # in the same order: a phalanx's +Y scaled by its length is its segment, summed from the MCP
         # one after the other (np.cumsum's order).
         bx, by, bz = np.ascontiguousarray(base.transpose(2, 1, 0))  # columns, (row, item) each
-        c, s = cos.T[:, None], sin.T[:, None]  # (2, 1, n): phalanges 2 and 3
+        c, s = cos[:, None], sin[:, None]  # (2, 1, n): phalanges 2 and 3
         ys, zs = c * by + s * bz, c * bz - s * by  # (2, 3, n)
         n = self.n
         rots = np.empty((n, 3, 3, 3))
