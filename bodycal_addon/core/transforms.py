@@ -181,6 +181,28 @@ def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (a.reshape(-1, 3) @ v).reshape(a.shape[:-1])
 
 
+def matmul_stack(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b item by item for two stacks of 3x3 matrices (..., 3, 3) of the same shape. numpy's
+    stacked matmul makes one BLAS call per 3x3 product (over a thousand instructions each): from
+    MANY_PRODUCTS items on, each entry is its three products summed over the whole stack at once,
+    (a_i0 b_0k + a_i1 b_1k) + a_i2 b_2k. Decision: BLAS fuses each multiply-add (FMA), these sums
+    round each step, so the last bit of an entry may differ (~1e-16) from np.matmul's."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if math.prod(a.shape[:-2]) < MANY_PRODUCTS:
+        return a @ b
+    out = np.empty(a.shape)
+    for i in range(3):
+        for k in range(3):
+            entry = out[..., i, k]
+            np.multiply(a[..., i, 0], b[..., 0, k], out=entry)
+            entry += a[..., i, 1] * b[..., 1, k]
+            entry += a[..., i, 2] * b[..., 2, k]
+    return out
+
+
+MANY_PRODUCTS = 256  # items from which `matmul_stack` sums entries over the stack (a live frame's stay np.matmul)
+
+
 # A stack of 3x3 products with fewer frames than this is one stacked matmul (one BLAS call per
 # product, no Python loop); with more, one BLAS call per stack (`stack_mul`): the same products,
 # bit for bit, either way.

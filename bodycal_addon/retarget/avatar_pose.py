@@ -34,6 +34,7 @@ from ..body.skeleton import JOINT_INDEX as JI
 from ..core.errors import BodyCalError
 from ..core.transforms import (
     EPS,
+    matmul_stack,
     mul_stack,
     quat_between,
     quat_from_rows,
@@ -666,7 +667,7 @@ class AvatarRig:
         kids, parents, fixed = self._basis_plan
         # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
         rel_t = transposed(P)
-        rel_t[kids] = P.take(kids, axis=0).swapaxes(-1, -2) @ P.take(parents, axis=0)
+        rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
         # basis^T = X^T (M^-1 M_p)^T for each bone, one stacked product (as mul_stack, bone by bone)
         basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
         # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]

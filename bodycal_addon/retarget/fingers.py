@@ -26,7 +26,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import einsum, stack_mul
+from ..core.transforms import einsum, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4
@@ -227,7 +227,7 @@ class FingerSet:
         beyond_hi = np.mod(pitch - self.pitch_hi, 2 * np.pi)
         pitch = np.where(inside, pitch, np.where(beyond_hi < self.half_excluded, self.pitch_hi, self.pitch_lo))
         flexed_pitch = np.arctan2(-(l2 * s1 + l3 * s2), l1 + l2 * c1 + l3 * c2)
-        base = ref @ _rx_rz_rx(-pitch, -yaw, flexed_pitch)
+        base = matmul_stack(ref, _rx_rz_rx(-pitch, -yaw, flexed_pitch))
         # Phalanges 2 and 3 and the joints components first (see _rx_rz_rx), the same operations
         # in the same order: a phalanx's +Y scaled by its length is its segment, summed from the MCP
         # one after the other (np.cumsum's order).
