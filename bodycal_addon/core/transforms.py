@@ -182,15 +182,16 @@ def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def matmul_stack(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a @ b item by item for two stacks of 3x3 matrices (..., 3, 3) of the same shape. numpy's
+    """a @ b item by item for stacks of 3x3 matrices (..., 3, 3) (b broadcast against a). numpy's
     stacked matmul makes one BLAS call per 3x3 product (over a thousand instructions each): from
     MANY_PRODUCTS items on, each entry is its three products summed over the whole stack at once,
     (a_i0 b_0k + a_i1 b_1k) + a_i2 b_2k. Decision: BLAS fuses each multiply-add (FMA), these sums
     round each step, so the last bit of an entry may differ (~1e-16) from np.matmul's."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    if math.prod(a.shape[:-2]) < MANY_PRODUCTS:
+    shape = a.shape if a.shape == b.shape else broadcast_shape(a.shape, b.shape)
+    if math.prod(shape[:-2]) < MANY_PRODUCTS:
         return a @ b
-    out = np.empty(a.shape)
+    out = np.empty(shape)
     for i in range(3):
         for k in range(3):
             entry = out[..., i, k]

@@ -919,7 +919,7 @@ def copy_factor(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndar
 def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
     """`copy_frames` with its right factor given (`copy_factor`)."""
     out = np.array(user_frames, float, copy=True)
-    out[:, _DELTA_COPY_ROWS] = out[:, _DELTA_COPY_ROWS] @ factor
+    out[:, _DELTA_COPY_ROWS] = matmul_stack(out[:, _DELTA_COPY_ROWS], factor)
     return out
 
 
