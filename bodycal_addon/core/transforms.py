@@ -169,10 +169,16 @@ _TRANSPOSE9 = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # row-major 3x3 -> its tran
 
 
 def transposed(a: np.ndarray) -> np.ndarray:
-    """A stack of 3x3 matrices (..., 3, 3) transposed, as a new C-ordered array: each matrix's nine
-    entries gathered by one `take` (a swapaxes copy runs numpy's loop over rows of 3, about
-    twice the work on a bake's stacks)."""
-    return a.reshape(-1, 9).take(_TRANSPOSE9, axis=1).reshape(a.shape)
+    """A stack of 3x3 matrices (..., 3, 3) transposed, as a new C-ordered array. Many matrices:
+    entry by entry, nine copies each over the whole stack (numpy's copy of a swapaxes view loops
+    over rows of 3: about four times the instructions); a few: one gather of the nine entries."""
+    if a.size < 9 * MANY_PRODUCTS:
+        return a.reshape(-1, 9).take(_TRANSPOSE9, axis=1).reshape(a.shape)
+    out = np.empty(a.shape)
+    for i in range(3):
+        for j in range(3):
+            out[..., i, j] = a[..., j, i]
+    return out
 
 
 def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
