@@ -160,7 +160,7 @@ def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 def mul_stack(m: np.ndarray, a: np.ndarray) -> np.ndarray:
     """m @ a for ONE 3x3 m and a stack a (..., 3, 3): (a^T m^T)^T, `stack_mul` on the transposed
-    stack. The transposes are gathers of each matrix's nine entries (`transposed`), C order."""
+    stack (`transposed`, in and out: the result is C-ordered)."""
     a = np.asarray(a, float)
     return transposed(stack_mul(transposed(a), np.asarray(m).T))
 
