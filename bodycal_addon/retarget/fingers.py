@@ -146,7 +146,7 @@ def _rx_rz_rx(a, b, c):
     for k in range(3):
         out[1, k] = ca * r1[k] - sa * r2[k]
         out[2, k] = sa * r1[k] + ca * r2[k]
-    return np.ascontiguousarray(np.moveaxis(out, (0, 1), (-2, -1)))
+    return np.ascontiguousarray(out.reshape(9, -1).T).reshape(np.shape(a) + (3, 3))
 
 
 @dataclass
