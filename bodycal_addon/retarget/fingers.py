@@ -241,10 +241,11 @@ class FingerSet:
         rots[:, 1:, :, 1] = ys.transpose(2, 0, 1)
         rots[:, 1:, :, 2] = zs.transpose(2, 0, 1)
         lens = self.lens_rows
-        reach = np.empty((3, 3, n))  # (phalanx, row, item)
-        reach[0] = by * lens[0]
-        reach[1] = reach[0] + ys[0] * lens[1]
-        reach[2] = reach[1] + ys[1] * lens[2]
+        reach = np.empty((3, 3, n))  # (phalanx, row, item): the segments, then their running sums
+        np.multiply(by, lens[0], out=reach[0])
+        np.multiply(ys, lens[1:, None], out=reach[1:])
+        reach[1] += reach[0]
+        reach[2] += reach[1]
         joints = np.empty((n, 4, 3))
         joints[:, 0] = mcp
         joints[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
