@@ -160,8 +160,11 @@ def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 def mul_stack(m: np.ndarray, a: np.ndarray) -> np.ndarray:
     """m @ a for ONE 3x3 m and a stack a (..., 3, 3): (a^T m^T)^T, `stack_mul` on the transposed
-    stack (`transposed`, in and out: the result is C-ordered)."""
+    stack. Many matrices: transposed in and out by `transposed` (a C-ordered result); a few (a
+    live frame's): numpy's copy of the swapaxes view in, a view out (fewer numpy calls)."""
     a = np.asarray(a, float)
+    if a.size < 9 * MANY_PRODUCTS:
+        return stack_mul(a.swapaxes(-1, -2), np.asarray(m).T).swapaxes(-1, -2)
     return transposed(stack_mul(transposed(a), np.asarray(m).T))
 
 
