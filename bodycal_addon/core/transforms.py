@@ -159,14 +159,58 @@ def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def mul_stack(m: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """m @ a for ONE 3x3 m and a stack a (..., 3, 3) (see stack_mul)."""
-    return stack_mul(np.asarray(a).swapaxes(-1, -2), np.asarray(m).T).swapaxes(-1, -2)
+    """m @ a for ONE 3x3 m and a stack a (..., 3, 3): (a^T m^T)^T, `stack_mul` on the transposed
+    stack. Many matrices: transposed in and out by `transposed` (a C-ordered result); a few (a
+    live frame's): numpy's copy of the swapaxes view in, a view out (fewer numpy calls)."""
+    a = np.asarray(a, float)
+    if a.size < 9 * MANY_PRODUCTS:
+        return stack_mul(a.swapaxes(-1, -2), np.asarray(m).T).swapaxes(-1, -2)
+    return transposed(stack_mul(transposed(a), np.asarray(m).T))
+
+
+_TRANSPOSE9 = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # row-major 3x3 -> its transpose
+
+
+def transposed(a: np.ndarray) -> np.ndarray:
+    """A stack of 3x3 matrices (..., 3, 3) transposed, as a new C-ordered array. Many matrices:
+    entry by entry, nine copies each over the whole stack (numpy's copy of a swapaxes view loops
+    over rows of 3: about four times the instructions); a few: one gather of the nine entries."""
+    if a.size < 9 * MANY_PRODUCTS:
+        return a.reshape(-1, 9).take(_TRANSPOSE9, axis=1).reshape(a.shape)
+    out = np.empty(a.shape)
+    for i in range(3):
+        for j in range(3):
+            out[..., i, j] = a[..., j, i]
+    return out
 
 
 def stack_apply(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     """a @ v for a stack of 3x3 matrices a (..., 3, 3) and ONE vector v (3,) (see stack_mul)."""
     a = np.asarray(a, float)
     return (a.reshape(-1, 3) @ v).reshape(a.shape[:-1])
+
+
+def matmul_stack(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b item by item for stacks of 3x3 matrices (..., 3, 3) (b broadcast against a). numpy's
+    stacked matmul makes one BLAS call per 3x3 product (over a thousand instructions each): from
+    MANY_PRODUCTS items on, each entry is its three products summed over the whole stack at once,
+    (a_i0 b_0k + a_i1 b_1k) + a_i2 b_2k. Decision: BLAS fuses each multiply-add (FMA), these sums
+    round each step, so the last bit of an entry may differ (~1e-16) from np.matmul's."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    shape = a.shape if a.shape == b.shape else broadcast_shape(a.shape, b.shape)
+    if math.prod(shape[:-2]) < MANY_PRODUCTS:
+        return a @ b
+    out = np.empty(shape)
+    for i in range(3):
+        for k in range(3):
+            entry = out[..., i, k]
+            np.multiply(a[..., i, 0], b[..., 0, k], out=entry)
+            entry += a[..., i, 1] * b[..., 1, k]
+            entry += a[..., i, 2] * b[..., 2, k]
+    return out
+
+
+MANY_PRODUCTS = 256  # items from which `matmul_stack` sums entries over the stack (a live frame's stay np.matmul)
 
 
 # A stack of 3x3 products with fewer frames than this is one stacked matmul (one BLAS call per
@@ -212,7 +256,13 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) to unit quaternions, w >= 0 (Shepperd's method: per item, the
     best conditioned of the four candidates, computed for the items that pick it only)."""
     m = np.asarray(m, float)
-    comp = np.ascontiguousarray(m.reshape(-1, 9).T)  # (9, N): every operation on contiguous rows
+    q = quat_from_rows(np.ascontiguousarray(m.reshape(-1, 9).T))  # (9, N): every operation on contiguous rows
+    return q.T.reshape(m.shape[:-2] + (4,))
+
+
+def quat_from_rows(comp: np.ndarray) -> np.ndarray:
+    """`matrix_to_quat` of N matrices given as their entries' rows (9, N) (m00, m01, ..., m22):
+    the quaternions' components (4, N)."""
     trace = comp[0] + comp[4] + comp[8]
     best = np.argmax(np.stack([trace, comp[0], comp[4], comp[8]]), axis=0)
     q = np.empty((4, comp.shape[1]))
@@ -225,7 +275,7 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
         q[:, cols] = _SHEPPERD[k](*comp[:, cols])  # only the candidate these items pick
     q /= np.sqrt((q * q).sum(0))
     q *= np.where(q[0] < 0, -1.0, 1.0)
-    return q.T.reshape(m.shape[:-2] + (4,))
+    return q
 
 
 _SHEPPERD = (  # matrix_to_quat's four candidates (w, x, y, z) from m00, m01, ..., m22

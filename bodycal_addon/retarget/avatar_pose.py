@@ -34,14 +34,16 @@ from ..body.skeleton import JOINT_INDEX as JI
 from ..core.errors import BodyCalError
 from ..core.transforms import (
     EPS,
-    matrix_to_quat,
+    matmul_stack,
     mul_stack,
     quat_between,
+    quat_from_rows,
     quat_to_matrix,
     stack_apply,
     stack_mul,
     stacks_apply,
     stacks_mul,
+    transposed,
     turn_between_one,
 )
 
@@ -663,11 +665,14 @@ class AvatarRig:
         """Pose-bone quaternions from bones-first armature-space pose rotations P (N, F, 3, 3):
         basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P)."""
         kids, parents, fixed = self._basis_plan
-        rel = P.copy()
-        rel[kids] = P[parents].swapaxes(-1, -2) @ P[kids]
-        # M^-1 (M_p) X for each bone, one stacked product (as mul_stack, bone by bone)
-        basis = stacks_mul(np.ascontiguousarray(rel.swapaxes(-1, -2)), fixed).swapaxes(-1, -2)
-        return matrix_to_quat(basis.swapaxes(0, 1))
+        # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
+        rel_t = transposed(P)
+        rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
+        # basis^T = X^T (M^-1 M_p)^T for each bone, one stacked product (as mul_stack, bone by bone)
+        basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
+        # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
+        n, nf = basis_t.shape[:2]
+        return quat_from_rows(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
 
     @property
     def _basis_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -914,7 +919,7 @@ def copy_factor(user_frames0: np.ndarray, avatar_frames0: np.ndarray) -> np.ndar
 def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
     """`copy_frames` with its right factor given (`copy_factor`)."""
     out = np.array(user_frames, float, copy=True)
-    out[:, _DELTA_COPY_ROWS] = out[:, _DELTA_COPY_ROWS] @ factor
+    out[:, _DELTA_COPY_ROWS] = matmul_stack(out[:, _DELTA_COPY_ROWS], factor)
     return out
 
 

@@ -26,7 +26,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import einsum, stack_mul
+from ..core.transforms import einsum, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4
@@ -132,22 +132,21 @@ _LIMITS_RAD = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS
 
 
 def _rx_rz_rx(a, b, c):
-    """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
-    angles = np.empty(np.shape(a) + (3,))
-    angles[..., 0], angles[..., 1], angles[..., 2] = a, b, c
-    cos, sin = np.cos(angles), np.sin(angles)  # the six in two calls (elementwise: the same values)
-    ca, cb, cc = cos[..., 0], cos[..., 1], cos[..., 2]
-    sa, sb, sc = sin[..., 0], sin[..., 1], sin[..., 2]
-    out = np.empty(np.shape(a) + (3, 3))
+    """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame).
+    Built components first, each entry one contiguous row of the items (numpy's loops over a
+    trailing axis of 3 cost several times more on a bake's thousands), then laid out (..., 3, 3)."""
+    angles = np.empty((3,) + np.shape(a))
+    angles[0], angles[1], angles[2] = a, b, c
+    (ca, cb, cc), (sa, sb, sc) = np.cos(angles), np.sin(angles)  # the six in two calls
+    out = np.empty((3, 3) + np.shape(a))  # (row, column, ...)
     # Rz(b) Rx(c) has rows (cb, -sb cc, sb sc), (sb, cb cc, -cb sc), (0, sc, cc); Rx(a) mixes the
     # last two, column by column as ca r1 - sa r2 and sa r1 + ca r2.
-    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = cb, -sb * cc, sb * sc
-    r1, r2 = np.empty(np.shape(a) + (3,)), np.empty(np.shape(a) + (3,))
-    r1[..., 0], r1[..., 1], r1[..., 2] = sb, cb * cc, -cb * sc
-    r2[..., 0], r2[..., 1], r2[..., 2] = 0.0, sc, cc
-    out[..., 1, :] = ca[..., None] * r1 - sa[..., None] * r2
-    out[..., 2, :] = sa[..., None] * r1 + ca[..., None] * r2
-    return out
+    out[0, 0], out[0, 1], out[0, 2] = cb, -sb * cc, sb * sc
+    r1, r2 = (sb, cb * cc, -cb * sc), (0.0, sc, cc)
+    for k in range(3):
+        out[1, k] = ca * r1[k] - sa * r2[k]
+        out[2, k] = sa * r1[k] + ca * r2[k]
+    return np.ascontiguousarray(out.reshape(9, -1).T).reshape(np.shape(a) + (3, 3))
 
 
 @dataclass
@@ -186,7 +185,7 @@ class FingerSet:
         ylo, yhi, plo, phi = _limits(np.asarray(thumb, bool) if np.ndim(thumb) else bool(thumb))
         self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi = ylo, yhi, plo, phi
         self.half_excluded = (2 * np.pi - (phi - plo)) / 2  # _clamp_angle's excluded arc, halved
-        self.lens = np.stack([l1, l2, l3], axis=-1)[..., None]  # (n, 3, 1)
+        self.lens_rows = np.stack([l1, l2, l3])  # (3, n)
         # the thumbs' roll (appendix D): every item, the thumbs (rows), or none
         if np.ndim(thumb):
             self.roll_rows = np.flatnonzero(np.asarray(thumb, bool))
@@ -216,10 +215,10 @@ class FingerSet:
         alpha = np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
         # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
         # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
-        twice = np.empty((self.n, 2))  # α and 2α: their cosines and sines in two calls
-        twice[:, 0], twice[:, 1] = alpha, 2 * alpha
+        twice = np.empty((2, self.n))  # α and 2α: their cosines and sines in two calls
+        twice[0], twice[1] = alpha, 2 * alpha
         cos, sin = np.cos(twice), np.sin(twice)
-        c1, c2, s1, s2 = cos[:, 0], cos[:, 1], sin[:, 0], sin[:, 1]
+        (c1, c2), (s1, s2) = cos, sin
         # realign: the target's yaw and pitch clamped, the flexed tip's pitch (its yaw is zero)
         ly, lz = local[..., 1], local[..., 2]
         pitch = np.arctan2(-lz, ly)
@@ -228,18 +227,28 @@ class FingerSet:
         beyond_hi = np.mod(pitch - self.pitch_hi, 2 * np.pi)
         pitch = np.where(inside, pitch, np.where(beyond_hi < self.half_excluded, self.pitch_hi, self.pitch_lo))
         flexed_pitch = np.arctan2(-(l2 * s1 + l3 * s2), l1 + l2 * c1 + l3 * c2)
-        base = ref @ _rx_rz_rx(-pitch, -yaw, flexed_pitch)
-        bx, by, bz = base[..., 0], base[..., 1], base[..., 2]
+        base = matmul_stack(ref, _rx_rz_rx(-pitch, -yaw, flexed_pitch))
+        # Phalanges 2 and 3 and the joints components first (see _rx_rz_rx), the same operations
+        # in the same order: a phalanx's +Y scaled by its length is its segment, summed from the MCP
+        # one after the other (np.cumsum's order).
+        bx, by, bz = np.ascontiguousarray(base.transpose(2, 1, 0))  # columns, (row, item) each
+        c, s = cos[:, None], sin[:, None]  # (2, 1, n): phalanges 2 and 3
+        ys, zs = c * by + s * bz, c * bz - s * by  # (2, 3, n)
         n = self.n
         rots = np.empty((n, 3, 3, 3))
         rots[:, 0] = base
-        c, s = cos[:, :, None], sin[:, :, None]  # phalanges 2 and 3 at once: (n, 2, 1)
-        rots[:, 1:, :, 0] = bx[:, None]
-        rots[:, 1:, :, 1] = c * by[:, None] + s * bz[:, None]
-        rots[:, 1:, :, 2] = c * bz[:, None] - s * by[:, None]
+        rots[:, 1:, :, 0] = bx.T[:, None]
+        rots[:, 1:, :, 1] = ys.transpose(2, 0, 1)
+        rots[:, 1:, :, 2] = zs.transpose(2, 0, 1)
+        lens = self.lens_rows
+        reach = np.empty((3, 3, n))  # (phalanx, row, item): the segments, then their running sums
+        np.multiply(by, lens[0], out=reach[0])
+        np.multiply(ys, lens[1:, None], out=reach[1:])
+        reach[1] += reach[0]
+        reach[2] += reach[1]
         joints = np.empty((n, 4, 3))
         joints[:, 0] = mcp
-        joints[:, 1:] = mcp[:, None] + np.cumsum(rots[..., :, 1] * self.lens, axis=1)
+        joints[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
         return FingerPose(joints, rots, alpha, yaw, pitch)
 
 

@@ -24,7 +24,7 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
-from ..core.transforms import einsum, normalize, stacks_apply, stacks_mul
+from ..core.transforms import einsum, matmul_stack, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
@@ -261,13 +261,15 @@ class PreparedSolver:
                 # what the IK changes between aiming at the copied skull base and at the target.
                 # Where they agree (the same body) the source's spine comes back as it was.
                 held = solve_spine(fk.joints[:, JI["skull_base"]])
-                frames[:, spine_idx] = res.rotations @ held.rotations.swapaxes(-1, -2) @ up.frames[:, spine_idx]
+                frames[:, spine_idx] = matmul_stack(matmul_stack(res.rotations, held.rotations.swapaxes(-1, -2)),
+                                                    up.frames[:, spine_idx])
             else:
                 frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
             for s in sk.SIDES:
                 c = BI[f"clavicle_{s}"]
-                frames[:, c] = frames[:, v5] @ up.frames[:, v5].swapaxes(-1, -2) @ up.frames[:, c]
+                frames[:, c] = matmul_stack(matmul_stack(frames[:, v5], up.frames[:, v5].swapaxes(-1, -2)),
+                                            up.frames[:, c])
         # The limbs hang from the trunk as solved now (or as given).
         items, names, rows = self._limb_items(tuple(targets))
         at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints.take(rows, axis=1)

@@ -39,6 +39,7 @@ from ..core.transforms import (
     cross,
     einsum,
     frame_from_axes,
+    matmul_stack,
     normalize,
     quat_between,
     quat_to_matrix,
@@ -412,7 +413,7 @@ def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndar
         fix = quat_to_matrix(quat_between(x_rigid, toward))
     else:  # one frame: the same bits in Python floats
         fix = np.array([fix])
-    return fix @ sacrum
+    return matmul_stack(fix, sacrum)
 
 
 def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):

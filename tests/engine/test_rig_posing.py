@@ -69,3 +69,24 @@ def test_a_few_frames_surface_is_the_grouped_one(monkeypatch):
             assert few.tri.shape == grouped.tri.shape and few.tri.size
             np.testing.assert_allclose(few.tri, grouped.tri, rtol=0, atol=1e-12)
             np.testing.assert_allclose(few.tri_normal, grouped.tri_normal, rtol=0, atol=1e-12)
+
+
+def test_stacked_3x3_helpers_against_numpy():
+    """transforms.transposed and mul_stack are numpy's transpose and products to the bit;
+    matmul_stack is np.matmul for a few items and within rounding (its sums are not fused
+    multiply-adds) for many, whatever the operands' layout."""
+    from bodycal_addon.core import transforms as tf
+
+    rng = np.random.default_rng(3)
+    stack = rng.normal(size=(4, 300, 3, 3))
+    m = rng.normal(size=(3, 3))
+    np.testing.assert_array_equal(tf.transposed(stack), stack.swapaxes(-1, -2))
+    np.testing.assert_array_equal(tf.mul_stack(m, stack),
+                                  tf.stack_mul(np.ascontiguousarray(stack.swapaxes(-1, -2)), m.T).swapaxes(-1, -2))
+    other = rng.normal(size=stack.shape)
+    few = stack[0, :tf.MANY_PRODUCTS - 1]
+    np.testing.assert_array_equal(tf.matmul_stack(few, other[0, :len(few)]), few @ other[0, :len(few)])
+    for a in (stack, stack.swapaxes(-1, -2)):  # contiguous and transposed operands
+        got = tf.matmul_stack(a, other)
+        np.testing.assert_allclose(got, a @ other, rtol=0, atol=1e-14)
+        assert got.flags.c_contiguous

@@ -119,6 +119,7 @@ def _closest_on_triangles(ap, ab, ac):
     e_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
     # Ericson's early returns in order A, B, AB, C, AC, BC, inside: applied in reverse so the
     # first region that holds wins.
+    # (in place on the inside's arrays, this call's own: np.where's selection without its copies)
     bv, bw = inside_v, inside_w
     for cond, cv, cw in (((va <= 0) & (d4 >= d3) & (d5 >= d6), 1 - e_bc, e_bc),
                          ((vb <= 0) & (d2 >= 0) & (d6 <= 0), 0.0, e_ac),
@@ -126,8 +127,8 @@ def _closest_on_triangles(ap, ab, ac):
                          ((vc <= 0) & (d1 >= 0) & (d3 <= 0), e_ab, 0.0),
                          ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),
                          ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):
-        bv = np.where(cond, cv, bv)
-        bw = np.where(cond, cw, bw)
+        np.putmask(bv, cond, cv)
+        np.putmask(bw, cond, cw)
     return bv, bw
 
 
