@@ -43,25 +43,13 @@ import numpy as np  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
 from bodycal_addon.recording.io import load_recording  # noqa: E402
 from bodycal_addon.recording.live.recorder import LiveRecorder  # noqa: E402
-from bodycal_addon.recording.live.source import LiveFrame  # noqa: E402
 from bodycal_addon.recording.live.wizard import LiveWizard  # noqa: E402
+from bodycal_dev.live_takes import live_frame, roles_of, wizard_over_steps  # noqa: E402
 
 DEMO = ROOT / "sample_rigs" / "recordings" / "demo_full.bcrec.json"
 FPS = 90.0
 KINDS = {"hold": "tpose", "palms": "palms_together", "flex": "flex_elbow_l", "swing": "swing_hip_l",
          "touch": "touch:mcp_index_l:index_tip_r"}
-
-
-def frame(rec, k: int, t: float | None = None) -> LiveFrame:
-    v, mv = rec.valid[k], rec.marker_valid[k]
-    t = float(rec.time[k]) if t is None else t
-    return LiveFrame(k, t, t, tuple(d.name for d, ok in zip(rec.devices, v, strict=True) if ok), rec.positions[k, v],
-                     rec.rotations[k, v], tuple(n for n, ok in zip(rec.marker_names, mv, strict=True) if ok),
-                     rec.markers[k, mv])
-
-
-def roles(rec) -> dict[str, str]:
-    return {d.name: d.role for d in rec.devices if d.role}
 
 
 SIX = ("head", "hand_l", "hand_r", "pelvis", "foot_l", "foot_r")
@@ -77,12 +65,12 @@ def six_devices(rec):
 
 
 def demo_section(rec) -> dict:
-    recorder = LiveRecorder("live", roles(rec))
-    wizard = LiveWizard(recorder, roles(rec), rec.marker_names, auto=True)
+    recorder = LiveRecorder("live", roles_of(rec))
+    wizard = LiveWizard(recorder, roles_of(rec), rec.marker_names, auto=True)
     segs = [s for s in rec.segments if s.step != "motion"]
     took = {}
     for k in range(rec.frame_count):
-        recorder(frame(rec, k))
+        recorder(live_frame(rec, k))
         i = wizard.index
         if i < len(segs) and not wizard.active and rec.time[k] >= segs[i].start:
             wizard.begin()
@@ -125,30 +113,16 @@ def touches_section(calls: int = 200) -> dict:
     part = rec.window(0, int(rec.frames(0.0, rec.segments_of("motion")[0].start)[-1]))
     part.segments = [s for s in rec.segments if s.step != "motion"]
     segs = {s.label: s for s in part.segments}
-    recorder = LiveRecorder("live", roles(part))
-    wizard = LiveWizard(recorder, roles(part), part.marker_names, auto=True)
-    planned_as_performed = sorted(s.label for s in wizard.steps) == sorted(segs)
-    wizard.steps.sort(key=lambda st: list(segs).index(st.label))
-    took, pivot_ms = {}, None
-    for k in range(part.frame_count):
-        recorder(frame(part, k))
-        step, t = wizard.current, float(part.time[k])
-        if step is None or t < segs[step.label].start:
-            continue
-        if not wizard.active:
-            wizard.begin()
-        if step.step.startswith(("tpose", "stand", "flex", "swing")):
-            if t >= segs[step.label].end:
-                wizard.end_step()
-            continue
-        if pivot_ms is None and step.step.startswith("pivot") and t - segs[step.label].start >= 2.0:
+    pivot_ms = []
+
+    def time_a_pivot(wizard, step, t):  # a pivot's update() after 2 s of it, once
+        if not pivot_ms and step.step.startswith("pivot") and t - segs[step.label].start >= 2.0:
             t0 = time.process_time()
             for _ in range(calls):
                 wizard.measure()
-            pivot_ms = (time.process_time() - t0) / calls * 1000
-        wizard.update()
-        if not wizard.active:
-            took[step.label] = t - segs[step.label].start
+            pivot_ms.append((time.process_time() - t0) / calls * 1000)
+
+    recorder, wizard, planned_as_performed, took = wizard_over_steps(part, time_a_pivot)
     kinds = {}
     for kind in ("pivot", "touch"):
         labels = [label for label in segs if label.startswith(kind)]
@@ -169,19 +143,19 @@ def touches_section(calls: int = 200) -> dict:
     return {"planned_as_performed": planned_as_performed, "kinds": kinds, "body_mm_max": round(diff[worst], 2),
             "body_mm_worst": worst, "body_mm_median": round(float(np.median(list(diff.values()))), 2),
             "warnings": len(live.calibration["warnings"]), "tip_vs_calibration_mm": tips,
-            "pivot_update_ms": None if pivot_ms is None else round(pivot_ms, 3)}
+            "pivot_update_ms": round(pivot_ms[0], 3) if pivot_ms else None}
 
 
 def cost_section(rec, minutes: float, calls: int = 200) -> dict:
-    recorder = LiveRecorder("long", roles(rec))
-    wizard = LiveWizard(recorder, roles(rec), rec.marker_names, auto=False)
+    recorder = LiveRecorder("long", roles_of(rec))
+    wizard = LiveWizard(recorder, roles_of(rec), rec.marker_names, auto=False)
     labels = [s.label for s in wizard.steps]
     j = 0
 
     def feed(seconds: float) -> None:
         nonlocal j
         for _ in range(int(round(seconds * FPS))):
-            recorder(frame(rec, j % rec.frame_count, j / FPS))
+            recorder(live_frame(rec, j % rec.frame_count, j / FPS))
             j += 1
 
     def measure() -> dict:

@@ -158,6 +158,9 @@ def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:
     return (a.reshape(-1, 3) @ m).reshape(a.shape)
 
 
+MANY_PRODUCTS = 256  # items from which `matmul_stack` sums entries over the stack (a live frame's stay np.matmul)
+
+
 def mul_stack(m: np.ndarray, a: np.ndarray) -> np.ndarray:
     """m @ a for ONE 3x3 m and a stack a (..., 3, 3): (a^T m^T)^T, `stack_mul` on the transposed
     stack. Many matrices: transposed in and out by `transposed` (a C-ordered result); a few (a
@@ -208,9 +211,6 @@ def matmul_stack(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             entry += a[..., i, 1] * b[..., 1, k]
             entry += a[..., i, 2] * b[..., 2, k]
     return out
-
-
-MANY_PRODUCTS = 256  # items from which `matmul_stack` sums entries over the stack (a live frame's stay np.matmul)
 
 
 # A stack of 3x3 products with fewer frames than this is one stacked matmul (one BLAS call per

@@ -63,6 +63,11 @@ class Stance:
     # FOLLOW of an easing (not the whole easing out: a point easing out has left the floor)
 
 
+def _smoothstep(s: np.ndarray) -> np.ndarray:
+    """3s^2 - 2s^3 of s in [0, 1]: the easings' C1 ramp."""
+    return s * s * (3.0 - 2.0 * s)
+
+
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
     if n <= 1 or len(x) < 2:
         return x
@@ -145,11 +150,11 @@ def eased(stance: np.ndarray, n: int, n_out: int | None = None) -> Stance:
         near_next = before < np.where(t < starts[0], np.iinfo(np.int64).max, after)
         length = np.where(near_next | stance, n, n_out)
         s = np.clip(1.0 - gap / (np.minimum(length, span // 2) + 1.0), 0.0, 1.0)
-        weight = s * s * (3.0 - 2.0 * s)
+        weight = _smoothstep(s)
         # inside a stance: frames to its nearer end
         depth = np.where(stance, np.minimum(t - starts[k] + 1, stops[k] - t), 0)
         s = np.clip(depth / (n + 1.0), 0.0, 1.0)
-        inner = s * s * (3.0 - 2.0 * s)
+        inner = _smoothstep(s)
         # the stance each frame eases toward (inside: its own)
         label = np.where(weight > 0, np.where(near_next & ~stance, k2, k), -1)
         label = np.where(t < starts[0], np.where(weight > 0, 0, -1), label)
@@ -157,7 +162,7 @@ def eased(stance: np.ndarray, n: int, n_out: int | None = None) -> Stance:
         # fades over a few frames rather than stopping (`pivot_share` counts it: a step there was a
         # step in the pivot; over the whole easing out it pulled the pivot toward a lifted point)
         s = np.clip(1.0 - after / (max(1, int(round(n * FOLLOW))) + 1.0), 0.0, 1.0)
-        lead = np.where(near_next | stance | (t < starts[0]), weight, s * s * (3.0 - 2.0 * s))
+        lead = np.where(near_next | stance | (t < starts[0]), weight, _smoothstep(s))
         return Stance(weight, label, len(starts), inner, lead)
     return Stance(weight, label, len(starts), inner, weight)
 
@@ -274,7 +279,7 @@ def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np
         if gap.any():
             a, b = prev[g], nxt[g]
             u = np.clip((t - a) / np.maximum(b - a, 1), 0.0, 1.0)
-            u = u * u * (3.0 - 2.0 * u)
+            u = _smoothstep(u)
 
             def across(x):
                 p, q = x[a], x[b]
@@ -321,7 +326,7 @@ def _follow_weights(t: np.ndarray, edge: np.ndarray, m: int) -> np.ndarray:
     method's: 0 at the contact's `edge` (F,), rising smoothly to 1 `m` frames from it (the step's
     frame further from the edge counts: t after the edge, t-1 before it)."""
     u = np.clip(np.abs(t - edge) / float(m), 0.0, 1.0)
-    r = u * u * (3.0 - 2.0 * u)
+    r = _smoothstep(u)
     return np.where(t > edge, r, np.concatenate([r[:1], r[:-1]]))
 
 

@@ -22,8 +22,8 @@ from bodycal_addon.recording.io import load_recording
 from bodycal_addon.recording.live import progress as pg
 from bodycal_addon.recording.live import wizard as wz
 from bodycal_addon.recording.live.recorder import LiveRecorder
-from bodycal_addon.recording.live.source import LiveFrame
 from bodycal_addon.recording.live.wizard import LiveWizard
+from bodycal_dev.live_takes import live_frame, roles_of, wizard_over_steps
 
 DEMO = REPO / "sample_rigs" / "recordings" / "demo_full.bcrec.json"
 AUTO_BODY_MM = 6.0  # measured: 4.9 mm at most (shoulder_l) over every joint, see test_auto_mode_...
@@ -41,19 +41,6 @@ def demo():
 @pytest.fixture(scope="module")
 def demo_model(demo):
     return calibrate_user(demo, name="demo_full")
-
-
-def live_frame(rec, k: int, time_s: float | None = None) -> LiveFrame:
-    """Frame k of a recording as a live source hands it out (the sender's clock = the take's)."""
-    v, mv = rec.valid[k], rec.marker_valid[k]
-    t = float(rec.time[k]) if time_s is None else time_s
-    return LiveFrame(k, t, t, tuple(d.name for d, ok in zip(rec.devices, v, strict=True) if ok),
-                     rec.positions[k, v], rec.rotations[k, v],
-                     tuple(n for n, ok in zip(rec.marker_names, mv, strict=True) if ok), rec.markers[k, mv])
-
-
-def roles_of(rec) -> dict[str, str]:
-    return {d.name: d.role for d in rec.devices if d.role}
 
 
 def steps_of(rec):
@@ -219,25 +206,8 @@ def test_six_devices_pivots_and_touches_end_by_themselves_on_an_outside_recordin
     part = rec.window(0, int(rec.frames(0.0, rec.segments_of("motion")[0].start)[-1]))
     part.segments = steps_of(rec)
     segs = {s.label: s for s in part.segments}
-    recorder = LiveRecorder("live", roles_of(part))
-    wizard = LiveWizard(recorder, roles_of(part), part.marker_names, auto=True)
-    assert sorted(s.label for s in wizard.steps) == sorted(segs)
-    wizard.steps.sort(key=lambda st: list(segs).index(st.label))
-    took = {}
-    for k in range(part.frame_count):
-        recorder(live_frame(part, k))
-        step, t = wizard.current, float(part.time[k])
-        if step is None or t < segs[step.label].start:
-            continue
-        if not wizard.active:
-            wizard.begin()
-        if step.step.startswith(("tpose", "stand", "flex", "swing")):
-            if t >= segs[step.label].end:
-                wizard.end_step()
-            continue
-        wizard.update()
-        if not wizard.active:
-            took[step.label] = t - segs[step.label].start
+    recorder, wizard, planned_as_performed, took = wizard_over_steps(part)
+    assert planned_as_performed
     ours = [label for label in segs if label.startswith(("pivot", "touch"))]
     assert wizard.finished and sorted(took) == sorted(ours)
     assert all(took[label] <= segs[label].end - segs[label].start for label in ours), took
