@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -55,12 +56,36 @@ class RootRest:
     lateral: np.ndarray  # (3,) the rest hip line (right to left) in armature space
     world_linear: np.ndarray  # (3, 3) the armature object's matrix_world linear part
 
+    # Derived once per rest (the live follow converts every frame with the same one).
+    @cached_property
+    def floor_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the rest hip line on the floor (unit), the floor axis a quarter turn from it about the
+        up, the rest hip line in the pelvis bone's frame)."""
+        up = self.up
+        e1 = self.lateral - np.dot(self.lateral, up) * up
+        n = np.linalg.norm(e1)
+        if n < 1e-9:
+            raise BodyCalError("the rest hip line is vertical: the heading on the floor is undefined",
+                               field="root_motion", hint="use --root-motion pelvis")
+        e1 = e1 / n
+        return e1, np.cross(up, e1), self.pelvis_matrix.T @ self.lateral
 
-def _turn_about(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) rotations by `angle` (F,) about the unit `axis` (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    @cached_property
+    def up_terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """The up's cross-product matrix and outer product (Rodrigues' turn about it)."""
+        a = self.up
+        return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]]), np.outer(a, a)
+
+
+def _turn_about(terms: tuple[np.ndarray, np.ndarray], angle: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) rotations by `angle` (F,) about a unit axis given by its `terms` (its cross-product
+    matrix and outer product: Rodrigues)."""
+    k, outer = terms
     c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
-    return c * np.eye(3) + s * k + (1.0 - c) * np.outer(axis, axis)
+    return c * _EYE + s * k + (1.0 - c) * outer
+
+
+_EYE = np.eye(3)
 
 
 def pelvis_pose(anim: AvatarAnimation, rest: RootRest) -> tuple[np.ndarray, np.ndarray]:
@@ -76,16 +101,10 @@ def heading(P: np.ndarray, rest: RootRest) -> np.ndarray:
     """(F,) the pelvis's turn about the vertical since rest (radians, unwrapped): its hip line's
     direction on the floor. The hip line stays level when the trunk bends forward, so the heading
     holds through a bow where the pelvis's forward axis would tip towards the floor."""
-    up = rest.up
-    e1 = rest.lateral - np.dot(rest.lateral, up) * up
-    n = np.linalg.norm(e1)
-    if n < 1e-9:
-        raise BodyCalError("the rest hip line is vertical: the heading on the floor is undefined", field="root_motion",
-                           hint="use --root-motion pelvis")
-    e1 /= n
-    e2 = np.cross(up, e1)
-    lat = P @ (rest.pelvis_matrix.T @ rest.lateral)
-    return np.unwrap(np.arctan2(lat @ e2, lat @ e1))
+    e1, e2, lat_local = rest.floor_axes
+    lat = P @ lat_local
+    angle = np.arctan2(lat @ e2, lat @ e1)
+    return np.unwrap(angle) if len(angle) > 1 else angle
 
 
 def apply_root_motion(anim: AvatarAnimation, rest: RootRest, mode: str, *, own: bool = False) -> AvatarAnimation:
@@ -113,13 +132,15 @@ def apply_root_motion(anim: AvatarAnimation, rest: RootRest, mode: str, *, own: 
         out.notes = [*anim.notes, "in place: the pelvis's horizontal travel removed"]
         return out
     Mr, hr = rest.root_matrix, rest.root_head
-    D = _turn_about(up, heading(P, rest))
+    D = _turn_about(rest.up_terms, heading(P, rest))
     Hr = H - ((H - hr) @ up)[:, None] * up  # on the root's rest floor, under the pelvis's head
     t = Hr - D @ hr
     Dt = np.swapaxes(D, -1, -2)
-    out.rotations[:, pel] = matrix_to_quat(Mp.T @ Dt @ P)
+    # the pelvis's and the root's bases in one conversion (each item's quaternion is its own)
+    bases = matrix_to_quat(np.concatenate([Mp.T @ Dt @ P, Mr.T @ D @ Mr]))
+    out.rotations[:, pel] = bases[:len(P)]
     out.root_location = ((Dt @ (H - t - D @ hp)[..., None])[..., 0]) @ Mp
-    root_basis = matrix_to_quat(Mr.T @ D @ Mr)
+    root_basis = bases[len(P):]
     if rest.root_bone in anim.bone_names:
         out.rotations[:, anim.bone_names.index(rest.root_bone)] = root_basis
     else:

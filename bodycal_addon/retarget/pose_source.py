@@ -83,12 +83,12 @@ class RecordingSource:
     def pose(self, start, stop, rest):
         if self._animator is None:
             self._animator = UserAnimator(self.recording, self.model, rest, self.reader)
-        return self._animator.animate(start, stop)
+        return self._animator.animate(start, stop, self.trackers(start, stop))
 
     def trackers(self, start=0, stop=None):
         if start or stop is not None:
-            # the feet's plan asks for the same frames' ankles, feet and trackers in turn (a live
-            # stream: every frame): read once
+            # the user animation and then the feet's plan ask for the same frames' trackers, ankles
+            # and feet in turn (a live stream: every frame): read once
             if getattr(self, "_block", (None,))[0] != (start, stop, self.frame_count):
                 self._block = ((start, stop, self.frame_count), self.reader.read(start, stop))
             return self._block[1]

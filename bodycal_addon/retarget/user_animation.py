@@ -290,12 +290,13 @@ class UserAnimator:
 
     # --- per block of frames ------------------------------------------------------------------
 
-    def animate(self, start: int = 0, stop: int | None = None) -> UserPose:
-        """The canonical joints and bone frames of frames [start, stop)."""
+    def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None) -> UserPose:
+        """The canonical joints and bone frames of frames [start, stop); `trackers`: those frames'
+        as `self.reader` reads them, when the caller has them already."""
         plan = self.plan
         tab = self._tables
         stop = self.recording.frame_count if stop is None else stop
-        tr = self.reader.read(start, stop)
+        tr = self.reader.read(start, stop) if trackers is None else trackers
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
         est = tr.positions.take(tab["est_rows"], axis=0) + prod.take(tab["est_vec"], axis=0)
         rigid = stacks_mul(tr.rotations, tab["rigid"], tab["rigid_rows"])
