@@ -186,13 +186,16 @@ class FingerSet:
         self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi = ylo, yhi, plo, phi
         self.half_excluded = (2 * np.pi - (phi - plo)) / 2  # _clamp_angle's excluded arc, halved
         self.lens_rows = np.stack([l1, l2, l3])  # (3, n)
-        # the thumbs' roll (appendix D): every item, the thumbs (rows), or none
+        # the thumbs' roll (appendix D): every item, the thumbs (rows), or none; a roll of zero
+        # (a user's thumb, whose frame carries its own) turns nothing
+        turn = THUMB_ROLL if roll is None else roll
+        turns = bool(np.any(np.asarray(turn) != 0))
         if np.ndim(thumb):
             self.roll_rows = np.flatnonzero(np.asarray(thumb, bool))
-            self.roll = _ry(THUMB_ROLL if roll is None else roll) if len(self.roll_rows) else None
+            self.roll = _ry(turn) if len(self.roll_rows) and turns else None
         else:
             self.roll_rows = None
-            self.roll = _ry(THUMB_ROLL if roll is None else roll) if thumb or roll is not None else None
+            self.roll = _ry(turn) if (thumb or roll is not None) and turns else None
 
     def pose(self, mcp, ref_rot, tip_target) -> FingerPose:
         """pose_finger of these items: mcp (n, 3), ref_rot (n, 3, 3), tip_target (n, 3)."""
