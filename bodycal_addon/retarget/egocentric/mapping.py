@@ -41,6 +41,9 @@ class _Plan:
     floor_starts: list[np.ndarray]  # per side: (P,)
     # Both sides' entries one after the other, and their starts (2P,): one reduceat for both
     floor_both: tuple[np.ndarray, np.ndarray] | None = None
+    # (E,) each element's root when every pair has a chain and every target's row of elements has
+    # the same roots (a group's plan): the chains' roots broadcast over the targets, not gathered
+    root_cols: np.ndarray | None = None
 
 
 def _entries(paths):
@@ -90,8 +93,12 @@ def _row_plan(target_names: tuple[str, ...], row_ids: tuple[tuple[str, ...], ...
         floor_bone.append(b)
         floor_starts.append(st)
     both = (np.concatenate(floor_bone), np.concatenate([floor_starts[0], floor_starts[1] + len(floor_bone[0])]))
-    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
-                 table, used, floor_bone, floor_starts, both)
+    chain_root = np.array(cr, int)
+    root_cols = None
+    if len(pe) == P * E and P and E and np.all(chain_root.reshape(P, E) == chain_root[:E]):
+        root_cols = chain_root[:E].copy()
+    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, chain_root, order, np.argsort(order), slots,
+                 table, used, floor_bone, floor_starts, both, root_cols)
 
 
 # index arrays (a list index is converted on every call)
@@ -525,7 +532,7 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
             dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
             tau[:n] += dots[-1]
     tau = tau.take(plan.unorder, axis=0).T
-    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
+    tau += np.abs(_dot(vhat, _from_roots(pr.x, nodes_u, plan)))
     pr.dist = pr.factor = None  # spent on the weights
     none = lam.sum(-1) <= 0  # no element with weight (all excluded)
     return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots, tau_ok=tau > EPS,
@@ -536,6 +543,14 @@ def _chains(a, plan: _Plan):
     """(3, F, P, E) -> (3, F, N): the pairs that have a chain (a view when all do)."""
     flat = a.reshape(a.shape[:2] + (-1,))
     return flat if plan.dense else flat.take(plan.chain_pe, axis=2)
+
+
+def _from_roots(x, nodes, plan: _Plan) -> np.ndarray:
+    """(3, F, N) x - r of each chain, x (3, F, P, E), r the chain's root node (nodes (3, F, nodes))."""
+    if plan.root_cols is None:
+        return _chains(x, plan) - nodes.take(plan.chain_root, axis=2)
+    F = x.shape[1]
+    return (x - nodes.take(plan.root_cols, axis=2)[:, :, None, :]).reshape(3, F, -1)
 
 
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
@@ -558,7 +573,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     E = pr.v.shape[-1]
     x_av, v_av = _repose(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
-    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
+    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _from_roots(x_av, nodes_a, plan)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau_ok)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
