@@ -518,7 +518,7 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
-    vt = np.ascontiguousarray(vhat.take(plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
+    vt = vhat.transpose(0, 2, 1).take(plan.order, axis=1)  # (3, N, F) contiguous, longest first: one copy
     if F * vt.shape[1] <= MERGED_PAIRS and len(plan.slot_table):
         # A few frames: every slot at once (the padding's dots are exact zeros; the sum over the
         # slots runs in their order, as the loop below adds them).
@@ -531,7 +531,7 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
             n = len(bones)
             dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
             tau[:n] += dots[-1]
-    tau = tau.take(plan.unorder, axis=0).T
+    tau = tau.T.take(plan.unorder, axis=1)  # (F, N) contiguous (a transposed view made every use strided)
     tau += np.abs(_dot(vhat, _from_roots(pr.x, nodes_u, plan)))
     pr.dist = pr.factor = None  # spent on the weights
     none = lam.sum(-1) <= 0  # no element with weight (all excluded)
@@ -561,7 +561,7 @@ def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
         out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
         for bones, d in zip(plan.slot_bones, b.dots):
             out[:len(bones)] += d * lratio.take(bones, axis=0)
-    return out.take(plan.unorder, axis=0).T
+    return out.T.take(plan.unorder, axis=1)
 
 
 def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v,
