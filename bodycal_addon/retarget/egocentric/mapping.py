@@ -243,8 +243,11 @@ class PreparedTargets:
     pipeline maps the arms twice (against the arms where the first pass put them) and pays for
     the user's side once. Built by `prepare_targets`."""
 
-    def __init__(self, pts, names, user_surface, ub, floor, groups, whole=None):
+    def __init__(self, pts, names, user_surface, ub, floor, groups, whole=None, layout=None):
         self.pts, self.names, self.user_surface, self.floor, self.groups = pts, names, user_surface, floor, groups
+        # `_todo`'s and `_avatar_rows`' answers depend on the targets, elements and grouping only:
+        # kept per `layout` (a few frames' key, the same every live frame), else per instance
+        self._cache = {} if layout is None else _layout_cache(layout)
         self.whole = whole  # every target on every element at once (_project), when the groups share it
         self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
         self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the gathers
@@ -318,8 +321,8 @@ class PreparedTargets:
         """(the avatar surface's elements the groups of `targets` are mapped on, ascending (None:
         all of them), {group: its elements among those (None: all)}), once per target set and
         avatar element list; refuses a surface that lacks an element a group is mapped on."""
-        cache = self.__dict__.setdefault("_rows_cache", {})
-        key = (targets, avatar_ids)
+        cache = self._cache
+        key = ("rows", targets, avatar_ids)
         if key not in cache:
             user_ids = tuple(self.user_surface.element_ids)
             at = {eid: i for i, eid in enumerate(avatar_ids)}
@@ -353,12 +356,14 @@ class PreparedTargets:
     def _todo(self, targets: tuple | None) -> tuple:
         """(the rows of `targets` (None: all), [(index, group)] of the groups that map them]), once
         per target set."""
-        cache = self.__dict__.setdefault("_todo_cache", {})
-        if targets not in cache:
+        cache = self._cache
+        key = ("todo", targets)
+        if key not in cache:
             wanted = None if targets is None else np.array([self.names.index(n) for n in targets], int)
-            cache[targets] = (wanted, [(gi, g) for gi, g in enumerate(self.groups)
-                                       if wanted is None or not set(wanted.tolist()).isdisjoint(g.targets.tolist())])
-        return cache[targets]
+            cache[key] = (wanted, tuple(gi for gi, g in enumerate(self.groups)
+                                        if wanted is None or not set(wanted.tolist()).isdisjoint(g.targets.tolist())))
+        wanted, gis = cache[key]
+        return wanted, [(gi, self.groups[gi]) for gi in gis]
 
 
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
@@ -405,7 +410,8 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
             blocks = [_prepare_block(0, F, pts[:, members], plan, user_surface, ubt, nodes_u, floor,
                                      penetration_tolerance, falloff, pr)] if F else []
             groups.append(_Group(members, group_names, None, plan, blocks, pairs, columns))
-        return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+        return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole,
+                               layout=(names, ids, roots, extra))
     for members, group_names, keep, plan, _ in _grouping(names, ids, roots, extra):
         sub = user_surface if keep is None else user_surface.select(keep)
         _check_joints(sub, plan, group_names, "user")
@@ -420,6 +426,17 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
 
 
 MERGED_PAIRS = 2_000  # frames x targets x elements up to which every group shares one projection
+
+_LAYOUTS: dict = {}
+
+
+def _layout_cache(layout: tuple) -> dict:
+    """The answers `PreparedTargets._todo` and `_avatar_rows` keep for a few frames' layout (the
+    target names, element ids and roots, the exclusions), shared by every PreparedTargets of that
+    layout (a live session prepares one a frame); at most 64 layouts kept."""
+    if layout not in _LAYOUTS and len(_LAYOUTS) >= 64:
+        _LAYOUTS.clear()
+    return _LAYOUTS.setdefault(layout, {})
 
 
 def _take_pairs(a: np.ndarray, pairs: np.ndarray, shape: tuple) -> np.ndarray:
