@@ -453,3 +453,21 @@ def test_a_block_mapped_by_group_takes_an_avatar_surface_of_the_elements_its_tar
     np.testing.assert_array_equal(prepared.map(eg.pose_surface(avatar, av_joints, rots, trunk), targets=lower), whole)
     with pytest.raises(BodyCalError, match="lacks elements"):
         prepared.map(eg.pose_surface(avatar, av_joints, rots, trunk), targets=["wrist_l"])
+
+
+def test_chain_roots_broadcast_over_a_group_equal_the_gathered_roots():
+    """A group's plan (every target on the same elements) takes the chains' roots by element and
+    broadcasts them over its targets (`_Plan.root_cols`): the same x - r, bit for bit, as the roots
+    gathered per chain; a plan whose targets have other elements has no such columns."""
+    from bodycal_addon.retarget.egocentric import mapping as egm
+    ids = ("capsule:upperarm_l", "capsule:thigh_r", "sphere:head")
+    roots = ("shoulder_l", "hip_r", "skull_base")
+    plan = egm._plan(("wrist_r", "ankle_l", "tip_index_r"), ids, roots)
+    assert plan.root_cols is not None and plan.dense
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((3, 5, 3, len(ids))).astype(np.float32)
+    nodes = rng.standard_normal((3, 5, len(eg.GRAPH_NODES))).astype(np.float32)
+    gathered = egm._chains(x, plan) - nodes.take(plan.chain_root, axis=2)
+    assert np.array_equal(egm._from_roots(x, nodes, plan), gathered)
+    rows = egm._row_plan(("wrist_r", "ankle_l"), (ids, ids[::-1]), (roots, roots[::-1]), (frozenset(),) * 2)
+    assert rows.root_cols is None

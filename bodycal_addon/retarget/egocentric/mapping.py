@@ -41,6 +41,9 @@ class _Plan:
     floor_starts: list[np.ndarray]  # per side: (P,)
     # Both sides' entries one after the other, and their starts (2P,): one reduceat for both
     floor_both: tuple[np.ndarray, np.ndarray] | None = None
+    # (E,) each element's root when every pair has a chain and every target's row of elements has
+    # the same roots (a group's plan): the chains' roots broadcast over the targets, not gathered
+    root_cols: np.ndarray | None = None
 
 
 def _entries(paths):
@@ -90,8 +93,12 @@ def _row_plan(target_names: tuple[str, ...], row_ids: tuple[tuple[str, ...], ...
         floor_bone.append(b)
         floor_starts.append(st)
     both = (np.concatenate(floor_bone), np.concatenate([floor_starts[0], floor_starts[1] + len(floor_bone[0])]))
-    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, np.array(cr, int), order, np.argsort(order), slots,
-                 table, used, floor_bone, floor_starts, both)
+    chain_root = np.array(cr, int)
+    root_cols = None
+    if len(pe) == P * E and P and E and np.all(chain_root.reshape(P, E) == chain_root[:E]):
+        root_cols = chain_root[:E].copy()
+    return _Plan(exclude, np.array(pe, int), len(pe) == P * E, chain_root, order, np.argsort(order), slots,
+                 table, used, floor_bone, floor_starts, both, root_cols)
 
 
 # index arrays (a list index is converted on every call)
@@ -236,8 +243,11 @@ class PreparedTargets:
     pipeline maps the arms twice (against the arms where the first pass put them) and pays for
     the user's side once. Built by `prepare_targets`."""
 
-    def __init__(self, pts, names, user_surface, ub, floor, groups, whole=None):
+    def __init__(self, pts, names, user_surface, ub, floor, groups, whole=None, layout=None):
         self.pts, self.names, self.user_surface, self.floor, self.groups = pts, names, user_surface, floor, groups
+        # `_todo`'s and `_avatar_rows`' answers depend on the targets, elements and grouping only:
+        # kept per `layout` (a few frames' key, the same every live frame), else per instance
+        self._cache = {} if layout is None else _layout_cache(layout)
         self.whole = whole  # every target on every element at once (_project), when the groups share it
         self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
         self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the gathers
@@ -311,8 +321,8 @@ class PreparedTargets:
         """(the avatar surface's elements the groups of `targets` are mapped on, ascending (None:
         all of them), {group: its elements among those (None: all)}), once per target set and
         avatar element list; refuses a surface that lacks an element a group is mapped on."""
-        cache = self.__dict__.setdefault("_rows_cache", {})
-        key = (targets, avatar_ids)
+        cache = self._cache
+        key = ("rows", targets, avatar_ids)
         if key not in cache:
             user_ids = tuple(self.user_surface.element_ids)
             at = {eid: i for i, eid in enumerate(avatar_ids)}
@@ -346,12 +356,14 @@ class PreparedTargets:
     def _todo(self, targets: tuple | None) -> tuple:
         """(the rows of `targets` (None: all), [(index, group)] of the groups that map them]), once
         per target set."""
-        cache = self.__dict__.setdefault("_todo_cache", {})
-        if targets not in cache:
+        cache = self._cache
+        key = ("todo", targets)
+        if key not in cache:
             wanted = None if targets is None else np.array([self.names.index(n) for n in targets], int)
-            cache[targets] = (wanted, [(gi, g) for gi, g in enumerate(self.groups)
-                                       if wanted is None or not set(wanted.tolist()).isdisjoint(g.targets.tolist())])
-        return cache[targets]
+            cache[key] = (wanted, tuple(gi for gi, g in enumerate(self.groups)
+                                        if wanted is None or not set(wanted.tolist()).isdisjoint(g.targets.tolist())))
+        wanted, gis = cache[key]
+        return wanted, [(gi, self.groups[gi]) for gi in gis]
 
 
 def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface: PosedSurface,
@@ -398,7 +410,8 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
             blocks = [_prepare_block(0, F, pts[:, members], plan, user_surface, ubt, nodes_u, floor,
                                      penetration_tolerance, falloff, pr)] if F else []
             groups.append(_Group(members, group_names, None, plan, blocks, pairs, columns))
-        return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole)
+        return PreparedTargets(pts, list(target_names), user_surface, ub, floor, groups, whole,
+                               layout=(names, ids, roots, extra))
     for members, group_names, keep, plan, _ in _grouping(names, ids, roots, extra):
         sub = user_surface if keep is None else user_surface.select(keep)
         _check_joints(sub, plan, group_names, "user")
@@ -413,6 +426,17 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
 
 
 MERGED_PAIRS = 2_000  # frames x targets x elements up to which every group shares one projection
+
+_LAYOUTS: dict = {}
+
+
+def _layout_cache(layout: tuple) -> dict:
+    """The answers `PreparedTargets._todo` and `_avatar_rows` keep for a few frames' layout (the
+    target names, element ids and roots, the exclusions), shared by every PreparedTargets of that
+    layout (a live session prepares one a frame); at most 64 layouts kept."""
+    if layout not in _LAYOUTS and len(_LAYOUTS) >= 64:
+        _LAYOUTS.clear()
+    return _LAYOUTS.setdefault(layout, {})
 
 
 def _take_pairs(a: np.ndarray, pairs: np.ndarray, shape: tuple) -> np.ndarray:
@@ -511,7 +535,7 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     # Kinematic normalisation (eq. 2, DESIGN.md Decision: absolute values), the user's τ for
     # every chain: τ = Σ_k |v̂·b_k| + |v̂·(x - r)|.
     vhat, _ = unit_and_norm(_chains(pr.v, plan), 0.0, axis=0)  # (3, F, N)
-    vt = np.ascontiguousarray(vhat.take(plan.order, axis=2).transpose(0, 2, 1))  # (3, N, F), longest first
+    vt = vhat.transpose(0, 2, 1).take(plan.order, axis=1)  # (3, N, F) contiguous, longest first: one copy
     if F * vt.shape[1] <= MERGED_PAIRS and len(plan.slot_table):
         # A few frames: every slot at once (the padding's dots are exact zeros; the sum over the
         # slots runs in their order, as the loop below adds them).
@@ -524,8 +548,8 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
             n = len(bones)
             dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
             tau[:n] += dots[-1]
-    tau = tau.take(plan.unorder, axis=0).T
-    tau += np.abs(_dot(vhat, _chains(pr.x, plan) - nodes_u.take(plan.chain_root, axis=2)))
+    tau = tau.T.take(plan.unorder, axis=1)  # (F, N) contiguous (a transposed view made every use strided)
+    tau += np.abs(_dot(vhat, _from_roots(pr.x, nodes_u, plan)))
     pr.dist = pr.factor = None  # spent on the weights
     none = lam.sum(-1) <= 0  # no element with weight (all excluded)
     return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots, tau_ok=tau > EPS,
@@ -538,6 +562,14 @@ def _chains(a, plan: _Plan):
     return flat if plan.dense else flat.take(plan.chain_pe, axis=2)
 
 
+def _from_roots(x, nodes, plan: _Plan) -> np.ndarray:
+    """(3, F, N) x - r of each chain, x (3, F, P, E), r the chain's root node (nodes (3, F, nodes))."""
+    if plan.root_cols is None:
+        return _chains(x, plan) - nodes.take(plan.chain_root, axis=2)
+    F = x.shape[1]
+    return (x - nodes.take(plan.root_cols, axis=2)[:, :, None, :]).reshape(3, F, -1)
+
+
 def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
     """(F, N) Σ_k |v̂·b_k| L'_k/L_k over each chain's bones: τ' without its extremity term."""
     if isinstance(b.dots, np.ndarray):  # every slot at once (_prepare_block)
@@ -546,7 +578,7 @@ def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
         out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
         for bones, d in zip(plan.slot_bones, b.dots):
             out[:len(bones)] += d * lratio.take(bones, axis=0)
-    return out.take(plan.unorder, axis=0).T
+    return out.T.take(plan.unorder, axis=1)
 
 
 def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v,
@@ -558,7 +590,7 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     E = pr.v.shape[-1]
     x_av, v_av = _repose(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
-    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _chains(x_av, plan) - nodes_a.take(plan.chain_root, axis=2)))
+    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _from_roots(x_av, nodes_a, plan)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau_ok)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)
