@@ -34,6 +34,8 @@ from ..body.skeleton import JOINT_INDEX as JI
 from ..core.errors import BodyCalError
 from ..core.transforms import (
     EPS,
+    MANY_PRODUCTS,
+    STACKED_FRAMES,
     matmul_stack,
     mul_stack,
     quat_between,
@@ -46,6 +48,7 @@ from ..core.transforms import (
     transposed,
     turn_between_one,
 )
+from . import pose_kernels
 
 
 def _driver_of_segment(seg: str) -> str | None:
@@ -665,6 +668,8 @@ class AvatarRig:
         """Pose-bone quaternions from bones-first armature-space pose rotations P (N, F, 3, 3):
         basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P)."""
         kids, parents, fixed = self._basis_plan
+        if P.shape[1] >= STACKED_FRAMES and len(kids) * P.shape[1] >= MANY_PRODUCTS:
+            return self._basis_many(P)
         # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
         rel_t = transposed(P)
         rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
@@ -673,6 +678,34 @@ class AvatarRig:
         # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
         n, nf = basis_t.shape[:2]
         return quat_from_rows(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+
+    def _basis_many(self, P):
+        """`_basis` of many frames (a bake's chunk), the same values: the products and quaternions
+        read the rotations' entries as contiguous rows (`pose_kernels`) instead of strided entries
+        of gathered and transposed copies of the whole stack. Decision (speed, the same bits):
+        X^T's entries are `matmul_stack`'s sums, each product by its fixed factor the same BLAS
+        call on the same (3F, 3) rows as `stacks_mul`, the quaternions `quat_from_rows`'s."""
+        kids, parents, fixed = self._basis_plan
+        n, nf = P.shape[:2]
+        ent = pose_kernels.entry_rows(P)  # (9, N, F)
+        rel_t = np.empty((len(kids), nf, 3, 3))  # X^T of the bones with a parent
+        pose_kernels.product_t_into(rel_t, ent.take(kids, axis=1), ent.take(parents, axis=1))
+        row = self._basis_rows
+        basis_t = np.empty((n, nf, 3, 3))
+        for b in range(n):  # basis^T = X^T (M^-1 M_p)^T, `stacks_mul`'s product bone by bone
+            src = rel_t[row[b]] if row[b] >= 0 else np.ascontiguousarray(P[b].swapaxes(-1, -2))
+            np.matmul(src.reshape(-1, 3), fixed[b], out=basis_t[b].reshape(-1, 3))
+        # basis[f, n, i, j] = basis_t[n, f, j, i]: the basis's entry rows are basis_t's transposed
+        q = pose_kernels.quat_from_entries(pose_kernels.entry_rows(basis_t, _TRANSPOSE_ROWS).reshape(9, -1))
+        return q.reshape(4, n, nf).transpose(2, 1, 0)
+
+    @property
+    def _basis_rows(self) -> list[int]:
+        """Per bone, its row among the bones with a parent (`_basis_plan`), -1 for none; once."""
+        if getattr(self, "_brows", None) is None:
+            kids = self._basis_plan[0].tolist()
+            self._brows = [kids.index(b) if b in kids else -1 for b in range(len(self.names))]
+        return self._brows
 
     @property
     def _basis_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -924,4 +957,5 @@ def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
 
 
 _DELTA_COPY_ROWS = np.array(DELTA_COPY, int)
+_TRANSPOSE_ROWS = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # a 3x3's entries (i, j) -> (j, i), row-major
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)  # the canonical vertebrae (_spine_curve)
