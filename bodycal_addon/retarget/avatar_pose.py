@@ -753,6 +753,8 @@ class AvatarRig:
         """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
         canonical joints riding on their bones and the realised canonical frames."""
         nf = P.shape[1]
+        if nf == 1:
+            return self._finish_one(basis, P, H, root_loc, realised)
         if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
             bones, local, order = self._joint_table
             rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
@@ -777,10 +779,49 @@ class AvatarRig:
                 frames[:, idx] = rel.swapaxes(0, 1)
         return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
 
+    def _finish_one(self, basis, P, H, root_loc, realised) -> RigPose:
+        """`_finish` of one frame, the same values in fewer numpy calls: the joints' padded product
+        (`_joint_table`) with its heads added in place and gathered in one `take` (`_one_tables`),
+        the realised frames written into a stack whose last row is NaN and gathered in one `take`."""
+        bones, local, jrows, car_rows = self._one_tables
+        ride = np.matmul(P.take(bones, axis=0), local)  # (G, 1, 3, K): P_car offset, as `stacks_mul`
+        ride += H.take(bones, axis=0)[..., None]  # H + P o (the same sum)
+        shift, lin_t, _ = self._world_parts
+        joints = np.matmul(ride.take(jrows), lin_t)  # `to_world` of the (J, 3) rows
+        joints += shift
+        joints = joints.reshape(1, -1, 3)
+        if realised is False or realised is None:
+            frames = None
+        else:
+            idx, car_rel, car, _ = self._realised_rows(realised)
+            rows = np.empty((len(idx) + 1, 1, 3, 3))
+            rows[-1] = np.nan
+            if len(idx):
+                if self._w_identity:
+                    np.matmul(P.take(car, axis=0), car_rel[:, None], out=rows[:-1])
+                else:
+                    rows[:-1] = self._to_world_rot(stacks_mul(P, car_rel, car))
+            frames = rows.take(car_rows[realised is True or tuple(realised)], axis=0).reshape(1, len(BONES), 3, 3)
+        return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
+
+    @property
+    def _one_tables(self) -> tuple:
+        """`_finish_one`'s tables, once per rig: the joints' carriers, their padded offsets (G, 1, 3,
+        K), each joint's three entries in the (G, 1, 3, K) product, and per realised set (a dict
+        keyed like `_realised_rows`, filled on first use) each canonical bone's row in the realised
+        stack (its own, or the NaN row after them)."""
+        if getattr(self, "_one_tab", None) is None:
+            bones, local, order = self._joint_table
+            width = local.shape[-1]
+            g, kk = np.divmod(order, width)  # joint j: carrier row g, padded column kk
+            jrows = ((g * 3)[:, None] + np.arange(3)) * width + kk[:, None]  # (J, 3) into (G, 1, 3, K)
+            self._one_tab = (bones, local[:, None], jrows, _RealisedTables(self))
+        return self._one_tab
+
     def _realised_rows(self, realised) -> tuple:
         """(the canonical bones realised (True: all; a list of indices), their carriers' fixed factors,
         their carriers, the bones not realised), once per set."""
-        key = "all" if realised is True else tuple(int(i) for i in realised)
+        key = "all" if realised is True else tuple(realised)  # numpy's integers hash as Python's
         rows = self._caches.get(("realised", key))
         if rows is None:
             idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
@@ -855,6 +896,22 @@ class AvatarRig:
                 H[i] = H[p] + stack_apply(P[p], self.rest[p].T @ (self.head[i] - self.head[p])) \
                     + (pr @ loc[..., None])[..., 0]
         return self._finish(basis, P, H, np.asarray(root_location, float), realised)
+
+
+class _RealisedTables(dict):
+    """Per realised set (True or a tuple of canonical bone indices): each canonical bone's row in
+    `_finish_one`'s realised stack (its index among the realised, else the NaN row after them)."""
+
+    def __init__(self, rig: AvatarRig):
+        super().__init__()
+        self.rig = rig
+
+    def __missing__(self, key):
+        idx = self.rig._realised_rows(True if key is True else list(key))[0]
+        rows = np.full(len(BONES), len(idx), int)
+        rows[idx] = np.arange(len(idx))
+        self[key] = rows
+        return rows
 
 
 def _closest_on_segment(p, a, b):
