@@ -428,9 +428,6 @@ class AvatarRig:
         P = np.empty((n, nf, 3, 3))
         H = np.empty((n, nf, 3))
         plan = self._pose_plan(None if bones is None else tuple(bones))
-        if len(plan.driven):
-            # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-            P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
         chain = self._chain_plan if plan.chained else None
         held = None
         if chain is not None:
@@ -442,15 +439,27 @@ class AvatarRig:
             memo = getattr(self, "_chain_memo", None)
             if memo is not None and memo[0] == key:  # bit for bit
                 held = memo[1]
-            else:
-                # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
-                # rest (the twist), the aim point it carries, and the offset of its target off the curve.
+        if chain is not None and held is None and nf < STACKED_FRAMES and len(plan.driven):
+            # A few frames: the driven bones' and the chain vertebrae's products in one stacked
+            # product (each its own BLAS call either way, so the same bits)
+            rows, fixed = self._driven_and_chain(plan, chain)
+            both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
+            P[plan.driven] = self._from_world(both[:len(plan.driven)])
+            delta = self._from_world(both[len(plan.driven):])
+        else:
+            if len(plan.driven):
+                # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
+                P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
+            if chain is not None and held is None:
                 delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
-                twist = stacks_mul(delta, chain.rest)
-                aim = stacks_apply(twist, chain.aim)
-                off = stacks_apply(delta, chain.off)
-                target = None
-                aimed = {}
+        if chain is not None and held is None:
+            # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
+            # rest (the twist), the aim point it carries, and the offset of its target off the curve.
+            twist = stacks_mul(delta, chain.rest)
+            aim = stacks_apply(twist, chain.aim)
+            off = stacks_apply(delta, chain.off)
+            target = None
+            aimed = {}
         few = plan.deferred is not None and nf < FEW_FRAMES
         if few and (chain is None or held is not None):
             return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis)
@@ -472,7 +481,13 @@ class AvatarRig:
                     curve = self._spine_curve(frames, P, H)
                     target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
                         + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
-                turn = turn_between_one(aim[j, 0].tolist(), (target[j, 0] - H[i, 0]).tolist()) if nf == 1 else None
+                    if nf == 1:  # one frame: its aims and targets as Python floats, once
+                        aim_at, target_at = aim[:, 0].tolist(), target[:, 0].tolist()
+                if nf == 1:  # target - head in floats (numpy's difference)
+                    t0, h0 = target_at[j], H[i, 0].tolist()
+                    turn = turn_between_one(aim_at[j], [t0[0] - h0[0], t0[1] - h0[1], t0[2] - h0[2]])
+                else:
+                    turn = None
                 if turn is None:
                     turn = quat_to_matrix(quat_between(aim[j], target[j] - H[i]))
                 else:  # one frame: the same bits in Python floats (turn_between_one)
@@ -487,6 +502,16 @@ class AvatarRig:
         if held is None and chain is not None and len(aimed) == len(chain.index):
             self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
         return P, H
+
+    def _driven_and_chain(self, plan: _PosePlan, chain: _ChainPlan) -> tuple[np.ndarray, np.ndarray]:
+        """(the canonical bones read by the driven bones then by the chain's vertebrae, their fixed
+        factors (K, 1, 3, 3)), once per pose plan."""
+        key = ("driven+chain", id(plan))
+        got = self._caches.get(key)
+        if got is None:
+            got = self._caches[key] = (np.concatenate([plan.canon, chain.vertebra]),
+                                       np.concatenate([plan.fixed, chain.fixed])[:, None])
+        return got
 
     def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis):
         """`_pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
