@@ -446,6 +446,13 @@ class AvatarRig:
             both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
             P[plan.driven] = self._from_world(both[:len(plan.driven)])
             delta = self._from_world(both[len(plan.driven):])
+        elif nf >= STACKED_FRAMES and self._w_identity:
+            # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
+            # call bone by bone, without its stack to copy into P)
+            for b, c, fixed in zip(plan.driven.tolist(), plan.canon.tolist(), plan.fixed):
+                np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
+            if chain is not None and held is None:
+                delta = stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra)
         else:
             if len(plan.driven):
                 # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
@@ -463,8 +470,13 @@ class AvatarRig:
         few = plan.deferred is not None and nf < FEW_FRAMES
         if few and (chain is None or held is not None):
             return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis)
+        many = nf >= STACKED_FRAMES
         for lv in plan.few if few else plan.levels:
-            if len(lv.heads):
+            if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
+                for b, p, off_b in zip(lv.heads.tolist(), lv.head_par.tolist(), lv.head_off):
+                    np.matmul(P[p].reshape(-1, 3), off_b, out=H[b].reshape(-1))
+                    H[b] += H[p]
+            elif len(lv.heads):
                 H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
                 H[lv.loose] = lv.loose_at
