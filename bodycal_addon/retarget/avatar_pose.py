@@ -155,6 +155,8 @@ class _Level:
     root: bool  # the root bone is at this depth (placed from the pelvis once posed)
     loose_at: np.ndarray | None = None  # (K, 1, 3) the loose bones' rest heads
     rest_at: np.ndarray | None = None  # (K, 1, 3, 3) the rest bones' rest matrices
+    head_off4: np.ndarray | None = None  # (K, 1, 3, 1) head_off as a few frames' products take it
+    follow_fixed4: np.ndarray | None = None  # (K, 1, 3, 3) follow_fixed as a few frames' products take it
 
 
 @dataclass
@@ -196,6 +198,11 @@ class _ChainPlan:
     t: np.ndarray  # (n,) and the position along it
     inputs: np.ndarray  # every canonical bone whose frame the chain's rotations read (with the pelvis)
     order: np.ndarray | None = None  # the bones by their row here
+
+    def __post_init__(self):
+        self.w0 = (1 - self.t)[:, None, None]  # the target's weights on the curve points k, k + 1
+        self.w1 = self.t[:, None, None]
+        self.k1 = self.k + 1
 
 
 @dataclass
@@ -425,8 +432,6 @@ class AvatarRig:
         (`_pose_plan`): each step is one stacked product over the bones of that depth."""
         nf = frames.shape[0]
         n = len(self.names)
-        P = np.empty((n, nf, 3, 3))
-        H = np.empty((n, nf, 3))
         plan = self._pose_plan(None if bones is None else tuple(bones))
         chain = self._chain_plan if plan.chained else None
         held = None
@@ -439,6 +444,19 @@ class AvatarRig:
             memo = getattr(self, "_chain_memo", None)
             if memo is not None and memo[0] == key:  # bit for bit
                 held = memo[1]
+        few = plan.deferred is not None and nf < FEW_FRAMES
+        flat = few and (chain is None or held is not None)
+        P = np.empty((n, nf, 3, 3))
+        if few and nf < STACKED_FRAMES:
+            # the heads with rows after them for the one padded pass's offsets and its zero
+            # (`_pose_flat`, the deferred heads): no concatenated copy of H
+            late = (plan.flat if flat else plan.deferred)[-4]
+            HT = np.empty((n + len(late) + 1, nf, 3))
+            HT[-1] = 0.0
+            H = HT[:n]
+        else:
+            HT = None
+            H = np.empty((n, nf, 3))
         if chain is not None and held is None and nf < STACKED_FRAMES and len(plan.driven):
             # A few frames: the driven bones' and the chain vertebrae's products in one stacked
             # product (each its own BLAS call either way, so the same bits)
@@ -466,23 +484,28 @@ class AvatarRig:
             aim = stacks_apply(twist, chain.aim)
             off = stacks_apply(delta, chain.off)
             target = None
-            aimed = {}
-        few = plan.deferred is not None and nf < FEW_FRAMES
-        if few and (chain is None or held is not None):
-            return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis)
+            aimed = np.empty((len(chain.index), nf, 3, 3))  # the chain's rotations, kept for the memo
+            n_aimed = 0
+        if flat:
+            return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis, HT)
+        small = nf < STACKED_FRAMES
         many = nf >= STACKED_FRAMES
         for lv in plan.few if few else plan.levels:
             if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
                 for b, p, off_b in zip(lv.heads.tolist(), lv.head_par.tolist(), lv.head_off):
                     np.matmul(P[p].reshape(-1, 3), off_b, out=H[b].reshape(-1))
                     H[b] += H[p]
+            elif len(lv.heads) and small:  # `stacks_apply`'s stacked product, called directly
+                H[lv.heads] = H.take(lv.head_par, axis=0) + np.matmul(P.take(lv.head_par, axis=0), lv.head_off4)[..., 0]
             elif len(lv.heads):
                 H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
                 H[lv.loose] = lv.loose_at
             if len(lv.rest):
                 P[lv.rest] = lv.rest_at
-            if len(lv.follow):
+            if len(lv.follow) and small:
+                P[lv.follow] = np.matmul(P.take(lv.follow_par, axis=0), lv.follow_fixed4)
+            elif len(lv.follow):
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
             for i in lv.chain:
                 j = chain.index[i]
@@ -491,8 +514,8 @@ class AvatarRig:
                     continue
                 if target is None:  # the canonical spine curve, once the bone it starts on is posed
                     curve = self._spine_curve(frames, P, H)
-                    target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
-                        + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
+                    target = chain.w0 * curve.take(chain.k, axis=1).swapaxes(0, 1) \
+                        + chain.w1 * curve.take(chain.k1, axis=1).swapaxes(0, 1) + off
                     if nf == 1:  # one frame: its aims and targets as Python floats, once
                         aim_at, target_at = aim[:, 0].tolist(), target[:, 0].tolist()
                 if nf == 1:  # target - head in floats (numpy's difference)
@@ -504,16 +527,41 @@ class AvatarRig:
                     turn = quat_to_matrix(quat_between(aim[j], target[j] - H[i]))
                 else:  # one frame: the same bits in Python floats (turn_between_one)
                     turn = np.array([turn])
-                P[i] = aimed[j] = turn @ twist[j]
+                np.matmul(turn, twist[j], out=aimed[j])
+                P[i] = aimed[j]
+                n_aimed += 1
             if lv.root:
-                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
+                self._place_root(P, H, pelvis)
         if few:
-            late, par, off, table = plan.deferred
-            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
-            H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
-        if held is None and chain is not None and len(aimed) == len(chain.index):
-            self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
+            self._deferred_heads(plan.deferred, P, H, HT)
+        if held is None and chain is not None and n_aimed == len(chain.index):
+            self._chain_memo = (key, aimed)
         return P, H
+
+    def _place_root(self, P, H, pelvis) -> None:
+        """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
+        products, called directly."""
+        shift, _, inv_t = self._world_parts
+        nf = P.shape[1]
+        at = (np.asarray(pelvis, float) - shift).reshape(-1, 3) @ inv_t
+        np.subtract(at.reshape(nf, 3), (P[self.root].reshape(-1, 3) @ self._pelvis_at).reshape(nf, 3), out=H[self.root])
+
+    def _deferred_heads(self, table_plan, P, H, HT) -> None:
+        """The heads of `table_plan` (rows, parents, offsets, the padded sum table) in one padded
+        pass: each its anchor's head plus the offsets down its path, in order. A few frames' (HT:
+        H with rows after it) take their offsets' products written after H and a zero row."""
+        late, par, off, table = table_plan
+        if HT is None:
+            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
+        else:
+            got = self._caches.get(("off4", id(off)))
+            if got is None or got[0] is not off:  # the plan's offsets as the stacked product takes them, once
+                got = self._caches[("off4", id(off))] = (off, off[:, None, :, None])
+            off4 = got[1]
+            n = len(H)
+            np.matmul(P.take(par, axis=0), off4, out=HT[n:-1].reshape(len(late), -1, 3, 1))
+            terms = HT
+        H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
 
     def _driven_and_chain(self, plan: _PosePlan, chain: _ChainPlan) -> tuple[np.ndarray, np.ndarray]:
         """(the canonical bones read by the driven bones then by the chain's vertebrae, their fixed
@@ -525,7 +573,7 @@ class AvatarRig:
                                        np.concatenate([plan.fixed, chain.fixed])[:, None])
         return got
 
-    def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis):
+    def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis, HT=None):
         """`_pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
         rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
         later poses hold the chain's rotations, so nothing is aimed level by level; each head is
@@ -536,13 +584,15 @@ class AvatarRig:
         if chain_bones is not None:
             P[chain_bones] = held
         for bones_f, par_f, fixed_f in follows:
-            P[bones_f] = stacks_mul(P, fixed_f, par_f)
+            if P.shape[1] < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+                P[bones_f] = np.matmul(P.take(par_f, axis=0), fixed_f[:, None])
+            else:
+                P[bones_f] = stacks_mul(P, fixed_f, par_f)
         if len(loose):
             H[loose] = loose_at
         if plan.has_root:
-            H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
-        terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
-        H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)
+            self._place_root(P, H, pelvis)
+        self._deferred_heads((late, par, off, table), P, H, HT)
         return P, H
 
     @property
@@ -600,6 +650,8 @@ class AvatarRig:
                     [i for i in at if rows[i][1] == "chain"], self.root in at))
                 out[-1].loose_at = self.head[out[-1].loose][:, None]
                 out[-1].rest_at = self.rest[out[-1].rest][:, None]
+                out[-1].head_off4 = out[-1].head_off[:, None, :, None]
+                out[-1].follow_fixed4 = out[-1].follow_fixed[:, None]
             return out
 
         levels = levels_of(lambda i: True)
