@@ -834,9 +834,17 @@ class AvatarRig:
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
-        ys = frames[:, _SPINE_ROWS][..., :, 1] * self.lengths[_SPINE_ROWS][:, None]
+        nf = len(start)
+        if frames.flags.c_contiguous:  # the vertebrae's +Y columns in one take
+            ys = frames.reshape(nf, -1).take(_SPINE_Y, axis=1).reshape(nf, -1, 3) * self.lengths[_SPINE_ROWS][:, None]
+        else:
+            ys = frames[:, _SPINE_ROWS][..., :, 1] * self.lengths[_SPINE_ROWS][:, None]
         steps = ys @ self.w_inv.T  # world steps in armature units
-        return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
+        curve = np.empty((nf, len(_SPINE_ROWS) + 1, 3))  # start, then start + the running sum
+        curve[:, 0] = start
+        np.cumsum(steps, axis=1, out=curve[:, 1:])
+        curve[:, 1:] += start[:, None]
+        return curve
 
     def _finish(self, basis, P, H, root_loc, realised=True) -> RigPose:
         """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
@@ -1105,3 +1113,4 @@ def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
 _DELTA_COPY_ROWS = np.array(DELTA_COPY, int)
 _TRANSPOSE_ROWS = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # a 3x3's entries (i, j) -> (j, i), row-major
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)  # the canonical vertebrae (_spine_curve)
+_SPINE_Y = (_SPINE_ROWS[:, None] * 9 + np.array([1, 4, 7])).ravel()  # their frames' +Y entries, row-major

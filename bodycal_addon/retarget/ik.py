@@ -150,8 +150,11 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     root = np.asarray(root, float)
     target = np.asarray(target, float)
     F = root.shape[0]
-    l1 = np.broadcast_to(np.asarray(l1, float), (F,))
-    l2 = np.broadcast_to(np.asarray(l2, float), (F,))
+    l1, l2 = np.asarray(l1, float), np.asarray(l2, float)
+    if l1.shape != (F,):  # (a limb set's lengths come as (F,) already)
+        l1 = np.broadcast_to(l1, (F,))
+    if l2.shape != (F,):
+        l2 = np.broadcast_to(l2, (F,))
     if F <= FEW_LIMBS:
         return _two_bone_floats(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio)
     down = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (F, 3))
