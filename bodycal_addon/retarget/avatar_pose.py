@@ -472,7 +472,10 @@ class AvatarRig:
             if chain is not None and held is None:
                 delta = stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra)
         else:
-            if len(plan.driven):
+            if len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+                P[plan.driven] = self._from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
+                                                            self._driven_fixed(plan)))
+            elif len(plan.driven):
                 # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
                 P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
             if chain is not None and held is None:
@@ -571,6 +574,13 @@ class AvatarRig:
         if got is None:
             got = self._caches[key] = (np.concatenate([plan.canon, chain.vertebra]),
                                        np.concatenate([plan.fixed, chain.fixed])[:, None])
+        return got
+
+    def _driven_fixed(self, plan: _PosePlan) -> np.ndarray:
+        """The driven bones' fixed factors (K, 1, 3, 3) as a few frames' stacked product takes them, once per plan."""
+        got = self._caches.get(("driven", id(plan)))
+        if got is None:
+            got = self._caches[("driven", id(plan))] = plan.fixed[:, None]
         return got
 
     def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis, HT=None):
@@ -814,9 +824,11 @@ class AvatarRig:
         i, p = self.root, self.parent[self.root]
         if p < 0:
             return (H[i] - self.head[i]) @ self.rest[i]
+        if getattr(self, "_root_rel", None) is None:  # (M_i^-1 M_p)^T and M_i^-1 (h_i - h_p), once
+            self._root_rel = ((self.rest[i].T @ self.rest[p]).T, self.rest[i].T @ (self.head[i] - self.head[p]))
+        rel_t, rest_off = self._root_rel
         local = (P[p].swapaxes(-1, -2) @ (H[i] - H[p])[..., None])[..., 0]
-        rel = local @ (self.rest[i].T @ self.rest[p]).T
-        return rel - self.rest[i].T @ (self.head[i] - self.head[p])
+        return local @ rel_t - rest_off
 
     def _spine_curve(self, frames, P, H):
         """Canonical spine joints (F, 13, 3), armature space: spine_root on its avatar bone, then
