@@ -414,6 +414,8 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     axis, sin_phi = _unit(cross(u0, ut), lambda: _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
     delta = phi * ratio[0] / ratio[1]
+    if len(delta) >= MANY_SPINES:
+        return _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta), delta
     seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
     chord = (seg * lengths[:, None]).sum(1)
     cdir, clen = _unit(chord, ut)
@@ -423,6 +425,49 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
     joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
     return joints, delta
+
+
+MANY_SPINES = 16  # frames from which `bend_rest_spine` bends the vertebrae components first (`_bend_many`)
+
+
+def _turn_components(v, a, cos, sin):
+    """`_rodrigues` on components: v (3 arrays) turned about the unit axis a (3 arrays), each by
+    the angle whose cosine and sine are given, broadcast: v c + (a x v) s + a (a . v) (1 - c),
+    numpy's operations in their order (`_dot` adds (0 + 2) + 1, `cross` a1 v2 - a2 v1, ...)."""
+    v0, v1, v2 = v
+    a0, a1, a2 = a
+    d = (a0 * v0 + a2 * v2) + a1 * v1
+    e = 1 - cos
+    return ((v0 * cos + (a1 * v2 - a2 * v1) * sin) + a0 * d * e,
+            (v1 * cos + (a2 * v0 - a0 * v2) * sin) + a1 * d * e,
+            (v2 * cos + (a0 * v1 - a1 * v0) * sin) + a2 * d * e)
+
+
+def _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta):
+    """`bend_rest_spine`'s vertebrae for many frames, components first: each component an (F, n)
+    array (the (F, n, 3) path's products over rows of three, with broadcast operands, cost several
+    times more), the same operations in the same order, so the same bits (tests/engine/test_ik.py):
+    `_rodrigues`, the chord's sum over the vertebrae in order, einsum's (0 + 2) + 1 and the joints'
+    running sum."""
+    ang = delta[:, None] * k
+    seg = _turn_components(seg0.T[:, None, :], axis.T[:, :, None], np.cos(ang), np.sin(ang))
+    chord = np.empty((len(delta), 3))
+    for i in range(3):  # (seg * lengths).sum over the vertebrae, in order (a running sum's last)
+        chord[:, i] = np.cumsum(seg[i] * lengths, axis=1)[:, -1]
+    cdir, clen = _unit(chord, ut)
+    turn_axis, sin_t = _unit(cross(cdir, ut), axis)
+    turn = np.arctan2(sin_t, _dot(cdir, ut))[:, None]
+    seg = _turn_components(seg, turn_axis.T[:, :, None], np.cos(turn), np.sin(turn))
+    stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    scale = lengths[None, :] * stretch[:, None]
+    joints = np.empty((len(delta), len(lengths) + 1, 3))
+    joints[:, 0] = start
+    rot = sacrum_rot.transpose(1, 2, 0)  # rot[i, j]: (F,) entries
+    for i in range(3):  # einsum("fij,fkj->fki") times the lengths, then start + the running sum
+        world = ((rot[i, 0][:, None] * seg[0] + rot[i, 2][:, None] * seg[2]) + rot[i, 1][:, None] * seg[1]) * scale
+        np.cumsum(world, axis=1, out=joints[:, 1:, i])
+        joints[:, 1:, i] += start[:, i, None]
+    return joints
 
 
 def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None, two_pass=True,
