@@ -526,11 +526,41 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     frac = (np.arange(n) + 1.0) / n
     ang = total[:, None] * frac
     other = cross(chord, hip)
-    right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
-    y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
-    xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
-    rotations = _columns(xk, y, cross(xk, y))
+    rotations = _twist_many(joints, hip, other, ang) if len(ang) >= MANY_SPINES else None
+    if rotations is None:
+        right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
+        y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
+        xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
+        rotations = _columns(xk, y, cross(xk, y))
     return SpineResult(joints, rotations, sacrum_rot, theta)
+
+
+def _twist_many(joints, hip, other, ang):
+    """`spine`'s vertebra frames for many frames, components first ((F, n) arrays, as `_bend_many`):
+    the right turned from the hip axis, +Y along each vertebra, +X the right made perpendicular
+    to it, +Z their cross product, numpy's operations in their order (`_dot`'s (0 + 2) + 1). None
+    when a vertebra or its right vanishes (the rows' path then takes its fallbacks)."""
+    cos, sin = np.cos(ang), np.sin(ang)
+    right = [cos * hip[:, i, None] + sin * other[:, i, None] for i in range(3)]
+    step = [joints[:, 1:, i] - joints[:, :-1, i] for i in range(3)]
+    norm = np.sqrt((step[0] * step[0] + step[2] * step[2]) + step[1] * step[1])
+    if not (norm > EPS).all():
+        return None
+    y = [v / norm for v in step]
+    along = (right[0] * y[0] + right[2] * y[2]) + right[1] * y[1]
+    w = [right[i] - along * y[i] for i in range(3)]
+    norm = np.sqrt((w[0] * w[0] + w[2] * w[2]) + w[1] * w[1])
+    if not (norm > EPS).all():
+        return None
+    x = [v / norm for v in w]
+    out = np.empty(ang.shape + (3, 3))
+    for i in range(3):
+        out[..., i, 0] = x[i]
+        out[..., i, 1] = y[i]
+    out[..., 0, 2] = x[1] * y[2] - x[2] * y[1]  # `cross`'s differences
+    out[..., 1, 2] = x[2] * y[0] - x[0] * y[2]
+    out[..., 2, 2] = x[0] * y[1] - x[1] * y[0]
+    return out
 
 
 def _f_dot_seq(a, b):
