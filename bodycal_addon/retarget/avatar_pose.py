@@ -350,7 +350,9 @@ class AvatarRig:
     def to_world(self, p):
         shift, lin_t, _ = self._world_parts
         p = np.asarray(p, float)  # one BLAS call on (N, 3) rows (einsum is several times slower)
-        return (p.reshape(-1, 3) @ lin_t).reshape(p.shape) + shift
+        out = p.reshape(-1, 3) @ lin_t
+        out += shift  # in place (the same sum)
+        return out.reshape(p.shape)
 
     @property
     def _world_parts(self) -> tuple:
@@ -873,7 +875,12 @@ class AvatarRig:
             joints = np.empty((nf, len(JOINTS), 3))
             for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
                 rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-                joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
+                if nf >= STACKED_FRAMES:  # each joint written where it goes, H + P o (no (G, F, K, 3) stack to scatter)
+                    for g, (b, row) in enumerate(zip(bones.tolist(), js.tolist())):
+                        for kk, j in enumerate(row):
+                            np.add(H[b], rel[g, :, :, kk], out=joints[:, j])
+                else:
+                    joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
@@ -883,7 +890,14 @@ class AvatarRig:
             frames = np.empty((nf, len(BONES), 3, 3))  # NaN where not realised (written once)
             if len(unrealised):
                 frames[:, unrealised] = np.nan
-            if len(idx):
+            if len(idx) and nf >= STACKED_FRAMES and self._w_identity:
+                # `stacks_mul`'s product bone by bone into one buffer, copied where it goes (no
+                # (K, F, 3, 3) stack to allocate and scatter)
+                buf = np.empty((nf, 3, 3))
+                for c, b, rel in zip(idx.tolist(), car.tolist(), car_rel):
+                    np.matmul(P[b].reshape(-1, 3), rel, out=buf.reshape(-1, 3))
+                    frames[:, c] = buf
+            elif len(idx):
                 rel = self._to_world_rot(stacks_mul(P, car_rel, car))
                 frames[:, idx] = rel.swapaxes(0, 1)
         return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
