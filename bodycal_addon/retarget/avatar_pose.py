@@ -39,7 +39,6 @@ from ..core.transforms import (
     matmul_stack,
     mul_stack,
     quat_between,
-    quat_from_rows,
     quat_to_matrix,
     stack_apply,
     stack_mul,
@@ -778,7 +777,8 @@ class AvatarRig:
         basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
         # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
         n, nf = basis_t.shape[:2]
-        return quat_from_rows(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+        # quat_from_rows' values (pose_kernels.quat_from_entries: fewer numpy calls)
+        return pose_kernels.quat_from_entries(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
 
     def _basis_many(self, P):
         """`_basis` of many frames (a bake's chunk), the same values: the products and quaternions

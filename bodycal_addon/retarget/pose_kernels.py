@@ -49,11 +49,13 @@ def quat_from_entries(comp: np.ndarray) -> np.ndarray:
     trace = comp[0] + comp[4] + comp[8]
     best = np.zeros(trace.shape, np.intp)
     top = trace
+    chosen = []  # the other candidates any item may pick
     for k, row in ((1, 0), (2, 4), (3, 8)):
         more = comp[row] > top
         if more.any():
             best[more] = k
             top = np.where(more, comp[row], top)
+            chosen.append(k)
     q = np.empty((4, comp.shape[1]))
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = comp
     np.add(1, m00, out=q[0])  # _SHEPPERD[0]: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01)
@@ -62,8 +64,8 @@ def quat_from_entries(comp: np.ndarray) -> np.ndarray:
     np.subtract(m21, m12, out=q[1])
     np.subtract(m02, m20, out=q[2])
     np.subtract(m10, m01, out=q[3])
-    for k in (1, 2, 3):
-        cols = np.flatnonzero(best == k)
+    for k in chosen:
+        cols = (best == k).nonzero()[0]
         if len(cols):
             q[:, cols] = _SHEPPERD[k](*comp[:, cols])
     q /= np.sqrt((q * q).sum(0))

@@ -36,8 +36,13 @@ def test_quaternions_from_entry_rows_are_quat_from_rows_to_the_bit():
     assert set(picks.tolist()) == {0, 1, 2, 3}  # every candidate is exercised
     with np.errstate(invalid="ignore", divide="ignore"):
         assert _same(pk.quat_from_entries(comp), tf.quat_from_rows(comp))
-        # a block where every item picks one candidate (quat_from_rows' slice path)
-        assert _same(pk.quat_from_entries(comp[:, :1]), tf.quat_from_rows(comp[:, :1]))
+        # blocks where every item picks one candidate (quat_from_rows' slice path): small turns
+        # (the trace's, most of a pose's bones), then half turns about x
+        near = np.concatenate([np.ones((50, 1)), 0.1 * rng.normal(size=(50, 3))], axis=1)
+        small = tf.quat_to_matrix(near / np.linalg.norm(near, axis=1, keepdims=True))
+        for block in (small, np.repeat(half_turns[:1], 5, axis=0)):
+            rows = np.ascontiguousarray(block.reshape(-1, 9).T)
+            assert _same(pk.quat_from_entries(rows), tf.quat_from_rows(rows))
 
 
 def test_entry_row_products_are_matmul_stack_to_the_bit():
