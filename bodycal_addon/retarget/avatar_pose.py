@@ -492,25 +492,22 @@ class AvatarRig:
             n_aimed = 0
         if flat:
             return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis, HT)
-        small = nf < STACKED_FRAMES
-        many = nf >= STACKED_FRAMES
+        many = nf >= STACKED_FRAMES  # one BLAS call per bone on (3F, 3) rows, as stacks_mul and stacks_apply
         for lv in plan.few if few else plan.levels:
             if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
                 for b, p, off_b in zip(lv.heads.tolist(), lv.head_par.tolist(), lv.head_off):
                     np.matmul(P[p].reshape(-1, 3), off_b, out=H[b].reshape(-1))
                     H[b] += H[p]
-            elif len(lv.heads) and small:  # `stacks_apply`'s stacked product, called directly
+            elif len(lv.heads):  # `stacks_apply`'s stacked product, called directly
                 H[lv.heads] = H.take(lv.head_par, axis=0) + np.matmul(P.take(lv.head_par, axis=0), lv.head_off4)[..., 0]
-            elif len(lv.heads):
-                H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
             if len(lv.loose):
                 H[lv.loose] = lv.loose_at
             if len(lv.rest):
                 P[lv.rest] = lv.rest_at
-            if len(lv.follow) and small:
-                P[lv.follow] = np.matmul(P.take(lv.follow_par, axis=0), lv.follow_fixed4)
-            elif len(lv.follow):
+            if len(lv.follow) and many:
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
+            elif len(lv.follow):  # `stacks_mul`'s stacked product, called directly
+                P[lv.follow] = np.matmul(P.take(lv.follow_par, axis=0), lv.follow_fixed4)
             for i in lv.chain:
                 j = chain.index[i]
                 if held is not None:
