@@ -432,64 +432,14 @@ class AvatarRig:
         `bones` (ascending; default all, the others left unset), a depth of the hierarchy at a time
         (`_pose_plan`): each step is one stacked product over the bones of that depth."""
         nf = frames.shape[0]
-        n = len(self.names)
         plan = self._pose_plan(None if bones is None else tuple(bones))
         chain = self._chain_plan if plan.chained else None
-        held = None
-        if chain is not None:
-            # Decision (speed): the chain's rotations are the costliest part of a pose and a solve
-            # often poses the same trunk again (the egocentric method poses the avatar four times a
-            # block, the arms alone changing after the first IK): when every input they read is
-            # the last pose's, bit for bit, they are the last pose's.
-            key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
-            memo = getattr(self, "_chain_memo", None)
-            if memo is not None and memo[0] == key:  # bit for bit
-                held = memo[1]
+        key, held = self._held_chain(chain, frames, pelvis)
         few = plan.deferred is not None and nf < FEW_FRAMES
         flat = few and (chain is None or held is not None)
-        P = np.empty((n, nf, 3, 3))
-        if few and nf < STACKED_FRAMES:
-            # the heads with rows after them for the one padded pass's offsets and its zero
-            # (`_pose_flat`, the deferred heads): no concatenated copy of H
-            late = (plan.flat if flat else plan.deferred)[-4]
-            HT = np.empty((n + len(late) + 1, nf, 3))
-            HT[-1] = 0.0
-            H = HT[:n]
-        else:
-            HT = None
-            H = np.empty((n, nf, 3))
-        if chain is not None and held is None and nf < STACKED_FRAMES and len(plan.driven):
-            # A few frames: the driven bones' and the chain vertebrae's products in one stacked
-            # product (each its own BLAS call either way, so the same bits)
-            rows, fixed = self._driven_and_chain(plan, chain)
-            both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
-            P[plan.driven] = self._from_world(both[:len(plan.driven)])
-            delta = self._from_world(both[len(plan.driven):])
-        elif nf >= STACKED_FRAMES and self._w_identity:
-            # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
-            # call bone by bone, without its stack to copy into P)
-            for b, c, fixed in zip(plan.driven.tolist(), plan.canon.tolist(), plan.fixed):
-                np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
-            if chain is not None and held is None:
-                delta = stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra)
-        else:
-            if len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
-                P[plan.driven] = self._from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
-                                                            self._driven_fixed(plan)))
-            elif len(plan.driven):
-                # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-                P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
-            if chain is not None and held is None:
-                delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
-        if chain is not None and held is None:
-            # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
-            # rest (the twist), the aim point it carries, and the offset of its target off the curve.
-            twist = stacks_mul(delta, chain.rest)
-            aim = stacks_apply(twist, chain.aim)
-            off = stacks_apply(delta, chain.off)
-            target = None
-            aimed = np.empty((len(chain.index), nf, 3, 3))  # the chain's rotations, kept for the memo
-            n_aimed = 0
+        P, H, HT = self._pose_buffers(plan, nf, few, flat)
+        delta = self._driven(plan, chain if chain is not None and held is None else None, frames, P)
+        aiming = None if delta is None else _ChainAim(self, chain, delta, frames, nf)
         if flat:
             return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis, HT)
         many = nf >= STACKED_FRAMES  # one BLAS call per bone on (3F, 3) rows, as stacks_mul and stacks_apply
@@ -509,35 +459,68 @@ class AvatarRig:
             elif len(lv.follow):  # `stacks_mul`'s stacked product, called directly
                 P[lv.follow] = np.matmul(P.take(lv.follow_par, axis=0), lv.follow_fixed4)
             for i in lv.chain:
-                j = chain.index[i]
                 if held is not None:
-                    P[i] = held[j]
-                    continue
-                if target is None:  # the canonical spine curve, once the bone it starts on is posed
-                    curve = self._spine_curve(frames, P, H)
-                    target = chain.w0 * curve.take(chain.k, axis=1).swapaxes(0, 1) \
-                        + chain.w1 * curve.take(chain.k1, axis=1).swapaxes(0, 1) + off
-                    if nf == 1:  # one frame: its aims and targets as Python floats, once
-                        aim_at, target_at = aim[:, 0].tolist(), target[:, 0].tolist()
-                if nf == 1:  # target - head in floats (numpy's difference)
-                    t0, h0 = target_at[j], H[i, 0].tolist()
-                    turn = turn_between_one(aim_at[j], [t0[0] - h0[0], t0[1] - h0[1], t0[2] - h0[2]])
+                    P[i] = held[chain.index[i]]
                 else:
-                    turn = None
-                if turn is None:
-                    turn = quat_to_matrix(quat_between(aim[j], target[j] - H[i]))
-                else:  # one frame: the same bits in Python floats (turn_between_one)
-                    turn = np.array([turn])
-                np.matmul(turn, twist[j], out=aimed[j])
-                P[i] = aimed[j]
-                n_aimed += 1
+                    aiming.bone(i, P, H)
             if lv.root:
                 self._place_root(P, H, pelvis)
         if few:
             self._deferred_heads(plan.deferred, P, H, HT)
-        if held is None and chain is not None and n_aimed == len(chain.index):
-            self._chain_memo = (key, aimed)
+        if aiming is not None and aiming.count == len(chain.index):
+            self._chain_memo = (key, aiming.aimed)
         return P, H
+
+    def _held_chain(self, chain, frames, pelvis) -> tuple:
+        """(the chain's inputs' bytes, its rotations when they are the last pose's, else None).
+        Decision (speed): the chain's rotations are the costliest part of a pose and a solve often
+        poses the same trunk again (the egocentric method poses the avatar four times a block, the
+        arms alone changing after the first IK): when every input they read is the last pose's,
+        bit for bit, they are the last pose's."""
+        if chain is None:
+            return None, None
+        key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
+        memo = getattr(self, "_chain_memo", None)
+        return key, (memo[1] if memo is not None and memo[0] == key else None)  # bit for bit
+
+    def _pose_buffers(self, plan: _PosePlan, nf: int, few: bool, flat: bool) -> tuple:
+        """(P, H, HT): a few frames' heads H are the first rows of HT, whose rows after them take
+        the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H)."""
+        n = len(self.names)
+        P = np.empty((n, nf, 3, 3))
+        if few and nf < STACKED_FRAMES:
+            late = (plan.flat if flat else plan.deferred)[-4]
+            HT = np.empty((n + len(late) + 1, nf, 3))
+            HT[-1] = 0.0
+            return P, HT[:n], HT
+        return P, np.empty((n, nf, 3)), None
+
+    def _driven(self, plan: _PosePlan, chain, frames, P):
+        """The driven bones' rotations into P, W^-1 C(t) (C0^-1 W M_A) (the canonical bone's rotation
+        since rest, on the bone's rest), and with a `chain` to aim, its vertebrae's turns since rest
+        W^-1 C(t) C0^-1 W (returned; else None)."""
+        nf = frames.shape[0]
+        delta = None
+        if chain is not None and nf < STACKED_FRAMES and len(plan.driven):
+            # A few frames: the driven bones' and the chain vertebrae's products in one stacked
+            # product (each its own BLAS call either way, so the same bits)
+            rows, fixed = self._driven_and_chain(plan, chain)
+            both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
+            P[plan.driven] = self._from_world(both[:len(plan.driven)])
+            return self._from_world(both[len(plan.driven):])
+        if nf >= STACKED_FRAMES and self._w_identity:
+            # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
+            # call bone by bone, without its stack to copy into P)
+            for b, c, fixed in zip(plan.driven.tolist(), plan.canon.tolist(), plan.fixed):
+                np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
+        elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+            P[plan.driven] = self._from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
+                                                        self._driven_fixed(plan)))
+        elif len(plan.driven):
+            P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
+        if chain is not None:
+            delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
+        return delta
 
     def _place_root(self, P, H, pelvis) -> None:
         """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
@@ -1016,6 +999,43 @@ class AvatarRig:
                 H[i] = H[p] + stack_apply(P[p], self.rest[p].T @ (self.head[i] - self.head[p])) \
                     + (pr @ loc[..., None])[..., 0]
         return self._finish(basis, P, H, np.asarray(root_location, float), realised)
+
+
+class _ChainAim:
+    """The spine chain's bones aimed one by one (`AvatarRig._pose`): what each aim needs but its
+    parent's pose (its vertebra's turn since rest, the twist; the aim point it carries; the offset
+    of its target off the curve), the canonical spine curve once the bone it starts on is posed,
+    and the aimed rotations, written into one stack (the memo's)."""
+
+    def __init__(self, rig: AvatarRig, chain: _ChainPlan, delta, frames, nf: int):
+        self.rig, self.chain, self.frames, self.nf = rig, chain, frames, nf
+        self.twist = stacks_mul(delta, chain.rest)
+        self.aim = stacks_apply(self.twist, chain.aim)
+        self.off = stacks_apply(delta, chain.off)
+        self.target = None
+        self.aimed = np.empty((len(chain.index), nf, 3, 3))
+        self.count = 0
+
+    def bone(self, i: int, P, H) -> None:
+        """Aims chain bone i (its head placed, its parent posed) at its point of the spine curve."""
+        chain, j = self.chain, self.chain.index[i]
+        if self.target is None:  # the canonical spine curve, once the bone it starts on is posed
+            curve = self.rig._spine_curve(self.frames, P, H)
+            self.target = chain.w0 * curve.take(chain.k, axis=1).swapaxes(0, 1) \
+                + chain.w1 * curve.take(chain.k1, axis=1).swapaxes(0, 1) + self.off
+            if self.nf == 1:  # one frame: its aims and targets as Python floats, once
+                self.aim_at, self.target_at = self.aim[:, 0].tolist(), self.target[:, 0].tolist()
+        turn = None
+        if self.nf == 1:  # target - head in floats (numpy's difference)
+            t0, h0 = self.target_at[j], H[i, 0].tolist()
+            turn = turn_between_one(self.aim_at[j], [t0[0] - h0[0], t0[1] - h0[1], t0[2] - h0[2]])
+        if turn is None:
+            turn = quat_to_matrix(quat_between(self.aim[j], self.target[j] - H[i]))
+        else:  # one frame: the same bits in Python floats (turn_between_one)
+            turn = np.array([turn])
+        np.matmul(turn, self.twist[j], out=self.aimed[j])
+        P[i] = self.aimed[j]
+        self.count += 1
 
 
 class _RealisedTables(dict):
