@@ -34,10 +34,11 @@ from ..body.skeleton import JOINT_INDEX as JI
 from ..core.errors import BodyCalError
 from ..core.transforms import (
     EPS,
+    MANY_PRODUCTS,
+    STACKED_FRAMES,
     matmul_stack,
     mul_stack,
     quat_between,
-    quat_from_rows,
     quat_to_matrix,
     stack_apply,
     stack_mul,
@@ -46,6 +47,7 @@ from ..core.transforms import (
     transposed,
     turn_between_one,
 )
+from . import pose_kernels
 
 
 def _driver_of_segment(seg: str) -> str | None:
@@ -152,6 +154,8 @@ class _Level:
     root: bool  # the root bone is at this depth (placed from the pelvis once posed)
     loose_at: np.ndarray | None = None  # (K, 1, 3) the loose bones' rest heads
     rest_at: np.ndarray | None = None  # (K, 1, 3, 3) the rest bones' rest matrices
+    head_off4: np.ndarray | None = None  # (K, 1, 3, 1) head_off as a few frames' products take it
+    follow_fixed4: np.ndarray | None = None  # (K, 1, 3, 3) follow_fixed as a few frames' products take it
 
 
 @dataclass
@@ -193,6 +197,11 @@ class _ChainPlan:
     t: np.ndarray  # (n,) and the position along it
     inputs: np.ndarray  # every canonical bone whose frame the chain's rotations read (with the pelvis)
     order: np.ndarray | None = None  # the bones by their row here
+
+    def __post_init__(self):
+        self.w0 = (1 - self.t)[:, None, None]  # the target's weights on the curve points k, k + 1
+        self.w1 = self.t[:, None, None]
+        self.k1 = self.k + 1
 
 
 @dataclass
@@ -340,7 +349,9 @@ class AvatarRig:
     def to_world(self, p):
         shift, lin_t, _ = self._world_parts
         p = np.asarray(p, float)  # one BLAS call on (N, 3) rows (einsum is several times slower)
-        return (p.reshape(-1, 3) @ lin_t).reshape(p.shape) + shift
+        out = p.reshape(-1, 3) @ lin_t
+        out += shift  # in place (the same sum)
+        return out.reshape(p.shape)
 
     @property
     def _world_parts(self) -> tuple:
@@ -421,71 +432,139 @@ class AvatarRig:
         `bones` (ascending; default all, the others left unset), a depth of the hierarchy at a time
         (`_pose_plan`): each step is one stacked product over the bones of that depth."""
         nf = frames.shape[0]
-        n = len(self.names)
-        P = np.empty((n, nf, 3, 3))
-        H = np.empty((n, nf, 3))
         plan = self._pose_plan(None if bones is None else tuple(bones))
-        if len(plan.driven):
-            # W^-1 C(t) (C0^-1 W M_A): the canonical bone's rotation since rest, on the bone's rest
-            P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
         chain = self._chain_plan if plan.chained else None
-        held = None
-        if chain is not None:
-            # Decision (speed): the chain's rotations are the costliest part of a pose and a solve
-            # often poses the same trunk again (the egocentric method poses the avatar four times a
-            # block, the arms alone changing after the first IK): when every input they read is
-            # the last pose's, bit for bit, they are the last pose's.
-            key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
-            memo = getattr(self, "_chain_memo", None)
-            if memo is not None and memo[0] == key:  # bit for bit
-                held = memo[1]
-            else:
-                # What a chain bone's aim needs but its parent's pose: its vertebra's turn since
-                # rest (the twist), the aim point it carries, and the offset of its target off the curve.
-                delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
-                twist = stacks_mul(delta, chain.rest)
-                aim = stacks_apply(twist, chain.aim)
-                off = stacks_apply(delta, chain.off)
-                target = None
-                aimed = {}
+        key, held = self._held_chain(chain, frames, pelvis)
         few = plan.deferred is not None and nf < FEW_FRAMES
-        if few and (chain is None or held is not None):
-            return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis)
+        flat = few and (chain is None or held is not None)
+        P, H, HT = self._pose_buffers(plan, nf, few, flat)
+        delta = self._driven(plan, chain if chain is not None and held is None else None, frames, P)
+        aiming = None if delta is None else _ChainAim(self, chain, delta, frames, nf)
+        if flat:
+            return self._pose_flat(plan, None if chain is None else chain.order, held, P, H, pelvis, HT)
+        many = nf >= STACKED_FRAMES  # one BLAS call per bone on (3F, 3) rows, as stacks_mul and stacks_apply
         for lv in plan.few if few else plan.levels:
-            if len(lv.heads):
-                H[lv.heads] = H.take(lv.head_par, axis=0) + stacks_apply(P, lv.head_off, lv.head_par)
+            if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
+                for b, p, off_b in zip(lv.heads.tolist(), lv.head_par.tolist(), lv.head_off):
+                    np.matmul(P[p].reshape(-1, 3), off_b, out=H[b].reshape(-1))
+                    H[b] += H[p]
+            elif len(lv.heads):  # `stacks_apply`'s stacked product, called directly
+                H[lv.heads] = H.take(lv.head_par, axis=0) + np.matmul(P.take(lv.head_par, axis=0), lv.head_off4)[..., 0]
             if len(lv.loose):
                 H[lv.loose] = lv.loose_at
             if len(lv.rest):
                 P[lv.rest] = lv.rest_at
-            if len(lv.follow):
+            if len(lv.follow) and many:
                 P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
+            elif len(lv.follow):  # `stacks_mul`'s stacked product, called directly
+                P[lv.follow] = np.matmul(P.take(lv.follow_par, axis=0), lv.follow_fixed4)
             for i in lv.chain:
-                j = chain.index[i]
                 if held is not None:
-                    P[i] = held[j]
-                    continue
-                if target is None:  # the canonical spine curve, once the bone it starts on is posed
-                    curve = self._spine_curve(frames, P, H)
-                    target = (1 - chain.t)[:, None, None] * curve[:, chain.k].swapaxes(0, 1) \
-                        + chain.t[:, None, None] * curve[:, chain.k + 1].swapaxes(0, 1) + off
-                turn = turn_between_one(aim[j, 0].tolist(), (target[j, 0] - H[i, 0]).tolist()) if nf == 1 else None
-                if turn is None:
-                    turn = quat_to_matrix(quat_between(aim[j], target[j] - H[i]))
-                else:  # one frame: the same bits in Python floats (turn_between_one)
-                    turn = np.array([turn])
-                P[i] = aimed[j] = turn @ twist[j]
+                    P[i] = held[chain.index[i]]
+                else:
+                    aiming.bone(i, P, H)
             if lv.root:
-                H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
+                self._place_root(P, H, pelvis)
         if few:
-            late, par, off, table = plan.deferred
-            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1, nf, 3))])
-            H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
-        if held is None and chain is not None and len(aimed) == len(chain.index):
-            self._chain_memo = (key, np.stack([aimed[j] for j in range(len(aimed))]))
+            self._deferred_heads(plan.deferred, P, H, HT)
+        if aiming is not None and aiming.count == len(chain.index):
+            self._chain_memo = (key, aiming.aimed)
         return P, H
 
-    def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis):
+    def _held_chain(self, chain, frames, pelvis) -> tuple:
+        """(the chain's inputs' bytes, its rotations when they are the last pose's, else None).
+        Decision (speed): the chain's rotations are the costliest part of a pose and a solve often
+        poses the same trunk again (the egocentric method poses the avatar four times a block, the
+        arms alone changing after the first IK): when every input they read is the last pose's,
+        bit for bit, they are the last pose's."""
+        if chain is None:
+            return None, None
+        key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
+        memo = getattr(self, "_chain_memo", None)
+        return key, (memo[1] if memo is not None and memo[0] == key else None)  # bit for bit
+
+    def _pose_buffers(self, plan: _PosePlan, nf: int, few: bool, flat: bool) -> tuple:
+        """(P, H, HT): a few frames' heads H are the first rows of HT, whose rows after them take
+        the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H)."""
+        n = len(self.names)
+        P = np.empty((n, nf, 3, 3))
+        if few and nf < STACKED_FRAMES:
+            late = (plan.flat if flat else plan.deferred)[-4]
+            HT = np.empty((n + len(late) + 1, nf, 3))
+            HT[-1] = 0.0
+            return P, HT[:n], HT
+        return P, np.empty((n, nf, 3)), None
+
+    def _driven(self, plan: _PosePlan, chain, frames, P):
+        """The driven bones' rotations into P, W^-1 C(t) (C0^-1 W M_A) (the canonical bone's rotation
+        since rest, on the bone's rest), and with a `chain` to aim, its vertebrae's turns since rest
+        W^-1 C(t) C0^-1 W (returned; else None)."""
+        nf = frames.shape[0]
+        delta = None
+        if chain is not None and nf < STACKED_FRAMES and len(plan.driven):
+            # A few frames: the driven bones' and the chain vertebrae's products in one stacked
+            # product (each its own BLAS call either way, so the same bits)
+            rows, fixed = self._driven_and_chain(plan, chain)
+            both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
+            P[plan.driven] = self._from_world(both[:len(plan.driven)])
+            return self._from_world(both[len(plan.driven):])
+        if nf >= STACKED_FRAMES and self._w_identity:
+            # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
+            # call bone by bone, without its stack to copy into P)
+            for b, c, fixed in zip(plan.driven.tolist(), plan.canon.tolist(), plan.fixed):
+                np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
+        elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+            P[plan.driven] = self._from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
+                                                        self._driven_fixed(plan)))
+        elif len(plan.driven):
+            P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
+        if chain is not None:
+            delta = self._from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
+        return delta
+
+    def _place_root(self, P, H, pelvis) -> None:
+        """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
+        products, called directly."""
+        shift, _, inv_t = self._world_parts
+        nf = P.shape[1]
+        at = (np.asarray(pelvis, float) - shift).reshape(-1, 3) @ inv_t
+        np.subtract(at.reshape(nf, 3), (P[self.root].reshape(-1, 3) @ self._pelvis_at).reshape(nf, 3), out=H[self.root])
+
+    def _deferred_heads(self, table_plan, P, H, HT) -> None:
+        """The heads of `table_plan` (rows, parents, offsets, the padded sum table) in one padded
+        pass: each its anchor's head plus the offsets down its path, in order. A few frames' (HT:
+        H with rows after it) take their offsets' products written after H and a zero row."""
+        late, par, off, table = table_plan
+        if HT is None:
+            terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
+        else:
+            got = self._caches.get(("off4", id(off)))
+            if got is None or got[0] is not off:  # the plan's offsets as the stacked product takes them, once
+                got = self._caches[("off4", id(off))] = (off, off[:, None, :, None])
+            off4 = got[1]
+            n = len(H)
+            np.matmul(P.take(par, axis=0), off4, out=HT[n:-1].reshape(len(late), -1, 3, 1))
+            terms = HT
+        H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
+
+    def _driven_and_chain(self, plan: _PosePlan, chain: _ChainPlan) -> tuple[np.ndarray, np.ndarray]:
+        """(the canonical bones read by the driven bones then by the chain's vertebrae, their fixed
+        factors (K, 1, 3, 3)), once per pose plan."""
+        key = ("driven+chain", id(plan))
+        got = self._caches.get(key)
+        if got is None:
+            got = self._caches[key] = (np.concatenate([plan.canon, chain.vertebra]),
+                                       np.concatenate([plan.fixed, chain.fixed])[:, None])
+        return got
+
+    def _driven_fixed(self, plan: _PosePlan) -> np.ndarray:
+        """The driven bones' fixed factors (K, 1, 3, 3) as a few frames' stacked product takes them, once per plan."""
+        got = self._caches.get(("driven", id(plan)))
+        if got is None:
+            got = self._caches[("driven", id(plan))] = plan.fixed[:, None]
+        return got
+
+    def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis, HT=None):
         """`_pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
         rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
         later poses hold the chain's rotations, so nothing is aimed level by level; each head is
@@ -496,13 +575,15 @@ class AvatarRig:
         if chain_bones is not None:
             P[chain_bones] = held
         for bones_f, par_f, fixed_f in follows:
-            P[bones_f] = stacks_mul(P, fixed_f, par_f)
+            if P.shape[1] < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+                P[bones_f] = np.matmul(P.take(par_f, axis=0), fixed_f[:, None])
+            else:
+                P[bones_f] = stacks_mul(P, fixed_f, par_f)
         if len(loose):
             H[loose] = loose_at
         if plan.has_root:
-            H[self.root] = self.to_armature(pelvis) - stack_apply(P[self.root], self._pelvis_at)
-        terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
-        H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)
+            self._place_root(P, H, pelvis)
+        self._deferred_heads((late, par, off, table), P, H, HT)
         return P, H
 
     @property
@@ -560,6 +641,8 @@ class AvatarRig:
                     [i for i in at if rows[i][1] == "chain"], self.root in at))
                 out[-1].loose_at = self.head[out[-1].loose][:, None]
                 out[-1].rest_at = self.rest[out[-1].rest][:, None]
+                out[-1].head_off4 = out[-1].head_off[:, None, :, None]
+                out[-1].follow_fixed4 = out[-1].follow_fixed[:, None]
             return out
 
         levels = levels_of(lambda i: True)
@@ -665,6 +748,8 @@ class AvatarRig:
         """Pose-bone quaternions from bones-first armature-space pose rotations P (N, F, 3, 3):
         basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P)."""
         kids, parents, fixed = self._basis_plan
+        if P.shape[1] >= STACKED_FRAMES and len(kids) * P.shape[1] >= MANY_PRODUCTS:
+            return self._basis_many(P)
         # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
         rel_t = transposed(P)
         rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
@@ -672,7 +757,36 @@ class AvatarRig:
         basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
         # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
         n, nf = basis_t.shape[:2]
-        return quat_from_rows(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+        # quat_from_rows' values (pose_kernels.quat_from_entries: fewer numpy calls)
+        return pose_kernels.quat_from_entries(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+
+    def _basis_many(self, P):
+        """`_basis` of many frames (a bake's chunk), the same values: the products and quaternions
+        read the rotations' entries as contiguous rows (`pose_kernels`) instead of strided entries
+        of gathered and transposed copies of the whole stack. Decision (speed, the same bits):
+        X^T's entries are `matmul_stack`'s sums, each product by its fixed factor the same BLAS
+        call on the same (3F, 3) rows as `stacks_mul`, the quaternions `quat_from_rows`'s."""
+        kids, parents, fixed = self._basis_plan
+        n, nf = P.shape[:2]
+        ent = pose_kernels.entry_rows(P)  # (9, N, F)
+        rel_t = np.empty((len(kids), nf, 3, 3))  # X^T of the bones with a parent
+        pose_kernels.product_t_into(rel_t, ent.take(kids, axis=1), ent.take(parents, axis=1))
+        row = self._basis_rows
+        basis_t = np.empty((n, nf, 3, 3))
+        for b in range(n):  # basis^T = X^T (M^-1 M_p)^T, `stacks_mul`'s product bone by bone
+            src = rel_t[row[b]] if row[b] >= 0 else np.ascontiguousarray(P[b].swapaxes(-1, -2))
+            np.matmul(src.reshape(-1, 3), fixed[b], out=basis_t[b].reshape(-1, 3))
+        # basis[f, n, i, j] = basis_t[n, f, j, i]: the basis's entry rows are basis_t's transposed
+        q = pose_kernels.quat_from_entries(pose_kernels.entry_rows(basis_t, _TRANSPOSE_ROWS).reshape(9, -1))
+        return q.reshape(4, n, nf).transpose(2, 1, 0)
+
+    @property
+    def _basis_rows(self) -> list[int]:
+        """Per bone, its row among the bones with a parent (`_basis_plan`), -1 for none; once."""
+        if getattr(self, "_brows", None) is None:
+            kids = self._basis_plan[0].tolist()
+            self._brows = [kids.index(b) if b in kids else -1 for b in range(len(self.names))]
+        return self._brows
 
     @property
     def _basis_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -692,9 +806,11 @@ class AvatarRig:
         i, p = self.root, self.parent[self.root]
         if p < 0:
             return (H[i] - self.head[i]) @ self.rest[i]
+        if getattr(self, "_root_rel", None) is None:  # (M_i^-1 M_p)^T and M_i^-1 (h_i - h_p), once
+            self._root_rel = ((self.rest[i].T @ self.rest[p]).T, self.rest[i].T @ (self.head[i] - self.head[p]))
+        rel_t, rest_off = self._root_rel
         local = (P[p].swapaxes(-1, -2) @ (H[i] - H[p])[..., None])[..., 0]
-        rel = local @ (self.rest[i].T @ self.rest[p]).T
-        return rel - self.rest[i].T @ (self.head[i] - self.head[p])
+        return local @ rel_t - rest_off
 
     def _spine_curve(self, frames, P, H):
         """Canonical spine joints (F, 13, 3), armature space: spine_root on its avatar bone, then
@@ -712,14 +828,24 @@ class AvatarRig:
         else:
             rot = P[b]
         start = H[b] + rot @ self.joint_local[j0]
-        ys = frames[:, _SPINE_ROWS][..., :, 1] * self.lengths[_SPINE_ROWS][:, None]
+        nf = len(start)
+        if frames.flags.c_contiguous:  # the vertebrae's +Y columns in one take
+            ys = frames.reshape(nf, -1).take(_SPINE_Y, axis=1).reshape(nf, -1, 3) * self.lengths[_SPINE_ROWS][:, None]
+        else:
+            ys = frames[:, _SPINE_ROWS][..., :, 1] * self.lengths[_SPINE_ROWS][:, None]
         steps = ys @ self.w_inv.T  # world steps in armature units
-        return np.concatenate([start[:, None], start[:, None] + np.cumsum(steps, axis=1)], axis=1)
+        curve = np.empty((nf, len(_SPINE_ROWS) + 1, 3))  # start, then start + the running sum
+        curve[:, 0] = start
+        np.cumsum(steps, axis=1, out=curve[:, 1:])
+        curve[:, 1:] += start[:, None]
+        return curve
 
     def _finish(self, basis, P, H, root_loc, realised=True) -> RigPose:
         """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
         canonical joints riding on their bones and the realised canonical frames."""
         nf = P.shape[1]
+        if nf == 1:
+            return self._finish_one(basis, P, H, root_loc, realised)
         if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
             bones, local, order = self._joint_table
             rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
@@ -729,7 +855,12 @@ class AvatarRig:
             joints = np.empty((nf, len(JOINTS), 3))
             for bones, js, local in self._joint_groups:  # the bones carrying K joints each, at once
                 rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
-                joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
+                if nf >= STACKED_FRAMES:  # each joint written where it goes, H + P o (no (G, F, K, 3) stack to scatter)
+                    for g, (b, row) in enumerate(zip(bones.tolist(), js.tolist())):
+                        for kk, j in enumerate(row):
+                            np.add(H[b], rel[g, :, :, kk], out=joints[:, j])
+                else:
+                    joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
         joints = self.to_world(joints)
         # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
         if realised is False or realised is None:
@@ -739,15 +870,61 @@ class AvatarRig:
             frames = np.empty((nf, len(BONES), 3, 3))  # NaN where not realised (written once)
             if len(unrealised):
                 frames[:, unrealised] = np.nan
-            if len(idx):
+            if len(idx) and nf >= STACKED_FRAMES and self._w_identity:
+                # `stacks_mul`'s product bone by bone into one buffer, copied where it goes (no
+                # (K, F, 3, 3) stack to allocate and scatter)
+                buf = np.empty((nf, 3, 3))
+                for c, b, rel in zip(idx.tolist(), car.tolist(), car_rel):
+                    np.matmul(P[b].reshape(-1, 3), rel, out=buf.reshape(-1, 3))
+                    frames[:, c] = buf
+            elif len(idx):
                 rel = self._to_world_rot(stacks_mul(P, car_rel, car))
                 frames[:, idx] = rel.swapaxes(0, 1)
         return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
 
+    def _finish_one(self, basis, P, H, root_loc, realised) -> RigPose:
+        """`_finish` of one frame, the same values in fewer numpy calls: the joints' padded product
+        (`_joint_table`) with its heads added in place and gathered in one `take` (`_one_tables`),
+        the realised frames written into a stack whose last row is NaN and gathered in one `take`."""
+        bones, local, jrows, car_rows = self._one_tables
+        ride = np.matmul(P.take(bones, axis=0), local)  # (G, 1, 3, K): P_car offset, as `stacks_mul`
+        ride += H.take(bones, axis=0)[..., None]  # H + P o (the same sum)
+        shift, lin_t, _ = self._world_parts
+        joints = np.matmul(ride.take(jrows), lin_t)  # `to_world` of the (J, 3) rows
+        joints += shift
+        joints = joints.reshape(1, -1, 3)
+        if realised is False or realised is None:
+            frames = None
+        else:
+            idx, car_rel, car, _ = self._realised_rows(realised)
+            rows = np.empty((len(idx) + 1, 1, 3, 3))
+            rows[-1] = np.nan
+            if len(idx):
+                if self._w_identity:
+                    np.matmul(P.take(car, axis=0), car_rel[:, None], out=rows[:-1])
+                else:
+                    rows[:-1] = self._to_world_rot(stacks_mul(P, car_rel, car))
+            frames = rows.take(car_rows[realised is True or tuple(realised)], axis=0).reshape(1, len(BONES), 3, 3)
+        return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
+
+    @property
+    def _one_tables(self) -> tuple:
+        """`_finish_one`'s tables, once per rig: the joints' carriers, their padded offsets (G, 1, 3,
+        K), each joint's three entries in the (G, 1, 3, K) product, and per realised set (a dict
+        keyed like `_realised_rows`, filled on first use) each canonical bone's row in the realised
+        stack (its own, or the NaN row after them)."""
+        if getattr(self, "_one_tab", None) is None:
+            bones, local, order = self._joint_table
+            width = local.shape[-1]
+            g, kk = np.divmod(order, width)  # joint j: carrier row g, padded column kk
+            jrows = ((g * 3)[:, None] + np.arange(3)) * width + kk[:, None]  # (J, 3) into (G, 1, 3, K)
+            self._one_tab = (bones, local[:, None], jrows, _RealisedTables(self))
+        return self._one_tab
+
     def _realised_rows(self, realised) -> tuple:
         """(the canonical bones realised (True: all; a list of indices), their carriers' fixed factors,
         their carriers, the bones not realised), once per set."""
-        key = "all" if realised is True else tuple(int(i) for i in realised)
+        key = "all" if realised is True else tuple(realised)  # numpy's integers hash as Python's
         rows = self._caches.get(("realised", key))
         if rows is None:
             idx = np.arange(len(BONES)) if realised is True else np.asarray(realised, int)
@@ -822,6 +999,59 @@ class AvatarRig:
                 H[i] = H[p] + stack_apply(P[p], self.rest[p].T @ (self.head[i] - self.head[p])) \
                     + (pr @ loc[..., None])[..., 0]
         return self._finish(basis, P, H, np.asarray(root_location, float), realised)
+
+
+class _ChainAim:
+    """The spine chain's bones aimed one by one (`AvatarRig._pose`): what each aim needs but its
+    parent's pose (its vertebra's turn since rest, the twist; the aim point it carries; the offset
+    of its target off the curve), the canonical spine curve once the bone it starts on is posed,
+    and the aimed rotations, written into one stack (the memo's)."""
+
+    def __init__(self, rig: AvatarRig, chain: _ChainPlan, delta, frames, nf: int):
+        self.rig, self.chain, self.frames, self.nf = rig, chain, frames, nf
+        self.twist = stacks_mul(delta, chain.rest)
+        self.aim = stacks_apply(self.twist, chain.aim)
+        self.off = stacks_apply(delta, chain.off)
+        self.target = None
+        self.aimed = np.empty((len(chain.index), nf, 3, 3))
+        self.count = 0
+
+    def bone(self, i: int, P, H) -> None:
+        """Aims chain bone i (its head placed, its parent posed) at its point of the spine curve."""
+        chain, j = self.chain, self.chain.index[i]
+        if self.target is None:  # the canonical spine curve, once the bone it starts on is posed
+            curve = self.rig._spine_curve(self.frames, P, H)
+            self.target = chain.w0 * curve.take(chain.k, axis=1).swapaxes(0, 1) \
+                + chain.w1 * curve.take(chain.k1, axis=1).swapaxes(0, 1) + self.off
+            if self.nf == 1:  # one frame: its aims and targets as Python floats, once
+                self.aim_at, self.target_at = self.aim[:, 0].tolist(), self.target[:, 0].tolist()
+        turn = None
+        if self.nf == 1:  # target - head in floats (numpy's difference)
+            t0, h0 = self.target_at[j], H[i, 0].tolist()
+            turn = turn_between_one(self.aim_at[j], [t0[0] - h0[0], t0[1] - h0[1], t0[2] - h0[2]])
+        if turn is None:
+            turn = quat_to_matrix(quat_between(self.aim[j], self.target[j] - H[i]))
+        else:  # one frame: the same bits in Python floats (turn_between_one)
+            turn = np.array([turn])
+        np.matmul(turn, self.twist[j], out=self.aimed[j])
+        P[i] = self.aimed[j]
+        self.count += 1
+
+
+class _RealisedTables(dict):
+    """Per realised set (True or a tuple of canonical bone indices): each canonical bone's row in
+    `_finish_one`'s realised stack (its index among the realised, else the NaN row after them)."""
+
+    def __init__(self, rig: AvatarRig):
+        super().__init__()
+        self.rig = rig
+
+    def __missing__(self, key):
+        idx = self.rig._realised_rows(True if key is True else list(key))[0]
+        rows = np.full(len(BONES), len(idx), int)
+        rows[idx] = np.arange(len(idx))
+        self[key] = rows
+        return rows
 
 
 def _closest_on_segment(p, a, b):
@@ -924,4 +1154,6 @@ def copy_frames_by(user_frames: np.ndarray, factor: np.ndarray) -> np.ndarray:
 
 
 _DELTA_COPY_ROWS = np.array(DELTA_COPY, int)
+_TRANSPOSE_ROWS = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # a 3x3's entries (i, j) -> (j, i), row-major
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)  # the canonical vertebrae (_spine_curve)
+_SPINE_Y = (_SPINE_ROWS[:, None] * 9 + np.array([1, 4, 7])).ravel()  # their frames' +Y entries, row-major

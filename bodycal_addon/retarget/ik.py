@@ -150,8 +150,11 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     root = np.asarray(root, float)
     target = np.asarray(target, float)
     F = root.shape[0]
-    l1 = np.broadcast_to(np.asarray(l1, float), (F,))
-    l2 = np.broadcast_to(np.asarray(l2, float), (F,))
+    l1, l2 = np.asarray(l1, float), np.asarray(l2, float)
+    if l1.shape != (F,):  # (a limb set's lengths come as (F,) already)
+        l1 = np.broadcast_to(l1, (F,))
+    if l2.shape != (F,):
+        l2 = np.broadcast_to(l2, (F,))
     if F <= FEW_LIMBS:
         return _two_bone_floats(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio)
     down = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (F, 3))
@@ -411,6 +414,8 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     axis, sin_phi = _unit(cross(u0, ut), lambda: _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
     delta = phi * ratio[0] / ratio[1]
+    if len(delta) >= MANY_SPINES:
+        return _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta), delta
     seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
     chord = (seg * lengths[:, None]).sum(1)
     cdir, clen = _unit(chord, ut)
@@ -420,6 +425,49 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
     joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
     return joints, delta
+
+
+MANY_SPINES = 16  # frames from which `bend_rest_spine` bends the vertebrae components first (`_bend_many`)
+
+
+def _turn_components(v, a, cos, sin):
+    """`_rodrigues` on components: v (3 arrays) turned about the unit axis a (3 arrays), each by
+    the angle whose cosine and sine are given, broadcast: v c + (a x v) s + a (a . v) (1 - c),
+    numpy's operations in their order (`_dot` adds (0 + 2) + 1, `cross` a1 v2 - a2 v1, ...)."""
+    v0, v1, v2 = v
+    a0, a1, a2 = a
+    d = (a0 * v0 + a2 * v2) + a1 * v1
+    e = 1 - cos
+    return ((v0 * cos + (a1 * v2 - a2 * v1) * sin) + a0 * d * e,
+            (v1 * cos + (a2 * v0 - a0 * v2) * sin) + a1 * d * e,
+            (v2 * cos + (a0 * v1 - a1 * v0) * sin) + a2 * d * e)
+
+
+def _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta):
+    """`bend_rest_spine`'s vertebrae for many frames, components first: each component an (F, n)
+    array (the (F, n, 3) path's products over rows of three, with broadcast operands, cost several
+    times more), the same operations in the same order, so the same bits (tests/engine/test_ik.py):
+    `_rodrigues`, the chord's sum over the vertebrae in order, einsum's (0 + 2) + 1 and the joints'
+    running sum."""
+    ang = delta[:, None] * k
+    seg = _turn_components(seg0.T[:, None, :], axis.T[:, :, None], np.cos(ang), np.sin(ang))
+    chord = np.empty((len(delta), 3))
+    for i in range(3):  # (seg * lengths).sum over the vertebrae, in order (a running sum's last)
+        chord[:, i] = np.cumsum(seg[i] * lengths, axis=1)[:, -1]
+    cdir, clen = _unit(chord, ut)
+    turn_axis, sin_t = _unit(cross(cdir, ut), axis)
+    turn = np.arctan2(sin_t, _dot(cdir, ut))[:, None]
+    seg = _turn_components(seg, turn_axis.T[:, :, None], np.cos(turn), np.sin(turn))
+    stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    scale = lengths[None, :] * stretch[:, None]
+    joints = np.empty((len(delta), len(lengths) + 1, 3))
+    joints[:, 0] = start
+    rot = sacrum_rot.transpose(1, 2, 0)  # rot[i, j]: (F,) entries
+    for i in range(3):  # einsum("fij,fkj->fki") times the lengths, then start + the running sum
+        world = ((rot[i, 0][:, None] * seg[0] + rot[i, 2][:, None] * seg[2]) + rot[i, 1][:, None] * seg[1]) * scale
+        np.cumsum(world, axis=1, out=joints[:, 1:, i])
+        joints[:, 1:, i] += start[:, i, None]
+    return joints
 
 
 def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None, two_pass=True,
@@ -478,11 +526,41 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     frac = (np.arange(n) + 1.0) / n
     ang = total[:, None] * frac
     other = cross(chord, hip)
-    right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
-    y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
-    xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
-    rotations = _columns(xk, y, cross(xk, y))
+    rotations = _twist_many(joints, hip, other, ang) if len(ang) >= MANY_SPINES else None
+    if rotations is None:
+        right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
+        y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
+        xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
+        rotations = _columns(xk, y, cross(xk, y))
     return SpineResult(joints, rotations, sacrum_rot, theta)
+
+
+def _twist_many(joints, hip, other, ang):
+    """`spine`'s vertebra frames for many frames, components first ((F, n) arrays, as `_bend_many`):
+    the right turned from the hip axis, +Y along each vertebra, +X the right made perpendicular
+    to it, +Z their cross product, numpy's operations in their order (`_dot`'s (0 + 2) + 1). None
+    when a vertebra or its right vanishes (the rows' path then takes its fallbacks)."""
+    cos, sin = np.cos(ang), np.sin(ang)
+    right = [cos * hip[:, i, None] + sin * other[:, i, None] for i in range(3)]
+    step = [joints[:, 1:, i] - joints[:, :-1, i] for i in range(3)]
+    norm = np.sqrt((step[0] * step[0] + step[2] * step[2]) + step[1] * step[1])
+    if not (norm > EPS).all():
+        return None
+    y = [v / norm for v in step]
+    along = (right[0] * y[0] + right[2] * y[2]) + right[1] * y[1]
+    w = [right[i] - along * y[i] for i in range(3)]
+    norm = np.sqrt((w[0] * w[0] + w[2] * w[2]) + w[1] * w[1])
+    if not (norm > EPS).all():
+        return None
+    x = [v / norm for v in w]
+    out = np.empty(ang.shape + (3, 3))
+    for i in range(3):
+        out[..., i, 0] = x[i]
+        out[..., i, 1] = y[i]
+    out[..., 0, 2] = x[1] * y[2] - x[2] * y[1]  # `cross`'s differences
+    out[..., 1, 2] = x[2] * y[0] - x[0] * y[2]
+    out[..., 2, 2] = x[0] * y[1] - x[1] * y[0]
+    return out
 
 
 def _f_dot_seq(a, b):
@@ -490,7 +568,105 @@ def _f_dot_seq(a, b):
     return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
 
 
+@lru_cache(maxsize=16)
+def _rest_spine_floats(data: bytes, shape: tuple) -> tuple:
+    """`_rest_spine`'s lengths, unit directions and segment numbers as Python floats, once per spine."""
+    lengths, seg0, _, k, _ = _rest_spine(data, shape)
+    return lengths.tolist(), seg0.tolist(), k.tolist()
+
+
+def _f_rodrigues(vs, axis, cos, sin):
+    """`_rodrigues` of vectors `vs` about one unit `axis`, each by its angle's cosine and sine:
+    v c + (axis x v) s + axis (axis . v) (1 - c), in numpy's order (`_dot`'s (0 + 2) + 1)."""
+    a0, a1, a2 = axis
+    out = []
+    for (v0, v1, v2), c, s in zip(vs, cos, sin):
+        d = (a0 * v0 + a2 * v2) + a1 * v1
+        e = 1 - c
+        out.append([(v0 * c + (a1 * v2 - a2 * v1) * s) + a0 * d * e,
+                    (v1 * c + (a2 * v0 - a0 * v2) * s) + a1 * d * e,
+                    (v2 * c + (a0 * v1 - a1 * v0) * s) + a2 * d * e])
+    return out
+
+
 def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
+    """`spine` with `rest_segments` of ONE frame in Python floats, vertebrae included: each the
+    numpy path's operations in their order (einsum's three-term sums add (0 + 2) + 1 on contiguous
+    operands, the sums over the vertebrae and the cumulative sum in order), the cosines, sines and
+    arctangents still numpy's (three calls each): a dozen numpy calls where the arrays' path made
+    about a hundred (tests/engine/test_ik.py compares both to the bit). A sacrum frame whose rows
+    are strided (einsum may then add in order) takes `_spine_one_arrays`."""
+    if sacrum_rot.strides[-1] != sacrum_rot.itemsize:
+        return _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right)
+    data = rest_segments.tobytes()
+    _, _, u0a, _, ratio = _rest_spine(data, rest_segments.shape)
+    lengths, seg0, k = _rest_spine_floats(data, rest_segments.shape)
+    u0 = u0a.tolist()
+    rot = sacrum_rot[0].tolist()
+    s0, t0 = start[0].tolist(), target[0].tolist()
+    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
+    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
+    ut, reach = _f_unit(local, u0)
+    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
+    delta = np.arctan2([sin_phi], [_f_dot(u0, ut)]) * ratio[0] / ratio[1]
+    dl = delta.tolist()[0]
+    ang = [dl * kk for kk in k]
+    seg = _f_rodrigues(seg0, axis, np.cos(ang).tolist(), np.sin(ang).tolist())
+    c0 = c1 = c2 = None
+    for (v0, v1, v2), ln in zip(seg, lengths):  # (seg * lengths).sum over the vertebrae, in order
+        if c0 is None:
+            c0, c1, c2 = v0 * ln, v1 * ln, v2 * ln
+        else:
+            c0, c1, c2 = c0 + v0 * ln, c1 + v1 * ln, c2 + v2 * ln
+    cdir, clen = _f_unit([c0, c1, c2], ut)
+    turn_axis, sin_t = _f_unit(_f_cross(cdir, ut), axis)
+    turn = np.arctan2([sin_t], [_f_dot(cdir, ut)])
+    ct, st = np.cos(turn).tolist() * len(seg), np.sin(turn).tolist() * len(seg)
+    seg = _f_rodrigues(seg, turn_axis, ct, st)
+    stretch = _f_clip(reach / _f_max(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
+    # einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths * stretch), then the joints' running sum
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
+    joints = [s0]
+    run = None
+    for (v0, v1, v2), ln in zip(seg, lengths):
+        sc = ln * stretch
+        w = [((r00 * v0 + r02 * v2) + r01 * v1) * sc, ((r10 * v0 + r12 * v2) + r11 * v1) * sc,
+             ((r20 * v0 + r22 * v2) + r21 * v1) * sc]
+        run = w if run is None else [run[0] + w[0], run[1] + w[1], run[2] + w[2]]
+        joints.append([s0[0] + run[0], s0[1] + run[1], s0[2] + run[2]])
+    # the twist (spine's), its chord, hip and top in floats
+    j0, j1 = joints[0], joints[-1]
+    y_sac = [r01, r11, r21]
+    x_sac = [r00, r10, r20]  # a strided view in the numpy path
+    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
+    kx = _f_dot_seq(x_sac, chord)
+    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
+                  lambda: _f_any_perpendicular(chord))[0]
+    if top_right is not None:
+        tr = np.asarray(top_right, float)
+        tr_l = tr[0].tolist()
+        kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
+        top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
+        total = np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)]).tolist()[0]
+    else:
+        total = 0.0
+    n = len(seg)
+    ang = [total * ((m + 1.0) / n) for m in range(n)]
+    cos, sin = np.cos(ang).tolist(), np.sin(ang).tolist()
+    other = _f_cross(chord, hip)
+    rotations = []
+    for m in range(n):
+        a, b = joints[m], joints[m + 1]
+        y = _f_unit([b[0] - a[0], b[1] - a[1], b[2] - a[2]], chord)[0]
+        c, s = cos[m], sin[m]
+        right = [c * hip[0] + s * other[0], c * hip[1] + s * other[1], c * hip[2] + s * other[2]]
+        x = _f_perp_unit(right, y, lambda y=y: _f_any_perpendicular(y))[0]
+        z = _f_cross(x, y)
+        rotations.append([[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]])
+    return SpineResult(np.array([joints]), np.array([rotations]), sacrum_rot, delta)
+
+
+def _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
     """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame: the
     vertebrae's arrays in numpy as there, the single vectors between them (the chord's direction in
     the sacrum, the bend and turn axes, the twist's hip and top) in Python floats, each the numpy

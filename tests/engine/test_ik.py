@@ -324,3 +324,30 @@ def test_one_frame_s_spine_in_python_floats_is_numpy_s_to_the_bit(monkeypatch):
             for a, b in ((got.joints, want.joints), (got.rotations, want.rotations), (got.bend, want.bend),
                          (got.sacrum_rot, want.sacrum_rot)):
                 np.testing.assert_array_equal(a, b)
+
+
+def test_many_frames_spine_bent_components_first_is_the_vectors_path_to_the_bit(monkeypatch):
+    # A bake's spine (ik.MANY_SPINES frames or more) bends its vertebrae components first
+    # (`_bend_many`): the (F, n, 3) path's operations in their order, so its bits, degenerate
+    # frames included (the skull base on the rest chord, on the spine's start), and on a sacrum
+    # frame that is a strided view (as a pose's frames give it).
+    rng = np.random.default_rng(12)
+    rest = np.cumsum(np.tile([0.0, 0.045, 0.0], (12, 1)) + rng.normal(scale=0.004, size=(12, 3)), axis=0)
+    rest_segments = np.diff(np.concatenate([np.zeros((1, 3)), rest]), axis=0)
+    n = 200
+    pelvis = rng.normal(size=(n, 3))
+    sac = np.zeros((n, 4, 3, 3))
+    sac[:, 2] = _rotations(rng, n)
+    sac = sac[:, 2]
+    start = pelvis + 0.1 * sac[..., 1]
+    aim = start + np.einsum("fij,j->fi", sac, rest_segments.sum(0)) + rng.normal(scale=0.08, size=(n, 3))
+    aim[:6] = start[:6] + 0.5 * np.einsum("fij,j->fi", sac[:6], rest_segments.sum(0))
+    aim[6:10] = start[6:10]
+    right = rng.normal(size=(n, 3))
+    kw = {"top_right": right / np.linalg.norm(right, axis=1, keepdims=True), "two_pass": False,
+          "rest_segments": rest_segments}
+    got = ik.spine(pelvis, sac, 0.1, None, aim, **kw)
+    monkeypatch.setattr(ik, "MANY_SPINES", n + 1)
+    want = ik.spine(pelvis, sac, 0.1, None, aim, **kw)
+    for a, b in ((got.joints, want.joints), (got.rotations, want.rotations), (got.bend, want.bend)):
+        np.testing.assert_array_equal(a, b)

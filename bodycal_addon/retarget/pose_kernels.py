@@ -1,0 +1,73 @@
+"""Array kernels of the rig posing (`avatar_pose.AvatarRig`) for long stacks (a bake's chunks): the
+same operations in the same order as the general helpers of `core.transforms` they stand for, so
+the same bits, with fewer passes over memory (no transposed copies of whole stacks, no strided
+products over them, no stacked argmax). DESIGN.md "Prepared solver"."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.transforms import _SHEPPERD
+
+_ENTRY_OF_TRANSPOSE = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # row-major 3x3: entry (i, j) -> (j, i)
+
+
+def entry_rows(a: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """The entries of a stack of 3x3 matrices (..., 3, 3) as contiguous rows (9, ...): row 3i + j
+    holds entry (i, j) of every matrix (`rows`: which entry each row takes instead, e.g. a
+    transpose's). Nine copies, each reading one entry of every matrix."""
+    flat = a.reshape(-1, 9)
+    out = np.empty((9, flat.shape[0]))
+    for r, e in enumerate(range(9) if rows is None else rows.tolist()):
+        out[r] = flat[:, e]
+    return out.reshape((9,) + a.shape[:-2])
+
+
+def product_t_into(out: np.ndarray, child: np.ndarray, parent: np.ndarray) -> None:
+    """out[..., i, k] = (C[0, i] P[0, k] + C[1, i] P[1, k]) + C[2, i] P[2, k] for entry rows C, P
+    (9, ...) (`entry_rows`): C^T P item by item, `transforms.matmul_stack`'s sums of many items
+    (a_i0 b_0k + a_i1 b_1k) + a_i2 b_2k with a = C^T, b = P, each entry over contiguous rows and
+    written once where it goes."""
+    tmp = np.empty(child.shape[1:])
+    for i in range(3):
+        for k in range(3):
+            entry = out[..., i, k]
+            np.multiply(child[i], parent[k], out=tmp)
+            acc = child[3 + i] * parent[3 + k]
+            np.add(tmp, acc, out=tmp)
+            np.multiply(child[6 + i], parent[6 + k], out=acc)
+            np.add(tmp, acc, out=entry)
+
+
+def quat_from_entries(comp: np.ndarray) -> np.ndarray:
+    """`transforms.quat_from_rows` (Shepperd's method on entry rows (9, M): m00, m01, ..., m22 ->
+    (4, M), w >= 0) with the same values, for many matrices: the best conditioned candidate is
+    found by three comparisons instead of a stacked argmax (the first largest of trace, m00, m11,
+    m22 as argmax takes it, NaN included: a NaN diagonal makes the trace NaN, which stays chosen),
+    and the trace's candidate, most items' choice, is computed for every item without a gather;
+    the other three for the items that pick them only."""
+    trace = comp[0] + comp[4] + comp[8]
+    best = np.zeros(trace.shape, np.intp)
+    top = trace
+    chosen = []  # the other candidates any item may pick
+    for k, row in ((1, 0), (2, 4), (3, 8)):
+        more = comp[row] > top
+        if more.any():
+            best[more] = k
+            top = np.where(more, comp[row], top)
+            chosen.append(k)
+    q = np.empty((4, comp.shape[1]))
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = comp
+    np.add(1, m00, out=q[0])  # _SHEPPERD[0]: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01)
+    q[0] += m11
+    q[0] += m22
+    np.subtract(m21, m12, out=q[1])
+    np.subtract(m02, m20, out=q[2])
+    np.subtract(m10, m01, out=q[3])
+    for k in chosen:
+        cols = (best == k).nonzero()[0]
+        if len(cols):
+            q[:, cols] = _SHEPPERD[k](*comp[:, cols])
+    q /= np.sqrt((q * q).sum(0))
+    q *= np.where(q[0] < 0, -1.0, 1.0)
+    return q

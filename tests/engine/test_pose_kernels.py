@@ -1,0 +1,79 @@
+"""The bake's rig-posing kernels (retarget/pose_kernels.py, DESIGN.md "Prepared solver") give the
+general helpers' values to the bit: the pose-bone quaternions from entry rows are
+transforms.quat_from_rows' (every Shepperd candidate, ties, NaN), X^T's entries are
+transforms.matmul_stack's sums, and a many-frame pose-bone basis is the general formula's."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bodycal_addon.body.rest_frames import model_rest_frames
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.core import transforms as tf
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import pose_kernels as pk
+from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import retarget_fixtures as rt
+from bodycal_dev import synthetic
+
+
+def _same(a, b):
+    return np.array_equal(a, b, equal_nan=True)
+
+
+def test_quaternions_from_entry_rows_are_quat_from_rows_to_the_bit():
+    rng = np.random.default_rng(11)
+    q = rng.normal(size=(3000, 4))
+    rot = tf.quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+    half_turns = [np.diag(d) for d in ([1.0, -1, -1], [-1.0, 1, -1], [-1.0, -1, 1])]  # each diagonal the largest
+    ties = [np.eye(3), np.diag([1.0, 1, -1]), np.diag([-1.0, 1, 1]), np.zeros((3, 3))]
+    nan = np.full((3, 3), np.nan)
+    odd = np.eye(3)
+    odd[0, 1] = np.nan  # NaN off the diagonal: the candidate is still chosen by the diagonal
+    mats = np.concatenate([rot, rng.normal(size=(500, 3, 3)), np.stack(half_turns + ties + [nan, odd])])
+    comp = np.ascontiguousarray(mats.reshape(-1, 9).T)
+    picks = np.argmax(np.stack([comp[0] + comp[4] + comp[8], comp[0], comp[4], comp[8]]), axis=0)
+    assert set(picks.tolist()) == {0, 1, 2, 3}  # every candidate is exercised
+    with np.errstate(invalid="ignore", divide="ignore"):
+        assert _same(pk.quat_from_entries(comp), tf.quat_from_rows(comp))
+        # blocks where every item picks one candidate (quat_from_rows' slice path): small turns
+        # (the trace's, most of a pose's bones), then half turns about x
+        near = np.concatenate([np.ones((50, 1)), 0.1 * rng.normal(size=(50, 3))], axis=1)
+        small = tf.quat_to_matrix(near / np.linalg.norm(near, axis=1, keepdims=True))
+        for block in (small, np.repeat(half_turns[:1], 5, axis=0)):
+            rows = np.ascontiguousarray(block.reshape(-1, 9).T)
+            assert _same(pk.quat_from_entries(rows), tf.quat_from_rows(rows))
+
+
+def test_entry_row_products_are_matmul_stack_to_the_bit():
+    rng = np.random.default_rng(12)
+    child, parent = rng.normal(size=(2, 40, 30, 3, 3))  # 1200 items: matmul_stack's sums
+    out = np.empty((40, 30, 3, 3))
+    pk.product_t_into(out, pk.entry_rows(child), pk.entry_rows(parent))
+    assert np.array_equal(out, tf.matmul_stack(child.swapaxes(-1, -2), parent))
+    rows = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])
+    assert np.array_equal(pk.entry_rows(child, rows), tf.transposed(child).reshape(-1, 9).T.reshape(9, 40, 30))
+
+
+def test_a_bake_chunk_s_basis_is_the_general_formula_s_to_the_bit():
+    perf = synthetic.make_performer(seed=3)
+    rec, truth = synthetic.record_session(perf, motions=("clap", "walk_in_place"), calibration=False,
+                                          motion_seconds=1.5)
+    user = truth.body_model()
+    up = ua.animate_user(rec, user)
+    for avatar in (rt.procedural_avatar(), rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2),
+                                                                arm_drop_deg=30.0)):
+        rig = ap.AvatarRig.from_model(avatar)
+        frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
+        P, _ = rig._pose(frames, up.joints[:, JI["pelvis"]])
+        assert P.shape[1] >= tf.STACKED_FRAMES and P.shape[0] * P.shape[1] >= tf.MANY_PRODUCTS
+        # the general formula (`_basis` of a few frames): X^T = P_child^T P_parent, times the
+        # fixed factors bone by bone, Shepperd's quaternions of the transposed products
+        kids, parents, fixed = rig._basis_plan
+        rel_t = tf.transposed(P)
+        rel_t[kids] = tf.matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
+        basis_t = tf.stacks_mul(rel_t, fixed)
+        n, nf = basis_t.shape[:2]
+        want = tf.quat_from_rows(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+        got = rig._basis(P)
+        assert got.shape == want.shape and np.array_equal(got, want)
