@@ -456,12 +456,13 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
         sets[F, "radius"] = np.repeat(radius, F)[:, None]
     mcp = np.concatenate([P[n[0]] for n in names])
     ref = np.concatenate([Fr[:, b[0]] for b in bones])
-    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), None, [ref], finger_set=sets[F])
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
-    # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
+    # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead
+    # (of the first pose only that +Z is read).
+    aim = tips.reshape(-1, 3)
     if any(radius):
-        aim = tips.reshape(-1, 3) + sets[F, "radius"] * frames[2][..., :, 2]
-        pts, frames = pose_finger_chain(mcp, aim, None, [ref], finger_set=sets[F])
+        aim = aim + sets[F, "radius"] * sets[F].distal_z(mcp, ref, aim)
+    pts, frames = pose_finger_chain(mcp, aim, None, [ref], finger_set=sets[F])
     pts = pts.reshape(K, F, 4, 3)
     for k, n in enumerate(names):
         for i, j in enumerate(n[1:]):
