@@ -23,6 +23,7 @@ per pass, whatever the number of frames (the prepared solver's step 1, solver.py
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 
@@ -197,9 +198,22 @@ class UserAnimator:
                            for k, g in sorted(by_count.items())],
                 "tips": which, "tip_columns": [c for _, _, c in plan.tips],
                 "fingers": finger_constants(which, self.rest_pos, self.model.bones) if which else None,
-                "limb_bones": np.array([BI[f"{b}_{s}"] for s, _, names, _, _ in plan.limbs for b in names[3:5]], int),
-                "hand_rows": {s: (np.full(len(plan.hands[s][1]), h), np.full(len(plan.hands[s][3]), h))
-                              for h, s in enumerate(sk.SIDES)}}
+                # the bones built from their axes at the end, in one pass: the limbs', the
+                # clavicles', the shortcuts'
+                "axes_rows": np.concatenate([[BI[f"{b}_{s}"] for s, _, names, _, _ in plan.limbs for b in names[3:5]],
+                                             _CLAVICLE_ROWS, _SHORTCUT_INDEX]).astype(int),
+                # frames rigid on a device as they are: the head, the feet, the hands
+                "rigid_bones": np.array([BI[b] for b in _RIGID_BONES], int),
+                "rigid_frames": np.array([plan.rigid[_RIGID_KEYS[b]] for b in _RIGID_BONES], int),
+                # both hands' finger joints and frames (rigid on the hand as calibrated) at once
+                "hand_joints": [n for s in sk.SIDES for n in plan.hands[s][0]],
+                "hand_vecs": np.concatenate([plan.hands[s][1] for s in sk.SIDES]),
+                "hand_bones": np.concatenate([plan.hands[s][2] for s in sk.SIDES]),
+                "hand_fixed": np.concatenate([plan.hands[s][3] for s in sk.SIDES]),
+                "hand_rows": (np.repeat(np.arange(2), [len(plan.hands[s][1]) for s in sk.SIDES]),
+                              np.repeat(np.arange(2), [len(plan.hands[s][3]) for s in sk.SIDES])),
+                "hand_wrists": np.repeat(np.arange(2), [len(plan.hands[s][1]) for s in sk.SIDES]),
+                "hand_frames": np.array([plan.rigid[f"hand_{s}", "hand"] for s in sk.SIDES], int)}
 
     def _need(self, joint: str, value):
         """`value`, or one error when no tracked device knows `joint`."""
@@ -305,23 +319,27 @@ class UserAnimator:
             value = est.take(rows[:, 0], axis=0) if k == 1 else self._mean_estimates(est, rows, tab["est_rows"], tr)
             P.update(zip(names, value))
         Fr = np.empty((stop - start, len(BONES), 3, 3))
-        Fr[:, BI["head"]] = rigid[plan.rigid["head", "head"]]
-        self._limbs(plan, P, Fr, prod, rigid)
-        self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"])
-        self._hands(plan, P, Fr, start, stop)
+        Fr[:, tab["rigid_bones"]] = rigid.take(tab["rigid_frames"], axis=0).swapaxes(0, 1)  # head, feet, hands
+        # (y axis, x hint) of the bones built from their axes, each stage's, in one pass at the end:
+        # a frame from its axes is its own item's arithmetic, so the values are each stage's
+        axes: list = []
+        self._limbs(plan, P, prod, rigid, axes)
+        self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"], axes)
+        self._hands(plan, P, Fr, rigid, start, stop)
         # every joint's (F, 3) side by side, then split: np.stack's per-array bookkeeping over ~70
         # joints was a tenth of a one-frame animation
         pos = np.concatenate([P[j] for j in JOINTS], axis=1).reshape(stop - start, len(JOINTS), 3)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
-        ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
-        Fr[:, _SHORTCUT_INDEX] = frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]).swapaxes(0, 1)
+        sacrum_x = Fr[:, BI["sacrum"]][..., :, 0]
+        axes += [(P[b.tail] - P[b.head], sacrum_x) for b in _SHORTCUTS]
+        ys, hints = zip(*axes)
+        Fr[:, tab["axes_rows"]] = frame_from_axes(np.stack(ys), np.stack(hints)).swapaxes(0, 1)
         if not np.isfinite(pos).all() or not np.isfinite(Fr).all():
             raise BodyCalError("the user animation has non-finite values",
                                source=self.recording.source or self.recording.name,
                                hint="check the recording for broken device poses")
         return UserPose(self.recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
 
-    @staticmethod
     @staticmethod
     def _mean_estimates(est: np.ndarray, rows: np.ndarray, est_rows: np.ndarray, tr: Trackers) -> np.ndarray:
         """The mean of each joint's estimates (`rows`, (J, k) into `est`) over the trackers tracking
@@ -336,10 +354,10 @@ class UserAnimator:
         w = np.where(w.any(axis=1, keepdims=True), w, True).astype(float)
         return einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
 
-    def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
+    def _limbs(self, plan: _Plan, P: dict, prod: np.ndarray, rigid: np.ndarray, axes: list) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
-        the two limb bones' frames (they join the joints and keep the hinge's right), the toes, and
-        the hand and foot frames rigid on their devices."""
+        the two limb bones' axes (they join the joints and keep the hinge's right: `axes`, built
+        by `animate`) and the toes."""
         rights = {}
         for s, limb, _, (kind, k), _ in plan.limbs:
             rights[s, limb] = prod[k] if kind == "vec" else rigid[k][..., :, 0]
@@ -347,22 +365,17 @@ class UserAnimator:
             if not tracked:  # no tracker carries it (minimal profile): two-bone from the user's lengths
                 P[f"{m}_{s}"] = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], self.rest_pos, a, m, e, s,
                                               rights[s, limb])
-        ys, hints = [], []
         for s, limb, (a, m, e, _, _), _, _ in plan.limbs:
-            ys += [P[f"{m}_{s}"] - P[f"{a}_{s}"], P[f"{e}_{s}"] - P[f"{m}_{s}"]]
-            hints += [rights[s, limb]] * 2
-        Fr[:, self._tables["limb_bones"]] = frame_from_axes(np.stack(ys), np.stack(hints)).swapaxes(0, 1)
+            axes += [(P[f"{m}_{s}"] - P[f"{a}_{s}"], rights[s, limb]), (P[f"{e}_{s}"] - P[f"{m}_{s}"], rights[s, limb])]
         for s in sk.SIDES:
             toe = plan.toes[s]
             if toe[0] == "rigid":
                 P[f"toe_{s}"] = P[f"ankle_{s}"] + stack_apply(rigid[toe[1]], toe[2])
-            for part in ("foot", "hand"):
-                Fr[:, BI[f"{part}_{s}"]] = rigid[plan.rigid[f"{part}_{s}", part]]
 
-    def _trunk(self, P: dict, Fr: np.ndarray, sac: np.ndarray, pel_rigid: np.ndarray) -> None:
+    def _trunk(self, P: dict, Fr: np.ndarray, sac: np.ndarray, pel_rigid: np.ndarray, axes: list) -> None:
         """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
         hip line, the spine aimed at the skull base with its twist shared hips -> shoulders -> head
-        (`ik.spine`), and the clavicles from vertebra 5 to the shoulders. Needs the limbs and head."""
+        (`ik.spine`), and the clavicles' axes from vertebra 5 to the shoulders. Needs the limbs and head."""
         sac = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])
         from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, self.hip_offset)
         P["pelvis"] = 0.5 * (pel_rigid + from_hips)
@@ -370,28 +383,26 @@ class UserAnimator:
                        top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False,
                        rest_segments=self.rest_segments)
         Fr[:, BI["sacrum"]] = res.sacrum_rot
-        for k, j in enumerate(SPINE_JOINTS):
-            P[j] = res.joints[:, k]
+        P.update(zip(SPINE_JOINTS, res.joints.swapaxes(0, 1)))
         Fr[:, _SPINE_ROWS] = res.rotations
-        v5 = Fr[:, BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]]
+        v5_z = res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]
         root = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
         for s in sk.SIDES:
             P[f"clavicle_{s}"] = root
-        ys = np.stack([P[f"shoulder_{s}"] - root for s in sk.SIDES])
-        Fr[:, _CLAVICLE_ROWS] = frame_from_axes(ys, v5[..., :, 2]).swapaxes(0, 1)
+        axes += [(P[f"shoulder_{s}"] - root, v5_z) for s in sk.SIDES]
 
-    def _hands(self, plan: _Plan, P: dict, Fr: np.ndarray, start: int, stop: int) -> None:
-        """Hands pass: finger joints and frames rigid on the hand as calibrated, then the fingers with
-        a tip marker posed from it, all at once (`pose_user_fingers`; forward-filled over its dropouts)."""
-        hands = Fr.take(_HAND_ROWS, axis=1).swapaxes(0, 1)  # (2, F, 3, 3)
-        for s in sk.SIDES:
-            names, vecs, bones, fixed = plan.hands[s]
-            vec_rows, fixed_rows = self._tables["hand_rows"][s]  # the products' hand: this side's
-            rel = stacks_apply(hands, vecs, vec_rows)
-            P.update(zip(names, P[f"wrist_{s}"] + rel))
-            Fr[:, bones] = stacks_mul(hands, fixed, fixed_rows).swapaxes(0, 1)
+    def _hands(self, plan: _Plan, P: dict, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int) -> None:
+        """Hands pass: finger joints and frames rigid on the hand as calibrated, both hands at once,
+        then the fingers with a tip marker posed from it, all at once (`pose_user_fingers`;
+        forward-filled over its dropouts)."""
+        tab = self._tables
+        hands = rigid.take(tab["hand_frames"], axis=0)  # (2, F, 3, 3)
+        vec_rows, fixed_rows = tab["hand_rows"]  # each product's hand
+        rel = stacks_apply(hands, tab["hand_vecs"], vec_rows)
+        wrists = np.stack([P[f"wrist_{s}"] for s in sk.SIDES])
+        P.update(zip(tab["hand_joints"], wrists.take(vec_rows, axis=0) + rel))
+        Fr[:, tab["hand_bones"]] = stacks_mul(hands, tab["hand_fixed"], fixed_rows).swapaxes(0, 1)
         if plan.tips:
-            tab = self._tables
             tips = self.reader.markers(tab["tip_columns"], start, stop)
             pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
 
@@ -400,7 +411,11 @@ _SHORTCUTS = [b for b in BONES if b.shortcut]
 _SHORTCUT_INDEX = np.array([BI[b.name] for b in _SHORTCUTS], int)
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
 _CLAVICLE_ROWS = np.array([BI[f"clavicle_{s}"] for s in sk.SIDES], int)
-_HAND_ROWS = np.array([BI[f"hand_{s}"] for s in sk.SIDES], int)
+_CLAVICLE_SPINE_ROW = SPINE_BONES.index(f"spine_{sk.CLAVICLE_VERTEBRA:02d}")  # the vertebra the clavicles hang from
+# the frames rigid on a device (R_T(t) R_T0^-1 C0), as they are: bone -> its rigid frame's key in _Plan.rigid
+_RIGID_KEYS = {"head": ("head", "head"), **{f"{part}_{s}": (f"{part}_{s}", part) for s in sk.SIDES
+                                            for part in ("foot", "hand")}}
+_RIGID_BONES = list(_RIGID_KEYS)
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
@@ -454,24 +469,22 @@ def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tip
     if F not in sets:
         sets[F] = finger_set(np.repeat(lens, F, axis=0).T, np.repeat([f == "thumb" for _, f in which], F))
         sets[F, "radius"] = np.repeat(radius, F)[:, None]
+    phalanges = sets.get("phalanges")
+    if phalanges is None:  # (K, 3) the fingers' phalanges, and their joints after the MCP, in rows
+        phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
+        sets["joints"] = [j for n in names for j in n[1:]]
     mcp = np.concatenate([P[n[0]] for n in names])
-    ref = np.concatenate([Fr[:, b[0]] for b in bones])
+    ref = Fr.take(phalanges[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3, 3)  # (K F, 3, 3) the first phalanges
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead
     # (of the first pose only that +Z is read).
     aim = tips.reshape(-1, 3)
     if any(radius):
         aim = aim + sets[F, "radius"] * sets[F].distal_z(mcp, ref, aim)
-    pts, frames = pose_finger_chain(mcp, aim, None, [ref], finger_set=sets[F])
-    pts = pts.reshape(K, F, 4, 3)
-    for k, n in enumerate(names):
-        for i, j in enumerate(n[1:]):
-            P[j] = pts[k, :, i + 1]
-    phalanges = sets.get("phalanges")
-    if phalanges is None:
-        phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
-    for i in range(3):  # each phalanx of every finger in one assignment
-        Fr[:, phalanges[:, i]] = frames[i].reshape(K, F, 3, 3).swapaxes(0, 1)
+    fp = sets[F].pose(mcp, ref, aim)
+    # every finger's joints after the MCP (views, (F, 3) each) and phalanges (one assignment)
+    P.update(zip(sets["joints"], chain.from_iterable(fp.joints.reshape(K, F, 4, 3)[:, :, 1:].swapaxes(1, 2))))
+    Fr[:, phalanges] = fp.rotations.reshape(K, F, 3, 3, 3).swapaxes(0, 1)
 
 
 def finger_set(lens, thumb) -> fingers.FingerSet:
