@@ -22,6 +22,7 @@ per pass, whatever the number of frames (the prepared solver's step 1, solver.py
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +37,7 @@ from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
+    EPS,
     cross,
     einsum,
     frame_from_axes,
@@ -461,14 +463,23 @@ def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndar
     """The sacrum frame (..., 3, 3) turned so its lateral axis lies half way to the hip line
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
     hip centres each carry their own error, and their average is never worse than the worse of them."""
+    if sacrum.shape[:-2] == (1,):  # one frame: the same operations in Python floats, so the same bits
+        x = sacrum[0, :, 0].tolist()
+        line = _unit_one([a - b for a, b in zip(hip_l[0].tolist(), hip_r[0].tolist())])
+        fix = turn_between_one(x, _unit_one([a + b for a, b in zip(x, line)]))
+        if fix is not None:
+            return matmul_stack(np.array([fix]), sacrum)
     x_rigid = sacrum[..., :, 0]
     toward = normalize(x_rigid + normalize(hip_l - hip_r))
-    fix = turn_between_one(x_rigid[0].tolist(), toward[0].tolist()) if sacrum.shape[:-2] == (1,) else None
-    if fix is None:
-        fix = quat_to_matrix(quat_between(x_rigid, toward))
-    else:  # one frame: the same bits in Python floats
-        fix = np.array([fix])
-    return matmul_stack(fix, sacrum)
+    return matmul_stack(quat_to_matrix(quat_between(x_rigid, toward)), sacrum)
+
+
+def _unit_one(v: list) -> list:
+    """`normalize` of one 3-vector in Python floats: its squares summed in order (numpy sums fewer
+    than 8 items one after the other), the norm's square root, each component divided by it, a
+    vector of norm EPS or less zero: the same operations, so the same bits."""
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return [c / n for c in v] if n > EPS else [0.0, 0.0, 0.0]
 
 
 def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
