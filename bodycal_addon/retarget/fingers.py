@@ -173,7 +173,7 @@ def _rx_rz_rx_of(angles: np.ndarray) -> np.ndarray:
 
 @dataclass
 class FingerPose:
-    joints: np.ndarray  # (F, 4, 3): mcp, pip, dip, tip
+    joints: np.ndarray | None  # (F, 4, 3): mcp, pip, dip, tip (None: not asked for)
     rotations: np.ndarray  # (F, 3, 3, 3): world frames of phalanges 1, 2, 3 (+Y along, +X flexion axis)
     flexion: np.ndarray  # (F,) α at PIP and DIP
     yaw: np.ndarray  # (F,) clamped realignment yaw
@@ -274,8 +274,9 @@ class FingerSet:
                 cap=items(FLEXION_CAP), two=items(2.0), two_pi=items(2 * np.pi))
         return k
 
-    def pose(self, mcp, ref_rot, tip_target) -> FingerPose:
-        """pose_finger of these items: mcp (n, 3), ref_rot (n, 3, 3), tip_target (n, 3)."""
+    def pose(self, mcp, ref_rot, tip_target, joints: bool = True) -> FingerPose:
+        """pose_finger of these items: mcp (n, 3), ref_rot (n, 3, 3), tip_target (n, 3). `joints`
+        False: the frames only (`FingerPose.joints` None; an avatar's IK reads no joints)."""
         mcp, base, cos, sin, alpha, yaw, pitch = self._realigned(mcp, ref_rot, tip_target)
         # Phalanges 2 and 3 and the joints components first (see _rx_rz_rx), the same operations
         # in the same order: a phalanx's +Y scaled by its length is its segment, summed from the MCP
@@ -290,16 +291,18 @@ class FingerSet:
         rots[:, 1:, :, 0] = bx.T[:, None]
         rots[:, 1:, :, 1] = ys.transpose(2, 0, 1)
         rots[:, 1:, :, 2] = zs.transpose(2, 0, 1)
+        if not joints:
+            return FingerPose(None, rots, alpha, yaw, pitch)
         lens = self.lens_rows
         reach = np.empty((3, 3, n))  # (phalanx, row, item): the segments, then their running sums
         np.multiply(by, lens[0], out=reach[0])
         np.multiply(ys, lens[1:, None], out=reach[1:])
         reach[1] += reach[0]
         reach[2] += reach[1]
-        joints = np.empty((n, 4, 3))
-        joints[:, 0] = mcp
-        joints[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
-        return FingerPose(joints, rots, alpha, yaw, pitch)
+        points = np.empty((n, 4, 3))
+        points[:, 0] = mcp
+        points[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
+        return FingerPose(points, rots, alpha, yaw, pitch)
 
     def distal_z(self, mcp, ref_rot, tip_target) -> np.ndarray:
         """(n, 3) the distal phalanx's +Z (the third column of `pose(...).rotations[:, 2]`, the same

@@ -545,18 +545,20 @@ def finger_set(lens, thumb) -> fingers.FingerSet:
     return fingers.FingerSet(lens[0], lens[1], lens[2], thumb=thumb, roll=0.0 if thumb.ndim or thumb else None)
 
 
-def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False, finger_set: fingers.FingerSet | None = None):
+def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False, finger_set: fingers.FingerSet | None = None,
+                      joints: bool = True):
     """`fingers.pose_finger` with the first phalanx's rest frame (moved with the hand) as the
     reference: a finger at rest has zero yaw and pitch, so the anatomical limits bound the motion
     away from the calibrated pose. The thumb's own frame already carries its roll (roll 0).
     `finger_set`: `finger_set(lens, thumb)` kept by the caller (then `lens` and `thumb` are not read).
-    Returns (points (F, 4, 3), [3 frames (F, 3, 3)])."""
+    Returns (points (F, 4, 3), [3 frames (F, 3, 3)]); `joints` False with a `finger_set`: (None,
+    the frames), a caller reading the frames only (the avatar's finger IK) skips the points."""
     if finger_set is None:
         thumb = np.asarray(thumb, bool)
         fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
                                  roll=0.0 if thumb.ndim or thumb else None)
     else:
-        fp = finger_set.pose(mcp, rest_frames[0], tip)
+        fp = finger_set.pose(mcp, rest_frames[0], tip, joints=joints)
     return fp.joints, [fp.rotations[:, i] for i in range(3)]
 
 

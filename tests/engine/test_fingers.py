@@ -171,3 +171,5 @@ def test_a_few_fingers_pose_as_many_do_and_the_distal_axis_alone_is_the_pose_s()
             assert getattr(few, field).tobytes() == getattr(many, field)[part].tobytes(), field
         z = few_set.distal_z(mcp[part], ref[part], tip[part])
         assert z.tobytes() == np.ascontiguousarray(few.rotations[:, 2, :, 2]).tobytes()
+        frames_only = few_set.pose(mcp[part], ref[part], tip[part], joints=False)
+        assert frames_only.joints is None and frames_only.rotations.tobytes() == few.rotations.tobytes()
