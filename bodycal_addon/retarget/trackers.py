@@ -201,9 +201,12 @@ class _Fill:
         self.idx = self._buf[:n]
 
     def rows(self, start: int, stop: int, columns) -> np.ndarray:
-        """(len(columns), stop - start) the frames to read for these columns."""
-        idx = self.idx[start:stop, columns].T
-        return np.where(idx < 0, self.first[columns][:, None], idx)
+        """(len(columns), stop - start) the frames to read for these columns (an index array, or
+        a list: converted on every call)."""
+        idx = self.idx[start:stop].take(columns, axis=1).T
+        if all_true(idx >= 0):  # every column valid once before (a live frame's usual case)
+            return idx
+        return np.where(idx < 0, self.first.take(columns)[:, None], idx)
 
 
 class TrackerReader:
@@ -433,8 +436,9 @@ class TrackerReader:
     def markers(self, columns, start: int, stop: int) -> np.ndarray:
         """(len(columns), F, 3) the markers' points of frames [start, stop), forward-filled."""
         self._sync()
+        columns = np.asarray(columns, np.intp)
         src = self._marker_fill.rows(start, stop, columns)
-        return self.recording.markers[src, np.asarray(columns, np.intp)[:, None]]
+        return self.recording.markers[src, columns[:, None]]
 
     def marker_seen(self, column: int) -> bool:
         """The marker was valid in at least one frame so far."""

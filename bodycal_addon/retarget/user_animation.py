@@ -203,7 +203,7 @@ class UserAnimator:
                 "rigid": np.array(plan.rigid_fixed), "rigid_rows": [index[r] for r in plan.rigid_role],
                 "joints": [(k, np.array([JI[j] for j, _ in g], int), np.array([e for _, e in g], int))
                            for k, g in sorted(by_count.items())],
-                "tips": which, "tip_columns": [c for _, _, c in plan.tips],
+                "tips": which, "tip_columns": np.array([c for _, _, c in plan.tips], np.intp),
                 "fingers": finger_constants(which, self.rest_pos, self.model.bones) if which else None,
                 # the bones built from their axes at the end, in one pass (the limbs', the
                 # clavicles', the shortcuts'): the bones, their heads' and tails' joints
