@@ -264,7 +264,7 @@ class FingerSet:
     def constants(self) -> SimpleNamespace:
         """The scalars `pose` combines with the items' arrays: as arrays of the items' length for a
         few items (numpy converts a Python scalar on every call: a live frame's ufunc with one
-        costs about twice one of two arrays; the same values either way), as they are for many."""
+        costs up to twice one of two arrays; the same values either way), as they are for many."""
         k = self.__dict__.get("_constants")
         if k is None:
             def items(v):
