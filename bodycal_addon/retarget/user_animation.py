@@ -346,8 +346,8 @@ class UserAnimator:
         Fr = np.empty((stop - start, len(BONES), 3, 3))
         Fr[:, tab["rigid_bones"]] = rigid.take(tab["rigid_frames"], axis=0).swapaxes(0, 1)  # head, feet, hands
         # The bones built from their axes (the limbs', the clavicles', the shortcuts'), in one pass
-        # at the end: a frame from its axes is its own item's arithmetic, so the values are each
-        # stage's; their joints are not written again once placed. `hints`: their x hints.
+        # at the end: a frame from its axes is its own item's arithmetic, and no limb or clavicle
+        # joint is written after its stage, so the values are each stage's. `hints`: their x hints.
         hints: list = []
         self._limbs(plan, P, prod, rigid, hints)
         self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], hints)
