@@ -23,16 +23,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 
-from ..core.transforms import einsum, matmul_stack, stack_mul
+from ..core.transforms import all_true, einsum, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4
 # Appendix D, from [Ari18]: (yaw min, yaw max), (pitch min, pitch max), degrees.
 LIMITS = {"finger": ((-15.0, 15.0), (-85.0, 10.0)), "thumb": ((-30.0, 40.0), (-15.0, 15.0))}
 THUMB_ROLL = np.deg2rad(45.0)
+FEW_ITEMS = 64  # FingerSet.constants: items (fingers x frames) up to which its scalars are arrays
 
 
 def tip_distance(l1, l2, l3, alpha) -> np.ndarray:
@@ -132,26 +134,46 @@ _LIMITS_RAD = {k: [np.deg2rad(x) for pair in v for x in pair] for k, v in LIMITS
 
 
 def _rx_rz_rx(a, b, c):
-    """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame).
-    Built components first, each entry one contiguous row of the items (numpy's loops over a
-    trailing axis of 3 cost several times more on a bake's thousands), then laid out (..., 3, 3)."""
+    """Rx(a) Rz(b) Rx(c), written out (a stacked 3x3 matmul costs numpy one BLAS call per frame)."""
     angles = np.empty((3,) + np.shape(a))
     angles[0], angles[1], angles[2] = a, b, c
-    (ca, cb, cc), (sa, sb, sc) = np.cos(angles), np.sin(angles)  # the six in two calls
-    out = np.empty((3, 3) + np.shape(a))  # (row, column, ...)
+    return _rx_rz_rx_of(angles)
+
+
+_SIGNS = np.array([-1.0, 1.0])  # (-x, y) of a pair (x, y): a negation is exact, so -u v = u (-v)
+
+
+def _rx_rz_rx_of(angles: np.ndarray) -> np.ndarray:
+    """Rx(a) Rz(b) Rx(c) of `angles` (3, ...) = (a, b, c). Built components first, each entry one
+    contiguous row of the items (numpy's loops over a trailing axis of 3 cost several times more on
+    a bake's thousands), a few rows at a time (a live frame's cost is the count of numpy calls),
+    then laid out (..., 3, 3). The same products and sums as entry by entry: a negation is exact,
+    so -u v = u (-v) and u - v w = u + (-v) w to the bit."""
+    shape = angles.shape[1:]
+    signs = _SIGNS.reshape((2,) + (1,) * len(shape))
+    trig = np.empty((2,) + angles.shape)  # the cosines and sines of a, b, c: the six in two calls
+    np.cos(angles, out=trig[0])
+    np.sin(angles, out=trig[1])
+    sb, cb = trig[1, 1], trig[0, 1]
+    out = np.empty((3, 3) + shape)  # (row, column, ...)
     # Rz(b) Rx(c) has rows (cb, -sb cc, sb sc), (sb, cb cc, -cb sc), (0, sc, cc); Rx(a) mixes the
     # last two, column by column as ca r1 - sa r2 and sa r1 + ca r2.
-    out[0, 0], out[0, 1], out[0, 2] = cb, -sb * cc, sb * sc
-    r1, r2 = (sb, cb * cc, -cb * sc), (0.0, sc, cc)
-    for k in range(3):
-        out[1, k] = ca * r1[k] - sa * r2[k]
-        out[2, k] = sa * r1[k] + ca * r2[k]
-    return np.ascontiguousarray(out.reshape(9, -1).T).reshape(np.shape(a) + (3, 3))
+    out[0, 0] = cb
+    minus_cc_sc = trig[:, 2] * signs  # (-cc, sc)
+    np.multiply(sb, minus_cc_sc, out=out[0, 1:])
+    r1, r2 = np.empty((3,) + shape), np.empty((3,) + shape)
+    r1[0] = sb
+    np.multiply(cb, -minus_cc_sc, out=r1[1:])  # cb cc, cb (-sc)
+    r2[0] = 0.0
+    r2[1:] = trig[::-1, 2]  # sc, cc
+    # rows 1 and 2 at once: (ca, sa) r1 + (-sa, ca) r2
+    np.add(trig[:, 0, None] * r1, (trig[::-1, 0] * signs)[:, None] * r2, out=out[1:])
+    return np.ascontiguousarray(out.reshape(9, -1).T).reshape(shape + (3, 3))
 
 
 @dataclass
 class FingerPose:
-    joints: np.ndarray  # (F, 4, 3): mcp, pip, dip, tip
+    joints: np.ndarray | None  # (F, 4, 3): mcp, pip, dip, tip (None: not asked for)
     rotations: np.ndarray  # (F, 3, 3, 3): world frames of phalanges 1, 2, 3 (+Y along, +X flexion axis)
     flexion: np.ndarray  # (F,) α at PIP and DIP
     yaw: np.ndarray  # (F,) clamped realignment yaw
@@ -197,8 +219,10 @@ class FingerSet:
             self.roll_rows = None
             self.roll = _ry(turn) if (thumb or roll is not None) and turns else None
 
-    def pose(self, mcp, ref_rot, tip_target) -> FingerPose:
-        """pose_finger of these items: mcp (n, 3), ref_rot (n, 3, 3), tip_target (n, 3)."""
+    def _realigned(self, mcp, ref_rot, tip_target) -> tuple:
+        """What `pose` and `distal_z` share: mcp as an array, the first phalanx's frame (n, 3, 3)
+        (the reference, rolled, realigned), the cosines and sines of α and 2α ((2, n) each), α and
+        the clamped yaw and pitch."""
         mcp = np.asarray(mcp, float)
         ref = np.asarray(ref_rot, float)
         if self.roll is not None:
@@ -208,32 +232,56 @@ class FingerSet:
                 rows = self.roll_rows
                 ref = ref.copy()
                 ref[rows] = stack_mul(ref.take(rows, axis=0), self.roll)
-        l1, l2, l3 = self.l1, self.l2, self.l3
+        k = self.constants
         rel = np.asarray(tip_target, float) - mcp
         local = einsum("fji,fj->fi", ref, rel)
-        d = np.sqrt((rel * rel).sum(-1))  # np.linalg.norm's sum
+        d = np.sqrt(np.add.reduce(rel * rel, -1))  # np.linalg.norm's sum (ndarray.sum's reduction)
         # eq. 3-4 (flexion_from_distance, its constant parts kept)
-        disc = np.maximum(self.bb - self.a4 * (self.c0 - d * d), 0.0)
-        x = np.minimum(np.maximum((self.minus_b - np.sqrt(disc)) / self.den, -X_CLAMP), X_CLAMP)
-        alpha = np.minimum(np.pi - np.arccos(x), FLEXION_CAP)
-        # Phalanx k is the base frame turned by Rx(k α) (k = 0, 1, 2): its columns are x, c y + s z,
-        # -s y + c z of the base's; its +Y, scaled by its length, is its segment.
+        disc = np.maximum(self.bb - self.a4 * (self.c0 - d * d), k.zero)
+        x = np.minimum(np.maximum((self.minus_b - np.sqrt(disc)) / self.den, k.minus_clamp), k.clamp)
         twice = np.empty((2, self.n))  # α and 2α: their cosines and sines in two calls
-        twice[0], twice[1] = alpha, 2 * alpha
+        alpha = np.minimum(k.pi - np.arccos(x), k.cap, out=twice[0])
+        np.multiply(k.two, alpha, out=twice[1])
         cos, sin = np.cos(twice), np.sin(twice)
-        (c1, c2), (s1, s2) = cos, sin
         # realign: the target's yaw and pitch clamped, the flexed tip's pitch (its yaw is zero)
         ly, lz = local[..., 1], local[..., 2]
         pitch = np.arctan2(-lz, ly)
         yaw = np.minimum(np.maximum(np.arctan2(local[..., 0], np.hypot(ly, lz)), self.yaw_lo), self.yaw_hi)
         inside = (pitch >= self.pitch_lo) & (pitch <= self.pitch_hi)
-        beyond_hi = np.mod(pitch - self.pitch_hi, 2 * np.pi)
-        pitch = np.where(inside, pitch, np.where(beyond_hi < self.half_excluded, self.pitch_hi, self.pitch_lo))
-        flexed_pitch = np.arctan2(-(l2 * s1 + l3 * s2), l1 + l2 * c1 + l3 * c2)
-        base = matmul_stack(ref, _rx_rz_rx(-pitch, -yaw, flexed_pitch))
+        if not all_true(inside):  # (every pitch within its limits: nothing to clamp)
+            beyond_hi = np.mod(pitch - self.pitch_hi, k.two_pi)
+            pitch = np.where(inside, pitch, np.where(beyond_hi < self.half_excluded, self.pitch_hi, self.pitch_lo))
+        angles = np.empty((3, self.n))  # Rx(-pitch) Rz(-yaw) Rx(flexed pitch)
+        np.negative(pitch, out=angles[0])
+        np.negative(yaw, out=angles[1])
+        # the flexed tip's pitch: arctan2(-(l2 s1 + l3 s2), (l1 + l2 c1) + l3 c2)
+        lc, ls = self.lens_rows[1:] * cos, self.lens_rows[1:] * sin  # (l2 c1, l3 c2), (l2 s1, l3 s2)
+        np.arctan2(-(ls[0] + ls[1]), self.l1 + lc[0] + lc[1], out=angles[2])
+        base = matmul_stack(ref, _rx_rz_rx_of(angles))
+        return mcp, base, cos, sin, alpha, yaw, pitch
+
+    @property
+    def constants(self) -> SimpleNamespace:
+        """The scalars `pose` combines with the items' arrays: as arrays of the items' length for a
+        few items (numpy converts a Python scalar on every call: a live frame's ufunc with one
+        costs up to twice one of two arrays; the same values either way), as they are for many."""
+        k = self.__dict__.get("_constants")
+        if k is None:
+            def items(v):
+                return np.full(self.n, v) if self.n < FEW_ITEMS else v
+            k = self._constants = SimpleNamespace(
+                zero=items(0.0), clamp=items(X_CLAMP), minus_clamp=items(-X_CLAMP), pi=items(np.pi),
+                cap=items(FLEXION_CAP), two=items(2.0), two_pi=items(2 * np.pi))
+        return k
+
+    def pose(self, mcp, ref_rot, tip_target, joints: bool = True) -> FingerPose:
+        """pose_finger of these items: mcp (n, 3), ref_rot (n, 3, 3), tip_target (n, 3). `joints`
+        False: the frames only (`FingerPose.joints` None; an avatar's IK reads no joints)."""
+        mcp, base, cos, sin, alpha, yaw, pitch = self._realigned(mcp, ref_rot, tip_target)
         # Phalanges 2 and 3 and the joints components first (see _rx_rz_rx), the same operations
         # in the same order: a phalanx's +Y scaled by its length is its segment, summed from the MCP
-        # one after the other (np.cumsum's order).
+        # one after the other (np.cumsum's order). Phalanx k is the base frame turned by Rx(k α)
+        # (k = 0, 1, 2): its columns are x, c y + s z, -s y + c z of the base's.
         bx, by, bz = np.ascontiguousarray(base.transpose(2, 1, 0))  # columns, (row, item) each
         c, s = cos[:, None], sin[:, None]  # (2, 1, n): phalanges 2 and 3
         ys, zs = c * by + s * bz, c * bz - s * by  # (2, 3, n)
@@ -243,16 +291,25 @@ class FingerSet:
         rots[:, 1:, :, 0] = bx.T[:, None]
         rots[:, 1:, :, 1] = ys.transpose(2, 0, 1)
         rots[:, 1:, :, 2] = zs.transpose(2, 0, 1)
+        if not joints:
+            return FingerPose(None, rots, alpha, yaw, pitch)
         lens = self.lens_rows
         reach = np.empty((3, 3, n))  # (phalanx, row, item): the segments, then their running sums
         np.multiply(by, lens[0], out=reach[0])
         np.multiply(ys, lens[1:, None], out=reach[1:])
         reach[1] += reach[0]
         reach[2] += reach[1]
-        joints = np.empty((n, 4, 3))
-        joints[:, 0] = mcp
-        joints[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
-        return FingerPose(joints, rots, alpha, yaw, pitch)
+        points = np.empty((n, 4, 3))
+        points[:, 0] = mcp
+        points[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
+        return FingerPose(points, rots, alpha, yaw, pitch)
+
+    def distal_z(self, mcp, ref_rot, tip_target) -> np.ndarray:
+        """(n, 3) the distal phalanx's +Z (the third column of `pose(...).rotations[:, 2]`, the same
+        values) without the rest of the pose: the fingertip LED's offset is all a first pose reads."""
+        _, base, cos, sin = self._realigned(mcp, ref_rot, tip_target)[:4]
+        b = base.transpose(2, 1, 0)  # columns, (row, item) each
+        return (cos[1] * b[2] - sin[1] * b[1]).T
 
 
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:

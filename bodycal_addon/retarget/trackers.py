@@ -17,12 +17,14 @@ role then. `Trackers.tracked` says which frames carry a device's own (or bridged
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from ..body.bodymodel import BodyModel
-from ..core.transforms import quat_conj, quat_mul, quat_normalize, quat_to_matrix, rotate, stack_apply
+from ..core.transforms import all_true, quat_conj, quat_mul, quat_normalize, quat_to_matrix, rotate, stack_apply
 from ..recording.gaps import fill_gaps, hold_untracked, ride_gaps
 from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
@@ -87,6 +89,69 @@ def carrier_poses(roles, positions: np.ndarray, quats: np.ndarray):
     return cp, cq
 
 
+class ByRole(Mapping):
+    """role -> its row of a roles-first array (R, ...), a view made when read: a block's read
+    makes one of these for the positions and one for the rotations, and a live frame reads a few
+    of their ~15 rows (a dict of every row's view was a sixth of a one-frame read)."""
+
+    __slots__ = ("_index", "_rows")
+
+    def __init__(self, index: dict[str, int], rows: np.ndarray):
+        self._index, self._rows = index, rows
+
+    def __getitem__(self, role: str) -> np.ndarray:
+        return self._rows[self._index[role]]
+
+    def __contains__(self, role) -> bool:
+        return role in self._index
+
+    def __iter__(self):
+        return iter(self._index)
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+
+def rotation_matrices(quat: np.ndarray) -> np.ndarray:
+    """`quat_to_matrix` of unit quaternions (..., 4): the same products and sums (so the same bits)
+    for a few quaternions (a live frame's devices) in fewer numpy calls and without Python scalars
+    (numpy converts one on every call: a ufunc of a Python scalar and ten items costs up to twice
+    one of two arrays). Callgrind, 15 quaternions: 125,000 instructions a call -> 113,000 (each
+    numpy call on a few items is 6,000-16,000; in Python floats the nine entries cost 180,000)."""
+    n = quat.size // 4
+    if n > FEW_QUATERNIONS:
+        return quat_to_matrix(quat)
+    q = quat.reshape(n, 4)
+    ones, twos = _constants(n)
+    products = q.take(_LEFT, 1) * q.take(_RIGHT, 1)  # xy, xz, yz, wz, wy, wx
+    pair, turn = products[:, :3], products[:, 3:]
+    sq = q * q
+    m = np.empty((n, 9))  # the diagonal, (pair - turn), (pair + turn); laid out below
+    np.subtract(ones, twos[:, :3] * (sq.take(_SA, 1) + sq.take(_SB, 1)), out=m[:, :3])
+    np.subtract(pair, turn, out=m[:, 3:6])
+    np.add(pair, turn, out=m[:, 6:])
+    np.multiply(m[:, 3:], twos, out=m[:, 3:])
+    return m.take(_LAYOUT, 1).reshape(quat.shape[:-1] + (3, 3))
+
+
+FEW_QUATERNIONS = 64  # rotation_matrices: beyond this many, quat_to_matrix itself
+_LEFT, _RIGHT = np.array([1, 1, 2, 0, 0, 0]), np.array([2, 3, 3, 3, 2, 1])  # xy, xz, yz, wz, wy, wx
+_SA, _SB = np.array([2, 1, 1]), np.array([3, 3, 2])  # y²+z², x²+z², x²+y²
+# entry (row-major) -> its column in (diagonal 3, pair - turn 3, pair + turn 3): quat_to_matrix's
+# 1 - 2 (y² + z²), 2 (xy - wz), 2 (xz + wy); 2 (xy + wz), 1 - 2 (x² + z²), 2 (yz - wx);
+# 2 (xz - wy), 2 (yz + wx), 1 - 2 (x² + y²)
+_LAYOUT = np.array([0, 3, 7, 6, 1, 5, 4, 8, 2])
+
+
+@lru_cache(maxsize=16)
+def _constants(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) ones and (n, 6) twos (never written: shared)."""
+    ones, twos = np.ones((n, 3)), np.full((n, 6), 2.0)
+    ones.setflags(write=False)
+    twos.setflags(write=False)
+    return ones, twos
+
+
 @dataclass
 class Trackers:
     pos: dict[str, np.ndarray]  # role -> (F, 3)
@@ -138,9 +203,12 @@ class _Fill:
         self.idx = self._buf[:n]
 
     def rows(self, start: int, stop: int, columns) -> np.ndarray:
-        """(len(columns), stop - start) the frames to read for these columns."""
-        idx = self.idx[start:stop, columns].T
-        return np.where(idx < 0, self.first[columns][:, None], idx)
+        """(len(columns), stop - start) the frames to read for these columns (an index array, or
+        a list: converted on every call)."""
+        idx = self.idx[start:stop].take(columns, axis=1).T
+        if all_true(idx >= 0):  # every column valid once before (a live frame's usual case)
+            return idx
+        return np.where(idx < 0, self.first.take(columns)[:, None], idx)
 
 
 class TrackerReader:
@@ -180,6 +248,7 @@ class TrackerReader:
         if key != self._roles:
             self._roles = key
             self.roles, self.devices = tuple(roles), np.array(devs, np.intp)
+            self._role_index = {r: k for k, r in enumerate(self.roles)}
             self._never = never
             self.ref_rot = self._reference_rotations()
             self.carriers = np.array([self.roles.index(c) if (c := carrier_of(r, self.roles)) is not None else -1
@@ -217,17 +286,20 @@ class TrackerReader:
             tracked = tracked.copy()
         else:
             pos, quat, tracked, how = self._read_causal(start, stop)
-        positions, rotations = np.ascontiguousarray(pos), quat_to_matrix(quat)
-        v = rec.valid[start:stop][:, self.devices]
-        missing = (~v).sum(0)
+        positions, rotations = np.ascontiguousarray(pos), rotation_matrices(quat)
+        v = rec.valid[start:stop].take(self.devices, axis=1)
+        if all_true(v):  # every device tracked (a live frame's usual case)
+            valid, partly = np.ones(stop - start, bool), {}
+        else:
+            missing = (~v).sum(0).tolist()
+            partly = {d: (k, n) for k, (d, n) in enumerate(zip(self.devices.tolist(), missing)) if n}
+            valid = v.all(1)
         notes = []
-        partly = {int(d): (k, int(n)) for k, (d, n) in enumerate(zip(self.devices, missing)) if n}
         events = self._never + [(d, None) for d in partly]
         for d_i, note in sorted(events, key=lambda e: e[0]):
             notes.append(note or self._lost_note(*partly[d_i], how))
-        out = Trackers({r: positions[k] for k, r in enumerate(self.roles)},
-                       {r: rotations[k] for k, r in enumerate(self.roles)}, self.ref_rot, v.all(1), notes,
-                       self.roles, positions, rotations, tracked)
+        out = Trackers(ByRole(self._role_index, positions), ByRole(self._role_index, rotations), self.ref_rot,
+                       valid, notes, self.roles, positions, rotations, tracked)
         self._last = (key, out)
         return out
 
@@ -366,8 +438,9 @@ class TrackerReader:
     def markers(self, columns, start: int, stop: int) -> np.ndarray:
         """(len(columns), F, 3) the markers' points of frames [start, stop), forward-filled."""
         self._sync()
+        columns = np.asarray(columns, np.intp)
         src = self._marker_fill.rows(start, stop, columns)
-        return self.recording.markers[src, np.asarray(columns, np.intp)[:, None]]
+        return self.recording.markers[src, columns[:, None]]
 
     def marker_seen(self, column: int) -> bool:
         """The marker was valid in at least one frame so far."""

@@ -22,6 +22,7 @@ per pass, whatever the number of frames (the prepared solver's step 1, solver.py
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +37,7 @@ from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
 from ..core.transforms import (
+    EPS,
     cross,
     einsum,
     frame_from_axes,
@@ -190,16 +192,49 @@ class UserAnimator:
         for j, e in plan.joints.items():
             by_count.setdefault(len(e), []).append((j, e))
         which = [(s, f) for s, f, _ in plan.tips]
+        axes = [(f"{b}_{s}", f"{j0}_{s}", f"{j1}_{s}") for s, _, names, _, _ in plan.limbs
+                for b, j0, j1 in ((names[3], names[0], names[1]), (names[4], names[1], names[2]))]
+        clavicles_root = sk.spine_joint(sk.CLAVICLE_VERTEBRA)
+        axes += [(f"clavicle_{s}", clavicles_root, f"shoulder_{s}") for s in sk.SIDES]
+        axes += [(b.name, b.head, b.tail) for b in _SHORTCUTS]
+        self._check_placed(plan)
         return {"vec": np.array(plan.vec), "vec_rows": [index[r] for r in plan.vec_role],
                 "est_rows": np.array([index[r] for r in plan.est_role], int), "est_vec": np.array(plan.est_vec, int),
                 "rigid": np.array(plan.rigid_fixed), "rigid_rows": [index[r] for r in plan.rigid_role],
-                "joints": [(k, [j for j, _ in g], np.array([e for _, e in g], int))
+                "joints": [(k, np.array([JI[j] for j, _ in g], int), np.array([e for _, e in g], int))
                            for k, g in sorted(by_count.items())],
-                "tips": which, "tip_columns": [c for _, _, c in plan.tips],
+                "tips": which, "tip_columns": np.array([c for _, _, c in plan.tips], np.intp),
                 "fingers": finger_constants(which, self.rest_pos, self.model.bones) if which else None,
-                "limb_bones": np.array([BI[f"{b}_{s}"] for s, _, names, _, _ in plan.limbs for b in names[3:5]], int),
-                "hand_rows": {s: (np.full(len(plan.hands[s][1]), h), np.full(len(plan.hands[s][3]), h))
-                              for h, s in enumerate(sk.SIDES)}}
+                # the bones built from their axes at the end, in one pass (the limbs', the
+                # clavicles', the shortcuts'): the bones, their heads' and tails' joints
+                "axes_rows": np.array([BI[b] for b, _, _ in axes], int),
+                "axes_heads": np.array([JI[h] for _, h, _ in axes], int),
+                "axes_tails": np.array([JI[t] for _, _, t in axes], int),
+                # frames rigid on a device as they are: the head, the feet, the hands
+                "rigid_bones": np.array([BI[b] for b in _RIGID_BONES], int),
+                "rigid_frames": np.array([plan.rigid[_RIGID_KEYS[b]] for b in _RIGID_BONES], int),
+                # both hands' finger joints and frames (rigid on the hand as calibrated) at once
+                "hand_joints": np.array([JI[n] for s in sk.SIDES for n in plan.hands[s][0]], int),
+                "hand_vecs": np.concatenate([plan.hands[s][1] for s in sk.SIDES]),
+                "hand_bones": np.concatenate([plan.hands[s][2] for s in sk.SIDES]),
+                "hand_fixed": np.concatenate([plan.hands[s][3] for s in sk.SIDES]),
+                "hand_rows": (np.repeat(np.arange(2), [len(plan.hands[s][1]) for s in sk.SIDES]),
+                              np.repeat(np.arange(2), [len(plan.hands[s][3]) for s in sk.SIDES])),
+                "hand_frames": np.array([plan.rigid[f"hand_{s}", "hand"] for s in sk.SIDES], int)}
+
+    @staticmethod
+    def _check_placed(plan: _Plan) -> None:
+        """Every joint is written by one of `animate`'s stages (its block of joints is allocated,
+        not filled): those with estimates, the limbs' two-bone joints, the toes rigid on the foot,
+        the spine and clavicles, the hands'."""
+        placed = set(plan.joints) | set(SPINE_JOINTS) | {f"clavicle_{s}" for s in sk.SIDES}
+        placed |= {f"{names[1]}_{s}" for s, _, names, _, tracked in plan.limbs if not tracked}
+        placed |= {f"toe_{s}" for s, toe in plan.toes.items() if toe[0] == "rigid"}
+        placed |= {n for s in sk.SIDES for n in plan.hands[s][0]}
+        missing = [j for j in JOINTS if j not in placed]
+        if missing:
+            raise BodyCalError(f"the user animation would not place the joints {missing}",
+                               hint="report this: the animation plan misses them")
 
     def _need(self, joint: str, value):
         """`value`, or one error when no tracked device knows `joint`."""
@@ -300,28 +335,33 @@ class UserAnimator:
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
         est = tr.positions.take(tab["est_rows"], axis=0) + prod.take(tab["est_vec"], axis=0)
         rigid = stacks_mul(tr.rotations, tab["rigid"], tab["rigid_rows"])
-        P = {}
-        for k, names, rows in tab["joints"]:  # a joint is the mean of its estimates (np.mean's sum / k)
-            value = est.take(rows[:, 0], axis=0) if k == 1 else self._mean_estimates(est, rows, tab["est_rows"], tr)
-            P.update(zip(names, value))
+        # Every joint is written where it goes, a stage's joints at once, and read as views
+        # (`_Joints`; a dict of each joint's array joined at the end cost a tenth of a one-frame
+        # animation); every joint is written (`_check_placed`).
+        pos = np.empty((stop - start, len(JOINTS), 3))
+        P = _Joints(pos)
+        for k, rows, ests in tab["joints"]:  # a joint is the mean of its estimates (np.mean's sum / k)
+            value = est.take(ests[:, 0], axis=0) if k == 1 else self._mean_estimates(est, ests, tab["est_rows"], tr)
+            P.put(rows, value)
         Fr = np.empty((stop - start, len(BONES), 3, 3))
-        Fr[:, BI["head"]] = rigid[plan.rigid["head", "head"]]
-        self._limbs(plan, P, Fr, prod, rigid)
-        self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], P["pelvis"])
-        self._hands(plan, P, Fr, start, stop)
-        # every joint's (F, 3) side by side, then split: np.stack's per-array bookkeeping over ~70
-        # joints was a tenth of a one-frame animation
-        pos = np.concatenate([P[j] for j in JOINTS], axis=1).reshape(stop - start, len(JOINTS), 3)
+        Fr[:, tab["rigid_bones"]] = rigid.take(tab["rigid_frames"], axis=0).swapaxes(0, 1)  # head, feet, hands
+        # The bones built from their axes (the limbs', the clavicles', the shortcuts'), in one pass
+        # at the end: a frame from its axes is its own item's arithmetic, and no limb or clavicle
+        # joint is written after its stage, so the values are each stage's. `hints`: their x hints.
+        hints: list = []
+        self._limbs(plan, P, prod, rigid, hints)
+        self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], hints)
+        self._hands(plan, P, Fr, rigid, start, stop)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
-        ys = np.stack([P[b.tail] - P[b.head] for b in _SHORTCUTS])
-        Fr[:, _SHORTCUT_INDEX] = frame_from_axes(ys, Fr[:, BI["sacrum"]][..., :, 0]).swapaxes(0, 1)
+        hints += [Fr[:, BI["sacrum"]][..., :, 0]] * len(_SHORTCUTS)
+        ys = pos.take(tab["axes_tails"], axis=1) - pos.take(tab["axes_heads"], axis=1)  # (F, bones, 3)
+        Fr[:, tab["axes_rows"]] = frame_from_axes(ys, np.stack(hints, axis=1))
         if not np.isfinite(pos).all() or not np.isfinite(Fr).all():
             raise BodyCalError("the user animation has non-finite values",
                                source=self.recording.source or self.recording.name,
                                hint="check the recording for broken device poses")
         return UserPose(self.recording.time[start:stop], pos, Fr, tr.valid, tr.notes)
 
-    @staticmethod
     @staticmethod
     def _mean_estimates(est: np.ndarray, rows: np.ndarray, est_rows: np.ndarray, tr: Trackers) -> np.ndarray:
         """The mean of each joint's estimates (`rows`, (J, k) into `est`) over the trackers tracking
@@ -336,10 +376,10 @@ class UserAnimator:
         w = np.where(w.any(axis=1, keepdims=True), w, True).astype(float)
         return einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
 
-    def _limbs(self, plan: _Plan, P: dict, Fr: np.ndarray, prod: np.ndarray, rigid: np.ndarray) -> None:
+    def _limbs(self, plan: _Plan, P: _Joints, prod: np.ndarray, rigid: np.ndarray, hints: list) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
-        the two limb bones' frames (they join the joints and keep the hinge's right), the toes, and
-        the hand and foot frames rigid on their devices."""
+        the toes, and the hinge's right, the x hint of both limb bones (they join the joints and keep
+        it: built by `animate`)."""
         rights = {}
         for s, limb, _, (kind, k), _ in plan.limbs:
             rights[s, limb] = prod[k] if kind == "vec" else rigid[k][..., :, 0]
@@ -347,74 +387,99 @@ class UserAnimator:
             if not tracked:  # no tracker carries it (minimal profile): two-bone from the user's lengths
                 P[f"{m}_{s}"] = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], self.rest_pos, a, m, e, s,
                                               rights[s, limb])
-        ys, hints = [], []
-        for s, limb, (a, m, e, _, _), _, _ in plan.limbs:
-            ys += [P[f"{m}_{s}"] - P[f"{a}_{s}"], P[f"{e}_{s}"] - P[f"{m}_{s}"]]
+        for s, limb, _, _, _ in plan.limbs:
             hints += [rights[s, limb]] * 2
-        Fr[:, self._tables["limb_bones"]] = frame_from_axes(np.stack(ys), np.stack(hints)).swapaxes(0, 1)
         for s in sk.SIDES:
             toe = plan.toes[s]
             if toe[0] == "rigid":
                 P[f"toe_{s}"] = P[f"ankle_{s}"] + stack_apply(rigid[toe[1]], toe[2])
-            for part in ("foot", "hand"):
-                Fr[:, BI[f"{part}_{s}"]] = rigid[plan.rigid[f"{part}_{s}", part]]
 
-    def _trunk(self, P: dict, Fr: np.ndarray, sac: np.ndarray, pel_rigid: np.ndarray) -> None:
+    def _trunk(self, P: _Joints, Fr: np.ndarray, sac: np.ndarray, hints: list) -> None:
         """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
         hip line, the spine aimed at the skull base with its twist shared hips -> shoulders -> head
-        (`ik.spine`), and the clavicles from vertebra 5 to the shoulders. Needs the limbs and head."""
-        sac = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])
-        from_hips = 0.5 * (P["hip_l"] + P["hip_r"]) + stack_apply(sac, self.hip_offset)
-        P["pelvis"] = 0.5 * (pel_rigid + from_hips)
-        res = ik.spine(P["pelvis"], sac, self.sac_len, None, P["skull_base"],
+        (`ik.spine`), and the clavicles (their x hint: built by `animate`). Needs the limbs and head."""
+        hip_l, hip_r = P["hip_l"], P["hip_r"]
+        sac = sacrum_toward_hip_line(sac, hip_l, hip_r)
+        from_hips = 0.5 * (hip_l + hip_r) + stack_apply(sac, self.hip_offset)
+        pelvis = 0.5 * (P["pelvis"] + from_hips)  # the pelvis tracker's estimate and the hips'
+        P["pelvis"] = pelvis
+        res = ik.spine(pelvis, sac, self.sac_len, None, np.ascontiguousarray(P["skull_base"]),
                        top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False,
                        rest_segments=self.rest_segments)
         Fr[:, BI["sacrum"]] = res.sacrum_rot
-        for k, j in enumerate(SPINE_JOINTS):
-            P[j] = res.joints[:, k]
+        P.pos[:, _SPINE_JOINT_ROWS] = res.joints
         Fr[:, _SPINE_ROWS] = res.rotations
-        v5 = Fr[:, BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]]
-        root = P[sk.spine_joint(sk.CLAVICLE_VERTEBRA)]
-        for s in sk.SIDES:
-            P[f"clavicle_{s}"] = root
-        ys = np.stack([P[f"shoulder_{s}"] - root for s in sk.SIDES])
-        Fr[:, _CLAVICLE_ROWS] = frame_from_axes(ys, v5[..., :, 2]).swapaxes(0, 1)
+        P.pos[:, _CLAVICLE_JOINT_ROWS] = res.joints[:, sk.CLAVICLE_VERTEBRA, None]
+        hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
 
-    def _hands(self, plan: _Plan, P: dict, Fr: np.ndarray, start: int, stop: int) -> None:
-        """Hands pass: finger joints and frames rigid on the hand as calibrated, then the fingers with
-        a tip marker posed from it, all at once (`pose_user_fingers`; forward-filled over its dropouts)."""
-        hands = Fr.take(_HAND_ROWS, axis=1).swapaxes(0, 1)  # (2, F, 3, 3)
-        for s in sk.SIDES:
-            names, vecs, bones, fixed = plan.hands[s]
-            vec_rows, fixed_rows = self._tables["hand_rows"][s]  # the products' hand: this side's
-            rel = stacks_apply(hands, vecs, vec_rows)
-            P.update(zip(names, P[f"wrist_{s}"] + rel))
-            Fr[:, bones] = stacks_mul(hands, fixed, fixed_rows).swapaxes(0, 1)
+    def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int) -> None:
+        """Hands pass: finger joints and frames rigid on the hand as calibrated, both hands at once,
+        then the fingers with a tip marker posed from it, all at once (`pose_user_fingers`;
+        forward-filled over its dropouts)."""
+        tab = self._tables
+        hands = rigid.take(tab["hand_frames"], axis=0)  # (2, F, 3, 3)
+        vec_rows, fixed_rows = tab["hand_rows"]  # each product's hand
+        rel = stacks_apply(hands, tab["hand_vecs"], vec_rows)
+        wrists = P.pos.take(_WRIST_JOINT_ROWS, axis=1).swapaxes(0, 1)  # (2, F, 3)
+        P.put(tab["hand_joints"], wrists.take(vec_rows, axis=0) + rel)
+        Fr[:, tab["hand_bones"]] = stacks_mul(hands, tab["hand_fixed"], fixed_rows).swapaxes(0, 1)
         if plan.tips:
-            tab = self._tables
             tips = self.reader.markers(tab["tip_columns"], start, stop)
             pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
 
 
+class _Joints:
+    """A block's joints (F, J, 3) (`skeleton.JOINTS` order) by name: a joint read is a view, a
+    joint written goes where it belongs; `put` writes a stage's joints (n, F, 3) at once."""
+
+    __slots__ = ("pos",)
+
+    def __init__(self, pos: np.ndarray):
+        self.pos = pos
+
+    def __getitem__(self, joint: str) -> np.ndarray:
+        return self.pos[:, JI[joint]]
+
+    def __setitem__(self, joint: str, value: np.ndarray) -> None:
+        self.pos[:, JI[joint]] = value
+
+    def put(self, rows: np.ndarray, values: np.ndarray) -> None:
+        self.pos[:, rows] = values.swapaxes(0, 1)
+
+
 _SHORTCUTS = [b for b in BONES if b.shortcut]
-_SHORTCUT_INDEX = np.array([BI[b.name] for b in _SHORTCUTS], int)
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
-_CLAVICLE_ROWS = np.array([BI[f"clavicle_{s}"] for s in sk.SIDES], int)
-_HAND_ROWS = np.array([BI[f"hand_{s}"] for s in sk.SIDES], int)
+_SPINE_JOINT_ROWS = np.array([JI[j] for j in SPINE_JOINTS], int)
+_CLAVICLE_JOINT_ROWS = np.array([JI[f"clavicle_{s}"] for s in sk.SIDES], int)
+_WRIST_JOINT_ROWS = np.array([JI[f"wrist_{s}"] for s in sk.SIDES], int)
+_CLAVICLE_SPINE_ROW = SPINE_BONES.index(f"spine_{sk.CLAVICLE_VERTEBRA:02d}")  # the vertebra the clavicles hang from
+# the frames rigid on a device (R_T(t) R_T0^-1 C0), as they are: bone -> its rigid frame's key in _Plan.rigid
+_RIGID_KEYS = {"head": ("head", "head"), **{f"{part}_{s}": (f"{part}_{s}", part) for s in sk.SIDES
+                                            for part in ("foot", "hand")}}
+_RIGID_BONES = list(_RIGID_KEYS)
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
     """The sacrum frame (..., 3, 3) turned so its lateral axis lies half way to the hip line
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
     hip centres each carry their own error, and their average is never worse than the worse of them."""
+    if sacrum.shape[:-2] == (1,):  # one frame: the same operations in Python floats, so the same bits
+        x = sacrum[0, :, 0].tolist()
+        line = _unit_one([a - b for a, b in zip(hip_l[0].tolist(), hip_r[0].tolist())])
+        fix = turn_between_one(x, _unit_one([a + b for a, b in zip(x, line)]))
+        if fix is not None:
+            return matmul_stack(np.array([fix]), sacrum)
     x_rigid = sacrum[..., :, 0]
     toward = normalize(x_rigid + normalize(hip_l - hip_r))
-    fix = turn_between_one(x_rigid[0].tolist(), toward[0].tolist()) if sacrum.shape[:-2] == (1,) else None
-    if fix is None:
-        fix = quat_to_matrix(quat_between(x_rigid, toward))
-    else:  # one frame: the same bits in Python floats
-        fix = np.array([fix])
-    return matmul_stack(fix, sacrum)
+    return matmul_stack(quat_to_matrix(quat_between(x_rigid, toward)), sacrum)
+
+
+def _unit_one(v: list) -> list:
+    """`normalize` of one 3-vector in Python floats: its squares summed in order (numpy sums fewer
+    than 8 items one after the other), the norm's square root, each component divided by it, a
+    vector of norm EPS or less zero: the same operations, so the same bits."""
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return [c / n for c in v] if n > EPS else [0.0, 0.0, 0.0]
 
 
 def _two_bone_mid(root, eff, rest_pos, a, m, e, s, right):
@@ -442,35 +507,35 @@ def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: 
     return names, bones, lens, radius, {}
 
 
-def pose_user_fingers(P: dict, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
+def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
                       model_bones: dict, constants: tuple | None = None) -> None:
     """Finger joints and phalanx frames from fingertip markers (appendix D, eq. 3-4 and the yaw/pitch
     realignment, `fingers.pose_finger`), every finger of `which` [(side, finger)] at once: `tips`
-    (K, F, 3) their markers; P and Fr hold the fingers rigid on the hand (their MCPs and rest
-    phalanx frames) and are updated. `constants`: `finger_constants(which, ...)`, when the caller
+    (K, F, 3) their markers; P (the block's joints) and Fr hold the fingers rigid on the hand (their
+    MCPs and rest phalanx frames) and are updated. `constants`: `finger_constants(which, ...)`, when the caller
     keeps them."""
     K, F = tips.shape[:2]
     names, bones, lens, radius, sets = constants or finger_constants(which, rest_pos, model_bones)
     if F not in sets:
         sets[F] = finger_set(np.repeat(lens, F, axis=0).T, np.repeat([f == "thumb" for _, f in which], F))
         sets[F, "radius"] = np.repeat(radius, F)[:, None]
-    mcp = np.concatenate([P[n[0]] for n in names])
-    ref = np.concatenate([Fr[:, b[0]] for b in bones])
-    pts, frames = pose_finger_chain(mcp, tips.reshape(-1, 3), None, [ref], finger_set=sets[F])
-    # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
-    # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead.
-    if any(radius):
-        aim = tips.reshape(-1, 3) + sets[F, "radius"] * frames[2][..., :, 2]
-        pts, frames = pose_finger_chain(mcp, aim, None, [ref], finger_set=sets[F])
-    pts = pts.reshape(K, F, 4, 3)
-    for k, n in enumerate(names):
-        for i, j in enumerate(n[1:]):
-            P[j] = pts[k, :, i + 1]
     phalanges = sets.get("phalanges")
-    if phalanges is None:
+    if phalanges is None:  # (K, 3) the fingers' phalanges; their joints, (K,) the MCP, (K, 3) the rest
         phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
-    for i in range(3):  # each phalanx of every finger in one assignment
-        Fr[:, phalanges[:, i]] = frames[i].reshape(K, F, 3, 3).swapaxes(0, 1)
+        sets["joints"] = np.array([[JI[j] for j in n] for n in names], int)
+    joints = sets["joints"]
+    mcp = P.pos.take(joints[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3)  # (K F, 3)
+    ref = Fr.take(phalanges[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3, 3)  # (K F, 3, 3) the first phalanges
+    # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
+    # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead
+    # (of the first pose only that +Z is read).
+    aim = tips.reshape(-1, 3)
+    if any(radius):
+        aim = aim + sets[F, "radius"] * sets[F].distal_z(mcp, ref, aim)
+    fp = sets[F].pose(mcp, ref, aim)
+    # every finger's joints after the MCP and its phalanges, one assignment each
+    P.pos[:, joints[:, 1:]] = fp.joints.reshape(K, F, 4, 3)[:, :, 1:].swapaxes(0, 1)
+    Fr[:, phalanges] = fp.rotations.reshape(K, F, 3, 3, 3).swapaxes(0, 1)
 
 
 def finger_set(lens, thumb) -> fingers.FingerSet:
@@ -480,18 +545,20 @@ def finger_set(lens, thumb) -> fingers.FingerSet:
     return fingers.FingerSet(lens[0], lens[1], lens[2], thumb=thumb, roll=0.0 if thumb.ndim or thumb else None)
 
 
-def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False, finger_set: fingers.FingerSet | None = None):
+def pose_finger_chain(mcp, tip, lens, rest_frames, thumb: bool = False, finger_set: fingers.FingerSet | None = None,
+                      joints: bool = True):
     """`fingers.pose_finger` with the first phalanx's rest frame (moved with the hand) as the
     reference: a finger at rest has zero yaw and pitch, so the anatomical limits bound the motion
     away from the calibrated pose. The thumb's own frame already carries its roll (roll 0).
     `finger_set`: `finger_set(lens, thumb)` kept by the caller (then `lens` and `thumb` are not read).
-    Returns (points (F, 4, 3), [3 frames (F, 3, 3)])."""
+    Returns (points (F, 4, 3), [3 frames (F, 3, 3)]); `joints` False with a `finger_set`: (None,
+    the frames), a caller reading the frames only (the avatar's finger IK) skips the points."""
     if finger_set is None:
         thumb = np.asarray(thumb, bool)
         fp = fingers.pose_finger(mcp, rest_frames[0], lens[0], lens[1], lens[2], tip, thumb=thumb,
                                  roll=0.0 if thumb.ndim or thumb else None)
     else:
-        fp = finger_set.pose(mcp, rest_frames[0], tip)
+        fp = finger_set.pose(mcp, rest_frames[0], tip, joints=joints)
     return fp.joints, [fp.rotations[:, i] for i in range(3)]
 
 

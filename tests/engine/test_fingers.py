@@ -127,3 +127,49 @@ def test_a_curled_finger_turns_smoothly_with_its_target(thumb):
     # bounded by a few times it; the flip this guards against was 30°.
     assert np.rad2deg(turn).max() < 0.5
     assert np.all(turn <= 8 * subtended + 1e-9)
+
+
+def _rx_rz_rx_entry_by_entry(a, b, c):
+    """Rx(a) Rz(b) Rx(c) of one item in Python floats, entry by entry as _rx_rz_rx once wrote it
+    (ca r1 - sa r2, sa r1 + ca r2 on the rows r1 = (sb, cb cc, -cb sc), r2 = (0, sc, cc)); the
+    cosines and sines are numpy's."""
+    (ca, cb, cc), (sa, sb, sc) = np.cos([a, b, c]).tolist(), np.sin([a, b, c]).tolist()
+    r1, r2 = (sb, cb * cc, -cb * sc), (0.0, sc, cc)
+    return [[cb, -sb * cc, sb * sc], [ca * r1[k] - sa * r2[k] for k in range(3)],
+            [sa * r1[k] + ca * r2[k] for k in range(3)]]
+
+
+def test_rx_rz_rx_a_few_rows_at_a_time_is_entry_by_entry_to_the_bit():
+    """_rx_rz_rx builds its rows a few at a time (u - v w as u + (-v) w, -u v as u (-v)): exact
+    rewrites, so every entry has the bits of the one-entry-at-a-time formula (angles where the
+    entries are signed zeros included)."""
+    rng = np.random.default_rng(5)
+    angles = rng.uniform(-np.pi, np.pi, (3, 300))
+    angles[:, :6] = [[0.0, -0.0, np.pi, 0.0, -np.pi / 2, 0.0], [0.0, 0.0, -0.0, np.pi / 2, 0.0, -np.pi],
+                     [-0.0, 0.0, 0.0, -0.0, np.pi, np.pi / 2]]
+    got = fg._rx_rz_rx(*angles)
+    want = np.array([_rx_rz_rx_entry_by_entry(*angles[:, i]) for i in range(angles.shape[1])])
+    assert got.tobytes() == want.tobytes()
+
+
+def test_a_few_fingers_pose_as_many_do_and_the_distal_axis_alone_is_the_pose_s():
+    """A FingerSet of a few items (its scalars as arrays, a live frame's) poses each item to the
+    bit as a set of many (its scalars as they are) does; `distal_z` is the pose's distal +Z."""
+    rng = np.random.default_rng(8)
+    n = 120  # a set of many (>= FEW_ITEMS), still posed with np.matmul (fewer than MANY_PRODUCTS)
+    assert fg.FEW_ITEMS <= n < 256
+    lens = rng.uniform(0.015, 0.05, (3, n))
+    thumb = rng.random(n) < 0.3
+    ref = random_rotations(rng, n)
+    mcp = rng.normal(size=(n, 3)) * 0.1
+    tip = mcp + rng.normal(size=(n, 3)) * rng.choice([0.002, 0.03, 0.08], size=(n, 1))  # pitches beyond limits too
+    many = fg.FingerSet(*lens, thumb=thumb, roll=fg.THUMB_ROLL).pose(mcp, ref, tip)
+    for part in np.array_split(np.arange(n), 12):  # 10 items each, as a live frame's fingers
+        few_set = fg.FingerSet(*lens[:, part], thumb=thumb[part], roll=fg.THUMB_ROLL)
+        few = few_set.pose(mcp[part], ref[part], tip[part])
+        for field in ("joints", "rotations", "flexion", "yaw", "pitch"):
+            assert getattr(few, field).tobytes() == getattr(many, field)[part].tobytes(), field
+        z = few_set.distal_z(mcp[part], ref[part], tip[part])
+        assert z.tobytes() == np.ascontiguousarray(few.rotations[:, 2, :, 2]).tobytes()
+        frames_only = few_set.pose(mcp[part], ref[part], tip[part], joints=False)
+        assert frames_only.joints is None and frames_only.rotations.tobytes() == few.rotations.tobytes()

@@ -8,6 +8,7 @@ import pytest
 
 from bodycal_addon.body import skeleton as sk
 from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.core.transforms import quat_normalize, quat_to_matrix
 from bodycal_addon.recording.model import Recording
 from bodycal_addon.retarget import trackers
 from bodycal_addon.retarget import user_animation as ua
@@ -102,3 +103,33 @@ def test_missing_device_is_one_clear_error(exact):
                     rec.rotations[:, keep], rec.valid[:, keep], source="cut.bcrec.json")
     with pytest.raises(BodyCalError, match="pelvis"):
         ua.animate_user(cut, model)
+
+
+def test_a_frame_of_trackers_reads_as_the_take_does():
+    """The reader's few-quaternion rotation matrices (`rotation_matrices`, a live frame's) are
+    `quat_to_matrix`'s to the bit, and the devices by role are views of the roles-first arrays."""
+    rng = np.random.default_rng(4)
+    q = quat_normalize(rng.normal(size=(7, 3, 4)))
+    for quats in (q, q.swapaxes(0, 1), q[:, :1], q[0]):
+        assert trackers.rotation_matrices(quats).tobytes() == quat_to_matrix(quats).tobytes()
+    rec, truth = synthetic.record_session(synthetic.make_performer(seed=2), motions=("clap",), calibration=False,
+                                          motion_seconds=0.5)
+    reader = trackers.TrackerReader(rec, truth.body_model())
+    whole, one = reader.read(), reader.read(20, 21)
+    assert set(one.rot) == set(reader.roles) and len(one.pos) == len(reader.roles) and "nose" not in one.pos
+    for k, role in enumerate(reader.roles):
+        assert one.rot[role].tobytes() == whole.rot[role][20:21].tobytes()
+        assert np.shares_memory(one.pos[role], one.positions[k])
+
+
+def test_one_frame_s_sacrum_turn_is_the_block_s():
+    """`sacrum_toward_hip_line` of one frame (its vectors normalised in Python floats) gives the
+    bits of the numpy path a block of frames takes, a zero hip line included."""
+    rng = np.random.default_rng(6)
+    sacrum = quat_to_matrix(quat_normalize(rng.normal(size=(50, 4))))
+    hip_l, hip_r = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    hip_r[7] = hip_l[7]
+    block = ua.sacrum_toward_hip_line(sacrum, hip_l, hip_r)
+    for f in range(50):
+        one = ua.sacrum_toward_hip_line(sacrum[f:f + 1], hip_l[f:f + 1], hip_r[f:f + 1])
+        assert one.tobytes() == block[f:f + 1].tobytes()
