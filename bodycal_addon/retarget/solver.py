@@ -375,7 +375,7 @@ class PreparedSolver:
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chain)
+        _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chain, joints=False)  # its frames only
         for i in (1, 2, 3):
             frames[:, bones[i - 1]] = fr[i - 1].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
 
