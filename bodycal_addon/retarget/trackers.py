@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -110,46 +109,6 @@ class ByRole(Mapping):
 
     def __len__(self) -> int:
         return len(self._index)
-
-
-def rotation_matrices(quat: np.ndarray) -> np.ndarray:
-    """`quat_to_matrix` of unit quaternions (..., 4): the same products and sums (so the same bits)
-    for a few quaternions (a live frame's devices) in fewer numpy calls and without Python scalars
-    (numpy converts one on every call: a ufunc of a Python scalar and ten items costs up to twice
-    one of two arrays). Callgrind, 15 quaternions: 125,000 instructions a call -> 113,000 (each
-    numpy call on a few items is 6,000-16,000; in Python floats the nine entries cost 180,000)."""
-    n = quat.size // 4
-    if n > FEW_QUATERNIONS:
-        return quat_to_matrix(quat)
-    q = quat.reshape(n, 4)
-    ones, twos = _constants(n)
-    products = q.take(_LEFT, 1) * q.take(_RIGHT, 1)  # xy, xz, yz, wz, wy, wx
-    pair, turn = products[:, :3], products[:, 3:]
-    sq = q * q
-    m = np.empty((n, 9))  # the diagonal, (pair - turn), (pair + turn); laid out below
-    np.subtract(ones, twos[:, :3] * (sq.take(_SA, 1) + sq.take(_SB, 1)), out=m[:, :3])
-    np.subtract(pair, turn, out=m[:, 3:6])
-    np.add(pair, turn, out=m[:, 6:])
-    np.multiply(m[:, 3:], twos, out=m[:, 3:])
-    return m.take(_LAYOUT, 1).reshape(quat.shape[:-1] + (3, 3))
-
-
-FEW_QUATERNIONS = 64  # rotation_matrices: beyond this many, quat_to_matrix itself
-_LEFT, _RIGHT = np.array([1, 1, 2, 0, 0, 0]), np.array([2, 3, 3, 3, 2, 1])  # xy, xz, yz, wz, wy, wx
-_SA, _SB = np.array([2, 1, 1]), np.array([3, 3, 2])  # y²+z², x²+z², x²+y²
-# entry (row-major) -> its column in (diagonal 3, pair - turn 3, pair + turn 3): quat_to_matrix's
-# 1 - 2 (y² + z²), 2 (xy - wz), 2 (xz + wy); 2 (xy + wz), 1 - 2 (x² + z²), 2 (yz - wx);
-# 2 (xz - wy), 2 (yz + wx), 1 - 2 (x² + y²)
-_LAYOUT = np.array([0, 3, 7, 6, 1, 5, 4, 8, 2])
-
-
-@lru_cache(maxsize=16)
-def _constants(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) ones and (n, 6) twos (never written: shared)."""
-    ones, twos = np.ones((n, 3)), np.full((n, 6), 2.0)
-    ones.setflags(write=False)
-    twos.setflags(write=False)
-    return ones, twos
 
 
 @dataclass
@@ -286,7 +245,7 @@ class TrackerReader:
             tracked = tracked.copy()
         else:
             pos, quat, tracked, how = self._read_causal(start, stop)
-        positions, rotations = np.ascontiguousarray(pos), rotation_matrices(quat)
+        positions, rotations = np.ascontiguousarray(pos), quat_to_matrix(quat)
         v = rec.valid[start:stop].take(self.devices, axis=1)
         if all_true(v):  # every device tracked (a live frame's usual case)
             valid, partly = np.ones(stop - start, bool), {}
