@@ -268,3 +268,9 @@ def rigid_matrix_world(angle_deg: float = 30.0, scale: float = 1.0, offset=(0.3,
     m[:3, :3] = scale * rz @ rx
     m[:3, 3] = offset
     return m
+
+
+def plain_and_turned_avatars() -> tuple[BodyModel, BodyModel]:
+    """The procedural avatar as built, and turned, scaled 1.2 with its arms dropped 30 degrees: the
+    pair a rig-posing test checks a result on (a rig whose armature is not the world's)."""
+    return procedural_avatar(), procedural_avatar(matrix_world=rigid_matrix_world(30.0, 1.2), arm_drop_deg=30.0)

@@ -515,7 +515,7 @@ class AvatarRig:
                 np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
         elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
             P[plan.driven] = self._from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
-                                                        self._driven_fixed(plan)))
+                                                        plan.fixed[:, None]))
         elif len(plan.driven):
             P[plan.driven] = self._from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
         if chain is not None:
@@ -538,12 +538,8 @@ class AvatarRig:
         if HT is None:
             terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
         else:
-            got = self._caches.get(("off4", id(off)))
-            if got is None or got[0] is not off:  # the plan's offsets as the stacked product takes them, once
-                got = self._caches[("off4", id(off))] = (off, off[:, None, :, None])
-            off4 = got[1]
             n = len(H)
-            np.matmul(P.take(par, axis=0), off4, out=HT[n:-1].reshape(len(late), -1, 3, 1))
+            np.matmul(P.take(par, axis=0), off[:, None, :, None], out=HT[n:-1].reshape(len(late), -1, 3, 1))
             terms = HT
         H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
 
@@ -555,13 +551,6 @@ class AvatarRig:
         if got is None:
             got = self._caches[key] = (np.concatenate([plan.canon, chain.vertebra]),
                                        np.concatenate([plan.fixed, chain.fixed])[:, None])
-        return got
-
-    def _driven_fixed(self, plan: _PosePlan) -> np.ndarray:
-        """The driven bones' fixed factors (K, 1, 3, 3) as a few frames' stacked product takes them, once per plan."""
-        got = self._caches.get(("driven", id(plan)))
-        if got is None:
-            got = self._caches[("driven", id(plan))] = plan.fixed[:, None]
         return got
 
     def _pose_flat(self, plan: _PosePlan, chain_bones, held, P, H, pelvis, HT=None):

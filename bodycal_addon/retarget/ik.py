@@ -634,22 +634,7 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
              ((r20 * v0 + r22 * v2) + r21 * v1) * sc]
         run = w if run is None else [run[0] + w[0], run[1] + w[1], run[2] + w[2]]
         joints.append([s0[0] + run[0], s0[1] + run[1], s0[2] + run[2]])
-    # the twist (spine's), its chord, hip and top in floats
-    j0, j1 = joints[0], joints[-1]
-    y_sac = [r01, r11, r21]
-    x_sac = [r00, r10, r20]  # a strided view in the numpy path
-    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
-    kx = _f_dot_seq(x_sac, chord)
-    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
-                  lambda: _f_any_perpendicular(chord))[0]
-    if top_right is not None:
-        tr = np.asarray(top_right, float)
-        tr_l = tr[0].tolist()
-        kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
-        top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
-        total = np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)]).tolist()[0]
-    else:
-        total = 0.0
+    chord, hip, total = _f_twist_axes(joints[0], joints[-1], rot, top_right)
     n = len(seg)
     ang = [total * ((m + 1.0) / n) for m in range(n)]
     cos, sin = np.cos(ang).tolist(), np.sin(ang).tolist()
@@ -664,6 +649,26 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
         z = _f_cross(x, y)
         rotations.append([[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]])
     return SpineResult(np.array([joints]), np.array([rotations]), sacrum_rot, delta)
+
+
+def _f_twist_axes(j0, j1, rot, top_right) -> tuple[list, list, float]:
+    """`spine`'s twist of one frame in Python floats: (the chord's direction from the spine's first
+    joint `j0` to its last `j1`, the hip axis (the sacrum's +X, of the rows `rot`, made
+    perpendicular to it), the total twist toward `top_right` about it (0 without one)), each
+    numpy's operations in their order."""
+    y_sac = [rot[0][1], rot[1][1], rot[2][1]]
+    x_sac = [rot[0][0], rot[1][0], rot[2][0]]  # a strided view in the numpy path
+    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
+    kx = _f_dot_seq(x_sac, chord)
+    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
+                  lambda: _f_any_perpendicular(chord))[0]
+    if top_right is None:
+        return chord, hip, 0.0
+    tr = np.asarray(top_right, float)
+    tr_l = tr[0].tolist()
+    kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
+    top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
+    return chord, hip, np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)]).tolist()[0]
 
 
 def _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
@@ -690,22 +695,8 @@ def _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right) -> Sp
     stretch = _f_clip(reach / _f_max(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
     world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * np.array([stretch])[:, None])[..., None]
     joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
-    # the twist (spine's), its chord, hip and top in floats
-    j0, j1 = joints[0, 0].tolist(), joints[0, -1].tolist()
-    y_sac = [rot[0][1], rot[1][1], rot[2][1]]
-    x_sac = [rot[0][0], rot[1][0], rot[2][0]]  # a strided view in the numpy path
-    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
-    kx = _f_dot_seq(x_sac, chord)
-    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
-                  lambda: _f_any_perpendicular(chord))[0]
-    if top_right is not None:
-        tr = np.asarray(top_right, float)
-        tr_l = tr[0].tolist()
-        kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
-        top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
-        total = np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)])
-    else:
-        total = np.zeros(1)
+    chord, hip, total = _f_twist_axes(joints[0, 0].tolist(), joints[0, -1].tolist(), rot, top_right)
+    total = np.array([total])
     n = joints.shape[1] - 1
     frac = (np.arange(n) + 1.0) / n
     ang = total[:, None] * frac

@@ -296,20 +296,33 @@ def _rotations(rng, n):
                      np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
+def _spine_case(rng, n, strided=False):
+    """(a rest spine's 12 segments, pelvis (n, 3), sacrum frames (n, 3, 3), the spine's start and
+    the skull-base aims (n, 3) each): random frames, the first six aims on the rest chord, the next
+    four on the spine's start; the sacrum frames a strided view (as a pose's frames give it) when
+    asked."""
+    rest = np.cumsum(np.tile([0.0, 0.045, 0.0], (12, 1)) + rng.normal(scale=0.004, size=(12, 3)), axis=0)
+    rest_segments = np.diff(np.concatenate([np.zeros((1, 3)), rest]), axis=0)
+    pelvis = rng.normal(size=(n, 3))
+    sac = _rotations(rng, n)
+    if strided:
+        held = np.zeros((n, 4, 3, 3))
+        held[:, 2] = sac
+        sac = held[:, 2]
+    start = pelvis + 0.1 * sac[..., 1]
+    aim = start + np.einsum("fij,j->fi", sac, rest_segments.sum(0)) + rng.normal(scale=0.08, size=(n, 3))
+    aim[:6] = start[:6] + 0.5 * np.einsum("fij,j->fi", sac[:6], rest_segments.sum(0))  # on the rest chord
+    aim[6:10] = start[6:10]  # on the spine's start
+    return rest_segments, pelvis, sac, start, aim
+
+
 def test_one_frame_s_spine_in_python_floats_is_numpy_s_to_the_bit(monkeypatch):
     # A live frame's spine (ik.ONE_FRAME_FLOATS) computes its single vectors in Python floats:
     # the numpy path's operations in their order, so its bits, degenerate frames included (the
     # skull base on the rest chord, on the spine's start, a top right along the chord).
     rng = np.random.default_rng(11)
-    rest = np.cumsum(np.tile([0.0, 0.045, 0.0], (12, 1)) + rng.normal(scale=0.004, size=(12, 3)), axis=0)
-    rest_segments = np.diff(np.concatenate([np.zeros((1, 3)), rest]), axis=0)
     n = 120
-    pelvis = rng.normal(size=(n, 3))
-    sac = _rotations(rng, n)
-    start = pelvis + 0.1 * sac[..., 1]
-    aim = start + np.einsum("fij,j->fi", sac, rest_segments.sum(0)) + rng.normal(scale=0.08, size=(n, 3))
-    aim[:6] = start[:6] + 0.5 * np.einsum("fij,j->fi", sac[:6], rest_segments.sum(0))  # on the rest chord
-    aim[6:10] = start[6:10]  # on the spine's start
+    rest_segments, pelvis, sac, start, aim = _spine_case(rng, n)
     right = rng.normal(size=(n, 3))
     right[10:14] = aim[10:14] - start[10:14]  # along the chord
     for top in (right, None):
@@ -332,17 +345,8 @@ def test_many_frames_spine_bent_components_first_is_the_vectors_path_to_the_bit(
     # frames included (the skull base on the rest chord, on the spine's start), and on a sacrum
     # frame that is a strided view (as a pose's frames give it).
     rng = np.random.default_rng(12)
-    rest = np.cumsum(np.tile([0.0, 0.045, 0.0], (12, 1)) + rng.normal(scale=0.004, size=(12, 3)), axis=0)
-    rest_segments = np.diff(np.concatenate([np.zeros((1, 3)), rest]), axis=0)
     n = 200
-    pelvis = rng.normal(size=(n, 3))
-    sac = np.zeros((n, 4, 3, 3))
-    sac[:, 2] = _rotations(rng, n)
-    sac = sac[:, 2]
-    start = pelvis + 0.1 * sac[..., 1]
-    aim = start + np.einsum("fij,j->fi", sac, rest_segments.sum(0)) + rng.normal(scale=0.08, size=(n, 3))
-    aim[:6] = start[:6] + 0.5 * np.einsum("fij,j->fi", sac[:6], rest_segments.sum(0))
-    aim[6:10] = start[6:10]
+    rest_segments, pelvis, sac, _, aim = _spine_case(rng, n, strided=True)
     right = rng.normal(size=(n, 3))
     kw = {"top_right": right / np.linalg.norm(right, axis=1, keepdims=True), "two_pass": False,
           "rest_segments": rest_segments}

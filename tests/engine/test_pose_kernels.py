@@ -61,8 +61,7 @@ def test_a_bake_chunk_s_basis_is_the_general_formula_s_to_the_bit():
                                           motion_seconds=1.5)
     user = truth.body_model()
     up = ua.animate_user(rec, user)
-    for avatar in (rt.procedural_avatar(), rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2),
-                                                                arm_drop_deg=30.0)):
+    for avatar in rt.plain_and_turned_avatars():
         rig = ap.AvatarRig.from_model(avatar)
         frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
         P, _ = rig._pose(frames, up.joints[:, JI["pelvis"]])

@@ -23,8 +23,7 @@ def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
                                           motion_seconds=1.0)
     user = truth.body_model()
     up = ua.animate_user(rec, user)
-    for avatar in (rt.procedural_avatar(), rt.procedural_avatar(matrix_world=rt.rigid_matrix_world(30.0, 1.2),
-                                                                arm_drop_deg=30.0)):
+    for avatar in rt.plain_and_turned_avatars():
         rig = ap.AvatarRig.from_model(avatar)
         assert rig._pose_plan(None).deferred is not None  # the padded pass is taken
         frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
