@@ -601,14 +601,9 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
     data = rest_segments.tobytes()
     _, _, u0a, _, ratio = _rest_spine(data, rest_segments.shape)
     lengths, seg0, k = _rest_spine_floats(data, rest_segments.shape)
-    u0 = u0a.tolist()
     rot = sacrum_rot[0].tolist()
-    s0, t0 = start[0].tolist(), target[0].tolist()
-    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
-    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
-    ut, reach = _f_unit(local, u0)
-    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
-    delta = np.arctan2([sin_phi], [_f_dot(u0, ut)]) * ratio[0] / ratio[1]
+    s0 = start[0].tolist()
+    ut, reach, axis, delta = _f_bend_axis(s0, target[0].tolist(), rot, u0a.tolist(), ratio)
     dl = delta.tolist()[0]
     ang = [dl * kk for kk in k]
     seg = _f_rodrigues(seg0, axis, np.cos(ang).tolist(), np.sin(ang).tolist())
@@ -651,6 +646,17 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
     return SpineResult(np.array([joints]), np.array([rotations]), sacrum_rot, delta)
 
 
+def _f_bend_axis(s0, t0, rot, u0, ratio) -> tuple[list, float, list, np.ndarray]:
+    """`bend_rest_spine`'s aim of one frame in Python floats: (the target's direction from the
+    spine's start `s0` in the sacrum (rows `rot`), its distance, the bend's axis, the bend (1,)),
+    numpy's operations in their order (einsum "fji,fj->fi" of one frame adds its products in order)."""
+    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
+    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
+    ut, reach = _f_unit(local, u0)
+    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
+    return ut, reach, axis, np.arctan2([sin_phi], [_f_dot(u0, ut)]) * ratio[0] / ratio[1]
+
+
 def _f_twist_axes(j0, j1, rot, top_right) -> tuple[list, list, float]:
     """`spine`'s twist of one frame in Python floats: (the chord's direction from the spine's first
     joint `j0` to its last `j1`, the hip axis (the sacrum's +X, of the rows `rot`, made
@@ -677,16 +683,8 @@ def _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right) -> Sp
     the sacrum, the bend and turn axes, the twist's hip and top) in Python floats, each the numpy
     path's operations in their order (so its bits: tests/engine/test_ik.py)."""
     lengths, seg0, u0a, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
-    u0 = u0a.tolist()
     rot = sacrum_rot[0].tolist()
-    s0, t0 = start[0].tolist(), target[0].tolist()
-    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
-    # einsum "fji,fj->fi" of one frame adds its three products in order
-    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
-    ut, reach = _f_unit(local, u0)
-    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
-    phi = np.arctan2([sin_phi], [_f_dot(u0, ut)])
-    delta = phi * ratio[0] / ratio[1]
+    ut, reach, axis, delta = _f_bend_axis(start[0].tolist(), target[0].tolist(), rot, u0a.tolist(), ratio)
     seg = _rodrigues(seg0[None], np.array([[axis]]), delta[:, None] * k)  # (1, n, 3)
     chord = (seg * lengths[:, None]).sum(1)[0].tolist()
     cdir, clen = _f_unit(chord, ut)
