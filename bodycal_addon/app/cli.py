@@ -82,8 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("recording", metavar="REC", help=REC_HELP)
     c.add_argument("-o", "--output", required=True, metavar="USER.body.json", help="the body model to write")
     c.add_argument("--allow-defaults", action="store_true",
-                   help="write the body model even when most body joints could not be measured and would be "
-                        "guessed from the eye height (default: refused, exit 2)")
+                   help="accepted for older scripts; changes nothing (a body mostly guessed from the eye height is "
+                        "written, with a warning)")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")

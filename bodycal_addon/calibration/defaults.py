@@ -69,7 +69,8 @@ R = {  # fractions of the stature (joint centres, so the shoulders are narrower 
     "toe_forward": 0.08, "toe_height": 0.012, "wrist_in_from_grip": 0.037, "wrist_above_grip": 0.016,
     "ankle_behind_foot_tracker": 0.035, "foot_toe_out_deg": 10.0, "reference_bend_deg": 5.0,
     "foot_width": 0.05, "heel_back": 0.03,
-    "skull_radius": 0.051, "skull_up": 0.043, "head_above_skull_base": 0.057,
+    "skull_radius": 0.051, "skull_up": 0.043, "head_above_skull_base": 0.057, "hips_forward_of_skull_base": 0.02,
+    "ankles_behind_hips": 0.02,
 }
 RADII = {"shoulder": 0.028, "elbow": 0.022, "wrist": 0.016, "hip": 0.05, "knee": 0.03, "ankle": 0.02,
          "finger": 0.0048}
@@ -111,6 +112,8 @@ class BodyFrame:
             left, how = _horizontal(session.ref_pose("hand_l")[0] - session.ref_pose("hand_r")[0]), "T-pose hands"
         if left is None and has("foot_l") and has("foot_r"):
             left, how = _horizontal(session.ref_pose("foot_l")[0] - session.ref_pose("foot_r")[0]), "feet"
+        if left is None and has("head"):  # the view's axes (FORMATS.md §2.1): x right
+            left, how = _horizontal(-tf.quat_to_matrix(session.ref_pose("head")[1])[:, 0]), "HMD's view"
         if left is None:
             left, how = np.array([1.0, 0, 0]), "assumed: facing -Y"
         self.left, self.left_from = left, how
@@ -183,8 +186,9 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
 
 
 def _place_pelvis_and_hips(placing: _Placement) -> None:
-    """Pelvis pass: the pelvis from the hips, else the pelvis tracker, else the stature; then each
-    hip beside it. Reads the reference poses; adds pelvis, hip_l, hip_r when unmeasured."""
+    """Pelvis pass: the pelvis from the hips, else the pelvis tracker, else under the skull base
+    (the HMD's) at the standing legs' height, else the stature; then each hip beside it. Reads the
+    reference poses; adds pelvis, hip_l, hip_r when unmeasured."""
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "pelvis" not in w:
         if "hip_l" in w and "hip_r" in w:
@@ -193,6 +197,16 @@ def _place_pelvis_and_hips(placing: _Placement) -> None:
             p = session.ref_pose("pelvis")[0]
             put("pelvis", body.at(R["hip_height"] * H, 0, R["pelvis_forward_of_back_tracker"] * H, p),
                 f"{R['pelvis_forward_of_back_tracker']} H in front of the pelvis tracker, {R['hip_height']} H high")
+        elif session.has("head"):
+            # A standing body's hip joints are a little in front of the plumb line through the
+            # ear (the skull base), the ankle's height plus the thigh and the shin above the floor
+            # (DESIGN.md §3 "The device ladder": 0.551 H, where the surface landmark of
+            # `hip_height`, the greater trochanter, is 0.53 H).
+            legs = R["ankle_height"] + R["thigh"] + R["shin"]
+            put("pelvis", body.at(legs * H, 0, R["hips_forward_of_skull_base"] * H,
+                                  skull_base_under_hmd(session, body)),
+                f"{R['hips_forward_of_skull_base']} H in front of the skull base, {legs:.3f} H high "
+                "(ankle height + thigh + shin)")
         else:
             put("pelvis", body.at(R["hip_height"] * H), f"{R['hip_height']} H above the floor")
     for s in sk.SIDES:
@@ -214,6 +228,12 @@ def _place_ankle(placing: _Placement, s: str) -> None:
         ankle, how = _with_swing_point(placing, f"ankle_{s}", np.array([back[0], back[1], R["ankle_height"] * H]))
         put(f"ankle_{s}", ankle, f"{R['ankle_height']} H above the floor, {R['ankle_behind_foot_tracker']} H "
             f"behind the foot tracker along the foot{how}")
+    elif "pelvis" in placing.world:
+        # Standing still, the body's centre of mass is over the middle of the feet, some 4 cm in
+        # front of the ankles: the ankles stand that much behind the hip joints.
+        put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H,
+                                  -R["ankles_behind_hips"] * H, placing.world["pelvis"]),
+            f"{R['ankle_height']} H high under the hip, {R['ankles_behind_hips']} H behind it")
     else:
         put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H),
             f"{R['ankle_height']} H high under the hip")
@@ -408,13 +428,19 @@ def _place_head(placing: _Placement) -> None:
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "skull_base" not in w:
         if session.has("head"):
-            p = session.ref_pose("head")[0]
-            put("skull_base", p - body.forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H,
+            put("skull_base", skull_base_under_hmd(session, body),
                 f"{R['skull_base_back']} H behind and {R['skull_base_down']} H below the HMD")
         else:
             put("skull_base", body.at(0.87 * H), "0.87 H above the floor")
     put("head", w["skull_base"] + UP * R["head_above_skull_base"] * H,
         f"{R['head_above_skull_base']} H above the skull base (the head bone's tip)")
+
+
+def skull_base_under_hmd(session: Session, body: BodyFrame) -> np.ndarray:
+    """The skull base's default: behind and below the HMD's origin (the eyes) at the reference."""
+    H = body.stature
+    p = session.ref_pose("head")[0]
+    return p - body.forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H
 
 
 def _place_fingers(placing: _Placement) -> None:

@@ -22,7 +22,9 @@ from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
 from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
+from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
+from . import lower_body
 from .avatar_pose import AvatarRig, arc_param, curve_point
 from .trackers import TrackerReader, joint_from_trackers
 from .user_animation import UserAnimator, UserPose
@@ -57,9 +59,15 @@ class PoseSource(Protocol):
 
 
 class RecordingSource:
+    """A tracker recording of a calibrated user. A whole recording from a kit below six devices
+    gets its estimated devices here (lower_body.complete: `seat_height` for a seated performer); a
+    live one has them added frame by frame (live.LiveSolver)."""
+
     character = False
 
-    def __init__(self, recording: Recording, user: BodyModel):
+    def __init__(self, recording: Recording, user: BodyModel, *, seat_height: float | None = None):
+        if not isinstance(recording, LiveRecording):
+            recording = lower_body.complete(recording, user, seat_height=seat_height)
         self.recording, self.model = recording, user
         self.name = recording.source or recording.name
         self._reader = None

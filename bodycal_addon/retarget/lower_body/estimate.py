@@ -1,0 +1,134 @@
+"""The estimated devices of a kit below six devices (calibration/estimated_devices.py), made from
+the head and hands (DESIGN.md §6 "A lower body from head and hands"): `complete` adds them to a
+whole recording (looking ahead), `LiveLowerBody` to a stream's frames as they come.
+
+What the estimated devices carry comes from the user model: their reference poses, and the joints
+on them, are the calibration's, so the user animation, the feet plan and every method read them
+as they read any tracker (retarget/user_animation.py, feet.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ...body.bodymodel import BodyModel
+from ...core import transforms as tf
+from ...recording.model import Device, Recording
+from ..trackers import forward_fill
+from .body_path import BodyPath, LivePath, offline_path, tracked_path
+from .shape import LowerBodyShape, body_axes
+from .stepping import Stepper
+
+KIND = "estimated"
+
+
+def estimated_roles(recording: Recording, user: BodyModel) -> tuple[str, ...]:
+    """The roles the user model estimates that the recording has no device for."""
+    extra = user.extra if isinstance(user.extra, dict) else {}
+    return tuple(r for r in ("pelvis", "foot_l", "foot_r")
+                 if r in (extra.get("estimated_devices") or {}) and not recording.has_role(r))
+
+
+def _filled_pose(recording: Recording, role: str) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) positions and (F, 3, 3) rotations of a role's device, untracked frames holding the
+    last tracked pose (the first for a leading gap)."""
+    pos, quat, valid = recording.pose(role)
+    idx = forward_fill(np.asarray(valid, bool))
+    return np.asarray(pos, float)[idx], tf.quat_to_matrix(tf.quat_normalize(np.asarray(quat, float)[idx]))
+
+
+def _pelvis_local(user: BodyModel) -> np.ndarray:
+    return np.asarray(user.joints["pelvis"].frames["pelvis"], float)
+
+
+def _tracker_ref(user: BodyModel, role: str) -> np.ndarray:
+    return tf.quat_to_matrix(tf.quat_normalize(np.asarray(user.extra["tpose"][role][3:7], float)))
+
+
+def complete(recording: Recording, user: BodyModel, *, seat_height: float | None = None) -> Recording:
+    """`recording` with the estimated devices the user model needs and the recording lacks (the
+    same recording when it lacks none); a note says how many steps the feet took."""
+    roles = estimated_roles(recording, user)
+    if not roles or recording.frame_count == 0:
+        return recording
+    shape = LowerBodyShape.of(user)
+    t = np.asarray(recording.time, float)
+    if "pelvis" in roles:
+        path = offline_path(shape, t, *_filled_pose(recording, "head"), seat_height=seat_height)
+    else:
+        pos, rot = _filled_pose(recording, "pelvis")
+        path = tracked_path(shape, t, pos, rot, _pelvis_local(user), _tracker_ref(user, "pelvis"))
+    feet, headings = np.empty((len(t), 2, 3)), np.empty((len(t), 2))
+    stepper = Stepper(shape, recording.fps or 90.0)
+    stepper.advance(path, 0, len(t), feet, headings, available=len(t))
+    poses = _device_poses(roles, path, feet, headings)
+    what = " and ".join(["the pelvis"] * ("pelvis" in roles) + ["the feet"] * ("foot_l" in roles))
+    note = (f"{what} estimated from the head and hands"
+            + (f" ({stepper.steps} steps)" if "foot_l" in roles else "")
+            + (f", seated at {seat_height:.2f} m" if seat_height is not None else ""))
+    return _with_devices(recording, roles, poses, note)
+
+
+def _device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray) -> dict:
+    """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices."""
+    out = {}
+    for role in roles:
+        if role == "pelvis":
+            out[role] = (path.pelvis, tf.matrix_to_quat(path.pelvis_rot))
+        else:
+            s = 0 if role == "foot_l" else 1
+            out[role] = (feet[:, s], tf.matrix_to_quat(body_axes(headings[:, s])))
+    return out
+
+
+def _with_devices(recording: Recording, roles, poses: dict, note: str) -> Recording:
+    n = recording.frame_count
+    devices = list(recording.devices) + [Device(f"estimated {r}", KIND, r) for r in roles]
+    positions = np.concatenate([recording.positions] + [poses[r][0][:, None] for r in roles], axis=1)
+    rotations = np.concatenate([recording.rotations] + [poses[r][1][:, None] for r in roles], axis=1)
+    valid = np.concatenate([recording.valid, np.ones((n, len(roles)), bool)], axis=1)
+    return replace(recording, devices=devices, positions=positions, rotations=rotations, valid=valid,
+                   notes=list(recording.notes) + [note])
+
+
+class LiveLowerBody:
+    """The estimated devices of a stream, one frame at a time from the frames so far (forward
+    only): `roles` to add; `frame(t, head_pos, head_rot, pelvis_pos, pelvis_rot)` gives their
+    {role: (position (3,), quaternion (4,))} for the frame (the pelvis tracker's pose when the
+    kit has one, else None)."""
+
+    def __init__(self, user: BodyModel, roles: tuple[str, ...], fps: float = 90.0, *,
+                 seat_height: float | None = None):
+        self.user, self.roles = user, tuple(roles)
+        self.shape = LowerBodyShape.of(user)
+        self.path = LivePath(self.shape, seat_height)
+        self.stepper = Stepper(self.shape, fps)
+        self._k = 0
+        self._last_pelvis = None
+
+    def frame(self, t: float, head_pos, head_rot, pelvis_pos=None, pelvis_rot=None) -> dict:
+        if "pelvis" in self.roles or pelvis_pos is None:
+            step = self.path.step(t, np.asarray(head_pos, float), np.asarray(head_rot, float))
+        else:
+            step = self._tracked(t, np.asarray(pelvis_pos, float), np.asarray(pelvis_rot, float))
+        feet, headings = np.empty((1, 2, 3)), np.empty((1, 2))
+        self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k)
+        self._k += 1
+        poses = _device_poses(self.roles, step, feet, headings)
+        return {r: (p[0], q[0]) for r, (p, q) in poses.items()}
+
+    def _tracked(self, t: float, pos: np.ndarray, rot: np.ndarray) -> BodyPath:
+        shape = self.shape
+        local = _pelvis_local(self.user)
+        p = pos + rot @ local
+        velocity = np.zeros(2)
+        if self._last_pelvis is not None:
+            t0, p0, v0 = self._last_pelvis
+            dt = max(t - t0, 1e-6)
+            a = 1.0 - np.exp(-dt / 0.06)
+            velocity = v0 + a * ((p[:2] - p0[:2]) / dt - v0)
+        self._last_pelvis = (t, p, velocity)
+        return tracked_path(shape, np.array([t]), pos[None], rot[None], local, _tracker_ref(self.user, "pelvis"),
+                            velocity=velocity[None])
