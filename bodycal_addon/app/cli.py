@@ -101,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
     _filter_argument(c, "the devices before retargeting", on=True)
+    _seated_argument(c)
     _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a farm")
@@ -203,6 +204,12 @@ def _live_commands(sub) -> None:
     _filter_argument(c, "the devices (forward only, as they arrive)", on=True)
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: planted while the performer stands on them)")
+
+
+def _seated_argument(c) -> None:
+    c.add_argument("--seated", type=float, default=None, metavar="HEIGHT",
+                   help="the performer sits on a seat HEIGHT metres high (a kit without foot trackers: the estimated "
+                        "pelvis stays on the seat, the feet planted in front; default: standing and stepping)")
 
 
 def _filter_argument(c, what: str, on: bool = False) -> None:

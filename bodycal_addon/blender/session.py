@@ -304,15 +304,16 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
 
 
 def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filter: OneEuro | None = DEFAULT_FILTER,
-                   log=print, **kwargs) -> Summary:
-    """`bodycal retarget`: a recording of the performer whose body model is `user_path`."""
+                   seat_height: float | None = None, log=print, **kwargs) -> Summary:
+    """`bodycal retarget`: a recording of the performer whose body model is `user_path`
+    (`seat_height`: seated, a kit without foot trackers)."""
 
     def read() -> RecordingTake:
         recording = load_recording(recording_path)
         user = BodyModel.load(user_path)
         if user.kind != "user":
             raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
-        return RecordingTake(recording, user, filter)
+        return RecordingTake(recording, user, filter, seat_height=seat_height)
 
     files_read = [*outputs.recording_inputs(recording_path), ("the user file (--user)", user_path)]
     return run_files(read, RecordingTake.kind, files_read, avatar_file, output_paths, log=log, **kwargs)

@@ -109,8 +109,9 @@ def check_usable(model: BodyModel, *, source: str | None = None) -> Coverage:
             "needs at least the HMD and both hands (a 3-device kit), the rest can be estimated", source=source,
             hint=f"record with the HMD and both controllers, or assign these roles to the devices ({ROLES_LIST})")
     if missing:
+        devices = "device" if len(missing) == 1 else "devices"
         raise BodyCalError(
-            f"the body model has no reference pose for the {_and(missing)} {'device' if len(missing) == 1 else 'devices'} "
+            f"the body model has no reference pose for the {_and(missing)} {devices} "
             "(it was calibrated before the lower body could be estimated)", source=source,
             hint="calibrate the user again from the recording")
     return coverage(model.calibration, model.extra)

@@ -94,6 +94,7 @@ class RecordingTake:
     notes: list[str] = field(default_factory=list)
     frame_start: float = 1.0  # the import's mapping (recording_scene); a file's take starts at frame 1
     frame_rate: float | None = None  # the frames' rate when not the recording's own (a window keeps its take's)
+    seat_height: float | None = None  # a seated performer without foot trackers: the seat's height (lower_body)
 
     def __post_init__(self):
         self.name = self.recording.name
@@ -118,12 +119,12 @@ class RecordingTake:
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
         check_method(method, self.kind)
         return retarget(self._filtered(), self.user, avatar, method, progress=progress, cancel=cancel,
-                        plant_feet=plant_feet, placement=placement)
+                        plant_feet=plant_feet, placement=placement, seat_height=self.seat_height)
 
     def prepare(self, avatar, method, *, plant_feet=True, placement="object"):
         check_method(method, self.kind)
         return prepare_recording(self._filtered(), self.user, avatar, method, plant_feet=plant_feet,
-                                 placement=placement)
+                                 placement=placement, seat_height=self.seat_height)
 
     def _filtered(self) -> Recording:
         return self.recording if self.filter is None else filter_recording(self.recording, self.filter)

@@ -1,7 +1,7 @@
 """A lower body from head and hands (DESIGN.md §6): the estimated pelvis and feet of a kit without
 their trackers, made for a whole recording (`complete`) or a stream (`LiveLowerBody`)."""
 
-from .estimate import LiveLowerBody, complete, estimated_roles
+from .estimate import KIND, LiveLowerBody, complete, estimated_roles
 from .shape import LowerBodyShape
 
-__all__ = ["LiveLowerBody", "LowerBodyShape", "complete", "estimated_roles"]
+__all__ = ["KIND", "LiveLowerBody", "LowerBodyShape", "complete", "estimated_roles"]

@@ -34,6 +34,7 @@ KNEES_FIRST = 0.05  # x stature: a drop of the skull base this small is the knee
 LOOK_DOWN = np.radians(20.0)
 LEAN_PER_PITCH = 0.7
 MAX_LEAN = np.radians(110.0)
+LOWEST_PELVIS = 0.3  # x the standing pelvis height: sitting on a heel
 PELVIS_SHARE = 0.35
 LIFT_FROM = 0.02  # x stature above the standing pelvis height
 HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
@@ -79,10 +80,15 @@ def trunk_lean(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray
     """(F,) the trunk's forward lean (the module docstring): `LEAN_PER_PITCH` of the head's pitch
     down beyond `LOOK_DOWN` (the eyes and the neck take that much), and no more than a bow with
     straight legs would take the skull base down to its height (the first `KNEES_FIRST` of the drop
-    left to the knees): a bow looks down, a squat keeps the head up."""
-    height = (neck_z + KNEES_FIRST * shape.stature - shape.pelvis_height) / shape.trunk_length
-    bow = np.arccos(np.clip(height, -1.0, 1.0))  # the trunk's small rest tilt left out: within 2 cm
-    return np.clip(np.minimum(bow, LEAN_PER_PITCH * (pitch_down - LOOK_DOWN)), 0.0, MAX_LEAN)
+    left to the knees): a bow looks down, a squat keeps the head up. And at least what keeps the
+    pelvis `LOWEST_PELVIS` of its standing height above the floor (sitting on a heel): a head
+    lower than that is a bow however it looks. The trunk's small rest tilt is left out (within
+    2 cm)."""
+    length = shape.trunk_length
+    bow = np.arccos(np.clip((neck_z + KNEES_FIRST * shape.stature - shape.pelvis_height) / length, -1.0, 1.0))
+    floor = np.arccos(np.clip((neck_z - LOWEST_PELVIS * shape.pelvis_height) / length, -1.0, 1.0))
+    lean = np.minimum(bow, LEAN_PER_PITCH * (pitch_down - LOOK_DOWN))
+    return np.clip(np.maximum(lean, floor), 0.0, MAX_LEAN)
 
 
 def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, phi: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ from ...core import transforms as tf
 from ...recording.model import Device, Recording
 from ..trackers import forward_fill
 from .body_path import BodyPath, LivePath, offline_path, tracked_path
+from .kneel import Kneeling, pitch_down
 from .shape import LowerBodyShape, body_axes
 from .stepping import Stepper
 
@@ -63,7 +64,8 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     feet, headings = np.empty((len(t), 2, 3)), np.empty((len(t), 2))
     stepper = Stepper(shape, recording.fps or 90.0)
     stepper.advance(path, 0, len(t), feet, headings, available=len(t))
-    poses = _device_poses(roles, path, feet, headings)
+    pitches = Kneeling(shape).apply(path, feet, headings)
+    poses = _device_poses(roles, path, feet, headings, pitches)
     what = " and ".join(["the pelvis"] * ("pelvis" in roles) + ["the feet"] * ("foot_l" in roles))
     note = (f"{what} estimated from the head and hands"
             + (f" ({stepper.steps} steps)" if "foot_l" in roles else "")
@@ -71,15 +73,16 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     return _with_devices(recording, roles, poses, note)
 
 
-def _device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray) -> dict:
-    """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices."""
+def _device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray, pitches: np.ndarray) -> dict:
+    """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices: the feet turned by
+    their headings and pitched toes down by `pitches` (a kneel)."""
     out = {}
     for role in roles:
         if role == "pelvis":
             out[role] = (path.pelvis, tf.matrix_to_quat(path.pelvis_rot))
         else:
             s = 0 if role == "foot_l" else 1
-            out[role] = (feet[:, s], tf.matrix_to_quat(body_axes(headings[:, s])))
+            out[role] = (feet[:, s], tf.matrix_to_quat(body_axes(headings[:, s]) @ pitch_down(pitches[:, s])))
     return out
 
 
@@ -105,6 +108,7 @@ class LiveLowerBody:
         self.shape = LowerBodyShape.of(user)
         self.path = LivePath(self.shape, seat_height)
         self.stepper = Stepper(self.shape, fps)
+        self.kneeling = Kneeling(self.shape)
         self._k = 0
         self._last_pelvis = None
 
@@ -116,7 +120,7 @@ class LiveLowerBody:
         feet, headings = np.empty((1, 2, 3)), np.empty((1, 2))
         self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k)
         self._k += 1
-        poses = _device_poses(self.roles, step, feet, headings)
+        poses = _device_poses(self.roles, step, feet, headings, self.kneeling.apply(step, feet, headings))
         return {r: (p[0], q[0]) for r, (p, q) in poses.items()}
 
     def _tracked(self, t: float, pos: np.ndarray, rot: np.ndarray) -> BodyPath:

@@ -56,6 +56,8 @@ class LowerBodyShape:
     trunk: np.ndarray  # (3,) pelvis -> skull base, body axes
     pelvis_height: float  # standing
     leg: float  # thigh + shin
+    thigh: float
+    shin: float
     hip: np.ndarray  # (2, 3) pelvis -> hip_l, hip_r, body axes
     ankle: np.ndarray  # (2, 3) pelvis -> ankle_l, ankle_r, body axes (standing)
     ankle_height: float
@@ -87,6 +89,8 @@ class LowerBodyShape:
         pelvis = w["pelvis"]
         toes = [w[f"toe_{s}"] - w[f"ankle_{s}"] for s in SIDES]
         foot_turn = np.array([wrap(heading_of(t) - psi0) for t in toes])
+        thigh = float(np.mean([user.bones[f"thigh_{s}"].length for s in SIDES]))
+        shin = float(np.mean([user.bones[f"shin_{s}"].length for s in SIDES]))
         return cls(
             estimated=estimated,
             neck_in_hmd=hmd_ref.T @ (w["skull_base"] - head_p),
@@ -94,8 +98,9 @@ class LowerBodyShape:
             heading0=psi0,
             trunk=to_body @ (w["skull_base"] - pelvis),
             pelvis_height=float(pelvis[2]),
-            leg=float(user.bones["thigh_l"].length + user.bones["shin_l"].length
-                      + user.bones["thigh_r"].length + user.bones["shin_r"].length) / 2.0,
+            leg=thigh + shin,
+            thigh=thigh,
+            shin=shin,
             hip=np.array([to_body @ (w[f"hip_{s}"] - pelvis) for s in SIDES]),
             ankle=np.array([to_body @ (w[f"ankle_{s}"] - pelvis) for s in SIDES]),
             ankle_height=float(np.mean([w[f"ankle_{s}"][2] for s in SIDES])),
