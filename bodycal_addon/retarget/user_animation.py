@@ -291,14 +291,16 @@ class UserAnimator:
 
     def _hinge_right(self, plan: _Plan, bone: str, eff_role: str) -> tuple:
         """The hinge's right: its calibrated local right in its tracker, else the rest right carried
-        by the intermediate tracker, else the effector tracker's rigid frame's +X."""
+        by the limb's intermediate tracker or its end device (never another limb's: a knee carried
+        by a hand turned with the wrist), else the effector tracker's rigid frame's +X."""
         rd, model = self.reader, self.model
         info = model.bones.get(bone)
         ex = info.extra if info is not None else {}
         role = ex.get("right_frame")
         if role in rd.roles and ex.get("right_local") is not None:
             return ("vec", plan.product(role, normalize(np.asarray(ex["right_local"], float))))
-        for r in ("forearm", "shin", "hand", "foot"):  # the rest right carried by the intermediate tracker
+        carriers = ("forearm", "hand") if bone.startswith("forearm_") else ("shin", "foot")
+        for r in carriers:  # the rest right carried by the limb's intermediate tracker, else its end device
             role = f"{r}_{bone.rsplit('_', 1)[-1]}"
             if role in rd.roles and role in rd.ref_rot and info is not None and info.right is not None:
                 return ("vec", plan.product(role, rd.ref_rot[role].T @ info.right))

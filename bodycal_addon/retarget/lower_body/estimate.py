@@ -32,7 +32,7 @@ def estimated_roles(recording: Recording, user: BodyModel) -> tuple[str, ...]:
                  if r in (extra.get("estimated_devices") or {}) and not recording.has_role(r))
 
 
-def _filled_pose(recording: Recording, role: str) -> tuple[np.ndarray, np.ndarray]:
+def filled_pose(recording: Recording, role: str) -> tuple[np.ndarray, np.ndarray]:
     """(F, 3) positions and (F, 3, 3) rotations of a role's device, untracked frames holding the
     last tracked pose (the first for a leading gap)."""
     pos, quat, valid = recording.pose(role)
@@ -57,23 +57,23 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     shape = LowerBodyShape.of(user)
     t = np.asarray(recording.time, float)
     if "pelvis" in roles:
-        path = offline_path(shape, t, *_filled_pose(recording, "head"), seat_height=seat_height)
+        path = offline_path(shape, t, *filled_pose(recording, "head"), seat_height=seat_height)
     else:
-        pos, rot = _filled_pose(recording, "pelvis")
+        pos, rot = filled_pose(recording, "pelvis")
         path = tracked_path(shape, t, pos, rot, _pelvis_local(user), _tracker_ref(user, "pelvis"))
     feet, headings = np.empty((len(t), 2, 3)), np.empty((len(t), 2))
     stepper = Stepper(shape, recording.fps or 90.0)
     stepper.advance(path, 0, len(t), feet, headings, available=len(t))
     pitches = Kneeling(shape).apply(path, feet, headings)
-    poses = _device_poses(roles, path, feet, headings, pitches)
+    poses = device_poses(roles, path, feet, headings, pitches)
     what = " and ".join(["the pelvis"] * ("pelvis" in roles) + ["the feet"] * ("foot_l" in roles))
     note = (f"{what} estimated from the head and hands"
             + (f" ({stepper.steps} steps)" if "foot_l" in roles else "")
             + (f", seated at {seat_height:.2f} m" if seat_height is not None else ""))
-    return _with_devices(recording, roles, poses, note)
+    return with_devices(recording, roles, poses, note)
 
 
-def _device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray, pitches: np.ndarray) -> dict:
+def device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray, pitches: np.ndarray) -> dict:
     """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices: the feet turned by
     their headings and pitched toes down by `pitches` (a kneel)."""
     out = {}
@@ -86,7 +86,9 @@ def _device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray,
     return out
 
 
-def _with_devices(recording: Recording, roles, poses: dict, note: str) -> Recording:
+def with_devices(recording: Recording, roles, poses: dict, note: str) -> Recording:
+    """`recording` with the devices of `roles` added (kind `KIND`, always tracked): `poses`
+    {role: ((F, 3) positions, (F, 4) quaternions)}; `note` joins the recording's notes."""
     n = recording.frame_count
     devices = list(recording.devices) + [Device(f"estimated {r}", KIND, r) for r in roles]
     positions = np.concatenate([recording.positions] + [poses[r][0][:, None] for r in roles], axis=1)
@@ -120,7 +122,7 @@ class LiveLowerBody:
         feet, headings = np.empty((1, 2, 3)), np.empty((1, 2))
         self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k)
         self._k += 1
-        poses = _device_poses(self.roles, step, feet, headings, self.kneeling.apply(step, feet, headings))
+        poses = device_poses(self.roles, step, feet, headings, self.kneeling.apply(step, feet, headings))
         return {r: (p[0], q[0]) for r, (p, q) in poses.items()}
 
     def _tracked(self, t: float, pos: np.ndarray, rot: np.ndarray) -> BodyPath:
