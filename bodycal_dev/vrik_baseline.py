@@ -36,7 +36,7 @@ def complete(recording: Recording, user: BodyModel) -> Recording:
     pelvis = head_pos + np.einsum("fij,j->fi", axes, local)
     feet, headings = _feet(shape, t, pelvis, heading)
     path = BodyPath(pelvis, heading, np.zeros(len(t)), pelvis, axes, np.zeros(len(t)), np.zeros((len(t), 2)))
-    poses = lower_body.device_poses(roles, path, feet, headings, np.zeros((len(t), 2)))
+    poses = lower_body.device_poses(shape, roles, path, feet, headings, np.zeros((len(t), 2)))
     return lower_body.with_devices(recording, roles, poses, "the lower body of the VRIK-like baseline")
 
 

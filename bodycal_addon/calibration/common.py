@@ -105,7 +105,7 @@ class Session:
         self.defaulted: dict[str, str] = {}
         self.missing: list[str] = []
         self.warnings: list[str] = []  # steps left out and why, one line each
-        # estimated devices (estimated_devices.py): role -> reference pose, no trajectory
+        # estimated devices (estimated_devices.py): role -> reference pose (their poses in _poses)
         self.estimated: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.reference_time, self.reference_step = self._reference_time()
 
@@ -131,8 +131,6 @@ class Session:
         """(positions (F, 3), rotations (F, 4), valid (F,)) of a tracker role; hands without a
         device pose are built from the glove's three LEDs (synthetic_api / FORMATS.md §2.1)."""
         if role not in self._poses:
-            if role in self.estimated:
-                raise BodyCalError(f"the '{role}' device is estimated: it has no poses to fit", source=self.source)
             if self.rec.has_role(role):
                 pos, rot, valid = self.rec.pose(role)
             elif self.has(role):
@@ -210,9 +208,11 @@ class Session:
             p, q = p[close], q[close]
         return p.mean(axis=0), tf.quat_normalize(q.mean(axis=0))
 
-    def estimate(self, role: str, position: np.ndarray, rotation: np.ndarray) -> None:
-        """Adds the estimated device `role` (estimated_devices.py) with its reference pose."""
+    def estimate(self, role: str, position: np.ndarray, rotation: np.ndarray, poses: tuple) -> None:
+        """Adds the estimated device `role` (estimated_devices.py): its reference pose and its poses
+        (positions (F, 3), rotations (F, 4), valid (F,)) over the recording."""
         self.estimated[role] = self._ref[role] = (np.asarray(position, float), tf.quat_normalize(rotation))
+        self._poses[role] = poses
 
     def ref_pose(self, role: str) -> tuple[np.ndarray, np.ndarray]:
         """Pose at the reference time. The performer holds the reference pose (T-pose / stand)

@@ -193,20 +193,13 @@ def _place_pelvis_and_hips(placing: _Placement) -> None:
     if "pelvis" not in w:
         if "hip_l" in w and "hip_r" in w:
             put("pelvis", 0.5 * (w["hip_l"] + w["hip_r"]), "midpoint of the hips")
+        elif session.kind("pelvis") == "estimated":
+            put("pelvis", session.ref_pose("pelvis")[0], "where the estimated pelvis stands "
+                "(estimated_devices.provisional_body: under the skull base, the legs' height above the floor)")
         elif session.has("pelvis"):
             p = session.ref_pose("pelvis")[0]
             put("pelvis", body.at(R["hip_height"] * H, 0, R["pelvis_forward_of_back_tracker"] * H, p),
                 f"{R['pelvis_forward_of_back_tracker']} H in front of the pelvis tracker, {R['hip_height']} H high")
-        elif session.has("head"):
-            # A standing body's hip joints are a little in front of the plumb line through the
-            # ear (the skull base), the ankle's height plus the thigh and the shin above the floor
-            # (DESIGN.md §3 "The device ladder": 0.551 H, where the surface landmark of
-            # `hip_height`, the greater trochanter, is 0.53 H).
-            legs = R["ankle_height"] + R["thigh"] + R["shin"]
-            put("pelvis", body.at(legs * H, 0, R["hips_forward_of_skull_base"] * H,
-                                  skull_base_under_hmd(session, body)),
-                f"{R['hips_forward_of_skull_base']} H in front of the skull base, {legs:.3f} H high "
-                "(ankle height + thigh + shin)")
         else:
             put("pelvis", body.at(R["hip_height"] * H), f"{R['hip_height']} H above the floor")
     for s in sk.SIDES:
@@ -218,7 +211,10 @@ def _place_ankle(placing: _Placement, s: str) -> None:
     """The ankle of side `s`, unless measured: behind the foot tracker on the instep (moved toward
     the hip swing's point), or under the hip."""
     session, body, H, put = placing.session, placing.body, placing.H, placing.put
-    if session.has(f"foot_{s}"):
+    if session.kind(f"foot_{s}") == "estimated":
+        put(f"ankle_{s}", session.ref_pose(f"foot_{s}")[0], "where the estimated foot stands "
+            "(estimated_devices.provisional_body: under the hip, a little behind it)")
+    elif session.has(f"foot_{s}"):
         # On the instep the tracker is ahead of the ankle along the foot; the height is the
         # ankle's above the floor, whatever the tracker's.
         p = session.ref_pose(f"foot_{s}")[0]
@@ -228,12 +224,6 @@ def _place_ankle(placing: _Placement, s: str) -> None:
         ankle, how = _with_swing_point(placing, f"ankle_{s}", np.array([back[0], back[1], R["ankle_height"] * H]))
         put(f"ankle_{s}", ankle, f"{R['ankle_height']} H above the floor, {R['ankle_behind_foot_tracker']} H "
             f"behind the foot tracker along the foot{how}")
-    elif "pelvis" in placing.world:
-        # Standing still, the body's centre of mass is over the middle of the feet, some 4 cm in
-        # front of the ankles: the ankles stand that much behind the hip joints.
-        put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H,
-                                  -R["ankles_behind_hips"] * H, placing.world["pelvis"]),
-            f"{R['ankle_height']} H high under the hip, {R['ankles_behind_hips']} H behind it")
     else:
         put(f"ankle_{s}", body.at(R["ankle_height"] * H, _SIGN[s] * R["hip_half_width"] * H),
             f"{R['ankle_height']} H high under the hip")
@@ -428,7 +418,7 @@ def _place_head(placing: _Placement) -> None:
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "skull_base" not in w:
         if session.has("head"):
-            put("skull_base", skull_base_under_hmd(session, body),
+            put("skull_base", skull_base_under_hmd(session, body.forward, H),
                 f"{R['skull_base_back']} H behind and {R['skull_base_down']} H below the HMD")
         else:
             put("skull_base", body.at(0.87 * H), "0.87 H above the floor")
@@ -436,11 +426,11 @@ def _place_head(placing: _Placement) -> None:
         f"{R['head_above_skull_base']} H above the skull base (the head bone's tip)")
 
 
-def skull_base_under_hmd(session: Session, body: BodyFrame) -> np.ndarray:
-    """The skull base's default: behind and below the HMD's origin (the eyes) at the reference."""
-    H = body.stature
+def skull_base_under_hmd(session: Session, forward: np.ndarray, H: float) -> np.ndarray:
+    """The skull base's default: behind (against `forward`) and below the HMD's origin (the eyes)
+    at the reference time, for a body of stature `H`."""
     p = session.ref_pose("head")[0]
-    return p - body.forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H
+    return p - forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H
 
 
 def _place_fingers(placing: _Placement) -> None:

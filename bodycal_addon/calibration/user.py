@@ -73,6 +73,7 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
         raise BodyCalError("the recording has no HMD (role 'head'): the eye height and the head cannot be "
                            "calibrated", source=session.source,
                            hint=f"assign the role 'head' to the HMD device ({ROLES_LIST})")
+    estimated_devices.attach(session)
     # Delahaye 2023, appendix B: extremities (hands, feet, head), then the limbs, then the trunk.
     _run("controller tips", touches.controller_tips, session, state)
     _run("palms_together", hands.palms_together, session, state)
@@ -174,7 +175,7 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
     defaulted), bone, surface element and AvatarGo offset; what was defaulted goes to
     `calibration["defaulted"]` in the order it was decided."""
     body = _complete_joints(session, state)
-    estimated = estimated_devices.register(session, state, body.left)
+    estimated = {r: estimated_devices.WHAT[r] for r in session.estimated}
     joints = _joints(session, state)
     rights = _bone_rights(session, state, body, state.world)
     bones, frames_world = _bones(session, state, rights)

@@ -65,7 +65,7 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     stepper = Stepper(shape, recording.fps or 90.0)
     stepper.advance(path, 0, len(t), feet, headings, available=len(t))
     pitches = Kneeling(shape).apply(path, feet, headings)
-    poses = device_poses(roles, path, feet, headings, pitches)
+    poses = device_poses(shape, roles, path, feet, headings, pitches)
     what = " and ".join(["the pelvis"] * ("pelvis" in roles) + ["the feet"] * ("foot_l" in roles))
     note = (f"{what} estimated from the head and hands"
             + (f" ({stepper.steps} steps)" if "foot_l" in roles else "")
@@ -73,16 +73,20 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     return with_devices(recording, roles, poses, note)
 
 
-def device_poses(roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray, pitches: np.ndarray) -> dict:
-    """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices: the feet turned by
-    their headings and pitched toes down by `pitches` (a kneel)."""
+def device_poses(shape: LowerBodyShape, roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray,
+                 pitches: np.ndarray) -> dict:
+    """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices, each where it
+    stands on its joint (`shape`): the pelvis on the path's pelvis, the feet on their ankles turned
+    by their headings and pitched toes down by `pitches` (a kneel)."""
     out = {}
     for role in roles:
         if role == "pelvis":
-            out[role] = (path.pelvis, tf.matrix_to_quat(path.pelvis_rot))
+            axes, joint, (off, rot) = path.pelvis_rot, path.pelvis, shape.pelvis_device
         else:
             s = 0 if role == "foot_l" else 1
-            out[role] = (feet[:, s], tf.matrix_to_quat(body_axes(headings[:, s]) @ pitch_down(pitches[:, s])))
+            axes, joint, (off, rot) = body_axes(headings[:, s]) @ pitch_down(pitches[:, s]), feet[:, s], \
+                shape.foot_devices[s]
+        out[role] = (joint + np.einsum("fij,j->fi", axes, off), tf.matrix_to_quat(axes @ rot))
     return out
 
 
@@ -122,7 +126,7 @@ class LiveLowerBody:
         feet, headings = np.empty((1, 2, 3)), np.empty((1, 2))
         self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k)
         self._k += 1
-        poses = device_poses(self.roles, step, feet, headings, self.kneeling.apply(step, feet, headings))
+        poses = device_poses(self.shape, self.roles, step, feet, headings, self.kneeling.apply(step, feet, headings))
         return {r: (p[0], q[0]) for r, (p, q) in poses.items()}
 
     def _tracked(self, t: float, pos: np.ndarray, rot: np.ndarray) -> BodyPath:

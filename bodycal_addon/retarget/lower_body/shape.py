@@ -64,6 +64,10 @@ class LowerBodyShape:
     foot_turn: np.ndarray  # (2,) each foot's heading minus the body's, reference time
     foot_length: float  # ankle to toe, horizontal
     stature: float
+    # Where each estimated device stands on its joint (the pelvis; each ankle): its origin's offset
+    # and its rotation in the joint's axes (the body's; the foot's), fixed since the reference
+    pelvis_device: tuple[np.ndarray, np.ndarray]
+    foot_devices: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
     @property
     def trunk_length(self) -> float:
@@ -89,6 +93,7 @@ class LowerBodyShape:
         pelvis = w["pelvis"]
         toes = [w[f"toe_{s}"] - w[f"ankle_{s}"] for s in SIDES]
         foot_turn = np.array([wrap(heading_of(t) - psi0) for t in toes])
+        feet_axes = [body_axes(psi0 + t) for t in foot_turn]
         thigh = float(np.mean([user.bones[f"thigh_{s}"].length for s in SIDES]))
         shin = float(np.mean([user.bones[f"shin_{s}"].length for s in SIDES]))
         return cls(
@@ -107,7 +112,20 @@ class LowerBodyShape:
             foot_turn=foot_turn,
             foot_length=float(np.mean([np.linalg.norm(t[:2]) for t in toes])),
             stature=float(extra.get("eye_height", head_p[2])) / 0.93,
+            pelvis_device=_on_joint(tpose, "pelvis", pelvis, body_axes(psi0)),
+            foot_devices=tuple(_on_joint(tpose, f"foot_{s}", w[f"ankle_{s}"], feet_axes[i])
+                               for i, s in enumerate(SIDES)),
         )
+
+
+def _on_joint(tpose: dict, role: str, joint: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(offset, rotation) of `role`'s reference pose in the joint's `axes` at `joint` (the identity
+    for a device the model does not estimate: it is not made)."""
+    if role not in tpose:
+        return np.zeros(3), np.eye(3)
+    p = np.asarray(tpose[role][:3], float)
+    r = tf.quat_to_matrix(tf.quat_normalize(np.asarray(tpose[role][3:7], float)))
+    return axes.T @ (p - joint), axes.T @ r
 
 
 def wrap(a) -> np.ndarray:
