@@ -34,7 +34,7 @@ KNEES_FIRST = 0.05  # x stature: a drop of the skull base this small is the knee
 LOOK_DOWN = np.radians(20.0)
 LEAN_PER_PITCH = 0.7
 MAX_LEAN = np.radians(110.0)
-LOWEST_PELVIS = 0.3  # x the standing pelvis height: sitting on a heel
+LOWEST_PELVIS = 0.35  # x the standing pelvis height: kneeling, sitting back on a heel
 PELVIS_SHARE = 0.35
 LIFT_FROM = 0.02  # x stature above the standing pelvis height
 HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
@@ -81,20 +81,31 @@ def trunk_lean(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray
     down beyond `LOOK_DOWN` (the eyes and the neck take that much), and no more than a bow with
     straight legs would take the skull base down to its height (the first `KNEES_FIRST` of the drop
     left to the knees): a bow looks down, a squat keeps the head up. And at least what keeps the
-    pelvis `LOWEST_PELVIS` of its standing height above the floor (sitting on a heel): a head
-    lower than that is a bow however it looks. The trunk's small rest tilt is left out (within
-    2 cm)."""
-    length = shape.trunk_length
-    bow = np.arccos(np.clip((neck_z + KNEES_FIRST * shape.stature - shape.pelvis_height) / length, -1.0, 1.0))
-    floor = np.arccos(np.clip((neck_z - LOWEST_PELVIS * shape.pelvis_height) / length, -1.0, 1.0))
+    pelvis `LOWEST_PELVIS` of its standing height above the floor (kneeling, sitting back on a
+    heel): a head lower than that is a bow however it looks."""
+    up = shape.trunk[2]
+
+    def lean_for(pelvis_z):  # the lean that puts the pelvis at this height (`trunk_at`)
+        return np.arccos(np.clip((neck_z - pelvis_z) / up, -1.0, 1.0))
+
+    bow = lean_for(shape.pelvis_height - KNEES_FIRST * shape.stature)
+    floor = lean_for(LOWEST_PELVIS * shape.pelvis_height)
     lean = np.minimum(bow, LEAN_PER_PITCH * (pitch_down - LOOK_DOWN))
     return np.clip(np.maximum(lean, floor), 0.0, MAX_LEAN)
 
 
+def trunk_at(shape: LowerBodyShape, phi: np.ndarray) -> np.ndarray:
+    """(F, 3) the pelvis -> skull base vector in body axes leaned forward by `phi`: its upright
+    part turned toward forward, its small rest offset forward or back kept (so the skull base only
+    ever comes down as the lean grows: a turn of the whole tilted trunk first raises it)."""
+    r, f, u = shape.trunk
+    phi = np.asarray(phi, float)
+    return np.stack([np.full_like(phi, r), f + u * np.sin(phi), u * np.cos(phi)], axis=-1)
+
+
 def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """(F, 3) the pelvis: the skull base less the trunk turned and leaned."""
-    axes = body_axes(heading) @ lean(phi)
-    return neck - np.einsum("fij,j->fi", axes, shape.trunk)
+    return neck - np.einsum("fij,fj->fi", body_axes(heading), trunk_at(shape, phi))
 
 
 def pelvis_rotation(heading: np.ndarray, phi: np.ndarray) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Kneeling on one knee (DESIGN.md §6 "A lower body from head and hands"): a pelvis lower than a
-crouch takes (`KNEEL_FROM` of its standing height) puts the knee further back on the floor, the
-shin along it and the foot's toes tucked under; the other foot stays planted. It blends in over
-`KNEEL_BLEND` of the standing height, so a crouch that deepens turns into a kneel, and back.
+crouch takes (`KNEEL_FROM` of its standing height) puts one knee on the floor, the shin along it
+and the foot's toes tucked under, and the other foot flat in front, its shin upright under the
+knee (`FRONT_FOOT` of the thigh ahead of its hip). It blends in over `KNEEL_BLEND` of the standing
+height, so a crouch that deepens turns into a kneel, and back.
 
 The knee that goes down is the one whose foot stood further back when the kneel began.
 """
@@ -17,6 +18,7 @@ KNEEL_FROM = 0.6  # x the standing pelvis height
 KNEEL_BLEND = 0.12  # x the standing pelvis height
 KNEE_ABOVE_FLOOR = 0.03  # x stature: the knee joint's centre when the knee rests on the floor
 TOES_DOWN = np.radians(60.0)
+FRONT_FOOT = 0.9  # x the thigh: the front foot ahead of its hip
 
 
 def kneel_weight(shape: LowerBodyShape, pelvis_z: np.ndarray) -> np.ndarray:
@@ -59,6 +61,12 @@ class Kneeling:
         planted = feet[rows, which]
         feet[rows, which] = planted + w[:, None] * (ankle - planted)
         pitch[rows, which] = w * TOES_DOWN
+        other = 1 - which
+        hip = path.pelvis + np.einsum("fij,fj->fi", axes, shape.hip[other])
+        front = hip + forward * FRONT_FOOT * shape.thigh
+        front[:, 2] = shape.ankle_height
+        planted = feet[rows, other]
+        feet[rows, other] = planted + w[:, None] * (front - planted)
         return pitch
 
     def _choose(self, feet, pelvis, forward, w) -> int:
