@@ -38,6 +38,7 @@ class PoseSource(Protocol):
     name: str  # for messages
     recording: Recording | None  # the tracker recording (AvatarGo's offsets read its devices); None: none
     character: bool  # an animated character: its spine's shape and its limbs' twists are its own (_Run.solve_ik)
+    notes: list[str]  # what making the pose source said (a lower body estimated), for the solver's notes
 
     @property
     def frame_count(self) -> int: ...
@@ -66,8 +67,11 @@ class RecordingSource:
     character = False
 
     def __init__(self, recording: Recording, user: BodyModel, *, seat_height: float | None = None):
+        self.notes = []
         if not isinstance(recording, LiveRecording):
-            recording = lower_body.complete(recording, user, seat_height=seat_height)
+            completed = lower_body.complete(recording, user, seat_height=seat_height)
+            self.notes = completed.notes[len(recording.notes):]
+            recording = completed
         self.recording, self.model = recording, user
         self.name = recording.source or recording.name
         self._reader = None
@@ -122,6 +126,7 @@ class AnimationSource:
 
     character = True
     recording = None
+    notes: list[str] = []
 
     def __init__(self, model: BodyModel, basis: np.ndarray, locations: np.ndarray, time: np.ndarray,
                  name: str | None = None):
