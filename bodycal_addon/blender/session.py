@@ -204,13 +204,14 @@ def scene_take_missing(scene) -> str | None:
     return None
 
 
-def scene_take(scene, filter: OneEuro | None = None) -> RecordingTake:
+def scene_take(scene, filter: OneEuro | None = None, *, seat_height: float | None = None) -> RecordingTake:
     """The scene's recording (its devices' empties, as the importer made them or the user edited
-    them) and the performer's calibrated body model as a take, on the frames it was imported at."""
+    them) and the performer's calibrated body model as a take, on the frames it was imported at
+    (`seat_height`: the performer seated, a kit without foot trackers)."""
     recording = recording_scene.recording_from_scene(scene)
     frame_start, rate = recording_scene.frame_mapping_in_scene(scene)
     return RecordingTake(recording, calibration_scene.load_user_model(scene), filter, frame_start=frame_start,
-                         frame_rate=rate)
+                         frame_rate=rate, seat_height=seat_height)
 
 
 # --- the command line: everything from paths, nothing from a running session -----------------------

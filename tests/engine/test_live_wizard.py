@@ -120,7 +120,8 @@ def test_a_kit_below_six_devices_plans_what_it_can_do_standing():
     assert [p for p, _ in wz.STANDING_PROTOCOL] == touched[-len(wz.STANDING_PROTOCOL):]
     assert not any(p.startswith(("knee_", "ankle_", "sole_")) for p in touched)
     hip = next(s for s in three if s.point == "hip_front_l")
-    assert hip.instruction.startswith("Standing still, put the tip of your right controller on the front of your left hip")
+    assert hip.instruction.startswith("Standing still, put the tip of your right controller on the front of your "
+                                      "left hip")
     # a pelvis tracker: its touches are the six devices' (no standing protocol for what it measures)
     four = wz.plan_steps(["head", "hand_l", "hand_r", "pelvis"])
     assert not {s.point for s in four if s.step == "touch"} & {"sternum", "belly_ul"}

@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from outside_takes import clip_performer, outside_recording
 
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.calibration import calibrate_user, check_usable
@@ -22,7 +23,6 @@ from bodycal_addon.retarget.lower_body import body_path, kneel
 from bodycal_addon.retarget.user_animation import animate_user
 from bodycal_dev.retarget_fixtures import procedural_avatar
 from evaluation import measure
-from outside_takes import clip_performer, outside_recording
 
 FPS = 90.0
 
