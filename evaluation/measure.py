@@ -68,11 +68,13 @@ def slide_p95_mm(point: np.ndarray, on: np.ndarray, fps: float) -> float | None:
     return slide_mm_per_90hz(point, on, fps)
 
 
-def landings(ankle: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0.12) -> int:
-    """How many times a foot lands over a clip: the stances (the ankle slower than `speed` m/s
-    over the floor for at least `hold_s`) that begin after the clip's first frame. The same rule
-    for the source and a retargeted body, so the two counts compare."""
-    v = np.linalg.norm(np.gradient(ankle[:, :2], axis=0), axis=-1) * fps
+def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0.12) -> int:
+    """How many times a foot lands over a clip: the stances (its points, (F, 3) or (F, K, 3): the
+    ankle and the ball, all slower than `speed` m/s over the floor for at least `hold_s`) that
+    begin after the clip's first frame. The same rule for the source and a retargeted body, so the
+    two counts compare."""
+    foot = foot.reshape(len(foot), -1, 3)
+    v = np.linalg.norm(np.gradient(foot[..., :2], axis=0), axis=-1).max(axis=-1) * fps
     slow = np.concatenate([[0], (v < speed).astype(int), [0]])
     edges = np.flatnonzero(np.diff(slow))
     starts, ends = edges[::2], edges[1::2]

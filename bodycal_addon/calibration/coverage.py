@@ -27,7 +27,7 @@ ANIMATED_ROLES = ("head", "pelvis", "hand_l", "hand_r", "foot_l", "foot_r")
 REQUIRED_ROLES = ("head", "hand_l", "hand_r")
 BODY_JOINTS = REQUIRED_USER_JOINTS
 KITS = {  # the ladder's rungs by the devices estimated (estimated_devices.ESTIMATED_ROLES)
-    ("pelvis", "foot_l", "foot_r"): "3 devices (HMD and two controllers)",
+    ("pelvis", "chest", "foot_l", "foot_r"): "3 devices (HMD and two controllers)",
     ("foot_l", "foot_r"): "4 devices (HMD, two controllers and a pelvis tracker)",
 }
 
@@ -86,7 +86,8 @@ def coverage(calibration: dict, extra: dict | None = None) -> Coverage:
     """The coverage of a user model's `calibration` record (FORMATS.md §3) and `extra` (its
     estimated devices)."""
     defaulted = calibration.get("defaulted", {}) or {}
-    estimated = tuple(r for r in ("pelvis", "foot_l", "foot_r") if r in ((extra or {}).get("estimated_devices") or {}))
+    given = (extra or {}).get("estimated_devices") or {}
+    estimated = tuple(r for r in ("pelvis", "chest", "foot_l", "foot_r") if r in given)
     return Coverage(tuple(j for j in BODY_JOINTS if j not in defaulted),
                     tuple(j for j in BODY_JOINTS if j in defaulted), len(defaulted), estimated)
 

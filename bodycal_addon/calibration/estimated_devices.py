@@ -5,8 +5,9 @@ method animates it as it animates AvatarGo's six devices.
 An estimated device is a device the recording does not have. It is defined on the body, not
 strapped to it: at the reference time the estimated pelvis stands where the hip joints are
 estimated (`provisional_body`: under the skull base, the legs' height above the floor), its axes
-the body's (x the performer's right, y forward, z up); an estimated foot stands at the ankle, its
-axes the foot's (x its right, y along the foot, z up, level). During the calibration they are
+the body's (x the performer's right, y forward, z up); the estimated chest (the upper trunk, which
+carries the shoulders) stands at the skull base with the same axes; an estimated foot stands at
+the ankle, its axes the foot's (x its right, y along the foot, z up, level). During the calibration they are
 carried rigidly by the HMD's position and its turn about the vertical (`attach`), so that the
 touches a kit of HMD and controllers can make (the torso, the hips, the knees, the soles, with
 the performer standing) ride on them like on any tracker; at retarget time the lower-body model
@@ -14,8 +15,9 @@ the performer standing) ride on them like on any tracker; at retarget time the l
 model file (`extra["estimated_devices"]`, `calibration["estimated"]`) and the Calibration panel
 say so.
 
-Kits, from the bottom rung: HMD and two controllers (the pelvis and both feet estimated); plus a
-pelvis tracker (the feet estimated); AvatarGo's six devices and up (nothing estimated).
+Kits, from the bottom rung: HMD and two controllers (the pelvis, the upper trunk and both feet
+estimated); plus a pelvis tracker (the feet estimated, the shoulders on the pelvis tracker as with
+six devices); AvatarGo's six devices and up (nothing estimated).
 """
 
 from __future__ import annotations
@@ -27,10 +29,11 @@ from ..core import transforms as tf
 from . import defaults
 from .common import Session
 
-ESTIMATED_ROLES = ("pelvis", "foot_l", "foot_r")
-CARRIED = {"pelvis": ("pelvis", "spine_root", "hip_l", "hip_r"), "foot_l": ("ankle_l", "toe_l"),
-           "foot_r": ("ankle_r", "toe_r")}
+ESTIMATED_ROLES = ("pelvis", "chest", "foot_l", "foot_r")
+CARRIED = {"pelvis": ("pelvis", "spine_root", "hip_l", "hip_r"), "chest": ("shoulder_l", "shoulder_r"),
+           "foot_l": ("ankle_l", "toe_l"), "foot_r": ("ankle_r", "toe_r")}
 WHAT = {"pelvis": "the pelvis, estimated from the head and hands",
+        "chest": "the upper trunk, estimated from the head and hands",
         "foot_l": "the left foot, estimated from the head and hands",
         "foot_r": "the right foot, estimated from the head and hands"}
 UP = np.array([0.0, 0.0, 1.0])
@@ -38,8 +41,10 @@ _SIGN = {"l": 1.0, "r": -1.0}  # toward the body's left
 
 
 def missing(session: Session) -> tuple[str, ...]:
-    """The roles of `ESTIMATED_ROLES` the recording has no device for (estimated then)."""
-    return tuple(r for r in ESTIMATED_ROLES if not session.rec.has_role(r))
+    """The roles of `ESTIMATED_ROLES` the recording has no device for (estimated then): the chest
+    only with the pelvis (a pelvis tracker carries the shoulders as with six devices)."""
+    has = session.rec.has_role
+    return tuple(r for r in ESTIMATED_ROLES if not has(r) and (r != "chest" or not has("pelvis")))
 
 
 def body_axes(left: np.ndarray) -> np.ndarray:
@@ -97,7 +102,8 @@ def attach(session: Session) -> None:
     yaw = np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
     neck = np.asarray(hp, float) + np.einsum("fij,j->fi", rel, body["skull_base"] - ref_p)
     for role in roles:
-        origin = body["pelvis"] if role == "pelvis" else body[f"ankle_{role[-1]}"]
+        origin = body["skull_base"] if role == "chest" else body["pelvis"] if role == "pelvis" else \
+            body[f"ankle_{role[-1]}"]
         pos = neck + np.einsum("fij,j->fi", yaw, origin - body["skull_base"])
         quat = tf.matrix_to_quat(yaw @ axes)
         session.estimate(role, origin, tf.matrix_to_quat(axes), (pos, quat, np.asarray(hv, bool)))

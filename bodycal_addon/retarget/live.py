@@ -41,6 +41,7 @@ class LiveSolver:
         self._given = len(devices)
         self._head = next((i for i, d in enumerate(devices) if d.role == "head"), None)
         self._pelvis = next((i for i, d in enumerate(devices) if d.role == "pelvis"), None)
+        self._hands = [next((i for i, d in enumerate(devices) if d.role == f"hand_{s}"), None) for s in "lr"]
         self._last_head = None  # the head's last tracked pose (position, rotation matrix)
         devices = list(devices) + [Device(f"estimated {r}", lower_body.KIND, r) for r in estimated]
         self.recording = LiveRecording(devices, marker_names, rate=rate, smooth=smooth)
@@ -86,7 +87,10 @@ class LiveSolver:
             pelvis = None
             if self._pelvis is not None and ok[k, self._pelvis]:
                 pelvis = (pos[k, self._pelvis], quat_to_matrix(quat_normalize(rot[k, self._pelvis])))
-            poses = self._lower.frame(float(time[k]), *self._last_head, *(pelvis or (None, None)))
+            hands = None
+            if None not in self._hands and ok[k, self._hands].all():
+                hands = [(pos[k, i], quat_to_matrix(quat_normalize(rot[k, i]))) for i in self._hands]
+            poses = self._lower.frame(float(time[k]), *self._last_head, *(pelvis or (None, None)), hands=hands)
             for c, r in enumerate(self._lower.roles):
                 out_p[k, c], out_q[k, c] = poses[r]
                 out_v[k, c] = True

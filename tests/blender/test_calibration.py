@@ -665,7 +665,7 @@ def test_cli_calibrates_a_three_point_recording_and_retargets_it(tmp_path, capsy
     assert "the pelvis and the feet estimated from the head and hands (3 devices (HMD and two controllers))" \
         in summary
     model = BodyModel.load(user)
-    assert set(model.extra["estimated_devices"]) == {"pelvis", "foot_l", "foot_r"}
+    assert set(model.extra["estimated_devices"]) == {"pelvis", "chest", "foot_l", "foot_r"}
     avatar = data_dir / "avatars" / "mpfb2_variants" / "child_10y.glb"
     out = tmp_path / "baked.blend"
     assert cli.main(["retarget", str(path), "--user", str(user), "--avatar", str(avatar), "-o", str(out)]) == 0

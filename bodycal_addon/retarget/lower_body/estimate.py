@@ -18,17 +18,21 @@ from ...core import transforms as tf
 from ...recording.model import Device, Recording
 from ..trackers import forward_fill
 from .body_path import BodyPath, LivePath, offline_path, tracked_path
+from .body_path import gaussian
+from .chest import chest_turn
+from .heel import heel_rise
 from .kneel import Kneeling, pitch_down
-from .shape import LowerBodyShape, body_axes
+from .shape import LowerBodyShape, body_axes, lean
 from .stepping import Stepper
 
 KIND = "estimated"
+CHEST_SMOOTH_S = 0.08  # the chest's turn smoothed over this, both ways, on a whole take
 
 
 def estimated_roles(recording: Recording, user: BodyModel) -> tuple[str, ...]:
     """The roles the user model estimates that the recording has no device for."""
     extra = user.extra if isinstance(user.extra, dict) else {}
-    return tuple(r for r in ("pelvis", "foot_l", "foot_r")
+    return tuple(r for r in ("pelvis", "chest", "foot_l", "foot_r")
                  if r in (extra.get("estimated_devices") or {}) and not recording.has_role(r))
 
 
@@ -65,7 +69,13 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     stepper = Stepper(shape, recording.fps or 90.0)
     stepper.advance(path, 0, len(t), feet, headings, available=len(t))
     pitches = Kneeling(shape).apply(path, feet, headings)
-    poses = device_poses(shape, roles, path, feet, headings, pitches)
+    heel_rise(shape, hips_of(shape, path), feet, headings, pitches)
+    turn = 0.0
+    if "chest" in roles:
+        fps = recording.fps or 90.0
+        turn = gaussian(chest_turn(shape, path.neck, path.heading, path.lean, wrists(recording, shape)),
+                        CHEST_SMOOTH_S * fps)
+    poses = device_poses(shape, roles, path, feet, headings, pitches, turn)
     what = " and ".join(["the pelvis"] * ("pelvis" in roles) + ["the feet"] * ("foot_l" in roles))
     note = (f"{what} estimated from the head and hands"
             + (f" ({stepper.steps} steps)" if "foot_l" in roles else "")
@@ -73,15 +83,33 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     return with_devices(recording, roles, poses, note)
 
 
+def wrists(recording: Recording, shape: LowerBodyShape) -> np.ndarray:
+    """(F, 2, 3) the wrists where the hand devices put them."""
+    out = []
+    for s, local in zip("lr", shape.wrists_in_hands):
+        pos, rot = filled_pose(recording, f"hand_{s}")
+        out.append(pos + np.einsum("fij,j->fi", rot, local))
+    return np.stack(out, axis=1)
+
+
+def hips_of(shape: LowerBodyShape, path: BodyPath) -> np.ndarray:
+    """(F, 2, 3) the hips along the path (on the pelvis, turned with the body)."""
+    return path.pelvis[:, None] + np.einsum("fij,sj->fsi", body_axes(path.heading), shape.hip)
+
+
 def device_poses(shape: LowerBodyShape, roles, path: BodyPath, feet: np.ndarray, headings: np.ndarray,
-                 pitches: np.ndarray) -> dict:
+                 pitches: np.ndarray, chest: np.ndarray | float = 0.0) -> dict:
     """{role: ((F, 3) positions, (F, 4) quaternions)} of the estimated devices, each where it
-    stands on its joint (`shape`): the pelvis on the path's pelvis, the feet on their ankles turned
-    by their headings and pitched toes down by `pitches` (a kneel)."""
+    stands on its joint (`shape`): the pelvis on the path's pelvis, the chest on the skull base with
+    the trunk's whole lean and turned by `chest` from the heading (chest.py), the feet on their
+    ankles turned by their headings and pitched toes down by `pitches` (a kneel)."""
     out = {}
     for role in roles:
         if role == "pelvis":
             axes, joint, (off, rot) = path.pelvis_rot, path.pelvis, shape.pelvis_device
+        elif role == "chest":
+            axes, joint, (off, rot) = body_axes(path.heading + chest) @ lean(path.lean), path.neck, \
+                shape.chest_device
         else:
             s = 0 if role == "foot_l" else 1
             axes, joint, (off, rot) = body_axes(headings[:, s]) @ pitch_down(pitches[:, s]), feet[:, s], \
@@ -117,8 +145,12 @@ class LiveLowerBody:
         self.kneeling = Kneeling(self.shape)
         self._k = 0
         self._last_pelvis = None
+        self._turn, self._t = 0.0, None  # the chest's turn (forward exponential), the last frame's time
 
-    def frame(self, t: float, head_pos, head_rot, pelvis_pos=None, pelvis_rot=None) -> dict:
+    def frame(self, t: float, head_pos, head_rot, pelvis_pos=None, pelvis_rot=None, hands=None) -> dict:
+        """The estimated devices' {role: (position, quaternion)} at time `t` from the head's pose,
+        the pelvis tracker's when the kit has one, and the hand devices' ((position, rotation
+        matrix) left, right; the chest turns to keep them in reach) when given."""
         if "pelvis" in self.roles or pelvis_pos is None:
             step = self.path.step(t, np.asarray(head_pos, float), np.asarray(head_rot, float))
         else:
@@ -126,7 +158,17 @@ class LiveLowerBody:
         feet, headings = np.empty((1, 2, 3)), np.empty((1, 2))
         self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k)
         self._k += 1
-        poses = device_poses(self.shape, self.roles, step, feet, headings, self.kneeling.apply(step, feet, headings))
+        pitches = self.kneeling.apply(step, feet, headings)
+        heel_rise(self.shape, hips_of(self.shape, step), feet, headings, pitches)
+        if "chest" in self.roles and hands is not None:
+            w = np.array([np.asarray(p, float) + np.asarray(r, float) @ local
+                          for (p, r), local in zip(hands, self.shape.wrists_in_hands)])[None]
+            target = chest_turn(self.shape, step.neck, step.heading, step.lean, w)[0]
+            dt = 0.0 if self._t is None else max(t - self._t, 0.0)
+            self._turn += (1.0 - np.exp(-dt / CHEST_SMOOTH_S)) * (target - self._turn) if self._t is not None \
+                else target
+        self._t = t
+        poses = device_poses(self.shape, self.roles, step, feet, headings, pitches, self._turn)
         return {r: (p[0], q[0]) for r, (p, q) in poses.items()}
 
     def _tracked(self, t: float, pos: np.ndarray, rot: np.ndarray) -> BodyPath:

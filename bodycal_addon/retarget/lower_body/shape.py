@@ -63,10 +63,15 @@ class LowerBodyShape:
     ankle_height: float
     foot_turn: np.ndarray  # (2,) each foot's heading minus the body's, reference time
     foot_length: float  # ankle to toe, horizontal
+    toe_height: float  # the toe joint (the ball) above the floor, standing
     stature: float
     # Where each estimated device stands on its joint (the pelvis; each ankle): its origin's offset
     # and its rotation in the joint's axes (the body's; the foot's), fixed since the reference
     pelvis_device: tuple[np.ndarray, np.ndarray]
+    chest_device: tuple[np.ndarray, np.ndarray]  # on the skull base, the trunk's axes
+    shoulders: np.ndarray  # (2, 3) skull base -> shoulder_l, shoulder_r, body axes
+    arms: np.ndarray  # (2,) upper arm + forearm
+    wrists_in_hands: np.ndarray  # (2, 3) each wrist in its hand device's frame
     foot_devices: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
     @property
@@ -111,8 +116,14 @@ class LowerBodyShape:
             ankle_height=float(np.mean([w[f"ankle_{s}"][2] for s in SIDES])),
             foot_turn=foot_turn,
             foot_length=float(np.mean([np.linalg.norm(t[:2]) for t in toes])),
+            toe_height=float(np.mean([w[f"toe_{s}"][2] for s in SIDES])),
             stature=float(extra.get("eye_height", head_p[2])) / 0.93,
             pelvis_device=_on_joint(tpose, "pelvis", pelvis, body_axes(psi0)),
+            chest_device=_on_joint(tpose, "chest", w["skull_base"], body_axes(psi0)),
+            shoulders=np.array([to_body @ (w[f"shoulder_{s}"] - w["skull_base"]) for s in SIDES]),
+            arms=np.array([user.bones[f"upperarm_{s}"].length + user.bones[f"forearm_{s}"].length for s in SIDES]),
+            wrists_in_hands=np.array([np.asarray(user.joints[f"wrist_{s}"].frames.get(f"hand_{s}", np.zeros(3)),
+                                                 float) for s in SIDES]),
             foot_devices=tuple(_on_joint(tpose, f"foot_{s}", w[f"ankle_{s}"], feet_axes[i])
                                for i, s in enumerate(SIDES)),
         )

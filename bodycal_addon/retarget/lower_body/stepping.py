@@ -8,12 +8,14 @@ over the stretch both feet stand (a loop over steps, not frames):
   between the feet's middles widened by `SUPPORT_REACH`;
 - a turn: the body's heading is more than `TURN_STEP` off a foot's;
 - reach: a hip is further from its ankle, over the floor, than `REACH` of the leg (the leg then
-  slants about 30 degrees);
+  slants about 30 degrees), or so far behind that its heel, rising on the ball to keep it in
+  reach (heel.py), rises more than `RISE_STEP` (a toe-off);
 - crossing: the feet, seen across the body, closer than `MIN_WIDTH` or on the wrong sides.
 Then the foot further from where it should stand steps: it lands where the body will be once the
 step is done (offline the body path at that frame; live its velocity carried forward), under its
-hip and `LEAD_S` of the body's velocity ahead, turned with the body, no further than `MAX_STRIDE`
-and never across the other foot. The swing lasts `SWING_S` (faster with speed, pendulum-scaled by
+hip and `LEAD_S` of the body's velocity ahead, turned with the body (no more than `SPLAY` from the
+other foot), no further than `MAX_STRIDE` and never across the other foot (bowing out around it
+on the way when it starts on the wrong side, after a turn). The swing lasts `SWING_S` (faster with speed, pendulum-scaled by
 the leg's length), lifts `LIFT_PER_LENGTH` of its length (within `LIFT`), on a minimum-jerk path;
 both feet then stand at least `DWELL_S`. While the body is off the floor (`BodyPath.lift`) both
 feet hang under it, carried with the pelvis, and land where they are.
@@ -26,13 +28,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import heel
 from .body_path import BodyPath
 from .shape import LowerBodyShape, body_axes, wrap
 
 G = 9.81
 SUPPORT_REACH = 0.04  # x stature beyond the line between the feet's middles
 TURN_STEP = np.radians(35.0)
+SPLAY = np.radians(50.0)  # the most a step turns a foot from the other (their rest turn apart)
 REACH = 0.5
+RISE_STEP = np.radians(35.0)  # a heel risen this far on its ball (heel.py) lifts the foot: a toe-off
+SHORTEST_SWING_S = 0.25  # a swing hurried so the standing foot is not left out of reach
+LAND_REACH = 1.0  # x the leg: the most a landing foot is from its hip (the leg straight at heel strike)
 MIN_WIDTH = 0.06  # x stature between the ankles, across the body (a shin and a half)
 LEAD_S = 0.3
 MAX_STRIDE = 1.4  # x leg
@@ -58,7 +65,7 @@ class Stepper:
         self.shape, self.fps = shape, float(fps)
         self.feet: np.ndarray | None = None  # (2, 3) planted ankles
         self.headings = np.zeros(2)
-        self.swing: tuple | None = None  # (foot, k0, k1, p0, p1, heading0, heading1, height)
+        self.swing: tuple | None = None  # (foot, k0, k1, p0, p1, heading0, heading1, height, bow out)
         self.air: tuple | None = None  # (the pelvis over the floor at take-off, the feet's carry so far)
         self.ready_at = 0
         self.steps = 0
@@ -126,6 +133,9 @@ class Stepper:
         axes = body_axes(heading)
         hips = pelvis[:, None] + np.einsum("fij,sj->fsi", axes, shape.hip)
         stretched = (np.linalg.norm((hips - feet)[..., :2], axis=2) > REACH * shape.leg).any(axis=1)
+        # a heel that would have to rise more than RISE_STEP to keep its hip in reach (heel.py)
+        stretched |= (heel.rise(shape, hips, np.broadcast_to(feet, hips.shape),
+                                np.broadcast_to(self.headings, hips.shape[:2]))[0] > RISE_STEP).any(axis=1)
         across = (feet[0] - feet[1]) @ axes[:, :, 0].T  # left foot minus right along the body's right
         crossed = across > -MIN_WIDTH * shape.stature
         return off_support | turned | stretched | crossed
@@ -136,18 +146,17 @@ class Stepper:
         speed = float(np.linalg.norm(path.velocity[i]))
         seconds = np.interp(speed, (0.0, FAST_MPS), SWING_S) * np.sqrt(shape.leg / 0.85)
         n = max(2, int(round(seconds * self.fps)))
-        k1 = k + n
-        if k1 < available:  # offline: where the body will be when the foot lands
-            j = k1 - self.base
-            pelvis, heading, velocity = path.pelvis[j], path.heading[j], path.velocity[j]
-        else:
-            pelvis = path.pelvis[i].copy()
-            pelvis[:2] += path.velocity[i] * seconds
-            heading, velocity = path.heading[i], path.velocity[i]
+        pelvis, heading, velocity = self._landing(path, k, n, available)
         ideal, headings = self.ideal(pelvis, heading, velocity)
         miss = np.linalg.norm((ideal - self.feet)[:, :2], axis=1) + TURN_COST_M * np.abs(wrap(headings - self.headings))
         foot = int(np.argmax(miss))
-        target = self._keep_apart(ideal[foot], foot, heading)
+        quick = self._stance_lasts(path, k, n, 1 - foot, available)
+        if quick < n:  # the standing foot would run out of reach first: a quicker swing
+            n = quick
+            pelvis, heading, velocity = self._landing(path, k, n, available)
+            ideal, headings = self.ideal(pelvis, heading, velocity)
+        k1 = k + n
+        target = self._within_reach(self._keep_apart(ideal[foot], foot, heading), foot, pelvis, heading)
         move = target - self.feet[foot]
         length = float(np.linalg.norm(move[:2]))
         if length > MAX_STRIDE * shape.leg:
@@ -155,9 +164,52 @@ class Stepper:
             length = MAX_STRIDE * shape.leg
         lo, hi = LIFT
         height = float(np.clip(LIFT_PER_LENGTH * length, lo * shape.stature, hi * shape.stature))
+        # no more than SPLAY between the feet: a fast turn takes a few steps, the feet never point apart
+        other = self.headings[1 - foot] + shape.foot_turn[foot] - shape.foot_turn[1 - foot]
+        turned = other + np.clip(wrap(headings[foot] - other), -SPLAY, SPLAY)
         self.swing = (foot, k, k1, self.feet[foot].copy(), target, self.headings[foot],
-                      self.headings[foot] + wrap(headings[foot] - self.headings[foot]), height)
+                      self.headings[foot] + wrap(turned - self.headings[foot]), height,
+                      self._around(foot, target, heading))
         self.steps += 1
+
+    def _landing(self, path: BodyPath, k: int, n: int, available: int):
+        """(pelvis, heading, velocity) when a swing of `n` frames from frame k lands: offline the
+        path's there, live the present carried on at its velocity."""
+        i, k1 = k - self.base, k + n
+        if k1 < available:
+            j = k1 - self.base
+            return path.pelvis[j], path.heading[j], path.velocity[j]
+        pelvis = path.pelvis[i].copy()
+        pelvis[:2] += path.velocity[i] * n / self.fps
+        return pelvis, path.heading[i], path.velocity[i]
+
+    def _stance_lasts(self, path: BodyPath, k: int, n: int, foot: int, available: int) -> int:
+        """How many frames from k (up to n) the standing `foot` keeps its hip within the reach its
+        heel can give (`RISE_STEP`, heel.py), the path known (offline); at least `SHORTEST_SWING_S`."""
+        stop = min(k + n, available)
+        shortest = max(2, int(round(SHORTEST_SWING_S * self.fps)))
+        if stop - k <= shortest:
+            return n
+        rows = np.arange(k, stop) - self.base
+        hips = path.pelvis[rows, None] + np.einsum("fij,sj->fsi", body_axes(path.heading[rows]), self.shape.hip)
+        angle, _ = heel.rise(self.shape, hips, np.broadcast_to(self.feet, hips.shape),
+                             np.broadcast_to(self.headings, hips.shape[:2]))
+        out = np.flatnonzero(angle[:, foot] > RISE_STEP)
+        return n if not len(out) else max(shortest, int(out[0]))
+
+    def _within_reach(self, target: np.ndarray, foot: int, pelvis: np.ndarray, heading: float) -> np.ndarray:
+        """`target` drawn toward its hip, over the floor, until the leg reaches it landing (within
+        `heel.REACH` of its length): a step lands no further than the leg can reach."""
+        shape = self.shape
+        hip = pelvis + body_axes(heading) @ shape.hip[foot]
+        drop = max(hip[2] - target[2], 0.0)
+        most = np.sqrt(max((LAND_REACH * shape.leg) ** 2 - drop * drop, 0.0))
+        off = target[:2] - hip[:2]
+        far = float(np.linalg.norm(off))
+        if far > most:
+            target = target.copy()
+            target[:2] = hip[:2] + off * (most / far)
+        return target
 
     def _keep_apart(self, target: np.ndarray, foot: int, heading: float) -> np.ndarray:
         """`target` moved across the body, if needed, to stand MIN_WIDTH on its side of the other foot."""
@@ -170,12 +222,23 @@ class Stepper:
             target = target + right * side * (need - across)
         return target
 
+    def _around(self, foot: int, target: np.ndarray, heading: float) -> np.ndarray:
+        """(3,) how far the swing bows out to pass the standing foot MIN_WIDTH apart across the body
+        (at mid-swing; nothing when the straight path keeps that far): a step after a turn starts
+        on the other foot's side."""
+        right = body_axes(heading)[:, 0]
+        side = -1.0 if foot == 0 else 1.0
+        other = self.feet[1 - foot]
+        start, end = (self.feet[foot] - other) @ right * side, (target - other) @ right * side
+        need = MIN_WIDTH * self.shape.stature
+        return right * side * max(0.0, need - min(start, end))
+
     def _swing(self, k, stop, out_pos, out_heading) -> int:
-        foot, k0, k1, p0, p1, h0, h1, height = self.swing
+        foot, k0, k1, p0, p1, h0, h1, height, around = self.swing
         until = min(k1, stop)
         u = (np.arange(k, until) - k0) / max(k1 - k0, 1)
         s = min_jerk(u)
-        pos = p0 + s[:, None] * (p1 - p0)
+        pos = p0 + s[:, None] * (p1 - p0) + np.sin(np.pi * u)[:, None] * around
         pos[:, 2] += height * np.sin(np.pi * u)
         rows = slice(k - self.base, until - self.base)
         out_pos[rows] = self.feet
