@@ -19,7 +19,7 @@ from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.retarget import lower_body
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.live import LiveSolver
-from bodycal_addon.retarget.lower_body import body_path, heel, kneel
+from bodycal_addon.retarget.lower_body import body_path, kneel
 from bodycal_addon.retarget.user_animation import animate_user
 from bodycal_dev.retarget_fixtures import procedural_avatar
 from evaluation import measure

@@ -17,8 +17,7 @@ from ...body.bodymodel import BodyModel
 from ...core import transforms as tf
 from ...recording.model import Device, Recording
 from ..trackers import forward_fill
-from .body_path import BodyPath, LivePath, offline_path, tracked_path
-from .body_path import gaussian
+from .body_path import BodyPath, LivePath, gaussian, offline_path, tracked_path
 from .chest import chest_turn
 from .heel import heel_rise
 from .kneel import Kneeling, pitch_down
