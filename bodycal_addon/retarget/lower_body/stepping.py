@@ -15,8 +15,10 @@ Then the foot further from where it should stand steps: it lands where the body 
 step is done (offline the body path at that frame; live its velocity carried forward), under its
 hip and `LEAD_S` of the body's velocity ahead, turned with the body (no more than `SPLAY` from the
 other foot), no further than `MAX_STRIDE` and never across the other foot (bowing out around it
-on the way when it starts on the wrong side, after a turn). The swing lasts `SWING_S` (faster with speed, pendulum-scaled by
-the leg's length), lifts `LIFT_PER_LENGTH` of its length (within `LIFT`), on a minimum-jerk path;
+on the way when it starts on the wrong side, after a turn). The swing lasts `SWING_S` (faster with
+speed, pendulum-scaled by the leg's length; quicker, down to `SHORTEST_SWING_S`, when the standing
+foot would otherwise run out of reach before it lands), lifts `LIFT_PER_LENGTH` of its length
+(within `LIFT`), on a minimum-jerk path;
 both feet then stand at least `DWELL_S`. While the body is off the floor (`BodyPath.lift`) both
 feet hang under it, carried with the pelvis, and land where they are.
 
