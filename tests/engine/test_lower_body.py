@@ -274,3 +274,17 @@ def test_live_frames_get_the_estimated_devices_as_they_come(walk):
         a = live.pose(role)[0][:400]
         b = whole.pose(role)[0][:400]
         assert np.median(np.linalg.norm(a - b, axis=1)) < 0.02, role  # the performer stands here
+
+
+def test_avatargos_six_devices_and_protocol_calibrate_without_a_flag(tmp_path):
+    """AvatarGo's own protocol (six devices: T-pose, swings, flexes) measures 5 of the 14 body
+    joints; it used to be refused as "mostly guessed" unless --allow-defaults, although Exact
+    Offsets needs nothing but the T-pose (issue: the device ladder). Now it is usable, said."""
+    perf = clip_performer(paths.data_dir(), "02_01_walk.bvh")
+    rec, _ = outside_recording(perf, tmp_path, profile="six", seed=0)
+    user = calibrate_user(rec)
+    cov = check_usable(user)
+    assert cov.mostly_guessed and not cov.estimated_devices
+    assert cov.warnings() and "guessed from the eye height" in cov.warnings()[0]
+    anim = pl.retarget(rec, user, procedural_avatar(), "offsets")
+    assert np.isfinite(anim.rotations).all()
