@@ -164,7 +164,7 @@ def test_a_replays_head_looks_at_the_notes(bsor_takes):
 def test_the_rotations_move_the_devices_as_rigid_bodies(aframe_takes, bsor_takes):
     """A controller turns about the elbow and wrist behind it: the point of its frame that moves
     least lies behind it along local +Z (its pointing axis is -Z), 0.15-0.55 m, and explains much of
-    its motion; the headset of the seated take turns about the neck, below and behind the eyes.
+    its motion; the headset of the still take turns about the neck, below and behind the eyes.
     Rotations that do not belong to the positions find no such point: the same rotations mirrored
     (a handedness mistake, R -> S R S) or inverted explain at least 0.15 of the motion less."""
     mirror = np.diag([1.0, 1.0, -1.0])

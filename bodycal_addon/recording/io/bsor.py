@@ -1,6 +1,7 @@
 """The Beat Saber replay reader (FORMATS.md §2.7): BeatLeader's open replay format, `.bsor` version 1
 (github.com/BeatLeader/BS-Open-Replay), its header and its frames; checked and converted to the
-internal frame. Why BodyCal reads it itself rather than through py-bsor: DESIGN.md §9b.
+internal frame. Why BodyCal reads it itself rather than through py-bsor: DESIGN.md §1, "Three-point
+kits' own files".
 
 Layout (little-endian; a string is an int32 byte count and UTF-8 bytes): the magic int32 0x442d3d69,
 the version byte (1), the info block (byte 0, thirteen strings: mod version, game version, unix
