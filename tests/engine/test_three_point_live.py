@@ -12,6 +12,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 from repo_paths import REPO
@@ -44,19 +45,23 @@ def start_recording(*args) -> tuple[subprocess.Popen, list]:
     return proc, first
 
 
-def test_a_real_three_point_take_streamed_is_recorded_with_its_roles(data_dir, tmp_path):
+@pytest.mark.parametrize("hands", [None, "swapped"])
+def test_a_real_three_point_take_streamed_is_recorded_with_its_roles(data_dir, tmp_path, hands):
+    """`stream --hands swapped` announces the other controller as the right hand."""
     take = data_dir / "real_vr" / "aframe_vive" / "dev-recording.json"
     port, out = free_port(), tmp_path / "again.bcrec.json"
     proc, first = start_recording("--port", port, "--duration", "1.0", "-o", out)
-    sent = subprocess.run(command("stream", take, "--port", port, "--speed", "5"), cwd=REPO, capture_output=True,
-                          text=True, timeout=60)
+    choice = ["--hands", hands] if hands else []
+    sent = subprocess.run(command("stream", take, "--port", port, "--speed", "5", *choice), cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
     assert sent.returncode == 0 and sent.stderr == "", sent.stderr
     stdout, stderr = proc.communicate(timeout=20)
     assert proc.returncode == 0 and stderr == "", stderr
     assert (first[0] + stdout).splitlines()[-1] == f"saved {out}"
     again, original = load_recording(out), load_recording(take, raw=True)
+    left, right = ("hand_r", "hand_l") if hands == "swapped" else ("hand_l", "hand_r")
     assert [(d.name, d.kind, d.role) for d in again.devices] == [
-        ("camera", "hmd", "head"), ("left", "controller", "hand_l"), ("right", "controller", "hand_r")]
+        ("camera", "hmd", "head"), ("left", "controller", left), ("right", "controller", right)]
     assert again.segments == [] and 80 <= again.frame_count <= 90  # 1.0 s of an 87.3 Hz take
     n = again.frame_count
     np.testing.assert_allclose(again.time, original.time[:n], atol=1e-5)
