@@ -55,8 +55,8 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
         name="Fill Gaps Shorter Than", default=recording_io.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0,
         unit="TIME_ABSOLUTE",
         description="Untracked stretches shorter than this (seconds) are interpolated; 0 keeps every dropout")
-    hands: bpy.props.EnumProperty(
-        name="Hands", items=HANDS_ITEMS, default="geometry",
+    hands: bpy.props.EnumProperty(  # not remembered: a swap chosen for one file must not swap the next
+        name="Hands", items=HANDS_ITEMS, default="geometry", options={"SKIP_SAVE"},
         description="A-Frame motion captures and Beat Saber replays: which controller is the right hand")
 
     @classmethod

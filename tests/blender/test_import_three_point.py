@@ -44,10 +44,12 @@ def test_a_real_three_point_take_imports_as_head_and_hands(takes, kind, names):
 
 
 @pytest.mark.parametrize("kind", ["aframe", "bsor"])
-def test_the_hands_option_swaps_the_labels(takes, kind):
+def test_the_hands_option_swaps_the_labels_for_that_import_only(takes, kind):
     assert bpy.ops.bodycal.import_recording(filepath=str(takes[kind]), hands="swapped") == {"FINISHED"}
     roles = {role: name for name, (_kind, role) in _roles(bpy.context.scene).items()}
     assert roles["hand_r"] in ("left", "left_hand") and roles["hand_l"] in ("right", "right_hand")
+    # Not remembered for the next import (the file browser reuses an operator's last values): SKIP_SAVE.
+    assert bpy.ops.bodycal.import_recording.get_rna_type().properties["hands"].is_skip_save
 
 
 def test_dropped_three_point_files_go_to_the_dialog_and_a_fake_one_is_one_line(takes, tmp_path):
