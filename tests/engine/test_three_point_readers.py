@@ -465,3 +465,19 @@ def test_the_file_browser_lists_the_new_files():
     for name in ("tracked-recording.json", "replay.bsor", "take.bcrec.json", "take.csv", "take.c3d"):
         assert any(fnmatch(name.lower(), g) for g in rio.RECORDING_GLOBS), name
     assert bsor.is_bsor(bsor.MAGIC_BYTES) and not bsor.is_bsor(b"\x69\x3d\x2d")
+
+
+def test_a_frame_ids_and_times_that_cannot_be_a_recording_are_one_line(tmp_path):
+    def pose(ts):
+        return {"position": {"x": 0, "y": 1, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0}, "timestamp": ts}
+
+    for doc, words in [
+        ({"camera": {"poses": [pose(0.0), pose(5e-324)]}}, "timestamp: sample 1: time must increase strictly"),
+        ({"camera": {"poses": [pose(0.0)]}, " ": {"poses": [pose(0.0)]}}, "an entity with an empty id"),
+        ({"camera": {"poses": [pose(0.0), pose(0.0)]}}, "camera.poses.timestamp: pose 1: timestamp must increase"),
+        ({"camera": {"poses": [pose(0.0)]}, "left": [1, 2]}, "left: not an entity"),
+    ]:
+        (tmp_path / "odd.json").write_text(json.dumps(doc))
+        with pytest.raises(BodyCalError) as err:
+            rio.load_recording(tmp_path / "odd.json")
+        assert err.value.line().startswith("odd.json: ") and words in err.value.line(), err.value.line()

@@ -26,6 +26,7 @@ from ..coords import check_positions, to_internal
 from ..model import Device, Recording
 from .hands import check_hands, choose_hands, right_share
 from .header import load_json_file
+from .json_format import check_time
 
 CAMERA = "camera"  # the avatar-recorder's key for the headset
 # The start of an A-Frame recording (its first key is the camera entity, as the recorder writes it).
@@ -52,6 +53,8 @@ def read_aframe(path, hands: str = "geometry") -> Recording:
     names = [CAMERA] + [k for k in doc if k != CAMERA]
     if len(names) > 64:
         raise BodyCalError(f"{len(names)} entities: more than 64 devices", source=source)
+    if any(not n.strip() for n in names):
+        raise BodyCalError("an entity with an empty id", source=source, hint="each device needs a name")
     parsed = [_entity(doc[n], n, source) for n in names]
     time_ms = np.unique(np.concatenate([ts for ts, _, _ in parsed]))
     f, d = len(time_ms), len(names)
@@ -66,7 +69,9 @@ def read_aframe(path, hands: str = "geometry") -> Recording:
                     lambda k, i: f"pose {int(np.searchsorted(parsed[i][0], time_ms[k]))}")
     positions, rotations = to_internal(positions, rotations, "Y", "right", "m")
     devices = [Device(CAMERA, "hmd", "head")] + [Device(n, "controller") for n in names[1:]]
-    rec = Recording(name=path.name.split(".")[0], time=(time_ms - time_ms[0]) / 1000.0, devices=devices,
+    time = (time_ms - time_ms[0]) / 1000.0
+    check_time(time, source, "timestamp", "sample")  # distinct milliseconds can round to one second's float
+    rec = Recording(name=path.name.split(".")[0], time=time, devices=devices,
                     positions=positions, rotations=rotations, valid=valid, source=source)
     rec.notes.append("A-Frame motion capture: converted from three.js axes (Y up, right-handed, metres; "
                      "rotations as Euler 'YXZ' degrees) to Z up; times from the first sample")
