@@ -1,8 +1,12 @@
 """Reader resources benchmark: the peak memory of loading a long-format CSV recording as a
 multiple of the file's size (tracemalloc in a fresh subprocess, so nothing else is counted), and the
 time to load a JSON recording with 10k and with 40k devices and the ratio of the two (a linear
-parser gives about 4; the quadratic one gave about 16). Only ratios within one run are compared.
-Prints ONE JSON line.
+parser gives about 4; the quadratic one gave about 16), and the three-point kits' own files (the real
+takes of sample_data/real_vr: an A-Frame motion capture, a Beat Saber replay): the time to read each
+against the same take saved as a .bcrec.json, read in the same run. Only ratios within one run are
+compared. Prints ONE JSON line, with `targets` for the three-point readers (the replay, binary, at
+most half the JSON reader's time; the A-Frame JSON, 2.4 times the bytes with its key names, at most
+4 times).
 
 Run from the repository root: `.venv/bin/python benchmarks/bench_readers.py [--csv-mb 40]`.
 """
@@ -107,6 +111,34 @@ def device_seconds(tmp: pathlib.Path, n: int, repeat: int = 2) -> float:
     return best
 
 
+def _best_seconds(path: pathlib.Path, repeat: int = 5) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        recording_io.load_recording(path, raw=True)
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def three_point(tmp: pathlib.Path) -> tuple[dict, dict]:
+    """Each real three-point take read by its reader, and saved as a .bcrec.json read by BodyCal's
+    JSON reader: the times (raw reads: the readers alone, no post-processing) and their ratio."""
+    data = ROOT / "sample_data" / "real_vr"
+    out, ratios = {}, {}
+    for key, path in (("aframe", data / "aframe_vive" / "tracked-recording.json"),
+                      ("bsor", data / "beat_saber" / "xror_sample2.bsor")):
+        rec = recording_io.load_recording(path, raw=True)
+        same = tmp / f"{key}.bcrec.json"
+        recording_io.save_recording(rec, same)
+        own, as_json = _best_seconds(path), _best_seconds(same)
+        ratios[key] = own / as_json
+        out.update({f"{key}_frames": rec.frame_count, f"{key}_file_mb": round(path.stat().st_size / 1e6, 2),
+                    f"{key}_ms": round(own * 1e3, 1), f"{key}_as_bcrec_json_ms": round(as_json * 1e3, 1),
+                    f"{key}_over_bcrec_json": round(ratios[key], 2)})
+    return out, {"bsor_at_most_half_the_json_readers_time": ratios["bsor"] <= 0.5,
+                 "aframe_at_most_4x_the_json_readers_time": ratios["aframe"] <= 4.0}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--csv-mb", type=float, default=40.0, help="size of the CSV recording to read")
@@ -120,6 +152,9 @@ def main() -> None:
         t_small, t_large = device_seconds(tmp, small), device_seconds(tmp, large)
         out.update({f"devices_{small}_s": round(t_small, 3), f"devices_{large}_s": round(t_large, 3),
                     "devices_time_ratio": round(t_large / t_small, 2), "devices_count_ratio": large / small})
+        figures, targets = three_point(tmp)
+        out.update(figures)
+        out["targets"] = targets
     print(json.dumps(out))
 
 

@@ -15,8 +15,23 @@ STEP_MARKER_ITEMS = [  # recording_scene.STEP_MARKERS
 ]
 
 
+HANDS_ITEMS = [  # recording_io.HANDS (recording/io/hands.py)
+    ("geometry", "Where They Are", "The controller on the headset's right most of the time is the right hand "
+     "(the file's labels when that does not decide)"),
+    ("labels", "As Labelled", "The file's left / right labels (an A-Frame entity's id, a replay's hands)"),
+    ("swapped", "Labels Swapped", "The opposite of the file's left / right labels"),
+]
+
+
+def _takes_hands(filepath: str) -> bool:
+    """Whether the file may be a three-point kit's own (an A-Frame .json, a .bsor), whose hands the
+    import tells: by name only, as the side panel redraws often."""
+    name = filepath.lower()
+    return name.endswith(".bsor") or name.endswith(".json") and not name.endswith(recording_io.JSON_SUFFIX)
+
+
 class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelper):
-    """Import a tracker recording (.bcrec.json, .csv, .c3d) as one animated empty per device and marker"""
+    """Import a tracker recording (.bcrec.json, .csv, .c3d, A-Frame .json, Beat Saber .bsor) as animated empties"""
 
     bl_idname = "bodycal.import_recording"
     bl_label = "Import BodyCal Recording"
@@ -40,6 +55,9 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
         name="Fill Gaps Shorter Than", default=recording_io.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0,
         unit="TIME_ABSOLUTE",
         description="Untracked stretches shorter than this (seconds) are interpolated; 0 keeps every dropout")
+    hands: bpy.props.EnumProperty(  # not remembered: a swap chosen for one file must not swap the next
+        name="Hands", items=HANDS_ITEMS, default="geometry", options={"SKIP_SAVE"},
+        description="A-Frame motion captures and Beat Saber replays: which controller is the right hand")
 
     @classmethod
     def poll(cls, context):
@@ -66,13 +84,15 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
         if body:
             body.prop(self, "step_markers")
             body.prop(self, "fill_gaps")
+            if _takes_hands(self.filepath):
+                body.prop(self, "hands")
 
     @reports_errors
     def invoke(self, context, event):
         if not self.properties.is_property_set("filepath"):
             return StartsInFolder.invoke(self, context, event)  # the file browser, in the Recordings folder
         # A file dropped on the viewport or the outliner (Blender 4.2+ passes its path): the
-        # handler claims every .json, .csv and .c3d, so only a recording goes on to the options.
+        # handler claims every .json, .csv, .c3d and .bsor, so only a recording goes on to the options.
         recording_io.check_recording_file(self.filepath)
         return context.window_manager.invoke_props_dialog(self, title=bpy.path.basename(self.filepath),
                                                           confirm_text="Import")
@@ -80,7 +100,7 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
     @reports_errors
     def execute(self, context):
         # Compute first (read + validate), write last: on error the scene is untouched.
-        rec = recording_io.load_recording(self.filepath, fill_gaps_s=self.fill_gaps)
+        rec = recording_io.load_recording(self.filepath, fill_gaps_s=self.fill_gaps, hands=self.hands)
         coll = recording_scene.import_recording_to_scene(
             rec, context, frame_start=self.frame_start, set_scene_rate=self.update_scene_rate,
             set_scene_range=self.update_scene_range, step_markers=self.step_markers)
@@ -98,7 +118,7 @@ class BODYCAL_FH_recording(bpy.types.FileHandler):
     bl_import_operator = BODYCAL_OT_import_recording.bl_idname
     # Blender matches a dropped file by its last suffix only: `.bcrec.json` is `.json` here, and the
     # operator's invoke refuses a file that is not a recording (recording_io.check_recording_file).
-    bl_file_extensions = ".json;.csv;.c3d"
+    bl_file_extensions = ".json;.csv;.c3d;.bsor"
 
     @classmethod
     def poll_drop(cls, context):
@@ -106,7 +126,8 @@ class BODYCAL_FH_recording(bpy.types.FileHandler):
 
 
 def menu_import(self, context):
-    self.layout.operator(BODYCAL_OT_import_recording.bl_idname, text="BodyCal recording (.bcrec.json, .csv, .c3d)")
+    self.layout.operator(BODYCAL_OT_import_recording.bl_idname,
+                         text="BodyCal recording (.bcrec.json, .csv, .c3d, .json, .bsor)")
 
 
 def register_menus():

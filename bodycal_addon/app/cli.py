@@ -36,7 +36,9 @@ AVATAR_HELP = ("the avatar: a .blend, or an .fbx, .glb, .gltf or .vrm read by Bl
                "(.vrm needs a VRM importer add-on enabled)")
 
 
-REC_HELP = "the recording: .bcrec.json, .csv (+ sidecar .json) or .c3d (docs/FORMATS.md §2)"
+REC_HELP = ("the recording: .bcrec.json, .csv (+ sidecar .json), .c3d, an A-Frame motion capture .json or a Beat Saber "
+            ".bsor replay (docs/FORMATS.md §2)")
+HANDS = ("geometry", "labels", "swapped")  # recording/io/hands.py (loaded when a command runs)
 USER_HELP = "the performer's body model, written by calibrate-user"
 VERBOSE_HELP = "let Blender's own output (importers, file reports) through to stdout (default: BodyCal's lines only)"
 
@@ -80,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("calibrate-user", help="run every calibration step the recording allows")
     c.add_argument("recording", metavar="REC", help=REC_HELP)
+    _hands_argument(c)
     c.add_argument("-o", "--output", required=True, metavar="USER.body.json", help="the body model to write")
     c.add_argument("--allow-defaults", action="store_true",
                    help="accepted for older scripts; changes nothing (a body mostly guessed from the eye height is "
@@ -95,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("retarget", help="animate the avatar and bake a new action onto its armature")
     c.add_argument("recording", metavar="REC", help=REC_HELP)
+    _hands_argument(c)
     c.add_argument("--user", required=True, metavar="USER.body.json", help=USER_HELP)
     c.add_argument("--avatar", required=True, metavar="AVATAR", help=AVATAR_HELP)
     c.add_argument("--armature", metavar="NAME", help="the avatar's armature (default: the only one in the file)")
@@ -141,6 +145,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _hands_argument(c) -> None:
+    """--hands: which controller of an A-Frame capture or a Beat Saber replay is the right hand
+    (FORMATS.md §2.6, §2.7); the other formats name their roles."""
+    c.add_argument("--hands", choices=HANDS, default=HANDS[0],
+                   help="A-Frame .json and Beat Saber .bsor recordings: geometry: the controller on the headset's "
+                        "right most of the time is the right hand (default; the file's labels when that does not "
+                        "decide); labels: as the file labels them; swapped: the labels swapped")
+
+
 def _live_commands(sub) -> None:
     """`record`, `stream` and `live`: the VMC protocol (FORMATS.md §6)."""
     c = sub.add_parser("record", help="record a live VMC stream (OSC over UDP) into a recording file")
@@ -168,6 +181,7 @@ def _live_commands(sub) -> None:
     c = sub.add_parser("stream", help="send a recording, or the avatar retargeted from it, as a VMC stream in real "
                        "time")
     c.add_argument("take", metavar="TAKE", help=REC_HELP)
+    _hands_argument(c)
     c.add_argument("--host", default="127.0.0.1", metavar="H", help="where to send (default 127.0.0.1)")
     c.add_argument("--port", type=int, default=VMC_PORT, metavar="N", help=f"UDP port (default {VMC_PORT})")
     c.add_argument("--speed", type=float, default=1.0, metavar="X", help="X times real time (default 1)")

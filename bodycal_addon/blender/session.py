@@ -305,12 +305,13 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
 
 
 def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filter: OneEuro | None = DEFAULT_FILTER,
-                   seat_height: float | None = None, log=print, **kwargs) -> Summary:
-    """`bodycal retarget`: a recording of the performer whose body model is `user_path`
-    (`seat_height`: seated, a kit without foot trackers)."""
+                   hands: str = "geometry", seat_height: float | None = None, log=print, **kwargs) -> Summary:
+    """`bodycal retarget`: a recording of the performer whose body model is `user_path` (`hands`:
+    how a three-point kit's own file tells its hands, recording/io/hands.py; `seat_height`:
+    seated, a kit without foot trackers)."""
 
     def read() -> RecordingTake:
-        recording = load_recording(recording_path)
+        recording = load_recording(recording_path, hands=hands)
         user = BodyModel.load(user_path)
         if user.kind != "user":
             raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))

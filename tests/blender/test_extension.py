@@ -126,5 +126,5 @@ def test_recordings_can_be_dropped_on_the_viewport():
     handler = bpy.types.FileHandler.bl_rna_get_subclass_py("BODYCAL_FH_recording")
     assert handler.bl_import_operator == "bodycal.import_recording"
     # Blender matches a drop by its last suffix: `.bcrec.json` is claimed as `.json` (FORMATS.md §2.5).
-    assert set(handler.bl_file_extensions.split(";")) == {".json", ".csv", ".c3d"}
+    assert set(handler.bl_file_extensions.split(";")) == {".json", ".csv", ".c3d", ".bsor"}
     assert not handler.poll_drop(bpy.context)  # background mode: no area to drop on

@@ -254,8 +254,8 @@ def test_a_step_left_where_it_was_keeps_its_end_and_a_moved_one_runs_to_the_next
 
 
 def test_the_file_filter_lists_recordings_and_a_dropped_file_must_be_one(tmp_path):
-    """The file browser lists `*.bcrec.json`, `*.csv` and `*.c3d`; a drop (Blender gives the path to
-    invoke) is claimed by suffix, `.json` included since Blender matches the last suffix only, and a
+    """The file browser lists `*.json` (BodyCal's `*.bcrec.json` and A-Frame captures), `*.csv`, `*.c3d`
+    and `*.bsor`; a drop (Blender gives the path to invoke) is claimed by suffix, and a
     file that is not a recording is one line, with nothing imported; a recording goes on to the
     options dialog. (Background Blender runs no invoke: it is called as the drop calls it.)"""
     from types import SimpleNamespace
@@ -264,8 +264,8 @@ def test_the_file_filter_lists_recordings_and_a_dropped_file_must_be_one(tmp_pat
 
     op_type = bpy.types.BODYCAL_OT_import_recording
     glob = bpy.ops.bodycal.import_recording.get_rna_type().properties["filter_glob"].default
-    assert glob == "*.bcrec.json;*.csv;*.c3d" == ";".join(RECORDING_GLOBS)
-    assert set(bpy.types.BODYCAL_FH_recording.bl_file_extensions.split(";")) == {".json", ".csv", ".c3d"}
+    assert glob == "*.json;*.csv;*.c3d;*.bsor" == ";".join(RECORDING_GLOBS)
+    assert set(bpy.types.BODYCAL_FH_recording.bl_file_extensions.split(";")) == {".json", ".csv", ".c3d", ".bsor"}
     sheet = tmp_path / "sheet.csv"
     sheet.write_text("subject,height\nann,1.7\n")
     take = tmp_path / "take.bcrec.json"
@@ -287,12 +287,17 @@ def test_the_file_filter_lists_recordings_and_a_dropped_file_must_be_one(tmp_pat
     assert dialogs == [{"title": "take.bcrec.json", "confirm_text": "Import"}] and len(reports) == 1
 
 
-def test_the_file_browser_side_panel_shows_the_import_options():
+@pytest.mark.parametrize("filepath, hands", [("/takes/take.bcrec.json", False), ("/takes/take.csv", False),
+                                              ("/takes/replay.bsor", True), ("/takes/grabLeft.json", True)])
+def test_the_file_browser_side_panel_shows_the_import_options(filepath, hands):
+    """The options; Hands (which controller is the right hand) only for a file that may be a
+    three-point kit's own: an A-Frame .json or a Beat Saber .bsor (FORMATS.md §2.6, §2.7)."""
     import ui_layout
 
     log = []
-    op = type("Op", (), {"layout": ui_layout.RecordingLayout(log)})()
+    op = type("Op", (), {"layout": ui_layout.RecordingLayout(log), "filepath": filepath})()
     bpy.types.BODYCAL_OT_import_recording.draw(op, bpy.context)
     shown = [entry[2] for entry in log if entry[0] == "prop"]
-    assert shown == ["frame_start", "update_scene_rate", "update_scene_range", "step_markers", "fill_gaps"]
+    assert shown == ["frame_start", "update_scene_rate", "update_scene_range", "step_markers", "fill_gaps"] + (
+        ["hands"] if hands else [])
     assert [entry[1] for entry in log if entry[0] == "panel"] == ["BODYCAL_import_timing", "BODYCAL_import_steps"]

@@ -221,7 +221,7 @@ def test_an_os_error_no_check_foresaw_is_one_line(monkeypatch, capsys, tmp_path)
     """A file that vanishes or a disk that fills mid-way: cli.py turns any OSError into one line."""
     import bodycal_addon.recording.io as recording_io
 
-    def vanished(path):
+    def vanished(path, **_options):  # load_recording(path, hands=...)
         raise FileNotFoundError(2, "No such file or directory", str(path))
 
     monkeypatch.setattr(recording_io, "load_recording", vanished)

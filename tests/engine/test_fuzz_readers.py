@@ -1,6 +1,7 @@
-"""Fuzzing the readers: random bytes and mutated valid files (JSON, CSV, C3D, body.json) either load
-or raise BodyCalError with one line naming the file; nothing else ever escapes, and numpy never
-warns on the way (a warning would print lines before the error's one line)."""
+"""Fuzzing the readers: random bytes and mutated valid files (JSON, CSV, C3D, A-Frame motion capture,
+Beat Saber replays, body.json) either load or raise BodyCalError with one line naming the file;
+nothing else ever escapes, and numpy never warns on the way (a warning would print lines before the
+error's one line)."""
 
 from __future__ import annotations
 
@@ -18,10 +19,11 @@ from hypothesis import strategies as st
 from recording_fixtures import recording_doc, tpose_recording
 
 from bodycal_addon.body.bodymodel import BodyModel
+from bodycal_addon.core import paths
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.recording import io as rio
 from bodycal_addon.recording.io import csv_format, header, json_format
-from bodycal_dev import c3d_writer
+from bodycal_dev import bsor_writer, c3d_writer
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 _DIR = pathlib.Path(tempfile.mkdtemp(prefix="bodycal-fuzz-"))
@@ -45,6 +47,24 @@ VALID_SIDECAR = (_DIR / "base.json").read_bytes()
 VALID_C3D = c3d_writer.write_c3d(_DIR / "base.c3d", np.random.default_rng(0).uniform(-1e3, 1e3, (12, 3, 3)),
                           ["index_tip_r", "Bob:hand_led1_l", "X"], 100.0,
                           events=[("tpose", 0.01), ("motion", 0.05)]).read_bytes()
+
+
+
+def _valid_aframe() -> dict:
+    """The first 15 samples of a real A-Frame take (sample_data), its button events and gamepads kept."""
+    doc = json.loads((paths.data_dir() / "real_vr" / "aframe_vive" / "grabLeft.json").read_text())
+    for ent in doc.values():
+        ent["poses"] = ent["poses"][:15]
+        ent["events"] = ent.get("events", [])[:2]
+    return doc
+
+
+VALID_AFRAME_DOC = _valid_aframe()
+VALID_AFRAME = json.dumps(VALID_AFRAME_DOC).encode()
+_bsor_poses = np.tile([0.1, 1.7, 0.2, 0.0, 0.0, 0.0, 1.0], (12, 3, 1))
+_bsor_poses[0] = 0.0  # the game's first frame
+VALID_BSOR = bsor_writer.write_bsor(_DIR / "base.bsor", np.arange(12) / 90.0, _bsor_poses,
+                                    {"player name": "Jürgen", "modifiers": "FS"}).read_bytes()
 
 
 def _load(name: str, data: bytes, sidecar: bytes | None = None):
@@ -108,12 +128,52 @@ def test_valid_samples_load():
     assert _load("ok.bcrec.json", VALID_JSON) is not None
     assert _load("ok.csv", VALID_CSV, VALID_SIDECAR) is not None
     assert _load("ok.c3d", VALID_C3D) is not None
+    assert _load("ok.json", VALID_AFRAME).frame_count == 15
+    assert _load("ok.bsor", VALID_BSOR).frame_count == 12
 
 
 @FUZZ
-@given(data=st.binary(max_size=2048), ext=st.sampled_from([".bcrec.json", ".csv", ".c3d"]))
+@given(data=st.binary(max_size=2048), ext=st.sampled_from([".bcrec.json", ".csv", ".c3d", ".json", ".bsor"]))
+@example(data=b'{"camera": {', ext=".json")
+@example(data=VALID_BSOR[:4], ext=".bsor")
 def test_random_bytes(data, ext):
     _load("random" + ext, data)
+
+
+@FUZZ
+@given(edits=EDITS)
+def test_mutated_aframe_bytes(edits):
+    _load("mut_aframe.json", _mutate_bytes(VALID_AFRAME, edits))
+
+
+
+@FUZZ
+@given(edits=EDITS)
+def test_mutated_bsor_bytes(edits):
+    _load("mut.bsor", _mutate_bytes(VALID_BSOR, edits))
+
+
+@FUZZ
+@given(pos=st.integers(0, 400), values=st.binary(min_size=1, max_size=4))
+@example(pos=5 + 1 + 4 + 5 + 4 + 6, values=b"\x00\x00\x80\x7f")  # a count in the header made huge
+def test_mutated_bsor_header_and_frames(pos, values):
+    # Overwrite bytes in the header and the first frames, where the structure and the counts live.
+    buf = bytearray(VALID_BSOR)
+    buf[pos:pos + len(values)] = values
+    _load("hdr.bsor", bytes(buf[:len(VALID_BSOR)]))
+
+
+@FUZZ
+@given(value=st.floats(width=32) | st.just(float("nan")), frame=st.integers(0, 11), device=st.integers(0, 2),
+       field=st.integers(0, 7))
+def test_any_float_in_a_replays_frame_loads_or_is_one_line(value, frame, device, field):
+    poses = _bsor_poses.copy()
+    time = np.arange(12) / 90.0
+    if field == 7:
+        time[frame] = value
+    else:
+        poses[frame, device, field] = value
+    _load("float.bsor", bsor_writer.write_bsor(_DIR / "f.bsor", time, poses).read_bytes())
 
 
 @FUZZ
@@ -134,6 +194,21 @@ def _paths(doc, prefix=()):
 
 
 DOC_PATHS = [p for p in _paths(VALID_DOC) if p]
+AFRAME_PATHS = [p for p in _paths(VALID_AFRAME_DOC) if p]
+
+
+@FUZZ
+@given(path=st.sampled_from(AFRAME_PATHS), value=JSON_VALUES, delete=st.booleans())
+def test_mutated_aframe_structure(path, value, delete):
+    doc = json.loads(VALID_AFRAME)
+    target = doc
+    for k in path[:-1]:
+        target = target[k]
+    if delete:
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    _load("struct_aframe.json", json.dumps(doc).encode())
 
 
 @FUZZ

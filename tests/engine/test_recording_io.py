@@ -478,9 +478,19 @@ def test_only_recordings_pass_the_drop_check(tmp_path):
 
 
 def test_the_file_browser_lists_recordings_only():
+    """Every .json is listed (an A-Frame motion capture keeps its own name, FORMATS.md §2.6); a JSON
+    that is not a recording says so in one line when picked (below)."""
     from fnmatch import fnmatch
 
-    shown = ["take.bcrec.json", "TAKE.BCREC.JSON", "take.csv", "take.c3d"]
-    hidden = ["user.body.json", "take.json", "map.bonemap.json", "take.blend"]
+    shown = ["take.bcrec.json", "TAKE.BCREC.JSON", "take.csv", "take.c3d", "tracked-recording.json", "replay.bsor"]
+    hidden = ["take.blend", "avatar.glb", "notes.txt", "take.bvh"]
     assert all(any(fnmatch(n.lower(), g) for g in rio.RECORDING_GLOBS) for n in shown)
     assert not any(fnmatch(n.lower(), g) for n in hidden for g in rio.RECORDING_GLOBS)
+
+
+def test_a_json_picked_that_is_not_a_recording_says_so(tmp_path):
+    (tmp_path / "user.body.json").write_text('{"format": "bodycal-body", "version": 1, "joints": {}}')
+    with pytest.raises(BodyCalError) as err:
+        rio.load_recording(tmp_path / "user.body.json")
+    assert err.value.line() == ("user.body.json: format: is 'bodycal-body', expected \"bodycal-recording\" "
+                                "(not a BodyCal recording)")

@@ -34,7 +34,7 @@ def run(args) -> int:
     files_read = recording_inputs(args.recording)
     overwrite = getattr(args, "overwrite", False)
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before any work
-    rec = load_recording(args.recording)
+    rec = load_recording(args.recording, hands=getattr(args, "hands", "geometry"))
     model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
     cov = check_usable(model, source=str(args.recording))
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)

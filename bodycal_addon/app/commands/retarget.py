@@ -16,7 +16,7 @@ def run(args) -> int:
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
     with console.progress("retarget") as step:
         session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg,
-                               seat_height=seat_height(args),
+                               seat_height=seat_height(args), hands=getattr(args, "hands", "geometry"),
                                armature=args.armature,
                                settings=session.Settings(args.method, getattr(args, "plant_feet", True),
                                                          getattr(args, "placement", "object")),

@@ -48,7 +48,7 @@ def _devices(args):
     from ...recording.io import load_recording
     from ...recording.live.sender import RecordingMessages
 
-    rec = load_recording(args.take, raw=True)
+    rec = load_recording(args.take, raw=True, hands=getattr(args, "hands", "geometry"))
     if not rec.devices and not rec.marker_names:
         raise BodyCalError("has no device and no marker to send", source=str(args.take))
     return RecordingMessages(rec, scaled=not args.local_only)
@@ -63,7 +63,7 @@ def _retargeted(args):
 
     if not args.user or not args.avatar:
         raise BodyCalError("needs --user USER.body.json and --avatar AVATAR", field="--retarget")
-    rec = load_recording(args.take)
+    rec = load_recording(args.take, hands=getattr(args, "hands", "geometry"))
     user = BodyModel.load(args.user)
     if user.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(args.user))

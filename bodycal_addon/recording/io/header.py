@@ -44,13 +44,14 @@ def parse_header(doc, source: str, allowed: set, require_frames: bool) -> dict:
     only `allowed` fields, each of its type; one BodyCalError naming the field otherwise."""
     if not isinstance(doc, dict):
         raise BodyCalError("the file must hold a JSON object", source=source, hint="see FORMATS.md §2.1")
+    fmt = doc.get("format")  # first: another JSON (a body model, a sidecar picked by mistake) says so
+    if fmt != FORMAT_NAME:
+        raise BodyCalError(f"is {fmt!r}, expected \"{FORMAT_NAME}\"", source=source, field="format",
+                           hint="not a BodyCal recording")
     unknown = set(doc) - allowed
     if unknown:
         raise BodyCalError(f"unknown field(s) {sorted(unknown)}", source=source,
                            hint=f"allowed: {', '.join(sorted(allowed))}")
-    fmt = doc.get("format")
-    if fmt != FORMAT_NAME:
-        raise BodyCalError(f"is {fmt!r}, expected \"{FORMAT_NAME}\"", source=source, field="format")
     version = doc.get("version")
     if version != 1 or isinstance(version, bool):
         raise BodyCalError(f"unsupported version {version!r}", source=source, field="version",
