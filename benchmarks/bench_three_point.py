@@ -25,10 +25,10 @@ offset under the head, a foot stepping when 25 cm from its place), side by side.
   egocentric method's contact gap p95 on the avatar's evaluated mesh (mm).
 
 Part 2, real: every take of sample_data/real_vr (HMD and two Vive wands, no calibration steps) is
-read, calibrated, retarget with every method and baked (the bake's verification on the evaluated
-rig): no NaN, verified, the feet on the floor and still while they stand, the hands within 5 mm of
-their controllers' grip points (the user's skeleton), the wrists' acceleration p95 against the
-controllers'.
+read, calibrated, retargeted with every method and baked (the bake's verification on the evaluated
+rig): no NaN, verified, the feet on the floor and still while they stand, the controllers within
+5 mm of their arms' reach (the user's skeleton), the avatar's wrists' acceleration p95 against the
+wrists the controllers carry (scaled by the arms).
 
 Prints ONE JSON line with `targets`. Run: .venv/bin/python benchmarks/bench_three_point.py [--quick]
 """
@@ -69,6 +69,7 @@ CLIPS = (("cmu_bvh", "02_01_walk", True), ("cmu_bvh", "131_01_start_walk_stop", 
          ("cmu_bvh_more", "131_03_start_hop_stop", False))
 HELD_OUT = (("cmu_bvh_held_out", "05_06_dance", False),)
 AVATAR = "child_10y"
+REAL_AVATAR = "adult_male"
 KNEE_MAX_DEG = 155.0
 LEGS_APART = 2 * RADII["ankle"]  # x stature
 CONTACT_MOTIONS = ("clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "squat")
@@ -226,7 +227,74 @@ def _only(rec, keep):
                    rotations=rec.rotations[:, keep], valid=rec.valid[:, keep])
 
 
-def targets(truth: dict, contacts: dict) -> dict:
+def real_part(quick: bool) -> dict:
+    """Every real three-point take of the sample data, onto the adult avatar with every method,
+    computed and baked as a bake is (the verification on the evaluated rig included)."""
+    from bodycal_addon.blender import session as sess
+    from bodycal_addon.blender.avatar_calibration import calibrate_avatar
+    from bodycal_addon.retarget.takes import RecordingTake
+    from sample_rigs import load_glb_avatar
+
+    takes = sorted((paths.data_dir() / "real_vr").glob("*/*.json")) + \
+        sorted((paths.data_dir() / "real_vr").glob("*/*.bsor"))
+    if quick:
+        takes = takes[:1]
+    out = {}
+    for path in takes:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        with contextlib.redirect_stdout(io.StringIO()):
+            arm, _ = load_glb_avatar(next(p for p in paths.shared_avatar_files() if p.name.startswith(REAL_AVATAR)))
+        avatar = calibrate_avatar(arm)
+        target = sess.Target(arm, avatar, True)
+        rec = recording_io.load_recording(path)
+        user = calibrate_user(rec)
+        take = RecordingTake(rec, user)  # the default settings: the devices smoothed
+        full = lower_body.complete(filter_recording(rec, DEFAULT_FILTER), user)
+        pose = animate_user(full, user)
+        fig = {"frames": rec.frame_count, "seconds": round(float(rec.time[-1] - rec.time[0]), 1),
+               "hmd_height_m": [round(float(v), 2) for v in np.percentile(rec.positions[:, 0, 2], [1, 99])],
+               "steps": sum(measure.landings(pose.joints[:, [JI[f"ankle_{s}"], JI[f"toe_{s}"]]], rec.fps)
+                            for s in "lr"),
+               "hands_beyond_reach_p95_mm": _hands_in_reach(user, pose, 0, rec.frame_count), "methods": {}}
+        arm_k = _arm(avatar) / float(np.mean([user.bones[f"upperarm_{s}"].length + user.bones[f"forearm_{s}"].length
+                                             for s in "lr"]))
+        for method in pl.METHODS:
+            got = {}
+            try:
+                computed = sess.compute(take, target, sess.Settings(method))
+                sess.bake(take, target, computed)  # raises when the evaluated rig does not show the keys
+                got["verified"] = True
+            except Exception as exc:  # the figure: what failed, the others still measured
+                got["verified"], got["error"] = False, str(exc)[:200]
+                out.setdefault(path.name, fig)["methods"][method] = got
+                continue
+            anim = computed.animation
+            got["finite"] = bool(np.isfinite(anim.rotations).all() and np.isfinite(anim.root_location).all())
+            skin = mesh_metrics.foot_skin(arm, avatar, anim, np.arange(rec.frame_count))
+            for s, sk_ in skin.items():
+                on = _estimated_stance(full, s, 0, rec.frame_count)
+                low = sk_["low"][on] * 1000
+                got[f"skin_{s}_mm"] = {"median": round(float(np.median(low)), 1), "worst": round(float(low.min()), 1)}
+                got[f"slide_{s}_p95_mm"] = max(measure.slide_p95_mm(sk_[part], on, rec.fps) or 0.0
+                                               for part in ("heel", "ball"))
+            # against the wrist as the controllers carry it (the user's, from the same smoothed devices;
+            # the controller's own origin moves less than the wrist it turns about), scaled by the arms
+            ratios = [measure.accel_p95(anim.joints_world[f"wrist_{s}"].astype(float), rec.fps)
+                      / (measure.accel_p95(pose.joints[:, JI[f"wrist_{s}"]], rec.fps) * arm_k) for s in "lr"]
+            got["wrist_accel_ratio"] = round(float(max(ratios)), 2)
+            fig["methods"][method] = got
+        out[path.name] = fig
+    return out
+
+
+def _arm(avatar) -> float:
+    rig = AvatarRig.from_model(avatar)
+    a = rig.joint_world
+    return float(np.mean([np.linalg.norm(a[JI[f"elbow_{s}"]] - a[JI[f"shoulder_{s}"]])
+                          + np.linalg.norm(a[JI[f"wrist_{s}"]] - a[JI[f"elbow_{s}"]]) for s in "lr"]))
+
+
+def targets(truth: dict, contacts: dict, real: dict | None = None) -> dict:
     ours = {k: v for k, v in truth.items() if k.endswith("/bodycal") and not v["held_out"]}
     out = {}
     if ours:
@@ -246,6 +314,16 @@ def targets(truth: dict, contacts: dict) -> dict:
         out["hands_within_reach_5mm"] = all(v["hands_beyond_reach_p95_mm"] <= 5.0 for v in ours.values())
     if contacts:
         out["contact_p95_le_10mm"] = contacts["contact_gap_mm"]["p95"] <= 10.0
+    if real:
+        runs = [m for t in real.values() for m in t["methods"].values()]
+        out["real_verified_every_method"] = all(m.get("verified") and m.get("finite") for m in runs)
+        skins = [m[f"skin_{s}_mm"]["median"] for m in runs if m.get("verified") for s in "lr"]
+        out["real_feet_on_the_floor_5mm"] = bool(skins) and max(abs(v) for v in skins) <= 5.0
+        slides = [m[f"slide_{s}_p95_mm"] for m in runs if m.get("verified") for s in "lr"]
+        out["real_no_slide_past_2mm"] = bool(slides) and max(slides) <= 2.0
+        out["real_hands_within_reach_5mm"] = all(t["hands_beyond_reach_p95_mm"] <= 5.0 for t in real.values())
+        acc = [m["wrist_accel_ratio"] for m in runs if m.get("verified")]
+        out["real_wrist_accel_le_1_3x_controllers"] = bool(acc) and max(acc) <= 1.3
     return out
 
 
@@ -255,8 +333,9 @@ def main(quick: bool = False):
     workdir = Path(tempfile.mkdtemp(prefix="bodycal-three-"))
     truth = truth_part(arm, avatar, workdir, quick)
     contacts = contact_part(arm, avatar, quick)
-    out = {"bench": "three_point", "avatar": AVATAR, "truth": truth, "contacts": contacts,
-           "targets": targets(truth, contacts), "seconds": round(time.time() - t0, 1)}
+    real = real_part(quick)
+    out = {"bench": "three_point", "avatar": AVATAR, "real_avatar": REAL_AVATAR, "truth": truth, "contacts": contacts,
+           "real": real, "targets": targets(truth, contacts, real), "seconds": round(time.time() - t0, 1)}
     print(json.dumps(out))
     return out
 

@@ -19,7 +19,7 @@ from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.retarget import lower_body
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.live import LiveSolver
-from bodycal_addon.retarget.lower_body import body_path, kneel
+from bodycal_addon.retarget.lower_body import body_path, kneel, stepping
 from bodycal_addon.retarget.user_animation import animate_user
 from bodycal_dev.retarget_fixtures import procedural_avatar
 from evaluation import measure
@@ -193,17 +193,24 @@ def test_a_person_standing_still_never_steps(user):
 
 
 def test_a_glance_aside_does_not_step_a_turn_does(user):
+    """Looking 40 degrees aside for two seconds is a glance (the body stays); turning 90 degrees and
+    staying so turns the feet with it, step by step."""
     z0 = user.extra["tpose"]["head"][2]
-    n = 360
-    glance = np.concatenate([np.zeros(90), np.full(45, 40.0), np.zeros(n - 135)])
+    n = 540
+    glance = np.concatenate([np.zeros(90), np.full(180, 40.0), np.zeros(n - 270)])
     feet = _feet(lower_body.complete(_head_take(user, np.full(n, z0), glance), user))
     assert np.abs(feet - feet[0]).max() < 1e-9
     turn = np.clip((np.arange(n) - 60) / 90.0, 0, 1) * 90.0
-    full = lower_body.complete(_head_take(user, np.full(n, z0), turn), user)
-    headings = [tf.quat_to_matrix(full.pose(f"foot_{s}")[1][-1]) @ [0, 1.0, 0] for s in "lr"]
-    first = [tf.quat_to_matrix(full.pose(f"foot_{s}")[1][0]) @ [0, 1.0, 0] for s in "lr"]
-    for h, f in zip(headings, first):  # both feet turned with the body, within the step's threshold
-        assert abs(np.degrees(np.arccos(np.clip(h @ f, -1, 1))) - 90.0) < 36.0
+    take = _head_take(user, np.full(n, z0), turn)
+    full = lower_body.complete(take, user)
+    shape = lower_body.LowerBodyShape.of(user)
+    body = body_path.offline_path(shape, take.time, *lower_body.filled_pose(take, "head")).heading
+    for s in "lr":
+        forward = tf.quat_to_matrix(full.pose(f"foot_{s}")[1]) @ [0, 1.0, 0]
+        feet = np.unwrap(np.arctan2(forward[:, 1], forward[:, 0]))
+        assert np.degrees(feet[-1] - feet[0]) > 45.0  # it stepped round with the body ...
+        # ... and stands within a step's threshold of the body's heading
+        assert abs(np.degrees(feet[-1] - feet[0] - (body[-1] - body[0]))) <= np.degrees(stepping.TURN_STEP) + 1e-6
 
 
 def test_walking_forward_steps_the_feet_along_and_never_crosses_them(user):

@@ -28,7 +28,7 @@ import numpy as np
 from ...core import transforms as tf
 from .shape import LowerBodyShape, body_axes, lean, wrap
 
-HEADING_SMOOTH_S = 0.35
+HEADING_SMOOTH_S = 0.8
 MAX_NECK_TWIST = np.radians(50.0)
 KNEES_FIRST = 0.05  # x stature: a drop of the skull base this small is the knees' (a walk's bob)
 LOOK_DOWN = np.radians(20.0)
