@@ -304,8 +304,8 @@ def _place_legs(placing: _Placement) -> None:
 
 
 def _place_arms(placing: _Placement) -> None:
-    """Arms pass, side by side: the shoulder (in the T-pose on the line between the hands), the
-    wrist (`_place_wrist`), the elbow between them, slightly bent."""
+    """Arms pass: the shoulders (in the T-pose on the line between the hands), the wrists
+    (`_place_wrist`), then the elbows between them, slightly bent."""
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     tpose_hands = session.reference_step == "tpose" and session.has("hand_l") and session.has("hand_r")
     if tpose_hands:
@@ -318,9 +318,10 @@ def _place_arms(placing: _Placement) -> None:
         else:
             put(f"shoulder_{s}", body.at(R["shoulder_height"] * H, _SIGN[s] * R["shoulder_half_width"] * H),
                 f"{R['shoulder_height']} H high, {R['shoulder_half_width']} H beside the middle")
-        sh = w[f"shoulder_{s}"]
-        _place_wrist(placing, s, sh)
-        wr = w[f"wrist_{s}"]
+        _place_wrist(placing, s, w[f"shoulder_{s}"])
+    table = _table_arm(placing)
+    for s in sk.SIDES:
+        sh, wr = w[f"shoulder_{s}"], w[f"wrist_{s}"]
         l1, l2 = R["upperarm"] * H, R["forearm"] * H
         how = "at the upper arm : forearm ratio"
         upper = placing.state.extra.get("upper_lengths", {}).get(f"elbow_{s}")
@@ -332,9 +333,57 @@ def _place_arms(placing: _Placement) -> None:
             bent = _bent_lengths(0.5 * upper + 0.5 * reach * l1 / (l1 + l2), reach)
             if bent is not None:
                 (l1, l2), how = bent, "the upper arm as long as the mean of its flex step's and the ratio's"
+        elif table is not None:
+            (l1, l2), how = table
+            put(f"elbow_{s}", _bent_elbow(body, s, sh, wr, l1, l2), f"{how}, bent back, down and out to the "
+                "hand where the standing moment found it")
+            continue
         put(f"elbow_{s}", _relaxed_mid(session, placing.state, sh, wr, l1, l2, f"forearm_{s}"),
             f"between the shoulder and the wrist, {how}, bent {R['reference_bend_deg']:.0f}° (nobody locks "
             f"the elbow straight)")
+
+
+def _table_arm(placing: _Placement):
+    """((upper arm, forearm), how) for arms nothing measured, or None when the reference step
+    measures them (a T-pose or a stand step holds the arms straight).
+
+    Without either the reference is a moment the performer stood still with the hands anywhere
+    (a Beat Saber player holds them at the chest): the hand's distance to the shoulder is no
+    arm's length, and taking it for one gave arms of 7 to 53 cm on the real three-point takes
+    (the avatar's hands then fell up to 63 cm short of the controllers, bench_three_point). The
+    arms are the table's, both alike, lengthened together when a hand already reached further."""
+    session, w, H = placing.session, placing.world, placing.H
+    if session.reference_step in ("tpose", "stand") or not (session.has("hand_l") and session.has("hand_r")):
+        return None
+    measured = placing.state.extra.get("upper_lengths", {})
+    if any(f"elbow_{s}" in measured or session.has(f"forearm_{s}") for s in sk.SIDES):
+        return None
+    l1, l2 = R["upperarm"] * H, R["forearm"] * H
+    most = (l1 + l2) * np.cos(np.radians(R["reference_bend_deg"]) / 2)
+    reach = max(float(np.linalg.norm(w[f"wrist_{s}"] - w[f"shoulder_{s}"])) for s in sk.SIDES)
+    if reach <= most:
+        return (l1, l2), f"the table's upper arm and forearm ({R['upperarm']} H, {R['forearm']} H)"
+    k = reach / most
+    return (l1 * k, l2 * k), (f"the table's upper arm and forearm lengthened {k:.2f} times to the hand that "
+                              f"reached furthest at the standing moment")
+
+
+def _bent_elbow(body: BodyFrame, s: str, sh: np.ndarray, wr: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """The elbow of an arm of lengths `l1`, `l2` from the shoulder `sh` to the wrist `wr`, bent
+    back, down and out (where a relaxed elbow goes)."""
+    d = wr - sh
+    reach = float(np.linalg.norm(d))
+    if reach < 1e-6:
+        return sh - UP * l1
+    u = d / reach
+    out = body.left * _SIGN[s]
+    pole = -body.forward - UP + 0.5 * out
+    pole = pole - (pole @ u) * u
+    if np.linalg.norm(pole) < 1e-9:  # the arm along the pole itself: bend out to the side
+        pole = out - (out @ u) * u
+    pole = pole / max(np.linalg.norm(pole), 1e-9)
+    along = float(np.clip((l1 * l1 - l2 * l2 + reach * reach) / (2 * reach), -l1, l1))  # law of cosines
+    return sh + u * along + pole * np.sqrt(max(l1 * l1 - along * along, 0.0))
 
 
 def _arm_from_touches(placing: _Placement, s: str, sh: np.ndarray, wr: np.ndarray):

@@ -295,3 +295,26 @@ def test_avatargos_six_devices_and_protocol_calibrate_without_a_flag(tmp_path):
     assert cov.warnings() and "guessed from the eye height" in cov.warnings()[0]
     anim = pl.retarget(rec, user, procedural_avatar(), "offsets")
     assert np.isfinite(anim.rotations).all()
+
+
+def test_without_calibration_steps_the_arms_are_a_body_of_that_height(walk):
+    """No T-pose and no stand step: the reference is a moment the walker stood still, hands
+    anywhere. The arms are the anthropometric table's for the height (within 12 % of the CMU
+    skeleton's own), both alike, not the hand's distance from the shoulder at that moment."""
+    rec, cap, _ = walk
+    user = calibrate_user(replace(rec, segments=[]))
+    assert user.calibration["reference"] == "standing moment"
+    truth = cap.truth()
+    J, names = truth["positions"][0], truth["joints"]
+    true_arm = np.mean([np.linalg.norm(J[names.index(f"elbow_{s}")] - J[names.index(f"shoulder_{s}")])
+                        + np.linalg.norm(J[names.index(f"wrist_{s}")] - J[names.index(f"elbow_{s}")]) for s in "lr"])
+    arms = [user.bones[f"upperarm_{s}"].length + user.bones[f"forearm_{s}"].length for s in "lr"]
+    assert abs(arms[0] - arms[1]) < 1e-3
+    assert abs(arms[0] / true_arm - 1.0) < 0.12, (arms, true_arm)
+    # the hands pulled in half way to the head all along (held at the chest at that moment)
+    held = rec.positions.copy()
+    held[:, 1:] = held[:, :1] + 0.5 * (held[:, 1:] - held[:, :1])
+    pulled = calibrate_user(replace(rec, segments=[], positions=held))
+    for s in "lr":
+        arm = pulled.bones[f"upperarm_{s}"].length + pulled.bones[f"forearm_{s}"].length
+        assert abs(arm / true_arm - 1.0) < 0.12, (s, arm, true_arm)
