@@ -318,3 +318,42 @@ def test_without_calibration_steps_the_arms_are_a_body_of_that_height(walk):
     for s in "lr":
         arm = pulled.bones[f"upperarm_{s}"].length + pulled.bones[f"forearm_{s}"].length
         assert abs(arm / true_arm - 1.0) < 0.12, (s, arm, true_arm)
+
+
+def _over_reach_mm(user, pose, reach=1.0):
+    over = []
+    for s in "lr":
+        arm = reach * (user.bones[f"upperarm_{s}"].length + user.bones[f"forearm_{s}"].length)
+        d = np.linalg.norm(pose.joints[:, JI[f"wrist_{s}"]] - pose.joints[:, JI[f"shoulder_{s}"]], axis=1)
+        over.append(np.maximum(d - arm, 0.0))
+    return np.concatenate(over) * 1000
+
+
+def test_a_controller_beyond_the_arm_turns_its_shoulder_toward_it(monkeypatch):
+    """A real Beat Saber replay (three points, no calibration steps): the player's controllers are
+    beyond the arms of a rigid trunk on a third of the frames; the shoulder girdle turns each
+    shoulder toward its hand (up to 25°) so the arms reach them, the
+    shoulders as far from their middle as ever, and where the hands are within reach the
+    shoulders are the rigid trunk's to the bit."""
+    from bodycal_addon.recording import io as recording_io
+    from bodycal_addon.retarget import user_animation as ua
+
+    rec = recording_io.load_recording(paths.data_dir() / "real_vr" / "beat_saber" / "simsaber_sample.bsor")
+    user = calibrate_user(rec)
+    full = lower_body.complete(rec, user)
+    pose = animate_user(full, user)
+    monkeypatch.setattr(ua, "SHOULDER_REACH", 0.0)
+    rigid = animate_user(full, user)
+    before, after = _over_reach_mm(user, rigid), _over_reach_mm(user, pose)
+    assert np.percentile(before, 95) > 30.0 and (before > 5.0).mean() > 0.2
+    assert np.percentile(after, 95) <= 5.0 and (after > 5.0).mean() < 0.03
+    J, R = pose.joints, rigid.joints
+    rmid = 0.5 * (R[:, JI["shoulder_l"]] + R[:, JI["shoulder_r"]])
+    inside = (_over_reach_mm(user, rigid, ua.ARM_REACH).reshape(2, -1) == 0).all(axis=0)
+    for s in "lr":
+        row = JI[f"shoulder_{s}"]
+        half = np.linalg.norm(R[:, row] - rmid, axis=1)
+        moved = ~np.all(J[:, row] == R[:, row], axis=1)
+        # turned about the rigid shoulders' middle: as far from it as before
+        assert np.allclose(np.linalg.norm(J[moved, row] - rmid[moved], axis=1), half[moved], atol=1e-9)
+        assert np.array_equal(J[inside, row], R[inside, row])
