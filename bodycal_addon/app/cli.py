@@ -251,6 +251,9 @@ def _bake_arguments(c, rate_of: str) -> None:
                    help="a .blend (the avatar's file with the new action), or an export of the avatar "
                         "and its baked action for game engines; give -o several times for several files")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+    c.add_argument("--review", action="store_true",
+                   help="also review the bake: OUT.review.png (the frames that matter and the figures over the take, "
+                        "flagged against their limits) and OUT.review.json beside the first -o (docs/FORMATS.md §4.5)")
 
 
 def _handler(command: str) -> Callable[[argparse.Namespace], int]:

@@ -68,6 +68,12 @@ def effector_segments(effector: str) -> list[str]:
         f"{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)] + [f"metacarpal_{f}_{side}" for f in sk.FINGERS]
 
 
+def effector_bones(avatar: BodyModel, effector: str) -> set[str]:
+    """The avatar's bones of the effector's own arm (or leg): the skin its contact gap leaves out."""
+    bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+    return _segment_bones(bm, effector_segments(effector))
+
+
 def _segment_bones(bone_map: naming.BoneMap, segments) -> set[str]:
     out = set()
     for seg in segments:
@@ -185,22 +191,28 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
             world_verts = at(f)
             for qi, k in items:
                 _, tris_by_mesh, points = queries[qi]
-                verts, tris, off = [], [], 0
-                for name, tri in tris_by_mesh.items():
-                    v = world_verts[name]
-                    verts.append(v)
-                    tris.append(tri + off)
-                    off += len(v)
-                if not verts:
-                    continue
-                tree = BVHTree.FromPolygons(np.concatenate(verts).tolist(), np.concatenate(tris).tolist())
-                p = points[k]
-                loc, normal, _, dist = tree.find_nearest(p.tolist())
-                if loc is None:
-                    continue
-                sign = 1.0 if np.dot(np.asarray(p) - np.asarray(loc), np.asarray(normal)) >= 0 else -1.0
-                out[qi][k] = sign * dist
+                out[qi][k] = gap_to_skin(world_verts, tris_by_mesh, points[k])
     return out
+
+
+def gap_to_skin(world_verts: dict[str, np.ndarray], tris_by_mesh: dict[str, np.ndarray], point) -> float:
+    """Signed distance (m, negative inside) of a world point to the skin made of `tris_by_mesh`
+    ({mesh name: triangles}) of the evaluated meshes `world_verts` ({mesh name: (V, 3)}); NaN when
+    there is no such skin."""
+    verts, tris, off = [], [], 0
+    for name, tri in tris_by_mesh.items():
+        v = world_verts[name]
+        verts.append(v)
+        tris.append(tri + off)
+        off += len(v)
+    if not verts:
+        return float("nan")
+    tree = BVHTree.FromPolygons(np.concatenate(verts).tolist(), np.concatenate(tris).tolist())
+    p = np.asarray(point, float)
+    loc, normal, _, dist = tree.find_nearest(p.tolist())
+    if loc is None:
+        return float("nan")
+    return (1.0 if np.dot(p - np.asarray(loc), np.asarray(normal)) >= 0 else -1.0) * dist
 
 
 def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[dict], max_frames: int = 12,

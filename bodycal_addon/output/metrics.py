@@ -88,6 +88,13 @@ def contact_gap(points, surface, target_names: list[str] | None = None, exclude_
     the elements (negative: inside). With `target_names`, each target's own-chain elements are left
     out (egocentric.own_chain_elements: a wrist is always "touching" its own forearm); `exclude_ids`
     leaves more out for every target. Returns (F, P)."""
+    return nearest_contact(points, surface, target_names, exclude_ids)[0]
+
+
+def nearest_contact(points, surface, target_names: list[str] | None = None, exclude_ids=()
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """`contact_gap` (F, P) and the element each target is nearest to: its index in
+    `surface.element_ids` (F, P), -1 where none is left."""
     d = signed_distances(points, surface)
     ids = surface.element_ids
     mask = np.zeros(d.shape[1:], bool)
@@ -99,8 +106,12 @@ def contact_gap(points, surface, target_names: list[str] | None = None, exclude_
             own = own_chain_elements(name)
             mask[p] |= np.array([eid in own for eid in ids], bool)
     d = np.where(mask, np.inf, d)
-    out = d.min(axis=-1) if d.shape[-1] else np.full(d.shape[:2], np.inf)
-    return np.where(np.isfinite(out), out, np.nan)
+    if not d.shape[-1]:
+        return np.full(d.shape[:2], np.nan), np.full(d.shape[:2], -1)
+    nearest = d.argmin(axis=-1)
+    out = np.take_along_axis(d, nearest[..., None], axis=-1)[..., 0]
+    found = np.isfinite(out)
+    return np.where(found, out, np.nan), np.where(found, nearest, -1)
 
 
 def floor_error(foot_points, planted) -> np.ndarray:
@@ -255,18 +266,27 @@ def model_contact_gaps(avatar, rotations, root_location, contacts: list[dict], j
     blender/mesh_metrics.contact_gaps). Contacts on an element the model lacks are left out."""
     rig = AvatarRig.from_model(avatar)
     pose = rig.fk(rotations, root_location)
-    model = _surface_bones(avatar)
-    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
-    posed_joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
-    frames = {b.name: pose.frames[:, i] @ corr[i] for i, b in enumerate(sk.BONES)}
     out = []
     for c in contacts:
         idx = np.flatnonzero(np.asarray(c["frames"], bool))
         eid = c["target"].split("/", 1)[0]
         if len(idx) == 0 or eid not in {e.id for e in avatar.surface}:
             continue
-        pts, off = effector_points(avatar, rig, pose, c["effector"], joints)
-        surf = pose_surface(model, {k: v[idx] for k, v in posed_joints.items()},
-                            {k: v[idx] for k, v in frames.items()}, [eid])
-        out.append(signed_distances(pts[idx][:, None], surf)[:, 0, 0] - off)
+        out.append(posed_contact_gaps(avatar, rig, pose, c["effector"], eid, idx, joints)[0])
     return out
+
+
+def posed_contact_gaps(avatar, rig: AvatarRig, pose: RigPose, effector: str, target: str, frames,
+                       joints: dict | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """`model_contact_gaps` of one contact at `frames` (indices into `pose`'s frames): the gaps
+    (n,) (m), the effector's points there (n, 3) and its skin offset."""
+    idx = np.asarray(frames, int)
+    eid = target.split("/", 1)[0]
+    model = _surface_bones(avatar)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
+    posed_joints = {j: pose.joints[idx, i] for i, j in enumerate(sk.JOINTS)}
+    frames_at = {b.name: pose.frames[idx, i] @ corr[i] for i, b in enumerate(sk.BONES)}
+    pts, off = effector_points(avatar, rig, pose, effector, joints)
+    pts = np.asarray(pts, float)[idx]
+    surf = pose_surface(model, posed_joints, frames_at, [eid])
+    return signed_distances(pts[:, None], surf)[:, 0, 0] - off, pts, off
