@@ -117,7 +117,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "Manager's API; run nothing")
     c.add_argument("--retries", type=int, default=0, metavar="N",
                    help="with --cluster: submit a job again, up to N times, when the worker running it died")
+    c.add_argument("--review", action="store_true",
+                   help="every job reviews its bake (retarget --review) and OUTPUT_DIR/review.html lists them, worst "
+                        "first; exported farm jobs get a last step that writes the page (docs/FORMATS.md §4.5)")
 
+    _review_command(sub)
     _live_commands(sub)
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
@@ -138,6 +142,29 @@ def build_parser() -> argparse.ArgumentParser:
     for c in sub.choices.values():  # also after the command: `bodycal retarget ... --verbose`
         c.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP)
     return p
+
+
+def _review_command(sub) -> None:
+    c = sub.add_parser("review", help="the review sheet of a baked avatar file, or a batch's review page")
+    c.add_argument("output", metavar="OUTPUT|DIR",
+                   help="a baked avatar (.blend, .fbx, .glb, .gltf: what retarget, transfer or batch wrote): its "
+                        "sheet OUTPUT.review.png and record OUTPUT.review.json; or a batch's output folder: "
+                        "DIR/review.html from its jobs' reviews (docs/FORMATS.md §4.5)")
+    c.add_argument("--armature", metavar="NAME", help="the baked armature (default: the only one in the file)")
+    c.add_argument("--source", metavar="SOURCE",
+                   help="what the output was made from, to compare with: a recording (.bcrec.json, .csv, .c3d; "
+                        "with --user) or an animated character (.blend, .bvh, .fbx, .glb, .gltf)")
+    c.add_argument("--user", metavar="USER.body.json", help="the performer's body model, for a recording --source")
+    c.add_argument("--source-armature", metavar="NAME", help="a character --source's armature (default: the only one)")
+    c.add_argument("--action", metavar="NAME", help="a character --source's action (default: its active one)")
+    c.add_argument("--no-filter", action="store_true",
+                   help="a recording --source as recorded (default: smoothed as retarget smooths it)")
+    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
+                   help="where the bake played the performance (as retarget --placement): where the sheet draws "
+                        "the source beside the avatar")
+    c.add_argument("-o", "--sheet", metavar="SHEET.png",
+                   help="where the sheet goes (default: beside OUTPUT); its record beside it")
+    c.add_argument("--overwrite", action="store_true", help="replace the sheet and record if they exist")
 
 
 def _live_commands(sub) -> None:

@@ -26,11 +26,16 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from ..body import skeleton as sk
+from ..body.animation import AvatarAnimation
 from ..core import outputs
 from ..core.errors import BodyCalError
+from ..core.transforms import matrix_to_quat
 from ..output import review as engine
+from ..retarget.avatar_pose import AvatarRig
 from . import bake_check, mesh_metrics, review_plots
-from .blendfile import deformed_meshes
+from .avatar_calibration import avatar_model_for
+from .blendfile import deformed_meshes, find_armature, open_avatar
 
 CELL_PX = (300, 420)  # one frame's cell on the sheet, pixels (width, height)
 PLOTS_PX = 520  # the plots' height below the frames
@@ -312,3 +317,129 @@ def _render(scene, path: Path, cells: int) -> None:
     if result is None:
         raise BodyCalError("the Workbench render made no image", source=str(path))
     result.save_render(str(path), scene=scene)
+
+
+# --- an existing output ------------------------------------------------------------------------------------
+
+
+def played_animation(arm, avatar, name: str = "") -> AvatarAnimation:
+    """The animation the armature plays (its action over the action's frame range, at the scene's
+    rate, constraints and drivers included) in the engine's terms for `avatar`'s rig: every rig
+    bone's pose read back from Blender's evaluated pose matrices by inverting the rig's FK
+    (`AvatarRig.fk`), the canonical joints from it. The scene's frame is put back."""
+    ad = arm.animation_data
+    action = ad.action if ad is not None else None
+    if action is None:
+        raise BodyCalError("the armature has no action: nothing to review", source=arm.name,
+                           hint="give a file with a baked avatar (bodycal retarget, transfer or batch)")
+    rig = AvatarRig.from_model(avatar)
+    scene = bpy.context.scene
+    first, last = (int(math.floor(action.frame_range[0])), int(math.ceil(action.frame_range[1])))
+    frames = np.arange(first, max(first, last) + 1)
+    order = {pb.name: i for i, pb in enumerate(arm.pose.bones)}
+    missing = [n for n in rig.names if n not in order]
+    if missing:
+        raise BodyCalError(f"the armature has no bones named {', '.join(missing[:6])}", source=arm.name,
+                           hint="calibrate the avatar again after renaming bones")
+    pick = np.array([order[n] for n in rig.names])
+    buf = np.empty(len(arm.pose.bones) * 16, np.float32)
+    pose = np.empty((len(frames), len(rig.names), 4, 4))
+    hidden = [m for m in deformed_meshes(arm) if not m.hide_viewport]
+    was = scene.frame_current, scene.frame_subframe
+    try:
+        for m in hidden:  # the meshes are not needed to read the bones: 3x faster frame changes
+            m.hide_viewport = True
+        for k, f in enumerate(frames):
+            scene.frame_set(int(f))
+            arm.pose.bones.foreach_get("matrix", buf)
+            pose[k] = buf.reshape(-1, 4, 4)[pick].swapaxes(-1, -2)  # Blender's matrices are column-major
+    finally:
+        for m in hidden:
+            m.hide_viewport = False
+        scene.frame_set(was[0], subframe=was[1])
+    basis, locations = rig_basis(rig, pose)
+    fps = scene.render.fps / scene.render.fps_base
+    time_s = (frames - frames[0]) / fps
+    others = {rig.names[i]: locations[:, i] for i in range(len(rig.names))
+              if i != rig.root and np.abs(locations[:, i]).max() > 1e-7}
+    joints = {}
+    for a in range(0, len(frames), engine.CHUNK):
+        b = min(len(frames), a + engine.CHUNK)
+        fk = rig.fk(basis[a:b], locations[a:b, rig.root], locations=locations[a:b])
+        for i, j in enumerate(sk.JOINTS):
+            joints.setdefault(j, np.empty((len(frames), 3)))[a:b] = fk.joints[:, i]
+    method = action.name.rsplit("|", 1)[-1] if "|" in action.name else "egocentric"
+    return AvatarAnimation(rig.armature, list(rig.names), basis, rig.names[rig.root], locations[:, rig.root],
+                           time_s, method, joints, {}, [name] if name else [], others)
+
+
+def rig_basis(rig: AvatarRig, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(basis (F, N, 4), locations (F, N, 3)): the pose-bone values that put the rig's bones where
+    `pose` (F, N, 4, 4) armature-space matrices (Blender's `PoseBone.matrix`) says: `AvatarRig.fk`
+    inverted bone by bone, parents first (a bone's scale is left out)."""
+    P = pose[..., :3, :3] / np.linalg.norm(pose[..., :3, :3], axis=-2, keepdims=True)
+    H = pose[..., :3, 3]
+    nf, n = pose.shape[:2]
+    basis = np.empty((nf, n, 3, 3))
+    locations = np.empty((nf, n, 3))
+    for i in range(n):
+        p = rig.parent[i]
+        if p < 0:
+            basis[:, i] = rig.rest[i].T @ P[:, i]
+            locations[:, i] = (H[:, i] - rig.head[i]) @ rig.rest[i]
+        else:
+            pr = P[:, p] @ (rig.rest[p].T @ rig.rest[i])  # (F, 3, 3): the parent's pose carried onto i's rest
+            basis[:, i] = pr.swapaxes(-1, -2) @ P[:, i]
+            offset = H[:, i] - H[:, p] - P[:, p] @ (rig.rest[p].T @ (rig.head[i] - rig.head[p]))
+            locations[:, i] = (pr.swapaxes(-1, -2) @ offset[..., None])[..., 0]
+    return matrix_to_quat(basis), locations
+
+
+def review_output(output, *, armature: str | None = None, take=None, placement: str = "object",
+                  sheet=None, overwrite: bool = False, inputs=(), log=print) -> engine.Review:
+    """`bodycal review OUTPUT`: the review of a baked avatar file (a .blend, .fbx, .glb, .gltf), its
+    sheet and record beside it (or `sheet` and the record beside that); `take` the source it was
+    made from (retarget/takes.py's, read before the output is opened), None for none."""
+    output = Path(output)
+    png, record = review_files(sheet if sheet is not None else output)
+    if sheet is not None:
+        png = Path(sheet)
+    files_read = [("the reviewed file", output), *inputs]
+    for path in (png, record):
+        outputs.check_output(path, inputs=files_read, overwrite=overwrite)
+    open_avatar(output)
+    arm = find_armature(armature, str(output))
+    avatar, _ = avatar_model_for(arm)
+    t0 = time.perf_counter()
+    anim = played_animation(arm, avatar)
+    first = float(math.floor(arm.animation_data.action.frame_range[0]))
+    source = None
+    if take is not None:
+        pose_source = take.pose_source(placement)
+        motion = engine.source_motion(pose_source, avatar, anim.method, placement)
+        source = motion.at(_sample_of(take, pose_source.time, first + np.arange(anim.frame_count)))
+    rate = bpy.context.scene.render.fps / bpy.context.scene.render.fps_base
+    plan = engine.plan(anim, avatar, source, first, rate)
+    review = measure(plan, arm, avatar)
+    notes = write_sheet(review, plan, arm, png, inputs=files_read, overwrite=True)
+    data = {"format": engine.FORMAT, "version": engine.VERSION, "status": "ok", "error": None, "verified": None,
+            "action": arm.animation_data.action.name, "method": anim.method, "frame_count": anim.frame_count,
+            "fps": rate, "frame_range": [first, first + anim.frame_count - 1], "outputs": [str(output)],
+            "sheet": png.name, "seconds": {"review": round(time.perf_counter() - t0, 3)}, **review.to_dict()}
+    data["notes"] = [*data["notes"], *notes]
+    outputs.write_text(record, json.dumps(_plain(data), allow_nan=False), inputs=files_read, overwrite=True)
+    for note in notes:
+        log(note)
+    for flag in review.flags:
+        log(f"review: {'OVER ' if flag.over else ''}{flag.text}")
+    log(f"saved {png}")
+    log(f"saved {record}")
+    return review
+
+
+def _sample_of(take, time_s, scene_frames: np.ndarray) -> np.ndarray:
+    """The take's sample (times `time_s`) played at each scene frame (the nearest; `retarget` and
+    `transfer` key sample k at frame_start + (t_k - t_0) x rate)."""
+    t = np.asarray(time_s, float)
+    frames = take.frame_start + (t - t[0]) * take.rate
+    return np.clip(np.rint(np.interp(scene_frames, frames, np.arange(len(frames)))).astype(int), 0, len(frames) - 1)

@@ -374,6 +374,15 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filt
     return run_files(read, RecordingTake.kind, files_read, avatar_file, output_paths, log=log, **kwargs)
 
 
+def read_character_take(source_path, source_armature: str | None = None, action: str | None = None,
+                        log=print) -> CharacterTake:
+    """A character's action in a file (`transfer`'s SOURCE) read as a take; the file becomes the open one."""
+    for note in open_source(Path(source_path)):
+        log(note)
+    src_arm = find_armature(source_armature, str(source_path))
+    return read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+
+
 def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
                    action: str | None = None, filter: OneEuro | None = None, log=print, **kwargs) -> Summary:
     """`bodycal transfer`: the action of a character in `source_path` (.blend, .bvh, .fbx, .glb,
@@ -381,10 +390,7 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
     source_path = Path(source_path)
 
     def read():
-        for note in open_source(source_path):
-            log(note)
-        src_arm = find_armature(source_armature, str(source_path))
-        take = read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+        take = read_character_take(source_path, source_armature, action, log)
         take.filter = filter
         return take
 

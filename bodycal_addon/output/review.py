@@ -136,6 +136,14 @@ class SourceMotion:
     scale: dict[str, float]  # metrics.motion_scale: the source's wrist / ankle motion as the avatar's
     kind: str  # "recording" or "animation"
 
+    def at(self, samples) -> SourceMotion:
+        """The source at these of its samples (the animation's frames, when the bake resampled it)."""
+        idx = np.asarray(samples, int)
+        contacts = [dict(c, frames=_without_short_runs(c["frames"][idx], MIN_CONTACT_FRAMES), gap=c["gap"][idx])
+                    for c in self.contacts]
+        return SourceMotion({j: v[idx] for j, v in self.joints.items()}, [c for c in contacts if c["frames"].any()],
+                            dict(self.scale), self.kind)
+
 
 def source_motion(source, avatar: BodyModel, method: str, placement: str = "object") -> SourceMotion:
     """The source's joints and self-contacts over the take (`source`: retarget/pose_source.py's,
@@ -341,7 +349,7 @@ def plan(anim: AvatarAnimation, avatar: BodyModel, source: SourceMotion | None, 
     offsets = [0.0] * len(usable)
     for a in range(0, nf, CHUNK):
         b = min(nf, a + CHUNK)
-        pose = rig.fk(anim.rotations[a:b], anim.root_location[a:b])
+        pose = rig.fk(anim.rotations[a:b], anim.root_location[a:b], locations=_locations(rig, anim, a, b))
         for s, out in feet.items():
             fp = metrics.foot_points(avatar, rig, pose, s)
             out["outline"][a:b] = np.concatenate([fp["outline"], fp["support"]], axis=1)[..., 2].min(axis=1)
@@ -417,6 +425,20 @@ def part_name(name: str) -> str:
     side = {"l": "left ", "r": "right "}.get(parts[-1], "") if len(parts) > 1 else ""
     core = "_".join(parts[:-1]) if side else base
     return side + PART_NAMES.get(core, core.replace("_", " "))
+
+
+def _locations(rig: AvatarRig, anim: AvatarAnimation, a: int, b: int) -> np.ndarray | None:
+    """(b - a, N, 3) every rig bone's pose location when bones other than the root carry one (an
+    output's root bone under root motion, read back: `blender/review.played_animation`), else None."""
+    if not anim.bone_locations:
+        return None
+    index = {n: i for i, n in enumerate(rig.names)}
+    out = np.zeros((b - a, len(rig.names), 3))
+    out[:, rig.root] = anim.root_location[a:b]
+    for name, loc in anim.bone_locations.items():
+        if name in index:
+            out[:, index[name]] = np.asarray(loc)[a:b]
+    return out
 
 
 def _side(s: str) -> str:
