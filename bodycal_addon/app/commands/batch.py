@@ -51,7 +51,7 @@ def run(args) -> int:
         else:
             summary = run_batch(args.jobs, log=console.say, progress=step, review=args.review)
     if args.review:  # the page is the batch's, made from its summary and the jobs' records
-        from ..review_page import write_page
+        from ...output.review_page import write_page
 
         console.say(f"saved {write_page(Path(summary['summary_file']).parent, summary)}")
     console.say(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}))

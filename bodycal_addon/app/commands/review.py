@@ -13,7 +13,7 @@ def run(args) -> int:
 
     target = Path(args.output)
     if target.is_dir():
-        from ..review_page import write_page
+        from ...output.review_page import write_page
 
         if args.source or args.sheet:
             raise BodyCalError("is a folder: its review page is made from its jobs' records; --source and -o "

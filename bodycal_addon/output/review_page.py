@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import html
 import json
+import os
 from pathlib import Path
 from urllib.parse import quote
 
 from ..core import outputs
-from ..output.review import Review
+from .review import Review
 
 PAGE_NAME = "review.html"
 RECORD_SUFFIX = ".review.json"
@@ -98,7 +99,8 @@ def page(folder: Path, summary: dict | None = None) -> str:
     items = rows(folder, summary)
     flagged = sum(1 for r in items if r["status"] != "ok" or (r["review"] and r["review"].over))
     body = [f"<h1>BodyCal review: {html.escape(folder.name or str(folder))}</h1>",
-            f'<p class="counts">{len(items)} jobs; {flagged} flagged (red), worst first. '
+            f'<p class="counts">{len(items)} job{"" if len(items) == 1 else "s"}; {flagged} flagged (red), '
+            "worst first. "
             "Each figure against its limit: docs/FORMATS.md §4.5.</p>",
             "<table><thead><tr><th>job</th><th>status</th><th>flags</th><th>sheet</th><th>outputs</th></tr></thead>",
             "<tbody>"]
@@ -111,12 +113,9 @@ def page(folder: Path, summary: dict | None = None) -> str:
 
 
 def _link(folder: Path, path: str) -> str:
+    """A link to an output, relative to the page's folder (the page and the outputs move together)."""
     p = Path(path)
-    try:
-        rel = p.resolve().relative_to(folder.resolve()).as_posix() if p.is_absolute() else p.as_posix()
-    except ValueError:
-        rel = p.resolve().as_uri()
-        return f'<a href="{html.escape(rel)}">{html.escape(p.name)}</a>'
+    rel = Path(os.path.relpath(p.resolve(), folder.resolve())).as_posix()
     return f'<a href="{html.escape(quote(rel))}">{html.escape(p.name)}</a>'
 
 
@@ -138,7 +137,7 @@ def _row(folder: Path, row: dict) -> str:
         sheet = (f'<a href="{src}"><img class="sheet" src="{src}" alt="review sheet of {html.escape(row["job"])}" '
                  f'onload="{ON_LOAD}" onerror="{html.escape(ON_ERROR)}"></a>')
     links = " ".join(_link(folder, o) for o in row["outputs"])
-    cls = ' class="failed"' if failed or (review is not None and review.over) else ""
+    cls = ' class="failed"' if failed else ' class="flagged"' if review is not None and review.over else ""
     return (f"<tr{cls}><td>{html.escape(row['job'])}</td><td class=\"status\">{status}</td><td>{flag_cell}</td>"
             f"<td>{sheet}</td><td>{links}</td></tr>")
 
