@@ -68,10 +68,10 @@ def effector_segments(effector: str) -> list[str]:
         f"{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)] + [f"metacarpal_{f}_{side}" for f in sk.FINGERS]
 
 
-def effector_bones(avatar: BodyModel, effector: str) -> set[str]:
-    """The avatar's bones of the effector's own arm (or leg): the skin its contact gap leaves out."""
+def target_bones(avatar: BodyModel, target: str) -> set[str]:
+    """The avatar's bones whose skin is the touched element `target` (`target_segments`)."""
     bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
-    return _segment_bones(bm, effector_segments(effector))
+    return _segment_bones(bm, target_segments(target))
 
 
 def _segment_bones(bone_map: naming.BoneMap, segments) -> set[str]:

@@ -72,8 +72,9 @@ def measure(plan: engine.ReviewPlan, arm, avatar) -> engine.Review:
                     skin[s] = lows[s]["low"][k:k + len(f)]
                 k += len(f)
         if plan.contact_point is not None:
-            index, effector, _target, point, offset = plan.contact_point
-            tris = mesh.triangles_without(mesh_metrics.effector_bones(avatar, effector))
+            index, _effector, target, point, offset = plan.contact_point
+            # the touched part's skin, as the model's gap is to the touched element
+            tris = mesh.triangles_of(mesh_metrics.target_bones(avatar, target))
             verts = at(plan.scene_frames[index])
             contact_gap = mesh_metrics.gap_to_skin(verts, tris, np.asarray(point, float)) - offset
     return plan.conclude(skin or None, None if contact_gap is None or not np.isfinite(contact_gap) else contact_gap)

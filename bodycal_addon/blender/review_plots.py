@@ -50,7 +50,7 @@ def _compose(review, frames, out, plots_px, Figure, FigureCanvasAgg, MaxNLocator
     top.imshow(frames, interpolation="nearest")
     top.set_axis_off()
     bottom = plots_px / (h + plots_px)
-    grid = fig.add_gridspec(2, 2, left=0.06, right=0.99, bottom=0.05 * bottom, top=0.93 * bottom,
+    grid = fig.add_gridspec(2, 2, left=0.06, right=0.99, bottom=0.09 * bottom, top=0.93 * bottom,
                             hspace=0.45, wspace=0.14)
     axes = [fig.add_subplot(grid[i, j]) for i in range(2) for j in range(2)]
     s = review.series

@@ -7,9 +7,10 @@ the few frames this module asks for (blender/review.py) and draws the sheet.
 Every figure is `metrics`' (DESIGN.md §7), the benchmarks' own, with their limits:
 - contact gap: the source's self-contacts found on the source (its palm's skin within
   CONTACT_MM of its own body, the elements of its own arm left out: `metrics.contact_gap`), and
-  in those frames the avatar's palm to its calibrated body model (`metrics.model_contact_gaps`,
-  bench_retarget_quality's second figure); flagged past `metrics.CONTACT_GAP_P95_MM` (p95 of
-  |gap|). The worst frame's gap is measured on the evaluated mesh too (the sheet's label);
+  in those frames the avatar's palm to the touched element of its calibrated body model
+  (`metrics.model_contact_gaps`, bench_retarget_quality's second figure); flagged past
+  `metrics.CONTACT_GAP_P95_MM` (p95 of |gap|). The worst frame's gap is measured on the touched
+  part's evaluated skin too (`mesh_metrics.contact_gaps`' `against="target"`: the sheet's label);
 - foot skin: the lowest skin of each foot on the evaluated mesh (`mesh_metrics.foot_skin`, as
   bench_real_motion) at the frames where the avatar's sole points (its body model's outline and
   contact points, `metrics.foot_points`) are lowest; flagged below `metrics.FOOT_SKIN_LOWEST_MM`;

@@ -65,7 +65,7 @@ def test_the_sources_self_contacts_are_the_performers(take, reviews):
         assert recall >= 0.95, (key, recall)
         near |= np.convolve(c["frames"], np.ones(2 * int(0.3 * FPS) + 1), "same") > 0
     extra = total = 0
-    for (effector, target), frames in found.items():
+    for (effector, _target), frames in found.items():
         total += frames.sum()
         mirrored = (f"palm_{'l' if effector[-1] == 'r' else 'r'}", f"mesh:{effector}")  # a clap: the other palm
         if not any((c["effector"], c["target"].split("/")[0]) == mirrored for c in truth.contacts):
