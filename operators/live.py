@@ -12,6 +12,7 @@ from .bake_settings import BakeOperator, can_bake_in, method_items, selected_arm
 from .preferences import method_property
 from .recording import STEP_MARKER_ITEMS
 from .reporting import reports_errors
+from .review import BODYCAL_PG_review_flag
 
 USER_ITEMS = [
     ("scene", "Scene's Performer", "The performer calibrated in this scene (User Calibration)"),
@@ -42,6 +43,8 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
         description="Timeline markers for the calibration steps of the recorded take")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last Bake Take's figures, per avatar")
+    review_flags: bpy.props.CollectionProperty(type=BODYCAL_PG_review_flag, name="Review",
+                                               description="The last bake\'s review: its figures against their limits")
     use_workers: bpy.props.BoolProperty(
         name="Solve in Worker Processes", default=True,
         description="When more than one avatar follows, solve each in a process of its own so that they use several "

@@ -121,7 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "Manager's API; run nothing")
     c.add_argument("--retries", type=int, default=0, metavar="N",
                    help="with --cluster: submit a job again, up to N times, when the worker running it died")
+    c.add_argument("--review", action="store_true",
+                   help="every job reviews its bake (retarget --review) and OUTPUT_DIR/review.html lists them, worst "
+                        "first; exported farm jobs get a last step that writes the page (docs/FORMATS.md §4.5)")
 
+    _review_command(sub)
     _live_commands(sub)
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
@@ -151,6 +155,29 @@ def _hands_argument(c) -> None:
                    help="A-Frame .json and Beat Saber .bsor recordings: geometry: the controller on the headset's "
                         "right most of the time is the right hand (default; the file's labels when that does not "
                         "decide); labels: as the file labels them; swapped: the labels swapped")
+
+
+def _review_command(sub) -> None:
+    c = sub.add_parser("review", help="the review sheet of a baked avatar file, or a batch's review page")
+    c.add_argument("output", metavar="OUTPUT|DIR",
+                   help="a baked avatar (.blend, .fbx, .glb, .gltf: what retarget, transfer or batch wrote): its "
+                        "sheet OUTPUT.review.png and record OUTPUT.review.json; or a batch's output folder: "
+                        "DIR/review.html from its jobs' reviews (docs/FORMATS.md §4.5)")
+    c.add_argument("--armature", metavar="NAME", help="the baked armature (default: the only one in the file)")
+    c.add_argument("--source", metavar="SOURCE",
+                   help="what the output was made from, to compare with: a recording (.bcrec.json, .csv, .c3d; "
+                        "with --user) or an animated character (.blend, .bvh, .fbx, .glb, .gltf)")
+    c.add_argument("--user", metavar="USER.body.json", help="the performer's body model, for a recording --source")
+    c.add_argument("--source-armature", metavar="NAME", help="a character --source's armature (default: the only one)")
+    c.add_argument("--action", metavar="NAME", help="a character --source's action (default: its active one)")
+    c.add_argument("--no-filter", action="store_true",
+                   help="a recording --source as recorded (default: smoothed as retarget smooths it)")
+    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
+                   help="where the bake played the performance (as retarget --placement): where the sheet draws "
+                        "the source beside the avatar")
+    c.add_argument("-o", "--sheet", metavar="SHEET.png",
+                   help="where the sheet goes (default: beside OUTPUT); its record beside it")
+    c.add_argument("--overwrite", action="store_true", help="replace the sheet and record if they exist")
 
 
 def _live_commands(sub) -> None:
@@ -265,6 +292,9 @@ def _bake_arguments(c, rate_of: str) -> None:
                    help="a .blend (the avatar's file with the new action), or an export of the avatar "
                         "and its baked action for game engines; give -o several times for several files")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+    c.add_argument("--review", action="store_true",
+                   help="also review the bake: OUT.review.png (the frames that matter and the figures over the take, "
+                        "flagged against their limits) and OUT.review.json beside the first -o (docs/FORMATS.md §4.5)")
 
 
 def _handler(command: str) -> Callable[[argparse.Namespace], int]:

@@ -15,10 +15,10 @@ from outside_takes import clip_performer, outside_recording
 from bodycal_addon.avatar import foot_contact
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.output import metrics
 from bodycal_addon.recording.filters import OneEuro, filter_recording
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.avatar_pose import AvatarRig
-from evaluation import measure
 
 STOP = "131_01_start_walk_stop.bvh"
 FPS = 90.0
@@ -98,13 +98,13 @@ def test_the_skin_of_the_feet_stays_on_the_floor_and_put(child, walk, method):
     k = rig.leg_length() / leg_src
     skin = mesh_metrics.foot_skin(arm, avatar, anim, np.arange(a, b))
     for s in "lr":
-        down = {part: measure.contact(T[:, J[f"{joint}_{s}"]], FPS) for part, joint in (("heel", "ankle"),
+        down = {part: metrics.ground_contact(T[:, J[f"{joint}_{s}"]], FPS) for part, joint in (("heel", "ankle"),
                                                                                         ("ball", "toe"))}
         low = skin[s]["low"][down["heel"] | down["ball"]] * 1000
         assert abs(np.median(low)) <= 5.0 and low.min() >= -10.0, (method, s, np.median(low), low.min())
         for part, joint in (("heel", "ankle"), ("ball", "toe")):
-            mine = measure.slide_p95_mm(skin[s][part], down[part], FPS)
-            src = measure.slide_p95_mm(T[:, J[f"{joint}_{s}"]], down[part], FPS) * k
+            mine = metrics.slide_p95_mm(skin[s][part], down[part], FPS)
+            src = metrics.slide_p95_mm(T[:, J[f"{joint}_{s}"]], down[part], FPS) * k
             assert mine <= 1.5 * src, (method, s, part, mine, src)
             # continuity: the skin point's step between two frames both down, against the source's own
             both = down[part][1:] & down[part][:-1]

@@ -14,13 +14,13 @@ from bodycal_addon.body.rest_frames import complete_joints
 from bodycal_addon.body.skeleton import BONE_INDEX as BI
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.output import metrics
 from bodycal_addon.recording.filters import OneEuro, filter_recording
 from bodycal_addon.retarget import feet, offsets
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_addon.retarget.avatar_pose import AvatarRig
 from bodycal_addon.retarget.solver_methods import surface_correction
 from bodycal_dev import retarget_fixtures as rt
-from evaluation import measure
 
 STOP = "131_01_start_walk_stop.bvh"
 FPS = 90.0
@@ -113,7 +113,7 @@ def test_heel_and_ball_planted_on_the_floor_on_a_real_walk(walk, method):
         support = ankle[:, None] + np.einsum("fij,kj->fki", frame, np.asarray(c["support"]))
         # no contact point under the floor (the plant's guard; the IK reaches its targets)
         assert support[..., 2].min() > -0.002, (method, s)
-        down = {part: measure.contact(T[:, J[f"{joint}_{s}"]], FPS) for part, joint in (("heel", "ankle"),
+        down = {part: metrics.ground_contact(T[:, J[f"{joint}_{s}"]], FPS) for part, joint in (("heel", "ankle"),
                                                                                         ("ball", "toe"))}
         # the sole on the floor while the clip's foot is down (median of its lowest point)
         assert abs(np.median(support[down["heel"] | down["ball"], :, 2].min(axis=1))) < 0.005, (method, s)
@@ -150,7 +150,7 @@ def test_the_planted_ankle_moves_as_smoothly_as_the_clip_s_on_a_real_walk(walk, 
 
     for s in "lr":
         mine = anim.joints_world[f"ankle_{s}"].astype(float)
-        ratio = measure.accel_p95(mine[a:b], FPS) / (measure.accel_p95(T[a:b, J[f"ankle_{s}"]], FPS) * k)
+        ratio = metrics.acceleration_p95(mine[a:b], FPS) / (metrics.acceleration_p95(T[a:b, J[f"ankle_{s}"]], FPS) * k)
         assert ratio <= 1.3, (method, s, ratio)
         e = easing[s][1:-1] & (np.arange(1, len(mine) - 1) >= a) & (np.arange(1, len(mine) - 1) < b)
         assert e.sum() > 50
