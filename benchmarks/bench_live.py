@@ -12,14 +12,14 @@ streams 30 s.
 `bodycal stream --loop` sends a synthetic full-profile take (15 devices with their roles, 16 markers)
 at 90 Hz in its own process, pumped in three modes (`--modes`): `fixed`, a pump every 1/90 s
 whatever the stream does (the loop before the pump's clock); `timer`, the UI timer's loop
-(`live.pump_for(wake_on_arrival=False)`: the pump's clock, retarget/pump_clock.py, says when to
+(`live.pump_for(wake_on_arrival=False)`: the pump's clock, live/pump_clock.py, says when to
 look, the loop sleeps until then); `event`, a headless station's loop (`pump_for`'s default: the
 same clock, the sleep cut short by a frame's arrival); each mode's time is taken in `--rounds`
 turns in rotation, so the load's drift falls on every mode alike. `no_avatar`: nobody follows, so a frame's
 wait from its arrival to the pump taking it is the loop's scheduling alone. `one_avatar` and
 `three_avatars`: procedural avatars following with the egocentric method, feet planted, root motion
 on the root bone, solved in the pump's process; `three_avatars_processes`: the same three, each
-solved in a worker process of its own (retarget/live_worker.py; `--rows` picks the rows). Latency:
+solved in a worker process of its own (live/worker.py; `--rows` picks the rows). Latency:
 every pose set, from the arrival (`LiveFrame.arrival`, the receiver's clock) of the frame the
 avatar was solved from (the pump's own, or for an avatar solved in the pump's process after
 another, the newest there was when its turn came, or the one a pump catching up gave it:

@@ -6,7 +6,7 @@ import bpy
 
 from ..bodycal_addon.blender import live
 from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.retarget.live_session import solve_in_workers
+from ..bodycal_addon.live.session import solve_in_workers
 from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property

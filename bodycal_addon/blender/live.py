@@ -7,7 +7,7 @@
     pump_for(seconds)                # background Blender (headless stations, the bench): the timer's loop
     stop_following(); disconnect()   # every armature exactly as it was
 
-Each pump takes the stream's newest frame (retarget/live_session.py), moves the live empties (one per
+Each pump takes the stream's newest frame (live/session.py), moves the live empties (one per
 device and marker, named and drawn as the importer makes them, in their own collection) and sets
 each follower's solved pose on its armature with `foreach_set` (preview.PoseWriter). Nothing here
 is an operator: no undo step is made and the file is not marked changed; the viewport is only
@@ -17,7 +17,7 @@ modes and values when it stops (pose_state.PoseState). A file saved while live h
 live pose nor the live empties (save_pre puts everything back, save_post takes it up again);
 loading another file ends the session.
 
-The pump is locked onto the stream (retarget/pump_clock.py): `tick` pumps and says when to look
+The pump is locked onto the stream (live/pump_clock.py): `tick` pumps and says when to look
 again, at the next frame's expected arrival; the UI's timer returns that delay to Blender (a frame
 due within `UI_BLOCK_S` is waited for, never longer), `pump_for` sleeps it, or wakes as soon as a
 frame arrives (`wake_on_arrival`, a loop that may block).
@@ -37,13 +37,13 @@ from ..body import naming
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
+from ..live.session import LiveSession, LiveUpdate
 from ..output.root_motion import apply_root_motion, check_root_motion
 from ..recording.filters import OneEuro
 from ..recording.io import load_recording
 from ..recording.live.receiver import VmcReceiver
 from ..recording.live.vmc import DEFAULT_PORT
 from ..recording.live.wizard import LiveWizard
-from ..retarget.live_session import LiveSession, LiveUpdate
 from . import avatar_rig, preview, recording_scene, rig_output
 from .pose_state import PoseState
 from .session import prepare_target
@@ -154,7 +154,7 @@ def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro 
            worker: bool = False) -> Following:
     """`arm` follows the stream from the next frame: `user` (the performer's model) onto the
     armature's avatar model (measured now when it has none stored) by `method`; `worker`: solved
-    in a process of its own (retarget/live_worker.py: several avatars on several cores)."""
+    in a process of its own (live/worker.py: several avatars on several cores)."""
     live = _need_session()
     check_root_motion(root_motion)
     preview.stop(arm.name)  # the preview's pose put back first: the armature as the user left it

@@ -20,11 +20,11 @@ from repo_paths import REPO
 from bodycal_addon.blender import calibration_scene, recording_scene
 from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 from bodycal_addon.core import paths
+from bodycal_addon.live.solver import LiveSolver
 from bodycal_addon.recording.io import load_recording, save_recording
 from bodycal_addon.recording.live.sender import RecordingMessages, VmcSender
 from bodycal_addon.recording.live.vmc import AVAILABLE, TIME, bundles, message
 from bodycal_addon.recording.model import Device
-from bodycal_addon.retarget.live import LiveSolver
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -542,7 +542,7 @@ def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
 def test_the_pump_takes_each_frame_once_the_moment_it_waits_and_the_timer_keeps_to_the_beat(take, tmp_path):
     """`pump_for` (a headless station's loop) and the timer share `tick`: a turn takes the frame
     waiting, never one twice; between frames the timer waits what the session's clock says, never longer
-    than a display interval (retarget/pump_clock.py: the schedule itself is tested on an injected
+    than a display interval (live/pump_clock.py: the schedule itself is tested on an injected
     clock in tests/engine/test_pump_clock.py)."""
     rec, _truth = take
     live.connect(0, timer=False)

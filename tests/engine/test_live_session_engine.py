@@ -1,4 +1,4 @@
-"""The live session (retarget/live_session.py), fed by a source stand-in on this thread: the device
+"""The live session (live/session.py), fed by a source stand-in on this thread: the device
 table (kinds, roles with the user's first, rates, frames missed), the recorder seeing every frame
 while the pump takes only the newest, a follower that waits for the roles it needs and then
 gives LiveSolver's poses, and followers solved in worker processes: the same poses, a worker that
@@ -16,11 +16,11 @@ import pytest
 from processes import still_alive
 
 from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.live.session import LiveSession, RigLayout, WorkerFollower, solve_in_workers
+from bodycal_addon.live.solver import LiveSolver
+from bodycal_addon.live.worker import ENGINE_DIR
 from bodycal_addon.recording.live.source import LatestSlot, LiveFrame, SourceStats
 from bodycal_addon.recording.model import Device
-from bodycal_addon.retarget.live import LiveSolver
-from bodycal_addon.retarget.live_session import LiveSession, RigLayout, WorkerFollower, solve_in_workers
-from bodycal_addon.retarget.live_worker import ENGINE_DIR
 from bodycal_dev import synthetic
 from bodycal_dev.retarget_fixtures import procedural_avatar
 
@@ -239,7 +239,7 @@ def test_the_pump_learns_the_streams_beat_and_says_when_to_look_again(take):
     assert session.next_delay(now) == pytest.approx(1 / 90.0 - 0.004 + session.clock.margin_s)
 
 
-# --- followers in worker processes (retarget/live_worker.py) ------------------------------------------
+# --- followers in worker processes (live/worker.py) ------------------------------------------
 
 
 def _start_workers(session, names, deadline):
@@ -309,7 +309,7 @@ def test_followers_in_worker_processes_give_live_solvers_poses_bit_for_bit(take)
 def test_a_worker_that_ends_or_hangs_is_one_line_and_its_avatar_goes_on_here(take, monkeypatch):
     """One worker killed, one stopped (it gives no answer) mid-session: each is said once, the
     stopped one is killed, and both avatars go on being solved in this process."""
-    from bodycal_addon.retarget import live_session
+    from bodycal_addon.live import session as live_session
 
     monkeypatch.setattr(live_session, "ANSWER_S", 0.5)
     rec, user = take
@@ -358,7 +358,7 @@ def test_a_worker_ends_when_the_process_that_started_it_dies():
     """No orphan: a process killed while its worker runs (a crash) takes the worker with it (the
     worker sees its stdin close)."""
     code = ("import os, signal, sys, time; sys.path.insert(0, sys.argv[1])\n"
-            "from bodycal_addon.retarget.live_worker import SolverProcess\n"
+            "from bodycal_addon.live.worker import SolverProcess\n"
             "p = SolverProcess('x')\n"
             "while p.starting: time.sleep(0.01)\n"
             "print(p.pid, p.alive(), flush=True)\n"
@@ -408,9 +408,9 @@ def test_a_model_json_cannot_carry_is_one_line_and_the_avatar_is_solved_here(tak
 
 
 def test_the_worker_imports_numpy_and_the_engine_only():
-    """What the child process imports (live_worker.py as a top-level `bodycal_addon`, as BOOTSTRAP
+    """What the child process imports (live/worker.py as a top-level `bodycal_addon`, as BOOTSTRAP
     does): no bpy (it runs outside Blender), no python-osc (not on its path in Blender)."""
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); import bodycal_addon.retarget.live_worker; "
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import bodycal_addon.live.worker; "
             "print(sorted({m.split('.')[0] for m in sys.modules}))")
     out = subprocess.run([sys.executable, "-I", "-c", code, str(ENGINE_DIR)], capture_output=True, text=True,
                          check=True)

@@ -2,14 +2,14 @@
 [--bind ADDRESS] [--role NAME=ROLE ...] [--duration S] [--worker] [--no-filter] [--no-plant-feet]` (FORMATS.md §6):
 a performer's VMC stream retargeted frame by frame and sent on as the avatar's VMC bones.
 
-The receiver's latest frame is solved as soon as it is taken (`retarget.live_session.LiveSession`,
-the Live panel's too, whose follower runs `retarget.live.LiveSolver`: the causal stance and, unless
+The receiver's latest frame is solved as soon as it is taken (`live.session.LiveSession`,
+the Live panel's too, whose follower runs `live.solver.LiveSolver`: the causal stance and, unless
 `--no-filter`, the forward One Euro), and the pose goes out at once
 (`output.vmc_bones.AvatarVmcOut`); frames that arrive while a solve runs are dropped by the
 receiver, counted and said. Devices get their roles from the stream's announcements (`bodycal
 stream` sends them) or `--role NAME=ROLE`; the solve starts once the HMD, both hands, the pelvis and
 both feet have roles and have been seen. `--worker` solves in a worker process of its own
-(`retarget.live_worker`): the receiver's thread then never waits for the solve to let go of the
+(`live.worker`): the receiver's thread then never waits for the solve to let go of the
 GIL. Ctrl-C (or `--duration`) ends it; a summary line says how many frames were solved and how
 long a solve took."""
 
@@ -46,10 +46,10 @@ def _models(args):
 
 
 def run(args) -> int:
+    from ...live.session import LiveSession
     from ...recording.filters import OneEuro
     from ...recording.live.receiver import VmcReceiver
     from ...recording.live.sender import VmcSender
-    from ...retarget.live_session import LiveSession
 
     host, out_port = send_target(args.send)  # the arguments first, then the files
     roles = parse_roles(args.role)

@@ -48,9 +48,9 @@ from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro
 from ..recording.model import Device
-from .avatar_pose import AvatarRig
-from .live import LiveSolver
-from .solver import SolvedFrames
+from ..retarget.avatar_pose import AvatarRig
+from ..retarget.solver import SolvedFrames
+from .solver import LiveSolver
 
 ENGINE_DIR = Path(__file__).resolve().parents[2]  # the folder holding `bodycal_addon` (the extension's own)
 START_S = 60.0  # a worker not up by then (a cold disk, a stuck import) is killed: the follower solves here
@@ -68,7 +68,7 @@ def _watch():
 threading.Thread(target=_watch, daemon=True).start()
 sys.path.insert(0, sys.argv[1])
 try:
-    from bodycal_addon.retarget.live_worker import serve
+    from bodycal_addon.live.worker import serve
     serve(key)
 except BaseException:
     import traceback

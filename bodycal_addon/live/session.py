@@ -14,9 +14,9 @@ The source's thread gives every frame to the session's sink (`_on_frame`), which
 device's frames (its rate), keeps the kinds and roles the stream announces and hands the frame on
 to the recorder when one runs; it copies, it does not compute. `pump` takes the latest frame (a
 consumer that falls behind gets the newest one: the source counts those it missed) and solves it
-for each follower with its `LiveSolver` (retarget/live.py): the causal stance and the forward One
+for each follower with its `LiveSolver` (live/solver.py): the causal stance and the forward One
 Euro, from the frames so far only. A follower made with `worker=True` (`WorkerFollower`) solves in a
-process of its own (retarget/live_worker.py), so several avatars use several cores: the pump sends
+process of its own (live/worker.py), so several avatars use several cores: the pump sends
 the frame to every worker first, solves the followers of this process meanwhile, then sets each
 worker's pose as its answer comes. Each follower of this process after the first solves the newest
 frame there is when its turn comes (a frame that came during the solves before it): its pose is
@@ -50,10 +50,10 @@ from ..recording.filters import OneEuro
 from ..recording.live.recorder import LiveRecorder
 from ..recording.live.source import LiveFrame, LiveSource
 from ..recording.model import Device
-from .live import LiveSolver
-from .live_worker import SolverProcess, frame_message, pickled, prepare_message, solved_from
+from ..retarget.solver import SolvedFrames
 from .pump_clock import PumpClock
-from .solver import SolvedFrames
+from .solver import LiveSolver
+from .worker import SolverProcess, frame_message, pickled, prepare_message, solved_from
 
 RATE_WINDOW_S = 1.0  # a device's rate: its frames over the last second
 STATS_WINDOW = 512  # solve times and latencies kept per follower (the figures shown are over these)
@@ -145,7 +145,7 @@ class Follower:
                                hint="calibrate the avatar first")
         self.name, self.user, self.avatar, self.method = name, user, avatar, method
         self.smooth, self.plant_feet, self.placement = smooth, plant_feet, placement
-        self.solver = None  # retarget.live.LiveSolver, once prepared
+        self.solver = None  # live.solver.LiveSolver, once prepared
         self.order: dict[str, int] = {}  # device name -> its column in the solver's arrays
         self.marker_order: dict[str, int] = {}  # marker name -> its column (LED gloves: the fingers)
         self.stats = FollowerStats()
@@ -252,7 +252,7 @@ class Follower:
 
 
 class WorkerFollower(Follower):
-    """A Follower whose LiveSolver runs in a worker process (live_worker.py): the same solver, fed
+    """A Follower whose LiveSolver runs in a worker process (worker.py): the same solver, fed
     the same arrays, so the same poses. The process starts when the follower is made (`state`
     "starting"), is given the models and devices once the roles are there ("preparing": no frame
     is waited for until its first pose, so neither the start nor the solver's preparation holds
