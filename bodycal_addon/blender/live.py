@@ -7,9 +7,11 @@
     pump_for(seconds)                # background Blender (headless stations, the bench): the timer's loop
     stop_following(); disconnect()   # every armature exactly as it was
 
-Each pump takes the stream's newest frame (live/session.py), moves the live empties (one per
-device and marker, named and drawn as the importer makes them, in their own collection) and sets
-each follower's solved pose on its armature with `foreach_set` (preview.PoseWriter). Nothing here
+Each pump takes the stream's newest frame (live/session.py) and moves the live empties (one per
+device and marker, named and drawn as the importer makes them, in their own collection), and sets
+each pose the followers solved since on its armature with `foreach_set` (preview.PoseWriter). The
+solves run elsewhere (each avatar in a worker process of its own by default, else on the session's
+solving thread): this thread never solves and never waits for a solve. Nothing here
 is an operator: no undo step is made and the file is not marked changed; the viewport is only
 asked to redraw. While an armature follows, its action and NLA are set aside (the animation
 system would overwrite the pose on the next frame change) and put back with its pose, rotation
@@ -18,9 +20,10 @@ live pose nor the live empties (save_pre puts everything back, save_post takes i
 loading another file ends the session.
 
 The pump is locked onto the stream (live/pump_clock.py): `tick` pumps and says when to look
-again, at the next frame's expected arrival; the UI's timer returns that delay to Blender (a frame
-due within `UI_BLOCK_S` is waited for, never longer), `pump_for` sleeps it, or wakes as soon as a
-frame arrives (`wake_on_arrival`, a loop that may block).
+again, at the next frame's expected arrival or a pose's expected end, whichever is first; the UI's
+timer returns that delay to Blender (a frame or pose due within `UI_BLOCK_S` is waited for, never
+longer), `pump_for` sleeps it, or wakes as soon as a frame or a pose arrives (`wake_on_arrival`, a
+loop that may block).
 """
 
 from __future__ import annotations
@@ -151,10 +154,11 @@ def disconnect():
 
 def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro | None = None,
            plant_feet: bool = True, placement: str = "object", root_motion: str = "root",
-           worker: bool = False) -> Following:
+           worker: bool = True) -> Following:
     """`arm` follows the stream from the next frame: `user` (the performer's model) onto the
     armature's avatar model (measured now when it has none stored) by `method`; `worker`: solved
-    in a process of its own (live/worker.py: several avatars on several cores)."""
+    in a process of its own (live/worker.py: Blender's process never runs the solve, several
+    avatars use several cores), else on the session's solving thread in Blender's process."""
     live = _need_session()
     check_root_motion(root_motion)
     preview.stop(arm.name)  # the preview's pose put back first: the armature as the user left it
@@ -290,8 +294,8 @@ def stop_recording(folder: str = "", scene=None, step_markers: str = "starts"):
 
 
 def pump_once() -> LiveUpdate | None:
-    """Take the newest frame, set each follower's pose as soon as it is solved, then move the
-    empties and update the wizard (what nobody waits for comes last); None when no frame came."""
+    """Set each pose the followers solved since the last pump, then move the empties to the newest
+    frame and update the wizard (what nobody waits for comes last); None when nothing came."""
     live = _state.session
     if live is None:
         return None
@@ -301,7 +305,8 @@ def pump_once() -> LiveUpdate | None:
             print(f"BodyCal live: {line}")
         for name in [n for n in update.poses if n not in _state.following]:  # gone while following
             live.unfollow(name)
-        update_empties(update.frame, live.roles, live.kinds)
+        if update.frame is not None:
+            update_empties(update.frame, live.roles, live.kinds)
     if live.recorder is not None:
         _update_wizard(live)
     if update is not None:

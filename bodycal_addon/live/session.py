@@ -4,29 +4,26 @@ headless station's explicit pump (bodycal_addon/blender/live.py). No bpy.
 
     session = LiveSession(VmcReceiver(port, bind))
     session.start()
-    session.follow("avatar", user_model, avatar_model, "egocentric")
-    update = session.pump()          # the newest frame, its device poses, each follower's solved pose
-    delay = session.next_delay()     # when to look again (pump_clock.PumpClock, locked onto the stream)
+    session.follow("avatar", user_model, avatar_model, "egocentric", worker=True)
+    update = session.pump(on_pose)   # the newest frame (its device poses) and the poses solved since
+    delay = session.next_delay()     # when to look again: the stream's beat, a pose's expected answer
     session.start_recording("take"); ...; recorder = session.stop_recording()
     session.stop()
 
 The source's thread gives every frame to the session's sink (`_on_frame`), which counts each
-device's frames (its rate), keeps the kinds and roles the stream announces and hands the frame on
-to the recorder when one runs; it copies, it does not compute. `pump` takes the latest frame (a
-consumer that falls behind gets the newest one: the source counts those it missed) and solves it
-for each follower with its `LiveSolver` (live/solver.py): the causal stance and the forward One
-Euro, from the frames so far only. A follower made with `worker=True` (`WorkerFollower`) solves in a
-process of its own (live/worker.py), so several avatars use several cores: the pump sends
-the frame to every worker first, solves the followers of this process meanwhile, then sets each
-worker's pose as its answer comes. Each follower of this process after the first solves the newest
-frame there is when its turn comes (a frame that came during the solves before it): its pose is
-then one solve behind the stream, not the sum of the solves before it; the avatars of one pump
-show moments at most a few frames apart (`LiveUpdate.frames`). A follower left behind that way
-(solved before the newer frame came) is `behind`: the next pump is due at once and, if no newer
-frame has come by then, gives it the newest taken, so every avatar is still solved once a round of
-the others. The session's `clock`
-(pump_clock.PumpClock) learns the stream's beat from the frames taken and says when the next pump
-should look (`next_delay`); `wait` blocks until a frame is there, for a loop that may block.
+device's frames (its rate), keeps the kinds and roles the stream announces, hands the frame on to
+the recorder when one runs and wakes the session's solving thread; it copies, it does not compute.
+
+**The solving thread** (`_solve_loop`) hands each follower the newest frame the moment it arrives,
+or the moment the follower is done with the one before (latest wins: the frames it never got are
+counted, `FollowerStats.skipped`): a `WorkerFollower` is sent the frame (its process solves it;
+followers/worker.py), a `Follower` of this process is solved on this thread, after the workers
+were sent theirs and each on the newest frame there is when its turn comes. The answers wait in
+each follower's one-pose slot. So the thread that pumps (Blender's main thread) never solves and
+never waits for a solve: `pump` takes the newest frame and the poses that are there and calls
+`on_pose` for each (Blender writes it on the armature). `wait` blocks until a frame or a pose is
+there, for a loop that may block; the session's `clock` (pump_clock.PumpClock) learns the stream's
+beat from the frames taken, and `next_delay` says when to look again, for a loop that may not.
 
 It imports the recorder, hence python-osc (recording/live/__init__.py): only what runs a live
 session imports it.
@@ -34,39 +31,27 @@ session imports it.
 
 from __future__ import annotations
 
-import os
+import sys
 import threading
 import time
+import traceback
 from collections import deque
 from dataclasses import dataclass, field
+from multiprocessing.connection import Pipe
 from multiprocessing.connection import wait as wait_for_connections
 
-import numpy as np
-
 from ..body.bodymodel import BodyModel
-from ..calibration.coverage import ANIMATED_ROLES
 from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro
 from ..recording.live.recorder import LiveRecorder
 from ..recording.live.source import LiveFrame, LiveSource
-from ..recording.model import Device
 from ..retarget.solver import SolvedFrames
-from .pump_clock import PumpClock
-from .solver import LiveSolver
-from .worker import SolverProcess, frame_message, pickled, prepare_message, solved_from
+from .followers import Follower, WorkerFollower
+from .pump_clock import POLL_S, PumpClock
 
 RATE_WINDOW_S = 1.0  # a device's rate: its frames over the last second
-STATS_WINDOW = 512  # solve times and latencies kept per follower (the figures shown are over these)
-ANSWER_S = 2.0  # a worker that solved before and gives no answer to a frame in this long is stuck: ended
-
-
-def solve_in_workers(wanted: bool, avatars: int, cores: int | None = None) -> bool:
-    """Whether followers should solve in worker processes: when asked, more than one avatar follows
-    and the machine has a core for each (one avatar solves fastest here: no hand-over; with fewer
-    cores than avatars the workers wait for each other's cores, and the avatars solved here one
-    after the other, each on the newest frame at its turn, are set sooner: DESIGN.md section 9)."""
-    cores = os.cpu_count() if cores is None else cores
-    return bool(wanted) and avatars > 1 and (cores or 1) >= avatars
+IDLE_WAKE_S = 0.25  # the solving thread looks at its followers at least this often (a worker that ended)
+STOP_S = 5.0  # the longest `stop` and `unfollow` wait for the solving thread (it is milliseconds)
 
 
 def forward_filter(smooth: OneEuro | None) -> OneEuro | None:
@@ -91,353 +76,26 @@ class DeviceStatus:
 
 
 @dataclass
-class FollowerStats:
-    frames: int = 0  # frames solved
-    solve_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # wall clock
-    solve_cpu_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # the pump thread's CPU time
-    latency_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # arrival -> pose set
-    worker_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # a worker's own push (wall)
-
-    def line(self) -> str:
-        if not self.solve_ms:
-            return "no frame solved yet"
-        solve, lat = np.asarray(self.solve_ms), np.asarray(self.latency_ms or [np.nan])
-        return (f"solve {np.median(solve):.1f} ms, latency {np.median(lat):.1f} ms "
-                f"(p95 {np.percentile(lat, 95):.1f} ms)")
-
-
-def _scatter(names, columns: dict[str, int], first, second, seen) -> None:
-    """The frame's rows of `names` into their columns of the solver's arrays (`first` and `second`
-    are (the frame's rows, the solver's array) pairs), `seen` set where written."""
-    if not names:
-        return
-    cols = np.array([columns.get(name, -1) for name in names])
-    keep = cols >= 0
-    cols = cols[keep]
-    for rows, out in (first, second) if second is not None else (first,):
-        out[cols] = rows[keep]
-    seen[cols] = True
-
-
-@dataclass(frozen=True)
-class RigLayout:
-    """What a pose writer needs of the avatar's rig: the armature's name, the bones in the order of
-    `SolvedFrames.basis` and the root bone's index in it."""
-
-    armature: str
-    names: tuple[str, ...]
-    root: int
-
-
-class Follower:
-    """An avatar following the stream: `user` (the performer's calibrated model) onto `avatar` by
-    `method`. Its solver is made once every role the methods need has a device the stream has
-    named (`waiting_for` says which are missing until then)."""
-
-    in_worker = False  # solved in this process
-
-    def __init__(self, name: str, user: BodyModel, avatar: BodyModel, method: str = "egocentric", *,
-                 smooth: OneEuro | None = None, plant_feet: bool = True, placement: str = "object"):
-        if user.kind != "user":
-            raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=name)
-        if avatar.kind != "avatar" or "rig" not in avatar.extra:
-            raise BodyCalError("expected an avatar body model with its rig", source=name,
-                               hint="calibrate the avatar first")
-        self.name, self.user, self.avatar, self.method = name, user, avatar, method
-        self.smooth, self.plant_feet, self.placement = smooth, plant_feet, placement
-        self.solver = None  # live.solver.LiveSolver, once prepared
-        self.order: dict[str, int] = {}  # device name -> its column in the solver's arrays
-        self.marker_order: dict[str, int] = {}  # marker name -> its column (LED gloves: the fingers)
-        self.stats = FollowerStats()
-        self.last_index = -1  # the newest frame (LiveFrame.index) pushed to its solver or sent to its worker
-        self.waiting_for: list[str] = sorted(ANIMATED_ROLES)
-        self.note = ""  # the last thing to say about it (a worker that ended), one line
-        self._unsaid: list[str] = []  # lines for the pump to say (`said`)
-
-    @property
-    def ready(self) -> bool:
-        """Prepared: the next frame can be pushed."""
-        return self.solver is not None
-
-    @property
-    def state(self) -> str:
-        """"waiting" for devices, else "running" (a WorkerFollower also "starting" and "preparing")."""
-        return "running" if self.ready else "waiting"
-
-    @property
-    def layout(self) -> RigLayout | None:
-        """The rig's names and root (None until the first frame is solved)."""
-        prepared = self.solver.solver if self.solver is not None else None  # made at the first solve
-        if prepared is None:
-            return None
-        rig = prepared.rig
-        return RigLayout(rig.armature, tuple(rig.names), int(rig.root))
-
-    @property
-    def bone_names(self) -> list[str]:
-        layout = self.layout
-        return list(layout.names) if layout is not None else []
-
-    def _devices(self, kinds: dict[str, str], roles: dict[str, str], markers) -> list[Device] | None:
-        """The devices the solver reads (their columns in `order`, the markers' in `marker_order`),
-        or None while a role the methods need has no device the stream has named."""
-        named = {n: r for n, r in roles.items() if n in kinds and r}
-        self.waiting_for = sorted(set(ANIMATED_ROLES) - set(named.values()))
-        if self.waiting_for:
-            return None
-        devices = [Device(n, kinds[n], r) for n, r in named.items()]
-        self.order = {d.name: i for i, d in enumerate(devices)}
-        self.marker_order = {m: i for i, m in enumerate(markers)}
-        return devices
-
-    def prepare(self, kinds: dict[str, str], roles: dict[str, str], markers: list[str] | tuple = ()) -> bool:
-        """The solver, once every role the methods need has a device the stream has named; the
-        `markers` named by then pose the fingers (a marker first seen later is not read)."""
-        if self.solver is not None:
-            return True
-        devices = self._devices(kinds, roles, markers)
-        if devices is None:
-            return False
-        self.solver = LiveSolver(self.user, self.avatar, self.method, devices=devices, marker_names=list(markers),
-                                 smooth=self.smooth, plant_feet=self.plant_feet, placement=self.placement)
-        return True
-
-    def arrays(self, frame: LiveFrame) -> tuple:
-        """The frame as the solver's arrays: (time, positions (D, 3), rotations (D, 4), valid (D,),
-        marker points (M, 3) and seen (M,), or None without markers)."""
-        n, m = len(self.order), len(self.marker_order)
-        pos, rot, valid = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros(n, bool)
-        rot[:, 0] = 1.0
-        _scatter(frame.devices, self.order, (frame.positions, pos), (frame.rotations, rot), valid)
-        t = frame.sender_time if frame.sender_time is not None else frame.arrival
-        if not m:
-            return t, pos, rot, valid, None, None
-        points, seen = np.zeros((m, 3)), np.zeros(m, bool)
-        _scatter(frame.markers, self.marker_order, (frame.points, points), None, seen)
-        return t, pos, rot, valid, points, seen
-
-    @property
-    def columns(self) -> tuple:
-        """What `arrays` depends on besides the frame: followers with the same share them."""
-        return tuple(self.order), tuple(self.marker_order)
-
-    def push(self, frame: LiveFrame) -> SolvedFrames | None:
-        """The frame solved (one row), or None: a frame not newer than the last (a replay looping)
-        or one before every device the methods need has been tracked."""
-        arrays = self.arrays(frame)
-        t0, c0 = time.perf_counter(), time.thread_time()
-        solved = self.solver.push_newer(*arrays)
-        if solved is not None:
-            self.stats.solve_cpu_ms.append((time.thread_time() - c0) * 1000.0)
-            self.stats.solve_ms.append((time.perf_counter() - t0) * 1000.0)
-            self.stats.frames += 1
-        return solved
-
-    @property
-    def busy(self) -> bool:
-        """Solving a frame sent before (a worker): not to be sent the next."""
-        return False
-
-    def said(self) -> list[str]:
-        """The lines to say since the last call (a worker that ended, a solve that failed)."""
-        lines, self._unsaid = self._unsaid, []
-        return lines
-
-    def _say(self, line: str) -> None:
-        self.note = line
-        self._unsaid.append(line)
-
-    def close(self) -> None:
-        """Nothing to end here (a WorkerFollower ends its process)."""
-
-
-class WorkerFollower(Follower):
-    """A Follower whose LiveSolver runs in a worker process (worker.py): the same solver, fed
-    the same arrays, so the same poses. The process starts when the follower is made (`state`
-    "starting"), is given the models and devices once the roles are there ("preparing": no frame
-    is waited for until its first pose, so neither the start nor the solver's preparation holds
-    the pump up), then solves each frame it is sent ("running"). One frame in flight at most: a
-    worker still busy is not sent the next one (latest wins, as for the pump). A worker that cannot
-    start, ends or gives no answer in ANSWER_S is said in one line (`note`) and the follower goes
-    on solving in this process."""
-
-    def __init__(self, *args, executable: str | None = None, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.process: SolverProcess | None = SolverProcess(self.name, executable)
-        self.solving = False  # a pose has come: the worker's answers are waited for
-        self._layout: RigLayout | None = None
-        self._prepare_sent = False
-        self._in_flight: str | None = None  # "prepare" or "frame": what the worker has not answered yet
-        self._sent_at = 0.0
-
-    @property
-    def in_worker(self) -> bool:
-        return self.process is not None
-
-    @property
-    def connection(self):
-        return self.process.connection if self.process is not None else None
-
-    @property
-    def busy(self) -> bool:
-        return self.process is not None and self._in_flight is not None
-
-    @property
-    def ready(self) -> bool:
-        return super().ready if self.process is None else self._layout is not None
-
-    @property
-    def state(self) -> str:
-        if self.process is None:
-            return super().state
-        if self.process.connection is None:
-            return "starting"
-        if not self._prepare_sent:
-            return "waiting"
-        return "running" if self.solving else "preparing"
-
-    @property
-    def layout(self) -> RigLayout | None:
-        return super().layout if self.process is None else self._layout
-
-    def prepare(self, kinds: dict[str, str], roles: dict[str, str], markers: list[str] | tuple = ()) -> bool:
-        if self.process is None:
-            return super().prepare(kinds, roles, markers)
-        if self._layout is not None:
-            return True
-        if self.process.connection is None or self._prepare_sent:
-            return False
-        devices = self._devices(kinds, roles, markers)
-        if devices is None:
-            return False
-        try:
-            message = prepare_message(self.user, self.avatar, self.method, devices, list(markers), self.smooth,
-                                      self.plant_feet, self.placement)
-        except (TypeError, ValueError) as exc:  # a model JSON cannot hold (NaN): this process says what is wrong
-            self._fall_back(f"its models could not be sent to its worker ({exc})")
-            return False
-        if self._send(message, "prepare"):
-            self._prepare_sent = True
-        return False
-
-    def poll(self) -> None:
-        """Take an answer that came since (the preparation's, or a frame's not waited for) and
-        notice a worker that could not start or has ended."""
-        if self.process is None:
-            return
-        if self.process.error:
-            self._fall_back(self.process.error)
-            return
-        connection = self.process.connection
-        if connection is None:
-            return
-        if self._in_flight is None:
-            if not self.process.alive():
-                self._fall_back(self._ended())
-            return
-        try:
-            if connection.poll():
-                self._take(connection.recv(), waited=False)  # a pose of an older frame: not set
-        except (EOFError, OSError):
-            self._fall_back(self._ended())
-
-    def send(self, frame: LiveFrame, shared: dict | None = None) -> bool:
-        """The frame sent to the worker (True), or not: busy with the one before, or ended.
-        `shared` keeps the message made for one worker for the others with the same `columns`
-        (made and pickled once a frame)."""
-        if self.process is None or self._in_flight is not None:
-            return False
-        shared = {} if shared is None else shared
-        message = shared.get(self.columns)
-        if message is None:
-            message = shared[self.columns] = pickled(frame_message(*self.arrays(frame)))
-        return self._send(message, "frame")
-
-    def receive(self) -> SolvedFrames | None:
-        """The worker's answer to the frame sent (it is there: `connection` is ready): the pose, or
-        None."""
-        try:
-            return self._take(self.process.connection.recv())
-        except (EOFError, OSError):
-            self._fall_back(self._ended())
-            return None
-
-    def stuck(self) -> None:
-        """No answer in ANSWER_S: the worker is killed."""
-        self._fall_back(f"its worker process gave no answer in {ANSWER_S:g} s", kill=True)
-
-    def _send(self, message: tuple | memoryview, what: str) -> bool:
-        try:
-            if not isinstance(message, tuple):  # pickled already: what `send` would write
-                self.process.connection.send_bytes(message)
-            else:
-                self.process.connection.send(message)
-        except (OSError, ValueError):
-            self._fall_back(self._ended())
-            return False
-        self._in_flight, self._sent_at = what, time.perf_counter()
-        return True
-
-    def _take(self, reply: tuple, waited: bool = True) -> SolvedFrames | None:
-        what, self._in_flight = self._in_flight, None
-        kind = reply[0]
-        if kind == "ready":
-            self._layout = RigLayout(reply[1]["armature"], tuple(reply[1]["names"]), int(reply[1]["root"]))
-            return None
-        if kind == "error":
-            if what == "prepare":  # this process makes the same solver and says what is wrong with it
-                self._fall_back(f"its worker could not prepare ({reply[1]})")
-            else:
-                self._say(f"{self.name}: {reply[1]}")
-            return None
-        if kind == "pose":
-            self.solving = True
-            if not waited:
-                return None
-            self.stats.solve_ms.append((time.perf_counter() - self._sent_at) * 1000.0)
-            self.stats.solve_cpu_ms.append(reply[6])
-            self.stats.worker_ms.append(reply[7])
-            self.stats.frames += 1
-            return solved_from(reply)
-        return None  # "none": not newer than the last, or a needed device not tracked yet
-
-    def _ended(self) -> str:
-        code = self.process.exit_code() if self.process is not None else None
-        return "its worker process ended" + (f" (exit code {code})" if code is not None else "")
-
-    def _fall_back(self, reason: str, kill: bool = False) -> None:
-        process, self.process = self.process, None
-        if process is not None:
-            process.close(kill=kill)
-        self.solver, self._in_flight, self.solving = None, None, False
-        self._say(f"{self.name}: {reason}; solving it in this process from now on")
-
-    def close(self) -> None:
-        if self.process is not None:
-            self.process.close()
-
-
-@dataclass
 class LiveUpdate:
-    """What one pump brings: the newest frame it took (its device poses, internal frame) and each
-    follower's solved pose (None while it waits for devices or skipped the frame), with the frame
-    each pose was solved from (`frames`: the pump's first frame, or a newer one taken before a
-    follower's turn; `frame_of`), when (perf_counter) the pump took the first frame (`taken`) and
-    each follower's (`taken_at`), when each follower's solve was done and when its pose was set
-    (`LiveSession.posed`): the latency's stages."""
+    """What one pump brings: the newest frame it took (its device poses, internal frame; None when
+    only poses came) and each follower's result that came since the last pump: its pose (None: the
+    frame gave none, a needed device not tracked yet), the frame it was solved from (`frames`,
+    `frame_of`), when the frame was handed to its solver (`taken_at`), when it was solved
+    (`solved_at`) and when its pose was set (`LiveSession.posed`): the latency's stages. `taken` is
+    when the pump ran."""
 
-    frame: LiveFrame
+    frame: LiveFrame | None
     poses: dict[str, SolvedFrames | None]
     taken: float = 0.0
     frames: dict[str, LiveFrame] = field(default_factory=dict)
     taken_at: dict[str, float] = field(default_factory=dict)
     solved_at: dict[str, float] = field(default_factory=dict)
     posed_at: dict[str, float] = field(default_factory=dict)
-    pushed: set[str] = field(default_factory=set)  # the followers the frame was pushed to (here or sent)
+    pushed: set[str] = field(default_factory=set)  # the followers with a result in this update
     notes: list[str] = field(default_factory=list)  # lines to say (a worker that ended, a solve that failed)
-    cpu_ms: float = 0.0  # the pump's own CPU time (this thread: solves here, hand-overs, the on_pose calls)
+    cpu_ms: float = 0.0  # the pump's own CPU time (its thread: taking the results, the on_pose calls)
 
-    def frame_of(self, name: str) -> LiveFrame:
+    def frame_of(self, name: str) -> LiveFrame | None:
         """The frame `name`'s pose was solved from."""
         return self.frames.get(name, self.frame)
 
@@ -461,8 +119,17 @@ class LiveSession:
         self._marker_set: set[str] = set()
         self._stream_frames = 0
         self.recording_from = 0  # frames_seen when the recording started
-        self.last_frame: LiveFrame | None = None
+        self.last_frame: LiveFrame | None = None  # the newest frame the pump took
+        self.frames_not_taken = 0  # frames the pump never took (it ran slower than the stream): counted
         self.clock = PumpClock()
+        self._newest: LiveFrame | None = None  # the newest frame the sink saw
+        self._ready = threading.Event()  # a frame or a result waits for the pump
+        self._wake_r, self._wake_w = Pipe(duplex=False)  # the sink and the workers' starts wake the thread
+        self._wake_pending = False
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self._closing: list[Follower] = []  # followers the thread is to end (it owns their connections)
+        self._unsaid: list[str] = []  # the session's own lines (the solving thread's failures)
         source.add_sink(self._on_frame)
 
     # --- the source ---------------------------------------------------------------------------------
@@ -471,8 +138,15 @@ class LiveSession:
         self.source.start()
 
     def stop(self) -> None:
-        """Stop the source and end every follower's worker process."""
-        for follower in self.followers.values():
+        """Stop the source, the solving thread and every follower's worker process."""
+        self._stopping.set()
+        self._wake()
+        thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(STOP_S)
+        with self._lock:
+            followers, self._closing = list(self.followers.values()) + self._closing, []
+        for follower in followers:
             follower.close()
         self.source.stop()
 
@@ -503,9 +177,14 @@ class LiveSession:
                 self._first_frame.setdefault(name, k)
                 self._arrivals.setdefault(name, deque(maxlen=1024)).append(frame.arrival)
             self._stream_frames = k + 1
+            self._newest = frame
             recorder = self.recorder
+            following = bool(self.followers)
         if recorder is not None:
             recorder(frame)
+        self._ready.set()
+        if following:
+            self._wake()
 
     @property
     def frames_seen(self) -> int:
@@ -529,8 +208,9 @@ class LiveSession:
         from a T-pose (the wizard's first step)."""
         with self._lock:
             roles = dict(self._announced)
-        if self.recorder is not None:
-            roles.update(self.recorder.identified_roles)
+        recorder = self.recorder
+        if recorder is not None:
+            roles.update(recorder.identified_roles)
         roles.update(self.user_roles)
         return roles
 
@@ -553,22 +233,44 @@ class LiveSession:
 
     def follow(self, name: str, user: BodyModel, avatar: BodyModel, method: str = "egocentric", *,
                smooth: OneEuro | None = None, plant_feet: bool = True, placement: str = "object",
-               worker: bool = False) -> Follower:
+               worker: bool = False, executable: str | None = None) -> Follower:
         """`name` follows from the next frame (replacing a follower of that name). `smooth` is the
         whole-take One Euro configuration: it runs forward here (`forward_filter`). `worker`: solved
-        in a process of its own (`WorkerFollower`; `solve_in_workers` says when that pays)."""
-        kind = WorkerFollower if worker else Follower
-        follower = kind(name, user, avatar, method, smooth=forward_filter(smooth), plant_feet=plant_feet,
-                        placement=placement)
+        in a process of its own (`WorkerFollower`; `executable` the Python it runs, this one by
+        default), else on the session's solving thread."""
+        options = dict(smooth=forward_filter(smooth), plant_feet=plant_feet, placement=placement)
+        follower = (WorkerFollower(name, user, avatar, method, executable=executable, on_change=self._wake,
+                                   **options) if worker else Follower(name, user, avatar, method, **options))
         self.unfollow(name)
-        self.followers[name] = follower
+        with self._lock:
+            self.followers[name] = follower
+        self._start_thread()
+        self._wake()
         return follower
 
     def unfollow(self, name: str) -> Follower | None:
-        follower = self.followers.pop(name, None)
-        if follower is not None:
+        """`name` no longer follows; its worker process ends (the solving thread ends it: it owns
+        the connection) before this returns."""
+        with self._lock:
+            follower = self.followers.pop(name, None)
+            thread = self._thread
+            running = thread is not None and thread.is_alive() and thread is not threading.current_thread()
+            if follower is not None and running:
+                self._closing.append(follower)
+        if follower is None:
+            return None
+        if running:
+            self._wake()
+            deadline = time.perf_counter() + STOP_S
+            while not follower.closed and time.perf_counter() < deadline and thread.is_alive():
+                time.sleep(0.001)
+        if not follower.closed:
             follower.close()
         return follower
+
+    def _snapshot(self) -> list[Follower]:
+        with self._lock:
+            return list(self.followers.values())
 
     # --- recording ----------------------------------------------------------------------------------
 
@@ -594,41 +296,144 @@ class LiveSession:
     # --- the pump -------------------------------------------------------------------------------------
 
     def wait(self, timeout: float) -> bool:
-        """Block until a frame waits to be taken or a follower is `behind` (True), at most `timeout`
+        """Block until a frame or a follower's result waits for the pump (True), at most `timeout`
         s (False); `wait(0)` only says whether one does."""
-        return self.behind() or self.source.wait(timeout)
+        return self._ready.wait(timeout) if timeout > 0 else self._ready.is_set()
 
     def next_delay(self, now: float | None = None) -> float:
-        """Seconds until the pump should look for the next frame (pump_clock.PumpClock): 0 when one
-        waits, else its expected arrival from the stream's beat."""
-        return self.clock.next_delay(time.perf_counter() if now is None else now, self.wait(0))
+        """Seconds until the pump should look again: 0 when a frame or a result waits; else the
+        next frame's expected arrival (pump_clock.PumpClock) or a solve's expected end, whichever
+        comes first (once due, looked for every POLL_S)."""
+        if self.wait(0):
+            return 0.0
+        now = time.perf_counter() if now is None else now
+        delay = self.clock.next_delay(now)
+        for follower in self._snapshot():
+            done = follower.expected_done()
+            if done is not None:
+                delay = min(delay, max(done + self.clock.margin_s - now, POLL_S))
+        return delay
 
     def pump(self, on_pose=None) -> LiveUpdate | None:
-        """Take the latest frame and solve it for every follower; None when no new frame came and
-        no follower is `behind` (else those solve the newest taken: a pump catching up).
-        `on_pose(update, name)` is called as soon as each follower's pose is solved: the frame goes
-        to every worker first, the followers of this process are solved (each set before the next
-        solve; each after the first on the newest frame there is by then) while the workers solve
-        theirs, then each worker's pose is set as its answer comes (the first avatar does not wait
-        for the others)."""
-        frame = self.source.latest()
-        catching_up = frame is None
-        if catching_up:  # no new frame: the followers that have not solved the newest taken solve it
-            frame = self.last_frame
-            if frame is None or not self.behind():
-                return None
-        c0 = time.thread_time()
-        update = LiveUpdate(frame, {}, time.perf_counter())
-        if not catching_up:
-            self._took(frame)
-        kinds = roles = markers = None
-        here, sent, shared = [], [], {}
-        followers = list(self.followers.values())
+        """The newest frame not taken yet and every follower's result that came since the last
+        pump; None when neither came. `on_pose(update, name)` is called for each pose, in the order
+        they were solved. Nothing here solves or waits for a solve (module docstring)."""
+        self._ready.clear()  # before looking: what comes from now on sets it again
+        c0, taken = time.thread_time(), time.perf_counter()
+        frame = self._newest
+        last = self.last_frame.index if self.last_frame is not None else -1
+        if frame is None or frame.index <= last:
+            frame = None
+        else:
+            self.frames_not_taken += frame.index - last - 1 if last >= 0 else 0
+            self.clock.taken(frame.index, frame.arrival)
+            self.last_frame = frame
+        followers = self._snapshot()
+        results = [(f, r) for f in followers if (r := f.take_result()) is not None]
+        with self._lock:
+            notes, self._unsaid = self._unsaid, []
         for follower in followers:
+            notes += follower.said()
+        if frame is None and not results and not notes:
+            return None
+        update = LiveUpdate(frame, {}, taken, notes=notes)
+        for follower, result in sorted(results, key=lambda fr: fr[1].solved_at):
             name = follower.name
-            update.poses[name] = None
-            if follower.in_worker:
-                follower.poll()
+            update.poses[name], update.frames[name] = result.solved, result.frame
+            update.taken_at[name], update.solved_at[name] = result.handed_at, result.solved_at
+            update.pushed.add(name)
+            if on_pose is not None and result.solved is not None:
+                on_pose(update, name)
+        update.cpu_ms = (time.thread_time() - c0) * 1000.0
+        return update
+
+    def posed(self, update: LiveUpdate, name: str, at: float | None = None) -> None:
+        """Note that `name`'s pose of `update` is now set (on the armature, or sent): the latency
+        from the frame's arrival to `at` (now when None)."""
+        at = time.perf_counter() if at is None else at
+        update.posed_at[name] = at
+        follower = self.followers.get(name)
+        if follower is not None:
+            follower.stats.latency_ms.append((at - update.frame_of(name).arrival) * 1000.0)
+
+    # --- the solving thread ---------------------------------------------------------------------------
+
+    def _wake(self) -> None:
+        """Wake the solving thread (the sink's new frame, a worker up, a follower to end)."""
+        if self._wake_pending:
+            return
+        self._wake_pending = True
+        try:
+            self._wake_w.send_bytes(b"")
+        except OSError:  # the session is being let go
+            pass
+
+    def _start_thread(self) -> None:
+        with self._lock:
+            if self._thread is not None or self._stopping.is_set():
+                return
+            self._thread = threading.Thread(target=self._solve_loop, name="bodycal-live-solve", daemon=True)
+        self._thread.start()
+
+    def _solve_loop(self) -> None:
+        """The solving thread (module docstring): wait for a frame, an answer or a worker's change;
+        take the answers, hand the newest frame to every idle follower; end the followers asked."""
+        while not self._stopping.is_set():
+            followers = self._snapshot()
+            connections = [f.connection for f in followers
+                           if f.in_worker and f.connection is not None and not f.closed]
+            ready = wait_for_connections([self._wake_r, *connections], self._timeout(followers))
+            if self._wake_r in ready:
+                while self._wake_r.poll():
+                    self._wake_r.recv_bytes()
+                self._wake_pending = False  # after draining: a wake sent from now on is seen
+            try:
+                self._end_closing()
+                self._solve_round(self._snapshot(), set(ready))
+            except Exception as exc:  # noqa: BLE001 - a bug must not end the live view: said, and on
+                traceback.print_exc(file=sys.stderr)
+                with self._lock:
+                    self._unsaid.append(f"the live solve failed: {type(exc).__name__}: {exc}")
+                self._ready.set()
+
+    def _timeout(self, followers: list[Follower]) -> float:
+        """How long the thread may sleep: until the first worker's answer is overdue, at most
+        IDLE_WAKE_S."""
+        now, timeout = time.perf_counter(), IDLE_WAKE_S
+        for f in followers:
+            due = f.answer_due() if f.in_worker else None
+            if due is not None:
+                timeout = min(timeout, max(due - now, 0.0))
+        return timeout
+
+    def _end_closing(self) -> None:
+        with self._lock:
+            closing, self._closing = self._closing, []
+        for follower in closing:
+            follower.close()
+
+    def _solve_round(self, followers: list[Follower], ready: set) -> None:
+        """One turn: the answers that came, the workers' changes, the newest frame to every idle
+        worker, then the followers of this process solved here, each on the newest frame there is."""
+        now = time.perf_counter()
+        for follower in followers:
+            if not follower.in_worker:
+                continue
+            if follower.connection in ready:
+                follower.receive()
+            elif follower.overdue(now):
+                follower.stuck()
+            else:
+                follower.check()
+        frame = self._newest
+        if frame is None:
+            self._ready_if_results(followers)
+            return
+        kinds = roles = markers = None
+        shared, here = {}, []
+        for follower in followers:
+            if follower.closed:
+                continue
             if not follower.ready:
                 if kinds is None:
                     kinds, roles, markers = self.kinds, self.roles, self.markers
@@ -636,66 +441,16 @@ class LiveSession:
                     continue
             if not follower.in_worker:
                 here.append(follower)
-            elif follower.last_index < frame.index and follower.send(frame, shared):
-                follower.last_index = frame.index
-                update.pushed.add(name)
-                update.frames[name], update.taken_at[name] = frame, update.taken
-                if follower.solving:  # its answer is waited for (not a preparation's)
-                    sent.append(follower)
-        taken = update.taken
-        for k, follower in enumerate(here):
-            newer = self.source.latest() if k else None  # came while the ones before solved
-            if newer is not None:
-                frame, update.frame, taken = newer, newer, time.perf_counter()
-                self._took(frame)
-            if follower.last_index >= frame.index:  # solved it in the pump before (this one catches up)
-                continue
-            follower.last_index = frame.index
-            update.pushed.add(follower.name)
-            update.frames[follower.name], update.taken_at[follower.name] = frame, taken
-            update.poses[follower.name] = follower.push(frame)
-            update.solved_at[follower.name] = time.perf_counter()
-            if on_pose is not None and update.poses[follower.name] is not None:
-                on_pose(update, follower.name)
-        self._collect(update, sent, on_pose)
-        for follower in followers:
-            update.notes += follower.said()
-        update.cpu_ms = (time.thread_time() - c0) * 1000.0
-        return update
+            elif not follower.busy and follower.last_index < frame.index:
+                follower.send(frame, shared)
+        self._ready_if_results(followers)
+        for follower in here:
+            frame = self._newest  # the newest there is when its turn comes
+            if follower.last_index < frame.index and not follower.closed:
+                follower.solve(frame)
+                self._ready.set()
 
-    def behind(self) -> bool:
-        """Whether a follower ready for a frame has not been given the newest one taken (an avatar
-        solved before a newer frame came, in the same pump): the next pump is due at once."""
-        frame = self.last_frame
-        return frame is not None and any(f.ready and f.last_index < frame.index and not f.busy
-                                         for f in self.followers.values())
+    def _ready_if_results(self, followers: list[Follower]) -> None:
+        if any(f.has_result for f in followers):
+            self._ready.set()
 
-    def _took(self, frame: LiveFrame) -> None:
-        self.clock.taken(frame.index, frame.arrival)
-        self.last_frame = frame
-
-    def _collect(self, update: LiveUpdate, sent: list, on_pose) -> None:
-        """Each worker's pose of the frame, set as its answer comes."""
-        waiting = {follower.connection: follower for follower in sent}
-        deadline = time.perf_counter() + ANSWER_S
-        while waiting:
-            ready = wait_for_connections(list(waiting), timeout=max(0.0, deadline - time.perf_counter()))
-            if not ready:
-                for follower in waiting.values():
-                    follower.stuck()
-                return
-            for connection in ready:
-                follower = waiting.pop(connection)
-                solved = follower.receive()
-                update.poses[follower.name] = solved
-                if solved is not None:
-                    update.solved_at[follower.name] = time.perf_counter()
-                    if on_pose is not None:
-                        on_pose(update, follower.name)
-
-    def posed(self, update: LiveUpdate, name: str, at: float | None = None) -> None:
-        """Note that `name`'s pose of `update` is now set (on the armature, or sent): the latency
-        from the frame's arrival to `at` (now when None)."""
-        at = time.perf_counter() if at is None else at
-        update.posed_at[name] = at
-        self.followers[name].stats.latency_ms.append((at - update.frame_of(name).arrival) * 1000.0)

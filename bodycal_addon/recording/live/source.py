@@ -66,7 +66,7 @@ class SourceStats:
 
     def line(self) -> str:
         """One line for the command line's progress and summary."""
-        parts = [f"{self.frames} frames", f"{self.dropped} dropped"]
+        parts = [f"{self.frames} frames"] + ([f"{self.dropped} dropped"] if self.dropped else [])
         bad = self.bad_datagrams + self.bad_messages
         if bad:
             parts.append(f"{bad} bad packets or messages skipped ({self.last_error})")
