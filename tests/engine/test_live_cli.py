@@ -109,7 +109,7 @@ def test_a_recording_with_nothing_arriving_is_one_line_and_no_file(tmp_path):
     out = tmp_path / "none.bcrec.json"
     rec = Recording("--port", free_port(), "-o", out)
     code, _, stderr = rec.finish(signal.SIGTERM)
-    assert code == 2 and stderr.startswith("bodycal record: error: nothing arrived on port")
+    assert code == 2 and stderr.startswith("bodycal record: error: nothing received on port")
     assert len(stderr.splitlines()) == 1 and not out.exists()
 
 

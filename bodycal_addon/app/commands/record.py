@@ -172,7 +172,9 @@ def _roles_from_the_tpose(recorder, wizard) -> None:
 
 def _progress(recorder, receiver, rate: float) -> str:
     if not recorder.frames:
-        return f"waiting for VMC on port {receiver.port}: {receiver.stats.datagrams} packets so far"
+        if not receiver.stats.datagrams:
+            return f"nothing received on port {receiver.port} yet"
+        return f"waiting for VMC on port {receiver.port}: {receiver.stats.datagrams} packets so far, no device in them"
     return (f"recording {recorder.duration:.1f} s: {recorder.frames} frames, {rate:.1f} Hz, "
             f"{len(recorder.names)} devices ({recorder.last_tracked} tracked now), "
             f"{len(recorder.marker_names)} markers; {receiver.stats.line()}")
@@ -184,6 +186,9 @@ def _save(recorder, receiver, out: Path, overwrite: bool) -> int:
     stats = receiver.stats
     if stats.sink_error:
         raise BodyCalError(f"recording failed: {stats.sink_error}")
+    if not stats.datagrams:
+        raise BodyCalError(f"nothing received on port {receiver.port}: 0 packets",
+                           hint="is the sender sending to this host and port?")
     if not recorder.frames:
         raise BodyCalError(f"nothing arrived on port {receiver.port} ({stats.datagrams} packets, none with a device)",
                            hint="is the sender sending device transforms to this host and port?")
