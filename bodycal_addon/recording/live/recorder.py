@@ -8,10 +8,11 @@ stream is a gap in the recording; a device first seen later is not tracked befor
 
 Time: the take's clock follows the sender's (`/VMC/Ext/T`) while it agrees with arrival, else the
 arrival clock; always strictly increasing (`MIN_STEP_S`). A frame's step is the sender's when its
-clock moved forward and the take, stepped so, stays within `LEAD_S` ahead of the arrival clock and
-`LAG_S` behind it (frames then land on the sender's times, whatever the network did to their
-arrival: a burst after a stall keeps its spacing); otherwise it is the arrival's step since the
-previous frame. So a stray time (1e9, a clock restarted back or forward) costs a step or two on the
+clock moved forward and the take, stepped so, stays no more than `LEAD_S` ahead of the arrival
+clock (frames then land on the sender's times, whatever the network did to their arrival: a burst
+after a stall keeps its spacing; behind is any amount: frames held up, a sender slower than real
+time, a test that waits between frames); otherwise it is the arrival's step since the previous
+frame. So a stray time (1e9, a clock restarted back or forward) costs a step or two on the
 arrival clock, and a sender whose clock runs ahead of its frames' arrival (a flood of frames, a
 replay sped up) cannot make the take longer than the session by more than LEAD_S: the take never
 runs away from arrival time. The arrival clock is mapped onto the take's by the first frame, then
@@ -42,7 +43,6 @@ from .source import LiveFrame
 
 MIN_STEP_S = 1e-6  # frames closer than this in time (one datagram ending two frames) are spaced by it
 LEAD_S = 0.25  # the take's clock may be this far ahead of arrival on the sender's steps (its stamping jitter)
-LAG_S = 5.0  # and this far behind (frames held up by the network, then delivered in a burst)
 DRIFT = 1e-3  # arrival's mapping onto the take's clock follows the take's lead at most this fast (1000 ppm)
 TRACK_S = 10.0  # over this long
 
@@ -174,7 +174,7 @@ class LiveRecorder:
             t0, s0, a0 = self._prev
             da = max(a - a0, 0.0)
             arrived = a + self._offset  # the arrival clock, on the take's
-            follows = s is not None and s0 is not None and s > s0 and -LAG_S <= t0 + (s - s0) - arrived <= LEAD_S
+            follows = s is not None and s0 is not None and s > s0 and t0 + (s - s0) - arrived <= LEAD_S
             self.sender_clock &= follows
             t = max(t0 + (s - s0 if follows else da), t0 + MIN_STEP_S)
             self._offset += min(max((t - arrived) * da / TRACK_S, -DRIFT * da), DRIFT * da)  # a drift followed
