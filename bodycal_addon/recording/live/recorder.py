@@ -88,11 +88,12 @@ class LiveRecorder:
     """A sink that records (module docstring). `roles` (device name -> role) are the user's: they
     win over roles a stream announces; devices without either get theirs from the T-pose when the
     file is read, as for any recording (recording/roles.py). With `limit_s`, frames more than that
-    many seconds after the first are not recorded (`full` is set at the first of them)."""
+    many seconds after the first (wall clock: their arrival) are not recorded (`full` is set at the
+    first of them)."""
 
     def __init__(self, name: str = "live", roles: dict[str, str] | None = None, *, limit_s: float | None = None):
         self.name = name
-        self.limit_s = limit_s  # record this many seconds from the first frame, then set `full`
+        self.limit_s = limit_s  # record this many seconds (arrival) from the first frame, then set `full`
         self.full = threading.Event()
         self.user_roles = _checked_roles(roles or {})
         self._lock = threading.Lock()
@@ -124,10 +125,10 @@ class LiveRecorder:
             if self.full.is_set():
                 return
             k = self.frames
-            t = self._time_of(frame)
-            if self.limit_s is not None and k and t - self._times[0] > self.limit_s:
+            if self.limit_s is not None and k and frame.arrival - self._arrival[0] > self.limit_s:
                 self.full.set()
                 return
+            t = self._time_of(frame)
             for event in frame.events:
                 self._event(event)
             if k >= len(self._times):
@@ -205,6 +206,18 @@ class LiveRecorder:
         """The time of the last frame recorded (the recording's clock); 0 before the first."""
         with self._lock:
             return float(self._times[self.frames - 1]) if self.frames else 0.0
+
+    @property
+    def first_arrival(self) -> float | None:
+        """When the first frame arrived (the source's clock, `LiveFrame.arrival`), None before it."""
+        with self._lock:
+            return float(self._arrival[0]) if self.frames else None
+
+    @property
+    def last_arrival(self) -> float | None:
+        """When the last frame recorded arrived, None before the first."""
+        with self._lock:
+            return float(self._arrival[self.frames - 1]) if self.frames else None
 
     @property
     def duration(self) -> float:
