@@ -50,16 +50,22 @@ def disconnected():
 class Stream:
     """The take sent one frame at a time, each pumped once it has arrived and once every follower
     ready for it has handed back its result: no frame is skipped, so the test knows what every pump
-    saw and what every solver was handed."""
+    saw and what every solver was handed. Never faster than real time (a take's clock keeps to
+    arrival's: recording/live/recorder.py), slower when a solve takes longer."""
 
     def __init__(self, rec):
         self.rec, self.messages = rec, RecordingMessages(rec)
         self.sender = VmcSender("127.0.0.1", live.port())
         self.updates = []
         self.sent = 0
+        self.start = None  # when frame 0 was sent (perf_counter), less its take time
 
     def put(self, k: int):
-        """Frame k sent, not pumped."""
+        """Frame k sent (not before its time in the take, counted from the first sent), not pumped."""
+        t = float(self.rec.time[k])
+        if self.start is None:
+            self.start = time.perf_counter() - t
+        time.sleep(max(0.0, self.start + t - time.perf_counter()))
         msgs = (self.messages.announcements() if k == 0 else []) + self.messages.messages(k, 0.0)
         self.sender.send(bundles(msgs + [message(AVAILABLE, 1), message(TIME, float(self.rec.time[k]))]))
         self.sent += 1
