@@ -332,18 +332,39 @@ def _set_pose(update: LiveUpdate, name: str) -> None:
     live.posed(update, name, done)
 
 
-def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
-    """The solved frame as the bake would key it (root motion where asked) on the pose bones."""
+def _animation(follower, solved, frame) -> AvatarAnimation:
+    """The solved frame as an animation of one row (its own copy: root motion changes it in place,
+    and the update keeps the solver's pose as solved)."""
     rig = follower.layout  # the rig's names and root (from the worker, when the follower solves in one)
-    t = np.array([update.frame_of(follower.name).arrival])
-    anim = AvatarAnimation(rig.armature, list(rig.names), solved.basis, rig.names[rig.root],
-                           np.asarray(solved.root_location, float), t, follower.method)
-    if f.rest is None:
-        f.rest = rig_output.root_rest(arm, anim, f.bone_map)
-        f.first = anim
+    return AvatarAnimation(rig.armature, list(rig.names), np.array(solved.basis, float), rig.names[rig.root],
+                           np.asarray(solved.root_location, float), np.array([frame.arrival]), follower.method)
+
+
+def _with_root_motion(f: Following, anim: AvatarAnimation) -> AvatarAnimation:
     if f.root_motion == "in-place":  # the travel removed relative to the first frame followed
         anim = preview.joined(f.first, anim)
-    anim = apply_root_motion(anim, f.rest, f.root_motion, own=True)
+    return apply_root_motion(anim, f.rest, f.root_motion, own=True)
+
+
+def _converter(f: Following, follower):
+    """The follower's `convert` (live/followers.py): each solved pose with its root motion, made on
+    the session's solving thread (numpy only, no Blender data: the rig's rest was read here at the
+    first pose), so that this thread only sets it. None until that first pose was written."""
+    def convert(solved, frame):
+        return _with_root_motion(f, _animation(follower, solved, frame)) if f.rest is not None else None
+    return convert
+
+
+def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
+    """The solved frame as the bake would key it (root motion where asked) on the pose bones."""
+    anim = update.converted.get(follower.name)
+    if anim is None:  # the first pose (its rig's rest read now), or one solved before that
+        anim = _animation(follower, solved, update.frame_of(follower.name))
+        if f.rest is None:
+            f.rest = rig_output.root_rest(arm, anim, f.bone_map)
+            f.first = anim
+            follower.convert = _converter(f, follower)
+        anim = _with_root_motion(f, anim)
     if f.rigify_target is not None:  # the DEF- skeleton's pose carried onto the controls
         if f.rigify is None:
             f.rigify = rig_output.RigifyPlan(arm, f.rigify_target, anim.bone_names)

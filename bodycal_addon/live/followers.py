@@ -12,6 +12,7 @@ pose replaced there before the pump set it is counted too (`FollowerStats.unshow
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
@@ -81,12 +82,13 @@ class RigLayout:
 class Result:
     """A frame a follower's solver was handed, and what came of it: `solved` (None: not newer than
     the last, or a needed device not tracked yet), when it was handed over and when it was solved
-    (perf_counter)."""
+    (perf_counter), and what the follower's `convert` made of the pose (None without one)."""
 
     solved: SolvedFrames | None
     frame: LiveFrame
     handed_at: float
     solved_at: float
+    converted: object = None
 
 
 def _scatter(names, columns: dict[str, int], first, second, seen) -> None:
@@ -125,6 +127,9 @@ class Follower:
         self.last_index = -1  # the newest frame (LiveFrame.index) handed to its solver
         self.handed_at: float | None = None  # when the frame being solved was handed over (None: idle)
         self.closed = False
+        # What the pose's writer wants of each solved pose, made on the solving thread as it comes (the
+        # Blender glue: root motion), so that the pump's thread only sets it: convert(solved, frame).
+        self.convert = None
         self.waiting_for: list[str] = sorted(ANIMATED_ROLES)
         self.note = ""  # the last thing to say about it (a worker that ended), one line
         self._lock = threading.Lock()  # the result slot and the lines to say: the solving thread and the pump
@@ -228,18 +233,27 @@ class Follower:
             solved = None
             traceback.print_exc(file=sys.stderr)
             self._say(f"{self.name}: the solve failed: {type(exc).__name__}: {exc}")
-        finally:
-            self.handed_at = None
         done = time.perf_counter()
         if solved is not None:
             self.stats.solve_cpu_ms.append((time.thread_time() - c0) * 1000.0)
             self.stats.solve_ms.append((done - handed_at) * 1000.0)
             self.stats.frames += 1
-        self._deliver(Result(solved, frame, handed_at, done))
+        try:
+            self._deliver(Result(solved, frame, handed_at, done))
+        finally:
+            self.handed_at = None  # idle only once the result is in its slot (`busy`, `has_result`)
 
     def _deliver(self, result: Result) -> None:
-        """The result into the slot the pump takes from, latest wins: a pose not yet taken is
-        replaced (counted); a frame that gave no pose never replaces one."""
+        """The result into the slot the pump takes from (converted first, when the follower has a
+        `convert`), latest wins: a pose not yet taken is replaced (counted); a frame that gave no
+        pose never replaces one."""
+        convert = self.convert
+        if convert is not None and result.solved is not None:
+            try:
+                result = dataclasses.replace(result, converted=convert(result.solved, result.frame))
+            except Exception as exc:  # noqa: BLE001 - the pump's thread converts it instead, and says nothing new
+                self._say(f"{self.name}: its pose could not be converted here ({type(exc).__name__}: {exc})")
+                self.convert = None
         with self._lock:
             pending = self._result
             if pending is not None and pending.solved is not None:
@@ -416,9 +430,12 @@ class WorkerFollower(Follower):
         return True
 
     def _take(self, reply: tuple) -> None:
-        what, self._in_flight = self._in_flight, None
-        frame, self._sent_frame = self._sent_frame, None
-        handed_at, self.handed_at = self.handed_at, None
+        try:
+            self._answered(reply, self._in_flight, self._sent_frame, self.handed_at)
+        finally:  # idle only once the result is in its slot (`busy`, `has_result`)
+            self._in_flight = self._sent_frame = self.handed_at = None
+
+    def _answered(self, reply: tuple, what: str | None, frame: LiveFrame | None, handed_at: float | None) -> None:
         kind = reply[0]
         if kind == "ready":
             self._layout = RigLayout(reply[1]["armature"], tuple(reply[1]["names"]), int(reply[1]["root"]))

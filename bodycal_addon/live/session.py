@@ -92,6 +92,7 @@ class LiveUpdate:
     solved_at: dict[str, float] = field(default_factory=dict)
     posed_at: dict[str, float] = field(default_factory=dict)
     pushed: set[str] = field(default_factory=set)  # the followers with a result in this update
+    converted: dict[str, object] = field(default_factory=dict)  # each pose as the follower's `convert` made it
     notes: list[str] = field(default_factory=list)  # lines to say (a worker that ended, a solve that failed)
     cpu_ms: float = 0.0  # the pump's own CPU time (its thread: taking the results, the on_pose calls)
 
@@ -342,6 +343,8 @@ class LiveSession:
             update.poses[name], update.frames[name] = result.solved, result.frame
             update.taken_at[name], update.solved_at[name] = result.handed_at, result.solved_at
             update.pushed.add(name)
+            if result.converted is not None:
+                update.converted[name] = result.converted
             if on_pose is not None and result.solved is not None:
                 on_pose(update, name)
         update.cpu_ms = (time.thread_time() - c0) * 1000.0

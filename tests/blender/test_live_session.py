@@ -299,6 +299,43 @@ def test_two_avatars_follow_from_worker_processes_over_udp_until_disconnect_or_a
     assert not live.connected() and still_alive(pids) == []
 
 
+@pytest.mark.parametrize("mode", ["root", "in-place"])
+def test_root_motion_is_converted_on_the_solving_thread_and_the_pose_is_the_bakes(take, tmp_path, mode):
+    """Root motion on the root bone (or in place): after the first pose (which reads the rig's rest
+    here), each pose comes converted from the session's solving thread, and the armature shows what
+    the bake's conversion (`apply_root_motion` on the same solved frames) gives."""
+    from bodycal_addon.blender import avatar_rig, rig_output
+    from bodycal_addon.body.animation import AvatarAnimation
+
+    rec, _truth = take
+    a, _b = _scene(take, tmp_path)
+    scene = bpy.context.scene
+    scene.bodycal_bake.root_motion = mode
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([a])
+    stream = Stream(rec)
+    for k in range(20):
+        stream.send(k)
+    follower = live.session().followers[a.name]
+    posed = [u for u in stream.updates if u.poses.get(a.name) is not None]
+    assert len(posed) > 5 and a.name not in posed[0].converted  # the first: converted here, reading the rest
+    assert all(a.name in u.converted for u in posed[1:])  # the others: on the solving thread
+    ref, _solved = _live_solver_on(follower, stream.frames())
+    rig = ref.solver.rig
+    frames = [u.frame_of(a.name) for u in posed]
+    solved = [u.poses[a.name] for u in posed]
+    anim = AvatarAnimation(rig.armature, list(rig.names), np.concatenate([s.basis for s in solved]),
+                           rig.names[rig.root], np.concatenate([s.root_location for s in solved]),
+                           np.array([f.arrival for f in frames]), "egocentric")
+    keyed = rig_output.with_root_motion(anim, a, avatar_rig.bone_map_for(a), mode)  # the bake's, whole
+    bones = a.pose.bones
+    rows = [bones.find(n) for n in keyed.bone_names]
+    np.testing.assert_allclose(_pose(a)["rotation_quaternion"][rows], keyed.rotations[-1], atol=2 * F32)
+    for name, locations in keyed.bone_locations.items():
+        np.testing.assert_allclose(_pose(a)["location"][bones.find(name)], locations[-1], atol=1e-6)
+    assert mode == "in-place" or "Root" in keyed.bone_locations
+
+
 def test_a_file_saved_while_following_holds_no_live_pose_and_no_live_empty(take, tmp_path):
     rec, _truth = take
     a, _b = _scene(take, tmp_path)
