@@ -34,8 +34,8 @@ and beside them this machine's milliseconds per avatar: the latency's stages (ar
 its solver -> solved -> set), the solve (wall, CPU where it ran, a worker's own push), the write
 (wall and CPU), the frames it did not show (`frames_skipped` of `frames_offered`). `memory`:
 `--minutes` (default 3; the issue's figure is 10) of one avatar following in its worker while the
-take is recorded: resident memory growth of this process and the worker's peak, besides what the
-recorder and the solver's frame buffer hold (both grow with the take), and the frames lost (target:
+take is recorded: resident memory growth of this process and the worker's, besides the frames the
+recorder and the worker's solver keep (both grow with the take), and the frames lost (target:
 growth <= 50 MB, none lost). `targets` says each met or not. Wall-clock figures on a shared machine
 carry the other processes' time: run when `uptime` is low, and read `load_average`.
 
@@ -152,8 +152,8 @@ def stream_section(args) -> dict:
     }
 
 
-def _rss_mb() -> float:
-    for line in pathlib.Path("/proc/self/status").read_text().splitlines():
+def _rss_mb(pid: int | str = "self") -> float:
+    for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
@@ -313,10 +313,17 @@ def _targets(out: dict) -> dict:
     return targets
 
 
+def _recorded_mb(recorder) -> float:
+    """What the recorder's frames hold (its arrays grow by doubling: the pages not yet written are
+    not resident, so the frames' own bytes are what resident memory can be compared with)."""
+    d, m = len(recorder.names), len(recorder.marker_names)
+    return recorder.frames * (3 * 8 + d * (7 * 8 + 1) + m * (3 * 8 + 1)) / 2 ** 20
+
+
 def _memory(live, arm, user, sender, minutes: float) -> dict:
     """`minutes` of one avatar following (in its worker process) while the take is recorded: the
-    resident memory's growth, this process's and the worker's, besides what the recorder and the
-    solver's frame buffer hold (both grow with the take), and the frames lost."""
+    resident memory's growth, this process's and the worker's, besides the frames the recorder and
+    the worker's solver keep (both grow with the take), and the frames lost."""
     import signal
 
     live.follow(arm, user, "egocentric")
@@ -327,21 +334,21 @@ def _memory(live, arm, user, sender, minutes: float) -> dict:
         live.pump_for(0.1)
     recorder = live.start_recording("bench")
     live.pump_for(10.0)
-    rss0, rec0 = _rss_mb(), recorder.nbytes
-    buf0, worker0 = follower.stats.worker_memory
+    pid = follower.process.pid
+    rss0, worker0, rec0, kept0 = _rss_mb(), _rss_mb(pid), _recorded_mb(recorder), follower.stats.worker_memory[0]
     live.pump_for(minutes * 60.0)
+    rss1, worker1, rec1, kept1 = _rss_mb(), _rss_mb(pid), _recorded_mb(recorder), follower.stats.worker_memory[0]
     sender.send_signal(signal.SIGINT)
     sent_out, _ = sender.communicate(timeout=30)
     live.pump_for(0.5)  # what is still in flight
-    rss1, (buf1, worker1) = _rss_mb(), follower.stats.worker_memory
-    grown_recordings = (buf1 - buf0 + recorder.nbytes - rec0) / 2 ** 20
+    grown_recordings = rec1 - rec0 + (kept1 - kept0) / 2 ** 20
     sent = int(sent_out.rsplit("sent ", 1)[1].split()[0]) if "sent " in sent_out else -1
     session = live.session()
     while_recording = session.frames_seen - session.recording_from
     grown = rss1 - rss0 + worker1 - worker0
     return {"minutes": minutes, "rss_growth_mb": round(rss1 - rss0, 1),
-            "worker_peak_rss_growth_mb": round(worker1 - worker0, 1),
-            "recorder_and_solver_buffer_growth_mb": round(grown_recordings, 1),
+            "worker_rss_growth_mb": round(worker1 - worker0, 1),
+            "recorded_frames_growth_mb": round(grown_recordings, 1),
             "growth_besides_recordings_mb": round(grown - grown_recordings, 1),
             "target_mb": TARGETS["memory_growth_besides_recordings_mb"],
             "frames_received_while_recording": while_recording, "frames_recorded": recorder.frames,

@@ -52,7 +52,7 @@ class FollowerStats:
     latency_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # arrival -> pose set
     worker_ms: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # a worker's own push (wall)
     indices: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # the frames handed (their index)
-    worker_memory: tuple = (0, 0)  # a worker's (solver buffer bytes, peak resident MB), from its last answer
+    worker_memory: tuple = (0, 0)  # a worker's (bytes of the frames its solver keeps, peak resident MB), last answer
 
     @property
     def not_shown(self) -> int:

@@ -252,7 +252,9 @@ class _Worker:
             return ("none", *cost)
         names = list(solved.targets)
         targets = np.stack([solved.targets[n] for n in names]) if names else np.zeros((0, 1, 3))
-        memory = (self.solver.recording.nbytes, _peak_rss_mb())  # the bench's memory figures: the buffer grows
+        rec = self.solver.recording  # the bench's memory figures: the frames kept, and this process's peak
+        kept = sum(a.nbytes for a in (rec.time, rec.positions, rec.rotations, rec.valid, rec.markers, rec.marker_valid))
+        memory = (kept, _peak_rss_mb())
         return ("pose", solved.basis, solved.root_location, solved.joints, names, targets, *cost, *memory)
 
 
