@@ -314,16 +314,16 @@ def _targets(out: dict) -> dict:
 
 
 def _recorded_mb(recorder) -> float:
-    """What the recorder's frames hold (its arrays grow by doubling: the pages not yet written are
-    not resident, so the frames' own bytes are what resident memory can be compared with)."""
-    d, m = len(recorder.names), len(recorder.marker_names)
-    return recorder.frames * (3 * 8 + d * (7 * 8 + 1) + m * (3 * 8 + 1)) / 2 ** 20
+    """What the recorder's arrays hold: grown by doubling and filled when grown (np.full, np.resize),
+    so all of it is resident (the worker's solver grows its arrays with np.zeros, whose pages are
+    resident once written: the bytes of its frames, `FollowerStats.worker_memory`)."""
+    return recorder.nbytes / 2 ** 20
 
 
 def _memory(live, arm, user, sender, minutes: float) -> dict:
     """`minutes` of one avatar following (in its worker process) while the take is recorded: the
-    resident memory's growth, this process's and the worker's, besides the frames the recorder and
-    the worker's solver keep (both grow with the take), and the frames lost."""
+    resident memory's growth, this process's and the worker's, besides what the recorder and the
+    worker's solver keep (both grow with the take: `_recorded_mb`), and the frames lost."""
     import signal
 
     live.follow(arm, user, "egocentric")
