@@ -6,7 +6,6 @@ import bpy
 
 from ..bodycal_addon.blender import live
 from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.retarget.live_session import solve_in_workers
 from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property
@@ -47,8 +46,8 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
                                                description="The last bake\'s review: its figures against their limits")
     use_workers: bpy.props.BoolProperty(
         name="Solve in Worker Processes", default=True,
-        description="When more than one avatar follows, solve each in a process of its own so that they use several "
-                    "cores (a machine with fewer cores than avatars solves them here)")
+        description="Solve each avatar in a process of its own: Blender never runs or waits for a solve, and several "
+                    "avatars use several cores (off: solved on a thread of Blender's own process)")
     wizard_pause: bpy.props.FloatProperty(
         name="Begin Steps After", default=0.0, min=0.0, soft_max=10.0, unit="TIME_ABSOLUTE",
         description="The calibration wizard begins each step by itself this many seconds after the previous one "
@@ -155,8 +154,7 @@ class BODYCAL_OT_follow_live(bpy.types.Operator):
         user = user_model(context)
         smooth = context.scene.bodycal_retarget.one_euro()
         arms = selected_armatures(context)
-        others = [n for n in live.following() if n not in {arm.name for arm in arms}]
-        worker = solve_in_workers(settings.use_workers, len(arms) + len(others))
+        worker = settings.use_workers
         names = []
         for arm in arms:
             live.follow(arm, user, settings.method, smooth=smooth, plant_feet=bake.plant_feet,

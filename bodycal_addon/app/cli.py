@@ -28,6 +28,7 @@ METHODS = methods_for("recording")  # every method, the default first (retarget/
 TRANSFER_METHODS = methods_for("animation")
 
 VMC_PORT = 39539  # a VMC Marionette's port (recording/live/vmc.py, which the command loads when it runs)
+IDLE_S = 5.0  # `record`: a stream silent this long after its first frame has stopped (FORMATS.md §6.2)
 EXIT_OK = 0
 EXIT_USAGE = 2
 _BONE_MAP_HELP = ("bone map preset (JSON, docs/FORMATS.md §5) for an armature whose bone names no naming scheme "
@@ -190,7 +191,10 @@ def _live_commands(sub) -> None:
     c.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
                    help="address to listen on: 127.0.0.1 hears this machine only (default), 0.0.0.0 every network")
     c.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="stop once the take is S seconds long (default: when Ctrl-C is pressed)")
+                   help="stop S seconds (wall clock) after the first frame arrived (default: when Ctrl-C is pressed)")
+    c.add_argument("--idle", type=float, default=IDLE_S, metavar="S",
+                   help=f"end the take when no frame has come for S seconds after the first: the sender stopped "
+                        f"(default {IDLE_S:g}; 0 waits for Ctrl-C)")
     c.add_argument("--role", action="append", metavar="NAME=ROLE",
                    help="a device's role (its serial = head, hand_l, pelvis, ...); devices without one get theirs "
                         "from the T-pose when the file is read")

@@ -7,8 +7,9 @@
 
 The Retarget and Transfer operators, the `retarget` and `transfer` commands (`run_files`), the
 batch jobs (which run those commands) and the demo all go through here, whatever the take: a
-tracker recording, another character's action, or (next) a live stream. Compute first, write last:
-nothing in the scene changes before `bake`, and a failed bake puts back what it changed.
+tracker recording or another character's action. Compute first, write last: nothing in the scene
+changes before `bake`, and a failed bake puts back what it changed. A live stream (blender/live.py)
+shares `prepare_target` and the prepared solver with it (DESIGN.md "A file take and a live stream").
 """
 
 from __future__ import annotations

@@ -14,7 +14,9 @@ it holds.
 - `CharacterTake`: another character's action (`transfer.transfer`): its body model (measured on
   its mesh, or estimated from its bone lengths) and its pose-bone values per frame, smoothed by the
   One Euro filter first when asked (its bones' rotations and locations, on a copy).
-A live stream is one more kind: anything with these attributes and methods.
+Anything with these attributes and methods is one more kind. A live stream is not a take (no end to
+look ahead to, no keys): it shares the prepared solver and the pose's carrying with the bake
+(DESIGN.md "A file take and a live stream", bodycal_addon/live/).
 """
 
 from __future__ import annotations

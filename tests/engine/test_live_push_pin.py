@@ -20,10 +20,10 @@ import sys
 import numpy as np
 import pytest
 
+from bodycal_addon.live.session import forward_filter
+from bodycal_addon.live.solver import LiveSolver
 from bodycal_addon.recording.filters import OneEuro
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget.live import LiveSolver
-from bodycal_addon.retarget.live_session import forward_filter
 from bodycal_dev import synthetic
 from bodycal_dev.retarget_fixtures import procedural_avatar
 

@@ -17,8 +17,8 @@ from ..calibration.coverage import ANIMATED_ROLES
 from ..recording.filters import OneEuro
 from ..recording.live.buffer import LiveRecording
 from ..recording.model import Device
-from .pose_source import RecordingSource
-from .solver import PreparedSolver, SolvedFrames
+from ..retarget.pose_source import RecordingSource
+from ..retarget.solver import PreparedSolver, SolvedFrames
 
 
 class LiveSolver:
