@@ -50,11 +50,11 @@ import numpy as np  # noqa: E402
 
 from bodycal_addon.body import skeleton as sk  # noqa: E402
 from bodycal_addon.body.rest_frames import complete_joints  # noqa: E402
+from bodycal_addon.live.solver import LiveSolver  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording.filters import OneEuro, filter_recording  # noqa: E402
 from bodycal_addon.retarget import feet  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
-from bodycal_addon.retarget.live import LiveSolver  # noqa: E402
 from bodycal_addon.retarget.pose_source import RecordingSource  # noqa: E402
 from bodycal_addon.retarget.solver import PreparedSolver  # noqa: E402
 from bodycal_dev import synthetic  # noqa: E402

@@ -66,7 +66,7 @@ from evaluation import bvh, capture, measure, performer, session  # noqa: E402
 
 FPS = 90.0
 CLIPS = (("cmu_bvh", "02_01_walk", True), ("cmu_bvh", "131_01_start_walk_stop", True),
-         ("cmu_bvh_more", "131_03_start_hop_stop", False))
+         ("cmu_bvh_fast_arms", "131_03_start_hop_stop", False))
 HELD_OUT = (("cmu_bvh_held_out", "05_06_dance", False),)
 AVATAR = "child_10y"
 REAL_AVATAR = "adult_male"
@@ -152,9 +152,9 @@ def _skin(arm, avatar, anim, full, truth, leg_k: float) -> dict:
         out["skin_mm"][s] = ({"median": round(float(np.median(low)), 1), "worst": round(float(low.min()), 1)}
                              if low.size else {"median": None, "worst": None})
         for part, joint in (("heel", "ankle"), ("ball", "toe")):
-            mine = measure.slide_p95_mm(sk_[part], on, FPS)
-            src_on = measure.contact(T[:, Jt[f"{joint}_{s}"]], FPS)
-            src = measure.slide_p95_mm(T[:, Jt[f"{joint}_{s}"]], src_on, FPS)
+            mine = metrics.slide_p95_mm(sk_[part], on, FPS)
+            src_on = metrics.ground_contact(T[:, Jt[f"{joint}_{s}"]], FPS)
+            src = metrics.slide_p95_mm(T[:, Jt[f"{joint}_{s}"]], src_on, FPS)
             if mine is not None and src:
                 out["slide_ratio"][f"{part}_{s}"] = round(mine / (src * leg_k), 2)
     return out
@@ -275,12 +275,12 @@ def real_part(quick: bool) -> dict:
                 on = _estimated_stance(full, s, 0, rec.frame_count)
                 low = sk_["low"][on] * 1000
                 got[f"skin_{s}_mm"] = {"median": round(float(np.median(low)), 1), "worst": round(float(low.min()), 1)}
-                got[f"slide_{s}_p95_mm"] = max(measure.slide_p95_mm(sk_[part], on, rec.fps) or 0.0
+                got[f"slide_{s}_p95_mm"] = max(metrics.slide_p95_mm(sk_[part], on, rec.fps) or 0.0
                                                for part in ("heel", "ball"))
             # against the wrist as the controllers carry it (the user's, from the same smoothed devices;
             # the controller's own origin moves less than the wrist it turns about), scaled by the arms
-            ratios = [measure.accel_p95(anim.joints_world[f"wrist_{s}"].astype(float), rec.fps)
-                      / (measure.accel_p95(pose.joints[:, JI[f"wrist_{s}"]], rec.fps) * arm_k) for s in "lr"]
+            ratios = [metrics.acceleration_p95(anim.joints_world[f"wrist_{s}"].astype(float), rec.fps)
+                      / (metrics.acceleration_p95(pose.joints[:, JI[f"wrist_{s}"]], rec.fps) * arm_k) for s in "lr"]
             got["wrist_accel_ratio"] = round(float(max(ratios)), 2)
             fig["methods"][method] = got
         out[path.name] = fig

@@ -4,11 +4,11 @@ with a leading frame axis restricted by the caller to the frames that count (the
 
 - joint-centre error: a calibrated joint's world position at the reference time vs the clip's;
 - sole height during stance: the avatar's lowest sole point in the source's stance frames;
-- foot slide: horizontal motion of the avatar's ankle between consecutive source-stance frames,
-  in mm per 90 Hz frame (the source's own is given for comparison);
-- acceleration p95 of wrists and ankles, the avatar's against the source's times the avatar /
-  source size ratio (same timing, lengths scaled);
 - hip-line angle: the horizontal angle between the avatar's hip line and the source's.
+
+The figures a bake's review also flags (foot slide, wrist / ankle acceleration, when a source's
+foot is down, the limb ratios) are the engine's, `bodycal_addon/output/metrics.py`, which the
+benchmarks call: one definition each (this package itself imports nothing of the engine).
 """
 
 from __future__ import annotations
@@ -33,17 +33,6 @@ def sole_height_mm(sole_points: np.ndarray, stance: np.ndarray) -> dict:
             "p5": round(float(np.percentile(low, 5)), 1)}
 
 
-def slide_mm_per_90hz(point: np.ndarray, stance: np.ndarray, fps: float) -> float | None:
-    both = stance[1:] & stance[:-1]
-    step = np.linalg.norm(np.diff(point[:, :2], axis=0), axis=-1)[both] * 1000 * fps / 90.0
-    return None if step.size == 0 else round(float(np.percentile(step, 95)), 2)
-
-
-def accel_p95(point: np.ndarray, fps: float) -> float:
-    a = (point[2:] - 2 * point[1:-1] + point[:-2]) * fps * fps
-    return float(np.percentile(np.linalg.norm(a, axis=-1), 95))
-
-
 def hip_line_deg(avatar_l, avatar_r, source_l, source_r) -> dict:
     def yaw(v):
         return np.arctan2(v[:, 1], v[:, 0])
@@ -51,21 +40,6 @@ def hip_line_deg(avatar_l, avatar_r, source_l, source_r) -> dict:
     d = yaw(avatar_l - avatar_r) - yaw(source_l - source_r)
     d = np.degrees(np.abs((d + np.pi) % (2 * np.pi) - np.pi))
     return {"p95": round(float(np.percentile(d, 95)), 1), "max": round(float(d.max()), 1)}
-
-
-def contact(point: np.ndarray, fps: float, speed: float = 0.15, height: float = 0.03) -> np.ndarray:
-    """(F,) bool: the source's point (a heel's ankle, a ball's toe joint) on the ground: slower
-    than `speed` (m/s, central difference) and within `height` of its lowest 5 % over the clip."""
-    v = np.gradient(point, axis=0) * fps
-    slow = np.linalg.norm(v[:, :2], axis=-1) < speed
-    low = point[:, 2] < np.percentile(point[:, 2], 5) + height
-    return slow & low
-
-
-def slide_p95_mm(point: np.ndarray, on: np.ndarray, fps: float) -> float | None:
-    """p95 of the horizontal step (mm per 90 Hz frame) of `point` (F, 3) between consecutive
-    frames both `on`."""
-    return slide_mm_per_90hz(point, on, fps)
 
 
 def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0.12) -> int:

@@ -14,12 +14,13 @@ from . import (
     preview,
     recording,
     retarget,
+    review,
     sample_avatars,
     transfer,
 )
 from .registration import register_classes_factory
 
-_MODULES = (preferences, sample_avatars, recording, devices, calibration, avatar, bone_maps, bake_settings,
+_MODULES = (preferences, sample_avatars, recording, devices, calibration, avatar, bone_maps, review, bake_settings,
             bake_presets, retarget, transfer, preview, bone_map_editor, docs, live)
 CLASSES = tuple(cls for m in _MODULES for cls in m.CLASSES)
 

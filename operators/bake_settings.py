@@ -16,6 +16,7 @@ from ..bodycal_addon.output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFA
 from ..bodycal_addon.retarget.methods import METHOD_INFO, methods_for
 from .background_work import BackgroundWork
 from .reporting import reports_errors
+from .review import store_flags
 
 PLACEMENT_ITEMS = [  # retarget/placement.py
     ("object", "Avatar's Spot", "The performance plays relative to the avatar: the performer's (or source "
@@ -200,9 +201,11 @@ class BakeOperator(BackgroundWork):
         bake = context.scene.bodycal_bake
         summaries = [session.bake(take, target, result, options=bake.bake_options(context), replace=bake.replace,
                                   push_to_nla=bake.push_to_nla, set_scene_rate=bool(bake.output_fps),
-                                  set_scene_range=bake.set_scene_range)
+                                  set_scene_range=bake.set_scene_range, review=True)
                      for target, result in zip(targets, computed)]
-        self._own_settings(context).last_result = "; ".join(s.line() for s in summaries)
+        own = self._own_settings(context)
+        own.last_result = "; ".join(s.line() for s in summaries)
+        store_flags(own.review_flags, summaries, [t.armature for t in targets])
         for summary in summaries:
             for line in summary.report_lines():
                 self.report({"INFO"}, line)

@@ -6,12 +6,12 @@ import bpy
 
 from ..bodycal_addon.blender import live
 from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.retarget.live_session import solve_in_workers
 from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property
 from .recording import STEP_MARKER_ITEMS
 from .reporting import reports_errors
+from .review import BODYCAL_PG_review_flag
 
 USER_ITEMS = [
     ("scene", "Scene's Performer", "The performer calibrated in this scene (User Calibration)"),
@@ -42,10 +42,12 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
         description="Timeline markers for the calibration steps of the recorded take")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last Bake Take's figures, per avatar")
+    review_flags: bpy.props.CollectionProperty(type=BODYCAL_PG_review_flag, name="Review",
+                                               description="The last bake\'s review: its figures against their limits")
     use_workers: bpy.props.BoolProperty(
         name="Solve in Worker Processes", default=True,
-        description="When more than one avatar follows, solve each in a process of its own so that they use several "
-                    "cores (a machine with fewer cores than avatars solves them here)")
+        description="Solve each avatar in a process of its own: Blender never runs or waits for a solve, and several "
+                    "avatars use several cores (off: solved on a thread of Blender's own process)")
     wizard_pause: bpy.props.FloatProperty(
         name="Begin Steps After", default=0.0, min=0.0, soft_max=10.0, unit="TIME_ABSOLUTE",
         description="The calibration wizard begins each step by itself this many seconds after the previous one "
@@ -150,14 +152,15 @@ class BODYCAL_OT_follow_live(bpy.types.Operator):
     def execute(self, context):
         settings, bake = _settings(context), context.scene.bodycal_bake
         user = user_model(context)
-        smooth = context.scene.bodycal_retarget.one_euro()
+        retarget = context.scene.bodycal_retarget
+        smooth = retarget.one_euro()
+        seat = retarget.seat_height if retarget.seated else None
         arms = selected_armatures(context)
-        others = [n for n in live.following() if n not in {arm.name for arm in arms}]
-        worker = solve_in_workers(settings.use_workers, len(arms) + len(others))
+        worker = settings.use_workers
         names = []
         for arm in arms:
             live.follow(arm, user, settings.method, smooth=smooth, plant_feet=bake.plant_feet,
-                        placement=bake.placement, root_motion=bake.root_motion, worker=worker)
+                        placement=bake.placement, root_motion=bake.root_motion, worker=worker, seat_height=seat)
             names.append(arm.name)
         self.report({"INFO"}, f"Following with {', '.join(names)}")
         return {"FINISHED"}

@@ -14,6 +14,7 @@ from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import StartsInFolder, method_property
 from .reporting import reports_errors
+from .review import BODYCAL_PG_review_flag
 
 
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
@@ -37,6 +38,8 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last bake's figures, per avatar")
+    review_flags: bpy.props.CollectionProperty(type=BODYCAL_PG_review_flag, name="Review",
+                                               description="The last bake\'s review: its figures against their limits")
     seated: bpy.props.BoolProperty(
         name="Seated", default=False,
         description="The performer sits on a seat (a kit without foot trackers: the estimated pelvis stays on the "

@@ -10,6 +10,7 @@ from ..bodycal_addon.recording.filters import OneEuro
 from ..bodycal_addon.retarget.takes import CharacterTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property
+from .review import BODYCAL_PG_review_flag
 
 
 def _is_armature(_self, obj):
@@ -38,6 +39,8 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
         description="One Euro filter on the source's pose before transferring (its action is not changed)")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last transfer's figures, per avatar")
+    review_flags: bpy.props.CollectionProperty(type=BODYCAL_PG_review_flag, name="Review",
+                                               description="The last bake\'s review: its figures against their limits")
 
 
 class BODYCAL_OT_transfer_animation(BakeOperator, bpy.types.Operator):

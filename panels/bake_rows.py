@@ -1,6 +1,8 @@
 """The sidebar rows of the bake settings Retarget and Bake and Transfer Animation share
 (`scene.bodycal_bake`, operators/bake_settings.py), laid out for `use_property_split`."""
 
+import math
+
 from .conventions import wrapped_label
 
 
@@ -30,8 +32,29 @@ def draw_keys(col, bake) -> None:
 
 
 def draw_last_result(layout, settings, context) -> None:
-    """The last bake's figures, one avatar's line at a time, wrapped to the sidebar's width."""
+    """The last bake's figures, one avatar's line at a time, wrapped to the sidebar's width; then
+    its review (docs/SIDEBAR.md, "Review")."""
     if settings.last_result:
         box = layout.box()
         for part in settings.last_result.split("; "):
             wrapped_label(box, context, part)
+    draw_review(layout, getattr(settings, "review_flags", ()), context)
+
+
+def draw_review(layout, flags, context) -> None:
+    """The last bake's review: per avatar, each figure against its limit (red past it, worst first)
+    with a button that jumps the timeline to its frame."""
+    if not len(flags):
+        return
+    box = layout.box()
+    shown = None
+    for flag in flags:
+        if flag.armature != shown:
+            shown = flag.armature
+            box.label(text=f"Review: {shown}", icon="VIEWZOOM")
+        row = box.row()
+        row.alert = flag.over
+        if math.isfinite(flag.frame):
+            op = row.operator("bodycal.jump_to_flag", text=f"{flag.frame:g}", icon="TIME")
+            op.frame = flag.frame
+        wrapped_label(row, context, flag.text, icon="ERROR" if flag.over else "CHECKMARK")

@@ -82,7 +82,7 @@ import tempfile
 import time
 import tomllib
 from collections import defaultdict, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from glob import escape as glob_escape
 from pathlib import Path
 
@@ -142,10 +142,19 @@ class Job:
     rigify_target: str = "fk"
     interpolation: str = "linear"
     timeout: float | None = None  # seconds the job may run (defaults.timeout); the runner enforces it
+    review: bool = False  # `--review`: the job also writes its review (FORMATS.md §4.5)
 
     @property
     def outputs(self) -> list[Path]:
         return [self.output, *self.exports]
+
+    @property
+    def review_files(self) -> list[Path]:
+        """The review's sheet and record beside the first output (`retarget --review`)."""
+        if not self.review:
+            return []
+        base = self.output.with_suffix("").name
+        return [self.output.with_name(f"{base}.review.png"), self.output.with_name(f"{base}.review.json")]
 
     def argv(self) -> list[str]:
         if self.user is None:
@@ -181,6 +190,8 @@ class Job:
             args += ["--interpolation", self.interpolation]
         if self.overwrite:
             args += ["--overwrite"]
+        if self.review:
+            args += ["--review"]
         return args
 
     def leftovers(self) -> list[Path]:
@@ -188,7 +199,7 @@ class Job:
         hidden temporary `.<output name>.<hex>.tmp<suffix>` the command writes first (outputs.py),
         with Blender's `@` beside it."""
         found = []
-        for out in self.outputs:
+        for out in [*self.outputs, *self.review_files]:
             found += [p for p in (out.with_name(out.name + "@"),) if p.exists()]
             found += sorted(out.parent.glob(f".{glob_escape(out.name)}.*.tmp{glob_escape(out.suffix)}*"))
         return found
@@ -727,10 +738,12 @@ def stop_running(running: list[Running], stop: Stop, grace: float):
         signal_job(run, KILL)
 
 
-def prepare_batch(jobs_file, log=print) -> tuple[list[Job], dict, list[str]]:
-    """The checked jobs, the settings, and the partial saves of an earlier killed batch, removed
-    (said on `log`); the output folder is created."""
+def prepare_batch(jobs_file, log=print, review: bool = False) -> tuple[list[Job], dict, list[str]]:
+    """The checked jobs (each writing its review too with `review`), the settings, and the partial
+    saves of an earlier killed batch, removed (said on `log`); the output folder is created."""
     jobs, settings = load_jobs(jobs_file)
+    if review:
+        jobs = [replace(job, review=True) for job in jobs]
     out_dir = Path(settings["output_dir"])
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -811,10 +824,10 @@ def job_progress(results: list[dict], total: int) -> tuple[str, float]:
             len(results) / max(total, 1))
 
 
-def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS, progress=None) -> dict:
+def run_batch(jobs_file, log=print, *, grace: float = GRACE_SECONDS, progress=None, review: bool = False) -> dict:
     """Runs the jobs file's jobs in worker processes here (module docstring); `log` gets one line per
-    finished job, `progress(stage, fraction)` how many are done."""
-    jobs, settings, stale = prepare_batch(jobs_file, log)
+    finished job, `progress(stage, fraction)` how many are done; `review`: each job reviews its bake."""
+    jobs, settings, stale = prepare_batch(jobs_file, log, review)
     results: list[dict] = []
     stop = Stop()
     previous = stop.install()

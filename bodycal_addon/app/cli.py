@@ -28,6 +28,7 @@ METHODS = methods_for("recording")  # every method, the default first (retarget/
 TRANSFER_METHODS = methods_for("animation")
 
 VMC_PORT = 39539  # a VMC Marionette's port (recording/live/vmc.py, which the command loads when it runs)
+IDLE_S = 5.0  # `record`: a stream silent this long after its first frame has stopped (FORMATS.md §6.2)
 EXIT_OK = 0
 EXIT_USAGE = 2
 _BONE_MAP_HELP = ("bone map preset (JSON, docs/FORMATS.md §5) for an armature whose bone names no naming scheme "
@@ -122,7 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "Manager's API; run nothing")
     c.add_argument("--retries", type=int, default=0, metavar="N",
                    help="with --cluster: submit a job again, up to N times, when the worker running it died")
+    c.add_argument("--review", action="store_true",
+                   help="every job reviews its bake (retarget --review) and OUTPUT_DIR/review.html lists them, worst "
+                        "first; exported farm jobs get a last step that writes the page (docs/FORMATS.md §4.5)")
 
+    _review_command(sub)
     _live_commands(sub)
 
     c = sub.add_parser("demo", help="the whole pipeline on the bundled sample recording and sample rigs")
@@ -154,6 +159,29 @@ def _hands_argument(c) -> None:
                         "decide); labels: as the file labels them; swapped: the labels swapped")
 
 
+def _review_command(sub) -> None:
+    c = sub.add_parser("review", help="the review sheet of a baked avatar file, or a batch's review page")
+    c.add_argument("output", metavar="OUTPUT|DIR",
+                   help="a baked avatar (.blend, .fbx, .glb, .gltf: what retarget, transfer or batch wrote): its "
+                        "sheet OUTPUT.review.png and record OUTPUT.review.json; or a batch's output folder: "
+                        "DIR/review.html from its jobs' reviews (docs/FORMATS.md §4.5)")
+    c.add_argument("--armature", metavar="NAME", help="the baked armature (default: the only one in the file)")
+    c.add_argument("--source", metavar="SOURCE",
+                   help="what the output was made from, to compare with: a recording (.bcrec.json, .csv, .c3d; "
+                        "with --user) or an animated character (.blend, .bvh, .fbx, .glb, .gltf)")
+    c.add_argument("--user", metavar="USER.body.json", help="the performer's body model, for a recording --source")
+    c.add_argument("--source-armature", metavar="NAME", help="a character --source's armature (default: the only one)")
+    c.add_argument("--action", metavar="NAME", help="a character --source's action (default: its active one)")
+    c.add_argument("--no-filter", action="store_true",
+                   help="a recording --source as recorded (default: smoothed as retarget smooths it)")
+    c.add_argument("--placement", choices=PLACEMENTS, default=PLACEMENTS[0],
+                   help="where the bake played the performance (as retarget --placement): where the sheet draws "
+                        "the source beside the avatar")
+    c.add_argument("-o", "--sheet", metavar="SHEET.png",
+                   help="where the sheet goes (default: beside OUTPUT); its record beside it")
+    c.add_argument("--overwrite", action="store_true", help="replace the sheet and record if they exist")
+
+
 def _live_commands(sub) -> None:
     """`record`, `stream` and `live`: the VMC protocol (FORMATS.md §6)."""
     c = sub.add_parser("record", help="record a live VMC stream (OSC over UDP) into a recording file")
@@ -164,7 +192,10 @@ def _live_commands(sub) -> None:
     c.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
                    help="address to listen on: 127.0.0.1 hears this machine only (default), 0.0.0.0 every network")
     c.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="stop once the take is S seconds long (default: when Ctrl-C is pressed)")
+                   help="stop S seconds (wall clock) after the first frame arrived (default: when Ctrl-C is pressed)")
+    c.add_argument("--idle", type=float, default=IDLE_S, metavar="S",
+                   help=f"end the take when no frame has come for S seconds after the first: the sender stopped "
+                        f"(default {IDLE_S:g}; 0 waits for Ctrl-C)")
     c.add_argument("--role", action="append", metavar="NAME=ROLE",
                    help="a device's role (its serial = head, hand_l, pelvis, ...); devices without one get theirs "
                         "from the T-pose when the file is read")
@@ -218,6 +249,7 @@ def _live_commands(sub) -> None:
     _filter_argument(c, "the devices (forward only, as they arrive)", on=True)
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: planted while the performer stands on them)")
+    _seated_argument(c)
 
 
 def _seated_argument(c) -> None:
@@ -272,6 +304,9 @@ def _bake_arguments(c, rate_of: str) -> None:
                    help="a .blend (the avatar's file with the new action), or an export of the avatar "
                         "and its baked action for game engines; give -o several times for several files")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
+    c.add_argument("--review", action="store_true",
+                   help="also review the bake: OUT.review.png (the frames that matter and the figures over the take, "
+                        "flagged against their limits) and OUT.review.json beside the first -o (docs/FORMATS.md §4.5)")
 
 
 def _handler(command: str) -> Callable[[argparse.Namespace], int]:

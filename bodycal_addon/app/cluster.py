@@ -249,14 +249,15 @@ class Scheduling:
             self.report({**batch.job_result(job, "cancelled", None, 0.0, error), "attempts": attempt + 1})
 
 
-def run_on_cluster(jobs_file, address: str, retries: int = 0, log=print, progress=None) -> dict:
+def run_on_cluster(jobs_file, address: str, retries: int = 0, log=print, progress=None, review: bool = False) -> dict:
     """Runs the jobs file on the cluster at `address` (module docstring); the summary, as
     `batch.run_batch`'s, written to `<output_dir>/summary.json`; `progress(stage, fraction)` how many
-    jobs are done (the command line's progress line, which steps aside for `log`'s lines)."""
+    jobs are done (the command line's progress line, which steps aside for `log`'s lines); `review`:
+    each job reviews its bake."""
     target = parse_address(address)
     if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= 100:
         raise BodyCalError(f"must be a whole number from 0 to 100, got {retries!r}", source="--retries")
-    jobs, settings, stale = batch.prepare_batch(jobs_file, log)
+    jobs, settings, stale = batch.prepare_batch(jobs_file, log, review)
     results: list[dict] = []
     step = progress or (lambda stage, fraction: None)
     step(*batch.job_progress(results, len(jobs)))

@@ -6,7 +6,9 @@ The job's settings are the checked jobs file with absolute paths: the recordings
 avatars as JSON lists, the methods and formats, the output folder and the bake options. The job
 type's compileJob makes the same jobs from them as `load_jobs` (the cross product, the output
 names of docs/FORMATS.md §4.1) and gives each one task running `blender -b -c bodycal ...` with
-`command_line(job, "blender")`'s arguments.
+`command_line(job, "blender")`'s arguments. With `review` (the setting), every job reviews its
+bake and a last task, depending on all of them, writes the review page (`bodycal review
+OUTPUT_DIR`, FORMATS.md §4.5).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ def _optional_float(value: float | None) -> str:
     return "" if value is None else repr(float(value))  # as Job.argv writes it
 
 
-def job_settings(jobs: list[Job], settings: dict) -> dict:
+def job_settings(jobs: list[Job], settings: dict, review: bool = False) -> dict:
     """The `bodycal-batch` job type's settings for these jobs (all share the bake options)."""
     first = jobs[0]
     recordings = _unique((str(j.recording), str(j.user)) for j in jobs if j.user is not None)
@@ -49,11 +51,13 @@ def job_settings(jobs: list[Job], settings: dict) -> dict:
         "tolerance": _optional_float(first.tolerance),
         "fps": _optional_float(first.fps),
         "overwrite": first.overwrite,
+        "review": review,
     }
 
 
-def export_flamenco(jobs_file, out_file) -> Path:
-    """Writes the job submission (JSON) to `out_file`; its path."""
+def export_flamenco(jobs_file, out_file, review: bool = False) -> Path:
+    """Writes the job submission (JSON) to `out_file`; its path. `review`: the jobs review their
+    bakes and a last task writes the review page."""
     jobs_file = Path(jobs_file).absolute()  # a farm needs absolute paths in every command
     jobs, settings = load_jobs(jobs_file)
     out_file = Path(out_file).absolute()
@@ -61,7 +65,7 @@ def export_flamenco(jobs_file, out_file) -> Path:
         raise BodyCalError("is the jobs file, a link or not a regular file; write the job elsewhere",
                            source=str(out_file))
     body = {"name": f"BodyCal batch {jobs_file.stem}", "type": JOB_TYPE, "priority": 50,
-            "submitter_platform": "linux", "settings": job_settings(jobs, settings),
+            "submitter_platform": "linux", "settings": job_settings(jobs, settings, review),
             "metadata": {"bodycal.jobs_file": str(jobs_file), "bodycal.jobs": str(len(jobs))}}
     try:
         out_file.parent.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,8 @@ the toes' tips), whatever the shoe or the foot's shape. From the hits:
 - `ball`: of those, the one nearest the toe joint (the pivot of a toe-off);
 - `support`: the hits that are the lowest for some way the foot may turn (pitched `PITCHES_DEG`,
   rolled `ROLLS_DEG`): the points of the skin that can touch the floor, kept by the plant above it.
+  Rays cast forward at the back of the heel (`back_origins`) add its back, which no ray from under
+  the floor reaches and which is lowest when the foot stands on its heel pitched far toes up.
 
 The sole's outline (rays.py's six rays at a fifth of the ankle's height, put on the floor plane)
 stays the surface element; these points are what the feet's plant stands on (feet.py).
@@ -29,9 +31,12 @@ BELOW = 0.05  # m: the rays start this far under the floor
 MAX_HEIGHT = 0.5  # of the ankle's height above the floor: skin higher up is not the sole's
 LOW_BAND = 0.01  # m
 MIN_HITS = 6  # fewer hits on the sole: not measured (the outline stands in)
-PITCHES_DEG = np.arange(-60.0, 61.0, 10.0)
+PITCHES_DEG = np.arange(-60.0, 91.0, 10.0)  # toes up to 90 degrees: a dancer stands on the heel's back
 ROLLS_DEG = (-20.0, -10.0, 0.0, 10.0, 20.0)
 RAYS = GRID_ALONG * GRID_ACROSS
+BACK_HEIGHTS = (0.1, 0.25, 0.4, 0.55, 0.7)  # of the ankle's height: the rays cast forward at the heel's back
+BACK_ACROSS = (-0.15, 0.0, 0.15)  # ankle-to-toe lengths either side of the foot's line (a heel is 0.3 wide)
+BACK_RAYS = len(BACK_HEIGHTS) * len(BACK_ACROSS)
 
 
 def grid_origins(ankle: np.ndarray, toe: np.ndarray, floor: float, forward: np.ndarray, lateral: np.ndarray,
@@ -44,10 +49,22 @@ def grid_origins(ankle: np.ndarray, toe: np.ndarray, floor: float, forward: np.n
     return (base + along[:, None, None] * forward + across[None, :, None] * lateral).reshape(-1, 3)
 
 
+def back_origins(ankle: np.ndarray, toe: np.ndarray, floor: float, forward: np.ndarray, lateral: np.ndarray,
+                 up: np.ndarray) -> tuple[np.ndarray, float]:
+    """((BACK_RAYS, 3) origins behind the heel, every ray going `forward`, the rays' length): as far
+    behind the ankle as the grid begins, up to the ankle (a hit beyond it is not the heel's back)."""
+    length = float(np.linalg.norm((toe - ankle) - np.dot(toe - ankle, up) * up))
+    height = float(ankle @ up) - floor
+    base = ankle - BEHIND * length * forward + up * (floor - float(ankle @ up))
+    out = [base + h * height * up + c * length * lateral for h in BACK_HEIGHTS for c in BACK_ACROSS]
+    return np.array(out), BEHIND * length
+
+
 def contact_points(hits: np.ndarray, ankle: np.ndarray, toe: np.ndarray, floor: float, forward: np.ndarray,
-                   lateral: np.ndarray, up: np.ndarray) -> dict | None:
+                   lateral: np.ndarray, up: np.ndarray, back: np.ndarray | None = None) -> dict | None:
     """{"heel": (3,), "ball": (3,), "support": (K, 3)} world points from the grid's hits (N, 3)
-    (NaN rows: missed), or None when too few hit the sole."""
+    (NaN rows: missed), or None when too few hit the sole; `back` (M, 3): the hits of the rays at
+    the heel's back (`back_origins`), support only."""
     hits = np.asarray(hits, float).reshape(-1, 3)
     hits = hits[np.isfinite(hits).all(axis=1)]
     height = hits @ up - floor
@@ -63,6 +80,9 @@ def contact_points(hits: np.ndarray, ankle: np.ndarray, toe: np.ndarray, floor: 
     p, r = p.ravel()[:, None], r.ravel()[:, None]
     # "down" of a foot pitched by p (toes up for p > 0) and rolled by r, in the rest frame
     down = -(np.cos(p) * np.cos(r)) * up - np.sin(p) * forward - (np.cos(p) * np.sin(r)) * lateral
+    if back is not None:
+        back = np.asarray(back, float).reshape(-1, 3)
+        hits = np.vstack([hits, back[np.isfinite(back).all(axis=1)]])
     keep = np.unique(np.argmax(down @ hits.T, axis=1))
     support = np.unique(np.vstack([hits[keep], heel, ball]), axis=0)
     return {"heel": heel, "ball": ball, "support": support}

@@ -201,7 +201,7 @@ def planned_rays(rig: ArmatureReading) -> int:
     capsules = sum(1 for b in canonical_bones(rig) if b.name in sl.CAPSULE_BONES)
     head = 1 + len(SKULL_RAYS) + len(JAW_RAYS)
     torso = len(TORSO_RAYS) + len(sl.BELLY_CENTRE_UV)
-    per_side = len(PALM_RAYS) + 2 + SOLE_RAYS + foot_contact.RAYS
+    per_side = len(PALM_RAYS) + 2 + SOLE_RAYS + foot_contact.RAYS + foot_contact.BACK_RAYS
     return capsules * (1 + len(CAPSULE_STATIONS)) * CAPSULE_RAYS + head + torso + len(sk.SIDES) * per_side
 
 
@@ -469,19 +469,25 @@ def _measure_sole(survey: _Survey, s: str) -> None:
         f"mesh:sole_{s}", "mesh", foot,
         points={p: SurfacePoint(foot, survey.local(foot, x)) for p, x in zip(names, outline)},
         triangles=sl.fan_triangles(names))
-    # The skin's contact points (foot_contact.py): a grid of rays from under the floor.
+    # The skin's contact points (foot_contact.py): a grid of rays from under the floor, and rays at
+    # the heel's back.
     grid = []
     for o in foot_contact.grid_origins(a, toe, floor, f, lat, U):
         r = survey.caster.cast(o, U, float(a @ U) - floor + foot_contact.BELOW)
         grid.append(r[0] if r is not None else np.full(3, np.nan))
-    contact = foot_contact.contact_points(np.array(grid), a, toe, floor, f, lat, U)
+    origins, reach = foot_contact.back_origins(a, toe, floor, f, lat, U)  # the heel's back, cast forward
+    back = []
+    for o in origins:
+        r = survey.caster.cast(o, f, reach)
+        back.append(r[0] if r is not None else np.full(3, np.nan))
+    contact = foot_contact.contact_points(np.array(grid), a, toe, floor, f, lat, U, back=np.array(back))
     if contact is not None:
         element.extra["contact"] = {
             "heel": _list3(survey.local(foot, contact["heel"])), "ball": _list3(survey.local(foot, contact["ball"])),
             "support": [_list3(survey.local(foot, x)) for x in contact["support"]]}
     survey.model.surface.append(element)
-    hit = int(np.isfinite(np.array(grid)).all(axis=1).sum())
-    survey.quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2 + len(grid), "hit": len(rays) + 2 + hit,
+    hit = int(np.isfinite(np.array(grid + back)).all(axis=1).sum())
+    survey.quality[f"mesh:sole_{s}"] = {"rays": len(rays) + 2 + len(grid) + len(back), "hit": len(rays) + 2 + hit,
                                         "rejected": 0,
                                         "spread_mm": round(float(np.ptp([x @ U for x in floor_hits]) * 1000), 3),
                                         "contact_points": 0 if contact is None else len(contact["support"])}

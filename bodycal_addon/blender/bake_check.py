@@ -29,6 +29,11 @@ CHECK_FRAMES = 5
 TOLERANCE = 0.02
 
 
+class VerificationFailed(BodyCalError):
+    """The baked keys do not play the animation on the evaluated rig (one line, as any BodyCalError;
+    its own type so a review lists it first, output/review.py)."""
+
+
 @dataclass
 class BakeCheck:
     samples: np.ndarray  # (K,) indices into the animation's frames
@@ -145,7 +150,7 @@ def verify(check: BakeCheck | None, obj, frames: np.ndarray, in_place: bool = Fa
         scene.frame_set(was[0], subframe=was[1])
     err, what, frame = worst
     if err > check.tolerance:
-        raise BodyCalError(
+        raise VerificationFailed(
             f"the baked keys do not move the bones that deform the mesh: at frame {frame:g} the {what} is "
             f"{err * 1000:.0f} mm from the retargeted pose (allowed {check.tolerance * 1000:.0f} mm); nothing was kept",
             source=obj.name,

@@ -1,9 +1,10 @@
 """`bodycal demo` / `make demo`: the whole pipeline on the bundled synthetic recording (full
 profile, sample_rigs/recordings) onto the procedural avatar and the shared MakeHuman avatars,
-with all three methods; saves `out/demo.blend` and prints contact gap and floor error per avatar
-and method. Then a real take of a three-point kit (an HTC Vive's HMD and wands, sample_data's
-real_vr: no calibration steps, the pelvis and feet estimated) onto the adult avatar, every
-method, saved as `out/demo_three_point.blend`.
+with all three methods; saves `out/demo.blend`, prints contact gap and floor error per avatar
+and method, and reviews every bake: `out/review/review.html` lists their sheets and flags
+(blender/review.py, FORMATS.md §4.5). Then a real take of a three-point kit (an HTC Vive's HMD
+and wands, sample_data's real_vr: no calibration steps, the pelvis and feet estimated) onto the
+adult avatar, every method, saved as `out/demo_three_point.blend`.
 
 In the saved file each avatar stands in a column, one row per method (egocentric at the front),
 each armature playing its own baked action; the recording's empties and the performer's
@@ -23,11 +24,13 @@ from ..calibration import calibrate_user
 from ..core import paths
 from ..core.errors import BodyCalError
 from ..output import metrics
+from ..output.review_page import write_page
 from ..recording.io import load_recording
 from ..retarget.pipeline import METHODS
 from ..retarget.takes import RecordingTake
 from . import avatar_storage, calibration_scene, mesh_metrics, recording_scene, session
 from .avatar_calibration import calibrate_avatar
+from .review import review_files, write_review
 
 DEMO_RECORDING = paths.ROOT_DIR / "sample_rigs" / "recordings" / "demo_full.bcrec.json"
 COLUMN_SPACING = 1.0
@@ -96,6 +99,7 @@ def run_demo(output_dir: Path, log=print, only_avatars=None, three_point: bool =
 
     take = RecordingTake(rec, user)
     rows = []
+    noted: set[str] = set()
     for col, (name, load) in enumerate(_avatar_loaders(only_avatars)):
         avatar = None
         for row, method in enumerate(METHODS):
@@ -108,8 +112,13 @@ def run_demo(output_dir: Path, log=print, only_avatars=None, three_point: bool =
             arm.name = f"{name}.{method}"
             target = session.prepare_target(arm)
             computed = session.compute(take, target, session.Settings(method))
-            summary = session.bake(take, target, computed, action_name=f"{rec.name}|{name}|{method}")
+            summary = session.bake(take, target, computed, action_name=f"{rec.name}|{name}|{method}", review=True)
             anim = computed.animation
+            sheet, record = review_files(output_dir / "review" / f"{name}__{method}.blend")
+            for note in write_review(summary, arm, sheet, record, [output_dir / "demo.blend"], overwrite=True):
+                if note not in noted:  # said once (matplotlib missing), not per bake
+                    noted.add(note)
+                    log(note)
             touching = [c for c in contacts if c["effector"].split("_")[0] in ("palm", "wrist", "tip")]
             gaps = mesh_metrics.contact_gaps(arm, target.avatar, anim, touching, max_frames=8)
             gap = np.abs(np.concatenate(gaps)) if gaps else np.array([np.nan])
@@ -129,11 +138,11 @@ def run_demo(output_dir: Path, log=print, only_avatars=None, three_point: bool =
     log(f"{'avatar':<18}{'method':<12}{'contact gap median':>20}{'p95':>9}{'floor error median':>20}{'keys':>10}")
     for name, method, g_med, g_p95, f_med, keys in rows:
         log(f"{name:<18}{method:<12}{g_med:>17.1f} mm{g_p95:>6.1f} mm{f_med:>17.1f} mm{keys:>10}")
-    log("")
-    log(f"saved {out} ({time.perf_counter() - t_start:.1f} s)")
     three = run_three_point_demo(output_dir, log) if three_point else None
-    if three is not None:
-        log(f"saved {three}")
+    page = write_page(output_dir / "review")
+    log("")
+    log(f"saved {out}{f', {three}' if three else ''} and the bakes' review page {page} "
+        f"({time.perf_counter() - t_start:.1f} s)")
     return out
 
 
@@ -169,8 +178,11 @@ def run_three_point_demo(output_dir: Path, log=print) -> Path | None:
         arm.name = f"{THREE_POINT_AVATAR}.{method}"
         target = session.prepare_target(arm)
         computed = session.compute(take, target, session.Settings(method))
-        summary = session.bake(take, target, computed, action_name=f"{rec.name}|{THREE_POINT_AVATAR}|{method}")
+        summary = session.bake(take, target, computed, action_name=f"{rec.name}|{THREE_POINT_AVATAR}|{method}",
+                               review=True)
         log(f"  {summary.line()}")
+        sheet, record = review_files(Path(output_dir) / "review" / f"three_point_{THREE_POINT_AVATAR}__{method}.blend")
+        write_review(summary, arm, sheet, record, [Path(output_dir) / "demo_three_point.blend"], overwrite=True)
         for note in computed.animation.notes:
             if "estimated" in note:
                 log(f"  {note}")

@@ -7,9 +7,11 @@
     pump_for(seconds)                # background Blender (headless stations, the bench): the timer's loop
     stop_following(); disconnect()   # every armature exactly as it was
 
-Each pump takes the stream's newest frame (retarget/live_session.py), moves the live empties (one per
-device and marker, named and drawn as the importer makes them, in their own collection) and sets
-each follower's solved pose on its armature with `foreach_set` (preview.PoseWriter). Nothing here
+Each pump takes the stream's newest frame (live/session.py) and moves the live empties (one per
+device and marker, named and drawn as the importer makes them, in their own collection), and sets
+each pose the followers solved since on its armature with `foreach_set` (preview.PoseWriter). The
+solves run elsewhere (each avatar in a worker process of its own by default, else on the session's
+solving thread): this thread never solves and never waits for a solve. Nothing here
 is an operator: no undo step is made and the file is not marked changed; the viewport is only
 asked to redraw. While an armature follows, its action and NLA are set aside (the animation
 system would overwrite the pose on the next frame change) and put back with its pose, rotation
@@ -17,10 +19,11 @@ modes and values when it stops (pose_state.PoseState). A file saved while live h
 live pose nor the live empties (save_pre puts everything back, save_post takes it up again);
 loading another file ends the session.
 
-The pump is locked onto the stream (retarget/pump_clock.py): `tick` pumps and says when to look
-again, at the next frame's expected arrival; the UI's timer returns that delay to Blender (a frame
-due within `UI_BLOCK_S` is waited for, never longer), `pump_for` sleeps it, or wakes as soon as a
-frame arrives (`wake_on_arrival`, a loop that may block).
+The pump is locked onto the stream (live/pump_clock.py): `tick` pumps and says when to look
+again, at the next frame's expected arrival or a pose's expected end, whichever is first; the UI's
+timer returns that delay to Blender (a frame or pose due within `UI_BLOCK_S` is waited for, never
+longer), `pump_for` sleeps it, or wakes as soon as a frame or a pose arrives (`wake_on_arrival`, a
+loop that may block).
 """
 
 from __future__ import annotations
@@ -37,13 +40,13 @@ from ..body import naming
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
+from ..live.session import LiveSession, LiveUpdate
 from ..output.root_motion import apply_root_motion, check_root_motion
 from ..recording.filters import OneEuro
 from ..recording.io import load_recording
 from ..recording.live.receiver import VmcReceiver
 from ..recording.live.vmc import DEFAULT_PORT
 from ..recording.live.wizard import LiveWizard
-from ..retarget.live_session import LiveSession, LiveUpdate
 from . import avatar_rig, preview, recording_scene, rig_output
 from .pose_state import PoseState
 from .session import prepare_target
@@ -151,17 +154,19 @@ def disconnect():
 
 def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro | None = None,
            plant_feet: bool = True, placement: str = "object", root_motion: str = "root",
-           worker: bool = False) -> Following:
+           worker: bool = True, seat_height: float | None = None) -> Following:
     """`arm` follows the stream from the next frame: `user` (the performer's model) onto the
     armature's avatar model (measured now when it has none stored) by `method`; `worker`: solved
-    in a process of its own (retarget/live_worker.py: several avatars on several cores)."""
+    in a process of its own (live/worker.py: Blender's process never runs the solve, several
+    avatars use several cores), else on the session's solving thread in Blender's process;
+    `seat_height`: the performer seated (a kit without foot trackers)."""
     live = _need_session()
     check_root_motion(root_motion)
     preview.stop(arm.name)  # the preview's pose put back first: the armature as the user left it
     target = prepare_target(arm)
     stop_following(arm.name)  # a second Follow: put back as it was before the first
     live.follow(arm.name, user, target.avatar, method, smooth=smooth, plant_feet=plant_feet, placement=placement,
-                worker=worker)
+                seat_height=seat_height, worker=worker)
     saved = PoseState.capture(arm)
     saved.detach(arm)
     bone_map = naming.BoneMap.from_dict(target.avatar.extra["rig"]["bone_map"])
@@ -290,8 +295,8 @@ def stop_recording(folder: str = "", scene=None, step_markers: str = "starts"):
 
 
 def pump_once() -> LiveUpdate | None:
-    """Take the newest frame, set each follower's pose as soon as it is solved, then move the
-    empties and update the wizard (what nobody waits for comes last); None when no frame came."""
+    """Set each pose the followers solved since the last pump, then move the empties to the newest
+    frame and update the wizard (what nobody waits for comes last); None when nothing came."""
     live = _state.session
     if live is None:
         return None
@@ -301,7 +306,8 @@ def pump_once() -> LiveUpdate | None:
             print(f"BodyCal live: {line}")
         for name in [n for n in update.poses if n not in _state.following]:  # gone while following
             live.unfollow(name)
-        update_empties(update.frame, live.roles, live.kinds)
+        if update.frame is not None:
+            update_empties(update.frame, live.roles, live.kinds)
     if live.recorder is not None:
         _update_wizard(live)
     if update is not None:
@@ -327,18 +333,39 @@ def _set_pose(update: LiveUpdate, name: str) -> None:
     live.posed(update, name, done)
 
 
-def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
-    """The solved frame as the bake would key it (root motion where asked) on the pose bones."""
+def _animation(follower, solved, frame) -> AvatarAnimation:
+    """The solved frame as an animation of one row (its own copy: root motion changes it in place,
+    and the update keeps the solver's pose as solved)."""
     rig = follower.layout  # the rig's names and root (from the worker, when the follower solves in one)
-    t = np.array([update.frame_of(follower.name).arrival])
-    anim = AvatarAnimation(rig.armature, list(rig.names), solved.basis, rig.names[rig.root],
-                           np.asarray(solved.root_location, float), t, follower.method)
-    if f.rest is None:
-        f.rest = rig_output.root_rest(arm, anim, f.bone_map)
-        f.first = anim
+    return AvatarAnimation(rig.armature, list(rig.names), np.array(solved.basis, float), rig.names[rig.root],
+                           np.asarray(solved.root_location, float), np.array([frame.arrival]), follower.method)
+
+
+def _with_root_motion(f: Following, anim: AvatarAnimation) -> AvatarAnimation:
     if f.root_motion == "in-place":  # the travel removed relative to the first frame followed
         anim = preview.joined(f.first, anim)
-    anim = apply_root_motion(anim, f.rest, f.root_motion, own=True)
+    return apply_root_motion(anim, f.rest, f.root_motion, own=True)
+
+
+def _converter(f: Following, follower):
+    """The follower's `convert` (live/followers.py): each solved pose with its root motion, made on
+    the session's solving thread (numpy only, no Blender data: the rig's rest was read here at the
+    first pose), so that this thread only sets it. None until that first pose was written."""
+    def convert(solved, frame):
+        return _with_root_motion(f, _animation(follower, solved, frame)) if f.rest is not None else None
+    return convert
+
+
+def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
+    """The solved frame as the bake would key it (root motion where asked) on the pose bones."""
+    anim = update.converted.get(follower.name)
+    if anim is None:  # the first pose (its rig's rest read now), or one solved before that
+        anim = _animation(follower, solved, update.frame_of(follower.name))
+        if f.rest is None:
+            f.rest = rig_output.root_rest(arm, anim, f.bone_map)
+            f.first = anim
+            follower.convert = _converter(f, follower)
+        anim = _with_root_motion(f, anim)
     if f.rigify_target is not None:  # the DEF- skeleton's pose carried onto the controls
         if f.rigify is None:
             f.rigify = rig_output.RigifyPlan(arm, f.rigify_target, anim.bone_names)

@@ -24,12 +24,9 @@ from ..body import naming
 from ..body import skeleton as sk
 from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
-from ..body.rest_frames import complete_joints
-from ..body.skeleton import BONE_INDEX as BI
 from ..core.errors import BodyCalError
 from ..output import metrics
 from ..retarget.avatar_pose import AvatarRig
-from ..retarget.solver_methods import surface_correction
 
 
 def world_vertices(obj, depsgraph) -> np.ndarray:
@@ -69,6 +66,12 @@ def effector_segments(effector: str) -> list[str]:
         return [f"thigh_{side}", f"shin_{side}", f"foot_{side}", f"toe_{side}"]
     return [f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"] + [
         f"{f}_{i}_{side}" for f in sk.FINGERS for i in (1, 2, 3)] + [f"metacarpal_{f}_{side}" for f in sk.FINGERS]
+
+
+def target_bones(avatar: BodyModel, target: str) -> set[str]:
+    """The avatar's bones whose skin is the touched element `target` (`target_segments`)."""
+    bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
+    return _segment_bones(bm, target_segments(target))
 
 
 def _segment_bones(bone_map: naming.BoneMap, segments) -> set[str]:
@@ -188,22 +191,28 @@ def signed_gaps(arm, anim: AvatarAnimation, queries: list[tuple[np.ndarray, dict
             world_verts = at(f)
             for qi, k in items:
                 _, tris_by_mesh, points = queries[qi]
-                verts, tris, off = [], [], 0
-                for name, tri in tris_by_mesh.items():
-                    v = world_verts[name]
-                    verts.append(v)
-                    tris.append(tri + off)
-                    off += len(v)
-                if not verts:
-                    continue
-                tree = BVHTree.FromPolygons(np.concatenate(verts).tolist(), np.concatenate(tris).tolist())
-                p = points[k]
-                loc, normal, _, dist = tree.find_nearest(p.tolist())
-                if loc is None:
-                    continue
-                sign = 1.0 if np.dot(np.asarray(p) - np.asarray(loc), np.asarray(normal)) >= 0 else -1.0
-                out[qi][k] = sign * dist
+                out[qi][k] = gap_to_skin(world_verts, tris_by_mesh, points[k])
     return out
+
+
+def gap_to_skin(world_verts: dict[str, np.ndarray], tris_by_mesh: dict[str, np.ndarray], point) -> float:
+    """Signed distance (m, negative inside) of a world point to the skin made of `tris_by_mesh`
+    ({mesh name: triangles}) of the evaluated meshes `world_verts` ({mesh name: (V, 3)}); NaN when
+    there is no such skin."""
+    verts, tris, off = [], [], 0
+    for name, tri in tris_by_mesh.items():
+        v = world_verts[name]
+        verts.append(v)
+        tris.append(tri + off)
+        off += len(v)
+    if not verts:
+        return float("nan")
+    tree = BVHTree.FromPolygons(np.concatenate(verts).tolist(), np.concatenate(tris).tolist())
+    p = np.asarray(point, float)
+    loc, normal, _, dist = tree.find_nearest(p.tolist())
+    if loc is None:
+        return float("nan")
+    return (1.0 if np.dot(p - np.asarray(loc), np.asarray(normal)) >= 0 else -1.0) * dist
 
 
 def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[dict], max_frames: int = 12,
@@ -237,48 +246,42 @@ def contact_gaps(arm, avatar: BodyModel, anim: AvatarAnimation, contacts: list[d
     return [g - o for g, o in zip(gaps, offsets)]
 
 
-def _sole_frame(avatar: BodyModel, anim: AvatarAnimation, side: str):
-    """The foot's sole element, the ankle (F, 3) and the foot's surface frame (F, 3, 3) in the baked
-    pose: where the sole's points (local to the ankle in that frame) are."""
+def _foot_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> dict[str, np.ndarray]:
     rig = AvatarRig.from_model(avatar)
-    pose = rig.fk(anim.rotations, anim.root_location)
-    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[BI[f"foot_{side}"]]
-    frame = pose.frames[:, BI[f"foot_{side}"]] @ corr
-    return avatar.element(f"mesh:sole_{side}"), pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]], frame
+    return metrics.foot_points(avatar, rig, rig.fk(anim.rotations, anim.root_location), side)
 
 
 def sole_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> np.ndarray:
     """World positions (F, N, 3) of the avatar's sole outline (`mesh:sole_<side>`) in the baked
-    pose: the floor-error measurement of DESIGN.md §7."""
-    el, ankle, frame = _sole_frame(avatar, anim, side)
-    local = np.stack([p.local for p in el.points.values()])
-    return ankle[:, None] + np.einsum("fij,kj->fki", frame, local)
+    pose: the floor-error measurement of DESIGN.md §7 (`metrics.foot_points`)."""
+    return _foot_points(avatar, anim, side)["outline"]
 
 
 def contact_points(avatar: BodyModel, anim: AvatarAnimation, side: str) -> dict[str, np.ndarray]:
-    """World positions of the avatar's sole contact points (`mesh:sole_<side>` `contact`, FORMATS.md
-    §3: measured on its skin) in the baked pose: "heel", "ball" (F, 3) and "support" (F, K, 3); the
-    sole's outline stands in (its points, heel and ball its middle) on a model without them."""
-    el, ankle, frame = _sole_frame(avatar, anim, side)
-    c = el.extra.get("contact")
-    if not isinstance(c, dict):
-        outline = np.stack([p.local for p in el.points.values()])
-        c = {"heel": outline.mean(0), "ball": outline.mean(0), "support": outline}
-    out = {k: ankle + frame @ np.asarray(c[k], float) for k in ("heel", "ball")}
-    out["support"] = ankle[:, None] + np.einsum("fij,kj->fki", frame, np.asarray(c["support"], float))
-    return out
+    """World positions of the avatar's sole contact points in the baked pose: "heel", "ball" (F, 3)
+    and "support" (F, K, 3) (`metrics.foot_points`)."""
+    points = _foot_points(avatar, anim, side)
+    return {k: points[k] for k in ("heel", "ball", "support")}
 
 
 def foot_skin(arm, avatar: BodyModel, anim: AvatarAnimation, frames, mesh: EvaluatedMesh | None = None
               ) -> dict[str, dict[str, np.ndarray]]:
     """What the animator sees of the feet (DESIGN.md §7, "Real motion"), on the evaluated mesh at
-    `frames` (n,): per side, `low` (n,) the lowest world height of the foot's skin (the vertices
-    the foot and toe bones dominate), and `heel` / `ball` (n, 3) two skin points followed through
-    the motion: the lowest vertex at the back of the sole and the lowest one under the ball of the
-    foot (the toe joint), chosen on the mesh as it was bound."""
+    `frames` (n,) of `anim` (the armature posed by it, `posed`): per side, `low` (n,) the lowest
+    world height of the foot's skin (the vertices the foot and toe bones dominate), and `heel` /
+    `ball` (n, 3) two skin points followed through the motion: the lowest vertex at the back of
+    the sole and the lowest one under the ball of the foot (the toe joint), chosen on the mesh as
+    it was bound."""
     mesh = mesh or EvaluatedMesh(arm)
+    with posed(arm, anim, mesh.meshes) as at:
+        return foot_skin_at(arm, avatar, lambda f: at(int(f)), np.asarray(frames, int), mesh)
+
+
+def foot_skin_at(arm, avatar: BodyModel, at, frames, mesh: EvaluatedMesh) -> dict[str, dict[str, np.ndarray]]:
+    """`foot_skin` with the mesh posed by `at(frame) -> {mesh name: (V, 3) world vertices}`: the
+    armature posed from an animation (`posed`), or playing its baked action (`played`)."""
     bone_map = naming.BoneMap.from_dict(avatar.extra["rig"]["bone_map"])
-    frames = np.asarray(frames, int)
+    frames = np.asarray(frames)
     picks = {}
     for s in sk.SIDES:
         bones = _segment_bones(bone_map, [f"foot_{s}", f"toe_{s}"])
@@ -300,14 +303,33 @@ def foot_skin(arm, avatar: BodyModel, anim: AvatarAnimation, frames, mesh: Evalu
             break
     out = {s: {"low": np.full(len(frames), np.nan), "heel": np.full((len(frames), 3), np.nan),
                "ball": np.full((len(frames), 3), np.nan)} for s in picks}
-    with posed(arm, anim, mesh.meshes) as at:
-        for k, f in enumerate(frames):
-            verts = at(int(f))
-            for s, (name, idx, heel, ball) in picks.items():
-                v = verts[name]
-                out[s]["low"][k] = v[idx, 2].min()
-                out[s]["heel"][k], out[s]["ball"][k] = v[heel], v[ball]
+    for k, f in enumerate(frames):
+        verts = at(f)
+        for s, (name, idx, heel, ball) in picks.items():
+            v = verts[name]
+            out[s]["low"][k] = v[idx, 2].min()
+            out[s]["heel"][k], out[s]["ball"][k] = v[heel], v[ball]
     return out
+
+
+@contextlib.contextmanager
+def played(arm, meshes):
+    """A function `scene frame -> {mesh name: (V, 3) world vertices}` of the skinned `meshes` with
+    the armature playing what it has (its baked action, constraints and drivers included): what
+    the animator sees at that frame. The scene's frame is put back afterwards."""
+    scene = bpy.context.scene
+    was = scene.frame_current, scene.frame_subframe
+
+    def at(frame: float) -> dict[str, np.ndarray]:
+        whole = int(np.floor(frame))
+        scene.frame_set(whole, subframe=float(frame) - whole)
+        dg = bpy.context.evaluated_depsgraph_get()
+        return {obj.name: world_vertices(obj, dg) for obj in meshes}
+
+    try:
+        yield at
+    finally:
+        scene.frame_set(was[0], subframe=was[1])
 
 
 def _dominant(obj) -> np.ndarray:

@@ -7,12 +7,14 @@
 
 The Retarget and Transfer operators, the `retarget` and `transfer` commands (`run_files`), the
 batch jobs (which run those commands) and the demo all go through here, whatever the take: a
-tracker recording, another character's action, or (next) a live stream. Compute first, write last:
-nothing in the scene changes before `bake`, and a failed bake puts back what it changed.
+tracker recording or another character's action. Compute first, write last: nothing in the scene
+changes before `bake`, and a failed bake puts back what it changed. A live stream (blender/live.py)
+shares `prepare_target` and the prepared solver with it (DESIGN.md "A file take and a live stream").
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,6 +29,7 @@ from ..body.bone_presets import load_preset
 from ..core import outputs
 from ..core.errors import BodyCalError
 from ..output import metrics
+from ..output import review as review_figures
 from ..recording.filters import DEFAULT_FILTER, OneEuro
 from ..recording.io import load_recording
 from ..retarget.methods import check_method
@@ -34,6 +37,7 @@ from ..retarget.placement import avatar_warnings, check_placement
 from ..retarget.takes import CharacterTake, RecordingTake, Take
 from . import avatar_storage, bake_check, calibration_scene, process, recording_scene, rig_output
 from . import bake as baking
+from . import review as review_sheet
 from .avatar_calibration import avatar_model_for
 from .avatar_rig import apply_preset
 from .blendfile import find_armature, open_avatar, save_blend
@@ -64,6 +68,7 @@ class Target:
 class Computed:
     animation: AvatarAnimation
     seconds: float
+    placement: str = "object"  # where the performance played (the review brings the source there)
 
 
 @dataclass
@@ -83,6 +88,9 @@ class Summary:
     dense_bones: tuple[str, ...] = ()  # bones the key reduction could hardly thin (bake.dense_note)
     frame_range: tuple[float, float] | None = None  # the scene frames of the first and last keys
     kind: str = "recording"  # the take's kind (retarget/takes.py): what the dense-bone note suggests
+    review: review_figures.Review | None = None  # the bake's review (output/review.py), when asked
+    review_plan: review_figures.ReviewPlan | None = None  # what its sheet draws from (blender/review.py)
+    review_s: float = 0.0  # the review's figures' time, measured apart from compute_s and bake_s
 
     def line(self) -> str:
         fig = ", ".join(f"{k} {v:.1f} mm" for k, v in self.figures.items())
@@ -110,7 +118,7 @@ def compute(take: Take, target: Target, settings: Settings, progress: Callable[[
     t0 = time.perf_counter()
     anim = take.animate(target.avatar, settings.method, plant_feet=settings.plant_feet,
                         placement=settings.placement, progress=progress, cancel=cancel)
-    return Computed(anim, time.perf_counter() - t0)
+    return Computed(anim, time.perf_counter() - t0, settings.placement)
 
 
 def quality_figures(anim: AvatarAnimation) -> dict[str, float]:
@@ -139,7 +147,7 @@ def key_rate(take: Take, fps: float | None) -> tuple[int, float, float, bool]:
 def bake(take: Take, target: Target, computed: Computed, *, options: baking.BakeOptions | None = None,
          replace: bool = False, push_to_nla: bool = False, action_name: str | None = None,
          set_scene_rate: bool = False, set_scene_range: bool = False,
-         release: bool = False) -> Summary:
+         release: bool = False, review: bool = False) -> Summary:
     """Bake the computed animation onto the target's armature at `options.fps` (None: one key per
     sample of the take), keys reduced within the options' tolerances; a new action unless
     `replace`. The first key lands on the take's `frame_start` (the frame its source plays at).
@@ -147,7 +155,8 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
     range the action's (the command line starts from the avatar's file; the sidebar asks).
     `release`: nothing more will be computed from the take or measured on the animation's joints
     and targets; they are let go before the keys are made (a 10-minute take: ~250 MB less at the
-    command's peak)."""
+    command's peak). `review`: the bake's review too (output/review.py; the evaluated mesh measured
+    once the keys are written: blender/review.py), in `Summary.review`."""
     import bpy
 
     options = options or baking.BakeOptions()
@@ -157,6 +166,9 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
     frame_start = take.frame_start
     figures = quality_figures(anim)
     check = bake_check.plan(anim, target.avatar)  # before the joints are let go
+    t_review = time.perf_counter()
+    plan = review_plan(take, target.avatar, computed, frame_start, rate, figures) if review else None
+    review_s = time.perf_counter() - t_review
 
     def verify():
         bake_check.verify(check, arm, baking.key_frames(anim.time, rate, frame_start),
@@ -184,12 +196,27 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
                                        location_tolerance_mm=options.location_tolerance_mm,
                                        own=resampled or release, set_scene_range=set_scene_range,
                                        interpolation=options.interpolation, verify=verify)
+    bake_s = time.perf_counter() - t0
     if target.calibrated_now:
         avatar_storage.store_model(arm, target.avatar)
         target.calibrated_now = False
-    return Summary(result.action.name, anim.method, keyed.frame_count, result.keys, computed.seconds,
-                   time.perf_counter() - t0, rate, result.samples, figures, list(keyed.notes), result.dense_bones,
-                   result.frame_range, take.kind)
+    summary = Summary(result.action.name, anim.method, keyed.frame_count, result.keys, computed.seconds, bake_s, rate,
+                      result.samples, figures, list(keyed.notes), result.dense_bones, result.frame_range, take.kind)
+    if plan is not None:
+        t_review = time.perf_counter()
+        summary.review, summary.review_plan = review_sheet.measure(plan, arm, target.avatar), plan
+        summary.review_s = review_s + time.perf_counter() - t_review
+    return summary
+
+
+def review_plan(take: Take, avatar: BodyModel, computed: Computed, frame_start: float, rate: float,
+                figures: dict) -> review_figures.ReviewPlan:
+    """The review's figures of a computed animation against its take's source (output/review.py),
+    before the keys are made (a released take has let its source go)."""
+    anim = computed.animation
+    source = review_figures.source_motion(take.pose_source(computed.placement), avatar, anim.method,
+                                          computed.placement)
+    return review_figures.plan(anim, avatar, source, frame_start, rate, figures)
 
 
 # --- takes in the scene ------------------------------------------------------------------------------
@@ -248,14 +275,14 @@ def write_outputs(arm, outs, files_read, overwrite: bool, log=print) -> None:
 
 # The share of a command's run each stage takes on its progress line (the engine's compute is the rest).
 _STAGES = {"reading": 0.0, "opening the avatar": 0.04, "measuring the avatar": 0.08, "computing": 0.14,
-           "baking": 0.86, "saving": 0.94}
+           "baking": 0.86, "saving": 0.94, "reviewing": 0.97}
 
 
 def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar_file, output_paths, *,
               armature: str | None = None, settings: Settings | None = None, overwrite: bool = True,
               options: baking.BakeOptions | None = None, log=print, warn=print, bone_map_path=None,
               frame_range: tuple[float, float] | None = None,
-              progress: Callable[[str, float], None] | None = None) -> Summary:
+              progress: Callable[[str, float], None] | None = None, review: bool = False) -> Summary:
     """A take of `kind` (read by `read_take`, which may open its own file) onto the avatar of
     `avatar_file`, baked and written to `output_paths`. Every path is checked first (the outputs:
     not an input, not a link or device, replaced only with `overwrite`, each once; the bone map
@@ -266,14 +293,44 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     frame 1, a character's action keeps its own frames); the scene's range becomes the baked one.
     `warn` gets one line per doubt about the avatar (placement.avatar_warnings), before the work;
     `log` the take's notes, the summary line and the engine's notes; `progress(stage, fraction)`
-    how far the run is (the command line's progress line)."""
+    how far the run is (the command line's progress line). `review`: the bake's review too, its
+    sheet and record beside the first output (blender/review.py, FORMATS.md §4.5), written after
+    the outputs; a bake that fails after the checks leaves a record saying why."""
     settings = settings or Settings()
     check_method(settings.method, kind)
     check_placement(settings.placement)
     name, path = avatar_input(avatar_file)
     files_read = [*files_read, (f"{name} (--avatar)", path), ("the bone map (--bone-map)", bone_map_path)]
     outs = checked_outputs(output_paths, files_read, overwrite)
+    reviewed = review_sheet.review_files(outs[0]) if review else ()
+    for out in reviewed:
+        outputs.check_output(out, inputs=files_read, overwrite=overwrite)
     bone_map = load_preset(bone_map_path) if bone_map_path else None  # every input checked before opening any
+    try:
+        summary, arm = _read_and_bake(read_take, kind, avatar_file, armature, settings, options, log, warn, bone_map,
+                                      frame_range, progress, review)
+    except BodyCalError as exc:
+        if reviewed:  # what went wrong, for the batch's review page (the error itself is what is said)
+            with contextlib.suppress(BodyCalError, OSError):
+                review_sheet.write_failure(reviewed[1], exc, inputs=files_read, overwrite=True)
+        raise
+    step = progress or (lambda stage, fraction: None)
+    step("saving", _STAGES["saving"])
+    write_outputs(arm, outs, files_read, overwrite, log)
+    if reviewed:
+        step("reviewing", _STAGES["reviewing"])
+        for note in review_sheet.write_review(summary, arm, *reviewed, outs, inputs=files_read, overwrite=True):
+            log(note)
+        log(f"saved {reviewed[0]}")
+        log(f"saved {reviewed[1]}")
+    step("saving", 1.0)
+    return summary
+
+
+def _read_and_bake(read_take, kind, avatar_file, armature, settings, options, log, warn, bone_map, frame_range,
+                   progress, review) -> tuple[Summary, object]:
+    """`run_files`' work between the checks and the writes: the take read, the avatar opened and
+    measured, the animation computed and baked (and reviewed); the summary and the armature."""
     step = progress or (lambda stage, fraction: None)
     step("reading", _STAGES["reading"])
     take = read_take()
@@ -294,14 +351,14 @@ def run_files(read_take: Callable[[], Take], kind: str, files_read: list, avatar
     step(settings.method, start)
     computed = compute(take, target, settings, progress=lambda f: step(settings.method, start + span * f))
     step("baking", _STAGES["baking"])
-    summary = bake(take, target, computed, options=options, set_scene_rate=True, set_scene_range=True, release=True)
+    summary = bake(take, target, computed, options=options, set_scene_rate=True, set_scene_range=True, release=True,
+                   review=review)
     del computed, take  # the keys are in the action now: let the writers have the memory
     for line in summary.report_lines():
         log(line)
-    step("saving", _STAGES["saving"])
-    write_outputs(arm, outs, files_read, overwrite, log)
-    step("saving", 1.0)
-    return summary
+    for flag in summary.review.flags if summary.review is not None else ():
+        log(f"review: {'OVER ' if flag.over else ''}{flag.text}")
+    return summary, arm
 
 
 def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filter: OneEuro | None = DEFAULT_FILTER,
@@ -321,6 +378,15 @@ def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filt
     return run_files(read, RecordingTake.kind, files_read, avatar_file, output_paths, log=log, **kwargs)
 
 
+def read_character_take(source_path, source_armature: str | None = None, action: str | None = None,
+                        log=print) -> CharacterTake:
+    """A character's action in a file (`transfer`'s SOURCE) read as a take; the file becomes the open one."""
+    for note in open_source(Path(source_path)):
+        log(note)
+    src_arm = find_armature(source_armature, str(source_path))
+    return read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+
+
 def transfer_files(source_path, avatar_file, output_paths, *, source_armature: str | None = None,
                    action: str | None = None, filter: OneEuro | None = None, log=print, **kwargs) -> Summary:
     """`bodycal transfer`: the action of a character in `source_path` (.blend, .bvh, .fbx, .glb,
@@ -328,10 +394,7 @@ def transfer_files(source_path, avatar_file, output_paths, *, source_armature: s
     source_path = Path(source_path)
 
     def read():
-        for note in open_source(source_path):
-            log(note)
-        src_arm = find_armature(source_armature, str(source_path))
-        take = read_source(src_arm, pick_action(src_arm, action, str(source_path)))
+        take = read_character_take(source_path, source_armature, action, log)
         take.filter = filter
         return take
 

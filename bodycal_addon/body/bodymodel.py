@@ -80,7 +80,7 @@ def _vec(value, source, field_name, n=3) -> np.ndarray:
 
 # Numbers are written to 7 decimals (0.1 µm, 1e-7 rad: far below any measurement); `exact` JSON keeps
 # every float64 as it is (repr round-trips exactly), for a model sent to another process that must
-# solve what this one would (retarget/live_worker.py).
+# solve what this one would (live/worker.py).
 _EXACT = contextvars.ContextVar("bodycal_exact_json", default=False)
 
 

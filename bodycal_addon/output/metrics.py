@@ -7,6 +7,10 @@ frame where the foot is not planted) and is ignored by `stats_mm`.
 The contact gap here is measured against the analytic surface elements of a posed body model
 (`retarget.egocentric.PosedSurface`: capsules, spheres, crude-mesh triangles); the gap against
 the avatar's evaluated Blender mesh lives with the Blender code.
+
+The benches' targets are here too (the limits below): the review of a bake (output/review.py,
+DESIGN.md §7 "Review") flags a figure past the same limit a benchmark holds it to, computed by
+the same function.
 """
 
 from __future__ import annotations
@@ -16,9 +20,16 @@ import numpy as np
 from ..body import skeleton as sk
 from ..body.rest_frames import complete_joints
 from ..core.errors import BodyCalError
-from ..retarget.avatar_pose import AvatarRig
+from ..retarget.avatar_pose import AvatarRig, RigPose
 from ..retarget.egocentric import own_chain_elements, pose_surface, project
 from ..retarget.solver_methods import _surface_bones, surface_correction
+
+# The benches' targets, which the review's flags use as their limits (one place for both).
+CONTACT_GAP_P95_MM = 10.0  # bench_retarget_quality: p95 of |contact gap| in the contact frames
+FOOT_SKIN_LOWEST_MM = -10.0  # bench_real_motion: the lowest foot skin on the evaluated mesh
+SLIDE_P95_MM = 2.0  # bench_real_motion: p95 of a planted foot's slide, mm per 90 Hz frame
+SLIDE_RATIO = 1.5  # bench_real_motion: heel / ball slide p95 over the source's, scaled like the legs
+ACCEL_RATIO = 1.3  # bench_real_motion: wrist / ankle acceleration p95 over the source's, scaled
 
 
 def stats_mm(values) -> dict:
@@ -77,6 +88,13 @@ def contact_gap(points, surface, target_names: list[str] | None = None, exclude_
     the elements (negative: inside). With `target_names`, each target's own-chain elements are left
     out (egocentric.own_chain_elements: a wrist is always "touching" its own forearm); `exclude_ids`
     leaves more out for every target. Returns (F, P)."""
+    return nearest_contact(points, surface, target_names, exclude_ids)[0]
+
+
+def nearest_contact(points, surface, target_names: list[str] | None = None, exclude_ids=()
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """`contact_gap` (F, P) and the element each target is nearest to: its index in
+    `surface.element_ids` (F, P), -1 where none is left."""
     d = signed_distances(points, surface)
     ids = surface.element_ids
     mask = np.zeros(d.shape[1:], bool)
@@ -88,8 +106,12 @@ def contact_gap(points, surface, target_names: list[str] | None = None, exclude_
             own = own_chain_elements(name)
             mask[p] |= np.array([eid in own for eid in ids], bool)
     d = np.where(mask, np.inf, d)
-    out = d.min(axis=-1) if d.shape[-1] else np.full(d.shape[:2], np.inf)
-    return np.where(np.isfinite(out), out, np.nan)
+    if not d.shape[-1]:
+        return np.full(d.shape[:2], np.nan), np.full(d.shape[:2], -1)
+    nearest = d.argmin(axis=-1)
+    out = np.take_along_axis(d, nearest[..., None], axis=-1)[..., 0]
+    found = np.isfinite(out)
+    return np.where(found, out, np.nan), np.where(found, nearest, -1)
 
 
 def floor_error(foot_points, planted) -> np.ndarray:
@@ -122,6 +144,72 @@ def planted_frames(point, speed_threshold: float = 0.05, height_threshold: float
     return (p[:, 2] < height_threshold) & (v < speed_threshold)
 
 
+def acceleration(point, fps: float) -> np.ndarray:
+    """(F,) magnitude (m/s^2) of a point's acceleration (F, 3), the central second difference;
+    NaN at the first and last frame."""
+    p = np.asarray(point, float)
+    out = np.full(len(p), np.nan)
+    if len(p) > 2:
+        out[1:-1] = np.linalg.norm(p[2:] - 2 * p[1:-1] + p[:-2], axis=-1) * fps * fps
+    return out
+
+
+def acceleration_p95(point, fps: float) -> float:
+    """The 95th percentile of `acceleration` over the frames that have one (NaN: fewer than 3)."""
+    a = acceleration(point, fps)
+    return float(np.nanpercentile(a, 95)) if np.isfinite(a).any() else float("nan")
+
+
+def ground_contact(point, fps: float, speed: float = 0.15, height: float = 0.03) -> np.ndarray:
+    """(F,) bool: a source's point (a heel's ankle, a ball's toe joint) on the ground: slower than
+    `speed` (m/s, horizontal, central difference) and within `height` of its lowest 5 % over the take."""
+    p = np.asarray(point, float)
+    if len(p) < 2:
+        return np.zeros(len(p), bool)
+    v = np.gradient(p, axis=0) * fps
+    slow = np.linalg.norm(v[:, :2], axis=-1) < speed
+    low = p[:, 2] < np.percentile(p[:, 2], 5) + height
+    return slow & low
+
+
+def slide_steps_mm(point, on, fps: float) -> np.ndarray:
+    """(F - 1,) a point's horizontal step between consecutive frames both `on`, in mm per 90 Hz
+    frame (so takes at any rate compare), NaN elsewhere: `foot_sliding` at 90 Hz."""
+    return foot_sliding(point, on) * 1000.0 * fps / 90.0
+
+
+def slide_p95_mm(point, on, fps: float) -> float | None:
+    """p95 of `slide_steps_mm` (mm per 90 Hz frame, two decimals); None when no two consecutive
+    frames are `on`."""
+    steps = slide_steps_mm(point, on, fps)
+    steps = steps[np.isfinite(steps)]
+    return None if steps.size == 0 else round(float(np.percentile(steps, 95)), 2)
+
+
+def limb_ratios(rig: AvatarRig, source_joints: dict) -> dict[str, float]:
+    """How much longer the avatar's limbs are than the source's (a rotation copy moves a longer
+    limb's end proportionally faster): "ankle", the avatar's leg (`AvatarRig.leg_length`) over
+    the source's hip to knee to ankle plus its ankle height; "wrist", shoulder to elbow to wrist.
+    `source_joints`: canonical joint -> (3,) world, the source standing."""
+    a = rig.joint_world
+
+    def chain(get, names):
+        return float(np.mean([sum(np.linalg.norm(np.subtract(get(f"{y}_{s}"), get(f"{x}_{s}")))
+                                  for x, y in zip(names, names[1:])) for s in sk.SIDES]))
+
+    p = source_joints
+    leg = chain(lambda n: p[n], ("hip", "knee", "ankle")) + float(np.mean([p[f"ankle_{s}"][2] for s in sk.SIDES]))
+    arm = chain(lambda n: p[n], ("shoulder", "elbow", "wrist"))
+    arm_avatar = chain(lambda n: a[sk.JOINT_INDEX[n]], ("shoulder", "elbow", "wrist"))
+    return {"ankle": rig.leg_length() / max(leg, 1e-9), "wrist": arm_avatar / max(arm, 1e-9)}
+
+
+def motion_scale(method: str, limb: dict[str, float], eye_ratio: float) -> dict[str, float]:
+    """How the method scales the source's wrist and ankle motion: AvatarGo (`offsets`) every
+    position by the one eye-height ratio (its eq. 2), the others by the limb ratios."""
+    return {"ankle": eye_ratio, "wrist": eye_ratio} if method == "offsets" else dict(limb)
+
+
 def reach_error(effector, target) -> np.ndarray:
     """Distance (m) between the avatar's effectors after IK and their retargeted targets."""
     return np.linalg.norm(np.asarray(effector, float) - np.asarray(target, float), axis=-1)
@@ -150,6 +238,25 @@ def effector_points(avatar, rig: AvatarRig, pose, effector: str, joints: dict | 
     return np.asarray(point, float), float(radius)
 
 
+def foot_points(avatar, rig: AvatarRig, pose: RigPose, side: str) -> dict[str, np.ndarray]:
+    """World points of the avatar's foot in `pose` (`rig.fk`'s): "outline" (F, N, 3) its sole's
+    outline (`mesh:sole_<side>`: the floor-error measurement, DESIGN.md §7), "heel" and "ball"
+    (F, 3) and "support" (F, K, 3) its sole's contact points (the element's `contact`, measured on
+    its skin, FORMATS.md §3; the outline stands in, heel and ball its middle, on a model without)."""
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))[sk.BONE_INDEX[f"foot_{side}"]]
+    frame = pose.frames[:, sk.BONE_INDEX[f"foot_{side}"]] @ corr
+    ankle = pose.joints[:, sk.JOINT_INDEX[f"ankle_{side}"]]
+    el = avatar.element(f"mesh:sole_{side}")
+    outline = np.stack([p.local for p in el.points.values()])
+    c = el.extra.get("contact")
+    if not isinstance(c, dict):
+        c = {"heel": outline.mean(0), "ball": outline.mean(0), "support": outline}
+    out = {"outline": ankle[:, None] + np.einsum("fij,kj->fki", frame, outline)}
+    out |= {k: ankle + frame @ np.asarray(c[k], float) for k in ("heel", "ball")}
+    out["support"] = ankle[:, None] + np.einsum("fij,kj->fki", frame, np.asarray(c["support"], float))
+    return out
+
+
 def model_contact_gaps(avatar, rotations, root_location, contacts: list[dict], joints: dict | None = None
                        ) -> list[np.ndarray]:
     """Signed gap (m) per contact of a ground truth (`{"effector", "target", "frames" (F,) bool}`) on
@@ -159,18 +266,27 @@ def model_contact_gaps(avatar, rotations, root_location, contacts: list[dict], j
     blender/mesh_metrics.contact_gaps). Contacts on an element the model lacks are left out."""
     rig = AvatarRig.from_model(avatar)
     pose = rig.fk(rotations, root_location)
-    model = _surface_bones(avatar)
-    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
-    posed_joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
-    frames = {b.name: pose.frames[:, i] @ corr[i] for i, b in enumerate(sk.BONES)}
     out = []
     for c in contacts:
         idx = np.flatnonzero(np.asarray(c["frames"], bool))
         eid = c["target"].split("/", 1)[0]
         if len(idx) == 0 or eid not in {e.id for e in avatar.surface}:
             continue
-        pts, off = effector_points(avatar, rig, pose, c["effector"], joints)
-        surf = pose_surface(model, {k: v[idx] for k, v in posed_joints.items()},
-                            {k: v[idx] for k, v in frames.items()}, [eid])
-        out.append(signed_distances(pts[idx][:, None], surf)[:, 0, 0] - off)
+        out.append(posed_contact_gaps(avatar, rig, pose, c["effector"], eid, idx, joints)[0])
     return out
+
+
+def posed_contact_gaps(avatar, rig: AvatarRig, pose: RigPose, effector: str, target: str, frames,
+                       joints: dict | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """`model_contact_gaps` of one contact at `frames` (indices into `pose`'s frames): the gaps
+    (n,) (m), the effector's points there (n, 3) and its skin offset."""
+    idx = np.asarray(frames, int)
+    eid = target.split("/", 1)[0]
+    model = _surface_bones(avatar)
+    corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
+    posed_joints = {j: pose.joints[idx, i] for i, j in enumerate(sk.JOINTS)}
+    frames_at = {b.name: pose.frames[idx, i] @ corr[i] for i, b in enumerate(sk.BONES)}
+    pts, off = effector_points(avatar, rig, pose, effector, joints)
+    pts = np.asarray(pts, float)[idx]
+    surf = pose_surface(model, posed_joints, frames_at, [eid])
+    return signed_distances(pts[:, None], surf)[:, 0, 0] - off, pts, off

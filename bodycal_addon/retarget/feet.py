@@ -6,7 +6,9 @@ Delahaye 2023 and AvatarGo, whose feet follow their targets). In every method an
    it stood at the reference time) and slow (averaged over SMOOTH_S, slower than STANCE_SPEED),
    with hysteresis (until faster than EXIT_SPEED or higher than EXIT_HEIGHT), none shorter than
    MIN_STANCE_S; `eased` gives each a weight easing over BLEND_S outside it (a bake looks ahead)
-   and an inner weight easing over BLEND_S inside it.
+   and an inner weight easing over BLEND_S inside it. A foot turning in place about its ankle
+   (the ankle itself low and slow, `detect_pivot`, neither point down) stands on its heel
+   (`with_pivots`).
 2. Places (`rolling_places`): where the method puts the avatar's heel and ball contact points
    (measured on its skin, avatar/foot_contact.py), averaged over a stance that begins alone; a
    stance that begins while the other point is down is placed from the other's place, so the two
@@ -51,6 +53,8 @@ FOLLOW = 0.25  # of BLEND_S (3 frames at 90 Hz): how soon a pinned point off its
 # how soon a point that has left the floor stops counting in the pivot's share (`eased`'s lead)
 SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
 FLOOR_BLEND = 0.075  # of the heel's depth under the ankle (6 mm on an adult): how softly `above` keeps the sole up
+PIVOT_HEIGHT = 0.02  # m: the ankle of a foot turning in place stays within this of its height at the reference time
+# (`detect_pivot`; a foot held just off the floor, as in the calibration's knee flexes, keeps it 3-4 cm higher)
 
 
 @dataclass
@@ -117,6 +121,27 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         np.add.at(d, b, -1)
         stance = np.cumsum(d[:-1]) > 0
     return eased(stance, blend_frames(fps))
+
+
+def detect_pivot(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
+    """Stance of the performer's ankle (F, 3) itself, slow and low (within PIVOT_HEIGHT of its
+    height `ref_height` at the reference time; otherwise `detect`'s measures): a foot turning in
+    place about its ankle (a dancer's pivot) moves both its heel and its ball points, and `detect`
+    finds no stance of either (`with_pivots`)."""
+    return detect(ankle, time, ref_height - (STANCE_HEIGHT - PIVOT_HEIGHT))
+
+
+def with_pivots(heel: Stance, ball: Stance, ankle: Stance, n: int) -> Stance:
+    """The heel's Stance with the ankle's stances (`detect_pivot`) during which neither the heel
+    nor the ball is down, eased over `n` frames: the foot turns in place, and what it stands on is
+    under its ankle, its heel (the pivot of `rolling`). An ankle stance that shares a frame with a
+    heel or ball stance adds nothing (a walk: rare, DESIGN.md §6 "Planted feet")."""
+    inside = [st.weight >= 1.0 for st in (heel, ball, ankle)]  # `eased` weighs a stance's own frames 1
+    starts, stops = _runs(inside[2])
+    add = np.zeros_like(inside[2])
+    for a, b in zip(starts, stops):
+        add[a:b] = not (inside[0][a:b].any() or inside[1][a:b].any())
+    return eased(inside[0] | add, n) if add.any() else heel
 
 
 def blend_frames(fps: float) -> int:

@@ -482,8 +482,11 @@ class FeetPlan:
             theirs = reference[:, None] + einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
             if whole:
                 heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
-                heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)
                 fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it
+                # a foot turning in place about its ankle stands on its heel (feet.with_pivots)
+                heel = feet.with_pivots(heel, ball, feet.detect_pivot(ankles[s], src.time, float(rest_ankle[2])),
+                                        feet.blend_frames(fps))
+                heel_at, ball_at = feet.rolling_places(theirs[:, 0], theirs[:, 1], heel, ball)
                 weight, share, heel_at, ball_at = feet.rolling(heel, ball, feet.blend_frames(fps), heel_at, ball_at,
                                                                theirs[:, 0], theirs[:, 1])
             else:  # live: no look-ahead, no inner weights; the ball placed from the heel's place

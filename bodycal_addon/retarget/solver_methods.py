@@ -41,6 +41,12 @@ ARM_PASSES = 2  # arm mappings per chunk (the second sees the arms where the fir
 # Decision: the mapping (step 3) runs in single precision, about twice as fast; its targets agree
 # with double precision to micrometres, and the IK and the rig stay in double precision.
 MAPPING_DTYPE = np.float32
+# Decision (DESIGN.md §5 "The hand's point"): a hand is mapped through its palm's centre where the palm
+# is within PALM_NEAR of the body it maps onto, through its wrist beyond PALM_FAR, and between
+# them through a point between the two (a C1 ramp of that distance): a free hand's turn about its
+# wrist does not move the avatar's wrist, a touching palm still lands on the avatar's body.
+PALM_NEAR = 0.05  # m
+PALM_FAR = 0.15  # m
 
 
 def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.ndarray:
@@ -154,6 +160,7 @@ class Egocentric(Method):
         arms = frozenset(self.ids) - frozenset(self.trunk_ids)
         self.trunk_exclude = tuple(arms if n in self.lower else frozenset() for n in self.mapped)
         self.wrist_rows = {s: self.mapped.index(f"wrist_{s}") for s in self.palm_local}
+        self._own_hands = {}  # element ids -> (sides, elements) mask of each hand's own chain (palm_weights)
         # Both bodies' surfaces posed by prepared posers (all elements; and the avatar's trunk
         # alone, which a bake's trunk stage maps on: a few frames map from every element at once).
         self.posers = {who: ego.SurfacePoser(model, self.ids) for who, model in (("user", self.user_s),
@@ -179,9 +186,13 @@ class Egocentric(Method):
         pts = np.take(up.joints, self.mapped_joints, axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
         # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
-        # is copied): wrist and palm are a hand's size apart, and hands differ.
-        for s, (u_loc, _) in self.palm_local.items():
-            pts[:, self.wrist_rows[s]] += stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc)
+        # is copied): wrist and palm are a hand's size apart, and hands differ. Away from the body
+        # it is mapped through the wrist (`palm_weights`): there the two palm offsets, turned
+        # with the hand, moved the avatar's wrist by their difference whenever the hand turned.
+        levers = {s: stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc) for s, (u_loc, _) in self.palm_local.items()}
+        palm = self.palm_weights(us, pts, levers)
+        for i, s in enumerate(levers):
+            pts[:, self.wrist_rows[s]] += palm[:, i, None] * levers[s]
         # The user's side of every target, once: the same for the trunk's map and the arms' passes.
         user_side = ego.prepare_targets(pts, self.mapped, us, user_bones=ub, dtype=MAPPING_DTYPE,
                                         exclude=self.trunk_exclude)
@@ -206,9 +217,9 @@ class Egocentric(Method):
                 tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, wrists])
                 tg[:, tips] = ta[:, tips]
             arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
-            for s, (_, a_loc) in self.palm_local.items():
-                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - stack_apply(mid.frames[:, BI[f"hand_{s}"]],
-                                                                                    a_loc)
+            for i, (s, (_, a_loc)) in enumerate(self.palm_local.items()):
+                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - palm[:, i, None] * stack_apply(
+                    mid.frames[:, BI[f"hand_{s}"]], a_loc)
             arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid,
                                       user_side=arms_user)
             if k + 1 < ARM_PASSES:
@@ -216,6 +227,21 @@ class Egocentric(Method):
         frames = arm_frames
         targets.update(arm_targets)
         return run.rig.solve(frames, pelvis, realised=False), targets
+
+    def palm_weights(self, us, pts, levers: dict) -> np.ndarray:
+        """(F, hands) how much each hand is mapped through its palm's centre rather than its wrist:
+        1 where the user's palm (`pts`' wrist rows plus `levers`, {side: (F, 3)}) is within
+        PALM_NEAR of the surface `us` it maps onto (not its own arm and hand), 0 beyond PALM_FAR."""
+        if not levers:
+            return np.ones((len(pts), 0))
+        palms = np.stack([pts[:, self.wrist_rows[s]] + lever for s, lever in levers.items()], axis=1)
+        ids = tuple(us.element_ids)
+        if ids not in self._own_hands:
+            self._own_hands[ids] = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in ids]
+                                             for s in levers])
+        near = np.where(self._own_hands[ids], np.inf, ego.project(palms, us).dist).min(axis=-1)
+        t = np.clip((near - PALM_NEAR) / (PALM_FAR - PALM_NEAR), 0.0, 1.0)
+        return 1.0 - t * t * (3.0 - 2.0 * t)
 
 
 class ExactOffsets(Method):

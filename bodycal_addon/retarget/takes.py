@@ -14,7 +14,9 @@ it holds.
 - `CharacterTake`: another character's action (`transfer.transfer`): its body model (measured on
   its mesh, or estimated from its bone lengths) and its pose-bone values per frame, smoothed by the
   One Euro filter first when asked (its bones' rotations and locations, on a copy).
-A live stream is one more kind: anything with these attributes and methods.
+Anything with these attributes and methods is one more kind. A live stream is not a take (no end to
+look ahead to, no keys): it shares the prepared solver and the pose's carrying with the bake
+(DESIGN.md "A file take and a live stream", bodycal_addon/live/).
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ from ..recording.model import Recording
 from .methods import check_method
 from .pipeline import PreparedTake, prepare_recording, retarget
 from .placement import rig_matrix
-from .transfer import prepare_transfer, transfer
+from .pose_source import AnimationSource, PoseSource, RecordingSource
+from .transfer import prepare_transfer, source_in_play_area, transfer
 
 FALLBACK_RATE = 30.0  # a one-frame take has no rate of its own
 FRAME_EPS = 1e-3  # a sample this close to a range's end frame is in the range
@@ -84,6 +87,10 @@ class Take(Protocol):
     def release(self) -> None:
         """Let go of the source's arrays: nothing will be computed from this take any more."""
 
+    def pose_source(self, placement: str = "object") -> PoseSource:
+        """The pose source `animate` computes from (smoothed as it is, in its play area): what a
+        bake's review reads of the source (output/review.py)."""
+
 
 @dataclass
 class RecordingTake:
@@ -95,6 +102,8 @@ class RecordingTake:
     frame_start: float = 1.0  # the import's mapping (recording_scene); a file's take starts at frame 1
     frame_rate: float | None = None  # the frames' rate when not the recording's own (a window keeps its take's)
     seat_height: float | None = None  # a seated performer without foot trackers: the seat's height (lower_body)
+    # the smoothed recording and the filter it was made with: `animate` and then the review read it once
+    _smoothed: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         self.name = self.recording.name
@@ -127,10 +136,18 @@ class RecordingTake:
                                  placement=placement, seat_height=self.seat_height)
 
     def _filtered(self) -> Recording:
-        return self.recording if self.filter is None else filter_recording(self.recording, self.filter)
+        if self.filter is None:
+            return self.recording
+        if self._smoothed is None or self._smoothed[0] is not self.filter or self._smoothed[1] is not self.recording:
+            self._smoothed = (self.filter, self.recording, filter_recording(self.recording, self.filter))
+        return self._smoothed[2]
+
+    def pose_source(self, placement="object") -> RecordingSource:
+        return RecordingSource(self._filtered(), self.user, seat_height=self.seat_height)
 
     def release(self) -> None:
         self.recording = None
+        self._smoothed = None
 
 
 @dataclass
@@ -189,6 +206,11 @@ class CharacterTake:
         # Locations in the source's armature units; the filter's speeds are in metres.
         scale = float(np.cbrt(abs(np.linalg.det(rig_matrix(self.model)[:3, :3])))) or 1.0
         return filter_pose(self.time, self.basis, self.locations, self.filter, scale)
+
+    def pose_source(self, placement="object") -> AnimationSource:
+        basis, locations = self._pose()
+        moved, _ = source_in_play_area(self.model, placement)
+        return AnimationSource(moved, basis, locations, self.time, self.armature)
 
     def release(self) -> None:
         self.basis = self.locations = None

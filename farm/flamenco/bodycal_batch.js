@@ -36,6 +36,8 @@ const JOB_TYPE = {
     { key: "tolerance", type: "string", default: "", description: "key reduction, degrees; empty: default" },
     { key: "fps", type: "string", default: "", description: "output frame rate; empty: the source's" },
     { key: "overwrite", type: "bool", default: false, description: "replace outputs that exist" },
+    { key: "review", type: "bool", default: false,
+      description: "every job reviews its bake; a last task writes OUTPUT_DIR/review.html" },
   ],
 };
 
@@ -45,16 +47,28 @@ const PART_BYTES = 64;
 function compileJob(job) {
   const s = job.settings;
   const plan = bodycalJobs(s);
+  const tasks = [];
   for (const one of plan) {
     const task = author.Task(one.name, "blender");
-    task.addCommand(author.Command("blender-render", {
-      exe: "{blender}",
-      exeArgs: "-b",  // not {blenderArgs}: its usual -y would let scripts in the avatar files run
-      argsBefore: ["-c", "bodycal"].concat(one.argv),
-      args: [],
-    }));
+    task.addCommand(blenderCommand(one.argv));
     job.addTask(task);
+    tasks.push(task);
   }
+  if (s.review === true) {  // the review page, once every job has written its review
+    const page = author.Task("review-page", "blender");
+    page.addCommand(blenderCommand(["review", s.output_dir]));
+    for (const task of tasks) page.addDependency(task);
+    job.addTask(page);
+  }
+}
+
+function blenderCommand(argv) {
+  return author.Command("blender-render", {
+    exe: "{blender}",
+    exeArgs: "-b",  // not {blenderArgs}: its usual -y would let scripts in the avatar files run
+    argsBefore: ["-c", "bodycal"].concat(argv),
+    args: [],
+  });
 }
 
 // ---- the jobs, as app/batch.py makes them ----------------------------------------------------------
@@ -106,6 +120,7 @@ function jobArgv(spec, name, s) {
   if (s.root_motion && s.root_motion !== "root") argv.push("--root-motion", s.root_motion);
   if (s.rigify_target && s.rigify_target !== "fk") argv.push("--rigify-target", s.rigify_target);
   if (s.overwrite === true) argv.push("--overwrite");
+  if (s.review === true) argv.push("--review");
   return argv;
 }
 

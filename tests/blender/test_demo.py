@@ -1,5 +1,7 @@
 """`make demo` runs the whole pipeline; here on the procedural avatar only, to stay quick."""
 
+import json
+
 import bpy
 import numpy as np
 
@@ -46,3 +48,7 @@ def test_the_demo_bakes_a_real_three_point_take_with_every_method(tmp_path):
             foot = arm.matrix_world @ arm.pose.bones[f"foot_{s}"].head
             assert abs(foot.z - arm.location.z) < 0.2, (method, s)
     assert "bodycal_user_model" in scene
+    for method in METHODS:  # each bake's review: its sheet and its record, verified
+        sheet = tmp_path / "review" / f"three_point_{THREE_POINT_AVATAR}__{method}.review.png"
+        record = json.loads(sheet.with_suffix("").with_suffix(".review.json").read_text())
+        assert sheet.stat().st_size > 10_000 and record["verified"] and record["method"] == method

@@ -20,11 +20,11 @@ from repo_paths import REPO
 from bodycal_addon.blender import calibration_scene, recording_scene
 from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 from bodycal_addon.core import paths
+from bodycal_addon.live.solver import LiveSolver
 from bodycal_addon.recording.io import load_recording, save_recording
 from bodycal_addon.recording.live.sender import RecordingMessages, VmcSender
 from bodycal_addon.recording.live.vmc import AVAILABLE, TIME, bundles, message
 from bodycal_addon.recording.model import Device
-from bodycal_addon.retarget.live import LiveSolver
 from bodycal_dev import synthetic
 
 rigs = paths.sample_rigs()
@@ -48,28 +48,45 @@ def disconnected():
 
 
 class Stream:
-    """The take sent one frame at a time, each pumped once it has arrived: no frame is dropped,
-    so the test knows what every pump saw."""
+    """The take sent one frame at a time, each pumped once it has arrived and once every follower
+    ready for it has handed back its result: no frame is skipped, so the test knows what every pump
+    saw and what every solver was handed. Never faster than real time (a take's clock keeps to
+    arrival's: recording/live/recorder.py), slower when a solve takes longer."""
 
     def __init__(self, rec):
         self.rec, self.messages = rec, RecordingMessages(rec)
         self.sender = VmcSender("127.0.0.1", live.port())
         self.updates = []
+        self.sent = 0
+        self.start = None  # when frame 0 was sent (perf_counter), less its take time
 
     def put(self, k: int):
-        """Frame k sent, not pumped."""
+        """Frame k sent (not before its time in the take, counted from the first sent), not pumped."""
+        t = float(self.rec.time[k])
+        if self.start is None:
+            self.start = time.perf_counter() - t
+        time.sleep(max(0.0, self.start + t - time.perf_counter()))
         msgs = (self.messages.announcements() if k == 0 else []) + self.messages.messages(k, 0.0)
         self.sender.send(bundles(msgs + [message(AVAILABLE, 1), message(TIME, float(self.rec.time[k]))]))
+        self.sent += 1
 
     def send(self, k: int):
         self.put(k)
-        for _ in range(2000):
+        session, index = live.session(), self.sent - 1  # the receiver's index of the frame just sent
+        deadline = time.monotonic() + 60.0  # a guard against a broken test, not a timing
+        while not (session.last_frame is not None and session.last_frame.index >= index and all(
+                not f.busy and not f.has_result and f.state not in ("starting", "preparing")
+                and (f.last_index >= index or f.waiting_for) for f in session.followers.values())):
+            assert time.monotonic() < deadline, f"frame {k} never arrived or was never solved"
+            session.wait(0.01)
             update = live.pump_once()
             if update is not None:
                 self.updates.append(update)
-                return update
-            time.sleep(0.001)
-        raise AssertionError(f"frame {k} never arrived")
+        return self.updates[-1]
+
+    def frames(self) -> dict:
+        """Every frame the pumps took, by its index."""
+        return {u.frame.index: u.frame for u in self.updates if u.frame is not None}
 
 
 def _scene(take, tmp_path):
@@ -86,7 +103,7 @@ def _scene(take, tmp_path):
     scene.bodycal_bake.root_motion = "pelvis"
     scene.bodycal_live.folder = str(tmp_path)
     scene.bodycal_live.port = 0
-    scene.bodycal_live.use_workers = False  # solved here, every frame pumped (the worker test turns it on)
+    scene.bodycal_live.use_workers = False  # solved on the session's thread here (the worker test turns it on)
     return a, b
 
 
@@ -119,17 +136,19 @@ def _as_user_left_it(arm):
     return arm.animation_data.action
 
 
-def _live_solver_on(follower, updates):
-    """A LiveSolver of the follower's models and devices pushed the frames the pumps took; returns
-    it and its last solved frame."""
-    devices = [Device(d.name, d.kind, d.role) for d in follower.solver.recording.devices]
-    markers = list(follower.solver.recording.marker_names)  # the gloves' markers pose the fingers
+def _live_solver_on(follower, frames):
+    """A LiveSolver of the follower's models and devices pushed the frames (`frames`: index ->
+    LiveFrame) its solver was handed (`FollowerStats.indices`); returns it and its last solved
+    frame."""
+    session = live.session()
+    devices = [Device(n, session.kinds[n], session.roles[n]) for n in follower.order]
+    markers = list(follower.marker_order)  # the gloves' markers pose the fingers
     ref = LiveSolver(follower.user, follower.avatar, "egocentric", devices=devices, marker_names=markers,
                      plant_feet=True)
     order = {d.name: i for i, d in enumerate(devices)}
     mcol = {m: i for i, m in enumerate(markers)}
-    for update in updates:
-        frame = update.frame_of(follower.name)  # the newest there was when its turn came
+    for index in follower.stats.indices:
+        frame = frames[index]
         pos, rot, valid = np.zeros((len(devices), 3)), np.tile([1.0, 0, 0, 0], (len(devices), 1)), \
             np.zeros(len(devices), bool)
         for j, name in enumerate(frame.devices):
@@ -158,9 +177,11 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
     assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
     _follow([a, b])
     stream = Stream(rec)
-    n = 40
+    n = n_frames = 40
+    c0 = time.thread_time()
     for k in range(n):
         stream.send(k)
+    main_cpu = time.thread_time() - c0  # Blender's main thread: the pumps, the writes, the empties
     # The empties, named and drawn as the importer's, at the sent poses (OSC carries float32).
     for i, d in enumerate(rec.devices):
         obj = bpy.data.objects[f"live.{d.name}"]
@@ -171,29 +192,28 @@ def test_devices_become_live_empties_and_two_avatars_follow_with_live_solvers_po
             q = np.array(obj.rotation_quaternion)
             assert abs(abs(q @ rec.rotations[n - 1, i]) - 1.0) < 1e-6
     assert live.last_error() == ""
-    # Each avatar's pose is set as soon as it is solved, before the next avatar's solve (which takes
-    # the newest frame there is by then; a pump catching up solves only the one left behind).
-    both = [u for u in stream.updates if {a.name, b.name} <= u.pushed][-5:]
-    assert len(both) == 5
-    for u in both:
-        one, two = sorted((a.name, b.name), key=u.posed_at.get)  # in the order they follow
-        assert u.frame_of(one).arrival <= u.taken == u.taken_at[one] <= u.solved_at[one] <= u.posed_at[one] \
-            <= u.solved_at[two] <= u.posed_at[two]
-        assert u.frame_of(two).arrival <= u.taken_at[two] <= u.solved_at[two]
-        assert u.taken_at[two] == u.taken or u.posed_at[one] <= u.taken_at[two]  # the pump's frame, or one taken after
-        assert u.frame_of(one).index <= u.frame_of(two).index == u.frame.index
-    # Each armature shows exactly what LiveSolver gives for the same frames.
+    # Each avatar's pose is set once it is solved (on the session's solving thread: Blender's thread
+    # only sets it), from the frame it was handed, in the order they were solved.
+    for n in (a.name, b.name):
+        mine = [u for u in stream.updates if n in u.pushed]
+        assert [u.frame_of(n).index for u in mine][-5:] == list(range(n_frames - 5, n_frames))
+        for u in mine[-5:]:
+            assert u.frame_of(n).arrival <= u.taken_at[n] <= u.solved_at[n] <= u.posed_at[n]
+    # Each armature shows exactly what LiveSolver gives for the same frames; none skipped (the test
+    # waits for each).
     session = live.session()
     for arm in (a, b):
         follower = session.followers[arm.name]
-        ref, solved = _live_solver_on(follower, stream.updates)
-        assert solved is not None and follower.stats.frames > 0
+        ref, solved = _live_solver_on(follower, stream.frames())
+        assert solved is not None and follower.stats.frames > 0 and follower.stats.not_shown == 0
         bones = arm.pose.bones
         rows = [bones.find(n) for n in follower.bone_names]
         np.testing.assert_allclose(_pose(arm)["rotation_quaternion"][rows], solved.basis[0], atol=2 * F32)
         root = bones.find(follower.bone_names[ref.solver.rig.root])
         np.testing.assert_allclose(_pose(arm)["location"][root], solved.root_location[0], atol=1e-6)
         assert len(follower.stats.latency_ms) == follower.stats.frames and len(live.following()[arm.name].write_ms)
+    solves = sum(sum(session.followers[arm.name].stats.solve_cpu_ms) for arm in (a, b)) / 1000.0
+    assert main_cpu < 0.5 * solves  # the solves ran on the session's solving thread, not on Blender's
     # Stop: each armature exactly as it was, its action back.
     assert bpy.ops.bodycal.stop_following() == {"FINISHED"}
     for arm in (a, b):
@@ -226,6 +246,8 @@ def test_two_avatars_follow_from_worker_processes_over_udp_until_disconnect_or_a
     assert bpy.ops.bodycal.follow_live() == {"FINISHED"}
     session = live.session()
     assert all(session.followers[n].in_worker for n in (a.name, b.name))
+    frames = {}
+    session.source.add_sink(lambda frame: frames.setdefault(frame.index, frame))  # every frame the stream made
     log = ui_layout.draw(bpy.types.BODYCAL_PT_live, bpy.context)  # before the stream: no pose yet, no role
     labels = " | ".join(e[1] for e in log if e[0] == "label")
     assert f"{a.name}: starting its worker process" in labels or f"{a.name}: waiting for devices" in labels
@@ -239,20 +261,21 @@ def test_two_avatars_follow_from_worker_processes_over_udp_until_disconnect_or_a
     finally:
         sender.terminate()
         sender.communicate(timeout=30)
+    live.pump_for(0.2, on_update=updates.append)  # the answers still in flight
     assert live.last_error() == ""
     for arm in (a, b):
         follower = session.followers[arm.name]
-        assert follower.in_worker and not follower.note
+        assert follower.in_worker and not follower.note and not follower.busy
         ref = LiveSolver(follower.user, follower.avatar, "egocentric", plant_feet=True,
                          devices=[Device(n, session.kinds[n], session.roles[n]) for n in follower.order],
                          marker_names=list(follower.marker_order))
+        wanted = {j: ref.push_newer(*follower.arrays(frames[j])) for j in follower.stats.indices}
         shown = None
         for update in updates:
-            if arm.name in update.pushed:
-                want = ref.push_newer(*follower.arrays(update.frame_of(arm.name)))
-                if update.poses[arm.name] is not None:
-                    np.testing.assert_array_equal(update.poses[arm.name].basis, want.basis)
-                    shown = want
+            if update.poses.get(arm.name) is not None:
+                shown = wanted[update.frame_of(arm.name).index]
+                np.testing.assert_array_equal(update.poses[arm.name].basis, shown.basis)
+        assert shown is wanted[follower.stats.indices[-1]]  # the armature shows the last frame solved
         bones = arm.pose.bones
         rows = [bones.find(n) for n in follower.bone_names]
         np.testing.assert_allclose(_pose(arm)["rotation_quaternion"][rows], shown.basis[0], atol=2 * F32)
@@ -274,6 +297,43 @@ def test_two_avatars_follow_from_worker_processes_over_udp_until_disconnect_or_a
     pids = [f.process.pid for f in followers]
     bpy.ops.wm.read_homefile(use_empty=True)
     assert not live.connected() and still_alive(pids) == []
+
+
+@pytest.mark.parametrize("mode", ["root", "in-place"])
+def test_root_motion_is_converted_on_the_solving_thread_and_the_pose_is_the_bakes(take, tmp_path, mode):
+    """Root motion on the root bone (or in place): after the first pose (which reads the rig's rest
+    here), each pose comes converted from the session's solving thread, and the armature shows what
+    the bake's conversion (`apply_root_motion` on the same solved frames) gives."""
+    from bodycal_addon.blender import avatar_rig, rig_output
+    from bodycal_addon.body.animation import AvatarAnimation
+
+    rec, _truth = take
+    a, _b = _scene(take, tmp_path)
+    scene = bpy.context.scene
+    scene.bodycal_bake.root_motion = mode
+    assert bpy.ops.bodycal.connect_live() == {"FINISHED"}
+    _follow([a])
+    stream = Stream(rec)
+    for k in range(20):
+        stream.send(k)
+    follower = live.session().followers[a.name]
+    posed = [u for u in stream.updates if u.poses.get(a.name) is not None]
+    assert len(posed) > 5 and a.name not in posed[0].converted  # the first: converted here, reading the rest
+    assert all(a.name in u.converted for u in posed[1:])  # the others: on the solving thread
+    ref, _solved = _live_solver_on(follower, stream.frames())
+    rig = ref.solver.rig
+    frames = [u.frame_of(a.name) for u in posed]
+    solved = [u.poses[a.name] for u in posed]
+    anim = AvatarAnimation(rig.armature, list(rig.names), np.concatenate([s.basis for s in solved]),
+                           rig.names[rig.root], np.concatenate([s.root_location for s in solved]),
+                           np.array([f.arrival for f in frames]), "egocentric")
+    keyed = rig_output.with_root_motion(anim, a, avatar_rig.bone_map_for(a), mode)  # the bake's, whole
+    bones = a.pose.bones
+    rows = [bones.find(n) for n in keyed.bone_names]
+    np.testing.assert_allclose(_pose(a)["rotation_quaternion"][rows], keyed.rotations[-1], atol=2 * F32)
+    for name, locations in keyed.bone_locations.items():
+        np.testing.assert_allclose(_pose(a)["location"][bones.find(name)], locations[-1], atol=1e-6)
+    assert mode == "in-place" or "Root" in keyed.bone_locations
 
 
 def test_a_file_saved_while_following_holds_no_live_pose_and_no_live_empty(take, tmp_path):
@@ -465,7 +525,7 @@ def test_a_generated_rigify_rig_follows_on_its_fk_controls_and_is_put_back(take,
         stream.send(k)
     assert arm.pose.bones["upper_arm_parent.L"]["IK_FK"] == 1.0
     follower = live.session().followers[arm.name]
-    ref, solved = _live_solver_on(follower, stream.updates)
+    ref, solved = _live_solver_on(follower, stream.frames())
     rig = ref.solver.rig
     anim = AvatarAnimation(rig.armature, list(rig.names), solved.basis, rig.names[rig.root],
                            np.asarray(solved.root_location, float), np.array([0.0]), "egocentric")
@@ -542,7 +602,7 @@ def test_the_timer_pumps_until_the_session_ends(take, tmp_path):
 def test_the_pump_takes_each_frame_once_the_moment_it_waits_and_the_timer_keeps_to_the_beat(take, tmp_path):
     """`pump_for` (a headless station's loop) and the timer share `tick`: a turn takes the frame
     waiting, never one twice; between frames the timer waits what the session's clock says, never longer
-    than a display interval (retarget/pump_clock.py: the schedule itself is tested on an injected
+    than a display interval (live/pump_clock.py: the schedule itself is tested on an injected
     clock in tests/engine/test_pump_clock.py)."""
     rec, _truth = take
     live.connect(0, timer=False)

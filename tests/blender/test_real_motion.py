@@ -176,8 +176,8 @@ def test_planted_feet_hold_still_on_the_floor(walk_full, method):
     test can fail). (The ankle moves in the rest of the stance: the foot rolls about its heel, then
     its ball.)"""
     from bodycal_addon.blender import mesh_metrics
+    from bodycal_addon.output import metrics
     from bodycal_addon.retarget.avatar_pose import AvatarRig
-    from evaluation import measure
 
     rec, truth = walk_full
     user = calibrate_user(rec)
@@ -190,8 +190,8 @@ def test_planted_feet_hold_still_on_the_floor(walk_full, method):
         slide, low = [], []
         for s in ("l", "r"):
             st = truth["stance"][s][a:b]
-            flat = measure.contact(truth["positions"][a:b, J[f"ankle_{s}"]], truth["fps"]) \
-                & measure.contact(truth["positions"][a:b, J[f"toe_{s}"]], truth["fps"])
+            flat = metrics.ground_contact(truth["positions"][a:b, J[f"ankle_{s}"]], truth["fps"]) \
+                & metrics.ground_contact(truth["positions"][a:b, J[f"toe_{s}"]], truth["fps"])
             both = flat[1:] & flat[:-1]
             sole = mesh_metrics.sole_points(avatar, anim, s)[a:b]
             # this avatar has no measured contact points: its sole's outline stands in, and the

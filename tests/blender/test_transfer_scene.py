@@ -125,11 +125,11 @@ def test_a_bvh_transfers_with_no_nan_and_the_feet_on_the_floor(data_dir, avatar)
 
 
 def measure_contact(point: np.ndarray, fps: float) -> np.ndarray:
-    """(F,) bool: the source's point on the ground (evaluation/measure.contact: slower than 0.15 m/s
+    """(F,) bool: the source's point on the ground (metrics.ground_contact: slower than 0.15 m/s
     and within 3 cm of its lowest 5 %)."""
-    from evaluation import measure
+    from bodycal_addon.output import metrics
 
-    return measure.contact(point, fps)
+    return metrics.ground_contact(point, fps)
 
 
 def test_a_skinned_characters_action_transfers_onto_another_avatar(data_dir, tmp_path):

@@ -93,7 +93,7 @@ def test_capsule_axis_offsets_round_trip(tmp_path):
 
 
 def test_exact_json_carries_every_float_as_it_is_and_files_keep_seven_decimals():
-    """What a live worker process is sent (retarget/live_worker.py): a model made in memory (not to
+    """What a live worker process is sent (live/worker.py): a model made in memory (not to
     7 decimals) read back from its exact JSON has every number bit for bit; a file still rounds."""
     data = json.loads(json.dumps(EXAMPLE))
     model = BodyModel.from_dict(data)

@@ -3,6 +3,7 @@ with a body-model avatar): a streamed take recorded again, Ctrl-C ending a recor
 file complete, one clear line for what cannot work, and the retargeted avatar's bones received by
 python-osc's server."""
 
+import json
 import os
 import signal
 import socket
@@ -66,20 +67,38 @@ def take(tmp_path_factory):
     return path
 
 
-def test_a_streamed_take_recorded_for_a_duration(take, tmp_path):
+def test_a_streamed_take_recorded_for_a_duration_of_wall_clock_time(take, tmp_path):
+    """`--duration` counts wall-clock time from the first frame's arrival, not the take's length: a
+    take streamed at half speed for 0.5 s is cut there, holding a quarter second of the take."""
     port, out = free_port(), tmp_path / "again.bcrec.json"
     rec = Recording("--port", port, "--duration", "0.5", "-o", out)
     assert rec.first and rec.first[0].startswith(f"listening for VMC on 127.0.0.1:{port}")
-    sent = bodycal("stream", take, "--port", port, "--speed", "5")
+    sent = bodycal("stream", take, "--port", port, "--speed", "0.5")
     assert sent.returncode == 0 and sent.stderr == ""
     assert sent.stdout.splitlines()[-1].startswith("sent 90 frames")
     code, stdout, stderr = rec.finish()
     assert code == 0 and stderr == "", stderr
     lines = stdout.splitlines()
-    assert lines[-1] == f"saved {out}" and lines[-2].startswith("recorded 46 frames, 0.50 s (90.0 Hz, sender clock)")
+    assert lines[-1] == f"saved {out}" and "--duration 0.5 s reached (wall clock from the first frame)" in stdout
     again, original = load_recording(out, raw=True), load_recording(take, raw=True)
-    np.testing.assert_allclose(again.time, original.time[:46], rtol=2.0 ** -23, atol=1e-9)
+    arrival = json.loads(out.read_text())["extra"]["live"]["arrival"]
+    assert arrival[-1] <= 0.5 and again.frame_count < original.frame_count  # cut by the clock, not the stream
+    assert again.time[-1] - again.time[0] < 0.4  # the take's own length: half the wall time (the sender's clock)
+    np.testing.assert_allclose(again.time, original.time[:again.frame_count], rtol=2.0 ** -23, atol=1e-9)
     assert [d.name for d in again.devices] == [d.name for d in original.devices]
+
+
+def test_a_stream_that_stops_ends_the_take_after_the_idle_time(take, tmp_path):
+    """The sender closes: `record` ends the take `--idle` seconds after the last frame, whole, and
+    says why, instead of waiting for Ctrl-C."""
+    port, out = free_port(), tmp_path / "idle.bcrec.json"
+    rec = Recording("--port", port, "--idle", "1", "-o", out)
+    sent = bodycal("stream", take, "--port", port)
+    assert sent.returncode == 0, sent.stderr
+    code, stdout, stderr = rec.finish(timeout=30)  # no signal: it ends by itself
+    assert code == 0 and stderr == "", stderr
+    assert "no frame for 1 s (the sender stopped?): the take ends at its last frame" in stdout
+    assert load_recording(out, raw=True).frame_count == 90
 
 
 def test_ctrl_c_ends_a_recording_with_its_file_complete(tmp_path):
@@ -109,7 +128,7 @@ def test_a_recording_with_nothing_arriving_is_one_line_and_no_file(tmp_path):
     out = tmp_path / "none.bcrec.json"
     rec = Recording("--port", free_port(), "-o", out)
     code, _, stderr = rec.finish(signal.SIGTERM)
-    assert code == 2 and stderr.startswith("bodycal record: error: nothing arrived on port")
+    assert code == 2 and stderr.startswith("bodycal record: error: nothing received on port")
     assert len(stderr.splitlines()) == 1 and not out.exists()
 
 

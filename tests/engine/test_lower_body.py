@@ -16,9 +16,9 @@ from bodycal_addon.calibration import calibrate_user, check_usable
 from bodycal_addon.core import paths
 from bodycal_addon.core import transforms as tf
 from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.live.solver import LiveSolver
 from bodycal_addon.retarget import lower_body
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget.live import LiveSolver
 from bodycal_addon.retarget.lower_body import body_path, kneel, stepping
 from bodycal_addon.retarget.user_animation import animate_user
 from bodycal_dev.retarget_fixtures import procedural_avatar

@@ -19,6 +19,7 @@ LAYERS = (
     ("calibration", "avatar"),
     ("retarget",),
     ("output",),
+    ("live",),  # the live layer: threads, worker processes, the clock; the math is retarget's
     ("blender",),
     ("app",),
 )

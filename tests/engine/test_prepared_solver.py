@@ -1,4 +1,4 @@
-"""The prepared solver (bodycal_addon/retarget/solver.py) and its live entry (retarget/live.py): one
+"""The prepared solver (bodycal_addon/retarget/solver.py) and its live entry (live/solver.py): one
 solver for the bake and the live loop, the same values whatever the block of frames; and the
 causal variants a live stream needs (the forward One Euro carried across blocks, the stance from
 the frames so far)."""
@@ -13,13 +13,13 @@ import pytest
 
 from bodycal_addon.body.skeleton import JOINTS
 from bodycal_addon.core.errors import BodyCalError
+from bodycal_addon.live.solver import LiveSolver
 from bodycal_addon.recording import filters
 from bodycal_addon.recording.filters import OneEuro, OneEuroStream
 from bodycal_addon.recording.live.buffer import LiveRecording
 from bodycal_addon.recording.model import Recording
 from bodycal_addon.retarget import feet
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget.live import LiveSolver
 from bodycal_addon.retarget.pose_source import RecordingSource
 from bodycal_addon.retarget.solver import PreparedSolver
 from bodycal_dev import synthetic

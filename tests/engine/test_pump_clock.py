@@ -1,4 +1,4 @@
-"""The pump's clock (retarget/pump_clock.py) on an injected clock: a simulated stream whose frames
+"""The pump's clock (live/pump_clock.py) on an injected clock: a simulated stream whose frames
 arrive at a known period (with the network's delays, late frames, pauses) and a simulated pump that
 takes the newest frame when it looks, solves it for a while and asks the clock when to look again.
 No wall clock: every time here is a number the test chose."""
@@ -8,8 +8,8 @@ import threading
 import numpy as np
 import pytest
 
+from bodycal_addon.live.pump_clock import PumpClock
 from bodycal_addon.recording.live.source import LatestSlot, LiveFrame
-from bodycal_addon.retarget.pump_clock import PumpClock
 
 P = 1.0 / 90.0
 

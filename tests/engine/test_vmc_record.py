@@ -18,11 +18,13 @@ ID = (1.0, 0.0, 0.0, 0.0)
 
 
 def frame(k, devices, arrival=None, sender=None, markers=(), events=()):
-    """Frame k with `devices` at x = k (device i at y = i)."""
+    """Frame k with `devices` at x = k (device i at y = i), arriving as the sender's clock says."""
     names = tuple(devices)
     pos = np.array([[float(k), float(int(n[-1])), 1.0] for n in names]).reshape(-1, 3)
     pts = np.array([[float(k), 5.0, 1.0] for _ in markers]).reshape(-1, 3)
-    return LiveFrame(k, 100.0 + k / 90 if arrival is None else arrival, sender, names, pos,
+    if arrival is None:  # a sender whose clock keeps to arrival's (else the take follows arrival)
+        arrival = 100.0 + (k / 90 if sender is None else sender)
+    return LiveFrame(k, arrival, sender, names, pos,
                      np.tile(ID, (len(names), 1)), tuple(markers), pts, tuple(events))
 
 

@@ -111,7 +111,7 @@ def test_a_replayed_take_recorded_again_equals_the_original(tmp_path):
     path = tmp_path / "take.bcrec.json"
     save_recording(rec, path)
     original = load_recording(path, raw=True)
-    recorder, _ = record_replay(original, speed=10.0)
+    recorder, _ = record_replay(original)  # in real time: the take keeps the sender's clock while it keeps to arrival
     recorder.save(tmp_path / "again.bcrec.json")
     again = load_recording(tmp_path / "again.bcrec.json", raw=True)
     assert [(d.name, d.kind, d.role) for d in again.devices] == [(d.name, d.kind, d.role) for d in original.devices]
@@ -131,7 +131,7 @@ def test_a_replayed_take_recorded_again_equals_the_original(tmp_path):
 def test_a_loop_goes_on_in_time_until_stopped():
     rec = tpose_recording(seconds=0.1, profile="minimal")
     stop = threading.Event()
-    recorder, stats = record_replay(rec, speed=5.0, loop=True, stop=stop,
+    recorder, stats = record_replay(rec, loop=True, stop=stop,
                                     progress=lambda s: s.loops >= 2 and stop.set(), progress_every_s=0.0)
     assert stats.loops >= 2 and stop.is_set()
     t = recorder.recording().time

@@ -32,7 +32,7 @@ def worker_probe(installed_dir):
     from bodycal_dev import synthetic
     from bodycal_dev.retarget_fixtures import procedural_avatar
 
-    worker = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.retarget.live_worker")
+    worker = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.live.worker")
     model = importlib.import_module("bl_ext.user_default.bodycal.bodycal_addon.recording.model")
     rec, truth = synthetic.record_session(synthetic.make_performer(seed=1), motions=("clap",),
                                           calibration=["tpose"], motion_seconds=0.5)

@@ -5,6 +5,7 @@
 
 import json
 import signal
+from pathlib import Path
 
 from ...core.errors import BodyCalError
 from .. import console
@@ -28,10 +29,10 @@ def _cluster_module():
 def _export(args) -> int:
     if args.export_openjd:
         from ..openjd import export_openjd
-        written = export_openjd(args.jobs, args.export_openjd)
+        written = export_openjd(args.jobs, args.export_openjd, review=args.review)
     else:
         from ..flamenco import export_flamenco
-        written = export_flamenco(args.jobs, args.export_flamenco)
+        written = export_flamenco(args.jobs, args.export_flamenco, review=args.review)
     console.say(f"wrote {written}")
     return 0
 
@@ -46,9 +47,13 @@ def run(args) -> int:
     with console.progress("batch") as step:
         if args.cluster:
             summary = _cluster_module().run_on_cluster(args.jobs, args.cluster, args.retries, log=console.say,
-                                                       progress=step)
+                                                       progress=step, review=args.review)
         else:
-            summary = run_batch(args.jobs, log=console.say, progress=step)
+            summary = run_batch(args.jobs, log=console.say, progress=step, review=args.review)
+    if args.review:  # the page is the batch's, made from its summary and the jobs' records
+        from ...output.review_page import write_page
+
+        console.say(f"saved {write_page(Path(summary['summary_file']).parent, summary)}")
     console.say(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}))
     if summary["interrupted"]:
         print(f"bodycal batch: stopped by {summary['interrupted']}: {summary['ok']} ok, {summary['failed']} failed, "

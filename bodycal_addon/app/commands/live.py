@@ -2,16 +2,16 @@
 [--bind ADDRESS] [--role NAME=ROLE ...] [--duration S] [--worker] [--no-filter] [--no-plant-feet]` (FORMATS.md §6):
 a performer's VMC stream retargeted frame by frame and sent on as the avatar's VMC bones.
 
-The receiver's latest frame is solved as soon as it is taken (`retarget.live_session.LiveSession`,
-the Live panel's too, whose follower runs `retarget.live.LiveSolver`: the causal stance and, unless
-`--no-filter`, the forward One Euro), and the pose goes out at once
-(`output.vmc_bones.AvatarVmcOut`); frames that arrive while a solve runs are dropped by the
-receiver, counted and said. Devices get their roles from the stream's announcements (`bodycal
-stream` sends them) or `--role NAME=ROLE`; the solve starts once the HMD, both hands, the pelvis and
-both feet have roles and have been seen. `--worker` solves in a worker process of its own
-(`retarget.live_worker`): the receiver's thread then never waits for the solve to let go of the
-GIL. Ctrl-C (or `--duration`) ends it; a summary line says how many frames were solved and how
-long a solve took."""
+The newest frame is solved as soon as the solver is free (`live.session.LiveSession`, the Live
+panel's too, whose follower runs `live.solver.LiveSolver`: the causal stance and, unless
+`--no-filter`, the forward One Euro), on the session's solving thread, and the pose goes out at once
+(`output.vmc_bones.AvatarVmcOut`); frames that arrive while a solve runs are skipped, counted and
+said (the progress line and the summary). Devices get their roles from the stream's announcements
+(`bodycal stream` sends them) or `--role NAME=ROLE`; the solve starts once the HMD, both hands, the
+pelvis and both feet have roles and have been seen. `--worker` solves in a worker process of its
+own (`live.worker`): the receiver's thread then never waits for the solve to let go of the GIL.
+Ctrl-C (or `--duration`) ends it; a summary line says how many frames were solved and skipped and
+how long a solve took."""
 
 from __future__ import annotations
 
@@ -22,8 +22,9 @@ import numpy as np
 from ...core.errors import BodyCalError
 from .. import console
 from .record import PROGRESS_S, check_port, parse_roles, stop_on_signals
+from .retarget import seat_height
 
-POLL_S = 0.0005  # how often the loop looks for a new frame when none is waiting
+WAIT_S = 0.1  # the longest the loop sleeps waiting for a pose (it wakes at once when one comes)
 
 
 def send_target(text: str) -> tuple[str, int]:
@@ -46,18 +47,20 @@ def _models(args):
 
 
 def run(args) -> int:
+    from ...live.session import LiveSession
     from ...recording.filters import OneEuro
     from ...recording.live.receiver import VmcReceiver
     from ...recording.live.sender import VmcSender
-    from ...retarget.live_session import LiveSession
 
     host, out_port = send_target(args.send)  # the arguments first, then the files
     roles = parse_roles(args.role)
+    seat = seat_height(args)
     user, avatar = _models(args)
     smooth = None if args.filter is None else OneEuro.parse(args.filter)
     rx = VmcReceiver(check_port(args.port), args.bind)
     live = LiveSession(rx, roles)  # the one live path: Blender's Live panel pumps the same session
-    live.follow(AVATAR, user, avatar, args.method, smooth=smooth, plant_feet=args.plant_feet, worker=args.worker)
+    live.follow(AVATAR, user, avatar, args.method, smooth=smooth, plant_feet=args.plant_feet,
+                seat_height=seat, worker=args.worker)
     loop = _Loop(live, args)
     try:
         with stop_on_signals() as stop, rx, VmcSender(host, out_port) as tx:
@@ -89,9 +92,10 @@ class _Loop:
             if now - last >= PROGRESS_S:
                 console.status(self.progress())
                 last = now
+            if not self.live.wait(WAIT_S):
+                continue
             update = self.live.pump()
             if update is None:
-                time.sleep(POLL_S)
                 continue
             for line in update.notes:  # a worker process that ended: solved here from then on
                 console.say(line)
@@ -113,7 +117,7 @@ class _Loop:
                     f"({len(self.live.kinds)} devices seen)")
         if state == "preparing":
             return "preparing the solver in the worker process"
-        return f"{follower.stats.frames} frames solved, {self.live.stats.line()}"
+        return f"{follower.stats.frames} frames solved, {self._skipped()}; {self.live.stats.line()}"
 
     def summary(self) -> str:
         stats = self.live.followers[AVATAR].stats
@@ -121,5 +125,10 @@ class _Loop:
             return f"no frame solved ({self.live.stats.line()})"
         ms = np.asarray(stats.solve_ms)
         where = " in the worker process" if self.live.followers[AVATAR].in_worker else ""
-        return (f"solved and sent {self.sent} frames ({self.live.stats.line()}); a solve took {np.median(ms):.1f} ms "
-                f"median, {np.percentile(ms, 99):.1f} ms p99{where} (the last {len(ms)})")
+        return (f"solved and sent {self.sent} frames, {self._skipped()} ({self.live.stats.line()}); a solve took "
+                f"{np.median(ms):.1f} ms median, {np.percentile(ms, 99):.1f} ms p99{where} (the last {len(ms)})")
+
+    def _skipped(self) -> str:
+        """The stream's frames the avatar did not show: skipped while it solved the one before."""
+        stats = self.live.followers[AVATAR].stats
+        return f"{stats.not_shown} of {stats.handed + stats.skipped} frames skipped"

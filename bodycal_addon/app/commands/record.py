@@ -1,10 +1,12 @@
-"""`bodycal record [--port N] [--bind ADDRESS] [--duration S] [--role NAME=ROLE ...] [--name NAME]
-[--wizard [--pause S] [--step-timeout S]] -o TAKE.bcrec.json|.csv [--overwrite]` (FORMATS.md §6.2): a
-live VMC stream into a recording.
+"""`bodycal record [--port N] [--bind ADDRESS] [--duration S] [--idle S] [--role NAME=ROLE ...] [--name
+NAME] [--wizard [--pause S] [--step-timeout S]] -o TAKE.bcrec.json|.csv [--overwrite]` (FORMATS.md §6.2):
+a live VMC stream into a recording.
 
-Listens until Ctrl-C (or SIGTERM), or until the take is `--duration` seconds long; either way the
-file is written whole, then exit 0. A progress line every PROGRESS_S: the take's length, frames,
-rate, devices seen and tracked now, markers, and what the receiver skipped.
+Listens until Ctrl-C (or SIGTERM), until `--duration` seconds (wall clock) after the first frame
+arrived, or until no frame has come for `--idle` seconds after the first (the sender stopped);
+whichever comes first, the file is written whole and the reason said, then exit 0. A progress line
+every PROGRESS_S: the take's length, frames, rate, devices seen and tracked now, markers, and what
+the receiver skipped ("nothing received" while no packet has come).
 
 With `--wizard`, the calibration steps the devices allow are run with the performer
 (recording/live/wizard.py): each step's instruction is printed, it begins `--pause` seconds later
@@ -69,6 +71,9 @@ def run(args) -> int:
     check_port(args.port)
     if args.duration is not None and not args.duration > 0:
         raise BodyCalError(f"{args.duration:g} is not a positive number of seconds", field="--duration")
+    idle = getattr(args, "idle", 0.0) or 0.0
+    if not idle >= 0:
+        raise BodyCalError(f"{idle:g} is not a number of seconds", field="--idle", hint="give 0 (no limit) or more")
     if getattr(args, "wizard", False):
         if not args.pause >= 0:
             raise BodyCalError(f"{args.pause:g} is not a number of seconds", field="--pause", hint="give 0 or more")
@@ -84,18 +89,42 @@ def run(args) -> int:
         receiver.start()
         try:
             console.say(f"listening for VMC on {args.bind}:{receiver.port}; Ctrl-C ends the recording")
+            ended = _Ending(recorder, args.duration, idle)
             if getattr(args, "wizard", False):
-                _record_wizard(recorder, receiver, stop, args.pause, args.step_timeout)
+                _record_wizard(recorder, receiver, stop, args.pause, args.step_timeout, ended)
             else:
-                _record(recorder, receiver, stop)
+                _record(recorder, receiver, stop, ended)
+            if ended.why:
+                console.say(ended.why)
         finally:
             receiver.stop()
     return _save(recorder, receiver, out, overwrite)
 
 
-def _record(recorder, receiver, stop: threading.Event) -> None:
+class _Ending:
+    """Whether the take is over by the clock (`--duration` after the first frame, `--idle` without
+    one; `why` then says which), else None. Both on the receiver's clock (vmc.now)."""
+
+    def __init__(self, recorder, duration: float | None, idle: float):
+        self.recorder, self.duration, self.idle = recorder, duration, idle
+        self.why = ""
+
+    def __call__(self) -> bool:
+        first, last = self.recorder.first_arrival, self.recorder.last_arrival
+        if first is None:
+            return False
+        now = time.perf_counter()  # vmc.now's clock: the frames' arrival
+        if self.recorder.full.is_set() or (self.duration is not None and now - first >= self.duration):
+            self.why = f"--duration {self.duration:g} s reached (wall clock from the first frame): the take ends"
+        elif self.idle and now - last >= self.idle:
+            self.why = (f"no frame for {self.idle:g} s (the sender stopped?): the take ends at its last frame "
+                        "(--idle 0 waits for Ctrl-C)")
+        return bool(self.why)
+
+
+def _record(recorder, receiver, stop: threading.Event, ended) -> None:
     last = (time.perf_counter(), 0)
-    while not stop.wait(0.1) and not recorder.full.is_set():
+    while not stop.wait(0.1) and not ended():
         now = time.perf_counter()
         if now - last[0] >= PROGRESS_S:
             rate = (recorder.frames - last[1]) / (now - last[0])
@@ -108,7 +137,8 @@ def _record(recorder, receiver, stop: threading.Event) -> None:
 WIZARD_POLL_S = 1.0 / 30.0  # the wizard's update rate (a UI timer's)
 
 
-def _record_wizard(recorder, receiver, stop: threading.Event, pause: float, step_timeout: float | None) -> None:
+def _record_wizard(recorder, receiver, stop: threading.Event, pause: float, step_timeout: float | None,
+                   ended) -> None:
     """The calibration wizard over the stream (module docstring): waits for the first frame (the
     roles and markers a BodyCal sender announces come with it), then runs every step."""
     from ...recording.live.wizard import LiveWizard
@@ -122,7 +152,7 @@ def _record_wizard(recorder, receiver, stop: threading.Event, pause: float, step
     console.say(f"calibration wizard: {len(wizard.steps)} steps for {len(recorder.names)} devices and "
                 f"{len(recorder.marker_names)} markers")
     shown, last_status, began = -1, 0.0, None
-    while not wizard.finished and not stop.wait(WIZARD_POLL_S) and not recorder.full.is_set():
+    while not wizard.finished and not stop.wait(WIZARD_POLL_S) and not ended():
         if receiver.stats.sink_error:
             raise BodyCalError(f"recording failed: {receiver.stats.sink_error}")
         if wizard.index != shown:
@@ -172,7 +202,9 @@ def _roles_from_the_tpose(recorder, wizard) -> None:
 
 def _progress(recorder, receiver, rate: float) -> str:
     if not recorder.frames:
-        return f"waiting for VMC on port {receiver.port}: {receiver.stats.datagrams} packets so far"
+        if not receiver.stats.datagrams:
+            return f"nothing received on port {receiver.port} yet"
+        return f"waiting for VMC on port {receiver.port}: {receiver.stats.datagrams} packets so far, no device in them"
     return (f"recording {recorder.duration:.1f} s: {recorder.frames} frames, {rate:.1f} Hz, "
             f"{len(recorder.names)} devices ({recorder.last_tracked} tracked now), "
             f"{len(recorder.marker_names)} markers; {receiver.stats.line()}")
@@ -184,6 +216,9 @@ def _save(recorder, receiver, out: Path, overwrite: bool) -> int:
     stats = receiver.stats
     if stats.sink_error:
         raise BodyCalError(f"recording failed: {stats.sink_error}")
+    if not stats.datagrams:
+        raise BodyCalError(f"nothing received on port {receiver.port}: 0 packets",
+                           hint="is the sender sending to this host and port?")
     if not recorder.frames:
         raise BodyCalError(f"nothing arrived on port {receiver.port} ({stats.datagrams} packets, none with a device)",
                            hint="is the sender sending device transforms to this host and port?")

@@ -2,7 +2,7 @@
 [--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]] | --no-filter]
 [--no-plant-feet] [--seated HEIGHT] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
 [--tolerance DEG] [--location-tolerance MM] [--interpolation linear|bezier] [--fps N] [--frame-range FIRST LAST]
--o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
+-o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite] [--review]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
 import math
 
@@ -21,7 +21,7 @@ def run(args) -> int:
                                settings=session.Settings(args.method, getattr(args, "plant_feet", True),
                                                          getattr(args, "placement", "object")),
                                overwrite=getattr(args, "overwrite", False), options=bake_options(args),
-                               frame_range=frame_range(args),
+                               frame_range=frame_range(args), review=getattr(args, "review", False),
                                bone_map_path=getattr(args, "bone_map", None),
                                log=console.say, warn=lambda line: console.warn("retarget", line), progress=step)
     return 0

@@ -3,7 +3,7 @@
 [--placement object|performer] [--no-plant-feet]
 [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
 [--tolerance DEG] [--location-tolerance MM] [--interpolation linear|bezier] [--fps N] [--frame-range FIRST LAST]
-[--overwrite]`; SOURCE is a .blend, .bvh,
+[--overwrite] [--review]`; SOURCE is a .blend, .bvh,
 .fbx, .glb or .gltf with an animated humanoid armature, AVATAR a .blend, .fbx, .glb, .gltf or .vrm."""
 
 from .. import console
@@ -20,6 +20,6 @@ def run(args) -> int:
                                action=args.action, armature=args.armature, filter=cfg,
                                settings=session.Settings(args.method, args.plant_feet, args.placement),
                                overwrite=args.overwrite, options=bake_options(args), bone_map_path=args.bone_map,
-                               frame_range=frame_range(args),
+                               frame_range=frame_range(args), review=getattr(args, "review", False),
                                log=console.say, warn=lambda line: console.warn("transfer", line), progress=step)
     return 0

@@ -12,10 +12,10 @@
   is, measured on the frames since it began against what the offline fit needs.
 - `sender.py`: `VmcSender` and `replay`, a Recording sent as a VMC stream in real time.
 - `buffer.py`: `LiveRecording`, an append-only Recording a stream fills for the live solve
-  (retarget/live.py); numpy only.
+  (live/solver.py); numpy only.
 
 Nothing else in the engine imports this package at import time (python-osc is imported at the top
-of the VMC modules) but the live session (retarget/live_session.py) and its Blender glue
+of the VMC modules) but the live session (live/session.py) and its Blender glue
 (blender/live.py, loaded with the Live panel): the command line's `record`, `stream` and `live` load
 it when they run.
 """

@@ -6,9 +6,19 @@ into arrays that grow by doubling (so a take of any length costs one copy per fr
 loop over frames afterwards). A device absent from a frame is not tracked in it, so a gap in a
 stream is a gap in the recording; a device first seen later is not tracked before.
 
-Time: the sender's clock when it gives one and it moves forward (frames then land on the sender's
-times, whatever the network did to their arrival), else the arrival clock's advance since the
-previous frame; always strictly increasing (`MIN_STEP_S`).
+Time: the take's clock follows the sender's (`/VMC/Ext/T`) while it agrees with arrival, else the
+arrival clock; always strictly increasing (`MIN_STEP_S`). A frame's step is the sender's when its
+clock moved forward and the take, stepped so, stays no more than `LEAD_S` ahead of the arrival
+clock (frames then land on the sender's times, whatever the network did to their arrival: a burst
+after a stall keeps its spacing; behind is any amount: frames held up, a sender slower than real
+time, a test that waits between frames); otherwise it is the arrival's step since the previous
+frame. So a stray time (1e9, a clock restarted back or forward) costs a step or two on the
+arrival clock, and a sender whose clock runs ahead of its frames' arrival (a flood of frames, a
+replay sped up) cannot make the take longer than the session by more than LEAD_S: the take never
+runs away from arrival time. The arrival clock is mapped onto the take's by the first frame, then
+follows the take's own lead (over `TRACK_S`) at most `DRIFT` of the arrival's time: a sender's
+clock drifting against the receiver's (crystals differ by 10-100 ppm) is followed, a flood gains
+the take at most that much.
 """
 
 from __future__ import annotations
@@ -32,6 +42,9 @@ from ..segments import check_segment, parse_segments
 from .source import LiveFrame
 
 MIN_STEP_S = 1e-6  # frames closer than this in time (one datagram ending two frames) are spaced by it
+LEAD_S = 0.25  # the take's clock may be this far ahead of arrival on the sender's steps (its stamping jitter)
+DRIFT = 1e-3  # arrival's mapping onto the take's clock follows the take's lead at most this fast (1000 ppm)
+TRACK_S = 10.0  # over this long
 
 
 @dataclass
@@ -75,11 +88,12 @@ class LiveRecorder:
     """A sink that records (module docstring). `roles` (device name -> role) are the user's: they
     win over roles a stream announces; devices without either get theirs from the T-pose when the
     file is read, as for any recording (recording/roles.py). With `limit_s`, frames more than that
-    many seconds after the first are not recorded (`full` is set at the first of them)."""
+    many seconds after the first (wall clock: their arrival) are not recorded (`full` is set at the
+    first of them)."""
 
     def __init__(self, name: str = "live", roles: dict[str, str] | None = None, *, limit_s: float | None = None):
         self.name = name
-        self.limit_s = limit_s  # record this many seconds from the first frame, then set `full`
+        self.limit_s = limit_s  # record this many seconds (arrival) from the first frame, then set `full`
         self.full = threading.Event()
         self.user_roles = _checked_roles(roles or {})
         self._lock = threading.Lock()
@@ -101,6 +115,7 @@ class LiveRecorder:
         self.segments: list[Segment] = []
         self._open: tuple[str, str | None, str | None, float] | None = None
         self._prev: tuple[float, float | None, float] | None = None  # (time, sender time, arrival)
+        self._offset = 0.0  # the take's clock minus the arrival clock (`_time_of`)
         self.sender_clock = True  # every frame's time came from the sender's clock
 
     # --- the sink ---------------------------------------------------------------------------------
@@ -110,10 +125,10 @@ class LiveRecorder:
             if self.full.is_set():
                 return
             k = self.frames
-            t = self._time_of(frame)
-            if self.limit_s is not None and k and t - self._times[0] > self.limit_s:
+            if self.limit_s is not None and k and frame.arrival - self._arrival[0] > self.limit_s:
                 self.full.set()
                 return
+            t = self._time_of(frame)
             for event in frame.events:
                 self._event(event)
             if k >= len(self._times):
@@ -150,15 +165,20 @@ class LiveRecorder:
         return self._mslot[name]
 
     def _time_of(self, frame: LiveFrame) -> float:
+        """The frame's time on the take's clock (module docstring)."""
         s, a = frame.sender_time, frame.arrival
         if self._prev is None:
             self.sender_clock = s is not None
             t = s if s is not None else 0.0
+            self._offset = t - a  # the take's clock minus the arrival clock
         else:
             t0, s0, a0 = self._prev
-            forward = s is not None and s0 is not None and s > s0
-            self.sender_clock &= forward
-            t = max(t0 + (s - s0 if forward else a - a0), t0 + MIN_STEP_S)
+            da = max(a - a0, 0.0)
+            arrived = a + self._offset  # the arrival clock, on the take's
+            follows = s is not None and s0 is not None and s > s0 and t0 + (s - s0) - arrived <= LEAD_S
+            self.sender_clock &= follows
+            t = max(t0 + (s - s0 if follows else da), t0 + MIN_STEP_S)
+            self._offset += min(max((t - arrived) * da / TRACK_S, -DRIFT * da), DRIFT * da)  # a drift followed
         self._prev = (t, s, a)
         return t
 
@@ -186,6 +206,18 @@ class LiveRecorder:
         """The time of the last frame recorded (the recording's clock); 0 before the first."""
         with self._lock:
             return float(self._times[self.frames - 1]) if self.frames else 0.0
+
+    @property
+    def first_arrival(self) -> float | None:
+        """When the first frame arrived (the source's clock, `LiveFrame.arrival`), None before it."""
+        with self._lock:
+            return float(self._arrival[0]) if self.frames else None
+
+    @property
+    def last_arrival(self) -> float | None:
+        """When the last frame recorded arrived, None before the first."""
+        with self._lock:
+            return float(self._arrival[self.frames - 1]) if self.frames else None
 
     @property
     def duration(self) -> float:

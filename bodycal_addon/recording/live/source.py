@@ -65,8 +65,13 @@ class SourceStats:
     sink_error: str = ""  # a sink that raised: it is no longer called
 
     def line(self) -> str:
-        """One line for the command line's progress and summary."""
-        parts = [f"{self.frames} frames", f"{self.dropped} dropped"]
+        """One line for the command line's progress and summary, and the Live panel: what arrived,
+        "nothing received" while no packet has (a sender that says it sends may not)."""
+        if not self.datagrams:
+            return "nothing received yet (0 packets)"
+        if not self.frames:
+            return f"{self.datagrams} packets received, no device in them yet"
+        parts = [f"{self.frames} frames"] + ([f"{self.dropped} dropped"] if self.dropped else [])
         bad = self.bad_datagrams + self.bad_messages
         if bad:
             parts.append(f"{bad} bad packets or messages skipped ({self.last_error})")

@@ -44,13 +44,18 @@ from pathlib import Path
 
 import numpy as np
 
+try:  # the worker's peak memory, for the figures (not on Windows)
+    import resource
+except ImportError:  # pragma: no cover - Windows
+    resource = None
+
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro
 from ..recording.model import Device
-from .avatar_pose import AvatarRig
-from .live import LiveSolver
-from .solver import SolvedFrames
+from ..retarget.avatar_pose import AvatarRig
+from ..retarget.solver import SolvedFrames
+from .solver import LiveSolver
 
 ENGINE_DIR = Path(__file__).resolve().parents[2]  # the folder holding `bodycal_addon` (the extension's own)
 START_S = 60.0  # a worker not up by then (a cold disk, a stuck import) is killed: the follower solves here
@@ -68,7 +73,7 @@ def _watch():
 threading.Thread(target=_watch, daemon=True).start()
 sys.path.insert(0, sys.argv[1])
 try:
-    from bodycal_addon.retarget.live_worker import serve
+    from bodycal_addon.live.worker import serve
     serve(key)
 except BaseException:
     import traceback
@@ -85,8 +90,9 @@ class SolverProcess:
     `multiprocessing.connection.Connection` once the worker is up, None before; `error` says in
     one line why it could not start."""
 
-    def __init__(self, name: str, executable: str | None = None):
+    def __init__(self, name: str, executable: str | None = None, on_change=None):
         self.name = name
+        self.on_change = on_change  # called once the worker is up or could not start (its starting thread)
         self.executable = executable or sys.executable
         self.connection = None
         self.error = ""
@@ -135,6 +141,8 @@ class SolverProcess:
         except Exception as exc:  # noqa: BLE001 - any failure to start is one line; the follower solves here
             self.error = f"no worker process ({exc.line() if isinstance(exc, BodyCalError) else _one_line(exc)})"
             self._stop_process()
+        if self.on_change is not None:
+            self.on_change()
 
     def alive(self) -> bool:
         return self._proc is not None and self._proc.poll() is None
@@ -177,13 +185,14 @@ def _one_line(exc: BaseException) -> str:
 
 
 def prepare_message(user: BodyModel, avatar: BodyModel, method: str, devices: list[Device], markers: list[str],
-                    smooth: OneEuro | None, plant_feet: bool, placement: str) -> tuple:
+                    smooth: OneEuro | None, plant_feet: bool, placement: str,
+                    seat_height: float | None = None) -> tuple:
     """What the worker needs to make its LiveSolver (`Follower.prepare`'s arguments)."""
     return ("prepare", {
         "user": user.to_json(exact=True), "avatar": avatar.to_json(exact=True), "method": method,
         "devices": [(d.name, d.kind, d.role) for d in devices], "markers": list(markers),
         "smooth": None if smooth is None else dataclasses.asdict(smooth), "plant_feet": bool(plant_feet),
-        "placement": placement})
+        "placement": placement, "seat_height": seat_height})
 
 
 def frame_message(t: float, positions, rotations, valid, points, seen) -> tuple:
@@ -230,7 +239,8 @@ class _Worker:
         smooth = None if spec["smooth"] is None else OneEuro(**spec["smooth"])
         devices = [Device(name, kind, role) for name, kind, role in spec["devices"]]
         self.solver = LiveSolver(user, avatar, spec["method"], devices=devices, marker_names=spec["markers"],
-                                 smooth=smooth, plant_feet=spec["plant_feet"], placement=spec["placement"])
+                                 smooth=smooth, plant_feet=spec["plant_feet"], placement=spec["placement"],
+                                 seat_height=spec.get("seat_height"))
         rig = AvatarRig.from_model(avatar)  # what the parent's pose writer needs: names, root, armature
         return ("ready", {"armature": rig.armature, "names": list(rig.names), "root": int(rig.root)})
 
@@ -244,7 +254,18 @@ class _Worker:
             return ("none", *cost)
         names = list(solved.targets)
         targets = np.stack([solved.targets[n] for n in names]) if names else np.zeros((0, 1, 3))
-        return ("pose", solved.basis, solved.root_location, solved.joints, names, targets, *cost)
+        rec = self.solver.recording  # the bench's memory figures: the frames kept, and this process's peak
+        kept = sum(a.nbytes for a in (rec.time, rec.positions, rec.rotations, rec.valid, rec.markers, rec.marker_valid))
+        memory = (kept, _peak_rss_mb())
+        return ("pose", solved.basis, solved.root_location, solved.joints, names, targets, *cost, *memory)
+
+
+def _peak_rss_mb() -> float:
+    """This process's peak resident memory (MB), 0 where the platform does not say."""
+    if resource is None:
+        return 0.0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (2 ** 20 if sys.platform == "darwin" else 2 ** 10)  # bytes on macOS, KB on Linux
 
 
 def _listen_address() -> tuple[str, str | None]:
@@ -283,4 +304,8 @@ def serve(key_line: bytes) -> None:
                 message = connection.recv()
             except (EOFError, OSError):  # the parent closed it: done
                 return
-            connection.send(worker.handle(message))
+            answer = worker.handle(message)
+            try:
+                connection.send(answer)
+            except OSError:  # the parent closed it while this one solved: done
+                return

@@ -20,9 +20,9 @@ from ..core.transforms import quat_normalize, quat_to_matrix
 from ..recording.filters import OneEuro
 from ..recording.live.buffer import LiveRecording
 from ..recording.model import Device
-from . import lower_body
-from .pose_source import RecordingSource
-from .solver import PreparedSolver, SolvedFrames
+from ..retarget import lower_body
+from ..retarget.pose_source import RecordingSource
+from ..retarget.solver import PreparedSolver, SolvedFrames
 
 
 class LiveSolver:
