@@ -52,7 +52,8 @@ def test_a_real_three_point_take_streamed_is_recorded_with_its_roles(data_dir, t
     port, out = free_port(), tmp_path / "again.bcrec.json"
     proc, first = start_recording("--port", port, "--duration", "1.0", "-o", out)
     choice = ["--hands", hands] if hands else []
-    sent = subprocess.run(command("stream", take, "--port", port, "--speed", "5", *choice), cwd=REPO,
+    # streamed in real time: --duration counts the recorder's wall clock
+    sent = subprocess.run(command("stream", take, "--port", port, *choice), cwd=REPO,
                           capture_output=True, text=True, timeout=60)
     assert sent.returncode == 0 and sent.stderr == "", sent.stderr
     stdout, stderr = proc.communicate(timeout=20)
