@@ -2,7 +2,9 @@
 
 Profiles:
 - `full`: HMD, two controllers, pelvis, chest, upper arms, forearms, thighs, shins and feet;
-- `six`: AvatarGo's six devices (HMD, two controllers, pelvis and both feet), the usual home set.
+- `six`: AvatarGo's six devices (HMD, two controllers, pelvis and both feet), the usual home set;
+- `four`: HMD, two controllers and a pelvis tracker;
+- `three`: HMD and two controllers, what a standalone headset has.
 
 Mountings (per seed): every tracker and controller at a uniformly random orientation; positions
 on the body surface where people strap them (sizes of an adult scaled by the performer's leg):
@@ -36,6 +38,8 @@ PROFILES = {
     "full": ("head", "hand_l", "hand_r", "pelvis", "chest", "upperarm_l", "upperarm_r", "forearm_l", "forearm_r",
              "thigh_l", "thigh_r", "shin_l", "shin_r", "foot_l", "foot_r"),
     "six": ("head", "hand_l", "hand_r", "pelvis", "foot_l", "foot_r"),
+    "four": ("head", "hand_l", "hand_r", "pelvis"),
+    "three": ("head", "hand_l", "hand_r"),
 }
 ADULT_LEG_M = 0.85  # hip to knee to ankle of the adult the sizes below are for
 # Lab (Z up) -> file conventions: points file = A @ lab.

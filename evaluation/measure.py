@@ -40,3 +40,17 @@ def hip_line_deg(avatar_l, avatar_r, source_l, source_r) -> dict:
     d = yaw(avatar_l - avatar_r) - yaw(source_l - source_r)
     d = np.degrees(np.abs((d + np.pi) % (2 * np.pi) - np.pi))
     return {"p95": round(float(np.percentile(d, 95)), 1), "max": round(float(d.max()), 1)}
+
+
+def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0.12) -> int:
+    """How many times a foot lands over a clip: the stances (its points, (F, 3) or (F, K, 3): the
+    ankle and the ball, all slower than `speed` m/s over the floor for at least `hold_s`) that
+    begin after the clip's first frame. The same rule for the source and a retargeted body, so the
+    two counts compare."""
+    foot = foot.reshape(len(foot), -1, 3)
+    v = np.linalg.norm(np.gradient(foot[..., :2], axis=0), axis=-1).max(axis=-1) * fps
+    slow = np.concatenate([[0], (v < speed).astype(int), [0]])
+    edges = np.flatnonzero(np.diff(slow))
+    starts, ends = edges[::2], edges[1::2]
+    held = (ends - starts) >= hold_s * fps
+    return int(np.sum(held & (starts > 0)))

@@ -8,9 +8,8 @@ from ..bodycal_addon.core.errors import BodyCalError
 from .preferences import StartsInFolder
 from .reporting import reports_errors
 
-# {scene name: (the last refusal's line, whether Accept Defaults would pass)}: what the panel shows
-# until the next calibration of that scene.
-REFUSED: dict[str, tuple[str, bool]] = {}
+# {scene name: the last refusal's line}: what the panel shows until the next calibration of that scene.
+REFUSED: dict[str, str] = {}
 
 
 def _has_recording(context) -> bool:
@@ -29,10 +28,6 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
 
     show_helpers: bpy.props.BoolProperty(name="Show Helpers", default=True,
                                          description="Show the fitted joints and surfaces as helper objects")
-    allow_defaults: bpy.props.BoolProperty(
-        name="Accept Defaults", default=False,
-        description="Store the body model even when most body joints could not be measured and are guessed "
-                    "from the eye height")
 
     @classmethod
     def poll(cls, context):
@@ -49,21 +44,20 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
         from ..bodycal_addon.blender import calibration_scene as cs
         from ..bodycal_addon.blender.recording_scene import recording_from_scene
         from ..bodycal_addon.calibration import calibrate_user, check_usable
-        from ..bodycal_addon.calibration.coverage import missing_roles
 
         rec = recording_from_scene(context.scene)
         model = calibrate_user(rec)
         REFUSED.pop(context.scene.name, None)
         try:
-            cov = check_usable(model, allow_defaults=self.allow_defaults, accept="press Calibrate, Accept Defaults")
-        except BodyCalError as exc:  # the panel shows it, and Accept Defaults when that would pass
-            REFUSED[context.scene.name] = (exc.line(), not missing_roles(model))
+            cov = check_usable(model)
+        except BodyCalError as exc:  # the panel shows it
+            REFUSED[context.scene.name] = exc.line()
             raise
         cs.store_user_model(context.scene, model)
         if self.show_helpers:
             cs.show_helpers(context.scene, model)
         cal = model.calibration
-        for line in cal.get("warnings", []):
+        for line in cal.get("warnings", []) + cov.warnings():
             self.report({"WARNING"}, line)
         self.report({"INFO"}, f"Calibrated from {len(cal['steps_used'])} steps: {cov.line()}; "
                               f"{len(cal['missing'])} steps missing"

@@ -152,13 +152,15 @@ class BODYCAL_OT_follow_live(bpy.types.Operator):
     def execute(self, context):
         settings, bake = _settings(context), context.scene.bodycal_bake
         user = user_model(context)
-        smooth = context.scene.bodycal_retarget.one_euro()
+        retarget = context.scene.bodycal_retarget
+        smooth = retarget.one_euro()
+        seat = retarget.seat_height if retarget.seated else None
         arms = selected_armatures(context)
         worker = settings.use_workers
         names = []
         for arm in arms:
             live.follow(arm, user, settings.method, smooth=smooth, plant_feet=bake.plant_feet,
-                        placement=bake.placement, root_motion=bake.root_motion, worker=worker)
+                        placement=bake.placement, root_motion=bake.root_motion, worker=worker, seat_height=seat)
             names.append(arm.name)
         self.report({"INFO"}, f"Following with {', '.join(names)}")
         return {"FINISHED"}

@@ -44,7 +44,7 @@ def start_preview(scene, arm, kind: str) -> preview.Preview:
         st = scene.bodycal_transfer
         take, method = read_source(st.source, st.action), st.method
     else:
-        take, method = session.scene_take(scene, scene.bodycal_retarget.one_euro()), scene.bodycal_retarget.method
+        take, method = scene.bodycal_retarget.scene_take(scene), scene.bodycal_retarget.method
     window = scene.bodycal_bake.window(bpy.context)
     if window is not None:
         take = take.window(*window)

@@ -40,6 +40,17 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
                                           description="The last bake's figures, per avatar")
     review_flags: bpy.props.CollectionProperty(type=BODYCAL_PG_review_flag, name="Review",
                                                description="The last bake\'s review: its figures against their limits")
+    seated: bpy.props.BoolProperty(
+        name="Seated", default=False,
+        description="The performer sits on a seat (a kit without foot trackers: the estimated pelvis stays on the "
+                    "seat, the estimated feet planted in front; with foot trackers the feet are measured)")
+    seat_height: bpy.props.FloatProperty(
+        name="Seat Height", default=0.45, min=0.1, max=1.2, precision=3, subtype="DISTANCE", unit="LENGTH",
+        description="How high the seat is above the floor (a chair: about 0.45 m)")
+
+    def scene_take(self, scene) -> RecordingTake:
+        """The scene's recording as these settings take it: smoothed, seated or not."""
+        return session.scene_take(scene, self.one_euro(), seat_height=self.seat_height if self.seated else None)
 
     def one_euro(self) -> OneEuro | None:
         if not self.use_filter:
@@ -70,7 +81,7 @@ on each"""
         return True
 
     def _read_take(self, context) -> RecordingTake:
-        return session.scene_take(context.scene, self._own_settings(context).one_euro())
+        return self._own_settings(context).scene_take(context.scene)
 
     def _armatures(self, context) -> list:
         return selected_armatures(context)

@@ -15,19 +15,29 @@ from ..operators.calibration import REFUSED
 from .conventions import draw_help, wrapped_label
 
 _STEP_ORDER = (*CALIBRATION_STEPS, "touch")
-_cache = {"raw": None, "cal": {}}
+_cache = {"raw": None, "cal": {}, "extra": {}}
 
 
-def _calibration(scene) -> dict:
-    """The stored model's calibration report, parsed once per change (draw runs often)."""
+def _parsed(scene) -> None:
+    """The stored model's calibration report and extras, parsed once per change (draw runs often)."""
     raw = scene.get(MODEL_PROP)
     if raw != _cache["raw"]:
         _cache["raw"] = raw
         try:
-            _cache["cal"] = json.loads(raw).get("calibration", {}) if raw else {}
-        except (TypeError, ValueError):
-            _cache["cal"] = {}
+            doc = json.loads(raw) if raw else {}
+            _cache["cal"], _cache["extra"] = doc.get("calibration", {}), doc.get("extra", {}) or {}
+        except (TypeError, ValueError, AttributeError):
+            _cache["cal"], _cache["extra"] = {}, {}
+
+
+def _calibration(scene) -> dict:
+    _parsed(scene)
     return _cache["cal"]
+
+
+def _extra(scene) -> dict:
+    _parsed(scene)
+    return _cache["extra"]
 
 
 def steps_in_scene(scene) -> dict[str, int]:
@@ -88,22 +98,23 @@ class BODYCAL_PT_calibration(bpy.types.Panel):
         for line in cal.get("warnings", []):
             wrapped_label(layout, context, line, icon="ERROR")
         if cal:
-            cov = coverage(cal)
+            cov = coverage(cal, _extra(scene))
             wrapped_label(layout, context, f"Measured {len(cov.measured)} of {len(BODY_JOINTS)} body joints, "
                                            f"{len(cov.defaulted)} defaulted",
                           icon="ERROR" if cov.mostly_guessed else "INFO")
             if cal.get("defaulted"):
                 wrapped_label(layout, context, f"{len(cal['defaulted'])} values defaulted from the eye height",
                               icon="INFO")
+            if cov.estimated_devices:
+                what = " and ".join(p for p, r in (("pelvis", "pelvis"), ("feet", "foot_l"))
+                                    if r in cov.estimated_devices)
+                wrapped_label(layout, context, f"{cov.kit}: the {what} estimated from the head and hands "
+                                               f"({', '.join(cal.get('estimated', []))})", icon="INFO")
         col = layout.column(align=True)
         col.operator("bodycal.calibrate_user", icon="PLAY")
         refused = REFUSED.get(scene.name)
         if refused is not None:
-            line, can_accept = refused
-            wrapped_label(layout, context, line)
-            if can_accept:
-                op = col.operator("bodycal.calibrate_user", text="Calibrate, Accept Defaults", icon="ERROR")
-                op.allow_defaults = True
+            wrapped_label(layout, context, refused)
         row = col.row(align=True)
         row.operator("bodycal.save_user_model", icon="EXPORT", text="Save")
         row.operator("bodycal.load_user_model", icon="IMPORT", text="Load")

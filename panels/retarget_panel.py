@@ -31,6 +31,11 @@ class BODYCAL_PT_retarget(bpy.types.Panel):
         col.prop(bake, "armature")
         col.prop(settings, "method")
         draw_placement(col, bake)
+        row = col.row(heading="Seated")
+        row.prop(settings, "seated", text="")
+        sub = row.row()
+        sub.active = settings.seated
+        sub.prop(settings, "seat_height", text="")
         draw_smoothing(layout, settings)
         col = layout.column()
         draw_keys(col, bake)

@@ -86,8 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     _hands_argument(c)
     c.add_argument("-o", "--output", required=True, metavar="USER.body.json", help="the body model to write")
     c.add_argument("--allow-defaults", action="store_true",
-                   help="write the body model even when most body joints could not be measured and would be "
-                        "guessed from the eye height (default: refused, exit 2)")
+                   help="accepted for older scripts; changes nothing (a body mostly guessed from the eye height is "
+                        "written, with a warning)")
     c.add_argument("--overwrite", action="store_true", help="replace the output file if it exists")
 
     c = sub.add_parser("calibrate-avatar", help="surface calibration by raycasting onto the avatar's mesh")
@@ -106,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--bone-map", metavar="FILE", help=_BONE_MAP_HELP)
     c.add_argument("--method", choices=METHODS, default="egocentric", help=_method_help(METHODS))
     _filter_argument(c, "the devices before retargeting", on=True)
+    _seated_argument(c)
     _bake_arguments(c, "the recording's")
 
     c = sub.add_parser("batch", help="many recordings x avatars, in parallel worker processes or on a farm")
@@ -248,6 +249,13 @@ def _live_commands(sub) -> None:
     _filter_argument(c, "the devices (forward only, as they arrive)", on=True)
     c.add_argument("--no-plant-feet", dest="plant_feet", action="store_false",
                    help="let the feet follow the method (default: planted while the performer stands on them)")
+    _seated_argument(c)
+
+
+def _seated_argument(c) -> None:
+    c.add_argument("--seated", type=float, default=None, metavar="HEIGHT",
+                   help="the performer sits on a seat HEIGHT metres high (a kit without foot trackers: the estimated "
+                        "pelvis stays on the seat, the feet planted in front; default: standing and stepping)")
 
 
 def _filter_argument(c, what: str, on: bool = False) -> None:

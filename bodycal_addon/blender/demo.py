@@ -2,7 +2,9 @@
 profile, sample_rigs/recordings) onto the procedural avatar and the shared MakeHuman avatars,
 with all three methods; saves `out/demo.blend`, prints contact gap and floor error per avatar
 and method, and reviews every bake: `out/review/review.html` lists their sheets and flags
-(blender/review.py, FORMATS.md §4.5).
+(blender/review.py, FORMATS.md §4.5). Then a real take of a three-point kit (an HTC Vive's HMD
+and wands, sample_data's real_vr: no calibration steps, the pelvis and feet estimated) onto the
+adult avatar, every method, saved as `out/demo_three_point.blend`.
 
 In the saved file each avatar stands in a column, one row per method (egocentric at the front),
 each armature playing its own baked action; the recording's empties and the performer's
@@ -69,7 +71,7 @@ def _floor_error(arm, avatar, anim, planted) -> np.ndarray:
     return np.concatenate(errors) if errors else np.array([np.nan])
 
 
-def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
+def run_demo(output_dir: Path, log=print, only_avatars=None, three_point: bool = True) -> Path:
     t_start = time.perf_counter()
     output_dir = Path(output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -136,7 +138,56 @@ def run_demo(output_dir: Path, log=print, only_avatars=None) -> Path:
     log(f"{'avatar':<18}{'method':<12}{'contact gap median':>20}{'p95':>9}{'floor error median':>20}{'keys':>10}")
     for name, method, g_med, g_p95, f_med, keys in rows:
         log(f"{name:<18}{method:<12}{g_med:>17.1f} mm{g_p95:>6.1f} mm{f_med:>17.1f} mm{keys:>10}")
+    three = run_three_point_demo(output_dir, log) if three_point else None
     page = write_page(output_dir / "review")
     log("")
-    log(f"saved {out} and the bakes' review page {page} ({time.perf_counter() - t_start:.1f} s)")
+    log(f"saved {out}{f', {three}' if three else ''} and the bakes' review page {page} "
+        f"({time.perf_counter() - t_start:.1f} s)")
+    return out
+
+
+THREE_POINT_TAKE = ("real_vr", "aframe_vive", "tracked-recording.json")
+THREE_POINT_AVATAR = "adult_male"
+
+
+def run_three_point_demo(output_dir: Path, log=print) -> Path | None:
+    """A real three-point take (HMD and two controllers) onto the adult avatar with every method,
+    one row per method, in `demo_three_point.blend`; None (and a line) when the sample data lacks
+    it."""
+    data = paths.data_dir()
+    take_path = data.joinpath(*THREE_POINT_TAKE) if data else None
+    avatar_file = next((f for f in paths.shared_avatar_files() if f.stem == THREE_POINT_AVATAR), None)
+    if take_path is None or not take_path.is_file() or avatar_file is None:
+        log("no real three-point take or adult avatar in the sample data: the three-point demo is skipped")
+        return None
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    rec = load_recording(take_path)
+    recording_scene.import_recording_to_scene(rec, scene)
+    user = calibrate_user(rec)
+    calibration_scene.store_user_model(scene, user)
+    log(f"three-point take {rec.name}: {rec.frame_count} frames at {rec.fps:.0f} Hz, "
+        f"{', '.join(d.role for d in rec.devices)}; {len(user.extra.get('estimated_devices', {}))} devices "
+        "estimated from the head and hands")
+    take = RecordingTake(rec, user)
+    avatar = None
+    for row, method in enumerate(METHODS):
+        arm = paths.sample_rigs().load_glb_avatar(avatar_file)[0]
+        avatar = avatar or calibrate_avatar(arm)
+        avatar_storage.store_model(arm, avatar)
+        arm.name = f"{THREE_POINT_AVATAR}.{method}"
+        target = session.prepare_target(arm)
+        computed = session.compute(take, target, session.Settings(method))
+        summary = session.bake(take, target, computed, action_name=f"{rec.name}|{THREE_POINT_AVATAR}|{method}",
+                               review=True)
+        log(f"  {summary.line()}")
+        sheet, record = review_files(Path(output_dir) / "review" / f"three_point_{THREE_POINT_AVATAR}__{method}.blend")
+        write_review(summary, arm, sheet, record, [Path(output_dir) / "demo_three_point.blend"], overwrite=True)
+        for note in computed.animation.notes:
+            if "estimated" in note:
+                log(f"  {note}")
+        arm.location = (0.0, ROW_SPACING * row, 0.0)
+    scene.frame_set(scene.frame_start)
+    out = Path(output_dir) / "demo_three_point.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(out.resolve()), compress=True)
     return out

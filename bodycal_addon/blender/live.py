@@ -154,18 +154,19 @@ def disconnect():
 
 def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro | None = None,
            plant_feet: bool = True, placement: str = "object", root_motion: str = "root",
-           worker: bool = True) -> Following:
+           worker: bool = True, seat_height: float | None = None) -> Following:
     """`arm` follows the stream from the next frame: `user` (the performer's model) onto the
     armature's avatar model (measured now when it has none stored) by `method`; `worker`: solved
     in a process of its own (live/worker.py: Blender's process never runs the solve, several
-    avatars use several cores), else on the session's solving thread in Blender's process."""
+    avatars use several cores), else on the session's solving thread in Blender's process;
+    `seat_height`: the performer seated (a kit without foot trackers)."""
     live = _need_session()
     check_root_motion(root_motion)
     preview.stop(arm.name)  # the preview's pose put back first: the armature as the user left it
     target = prepare_target(arm)
     stop_following(arm.name)  # a second Follow: put back as it was before the first
     live.follow(arm.name, user, target.avatar, method, smooth=smooth, plant_feet=plant_feet, placement=placement,
-                worker=worker)
+                seat_height=seat_height, worker=worker)
     saved = PoseState.capture(arm)
     saved.detach(arm)
     bone_map = naming.BoneMap.from_dict(target.avatar.extra["rig"]["bone_map"])

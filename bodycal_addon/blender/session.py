@@ -231,13 +231,14 @@ def scene_take_missing(scene) -> str | None:
     return None
 
 
-def scene_take(scene, filter: OneEuro | None = None) -> RecordingTake:
+def scene_take(scene, filter: OneEuro | None = None, *, seat_height: float | None = None) -> RecordingTake:
     """The scene's recording (its devices' empties, as the importer made them or the user edited
-    them) and the performer's calibrated body model as a take, on the frames it was imported at."""
+    them) and the performer's calibrated body model as a take, on the frames it was imported at
+    (`seat_height`: the performer seated, a kit without foot trackers)."""
     recording = recording_scene.recording_from_scene(scene)
     frame_start, rate = recording_scene.frame_mapping_in_scene(scene)
     return RecordingTake(recording, calibration_scene.load_user_model(scene), filter, frame_start=frame_start,
-                         frame_rate=rate)
+                         frame_rate=rate, seat_height=seat_height)
 
 
 # --- the command line: everything from paths, nothing from a running session -----------------------
@@ -361,16 +362,17 @@ def _read_and_bake(read_take, kind, avatar_file, armature, settings, options, lo
 
 
 def retarget_files(recording_path, user_path, avatar_file, output_paths, *, filter: OneEuro | None = DEFAULT_FILTER,
-                   hands: str = "geometry", log=print, **kwargs) -> Summary:
+                   hands: str = "geometry", seat_height: float | None = None, log=print, **kwargs) -> Summary:
     """`bodycal retarget`: a recording of the performer whose body model is `user_path` (`hands`:
-    how a three-point kit's own file tells its hands, recording/io/hands.py)."""
+    how a three-point kit's own file tells its hands, recording/io/hands.py; `seat_height`:
+    seated, a kit without foot trackers)."""
 
     def read() -> RecordingTake:
         recording = load_recording(recording_path, hands=hands)
         user = BodyModel.load(user_path)
         if user.kind != "user":
             raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(user_path))
-        return RecordingTake(recording, user, filter)
+        return RecordingTake(recording, user, filter, seat_height=seat_height)
 
     files_read = [*outputs.recording_inputs(recording_path), ("the user file (--user)", user_path)]
     return run_files(read, RecordingTake.kind, files_read, avatar_file, output_paths, log=log, **kwargs)

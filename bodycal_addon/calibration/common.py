@@ -46,6 +46,28 @@ def glitch_frames(pos: np.ndarray, valid: np.ndarray, fps: float) -> np.ndarray:
     return out
 
 
+STANDING_BAND_M = 0.03  # the HMD within this of its standing height ...
+STANDING_SPEED = 0.15  # m/s ... and this slow: the performer stands still and straight
+
+
+def standing_moment(time: np.ndarray, head: np.ndarray, valid: np.ndarray) -> int | None:
+    """The frame nearest the middle of a recording without a tpose or stand step at which the
+    performer stands still and straight: the HMD within `STANDING_BAND_M` of its standing height
+    (the 90th percentile of its height: a take of people who crouch, sit or bow now and then
+    stands most of the time) and moving slower than `STANDING_SPEED`. None: never so."""
+    idx = np.nonzero(valid)[0]
+    if len(idx) < 3:
+        return None
+    z = head[idx, 2]
+    speed = np.linalg.norm(np.gradient(head[idx], time[idx], axis=0), axis=1)
+    ok = (np.abs(z - np.percentile(z, 90)) < STANDING_BAND_M) & (speed < STANDING_SPEED)
+    if not ok.any():
+        return None
+    middle = 0.5 * (time[0] + time[-1])
+    cand = idx[ok]
+    return int(cand[np.argmin(np.abs(time[cand] - middle))])
+
+
 @dataclass
 class State:
     """What the steps measured. Positions are local to a tracker role unless named `world`."""
@@ -83,12 +105,14 @@ class Session:
         self.defaulted: dict[str, str] = {}
         self.missing: list[str] = []
         self.warnings: list[str] = []  # steps left out and why, one line each
+        # estimated devices (estimated_devices.py): role -> reference pose (their poses in _poses)
+        self.estimated: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.reference_time, self.reference_step = self._reference_time()
 
     # --- devices -------------------------------------------------------------------------------
 
     def has(self, role: str) -> bool:
-        if self.rec.has_role(role):
+        if self.rec.has_role(role) or role in self.estimated:
             return True
         if role.startswith("hand_"):
             s = role[-1]
@@ -96,6 +120,8 @@ class Session:
         return False
 
     def kind(self, role: str) -> str | None:
+        if role in self.estimated:
+            return "estimated"
         for d in self.rec.devices:
             if d.role == role:
                 return d.kind
@@ -129,13 +155,20 @@ class Session:
     # --- time ----------------------------------------------------------------------------------
 
     def _reference_time(self) -> tuple[float, str]:
-        """FORMATS.md §3: the middle of the tpose segment, else of stand."""
+        """FORMATS.md §3: the middle of the tpose segment, else of stand, else the standing moment
+        nearest the middle of the recording (`standing_moment`)."""
         for step in ("tpose", "stand"):
             segs = self.rec.segments_of(step)
             if segs:
                 return 0.5 * (segs[0].start + segs[0].end), step
         t = self.rec.time
-        return float(0.5 * (t[0] + t[-1])), "middle of the recording"
+        middle = float(0.5 * (t[0] + t[-1]))
+        if self.rec.has_role("head"):
+            pos, _, valid = self.rec.pose("head")
+            k = standing_moment(t, pos, valid)
+            if k is not None:
+                return float(t[k]), "standing moment"
+        return middle, "middle of the recording"
 
     def frames(self, segs: list[Segment]) -> np.ndarray:
         if not segs:
@@ -174,6 +207,12 @@ class Session:
         if close.any():
             p, q = p[close], q[close]
         return p.mean(axis=0), tf.quat_normalize(q.mean(axis=0))
+
+    def estimate(self, role: str, position: np.ndarray, rotation: np.ndarray, poses: tuple) -> None:
+        """Adds the estimated device `role` (estimated_devices.py): its reference pose and its poses
+        (positions (F, 3), rotations (F, 4), valid (F,)) over the recording."""
+        self.estimated[role] = self._ref[role] = (np.asarray(position, float), tf.quat_normalize(rotation))
+        self._poses[role] = poses
 
     def ref_pose(self, role: str) -> tuple[np.ndarray, np.ndarray]:
         """Pose at the reference time. The performer holds the reference pose (T-pose / stand)

@@ -69,7 +69,8 @@ R = {  # fractions of the stature (joint centres, so the shoulders are narrower 
     "toe_forward": 0.08, "toe_height": 0.012, "wrist_in_from_grip": 0.037, "wrist_above_grip": 0.016,
     "ankle_behind_foot_tracker": 0.035, "foot_toe_out_deg": 10.0, "reference_bend_deg": 5.0,
     "foot_width": 0.05, "heel_back": 0.03,
-    "skull_radius": 0.051, "skull_up": 0.043, "head_above_skull_base": 0.057,
+    "skull_radius": 0.051, "skull_up": 0.043, "head_above_skull_base": 0.057, "hips_forward_of_skull_base": 0.02,
+    "ankles_behind_hips": 0.02,
 }
 RADII = {"shoulder": 0.028, "elbow": 0.022, "wrist": 0.016, "hip": 0.05, "knee": 0.03, "ankle": 0.02,
          "finger": 0.0048}
@@ -111,6 +112,8 @@ class BodyFrame:
             left, how = _horizontal(session.ref_pose("hand_l")[0] - session.ref_pose("hand_r")[0]), "T-pose hands"
         if left is None and has("foot_l") and has("foot_r"):
             left, how = _horizontal(session.ref_pose("foot_l")[0] - session.ref_pose("foot_r")[0]), "feet"
+        if left is None and has("head"):  # the view's axes (FORMATS.md §2.1): x right
+            left, how = _horizontal(-tf.quat_to_matrix(session.ref_pose("head")[1])[:, 0]), "HMD's view"
         if left is None:
             left, how = np.array([1.0, 0, 0]), "assumed: facing -Y"
         self.left, self.left_from = left, how
@@ -183,12 +186,16 @@ def default_joints(session: Session, state: State, body: BodyFrame) -> dict[str,
 
 
 def _place_pelvis_and_hips(placing: _Placement) -> None:
-    """Pelvis pass: the pelvis from the hips, else the pelvis tracker, else the stature; then each
-    hip beside it. Reads the reference poses; adds pelvis, hip_l, hip_r when unmeasured."""
+    """Pelvis pass: the pelvis from the hips, else the pelvis tracker, else under the skull base
+    (the HMD's) at the standing legs' height, else the stature; then each hip beside it. Reads the
+    reference poses; adds pelvis, hip_l, hip_r when unmeasured."""
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "pelvis" not in w:
         if "hip_l" in w and "hip_r" in w:
             put("pelvis", 0.5 * (w["hip_l"] + w["hip_r"]), "midpoint of the hips")
+        elif session.kind("pelvis") == "estimated":
+            put("pelvis", session.ref_pose("pelvis")[0], "where the estimated pelvis stands "
+                "(estimated_devices.provisional_body: under the skull base, the legs' height above the floor)")
         elif session.has("pelvis"):
             p = session.ref_pose("pelvis")[0]
             put("pelvis", body.at(R["hip_height"] * H, 0, R["pelvis_forward_of_back_tracker"] * H, p),
@@ -204,7 +211,10 @@ def _place_ankle(placing: _Placement, s: str) -> None:
     """The ankle of side `s`, unless measured: behind the foot tracker on the instep (moved toward
     the hip swing's point), or under the hip."""
     session, body, H, put = placing.session, placing.body, placing.H, placing.put
-    if session.has(f"foot_{s}"):
+    if session.kind(f"foot_{s}") == "estimated":
+        put(f"ankle_{s}", session.ref_pose(f"foot_{s}")[0], "where the estimated foot stands "
+            "(estimated_devices.provisional_body: under the hip, a little behind it)")
+    elif session.has(f"foot_{s}"):
         # On the instep the tracker is ahead of the ankle along the foot; the height is the
         # ankle's above the floor, whatever the tracker's.
         p = session.ref_pose(f"foot_{s}")[0]
@@ -294,8 +304,8 @@ def _place_legs(placing: _Placement) -> None:
 
 
 def _place_arms(placing: _Placement) -> None:
-    """Arms pass, side by side: the shoulder (in the T-pose on the line between the hands), the
-    wrist (`_place_wrist`), the elbow between them, slightly bent."""
+    """Arms pass: the shoulders (in the T-pose on the line between the hands), the wrists
+    (`_place_wrist`), then the elbows between them, slightly bent."""
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     tpose_hands = session.reference_step == "tpose" and session.has("hand_l") and session.has("hand_r")
     if tpose_hands:
@@ -308,9 +318,10 @@ def _place_arms(placing: _Placement) -> None:
         else:
             put(f"shoulder_{s}", body.at(R["shoulder_height"] * H, _SIGN[s] * R["shoulder_half_width"] * H),
                 f"{R['shoulder_height']} H high, {R['shoulder_half_width']} H beside the middle")
-        sh = w[f"shoulder_{s}"]
-        _place_wrist(placing, s, sh)
-        wr = w[f"wrist_{s}"]
+        _place_wrist(placing, s, w[f"shoulder_{s}"])
+    table = _table_arm(placing)
+    for s in sk.SIDES:
+        sh, wr = w[f"shoulder_{s}"], w[f"wrist_{s}"]
         l1, l2 = R["upperarm"] * H, R["forearm"] * H
         how = "at the upper arm : forearm ratio"
         upper = placing.state.extra.get("upper_lengths", {}).get(f"elbow_{s}")
@@ -322,9 +333,57 @@ def _place_arms(placing: _Placement) -> None:
             bent = _bent_lengths(0.5 * upper + 0.5 * reach * l1 / (l1 + l2), reach)
             if bent is not None:
                 (l1, l2), how = bent, "the upper arm as long as the mean of its flex step's and the ratio's"
+        elif table is not None:
+            (l1, l2), how = table
+            put(f"elbow_{s}", _bent_elbow(body, s, sh, wr, l1, l2), f"{how}, bent back, down and out to the "
+                "hand where the standing moment found it")
+            continue
         put(f"elbow_{s}", _relaxed_mid(session, placing.state, sh, wr, l1, l2, f"forearm_{s}"),
             f"between the shoulder and the wrist, {how}, bent {R['reference_bend_deg']:.0f}° (nobody locks "
             f"the elbow straight)")
+
+
+def _table_arm(placing: _Placement):
+    """((upper arm, forearm), how) for arms nothing measured, or None when the reference step
+    measures them (a T-pose or a stand step holds the arms straight).
+
+    Without either the reference is a moment the performer stood still with the hands anywhere
+    (a Beat Saber player holds them at the chest): the hand's distance to the shoulder is no
+    arm's length, and taking it for one gave arms of 7 to 53 cm on the real three-point takes
+    (the avatar's hands then fell up to 63 cm short of the controllers, bench_three_point). The
+    arms are the table's, both alike, lengthened together when a hand already reached further."""
+    session, w, H = placing.session, placing.world, placing.H
+    if session.reference_step in ("tpose", "stand") or not (session.has("hand_l") and session.has("hand_r")):
+        return None
+    measured = placing.state.extra.get("upper_lengths", {})
+    if any(f"elbow_{s}" in measured or session.has(f"forearm_{s}") for s in sk.SIDES):
+        return None
+    l1, l2 = R["upperarm"] * H, R["forearm"] * H
+    most = (l1 + l2) * np.cos(np.radians(R["reference_bend_deg"]) / 2)
+    reach = max(float(np.linalg.norm(w[f"wrist_{s}"] - w[f"shoulder_{s}"])) for s in sk.SIDES)
+    if reach <= most:
+        return (l1, l2), f"the table's upper arm and forearm ({R['upperarm']} H, {R['forearm']} H)"
+    k = reach / most
+    return (l1 * k, l2 * k), (f"the table's upper arm and forearm lengthened {k:.2f} times to the hand that "
+                              f"reached furthest at the standing moment")
+
+
+def _bent_elbow(body: BodyFrame, s: str, sh: np.ndarray, wr: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """The elbow of an arm of lengths `l1`, `l2` from the shoulder `sh` to the wrist `wr`, bent
+    back, down and out (where a relaxed elbow goes)."""
+    d = wr - sh
+    reach = float(np.linalg.norm(d))
+    if reach < 1e-6:
+        return sh - UP * l1
+    u = d / reach
+    out = body.left * _SIGN[s]
+    pole = -body.forward - UP + 0.5 * out
+    pole = pole - (pole @ u) * u
+    if np.linalg.norm(pole) < 1e-9:  # the arm along the pole itself: bend out to the side
+        pole = out - (out @ u) * u
+    pole = pole / max(np.linalg.norm(pole), 1e-9)
+    along = float(np.clip((l1 * l1 - l2 * l2 + reach * reach) / (2 * reach), -l1, l1))  # law of cosines
+    return sh + u * along + pole * np.sqrt(max(l1 * l1 - along * along, 0.0))
 
 
 def _arm_from_touches(placing: _Placement, s: str, sh: np.ndarray, wr: np.ndarray):
@@ -408,13 +467,19 @@ def _place_head(placing: _Placement) -> None:
     session, body, w, H, put = placing.session, placing.body, placing.world, placing.H, placing.put
     if "skull_base" not in w:
         if session.has("head"):
-            p = session.ref_pose("head")[0]
-            put("skull_base", p - body.forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H,
+            put("skull_base", skull_base_under_hmd(session, body.forward, H),
                 f"{R['skull_base_back']} H behind and {R['skull_base_down']} H below the HMD")
         else:
             put("skull_base", body.at(0.87 * H), "0.87 H above the floor")
     put("head", w["skull_base"] + UP * R["head_above_skull_base"] * H,
         f"{R['head_above_skull_base']} H above the skull base (the head bone's tip)")
+
+
+def skull_base_under_hmd(session: Session, forward: np.ndarray, H: float) -> np.ndarray:
+    """The skull base's default: behind (against `forward`) and below the HMD's origin (the eyes)
+    at the reference time, for a body of stature `H`."""
+    p = session.ref_pose("head")[0]
+    return p - forward * R["skull_base_back"] * H - UP * R["skull_base_down"] * H
 
 
 def _place_fingers(placing: _Placement) -> None:

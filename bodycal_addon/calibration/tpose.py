@@ -28,7 +28,7 @@ def device_poses(session: Session) -> dict[str, list[float]]:
     """{role: [px, py, pz, qw, qx, qy, qz]} at the reference time."""
     out = {}
     roles = [d.role for d in session.rec.devices if d.role]
-    for role in dict.fromkeys(roles + [r for r in ("hand_l", "hand_r") if session.has(r)]):
+    for role in dict.fromkeys(roles + [r for r in ("hand_l", "hand_r") if session.has(r)] + list(session.estimated)):
         try:
             p, q = session.ref_pose(role)
         except Exception:  # never tracked: not in the T-pose

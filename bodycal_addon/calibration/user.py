@@ -14,7 +14,7 @@ from ..core import transforms as tf
 from ..core.errors import BodyCalError
 from ..core.transforms import EPS
 from ..recording.model import ROLES_LIST, Recording
-from . import defaults, effectors, feet, hands, head, limbs, touches, tpose, trunk
+from . import defaults, effectors, estimated_devices, feet, hands, head, limbs, touches, tpose, trunk
 from .common import Session, State
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -73,6 +73,7 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
         raise BodyCalError("the recording has no HMD (role 'head'): the eye height and the head cannot be "
                            "calibrated", source=session.source,
                            hint=f"assign the role 'head' to the HMD device ({ROLES_LIST})")
+    estimated_devices.attach(session)
     # Delahaye 2023, appendix B: extremities (hands, feet, head), then the limbs, then the trunk.
     _run("controller tips", touches.controller_tips, session, state)
     _run("palms_together", hands.palms_together, session, state)
@@ -174,6 +175,7 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
     defaulted), bone, surface element and AvatarGo offset; what was defaulted goes to
     `calibration["defaulted"]` in the order it was decided."""
     body = _complete_joints(session, state)
+    estimated = {r: estimated_devices.WHAT[r] for r in session.estimated}
     joints = _joints(session, state)
     rights = _bone_rights(session, state, body, state.world)
     bones, frames_world = _bones(session, state, rights)
@@ -192,7 +194,7 @@ def assemble(session: Session, state: State, name: str) -> BodyModel:
             palm_planes[f"hand_{s}"] = plane
     offs = _avatargo_offsets(session, joints, frames_world)
     model = BodyModel("user", name, joints, bones, surface, session.reference_time, offs)
-    _record(model, session, state, body, palm_planes)
+    _record(model, session, state, body, palm_planes, estimated)
     return model
 
 
@@ -404,9 +406,11 @@ def _avatargo_offsets(session: Session, joints: dict[str, Joint], frames_world: 
     return tpose.offsets(session, joints, bone_quats, joint_bone)
 
 
-def _record(model: BodyModel, session: Session, state: State, body: defaults.BodyFrame, palm_planes: dict) -> None:
-    """Sets the model's calibration record (steps used, defaults, missing steps, warnings, quality)
-    and its extras (T-pose device poses, eye height, palm planes, radii, sacrum width)."""
+def _record(model: BodyModel, session: Session, state: State, body: defaults.BodyFrame, palm_planes: dict,
+            estimated: dict[str, str]) -> None:
+    """Sets the model's calibration record (steps used, defaults, missing steps, warnings, quality,
+    what the estimated devices carry) and its extras (T-pose device poses, eye height, palm planes,
+    radii, sacrum width, the estimated devices)."""
     rad = state.radii
     model.calibration = {
         "steps_used": list(session.steps_used),
@@ -416,6 +420,8 @@ def _record(model: BodyModel, session: Session, state: State, body: defaults.Bod
         "quality": session.quality,
         "reference": session.reference_step,
     }
+    if estimated:
+        model.calibration["estimated"] = [j for r in estimated for j in estimated_devices.CARRIED[r]]
     model.extra = {
         "tpose": tpose.device_poses(session),
         "eye_height": round(body.eye_height, 6),
@@ -425,3 +431,5 @@ def _record(model: BodyModel, session: Session, state: State, body: defaults.Bod
     }
     if "sacrum_width" in state.extra:
         model.extra["sacrum_width"] = round(state.extra["sacrum_width"], 6)
+    if estimated:
+        model.extra["estimated_devices"] = estimated

@@ -112,7 +112,8 @@ class Follower:
     in_worker = False  # solved in this process
 
     def __init__(self, name: str, user: BodyModel, avatar: BodyModel, method: str = "egocentric", *,
-                 smooth: OneEuro | None = None, plant_feet: bool = True, placement: str = "object"):
+                 smooth: OneEuro | None = None, plant_feet: bool = True, placement: str = "object",
+                 seat_height: float | None = None):
         if user.kind != "user":
             raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=name)
         if avatar.kind != "avatar" or "rig" not in avatar.extra:
@@ -120,6 +121,7 @@ class Follower:
                                hint="calibrate the avatar first")
         self.name, self.user, self.avatar, self.method = name, user, avatar, method
         self.smooth, self.plant_feet, self.placement = smooth, plant_feet, placement
+        self.seat_height = seat_height  # a seated performer of a kit without foot trackers (lower_body)
         self.solver = None  # live.solver.LiveSolver, once prepared
         self.order: dict[str, int] = {}  # device name -> its column in the solver's arrays
         self.marker_order: dict[str, int] = {}  # marker name -> its column (LED gloves: the fingers)
@@ -130,7 +132,9 @@ class Follower:
         # What the pose's writer wants of each solved pose, made on the solving thread as it comes (the
         # Blender glue: root motion), so that the pump's thread only sets it: convert(solved, frame).
         self.convert = None
-        self.waiting_for: list[str] = sorted(ANIMATED_ROLES)
+        # the roles a device must come for: the animated ones the user's calibration does not estimate
+        self.needs = set(ANIMATED_ROLES) - set((user.extra or {}).get("estimated_devices") or {})
+        self.waiting_for: list[str] = sorted(self.needs)
         self.note = ""  # the last thing to say about it (a worker that ended), one line
         self._lock = threading.Lock()  # the result slot and the lines to say: the solving thread and the pump
         self._result: Result | None = None
@@ -169,7 +173,7 @@ class Follower:
         """The devices the solver reads (their columns in `order`, the markers' in `marker_order`),
         or None while a role the methods need has no device the stream has named."""
         named = {n: r for n, r in roles.items() if n in kinds and r}
-        self.waiting_for = sorted(set(ANIMATED_ROLES) - set(named.values()))
+        self.waiting_for = sorted(self.needs - set(named.values()))
         if self.waiting_for:
             return None
         devices = [Device(n, kinds[n], r) for n, r in named.items()]
@@ -186,7 +190,8 @@ class Follower:
         if devices is None:
             return False
         self.solver = LiveSolver(self.user, self.avatar, self.method, devices=devices, marker_names=list(markers),
-                                 smooth=self.smooth, plant_feet=self.plant_feet, placement=self.placement)
+                                 smooth=self.smooth, plant_feet=self.plant_feet, placement=self.placement,
+                                 seat_height=self.seat_height)
         return True
 
     def arrays(self, frame: LiveFrame) -> tuple:
@@ -356,7 +361,7 @@ class WorkerFollower(Follower):
             return False
         try:
             message = prepare_message(self.user, self.avatar, self.method, devices, list(markers), self.smooth,
-                                      self.plant_feet, self.placement)
+                                      self.plant_feet, self.placement, self.seat_height)
         except (TypeError, ValueError) as exc:  # a model JSON cannot hold (NaN): this process says what is wrong
             self._fall_back(f"its models could not be sent to its worker ({exc})")
             return False

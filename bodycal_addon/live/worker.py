@@ -185,13 +185,14 @@ def _one_line(exc: BaseException) -> str:
 
 
 def prepare_message(user: BodyModel, avatar: BodyModel, method: str, devices: list[Device], markers: list[str],
-                    smooth: OneEuro | None, plant_feet: bool, placement: str) -> tuple:
+                    smooth: OneEuro | None, plant_feet: bool, placement: str,
+                    seat_height: float | None = None) -> tuple:
     """What the worker needs to make its LiveSolver (`Follower.prepare`'s arguments)."""
     return ("prepare", {
         "user": user.to_json(exact=True), "avatar": avatar.to_json(exact=True), "method": method,
         "devices": [(d.name, d.kind, d.role) for d in devices], "markers": list(markers),
         "smooth": None if smooth is None else dataclasses.asdict(smooth), "plant_feet": bool(plant_feet),
-        "placement": placement})
+        "placement": placement, "seat_height": seat_height})
 
 
 def frame_message(t: float, positions, rotations, valid, points, seen) -> tuple:
@@ -238,7 +239,8 @@ class _Worker:
         smooth = None if spec["smooth"] is None else OneEuro(**spec["smooth"])
         devices = [Device(name, kind, role) for name, kind, role in spec["devices"]]
         self.solver = LiveSolver(user, avatar, spec["method"], devices=devices, marker_names=spec["markers"],
-                                 smooth=smooth, plant_feet=spec["plant_feet"], placement=spec["placement"])
+                                 smooth=smooth, plant_feet=spec["plant_feet"], placement=spec["placement"],
+                                 seat_height=spec.get("seat_height"))
         rig = AvatarRig.from_model(avatar)  # what the parent's pose writer needs: names, root, armature
         return ("ready", {"armature": rig.armature, "names": list(rig.names), "root": int(rig.root)})
 

@@ -35,16 +35,19 @@ __all__ = ["METHODS", "METHOD_CLASSES", "retarget", "run_source"]
 def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyModel, method: str = "egocentric", *,
              chunk_frames: int = 2000, progress: Callable[[float], None] | None = None,
              cancel: Callable[[], bool] | None = None, plant_feet: bool = True,
-             placement: str = "object") -> AvatarAnimation:
+             placement: str = "object", seat_height: float | None = None) -> AvatarAnimation:
     """Retarget `recording` of the user (`user_model`) onto the avatar (`avatar_model`, kind
     "avatar" with `extra["rig"]`). Frames are processed `chunk_frames` at a time; `progress(f)` is
     called with the fraction done after each chunk and `cancel()` before each one (True raises
     `errors.Cancelled`). `plant_feet` holds the feet still and on the floor while the performer
     stands on them (feet.py), in every method. `placement` ("object" or "performer", placement.py)
     says where the performance plays: relative to the armature object's placement, or where the
-    performer was in the room. Bad inputs raise one `BodyCalError`."""
+    performer was in the room. A kit without pelvis or foot trackers gets them estimated
+    (lower_body; `seat_height`: the performer sits on a seat that high). Bad inputs raise one
+    `BodyCalError`."""
     _check_inputs(recording, user_model, avatar_model, method)
-    return run_source(RecordingSource(recording, user_model), avatar_model, method, chunk_frames=chunk_frames,
+    return run_source(RecordingSource(recording, user_model, seat_height=seat_height), avatar_model, method,
+                      chunk_frames=chunk_frames,
                       progress=progress, cancel=cancel, plant_feet=plant_feet, placement=placement)
 
 
@@ -76,12 +79,12 @@ class PreparedTake:
 
 
 def prepare_recording(recording: Recording, user_model: BodyModel, avatar_model: BodyModel,
-                      method: str = "egocentric", *, plant_feet: bool = True, placement: str = "object"
-                      ) -> PreparedTake:
+                      method: str = "egocentric", *, plant_feet: bool = True, placement: str = "object",
+                      seat_height: float | None = None) -> PreparedTake:
     """`retarget`'s take prepared once, to be solved a few frames at a time (PreparedTake)."""
     _check_inputs(recording, user_model, avatar_model, method)
-    return PreparedTake(RecordingSource(recording, user_model), avatar_model, method, plant_feet=plant_feet,
-                        placement=placement)
+    return PreparedTake(RecordingSource(recording, user_model, seat_height=seat_height), avatar_model, method,
+                        plant_feet=plant_feet, placement=placement)
 
 
 def run_source(source: PoseSource, avatar_model: BodyModel, method: str = "egocentric", *, chunk_frames: int = 2000,

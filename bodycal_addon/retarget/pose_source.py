@@ -22,7 +22,9 @@ from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
 from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
+from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
+from . import lower_body
 from .avatar_pose import AvatarRig, arc_param, curve_point
 from .trackers import TrackerReader, joint_from_trackers
 from .user_animation import UserAnimator, UserPose
@@ -36,6 +38,7 @@ class PoseSource(Protocol):
     name: str  # for messages
     recording: Recording | None  # the tracker recording (AvatarGo's offsets read its devices); None: none
     character: bool  # an animated character: its spine's shape and its limbs' twists are its own (_Run.solve_ik)
+    notes: list[str]  # what making the pose source said (a lower body estimated), for the solver's notes
 
     @property
     def frame_count(self) -> int: ...
@@ -57,9 +60,18 @@ class PoseSource(Protocol):
 
 
 class RecordingSource:
+    """A tracker recording of a calibrated user. A whole recording from a kit below six devices
+    gets its estimated devices here (lower_body.complete: `seat_height` for a seated performer); a
+    live one has them added frame by frame (live.LiveSolver)."""
+
     character = False
 
-    def __init__(self, recording: Recording, user: BodyModel):
+    def __init__(self, recording: Recording, user: BodyModel, *, seat_height: float | None = None):
+        self.notes = []
+        if not isinstance(recording, LiveRecording):
+            completed = lower_body.complete(recording, user, seat_height=seat_height)
+            self.notes = completed.notes[len(recording.notes):]
+            recording = completed
         self.recording, self.model = recording, user
         self.name = recording.source or recording.name
         self._reader = None
@@ -114,6 +126,7 @@ class AnimationSource:
 
     character = True
     recording = None
+    notes: list[str] = []
 
     def __init__(self, model: BodyModel, basis: np.ndarray, locations: np.ndarray, time: np.ndarray,
                  name: str | None = None):

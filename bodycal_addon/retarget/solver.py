@@ -116,7 +116,7 @@ class PreparedSolver:
         # The avatar's vertebrae at rest in its sacrum's frame: the spine IK bends that shape.
         self.rest_spine = np.diff(np.stack([avatar_pos[j] for j in SPINE_JOINTS]), axis=0) @ \
             self.rig.frames0[BI["sacrum"]]
-        self.notes: list[str] = []
+        self.notes: list[str] = list(source.notes)
         bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
         self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
                             for s in sk.SIDES}

@@ -101,6 +101,7 @@ class RecordingTake:
     notes: list[str] = field(default_factory=list)
     frame_start: float = 1.0  # the import's mapping (recording_scene); a file's take starts at frame 1
     frame_rate: float | None = None  # the frames' rate when not the recording's own (a window keeps its take's)
+    seat_height: float | None = None  # a seated performer without foot trackers: the seat's height (lower_body)
     # the smoothed recording and the filter it was made with: `animate` and then the review read it once
     _smoothed: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -127,12 +128,12 @@ class RecordingTake:
     def animate(self, avatar, method, *, plant_feet=True, placement="object", progress=None, cancel=None):
         check_method(method, self.kind)
         return retarget(self._filtered(), self.user, avatar, method, progress=progress, cancel=cancel,
-                        plant_feet=plant_feet, placement=placement)
+                        plant_feet=plant_feet, placement=placement, seat_height=self.seat_height)
 
     def prepare(self, avatar, method, *, plant_feet=True, placement="object"):
         check_method(method, self.kind)
         return prepare_recording(self._filtered(), self.user, avatar, method, plant_feet=plant_feet,
-                                 placement=placement)
+                                 placement=placement, seat_height=self.seat_height)
 
     def _filtered(self) -> Recording:
         if self.filter is None:
@@ -142,7 +143,7 @@ class RecordingTake:
         return self._smoothed[2]
 
     def pose_source(self, placement="object") -> RecordingSource:
-        return RecordingSource(self._filtered(), self.user)
+        return RecordingSource(self._filtered(), self.user, seat_height=self.seat_height)
 
     def release(self) -> None:
         self.recording = None

@@ -451,3 +451,55 @@ def test_the_worker_imports_numpy_and_the_engine_only():
     top = set(ast.literal_eval(out.stdout.strip()))
     assert {"numpy", "bodycal_addon"} <= top
     assert not top & {"bpy", "mathutils", "pythonosc", "bodycal_dev", "tqdm", "dask"}
+
+
+@pytest.fixture(scope="module")
+def three_point_take(take):
+    """The synthetic take reduced to the HMD and both controllers, and its three-point user model."""
+    from dataclasses import replace
+
+    from bodycal_addon.calibration import calibrate_user
+
+    rec, _ = take
+    keep = [i for i, d in enumerate(rec.devices) if d.role in ("head", "hand_l", "hand_r")]
+    three = replace(rec, devices=[rec.devices[i] for i in keep], positions=rec.positions[:, keep],
+                    rotations=rec.rotations[:, keep], valid=rec.valid[:, keep], marker_names=[],
+                    markers=rec.markers[:, :0], marker_valid=rec.marker_valid[:, :0])
+    return three, calibrate_user(three)
+
+
+@pytest.mark.parametrize("worker", [False, True])
+def test_a_three_point_stream_is_followed_seated_with_its_estimated_devices(three_point_take, worker):
+    """A stream of the HMD and two controllers only: the follower waits for those three roles alone
+    (the user's calibration estimates the pelvis and feet), solves in its worker as here, and a
+    seated performer's pelvis stays on the seat: the poses are a LiveSolver's given that seat."""
+    rec, user = three_point_take
+    assert set(user.extra["estimated_devices"]) >= {"pelvis", "foot_l", "foot_r"}
+    avatar = procedural_avatar()
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices})
+    follower = session.follow("a", user, avatar, "egocentric", seat_height=0.45, worker=worker)
+    try:
+        assert follower.waiting_for == ["hand_l", "hand_r", "head"]
+        deadline = time.monotonic() + 120.0
+        _start_workers(session, ["a"], deadline)
+        updates, _k = _stream_until_solving(session, source, rec, ["a"], 12, deadline)
+        assert follower.waiting_for == [] and follower.in_worker == worker and not follower.note
+        devices = [Device(n, session.kinds[n], session.roles[n]) for n in follower.order]
+        seated = LiveSolver(user, avatar, "egocentric", devices=devices, seat_height=0.45)
+        standing = LiveSolver(user, avatar, "egocentric", devices=devices)
+        want, compared = {}, 0
+        for j in follower.stats.indices:  # every frame the follower was handed
+            arrays = follower.arrays(frame_of(rec, j))
+            want[j] = seated.push_newer(*arrays)
+            other = standing.push_newer(*arrays)
+        for update in updates:
+            got = update.poses.get("a")
+            if got is None:
+                continue
+            np.testing.assert_array_equal(got.joints, want[update.frame_of("a").index].joints)
+            compared += 1
+        assert compared >= 12
+        assert not np.allclose(other.joints, want[follower.stats.indices[-1]].joints, atol=0.01)  # seated, not standing
+    finally:
+        session.stop()

@@ -109,6 +109,24 @@ def test_six_devices_get_every_motion_step_the_controller_pivots_and_touches_and
     assert [s.step for s in wz.plan_steps(full)] == ["tpose", "stand", *wz.MOTION_STEPS]
 
 
+def test_a_kit_below_six_devices_plans_what_it_can_do_standing():
+    """HMD and controllers (DESIGN.md §3 "The device ladder"): the arms' steps, the controllers' tips,
+    the arms' touches, then the hips and the torso touched standing (they ride on the estimated
+    pelvis); nothing of the legs' own steps, no foot up on a chair (the feet are estimated)."""
+    three = wz.plan_steps(["head", "hand_l", "hand_r"])
+    assert [s.step for s in three[:8]] == ["tpose", "stand", "flex_elbow_l", "flex_elbow_r", "swing_shoulder_l",
+                                           "swing_shoulder_r", "pivot_tip_l", "pivot_tip_r"]
+    touched = [s.point for s in three if s.step == "touch"]
+    assert [p for p, _ in wz.STANDING_PROTOCOL] == touched[-len(wz.STANDING_PROTOCOL):]
+    assert not any(p.startswith(("knee_", "ankle_", "sole_")) for p in touched)
+    hip = next(s for s in three if s.point == "hip_front_l")
+    assert hip.instruction.startswith("Standing still, put the tip of your right controller on the front of your "
+                                      "left hip")
+    # a pelvis tracker: its touches are the six devices' (no standing protocol for what it measures)
+    four = wz.plan_steps(["head", "hand_l", "hand_r", "pelvis"])
+    assert not {s.point for s in four if s.step == "touch"} & {"sternum", "belly_ul"}
+
+
 def test_the_wizards_copies_of_the_calibrations_rules_agree_with_it():
     assert (pg.STILL_SPEED, pg.STILL_MIN_S, pg.MEDIAN_S) == (calibration_touches.STILL_SPEED,
                                                              calibration_touches.STILL_MIN_S,

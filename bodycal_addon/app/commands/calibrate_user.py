@@ -1,9 +1,10 @@
-"""`bodycal calibrate-user REC -o USER.body.json [--allow-defaults]` (FORMATS.md §4): every
-calibration step the recording allows. stdout: a summary line (how many body joints were measured
-and how many defaulted), one line per step with its quality and what was defaulted; stderr: one
-`warning:` line per step or touch whose data could not be used (left out, never fatal). Refused
-with one line (exit 2, nothing written): a recording without the six devices every method animates
-from, and a body mostly guessed unless `--allow-defaults` (calibration/coverage.py)."""
+"""`bodycal calibrate-user REC -o USER.body.json` (FORMATS.md §4): every calibration step the
+recording allows. stdout: a summary line (how many body joints were measured, how many defaulted,
+which devices are estimated), one line per step with its quality and what was defaulted; stderr:
+one `warning:` line per step or touch whose data could not be used (left out, never fatal) and
+one for a body mostly guessed. Refused with one line (exit 2, nothing written): a recording
+without the HMD or a hand (calibration/coverage.py). `--allow-defaults` is accepted and changes
+nothing: a guessed body is no longer refused."""
 
 from __future__ import annotations
 
@@ -35,9 +36,9 @@ def run(args) -> int:
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before any work
     rec = load_recording(args.recording, hands=getattr(args, "hands", "geometry"))
     model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
-    cov = check_usable(model, allow_defaults=getattr(args, "allow_defaults", False), source=str(args.recording))
+    cov = check_usable(model, source=str(args.recording))
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)
-    for w in model.calibration.get("warnings", []):
+    for w in model.calibration.get("warnings", []) + cov.warnings():
         console.warn("calibrate-user", w)
     console.say(f"calibrated {out}: {cov.line()}, from {len(model.calibration['steps_used'])} steps "
                 f"(reference: {model.calibration.get('reference')} at {model.reference_time:.3f} s)")

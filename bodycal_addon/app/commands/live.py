@@ -22,6 +22,7 @@ import numpy as np
 from ...core.errors import BodyCalError
 from .. import console
 from .record import PROGRESS_S, check_port, parse_roles, stop_on_signals
+from .retarget import seat_height
 
 WAIT_S = 0.1  # the longest the loop sleeps waiting for a pose (it wakes at once when one comes)
 
@@ -53,11 +54,13 @@ def run(args) -> int:
 
     host, out_port = send_target(args.send)  # the arguments first, then the files
     roles = parse_roles(args.role)
+    seat = seat_height(args)
     user, avatar = _models(args)
     smooth = None if args.filter is None else OneEuro.parse(args.filter)
     rx = VmcReceiver(check_port(args.port), args.bind)
     live = LiveSession(rx, roles)  # the one live path: Blender's Live panel pumps the same session
-    live.follow(AVATAR, user, avatar, args.method, smooth=smooth, plant_feet=args.plant_feet, worker=args.worker)
+    live.follow(AVATAR, user, avatar, args.method, smooth=smooth, plant_feet=args.plant_feet,
+                seat_height=seat, worker=args.worker)
     loop = _Loop(live, args)
     try:
         with stop_on_signals() as stop, rx, VmcSender(host, out_port) as tx:

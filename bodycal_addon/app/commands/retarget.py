@@ -1,6 +1,6 @@
 """`bodycal retarget REC --user USER.body.json --avatar AVATAR [--armature NAME] [--bone-map FILE]
 [--method M] [--placement object|performer] [--filter [MIN_CUTOFF,BETA[,ROT_MIN,ROT_BETA]] | --no-filter]
-[--no-plant-feet] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
+[--no-plant-feet] [--seated HEIGHT] [--root-motion root|pelvis|in-place] [--rigify-target fk|def]
 [--tolerance DEG] [--location-tolerance MM] [--interpolation linear|bezier] [--fps N] [--frame-range FIRST LAST]
 -o OUT.blend|.fbx|.glb|.gltf|.bvh [-o ...] [--overwrite] [--review]`; AVATAR is a .blend, .fbx, .glb, .gltf or .vrm."""
 
@@ -16,7 +16,8 @@ def run(args) -> int:
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
     with console.progress("retarget") as step:
         session.retarget_files(args.recording, args.user, args.avatar, args.output, filter=cfg,
-                               hands=getattr(args, "hands", "geometry"), armature=args.armature,
+                               seat_height=seat_height(args), hands=getattr(args, "hands", "geometry"),
+                               armature=args.armature,
                                settings=session.Settings(args.method, getattr(args, "plant_feet", True),
                                                          getattr(args, "placement", "object")),
                                overwrite=getattr(args, "overwrite", False), options=bake_options(args),
@@ -24,6 +25,17 @@ def run(args) -> int:
                                bone_map_path=getattr(args, "bone_map", None),
                                log=console.say, warn=lambda line: console.warn("retarget", line), progress=step)
     return 0
+
+
+def seat_height(args) -> float | None:
+    """--seated HEIGHT (metres), checked: a seat between 0.1 and 1.2 m high."""
+    from ...core.errors import BodyCalError
+
+    h = getattr(args, "seated", None)
+    if h is not None and not (math.isfinite(h) and 0.1 <= h <= 1.2):
+        raise BodyCalError(f"--seated {h:g} is not a seat's height", field="--seated",
+                           hint="give the seat's height in metres, between 0.1 and 1.2 (a chair: about 0.45)")
+    return h
 
 
 def bake_options(args):

@@ -95,6 +95,23 @@ def _controller_protocol() -> tuple[tuple[str, str], ...]:
 
 
 CONTROLLER_PROTOCOL = _controller_protocol()
+
+
+def _standing_protocol() -> tuple[tuple[str, str], ...]:
+    """(point, toucher) a kit without a pelvis tracker touches with a controller's tip, standing
+    (DESIGN.md §3 "The device ladder": they ride on the estimated pelvis, which the HMD carries
+    while the performer stands): each hip's front and back by the other hand, then the torso's
+    front by the right hand (the left chest by the left)."""
+    out = []
+    for s, o in (("l", "r"), ("r", "l")):
+        out += [(f"hip_front_{s}", f"controller_tip_{o}"), (f"hip_back_{s}", f"controller_tip_{o}")]
+    out += [(p, "controller_tip_l" if p == "chest_r" else "controller_tip_r")
+            for p in ("sternum", "chest_l", "chest_r", "belly_ul", "belly_ur", "belly_ll", "belly_lr")]
+    return tuple(out)
+
+
+STANDING_PROTOCOL = _standing_protocol()
+STANDING_POINTS = frozenset(p for p, _ in STANDING_PROTOCOL)
 # the limb tracker that measures a controller-touched joint better than a touch (from the motion)
 MEASURED_BY = {"wrist": "forearm", "elbow": "forearm", "knee": "shin", "ankle": "shin"}
 MOTION_STEPS = ("flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r", "swing_shoulder_l", "swing_shoulder_r",
@@ -197,6 +214,7 @@ def plan_steps(roles: Sequence[str], markers: Sequence[str] = ()) -> list[Wizard
             continue
         touches.append((point, by))
     touches += controller_touches(have, markers, {p for p, _ in touches})
+    touches += standing_touches(have, markers, {p for p, _ in touches})
     for s in ("l", "r"):  # the tip a controller touches with, found first (calibration/touches.controller_tips)
         if any(by == f"controller_tip_{s}" for _, by in touches) and f"controller_tip_{s}" not in markers:
             steps.append(_step(f"pivot_tip_{s}"))
@@ -217,6 +235,15 @@ def controller_touches(have, markers, touched=()) -> list[tuple[str, str]]:
             continue
         out.append((point, by))
     return out
+
+
+def standing_touches(have, markers, touched=()) -> list[tuple[str, str]]:
+    """The touches of `STANDING_PROTOCOL` for a kit whose pelvis is estimated (no pelvis tracker):
+    both hands' devices there, no fingertip marker on the touching hand, the point not touched
+    otherwise (`touched`)."""
+    if "pelvis" in have or not {"head", "hand_l", "hand_r"} <= set(have):
+        return []
+    return [(p, by) for p, by in STANDING_PROTOCOL if p not in touched and f"index_tip_{by[-1]}" not in markers]
 
 
 _TITLES = {"tpose": ("T-pose", "Stand straight, arms out to the sides at shoulder height, palms down, and hold "
@@ -280,6 +307,8 @@ def _step(step: str, point: str | None = None, by: str | None = None) -> WizardS
             finger = by.replace("_", " ")
         title = "Touch " + where.replace("your ", "the ", 1)
         text = f"put {finger} on {where} and hold it there for a moment."
+        if by.startswith("controller_tip_") and point in STANDING_POINTS:
+            return WizardStep(step, point, by, title, f"Standing still, {text}")
         if by.startswith("controller_tip_") and point.startswith(("knee_", "ankle_", "elbow_", "wrist_")):
             posture = (f"your {SIDE_WORD[point[-1]]} foot up on a chair" if point.startswith(("knee_", "ankle_"))
                        else f"your {SIDE_WORD[point[-1]]} elbow bent in front of you")
@@ -463,7 +492,10 @@ class LiveWizard:
                 return hold_figure(0.0, HOLD_S, "waiting for both gloves").with_figure("palms together")
             return palms_progress(frames, hands, pairs, begin=self._began_at)
         if step.step == "touch":
-            part = self._slot(frames, touched_role(step.point, self.device_of) or "")
+            # a point on an estimated device (no pelvis tracker): the HMD carries it (calibration/
+            # estimated_devices.attach)
+            part = self._slot(frames, touched_role(step.point, self.device_of) or
+                              ("head" if step.point in STANDING_POINTS else ""))
             track = self._toucher(frames, step.by)
             if part is None or track is None:
                 return hold_figure(0.0, STILL_MIN_S, f"waiting for {step.by}")

@@ -1,0 +1,8 @@
+"""A lower body from head and hands (DESIGN.md §6): the estimated pelvis and feet of a kit without
+their trackers, made for a whole recording (`complete`) or a stream (`LiveLowerBody`)."""
+
+from .estimate import KIND, LiveLowerBody, complete, device_poses, estimated_roles, filled_pose, with_devices
+from .shape import LowerBodyShape
+
+__all__ = ["KIND", "LiveLowerBody", "LowerBodyShape", "complete", "device_poses", "estimated_roles", "filled_pose",
+           "with_devices"]

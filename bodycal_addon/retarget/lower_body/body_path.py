@@ -1,0 +1,217 @@
+"""The body's path under the head (DESIGN.md §6 "A lower body from head and hands"): the skull
+base carried by the HMD, the body's heading, the trunk's lean and the pelvis under it, vectorised
+over frames.
+
+- Heading: the HMD's turn about the vertical since the reference time (the twist of its rotation),
+  smoothed (a person looks around without turning the body) and kept within `MAX_NECK_TWIST` of
+  the head (nobody turns the head further than that from the trunk for long). Offline the
+  smoothing looks both ways (a Gaussian over `HEADING_SMOOTH_S`); live it is a forward exponential
+  with the same time scale, which lags.
+- Lean: the trunk bends forward with the head's pitch beyond a looking-down range, no more than
+  a bow with straight legs would take the skull base down to its height; the rest of a drop is
+  a squat (the knees bend): a bow looks down, a squat keeps the head up (`trunk_lean`). The pelvis takes
+  `PELVIS_SHARE` of the lean (lumbopelvic rhythm), the spine the rest (the spine IK, aimed at the
+  skull base).
+- Pelvis: the skull base less the trunk turned by the heading and leaned; it drops as the head
+  drops (the knees bend) and rises with it off the floor (`lift`: both feet leave the floor, a hop)
+  once above its standing height by more than `LIFT_FROM`.
+- Seated (`seat_height`): the pelvis on the seat under the trunk, moving over the floor only as a
+  chair does (`SEAT_FOLLOW_S`); the trunk leans toward the head through the spine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...core import transforms as tf
+from .shape import LowerBodyShape, body_axes, lean, wrap
+
+HEADING_SMOOTH_S = 0.8
+MAX_NECK_TWIST = np.radians(50.0)
+KNEES_FIRST = 0.05  # x stature: a drop of the skull base this small is the knees' (a walk's bob)
+LOOK_DOWN = np.radians(20.0)
+LEAN_PER_PITCH = 0.7
+MAX_LEAN = np.radians(110.0)
+LOWEST_PELVIS = 0.35  # x the standing pelvis height: kneeling, sitting back on a heel
+PELVIS_SHARE = 0.35
+LIFT_FROM = 0.02  # x stature above the standing pelvis height
+HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
+SEAT_FOLLOW_S = 1.5
+VELOCITY_SMOOTH_S = 0.06
+
+
+@dataclass
+class BodyPath:
+    """Frames' body path: (F, 3) `neck` (skull base), (F,) `heading`, (F,) `lean` (trunk, radians),
+    (F, 3) `pelvis`, (F, 3, 3) `pelvis_rot` (the estimated pelvis device's rotation), (F,) `lift`
+    (how far both feet leave the floor), (F, 2) `velocity` (the pelvis over the floor, m/s)."""
+
+    neck: np.ndarray
+    heading: np.ndarray
+    lean: np.ndarray
+    pelvis: np.ndarray
+    pelvis_rot: np.ndarray
+    lift: np.ndarray
+    velocity: np.ndarray
+
+
+def neck_and_head(shape: LowerBodyShape, head_pos: np.ndarray, head_rot: np.ndarray):
+    """(F, 3) the skull base, (F,) the head's heading and (F,) its pitch down (radians), both
+    measured from the reference time's body axes carried by the HMD: the pitch from the head's
+    forward and up together (unambiguous past a right angle, a deep bow), the heading from the
+    forward the head has once that pitch is taken out (well defined looking down at the feet)."""
+    neck = head_pos + np.einsum("fij,j->fi", head_rot, shape.neck_in_hmd)
+    axes0 = shape.hmd_ref.T @ body_axes(shape.heading0)
+    forward = np.einsum("fij,j->fi", head_rot, axes0[:, 1])
+    up = np.einsum("fij,j->fi", head_rot, axes0[:, 2])
+    pitch = np.arctan2(-forward[:, 2], up[:, 2])
+    level = np.cos(pitch)[:, None] * forward + np.sin(pitch)[:, None] * up
+    return neck, np.unwrap(np.arctan2(level[:, 1], level[:, 0])), pitch
+
+
+def clamp_heading(body: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """The body's heading kept within MAX_NECK_TWIST of the head's."""
+    return head + np.clip(wrap(body - head), -MAX_NECK_TWIST, MAX_NECK_TWIST)
+
+
+def trunk_lean(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
+    """(F,) the trunk's forward lean (the module docstring): `LEAN_PER_PITCH` of the head's pitch
+    down beyond `LOOK_DOWN` (the eyes and the neck take that much), and no more than a bow with
+    straight legs would take the skull base down to its height (the first `KNEES_FIRST` of the drop
+    left to the knees): a bow looks down, a squat keeps the head up. And at least what keeps the
+    pelvis `LOWEST_PELVIS` of its standing height above the floor (kneeling, sitting back on a
+    heel): a head lower than that is a bow however it looks."""
+    up = shape.trunk[2]
+
+    def lean_for(pelvis_z):  # the lean that puts the pelvis at this height (`trunk_at`)
+        return np.arccos(np.clip((neck_z - pelvis_z) / up, -1.0, 1.0))
+
+    bow = lean_for(shape.pelvis_height - KNEES_FIRST * shape.stature)
+    floor = lean_for(LOWEST_PELVIS * shape.pelvis_height)
+    lean = np.minimum(bow, LEAN_PER_PITCH * (pitch_down - LOOK_DOWN))
+    return np.clip(np.maximum(lean, floor), 0.0, MAX_LEAN)
+
+
+def trunk_at(shape: LowerBodyShape, phi: np.ndarray) -> np.ndarray:
+    """(F, 3) the pelvis -> skull base vector in body axes leaned forward by `phi`: its upright
+    part turned toward forward, its small rest offset forward or back kept (so the skull base only
+    ever comes down as the lean grows: a turn of the whole tilted trunk first raises it)."""
+    r, f, u = shape.trunk
+    phi = np.asarray(phi, float)
+    return np.stack([np.full_like(phi, r), f + u * np.sin(phi), u * np.cos(phi)], axis=-1)
+
+
+def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """(F, 3) the pelvis: the skull base less the trunk turned and leaned."""
+    return neck - np.einsum("fij,fj->fi", body_axes(heading), trunk_at(shape, phi))
+
+
+def pelvis_rotation(heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) the estimated pelvis device's rotation: the body's axes tilted by its share."""
+    return body_axes(heading) @ lean(PELVIS_SHARE * phi)
+
+
+def lift_of(shape: LowerBodyShape, pelvis_z: np.ndarray) -> np.ndarray:
+    return np.maximum(pelvis_z - shape.pelvis_height - LIFT_FROM * shape.stature, 0.0)
+
+
+def gaussian(x: np.ndarray, sigma_frames: float) -> np.ndarray:
+    """`x` (F, ...) smoothed along frames by a Gaussian, the ends held (zero phase)."""
+    if sigma_frames < 0.5 or len(x) < 3:
+        return x.copy()
+    half = int(np.ceil(3 * sigma_frames))
+    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma_frames) ** 2)
+    k /= k.sum()
+    pad = np.concatenate([np.repeat(x[:1], half, 0), x, np.repeat(x[-1:], half, 0)])
+    flat = pad.reshape(len(pad), -1)
+    out = np.stack([np.convolve(flat[:, c], k, mode="valid") for c in range(flat.shape[1])], axis=1)
+    return out.reshape(x.shape)
+
+
+def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, head_rot: np.ndarray,
+                 seat_height: float | None = None) -> BodyPath:
+    """The whole take's body path, looking both ways in time."""
+    fps = (len(time) - 1) / max(time[-1] - time[0], 1e-9) if len(time) > 1 else 90.0
+    neck, head_heading, pitch = neck_and_head(shape, head_pos, head_rot)
+    heading = clamp_heading(gaussian(head_heading, HEADING_SMOOTH_S * fps), head_heading)
+    if seat_height is None:
+        phi = trunk_lean(shape, neck[:, 2], pitch)
+        pelvis = pelvis_under(shape, neck, heading, phi)
+    else:
+        pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
+    velocity = gaussian(np.gradient(pelvis[:, :2], time, axis=0) if len(time) > 1 else np.zeros((len(time), 2)),
+                        VELOCITY_SMOOTH_S * fps)
+    lift = lift_of(shape, pelvis[:, 2]) if seat_height is None else np.zeros(len(time))
+    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, velocity)
+
+
+def _seated(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, seat_height: float, follow):
+    """(pelvis (F, 3), lean (F,)) on a seat `seat_height` high: the pelvis where the upright trunk
+    would put it, followed slowly (`follow`), at the seat's height; the lean the trunk then has."""
+    upright = pelvis_under(shape, neck, heading, np.zeros(len(neck)))
+    pelvis = follow(upright)
+    pelvis[:, 2] = seat_height + HIP_ABOVE_SEAT * shape.stature
+    up = neck - pelvis
+    forward = body_axes(heading)[:, :, 1]
+    phi = np.arctan2(np.einsum("fi,fi->f", up, forward), up[:, 2]) - np.arctan2(shape.trunk[1], shape.trunk[2])
+    return pelvis, np.clip(phi, 0.0, MAX_LEAN)
+
+
+class LivePath:
+    """The body path one frame at a time, from the frames so far only (the module docstring:
+    forward smoothing)."""
+
+    def __init__(self, shape: LowerBodyShape, seat_height: float | None = None):
+        self.shape, self.seat_height = shape, seat_height
+        self._heading = None
+        self._seat = None
+        self._last = None  # (time, pelvis xy)
+        self._velocity = np.zeros(2)
+
+    def step(self, t: float, head_pos: np.ndarray, head_rot: np.ndarray) -> BodyPath:
+        shape = self.shape
+        neck, head_heading, pitch = neck_and_head(shape, head_pos[None], head_rot[None])
+        dt = 0.0 if self._last is None else max(t - self._last[0], 1e-6)
+        if self._heading is None:
+            heading = head_heading
+        else:
+            a = 1.0 - np.exp(-dt / HEADING_SMOOTH_S)
+            heading = self._heading + a * wrap(head_heading - self._heading)
+        heading = clamp_heading(heading, head_heading)
+        self._heading = heading
+        if self.seat_height is None:
+            phi = trunk_lean(shape, neck[:, 2], pitch)
+            pelvis = pelvis_under(shape, neck, heading, phi)
+        else:
+            def follow(upright, _self=self, _dt=dt):
+                if _self._seat is None:
+                    _self._seat = upright[0].copy()
+                else:
+                    _self._seat += (1.0 - np.exp(-_dt / SEAT_FOLLOW_S)) * (upright[0] - _self._seat)
+                return _self._seat[None].copy()
+            pelvis, phi = _seated(shape, neck, heading, self.seat_height, follow)
+        if self._last is not None:
+            a = 1.0 - np.exp(-dt / VELOCITY_SMOOTH_S)
+            self._velocity = self._velocity + a * ((pelvis[0, :2] - self._last[1]) / dt - self._velocity)
+        self._last = (t, pelvis[0, :2].copy())
+        lift = lift_of(shape, pelvis[:, 2]) if self.seat_height is None else np.zeros(1)
+        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, self._velocity[None].copy())
+
+
+def tracked_path(shape: LowerBodyShape, time: np.ndarray, tracker_pos: np.ndarray, tracker_rot: np.ndarray,
+                 pelvis_local: np.ndarray, tracker_ref: np.ndarray, velocity=None) -> BodyPath:
+    """The body path of a kit with a pelvis tracker (only the feet estimated): the pelvis joint
+    rigid on it, the heading its turn about the vertical since the reference. `velocity`: the
+    pelvis's over the floor when known (live), else from the frames (offline, both ways)."""
+    pelvis = tracker_pos + np.einsum("fij,j->fi", tracker_rot, pelvis_local)
+    rel = tf.matrix_to_quat(tracker_rot @ tracker_ref.T)
+    heading = np.unwrap(shape.heading0 + 2.0 * np.arctan2(rel[:, 3], rel[:, 0]))
+    if velocity is None:
+        fps = (len(time) - 1) / max(time[-1] - time[0], 1e-9) if len(time) > 1 else 90.0
+        grad = np.gradient(pelvis[:, :2], time, axis=0) if len(time) > 1 else np.zeros((len(time), 2))
+        velocity = gaussian(grad, VELOCITY_SMOOTH_S * fps)
+    zero = np.zeros(len(time))
+    return BodyPath(pelvis + np.einsum("fij,j->fi", body_axes(heading), shape.trunk), heading, zero, pelvis,
+                    tracker_rot, lift_of(shape, pelvis[:, 2]), velocity)

@@ -1,0 +1,278 @@
+"""Feet that stay planted and step when balance needs it (DESIGN.md §6 "A lower body from head and
+hands"): the estimated feet of a kit without foot trackers.
+
+Both feet stand still until one of these, whichever comes first, checked on every frame at once
+over the stretch both feet stand (a loop over steps, not frames):
+- balance: the capture point (the pelvis over the floor plus its velocity over omega = sqrt(g / h),
+  where a body falling like an inverted pendulum comes to rest) leaves the support, the line
+  between the feet's middles widened by `SUPPORT_REACH`;
+- a turn: the body's heading is more than `TURN_STEP` off a foot's;
+- reach: a hip is further from its ankle, over the floor, than `REACH` of the leg (the leg then
+  slants about 30 degrees), or so far behind that its heel, rising on the ball to keep it in
+  reach (heel.py), rises more than `RISE_STEP` (a toe-off);
+- crossing: the feet, seen across the body, closer than `MIN_WIDTH` or on the wrong sides.
+Then the foot further from where it should stand steps: it lands where the body will be once the
+step is done (offline the body path at that frame; live its velocity carried forward), under its
+hip and `LEAD_S` of the body's velocity ahead, turned with the body (no more than `SPLAY` from the
+other foot), no further than `MAX_STRIDE` and never across the other foot (bowing out around it
+on the way when it starts on the wrong side, after a turn). The swing lasts `SWING_S` (faster with
+speed, pendulum-scaled by the leg's length; quicker, down to `SHORTEST_SWING_S`, when the standing
+foot would otherwise run out of reach before it lands), lifts `LIFT_PER_LENGTH` of its length
+(within `LIFT`), on a minimum-jerk path;
+both feet then stand at least `DWELL_S`. While the body is off the floor (`BodyPath.lift`) both
+feet hang under it, carried with the pelvis, and land where they are.
+
+Offline the same code sees the whole path (each step's landing looks ahead); live it sees the
+frames so far, one at a time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import heel
+from .body_path import BodyPath
+from .shape import LowerBodyShape, body_axes, wrap
+
+G = 9.81
+SUPPORT_REACH = 0.04  # x stature beyond the line between the feet's middles
+TURN_STEP = np.radians(35.0)
+SPLAY = np.radians(50.0)  # the most a step turns a foot from the other (their rest turn apart)
+REACH = 0.5
+RISE_STEP = np.radians(35.0)  # a heel risen this far on its ball (heel.py) lifts the foot: a toe-off
+SHORTEST_SWING_S = 0.25  # a swing hurried so the standing foot is not left out of reach
+LAND_REACH = 1.0  # x the leg: the most a landing foot is from its hip (the leg straight at heel strike)
+MIN_WIDTH = 0.06  # x stature between the ankles, across the body (a shin and a half)
+LEAD_S = 0.3
+MAX_STRIDE = 1.4  # x leg
+SWING_S = (0.45, 0.36)  # at rest, at FAST_MPS and beyond, for a 0.85 m leg
+FAST_MPS = 1.6
+LIFT_PER_LENGTH = 0.15
+LIFT = (0.012, 0.05)  # x stature
+DWELL_S = 0.06
+TURN_COST_M = 0.25  # metres of misplacement a radian of a foot's misturn is worth in choosing the foot
+
+
+def min_jerk(u: np.ndarray) -> np.ndarray:
+    return u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
+
+
+class Stepper:
+    """The feet of `shape`'s body along a `BodyPath`, planted and stepping (the module docstring).
+    `advance` fills frames [start, stop) of `out_pos` (., 2, 3) ankles and `out_heading` (., 2)
+    feet headings, from the path's frames up to `available` (offline: all; live: `stop`); the
+    path's and the outputs' first row is frame `base` (live: the frame itself)."""
+
+    def __init__(self, shape: LowerBodyShape, fps: float):
+        self.shape, self.fps = shape, float(fps)
+        self.feet: np.ndarray | None = None  # (2, 3) planted ankles
+        self.headings = np.zeros(2)
+        self.swing: tuple | None = None  # (foot, k0, k1, p0, p1, heading0, heading1, height, bow out)
+        self.air: tuple | None = None  # (the pelvis over the floor at take-off, the feet's carry so far)
+        self.ready_at = 0
+        self.steps = 0
+        self.base = 0
+
+    # --- where the feet should stand --------------------------------------------------------------
+
+    def ideal(self, pelvis: np.ndarray, heading: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(2, 3) ankles under the hips, led by the velocity, and (2,) their headings."""
+        axes = body_axes(heading)
+        feet = pelvis + (axes @ self.shape.ankle.T).T
+        feet[:, :2] += LEAD_S * velocity
+        feet[:, 2] = self.shape.ankle_height
+        return feet, heading + self.shape.foot_turn
+
+    def start(self, path: BodyPath, k: int) -> None:
+        self.feet, self.headings = self.ideal(path.pelvis[k], path.heading[k], np.zeros(2))
+
+    # --- the loop over steps ----------------------------------------------------------------------
+
+    def advance(self, path: BodyPath, start: int, stop: int, out_pos: np.ndarray, out_heading: np.ndarray,
+                available: int | None = None, base: int = 0) -> None:
+        available = stop if available is None else available
+        self.base = base
+        if self.feet is None:
+            self.start(path, start - base)
+        k = start
+        while k < stop:
+            if self.swing is not None:
+                k = self._swing(k, stop, out_pos, out_heading)
+            elif self.air is not None or path.lift[k - base] > 0.0:
+                k = self._airborne(path, k, stop, out_pos, out_heading)
+            else:
+                k = self._stand(path, k, stop, out_pos, out_heading, available)
+
+    def _stand(self, path, k, stop, out_pos, out_heading, available) -> int:
+        """Both feet planted from frame k until a step is due (planned then) or the body leaves the
+        floor; returns the frame it stops at."""
+        b = self.base
+        off = np.flatnonzero(path.lift[k - b:stop - b] > 0.0)
+        end = k + int(off[0]) if len(off) else stop
+        due = self.triggers(path, k - b, end - b)
+        due[:max(0, self.ready_at - k)] = False
+        hit = np.flatnonzero(due)
+        until = k + int(hit[0]) if len(hit) else end
+        out_pos[k - b:until - b] = self.feet
+        out_heading[k - b:until - b] = self.headings
+        if until < end:
+            self._plan(path, until, available)
+        return until
+
+    def triggers(self, path: BodyPath, i: int, end: int) -> np.ndarray:
+        """(end - i,) bool: a step is due at the path's rows [i, end) with the feet where they stand."""
+        shape, feet = self.shape, self.feet
+        if end <= i:
+            return np.zeros(0, bool)
+        pelvis, velocity, heading = path.pelvis[i:end], path.velocity[i:end], path.heading[i:end]
+        capture = pelvis[:, :2] + velocity / np.sqrt(G / max(shape.pelvis_height, 0.3))
+        middles = feet[:, :2] + 0.4 * shape.foot_length * np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
+        a, b = middles
+        ab = b - a
+        u = np.clip(((capture - a) @ ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
+        off_support = np.linalg.norm(capture - (a + u[:, None] * ab), axis=1) > SUPPORT_REACH * shape.stature
+        turned = (np.abs(wrap(heading[:, None] + shape.foot_turn - self.headings)) > TURN_STEP).any(axis=1)
+        axes = body_axes(heading)
+        hips = pelvis[:, None] + np.einsum("fij,sj->fsi", axes, shape.hip)
+        stretched = (np.linalg.norm((hips - feet)[..., :2], axis=2) > REACH * shape.leg).any(axis=1)
+        # a heel that would have to rise more than RISE_STEP to keep its hip in reach (heel.py)
+        stretched |= (heel.rise(shape, hips, np.broadcast_to(feet, hips.shape),
+                                np.broadcast_to(self.headings, hips.shape[:2]))[0] > RISE_STEP).any(axis=1)
+        across = (feet[0] - feet[1]) @ axes[:, :, 0].T  # left foot minus right along the body's right
+        crossed = across > -MIN_WIDTH * shape.stature
+        return off_support | turned | stretched | crossed
+
+    def _plan(self, path: BodyPath, k: int, available: int) -> None:
+        """Plans the step due at frame k: which foot, where it lands, how long and how high."""
+        shape, i = self.shape, k - self.base
+        speed = float(np.linalg.norm(path.velocity[i]))
+        seconds = np.interp(speed, (0.0, FAST_MPS), SWING_S) * np.sqrt(shape.leg / 0.85)
+        n = max(2, int(round(seconds * self.fps)))
+        pelvis, heading, velocity = self._landing(path, k, n, available)
+        ideal, headings = self.ideal(pelvis, heading, velocity)
+        miss = np.linalg.norm((ideal - self.feet)[:, :2], axis=1) + TURN_COST_M * np.abs(wrap(headings - self.headings))
+        foot = int(np.argmax(miss))
+        quick = self._stance_lasts(path, k, n, 1 - foot, available)
+        if quick < n:  # the standing foot would run out of reach first: a quicker swing
+            n = quick
+            pelvis, heading, velocity = self._landing(path, k, n, available)
+            ideal, headings = self.ideal(pelvis, heading, velocity)
+        k1 = k + n
+        target = self._within_reach(self._keep_apart(ideal[foot], foot, heading), foot, pelvis, heading)
+        move = target - self.feet[foot]
+        length = float(np.linalg.norm(move[:2]))
+        if length > MAX_STRIDE * shape.leg:
+            target = self.feet[foot] + move * (MAX_STRIDE * shape.leg / length)
+            length = MAX_STRIDE * shape.leg
+        lo, hi = LIFT
+        height = float(np.clip(LIFT_PER_LENGTH * length, lo * shape.stature, hi * shape.stature))
+        # no more than SPLAY between the feet: a fast turn takes a few steps, the feet never point apart
+        other = self.headings[1 - foot] + shape.foot_turn[foot] - shape.foot_turn[1 - foot]
+        turned = other + np.clip(wrap(headings[foot] - other), -SPLAY, SPLAY)
+        self.swing = (foot, k, k1, self.feet[foot].copy(), target, self.headings[foot],
+                      self.headings[foot] + wrap(turned - self.headings[foot]), height,
+                      self._around(foot, target, heading))
+        self.steps += 1
+
+    def _landing(self, path: BodyPath, k: int, n: int, available: int):
+        """(pelvis, heading, velocity) when a swing of `n` frames from frame k lands: offline the
+        path's there, live the present carried on at its velocity."""
+        i, k1 = k - self.base, k + n
+        if k1 < available:
+            j = k1 - self.base
+            return path.pelvis[j], path.heading[j], path.velocity[j]
+        pelvis = path.pelvis[i].copy()
+        pelvis[:2] += path.velocity[i] * n / self.fps
+        return pelvis, path.heading[i], path.velocity[i]
+
+    def _stance_lasts(self, path: BodyPath, k: int, n: int, foot: int, available: int) -> int:
+        """How many frames from k (up to n) the standing `foot` keeps its hip within the reach its
+        heel can give (`RISE_STEP`, heel.py), the path known (offline); at least `SHORTEST_SWING_S`."""
+        stop = min(k + n, available)
+        shortest = max(2, int(round(SHORTEST_SWING_S * self.fps)))
+        if stop - k <= shortest:
+            return n
+        rows = np.arange(k, stop) - self.base
+        hips = path.pelvis[rows, None] + np.einsum("fij,sj->fsi", body_axes(path.heading[rows]), self.shape.hip)
+        angle, _ = heel.rise(self.shape, hips, np.broadcast_to(self.feet, hips.shape),
+                             np.broadcast_to(self.headings, hips.shape[:2]))
+        out = np.flatnonzero(angle[:, foot] > RISE_STEP)
+        return n if not len(out) else max(shortest, int(out[0]))
+
+    def _within_reach(self, target: np.ndarray, foot: int, pelvis: np.ndarray, heading: float) -> np.ndarray:
+        """`target` drawn toward its hip, over the floor, until the leg reaches it landing (within
+        `heel.REACH` of its length): a step lands no further than the leg can reach."""
+        shape = self.shape
+        hip = pelvis + body_axes(heading) @ shape.hip[foot]
+        drop = max(hip[2] - target[2], 0.0)
+        most = np.sqrt(max((LAND_REACH * shape.leg) ** 2 - drop * drop, 0.0))
+        off = target[:2] - hip[:2]
+        far = float(np.linalg.norm(off))
+        if far > most:
+            target = target.copy()
+            target[:2] = hip[:2] + off * (most / far)
+        return target
+
+    def _keep_apart(self, target: np.ndarray, foot: int, heading: float) -> np.ndarray:
+        """`target` moved across the body, if needed, to stand MIN_WIDTH on its side of the other foot."""
+        right = body_axes(heading)[:, 0]
+        other = self.feet[1 - foot]
+        side = -1.0 if foot == 0 else 1.0  # the left foot stands toward -right
+        across = (target - other) @ right * side
+        need = MIN_WIDTH * self.shape.stature
+        if across < need:
+            target = target + right * side * (need - across)
+        return target
+
+    def _around(self, foot: int, target: np.ndarray, heading: float) -> np.ndarray:
+        """(3,) how far the swing bows out to pass the standing foot MIN_WIDTH apart across the body
+        (at mid-swing; nothing when the straight path keeps that far): a step after a turn starts
+        on the other foot's side."""
+        right = body_axes(heading)[:, 0]
+        side = -1.0 if foot == 0 else 1.0
+        other = self.feet[1 - foot]
+        start, end = (self.feet[foot] - other) @ right * side, (target - other) @ right * side
+        need = MIN_WIDTH * self.shape.stature
+        return right * side * max(0.0, need - min(start, end))
+
+    def _swing(self, k, stop, out_pos, out_heading) -> int:
+        foot, k0, k1, p0, p1, h0, h1, height, around = self.swing
+        until = min(k1, stop)
+        u = (np.arange(k, until) - k0) / max(k1 - k0, 1)
+        s = min_jerk(u)
+        pos = p0 + s[:, None] * (p1 - p0) + np.sin(np.pi * u)[:, None] * around
+        pos[:, 2] += height * np.sin(np.pi * u)
+        rows = slice(k - self.base, until - self.base)
+        out_pos[rows] = self.feet
+        out_pos[rows, foot] = pos
+        out_heading[rows] = self.headings
+        out_heading[rows, foot] = h0 + s * (h1 - h0)
+        if until == k1:
+            self.feet[foot], self.headings[foot] = p1, h1
+            self.swing = None
+            self.ready_at = k1 + int(round(DWELL_S * self.fps))
+        return until
+
+    def _airborne(self, path, k, stop, out_pos, out_heading) -> int:
+        """Both feet under the body while it is off the floor, carried with the pelvis; they land
+        where they are."""
+        b = self.base
+        if self.air is None:
+            self.air = (path.pelvis[k - b, :2].copy(), np.zeros(2))
+        takeoff, carried_last = self.air
+        down = np.flatnonzero(path.lift[k - b:stop - b] <= 0.0)
+        until = k + int(down[0]) if len(down) else stop
+        rows = slice(k - b, until - b)
+        carried = path.pelvis[rows, :2] - takeoff
+        out_pos[rows] = self.feet
+        out_pos[rows, :, :2] += carried[:, None]
+        out_pos[rows, :, 2] += path.lift[rows, None]
+        out_heading[rows] = self.headings
+        if len(carried):
+            carried_last = carried[-1]
+        self.air = (takeoff, carried_last)
+        if len(down):  # landed at `until`
+            self.feet[:, :2] += carried_last
+            self.air = None
+            self.ready_at = until
+        return until
