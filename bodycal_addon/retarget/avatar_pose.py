@@ -31,6 +31,7 @@ from ..body.rest_frames import complete_joints, model_rest_frames
 from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import BONES, JOINTS, SPINE_BONES, SPINE_JOINTS
 from ..body.skeleton import JOINT_INDEX as JI
+from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.transforms import (
     EPS,
@@ -45,9 +46,9 @@ from ..core.transforms import (
     stacks_apply,
     stacks_mul,
     transposed,
-    turn_between_one,
 )
 from . import pose_kernels
+from .rig_one_frame import ChainOneFrame
 
 
 def _driver_of_segment(seg: str) -> str | None:
@@ -421,6 +422,20 @@ class AvatarRig:
         return self.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
 
     @property
+    def _chain_one(self) -> ChainOneFrame:
+        """The spine chain's one-frame aim (mathutils constants), once per rig."""
+        if getattr(self, "_chain_aim_one", None) is None:
+            self._chain_aim_one = ChainOneFrame(self)
+        return self._chain_aim_one
+
+    def __getstate__(self) -> dict:
+        """A pickled rig leaves its one-frame aim behind (mathutils objects do not pickle); it is
+        made again on the next one-frame pose."""
+        state = dict(self.__dict__)
+        state.pop("_chain_aim_one", None)
+        return state
+
+    @property
     def _caches(self) -> dict:
         """Per rig, once: the posing plans (`_pose_plan`) and the joints' plans of `joint_positions`."""
         if getattr(self, "_cache", None) is None:
@@ -435,6 +450,10 @@ class AvatarRig:
         plan = self._pose_plan(None if bones is None else tuple(bones))
         chain = self._chain_plan if plan.chained else None
         key, held = self._held_chain(chain, frames, pelvis)
+        if held is None and chain is not None and nf == 1 and one_frame.ENABLED:
+            # one frame: the chain aimed in mathutils (rig_one_frame.py), the rest in one flat pass
+            held = self._chain_one.aimed(frames, np.asarray(pelvis, float))
+            self._chain_memo = (key, held)
         few = plan.deferred is not None and nf < FEW_FRAMES
         flat = few and (chain is None or held is not None)
         P, H, HT = self._pose_buffers(plan, nf, few, flat)
@@ -1012,16 +1031,7 @@ class _ChainAim:
             curve = self.rig._spine_curve(self.frames, P, H)
             self.target = chain.w0 * curve.take(chain.k, axis=1).swapaxes(0, 1) \
                 + chain.w1 * curve.take(chain.k1, axis=1).swapaxes(0, 1) + self.off
-            if self.nf == 1:  # one frame: its aims and targets as Python floats, once
-                self.aim_at, self.target_at = self.aim[:, 0].tolist(), self.target[:, 0].tolist()
-        turn = None
-        if self.nf == 1:  # target - head in floats (numpy's difference)
-            t0, h0 = self.target_at[j], H[i, 0].tolist()
-            turn = turn_between_one(self.aim_at[j], [t0[0] - h0[0], t0[1] - h0[1], t0[2] - h0[2]])
-        if turn is None:
-            turn = quat_to_matrix(quat_between(self.aim[j], self.target[j] - H[i]))
-        else:  # one frame: the same bits in Python floats (turn_between_one)
-            turn = np.array([turn])
+        turn = quat_to_matrix(quat_between(self.aim[j], self.target[j] - H[i]))
         np.matmul(turn, self.twist[j], out=self.aimed[j])
         P[i] = self.aimed[j]
         self.count += 1
