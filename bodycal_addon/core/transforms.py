@@ -13,15 +13,6 @@ import numpy as np
 
 EPS = 1e-12
 
-# `np.einsum` without its Python wrapper: with the default `optimize=False` np.einsum is this
-# function called with the same operands (the same kernel, the same bits), and the wrapper's
-# checks cost about as much as the product on a few vectors (the live solve makes ~80 a frame).
-try:
-    from numpy._core._multiarray_umath import c_einsum as einsum
-except ImportError:  # pragma: no cover - a numpy without it
-    einsum = np.einsum
-
-
 def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
     """Unit vectors; zero vectors stay zero (never NaN)."""
     return unit_and_norm(np.asarray(v, dtype=float), 0.0, axis)[0]
@@ -374,36 +365,6 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return normalize(q)
 
 
-def turn_between_one(a, b) -> list | None:
-    """`quat_to_matrix(quat_between(a, b))` of ONE pair of 3-vectors (sequences of floats) as a
-    3x3 nested list, in Python floats: the same operations in the same order as those two numpy
-    functions (numpy sums fewer than 8 items one after the other), so the same bits, in a few
-    microseconds instead of about forty numpy calls' overhead (the rig's spine chain aims one bone
-    at a time). None where `quat_between` takes another path (a vector of norm EPS or less, or
-    opposite directions): the caller then uses the numpy functions."""
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-    if not (na > EPS and nb > EPS):
-        return None
-    a0, a1, a2 = a0 / na, a1 / na, a2 / na
-    b0, b1, b2 = b0 / nb, b1 / nb, b2 / nb
-    d = a0 * b0 + a1 * b1 + a2 * b2
-    if not d >= -1.0 + 1e-9:
-        return None
-    w, x, y, z = 1.0 + d, a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if not n > EPS:
-        return None
-    w, x, y, z = w / n, x / n, y / n, z / n
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wz, wy, wx = x * y, x * z, y * z, w * z, w * y, w * x
-    return [[1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)],
-            [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)],
-            [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)]]
-
-
 def quat_angle(q: np.ndarray) -> np.ndarray:
     """Rotation angle in [0, pi]."""
     q = np.asarray(q, float)
@@ -437,7 +398,7 @@ def continuous_quaternions(q: np.ndarray, *, in_place: bool = False) -> np.ndarr
     components (F-Curves, low-pass filters, key reduction) would swing through a half turn between
     them. Returns a new array, or `q` itself changed with `in_place` (a float64 array)."""
     q = q if in_place else np.array(q, dtype=float, copy=True)
-    dots = einsum("...i,...i->...", q[1:], q[:-1])
+    dots = np.einsum("...i,...i->...", q[1:], q[:-1])
     q[1:] *= np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)[..., None]
     return q
 

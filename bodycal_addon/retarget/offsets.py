@@ -33,7 +33,7 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES
 from ..core.errors import BodyCalError
-from ..core.transforms import EPS, einsum, normalize, quat_between, quat_to_matrix, stack_apply
+from ..core.transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
 from .avatar_pose import AvatarRig, copy_frames
 from .user_animation import axis_angle_matrix
 
@@ -125,7 +125,7 @@ def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarra
     """Vertebra frames (F, 12, 3, 3): the T-pose spine turned with the sacrum, then bent by the
     angle between w0 and w_t (eq. 4), spread evenly over the vertebrae."""
     d_sac = sacrum @ st.r0_joint["sacrum"].T
-    w0 = einsum("fij,j->fi", d_sac, st.w0)
+    w0 = np.einsum("fij,j->fi", d_sac, st.w0)
     wt = pos["head"] - pos["pelvis"]
     q = quat_between(w0, wt)
     angle = 2 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), q[..., 0])
