@@ -230,15 +230,18 @@ def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_
     float64: float32 rounds a few centimetres' offset far finer than a position metres from the
     origin (measured: rotation entries within 4e-6 of numpy's where world positions gave 1.4e-5)."""
     root = np.asarray(root, float)
-    T = [Vector(v) for v in (np.asarray(target, float) - root).tolist()]
+    T = (np.asarray(target, float) - root).tolist()
     P = None if pole_target is None else [Vector(v) for v in (np.asarray(pole_target, float) - root).tolist()]
     U, K = ([Vector(v) for v in np.asarray(a, float).reshape(-1, 3).tolist()] if a is not None else None
             for a in (user_swivel_dir, flex_axis_hint))
     L1, L2 = l1.tolist(), l2.tolist()
     mids, ends, rot1, rot2, swivels, ts, ds, dists = [], [], [], [], [], [], [], []
-    for i, rel_t in enumerate(T):
+    for i, (t0, t1, t2) in enumerate(T):
         fallback = _DOWN if P is None else _m_unit(P[i], _DOWN)[0]
-        axis, dist = _m_unit(rel_t, fallback)
+        # the root-target distance in float64 (`_dot`'s sum): near a straight limb the bend's
+        # h = sqrt(l1² - a²) magnifies its rounding (float32's moved a forearm by 6e-4 rad)
+        dist = math.sqrt((t0 * t0 + t2 * t2) + t1 * t1)
+        axis = Vector((t0 / dist, t1 / dist, t2 / dist)) if dist > EPS else fallback
         a1, a2 = L1[i], L2[i]
         lo, hi = abs(a1 - a2), a1 + a2
         d = lo if dist < lo else hi if dist > hi else dist
