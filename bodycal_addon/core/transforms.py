@@ -7,7 +7,6 @@ rotations: `rotate(q, v)` turns vector v by q. Matrices act on column vectors: `
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
 
@@ -70,9 +69,11 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     shape = a.shape if a.shape == b.shape else broadcast_shape(a.shape, b.shape)
     if math.prod(shape[:-1]) <= SMALL_CROSS:
         # A few vectors: the components gathered in rolled order, the same three products and
-        # differences in eight numpy calls instead of fifteen. The result is still allocated
-        # first: a later 3x3 product's BLAS path depends on its operands' alignment, and a result
-        # allocated after the temporaries moved one-frame solves by 1e-16.
+        # differences in eight numpy calls instead of fifteen (measured: 52,000 instructions of a
+        # rotations frame's 4.15 M, 118,000 of an egocentric one's 18.95 M, bench_instructions' take).
+        # The result is still allocated first: a later 3x3 product's BLAS path depends on its
+        # operands' alignment, and a result allocated after the temporaries moved one-frame solves
+        # by 1e-16.
         out = np.empty(shape, np.result_type(a, b))
         return np.subtract(a.take(_ROLL1, -1) * b.take(_ROLL2, -1), a.take(_ROLL2, -1) * b.take(_ROLL1, -1), out=out)
     out = np.empty(shape, np.result_type(a, b))
@@ -125,11 +126,11 @@ def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4). The nine entries are the usual
     1 - 2 (y² + z²), 2 (xy - wz), ... computed three at a time (the same products and sums, so the
-    same bits as entry by entry, in a third of the numpy calls). A few quaternions (a live frame's
-    devices or bones) take `_few_quat_to_matrix`: the same products and sums again."""
+    same bits as entry by entry, in a third of the numpy calls). Decision: one path for any count;
+    a few quaternions' own (fewer numpy calls, no Python scalars) saved 11,000 instructions of a
+    rotations frame's 4.15 M and 6,000 of an egocentric one's 18.95 M (bench_instructions'
+    take): not worth its 30 lines."""
     q = np.asarray(q, float)
-    if q.size <= 4 * FEW_QUATERNIONS:
-        return _few_quat_to_matrix(q)
     sq = q * q
     pair = q.take(_QP, -1) * q.take(_QQ, -1)  # xy, xz, yz
     turn = q[..., :1] * q.take(_QW, -1)  # wz, wy, wx
@@ -144,43 +145,6 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 _QP, _QQ, _QW = np.array([1, 1, 2]), np.array([2, 3, 3]), np.array([3, 2, 1])
 _SA, _SB, _DIAG = np.array([2, 1, 1]), np.array([3, 3, 2]), np.array([0, 4, 8])  # y²+z², x²+z², x²+y² on the diagonal
 _MINUS, _PLUS = np.array([1, 6, 5]), np.array([3, 2, 7])  # xy-wz, xz-wy, yz-wx; xy+wz, xz+wy, yz+wx
-
-
-def _few_quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """`quat_to_matrix` of a few quaternions in fewer numpy calls and without Python scalars (numpy
-    converts one on every call: a ufunc of a Python scalar and ten items costs up to twice one of
-    two arrays): the same products and sums, so the same bits. Callgrind, 15 quaternions: 125,000
-    instructions a call -> 113,000 (each numpy call on a few items is 6,000-16,000; in Python floats
-    the nine entries cost 180,000)."""
-    n = quat.size // 4
-    q = quat.reshape(n, 4)
-    ones, twos = _few_constants(n)
-    products = q.take(_LEFT, 1) * q.take(_RIGHT, 1)  # xy, xz, yz, wz, wy, wx
-    pair, turn = products[:, :3], products[:, 3:]
-    sq = q * q
-    m = np.empty((n, 9))  # the diagonal, (pair - turn), (pair + turn); laid out below
-    np.subtract(ones, twos[:, :3] * (sq.take(_SA, 1) + sq.take(_SB, 1)), out=m[:, :3])
-    np.subtract(pair, turn, out=m[:, 3:6])
-    np.add(pair, turn, out=m[:, 6:])
-    np.multiply(m[:, 3:], twos, out=m[:, 3:])
-    return m.take(_LAYOUT, 1).reshape(quat.shape[:-1] + (3, 3))
-
-
-FEW_QUATERNIONS = 64  # quat_to_matrix: up to this many, `_few_quat_to_matrix`
-_LEFT, _RIGHT = np.array([1, 1, 2, 0, 0, 0]), np.array([2, 3, 3, 3, 2, 1])  # xy, xz, yz, wz, wy, wx
-# entry (row-major) -> its column in (diagonal 3, pair - turn 3, pair + turn 3): quat_to_matrix's
-# 1 - 2 (y² + z²), 2 (xy - wz), 2 (xz + wy); 2 (xy + wz), 1 - 2 (x² + z²), 2 (yz - wx);
-# 2 (xz - wy), 2 (yz + wx), 1 - 2 (x² + y²)
-_LAYOUT = np.array([0, 3, 7, 6, 1, 5, 4, 8, 2])
-
-
-@lru_cache(maxsize=16)
-def _few_constants(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) ones and (n, 6) twos (never written: shared)."""
-    ones, twos = np.ones((n, 3)), np.full((n, 6), 2.0)
-    ones.setflags(write=False)
-    twos.setflags(write=False)
-    return ones, twos
 
 
 def stack_mul(a: np.ndarray, m: np.ndarray) -> np.ndarray:

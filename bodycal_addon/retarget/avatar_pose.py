@@ -181,6 +181,8 @@ class _PosePlan:
 # Poses of fewer frames than this place the heads the spine chain does not read in one padded
 # pass after the levels (_PosePlan.deferred: a few numpy calls instead of a few per level, where
 # the per-call overhead is the cost); longer ones level by level. The same sums in the same order.
+# Measured (bench_instructions' take, one-frame solves): these paths save 247,000 instructions of a
+# rotations frame's 4.15 M and 995,000 of an egocentric one's 18.95 M.
 FEW_FRAMES = 16
 
 

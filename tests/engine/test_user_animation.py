@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bodycal_addon.body import skeleton as sk
-from bodycal_addon.core import one_frame, transforms
+from bodycal_addon.core import one_frame
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.core.transforms import quat_normalize, quat_to_matrix
 from bodycal_addon.recording.model import Recording
@@ -107,13 +107,13 @@ def test_missing_device_is_one_clear_error(exact):
 
 
 def test_a_frame_of_trackers_reads_as_the_take_does():
-    """A few quaternions' rotation matrices (quat_to_matrix's path for a live frame's devices) are
-    the many's to the bit, and the devices by role are views of the roles-first arrays."""
+    """A few quaternions' rotation matrices (a live frame's devices) are the many's to the bit, and
+    the devices by role are views of the roles-first arrays."""
     rng = np.random.default_rng(4)
     q = quat_normalize(rng.normal(size=(7, 3, 4)))
-    many = quat_normalize(rng.normal(size=(transforms.FEW_QUATERNIONS + 1, 4)))
+    many = quat_normalize(rng.normal(size=(300, 4)))
     many[:21] = q.reshape(21, 4)
-    whole = quat_to_matrix(many)  # past FEW_QUATERNIONS: the entries three at a time
+    whole = quat_to_matrix(many)
     rows = np.arange(21).reshape(7, 3)  # q's rows in `many`
     for pick in (lambda a: a, lambda a: a.swapaxes(0, 1), lambda a: a[:, :1], lambda a: a[0]):
         assert quat_to_matrix(pick(q)).tobytes() == whole[pick(rows)].tobytes()
