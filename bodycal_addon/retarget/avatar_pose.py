@@ -383,16 +383,19 @@ class AvatarRig:
 
     # --- canonical frames -> pose ---------------------------------------------------------------
 
-    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised=True) -> RigPose:
+    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised=True,
+              float64: bool = False) -> RigPose:
         """Pose bones that realise canonical world frames (F, B, 3, 3) with the canonical pelvis
         joint at `pelvis` (F, 3, world). `basis=False` skips the pose-bone quaternions and root
         location, `realised=False` the realised canonical frames (RigPose fields left None); a list
-        of canonical bone indices realises only those (the other frames are left NaN).
+        of canonical bone indices realises only those (the other frames are left NaN). One frame's
+        spine chain is aimed in mathutils (float32, `rig_one_frame`) unless `float64` (a constant
+        of the bake's, such as a method's T-pose, keeps numpy's values).
 
         Speed: the pose is built bone by bone in a bones-first layout, and every product is a
         stack of 3x3 matrices times ONE fixed matrix, which is one BLAS call on the stack seen as
         (3F, 3) rows (numpy's stacked matmul makes one call per 3x3 product, ~10x slower)."""
-        P, H = self._pose(np.asarray(frames, float), pelvis)
+        P, H = self._pose(np.asarray(frames, float), pelvis, float64=float64)
         if not basis:
             return self._finish(None, P, H, None, realised)
         return self._finish(self._basis(P), P, H, self._root_location(P, H), realised)
@@ -444,15 +447,16 @@ class AvatarRig:
             self._cache = {}
         return self._cache
 
-    def _pose(self, frames, pelvis, bones=None):
+    def _pose(self, frames, pelvis, bones=None, float64=False):
         """Bones-first armature-space pose rotations P (N, F, 3, 3) and heads H (N, F, 3) of
         `bones` (ascending; default all, the others left unset), a depth of the hierarchy at a time
         (`_pose_plan`): each step is one stacked product over the bones of that depth."""
         nf = frames.shape[0]
         plan = self._pose_plan(None if bones is None else tuple(bones))
         chain = self._chain_plan if plan.chained else None
-        key, held = self._held_chain(chain, frames, pelvis)
-        if held is None and chain is not None and nf == 1 and one_frame.ENABLED:
+        float32 = chain is not None and nf == 1 and one_frame.ENABLED and not float64
+        key, held = self._held_chain(chain, frames, pelvis, b"float32" if float32 else b"")
+        if held is None and float32:
             # one frame: the chain aimed in mathutils (rig_one_frame.py), the rest in one flat pass
             held = self._chain_one.aimed(frames, np.asarray(pelvis, float))
             self._chain_memo = (key, held)
@@ -492,15 +496,16 @@ class AvatarRig:
             self._chain_memo = (key, aiming.aimed)
         return P, H
 
-    def _held_chain(self, chain, frames, pelvis) -> tuple:
+    def _held_chain(self, chain, frames, pelvis, tag: bytes = b"") -> tuple:
         """(the chain's inputs' bytes, its rotations when they are the last pose's, else None).
         Decision (speed): the chain's rotations are the costliest part of a pose and a solve often
         poses the same trunk again (the egocentric method poses the avatar four times a block, the
         arms alone changing after the first IK): when every input they read is the last pose's,
-        bit for bit, they are the last pose's."""
+        bit for bit, they are the last pose's. `tag` marks how they were aimed (b"float32": one
+        frame's in mathutils), so a pose aimed another way never takes them."""
         if chain is None:
             return None, None
-        key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
+        key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes() + tag
         memo = getattr(self, "_chain_memo", None)
         return key, (memo[1] if memo is not None and memo[0] == key else None)  # bit for bit
 

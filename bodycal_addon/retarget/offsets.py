@@ -96,7 +96,7 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
     rest_pel = rig.joint_world[JI["pelvis"]]
     pel = np.array([*(centre[:2] + (user_pos["pelvis"][:2] - centre[:2]) / s), rest_pel[2]])
     ref = copy_frames(ref_frames[None], ref_frames, rig.frames0)[0]  # step 2's copy at the T-pose
-    pose = rig.solve(ref[None], pel[None])
+    pose = rig.solve(ref[None], pel[None], float64=True)  # the bake's constants: numpy's values
     joints0 = centre + (pose.joints[0] - centre) * s
     frames0 = pose.frames[0]
     v0, r0t, r0j = {}, {}, {}
