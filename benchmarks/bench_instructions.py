@@ -15,8 +15,9 @@ Counts are exact for the same code, numpy and inputs: an instruction is not a fi
 kernel runs several per cycle, a pass over memory that leaves the caches fewer), so a change is
 also timed (bench_live_solver.py, alternated runs) before it is called faster.
 
-Prints ONE JSON line (about 6 minutes: eight children under callgrind; the take is made once,
-outside it, and pickled for them). Run:
+Prints ONE JSON line with `targets` (a third of 9440a21's instructions) and which kernels one frame
+took (mathutils, or numpy where it cannot be imported) (about 10 minutes here: eight children under
+callgrind; the take is made once, outside it, and pickled for them). Run:
 .venv/bin/python benchmarks/bench_instructions.py [--methods egocentric offsets rotations]
 """
 
@@ -41,8 +42,13 @@ from pathlib import Path  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from bodycal_addon.core import one_frame  # noqa: E402
+
 METHODS = ("egocentric", "offsets", "rotations")
 FIRST, COUNTED = 100, 100  # one-frame solves from frame FIRST; the difference counts COUNTED of them
+# Issue 41's: a third of 9440a21's (20.6 M, 7.9 M, 4.8 M a frame; the bake 2.75 G)
+FRAME_TARGETS = {"egocentric": 7.0e6, "offsets": 3.0e6, "rotations": 2.0e6}
+BAKE_TARGET = 2.2e9
 
 
 def make_inputs(path: Path) -> None:
@@ -106,6 +112,10 @@ def main() -> None:
         one, frames = count(inputs, "bake", "egocentric", 1)
         two, _ = count(inputs, "bake", "egocentric", 2)
     out["bake_instructions"] = {"egocentric": two - one, "per_frame": round((two - one) / frames), "frames": frames}
+    out["one_frame_kernels"] = "mathutils" if one_frame.ENABLED else "numpy (no mathutils here)"
+    out["targets"] = {f"{m}_frame_<=_{FRAME_TARGETS[m] / 1e6:g}M": out["per_frame_instructions"][m] <= FRAME_TARGETS[m]
+                      for m in args.methods}
+    out["targets"][f"egocentric_bake_<=_{BAKE_TARGET / 1e9:g}G"] = two - one <= BAKE_TARGET
     out["seconds"] = round(time.time() - t0, 1)
     print(json.dumps(out))
 

@@ -31,6 +31,7 @@ from ..body.rest_frames import complete_joints, model_rest_frames
 from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import BONES, JOINTS, SPINE_BONES, SPINE_JOINTS
 from ..body.skeleton import JOINT_INDEX as JI
+from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.transforms import (
     EPS,
@@ -45,9 +46,9 @@ from ..core.transforms import (
     stacks_apply,
     stacks_mul,
     transposed,
-    turn_between_one,
 )
 from . import pose_kernels
+from .rig_one_frame import ChainOneFrame
 
 
 def _driver_of_segment(seg: str) -> str | None:
@@ -180,6 +181,8 @@ class _PosePlan:
 # Poses of fewer frames than this place the heads the spine chain does not read in one padded
 # pass after the levels (_PosePlan.deferred: a few numpy calls instead of a few per level, where
 # the per-call overhead is the cost); longer ones level by level. The same sums in the same order.
+# Measured (bench_instructions' take, one-frame solves): these paths save 247,000 instructions of a
+# rotations frame's 4.15 M and 995,000 of an egocentric one's 18.95 M.
 FEW_FRAMES = 16
 
 
@@ -380,16 +383,19 @@ class AvatarRig:
 
     # --- canonical frames -> pose ---------------------------------------------------------------
 
-    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised=True) -> RigPose:
+    def solve(self, frames: np.ndarray, pelvis: np.ndarray, *, basis: bool = True, realised=True,
+              float64: bool = False) -> RigPose:
         """Pose bones that realise canonical world frames (F, B, 3, 3) with the canonical pelvis
         joint at `pelvis` (F, 3, world). `basis=False` skips the pose-bone quaternions and root
         location, `realised=False` the realised canonical frames (RigPose fields left None); a list
-        of canonical bone indices realises only those (the other frames are left NaN).
+        of canonical bone indices realises only those (the other frames are left NaN). One frame's
+        spine chain is aimed in mathutils (float32, `rig_one_frame`) unless `float64` (a constant
+        of the bake's, such as a method's T-pose, keeps numpy's values).
 
         Speed: the pose is built bone by bone in a bones-first layout, and every product is a
         stack of 3x3 matrices times ONE fixed matrix, which is one BLAS call on the stack seen as
         (3F, 3) rows (numpy's stacked matmul makes one call per 3x3 product, ~10x slower)."""
-        P, H = self._pose(np.asarray(frames, float), pelvis)
+        P, H = self._pose(np.asarray(frames, float), pelvis, float64=float64)
         if not basis:
             return self._finish(None, P, H, None, realised)
         return self._finish(self._basis(P), P, H, self._root_location(P, H), realised)
@@ -421,20 +427,39 @@ class AvatarRig:
         return self.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
 
     @property
+    def _chain_one(self) -> ChainOneFrame:
+        """The spine chain's one-frame aim (mathutils constants), once per rig."""
+        if getattr(self, "_chain_aim_one", None) is None:
+            self._chain_aim_one = ChainOneFrame(self)
+        return self._chain_aim_one
+
+    def __getstate__(self) -> dict:
+        """A pickled rig leaves its one-frame aim behind (mathutils objects do not pickle); it is
+        made again on the next one-frame pose."""
+        state = dict(self.__dict__)
+        state.pop("_chain_aim_one", None)
+        return state
+
+    @property
     def _caches(self) -> dict:
         """Per rig, once: the posing plans (`_pose_plan`) and the joints' plans of `joint_positions`."""
         if getattr(self, "_cache", None) is None:
             self._cache = {}
         return self._cache
 
-    def _pose(self, frames, pelvis, bones=None):
+    def _pose(self, frames, pelvis, bones=None, float64=False):
         """Bones-first armature-space pose rotations P (N, F, 3, 3) and heads H (N, F, 3) of
         `bones` (ascending; default all, the others left unset), a depth of the hierarchy at a time
         (`_pose_plan`): each step is one stacked product over the bones of that depth."""
         nf = frames.shape[0]
         plan = self._pose_plan(None if bones is None else tuple(bones))
         chain = self._chain_plan if plan.chained else None
-        key, held = self._held_chain(chain, frames, pelvis)
+        float32 = chain is not None and nf == 1 and one_frame.ENABLED and not float64
+        key, held = self._held_chain(chain, frames, pelvis, b"float32" if float32 else b"")
+        if held is None and float32:
+            # one frame: the chain aimed in mathutils (rig_one_frame.py), the rest in one flat pass
+            held = self._chain_one.aimed(frames, np.asarray(pelvis, float))
+            self._chain_memo = (key, held)
         few = plan.deferred is not None and nf < FEW_FRAMES
         flat = few and (chain is None or held is not None)
         P, H, HT = self._pose_buffers(plan, nf, few, flat)
@@ -471,15 +496,16 @@ class AvatarRig:
             self._chain_memo = (key, aiming.aimed)
         return P, H
 
-    def _held_chain(self, chain, frames, pelvis) -> tuple:
+    def _held_chain(self, chain, frames, pelvis, tag: bytes = b"") -> tuple:
         """(the chain's inputs' bytes, its rotations when they are the last pose's, else None).
         Decision (speed): the chain's rotations are the costliest part of a pose and a solve often
         poses the same trunk again (the egocentric method poses the avatar four times a block, the
         arms alone changing after the first IK): when every input they read is the last pose's,
-        bit for bit, they are the last pose's."""
+        bit for bit, they are the last pose's. `tag` marks how they were aimed (b"float32": one
+        frame's in mathutils), so a pose aimed another way never takes them."""
         if chain is None:
             return None, None
-        key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes()
+        key = frames.take(chain.inputs, axis=1).tobytes() + np.asarray(pelvis, float).tobytes() + tag
         memo = getattr(self, "_chain_memo", None)
         return key, (memo[1] if memo is not None and memo[0] == key else None)  # bit for bit
 
@@ -1012,16 +1038,7 @@ class _ChainAim:
             curve = self.rig._spine_curve(self.frames, P, H)
             self.target = chain.w0 * curve.take(chain.k, axis=1).swapaxes(0, 1) \
                 + chain.w1 * curve.take(chain.k1, axis=1).swapaxes(0, 1) + self.off
-            if self.nf == 1:  # one frame: its aims and targets as Python floats, once
-                self.aim_at, self.target_at = self.aim[:, 0].tolist(), self.target[:, 0].tolist()
-        turn = None
-        if self.nf == 1:  # target - head in floats (numpy's difference)
-            t0, h0 = self.target_at[j], H[i, 0].tolist()
-            turn = turn_between_one(self.aim_at[j], [t0[0] - h0[0], t0[1] - h0[1], t0[2] - h0[2]])
-        if turn is None:
-            turn = quat_to_matrix(quat_between(self.aim[j], self.target[j] - H[i]))
-        else:  # one frame: the same bits in Python floats (turn_between_one)
-            turn = np.array([turn])
+        turn = quat_to_matrix(quat_between(self.aim[j], self.target[j] - H[i]))
         np.matmul(turn, self.twist[j], out=self.aimed[j])
         P[i] = self.aimed[j]
         self.count += 1

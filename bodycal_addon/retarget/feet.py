@@ -37,8 +37,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.transforms import einsum
-
 STANCE_SPEED = 0.20  # m/s
 EXIT_SPEED = 0.40  # m/s
 STANCE_HEIGHT = 0.04  # m above the ankle's height at the reference time
@@ -239,7 +237,7 @@ def rolling_places(heel_ref: np.ndarray, ball_ref: np.ndarray, heel: Stance, bal
 def sole_lift(foot_frames: np.ndarray, sole_local: np.ndarray) -> np.ndarray:
     """(F,) the ankle's height above the lowest of the sole points (K, 3) (local to the canonical
     foot frames (F, 3, 3)): where the ankle stands when that point is on the floor."""
-    z = einsum("fj,kj->fk", foot_frames[:, 2, :], sole_local)  # the points' heights below the ankle
+    z = np.einsum("fj,kj->fk", foot_frames[:, 2, :], sole_local)  # the points' heights below the ankle
     return -z.min(axis=1)
 
 
@@ -261,7 +259,7 @@ class Contact:
 def foot_points(ankle: np.ndarray, turn: np.ndarray, rest_ankle: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
     """(F, P, 3) points rigid on a foot, from where they are at rest (P, 3): the ankle (F, 3) plus
     the foot's rotation since rest (F, 3, 3) applied to their rest offsets from the ankle."""
-    return ankle[:, None] + einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
+    return ankle[:, None] + np.einsum("fij,pj->fpi", turn, np.asarray(rest_points, float) - rest_ankle)
 
 
 def rolling(heel: Stance, ball: Stance, n: int, heel_at: np.ndarray, ball_at: np.ndarray,
@@ -374,7 +372,7 @@ def roll(ankle: np.ndarray, heel_at: np.ndarray, ball_at: np.ndarray, weight: np
     turned as `foot_frames` (F, 3, 3) say; never lower than `sole_lift` (no skin under the floor)."""
     def stand(at, local):  # the ankle with that contact point at `at` on the floor
         pinned = np.concatenate([np.nan_to_num(at), np.zeros((len(at), 1))], axis=1)
-        return pinned - einsum("fij,j->fi", foot_frames, local)
+        return pinned - np.einsum("fij,j->fi", foot_frames, local)
 
     share = np.where(np.isfinite(ball_at[:, 0]), np.where(np.isfinite(heel_at[:, 0]), share, 1.0), 0.0)
     on_heel = stand(heel_at, contact.heel)

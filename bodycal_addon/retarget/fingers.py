@@ -27,7 +27,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..core.transforms import all_true, einsum, matmul_stack, stack_mul
+from ..core.transforms import all_true, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
 X_CLAMP = 0.9999  # eq. 4
@@ -234,7 +234,7 @@ class FingerSet:
                 ref[rows] = stack_mul(ref.take(rows, axis=0), self.roll)
         k = self.constants
         rel = np.asarray(tip_target, float) - mcp
-        local = einsum("fji,fj->fi", ref, rel)
+        local = np.einsum("fji,fj->fi", ref, rel)
         d = np.sqrt(np.add.reduce(rel * rel, -1))  # np.linalg.norm's sum (ndarray.sum's reduction)
         # eq. 3-4 (flexion_from_distance, its constant parts kept)
         disc = np.maximum(self.bb - self.a4 * (self.c0 - d * d), k.zero)

@@ -20,7 +20,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core.transforms import EPS, all_true, broadcast_shape, cross, einsum
+from ..core import one_frame
+from ..core.one_frame import Matrix, Quaternion, Vector
+from ..core.transforms import EPS, all_true, broadcast_shape, cross
 
 BLEND_START = 0.05  # m: eq. 7, below this the user's swivel alone
 BLEND_WIDTH = 0.10  # m: eq. 7, t = (r - 0.05) * 10 reaches 1 at 0.15 m
@@ -38,7 +40,7 @@ SWIVEL_HINT_WEIGHT = 0.1
 
 
 def _dot(a, b):
-    return einsum("...i,...i->...", a, b)
+    return np.einsum("...i,...i->...", a, b)
 
 
 def _columns(x, y, z):
@@ -119,7 +121,7 @@ class TwoBoneResult:
         return iter((self.mid, self.end, self.rot1, self.rot2))
 
 
-FEW_LIMBS = 4  # two_bone of this many items (limbs x frames) or fewer runs in Python floats
+FEW_LIMBS = 4  # two_bone of this many items (limbs x frames) or fewer runs in mathutils
 
 
 def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None,
@@ -144,9 +146,9 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     The mid joint lies in the half-plane through the axis and `swivel_dir`; the hinge axis is
     `swivel_dir x axis`, so the flexion is positive about +X of both bones (rot2 = rot1 Rx(α)).
 
-    Decision (speed, the same values): a few items (FEW_LIMBS: a live frame's two arms or legs)
-    are solved in Python floats (`_two_bone_floats`: the same operations in the same order, the
-    trigonometry still numpy's), where numpy's per-call overhead was the whole cost."""
+    Decision (speed): a few items (FEW_LIMBS: a live frame's two arms or legs) are solved in
+    mathutils (`_two_bone_one`, float32: core/one_frame.py), where numpy's per-call overhead was
+    the whole cost."""
     root = np.asarray(root, float)
     target = np.asarray(target, float)
     F = root.shape[0]
@@ -155,8 +157,8 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
         l1 = np.broadcast_to(l1, (F,))
     if l2.shape != (F,):
         l2 = np.broadcast_to(l2, (F,))
-    if F <= FEW_LIMBS:
-        return _two_bone_floats(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio)
+    if F <= FEW_LIMBS and one_frame.ENABLED:
+        return _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio)
     down = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (F, 3))
     fallback_axis = down
     if pole_target is not None:
@@ -203,118 +205,92 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     return TwoBoneResult(mid, end, rot1, rot2, t, swivel, (l1, l2, d, dist))
 
 
-# --- two_bone in Python floats (a few items): each helper is its numpy counterpart's operations on
-# one 3-vector, in their order (so their bits) ---------------------------------------------------
+# --- two_bone of a few items in mathutils (one frame's limbs) -----------------------------------
 
-def _f_dot(a, b):
-    """`_dot` (einsum "...i,...i->..."), whose kernel adds the products as (0 + 2) + 1."""
-    return (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]
-
-
-def _f_cross(a, b):
-    """`transforms.cross`."""
-    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-
-def _f_unit(v, fallback):
-    """`_unit` of one vector: (unit, norm); `fallback` (a vector, or a function giving it) where the
-    norm is EPS or less (NaN included)."""
-    n = math.sqrt(_f_dot(v, v))
+def _m_unit(v, fallback):
+    """`_unit` of one mathutils Vector: (unit, norm), `fallback` (a Vector, or a function giving
+    it) where the norm is EPS or less (NaN included)."""
+    n = v.length
     if n > EPS:
-        return [v[0] / n, v[1] / n, v[2] / n], n
-    return list(fallback() if callable(fallback) else fallback), n
+        return v / n, n
+    return (fallback() if callable(fallback) else fallback), n
 
 
-def _f_perp_unit(v, axis, fallback):
-    k = _f_dot(v, axis)
-    return _f_unit([v[0] - k * axis[0], v[1] - k * axis[1], v[2] - k * axis[2]], fallback)
+def _m_any_perpendicular(axis):
+    """`_any_perpendicular` of one unit Vector."""
+    ref = _X if abs(axis[0]) < 0.9 else _Y
+    return _m_unit(ref - axis * ref.dot(axis), _Z)[0]
 
 
-def _f_any_perpendicular(axis):
-    ref = [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0]
-    return _f_perp_unit(ref, axis, [0.0, 0.0, 1.0])[0]
-
-
-def _f_max(x, floor):
-    """np.maximum(x, floor) (NaN stays NaN)."""
-    return floor if x < floor else x
-
-
-def _f_clip(x, lo, hi):
-    """np.clip(x, lo, hi) (NaN stays NaN)."""
-    return lo if x < lo else hi if x > hi else x
-
-
-def _two_bone_floats(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio):
-    """`two_bone` of a few items in Python floats: per item, its operations in their order; the
-    arctangent, cosine and sine of every item in one numpy call each (numpy's values)."""
-    F = root.shape[0]
-    R, T, L1, L2 = root.tolist(), target.tolist(), l1.tolist(), l2.tolist()
-    pole = None if pole_target is None else np.asarray(pole_target, float).tolist()
-    user = None if user_swivel_dir is None else np.asarray(user_swivel_dir, float).tolist()
-    hint = None if flex_axis_hint is None else np.asarray(flex_axis_hint, float).tolist()
-    down = [0.0, 0.0, -1.0]
-    axes, dists, ds, gammas, ts, ys, xs = [], [], [], [], [], [], []
-    for k in range(F):
-        r0 = R[k]
-        fallback = down
-        if pole is not None:
-            p = pole[k]
-            fallback = _f_unit([p[0] - r0[0], p[1] - r0[1], p[2] - r0[2]], down)[0]
-        tk = T[k]
-        axis, dist = _f_unit([tk[0] - r0[0], tk[1] - r0[1], tk[2] - r0[2]], fallback)
-        d = _f_clip(dist, abs(L1[k] - L2[k]), L1[k] + L2[k])
-        if hint is not None:
-            hint_dir = _f_unit(_f_cross(axis, hint[k]), lambda axis=axis: _f_any_perpendicular(axis))[0]
+def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio):
+    """`two_bone` of a few items (a live frame's two arms or two legs) in mathutils: per item, the
+    numpy path's steps on single Vectors, the scalars in Python floats. Decision (precision): the
+    Vectors are float32 (core/one_frame.py), so they hold the limb relative to its root (the target
+    and pole minus the root, in float64 first) and the joints come back added to the root in
+    float64: float32 rounds a few centimetres' offset far finer than a position metres from the
+    origin (measured: rotation entries within 4e-6 of numpy's where world positions gave 1.4e-5)."""
+    root = np.asarray(root, float)
+    T = (np.asarray(target, float) - root).tolist()
+    P = None if pole_target is None else [Vector(v) for v in (np.asarray(pole_target, float) - root).tolist()]
+    U, K = ([Vector(v) for v in np.asarray(a, float).reshape(-1, 3).tolist()] if a is not None else None
+            for a in (user_swivel_dir, flex_axis_hint))
+    L1, L2 = l1.tolist(), l2.tolist()
+    mids, ends, rot1, rot2, swivels, ts, ds, dists = [], [], [], [], [], [], [], []
+    for i, (t0, t1, t2) in enumerate(T):
+        fallback = _DOWN if P is None else _m_unit(P[i], _DOWN)[0]
+        # the root-target distance in float64 (`_dot`'s sum): near a straight limb the bend's
+        # h = sqrt(l1² - a²) magnifies its rounding (float32's moved a forearm by 6e-4 rad)
+        dist = math.sqrt((t0 * t0 + t2 * t2) + t1 * t1)
+        axis = Vector((t0 / dist, t1 / dist, t2 / dist)) if dist > EPS else fallback
+        a1, a2 = L1[i], L2[i]
+        lo, hi = abs(a1 - a2), a1 + a2
+        d = lo if dist < lo else hi if dist > hi else dist
+        if K is not None:
+            hint = _m_unit(axis.cross(K[i]), lambda axis=axis: _m_any_perpendicular(axis))[0]
         else:
-            hint_dir = _f_any_perpendicular(axis)
-        gamma = hint_dir
-        if user is not None:
-            w = user[k]
-            c = _f_dot(w, axis)
-            w = [w[0] - c * axis[0], w[1] - c * axis[1], w[2] - c * axis[2]]
-            if hint is not None:
-                w = [w[0] + SWIVEL_HINT_WEIGHT * hint_dir[0], w[1] + SWIVEL_HINT_WEIGHT * hint_dir[1],
-                     w[2] + SWIVEL_HINT_WEIGHT * hint_dir[2]]
-            gamma = _f_unit(w, hint_dir)[0]
-        if pole is not None:
-            p = pole[k]
-            beta, r = _f_perp_unit([p[0] - r0[0], p[1] - r0[1], p[2] - r0[2]], axis, gamma)
-            t = _f_clip((r / size_ratio - BLEND_START) / BLEND_WIDTH, 0.0, 1.0)
+            hint = _m_any_perpendicular(axis)
+        gamma = hint
+        if U is not None:
+            w = U[i] - axis * U[i].dot(axis)
+            if K is not None:
+                w = w + hint * SWIVEL_HINT_WEIGHT
+            gamma = _m_unit(w, hint)[0]
+        if P is not None:
+            beta, r = _m_unit(P[i] - axis * P[i].dot(axis), gamma)
+            t = min(max((r / size_ratio - BLEND_START) / BLEND_WIDTH, 0.0), 1.0)
         else:
             beta, t = gamma, 0.0
-        axes.append(axis)
-        dists.append(dist)
-        ds.append(d)
-        gammas.append(gamma)
+        delta = t * math.atan2(gamma.cross(beta).dot(axis), gamma.dot(beta))
+        swivel = gamma * math.cos(delta) + axis.cross(gamma) * math.sin(delta)
+        a = (a1 * a1 - a2 * a2 + d * d) / max(2.0 * d, EPS) if d > EPS else 0.0
+        h = math.sqrt(max(a1 * a1 - a * a, 0.0))
+        mid = axis * a + swivel * h  # from the root
+        end = axis * d
+        x = swivel.cross(axis).normalized()  # unit in float32 too (swivel is perpendicular to axis)
+        y1 = _m_unit(mid, axis)[0]
+        y2 = _m_unit(end - mid, axis)[0]
+        rot1.append(_m_columns(x, y1, x.cross(y1)))
+        rot2.append(_m_columns(x, y2, x.cross(y2)))
+        mids.append(mid[:])
+        ends.append(end[:])
+        swivels.append(swivel[:])
         ts.append(t)
-        ys.append(_f_dot(_f_cross(gamma, beta), axis))
-        xs.append(_f_dot(gamma, beta))
-    t_arr = np.array(ts, float)
-    delta = t_arr * np.arctan2(ys, xs)
-    cos_d, sin_d = np.cos(delta).tolist(), np.sin(delta).tolist()
-    mids, ends, rot1, rot2, swivels = [], [], [], [], []
-    for k in range(F):
-        r0, axis, gamma, d, l1k = R[k], axes[k], gammas[k], ds[k], L1[k]
-        ortho = _f_cross(axis, gamma)
-        c, s = cos_d[k], sin_d[k]
-        swivel = [c * gamma[0] + s * ortho[0], c * gamma[1] + s * ortho[1], c * gamma[2] + s * ortho[2]]
-        a = (l1k * l1k - L2[k] * L2[k] + d * d) / _f_max(2.0 * d, EPS)
-        a = a if d > EPS else 0.0
-        h = math.sqrt(_f_max(l1k * l1k - a * a, 0.0))
-        mid = [r0[i] + a * axis[i] + h * swivel[i] for i in range(3)]
-        end = [r0[i] + d * axis[i] for i in range(3)]
-        x = _f_cross(swivel, axis)
-        y1 = _f_unit([mid[0] - r0[0], mid[1] - r0[1], mid[2] - r0[2]], axis)[0]
-        y2 = _f_unit([end[0] - mid[0], end[1] - mid[1], end[2] - mid[2]], axis)[0]
-        z1, z2 = _f_cross(x, y1), _f_cross(x, y2)
-        rot1.append([[x[i], y1[i], z1[i]] for i in range(3)])
-        rot2.append([[x[i], y2[i], z2[i]] for i in range(3)])
-        mids.append(mid)
-        ends.append(end)
-        swivels.append(swivel)
-    return TwoBoneResult(np.array(mids), np.array(ends), np.array(rot1), np.array(rot2), t_arr, np.array(swivels),
+        ds.append(d)
+        dists.append(dist)
+    return TwoBoneResult(root + np.array(mids), root + np.array(ends), np.array(rot1).reshape(-1, 3, 3),
+                         np.array(rot2).reshape(-1, 3, 3), np.array(ts), np.array(swivels),
                          (l1, l2, np.array(ds), np.array(dists)))
+
+
+def _m_columns(x, y, z) -> list:
+    """The row-major entries of the matrix with columns x, y, z (Vectors)."""
+    (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = x[:], y[:], z[:]
+    return [x0, y0, z0, x1, y1, z1, x2, y2, z2]
+
+
+if Vector is not None:  # the constant Vectors (never changed in place)
+    _X, _Y, _Z, _DOWN, _ZERO = (Vector(v) for v in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0),
+                                                   (0.0, 0.0, -1.0), (0.0, 0.0, 0.0)))
 
 
 # --- spine ----------------------------------------------------------------------------------------
@@ -370,15 +346,8 @@ def _place_arc(start, lengths, target, bend_dir, fallback_side):
     return joints, theta
 
 
-ONE_FRAME_FLOATS = True  # spine: one frame's single vectors in Python floats (_spine_one; False: numpy's path)
 MAX_SPINE_STRETCH = 1.05  # the spine reaches a skull base at most this much farther than its rest chord
 MIN_SPINE_STRETCH = 0.85
-
-
-def _rodrigues(v, axis, angle):
-    """v (..., 3) turned by `angle` (...) about the unit `axis` (..., 3)."""
-    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + cross(axis, v) * s + axis * _dot(axis, v)[..., None] * (1 - c)
 
 
 @lru_cache(maxsize=16)
@@ -409,29 +378,16 @@ def bend_rest_spine(start, sacrum_rot, rest_segments, target):
     target (F, 3) -> joints (F, n + 1, 3), δ (F,)."""
     rest_segments = np.ascontiguousarray(rest_segments, float)
     lengths, seg0, u0, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
-    local = einsum("fji,fj->fi", sacrum_rot, target - start)
+    local = np.einsum("fji,fj->fi", sacrum_rot, target - start)
     ut, reach = _unit(local, u0)
     axis, sin_phi = _unit(cross(u0, ut), lambda: _any_perpendicular(np.broadcast_to(u0, ut.shape)))
     phi = np.arctan2(sin_phi, _dot(u0, ut))
     delta = phi * ratio[0] / ratio[1]
-    if len(delta) >= MANY_SPINES:
-        return _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta), delta
-    seg = _rodrigues(seg0[None], axis[:, None], delta[:, None] * k)  # (F, n, 3)
-    chord = (seg * lengths[:, None]).sum(1)
-    cdir, clen = _unit(chord, ut)
-    turn_axis, sin_t = _unit(cross(cdir, ut), axis)
-    seg = _rodrigues(seg, turn_axis[:, None], np.arctan2(sin_t, _dot(cdir, ut))[:, None])
-    stretch = np.clip(reach / np.maximum(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
-    world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * stretch[:, None])[..., None]
-    joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
-    return joints, delta
-
-
-MANY_SPINES = 16  # frames from which `bend_rest_spine` bends the vertebrae components first (`_bend_many`)
+    return _bend_vertebrae(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta), delta
 
 
 def _turn_components(v, a, cos, sin):
-    """`_rodrigues` on components: v (3 arrays) turned about the unit axis a (3 arrays), each by
+    """Rodrigues' formula on components: v (3 arrays) turned about the unit axis a (3 arrays), each by
     the angle whose cosine and sine are given, broadcast: v c + (a x v) s + a (a . v) (1 - c),
     numpy's operations in their order (`_dot` adds (0 + 2) + 1, `cross` a1 v2 - a2 v1, ...)."""
     v0, v1, v2 = v
@@ -443,11 +399,11 @@ def _turn_components(v, a, cos, sin):
             (v2 * cos + (a0 * v1 - a1 * v0) * sin) + a2 * d * e)
 
 
-def _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta):
-    """`bend_rest_spine`'s vertebrae for many frames, components first: each component an (F, n)
-    array (the (F, n, 3) path's products over rows of three, with broadcast operands, cost several
-    times more), the same operations in the same order, so the same bits (tests/engine/test_ik.py):
-    `_rodrigues`, the chord's sum over the vertebrae in order, einsum's (0 + 2) + 1 and the joints'
+def _bend_vertebrae(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta):
+    """`bend_rest_spine`'s vertebrae, components first: each component an (F, n) array (products
+    over rows of three with broadcast operands cost several times more): each vertebra turned by
+    its share of the bend (`_turn_components`: Rodrigues' formula), the chord summed over the
+    vertebrae in order, the last rigid turn, the stretch, the sacrum's frame and the joints'
     running sum."""
     ang = delta[:, None] * k
     seg = _turn_components(seg0.T[:, None, :], axis.T[:, :, None], np.cos(ang), np.sin(ang))
@@ -463,7 +419,7 @@ def _bend_many(start, sacrum_rot, lengths, seg0, k, ut, reach, axis, delta):
     joints = np.empty((len(delta), len(lengths) + 1, 3))
     joints[:, 0] = start
     rot = sacrum_rot.transpose(1, 2, 0)  # rot[i, j]: (F,) entries
-    for i in range(3):  # einsum("fij,fkj->fki") times the lengths, then start + the running sum
+    for i in range(3):  # np.einsum("fij,fkj->fki") times the lengths, then start + the running sum
         world = ((rot[i, 0][:, None] * seg[0] + rot[i, 2][:, None] * seg[2]) + rot[i, 1][:, None] * seg[1]) * scale
         np.cumsum(world, axis=1, out=joints[:, 1:, i])
         joints[:, 1:, i] += start[:, i, None]
@@ -495,7 +451,7 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     target = np.asarray(skull_base, float)
     start = pelvis + sacrum_length * sacrum_rot[..., 1]
     if rest_segments is not None:
-        if len(start) == 1 and ONE_FRAME_FLOATS:  # one frame: its single vectors in Python floats
+        if len(start) == 1 and one_frame.ENABLED:  # one frame: mathutils
             return _spine_one(start, sacrum_rot, np.asarray(rest_segments, float), target, top_right)
         joints, theta = bend_rest_spine(start, sacrum_rot, np.asarray(rest_segments, float), target)
         two_pass = False
@@ -526,33 +482,32 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     frac = (np.arange(n) + 1.0) / n
     ang = total[:, None] * frac
     other = cross(chord, hip)
-    rotations = _twist_many(joints, hip, other, ang) if len(ang) >= MANY_SPINES else None
-    if rotations is None:
-        right = np.cos(ang)[..., None] * hip[:, None] + np.sin(ang)[..., None] * other[:, None]
-        y = _unit(joints[:, 1:] - joints[:, :-1], chord[:, None])[0]
-        xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
-        rotations = _columns(xk, y, cross(xk, y))
-    return SpineResult(joints, rotations, sacrum_rot, theta)
+    return SpineResult(joints, _twist_vertebrae(joints, chord, hip, other, ang), sacrum_rot, theta)
 
 
-def _twist_many(joints, hip, other, ang):
-    """`spine`'s vertebra frames for many frames, components first ((F, n) arrays, as `_bend_many`):
-    the right turned from the hip axis, +Y along each vertebra, +X the right made perpendicular
-    to it, +Z their cross product, numpy's operations in their order (`_dot`'s (0 + 2) + 1). None
-    when a vertebra or its right vanishes (the rows' path then takes its fallbacks)."""
+def _twist_vertebrae(joints, chord, hip, other, ang):
+    """`spine`'s vertebra frames, components first ((F, n) arrays, as `_bend_vertebrae`): the right
+    turned from the hip axis by `ang` (F, n) about the chord, +Y along each vertebra (the chord
+    where a vertebra vanishes), +X the right made perpendicular to it (any perpendicular where it
+    vanishes), +Z their cross product; sums as `_dot`'s einsum adds them, (0 + 2) + 1."""
     cos, sin = np.cos(ang), np.sin(ang)
     right = [cos * hip[:, i, None] + sin * other[:, i, None] for i in range(3)]
     step = [joints[:, 1:, i] - joints[:, :-1, i] for i in range(3)]
     norm = np.sqrt((step[0] * step[0] + step[2] * step[2]) + step[1] * step[1])
-    if not (norm > EPS).all():
-        return None
-    y = [v / norm for v in step]
+    ok = norm > EPS
+    if all_true(ok):
+        y = [v / norm for v in step]
+    else:
+        y = [np.where(ok, v / np.where(ok, norm, 1.0), chord[:, i, None]) for i, v in enumerate(step)]
     along = (right[0] * y[0] + right[2] * y[2]) + right[1] * y[1]
     w = [right[i] - along * y[i] for i in range(3)]
     norm = np.sqrt((w[0] * w[0] + w[2] * w[2]) + w[1] * w[1])
-    if not (norm > EPS).all():
-        return None
-    x = [v / norm for v in w]
+    ok = norm > EPS
+    if all_true(ok):
+        x = [v / norm for v in w]
+    else:
+        spare = _any_perpendicular(np.stack(y, axis=-1))
+        x = [np.where(ok, v / np.where(ok, norm, 1.0), spare[..., i]) for i, v in enumerate(w)]
     out = np.empty(ang.shape + (3, 3))
     for i in range(3):
         out[..., i, 0] = x[i]
@@ -563,144 +518,60 @@ def _twist_many(joints, hip, other, ang):
     return out
 
 
-def _f_dot_seq(a, b):
-    """`_dot` with an operand that is a strided view: einsum's generic kernel adds in order."""
-    return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
-
-
 @lru_cache(maxsize=16)
-def _rest_spine_floats(data: bytes, shape: tuple) -> tuple:
-    """`_rest_spine`'s lengths, unit directions and segment numbers as Python floats, once per spine."""
-    lengths, seg0, _, k, _ = _rest_spine(data, shape)
-    return lengths.tolist(), seg0.tolist(), k.tolist()
-
-
-def _f_rodrigues(vs, axis, cos, sin):
-    """`_rodrigues` of vectors `vs` about one unit `axis`, each by its angle's cosine and sine:
-    v c + (axis x v) s + axis (axis . v) (1 - c), in numpy's order (`_dot`'s (0 + 2) + 1)."""
-    a0, a1, a2 = axis
-    out = []
-    for (v0, v1, v2), c, s in zip(vs, cos, sin):
-        d = (a0 * v0 + a2 * v2) + a1 * v1
-        e = 1 - c
-        out.append([(v0 * c + (a1 * v2 - a2 * v1) * s) + a0 * d * e,
-                    (v1 * c + (a2 * v0 - a0 * v2) * s) + a1 * d * e,
-                    (v2 * c + (a0 * v1 - a1 * v0) * s) + a2 * d * e])
-    return out
+def _rest_spine_one(data: bytes, shape: tuple) -> tuple:
+    """`_rest_spine` for `_spine_one`, once per spine: the lengths and segment numbers as Python
+    floats, the unit directions and the rest chord's as mathutils Vectors (never changed in place)."""
+    lengths, seg0, u0, k, ratio = _rest_spine(data, shape)
+    return lengths.tolist(), [Vector(v) for v in seg0.tolist()], Vector(u0.tolist()), k.tolist(), ratio
 
 
 def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
-    """`spine` with `rest_segments` of ONE frame in Python floats, vertebrae included: each the
-    numpy path's operations in their order (einsum's three-term sums add (0 + 2) + 1 on contiguous
-    operands, the sums over the vertebrae and the cumulative sum in order), the cosines, sines and
-    arctangents still numpy's (three calls each): a dozen numpy calls where the arrays' path made
-    about a hundred (tests/engine/test_ik.py compares both to the bit). A sacrum frame whose rows
-    are strided (einsum may then add in order) takes `_spine_one_arrays`."""
-    if sacrum_rot.strides[-1] != sacrum_rot.itemsize:
-        return _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right)
-    data = rest_segments.tobytes()
-    _, _, u0a, _, ratio = _rest_spine(data, rest_segments.shape)
-    lengths, seg0, k = _rest_spine_floats(data, rest_segments.shape)
-    rot = sacrum_rot[0].tolist()
-    s0 = start[0].tolist()
-    ut, reach, axis, delta = _f_bend_axis(s0, target[0].tolist(), rot, u0a.tolist(), ratio)
-    dl = delta.tolist()[0]
-    ang = [dl * kk for kk in k]
-    seg = _f_rodrigues(seg0, axis, np.cos(ang).tolist(), np.sin(ang).tolist())
-    c0 = c1 = c2 = None
-    for (v0, v1, v2), ln in zip(seg, lengths):  # (seg * lengths).sum over the vertebrae, in order
-        if c0 is None:
-            c0, c1, c2 = v0 * ln, v1 * ln, v2 * ln
-        else:
-            c0, c1, c2 = c0 + v0 * ln, c1 + v1 * ln, c2 + v2 * ln
-    cdir, clen = _f_unit([c0, c1, c2], ut)
-    turn_axis, sin_t = _f_unit(_f_cross(cdir, ut), axis)
-    turn = np.arctan2([sin_t], [_f_dot(cdir, ut)])
-    ct, st = np.cos(turn).tolist() * len(seg), np.sin(turn).tolist() * len(seg)
-    seg = _f_rodrigues(seg, turn_axis, ct, st)
-    stretch = _f_clip(reach / _f_max(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
-    # einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths * stretch), then the joints' running sum
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
-    joints = [s0]
-    run = None
-    for (v0, v1, v2), ln in zip(seg, lengths):
-        sc = ln * stretch
-        w = [((r00 * v0 + r02 * v2) + r01 * v1) * sc, ((r10 * v0 + r12 * v2) + r11 * v1) * sc,
-             ((r20 * v0 + r22 * v2) + r21 * v1) * sc]
-        run = w if run is None else [run[0] + w[0], run[1] + w[1], run[2] + w[2]]
-        joints.append([s0[0] + run[0], s0[1] + run[1], s0[2] + run[2]])
-    chord, hip, total = _f_twist_axes(joints[0], joints[-1], rot, top_right)
+    """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame in mathutils
+    (float32: core/one_frame.py): the numpy path's steps on single Vectors, each vertebra's turn
+    about a unit axis as a Quaternion (Rodrigues' formula), the scalars in Python floats; the joints
+    relative to the spine's start, added to it in float64 (as `_two_bone_one`'s)."""
+    lengths, seg0, u0, k, ratio = _rest_spine_one(rest_segments.tobytes(), rest_segments.shape)
+    rot = Matrix(sacrum_rot[0].tolist())
+    ut, reach = _m_unit(Vector((target[0] - start[0]).tolist()) @ rot, u0)  # rot^T (target - start)
+    axis, sin_phi = _m_unit(u0.cross(ut), lambda: _m_any_perpendicular(u0))
+    delta = math.atan2(sin_phi, u0.dot(ut)) * ratio[0] / ratio[1]
+    seg = [Quaternion(axis, delta * kk) @ v for v, kk in zip(seg0, k)]
+    chord = seg[0] * lengths[0]
+    for v, ln in zip(seg[1:], lengths[1:]):
+        chord = chord + v * ln
+    cdir, clen = _m_unit(chord, ut)
+    turn_axis, sin_t = _m_unit(cdir.cross(ut), axis)
+    # the last rigid turn and the sacrum's frame, one matrix
+    world = rot @ Quaternion(turn_axis, math.atan2(sin_t, cdir.dot(ut))).to_matrix()
+    stretch = min(max(reach / max(clen, EPS), MIN_SPINE_STRETCH), MAX_SPINE_STRETCH)
+    dirs = [world @ v for v in seg]  # each vertebra's unit direction, world
+    joints = [_ZERO]
+    for v, ln in zip(dirs, lengths):
+        joints.append(joints[-1] + v * (ln * stretch))
+    # the twist: the hip axis turned uniformly about the chord up to the top's right
+    y_sac, x_sac = rot.col[1], rot.col[0]
+    chord = _m_unit(joints[-1], y_sac)[0]
+    hip = _m_unit(x_sac - chord * x_sac.dot(chord), lambda: _m_any_perpendicular(chord))[0]
+    total = 0.0
+    if top_right is not None:
+        tr = Vector(np.asarray(top_right, float)[0].tolist())
+        top = _m_unit(tr - chord * tr.dot(chord), hip)[0]
+        total = math.atan2(hip.cross(top).dot(chord), hip.dot(top))
+    other = chord.cross(hip)
     n = len(seg)
-    ang = [total * ((m + 1.0) / n) for m in range(n)]
-    cos, sin = np.cos(ang).tolist(), np.sin(ang).tolist()
-    other = _f_cross(chord, hip)
-    rotations = []
-    for m in range(n):
-        a, b = joints[m], joints[m + 1]
-        y = _f_unit([b[0] - a[0], b[1] - a[1], b[2] - a[2]], chord)[0]
-        c, s = cos[m], sin[m]
-        right = [c * hip[0] + s * other[0], c * hip[1] + s * other[1], c * hip[2] + s * other[2]]
-        x = _f_perp_unit(right, y, lambda y=y: _f_any_perpendicular(y))[0]
-        z = _f_cross(x, y)
-        rotations.append([[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]])
-    return SpineResult(np.array([joints]), np.array([rotations]), sacrum_rot, delta)
-
-
-def _f_bend_axis(s0, t0, rot, u0, ratio) -> tuple[list, float, list, np.ndarray]:
-    """`bend_rest_spine`'s aim of one frame in Python floats: (the target's direction from the
-    spine's start `s0` in the sacrum (rows `rot`), its distance, the bend's axis, the bend (1,)),
-    numpy's operations in their order (einsum "fji,fj->fi" of one frame adds its products in order)."""
-    d = [t0[0] - s0[0], t0[1] - s0[1], t0[2] - s0[2]]
-    local = [(rot[0][i] * d[0] + rot[1][i] * d[1]) + rot[2][i] * d[2] for i in range(3)]
-    ut, reach = _f_unit(local, u0)
-    axis, sin_phi = _f_unit(_f_cross(u0, ut), lambda: _f_any_perpendicular(u0))
-    return ut, reach, axis, np.arctan2([sin_phi], [_f_dot(u0, ut)]) * ratio[0] / ratio[1]
-
-
-def _f_twist_axes(j0, j1, rot, top_right) -> tuple[list, list, float]:
-    """`spine`'s twist of one frame in Python floats: (the chord's direction from the spine's first
-    joint `j0` to its last `j1`, the hip axis (the sacrum's +X, of the rows `rot`, made
-    perpendicular to it), the total twist toward `top_right` about it (0 without one)), each
-    numpy's operations in their order."""
-    y_sac = [rot[0][1], rot[1][1], rot[2][1]]
-    x_sac = [rot[0][0], rot[1][0], rot[2][0]]  # a strided view in the numpy path
-    chord = _f_unit([j1[0] - j0[0], j1[1] - j0[1], j1[2] - j0[2]], y_sac)[0]
-    kx = _f_dot_seq(x_sac, chord)
-    hip = _f_unit([x_sac[0] - kx * chord[0], x_sac[1] - kx * chord[1], x_sac[2] - kx * chord[2]],
-                  lambda: _f_any_perpendicular(chord))[0]
-    if top_right is None:
-        return chord, hip, 0.0
-    tr = np.asarray(top_right, float)
-    tr_l = tr[0].tolist()
-    kt = (_f_dot if tr.strides[-1] == tr.itemsize else _f_dot_seq)(tr_l, chord)
-    top = _f_unit([tr_l[0] - kt * chord[0], tr_l[1] - kt * chord[1], tr_l[2] - kt * chord[2]], hip)[0]
-    return chord, hip, np.arctan2([_f_dot(_f_cross(hip, top), chord)], [_f_dot(hip, top)]).tolist()[0]
-
-
-def _spine_one_arrays(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
-    """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame: the
-    vertebrae's arrays in numpy as there, the single vectors between them (the chord's direction in
-    the sacrum, the bend and turn axes, the twist's hip and top) in Python floats, each the numpy
-    path's operations in their order (so its bits: tests/engine/test_ik.py)."""
-    lengths, seg0, u0a, k, ratio = _rest_spine(rest_segments.tobytes(), rest_segments.shape)
-    rot = sacrum_rot[0].tolist()
-    ut, reach, axis, delta = _f_bend_axis(start[0].tolist(), target[0].tolist(), rot, u0a.tolist(), ratio)
-    seg = _rodrigues(seg0[None], np.array([[axis]]), delta[:, None] * k)  # (1, n, 3)
-    chord = (seg * lengths[:, None]).sum(1)[0].tolist()
-    cdir, clen = _f_unit(chord, ut)
-    turn_axis, sin_t = _f_unit(_f_cross(cdir, ut), axis)
-    seg = _rodrigues(seg, np.array([[turn_axis]]), np.arctan2([sin_t], [_f_dot(cdir, ut)])[:, None])
-    stretch = _f_clip(reach / _f_max(clen, EPS), MIN_SPINE_STRETCH, MAX_SPINE_STRETCH)
-    world = einsum("fij,fkj->fki", sacrum_rot, seg) * (lengths[None, :] * np.array([stretch])[:, None])[..., None]
-    joints = np.concatenate([start[:, None], start[:, None] + np.cumsum(world, axis=1)], axis=1)
-    chord, hip, total = _f_twist_axes(joints[0, 0].tolist(), joints[0, -1].tolist(), rot, top_right)
-    total = np.array([total])
-    n = joints.shape[1] - 1
-    frac = (np.arange(n) + 1.0) / n
-    ang = total[:, None] * frac
-    hip_a, other_a, chord_a = np.array([[hip]]), np.array([[_f_cross(chord, hip)]]), np.array([[chord]])
-    right = np.cos(ang)[..., None] * hip_a + np.sin(ang)[..., None] * other_a
-    y = _unit(joints[:, 1:] - joints[:, :-1], chord_a)[0]
-    xk = _perp_unit(right, y, lambda: _any_perpendicular(y))[0]
-    rotations = _columns(xk, y, cross(xk, y))
-    return SpineResult(joints, rotations, sacrum_rot, delta)
+    xs, ys, zs = [], [], []
+    for m, (v, ln) in enumerate(zip(dirs, lengths)):
+        ang = total * ((m + 1.0) / n)
+        right = hip * math.cos(ang) + other * math.sin(ang)
+        # +Y along the vertebra (the chord where it vanishes), +X the right made perpendicular to it
+        y = v.normalized() if ln * stretch * v.length > EPS else chord
+        x = right - y * right.dot(y)
+        size = x.length
+        x = x / size if size > EPS else _m_any_perpendicular(y)
+        xs.append(x[:])
+        ys.append(y[:])
+        zs.append(x.cross(y)[:])
+    rotations = np.empty((1, n, 3, 3))
+    rotations[0, :, :, 0], rotations[0, :, :, 1], rotations[0, :, :, 2] = xs, ys, zs
+    return SpineResult(start[:, None] + np.array([[v[:] for v in joints]]), rotations, sacrum_rot, np.array([delta]))

@@ -22,6 +22,7 @@ recording.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,8 +33,10 @@ from ..body.rest_frames import complete_joints
 from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES
+from ..core import one_frame
 from ..core.errors import BodyCalError
-from ..core.transforms import EPS, einsum, normalize, quat_between, quat_to_matrix, stack_apply
+from ..core.one_frame import Matrix, Quaternion, Vector
+from ..core.transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
 from .avatar_pose import AvatarRig, copy_frames
 from .user_animation import axis_angle_matrix
 
@@ -93,7 +96,7 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
     rest_pel = rig.joint_world[JI["pelvis"]]
     pel = np.array([*(centre[:2] + (user_pos["pelvis"][:2] - centre[:2]) / s), rest_pel[2]])
     ref = copy_frames(ref_frames[None], ref_frames, rig.frames0)[0]  # step 2's copy at the T-pose
-    pose = rig.solve(ref[None], pel[None])
+    pose = rig.solve(ref[None], pel[None], float64=True)  # the bake's constants: numpy's values
     joints0 = centre + (pose.joints[0] - centre) * s
     frames0 = pose.frames[0]
     v0, r0t, r0j = {}, {}, {}
@@ -109,7 +112,10 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
 
 
 def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
-    """Eq. 2-3 per frame: ({joint: (F, 3) at the AVATAR's scale}, {bone: (F, 3, 3)})."""
+    """Eq. 2-3 per frame: ({joint: (F, 3) at the AVATAR's scale}, {bone: (F, 3, 3)}). One frame:
+    `_effector_targets_one`."""
+    if len(next(iter(pos.values()))) == 1 and one_frame.ENABLED:
+        return _effector_targets_one(st, pos, rot)
     p, r = {}, {}
     for j, (role, bone) in TRACKED.items():
         rel = rot[role] @ st.r0_tracker[role].T  # R_t(T) R_0(T)^-1
@@ -121,11 +127,51 @@ def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str
     return p, r
 
 
+def _one_constants(st: OffsetsSetup) -> tuple:
+    """`st`'s constants as mathutils objects, once: per tracked joint (joint, role, bone, R_0(T)^-1,
+    the bone's T-pose frame, its offset v0 or the palm's, whether it is the palm's), d_sac's right
+    factor, w0 and the T-pose vertebrae."""
+    got = st.__dict__.get("_one")
+    if got is None:
+        rows = [(j, role, bone, Matrix(st.r0_tracker[role].T.tolist()), Matrix(st.r0_joint[bone].tolist()),
+                 Vector((st.palm[j] if j in st.palm else st.v0[j]).tolist()), j in st.palm)
+                for j, (role, bone) in TRACKED.items()]
+        got = st.__dict__["_one"] = (rows, Matrix(st.r0_joint["sacrum"].T.tolist()), Vector(st.w0.tolist()),
+                                     one_frame.matrices(st.spine0))
+    return got
+
+
+def _effector_targets_one(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
+    """`effector_targets` of one frame: the rotations in mathutils (float32, core/one_frame.py), the
+    positions scaled about the centre in Python floats (float64: metres from the origin), the
+    rotated offsets added to them."""
+    rows = _one_constants(st)[0]
+    c0, c1, c2 = st.centre.tolist()
+    inv = 1.0 / st.scale
+    frames, points = [], []
+    for _, role, _, r0t_inv, r0j, off, palm in rows:
+        rel = Matrix(rot[role][0].tolist()) @ r0t_inv  # R_t(T) R_0(T)^-1
+        rb = rel @ r0j
+        frames.append(rb)
+        x0, x1, x2 = pos[role][0].tolist()
+        if palm:  # §3.4 Hands: the controller's centre under the palm
+            o0, o1, o2 = (rb @ off)[:]
+            points.append([c0 + (x0 - c0) * inv - o0, c1 + (x1 - c1) * inv - o1, c2 + (x2 - c2) * inv - o2])
+        else:
+            o0, o1, o2 = (rel @ off)[:]
+            points.append([c0 + (x0 + o0 - c0) * inv, c1 + (x1 + o1 - c1) * inv, c2 + (x2 + o2 - c2) * inv])
+    P, R = np.array(points)[:, None], one_frame.matrix_array(frames)[:, None]
+    return {row[0]: P[k] for k, row in enumerate(rows)}, {row[2]: R[k] for k, row in enumerate(rows)}
+
+
 def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarray) -> np.ndarray:
     """Vertebra frames (F, 12, 3, 3): the T-pose spine turned with the sacrum, then bent by the
-    angle between w0 and w_t (eq. 4), spread evenly over the vertebrae."""
+    angle between w0 and w_t (eq. 4), spread evenly over the vertebrae. One frame: the same in
+    mathutils (`_spine_frames_one`)."""
+    if len(sacrum) == 1 and one_frame.ENABLED:
+        return _spine_frames_one(st, pos, sacrum)
     d_sac = sacrum @ st.r0_joint["sacrum"].T
-    w0 = einsum("fij,j->fi", d_sac, st.w0)
+    w0 = np.einsum("fij,j->fi", d_sac, st.w0)
     wt = pos["head"] - pos["pelvis"]
     q = quat_between(w0, wt)
     angle = 2 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), q[..., 0])
@@ -135,6 +181,25 @@ def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarra
     half = 0.5 * angle[:, None] * frac  # (F, n): vertebra k turns by (k + 1) / n of the bend
     qk = np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis[:, None]], -1)
     return quat_to_matrix(qk) @ d_sac[:, None] @ st.spine0
+
+
+def _spine_frames_one(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarray) -> np.ndarray:
+    """`spine_frames` of one frame in mathutils (float32, core/one_frame.py): the bend w0 -> w_t as
+    its shortest turn's axis and angle, each vertebra turned by its share of it."""
+    _, sac_fixed, w0_rest, spine0 = _one_constants(st)
+    d_sac = Matrix(sacrum[0].tolist()) @ sac_fixed
+    w0 = d_sac @ w0_rest
+    wt = Vector((pos["head"][0] - pos["pelvis"][0]).tolist())
+    n = len(spine0)
+    q = w0.rotation_difference(wt) if w0.length > EPS and wt.length > EPS else None
+    axis = None if q is None else q.axis  # (not to_axis_angle: its acos of w loses small angles in float32)
+    sin_half = 0.0 if q is None else math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z)
+    if sin_half > EPS:
+        angle = 2.0 * math.atan2(sin_half, q.w)
+        turns = [Quaternion(axis, angle * (k + 1) / n).to_matrix() @ d_sac for k in range(n)]
+    else:  # no bend (or no direction to bend toward): the sacrum's turn alone
+        turns = [d_sac] * n
+    return one_frame.matrix_array([t @ v for t, v in zip(turns, spine0)])[None]
 
 
 def capsule_sdf(p, s, e, r):

@@ -24,7 +24,7 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ..core.errors import BodyCalError
-from ..core.transforms import einsum, matmul_stack, normalize, stacks_apply, stacks_mul
+from ..core.transforms import matmul_stack, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
@@ -361,7 +361,7 @@ class PreparedSolver:
         root = joints(0)
         axis = normalize(joints(2) - root)
         v = joints(1) - root
-        return v - einsum("fi,fi->f", v, axis)[:, None] * axis
+        return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
 
     def _fingers(self, frames, wrists: dict, targets: dict) -> None:
         """Every finger of the hands in `wrists` {side: the wrist reached (F, 3)} with a tip target,
@@ -479,7 +479,7 @@ class FeetPlan:
             turn = src.foot_turn(s, a, b)
             rest_ankle, performer, avatar = self.rest[s]
             own = feet.foot_points(ankles[s], turn, rest_ankle, performer)  # (F, 2, 3) the performer's
-            theirs = reference[:, None] + einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
+            theirs = reference[:, None] + np.einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
             if whole:
                 heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
                 fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it

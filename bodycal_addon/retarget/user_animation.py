@@ -34,12 +34,13 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import BONES, JOINTS, SPINE_BONES, SPINE_JOINTS
 from ..body.skeleton import JOINT_INDEX as JI
 from ..calibration.coverage import ANIMATED_ROLES
+from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
+from ..core.one_frame import Matrix, Vector
 from ..core.transforms import (
     EPS,
     cross,
-    einsum,
     frame_from_axes,
     matmul_stack,
     normalize,
@@ -48,7 +49,6 @@ from ..core.transforms import (
     stack_apply,
     stacks_apply,
     stacks_mul,
-    turn_between_one,
 )
 from ..recording.model import ROLES_LIST, Recording
 from . import fingers, ik
@@ -385,7 +385,7 @@ class UserAnimator:
         if w.all():
             return est[rows].sum(axis=1) / k
         w = np.where(w.any(axis=1, keepdims=True), w, True).astype(float)
-        return einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
+        return np.einsum("jkf,jkfi->jfi", w, est[rows]) / w.sum(axis=1)[..., None]
 
     def _limbs(self, plan: _Plan, P: _Joints, prod: np.ndarray, rigid: np.ndarray, hints: list) -> None:
         """Limbs pass: the intermediate joints without a tracker (two-bone from the user's lengths),
@@ -499,24 +499,19 @@ _RIGID_BONES = list(_RIGID_KEYS)
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:
     """The sacrum frame (..., 3, 3) turned so its lateral axis lies half way to the hip line
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
-    hip centres each carry their own error, and their average is never worse than the worse of them."""
-    if sacrum.shape[:-2] == (1,):  # one frame: the same operations in Python floats, so the same bits
-        x = sacrum[0, :, 0].tolist()
-        line = _unit_one([a - b for a, b in zip(hip_l[0].tolist(), hip_r[0].tolist())])
-        fix = turn_between_one(x, _unit_one([a + b for a, b in zip(x, line)]))
-        if fix is not None:
-            return matmul_stack(np.array([fix]), sacrum)
+    hip centres each carry their own error, and their average is never worse than the worse of them.
+    One frame: the same steps in mathutils (core/one_frame.py), where neither vector vanishes."""
+    if sacrum.shape[:-2] == (1,) and one_frame.ENABLED:
+        x = Vector(sacrum[0, :, 0].tolist())
+        line = Vector((hip_l[0] - hip_r[0]).tolist())
+        if line.length > EPS:
+            toward = x + line.normalized()
+            if toward.length > EPS:
+                fix = x.rotation_difference(toward).to_matrix()
+                return one_frame.matrix_array([fix @ Matrix(sacrum[0].tolist())])
     x_rigid = sacrum[..., :, 0]
     toward = normalize(x_rigid + normalize(hip_l - hip_r))
     return matmul_stack(quat_to_matrix(quat_between(x_rigid, toward)), sacrum)
-
-
-def _unit_one(v: list) -> list:
-    """`normalize` of one 3-vector in Python floats: its squares summed in order (numpy sums fewer
-    than 8 items one after the other), the norm's square root, each component divided by it, a
-    vector of norm EPS or less zero: the same operations, so the same bits."""
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return [c / n for c in v] if n > EPS else [0.0, 0.0, 0.0]
 
 
 def _shoulder_toward(mid: np.ndarray, sh: np.ndarray, wr: np.ndarray, reach: float) -> np.ndarray:

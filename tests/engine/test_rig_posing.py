@@ -11,6 +11,7 @@ import numpy as np
 
 from bodycal_addon.body.rest_frames import model_rest_frames
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.core import one_frame
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_dev import retarget_fixtures as rt
@@ -18,6 +19,9 @@ from bodycal_dev import synthetic
 
 
 def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
+    # numpy's paths (one frame's chain aimed in mathutils: test_one_frame.py)
+    monkeypatch.setattr(one_frame, "ENABLED", False)
+    few_frames = ap.FEW_FRAMES
     perf = synthetic.make_performer(seed=2)
     rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
                                           motion_seconds=1.0)
@@ -35,10 +39,7 @@ def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
                     monkeypatch.setattr(ap, "FEW_FRAMES", few)
                     rig._chain_memo = None  # the chain aimed each time (not the last pose's, reused)
                     poses.append(rig.solve(frames[f:f + n], pelvis[f:f + n]))
-                    if few:
-                        # the one-frame chain's Python floats against numpy's turn
-                        monkeypatch.setattr(ap, "turn_between_one", lambda a, b: None)
-                monkeypatch.undo()
+                monkeypatch.setattr(ap, "FEW_FRAMES", few_frames)
                 # again with the chain's rotations held from that pose: every head in one pass
                 held = rig.solve(frames[f:f + n], pelvis[f:f + n])
                 assert rig._chain_memo is not None and rig._pose_plan(None).flat is not None

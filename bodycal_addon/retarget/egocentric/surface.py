@@ -14,7 +14,7 @@ from ...body.skeleton import BONE_INDEX as BI
 from ...body.skeleton import JOINT_INDEX as JI
 from ...body.skeleton import JOINTS
 from ...core.errors import BodyCalError
-from ...core.transforms import cross, einsum, frame_from_axes, stacks_mul
+from ...core.transforms import cross, frame_from_axes, stacks_mul
 from .graph import element_root
 
 
@@ -278,8 +278,8 @@ def _pose_capsules(posing: _Posing, caps: list) -> dict[str, np.ndarray]:
     caps_head = posing.stack([joints[sk.BONE_BY_NAME[e.bone].head] for e in caps], (3,))
     caps_tail = posing.stack([joints[sk.BONE_BY_NAME[e.bone].tail] for e in caps], (3,))
     if np.any(caps_off):  # axes off the bone line (bodymodel: axis_head / axis_tail)
-        caps_head = caps_head + einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
-        caps_tail = caps_tail + einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
+        caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 0])
+        caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, caps_off[:, 1])
     caps_radius = np.array([[model.bones[e.bone].radius_head, model.bones[e.bone].radius_tail] for e in caps],
                            float).reshape(-1, 2)
     return {"caps_head": caps_head, "caps_tail": caps_tail, "caps_rot": caps_rot, "caps_radius": caps_radius}
@@ -290,7 +290,7 @@ def _pose_spheres(posing: _Posing, sphs: list) -> dict[str, np.ndarray]:
     sph_rot = posing.stack([posing.rotation(e.bone) for e in sphs], (3, 3))
     sph_origin = posing.stack([posing.head(e.bone) for e in sphs], (3,))
     sph_local = np.array([e.center for e in sphs], float).reshape(-1, 3)
-    sph_center = sph_origin + einsum("fsij,sj->fsi", sph_rot, sph_local)
+    sph_center = sph_origin + np.einsum("fsij,sj->fsi", sph_rot, sph_local)
     sph_radius = np.array([e.radius for e in sphs], float)
     return {"sph_center": sph_center, "sph_rot": sph_rot, "sph_radius": sph_radius}
 
@@ -432,10 +432,10 @@ class SurfacePoser:
         caps_rot = frames.take(self.cap_bone, axis=1)
         caps_head, caps_tail = joints.take(self.cap_ends[0], axis=1), joints.take(self.cap_ends[1], axis=1)
         if self.cap_offset:  # axes off the bone line (bodymodel: axis_head / axis_tail)
-            caps_head = caps_head + einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 0])
-            caps_tail = caps_tail + einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
+            caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 0])
+            caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
         sph_rot = frames.take(self.sph_bone, axis=1)
-        sph_center = joints.take(self.sph_head, axis=1) + einsum("fsij,sj->fsi", sph_rot, self.sph_local)
+        sph_center = joints.take(self.sph_head, axis=1) + np.einsum("fsij,sj->fsi", sph_rot, self.sph_local)
         if not self.point_count:
             tri = np.zeros((nf, 0, 3, 3))
         elif nf < FEW_FRAMES and len(self.point_groups) > 1:

@@ -1,0 +1,182 @@
+"""The spine chain of ONE frame aimed in mathutils (`core/one_frame.py`; DESIGN.md "Prepared solver"):
+the chain's bones aim one at a time (each at its point of the canonical spine curve, from its head,
+which hangs from the one before), so the numpy path poses a frame's rig level by level up to them,
+several numpy calls a level on one or two bones. Here the few bones the aims read (the chain, the
+bone the spine curve starts on and their ancestors) are posed bone by bone on single matrices, the
+aimed rotations handed back, and the rest of the rig is posed in numpy's few passes over all its
+bones (`AvatarRig._pose_flat`), as it is when a chain's rotations are held.
+
+Per bone, parents first (the rig's bone order): its head H_b = H_p + P_p o_b (a parentless bone at
+its rest head; the root bone placed from the pelvis once posed), then its rotation: driven,
+W^-1 C_c (C_c0^-1 W M_A); following its parent, P_p (M_p^-1 M_A); parentless and undriven, M_A;
+a chain bone, its vertebra's twist turned to aim at the curve (avatar_pose `_ChainAim`'s steps).
+The values are the numpy path's to float32's rounding (mathutils' precision: one_frame.py).
+
+Decision (speed, measured in instructions): only the chain is aimed here. A whole rig pose of one
+frame in mathutils (bone by bone: 53 bones, their quaternions and 72 joints) took 1.71 M
+instructions against numpy's 0.72 M: a mathutils operation costs 1,100-1,700 instructions and
+making a Matrix from a list 3,200, where numpy's stacked products over every bone of a level cost
+5,000-10,000 a call whatever the count of bones."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body.skeleton import BONE_INDEX as BI
+from ..body.skeleton import JOINT_INDEX as JI
+from ..body.skeleton import SPINE_BONES
+from ..core import one_frame
+from ..core.one_frame import Matrix, Vector
+
+# How a bone's head and rotation are placed (`_Plan.steps`)
+HANG, LOOSE, ROOT = 0, 1, 2
+DRIVEN, FOLLOW, REST, CHAIN = 0, 1, 2, 3
+
+
+@dataclass
+class _Plan:
+    """Per rig and bone subset, once: the canonical bones read (`canon`: their rows in the frames)
+    and per bone, in order, (bone, parent, head kind, its constant, rotation kind, its constant)."""
+
+    canon: np.ndarray
+    steps: list
+
+
+class ChainOneFrame:
+    """One rig's spine chain aimed for one frame: its constants as mathutils objects, made once
+    (`AvatarRig._chain_one`)."""
+
+    def __init__(self, rig):
+        self.rig = rig
+        self.root = rig.root
+        self.w_identity = rig._w_identity
+        self.w_t = Matrix(rig.w_rot.T.tolist())  # W^-1 of a rotation
+        self.w = Matrix(rig.w_rot.tolist())
+        self.shift = Vector(rig.world[:3, 3].tolist())
+        self.inv = Matrix(rig.w_inv.tolist())
+        self.pelvis_at = Vector(rig._pelvis_at.tolist())
+        ch = rig._chain_plan
+        self.chain = ch
+        self.chain_row = dict(ch.index)
+        self.chain_fixed = one_frame.matrices(ch.fixed)
+        self.chain_rest = one_frame.matrices(ch.rest)
+        self.chain_aim = one_frame.vectors(ch.aim)
+        self.chain_off = one_frame.vectors(ch.off)
+        self.chain_w = list(zip(ch.w0[:, 0, 0].tolist(), ch.w1[:, 0, 0].tolist(), ch.k.tolist()))
+        j0 = JI["spine_root"]
+        b = self.curve_bone = int(rig.joint_bone[j0])
+        self.curve_local = Vector(rig.joint_local[j0].tolist())
+        p = int(rig.parent[b])
+        self.curve_start = Matrix(rig.rest[b].tolist()) if p < 0 else Matrix((rig.rest[p].T @ rig.rest[b]).tolist())
+        self.spine_rows = np.array([BI[n] for n in SPINE_BONES], int)
+        self.spine_len = rig.lengths[self.spine_rows].tolist()
+        self.plan = self._plan()
+
+    def _plan(self) -> _Plan:
+        """The steps posing the bones the aims read (the chain, the bone the spine curve starts on,
+        their ancestors), in order, and the canonical bones they read."""
+        rig, rows = self.rig, self.rig._bone_plan
+        need: set[int] = set()
+        for b in [int(i) for i in self.chain.order] + [self.curve_bone]:
+            while b >= 0 and b not in need:
+                need.add(b)
+                b = int(rig.parent[b])
+        canon: list[int] = []
+
+        def slot(c: int) -> int:
+            if c not in canon:
+                canon.append(c)
+            return canon.index(c)
+
+        steps = []
+        for b in sorted(need):
+            p, drv, off, fixed = rows[b]
+            if b == rig.root:
+                hk, hv = ROOT, None
+            elif p >= 0:
+                hk, hv = HANG, Vector(off.tolist())
+            else:
+                hk, hv = LOOSE, Vector(rig.head[b].tolist())
+            if isinstance(drv, (int, np.integer)):
+                rk, rv = DRIVEN, (slot(int(drv)), Matrix(fixed.tolist()))
+            elif drv == "chain":
+                rk, rv = CHAIN, self.chain_row[b]
+            elif p >= 0:
+                rk, rv = FOLLOW, Matrix(fixed.tolist())
+            else:
+                rk, rv = REST, Matrix(rig.rest[b].tolist())
+            steps.append((b, int(p), hk, hv, rk, rv))
+        for v in self.chain.vertebra.tolist():
+            slot(int(v))
+        return _Plan(np.array(canon, int), steps)
+
+    def aimed(self, frames: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
+        """The chain bones' armature-space rotations (n, 1, 3, 3), by their rows in the chain plan,
+        of canonical world frames (1, B, 3, 3) with the pelvis joint at `pelvis` (1, 3)."""
+        plan = self.plan
+        C = [Matrix(m) for m in frames[0].take(plan.canon, axis=0).tolist()]
+        if not self.w_identity:
+            C = [self.w_t @ m for m in C]  # W^-1 C, the products' left factor (the same product)
+        P, H = {}, {}
+        aim = _Aim(self, C, plan, frames)
+        at = self.inv @ (Vector(pelvis[0].tolist()) - self.shift)
+        for b, p, hk, hv, rk, rv in plan.steps:
+            if hk == HANG:
+                H[b] = H[p] + P[p] @ hv
+            elif hk == LOOSE:
+                H[b] = hv
+            if rk == DRIVEN:
+                P[b] = C[rv[0]] @ rv[1]
+            elif rk == FOLLOW:
+                P[b] = P[p] @ rv
+            elif rk == REST:
+                P[b] = rv
+            else:
+                P[b] = aim.bone(b, rv, P, H)
+            if hk == ROOT:
+                H[b] = at - P[b] @ self.pelvis_at
+        return one_frame.matrix_array(aim.aimed)[:, None]
+
+
+class _Aim:
+    """The spine chain aimed one bone at a time (avatar_pose `_ChainAim`): each bone's vertebra's
+    turn since rest and twist, its aim point, its target on the canonical spine curve (built once
+    the bone it starts on is posed), the shortest turn from one to the other."""
+
+    def __init__(self, one: ChainOneFrame, C: list, plan: _Plan, frames):
+        self.one, self.frames = one, frames
+        pos = {c: k for k, c in enumerate(plan.canon.tolist())}
+        # W^-1 C_v (C_v0^-1 W) (C is W^-1 C already), the twist, the aim point, its target's offset
+        self.delta = [C[pos[v]] @ f for v, f in zip(one.chain.vertebra.tolist(), one.chain_fixed)]
+        self.twist = [d @ r for d, r in zip(self.delta, one.chain_rest)]
+        self.aim = [t @ a for t, a in zip(self.twist, one.chain_aim)]
+        self.off = [d @ o for d, o in zip(self.delta, one.chain_off)]
+        self.target = None
+        self.aimed = [None] * len(self.delta)
+
+    def _targets(self, P, H) -> None:
+        """The canonical spine curve (avatar_pose `_spine_curve`: its start on the bone it starts
+        on, then the vertebrae's +Y times their lengths in armature units) and each bone's target."""
+        one = self.one
+        b = one.curve_bone
+        if one.rig.driver[b] == "chain":  # not posed yet: oriented as at rest under its parent
+            p = int(one.rig.parent[b])
+            rot = one.curve_start if p < 0 else P[p] @ one.curve_start
+        else:
+            rot = P[b]
+        point = H[b] + rot @ one.curve_local
+        steps = (self.frames[0, one.spine_rows, :, 1] * np.array(one.spine_len)[:, None]) @ one.rig.w_inv.T
+        curve = [point]
+        for step in steps.tolist():
+            point = point + Vector(step)
+            curve.append(point)
+        self.target = [curve[k] * w0 + curve[k + 1] * w1 + off for (w0, w1, k), off in zip(one.chain_w, self.off)]
+
+    def bone(self, b: int, j: int, P, H):
+        if self.target is None:
+            self._targets(P, H)
+        turn = self.aim[j].rotation_difference(self.target[j] - H[b]).to_matrix()
+        self.aimed[j] = turn @ self.twist[j]
+        return self.aimed[j]
