@@ -204,18 +204,17 @@ def _take_trunk(found: _Assignment) -> None:
 
 def _take_limbs(found: _Assignment) -> None:
     """Arms above the waist (upper arm nearer the middle, then forearm) and legs below it (thigh
-    higher, then shin), per side, among the free devices; given roles are not taken again."""
+    higher, then shin), per side, among the free devices; given roles are not taken again. The free
+    devices are paired with the roles still open, so a free forearm beside a given upper arm is the
+    forearm (pairing them with both roles and skipping the given one dropped it)."""
     waist = 0.55
     u, z_rel, fixed = found.u, found.z_rel, found.fixed
     for s, sign in (("l", 1.0), ("r", -1.0)):
         side = [i for i in found.free if sign * u[i] > 0]
         arm = sorted((i for i in side if z_rel[i] >= waist), key=lambda i: sign * u[i])
         leg = sorted((i for i in side if z_rel[i] < waist), key=lambda i: -found.pos[i, 2])
-        for i, role in zip(arm, (f"upperarm_{s}", f"forearm_{s}")):
-            if role not in fixed:
-                found.take(i, role)
-        for i, role in zip(leg, (f"thigh_{s}", f"shin_{s}")):
-            if role not in fixed:
+        for devices, limb in ((arm, (f"upperarm_{s}", f"forearm_{s}")), (leg, (f"thigh_{s}", f"shin_{s}"))):
+            for i, role in zip(devices, [r for r in limb if r not in fixed]):
                 found.take(i, role)
 
 

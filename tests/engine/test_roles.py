@@ -134,3 +134,30 @@ def test_roles_of_the_synthetic_performer(profile, build, seed):
         truth[f"dev{k}"] = truth.pop(d.name)
         d.name, d.role = f"dev{k}", None
     assert roles.identify_roles(rec) == truth
+
+
+@pytest.mark.parametrize("missing", ["forearm_l", "forearm_r", "shin_l", "shin_r", "upperarm_l", "thigh_r"])
+@pytest.mark.parametrize("yaw", [0.0, 2.4])
+def test_one_limb_role_left_empty_is_identified(missing, yaw):
+    """Every role given but one limb tracker's: the T-pose names it (FORMATS §2.1), whichever of the
+    limb's two devices it is (issue 40: a free forearm was offered the given upper arm's role and
+    dropped; a free shin the given thigh's)."""
+    kw = dict(yaw=yaw, profile="full", shuffle=True, seed=4)
+    rec = tpose_recording(roles=True, **kw)
+    truth = {d.name: d.role for d in rec.devices}
+    name = next(n for n, r in truth.items() if r == missing)
+    next(d for d in rec.devices if d.name == name).role = None
+    assert roles.identify_roles(rec) == truth
+    roles.apply_roles(rec)
+    assert next(d for d in rec.devices if d.name == name).role == missing
+    assert "no role for" not in rec.notes[-1]
+
+
+def test_both_forearms_and_both_shins_left_empty_are_identified():
+    kw = dict(yaw=-0.9, profile="full", shuffle=True, seed=8)
+    rec = tpose_recording(roles=True, **kw)
+    truth = {d.name: d.role for d in rec.devices}
+    for d in rec.devices:
+        if d.role.startswith(("forearm", "shin")):
+            d.role = None
+    assert roles.identify_roles(rec) == truth
