@@ -21,7 +21,7 @@ import numpy as np
 from ..core.errors import BodyCalError
 from ..core.geometry import fit_plane
 from ..core.transforms import rotate
-from .model import ROLES_LIST, Recording
+from .model import ROLES, ROLES_LIST, Recording
 
 HMD_FORWARD_LOCAL = np.array([0.0, 0.0, -1.0])
 HMD_UP_LOCAL = np.array([0.0, 1.0, 0.0])
@@ -116,9 +116,9 @@ class _Assignment:
         self.z_rel = (self.pos[:, 2] - self.floor) / self.height
 
 
-def _classify(rec: Recording) -> tuple[dict[str, str], str]:
-    """(device name -> role, how the facing was decided) from the tpose segment: the passes below in
-    the order AvatarGo §3.2 reads the T-pose, each taking devices the earlier ones left free."""
+def _oriented(rec: Recording) -> tuple[_Assignment, str]:
+    """The T-pose read as far as the facing: positions, given roles, the head taken, the lateral
+    and height coordinates set; and how the facing was decided."""
     src = rec.source or rec.name
     pos, tracked, info = tpose_positions(rec)
     idx = np.flatnonzero(tracked)
@@ -131,6 +131,14 @@ def _classify(rec: Recording) -> tuple[dict[str, str], str]:
     head = _take_head(found)
     fwd, how = _facing(rec, pos, tracked, plane.normal, head, info["frames"])
     found.orient(head, fwd, idx)
+    return found, how
+
+
+def _classify(rec: Recording) -> tuple[dict[str, str], str]:
+    """(device name -> role, how the facing was decided) from the tpose segment: the passes below in
+    the order AvatarGo §3.2 reads the T-pose, each taking devices the earlier ones left free."""
+    found, how = _oriented(rec)
+    fixed = found.fixed
     for role, i in fixed.items():  # keep given roles
         if i in found.free:
             found.take(i, role)
@@ -190,7 +198,7 @@ def _take_trunk(found: _Assignment) -> None:
     """Trunk: central free devices above the knees, highest first: chest then pelvis; one alone (or
     beside a given chest or pelvis) is the pelvis when low or when the chest is given."""
     fixed, z_rel = found.fixed, found.z_rel
-    central = 0.09 * found.height
+    central = CENTRAL * found.height
     rest = sorted(found.free, key=lambda i: -found.pos[i, 2])
     trunk = [i for i in rest if abs(found.u[i]) < central and z_rel[i] > 0.4]
     if len(trunk) >= 2 and "chest" not in fixed and "pelvis" not in fixed:
@@ -202,12 +210,16 @@ def _take_trunk(found: _Assignment) -> None:
             found.take(trunk[0], role)
 
 
+WAIST = 0.55  # fraction of the head height: lateral devices above it are on the arms, below on the legs
+CENTRAL = 0.09  # fraction of the head height: devices this near the middle are on the trunk (or the head)
+
+
 def _take_limbs(found: _Assignment) -> None:
     """Arms above the waist (upper arm nearer the middle, then forearm) and legs below it (thigh
     higher, then shin), per side, among the free devices; given roles are not taken again. The free
     devices are paired with the roles still open, so a free forearm beside a given upper arm is the
     forearm (pairing them with both roles and skipping the given one dropped it)."""
-    waist = 0.55
+    waist = WAIST
     u, z_rel, fixed = found.u, found.z_rel, found.fixed
     for s, sign in (("l", 1.0), ("r", -1.0)):
         side = [i for i in found.free if sign * u[i] > 0]
@@ -234,3 +246,39 @@ def apply_roles(rec: Recording) -> dict[str, str]:
         note += f"; no role for {', '.join(missing)}"
     rec.notes.append(note)
     return assigned
+
+
+def unused_devices(rec: Recording, has=None) -> dict[str, tuple[str, tuple[str, ...]]]:
+    """The devices still without a role, each with where the T-pose places it and the roles it could
+    carry there that no device holds (`has(role)`, default: a device holds it): name -> (where,
+    roles). A device the T-pose cannot place (no tpose segment, not tracked in it) could carry any
+    role no device holds. What a calibration says about a device it leaves unused (issue 40)."""
+    has = has or rec.has_role
+    unused = [i for i, d in enumerate(rec.devices) if d.role is None]
+    if not unused:
+        return {}
+    open_roles = tuple(r for r in ROLES if not has(r))
+    try:
+        found, _how = _oriented(rec)
+    except BodyCalError as exc:
+        return {rec.devices[i].name: (f"the T-pose cannot place it: {exc.message}", open_roles) for i in unused}
+    out = {}
+    for i in unused:
+        name = rec.devices[i].name
+        if i not in found.free and found.roles.get(i) != "head":
+            out[name] = ("not tracked in the tpose segment", open_roles)
+            continue
+        where, region = _region(found, i)
+        out[name] = (where, tuple(r for r in region if r in open_roles))
+    return out
+
+
+def _region(found: _Assignment, i: int) -> tuple[str, tuple[str, ...]]:
+    """Where device `i` sits in the T-pose and the roles of that part of the body."""
+    u, z = found.u[i], found.z_rel[i]
+    if abs(u) < CENTRAL * found.height and z > 0.4:  # as _take_trunk reads it
+        return "on the trunk", ("head", "chest", "pelvis")
+    s, side = ("l", "left") if u > 0 else ("r", "right")
+    if z >= WAIST:
+        return f"on the {side} arm", (f"upperarm_{s}", f"forearm_{s}", f"hand_{s}")
+    return f"on the {side} leg", (f"thigh_{s}", f"shin_{s}", f"foot_{s}")
