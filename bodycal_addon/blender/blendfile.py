@@ -8,6 +8,8 @@ import contextlib
 from pathlib import Path
 
 import bpy
+import numpy as np
+from mathutils import Vector
 
 from ..core import outputs
 from ..core.errors import BodyCalError
@@ -63,10 +65,10 @@ def deformed_meshes(arm) -> list:
         m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
 
 
-def open_avatar(path) -> None:
+def open_avatar(path) -> list[str]:
     """Make the avatar file `path` the open file: a .blend is opened (scripts off, `open_blend`);
     an .fbx, .glb, .gltf or .vrm is imported into an empty scene by Blender's own importer
-    (`import_avatar_file`)."""
+    (`import_avatar_file`). Returns notes on what the import had to mend, one line each."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in AVATAR_SUFFIXES:
@@ -74,19 +76,22 @@ def open_avatar(path) -> None:
                            source=str(path))
     if suffix == ".blend":
         open_blend(path)
-        return
+        return []
     if not path.is_file():
         raise BodyCalError("no such file", source=str(path))
     importer_operator(suffix, str(path))  # a missing importer is said before the session is emptied
     bpy.ops.wm.read_homefile(use_empty=True)
-    import_avatar_file(path)
+    notes = []
+    import_avatar_file(path, notes)
+    return notes
 
 
-def import_avatar_file(path) -> list:
+def import_avatar_file(path, notes: list | None = None) -> list:
     """Import an .fbx, .glb, .gltf or .vrm into the current scene with Blender's importer; returns
     the objects it added. What the importer prints stays off stderr (its tracebacks would break
     the command line's one error line): it goes to stdout, with Blender's own log. A file the
-    importer cannot read is one BodyCalError."""
+    importer cannot read is one BodyCalError. Skins Blender's FBX importer lost are bound again
+    (`bind_lost_skins`), a line each in `notes`."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in IMPORTERS:
@@ -103,7 +108,59 @@ def import_avatar_file(path) -> list:
                                source=str(path)) from None
     if "FINISHED" not in result:
         raise BodyCalError(f"Blender's {fmt} importer gave up on it", source=str(path))
-    return [o for o in bpy.data.objects if o not in before]
+    added = [o for o in bpy.data.objects if o not in before]
+    if suffix == ".fbx":
+        said = bind_lost_skins(added)
+        if notes is not None:
+            notes.extend(said)
+    return added
+
+
+def bind_lost_skins(objects) -> list[str]:
+    """Bind again the meshes among `objects` whose skin Blender's FBX importer lost; returns a note
+    for each. The importer (4.2 to 5.0, `collect_armature_meshes`) reparents an armature's meshes
+    while it walks the list that holds them: the node after that armature is skipped, so when it is
+    a second character's armature, that character's meshes keep their vertex weights but get no
+    Armature modifier and no parent (two characters in one file, or the same one twice). Such a
+    mesh (vertex groups, no Armature modifier, no armature parent) goes to the armature among
+    `objects` that has a bone for every vertex group and whose bones stand inside the mesh's
+    bounds; of several alike, the one with no mesh of its own; none or a tie: left as it is."""
+    bpy.context.view_layer.update()  # the world matrices the bounds are read in
+    armatures = [o for o in objects if o.type == "ARMATURE"]
+    lost = [o for o in objects if o.type == "MESH" and o.vertex_groups
+            and not any(m.type == "ARMATURE" for m in o.modifiers)
+            and not (o.parent is not None and o.parent.type == "ARMATURE")]
+    notes = []
+    for mesh in lost:
+        groups = {g.name for g in mesh.vertex_groups}
+        scored = [(_bones_inside(arm, mesh), not deformed_meshes(arm), arm) for arm in armatures
+                  if groups <= set(arm.data.bones.keys())]
+        scored = [c for c in scored if c[0] > 0.5]
+        if not scored:
+            continue
+        best = max(c[:2] for c in scored)
+        chosen = [arm for inside, alone, arm in scored if (inside, alone) == best]
+        if len(chosen) != 1:
+            continue
+        arm = chosen[0]
+        world = mesh.matrix_world.copy()
+        mesh.parent = arm
+        mesh.matrix_parent_inverse = arm.matrix_world.inverted()
+        mesh.matrix_world = world
+        mesh.modifiers.new(arm.name, "ARMATURE").object = arm
+        notes.append(f"{mesh.name}: Blender's FBX importer left it unbound (its skin to '{arm.name}' lost); bound "
+                     f"to '{arm.name}' again, whose bones its vertex groups name")
+    return notes
+
+
+def _bones_inside(arm, mesh) -> float:
+    """The share of the armature's bone heads (at rest, in the world) inside the mesh's bounds, the
+    bounds grown by a tenth of their size."""
+    corners = np.array([mesh.matrix_world @ Vector(c) for c in mesh.bound_box])
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    pad = 0.1 * (hi - lo) + 1e-6
+    heads = np.array([arm.matrix_world @ b.head_local for b in arm.data.bones])
+    return float(np.mean(np.all((heads >= lo - pad) & (heads <= hi + pad), axis=1))) if len(heads) else 0.0
 
 
 def importer_operator(suffix: str, source: str):

@@ -79,6 +79,75 @@ def test_a_robot_whose_feet_are_ik_controls_is_one_line():
         session.prepare_target(arm)
 
 
+# --- two characters in one file ------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def two_characters(tmp_path_factory, data_dir):
+    """The sample adult imported twice, the second 1.5 m to the side (`adult_male.001` on
+    `adult_male_rig.001`), written as one FBX by Blender's exporter and as one .blend."""
+    tmp = tmp_path_factory.mktemp("two_characters")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    glb = data_dir / "avatars" / "mpfb2_variants" / "adult_male.glb"
+    blendfile.import_avatar_file(glb)
+    for obj in blendfile.import_avatar_file(glb):
+        if obj.parent is None:
+            obj.location.x += 1.5
+    files = {"fbx": tmp / "two.fbx", "blend": tmp / "two.blend"}
+    bpy.ops.export_scene.fbx(filepath=str(files["fbx"]), bake_anim=False, add_leaf_bones=False)
+    bpy.ops.wm.save_as_mainfile(filepath=str(files["blend"]), copy=True)
+    return files
+
+
+@pytest.mark.parametrize("kind", ["fbx", "blend"])
+def test_two_characters_in_one_file_are_each_measured_on_their_own_skin(two_characters, belly, kind):
+    """Blender's FBX importer skips the armature after one whose meshes it moves (it reparents them
+    while walking the list that holds them): the second character came in unskinned, its body was
+    estimated from its bones (no skin contact, no feet on its skin) and the command line took the
+    first without asking. Its mesh is bound again by its vertex groups; both characters bake with
+    the same contacts and feet (the same body, 1.5 m apart)."""
+    notes = blendfile.open_avatar(two_characters[kind])
+    arms = sorted((o for o in bpy.data.objects if o.type == "ARMATURE"), key=lambda o: o.name)
+    assert [[m.name for m in blendfile.deformed_meshes(a)] for a in arms] == [["adult_male"], ["adult_male.001"]]
+    assert notes == ([] if kind == "blend" else [
+        "adult_male.001: Blender's FBX importer left it unbound (its skin to 'adult_male_rig.001' lost); bound to "
+        "'adult_male_rig.001' again, whose bones its vertex groups name"])
+    with pytest.raises(BodyCalError, match="several armatures"):
+        blendfile.find_armature(None, kind)
+    contact, feet = [], []
+    for arm in arms:
+        gaps, _keyed, (take, target, anim) = _gaps(arm, belly)
+        assert target.avatar.calibration.get("method") != "estimated"
+        summary = session.bake(take, target, session.Computed(anim, 0.0))  # checked on the evaluated rig
+        assert summary.keys > 0
+        frames = np.linspace(0, anim.frame_count - 1, 5).astype(int)
+        skin = mesh_metrics.foot_skin(arm, target.avatar, anim, frames)
+        contact.append(np.median(gaps))
+        feet.append(np.array([skin[s]["low"] for s in ("l", "r")]))
+    assert np.isfinite(contact).all() and abs(contact[0] - contact[1]) < 0.001, contact
+    assert np.isfinite(feet).all() and np.abs(feet[0] - feet[1]).max() < 0.001, feet
+
+
+def test_a_lost_skin_is_bound_only_to_the_armature_it_names_and_stands_on():
+    from sample_rigs import build_procedural_avatar
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    arm, mesh, _spec = build_procedural_avatar()
+    mesh.modifiers.remove(next(m for m in mesh.modifiers if m.type == "ARMATURE"))
+    world = mesh.matrix_world.copy()
+    mesh.parent = None
+    mesh.matrix_world = world
+    mesh.location.x += 3.0  # beside its armature, not on it: left alone
+    assert blendfile.bind_lost_skins([arm, mesh]) == [] and not blendfile.deformed_meshes(arm)
+    mesh.location.x -= 3.0
+    prop = mesh.copy()
+    prop.data = mesh.data.copy()  # vertex group names live on the mesh data
+    prop.vertex_groups.new(name="not a bone")  # a group no bone of the armature has: left alone
+    bpy.context.scene.collection.objects.link(prop)
+    assert len(blendfile.bind_lost_skins([arm, mesh, prop])) == 1
+    assert blendfile.deformed_meshes(arm) == [mesh] and mesh.parent == arm
+    assert np.allclose(np.array(mesh.matrix_world), np.array(world))
+
+
 # --- a generated Rigify rig after a round trip through glTF or FBX -------------------------------------
 
 @pytest.fixture(scope="module")
