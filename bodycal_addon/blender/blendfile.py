@@ -26,6 +26,16 @@ IMPORTERS = {
 }
 
 
+# Decision: a glTF avatar keeps its nodes' own rest pose (the importer's Guess Original Bind Pose
+# off). With the guess (the importer's default), a file whose skins were bound in another pose than
+# its nodes' rest gets that bind pose as the armature's rest and the nodes' rest as a pose on every
+# bone, locations included; the bake keys rotations, the locations stayed, and RobotExpressive's
+# right wrist landed 2.4 m from the retargeted pose (the bake's check refused it). Off, the bones
+# rest where the nodes do and the skinned meshes are bound there. Files whose nodes rest in their
+# bind pose (every Blender export: the seven sample avatars) import the same either way.
+GLTF_OPTIONS = {"guess_original_bind_pose": False}
+
+
 def open_blend(path) -> None:
     path = Path(path)
     if not path.is_file():
@@ -99,10 +109,11 @@ def import_avatar_file(path, notes: list | None = None) -> list:
     if not path.is_file():
         raise BodyCalError("no such file", source=str(path))
     fmt = IMPORTERS[suffix][0]
+    options = GLTF_OPTIONS if suffix in (".glb", ".gltf") else {}
     before = set(bpy.data.objects)
     with _importer_enabled(suffix, str(path)) as operator, stderr_to_stdout():
         try:
-            result = operator(filepath=str(path.resolve()))
+            result = operator(filepath=str(path.resolve()), **options)
         except RuntimeError as exc:
             raise BodyCalError(f"Blender's {fmt} importer cannot read it ({_last_line(exc, path)})",
                                source=str(path)) from None

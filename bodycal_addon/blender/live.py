@@ -339,6 +339,7 @@ def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
     if f.root_motion == "in-place":  # the travel removed relative to the first frame followed
         anim = preview.joined(f.first, anim)
     anim = apply_root_motion(anim, f.rest, f.root_motion, own=True)
+    anim = rig_output.with_armature_space(anim, arm, f.bone_map)  # a game rig's IK feet, as the bake keys them
     if f.rigify_target is not None:  # the DEF- skeleton's pose carried onto the controls
         if f.rigify is None:
             f.rigify = rig_output.RigifyPlan(arm, f.rigify_target, anim.bone_names)

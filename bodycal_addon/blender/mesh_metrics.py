@@ -30,6 +30,7 @@ from ..core.errors import BodyCalError
 from ..output import metrics
 from ..retarget.avatar_pose import AvatarRig
 from ..retarget.solver_methods import surface_correction
+from . import avatar_rig, rig_output
 
 
 def world_vertices(obj, depsgraph) -> np.ndarray:
@@ -133,7 +134,9 @@ class EvaluatedMesh:
 def posed(arm, anim: AvatarAnimation, meshes):
     """A function `frame -> {mesh name: (V, 3) world vertices}` of the skinned `meshes` with the
     armature posed at that frame of `anim` (its action detached meanwhile); the armature's pose
-    and action are put back afterwards."""
+    and action are put back afterwards. Limb bones beside the limb (a game rig's IK feet) are posed
+    in the armature's space as the bake keys them (rig_output.with_armature_space)."""
+    anim = rig_output.with_armature_space(anim, arm, avatar_rig.bone_map_for(arm))
     pbs = [arm.pose.bones[n] for n in anim.bone_names]
     root = arm.pose.bones[anim.root_bone]
     saved = [(pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location)) for pb in arm.pose.bones]

@@ -72,11 +72,56 @@ def test_cesium_man_is_mapped_from_its_shape():
     assert "clavicle_l" not in bm.bones and bm.chains["spine"][-1] == "torso_joint_3"
 
 
-def test_a_robot_whose_feet_are_ik_controls_is_one_line():
+def test_a_robot_whose_feet_are_ik_controls_is_keyed_in_the_armature_space(sample_take):
+    """Its feet are IK controls under the root bone, beside the legs ('foot bone 'Foot.L' does not
+    hang from the shin bone', refused): the engine poses each foot from its shin, and the bake keys
+    the foot's location and rotation in the armature's space, as game exporters key IK feet. The
+    bake's check on the evaluated rig passes, and the feet stand where the engine put the ankles.
+    (Imported with the importer's guessed bind pose, its bones kept the nodes' rest as a pose the
+    keys did not override: the check found the right wrist 2.4 m off; blendfile.GLTF_OPTIONS.)"""
     blendfile.open_avatar(OUTSIDE["robot_expressive"])
     arm = blendfile.find_armature(None, "robot_expressive")
-    with pytest.raises(BodyCalError, match=r"foot bone 'Foot\.L' does not hang from the shin bone 'LowerLeg\.L'"):
+    target = session.prepare_target(arm)
+    assert target.avatar.extra["rig"]["armature_space"] == {"Foot.L": "Bone", "Foot.R": "Bone"}
+    defaulted = target.avatar.calibration["defaulted"]
+    assert {"capsule:upperarm_l", "mesh:sole_l"} <= set(defaulted)  # its bare rods and discs, said
+    computed = session.compute(sample_take, target, session.Settings())
+    anim = computed.animation
+    summary = session.bake(sample_take, target, computed)  # bake_check.verify on the evaluated rig
+    paths = {p for p, _i in object_fcurves(arm)}
+    assert {f'pose.bones["Foot.{s}"].location' for s in "LR"} <= paths
+    assert any("keyed with location and rotation in the armature's space" in n for n in summary.notes)
+    assert not any("from before they were" in n for n in summary.notes)  # its soles were estimated, not old
+    scene = bpy.context.scene
+    worst = 0.0
+    for k in np.linspace(0, anim.frame_count - 1, 6).astype(int):
+        scene.frame_set(int(round(summary.frame_range[0])) + int(k))
+        for s in "lr":
+            foot = np.array(arm.matrix_world @ arm.pose.bones[f"Foot.{s.upper()}"].head)
+            worst = max(worst, float(np.linalg.norm(foot - anim.joints_world[f"ankle_{s}"][k])))
+    assert worst < 0.005, worst
+
+
+def test_a_mini_character_whose_limbs_are_one_bone_each_is_one_line(tmp_path):
+    """Kenney's mini characters: root, torso, head and one bone per arm and leg. No map can give
+    them an elbow or a knee: refused with one line that says so, on the command line too (exit 2,
+    nothing written, one line on stderr)."""
+    import subprocess
+    import sys
+
+    path = OUTSIDE["kenney_mini_character_male_a"]
+    blendfile.open_avatar(path)
+    arm = blendfile.find_armature(None, path.name)
+    assert len(arm.data.bones) == 7 and blendfile.deformed_meshes(arm)
+    with pytest.raises(BodyCalError, match=r"not a humanoid rig this version can animate: 7 bones, fewer than the "
+                                           r"15 segments it poses \(missing pelvis, upperarm_l, ") as info:
         session.prepare_target(arm)
+    assert "\n" not in info.value.line() and "cannot bend at the elbow or knee" in info.value.line()
+    out_file = tmp_path / "kenney.body.json"
+    run = subprocess.run([sys.executable, "-m", "bodycal_addon", "calibrate-avatar", str(path), "-o", str(out_file)],
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2 and len(run.stderr.splitlines()) == 1, run.stderr
+    assert "7 bones, fewer than the 15 segments" in run.stderr and not out_file.exists()
 
 
 # --- two characters in one file ------------------------------------------------------------------------
