@@ -90,13 +90,15 @@ def effector_points(avatar: BodyModel, rig: AvatarRig, anim: AvatarAnimation, ef
 
 
 class EvaluatedMesh:
-    """The skinned meshes of an armature, with the dominant bone of every triangle."""
+    """The skinned meshes of an armature and the rigid parts riding on its bones (a game robot's
+    head, torso and feet: parented to a bone, every vertex that bone's), with the dominant bone of
+    every triangle."""
 
     def __init__(self, arm, meshes=None):
         self.arm = arm
         if meshes is None:
-            meshes = [o for o in bpy.data.objects if o.type == "MESH" and any(
-                m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
+            meshes = [o for o in bpy.data.objects if o.type == "MESH" and (any(
+                m.type == "ARMATURE" and m.object == arm for m in o.modifiers) or _rides_on_bone(o, arm))]
         if not meshes:
             raise BodyCalError("no mesh is skinned to this armature", source=arm.name)
         self.meshes = meshes
@@ -313,8 +315,15 @@ def foot_skin(arm, avatar: BodyModel, anim: AvatarAnimation, frames, mesh: Evalu
     return out
 
 
+def _rides_on_bone(obj, arm) -> bool:
+    return obj.parent == arm and obj.parent_type == "BONE" and obj.parent_bone in arm.data.bones
+
+
 def _dominant(obj) -> np.ndarray:
-    """(V,) the name of the vertex group with the largest weight on each vertex ("" for none)."""
+    """(V,) the name of the vertex group with the largest weight on each vertex ("" for none); a
+    rigid part parented to a bone without an Armature modifier: that bone's."""
+    if obj.parent_type == "BONE" and not any(m.type == "ARMATURE" for m in obj.modifiers):
+        return np.full(len(obj.data.vertices), obj.parent_bone, dtype=object)
     groups = {g.index: g.name for g in obj.vertex_groups}
     dom = np.full(len(obj.data.vertices), "", dtype=object)
     for v in obj.data.vertices:
