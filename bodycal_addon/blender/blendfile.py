@@ -4,7 +4,10 @@ saving the result without risking any file the user has."""
 
 from __future__ import annotations
 
+import base64
 import contextlib
+import json
+import struct
 from pathlib import Path
 
 import bpy
@@ -26,14 +29,15 @@ IMPORTERS = {
 }
 
 
-# Decision: a glTF avatar keeps its nodes' own rest pose (the importer's Guess Original Bind Pose
-# off). With the guess (the importer's default), a file whose skins were bound in another pose than
-# its nodes' rest gets that bind pose as the armature's rest and the nodes' rest as a pose on every
-# bone, locations included; the bake keys rotations, the locations stayed, and RobotExpressive's
-# right wrist landed 2.4 m from the retargeted pose (the bake's check refused it). Off, the bones
-# rest where the nodes do and the skinned meshes are bound there. Files whose nodes rest in their
-# bind pose (every Blender export: the seven sample avatars) import the same either way.
-GLTF_OPTIONS = {"guess_original_bind_pose": False}
+# Decision: a glTF avatar whose skins were bound in another pose than its nodes' rest keeps the
+# nodes' rest (the importer's Guess Original Bind Pose off, `bound_elsewhere`). With the guess (the
+# importer's default), such a file gets the bind pose as the armature's rest and the nodes' rest
+# as a pose on every bone, locations included; the bake keys rotations, the locations stayed, and
+# RobotExpressive's right wrist landed 2.4 m from the retargeted pose (the bake's check refused
+# it). Off, the bones rest where the nodes do and the skinned meshes are bound there. Files bound
+# in their nodes' rest (every Blender export) are imported as before: off, the importer re-skins
+# their vertices and moves them by float round-off, enough to move a sole's contact points.
+GLTF_REST = {"guess_original_bind_pose": False}
 
 
 def open_blend(path) -> None:
@@ -109,7 +113,7 @@ def import_avatar_file(path, notes: list | None = None) -> list:
     if not path.is_file():
         raise BodyCalError("no such file", source=str(path))
     fmt = IMPORTERS[suffix][0]
-    options = GLTF_OPTIONS if suffix in (".glb", ".gltf") else {}
+    options = GLTF_REST if suffix in (".glb", ".gltf") and bound_elsewhere(path) else {}
     before = set(bpy.data.objects)
     with _importer_enabled(suffix, str(path)) as operator, stderr_to_stdout():
         try:
@@ -125,6 +129,95 @@ def import_avatar_file(path, notes: list | None = None) -> list:
         if notes is not None:
             notes.extend(said)
     return added
+
+
+def bound_elsewhere(path) -> bool:
+    """Whether a glTF file's skins were bound in another pose than its nodes' rest: for a skin
+    bound at rest, every joint's world matrix (the nodes' rest) times its inverse bind matrix is
+    the same matrix (where the mesh stood when bound). False when that cannot be read here (the
+    importer then reads the file as it does by default, or says what is wrong)."""
+    try:
+        doc, binary = _gltf_parts(Path(path))
+        nodes = doc.get("nodes", [])
+        world = _node_worlds(nodes, doc)
+        for skin in doc.get("skins", []):
+            if "inverseBindMatrices" not in skin:
+                continue
+            ibm = _accessor_floats(doc, binary, skin["inverseBindMatrices"], 16).reshape(-1, 4, 4).transpose(0, 2, 1)
+            products = np.stack([world[j] @ m for j, m in zip(skin["joints"], ibm)])
+            scale = max(1.0, float(np.abs(products[:, :3, 3]).max()))
+            if np.abs(products - products[0]).max() > 1e-3 * scale:
+                return True
+        return False
+    except (OSError, ValueError, TypeError, KeyError, IndexError, struct.error, np.linalg.LinAlgError):
+        return False
+
+
+def _gltf_parts(path: Path) -> tuple[dict, bytes]:
+    """The JSON and the binary chunk of a .glb (glTF 2.0 §4.4), or a .gltf's JSON and its first
+    buffer (a data URI or a file beside it)."""
+    if path.suffix.lower() == ".gltf":
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        uri = doc["buffers"][0]["uri"]
+        if uri.startswith("data:"):
+            return doc, base64.b64decode(uri.split(",", 1)[1])
+        return doc, (path.parent / uri).read_bytes()
+    data = path.read_bytes()
+    magic, _version, _length = struct.unpack_from("<4sII", data, 0)
+    if magic != b"glTF":
+        raise ValueError("not a binary glTF")
+    offset, doc, binary = 12, None, b""
+    while offset + 8 <= len(data):
+        size, kind = struct.unpack_from("<II", data, offset)
+        chunk = data[offset + 8:offset + 8 + size]
+        if kind == 0x4E4F534A:  # JSON
+            doc = json.loads(chunk.decode("utf-8"))
+        elif kind == 0x004E4942:  # BIN
+            binary = chunk
+        offset += 8 + size
+    if doc is None:
+        raise ValueError("no JSON chunk")
+    return doc, binary
+
+
+def _accessor_floats(doc: dict, binary: bytes, index: int, width: int) -> np.ndarray:
+    """A float accessor's values, (count, width), from the file's first buffer."""
+    acc = doc["accessors"][index]
+    view = doc["bufferViews"][acc["bufferView"]]
+    if acc.get("componentType") != 5126 or view.get("buffer", 0) != 0 or view.get("byteStride", 4 * width) != 4 * width:
+        raise ValueError("an accessor this check does not read")
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    return np.frombuffer(binary, "<f4", acc["count"] * width, start).reshape(-1, width).astype(float)
+
+
+def _node_worlds(nodes: list, doc: dict) -> dict[int, np.ndarray]:
+    """Every node's world matrix (4, 4) at the nodes' rest (their `matrix`, or translation,
+    rotation (x, y, z, w) and scale)."""
+    parent = {c: i for i, n in enumerate(nodes) for c in n.get("children", [])}
+    out: dict[int, np.ndarray] = {}
+
+    def local(n: dict) -> np.ndarray:
+        if "matrix" in n:
+            return np.array(n["matrix"], float).reshape(4, 4).T
+        x, y, z, w = n.get("rotation", (0.0, 0.0, 0.0, 1.0))
+        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        m = np.eye(4)
+        m[:3, :3] = r * np.asarray(n.get("scale", (1.0, 1.0, 1.0)), float)
+        m[:3, 3] = n.get("translation", (0.0, 0.0, 0.0))
+        return m
+
+    def world(i: int, depth: int = 0) -> np.ndarray:
+        if i not in out:
+            if depth > len(nodes):
+                raise ValueError("a cycle in the node hierarchy")
+            out[i] = local(nodes[i]) if i not in parent else world(parent[i], depth + 1) @ local(nodes[i])
+        return out[i]
+
+    for i in range(len(nodes)):
+        world(i)
+    return out
 
 
 def bind_lost_skins(objects) -> list[str]:

@@ -78,7 +78,10 @@ def test_a_robot_whose_feet_are_ik_controls_is_keyed_in_the_armature_space(sampl
     the foot's location and rotation in the armature's space, as game exporters key IK feet. The
     bake's check on the evaluated rig passes, and the feet stand where the engine put the ankles.
     (Imported with the importer's guessed bind pose, its bones kept the nodes' rest as a pose the
-    keys did not override: the check found the right wrist 2.4 m off; blendfile.GLTF_OPTIONS.)"""
+    keys did not override: the check found the right wrist 2.4 m off. blendfile.bound_elsewhere: only
+    this file of the samples is bound in another pose than its nodes' rest.)"""
+    samples = paths.shared_avatar_files() + paths.outside_avatar_files()
+    assert [p.stem for p in samples if blendfile.bound_elsewhere(p)] == ["robot_expressive"]
     blendfile.open_avatar(OUTSIDE["robot_expressive"])
     arm = blendfile.find_armature(None, "robot_expressive")
     target = session.prepare_target(arm)
@@ -88,8 +91,8 @@ def test_a_robot_whose_feet_are_ik_controls_is_keyed_in_the_armature_space(sampl
     computed = session.compute(sample_take, target, session.Settings())
     anim = computed.animation
     summary = session.bake(sample_take, target, computed)  # bake_check.verify on the evaluated rig
-    paths = {p for p, _i in object_fcurves(arm)}
-    assert {f'pose.bones["Foot.{s}"].location' for s in "LR"} <= paths
+    curves = {p for p, _i in object_fcurves(arm)}
+    assert {f'pose.bones["Foot.{s}"].location' for s in "LR"} <= curves
     assert any("keyed with location and rotation in the armature's space" in n for n in summary.notes)
     assert not any("from before they were" in n for n in summary.notes)  # its soles were estimated, not old
     scene = bpy.context.scene
