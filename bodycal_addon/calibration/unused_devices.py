@@ -1,6 +1,6 @@
-"""Devices a calibration leaves without a role, said aloud (issue 40): a device the recording and
+"""Devices a calibration leaves without a role, said aloud (DESIGN.md §3): a device the recording and
 the T-pose left without a role is not used, and the joints its tracker would have measured are
-defaulted from the eye height, 10-45 mm off on real motion. Each such device is one warning line,
+defaulted from the eye height (5-46 mm off on the evaluation's real motion). Each such device is one warning line,
 and so is each body joint defaulted that it may have measured (the T-pose places the device on a
 limb or the trunk: roles.unused_devices); the lines go where every calibration warning goes
 (`calibration["warnings"]`: stderr from `calibrate-user`, the Calibration panel)."""

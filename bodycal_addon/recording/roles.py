@@ -252,7 +252,7 @@ def unused_devices(rec: Recording, has=None) -> dict[str, tuple[str, tuple[str, 
     """The devices still without a role, each with where the T-pose places it and the roles it could
     carry there that no device holds (`has(role)`, default: a device holds it): name -> (where,
     roles). A device the T-pose cannot place (no tpose segment, not tracked in it) could carry any
-    role no device holds. What a calibration says about a device it leaves unused (issue 40)."""
+    role no device holds. What a calibration says about a device it leaves unused."""
     has = has or rec.has_role
     unused = [i for i, d in enumerate(rec.devices) if d.role is None]
     if not unused:
