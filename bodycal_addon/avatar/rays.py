@@ -186,11 +186,11 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
         _estimate_head(survey, exc.message)
     _measure_torso(survey)
     for s in sk.SIDES:  # palm then sole, side by side: the order the rays are cast and reported in
-        for part, measure in (("palm", _measure_palm), ("sole", _measure_sole)):
-            try:
-                measure(survey, s)
-            except BodyCalError as exc:  # a stylised hand or foot (a robot's disc of a foot)
-                _estimate_flat(survey, part, s, exc.message)
+        _measure_palm(survey, s)
+        try:
+            _measure_sole(survey, s)
+        except BodyCalError as exc:  # a stylised foot (a robot's disc the outline rays miss)
+            _estimate_sole(survey, s, exc.message)
     model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
     model.extra["rig"] = rig.rig_dict()
     model.extra["rays_cast"] = caster.rays
@@ -338,20 +338,16 @@ def _estimate_head(survey: _Survey, why: str) -> None:
         _note_estimated(survey, element, why)
 
 
-def _estimate_flat(survey: _Survey, part: str, s: str, why: str) -> None:
-    """`mesh:palm_<s>` or `mesh:sole_<s>` from the template, scaled by the hand (wrist to middle
-    knuckle) or the foot (ankle to toe joint) as the bare skeleton's (avatar/estimate.py)."""
-    bone = f"{'hand' if part == 'palm' else 'foot'}_{s}"
-    names = (sl.palm_points if part == "palm" else sl.sole_points)(4 if part == "palm" else 6, s)
-    ends = (f"wrist_{s}", f"mcp_middle_{s}") if part == "palm" else (f"ankle_{s}", f"toe_{s}")
-    if not all(j in survey.J for j in ends):  # a palm without the middle finger's knuckle to size it by
-        raise BodyCalError(why, source=survey.rig.armature, hint="check that the mesh covers this part")
-    size = float(np.linalg.norm(survey.J[ends[1]] - survey.J[ends[0]]))  # as estimate.scales sizes it
-    survey.model.surface[:] = [e for e in survey.model.surface if e.id != f"mesh:{part}_{s}"]
+def _estimate_sole(survey: _Survey, s: str, why: str) -> None:
+    """`mesh:sole_<s>` from the template, scaled by the foot (ankle to toe joint) as a bare
+    skeleton's (avatar/estimate.py); no skin contact points."""
+    names = sl.sole_points(6, s)
+    size = float(np.linalg.norm(survey.J[f"toe_{s}"] - survey.J[f"ankle_{s}"]))  # as estimate.scales sizes it
+    survey.model.surface[:] = [e for e in survey.model.surface if e.id != f"mesh:sole_{s}"]
     survey.model.surface.append(SurfaceElement(
-        f"mesh:{part}_{s}", "mesh", bone, triangles=sl.fan_triangles(names),
-        points={p: SurfacePoint(bone, np.asarray(TEMPLATE[f"mesh:{part}_{s}/{p}"], float) * size) for p in names}))
-    _note_estimated(survey, f"mesh:{part}_{s}", why)
+        f"mesh:sole_{s}", "mesh", f"foot_{s}", triangles=sl.fan_triangles(names),
+        points={p: SurfacePoint(f"foot_{s}", np.asarray(TEMPLATE[f"mesh:sole_{s}/{p}"], float) * size) for p in names}))
+    _note_estimated(survey, f"mesh:sole_{s}", why)
 
 
 def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:

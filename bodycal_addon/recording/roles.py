@@ -27,6 +27,8 @@ HMD_FORWARD_LOCAL = np.array([0.0, 0.0, -1.0])
 HMD_UP_LOCAL = np.array([0.0, 1.0, 0.0])
 GEOMETRY_MARGIN = 0.03  # metres: HMD offset + mean foot offset ahead of the T-pose plane
 UP = np.array([0.0, 0.0, 1.0])
+WAIST = 0.55  # fraction of the head height: lateral devices above it are on the arms, below on the legs
+CENTRAL = 0.09  # fraction of the head height: devices this near the middle are on the trunk (or the head)
 
 
 def tpose_positions(rec: Recording) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -103,6 +105,7 @@ class _Assignment:
     fixed: dict[str, int]
     free: set[int]
     roles: dict[int, str] = field(default_factory=dict)
+    tracked: set[int] = field(default_factory=set)  # the devices seen in the tpose segment
 
     def take(self, i: int, role: str) -> None:
         self.roles[i] = role
@@ -127,7 +130,7 @@ def _oriented(rec: Recording) -> tuple[_Assignment, str]:
                            "a foot or the pelvis)", source=src, field="segments")
     plane = fit_plane(pos[idx], name=f"{src}: tpose plane")
     fixed = {d.role: i for i, d in enumerate(rec.devices) if d.role}
-    found = _Assignment(rec, pos, fixed, set(int(i) for i in idx))
+    found = _Assignment(rec, pos, fixed, set(int(i) for i in idx), tracked=set(int(i) for i in idx))
     head = _take_head(found)
     fwd, how = _facing(rec, pos, tracked, plane.normal, head, info["frames"])
     found.orient(head, fwd, idx)
@@ -210,24 +213,46 @@ def _take_trunk(found: _Assignment) -> None:
             found.take(trunk[0], role)
 
 
-WAIST = 0.55  # fraction of the head height: lateral devices above it are on the arms, below on the legs
-CENTRAL = 0.09  # fraction of the head height: devices this near the middle are on the trunk (or the head)
-
-
 def _take_limbs(found: _Assignment) -> None:
     """Arms above the waist (upper arm nearer the middle, then forearm) and legs below it (thigh
-    higher, then shin), per side, among the free devices; given roles are not taken again. The free
-    devices are paired with the roles still open, so a free forearm beside a given upper arm is the
-    forearm (pairing them with both roles and skipping the given one dropped it)."""
-    waist = WAIST
-    u, z_rel, fixed = found.u, found.z_rel, found.fixed
+    higher, then shin), per side, among the free devices; given roles are not taken again. With
+    one role of a limb given, the free device takes the other by where it sits: beyond the given
+    device (or before it) when that device is on this limb, else at the open role's place in the
+    limb's order (the given device is elsewhere: a role given to the wrong device). Pairing the free
+    devices with both roles and skipping the given one dropped a free forearm beside a given upper
+    arm, and a free shin beside a given thigh."""
     for s, sign in (("l", 1.0), ("r", -1.0)):
-        side = [i for i in found.free if sign * u[i] > 0]
-        arm = sorted((i for i in side if z_rel[i] >= waist), key=lambda i: sign * u[i])
-        leg = sorted((i for i in side if z_rel[i] < waist), key=lambda i: -found.pos[i, 2])
-        for devices, limb in ((arm, (f"upperarm_{s}", f"forearm_{s}")), (leg, (f"thigh_{s}", f"shin_{s}"))):
-            for i, role in zip(devices, [r for r in limb if r not in fixed]):
-                found.take(i, role)
+        _take_limb(found, sign, True, (f"upperarm_{s}", f"forearm_{s}"))
+        _take_limb(found, sign, False, (f"thigh_{s}", f"shin_{s}"))
+
+
+def _take_limb(found: _Assignment, sign: float, arm: bool, roles: tuple[str, str]) -> None:
+    """One limb of `_take_limbs`: the side `sign` (+1 left), the arm or the leg, its two roles."""
+    u, z_rel = found.u, found.z_rel
+
+    def along(i):  # outward along the arm, downward along the leg
+        return sign * u[i] if arm else -found.pos[i, 2]
+
+    def on_limb(i):
+        return i in found.tracked and sign * u[i] > 0 and bool(z_rel[i] >= WAIST) == arm
+
+    devices = sorted((i for i in found.free if on_limb(i)), key=along)
+    open_roles = [r for r in roles if r not in found.fixed]
+    if len(open_roles) == 2:
+        for i, role in zip(devices, roles):
+            found.take(i, role)
+        return
+    if not open_roles:
+        return
+    lower = open_roles[0] == roles[1]
+    given = found.fixed[roles[0] if lower else roles[1]]
+    if on_limb(given):
+        beyond = [i for i in devices if (along(i) > along(given)) == lower]
+        pick = min(beyond, key=lambda i: abs(along(i) - along(given))) if beyond else None
+    else:
+        pick = devices[int(lower)] if len(devices) > int(lower) else None
+    if pick is not None:
+        found.take(pick, open_roles[0])
 
 
 def apply_roles(rec: Recording) -> dict[str, str]:
