@@ -156,9 +156,10 @@ def test_two_characters_in_one_file_are_each_measured_on_their_own_skin(two_char
     notes = blendfile.open_avatar(two_characters[kind])
     arms = sorted((o for o in bpy.data.objects if o.type == "ARMATURE"), key=lambda o: o.name)
     assert [[m.name for m in blendfile.deformed_meshes(a)] for a in arms] == [["adult_male"], ["adult_male.001"]]
-    assert notes == ([] if kind == "blend" else [
-        "adult_male.001: Blender's FBX importer left it unbound (its skin to 'adult_male_rig.001' lost); bound to "
-        "'adult_male_rig.001' again, whose bones its vertex groups name"])
+    lost = ("adult_male.001: Blender's FBX importer left it unbound (its skin to 'adult_male_rig.001' lost); bound "
+            "to 'adult_male_rig.001' again, whose bones its vertex groups name")
+    # 4.5 and 5.0's exporter writes the nodes in the order that trips the importer; 4.2's does not
+    assert notes == [] if kind == "blend" or bpy.app.version < (4, 3) else notes == [lost]
     with pytest.raises(BodyCalError, match="several armatures"):
         blendfile.find_armature(None, kind)
     contact, feet = [], []
