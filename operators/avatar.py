@@ -321,7 +321,10 @@ class BODYCAL_OT_import_avatar(StartsInFolder, bpy.types.Operator, ImportHelper)
 
     @reports_errors
     def execute(self, context):
-        new = blendfile.import_avatar_file(self.filepath)
+        notes = []
+        new = blendfile.import_avatar_file(self.filepath, notes)
+        for note in notes:
+            self.report({"WARNING"}, note)
         armatures = [o for o in new if o.type == "ARMATURE"]
         # As on the command line: an armature no mesh is skinned to is a helper, not the avatar.
         avatars = [a for a in armatures if blendfile.deformed_meshes(a)] or armatures

@@ -55,6 +55,9 @@ class ArmatureReading:
     missing: list[str] = field(default_factory=list)  # optional segments the rig lacks (fingers, toes)
     estimated: list[str] = field(default_factory=list)  # end joints placed by proportion (chain_end)
     derived_hinges: list[str] = field(default_factory=list)  # hinges whose axis came from bend_axis
+    # limb bones posed as hanging from the limb bone before them though the file hangs them from
+    # another (loose_limb_bones): bone -> its parent in the file; the bake keys them in armature space
+    armature_space: dict[str, str | None] = field(default_factory=dict)
 
     # -- frames ---------------------------------------------------------------------------------
     def bone_world_matrix(self, bone: str) -> np.ndarray:
@@ -115,6 +118,7 @@ class ArmatureReading:
                           **({"chain_index": b["chain_index"]} if b["chain_index"] is not None else {})}
                       for n, b in self.bones.items()},
             "rest_pose": self.rest_pose,
+            **({"armature_space": dict(self.armature_space)} if self.armature_space else {}),
         }
 
 
@@ -126,12 +130,23 @@ def _segment_of(bm: naming.BoneMap) -> dict[str, str]:
     return seg
 
 
-def check_humanoid(name: str, bm: naming.BoneMap) -> None:
+def check_humanoid(name: str, bm: naming.BoneMap, bone_count: int | None = None) -> None:
+    """Every required segment mapped; one line otherwise. A rig with fewer bones than the segments
+    (Kenney's mini characters: root, torso, head and one bone per arm and leg) is told so: no map
+    can give it an elbow or a knee."""
     missing = bm.missing(with_fingers=False)
-    if missing:
+    if not missing:
+        return
+    needed = len(sk.required_segments())
+    if bone_count is not None and bone_count < needed:
         raise BodyCalError(
-            f"not a humanoid rig this version can map: missing {', '.join(missing)}", source=name,
-            hint="map these segments in the BodyCal panel (Avatar > Bone Map) or pick another armature")
+            f"not a humanoid rig this version can animate: {bone_count} bones, fewer than the {needed} segments "
+            f"it poses (missing {', '.join(missing)})", source=name,
+            hint="each arm and leg needs an upper bone, a lower bone and a hand or foot (a limb of one bone "
+                 "cannot bend at the elbow or knee); pick another armature")
+    raise BodyCalError(
+        f"not a humanoid rig this version can map: missing {', '.join(missing)}", source=name,
+        hint="map these segments in the BodyCal panel (Avatar > Bone Map) or pick another armature")
 
 
 def _ancestors(bone: str, parent: dict[str, str | None]) -> list[str]:
@@ -164,23 +179,27 @@ LIMB_LINKS = tuple((f"{child}_{s}", f"{parent}_{s}") for s in sk.SIDES
                                          ("foot", "shin")))
 
 
-def check_limbs_hang(name: str, bm: naming.BoneMap, parent: dict[str, str | None]) -> None:
-    """Each limb bone must hang from the one before it (at any depth): a rig whose foot is an IK
-    control beside the leg (Quaternius' robot and knight: Foot.L under the root, the leg reaching
-    it through a constraint a glTF file does not keep) would leave the foot where it stood while
-    the leg moves."""
+def loose_limb_bones(name: str, bm: naming.BoneMap, parent: dict[str, str | None]) -> dict[str, str]:
+    """The limb bones that do not hang from the one before them (at any depth), each with that bone:
+    a game rig's IK controls beside the limb (RobotExpressive's and Quaternius' knight's feet under
+    the root, the leg reaching them through a constraint a glTF file does not keep). The engine
+    poses such a bone as if it hung from that bone, and the bake keys its location and rotation in
+    the armature's space (output/armature_space.py), as game exporters key IK feet. One line when
+    it cannot: the bone before it hangs from it."""
+    parent = dict(parent)
+    loose = {}
     for child, above in LIMB_LINKS:
-        if bm.bones[child] not in _descendants_of(bm.bones[above], parent):
+        bone, limb = bm.bones[child], bm.bones[above]
+        if limb in _ancestors(bone, parent):
+            continue
+        if bone in _ancestors(limb, parent):
             raise BodyCalError(
-                f"the {child.split('_')[0]} bone '{bm.bones[child]}' does not hang from the {above.split('_')[0]} "
-                f"bone '{bm.bones[above]}' (an IK control beside the limb): the retargeted limb would leave it behind",
-                source=name, field=child,
-                hint=f"parent '{bm.bones[child]}' to '{bm.bones[above]}' in Blender (Keep Offset), or map {child} "
-                     "to a bone that hangs from it")
-
-
-def _descendants_of(bone: str, parent: dict[str, str | None]) -> set[str]:
-    return {b for b in parent if bone in _ancestors(b, parent)}
+                f"the {child.split('_')[0]} bone '{bone}' does not hang from the {above.split('_')[0]} bone '{limb}', "
+                "which hangs from it", source=name, field=child,
+                hint=f"map {child} and {above} to bones in the limb's order, from the shoulder or hip down")
+        loose[bone] = limb
+        parent[bone] = limb
+    return loose
 
 
 def settle_pelvis(bm: naming.BoneMap, parent: dict[str, str | None]) -> str | None:
@@ -211,15 +230,17 @@ def read_armature(name: str, matrix_world: np.ndarray, rest_bones: dict[str, dic
                   hinge_overrides: dict[str, np.ndarray] | None = None) -> ArmatureReading:
     """Canonical joints and bone rights of an armature in its rest pose. `rest_bones`: per bone
     {"parent", "head", "tail" (armature space), "matrix" (3x3, the bone's rest axes as columns)}."""
-    check_humanoid(name, bone_map)
+    check_humanoid(name, bone_map, len(rest_bones))
     check_pelvis_is_root(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
-    check_limbs_hang(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
+    loose = loose_limb_bones(name, bone_map, {n: b["parent"] for n, b in rest_bones.items()})
     seg_of = _segment_of(bone_map)
     chain_index = {n: i for names in bone_map.chains.values() for i, n in enumerate(names)}
-    bones = {n: {"parent": b["parent"], "head": np.asarray(b["head"], float), "tail": np.asarray(b["tail"], float),
-                 "matrix": np.asarray(b["matrix"], float), "segment": seg_of.get(n), "chain_index": chain_index.get(n)}
+    bones = {n: {"parent": loose.get(n, b["parent"]), "head": np.asarray(b["head"], float),
+                 "tail": np.asarray(b["tail"], float), "matrix": np.asarray(b["matrix"], float),
+                 "segment": seg_of.get(n), "chain_index": chain_index.get(n)}
              for n, b in rest_bones.items()}
     rig = ArmatureReading(name, np.asarray(matrix_world, float), bone_map, bones)
+    rig.armature_space = {n: rest_bones[n]["parent"] for n in loose}
     _canonical_joints(rig)
     _rights(rig, hinge_overrides or {})
     up_arm = rig.joints["elbow_l"] - rig.joints["shoulder_l"]

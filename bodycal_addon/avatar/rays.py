@@ -187,7 +187,10 @@ def surface_from_rays(rig: ArmatureReading, caster: RayCaster, name: str) -> Bod
     _measure_torso(survey)
     for s in sk.SIDES:  # palm then sole, side by side: the order the rays are cast and reported in
         _measure_palm(survey, s)
-        _measure_sole(survey, s)
+        try:
+            _measure_sole(survey, s)
+        except BodyCalError as exc:  # a stylised foot (a robot's disc the outline rays miss)
+            _estimate_sole(survey, s, exc.message)
     model.surface.sort(key=lambda e: _ORDER.get(e.id, len(_ORDER)))
     model.extra["rig"] = rig.rig_dict()
     model.extra["rays_cast"] = caster.rays
@@ -211,9 +214,18 @@ def _measure_capsules(survey: _Survey) -> None:
     `capsule:<bone>` with its axis offsets and records its quality. Raises when too few rays hit."""
     angles = np.linspace(0.0, 2 * np.pi, CAPSULE_RAYS, endpoint=False)
     ring_2d = np.stack([np.cos(angles), np.sin(angles)], axis=-1)  # (rays, 2): bone x, z
+    limbs = [b for b in sl.CAPSULE_BONES if b in survey.model.bones and b.split("_")[0] not in sk.FINGERS]
+    missed = []
     for bone in sl.CAPSULE_BONES:
         if bone in survey.model.bones:
-            _measure_capsule(survey, bone, ring_2d)
+            why = _measure_capsule(survey, bone, ring_2d)
+            if why is not None and bone in limbs:
+                missed.append(why)
+    # A stylised part (a robot's bare rod of an upper arm) is one thing; most of the body missed
+    # is a mesh that is not around these bones.
+    if 2 * len(missed) > len(limbs):
+        raise BodyCalError(missed[0], source=survey.rig.armature,
+                           hint="is the mesh skinned to this armature and around the bone?")
 
 
 def _capsule_sections(survey: _Survey, bone: str, ring_2d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -250,8 +262,9 @@ def _capsule_sections(survey: _Survey, bone: str, ring_2d: np.ndarray) -> tuple[
     return stations, np.stack([section(st) for st in stations])
 
 
-def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
-    """One bone of the capsules pass (see `_measure_capsules`)."""
+def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> str | None:
+    """One bone of the capsules pass (see `_measure_capsules`); returns why its capsule was
+    estimated from the body's proportions (too few of its rays hit the mesh), else None."""
     rig, model = survey.rig, survey.model
     stations, pts = _capsule_sections(survey, bone, ring_2d)
     hits = np.isfinite(pts).all(axis=-1)
@@ -265,14 +278,14 @@ def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
     spreads = [np.linalg.norm(pts[i][keep[i]] - centres[i], axis=1) - radii[i] for i in np.flatnonzero(used)]
     rays = CAPSULE_RAYS * len(CAPSULE_STATIONS)
     avatar_bone = rig.bone_map.bones.get(bone, bone)
-    if (n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2) and bone.split("_")[0] in sk.FINGERS:
-        # A finger the mesh does not model (a mitten hand), or too thin for the rings: its
-        # proportions to its bone stand in, and the calibration says so.
-        _estimate_capsule(survey, bone, f"only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh")
-        return
     if n_hit < MIN_CAPSULE_HITS * rays or len(station_r) < 2:
-        raise BodyCalError(f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh",
-                           source=rig.armature, hint="is the mesh skinned to this armature and around the bone?")
+        # A finger the mesh does not model (a mitten hand), too thin for the rings, or a limb a
+        # stylised character leaves bare (RobotExpressive's upper arms: a shoulder ball and the
+        # forearm, 35 % of the rays hit): its proportions to its bone stand in, and the calibration
+        # says so (most of the limbs missed: refused, `_measure_capsules`).
+        why = f"capsule:{bone}: only {n_hit} of {rays} rays from bone {avatar_bone} hit the mesh"
+        _estimate_capsule(survey, bone, why.split(": ", 1)[1])
+        return why
     extend = LIMB_EXTRAPOLATION if bone in sl.LIMB_CAPSULE_BONES else 0.0
     rh, rt = linear_radii(station_t, station_r, extend)
     ch, ct = linear_offsets(station_t, station_c, extend)
@@ -282,13 +295,14 @@ def _measure_capsule(survey: _Survey, bone: str, ring_2d: np.ndarray) -> None:
         # A few rays grazing a stylised or low-poly part can fit a line that runs off (a base
         # mesh's fingertip came out 96 m thick): the bone's proportions stand in.
         _estimate_capsule(survey, bone, f"its rings fit a radius of {max(rh, rt):.3g} m on a {length:.3g} m bone")
-        return
+        return None
     model.bones[bone].radius_head, model.bones[bone].radius_tail = rh, rt
     element = SurfaceElement(f"capsule:{bone}", "capsule", bone)
     element.set_axis_offsets((ch[0], 0.0, ch[1]), (ct[0], 0.0, ct[1]))  # bone frame: x, (y along), z
     model.surface.append(element)
     survey.quality[f"capsule:{bone}"] = {"rays": rays, "hit": n_hit, "rejected": n_rej,
                                          "spread_mm": round(float(np.concatenate(spreads).std() * 1000), 3)}
+    return None
 
 
 # --- what the rays could not measure: the shared avatars' proportions (avatar/template.py) ------------
@@ -322,6 +336,18 @@ def _estimate_head(survey: _Survey, why: str) -> None:
         points={p: SurfacePoint("head", np.asarray(TEMPLATE[f"mesh:jaw/{p}"], float) * size) for p in sl.JAW_POINTS}))
     for element in ("sphere:skull", "mesh:jaw"):
         _note_estimated(survey, element, why)
+
+
+def _estimate_sole(survey: _Survey, s: str, why: str) -> None:
+    """`mesh:sole_<s>` from the template, scaled by the foot (ankle to toe joint) as a bare
+    skeleton's (avatar/estimate.py); no skin contact points."""
+    names = sl.sole_points(6, s)
+    size = float(np.linalg.norm(survey.J[f"toe_{s}"] - survey.J[f"ankle_{s}"]))  # as estimate.scales sizes it
+    survey.model.surface[:] = [e for e in survey.model.surface if e.id != f"mesh:sole_{s}"]
+    survey.model.surface.append(SurfaceElement(
+        f"mesh:sole_{s}", "mesh", f"foot_{s}", triangles=sl.fan_triangles(names),
+        points={p: SurfacePoint(f"foot_{s}", np.asarray(TEMPLATE[f"mesh:sole_{s}/{p}"], float) * size) for p in names}))
+    _note_estimated(survey, f"mesh:sole_{s}", why)
 
 
 def _head_centre(survey: _Survey) -> tuple[np.ndarray, float]:

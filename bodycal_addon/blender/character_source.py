@@ -154,7 +154,7 @@ def bvh_unit(path) -> tuple[str, float]:
 
 def open_source(path) -> list[str]:
     """Make the source file the open file (a .blend opened, a .bvh / .fbx / .glb / .gltf imported
-    into an empty scene); returns notes (a BVH's unit)."""
+    into an empty scene); returns notes (a BVH's unit, skins an FBX import had to bind again)."""
     import bpy
 
     path = Path(path)
@@ -165,8 +165,7 @@ def open_source(path) -> list[str]:
     if not path.is_file():
         raise BodyCalError("no such file", source=str(path))
     if suffix != ".bvh":
-        open_avatar(path)
-        return []
+        return open_avatar(path)
     unit, scale = bvh_unit(path)
     bpy.ops.wm.read_homefile(use_empty=True)
     with stderr_to_stdout():

@@ -41,6 +41,7 @@ from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..live.session import LiveSession, LiveUpdate
+from ..output.armature_space import ArmatureSpacePlan, keyed_in_armature_space
 from ..output.root_motion import apply_root_motion, check_root_motion
 from ..recording.filters import OneEuro
 from ..recording.io import load_recording
@@ -68,6 +69,7 @@ class Following:
     writer: preview.PoseWriter | None = None
     rest: object = None  # output.root_motion.RootRest, read at the first write
     first: AvatarAnimation | None = None  # the first solved frame: in-place root motion holds its spot
+    loose_limbs: ArmatureSpacePlan | None = None  # IK feet beside the legs (a game rig), read at the first write
     rigify_target: str | None = None  # a generated Rigify rig: "fk" (its controls) or "def" (no constraints left)
     rigify: rig_output.RigifyPlan | None = None  # made at the first write (it sets the rig up)
     def_muted: bool = False  # the rig's DEF- constraints were muted (a DEF bake): so again on Stop
@@ -344,7 +346,8 @@ def _animation(follower, solved, frame) -> AvatarAnimation:
 def _with_root_motion(f: Following, anim: AvatarAnimation) -> AvatarAnimation:
     if f.root_motion == "in-place":  # the travel removed relative to the first frame followed
         anim = preview.joined(f.first, anim)
-    return apply_root_motion(anim, f.rest, f.root_motion, own=True)
+    anim = apply_root_motion(anim, f.rest, f.root_motion, own=True)
+    return keyed_in_armature_space(anim, f.loose_limbs)  # a game rig's IK feet, as the bake keys them
 
 
 def _converter(f: Following, follower):
@@ -363,6 +366,7 @@ def _write(f: Following, arm, follower, solved, update: LiveUpdate) -> None:
         anim = _animation(follower, solved, update.frame_of(follower.name))
         if f.rest is None:
             f.rest = rig_output.root_rest(arm, anim, f.bone_map)
+            f.loose_limbs = rig_output.armature_space_plan(arm, f.bone_map)
             f.first = anim
             follower.convert = _converter(f, follower)
         anim = _with_root_motion(f, anim)

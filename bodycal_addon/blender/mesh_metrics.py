@@ -27,6 +27,7 @@ from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..output import metrics
 from ..retarget.avatar_pose import AvatarRig
+from . import avatar_rig, rig_output
 
 
 def world_vertices(obj, depsgraph) -> np.ndarray:
@@ -92,13 +93,15 @@ def effector_points(avatar: BodyModel, rig: AvatarRig, anim: AvatarAnimation, ef
 
 
 class EvaluatedMesh:
-    """The skinned meshes of an armature, with the dominant bone of every triangle."""
+    """The skinned meshes of an armature and the rigid parts riding on its bones (a game robot's
+    head, torso and feet: parented to a bone, every vertex that bone's), with the dominant bone of
+    every triangle."""
 
     def __init__(self, arm, meshes=None):
         self.arm = arm
         if meshes is None:
-            meshes = [o for o in bpy.data.objects if o.type == "MESH" and any(
-                m.type == "ARMATURE" and m.object == arm for m in o.modifiers)]
+            meshes = [o for o in bpy.data.objects if o.type == "MESH" and (any(
+                m.type == "ARMATURE" and m.object == arm for m in o.modifiers) or _rides_on_bone(o, arm))]
         if not meshes:
             raise BodyCalError("no mesh is skinned to this armature", source=arm.name)
         self.meshes = meshes
@@ -136,7 +139,9 @@ class EvaluatedMesh:
 def posed(arm, anim: AvatarAnimation, meshes):
     """A function `frame -> {mesh name: (V, 3) world vertices}` of the skinned `meshes` with the
     armature posed at that frame of `anim` (its action detached meanwhile); the armature's pose
-    and action are put back afterwards."""
+    and action are put back afterwards. Limb bones beside the limb (a game rig's IK feet) are posed
+    in the armature's space as the bake keys them (rig_output.with_armature_space)."""
+    anim = rig_output.with_armature_space(anim, arm, avatar_rig.bone_map_for(arm))
     pbs = [arm.pose.bones[n] for n in anim.bone_names]
     root = arm.pose.bones[anim.root_bone]
     saved = [(pb.rotation_mode, tuple(pb.rotation_quaternion), tuple(pb.location)) for pb in arm.pose.bones]
@@ -332,8 +337,15 @@ def played(arm, meshes):
         scene.frame_set(was[0], subframe=was[1])
 
 
+def _rides_on_bone(obj, arm) -> bool:
+    return obj.parent == arm and obj.parent_type == "BONE" and obj.parent_bone in arm.data.bones
+
+
 def _dominant(obj) -> np.ndarray:
-    """(V,) the name of the vertex group with the largest weight on each vertex ("" for none)."""
+    """(V,) the name of the vertex group with the largest weight on each vertex ("" for none); a
+    rigid part parented to a bone without an Armature modifier: that bone's."""
+    if obj.parent_type == "BONE" and not any(m.type == "ARMATURE" for m in obj.modifiers):
+        return np.full(len(obj.data.vertices), obj.parent_bone, dtype=object)
     groups = {g.index: g.name for g in obj.vertex_groups}
     dom = np.full(len(obj.data.vertices), "", dtype=object)
     for v in obj.data.vertices:

@@ -121,6 +121,7 @@ def show(pv: Preview, scene) -> None:
         anim = joined(pv.first, anim)
     bone_map = naming.BoneMap.from_dict(pv.target.avatar.extra["rig"]["bone_map"])
     anim = rig_output.with_root_motion(anim, arm, bone_map, pv.root_motion, own=True)
+    anim = rig_output.with_armature_space(anim, arm, bone_map)  # as the bake keys it
     write_pose(arm, anim, row=anim.frame_count - 1)
     pv.solve_ms = (time.perf_counter() - t0) * 1000.0
 

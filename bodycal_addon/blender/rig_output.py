@@ -1,7 +1,8 @@
 """What the bake keys on the armature besides the engine's own pose bones (DESIGN.md §1, "Root
 motion" and "Rigify"): where the travel goes (root motion, `retarget/root_motion.py`) read off
-the armature object's rest pose, and a generated Rigify rig's DEF- pose carried onto its FK
-controls or its DEF- bones (`retarget/rigify.py`).
+the armature object's rest pose, limb bones beside the limb (a game rig's IK feet) keyed in the
+armature's space (`output/armature_space.py`), and a generated Rigify rig's DEF- pose carried onto
+its FK controls or its DEF- bones (`retarget/rigify.py`).
 """
 
 from __future__ import annotations
@@ -10,9 +11,12 @@ import copy
 
 import numpy as np
 
+from ..avatar.armature import loose_limb_bones
 from ..body import naming
 from ..body.animation import AvatarAnimation
+from ..core.errors import BodyCalError
 from ..output import rigify
+from ..output.armature_space import ArmatureSpacePlan, keyed_in_armature_space
 from ..output.root_motion import RootRest, apply_root_motion, check_root_motion
 from . import avatar_rig
 
@@ -55,6 +59,29 @@ def with_root_motion(anim: AvatarAnimation, obj, bone_map: naming.BoneMap, mode:
     if mode == "pelvis":
         return anim
     return apply_root_motion(anim, root_rest(obj, anim, bone_map), mode, own=own)
+
+
+# --- limb bones beside the limb: keyed in the armature's space (output/armature_space.py) -------------
+
+def armature_space_plan(obj, bone_map: naming.BoneMap) -> ArmatureSpacePlan | None:
+    """What keying the rig's loose limb bones (IK controls beside the limb) needs; None when every
+    limb bone hangs from the one before it (most rigs) or the map lacks a limb."""
+    if avatar_rig.is_rigify_generated(obj):  # its DEF- bones hang in order (avatar_rig.deform_parents)
+        return None
+    parents = {b.name: b.parent.name if b.parent else None for b in obj.data.bones}
+    try:
+        loose = loose_limb_bones(obj.name, bone_map, parents)
+    except (KeyError, BodyCalError):  # a map the avatar's reading refuses (or lacking a limb): nothing to key
+        return None
+    if not loose or not set(loose) <= set(parents):
+        return None
+    return ArmatureSpacePlan(loose, parents, {n: _rest4(obj, n) for n in parents},
+                             {n: bool(obj.data.bones[n].use_local_location) for n in loose})
+
+
+def with_armature_space(anim: AvatarAnimation, obj, bone_map: naming.BoneMap) -> AvatarAnimation:
+    """`anim` with the rig's loose limb bones keyed in the armature's space (unchanged on most rigs)."""
+    return keyed_in_armature_space(anim, armature_space_plan(obj, bone_map))
 
 
 # --- a generated Rigify rig (retarget/rigify.py) ----------------------------------------------------
@@ -231,6 +258,7 @@ def for_bake(anim: AvatarAnimation, obj, bone_map: naming.BoneMap, root_motion: 
     map the animation was solved with (the avatar model's). `own`: `anim` is given away and may be
     changed in place."""
     anim = with_root_motion(anim, obj, bone_map, root_motion, own)
+    anim = with_armature_space(anim, obj, bone_map)
     if avatar_rig.is_rigify_generated(obj):
         if rigify_target == "fk" and not controls_drive_deform(obj):
             anim = rigify_animation(anim, obj, "def")

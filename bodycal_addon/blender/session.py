@@ -339,7 +339,8 @@ def _read_and_bake(read_take, kind, avatar_file, armature, settings, options, lo
     for note in take.notes:
         log(note)
     step("opening the avatar", _STAGES["opening the avatar"])
-    open_avatar(Path(avatar_file))
+    for note in open_avatar(Path(avatar_file)):
+        log(note)
     arm = find_armature(armature, str(avatar_file))
     if bone_map is not None and apply_preset(arm, bone_map)[1]:
         log(f"{arm.name}: its stored avatar model was made with another bone map; calibrating it again")

@@ -16,6 +16,7 @@ from ..core.transforms import EPS
 from ..recording.model import ROLES_LIST, Recording
 from . import defaults, effectors, estimated_devices, feet, hands, head, limbs, touches, tpose, trunk
 from .common import Session, State
+from .unused_devices import warning_lines as unused_device_lines
 
 UP = np.array([0.0, 0.0, 1.0])
 CALIBRATION_STEPS = ("tpose", "stand", "palms_together", "flex_elbow_l", "flex_elbow_r", "flex_knee_l", "flex_knee_r",
@@ -91,7 +92,9 @@ def calibrate_user(recording: Recording, *, robust: bool = True, despike: bool =
     for step in CALIBRATION_STEPS:
         if not recording.segments_of(step) and step not in session.missing:
             session.missing.append(step)
-    return assemble(session, state, name or recording.name)
+    model = assemble(session, state, name or recording.name)
+    model.calibration["warnings"] += unused_device_lines(recording, model.calibration["defaulted"], session.has)
+    return model
 
 
 # --- assembly -----------------------------------------------------------------------------------

@@ -21,12 +21,14 @@ import numpy as np
 from ..core.errors import BodyCalError
 from ..core.geometry import fit_plane
 from ..core.transforms import rotate
-from .model import ROLES_LIST, Recording
+from .model import ROLES, ROLES_LIST, Recording
 
 HMD_FORWARD_LOCAL = np.array([0.0, 0.0, -1.0])
 HMD_UP_LOCAL = np.array([0.0, 1.0, 0.0])
 GEOMETRY_MARGIN = 0.03  # metres: HMD offset + mean foot offset ahead of the T-pose plane
 UP = np.array([0.0, 0.0, 1.0])
+WAIST = 0.55  # fraction of the head height: lateral devices above it are on the arms, below on the legs
+CENTRAL = 0.09  # fraction of the head height: devices this near the middle are on the trunk (or the head)
 
 
 def tpose_positions(rec: Recording) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -103,6 +105,7 @@ class _Assignment:
     fixed: dict[str, int]
     free: set[int]
     roles: dict[int, str] = field(default_factory=dict)
+    tracked: set[int] = field(default_factory=set)  # the devices seen in the tpose segment
 
     def take(self, i: int, role: str) -> None:
         self.roles[i] = role
@@ -116,9 +119,9 @@ class _Assignment:
         self.z_rel = (self.pos[:, 2] - self.floor) / self.height
 
 
-def _classify(rec: Recording) -> tuple[dict[str, str], str]:
-    """(device name -> role, how the facing was decided) from the tpose segment: the passes below in
-    the order AvatarGo §3.2 reads the T-pose, each taking devices the earlier ones left free."""
+def _oriented(rec: Recording) -> tuple[_Assignment, str]:
+    """The T-pose read as far as the facing: positions, given roles, the head taken, the lateral
+    and height coordinates set; and how the facing was decided."""
     src = rec.source or rec.name
     pos, tracked, info = tpose_positions(rec)
     idx = np.flatnonzero(tracked)
@@ -127,10 +130,18 @@ def _classify(rec: Recording) -> tuple[dict[str, str], str]:
                            "a foot or the pelvis)", source=src, field="segments")
     plane = fit_plane(pos[idx], name=f"{src}: tpose plane")
     fixed = {d.role: i for i, d in enumerate(rec.devices) if d.role}
-    found = _Assignment(rec, pos, fixed, set(int(i) for i in idx))
+    found = _Assignment(rec, pos, fixed, set(int(i) for i in idx), tracked=set(int(i) for i in idx))
     head = _take_head(found)
     fwd, how = _facing(rec, pos, tracked, plane.normal, head, info["frames"])
     found.orient(head, fwd, idx)
+    return found, how
+
+
+def _classify(rec: Recording) -> tuple[dict[str, str], str]:
+    """(device name -> role, how the facing was decided) from the tpose segment: the passes below in
+    the order AvatarGo §3.2 reads the T-pose, each taking devices the earlier ones left free."""
+    found, how = _oriented(rec)
+    fixed = found.fixed
     for role, i in fixed.items():  # keep given roles
         if i in found.free:
             found.take(i, role)
@@ -190,7 +201,7 @@ def _take_trunk(found: _Assignment) -> None:
     """Trunk: central free devices above the knees, highest first: chest then pelvis; one alone (or
     beside a given chest or pelvis) is the pelvis when low or when the chest is given."""
     fixed, z_rel = found.fixed, found.z_rel
-    central = 0.09 * found.height
+    central = CENTRAL * found.height
     rest = sorted(found.free, key=lambda i: -found.pos[i, 2])
     trunk = [i for i in rest if abs(found.u[i]) < central and z_rel[i] > 0.4]
     if len(trunk) >= 2 and "chest" not in fixed and "pelvis" not in fixed:
@@ -204,19 +215,44 @@ def _take_trunk(found: _Assignment) -> None:
 
 def _take_limbs(found: _Assignment) -> None:
     """Arms above the waist (upper arm nearer the middle, then forearm) and legs below it (thigh
-    higher, then shin), per side, among the free devices; given roles are not taken again."""
-    waist = 0.55
-    u, z_rel, fixed = found.u, found.z_rel, found.fixed
+    higher, then shin), per side, among the free devices; given roles are not taken again. With
+    one role of a limb given, the free device takes the other by where it sits: beyond the given
+    device (or before it) when that device is on this limb, else at the open role's place in the
+    limb's order (the given device is elsewhere: a role given to the wrong device). Pairing the free
+    devices with both roles and skipping the given one dropped a free forearm beside a given upper
+    arm, and a free shin beside a given thigh."""
     for s, sign in (("l", 1.0), ("r", -1.0)):
-        side = [i for i in found.free if sign * u[i] > 0]
-        arm = sorted((i for i in side if z_rel[i] >= waist), key=lambda i: sign * u[i])
-        leg = sorted((i for i in side if z_rel[i] < waist), key=lambda i: -found.pos[i, 2])
-        for i, role in zip(arm, (f"upperarm_{s}", f"forearm_{s}")):
-            if role not in fixed:
-                found.take(i, role)
-        for i, role in zip(leg, (f"thigh_{s}", f"shin_{s}")):
-            if role not in fixed:
-                found.take(i, role)
+        _take_limb(found, sign, True, (f"upperarm_{s}", f"forearm_{s}"))
+        _take_limb(found, sign, False, (f"thigh_{s}", f"shin_{s}"))
+
+
+def _take_limb(found: _Assignment, sign: float, arm: bool, roles: tuple[str, str]) -> None:
+    """One limb of `_take_limbs`: the side `sign` (+1 left), the arm or the leg, its two roles."""
+    u, z_rel = found.u, found.z_rel
+
+    def along(i):  # outward along the arm, downward along the leg
+        return sign * u[i] if arm else -found.pos[i, 2]
+
+    def on_limb(i):
+        return i in found.tracked and sign * u[i] > 0 and bool(z_rel[i] >= WAIST) == arm
+
+    devices = sorted((i for i in found.free if on_limb(i)), key=along)
+    open_roles = [r for r in roles if r not in found.fixed]
+    if len(open_roles) == 2:
+        for i, role in zip(devices, roles):
+            found.take(i, role)
+        return
+    if not open_roles:
+        return
+    lower = open_roles[0] == roles[1]
+    given = found.fixed[roles[0] if lower else roles[1]]
+    if on_limb(given):
+        beyond = [i for i in devices if (along(i) > along(given)) == lower]
+        pick = min(beyond, key=lambda i: abs(along(i) - along(given))) if beyond else None
+    else:
+        pick = devices[int(lower)] if len(devices) > int(lower) else None
+    if pick is not None:
+        found.take(pick, open_roles[0])
 
 
 def apply_roles(rec: Recording) -> dict[str, str]:
@@ -235,3 +271,39 @@ def apply_roles(rec: Recording) -> dict[str, str]:
         note += f"; no role for {', '.join(missing)}"
     rec.notes.append(note)
     return assigned
+
+
+def unused_devices(rec: Recording, has=None) -> dict[str, tuple[str, tuple[str, ...]]]:
+    """The devices still without a role, each with where the T-pose places it and the roles it could
+    carry there that no device holds (`has(role)`, default: a device holds it): name -> (where,
+    roles). A device the T-pose cannot place (no tpose segment, not tracked in it) could carry any
+    role no device holds. What a calibration says about a device it leaves unused."""
+    has = has or rec.has_role
+    unused = [i for i, d in enumerate(rec.devices) if d.role is None]
+    if not unused:
+        return {}
+    open_roles = tuple(r for r in ROLES if not has(r))
+    try:
+        found, _how = _oriented(rec)
+    except BodyCalError as exc:
+        return {rec.devices[i].name: (f"the T-pose cannot place it: {exc.message}", open_roles) for i in unused}
+    out = {}
+    for i in unused:
+        name = rec.devices[i].name
+        if i not in found.free and found.roles.get(i) != "head":
+            out[name] = ("not tracked in the tpose segment", open_roles)
+            continue
+        where, region = _region(found, i)
+        out[name] = (where, tuple(r for r in region if r in open_roles))
+    return out
+
+
+def _region(found: _Assignment, i: int) -> tuple[str, tuple[str, ...]]:
+    """Where device `i` sits in the T-pose and the roles of that part of the body."""
+    u, z = found.u[i], found.z_rel[i]
+    if abs(u) < CENTRAL * found.height and z > 0.4:  # as _take_trunk reads it
+        return "on the trunk", ("head", "chest", "pelvis")
+    s, side = ("l", "left") if u > 0 else ("r", "right")
+    if z >= WAIST:
+        return f"on the {side} arm", (f"upperarm_{s}", f"forearm_{s}", f"hand_{s}")
+    return f"on the {side} leg", (f"thigh_{s}", f"shin_{s}", f"foot_{s}")

@@ -172,7 +172,9 @@ class PreparedSolver:
             heel, ball = pts.get(f"sole_1_{s}"), [pts[k] for k in (f"sole_3_{s}", f"sole_5_{s}") if k in pts]
             contacts[s] = feet.Contact(outline.mean(0) if heel is None else heel,
                                        np.mean(ball, axis=0) if len(ball) == 2 else outline.mean(0), outline)
-            if avatar.calibration.get("method") != "estimated" and not self._old_soles_said:
+            cal = avatar.calibration
+            estimated = cal.get("method") == "estimated" or eid in cal.get("defaulted", {})  # said at calibration
+            if not estimated and not self._old_soles_said:
                 self._old_soles_said = True
                 self.notes.append(f"{avatar.name}: the soles' contact points were not measured on its skin (an "
                                   "avatar file from before they were): the sole's outline stands in; calibrate "

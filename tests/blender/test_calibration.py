@@ -577,6 +577,29 @@ def test_wizard_lists_the_steps_of_the_timeline_with_their_quality():
     assert hasattr(bpy.types, "BODYCAL_PT_calibration")
 
 
+def test_the_panel_says_which_device_was_left_without_a_role():
+    """A tracker the T-pose never saw and no role given: not used, and its limb's joints defaulted;
+    the Calibration panel says both (issue 40)."""
+    import bpy
+    import ui_layout
+    from recording_fixtures import tpose_recording
+
+    from bodycal_addon.blender.recording_scene import import_recording_to_scene
+
+    rec = tpose_recording(roles=True, shuffle=True, yaw=0.4, seed=6)
+    k = rec.device_index("forearm_r")
+    name = rec.devices[k].name
+    rec.devices[k].role = None
+    seg = rec.segments_of("tpose")[0]
+    rec.valid[rec.frames(seg.start - 0.1, seg.end + 0.1), k] = False
+    import_recording_to_scene(rec, bpy.context.scene)
+    assert bpy.ops.bodycal.calibrate_user(allow_defaults=True) == {"FINISHED"}
+    text = " ".join(e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_calibration, bpy.context) if e[0] == "label")
+    assert f"device {name} has no role and is not used" in text
+    for joint in ("elbow_r", "wrist_r"):
+        assert f"{joint} defaulted: no forearm_r tracker measured it, and device {name}, left without a role" in text
+
+
 @pytest.mark.slow
 def test_hinge_axis_from_rotations_beats_the_circle_normal(full_session):
     """DESIGN.md §3 decision (limbs.py): the hinge axis from the relative rotations."""

@@ -5,6 +5,8 @@ palm and sole boxes. The same truth checks as the BVH raycasts in Blender."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import truth_checks as tc
@@ -167,3 +169,38 @@ def test_a_caster_that_never_hits_gives_one_clear_error():
     with pytest.raises(BodyCalError, match=r"capsule:\w+: only 0 of 60 rays .* hit the mesh") as info:
         surface_from_rays(rig, Nothing(), spec.name)
     assert "\n" not in str(info.value)
+
+
+def test_a_limb_and_a_foot_the_mesh_leaves_bare_are_estimated_and_said():
+    """A stylised character (RobotExpressive: shoulder balls and bare rods of upper arms, a disc of
+    a foot) was refused at its first bare part ('capsule:upperarm_l: only 21 of 60 rays ...', then
+    'the ray for mesh:sole_l sole_3_l ... missed'). A bare limb's capsule and a foot the sole rays
+    miss take the body's proportions, and the calibration lists them; the rest is measured."""
+    spec = procedural.build_spec()
+    bones = _rest_bones(spec)
+    rig = read_armature(spec.name, np.eye(4), bones, naming.detect_bone_map(list(bones)))
+    shoulder, elbow = rig.joints["shoulder_l"], rig.joints["elbow_l"]
+    ankle, across = rig.joints["ankle_l"], rig.joints["ankle_l"] - rig.joints["ankle_r"]
+
+    class Bare(AnalyticCaster):
+        def cast(self, origin, direction, max_dist=1e4):
+            along = (origin - shoulder) @ (elbow - shoulder) / np.sum((elbow - shoulder) ** 2)
+            on_upper_arm = 0.05 < along < 0.95 and np.linalg.norm(
+                origin - shoulder - along * (elbow - shoulder)) < 1e-6
+            under_left_foot = origin[2] < ankle[2] and (origin - ankle + 0.5 * across) @ across > 0
+            if on_upper_arm or under_left_foot:
+                self.rays += 1
+                return None
+            return super().cast(origin, direction, max_dist)
+
+    model = surface_from_rays(rig, Bare(spec, np.eye(4)), spec.name)
+    defaulted = model.calibration["defaulted"]
+    assert re.search(r"only 0 of 60 rays from bone upperarm_l hit the mesh", defaulted["capsule:upperarm_l"])
+    assert "mesh:sole_l" in defaulted and "mesh:sole_r" not in defaulted and "capsule:forearm_l" not in defaulted
+    assert {"capsule:upperarm_l", "mesh:sole_l"} <= {e.id for e in model.surface}
+    assert model.calibration["quality"]["mesh:sole_l"] == {"estimated": True}
+    truth, _ = _measure(spec)
+    sole = model.element("mesh:sole_l")
+    true = truth.element("mesh:sole_l")
+    spread = [np.linalg.norm(sole.points[k].local - true.points[k].local) for k in true.points]
+    assert max(spread) < 0.06, spread  # the template's sole, scaled by the foot: near the real one

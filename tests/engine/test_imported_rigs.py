@@ -158,12 +158,76 @@ def test_a_pelvis_the_thighs_do_not_hang_from_gives_way_to_the_one_they_do():
     assert _read(bones, bm).joints["pelvis"] is not None
 
 
-def test_a_foot_beside_the_leg_is_one_line():
-    """RobotExpressive's and Quaternius' knight's feet are IK controls under the root: the
-    retargeted legs would leave them where they stood."""
+def test_a_foot_beside_the_leg_is_posed_from_the_shin():
+    """RobotExpressive's and Quaternius' knight's feet are IK controls under the root (refused with
+    'does not hang from the shin bone'): the engine poses the foot as if it hung from the shin, and
+    the model's rig says which bones the bake keys in the armature's space."""
     spec = procedural.build_spec()
+    truth = _read(_rest_bones(spec))
     bones = _rest_bones(spec)
     bones["foot_l"]["parent"] = "Root"
-    with pytest.raises(BodyCalError, match=r"the foot bone 'foot_l' does not hang from the shin bone 'calf_l'") as info:
-        _read(bones)
+    rig = _read(bones)
+    assert rig.armature_space == {"foot_l": "Root"} and rig.bones["foot_l"]["parent"] == "calf_l"
+    assert rig.rig_dict()["armature_space"] == {"foot_l": "Root"} and "armature_space" not in truth.rig_dict()
+    assert all(np.allclose(rig.joints[j], truth.joints[j]) for j in truth.joints)
+
+
+def test_a_limb_mapped_upside_down_is_one_line():
+    spec = procedural.build_spec()
+    bones = _rest_bones(spec)
+    bm = naming.detect_bone_map(list(bones))
+    bm.bones["shin_l"], bm.bones["foot_l"] = bm.bones["foot_l"], bm.bones["shin_l"]
+    with pytest.raises(BodyCalError, match=r"the foot bone 'calf_l' does not hang from the shin bone 'foot_l', which "
+                                           r"hangs from it") as info:
+        _read(bones, bm)
     assert "\n" not in str(info.value)
+
+
+def _chain(n, parents):
+    out = []
+    while n is not None:
+        out.append(n)
+        n = parents.get(n)
+    return out
+
+
+@pytest.mark.parametrize("local_location", [True, False])
+def test_the_bake_keys_a_loose_foot_so_blender_poses_it_where_the_engine_did(local_location):
+    """output/armature_space.py: any pose of the rig (every bone turned, the travel on the pelvis,
+    the foot's parent in the file turned too) keyed with the foot's location and rotation relative
+    to its parent in the file gives every bone the armature-space pose the engine's hierarchy
+    gives (Blender's pose rule, rigify.pose_matrices; Local Location off: the location along the
+    parent's axes, as Blender reads it)."""
+    from bodycal_addon.body.animation import AvatarAnimation
+    from bodycal_addon.core import transforms as tf
+    from bodycal_addon.output import rigify
+    from bodycal_addon.output.armature_space import ArmatureSpacePlan, keyed_in_armature_space
+
+    bones = _rest_bones(procedural.build_spec())
+    rest = {n: rigify.rest_matrix(b["matrix"], b["head"]) for n, b in bones.items()}
+    engine = {n: b["parent"] for n, b in bones.items()}
+    file = dict(engine, foot_l="Root")
+    names = sorted(bones, key=lambda n: len(_chain(n, engine)))
+    rng = np.random.default_rng(4)
+    frames = 7
+    rot = tf.quat_normalize(np.array([1.0, 0, 0, 0]) + 0.4 * rng.normal(size=(frames, len(names), 4)))
+    anim = AvatarAnimation("rig", names, rot, "pelvis", rng.normal(size=(frames, 3)) * 0.2, np.arange(frames) / 30.0)
+    plan = ArmatureSpacePlan({"foot_l": "calf_l"}, file, rest, {"foot_l": local_location})
+    keyed = keyed_in_armature_space(anim, plan)
+    assert set(keyed.bone_locations) == {"foot_l"} and keyed.notes and not anim.bone_locations
+
+    def poses(a, parents):
+        basis = {}
+        for k, n in enumerate(a.bone_names):
+            loc = a.root_location if n == a.root_bone else a.bone_locations.get(n)
+            if n == "foot_l" and loc is not None and not local_location:  # Blender: along the parent's axes
+                off = np.linalg.inv(rest["Root"]) @ rest["foot_l"]
+                loc = loc @ off[:3, :3]
+            basis[n] = rigify.basis_matrices(a.rotations[:, k], loc)
+        return rigify.pose_matrices(sorted(a.bone_names, key=lambda n: len(_chain(n, parents))), parents, rest, basis)
+
+    want, got = poses(anim, engine), poses(keyed, file)
+    for n in ("foot_l", "ball_l", "calf_l", "Root", "foot_r"):
+        assert np.allclose(got[n], want[n], atol=1e-9), n
+    assert not np.allclose(poses(anim, file)["foot_l"], want["foot_l"], atol=1e-3)  # the engine's keys as they were
+    assert keyed_in_armature_space(keyed, plan) is keyed  # keyed once

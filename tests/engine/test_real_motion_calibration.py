@@ -173,3 +173,24 @@ def test_six_devices_place_the_ankle_across_the_leg_from_the_hip_swing(performer
         for s in "lr":
             assert user.calibration["quality"][f"{j}_{s} from the swing"]["across_limb_mm"] > 0
             assert "its swing kept at one distance" in user.calibration["defaulted"][f"{j}_{s}"]
+
+
+@pytest.mark.parametrize("role", ("forearm_l", "shin_r"))
+def test_a_limb_tracker_without_its_role_is_identified_and_its_limb_measured(performers, tmp_path, role):
+    """Every role given but one limb tracker's (FORMATS §2.1: the T-pose identifies it). The free
+    forearm (shin) was offered the given upper arm's (thigh's) role and dropped: on this session its
+    limb's joints came out 12-46 mm off (elbow 15.3, wrist 12.4; knee 24.5, ankle 45.5) where the
+    other side's are within 4 mm (issue 40)."""
+
+    def cut(cap):
+        next(m for m in cap.mounts if m.role == role).role = None
+
+    rec, cap = outside_recording(performers[DANCE], tmp_path, "full", 0, "Y", cut=cut)
+    assert all(d.role for d in rec.devices) and rec.has_role(role)
+    user = calibrate_user(rec)
+    truth = cap.truth()
+    ref = int(round(user.reference_time * truth["fps"]))
+    s = role[-1]
+    for j in (f"{j}_{s}" for j in (("elbow", "wrist") if role.startswith("forearm") else ("knee", "ankle"))):
+        err = 1000 * float(np.linalg.norm(user.joints[j].world - truth["positions"][ref, truth["joints"].index(j)]))
+        assert err < 10.0 and j not in user.calibration["defaulted"], (j, err)

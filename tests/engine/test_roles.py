@@ -134,3 +134,71 @@ def test_roles_of_the_synthetic_performer(profile, build, seed):
         truth[f"dev{k}"] = truth.pop(d.name)
         d.name, d.role = f"dev{k}", None
     assert roles.identify_roles(rec) == truth
+
+
+@pytest.mark.parametrize("missing", ["forearm_l", "forearm_r", "shin_l", "shin_r", "upperarm_l", "thigh_r"])
+@pytest.mark.parametrize("yaw", [0.0, 2.4])
+def test_one_limb_role_left_empty_is_identified(missing, yaw):
+    """Every role given but one limb tracker's: the T-pose names it (FORMATS §2.1), whichever of the
+    limb's two devices it is (issue 40: a free forearm was offered the given upper arm's role and
+    dropped; a free shin the given thigh's)."""
+    kw = dict(yaw=yaw, profile="full", shuffle=True, seed=4)
+    rec = tpose_recording(roles=True, **kw)
+    truth = {d.name: d.role for d in rec.devices}
+    name = next(n for n, r in truth.items() if r == missing)
+    next(d for d in rec.devices if d.name == name).role = None
+    assert roles.identify_roles(rec) == truth
+    roles.apply_roles(rec)
+    assert next(d for d in rec.devices if d.name == name).role == missing
+    assert "no role for" not in rec.notes[-1]
+
+
+def test_both_forearms_and_both_shins_left_empty_are_identified():
+    kw = dict(yaw=-0.9, profile="full", shuffle=True, seed=8)
+    rec = tpose_recording(roles=True, **kw)
+    truth = {d.name: d.role for d in rec.devices}
+    for d in rec.devices:
+        if d.role.startswith(("forearm", "shin")):
+            d.role = None
+    assert roles.identify_roles(rec) == truth
+
+
+def _with_extra_device(rec, like: str, name: str = "LHR-EXTRA", shift=(0.0, 0.0, -0.04)):
+    """`rec` with one more tracker without a role, strapped a few cm from the `like` role's."""
+    from bodycal_addon.recording.model import Device, Recording
+    k = rec.device_index(like)
+    return Recording(rec.name, rec.time, rec.devices + [Device(name, "tracker", None)],
+                     np.concatenate([rec.positions, rec.positions[:, k:k + 1] + np.asarray(shift)], axis=1),
+                     np.concatenate([rec.rotations, rec.rotations[:, k:k + 1]], axis=1),
+                     np.concatenate([rec.valid, rec.valid[:, k:k + 1]], axis=1), segments=rec.segments)
+
+
+def test_unused_devices_say_where_they_are_and_what_they_could_be():
+    """A device left without a role: where the T-pose places it and the roles free there (issue 40:
+    what `calibrate-user` warns about)."""
+    rec = tpose_recording(roles=True, yaw=0.7)
+    assert roles.unused_devices(rec) == {}
+    # A third tracker on the left arm beside the given upper arm and forearm: nothing free there.
+    extra = _with_extra_device(rec, "forearm_l")
+    assert roles.identify_roles(extra).get("LHR-EXTRA") is None
+    assert roles.unused_devices(extra) == {"LHR-EXTRA": ("on the left arm", ())}
+    # The right shin's tracker hidden through the T-pose: it cannot be placed, so it may be any role
+    # no device holds (here only its own).
+    hidden = tpose_recording(roles=True, yaw=0.7)
+    k = hidden.device_index("shin_r")
+    hidden.devices[k].role = None
+    tpose = hidden.segments_of("tpose")[0]
+    hidden.valid[hidden.frames(tpose.start, tpose.end), k] = False
+    assert roles.identify_roles(hidden).get("shin_r") is None
+    assert roles.unused_devices(hidden) == {"shin_r": ("not tracked in the tpose segment", ("shin_r",))}
+    # Seen in the T-pose (the roles not identified yet): on the right leg, where both roles are free.
+    seen = tpose_recording(roles=True, yaw=0.7)
+    seen.devices[seen.device_index("shin_r")].role = None
+    seen.devices[seen.device_index("thigh_r")].role = None
+    placed = roles.unused_devices(seen)
+    assert placed == {"thigh_r": ("on the right leg", ("thigh_r", "shin_r")),
+                      "shin_r": ("on the right leg", ("thigh_r", "shin_r"))}
+    # No T-pose at all.
+    seen.segments = [s for s in seen.segments if s.step != "tpose"]
+    where, could = roles.unused_devices(seen)["shin_r"]
+    assert where.startswith("the T-pose cannot place it: no tpose segment") and could == ("thigh_r", "shin_r")

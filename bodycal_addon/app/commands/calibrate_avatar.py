@@ -25,7 +25,8 @@ def run(args) -> int:
     preset = load_preset(bone_map) if bone_map else None
     with console.progress("calibrate-avatar") as step:
         step("opening the avatar", 0.0)
-        open_avatar(args.avatar)
+        for note in open_avatar(args.avatar):
+            console.say(note)
         arm = find_armature(args.armature, str(args.avatar))
         if preset is not None:
             apply_preset(arm, preset)

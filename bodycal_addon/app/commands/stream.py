@@ -96,7 +96,8 @@ def _avatar_model(path: Path, armature: str | None, bone_map: str | None):
     from ...body.bone_presets import load_preset
 
     preset = load_preset(bone_map) if bone_map else None
-    open_avatar(path)
+    for note in open_avatar(path):
+        console.say(note)
     arm = find_armature(armature, str(path))
     if preset is not None:
         apply_preset(arm, preset)
