@@ -30,7 +30,7 @@ rig): no NaN, verified, the feet on the floor and still while they stand, the co
 5 mm of their arms' reach (the user's skeleton), the avatar's wrists' acceleration p95 against the
 wrists the controllers carry (scaled by the arms).
 
-Prints ONE JSON line with `targets`. Run: .venv/bin/python benchmarks/bench_three_point.py [--quick]
+Prints ONE JSON line with `targets`. Run: .venv/bin/python benchmarks/bench_three_point.py [--quick] [--real-only]
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording import io as recording_io  # noqa: E402
 from bodycal_addon.recording.filters import DEFAULT_FILTER, filter_recording  # noqa: E402
-from bodycal_addon.retarget import lower_body  # noqa: E402
+from bodycal_addon.retarget import lower_body, offsets  # noqa: E402
 from bodycal_addon.retarget import pipeline as pl  # noqa: E402
 from bodycal_addon.retarget.avatar_pose import AvatarRig  # noqa: E402
 from bodycal_addon.retarget.user_animation import animate_user  # noqa: E402
@@ -258,6 +258,8 @@ def real_part(quick: bool) -> dict:
                "hands_beyond_reach_p95_mm": _hands_in_reach(user, pose, 0, rec.frame_count), "methods": {}}
         arm_k = _arm(avatar) / float(np.mean([user.bones[f"upperarm_{s}"].length + user.bones[f"forearm_{s}"].length
                                              for s in "lr"]))
+        eye_k = offsets.eye_height(avatar) / offsets.eye_height(user)
+        user_wrists = [metrics.acceleration_p95(pose.joints[:, JI[f"wrist_{s}"]], rec.fps) for s in "lr"]
         for method in pl.METHODS:
             got = {}
             try:
@@ -278,10 +280,13 @@ def real_part(quick: bool) -> dict:
                 got[f"slide_{s}_p95_mm"] = max(metrics.slide_p95_mm(sk_[part], on, rec.fps) or 0.0
                                                for part in ("heel", "ball"))
             # against the wrist as the controllers carry it (the user's, from the same smoothed devices;
-            # the controller's own origin moves less than the wrist it turns about), scaled by the arms
-            ratios = [metrics.acceleration_p95(anim.joints_world[f"wrist_{s}"].astype(float), rec.fps)
-                      / (metrics.acceleration_p95(pose.joints[:, JI[f"wrist_{s}"]], rec.fps) * arm_k) for s in "lr"]
+            # the controller's own origin moves less than the wrist it turns about), scaled as the method
+            # scales motion (metrics.motion_scale: offsets by the eye heights, the others by the arms)
+            k = metrics.motion_scale(method, {"wrist": arm_k, "ankle": arm_k}, eye_k)["wrist"]
+            ratios = [metrics.acceleration_p95(anim.joints_world[f"wrist_{s}"].astype(float), rec.fps) / (u * k)
+                      for s, u in zip("lr", user_wrists, strict=True)]
             got["wrist_accel_ratio"] = round(float(max(ratios)), 2)
+            got["wrist_accel_ratio_unscaled"] = round(float(max(r * k for r in ratios)), 2)
             fig["methods"][method] = got
         out[path.name] = fig
     return out
@@ -327,12 +332,14 @@ def targets(truth: dict, contacts: dict, real: dict | None = None) -> dict:
     return out
 
 
-def main(quick: bool = False):
+def main(quick: bool = False, real_only: bool = False):
     t0 = time.time()
-    arm, avatar = _avatar()
-    workdir = Path(tempfile.mkdtemp(prefix="bodycal-three-"))
-    truth = truth_part(arm, avatar, workdir, quick)
-    contacts = contact_part(arm, avatar, quick)
+    truth, contacts = {}, {}
+    if not real_only:
+        arm, avatar = _avatar()
+        workdir = Path(tempfile.mkdtemp(prefix="bodycal-three-"))
+        truth = truth_part(arm, avatar, workdir, quick)
+        contacts = contact_part(arm, avatar, quick)
     real = real_part(quick)
     out = {"bench": "three_point", "avatar": AVATAR, "real_avatar": REAL_AVATAR, "truth": truth, "contacts": contacts,
            "real": real, "targets": targets(truth, contacts, real), "seconds": round(time.time() - t0, 1)}
@@ -342,4 +349,4 @@ def main(quick: bool = False):
 
 if __name__ == "__main__":
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    main(quick="--quick" in sys.argv)
+    main(quick="--quick" in sys.argv, real_only="--real-only" in sys.argv)
