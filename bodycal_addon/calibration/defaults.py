@@ -531,6 +531,11 @@ def hand_axes(session: Session, state: State, body: BodyFrame, s: str, w: dict) 
         along = w[f"mcp_middle_{s}"] - w[f"wrist_{s}"]
     elif session.reference_step == "tpose":
         along = body.left * sign
+    elif session.has(f"hand_{s}") and f"wrist_{s}" in w:
+        # the fist's centre is along the hand from the wrist (`_place_wrist` put the wrist in from the
+        # grip): with the controllers held wherever the reference moment found them, a hand hanging
+        # down held the controller across its fingers, and the avatar's hand turned that way on it
+        along = session.ref_pose(f"hand_{s}")[0] - w[f"wrist_{s}"]
     else:
         along = -UP
     along = along / max(np.linalg.norm(along), 1e-9)

@@ -357,3 +357,27 @@ def test_a_controller_beyond_the_arm_turns_its_shoulder_toward_it(monkeypatch):
         # turned about the rigid shoulders' middle: as far from it as before
         assert np.allclose(np.linalg.norm(J[moved, row] - rmid[moved], axis=1), half[moved], atol=1e-9)
         assert np.array_equal(J[inside, row], R[inside, row])
+
+
+@pytest.mark.parametrize("take", ["aframe_vive/grabRight.json", "beat_saber/xror_sample2.bsor"])
+def test_without_a_t_pose_the_controller_lies_along_the_hand_that_holds_it(take):
+    """Real takes, no calibration step: the wrist is put in from the controller's grip (the fist's
+    centre, along the hand), so the hand points from the wrist to the controller all along, as
+    the avatar's hand holds its controller (retarget/offsets.controller_in_hand: along the hand,
+    under the palm). A hand hanging down across the controller turned every avatar's hand 60-90°
+    on it and, with Exact Offsets, swung the avatar's wrist about the controller on the wrong side
+    (its acceleration 1.7x the player's on the Beat Saber replay)."""
+    from bodycal_addon.body.skeleton import BONE_INDEX as BI
+    from bodycal_addon.recording import io as recording_io
+
+    rec = recording_io.load_recording(paths.data_dir() / "real_vr" / take)
+    user = calibrate_user(rec)
+    assert user.calibration["reference"] == "standing moment"
+    pose = animate_user(lower_body.complete(rec, user), user)
+    roles = [d.role for d in rec.devices]
+    for s in "lr":
+        grip = rec.positions[:, roles.index(f"hand_{s}")]
+        to_grip = tf.normalize(grip - pose.joints[:, JI[f"wrist_{s}"]])
+        along = pose.frames[:, BI[f"hand_{s}"]][:, :, 1]  # a bone's Y runs along it
+        angle = np.degrees(np.arccos(np.clip((to_grip * along).sum(axis=1), -1.0, 1.0)))
+        assert np.percentile(angle, 95) < 10.0, (s, np.percentile(angle, [50, 95]))
