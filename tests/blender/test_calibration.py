@@ -579,7 +579,7 @@ def test_wizard_lists_the_steps_of_the_timeline_with_their_quality():
 
 def test_the_panel_says_which_device_was_left_without_a_role():
     """A tracker the T-pose never saw and no role given: not used, and its limb's joints defaulted;
-    the Calibration panel says both (issue 40)."""
+    the Calibration panel says both."""
     import bpy
     import ui_layout
     from recording_fixtures import tpose_recording
@@ -593,7 +593,7 @@ def test_the_panel_says_which_device_was_left_without_a_role():
     seg = rec.segments_of("tpose")[0]
     rec.valid[rec.frames(seg.start - 0.1, seg.end + 0.1), k] = False
     import_recording_to_scene(rec, bpy.context.scene)
-    assert bpy.ops.bodycal.calibrate_user(allow_defaults=True) == {"FINISHED"}
+    assert bpy.ops.bodycal.calibrate_user() == {"FINISHED"}
     text = " ".join(e[1] for e in ui_layout.draw(bpy.types.BODYCAL_PT_calibration, bpy.context) if e[0] == "label")
     assert f"device {name} has no role and is not used" in text
     for joint in ("elbow_r", "wrist_r"):
