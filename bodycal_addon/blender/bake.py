@@ -7,8 +7,10 @@ keys (or, with `interpolation="bezier"`, Bézier keys with Auto Clamped handles)
 with `keyframe_points.add(n)` + `foreach_set("co", ...)`, a few thousand times faster than inserting
 one key per call (BLENDER_NOTES.md: 5.8 M keys/s against 11.7 k/s).
 Portable across Blender 4.2 (`action.fcurves`) and 4.4+ / 5.0 slotted actions
-(`action.fcurve_ensure_for_datablock`). Everything is computed before the scene is touched, and
-if writing fails half way the new action is removed and the previous assignment restored.
+(`action.fcurve_ensure_for_datablock`). Two passes: `plan_bake` computes everything (the keys,
+the action's name, what it replaces) and only reads the scene; `write_bake` is the one pass that
+changes it, and if writing fails half way the new action is removed and the previous assignment
+restored. `bake_animation` runs both.
 """
 
 from __future__ import annotations

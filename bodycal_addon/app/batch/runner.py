@@ -1,7 +1,6 @@
 """Running a batch's jobs (`jobs.py`) here, each in its own worker process: `workers` at a time, a
 job over its `timeout` ended, a failed job reported while the others finish, and the summary
-(`<output_dir>/summary.json`, docs/FORMATS.md §4.1). `app/cluster.py` runs the same jobs on a Dask
-cluster with these parts.
+(`<output_dir>/summary.json`, docs/FORMATS.md §4.1).
 
 Stopping: on SIGINT (Ctrl-C) or SIGTERM no new job starts, running workers are sent SIGTERM and,
 after GRACE_SECONDS, SIGKILL (a second signal kills at once); the summary lists what finished and
