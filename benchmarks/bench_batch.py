@@ -135,7 +135,7 @@ def memory_of_1000_tiny_jobs(root: Path) -> float:
         (root / "tiny_inputs" / f"fast{i}.bcrec.json").write_text("{}")
         text += f'[[recordings]]\npath = "tiny_inputs/fast{i}.bcrec.json"\nuser = "takes/performer.body.json"\n'
     (root / "tiny.toml").write_text(text)
-    batch.command_line = fake_job.command  # pickled by reference: the workers run the stand-in too
+    batch.runner.command_line = fake_job.command  # pickled by reference: the workers run the stand-in too
     me, peak, done = psutil.Process(), [0], threading.Event()
 
     def sample():

@@ -12,7 +12,7 @@ An existing output is refused unless --overwrite is given, as `retarget` refuses
 $FAKE_PIDS set, each run leaves an empty file named after its pid there.
 
 Run it as `python -m bodycal_dev.fake_job ARGS...`; `command` is a drop-in for
-`bodycal_addon.app.batch.command_line`.
+`bodycal_addon.app.batch.runner.command_line`.
 """
 
 from __future__ import annotations

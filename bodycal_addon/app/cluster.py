@@ -45,7 +45,7 @@ from distributed.scheduler import KilledWorker
 
 from ..core.errors import BodyCalError
 from . import batch
-from .batch import GRACE_SECONDS, MAX_WORKERS, Job, Stop
+from .batch import GRACE_SECONDS, MAX_WORKERS, Job, Stop, runner
 
 CONNECT_SECONDS = 10.0  # to reach a remote scheduler
 WORKERS_SECONDS = 60.0  # for a remote scheduler to have at least one worker
@@ -201,8 +201,8 @@ class Scheduling:
         return any(message == key for _time, message in self.client.get_events(STARTED))
 
     def submit(self, index: int, job: Job, attempt: int):
-        # batch.command_line is looked up now, and called on the worker (its own interpreter)
-        future = self.client.submit(run_on_worker, job, self.settings["runner"], batch.command_line, self.stop.name,
+        # runner.command_line is looked up now, and called on the worker (its own interpreter)
+        future = self.client.submit(run_on_worker, job, self.settings["runner"], runner.command_line, self.stop.name,
                                     self.fresh[job.name], key=f"bodycal-{self.token}-{index}-{next(self.serial)}",
                                     pure=False)
         self.futures[future] = (index, job, attempt)

@@ -7,8 +7,10 @@ keys (or, with `interpolation="bezier"`, Bézier keys with Auto Clamped handles)
 with `keyframe_points.add(n)` + `foreach_set("co", ...)`, a few thousand times faster than inserting
 one key per call (BLENDER_NOTES.md: 5.8 M keys/s against 11.7 k/s).
 Portable across Blender 4.2 (`action.fcurves`) and 4.4+ / 5.0 slotted actions
-(`action.fcurve_ensure_for_datablock`). Everything is computed before the scene is touched, and
-if writing fails half way the new action is removed and the previous assignment restored.
+(`action.fcurve_ensure_for_datablock`). Two passes: `plan_bake` computes everything (the keys,
+the action's name, what it replaces) and only reads the scene; `write_bake` is the one pass that
+changes it, and if writing fails half way the new action is removed and the previous assignment
+restored. `bake_animation` runs both.
 """
 
 from __future__ import annotations
@@ -219,14 +221,78 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     `replace` is True, in which case the old action is removed once the new one is written.
     `verify()` runs once the keys are written and the action assigned, before anything else is
     changed (`bake_check.verify`); when it raises, the new action is removed as on a failed write.
+
+    Two passes: `plan_bake` computes everything (no scene change), `write_bake` writes it.
     """
+    plan = plan_bake(anim, obj, action_name=action_name, replace=replace, fps=fps, frame_start=frame_start,
+                     tolerance_deg=tolerance_deg, location_tolerance_mm=location_tolerance_mm, own=own,
+                     interpolation=interpolation)
+    return write_bake(plan, obj, push_to_nla=push_to_nla, set_scene_range=set_scene_range, verify=verify)
+
+
+@dataclass
+class KeyedProperty:
+    """One property the bake keys, one F-Curve per channel: a pose bone's rotation_quaternion (4)
+    or location (3), or a custom property (1, a Rigify switch). `values` holds every sample (F,
+    channels), float32, as Blender keys them; the keys are those at the frames `kept` marks (F,)."""
+
+    data_path: str
+    group: str | None  # the F-Curve group: the bone's name
+    kept: np.ndarray
+    values: np.ndarray
+    interpolation: int = LINEAR
+
+    @property
+    def keys(self) -> int:
+        return self.values.shape[1] * int(np.count_nonzero(self.kept))
+
+
+@dataclass
+class BakePlan:
+    """Everything a bake writes, computed by `plan_bake` without changing the scene: the action's
+    name, what it replaces, the bones set to quaternion rotation and every property's keys.
+    `write_bake` writes it. The action's slot is the armature object's, the one Blender makes when
+    the new action is assigned (4.4+; fcurves.py)."""
+
+    action_name: str  # the action's name once written
+    new_name: str  # the name it is created with (a temporary one while it replaces `replaces`)
+    replaces: str | None  # the existing action of that name it removes once written (`replace`)
+    frames32: np.ndarray  # (F,) the key frames of every sample, float32
+    quaternion_bones: tuple[str, ...]  # their rotation_mode becomes QUATERNION
+    properties: list[KeyedProperty]
+    dense_bones: tuple[str, ...] = ()  # bones keyed at more than DENSE_FRACTION of the frames, most first
+
+    @property
+    def keys(self) -> int:
+        return sum(p.keys for p in self.properties)
+
+    @property
+    def fcurves(self) -> int:
+        return sum(p.values.shape[1] for p in self.properties)
+
+
+def _bone_path(bone_name: str, prop: str) -> str:
+    return f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].{prop}'
+
+
+def plan_bake(anim: AvatarAnimation, obj, *, action_name: str | None = None, replace: bool = False,
+              fps: float | None = None, frame_start: float | None = None,
+              tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
+              location_tolerance_mm: float = DEFAULT_LOCATION_TOLERANCE_MM, own: bool = False,
+              interpolation: str = "linear") -> BakePlan:
+    """The bake of `anim` onto `obj` (`bake_animation`'s arguments), computed in numpy: the checks,
+    the key frames, the sign-continuous rotations, the keys the reduction keeps (rotations; the
+    root's location, and the bones root motion and a Rigify torso key: `anim.bone_locations`; the
+    Rigify switches' constant keys), the action's name. Reads the scene (its rate and first frame,
+    the armature, the actions' names); changes nothing in it. With `own`, `anim`'s rotations are
+    made continuous and reduced in place."""
     validate(anim, obj)
     check_interpolation(interpolation)
     bezier = interpolation == "bezier"
+    kind = BEZIER if bezier else LINEAR
     scene = bpy.context.scene
     fps = float(fps or scene.render.fps / scene.render.fps_base)
     frame_start = float(scene.frame_start if frame_start is None else frame_start)
-    # --- compute everything first -------------------------------------------------------------
     frames32 = key_frames(anim.time, fps, frame_start).astype(np.float32)
     in_place = own and anim.rotations.dtype in (np.float32, np.float64) and anim.rotations.flags.writeable
     # (F, B, 4) as Blender keys them, float32: what an every-frame bake holds, so the reduction's
@@ -236,42 +302,49 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     # the one `own` gave away).
     rot_keep, _ = keyreduce.rotation_keys(rotations, np.radians(max(tolerance_deg, 0.0)), out=rotations,
                                           bezier=bezier, frames=frames32)
-    dense = dense_bones(rot_keep, anim.bone_names, tolerance_deg)
+    properties = [KeyedProperty(_bone_path(bone_name, "rotation_quaternion"), bone_name, rot_keep[:, b],
+                                rotations[:, b], kind)
+                  for b, bone_name in enumerate(anim.bone_names)]
     # The tolerance is in world millimetres; locations are keyed in armature units.
     location_tolerance = max(location_tolerance_mm, 0.0) / 1000.0 / world_scale(obj)
-    # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso: (kept, values)
-    locations = {bone_name: keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance, bezier=bezier,
-                                                    frames=frames32)
-                 for bone_name, loc in {anim.root_bone: anim.root_location, **anim.bone_locations}.items()}
+    # the root (or pelvis) bone, then the root bone under root motion and Rigify's torso
+    for bone_name, loc in {anim.root_bone: anim.root_location, **anim.bone_locations}.items():
+        kept, values = keyreduce.location_keys(np.asarray(loc, np.float32), location_tolerance, bezier=bezier,
+                                               frames=frames32)
+        properties.append(KeyedProperty(_bone_path(bone_name, "location"), bone_name, kept, values, kind))
+    first = np.zeros(len(frames32), bool)
+    first[0] = True
+    for path, value in anim.constant_keys.items():  # switches: one key holds for the whole action
+        properties.append(KeyedProperty(path, None, first, np.broadcast_to(np.float32(value), (len(frames32), 1))))
     name = action_name or default_action_name("recording", obj.name, anim.method)
     old = bpy.data.actions.get(name)
+    replaces = old.name if old is not None and replace else None
+    return BakePlan(name, name + ".bodycal-new" if replaces else name, replaces, frames32, tuple(anim.bone_names),
+                    properties, dense_bones(rot_keep, anim.bone_names, tolerance_deg))
 
-    # --- then write ---------------------------------------------------------------------------
+
+def write_bake(plan: BakePlan, obj, *, push_to_nla: bool = False, set_scene_range: bool = False,
+               verify: Callable[[], None] | None = None) -> BakeResult:
+    """Writes `plan` (`plan_bake`) onto `obj`, the only pass that changes the scene: one new action,
+    assigned, its keys written with foreach_set, then `verify()`; if anything fails the action is
+    removed and the previous assignment restored. Then the replaced action is removed, the action
+    pushed to the NLA (`push_to_nla`) and the scene's frame range set (`set_scene_range`)."""
+    scene = bpy.context.scene
+    frames32 = plan.frames32
     had_animation_data = obj.animation_data is not None
     previous_action = obj.animation_data.action if had_animation_data else None
-    action = bpy.data.actions.new(name + ".bodycal-new" if old is not None and replace else name)
+    action = bpy.data.actions.new(plan.new_name)
     action.use_fake_user = False
-    fcurves = keys = 0
-    kind = BEZIER if bezier else LINEAR
     try:
         ad = obj.animation_data_create()
         ad.action = action
-        for b, bone_name in enumerate(anim.bone_names):
-            pb = obj.pose.bones[bone_name]
-            pb.rotation_mode = "QUATERNION"
-            path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].rotation_quaternion'
-            kept = rot_keep[:, b]
-            for i in range(4):
-                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], rotations[kept, b, i], kind)
-            fcurves, keys = fcurves + 4, keys + 4 * int(kept.sum())
-        for bone_name, (kept, loc) in locations.items():
-            path = f'pose.bones["{bpy.utils.escape_identifier(bone_name)}"].location'
-            for i in range(3):
-                write_keys(new_fcurve(action, obj, path, i, bone_name), frames32[kept], loc[kept, i], kind)
-            fcurves, keys = fcurves + 3, keys + 3 * int(kept.sum())
-        for path, value in anim.constant_keys.items():  # switches: one key holds for the whole action
-            write_keys(new_fcurve(action, obj, path, 0), frames32[:1], np.array([value], np.float32))
-            fcurves, keys = fcurves + 1, keys + 1
+        for bone_name in plan.quaternion_bones:
+            obj.pose.bones[bone_name].rotation_mode = "QUATERNION"
+        for prop in plan.properties:
+            frames, values = frames32[prop.kept], prop.values[prop.kept]
+            for i in range(values.shape[1]):
+                write_keys(new_fcurve(action, obj, prop.data_path, i, prop.group), frames, values[:, i],
+                           prop.interpolation)
         if verify is not None:
             verify()
     except Exception:
@@ -281,11 +354,9 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
             obj.animation_data_clear()
         bpy.data.actions.remove(action)
         raise
-    replaced = None
-    if old is not None and replace:
-        replaced = old.name
-        bpy.data.actions.remove(old)
-        action.name = name
+    if plan.replaces is not None:
+        bpy.data.actions.remove(bpy.data.actions[plan.replaces])
+        action.name = plan.action_name
     track = None
     if push_to_nla:
         nla = obj.animation_data.nla_tracks.new()
@@ -296,5 +367,5 @@ def bake_animation(anim: AvatarAnimation, obj, *, action_name: str | None = None
     if set_scene_range:
         scene.frame_start = int(np.floor(frames32[0]))
         scene.frame_end = max(scene.frame_start, int(np.ceil(frames32[-1])))
-    return BakeResult(action, keys, fcurves, (float(frames32[0]), float(frames32[-1])), replaced, track,
-                      fcurves * len(frames32), dense)
+    return BakeResult(action, plan.keys, plan.fcurves, (float(frames32[0]), float(frames32[-1])), plan.replaces,
+                      track, plan.fcurves * len(frames32), plan.dense_bones)

@@ -164,7 +164,7 @@ PART_BYTES = 64
 
 def safe_part(text: str) -> str:
     """One part of an output file name: no path separator, no `..`, no control or other special
-    character, at most PART_BYTES bytes of UTF-8, never empty (app/batch.py's docstring, "Output names")."""
+    character, at most PART_BYTES bytes of UTF-8, never empty (app/batch/jobs.py's docstring, "Output names")."""
     s = _UNSAFE.sub("_", unicodedata.normalize("NFC", text))
     s = re.sub(r"\.{2,}", "_", s)
     s = re.sub(r"_{2,}", "_", s).lstrip(".-")

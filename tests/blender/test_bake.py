@@ -4,8 +4,8 @@ import bpy
 import numpy as np
 import pytest
 
-from bodycal_addon.blender.bake import bake_animation
-from bodycal_addon.blender.fcurves import object_fcurves
+from bodycal_addon.blender.bake import bake_animation, plan_bake, write_bake
+from bodycal_addon.blender.fcurves import object_fcurves, read_keys
 from bodycal_addon.body.animation import AvatarAnimation
 from bodycal_addon.core import paths
 from bodycal_addon.core import transforms as tf
@@ -83,6 +83,46 @@ def test_failure_before_writing_changes_nothing():
     assert arm.animation_data.action == previous
     # Validation runs before anything is touched: the bones keep their rotation mode.
     assert {arm.pose.bones[b].rotation_mode for b in BONES} == {"XYZ"}
+
+
+def test_planning_changes_nothing_and_the_write_keys_exactly_the_plan():
+    """The bake's two passes: `plan_bake` reads the scene and changes nothing in it (no action, no
+    assignment, no rotation mode, no pose, no frame range); `write_bake` writes the plan's keys, no
+    other, into one new action that replaces the old one."""
+    arm = _armature()
+    previous = bpy.data.actions.new("rec|procedural|egocentric")
+    arm.animation_data_create().action = previous
+    for b in BONES:
+        arm.pose.bones[b].rotation_mode = "XYZ"
+    arm.pose.bones["head"].location = (0.01, 0.02, 0.03)
+    arm.pose.bones["head"]["switch"] = 0.0  # a Rigify-style switch, keyed once
+    scene = bpy.context.scene
+    scene_range = (scene.frame_start, scene.frame_end)
+    anim = _animation()
+    anim.constant_keys = {'pose.bones["head"]["switch"]': 1.0}
+    actions = sorted(a.name for a in bpy.data.actions)
+    plan = plan_bake(anim, arm, action_name="rec|procedural|egocentric", replace=True, frame_start=1.0,
+                     tolerance_deg=0.5, location_tolerance_mm=1.0)
+    assert sorted(a.name for a in bpy.data.actions) == actions
+    assert arm.animation_data.action == previous and len(object_fcurves(arm)) == 0
+    assert {arm.pose.bones[b].rotation_mode for b in BONES} == {"XYZ"}
+    assert tuple(arm.pose.bones["head"].location) == pytest.approx((0.01, 0.02, 0.03))
+    assert (scene.frame_start, scene.frame_end) == scene_range
+    assert plan.replaces == "rec|procedural|egocentric" and plan.quaternion_bones == tuple(BONES)
+    assert 0 < plan.keys < plan.fcurves * anim.frame_count  # the reduction thinned the keys
+
+    result = write_bake(plan, arm)
+    assert arm.animation_data.action == result.action and result.replaced == "rec|procedural|egocentric"
+    assert result.action.name == "rec|procedural|egocentric" and len(bpy.data.actions) == len(actions)
+    assert (result.keys, result.fcurves) == (plan.keys, plan.fcurves)
+    curves = object_fcurves(arm)
+    assert len(curves) == plan.fcurves
+    for prop in plan.properties:
+        for i in range(prop.values.shape[1]):
+            frames, values = read_keys(curves[prop.data_path, i])
+            np.testing.assert_array_equal(frames, plan.frames32[prop.kept])
+            np.testing.assert_array_equal(values, prop.values[prop.kept, i])
+    assert {arm.pose.bones[b].rotation_mode for b in BONES} == {"QUATERNION"}
 
 
 def test_push_to_nla_leaves_a_strip_and_no_active_action():

@@ -356,9 +356,9 @@ else:  # slow, and deaf to SIGTERM: only SIGKILL ends it
 
 DRIVER = r"""
 import sys
-import bodycal_addon.app.batch as batch
+import bodycal_addon.app.batch.runner as runner
 from bodycal_addon.app.cli import main
-batch.command_line = lambda job, runner: [sys.executable, sys.argv[1], *job.argv()]
+runner.command_line = lambda job, how: [sys.executable, sys.argv[1], *job.argv()]
 sys.exit(main(["batch", sys.argv[2]]))
 """
 
@@ -375,8 +375,8 @@ def test_a_worker_killed_while_saving_leaves_nothing_and_is_one_failure(tmp_path
     (tmp_path / "results").mkdir()
     (tmp_path / "results" / "fast__a__egocentric.blend@").write_text("left by a batch killed yesterday")
     monkeypatch.setenv("FAKE_PIDS", str(tmp_path / "pids"))
-    monkeypatch.setattr(batch, "command_line", lambda job, runner: [sys.executable, str(tmp_path / "fake_worker.py"),
-                                                                    *job.argv()])
+    fake = str(tmp_path / "fake_worker.py")
+    monkeypatch.setattr(batch.runner, "command_line", lambda job, runner: [sys.executable, fake, *job.argv()])
     lines = []
     summary = batch.run_batch(jobs, log=lines.append)
     assert (summary["ok"], summary["failed"], summary["cancelled"], summary["interrupted"]) == (1, 1, 0, None)

@@ -1,8 +1,8 @@
 """`bodycal batch JOBS.toml --cluster ...`: the batch's jobs as tasks on a Dask cluster (docs/FARM.md).
 
 Most tests run the real command line with `bodycal_dev.fake_job` standing in for `retarget` (the
-driver swaps `batch.command_line`, which the cluster sends to its workers), so jobs take a fraction
-of a second and can hang or kill their worker on purpose; one test bakes for real and compares the
+driver swaps `batch.runner.command_line`, which the cluster sends to its workers), so jobs take a
+fraction of a second and can hang or kill their worker on purpose; one test bakes for real and compares the
 actions with the local batch's. Clusters here have at most 2 workers, on 127.0.0.1 only."""
 
 import json
@@ -26,12 +26,12 @@ pytest.importorskip("distributed", reason="the cluster tests need dask and distr
 
 DRIVER = r"""
 import sys
-import bodycal_addon.app.batch as batch
+import bodycal_addon.app.batch.runner as runner
 from bodycal_addon.app.cli import main
 from bodycal_dev import fake_job
 
 if __name__ == "__main__":  # the cluster's workers are spawned: they import this file as a module
-    batch.command_line = fake_job.command
+    runner.command_line = fake_job.command
     sys.exit(main(["batch", *sys.argv[1:]]))
 """
 
