@@ -1,0 +1,91 @@
+"""The docs tell the truth about the tree: DESIGN.md's module table ("| layer | package | does |")
+names every module under `bodycal_addon/` in its package's row, and the docs' links to sections of
+DESIGN.md and PERFORMANCE.md resolve to a heading that exists.
+
+A module counts as named when its file stem appears in backticks in its package's row (`solver`,
+`user.py`, `recording/live/buffer.LiveRecording` all name theirs); a subpackage when its directory
+does (`io/`). A new module, or a new package without a row, fails here until the table says what
+it does."""
+
+import pathlib
+import re
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+ADDON = ROOT / "bodycal_addon"
+DOCS = ROOT / "docs"
+
+
+def _table_rows() -> dict[str, str]:
+    """{package: the text of its row} from DESIGN.md's module table."""
+    lines = (DOCS / "DESIGN.md").read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if re.match(r"\|\s*layer\s*\|\s*package\s*\|", line))
+    rows = {}
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        package = re.fullmatch(r"`([a-z_]+)/`", cells[1])
+        assert package, f"module table: a row's package cell is not `name/`: {line!r}"
+        rows[package.group(1)] = " ".join(cells[2:])
+    return rows
+
+
+def _named_words(row: str) -> set[str]:
+    """Every identifier inside the row's backtick spans."""
+    return {w for span in re.findall(r"`([^`]+)`", row) for w in re.findall(r"[A-Za-z_][A-Za-z0-9_]*", span)}
+
+
+def _unnamed() -> list[str]:
+    rows = _table_rows()
+    missing = []
+    for path in sorted(ADDON.rglob("*.py")):
+        rel = path.relative_to(ADDON)
+        if len(rel.parts) == 1:  # the add-on's own __init__ and __main__: they only register and start
+            continue
+        package = rel.parts[0]
+        if package not in rows:
+            missing.append(f"{package}/ (no row)")
+            continue
+        words = _named_words(rows[package])
+        for sub in rel.parts[1:-1]:  # subpackages on the way: io/, live/, egocentric/, ...
+            if sub not in words:
+                missing.append(f"{package}/ row: {sub}/")
+        if path.stem != "__init__" and path.stem not in words:
+            missing.append(f"{package}/ row: {rel}")
+    return sorted(set(missing))
+
+
+def test_module_table_names_every_module():
+    missing = _unnamed()
+    assert not missing, "DESIGN.md's module table does not name:\n" + "\n".join(missing)
+
+
+def test_module_table_has_no_stale_package():
+    rows = _table_rows()
+    stale = [p for p in rows if not (ADDON / p).is_dir()]
+    assert not stale, f"DESIGN.md's module table names packages that do not exist: {stale}"
+
+
+def _anchors(doc: pathlib.Path) -> set[str]:
+    """GitHub's anchors for a Markdown file's headings, and the headings' own text."""
+    found = set()
+    for line in doc.read_text().splitlines():
+        m = re.match(r"#+\s+(.*)", line)
+        if m:
+            title = m.group(1).strip()
+            found.add(title)
+            slug = re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-")
+            found.add(slug)
+    return found
+
+
+def test_links_to_doc_sections_resolve():
+    """Every `X.md#anchor` link in the docs and README names a heading of X.md."""
+    sources = sorted(DOCS.glob("*.md")) + [ROOT / "README.md"]
+    broken = []
+    for src in sources:
+        for target, anchor in re.findall(r"\]\(([A-Z_]+\.md)#([^)\s]+)\)", src.read_text()):
+            doc = DOCS / target if (DOCS / target).exists() else ROOT / target
+            if not doc.exists() or anchor not in _anchors(doc):
+                broken.append(f"{src.name}: {target}#{anchor}")
+    assert not broken, "links to sections that do not exist:\n" + "\n".join(broken)
