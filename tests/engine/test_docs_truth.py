@@ -89,3 +89,49 @@ def test_links_to_doc_sections_resolve():
             if not doc.exists() or anchor not in _anchors(doc):
                 broken.append(f"{src.name}: {target}#{anchor}")
     assert not broken, "links to sections that do not exist:\n" + "\n".join(broken)
+
+
+def _section_names(doc: pathlib.Path) -> set[str]:
+    """What a citation may name in a doc: its headings, the bold or italic lead-ins of its paragraphs
+    and list items (`**Placement**`, `*A foot turning in place*`) and a list item's first words
+    (`- Lost devices (...)`). A citation names one by its beginning ("One session path")."""
+    names = set()
+    for line in doc.read_text().splitlines():
+        m = re.match(r"#+\s+(?:[0-9]+b?\.\s+)?(.*)", line)
+        if m:
+            names.add(m.group(1).strip())
+        names.update(s.strip() for s in re.findall(r"\*\*([^*]+)\*\*", line))
+        names.update(s.strip() for s in re.findall(r"(?<!\*)\*([^*\s][^*]*)\*(?!\*)", line))
+        item = re.match(r"\s*- ([A-Z][^(:.]+)", line)
+        if item:
+            names.add(item.group(1).strip())
+    return names
+
+
+def _resolves(quoted: str, names: set[str]) -> bool:
+    quoted = quoted.strip().rstrip(".")
+    return any(n == quoted or n.startswith(quoted + " ") or n.startswith(quoted + ",")
+               or n.startswith(quoted + ":") or n.startswith(quoted + ".") for n in names)
+
+
+CITING = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))] + [
+    p for d in ("bodycal_addon", "benchmarks", "tests", "bodycal_dev", "evaluation")
+    for p in sorted((ROOT / d).rglob("*.py")) if p.name != "test_docs_truth.py"]
+
+
+CITATION = re.compile(r"\b(DESIGN\.md|PERFORMANCE\.md)((?:[ ,;]*(?:§\s?[0-9]+b?,?|\"[^\"]{2,60}\",?))+)")
+
+
+def test_quoted_section_citations_resolve():
+    """`DESIGN.md §6 "Planted feet"`, `PERFORMANCE.md "Bake"`: the quoted names exist in that doc."""
+    names = {doc: _section_names(DOCS / doc) for doc in ("DESIGN.md", "PERFORMANCE.md")}
+    broken = []
+    for src in CITING:
+        text = re.sub(r"\s*\n\s*(#\s*)?", " ", src.read_text())  # citations run over wrapped lines
+        for doc, rest in CITATION.findall(text):
+            for quoted in re.findall(r"\"([^\"]+)\"", rest):
+                if re.fullmatch(r"[a-z0-9_]+", quoted):  # a dict key on the next line of code, not a name
+                    continue
+                if not _resolves(quoted, names[doc]):
+                    broken.append(f"{src.relative_to(ROOT)}: {doc} \"{quoted}\"")
+    assert not broken, "citations of sections that do not exist:\n" + "\n".join(sorted(set(broken)))
