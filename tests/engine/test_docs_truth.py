@@ -135,3 +135,16 @@ def test_quoted_section_citations_resolve():
                 if not _resolves(quoted, names[doc]):
                     broken.append(f"{src.relative_to(ROOT)}: {doc} \"{quoted}\"")
     assert not broken, "citations of sections that do not exist:\n" + "\n".join(sorted(set(broken)))
+
+
+DIARY = re.compile(r"\bissues? #?\d+|\bbranch wt-|\bwt-[a-z]+\b|\bstop \d+\b|\b(?:main|commit) at [0-9a-f]{7}\b",
+                   re.IGNORECASE)
+
+
+def test_docs_read_for_a_newcomer():
+    """The docs say what is and why, not which issue, branch, work session or commit brought it
+    (git keeps that): no issue numbers, branch names, session stops or `main at <commit>`."""
+    found = [f"{src.name}:{n}: {line.strip()[:100]}"
+             for src in [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
+             for n, line in enumerate(src.read_text().splitlines(), 1) if DIARY.search(line)]
+    assert not found, "\n".join(found)
