@@ -1,4 +1,5 @@
-"""The prepared solver's cost in instructions (DESIGN.md "Prepared solver"): a figure that does not
+"""The prepared solver's cost in instructions (DESIGN.md "Prepared solver"; the figures and how they
+are read: PERFORMANCE.md "How speed is measured"): a figure that does not
 move with the machine, for comparing code across sessions whose machines differ in speed (the same
 code measured 4.7 ms a frame on one and 10.7 on another: bench_live_solver.py's milliseconds are
 that machine's).

@@ -1,4 +1,5 @@
-"""The prepared solver live (DESIGN.md "Prepared solver"): its cost per frame, a streamed take against
+"""The prepared solver live (DESIGN.md "Prepared solver"; figures: PERFORMANCE.md "The prepared
+solver"): its cost per frame, a streamed take against
 the bake of it, and the lag of the causal variants a stream needs, on one core.
 
 Sections of the JSON line:

@@ -1,5 +1,5 @@
-"""A bone map from a rig's shape when no naming scheme reads its names (DESIGN.md §2, "Rigs no
-scheme names"): a COLLADA export's `Skeleton_torso_joint_1`, `leg_joint_L_2`,
+"""A bone map from a rig's shape when no naming scheme reads its names (DESIGN.md §2, "Rigs as
+files bring them"): a COLLADA export's `Skeleton_torso_joint_1`, `leg_joint_L_2`,
 `Skeleton_arm_joint_L__4_`, or any humanoid rig with names of its own. Numpy only.
 
 The rig stands along `up` (armature space). Its two lowest leaves are the feet's ends and the

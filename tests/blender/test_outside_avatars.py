@@ -1,4 +1,4 @@
-"""Rigs as users bring them (DESIGN.md §2 "Rigs no scheme names", §1 "Verified bakes"): characters
+"""Rigs as users bring them (DESIGN.md §2 "Rigs as files bring them", §1 "Verified bakes"): characters
 no one on the project made (sample_data/avatars/outside), a generated Rigify rig after a game
 engine's round trip, a Mixamo-named rig exported to .glb, Blender's .L/.R names; each is calibrated
 and retargeted with no option, or refused with one line; and a bake whose keys drive nothing is an
