@@ -3,10 +3,13 @@
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, blendfile, surface_helpers
-from ..bodycal_addon.body.bodymodel import BodyModel
-from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.retarget.placement import avatar_warnings
+from ..bodycal_addon.blender import (
+    avatar_calibration,
+    avatar_rig,
+    avatar_storage,
+    blendfile,
+    surface_helpers,
+)
 from .background_work import BackgroundWork
 from .preferences import StartsInFolder
 from .reporting import reports_errors
@@ -182,13 +185,9 @@ class BODYCAL_OT_calibrate_avatar(BackgroundWork, bpy.types.Operator):
 
     def _store(self, arm, model):
         avatar_storage.store_model(arm, model)
-        q = model.calibration["quality"]
-        rejected = sum(v["rejected"] for v in q.values())
-        note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""
-        self.report({"INFO"}, f"{arm.name}: {len(model.surface)} surface elements, "
-                    f"{sum(v['hit'] for v in q.values())} ray hits ({rejected} rejected), "
-                    f"{model.extra['rig']['rest_pose']}-pose rest{note}")
-        for line in avatar_warnings(model):
+        summary, warnings = avatar_calibration.calibration_report(arm.name, model)
+        self.report({"INFO"}, summary)
+        for line in warnings:
             self.report({"WARNING"}, line)
         return {"FINISHED"}
 
@@ -287,11 +286,7 @@ class BODYCAL_OT_import_avatar_model(StartsInFolder, bpy.types.Operator, ImportH
     @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        model = BodyModel.load(self.filepath)
-        if model.kind != "avatar":
-            raise BodyCalError(f"a '{model.kind}' body model, not an avatar model", source=self.filepath,
-                               field="kind")
-        avatar_storage.store_model(arm, model)
+        model = avatar_storage.load_model_file(arm, self.filepath)
         rig_name = model.extra.get("rig", {}).get("armature")
         if rig_name and rig_name != arm.name:
             self.report({"WARNING"}, f"Stored on {arm.name}; the model was calibrated on '{rig_name}'")
@@ -322,16 +317,11 @@ class BODYCAL_OT_import_avatar(StartsInFolder, bpy.types.Operator, ImportHelper)
     @reports_errors
     def execute(self, context):
         notes = []
-        new = blendfile.import_avatar_file(self.filepath, notes)
-        for note in notes:
-            self.report({"WARNING"}, note)
-        armatures = [o for o in new if o.type == "ARMATURE"]
-        # As on the command line: an armature no mesh is skinned to is a helper, not the avatar.
-        avatars = [a for a in armatures if blendfile.deformed_meshes(a)] or armatures
-        if not avatars:
-            for obj in new:  # nothing to animate: leave the scene as it was
-                bpy.data.objects.remove(obj)
-            raise BodyCalError("the file has no armature", source=self.filepath)
+        try:
+            new, avatars = blendfile.import_avatars(self.filepath, notes)
+        finally:
+            for note in notes:
+                self.report({"WARNING"}, note)
         for obj in context.selected_objects:
             obj.select_set(False)
         for arm in avatars:

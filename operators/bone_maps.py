@@ -7,10 +7,7 @@ import os
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.blender import avatar_rig, bone_map_presets
-from ..bodycal_addon.body import naming
-from ..bodycal_addon.body.bone_presets import load_preset
-from ..bodycal_addon.core.errors import BodyCalError
+from ..bodycal_addon.blender import BodyCalError, avatar_rig, bone_map_presets
 from .avatar import _poll_armature, context_armature
 from .reporting import reports_errors
 
@@ -21,7 +18,7 @@ def _preset_items(_self, _context):
     try:
         entries = bone_map_presets.preset_entries()
     except (BodyCalError, OSError, ValueError) as exc:  # the user folder cannot be read: built-ins only
-        entries = [(f"{bone_map_presets.BUILTIN}{s.name}", s.title, f"Built-in ({exc})") for s in naming.SCHEMES]
+        entries = bone_map_presets.builtin_entries(exc)
     _items_alive[:] = [(ident, label, desc, i) for i, (ident, label, desc) in enumerate(entries)]
     return _items_alive
 
@@ -120,7 +117,7 @@ class BODYCAL_OT_import_bone_map(bpy.types.Operator, ImportHelper):
     def execute(self, context):
         arm = context_armature(context) if self.apply else None
         if arm is not None:  # checked on the armature before anything is kept
-            load_preset(self.filepath).resolve([b.name for b in arm.data.bones])
+            bone_map_presets.check_fits(self.filepath, arm)
         ident, preset = bone_map_presets.import_preset_file(self.filepath)
         context.window_manager.bodycal_bone_map_preset = ident
         if arm is None:

@@ -21,7 +21,7 @@ from ..avatar.estimate import estimate_surface
 from ..avatar.rays import planned_rays, surface_from_rays
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError, Cancelled
-from ..retarget.placement import moved_to
+from ..retarget.placement import avatar_warnings, moved_to
 from . import avatar_rig, avatar_storage
 
 
@@ -130,6 +130,16 @@ def measure(rig: ArmatureReading, caster: Caster, name: str, progress=None, canc
     data. progress(f), f in [0, 1], as the rays are cast; raises Cancelled once cancel() is true."""
     caster.watch(planned_rays(rig), progress, cancel)
     return surface_from_rays(rig, caster, name)
+
+
+def calibration_report(arm_name: str, model: BodyModel) -> tuple[str, list[str]]:
+    """(summary line, warnings) of an avatar calibration: what the sidebar reports."""
+    q = model.calibration["quality"]
+    rejected = sum(v["rejected"] for v in q.values())
+    note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""
+    summary = (f"{arm_name}: {len(model.surface)} surface elements, {sum(v['hit'] for v in q.values())} ray hits "
+               f"({rejected} rejected), {model.extra['rig']['rest_pose']}-pose rest{note}")
+    return summary, list(avatar_warnings(model))
 
 
 def prepare_survey(arm, meshes=None, depsgraph=None) -> tuple[ArmatureReading, Caster]:

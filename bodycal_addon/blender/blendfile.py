@@ -131,6 +131,21 @@ def import_avatar_file(path, notes: list | None = None) -> list:
     return added
 
 
+def import_avatars(path, notes: list | None = None) -> tuple[list, list]:
+    """Import an avatar file (`import_avatar_file`) and pick its avatars: (every new object, the
+    armatures a mesh is skinned to, or every armature when none is). A file without an armature
+    leaves the scene as it was and is refused."""
+    new = import_avatar_file(path, notes)
+    armatures = [o for o in new if o.type == "ARMATURE"]
+    # As on the command line: an armature no mesh is skinned to is a helper, not the avatar.
+    avatars = [a for a in armatures if deformed_meshes(a)] or armatures
+    if not avatars:
+        for obj in new:  # nothing to animate: leave the scene as it was
+            bpy.data.objects.remove(obj)
+        raise BodyCalError("the file has no armature", source=path)
+    return new, avatars
+
+
 def bound_elsewhere(path) -> bool:
     """Whether a glTF file's skins were bound in another pose than its nodes' rest: for a skin
     bound at rest, every joint's world matrix (the nodes' rest) times its inverse bind matrix is

@@ -41,6 +41,16 @@ def preset_entries() -> list[tuple[str, str, str]]:
     return out
 
 
+def builtin_entries(why: str) -> list[tuple[str, str, str]]:
+    """The built-in presets alone, each described with `why` (the user folder could not be read)."""
+    return [(f"{BUILTIN}{s.name}", s.title, f"Built-in ({why})") for s in naming.SCHEMES]
+
+
+def check_fits(path, arm) -> None:
+    """Refuse (BodyCalError) the preset file at `path` when it does not map `arm`'s bones."""
+    load_preset(path).resolve([b.name for b in arm.data.bones])
+
+
 def preset_for(identifier: str) -> BonePreset:
     if identifier.startswith(BUILTIN):
         scheme = naming.SCHEME_BY_NAME.get(identifier[len(BUILTIN):])

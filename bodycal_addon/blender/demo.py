@@ -23,6 +23,7 @@ import numpy as np
 from ..calibration import calibrate_user
 from ..core import paths
 from ..core.errors import BodyCalError
+from ..core.paths import shared_avatar_files as shared_avatar_files  # re-exported: the sidebar's sample avatars
 from ..output import metrics
 from ..output.review_page import write_page
 from ..recording.io import load_recording

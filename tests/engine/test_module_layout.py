@@ -7,6 +7,7 @@ Blender's mathutils for one frame)."""
 import ast
 import pathlib
 import re
+import sys
 
 import pytest
 
@@ -87,6 +88,52 @@ def test_imports_stay_in_their_layer(module):
             assert other == own, f"{where}: a sibling package"
         if in_function:
             assert own in LAZY_ALLOWED, f"{where} inside a function"
+
+
+# The sidebar (operators/, panels/) is thin UI: it reaches the engine through `bodycal_addon.blender`
+# only, whose modules own each job the UI asks for (calibrate the scene's performer, read a take,
+# import a recording...) and re-export the few engine names it shows (errors, defaults, the segment
+# names). Besides blender/ and each other it imports the standard library and these:
+UI_PACKAGES = ("operators", "panels")
+UI_MAY_IMPORT = {
+    "bpy", "bpy_extras", "bl_operators", "bl_ui",  # Blender's own Python API and its UI helpers
+    "numpy",  # as Blender ships it: the live panel's timing figures
+    "sample_rigs",  # the extension's sample avatars (it ships them; numpy and bpy only, no engine)
+}
+UI_FILES = sorted(p for tree in UI_PACKAGES for p in (ADDON.parent / tree).rglob("*.py"))
+
+
+def _ui_imports(path: pathlib.Path):
+    """(imported module, line, inside a function?) for every import of a sidebar file, named from
+    the extension's root (`..bodycal_addon.blender` in operators/x.py is `bodycal_addon.blender`)."""
+    package = path.relative_to(ADDON.parent).parent.parts
+    tree = ast.parse(path.read_text())
+    nested = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
+              for n in ast.walk(f) if n is not f}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, node.lineno, id(node) in nested
+        elif isinstance(node, ast.ImportFrom):
+            base = list(package[: len(package) - node.level + 1]) if node.level else []
+            if node.module:
+                yield ".".join(base + [node.module]), node.lineno, id(node) in nested
+            else:
+                for alias in node.names:
+                    yield ".".join(base + [alias.name]), node.lineno, id(node) in nested
+
+
+@pytest.mark.parametrize("path", UI_FILES, ids=lambda p: str(p.relative_to(ADDON.parent)))
+def test_the_sidebar_goes_through_blender_only(path):
+    for target, line, in_function in _ui_imports(path):
+        top = target.split(".")[0]
+        where = f"{path.relative_to(ADDON.parent)}:{line} imports {target}"
+        assert not in_function, f"{where} inside a function"
+        if top == "bodycal_addon":
+            assert target == "bodycal_addon.blender" or target.startswith("bodycal_addon.blender."), \
+                f"{where}: the engine, not through bodycal_addon/blender/"
+        else:
+            assert top in UI_PACKAGES or top in UI_MAY_IMPORT or top in sys.stdlib_module_names, where
 
 
 # The one engine module that imports Blender's mathutils (one frame's kernels; PyPI's build outside
