@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import contextlib
 
+import bpy
 import numpy as np
+from mathutils import Matrix, Vector
+from mathutils.bvhtree import BVHTree
 
 from ..avatar.armature import ArmatureReading
 from ..avatar.estimate import estimate_surface
@@ -41,9 +44,6 @@ class Caster:
     """First hits of world-space rays on the evaluated meshes (nearest over all meshes)."""
 
     def __init__(self, meshes, depsgraph):
-        from mathutils import Matrix, Vector
-        from mathutils.bvhtree import BVHTree
-
         self._Vector = Vector
         self.trees = []
         for obj in meshes:
@@ -104,8 +104,6 @@ def in_rest_position(arm):
     Rest Position), then as it was. The bones are read at rest; a rig opened posed (an imported
     take at its current frame, a character mid-animation) would deform its meshes away from them,
     and the rays from a posed arm's bones missed it."""
-    import bpy
-
     data = arm.data
     before = data.pose_position
     if before != "REST":
@@ -145,8 +143,6 @@ def calibration_report(arm_name: str, model: BodyModel) -> tuple[str, list[str]]
 def prepare_survey(arm, meshes=None, depsgraph=None) -> tuple[ArmatureReading, Caster]:
     """What the surface calibration of armature object `arm` reads from Blender: its rig, and the
     BVH trees of its meshes as they stand in the rest position."""
-    import bpy
-
     rig = avatar_rig.read_rig(arm)
     meshes = list(meshes) if meshes is not None else avatar_meshes(arm)
     if not meshes:

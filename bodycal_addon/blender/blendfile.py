@@ -298,7 +298,7 @@ def importer_operator(suffix: str, source: str):
 def _importer_enabled(suffix: str, source: str):
     """The importer operator, with its add-on enabled for the import when it was not (Blender's
     own FBX and glTF importers are add-ons a user may have turned off), and turned off again."""
-    import addon_utils
+    import addon_utils  # here: on sys.path only once bpy is imported, which isort would put after it
 
     fmt, op_name, addon = IMPORTERS[suffix]
     operator = importer_operator(suffix, source)
@@ -333,7 +333,7 @@ def _call_operator(idname: str, **properties) -> set[str]:
     evaluation copies every action in the scene into the depsgraph: a 10-minute bake's action
     doubled the command's memory (+650 MB) for a save that writes only the original data (BLENDER_NOTES.md).
     `_bpy.ops.call` is what `bpy.ops` itself calls (the same on 4.2, 4.5 and 5.0)."""
-    from _bpy import ops as _ops
+    from _bpy import ops as _ops  # here: on sys.path only once bpy is imported
 
     return _ops.call(idname, properties)
 

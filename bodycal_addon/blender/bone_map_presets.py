@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import bpy
+
 from ..body import naming
 from ..body.bone_presets import BonePreset, load_preset, preset_from_bone_map
 from ..core import outputs, paths
@@ -21,8 +23,6 @@ USER = "user:"
 
 
 def user_preset_dir(create: bool = True) -> Path:
-    import bpy
-
     package = paths.extension_package()
     if package:
         return Path(bpy.utils.extension_path_user(package, path=USER_FOLDER, create=create))

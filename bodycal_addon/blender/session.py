@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import bpy
 import numpy as np
 
 from ..body import naming
@@ -168,8 +169,6 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
     and targets; they are let go before the keys are made (a 10-minute take: ~250 MB less at the
     command's peak). `review`: the bake's review too (output/review.py; the evaluated mesh measured
     once the keys are written: blender/review.py), in `Summary.review`."""
-    import bpy
-
     options = options or baking.BakeOptions()
     arm, anim = target.armature, computed.animation
     name = action_name or baking.default_action_name(take.name, arm.name, anim.method)

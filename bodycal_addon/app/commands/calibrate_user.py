@@ -10,6 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ...calibration import calibrate_user, check_usable
+from ...core.outputs import check_output, recording_inputs
+from ...recording.io import load_recording
 from .. import console
 
 
@@ -27,10 +30,6 @@ def summary_lines(model) -> list[str]:
 
 
 def run(args) -> int:
-    from ...calibration import calibrate_user, check_usable
-    from ...core.outputs import check_output, recording_inputs
-    from ...recording.io import load_recording
-
     files_read = recording_inputs(args.recording)
     overwrite = getattr(args, "overwrite", False)
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before any work
