@@ -37,7 +37,7 @@ def context_armature(context):
     return None
 
 
-def _poll_armature(cls, context, need_model=False, object_mode=True):
+def poll_armature(cls, context, need_model=False, object_mode=True):
     arm = context_armature(context)
     if arm is None:
         cls.poll_message_set("Select the avatar's armature (or its mesh)")
@@ -64,7 +64,7 @@ class BODYCAL_OT_detect_bone_map(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def execute(self, context):
@@ -101,7 +101,7 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def execute(self, context):
@@ -135,7 +135,7 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def invoke(self, context, event):
@@ -160,7 +160,7 @@ class BODYCAL_OT_calibrate_avatar(BackgroundWork, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context)
+        return poll_armature(cls, context)
 
     def _survey(self, context):
         """The armature, its rig and its meshes' BVH trees, read on the main thread."""
@@ -202,7 +202,7 @@ class BODYCAL_OT_edit_surface(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, need_model=True)
+        return poll_armature(cls, context, need_model=True)
 
     @reports_errors
     def execute(self, context):
@@ -224,7 +224,7 @@ class BODYCAL_OT_apply_surface_edits(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _poll_armature(cls, context, need_model=True):
+        if not poll_armature(cls, context, need_model=True):
             return False
         if surface_helpers.helper_collection(context_armature(context)) is None:
             cls.poll_message_set("No surface helpers: press Edit Surface first")
@@ -253,7 +253,7 @@ class BODYCAL_OT_export_avatar_model(StartsInFolder, bpy.types.Operator, ExportH
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, need_model=True, object_mode=False)
+        return poll_armature(cls, context, need_model=True, object_mode=False)
 
     @reports_errors
     def invoke(self, context, event):
@@ -281,7 +281,7 @@ class BODYCAL_OT_import_avatar_model(StartsInFolder, bpy.types.Operator, ImportH
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def execute(self, context):

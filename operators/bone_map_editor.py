@@ -15,7 +15,7 @@ import bpy
 
 from ..bodycal_addon.blender import BodyCalError, avatar_rig
 from ..bodycal_addon.blender.avatar_rig import CHAIN_SEGMENTS, FINGERS, SIDES, BoneMap, required_segments, segment_value
-from .avatar import _poll_armature, context_armature
+from .avatar import context_armature, poll_armature
 from .reporting import reports_errors
 
 
@@ -197,7 +197,7 @@ def _build_later(name: str) -> None:
 # --- operators ---------------------------------------------------------------------------------------
 
 def _poll_editable(cls, context) -> bool:
-    if not _poll_armature(cls, context, object_mode=False):
+    if not poll_armature(cls, context, object_mode=False):
         return False
     if not can_edit(context_armature(context)):
         cls.poll_message_set("A linked armature: make it local (or add a library override) to edit its bone map")

@@ -8,7 +8,7 @@ import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..bodycal_addon.blender import BodyCalError, avatar_rig, bone_map_presets
-from .avatar import _poll_armature, context_armature
+from .avatar import context_armature, poll_armature
 from .reporting import reports_errors
 
 _items_alive: list = []  # Blender keeps only pointers to a dynamic enum's strings: hold them here
@@ -49,7 +49,7 @@ class BODYCAL_OT_apply_bone_map_preset(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _poll_armature(cls, context, object_mode=False):
+        if not poll_armature(cls, context, object_mode=False):
             return False
         if not getattr(context.window_manager, "bodycal_bone_map_preset", ""):
             cls.poll_message_set("Choose a bone map preset first")
@@ -80,7 +80,7 @@ class BODYCAL_OT_export_bone_map(bpy.types.Operator, ExportHelper):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def invoke(self, context, event):

@@ -162,6 +162,41 @@ def test_no_import_inside_a_function_without_its_reason(module):
             assert _lazy_reason(module, target), f"{module}:{line} imports {target} inside a function"
 
 
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+@pytest.mark.parametrize("path", sorted(ADDON.rglob("*.py")) + UI_FILES, ids=lambda p: str(p.relative_to(ADDON.parent)))
+def test_no_private_name_crosses_a_module(path):
+    """A name with a leading underscore is its module's own: another module neither imports it nor
+    reaches it through the module (`from .solver import _check`, `solver._check`); what two modules
+    share is public, or lives where it is used."""
+    package = path.relative_to(ADDON.parent).with_suffix("").parts[:-1] if path.name != "__init__.py" else \
+        path.relative_to(ADDON.parent).parts[:-1]
+    tree = ast.parse(path.read_text())
+    ours = {}  # a name bound to one of BodyCal's modules -> that module
+    crossing = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = list(package[: len(package) - node.level + 1]) if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            if module.split(".")[0] not in ("bodycal_addon", *UI_PACKAGES):
+                continue
+            for alias in node.names:
+                if _private(alias.name):
+                    crossing.append(f"{node.lineno}: from {module} import {alias.name}")
+                ours[alias.asname or alias.name] = f"{module}.{alias.name}"
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "bodycal_addon":
+                    ours[(alias.asname or alias.name).split(".")[0]] = alias.name
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and _private(node.attr) and isinstance(node.value, ast.Name) \
+                and node.value.id in ours:
+            crossing.append(f"{node.lineno}: {node.value.id}.{node.attr} ({ours[node.value.id]})")
+    assert not crossing, f"{path.relative_to(ADDON.parent)}: " + "; ".join(crossing)
+
+
 # The one engine module that imports Blender's mathutils (one frame's kernels; PyPI's build outside
 # Blender), and imports nothing else of Blender's.
 ONE_FRAME = "bodycal_addon.core.one_frame"
