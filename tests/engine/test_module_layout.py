@@ -9,6 +9,7 @@ import ast
 import pathlib
 import re
 import sys
+import tomllib
 
 import pytest
 
@@ -195,6 +196,38 @@ def test_no_private_name_crosses_a_module(path):
                 and node.value.id in ours:
             crossing.append(f"{node.lineno}: {node.value.id}.{node.attr} ({ours[node.value.id]})")
     assert not crossing, f"{path.relative_to(ADDON.parent)}: " + "; ".join(crossing)
+
+
+def _shipped_and_left_out() -> tuple[list[pathlib.Path], set[str]]:
+    """(the Python files the extension zip carries, the top-level folders its manifest leaves out)."""
+    root = ADDON.parent
+    patterns = tomllib.loads((root / "blender_manifest.toml").read_text())["build"]["paths_exclude_pattern"]
+    left_out = {p.strip("/") for p in patterns if p.startswith("/") and p.endswith("/")}
+    shipped = [path for top in sorted(root.iterdir()) if not top.name.startswith(".") and top.name not in left_out
+               for path in ([top] if top.suffix == ".py" else sorted(top.rglob("*.py")) if top.is_dir() else [])]
+    return shipped, left_out
+
+
+def test_what_the_extension_ships_never_imports_what_it_leaves_out():
+    """The zip leaves out the development tools (`bodycal_dev`), the tests and benchmarks: nothing it
+    carries may import them (`sample_rigs` ships; `bodycal_dev` may import it, not the other way)."""
+    shipped, left_out = _shipped_and_left_out()
+    assert {"bodycal_dev", "tests", "benchmarks"} <= left_out and "sample_rigs" not in left_out
+    assert ADDON.parent / "sample_rigs" / "__init__.py" in shipped
+    found = []
+    for path in shipped:
+        package = list(path.relative_to(ADDON.parent).parts[:-1])
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):  # `from .. import bodycal_dev` named from the root
+                base = ".".join(package[: len(package) - node.level + 1] + [node.module or ""]).strip(".")
+                names = [base] if base else [a.name for a in node.names]
+            else:
+                continue
+            found += [f"{path.relative_to(ADDON.parent)}:{node.lineno} imports {n}" for n in names
+                      if n.split(".")[0] in left_out]
+    assert not found, "; ".join(found)
 
 
 # The one engine module that imports Blender's mathutils (one frame's kernels; PyPI's build outside
