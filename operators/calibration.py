@@ -39,7 +39,7 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
 
     @reports_errors
     def execute(self, context):
-        warnings, summary = cs.calibration_report(*cs.calibrate_scene(context.scene, show=self.show_helpers))
+        summary, warnings = cs.calibration_report(*cs.calibrate_scene(context.scene, show=self.show_helpers))
         for line in warnings:
             self.report({"WARNING"}, line)
         self.report({"INFO"}, summary)

@@ -63,12 +63,12 @@ def calibrate_scene(scene, show: bool = True) -> tuple[BodyModel, Coverage]:
     return model, cov
 
 
-def calibration_report(model: BodyModel, cov: Coverage) -> tuple[list[str], str]:
-    """(warnings, summary line) of a calibration: what the operator reports."""
+def calibration_report(model: BodyModel, cov: Coverage) -> tuple[str, list[str]]:
+    """(summary line, warnings) of a calibration: what the operator reports."""
     cal = model.calibration
     summary = (f"Calibrated from {len(cal['steps_used'])} steps: {cov.line()}; {len(cal['missing'])} steps missing"
                + (f", {len(cal['warnings'])} not usable (see the panel)" if cal.get("warnings") else ""))
-    return cal.get("warnings", []) + cov.warnings(), summary
+    return summary, cal.get("warnings", []) + cov.warnings()
 
 
 def read_user_model(path, wrong_kind: str = "this is an {kind} body model, not a user one",
