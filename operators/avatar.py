@@ -3,10 +3,13 @@
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.blender import avatar_calibration, avatar_rig, avatar_storage, blendfile, surface_helpers
-from ..bodycal_addon.body.bodymodel import BodyModel
-from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.retarget.placement import avatar_warnings
+from ..bodycal_addon.blender import (
+    avatar_calibration,
+    avatar_rig,
+    avatar_storage,
+    blendfile,
+    surface_helpers,
+)
 from .background_work import BackgroundWork
 from .preferences import StartsInFolder
 from .reporting import reports_errors
@@ -34,7 +37,7 @@ def context_armature(context):
     return None
 
 
-def _poll_armature(cls, context, need_model=False, object_mode=True):
+def poll_armature(cls, context, need_model=False, object_mode=True):
     arm = context_armature(context)
     if arm is None:
         cls.poll_message_set("Select the avatar's armature (or its mesh)")
@@ -61,7 +64,7 @@ class BODYCAL_OT_detect_bone_map(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def execute(self, context):
@@ -98,7 +101,7 @@ class BODYCAL_OT_assign_bone(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def execute(self, context):
@@ -132,7 +135,7 @@ class BODYCAL_OT_set_hinge_axis(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def invoke(self, context, event):
@@ -157,7 +160,7 @@ class BODYCAL_OT_calibrate_avatar(BackgroundWork, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context)
+        return poll_armature(cls, context)
 
     def _survey(self, context):
         """The armature, its rig and its meshes' BVH trees, read on the main thread."""
@@ -182,13 +185,9 @@ class BODYCAL_OT_calibrate_avatar(BackgroundWork, bpy.types.Operator):
 
     def _store(self, arm, model):
         avatar_storage.store_model(arm, model)
-        q = model.calibration["quality"]
-        rejected = sum(v["rejected"] for v in q.values())
-        note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""
-        self.report({"INFO"}, f"{arm.name}: {len(model.surface)} surface elements, "
-                    f"{sum(v['hit'] for v in q.values())} ray hits ({rejected} rejected), "
-                    f"{model.extra['rig']['rest_pose']}-pose rest{note}")
-        for line in avatar_warnings(model):
+        summary, warnings = avatar_calibration.calibration_report(arm.name, model)
+        self.report({"INFO"}, summary)
+        for line in warnings:
             self.report({"WARNING"}, line)
         return {"FINISHED"}
 
@@ -203,7 +202,7 @@ class BODYCAL_OT_edit_surface(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, need_model=True)
+        return poll_armature(cls, context, need_model=True)
 
     @reports_errors
     def execute(self, context):
@@ -225,7 +224,7 @@ class BODYCAL_OT_apply_surface_edits(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _poll_armature(cls, context, need_model=True):
+        if not poll_armature(cls, context, need_model=True):
             return False
         if surface_helpers.helper_collection(context_armature(context)) is None:
             cls.poll_message_set("No surface helpers: press Edit Surface first")
@@ -254,7 +253,7 @@ class BODYCAL_OT_export_avatar_model(StartsInFolder, bpy.types.Operator, ExportH
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, need_model=True, object_mode=False)
+        return poll_armature(cls, context, need_model=True, object_mode=False)
 
     @reports_errors
     def invoke(self, context, event):
@@ -282,16 +281,12 @@ class BODYCAL_OT_import_avatar_model(StartsInFolder, bpy.types.Operator, ImportH
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def execute(self, context):
         arm = context_armature(context)
-        model = BodyModel.load(self.filepath)
-        if model.kind != "avatar":
-            raise BodyCalError(f"a '{model.kind}' body model, not an avatar model", source=self.filepath,
-                               field="kind")
-        avatar_storage.store_model(arm, model)
+        model = avatar_storage.load_model_file(arm, self.filepath)
         rig_name = model.extra.get("rig", {}).get("armature")
         if rig_name and rig_name != arm.name:
             self.report({"WARNING"}, f"Stored on {arm.name}; the model was calibrated on '{rig_name}'")
@@ -322,16 +317,11 @@ class BODYCAL_OT_import_avatar(StartsInFolder, bpy.types.Operator, ImportHelper)
     @reports_errors
     def execute(self, context):
         notes = []
-        new = blendfile.import_avatar_file(self.filepath, notes)
-        for note in notes:
-            self.report({"WARNING"}, note)
-        armatures = [o for o in new if o.type == "ARMATURE"]
-        # As on the command line: an armature no mesh is skinned to is a helper, not the avatar.
-        avatars = [a for a in armatures if blendfile.deformed_meshes(a)] or armatures
-        if not avatars:
-            for obj in new:  # nothing to animate: leave the scene as it was
-                bpy.data.objects.remove(obj)
-            raise BodyCalError("the file has no armature", source=self.filepath)
+        try:
+            new, avatars = blendfile.import_avatars(self.filepath, notes)
+        finally:
+            for note in notes:
+                self.report({"WARNING"}, note)
         for obj in context.selected_objects:
             obj.select_set(False)
         for arm in avatars:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 
-from ..bodycal_addon.core.errors import Cancelled
+from ..bodycal_addon.blender import Cancelled
 from .reporting import reports_errors
 
 # What a running job lets through: looking around the viewport (orbit, pan, zoom, the view keys,

@@ -9,11 +9,8 @@ import math
 
 import bpy
 
-from ..bodycal_addon.blender import preview, session
+from ..bodycal_addon.blender import BodyCalError, preview, session
 from ..bodycal_addon.blender.bake import BakeOptions
-from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM, DEFAULT_TOLERANCE_DEG
-from ..bodycal_addon.retarget.methods import METHOD_INFO, methods_for
 from .background_work import BackgroundWork
 from .reporting import reports_errors
 from .review import store_flags
@@ -51,7 +48,7 @@ FRAME_RANGE_ITEMS = [
 
 def method_items(source_kind: str) -> list[tuple[str, str, str]]:
     """The sidebar's method menu for a kind of take, from the one registry (retarget/methods.py)."""
-    return [(name, METHOD_INFO[name].label, METHOD_INFO[name].description) for name in methods_for(source_kind)]
+    return session.method_choices(source_kind)
 
 
 def _is_armature(_self, obj):
@@ -81,7 +78,7 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
         description="Frame rate of the baked action, timing kept (0: the scene's rate; another rate also "
                     "becomes the scene's)")
     tolerance: bpy.props.FloatProperty(
-        name="Key Tolerance", default=math.radians(DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0),
+        name="Key Tolerance", default=math.radians(session.DEFAULT_TOLERANCE_DEG), min=0.0, soft_max=math.radians(2.0),
         precision=3, subtype="ANGLE",
         description="Key reduction: every bone's rotation stays within this angle of the every-frame bake "
                     "(linear keys); 0 keys every frame")
@@ -98,7 +95,7 @@ class BODYCAL_PG_bake_settings(bpy.types.PropertyGroup):
         name="Set Scene Range", default=False,
         description="Make the scene's frame range the baked action's (otherwise it is left as it is)")
     location_tolerance: bpy.props.FloatProperty(
-        name="Location Tolerance", default=DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
+        name="Location Tolerance", default=session.DEFAULT_LOCATION_TOLERANCE_MM / 1000.0, min=0.0, soft_max=0.01,
         precision=4, subtype="DISTANCE", unit="LENGTH",
         description="Key reduction of the root bone's location: stays within this distance of the every-frame bake")
 

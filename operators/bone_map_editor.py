@@ -13,17 +13,14 @@ from typing import NamedTuple
 
 import bpy
 
-from ..bodycal_addon.blender import avatar_rig
-from ..bodycal_addon.body import naming
-from ..bodycal_addon.body import skeleton as sk
-from ..bodycal_addon.body.bone_presets import segment_value
-from ..bodycal_addon.core.errors import BodyCalError
-from .avatar import _poll_armature, context_armature
+from ..bodycal_addon.blender import BodyCalError, avatar_rig
+from ..bodycal_addon.blender.avatar_rig import CHAIN_SEGMENTS, FINGERS, SIDES, BoneMap, required_segments, segment_value
+from .avatar import context_armature, poll_armature
 from .reporting import reports_errors
 
 
 def _sided(s: str, side: str) -> tuple[tuple[str, str, tuple[str, ...], bool], ...]:
-    fingers = tuple(p for f in sk.FINGERS for p in (f"metacarpal_{f}_{s}", f"{f}_1_{s}", f"{f}_2_{s}", f"{f}_3_{s}"))
+    fingers = tuple(p for f in FINGERS for p in (f"metacarpal_{f}_{s}", f"{f}_1_{s}", f"{f}_2_{s}", f"{f}_3_{s}"))
     return ((f"arm_{s}", f"{side} Arm", (f"clavicle_{s}", f"upperarm_{s}", f"forearm_{s}", f"hand_{s}"), True),
             (f"leg_{s}", f"{side} Leg", (f"thigh_{s}", f"shin_{s}", f"foot_{s}", f"toe_{s}"), True),
             (f"fingers_{s}", f"{side} Fingers", fingers, False))
@@ -35,20 +32,20 @@ GROUPS: tuple[tuple[str, str, tuple[str, ...], bool], ...] = (
     ("trunk", "Trunk and Head", ("root", "pelvis", "spine", "neck", "head"), True),
     _L[0], _R[0], _L[1], _R[1], _L[2], _R[2],
     ("auxiliary", "Auxiliary (follow their parent)",
-     tuple(f"{part}_{s}" for part in ("breast", "pelvis_side", "heel") for s in sk.SIDES), False),
+     tuple(f"{part}_{s}" for part in ("breast", "pelvis_side", "heel") for s in SIDES), False),
 )
 # (kind, group index, name): a group's header row (named by the group's id), then its segments.
 ROWS: tuple[tuple[str, int, str], ...] = tuple(
     row for g, (gid, _title, segments, _open) in enumerate(GROUPS)
-    for row in (("GROUP", g, gid), *(("CHAIN" if s in sk.CHAIN_SEGMENTS else "SEGMENT", g, s) for s in segments)))
-REQUIRED = frozenset(sk.required_segments())
+    for row in (("GROUP", g, gid), *(("CHAIN" if s in CHAIN_SEGMENTS else "SEGMENT", g, s) for s in segments)))
+REQUIRED = frozenset(required_segments())
 
 
 # --- the map as the editor shows it ----------------------------------------------------------------
 
 class EditorState(NamedTuple):
-    bm: naming.BoneMap  # the map in use: detection and the stored overrides
-    detected: naming.BoneMap  # detection alone
+    bm: BoneMap  # the map in use: detection and the stored overrides
+    detected: BoneMap  # detection alone
     overrides: dict  # segment -> stored value: the segments set by hand (or by a preset)
     problem: str | None  # what is wrong with the stored map as it is, one line
 
@@ -200,7 +197,7 @@ def _build_later(name: str) -> None:
 # --- operators ---------------------------------------------------------------------------------------
 
 def _poll_editable(cls, context) -> bool:
-    if not _poll_armature(cls, context, object_mode=False):
+    if not poll_armature(cls, context, object_mode=False):
         return False
     if not can_edit(context_armature(context)):
         cls.poll_message_set("A linked armature: make it local (or add a library override) to edit its bone map")

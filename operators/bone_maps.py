@@ -7,11 +7,8 @@ import os
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.blender import avatar_rig, bone_map_presets
-from ..bodycal_addon.body import naming
-from ..bodycal_addon.body.bone_presets import load_preset
-from ..bodycal_addon.core.errors import BodyCalError
-from .avatar import _poll_armature, context_armature
+from ..bodycal_addon.blender import BodyCalError, avatar_rig, bone_map_presets
+from .avatar import context_armature, poll_armature
 from .reporting import reports_errors
 
 _items_alive: list = []  # Blender keeps only pointers to a dynamic enum's strings: hold them here
@@ -21,7 +18,7 @@ def _preset_items(_self, _context):
     try:
         entries = bone_map_presets.preset_entries()
     except (BodyCalError, OSError, ValueError) as exc:  # the user folder cannot be read: built-ins only
-        entries = [(f"{bone_map_presets.BUILTIN}{s.name}", s.title, f"Built-in ({exc})") for s in naming.SCHEMES]
+        entries = bone_map_presets.builtin_entries(exc)
     _items_alive[:] = [(ident, label, desc, i) for i, (ident, label, desc) in enumerate(entries)]
     return _items_alive
 
@@ -52,7 +49,7 @@ class BODYCAL_OT_apply_bone_map_preset(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not _poll_armature(cls, context, object_mode=False):
+        if not poll_armature(cls, context, object_mode=False):
             return False
         if not getattr(context.window_manager, "bodycal_bone_map_preset", ""):
             cls.poll_message_set("Choose a bone map preset first")
@@ -83,7 +80,7 @@ class BODYCAL_OT_export_bone_map(bpy.types.Operator, ExportHelper):
 
     @classmethod
     def poll(cls, context):
-        return _poll_armature(cls, context, object_mode=False)
+        return poll_armature(cls, context, object_mode=False)
 
     @reports_errors
     def invoke(self, context, event):
@@ -120,7 +117,7 @@ class BODYCAL_OT_import_bone_map(bpy.types.Operator, ImportHelper):
     def execute(self, context):
         arm = context_armature(context) if self.apply else None
         if arm is not None:  # checked on the armature before anything is kept
-            load_preset(self.filepath).resolve([b.name for b in arm.data.bones])
+            bone_map_presets.check_fits(self.filepath, arm)
         ident, preset = bone_map_presets.import_preset_file(self.filepath)
         context.window_manager.bodycal_bone_map_preset = ident
         if arm is None:

@@ -4,17 +4,15 @@ show the fitted joints, spheres, circles and surface elements as helper objects.
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..bodycal_addon.core.errors import BodyCalError
+from ..bodycal_addon.blender import calibration_scene as cs
+from ..bodycal_addon.blender.recording_scene import scene_recording_collection
 from .preferences import StartsInFolder
 from .reporting import reports_errors
 
-# {scene name: the last refusal's line}: what the panel shows until the next calibration of that scene.
-REFUSED: dict[str, str] = {}
+REFUSED = cs.REFUSED  # {scene name: the last refusal's line}, which the panel shows
 
 
 def _has_recording(context) -> bool:
-    from ..bodycal_addon.blender.recording_scene import scene_recording_collection
-
     return scene_recording_collection(context.scene) is not None
 
 
@@ -41,27 +39,10 @@ class BODYCAL_OT_calibrate_user(bpy.types.Operator):
 
     @reports_errors
     def execute(self, context):
-        from ..bodycal_addon.blender import calibration_scene as cs
-        from ..bodycal_addon.blender.recording_scene import recording_from_scene
-        from ..bodycal_addon.calibration import calibrate_user, check_usable
-
-        rec = recording_from_scene(context.scene)
-        model = calibrate_user(rec)
-        REFUSED.pop(context.scene.name, None)
-        try:
-            cov = check_usable(model)
-        except BodyCalError as exc:  # the panel shows it
-            REFUSED[context.scene.name] = exc.line()
-            raise
-        cs.store_user_model(context.scene, model)
-        if self.show_helpers:
-            cs.show_helpers(context.scene, model)
-        cal = model.calibration
-        for line in cal.get("warnings", []) + cov.warnings():
+        summary, warnings = cs.calibration_report(*cs.calibrate_scene(context.scene, show=self.show_helpers))
+        for line in warnings:
             self.report({"WARNING"}, line)
-        self.report({"INFO"}, f"Calibrated from {len(cal['steps_used'])} steps: {cov.line()}; "
-                              f"{len(cal['missing'])} steps missing"
-                              + (f", {len(cal['warnings'])} not usable (see the panel)" if cal.get("warnings") else ""))
+        self.report({"INFO"}, summary)
         return {"FINISHED"}
 
 
@@ -76,23 +57,17 @@ class BODYCAL_OT_save_user_model(StartsInFolder, bpy.types.Operator, ExportHelpe
 
     @classmethod
     def poll(cls, context):
-        from ..bodycal_addon.blender.calibration_scene import has_user_model
-
-        if not has_user_model(context.scene):
+        if not cs.has_user_model(context.scene):
             cls.poll_message_set("Calibrate the user (or load a user model) first")
             return False
         return True
 
     def _suggested_name(self, context) -> str:
-        from ..bodycal_addon.blender.calibration_scene import load_user_model
-
-        return bpy.path.clean_name(load_user_model(context.scene).name) + self.filename_ext
+        return bpy.path.clean_name(cs.load_user_model(context.scene).name) + self.filename_ext
 
     @reports_errors
     def execute(self, context):
-        from ..bodycal_addon.blender.calibration_scene import load_user_model
-
-        path = load_user_model(context.scene).save(self.filepath)
+        path = cs.load_user_model(context.scene).save(self.filepath)
         self.report({"INFO"}, f"Saved {path}")
         return {"FINISHED"}
 
@@ -116,13 +91,7 @@ class BODYCAL_OT_load_user_model(StartsInFolder, bpy.types.Operator, ImportHelpe
 
     @reports_errors
     def execute(self, context):
-        from ..bodycal_addon.blender import calibration_scene as cs
-        from ..bodycal_addon.body.bodymodel import BodyModel
-
-        model = BodyModel.load(self.filepath)
-        if model.kind != "user":
-            raise BodyCalError(f"this is an {model.kind} body model, not a user one", source=self.filepath)
-        cs.store_user_model(context.scene, model)
+        model = cs.load_user_model_file(context.scene, self.filepath)
         self.report({"INFO"}, f"Loaded user model '{model.name}' ({len(model.joints)} joints)")
         return {"FINISHED"}
 
@@ -136,20 +105,16 @@ class BODYCAL_OT_show_calibration_helpers(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        from ..bodycal_addon.blender.calibration_scene import has_user_model
-
         if context.mode != "OBJECT":
             cls.poll_message_set("Switch to Object Mode to show the helpers")
             return False
-        if not has_user_model(context.scene):
+        if not cs.has_user_model(context.scene):
             cls.poll_message_set("Calibrate the user (or load a user model) first")
             return False
         return True
 
     @reports_errors
     def execute(self, context):
-        from ..bodycal_addon.blender import calibration_scene as cs
-
         coll = cs.show_helpers(context.scene, cs.load_user_model(context.scene))
         self.report({"INFO"}, f"{len(coll.objects)} helper objects in '{coll.name}'")
         return {"FINISHED"}

@@ -6,8 +6,8 @@ selected animated objects as the scene's recording)."""
 import bpy
 
 from ..bodycal_addon.blender import device_roles, scene_objects
+from ..bodycal_addon.blender.device_roles import ROLES
 from ..bodycal_addon.blender.recording_scene import scene_recording_collection
-from ..bodycal_addon.recording.model import ROLES
 from .reporting import reports_errors
 
 NONE = "none"

@@ -5,9 +5,7 @@ from pathlib import Path
 
 import bpy
 
-from ..bodycal_addon.core import paths
-
-DOCS_DIR = paths.ROOT_DIR / "docs"
+DOCS_DIR = Path(__file__).resolve().parents[1] / "docs"  # beside operators/, in the repository and the extension
 
 
 def docs_path(page: str) -> Path:

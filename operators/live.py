@@ -4,9 +4,7 @@ no undo step: only Stop Recording (which imports the take) and Bake Take change 
 
 import bpy
 
-from ..bodycal_addon.blender import live
-from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.retarget.takes import RecordingTake
+from ..bodycal_addon.blender import calibration_scene, live, recording_scene, session
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property
 from .recording import STEP_MARKER_ITEMS
@@ -31,7 +29,7 @@ class BODYCAL_PG_live_settings(bpy.types.PropertyGroup):
                                  description="Whose body model the followers use")
     user_file: bpy.props.StringProperty(name="Body Model", subtype="FILE_PATH", default="",
                                         description="The performer's .body.json file")
-    method: method_property(method_items(RecordingTake.kind), "Method", "How the performer drives the avatars")
+    method: method_property(method_items(session.RECORDING), "Method", "How the performer drives the avatars")
     folder: bpy.props.StringProperty(
         name="Takes Folder", subtype="DIR_PATH", default="",
         description="Where recorded takes are saved (empty: next to the .blend)")
@@ -60,22 +58,8 @@ def _settings(context):
 
 def user_model(context):
     """The performer's model the Live settings name: the scene's or a file's."""
-    from ..bodycal_addon.blender import calibration_scene
-    from ..bodycal_addon.body.bodymodel import BodyModel
-
     settings = _settings(context)
-    if settings.user == "file":
-        if not settings.user_file:
-            raise BodyCalError("no body model file picked", field="Body Model",
-                               hint="pick the performer's .body.json, or use the scene's performer")
-        model = BodyModel.load(bpy.path.abspath(settings.user_file))
-        if model.kind != "user":
-            raise BodyCalError(f"expected a user body model, got kind '{model.kind}'", source=settings.user_file)
-        return model
-    if not calibration_scene.has_user_model(context.scene):
-        raise BodyCalError("no performer calibrated in this scene", field="Performer",
-                           hint="Calibrate User on a take first, or pick a .body.json file")
-    return calibration_scene.load_user_model(context.scene)
+    return calibration_scene.performer_model(context.scene, settings.user_file if settings.user == "file" else None)
 
 
 def _poll_connected(cls) -> bool:
@@ -370,8 +354,6 @@ offline pipeline, and bake a new action on each"""
         if not cls._avatars(context):
             cls.poll_message_set("Follow with an avatar while recording, or select armatures")
             return False
-        from ..bodycal_addon.blender import recording_scene
-
         if recording_scene.scene_recording_collection(context.scene) is None:
             cls.poll_message_set("Record a take first")
             return False
@@ -382,13 +364,8 @@ offline pipeline, and bake a new action on each"""
         names = list(live.following()) or live.recorded_for()
         return [bpy.data.objects[n] for n in names if n in bpy.data.objects] or selected_armatures(context)
 
-    def _read_take(self, context) -> RecordingTake:
-        from ..bodycal_addon.blender import recording_scene
-
-        recording = recording_scene.recording_from_scene(context.scene)
-        frame_start, rate = recording_scene.frame_mapping_in_scene(context.scene)
-        return RecordingTake(recording, user_model(context), context.scene.bodycal_retarget.one_euro(),
-                             frame_start=frame_start, frame_rate=rate)
+    def _read_take(self, context) -> session.RecordingTake:
+        return session.scene_take(context.scene, context.scene.bodycal_retarget.one_euro(), user=user_model(context))
 
     def _armatures(self, context) -> list:
         armatures = self._avatars(context)

@@ -6,7 +6,7 @@ import os
 
 import bpy
 
-from ..bodycal_addon.retarget.takes import RecordingTake
+from ..bodycal_addon.blender import session
 from .bake_settings import method_items
 
 # Blender keys an add-on's preferences by its root package: "bl_ext.<repository>.bodycal" for an
@@ -32,7 +32,7 @@ class BODYCAL_AP_preferences(bpy.types.AddonPreferences):
         name="Exports", subtype="DIR_PATH",
         description="Where Export Baked Avatar writes by default (empty: beside the .blend file)")
     default_method: bpy.props.EnumProperty(
-        name="Default Method", items=method_items(RecordingTake.kind), default=DEFAULT_METHOD,
+        name="Default Method", items=method_items(session.RECORDING), default=DEFAULT_METHOD,
         description="The method Retarget and Bake (and Transfer, when it offers it) starts with in a scene "
                     "where none was picked yet")
 

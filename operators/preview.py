@@ -4,9 +4,16 @@ is baked (bodycal_addon/blender/preview.py)."""
 
 import bpy
 
-from ..bodycal_addon.blender import avatar_rig, avatar_storage, calibration_scene, preview, recording_scene, session
+from ..bodycal_addon.blender import (
+    BodyCalError,
+    avatar_rig,
+    avatar_storage,
+    calibration_scene,
+    preview,
+    recording_scene,
+    session,
+)
 from ..bodycal_addon.blender.character_source import read_source
-from ..bodycal_addon.core.errors import BodyCalError
 from .bake_settings import can_bake_in, selected_armatures
 from .reporting import reports_errors
 

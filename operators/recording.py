@@ -4,7 +4,6 @@ import bpy
 from bpy_extras.io_utils import ImportHelper, poll_file_object_drop
 
 from ..bodycal_addon.blender import recording_scene
-from ..bodycal_addon.recording import io as recording_io
 from .preferences import StartsInFolder
 from .reporting import reports_errors
 
@@ -15,7 +14,7 @@ STEP_MARKER_ITEMS = [  # recording_scene.STEP_MARKERS
 ]
 
 
-HANDS_ITEMS = [  # recording_io.HANDS (recording/io/hands.py)
+HANDS_ITEMS = [  # recording/io/hands.py's HANDS
     ("geometry", "Where They Are", "The controller on the headset's right most of the time is the right hand "
      "(the file's labels when that does not decide)"),
     ("labels", "As Labelled", "The file's left / right labels (an A-Frame entity's id, a replay's hands)"),
@@ -27,7 +26,7 @@ def _takes_hands(filepath: str) -> bool:
     """Whether the file may be a three-point kit's own (an A-Frame .json, a .bsor), whose hands the
     import tells: by name only, as the side panel redraws often."""
     name = filepath.lower()
-    return name.endswith(".bsor") or name.endswith(".json") and not name.endswith(recording_io.JSON_SUFFIX)
+    return name.endswith(".bsor") or name.endswith(".json") and not name.endswith(recording_scene.JSON_SUFFIX)
 
 
 class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelper):
@@ -38,7 +37,7 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
     bl_options = {"REGISTER", "UNDO"}
     _folder = "recordings_folder"
 
-    filter_glob: bpy.props.StringProperty(default=";".join(recording_io.RECORDING_GLOBS), options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default=";".join(recording_scene.RECORDING_GLOBS), options={"HIDDEN"})
     frame_start: bpy.props.IntProperty(
         name="Start Frame", default=1,
         description="Frame the recording's first sample is keyed on")
@@ -52,7 +51,7 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
         name="Step Markers", items=STEP_MARKER_ITEMS, default="starts",
         description="Timeline markers for the calibration steps (bodycal:<step>); moving them edits the steps")
     fill_gaps: bpy.props.FloatProperty(
-        name="Fill Gaps Shorter Than", default=recording_io.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0,
+        name="Fill Gaps Shorter Than", default=recording_scene.DEFAULT_FILL_GAPS_S, min=0.0, max=2.0,
         unit="TIME_ABSOLUTE",
         description="Untracked stretches shorter than this (seconds) are interpolated; 0 keeps every dropout")
     hands: bpy.props.EnumProperty(  # not remembered: a swap chosen for one file must not swap the next
@@ -93,17 +92,17 @@ class BODYCAL_OT_import_recording(StartsInFolder, bpy.types.Operator, ImportHelp
             return StartsInFolder.invoke(self, context, event)  # the file browser, in the Recordings folder
         # A file dropped on the viewport or the outliner (Blender 4.2+ passes its path): the
         # handler claims every .json, .csv, .c3d and .bsor, so only a recording goes on to the options.
-        recording_io.check_recording_file(self.filepath)
+        recording_scene.check_recording_file(self.filepath)
         return context.window_manager.invoke_props_dialog(self, title=bpy.path.basename(self.filepath),
                                                           confirm_text="Import")
 
     @reports_errors
     def execute(self, context):
         # Compute first (read + validate), write last: on error the scene is untouched.
-        rec = recording_io.load_recording(self.filepath, fill_gaps_s=self.fill_gaps, hands=self.hands)
-        coll = recording_scene.import_recording_to_scene(
-            rec, context, frame_start=self.frame_start, set_scene_rate=self.update_scene_rate,
-            set_scene_range=self.update_scene_range, step_markers=self.step_markers)
+        rec, coll = recording_scene.import_recording_file(
+            self.filepath, context, fill_gaps_s=self.fill_gaps, hands=self.hands, frame_start=self.frame_start,
+            set_scene_rate=self.update_scene_rate, set_scene_range=self.update_scene_range,
+            step_markers=self.step_markers)
         for note in rec.notes:
             self.report({"INFO"}, note)
         self.report({"INFO"}, recording_scene.import_summary(rec, coll, context.scene))
@@ -117,7 +116,7 @@ class BODYCAL_FH_recording(bpy.types.FileHandler):
     bl_label = "BodyCal recording"
     bl_import_operator = BODYCAL_OT_import_recording.bl_idname
     # Blender matches a dropped file by its last suffix only: `.bcrec.json` is `.json` here, and the
-    # operator's invoke refuses a file that is not a recording (recording_io.check_recording_file).
+    # operator's invoke refuses a file that is not a recording (recording_scene.check_recording_file).
     bl_file_extensions = ".json;.csv;.c3d;.bsor"
 
     @classmethod

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import functools
 
-from ..bodycal_addon.core.errors import BodyCalError
-from ..bodycal_addon.core.outputs import describe_os_error
+from ..bodycal_addon.blender import BodyCalError, describe_os_error
 
 
 def error_line(exc: BaseException) -> str:

@@ -9,8 +9,6 @@ from bpy_extras.io_utils import ExportHelper
 
 from ..bodycal_addon.blender import session
 from ..bodycal_addon.blender.export import EXPORT_SUFFIXES, export_avatar
-from ..bodycal_addon.recording.filters import OneEuro
-from ..bodycal_addon.retarget.takes import RecordingTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import StartsInFolder, method_property
 from .reporting import reports_errors
@@ -20,21 +18,21 @@ from .review import BODYCAL_PG_review_flag
 class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
     """What only a recording's bake has (the shared bake settings: scene.bodycal_bake)."""
 
-    method: method_property(method_items(RecordingTake.kind), "Method", "How the recording drives the avatar")
+    method: method_property(method_items(session.RECORDING), "Method", "How the recording drives the avatar")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Devices", default=True,
         description="One Euro filter on the tracker poses before retargeting (the recording itself is not changed)")
     filter_min_cutoff: bpy.props.FloatProperty(
-        name="Min Cutoff", default=OneEuro.min_cutoff, min=0.01, soft_max=20.0,
+        name="Min Cutoff", default=session.OneEuro.min_cutoff, min=0.01, soft_max=20.0,
         description="Cutoff (Hz) of a still device's position: lower smooths more")
     filter_beta: bpy.props.FloatProperty(
-        name="Beta", default=OneEuro.beta, min=0.0, soft_max=50.0,
+        name="Beta", default=session.OneEuro.beta, min=0.0, soft_max=50.0,
         description="How fast the position's cutoff rises with speed (Hz per m/s): higher follows quick moves")
     filter_rot_min_cutoff: bpy.props.FloatProperty(
-        name="Rotation Min Cutoff", default=OneEuro.rot_min_cutoff, min=0.01, soft_max=20.0,
+        name="Rotation Min Cutoff", default=session.OneEuro.rot_min_cutoff, min=0.01, soft_max=20.0,
         description="Cutoff (Hz) of a still device's rotation")
     filter_rot_beta: bpy.props.FloatProperty(
-        name="Rotation Beta", default=OneEuro.rot_beta, min=0.0, soft_max=20.0,
+        name="Rotation Beta", default=session.OneEuro.rot_beta, min=0.0, soft_max=20.0,
         description="How fast the rotation's cutoff rises with angular speed (Hz per rad/s)")
     last_result: bpy.props.StringProperty(name="Last Result", default="", options={"SKIP_SAVE"},
                                           description="The last bake's figures, per avatar")
@@ -48,14 +46,15 @@ class BODYCAL_PG_retarget_settings(bpy.types.PropertyGroup):
         name="Seat Height", default=0.45, min=0.1, max=1.2, precision=3, subtype="DISTANCE", unit="LENGTH",
         description="How high the seat is above the floor (a chair: about 0.45 m)")
 
-    def scene_take(self, scene) -> RecordingTake:
+    def scene_take(self, scene) -> session.RecordingTake:
         """The scene's recording as these settings take it: smoothed, seated or not."""
         return session.scene_take(scene, self.one_euro(), seat_height=self.seat_height if self.seated else None)
 
-    def one_euro(self) -> OneEuro | None:
+    def one_euro(self) -> session.OneEuro | None:
         if not self.use_filter:
             return None
-        return OneEuro(self.filter_min_cutoff, self.filter_beta, self.filter_rot_min_cutoff, self.filter_rot_beta)
+        return session.OneEuro(self.filter_min_cutoff, self.filter_beta, self.filter_rot_min_cutoff,
+                               self.filter_rot_beta)
 
 
 class BODYCAL_OT_retarget_bake(BakeOperator, bpy.types.Operator):
@@ -80,7 +79,7 @@ on each"""
             return False
         return True
 
-    def _read_take(self, context) -> RecordingTake:
+    def _read_take(self, context) -> session.RecordingTake:
         return self._own_settings(context).scene_take(context.scene)
 
     def _armatures(self, context) -> list:

@@ -3,7 +3,7 @@
 import bpy
 
 from .. import sample_rigs
-from ..bodycal_addon.core import paths
+from ..bodycal_addon.blender import demo
 
 
 class BODYCAL_OT_add_procedural_avatar(bpy.types.Operator):
@@ -47,7 +47,7 @@ class BODYCAL_OT_load_sample_avatars(bpy.types.Operator):
         if context.mode != "OBJECT":
             cls.poll_message_set("Switch to Object Mode to load avatars")
             return False
-        if not paths.shared_avatar_files():
+        if not demo.shared_avatar_files():
             cls.poll_message_set("No sample avatars: they come with the source repository (sample_data/), "
                                  "or set BODYCAL_DATA")
             return False
@@ -55,7 +55,7 @@ class BODYCAL_OT_load_sample_avatars(bpy.types.Operator):
 
     def execute(self, context):
         loaded = []
-        for i, path in enumerate(paths.shared_avatar_files()):
+        for i, path in enumerate(demo.shared_avatar_files()):
             try:
                 arm, _mesh = sample_rigs.load_glb_avatar(path)
             except sample_rigs.SampleRigError as exc:

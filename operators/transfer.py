@@ -4,10 +4,8 @@ source is read into numpy on the main thread (its F-Curves, its body model)."""
 
 import bpy
 
-from ..bodycal_addon.blender.character_source import read_source
+from ..bodycal_addon.blender import session
 from ..bodycal_addon.blender.fcurves import action_bones
-from ..bodycal_addon.recording.filters import OneEuro
-from ..bodycal_addon.retarget.takes import CharacterTake
 from .bake_settings import BakeOperator, can_bake_in, method_items, selected_armatures
 from .preferences import method_property
 from .review import BODYCAL_PG_review_flag
@@ -32,7 +30,7 @@ class BODYCAL_PG_transfer_settings(bpy.types.PropertyGroup):
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action, poll=_animates_source,
                                       description="The source's action (default: its active one); "
                                                   "only actions that animate the source's bones are listed")
-    method: method_property(method_items(CharacterTake.kind), "Method",
+    method: method_property(method_items(session.ANIMATION), "Method",
                             "How the source character's motion drives the avatar")
     use_filter: bpy.props.BoolProperty(
         name="Smooth Source", default=False,
@@ -68,11 +66,9 @@ bake a new action on each"""
             return False
         return True
 
-    def _read_take(self, context) -> CharacterTake:
+    def _read_take(self, context) -> session.CharacterTake:
         st = self._own_settings(context)
-        take = read_source(st.source, st.action)
-        take.filter = OneEuro() if st.use_filter else None
-        return take
+        return session.source_take(st.source, st.action, smooth=st.use_filter)
 
     def _armatures(self, context) -> list:
         return selected_armatures(context, exclude=self._own_settings(context).source)

@@ -3,8 +3,7 @@ sub-panel, panels/bone_map_panel.py)."""
 
 import bpy
 
-from ..bodycal_addon.blender import avatar_storage, surface_helpers
-from ..bodycal_addon.core import paths
+from ..bodycal_addon.blender import avatar_storage, demo, surface_helpers
 from ..operators.avatar import context_armature
 from .conventions import draw_help
 
@@ -30,7 +29,7 @@ class BODYCAL_PT_avatar(bpy.types.Panel):
         row.operator("bodycal.add_procedural_avatar", text="Procedural", icon="OUTLINER_OB_ARMATURE")
         # The samples come with the source repository, not the extension zip: an installed
         # extension would show the button greyed out for good.
-        if paths.shared_avatar_files():
+        if demo.shared_avatar_files():
             row.operator("bodycal.load_sample_avatars", text="Samples", icon="IMPORT")
         arm = context_armature(context)
         if arm is None:

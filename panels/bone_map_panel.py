@@ -7,9 +7,7 @@ import fnmatch
 import bpy
 
 from ..bodycal_addon.blender import avatar_storage
-from ..bodycal_addon.body import naming
-from ..bodycal_addon.body import skeleton as sk
-from ..bodycal_addon.body.bone_presets import segment_value
+from ..bodycal_addon.blender.avatar_rig import SCHEME_BY_NAME, SEGMENTS, segment_value
 from ..operators import bone_map_editor as editor
 from ..operators.avatar import context_armature
 
@@ -88,14 +86,14 @@ class BODYCAL_UL_bone_map(bpy.types.UIList):
 
 
 def _summary(layout, arm, state) -> None:
-    scheme = naming.SCHEME_BY_NAME.get(state.detected.scheme)
+    scheme = SCHEME_BY_NAME.get(state.detected.scheme)
     row = layout.row()
     row.label(text=f"Detected: {scheme.title if scheme else state.detected.scheme}", icon="BONE_DATA")
     row.operator("bodycal.detect_bone_map", text="", icon="FILE_REFRESH")
     missing = state.bm.missing()
-    mapped = sum(1 for s in sk.SEGMENTS if segment_value(state.bm, s))
-    by_hand = sum(1 for s in state.overrides if s in sk.SEGMENTS)
-    layout.label(text=f"{mapped} of {len(sk.SEGMENTS)} segments mapped, {by_hand} set by hand",
+    mapped = sum(1 for s in SEGMENTS if segment_value(state.bm, s))
+    by_hand = sum(1 for s in state.overrides if s in SEGMENTS)
+    layout.label(text=f"{mapped} of {len(SEGMENTS)} segments mapped, {by_hand} set by hand",
                  icon="ERROR" if missing else "CHECKMARK")
     lines = [("ERROR", state.problem)] if state.problem else []
     last = editor.note(arm)

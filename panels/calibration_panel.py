@@ -8,9 +8,7 @@ import json
 import bpy
 
 from ..bodycal_addon.blender import recording_scene
-from ..bodycal_addon.blender.calibration_scene import MODEL_PROP
-from ..bodycal_addon.calibration import CALIBRATION_STEPS, coverage
-from ..bodycal_addon.calibration.coverage import BODY_JOINTS
+from ..bodycal_addon.blender.calibration_scene import BODY_JOINTS, CALIBRATION_STEPS, MODEL_PROP, coverage
 from ..operators.calibration import REFUSED
 from .conventions import draw_help, wrapped_label
 

@@ -14,14 +14,17 @@ from __future__ import annotations
 
 import contextlib
 
+import bpy
 import numpy as np
+from mathutils import Matrix, Vector
+from mathutils.bvhtree import BVHTree
 
 from ..avatar.armature import ArmatureReading
 from ..avatar.estimate import estimate_surface
 from ..avatar.rays import planned_rays, surface_from_rays
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError, Cancelled
-from ..retarget.placement import moved_to
+from ..retarget.placement import avatar_warnings, moved_to
 from . import avatar_rig, avatar_storage
 
 
@@ -41,9 +44,6 @@ class Caster:
     """First hits of world-space rays on the evaluated meshes (nearest over all meshes)."""
 
     def __init__(self, meshes, depsgraph):
-        from mathutils import Matrix, Vector
-        from mathutils.bvhtree import BVHTree
-
         self._Vector = Vector
         self.trees = []
         for obj in meshes:
@@ -104,8 +104,6 @@ def in_rest_position(arm):
     Rest Position), then as it was. The bones are read at rest; a rig opened posed (an imported
     take at its current frame, a character mid-animation) would deform its meshes away from them,
     and the rays from a posed arm's bones missed it."""
-    import bpy
-
     data = arm.data
     before = data.pose_position
     if before != "REST":
@@ -132,11 +130,19 @@ def measure(rig: ArmatureReading, caster: Caster, name: str, progress=None, canc
     return surface_from_rays(rig, caster, name)
 
 
+def calibration_report(arm_name: str, model: BodyModel) -> tuple[str, list[str]]:
+    """(summary line, warnings) of an avatar calibration: what the sidebar reports."""
+    q = model.calibration["quality"]
+    rejected = sum(v["rejected"] for v in q.values())
+    note = f"; missing: {', '.join(model.calibration['missing'])}" if model.calibration["missing"] else ""
+    summary = (f"{arm_name}: {len(model.surface)} surface elements, {sum(v['hit'] for v in q.values())} ray hits "
+               f"({rejected} rejected), {model.extra['rig']['rest_pose']}-pose rest{note}")
+    return summary, list(avatar_warnings(model))
+
+
 def prepare_survey(arm, meshes=None, depsgraph=None) -> tuple[ArmatureReading, Caster]:
     """What the surface calibration of armature object `arm` reads from Blender: its rig, and the
     BVH trees of its meshes as they stand in the rest position."""
-    import bpy
-
     rig = avatar_rig.read_rig(arm)
     meshes = list(meshes) if meshes is not None else avatar_meshes(arm)
     if not meshes:

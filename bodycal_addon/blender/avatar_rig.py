@@ -21,6 +21,14 @@ from ..avatar.structure import map_by_structure
 from ..body import naming
 from ..body import skeleton as sk
 from ..body.bone_presets import SINGLE_SEGMENTS, BonePreset, check_overrides, edit_overrides, map_with_overrides
+from ..body.bone_presets import segment_value as segment_value  # re-exported (`X as X`): the bone map editor's
+from ..body.naming import SCHEME_BY_NAME as SCHEME_BY_NAME  # re-exported: the editor names the detected scheme
+from ..body.naming import BoneMap as BoneMap  # re-exported: the editor's state
+from ..body.skeleton import CHAIN_SEGMENTS as CHAIN_SEGMENTS  # re-exported: the editor's rows
+from ..body.skeleton import FINGERS as FINGERS  # re-exported: the editor's rows
+from ..body.skeleton import SEGMENTS as SEGMENTS  # re-exported: the editor's rows
+from ..body.skeleton import SIDES as SIDES  # re-exported: the editor's rows
+from ..body.skeleton import required_segments as required_segments  # re-exported: the editor's rows
 from ..core.errors import BodyCalError
 from . import avatar_storage
 

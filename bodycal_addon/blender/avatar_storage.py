@@ -35,6 +35,15 @@ def load_json_model(owner, key: str, *, what: str, redo: str) -> BodyModel:
     return BodyModel.from_dict(data, source=f"{name}[{key}]")
 
 
+def load_model_file(arm, path) -> BodyModel:
+    """Read an avatar body model file (`*.body.json`) and store it on the armature `arm`."""
+    model = BodyModel.load(path)
+    if model.kind != "avatar":
+        raise BodyCalError(f"a '{model.kind}' body model, not an avatar model", source=path, field="kind")
+    store_model(arm, model)
+    return model
+
+
 def store_model(arm, model: BodyModel) -> None:
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("the avatar model can only be stored on an armature object",

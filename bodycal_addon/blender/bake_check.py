@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import bpy
 import numpy as np
 
 from ..body.animation import AvatarAnimation
@@ -67,8 +68,6 @@ def plan(anim: AvatarAnimation, avatar: BodyModel) -> BakeCheck | None:
 def deforming_bones(obj) -> set[str] | None:
     """The bones that deform a mesh skinned to `obj` (a vertex group of theirs on a mesh whose
     Armature modifier uses `obj`, and Deform on); None when no mesh is skinned to it."""
-    import bpy
-
     groups, skinned = set(), False
     for mesh in bpy.data.objects:
         if mesh.type != "MESH":
@@ -120,8 +119,6 @@ def verify(check: BakeCheck | None, obj, frames: np.ndarray, in_place: bool = Fa
     mesh is further than the tolerance from the engine's. `in_place`: the bake took the travel out
     (root motion `in-place`), so the joints are compared about the pelvis. The scene's frame is
     put back."""
-    import bpy
-
     if check is None:
         return
     scene = bpy.context.scene

@@ -131,6 +131,21 @@ def import_avatar_file(path, notes: list | None = None) -> list:
     return added
 
 
+def import_avatars(path, notes: list | None = None) -> tuple[list, list]:
+    """Import an avatar file (`import_avatar_file`) and pick its avatars: (every new object, the
+    armatures a mesh is skinned to, or every armature when none is). A file without an armature
+    leaves the scene as it was and is refused."""
+    new = import_avatar_file(path, notes)
+    armatures = [o for o in new if o.type == "ARMATURE"]
+    # As on the command line: an armature no mesh is skinned to is a helper, not the avatar.
+    avatars = [a for a in armatures if deformed_meshes(a)] or armatures
+    if not avatars:
+        for obj in new:  # nothing to animate: leave the scene as it was
+            bpy.data.objects.remove(obj)
+        raise BodyCalError("the file has no armature", source=path)
+    return new, avatars
+
+
 def bound_elsewhere(path) -> bool:
     """Whether a glTF file's skins were bound in another pose than its nodes' rest: for a skin
     bound at rest, every joint's world matrix (the nodes' rest) times its inverse bind matrix is
@@ -283,7 +298,7 @@ def importer_operator(suffix: str, source: str):
 def _importer_enabled(suffix: str, source: str):
     """The importer operator, with its add-on enabled for the import when it was not (Blender's
     own FBX and glTF importers are add-ons a user may have turned off), and turned off again."""
-    import addon_utils
+    import addon_utils  # here: on sys.path only once bpy is imported, which isort would put after it
 
     fmt, op_name, addon = IMPORTERS[suffix]
     operator = importer_operator(suffix, source)
@@ -318,7 +333,7 @@ def _call_operator(idname: str, **properties) -> set[str]:
     evaluation copies every action in the scene into the depsgraph: a 10-minute bake's action
     doubled the command's memory (+650 MB) for a save that writes only the original data (BLENDER_NOTES.md).
     `_bpy.ops.call` is what `bpy.ops` itself calls (the same on 4.2, 4.5 and 5.0)."""
-    from _bpy import ops as _ops
+    from _bpy import ops as _ops  # here: on sys.path only once bpy is imported
 
     return _ops.call(idname, properties)
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import bpy
+
 from ..body import naming
 from ..body.bone_presets import BonePreset, load_preset, preset_from_bone_map
 from ..core import outputs, paths
@@ -21,8 +23,6 @@ USER = "user:"
 
 
 def user_preset_dir(create: bool = True) -> Path:
-    import bpy
-
     package = paths.extension_package()
     if package:
         return Path(bpy.utils.extension_path_user(package, path=USER_FOLDER, create=create))
@@ -39,6 +39,16 @@ def preset_entries() -> list[tuple[str, str, str]]:
         except BodyCalError as exc:
             out.append((f"{USER}{path.name}", f"{path.stem} (unreadable)", exc.line()))
     return out
+
+
+def builtin_entries(why: str) -> list[tuple[str, str, str]]:
+    """The built-in presets alone, each described with `why` (the user folder could not be read)."""
+    return [(f"{BUILTIN}{s.name}", s.title, f"Built-in ({why})") for s in naming.SCHEMES]
+
+
+def check_fits(path, arm) -> None:
+    """Refuse (BodyCalError) the preset file at `path` when it does not map `arm`'s bones."""
+    load_preset(path).resolve([b.name for b in arm.data.bones])
 
 
 def preset_for(identifier: str) -> BonePreset:

@@ -10,12 +10,23 @@ import numpy as np
 
 from ..body import surface_layout as sl
 from ..body.bodymodel import BodyModel
+from ..calibration import CALIBRATION_STEPS as CALIBRATION_STEPS  # re-exported (`X as X`): the panel's
+from ..calibration import calibrate_user, check_usable
+from ..calibration import coverage as coverage  # re-exported: the panel's
+from ..calibration.coverage import BODY_JOINTS as BODY_JOINTS  # re-exported: the panel's
+from ..calibration.coverage import Coverage
+from ..core.errors import BodyCalError
 from ..core.transforms import matrix_to_quat
 from .avatar_storage import has_json_model, load_json_model, store_json_model
+from .recording_scene import recording_from_scene
 
 MODEL_PROP = "bodycal_user_model"
 HELPER_PROP = "bodycal_helper"  # on a helper object: the joint or element it shows
 COLLECTION = "BodyCal User Calibration"
+
+
+# (The sidebar reaches the engine through blender/ only: the names the calibration panel shows are
+# re-exported above.)
 
 
 def store_user_model(scene, model: BodyModel) -> None:
@@ -28,6 +39,67 @@ def has_user_model(scene) -> bool:
 
 def load_user_model(scene) -> BodyModel:
     return load_json_model(scene, MODEL_PROP, what="user body model", redo="run Calibrate User first")
+
+
+# {scene name: the last refusal's line}: what the calibration panel shows until the next calibration
+# of that scene.
+REFUSED: dict[str, str] = {}
+
+
+def calibrate_scene(scene, show: bool = True) -> tuple[BodyModel, Coverage]:
+    """Calibrate the performer from the scene's recording, store the model on the scene and (with
+    `show`) its helpers; a model too guessed to use is refused (BodyCalError), its line kept in
+    REFUSED for the panel."""
+    model = calibrate_user(recording_from_scene(scene))
+    REFUSED.pop(scene.name, None)
+    try:
+        cov = check_usable(model)
+    except BodyCalError as exc:
+        REFUSED[scene.name] = exc.line()
+        raise
+    store_user_model(scene, model)
+    if show:
+        show_helpers(scene, model)
+    return model, cov
+
+
+def calibration_report(model: BodyModel, cov: Coverage) -> tuple[str, list[str]]:
+    """(summary line, warnings) of a calibration: what the operator reports."""
+    cal = model.calibration
+    summary = (f"Calibrated from {len(cal['steps_used'])} steps: {cov.line()}; {len(cal['missing'])} steps missing"
+               + (f", {len(cal['warnings'])} not usable (see the panel)" if cal.get("warnings") else ""))
+    return summary, cal.get("warnings", []) + cov.warnings()
+
+
+def read_user_model(path, wrong_kind: str = "this is an {kind} body model, not a user one",
+                    source=None) -> BodyModel:
+    """A user body model from its `.body.json`; another kind of model is refused with `wrong_kind`."""
+    model = BodyModel.load(path)
+    if model.kind != "user":
+        raise BodyCalError(wrong_kind.format(kind=model.kind), source=path if source is None else source)
+    return model
+
+
+def load_user_model_file(scene, path) -> BodyModel:
+    """Read a user body model file and store it on the scene."""
+    model = read_user_model(path)
+    store_user_model(scene, model)
+    return model
+
+
+def performer_model(scene, user_file: str | None) -> BodyModel:
+    """The performer's model: the file `user_file` when given ("" = the file setting left empty),
+    else the scene's calibrated one."""
+    if user_file is not None:
+        if not user_file:
+            raise BodyCalError("no body model file picked", field="Body Model",
+                               hint="pick the performer's .body.json, or use the scene's performer")
+        return read_user_model(bpy.path.abspath(user_file), "expected a user body model, got kind '{kind}'",
+                               source=user_file)
+    if not has_user_model(scene):
+        raise BodyCalError("no performer calibrated in this scene", field="Performer",
+                           hint="Calibrate User on a take first, or pick a .body.json file")
+    return load_user_model(scene)
 
 
 def _bone_matrix(model: BodyModel, bone: str) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import bpy
 import numpy as np
 
 from ..avatar.estimate import ESTIMATED
@@ -77,8 +78,6 @@ def read_action(arm, action, names: list[str], frames: np.ndarray) -> tuple[np.n
 
 def pick_action(arm, name: str | None, source: str):
     """The action named `name`, else the armature's active action, else the file's only action."""
-    import bpy
-
     if name:
         action = bpy.data.actions.get(name)
         if action is None:
@@ -101,8 +100,6 @@ def read_source(arm, action=None, *, frame_range: tuple[int, int] | None = None,
                 ) -> CharacterTake:
     """The source armature `arm` and its action (default: the active one) in numpy, every frame
     of the action's range (or `frame_range`) at the scene's rate (or `fps`)."""
-    import bpy
-
     if arm is None or getattr(arm, "type", None) != "ARMATURE":
         raise BodyCalError("pick a source armature", source=getattr(arm, "name", "no object"))
     action = action or pick_action(arm, None, arm.name)
@@ -155,8 +152,6 @@ def bvh_unit(path) -> tuple[str, float]:
 def open_source(path) -> list[str]:
     """Make the source file the open file (a .blend opened, a .bvh / .fbx / .glb / .gltf imported
     into an empty scene); returns notes (a BVH's unit, skins an FBX import had to bind again)."""
-    import bpy
-
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in ANIMATION_SUFFIXES:

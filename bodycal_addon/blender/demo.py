@@ -23,6 +23,7 @@ import numpy as np
 from ..calibration import calibrate_user
 from ..core import paths
 from ..core.errors import BodyCalError
+from ..core.paths import shared_avatar_files as shared_avatar_files  # re-exported: the sidebar's sample avatars
 from ..output import metrics
 from ..output.review_page import write_page
 from ..recording.io import load_recording
@@ -77,7 +78,7 @@ def run_demo(output_dir: Path, log=print, only_avatars=None, three_point: bool =
     output_dir.mkdir(parents=True, exist_ok=True)
     if not DEMO_RECORDING.is_file():
         raise BodyCalError("the bundled demo recording is missing", source=str(DEMO_RECORDING),
-                           hint="regenerate it with sample_rigs/make_demo_recording.py")
+                           hint="regenerate it with bodycal_dev/make_demo_recording.py")
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
 

@@ -8,7 +8,7 @@ calibration, retargeting and a saved .blend read the role through `recording_fro
 from __future__ import annotations
 
 from ..core.errors import BodyCalError
-from ..recording.model import ROLES
+from ..recording.model import ROLES as ROLES  # re-exported: the Devices list's role menu
 from ..recording.roles import identify_roles
 from .recording_scene import (
     DEVICE_PROP,

@@ -4,6 +4,7 @@ back, and ending it. Nothing here imports `bpy`: the command line uses it before
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import io
 import os
 import shutil
@@ -65,8 +66,6 @@ def release_freed_memory() -> None:
     the bake then made its keys."""
     if not sys.platform.startswith("linux"):
         return
-    import ctypes
-
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc (musl has no malloc_trim)

@@ -34,6 +34,11 @@ import numpy as np
 
 from ..core.errors import BodyCalError
 from ..core.transforms import continuous_quaternions
+from ..recording.io import DEFAULT_FILL_GAPS_S as DEFAULT_FILL_GAPS_S  # re-exported: the import's options
+from ..recording.io import JSON_SUFFIX as JSON_SUFFIX  # re-exported: File > Import's file filter
+from ..recording.io import RECORDING_GLOBS as RECORDING_GLOBS  # re-exported: File > Import's file filter
+from ..recording.io import check_recording_file as check_recording_file  # re-exported: a dropped file's check
+from ..recording.io import load_recording
 from ..recording.model import ROLES, STEPS, Device, Recording, Segment
 from .fcurves import CONSTANT, new_fcurve, object_fcurves, read_keys, write_keys
 
@@ -83,6 +88,15 @@ def _segment_markers(rec: Recording, frame_of, layout: str) -> list[tuple[str, i
         if (nxt is None and end_frame < last_frame) or (nxt is not None and frame_of(nxt) > end_frame):
             out.append((END_LABEL, end_frame))
     return out
+
+
+def import_recording_file(path, context_or_scene=None, *, fill_gaps_s: float = DEFAULT_FILL_GAPS_S,
+                          hands: str = "geometry", **placing) -> tuple[Recording, object]:
+    """Read the recording file at `path` (recording/io) and put it in the scene
+    (`import_recording_to_scene`, which `placing` is passed to): (the recording, its new
+    collection). Read and checked first, written last: on error the scene is untouched."""
+    rec = load_recording(path, fill_gaps_s=fill_gaps_s, hands=hands)
+    return rec, import_recording_to_scene(rec, context_or_scene, **placing)
 
 
 def import_recording_to_scene(rec: Recording, context_or_scene=None, *, frame_start: int = 1,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 
+import bpy
 import numpy as np
 
 from ..avatar.armature import loose_limb_bones
@@ -94,8 +95,6 @@ def _rest4(obj, name: str) -> np.ndarray:
 def _rules(obj) -> dict[str, list[rigify.Rule]]:
     """What each bone's constraints do, read from the evaluated rig (drivers set the influences,
     e.g. IK_FK switches the ORG- bones' Copy Transforms from the IK chain to the FK one)."""
-    import bpy
-
     ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     kinds = {"COPY_TRANSFORMS": "copy", "COPY_ROTATION": "rotation", "COPY_LOCATION": "location",
              "DAMPED_TRACK": "track"}
@@ -181,8 +180,6 @@ class RigifyPlan:
 
     def __init__(self, obj, target: str, bone_names):
         rigify.check_rigify_target(target)
-        import bpy
-
         self.obj, self.target = obj, target
         bones = obj.data.bones
         self.deform = avatar_rig.deform_parents(obj)

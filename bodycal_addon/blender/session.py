@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import bpy
 import numpy as np
 
 from ..body import naming
@@ -30,9 +31,12 @@ from ..core import outputs
 from ..core.errors import BodyCalError
 from ..output import metrics
 from ..output import review as review_figures
-from ..recording.filters import DEFAULT_FILTER, OneEuro
+from ..output.keyreduce import DEFAULT_LOCATION_TOLERANCE_MM as DEFAULT_LOCATION_TOLERANCE_MM  # the sidebar's
+from ..output.keyreduce import DEFAULT_TOLERANCE_DEG as DEFAULT_TOLERANCE_DEG  # the sidebar's default
+from ..recording.filters import DEFAULT_FILTER
+from ..recording.filters import OneEuro as OneEuro  # re-exported: the sidebar's filter settings
 from ..recording.io import load_recording
-from ..retarget.methods import check_method
+from ..retarget.methods import METHOD_INFO, check_method, methods_for
 from ..retarget.placement import avatar_warnings, check_placement
 from ..retarget.takes import CharacterTake, RecordingTake, Take
 from . import avatar_storage, bake_check, calibration_scene, process, recording_scene, rig_output
@@ -43,6 +47,14 @@ from .avatar_rig import apply_preset
 from .blendfile import find_armature, open_avatar, save_blend
 from .character_source import open_source, pick_action, read_source
 from .export import export_avatar, output_kind
+
+# The kinds of take the sidebar bakes, each with its methods (retarget/methods.py).
+RECORDING, ANIMATION = RecordingTake.kind, CharacterTake.kind
+
+
+def method_choices(take_kind: str) -> list[tuple[str, str, str]]:
+    """(name, label, description) of each method for a kind of take, from the one registry."""
+    return [(name, METHOD_INFO[name].label, METHOD_INFO[name].description) for name in methods_for(take_kind)]
 
 
 @dataclass
@@ -157,8 +169,6 @@ def bake(take: Take, target: Target, computed: Computed, *, options: baking.Bake
     and targets; they are let go before the keys are made (a 10-minute take: ~250 MB less at the
     command's peak). `review`: the bake's review too (output/review.py; the evaluated mesh measured
     once the keys are written: blender/review.py), in `Summary.review`."""
-    import bpy
-
     options = options or baking.BakeOptions()
     arm, anim = target.armature, computed.animation
     name = action_name or baking.default_action_name(take.name, arm.name, anim.method)
@@ -231,14 +241,22 @@ def scene_take_missing(scene) -> str | None:
     return None
 
 
-def scene_take(scene, filter: OneEuro | None = None, *, seat_height: float | None = None) -> RecordingTake:
+def scene_take(scene, filter: OneEuro | None = None, *, seat_height: float | None = None,
+               user: BodyModel | None = None) -> RecordingTake:
     """The scene's recording (its devices' empties, as the importer made them or the user edited
-    them) and the performer's calibrated body model as a take, on the frames it was imported at
-    (`seat_height`: the performer seated, a kit without foot trackers)."""
+    them) and the performer's body model (`user`, else the scene's calibrated one) as a take, on the
+    frames it was imported at (`seat_height`: the performer seated, a kit without foot trackers)."""
     recording = recording_scene.recording_from_scene(scene)
     frame_start, rate = recording_scene.frame_mapping_in_scene(scene)
-    return RecordingTake(recording, calibration_scene.load_user_model(scene), filter, frame_start=frame_start,
-                         frame_rate=rate, seat_height=seat_height)
+    return RecordingTake(recording, calibration_scene.load_user_model(scene) if user is None else user, filter,
+                         frame_start=frame_start, frame_rate=rate, seat_height=seat_height)
+
+
+def source_take(source, action=None, smooth: bool = False) -> CharacterTake:
+    """Another character's action as a take (`smooth`: the default One Euro filter on its pose)."""
+    take = read_source(source, action)
+    take.filter = OneEuro() if smooth else None
+    return take
 
 
 # --- the command line: everything from paths, nothing from a running session -----------------------

@@ -13,7 +13,9 @@ reads them back into the model stored on the armature.
 
 from __future__ import annotations
 
+import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ..body import skeleton as sk
 from ..body import surface_layout as sl
@@ -32,8 +34,6 @@ def collection_name(arm) -> str:
 
 
 def helper_collection(arm):
-    import bpy
-
     return bpy.data.collections.get(collection_name(arm))
 
 
@@ -53,9 +53,6 @@ def _cal_matrix(model: BodyModel) -> np.ndarray:
 
 def edit_surface(arm, context=None) -> object:
     """Create (or re-create) the helper empties of the avatar model stored on `arm`."""
-    import bpy
-    from mathutils import Matrix
-
     model = avatar_storage.load_model(arm)
     remove_helpers(arm)
     coll = bpy.data.collections.new(collection_name(arm))
@@ -97,8 +94,6 @@ def edit_surface(arm, context=None) -> object:
 
 
 def remove_helpers(arm) -> None:
-    import bpy
-
     coll = helper_collection(arm)
     if coll is None:
         return

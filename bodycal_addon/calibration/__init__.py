@@ -8,6 +8,11 @@ data could not be used, and why: such a step is left out and defaulted, never fa
 `quality` {step: {rms_mm, kept, of, range_deg, ...}}. The output follows the user-model contract
 in bodymodel.py's docstring. `coverage` and `check_usable` (coverage.py) say how much of it was
 measured and refuse a model that no method could animate or that is mostly guessed.
+
+Its modules: `user` (the steps in order) over `common` (the state they share); one per part of
+the body, `tpose`, `head`, `hands`, `feet`, `limbs`, `trunk`, with `touches`, `lengths` and
+`effectors`; `defaults` (what a recording does not measure), `estimated_devices` (a kit without a
+pelvis or foot trackers), `unused_devices` (devices left without a role), `coverage`.
 """
 
 from .coverage import ANIMATED_ROLES, check_usable, coverage

@@ -268,13 +268,13 @@ def quat_from_rows(comp: np.ndarray) -> np.ndarray:
             continue
         if len(cols) == len(best):
             cols = slice(None)
-        q[:, cols] = _SHEPPERD[k](*comp[:, cols])  # only the candidate these items pick
+        q[:, cols] = SHEPPERD_CANDIDATES[k](*comp[:, cols])  # only the candidate these items pick
     q /= np.sqrt((q * q).sum(0))
     q *= np.where(q[0] < 0, -1.0, 1.0)
     return q
 
 
-_SHEPPERD = (  # matrix_to_quat's four candidates (w, x, y, z) from m00, m01, ..., m22
+SHEPPERD_CANDIDATES = (  # matrix_to_quat's four candidates (w, x, y, z) from m00, m01, ..., m22
     lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01),
     lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20),
     lambda m00, m01, m02, m10, m11, m12, m20, m21, m22: (m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21),

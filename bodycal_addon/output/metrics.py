@@ -22,7 +22,7 @@ from ..body.rest_frames import complete_joints
 from ..core.errors import BodyCalError
 from ..retarget.avatar_pose import AvatarRig, RigPose
 from ..retarget.egocentric import own_chain_elements, pose_surface, project
-from ..retarget.solver_methods import _surface_bones, surface_correction
+from ..retarget.solver_methods import surface_bones, surface_correction
 
 # The benches' targets, which the review's flags use as their limits (one place for both).
 CONTACT_GAP_P95_MM = 10.0  # bench_retarget_quality: p95 of |contact gap| in the contact frames
@@ -282,7 +282,7 @@ def posed_contact_gaps(avatar, rig: AvatarRig, pose: RigPose, effector: str, tar
     (n,) (m), the effector's points there (n, 3) and its skin offset."""
     idx = np.asarray(frames, int)
     eid = target.split("/", 1)[0]
-    model = _surface_bones(avatar)
+    model = surface_bones(avatar)
     corr = surface_correction(avatar, rig.frames0, complete_joints(avatar))
     posed_joints = {j: pose.joints[idx, i] for i, j in enumerate(sk.JOINTS)}
     frames_at = {b.name: pose.frames[idx, i] @ corr[i] for i, b in enumerate(sk.BONES)}

@@ -43,7 +43,7 @@ from ..retarget.avatar_pose import AvatarRig
 from ..retarget.egocentric import pose_surface
 from ..retarget.offsets import eye_height
 from ..retarget.placement import floor_height, play_area_to_world, rest_heading
-from ..retarget.solver_methods import _surface_bones, surface_correction
+from ..retarget.solver_methods import surface_bones, surface_correction
 from . import metrics
 
 FORMAT = "bodycal-review"
@@ -154,7 +154,7 @@ def source_motion(source, avatar: BodyModel, method: str, placement: str = "obje
     pos = complete_joints(model)
     frames0 = model_rest_frames(model, pos)
     corr = surface_correction(model, frames0, pos)
-    surface = _surface_bones(model)
+    surface = surface_bones(model)
     to_world = play_area_to_world(avatar, placement)
     nf = source.frame_count
     keep = {j: np.empty((nf, 3)) for j in GHOST_JOINTS}

@@ -26,7 +26,7 @@ from ..body.skeleton import JOINTS
 from ..core.errors import BodyCalError, Cancelled
 from ..recording.model import Recording
 from .pose_source import PoseSource, RecordingSource
-from .solver import PreparedSolver, _check_inputs
+from .solver import PreparedSolver, check_inputs
 from .solver_methods import METHOD_CLASSES, METHODS
 
 __all__ = ["METHODS", "METHOD_CLASSES", "retarget", "run_source"]
@@ -45,7 +45,7 @@ def retarget(recording: Recording, user_model: BodyModel, avatar_model: BodyMode
     performer was in the room. A kit without pelvis or foot trackers gets them estimated
     (lower_body; `seat_height`: the performer sits on a seat that high). Bad inputs raise one
     `BodyCalError`."""
-    _check_inputs(recording, user_model, avatar_model, method)
+    check_inputs(recording, user_model, avatar_model, method)
     return run_source(RecordingSource(recording, user_model, seat_height=seat_height), avatar_model, method,
                       chunk_frames=chunk_frames,
                       progress=progress, cancel=cancel, plant_feet=plant_feet, placement=placement)
@@ -82,7 +82,7 @@ def prepare_recording(recording: Recording, user_model: BodyModel, avatar_model:
                       method: str = "egocentric", *, plant_feet: bool = True, placement: str = "object",
                       seat_height: float | None = None) -> PreparedTake:
     """`retarget`'s take prepared once, to be solved a few frames at a time (PreparedTake)."""
-    _check_inputs(recording, user_model, avatar_model, method)
+    check_inputs(recording, user_model, avatar_model, method)
     return PreparedTake(RecordingSource(recording, user_model, seat_height=seat_height), avatar_model, method,
                         plant_feet=plant_feet, placement=placement)
 

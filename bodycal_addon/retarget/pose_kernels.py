@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.transforms import _SHEPPERD
+from ..core.transforms import SHEPPERD_CANDIDATES
 
 _ENTRY_OF_TRANSPOSE = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # row-major 3x3: entry (i, j) -> (j, i)
 
@@ -58,7 +58,7 @@ def quat_from_entries(comp: np.ndarray) -> np.ndarray:
             chosen.append(k)
     q = np.empty((4, comp.shape[1]))
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = comp
-    np.add(1, m00, out=q[0])  # _SHEPPERD[0]: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01)
+    np.add(1, m00, out=q[0])  # SHEPPERD_CANDIDATES[0]: (1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01)
     q[0] += m11
     q[0] += m22
     np.subtract(m21, m12, out=q[1])
@@ -67,7 +67,7 @@ def quat_from_entries(comp: np.ndarray) -> np.ndarray:
     for k in chosen:
         cols = (best == k).nonzero()[0]
         if len(cols):
-            q[:, cols] = _SHEPPERD[k](*comp[:, cols])
+            q[:, cols] = SHEPPERD_CANDIDATES[k](*comp[:, cols])
     q /= np.sqrt((q * q).sum(0))
     q *= np.where(q[0] < 0, -1.0, 1.0)
     return q

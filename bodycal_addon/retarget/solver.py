@@ -51,7 +51,7 @@ def _check_method(avatar: BodyModel, method: str) -> None:
                            field="kind")
 
 
-def _check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
+def check_inputs(recording: Recording, user: BodyModel, avatar: BodyModel, method: str) -> None:
     _check_method(avatar, method)
     if user.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=user.name, field="kind")

@@ -117,8 +117,8 @@ class Egocentric(Method):
         # Both surfaces re-expressed in the engine's canonical bone frames: the mapping's surface
         # coordinates (capsule angles, sphere directions) must mean the same side of the body
         # on the user and on the avatar, whatever `right` each model's producer chose.
-        self.user_s = canonical_surface(_surface_bones(run.user), run.user_frames0, run.user_pos)
-        self.avatar_s = canonical_surface(_surface_bones(run.avatar), run.rig.frames0, avatar_pos)
+        self.user_s = canonical_surface(surface_bones(run.user), run.user_frames0, run.user_pos)
+        self.avatar_s = canonical_surface(surface_bones(run.avatar), run.rig.frames0, avatar_pos)
         self.ids = ego.common_elements(run.user, run.avatar)
         # Decision: the skull base (the trunk's target, solved before the limbs) is mapped
         # against the body without the arms: arm, hand and finger elements are moved by the IK
@@ -314,7 +314,7 @@ METHOD_CLASSES: dict[str, type[Method]] = {m.name: m for m in (Egocentric, Exact
 METHODS = methods_for("recording")  # every method (a recording takes them all), the default first
 
 
-def _surface_bones(model: BodyModel) -> BodyModel:
+def surface_bones(model: BodyModel) -> BodyModel:
     """The model with every mesh element's `bone` a canonical bone (FORMATS.md allows a pattern such
     as "spine_*" for the torso, whose points each name their own vertebra)."""
     fixed = []

@@ -258,11 +258,11 @@ def test_turned_contribution_keeps_its_angle_to_a_tilted_surface(user):
     us, av = eg.pose_surface(user, rest, rots), eg.pose_surface(big, rest, rots)
     t = us.mesh_slices[0][0] + 4
     target = us.tri[:, t].mean(axis=1) + 0.03 * us.tri_normal[:, t]
-    pr = egp._project(target[:, None], us, 0.0)
-    x, v = egp._repose(pr, us, av, turn_v=True)
+    pr = egp.project_components(target[:, None], us, 0.0)
+    x, v = egp.repose_components(pr, us, av, turn_v=True)
     torso = us.element_ids.index("mesh:torso")
     np.testing.assert_allclose(v[:, 0, 0, torso], 0.03 * av.tri_normal[0, t], atol=1e-12)
-    _, v_world = egp._repose(pr, us, av)
+    _, v_world = egp.repose_components(pr, us, av)
     np.testing.assert_allclose(v_world[:, 0, 0, torso], 0.03 * us.tri_normal[0, t], atol=1e-12)
     assert np.dot(us.tri_normal[0, t], av.tri_normal[0, t]) < 0.999  # the triangle did tilt
 

@@ -94,7 +94,7 @@ def test_a_thicker_target_keeps_the_hand_on_its_belly(source):
     def palm_gap(model, out_anim):
         rig = ap.AvatarRig.from_model(model)
         pose = rig.fk(out_anim.rotations, out_anim.root_location)
-        surf_model = sm.canonical_surface(sm._surface_bones(model), rig.frames0, rest_frames.complete_joints(model))
+        surf_model = sm.canonical_surface(sm.surface_bones(model), rig.frames0, rest_frames.complete_joints(model))
         joints = {j: pose.joints[:, i] for i, j in enumerate(sk.JOINTS)}
         frames = {b.name: pose.frames[:, i] for i, b in enumerate(sk.BONES)}
         torso = ego_mod.pose_surface(surf_model, joints, frames, ["mesh:torso"])
@@ -141,7 +141,7 @@ def test_a_bare_skeleton_gets_every_element_scaled_with_it_and_marked_estimated(
     torso = small.element("mesh:torso")
     assert all(p.bone.startswith("spine_") for p in torso.points.values())
     rig = ap.AvatarRig.from_model(small)
-    model = sm.canonical_surface(sm._surface_bones(small), rig.frames0, rest_frames.complete_joints(small))
+    model = sm.canonical_surface(sm.surface_bones(small), rig.frames0, rest_frames.complete_joints(small))
     world = {n: rig.joint_world[JI[sk.BONE_BY_NAME[p.bone].head]] + rig.frames0[BI[p.bone]] @ p.local
              for n, p in model.element("mesh:torso").points.items()}
     fwd = body_estimate.trunk_axes({j: v.world for j, v in small.joints.items()})[:, 1]

@@ -8,7 +8,11 @@ import signal
 from pathlib import Path
 
 from ...core.errors import BodyCalError
+from ...output.review_page import write_page
 from .. import console
+from ..batch import EXIT_ON_SIGNAL, run_batch
+from ..flamenco import export_flamenco
+from ..openjd import export_openjd
 
 _FARM_PACKAGES = ("dask", "distributed", "tqdm", "cloudpickle", "msgpack", "tornado")
 
@@ -28,18 +32,14 @@ def _cluster_module():
 
 def _export(args) -> int:
     if args.export_openjd:
-        from ..openjd import export_openjd
         written = export_openjd(args.jobs, args.export_openjd, review=args.review)
     else:
-        from ..flamenco import export_flamenco
         written = export_flamenco(args.jobs, args.export_flamenco, review=args.review)
     console.say(f"wrote {written}")
     return 0
 
 
 def run(args) -> int:
-    from ..batch import EXIT_ON_SIGNAL, run_batch
-
     if args.retries and not args.cluster:
         raise BodyCalError("retries a job whose cluster worker died; give it with --cluster", source="--retries")
     if args.export_openjd or args.export_flamenco:
@@ -51,8 +51,6 @@ def run(args) -> int:
         else:
             summary = run_batch(args.jobs, log=console.say, progress=step, review=args.review)
     if args.review:  # the page is the batch's, made from its summary and the jobs' records
-        from ...output.review_page import write_page
-
         console.say(f"saved {write_page(Path(summary['summary_file']).parent, summary)}")
     console.say(json.dumps({k: v for k, v in summary.items() if k not in ("results", "removed_stale")}))
     if summary["interrupted"]:

@@ -6,17 +6,18 @@ armature object's transform (placement.avatar_warnings)."""
 
 from __future__ import annotations
 
+from ...body.bone_presets import load_preset
+from ...core.outputs import check_output
+from ...retarget.placement import avatar_warnings
 from .. import console
 
 
 def run(args) -> int:
+    # Blender's glue, loaded when the command runs (the module is imported without Blender too)
     from ...blender.avatar_calibration import calibrate_avatar
     from ...blender.avatar_rig import apply_preset
     from ...blender.blendfile import find_armature, open_avatar
     from ...blender.session import avatar_input
-    from ...body.bone_presets import load_preset
-    from ...core.outputs import check_output
-    from ...retarget.placement import avatar_warnings
 
     bone_map = getattr(args, "bone_map", None)
     files_read = [avatar_input(args.avatar), ("the bone map (--bone-map)", bone_map)]

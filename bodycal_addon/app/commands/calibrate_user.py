@@ -10,6 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ...calibration import calibrate_user, check_usable
+from ...core.outputs import check_output, recording_inputs
+from ...recording import io as recording_io
 from .. import console
 
 
@@ -27,14 +30,10 @@ def summary_lines(model) -> list[str]:
 
 
 def run(args) -> int:
-    from ...calibration import calibrate_user, check_usable
-    from ...core.outputs import check_output, recording_inputs
-    from ...recording.io import load_recording
-
     files_read = recording_inputs(args.recording)
     overwrite = getattr(args, "overwrite", False)
     check_output(args.output, inputs=files_read, overwrite=overwrite)  # before any work
-    rec = load_recording(args.recording, hands=getattr(args, "hands", "geometry"))
+    rec = recording_io.load_recording(args.recording, hands=getattr(args, "hands", "geometry"))
     model = calibrate_user(rec, name=Path(args.recording).name.split(".")[0])
     cov = check_usable(model, source=str(args.recording))
     out = model.save(args.output, inputs=files_read, overwrite=overwrite)

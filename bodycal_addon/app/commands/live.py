@@ -19,7 +19,10 @@ import time
 
 import numpy as np
 
+from ...body.bodymodel import BodyModel
 from ...core.errors import BodyCalError
+from ...live.session import LiveSession
+from ...recording.filters import OneEuro
 from .. import console
 from .record import PROGRESS_S, check_port, parse_roles, stop_on_signals
 from .retarget import seat_height
@@ -35,8 +38,6 @@ def send_target(text: str) -> tuple[str, int]:
 
 
 def _models(args):
-    from ...body.bodymodel import BodyModel
-
     user, avatar = BodyModel.load(args.user), BodyModel.load(args.avatar)
     if user.kind != "user":
         raise BodyCalError(f"expected a user body model, got kind '{user.kind}'", source=str(args.user))
@@ -47,8 +48,7 @@ def _models(args):
 
 
 def run(args) -> int:
-    from ...live.session import LiveSession
-    from ...recording.filters import OneEuro
+    # python-osc's, loaded when the command runs: every other module imports without it
     from ...recording.live.receiver import VmcReceiver
     from ...recording.live.sender import VmcSender
 

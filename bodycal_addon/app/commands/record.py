@@ -24,6 +24,8 @@ from pathlib import Path
 
 from ...core.errors import BodyCalError
 from ...core.outputs import check_output
+from ...recording.live.recorder import LiveRecorder, save_whole
+from ...recording.live.wizard import LiveWizard
 from .. import console
 
 PROGRESS_S = 2.0
@@ -62,8 +64,8 @@ def parse_roles(items) -> dict[str, str]:
 
 
 def run(args) -> int:
+    # python-osc's, loaded when the command runs: `live` imports this module and must import without it
     from ...recording.live.receiver import VmcReceiver
-    from ...recording.live.recorder import LiveRecorder
 
     out = Path(args.output)
     if not out.name.lower().endswith((".json", ".csv")):
@@ -141,8 +143,6 @@ def _record_wizard(recorder, receiver, stop: threading.Event, pause: float, step
                    ended) -> None:
     """The calibration wizard over the stream (module docstring): waits for the first frame (the
     roles and markers a BodyCal sender announces come with it), then runs every step."""
-    from ...recording.live.wizard import LiveWizard
-
     while not stop.wait(WIZARD_POLL_S) and not recorder.frames:
         if receiver.stats.sink_error:
             raise BodyCalError(f"recording failed: {receiver.stats.sink_error}")
@@ -211,8 +211,6 @@ def _progress(recorder, receiver, rate: float) -> str:
 
 
 def _save(recorder, receiver, out: Path, overwrite: bool) -> int:
-    from ...recording.live.recorder import save_whole
-
     stats = receiver.stats
     if stats.sink_error:
         raise BodyCalError(f"recording failed: {stats.sink_error}")

@@ -6,12 +6,13 @@
 
 import math
 
+from ...core.errors import BodyCalError
+from ...recording.filters import OneEuro
 from .. import console
 
 
 def run(args) -> int:
     from ...blender import session
-    from ...recording.filters import OneEuro
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
     with console.progress("retarget") as step:
@@ -29,8 +30,6 @@ def run(args) -> int:
 
 def seat_height(args) -> float | None:
     """--seated HEIGHT (metres), checked: a seat between 0.1 and 1.2 m high."""
-    from ...core.errors import BodyCalError
-
     h = getattr(args, "seated", None)
     if h is not None and not (math.isfinite(h) and 0.1 <= h <= 1.2):
         raise BodyCalError(f"--seated {h:g} is not a seat's height", field="--seated",
@@ -50,8 +49,6 @@ def bake_options(args):
 
 def frame_range(args) -> tuple[float, float] | None:
     """--frame-range FIRST LAST, checked: finite, FIRST <= LAST."""
-    from ...core.errors import BodyCalError
-
     given = getattr(args, "frame_range", None)
     if given is None:
         return None

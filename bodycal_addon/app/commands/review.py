@@ -5,23 +5,26 @@ DIR/review.html, from its summary and its jobs' records."""
 
 from pathlib import Path
 
+from ...body.bodymodel import BodyModel
+from ...core import paths
+from ...core.errors import BodyCalError
+from ...core.outputs import recording_inputs
+from ...output.review_page import write_page
+from ...recording.filters import DEFAULT_FILTER
+from ...recording.io import load_recording
+from ...retarget.takes import RecordingTake
 from .. import console
 
 
 def run(args) -> int:
-    from ...core.errors import BodyCalError
-
     target = Path(args.output)
     if target.is_dir():
-        from ...output.review_page import write_page
-
         if args.source or args.sheet:
             raise BodyCalError("is a folder: its review page is made from its jobs' records; --source and -o "
                                "review one output file", source=str(target))
         console.say(f"saved {write_page(target)}")
         return 0
     from ...blender import review
-    from ...core import paths
 
     if not target.is_file():
         raise BodyCalError("no such file or folder", source=str(target))
@@ -46,12 +49,6 @@ def _read_source(source: Path, args):
     animated character's action; read before the output is opened (a character's file replaces
     the open one)."""
     from ...blender import session
-    from ...body.bodymodel import BodyModel
-    from ...core.errors import BodyCalError
-    from ...core.outputs import recording_inputs
-    from ...recording.filters import DEFAULT_FILTER
-    from ...recording.io import load_recording
-    from ...retarget.takes import RecordingTake
 
     name = source.name.lower()
     if name.endswith((".bcrec.json", ".csv", ".c3d")):

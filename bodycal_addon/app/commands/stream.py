@@ -11,14 +11,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ...body.bodymodel import BodyModel
+from ...body.bone_presets import load_preset
 from ...core.errors import BodyCalError
+from ...output.vmc_bones import AvatarMessages
+from ...recording.filters import OneEuro
+from ...recording.io import load_recording
+from ...recording.live.sender import RecordingMessages, VmcSender, replay
+from ...retarget.takes import RecordingTake
 from .. import console
 from .record import check_port, stop_on_signals
 
 
 def run(args) -> int:
-    from ...recording.live.sender import VmcSender, replay
-
     check_port(args.port)
     if not args.speed > 0:
         raise BodyCalError(f"{args.speed:g} is not a positive speed", field="--speed", hint="1 is real time")
@@ -45,9 +50,6 @@ def run(args) -> int:
 
 
 def _devices(args):
-    from ...recording.io import load_recording
-    from ...recording.live.sender import RecordingMessages
-
     rec = load_recording(args.take, raw=True, hands=getattr(args, "hands", "geometry"))
     if not rec.devices and not rec.marker_names:
         raise BodyCalError("has no device and no marker to send", source=str(args.take))
@@ -55,12 +57,6 @@ def _devices(args):
 
 
 def _retargeted(args):
-    from ...body.bodymodel import BodyModel
-    from ...output.vmc_bones import AvatarMessages
-    from ...recording.filters import OneEuro
-    from ...recording.io import load_recording
-    from ...retarget.takes import RecordingTake
-
     if not args.user or not args.avatar:
         raise BodyCalError("needs --user USER.body.json and --avatar AVATAR", field="--retarget")
     rec = load_recording(args.take, hands=getattr(args, "hands", "geometry"))
@@ -79,8 +75,6 @@ def _retargeted(args):
 
 def _avatar_model(path: Path, armature: str | None, bone_map: str | None):
     """An avatar body model with its rig: read from a *.body.json, or the avatar file's own (Blender)."""
-    from ...body.bodymodel import BodyModel
-
     if path.name.lower().endswith(".json"):
         if bone_map:
             raise BodyCalError("a body model carries its bone map; --bone-map is for an avatar file",
@@ -90,10 +84,10 @@ def _avatar_model(path: Path, armature: str | None, bone_map: str | None):
             raise BodyCalError("is not an avatar body model with its rig", source=str(path), field="--avatar",
                                hint="give the *.body.json written by calibrate-avatar, or the avatar's file")
         return model
+    # Blender's glue, only for an avatar file (a body model streams without Blender)
     from ...blender.avatar_rig import apply_preset
     from ...blender.blendfile import find_armature, open_avatar
     from ...blender.session import prepare_target
-    from ...body.bone_presets import load_preset
 
     preset = load_preset(bone_map) if bone_map else None
     for note in open_avatar(path):

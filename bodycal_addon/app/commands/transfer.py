@@ -6,13 +6,13 @@
 [--overwrite] [--review]`; SOURCE is a .blend, .bvh,
 .fbx, .glb or .gltf with an animated humanoid armature, AVATAR a .blend, .fbx, .glb, .gltf or .vrm."""
 
+from ...recording.filters import OneEuro
 from .. import console
+from .retarget import bake_options, frame_range
 
 
 def run(args) -> int:
     from ...blender import session
-    from ...recording.filters import OneEuro
-    from .retarget import bake_options, frame_range
 
     cfg = None if getattr(args, "filter", None) is None else OneEuro.parse(args.filter)
     with console.progress("transfer") as step:

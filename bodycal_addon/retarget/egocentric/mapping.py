@@ -12,7 +12,7 @@ from ...body import skeleton as sk
 from ...core.errors import BodyCalError
 from ...core.transforms import EPS, unit_and_norm
 from .graph import GRAPH_BONES, GRAPH_NODES, kinematic_path, own_chain_elements
-from .projection import PENETRATION_TOLERANCE, _dot, _Proj, _project, _repose
+from .projection import PENETRATION_TOLERANCE, ProjectionsCF, dot3, project_components, repose_components
 from .surface import JointTable, PosedSurface
 from .weights import normalise_weights, raw_weights
 
@@ -173,7 +173,7 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     floor: include the floor contribution (the vertical singularity handled as eq. 1).
     falloff: exponent of the raw weights' distance law (paper: 2); the invariants hold for any.
     turn_v: carry each v_ij by its element's local frame (bone / triangle frame) onto the avatar's
-    instead of adding it as a world vector (eq. 1 as printed); see _repose.
+    instead of adding it as a world vector (eq. 1 as printed); see repose_components.
     details: if a dict is given, it receives the weights of every frame ("lam", "lam_g",
     "lam_g_floor", "ratio" = τ'/τ, each (F, P, E) or (F, P)) for inspection.
     chunk: frames per block (default: sized so a block's temporaries stay in the CPU caches).
@@ -198,7 +198,7 @@ class _UserBlock:
     stop: int
     p: np.ndarray  # (F, P, 3) the targets
     us: PosedSurface  # the user's surface for these frames and the group's elements
-    pr: _Proj
+    pr: ProjectionsCF
     lam: np.ndarray  # (F, P, E) λ
     lam_g: np.ndarray  # (F, P, E) λg
     lam_gf: np.ndarray  # (F, P) λg of the floor
@@ -248,8 +248,8 @@ class PreparedTargets:
         # `_todo`'s and `_avatar_rows`' answers depend on the targets, elements and grouping only:
         # kept per `layout` (a few frames' key, the same every live frame), else per instance
         self._cache = {} if layout is None else _layout_cache(layout)
-        self.whole = whole  # every target on every element at once (_project), when the groups share it
-        self.ulen = np.sqrt(_dot(ub, ub))  # (F, NB + 1)
+        self.whole = whole  # every target on every element at once (project_components), when the groups share it
+        self.ulen = np.sqrt(dot3(ub, ub))  # (F, NB + 1)
         self.ubt = np.ascontiguousarray(ub.transpose(0, 2, 1))  # (3, NB + 1, F): bones first for the gathers
         self._bone_tau_a = None  # (length ratios, {(group, block): τ' over the bones}) of the last map
 
@@ -274,7 +274,7 @@ class PreparedTargets:
             _check_joints(avatar_surface, g.plan, g.names, "avatar")
         dtype = self.pts.dtype
         ab = _bone_vectors(avatar_surface, avatar_bones, F, dtype)
-        lratio = np.divide(np.sqrt(_dot(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > EPS)
+        lratio = np.divide(np.sqrt(dot3(ab, ab)), self.ulen, out=np.ones_like(self.ulen), where=self.ulen > EPS)
         lrt = np.ascontiguousarray(lratio.T)
         # τ' over the bones depends on the avatar's bone lengths only: the same for poses that
         # differ by rotations (the pipeline's arm passes), so it is kept for the next call.
@@ -290,7 +290,7 @@ class PreparedTargets:
         out = np.empty_like(self.pts)
         # Every target re-posed on every element at once, each group's pairs taken from it (the
         # same values: the re-posing is per pair); see prepare_targets.
-        whole = None if self.whole is None else _repose(self.whole, us, avatar_surface, turn_v)
+        whole = None if self.whole is None else repose_components(self.whole, us, avatar_surface, turn_v)
         E = len(us.element_ids)
         if details is not None:
             P = len(self.names)
@@ -402,11 +402,11 @@ def prepare_targets(user_pts: np.ndarray, target_names: list[str], user_surface:
         frozenset(exclude.get(n, ())) for n in names)
     roots = tuple(user_surface.element_roots)
     if not chunk and F * len(names) * len(ids) <= MERGED_PAIRS:
-        whole = _project(pts, user_surface, penetration_tolerance)
+        whole = project_components(pts, user_surface, penetration_tolerance)
         for members, group_names, pairs, columns, plan in _fused_groups(names, ids, roots, extra):
             _check_joints(user_surface, plan, group_names, "user")
-            pr = _Proj(*(_take_pairs(a, pairs, columns.shape) for a in (whole.x, whole.v, whole.dist, whole.factor)),
-                       *([None] * 5))
+            pr = ProjectionsCF(*(_take_pairs(a, pairs, columns.shape)
+                                 for a in (whole.x, whole.v, whole.dist, whole.factor)), *([None] * 5))
             blocks = [_prepare_block(0, F, pts[:, members], plan, user_surface, ubt, nodes_u, floor,
                                      penetration_tolerance, falloff, pr)] if F else []
             groups.append(_Group(members, group_names, None, plan, blocks, pairs, columns))
@@ -524,10 +524,10 @@ def _padding_is_exact() -> bool:
 
 
 def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, floor, tol, falloff,
-                   pr: _Proj | None = None) -> _UserBlock:
+                   pr: ProjectionsCF | None = None) -> _UserBlock:
     """The user's side of one block of one group (`pr`: its projections, when already made)."""
     F, P = p.shape[:2]
-    pr = _project(p, us, tol) if pr is None else pr
+    pr = project_components(p, us, tol) if pr is None else pr
     lam_raw, floor_raw = raw_weights(pr, p[..., 2], plan.exclude, falloff)
     if not floor:
         floor_raw = np.zeros_like(floor_raw)
@@ -539,17 +539,17 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
     if F * vt.shape[1] <= MERGED_PAIRS and len(plan.slot_table):
         # A few frames: every slot at once (the padding's dots are exact zeros; the sum over the
         # slots runs in their order, as the loop below adds them).
-        dots = np.abs(_dot(vt[:, None], ub.take(plan.slot_table, axis=1)))  # (L, N, F)
+        dots = np.abs(dot3(vt[:, None], ub.take(plan.slot_table, axis=1)))  # (L, N, F)
         tau = np.add.reduce(dots, axis=0)
     else:
         tau = np.zeros(vt.shape[1:], vt.dtype)
         dots = []
         for bones in plan.slot_bones:
             n = len(bones)
-            dots.append(np.abs(_dot(vt[:, :n], ub.take(bones, axis=1))))
+            dots.append(np.abs(dot3(vt[:, :n], ub.take(bones, axis=1))))
             tau[:n] += dots[-1]
     tau = tau.T.take(plan.unorder, axis=1)  # (F, N) contiguous (a transposed view made every use strided)
-    tau += np.abs(_dot(vhat, _from_roots(pr.x, nodes_u, plan)))
+    tau += np.abs(dot3(vhat, _from_roots(pr.x, nodes_u, plan)))
     pr.dist = pr.factor = None  # spent on the weights
     none = lam.sum(-1) <= 0  # no element with weight (all excluded)
     return _UserBlock(start, stop, p, us, pr, lam, lam_g, lam_gf, vhat, tau, dots, tau_ok=tau > EPS,
@@ -588,9 +588,9 @@ def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_ta
     p, us, pr = b.p, b.us, b.pr
     F, P = p.shape[:2]
     E = pr.v.shape[-1]
-    x_av, v_av = _repose(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
+    x_av, v_av = repose_components(pr, us, av, turn_v) if reposed is None else reposed  # (3, F, P, E)
     # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')|
-    tau_a = bone_tau_a + np.abs(_dot(b.vhat, _from_roots(x_av, nodes_a, plan)))
+    tau_a = bone_tau_a + np.abs(dot3(b.vhat, _from_roots(x_av, nodes_a, plan)))
     chain_ratio = np.divide(tau_a, b.tau, out=np.ones_like(b.tau), where=b.tau_ok)
     if plan.dense:
         ratio = chain_ratio.reshape(F, P, E)

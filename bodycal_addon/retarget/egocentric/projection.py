@@ -13,7 +13,7 @@ import numpy as np
 from ...core.transforms import EPS, broadcast_shape, unit_and_norm
 from .surface import PosedSurface
 
-FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (_project)
+FACTOR_BLEND = 0.002  # m: distance beyond the nearest over which a mesh triangle's factor fades (project_components)
 PENETRATION_TOLERANCE = 0.01  # m: see _triangle_factor
 
 @dataclass
@@ -56,7 +56,8 @@ def _floating(a) -> np.ndarray:
     return a if a.dtype == np.float32 else a.astype(float, copy=False)
 
 
-def _dot(a, b):
+def dot3(a, b):
+    """The dot product of vectors in components-first layout (3, ...), over their first axis."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
@@ -98,11 +99,11 @@ def _closest_on_triangles(ap, ab, ac):
     """Ericson's closest point on a triangle (Real-Time Collision Detection 5.1.5), branch-free
     over arrays in components-first layout: ap = p - a (3, F, P, T), ab, ac (3, F, 1, T).
     Returns the barycentric weights (v, w) of b and c, (F, P, T)."""
-    d1 = _dot(ab, ap)
-    d2 = _dot(ac, ap)
-    abab = _dot(ab, ab)
-    acac = _dot(ac, ac)
-    abac = _dot(ab, ac)
+    d1 = dot3(ab, ap)
+    d2 = dot3(ac, ap)
+    abab = dot3(ab, ab)
+    acac = dot3(ac, ac)
+    abac = dot3(ab, ac)
     d3, d4 = d1 - abab, d2 - abac  # (p - b).ab, (p - b).ac
     d5, d6 = d1 - abac, d2 - acac  # (p - c).ab, (p - c).ac
     vc = d1 * d4 - d3 * d2
@@ -133,7 +134,7 @@ def _closest_on_triangles(ap, ab, ac):
 
 
 @dataclass
-class _Proj:
+class ProjectionsCF:
     """Projections in components-first layout (the hot path); see Projections for the meaning."""
 
     x: np.ndarray  # (3, F, P, E)
@@ -152,21 +153,21 @@ class _Proj:
                            m(self.cap_dir, 0, -1), m(self.sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
 
 
-def _project(p, surface: PosedSurface, tol: float) -> _Proj:
+def project_components(p, surface: PosedSurface, tol: float) -> ProjectionsCF:
     F, P = p.shape[:2]
     pc = _comp(p)[..., None]  # (3, F, P, 1)
     C, S, M = surface.counts
     # Capsules: closest point on the axis segment pushed out by the radius interpolated along it.
     a = _comp(surface.caps_head)[:, :, None, :]
     ab = _comp(surface.caps_tail)[:, :, None, :] - a
-    abab = np.maximum(_dot(ab, ab), 1e-24)
+    abab = np.maximum(dot3(ab, ab), 1e-24)
     ap = pc - a
-    t = np.minimum(np.maximum(_dot(ap, ab) / abab, 0.0), 1.0)  # np.clip's values
+    t = np.minimum(np.maximum(dot3(ap, ab) / abab, 0.0), 1.0)  # np.clip's values
     rc = _rot_comp(surface.caps_rot)
     d, n = unit_and_norm(ap - t * ab, rc[:, 0], axis=0)  # on the axis: the bone's +X
     r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
     cap_v = (n - r) * d
-    cos_ax = _dot(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
+    cos_ax = dot3(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
     cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
     # Spheres.
     sc = _comp(surface.sph_center)[:, :, None, :]
@@ -181,7 +182,7 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         tap = pc - ta
         bv, bw = _closest_on_triangles(tap, tab, tac)
         tv = tap - bv * tab - bw * tac  # p - x
-        td2 = _dot(tv, tv)
+        td2 = dot3(tv, tv)
         starts, of_tri, padded = _mesh_layout(tuple(surface.mesh_slices))
         T = td2.shape[-1]
         # Each mesh's closest triangle: one argmin over the meshes' triangles side by side, each
@@ -211,16 +212,16 @@ def _project(p, surface: PosedSurface, tol: float) -> _Proj:
         mesh_factor = np.zeros((F, P, 0), pc.dtype)
     v = np.concatenate([cap_v, sph_v, mesh_v], axis=-1)
     x = pc - v
-    dist = np.sqrt(_dot(v, v))
+    dist = np.sqrt(dot3(v, v))
     factor = np.concatenate([cap_factor, np.ones((F, P, S), pc.dtype), mesh_factor], axis=-1)
     # Surface coordinates in the bone frames: what re-poses the projection on another body.
-    return _Proj(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
+    return ProjectionsCF(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
 
 
 @lru_cache(maxsize=64)
 def _mesh_layout(mesh_slices: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Once per mesh layout: each mesh's first triangle (M,), each triangle's mesh (T,), and each
-    mesh's triangles as a row (M, longest), padded with T (a column of +inf in `_project`)."""
+    mesh's triangles as a row (M, longest), padded with T (a column of +inf in `project_components`)."""
     starts = np.array([a for a, _ in mesh_slices], int)
     sizes = [b - a for a, b in mesh_slices]
     total = mesh_slices[-1][1] if mesh_slices else 0
@@ -233,7 +234,7 @@ def _mesh_layout(mesh_slices: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray
 def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: float = PENETRATION_TOLERANCE
             ) -> Projections:
     """Project (F, P, 3) points on every element of `surface` (Delahaye 2023, appendix C, Figure 12)."""
-    return _project(_floating(points), surface, penetration_tolerance).public(surface)
+    return project_components(_floating(points), surface, penetration_tolerance).public(surface)
 
 
 def _triangle_factor(v, normal, tol):
@@ -242,8 +243,8 @@ def _triangle_factor(v, normal, tol):
     a few millimetres into the crude mesh (calibration noise) keeps its contact weight instead of
     dropping to zero; at v = 0 the factor is 1 (a target on the surface)."""
     w = v + tol * normal
-    wn = np.sqrt(_dot(w, w))
-    cos = np.divide(_dot(w, normal), wn, out=np.ones_like(wn), where=wn > EPS)
+    wn = np.sqrt(dot3(w, w))
+    cos = np.divide(dot3(w, normal), wn, out=np.ones_like(wn), where=wn > EPS)
     return np.maximum(cos, 0.0)
 
 
@@ -263,7 +264,7 @@ def _mesh_pairing(user_slices: tuple, avatar_slices: tuple) -> tuple[np.ndarray,
     return same, offset, bool(same.all())
 
 
-def _repose(pr: _Proj, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
+def repose_components(pr: ProjectionsCF, user: PosedSurface, avatar: PosedSurface, turn_v: bool = False):
     """(x', v'): x' re-posed on the avatar (see `repose`); v' = v, or with `turn_v` the user's v
     carried by each element's local frame onto the avatar's (bone frame for capsules and spheres,
     triangle frame for meshes), so it keeps its angle to the avatar's surface."""
@@ -326,6 +327,6 @@ def repose(proj: Projections, user: PosedSurface, avatar: PosedSurface) -> np.nd
     triangle: barycentric). A mesh whose triangles differ between user and avatar falls back to
     the element bone's frame, scaled by the bone length ratio. Returns (F, P, E, 3)."""
     m = np.moveaxis
-    pr = _Proj(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, m(proj.cap_dir, -1, 0),
-               m(proj.sph_dir, -1, 0), proj.tri_index, m(proj.tri_bary, -1, 0))
-    return m(_repose(pr, user, avatar)[0], 0, -1)
+    pr = ProjectionsCF(m(proj.x, -1, 0), m(proj.v, -1, 0), proj.dist, proj.factor, proj.cap_t, m(proj.cap_dir, -1, 0),
+                       m(proj.sph_dir, -1, 0), proj.tri_index, m(proj.tri_bary, -1, 0))
+    return m(repose_components(pr, user, avatar)[0], 0, -1)

@@ -4,7 +4,9 @@ ground truth `demo_full.truth.json` (the synthetic performer, full profile).
 The whole calibration protocol (FORMATS.md §2.4) at a brisk pace, then a few contact motions,
 at 22 Hz so the file stays under 5 MB. Reproducible: the same seed gives the same bytes.
 
-    .venv/bin/python sample_rigs/make_demo_recording.py [-o DIR]
+    .venv/bin/python bodycal_dev/make_demo_recording.py [-o DIR]
+
+A development tool: the extension ships the recording, not the synthetic performer that made it.
 """
 
 from __future__ import annotations
