@@ -25,7 +25,8 @@ from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
 from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
 from . import lower_body
-from .avatar_pose import AvatarRig, arc_param, curve_point
+from .avatar_pose import AvatarRig
+from .rig import arc_param, curve_point
 from .trackers import TrackerReader, joint_from_trackers
 from .user_animation import UserAnimator, UserPose
 
