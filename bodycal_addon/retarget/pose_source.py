@@ -182,7 +182,7 @@ class AnimationSource:
 
     def _vertebrae(self, fk) -> np.ndarray:
         """(F, 12, 3) world vertebra directions whose curve (the avatar's vertebra lengths, from
-        the spine root: `AvatarRig._spine_curve`) passes through the points the posed chain bones
+        the spine root: `rig.chain.spine_curve`) passes through the points the posed chain bones
         are aimed at (each at its arc position, `AvatarRig.chain_s`), so a rig posed from them
         (`AvatarRig.solve`) aims its chain where this one's chain is: the round trip is exact for
         the same rig. A vertebra spanning two chain bones' arcs gets the direction that reaches the

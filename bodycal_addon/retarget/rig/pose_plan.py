@@ -73,28 +73,7 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
             while b >= 0 and b not in early:
                 early.add(int(b))
                 b = rig.parent[b]
-
-    def levels_of(placed):
-        out = []
-        for d in range(int(depth.max()) + 1 if len(depth) else 0):
-            at = [i for i in sorted(keep) if depth[i] == d]
-            heads = [i for i in at if i != rig.root and rows[i][0] >= 0 and placed(i)]
-            follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
-            out.append(Level(
-                np.array(heads, int), np.array([rows[i][0] for i in heads], int),
-                np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
-                np.array([i for i in at if i != rig.root and rows[i][0] < 0], int),
-                np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
-                np.array(follow, int), np.array([rows[i][0] for i in follow], int),
-                np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
-                [i for i in at if rows[i][1] == "chain"], rig.root in at))
-            out[-1].loose_at = rig.head[out[-1].loose][:, None]
-            out[-1].rest_at = rig.rest[out[-1].rest][:, None]
-            out[-1].head_off4 = out[-1].head_off[:, None, :, None]
-            out[-1].follow_fixed4 = out[-1].follow_fixed[:, None]
-        return out
-
-    levels = levels_of(lambda i: True)
+    levels = _levels(rig, keep, depth, lambda i: True)
     plan = PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
                     np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained,
                     rig.root in keep)
@@ -106,7 +85,7 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
     # the path, added in the levels' order (H_a + c_1) + c_2 + ..., padded with exact zeros.
     late = [i for i in sorted(keep) if i != rig.root and rows[i][0] >= 0 and i not in early]
     if late:
-        plan.few = [lv for lv in levels_of(lambda i: i in early)  # the depths with work left
+        plan.few = [lv for lv in _levels(rig, keep, depth, lambda i: i in early)  # the depths with work left
                     if len(lv.heads) or len(lv.loose) or len(lv.rest) or len(lv.follow) or lv.chain or lv.root]
         plan.deferred = _head_table(rig, late)
         # With no chain to aim, every head in that one pass: each its root's or parentless
@@ -118,6 +97,30 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
         plan.flat = (rest, rig.rest[rest][:, None], loose, rig.head[loose][:, None], follows,
                      *_head_table(rig, hanging))
     return plan
+
+
+def _levels(rig, keep: set[int], depth: np.ndarray, placed) -> list[Level]:
+    """The levels of the bones `keep`, one per depth of the hierarchy, placing the heads of the
+    bones `placed` says (the others are left to a padded pass)."""
+    rows = rig.bone_rows
+    out = []
+    for d in range(int(depth.max()) + 1 if len(depth) else 0):
+        at = [i for i in sorted(keep) if depth[i] == d]
+        heads = [i for i in at if i != rig.root and rows[i][0] >= 0 and placed(i)]
+        follow = [i for i in at if rows[i][1] is None and rows[i][0] >= 0]
+        out.append(Level(
+            np.array(heads, int), np.array([rows[i][0] for i in heads], int),
+            np.array([rows[i][2] for i in heads], float).reshape(-1, 3),
+            np.array([i for i in at if i != rig.root and rows[i][0] < 0], int),
+            np.array([i for i in at if rows[i][1] is None and rows[i][0] < 0], int),
+            np.array(follow, int), np.array([rows[i][0] for i in follow], int),
+            np.array([rows[i][3] for i in follow], float).reshape(-1, 3, 3),
+            [i for i in at if rows[i][1] == "chain"], rig.root in at))
+        out[-1].loose_at = rig.head[out[-1].loose][:, None]
+        out[-1].rest_at = rig.rest[out[-1].rest][:, None]
+        out[-1].head_off4 = out[-1].head_off[:, None, :, None]
+        out[-1].follow_fixed4 = out[-1].follow_fixed[:, None]
+    return out
 
 
 def _head_table(rig, late: list[int]) -> tuple:
