@@ -20,8 +20,9 @@ import numpy as np
 from ..body import skeleton as sk
 from ..body.rest_frames import complete_joints
 from ..core.errors import BodyCalError
-from ..retarget.avatar_pose import AvatarRig, RigPose
+from ..retarget.avatar_pose import AvatarRig
 from ..retarget.egocentric import own_chain_elements, pose_surface, project
+from ..retarget.rig import RigPose
 from ..retarget.solver_methods import surface_bones, surface_correction
 
 # The benches' targets, which the review's flags use as their limits (one place for both).

@@ -25,7 +25,8 @@ from ..core.transforms import frame_from_axes, normalize, quat_to_matrix
 from ..recording.live.buffer import LiveRecording
 from ..recording.model import Recording
 from . import lower_body
-from .avatar_pose import AvatarRig, arc_param, curve_point
+from .avatar_pose import AvatarRig
+from .rig import arc_param, curve_point
 from .trackers import TrackerReader, joint_from_trackers
 from .user_animation import UserAnimator, UserPose
 
@@ -181,7 +182,7 @@ class AnimationSource:
 
     def _vertebrae(self, fk) -> np.ndarray:
         """(F, 12, 3) world vertebra directions whose curve (the avatar's vertebra lengths, from
-        the spine root: `AvatarRig._spine_curve`) passes through the points the posed chain bones
+        the spine root: `rig.chain.spine_curve`) passes through the points the posed chain bones
         are aimed at (each at its arc position, `AvatarRig.chain_s`), so a rig posed from them
         (`AvatarRig.solve`) aims its chain where this one's chain is: the round trip is exact for
         the same rig. A vertebra spanning two chain bones' arcs gets the direction that reaches the

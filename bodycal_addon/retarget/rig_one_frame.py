@@ -4,12 +4,12 @@ which hangs from the one before), so the numpy path poses a frame's rig level by
 several numpy calls a level on one or two bones. Here the few bones the aims read (the chain, the
 bone the spine curve starts on and their ancestors) are posed bone by bone on single matrices, the
 aimed rotations handed back, and the rest of the rig is posed in numpy's few passes over all its
-bones (`AvatarRig._pose_flat`), as it is when a chain's rotations are held.
+bones (`rig/fk.py` `pose_flat`), as it is when a chain's rotations are held.
 
 Per bone, parents first (the rig's bone order): its head H_b = H_p + P_p o_b (a parentless bone at
 its rest head; the root bone placed from the pelvis once posed), then its rotation: driven,
 W^-1 C_c (C_c0^-1 W M_A); following its parent, P_p (M_p^-1 M_A); parentless and undriven, M_A;
-a chain bone, its vertebra's twist turned to aim at the curve (avatar_pose `_ChainAim`'s steps).
+a chain bone, its vertebra's twist turned to aim at the curve (`rig/chain.py` `ChainAim`'s steps).
 The values are the numpy path's to float32's rounding (mathutils' precision: one_frame.py).
 
 Decision (speed, measured in instructions): only the chain is aimed here. A whole rig pose of one
@@ -46,18 +46,18 @@ class _Plan:
 
 class ChainOneFrame:
     """One rig's spine chain aimed for one frame: its constants as mathutils objects, made once
-    (`AvatarRig._chain_one`)."""
+    (`RigPlan.chain_one`)."""
 
     def __init__(self, rig):
         self.rig = rig
         self.root = rig.root
-        self.w_identity = rig._w_identity
+        self.w_identity = rig.w_identity
         self.w_t = Matrix(rig.w_rot.T.tolist())  # W^-1 of a rotation
         self.w = Matrix(rig.w_rot.tolist())
         self.shift = Vector(rig.world[:3, 3].tolist())
         self.inv = Matrix(rig.w_inv.tolist())
-        self.pelvis_at = Vector(rig._pelvis_at.tolist())
-        ch = rig._chain_plan
+        self.pelvis_at = Vector(rig.pelvis_at.tolist())
+        ch = rig.chain
         self.chain = ch
         self.chain_row = dict(ch.index)
         self.chain_fixed = one_frame.matrices(ch.fixed)
@@ -77,7 +77,7 @@ class ChainOneFrame:
     def _plan(self) -> _Plan:
         """The steps posing the bones the aims read (the chain, the bone the spine curve starts on,
         their ancestors), in order, and the canonical bones they read."""
-        rig, rows = self.rig, self.rig._bone_plan
+        rig, rows = self.rig, self.rig.bone_rows
         need: set[int] = set()
         for b in [int(i) for i in self.chain.order] + [self.curve_bone]:
             while b >= 0 and b not in need:
@@ -141,7 +141,7 @@ class ChainOneFrame:
 
 
 class _Aim:
-    """The spine chain aimed one bone at a time (avatar_pose `_ChainAim`): each bone's vertebra's
+    """The spine chain aimed one bone at a time (`rig/chain.py` `ChainAim`): each bone's vertebra's
     turn since rest and twist, its aim point, its target on the canonical spine curve (built once
     the bone it starts on is posed), the shortest turn from one to the other."""
 
@@ -157,7 +157,7 @@ class _Aim:
         self.aimed = [None] * len(self.delta)
 
     def _targets(self, P, H) -> None:
-        """The canonical spine curve (avatar_pose `_spine_curve`: its start on the bone it starts
+        """The canonical spine curve (`rig/chain.py` `spine_curve`: its start on the bone it starts
         on, then the vertebrae's +Y times their lengths in armature units) and each bone's target."""
         one = self.one
         b = one.curve_bone

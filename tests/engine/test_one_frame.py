@@ -46,7 +46,7 @@ def test_one_frame_s_chain_aim_is_numpy_s(take, monkeypatch):
             poses = {}
             for on, rig in rigs.items():
                 monkeypatch.setattr(one_frame, "ENABLED", on)
-                rig._chain_memo = None
+                rig.memo.clear()
                 poses[on] = rig.solve(frames[f:f + 1], pelvis[f:f + 1])
             for name, atol in (("basis", 1e-6), ("joints", 1e-6), ("frames", 1e-6), ("root_location", 1e-6)):
                 np.testing.assert_allclose(getattr(poses[True], name), getattr(poses[False], name), rtol=0,

@@ -13,6 +13,8 @@ from bodycal_addon.core import transforms as tf
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pose_kernels as pk
 from bodycal_addon.retarget import user_animation as ua
+from bodycal_addon.retarget.rig import basis as rig_basis
+from bodycal_addon.retarget.rig import fk as rig_fk
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -64,15 +66,15 @@ def test_a_bake_chunk_s_basis_is_the_general_formula_s_to_the_bit():
     for avatar in rt.plain_and_turned_avatars():
         rig = ap.AvatarRig.from_model(avatar)
         frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
-        P, _ = rig._pose(frames, up.joints[:, JI["pelvis"]])
+        P, _ = rig_fk.pose(rig, rig.memo, frames, up.joints[:, JI["pelvis"]])
         assert P.shape[1] >= tf.STACKED_FRAMES and P.shape[0] * P.shape[1] >= tf.MANY_PRODUCTS
-        # the general formula (`_basis` of a few frames): X^T = P_child^T P_parent, times the
+        # the general formula (`basis.solve` of a few frames): X^T = P_child^T P_parent, times the
         # fixed factors bone by bone, Shepperd's quaternions of the transposed products
-        kids, parents, fixed = rig._basis_plan
+        kids, parents, fixed = rig.basis_plan.kids, rig.basis_plan.parents, rig.basis_plan.fixed
         rel_t = tf.transposed(P)
         rel_t[kids] = tf.matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
         basis_t = tf.stacks_mul(rel_t, fixed)
         n, nf = basis_t.shape[:2]
         want = tf.quat_from_rows(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
-        got = rig._basis(P)
+        got = rig_basis.solve(rig.basis_plan, P)
         assert got.shape == want.shape and np.array_equal(got, want)

@@ -1,5 +1,5 @@
 """Posing a few frames (DESIGN.md "Prepared solver"). AvatarRig: a pose of fewer than
-avatar_pose.FEW_FRAMES frames (the heads the spine chain does not read placed in one padded pass,
+rig/fk.FEW_FRAMES frames (the heads the spine chain does not read placed in one padded pass,
 every head in that pass when the chain's rotations are held from the last pose, a one-frame chain
 aimed in Python floats, the joints on their carriers in one padded product) is the level-by-level
 pose of the same frames, to the bit; SurfacePoser: its padded mesh points are
@@ -14,6 +14,7 @@ from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.core import one_frame
 from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import user_animation as ua
+from bodycal_addon.retarget.rig import fk
 from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
@@ -21,7 +22,7 @@ from bodycal_dev import synthetic
 def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
     # numpy's paths (one frame's chain aimed in mathutils: test_one_frame.py)
     monkeypatch.setattr(one_frame, "ENABLED", False)
-    few_frames = ap.FEW_FRAMES
+    few_frames = fk.FEW_FRAMES
     perf = synthetic.make_performer(seed=2)
     rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
                                           motion_seconds=1.0)
@@ -29,20 +30,20 @@ def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
     up = ua.animate_user(rec, user)
     for avatar in rt.plain_and_turned_avatars():
         rig = ap.AvatarRig.from_model(avatar)
-        assert rig._pose_plan(None).deferred is not None  # the padded pass is taken
+        assert rig.pose_plan(None).deferred is not None  # the padded pass is taken
         frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
         pelvis = up.joints[:, JI["pelvis"]] * 1.1
         for f in range(0, len(frames) - 3, 7):
             for n in (1, 3):
                 poses = []
-                for few in (ap.FEW_FRAMES, 0):  # the padded pass, then level by level
-                    monkeypatch.setattr(ap, "FEW_FRAMES", few)
-                    rig._chain_memo = None  # the chain aimed each time (not the last pose's, reused)
+                for few in (fk.FEW_FRAMES, 0):  # the padded pass, then level by level
+                    monkeypatch.setattr(fk, "FEW_FRAMES", few)
+                    rig.memo.clear()  # the chain aimed each time (not the last pose's, reused)
                     poses.append(rig.solve(frames[f:f + n], pelvis[f:f + n]))
-                monkeypatch.setattr(ap, "FEW_FRAMES", few_frames)
+                monkeypatch.setattr(fk, "FEW_FRAMES", few_frames)
                 # again with the chain's rotations held from that pose: every head in one pass
                 held = rig.solve(frames[f:f + n], pelvis[f:f + n])
-                assert rig._chain_memo is not None and rig._pose_plan(None).flat is not None
+                assert rig.memo.rotations is not None and rig.pose_plan(None).flat is not None
                 for name in ("basis", "root_location", "joints", "frames"):
                     assert np.array_equal(getattr(poses[0], name), getattr(poses[1], name)), (name, f, n)
                     assert np.array_equal(getattr(held, name), getattr(poses[1], name)), (name, f, n)

@@ -1,0 +1,92 @@
+"""The basis solve (DESIGN.md §1, "The rig posed"): armature-space pose rotations -> the pose bones'
+`rotation_quaternion` (Blender's `matrix_basis`) and the root bone's `location`. Blender's pose rule
+(rotation part, armature space): P_child = P_parent M_parent^-1 M_child basis, so
+basis = M_child^-1 M_parent P_parent^-1 P_child (a parentless bone: M^-1 P); the root bone's
+location is in its rest frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...core.transforms import MANY_PRODUCTS, STACKED_FRAMES, matmul_stack, stacks_mul, transposed
+from .. import pose_kernels
+
+
+@dataclass
+class BasisPlan:
+    """The basis solve's frame-independent factors."""
+
+    kids: np.ndarray  # the bones with a parent
+    parents: np.ndarray  # their parents
+    fixed: np.ndarray  # (N, 3, 3) per bone the fixed left factor's transpose: (M^-1 M_p)^T, (M^-1)^T parentless
+    rows: list[int]  # per bone, its row among `kids`, -1 for none
+    root: int
+    root_parent: int
+    root_head: np.ndarray  # (3,) the root bone's rest head
+    root_rest: np.ndarray  # (3, 3) its M
+    # with a parent: (M_i^-1 M_p)^T and M_i^-1 (h_i - h_p) (None: a parentless root)
+    root_rel: tuple | None
+
+    @classmethod
+    def of(cls, parent: np.ndarray, rest: np.ndarray, head: np.ndarray, root: int) -> BasisPlan:
+        rel_t = rest.swapaxes(-1, -2)
+        kids = np.flatnonzero(parent >= 0)
+        fixed = np.stack([(rel_t[i] if p < 0 else rel_t[i] @ rest[p]).T for i, p in enumerate(parent)])
+        kid_list = kids.tolist()
+        rows = [kid_list.index(b) if b in kid_list else -1 for b in range(len(parent))]
+        i, p = root, parent[root]
+        root_rel = None if p < 0 else ((rest[i].T @ rest[p]).T, rest[i].T @ (head[i] - head[p]))
+        return cls(kids, parent[kids], np.ascontiguousarray(fixed), rows, int(root), int(p), head[i], rest[i], root_rel)
+
+
+def solve(plan: BasisPlan, P):
+    """Pose-bone quaternions (F, N, 4) from bones-first armature-space pose rotations P (N, F, 3, 3)."""
+    kids, parents, fixed = plan.kids, plan.parents, plan.fixed
+    if P.shape[1] >= STACKED_FRAMES and len(kids) * P.shape[1] >= MANY_PRODUCTS:
+        return _solve_many(plan, P)
+    # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
+    rel_t = transposed(P)
+    rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
+    # basis^T = X^T (M^-1 M_p)^T for each bone, one stacked product (as mul_stack, bone by bone)
+    basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
+    # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
+    n, nf = basis_t.shape[:2]
+    # quat_from_rows' values (pose_kernels.quat_from_entries: fewer numpy calls)
+    return pose_kernels.quat_from_entries(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+
+
+def _solve_many(plan: BasisPlan, P):
+    """`solve` of many frames (a bake's chunk), the same values: the products and quaternions
+    read the rotations' entries as contiguous rows (`pose_kernels`) instead of strided entries
+    of gathered and transposed copies of the whole stack. Decision (speed, the same bits):
+    X^T's entries are `matmul_stack`'s sums, each product by its fixed factor the same BLAS
+    call on the same (3F, 3) rows as `stacks_mul`, the quaternions `quat_from_rows`'s."""
+    kids, parents, fixed = plan.kids, plan.parents, plan.fixed
+    n, nf = P.shape[:2]
+    ent = pose_kernels.entry_rows(P)  # (9, N, F)
+    rel_t = np.empty((len(kids), nf, 3, 3))  # X^T of the bones with a parent
+    pose_kernels.product_t_into(rel_t, ent.take(kids, axis=1), ent.take(parents, axis=1))
+    row = plan.rows
+    basis_t = np.empty((n, nf, 3, 3))
+    for b in range(n):  # basis^T = X^T (M^-1 M_p)^T, `stacks_mul`'s product bone by bone
+        src = rel_t[row[b]] if row[b] >= 0 else np.ascontiguousarray(P[b].swapaxes(-1, -2))
+        np.matmul(src.reshape(-1, 3), fixed[b], out=basis_t[b].reshape(-1, 3))
+    # basis[f, n, i, j] = basis_t[n, f, j, i]: the basis's entry rows are basis_t's transposed
+    q = pose_kernels.quat_from_entries(pose_kernels.entry_rows(basis_t, _TRANSPOSE_ROWS).reshape(9, -1))
+    return q.reshape(4, n, nf).transpose(2, 1, 0)
+
+
+def root_location(plan: BasisPlan, P, H):
+    """(F, 3) the root bone's pose location (its rest frame) from bones-first pose rotations P and
+    heads H: where its head sits against where its parent's pose puts its rest head."""
+    i, p = plan.root, plan.root_parent
+    if p < 0:
+        return (H[i] - plan.root_head) @ plan.root_rest
+    rel_t, rest_off = plan.root_rel
+    local = (P[p].swapaxes(-1, -2) @ (H[i] - H[p])[..., None])[..., 0]
+    return local @ rel_t - rest_off
+
+
+_TRANSPOSE_ROWS = np.array([0, 3, 6, 1, 4, 7, 2, 5, 8])  # a 3x3's entries (i, j) -> (j, i), row-major

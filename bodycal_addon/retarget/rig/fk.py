@@ -1,0 +1,298 @@
+"""Forward kinematics over frames (DESIGN.md §1, "The rig posed"; "Prepared solver"): the rig's pose from
+canonical bone frames (`pose`: armature-space rotations P and heads H, bones first), the canonical
+joints and frames the pose realises (`finish`), and Blender's pose evaluation from pose-bone
+quaternions (`evaluate`). Every function reads a frame-independent `RigPlan`; the only state a pose
+leaves is the spine chain's `ChainMemo`, passed in by its owner (`AvatarRig`).
+
+Each avatar bone is either driven by one canonical bone c: it moves rigidly with it,
+P_A(t) = W^-1 C_c(t) C_c0^-1 W M_A; a spine/neck chain bone (`chain.py`); or undriven (root, toes,
+breasts, ...): it follows its parent (identity basis). Canonical joints ride on avatar bones
+(`joint_bone` + `joint_local`), so the joints returned are exactly what Blender's FK gives for the
+returned rotations."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...body.skeleton import BONES, JOINTS
+from ...core import one_frame
+from ...core.transforms import (
+    STACKED_FRAMES,
+    mul_stack,
+    quat_to_matrix,
+    stack_apply,
+    stack_mul,
+    stacks_apply,
+    stacks_mul,
+)
+from .chain import ChainAim, ChainMemo
+from .plan import RigPlan
+from .pose_plan import PosePlan
+
+
+@dataclass
+class RigPose:
+    basis: np.ndarray  # (F, N, 4) pose-bone rotation_quaternion (matrix_basis), w x y z
+    rotations: np.ndarray  # (F, N, 3, 3) armature-space pose rotations P
+    heads: np.ndarray  # (F, N, 3) armature-space pose heads
+    root_location: np.ndarray  # (F, 3) pose-bone location of the root bone (its rest frame)
+    joints: np.ndarray  # (F, J, 3) canonical joints, world
+    frames: np.ndarray  # (F, B, 3, 3) canonical bone frames, world, as the rig realises them
+
+
+# Poses of fewer frames than this place the heads the spine chain does not read in one padded
+# pass after the levels (PosePlan.deferred: a few numpy calls instead of a few per level, where
+# the per-call overhead is the cost); longer ones level by level. The same sums in the same order.
+# Measured (bench_instructions' take, one-frame solves): these paths save 247,000 instructions of a
+# rotations frame's 4.15 M and 995,000 of an egocentric one's 18.95 M.
+FEW_FRAMES = 16
+
+
+def pose(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=False):
+    """Bones-first armature-space pose rotations P (N, F, 3, 3) and heads H (N, F, 3) of
+    `bones` (ascending; default all, the others left unset) realising canonical world frames
+    (F, B, 3, 3) with the canonical pelvis joint at `pelvis` (F, 3, world), a depth of the
+    hierarchy at a time (`pose_plan`): each step is one stacked product over the bones of that
+    depth. The chain's rotations are `memo`'s when its inputs are the last pose's (`ChainMemo`);
+    one frame's chain is aimed in mathutils (float32, `rig_one_frame`) unless `float64`."""
+    nf = frames.shape[0]
+    plan = rig.pose_plan(None if bones is None else tuple(bones))
+    chain = rig.chain if plan.chained else None
+    float32 = chain is not None and nf == 1 and one_frame.ENABLED and not float64
+    key = held = None
+    if chain is not None:
+        key = ChainMemo.key_of(chain, frames, pelvis, b"float32" if float32 else b"")
+        held = memo.held(key)
+    if held is None and float32:
+        # one frame: the chain aimed in mathutils (rig_one_frame.py), the rest in one flat pass
+        held = rig.chain_one().aimed(frames, np.asarray(pelvis, float))
+        memo.keep(key, held)
+    few = plan.deferred is not None and nf < FEW_FRAMES
+    flat = few and (chain is None or held is not None)
+    P, H, HT = _pose_buffers(len(rig.names), plan, nf, few, flat)
+    delta = _driven(rig, plan, chain if chain is not None and held is None else None, frames, P)
+    aiming = None if delta is None else ChainAim(rig, delta, frames, nf)
+    if flat:
+        return pose_flat(rig, plan, None if chain is None else chain.order, held, P, H, pelvis, HT)
+    many = nf >= STACKED_FRAMES  # one BLAS call per bone on (3F, 3) rows, as stacks_mul and stacks_apply
+    for lv in plan.few if few else plan.levels:
+        if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
+            for b, p, off_b in zip(lv.heads.tolist(), lv.head_par.tolist(), lv.head_off):
+                np.matmul(P[p].reshape(-1, 3), off_b, out=H[b].reshape(-1))
+                H[b] += H[p]
+        elif len(lv.heads):  # `stacks_apply`'s stacked product, called directly
+            H[lv.heads] = H.take(lv.head_par, axis=0) + np.matmul(P.take(lv.head_par, axis=0), lv.head_off4)[..., 0]
+        if len(lv.loose):
+            H[lv.loose] = lv.loose_at
+        if len(lv.rest):
+            P[lv.rest] = lv.rest_at
+        if len(lv.follow) and many:
+            P[lv.follow] = stacks_mul(P, lv.follow_fixed, lv.follow_par)
+        elif len(lv.follow):  # `stacks_mul`'s stacked product, called directly
+            P[lv.follow] = np.matmul(P.take(lv.follow_par, axis=0), lv.follow_fixed4)
+        for i in lv.chain:
+            if held is not None:
+                P[i] = held[chain.index[i]]
+            else:
+                aiming.bone(i, P, H)
+        if lv.root:
+            _place_root(rig, P, H, pelvis)
+    if few:
+        _deferred_heads(plan.deferred, P, H, HT)
+    if aiming is not None and aiming.count == len(chain.index):
+        memo.keep(key, aiming.aimed)
+    return P, H
+
+
+def _pose_buffers(n: int, plan: PosePlan, nf: int, few: bool, flat: bool) -> tuple:
+    """(P, H, HT): a few frames' heads H are the first rows of HT, whose rows after them take
+    the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H)."""
+    P = np.empty((n, nf, 3, 3))
+    if few and nf < STACKED_FRAMES:
+        late = (plan.flat if flat else plan.deferred)[-4]
+        HT = np.empty((n + len(late) + 1, nf, 3))
+        HT[-1] = 0.0
+        return P, HT[:n], HT
+    return P, np.empty((n, nf, 3)), None
+
+
+def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
+    """The driven bones' rotations into P, W^-1 C(t) (C0^-1 W M_A) (the canonical bone's rotation
+    since rest, on the bone's rest), and with a `chain` to aim, its vertebrae's turns since rest
+    W^-1 C(t) C0^-1 W (returned; else None)."""
+    nf = frames.shape[0]
+    delta = None
+    if chain is not None and nf < STACKED_FRAMES and len(plan.driven):
+        # A few frames: the driven bones' and the chain vertebrae's products in one stacked
+        # product (each its own BLAS call either way, so the same bits)
+        rows, fixed = plan.driven_and_chain
+        both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
+        P[plan.driven] = rig.from_world(both[:len(plan.driven)])
+        return rig.from_world(both[len(plan.driven):])
+    if nf >= STACKED_FRAMES and rig.w_identity:
+        # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
+        # call bone by bone, without its stack to copy into P)
+        for b, c, fixed in zip(plan.driven.tolist(), plan.canon.tolist(), plan.fixed):
+            np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
+    elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+        P[plan.driven] = rig.from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
+                                                  plan.fixed[:, None]))
+    elif len(plan.driven):
+        P[plan.driven] = rig.from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
+    if chain is not None:
+        delta = rig.from_world(stacks_mul(frames.swapaxes(0, 1), chain.fixed, chain.vertebra))
+    return delta
+
+
+def _place_root(rig: RigPlan, P, H, pelvis) -> None:
+    """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
+    products, called directly."""
+    nf = P.shape[1]
+    at = (np.asarray(pelvis, float) - rig.shift).reshape(-1, 3) @ rig.inv_t
+    np.subtract(at.reshape(nf, 3), (P[rig.root].reshape(-1, 3) @ rig.pelvis_at).reshape(nf, 3), out=H[rig.root])
+
+
+def _deferred_heads(table_plan, P, H, HT) -> None:
+    """The heads of `table_plan` (rows, parents, offsets, the padded sum table) in one padded
+    pass: each its anchor's head plus the offsets down its path, in order. A few frames' (HT:
+    H with rows after it) take their offsets' products written after H and a zero row."""
+    late, par, off, table = table_plan
+    if HT is None:
+        terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
+    else:
+        n = len(H)
+        np.matmul(P.take(par, axis=0), off[:, None, :, None], out=HT[n:-1].reshape(len(late), -1, 3, 1))
+        terms = HT
+    H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
+
+
+def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=None):
+    """`pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
+    rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
+    later poses hold the chain's rotations, so nothing is aimed level by level; each head is
+    the same sum in the same order as level by level, (H_anchor + c_1) + c_2 + ..."""
+    rest, rest_at, loose, loose_at, follows, late, par, off, table = plan.flat
+    if len(rest):
+        P[rest] = rest_at
+    if chain_bones is not None:
+        P[chain_bones] = held
+    for bones_f, par_f, fixed_f in follows:
+        if P.shape[1] < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
+            P[bones_f] = np.matmul(P.take(par_f, axis=0), fixed_f[:, None])
+        else:
+            P[bones_f] = stacks_mul(P, fixed_f, par_f)
+    if len(loose):
+        H[loose] = loose_at
+    if plan.has_root:
+        _place_root(rig, P, H, pelvis)
+    _deferred_heads((late, par, off, table), P, H, HT)
+    return P, H
+
+
+def joint_positions(rig: RigPlan, memo: ChainMemo, frames: np.ndarray, pelvis: np.ndarray,
+                    joints: list[str]) -> np.ndarray:
+    """(F, len(joints), 3) world positions of a few canonical joints for the pose `pose` would
+    give, posing only the bones they hang from (the IK's limb roots need the trunk only)."""
+    bones, carriers, local = rig.joints_plan(tuple(joints))
+    P, H = pose(rig, memo, np.asarray(frames, float), pelvis, bones)
+    out = H[carriers] + stacks_apply(P, local, carriers)  # (K, F, 3)
+    return rig.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
+
+
+def finish(rig: RigPlan, basis, P, H, root_loc, realised=True) -> RigPose:
+    """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
+    canonical joints riding on their bones and the realised canonical frames (True: all, a list
+    of canonical bone indices: those, the others NaN; False or None: none)."""
+    nf = P.shape[1]
+    if nf == 1:
+        return _finish_one(rig, basis, P, H, root_loc, realised)
+    if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
+        bones, local, order = rig.joint_table
+        rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
+        ride = H[bones][:, :, None, :] + rel.swapaxes(-1, -2)  # (G, F, K, 3)
+        joints = ride.swapaxes(0, 1).reshape(nf, -1, 3).take(order, axis=1)
+    else:
+        joints = np.empty((nf, len(JOINTS), 3))
+        for bones, js, local in rig.joint_groups:  # the bones carrying K joints each, at once
+            rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
+            if nf >= STACKED_FRAMES:  # each joint written where it goes, H + P o (no (G, F, K, 3) stack to scatter)
+                for g, (b, row) in enumerate(zip(bones.tolist(), js.tolist())):
+                    for kk, j in enumerate(row):
+                        np.add(H[b], rel[g, :, :, kk], out=joints[:, j])
+            else:
+                joints[:, js] = (H[bones][:, :, None, :] + rel.swapaxes(-1, -2)).swapaxes(0, 1)
+    joints = rig.to_world(joints)
+    # C_c(t) = W P_car(t) M_car^-1 W^-1 C_c0
+    if realised is False or realised is None:
+        frames = None
+    else:
+        idx, car_rel, car, unrealised = rig.realised_rows(realised)
+        frames = np.empty((nf, len(BONES), 3, 3))  # NaN where not realised (written once)
+        if len(unrealised):
+            frames[:, unrealised] = np.nan
+        if len(idx) and nf >= STACKED_FRAMES and rig.w_identity:
+            # `stacks_mul`'s product bone by bone into one buffer, copied where it goes (no
+            # (K, F, 3, 3) stack to allocate and scatter)
+            buf = np.empty((nf, 3, 3))
+            for c, b, rel in zip(idx.tolist(), car.tolist(), car_rel):
+                np.matmul(P[b].reshape(-1, 3), rel, out=buf.reshape(-1, 3))
+                frames[:, c] = buf
+        elif len(idx):
+            rel = rig.to_world_rot(stacks_mul(P, car_rel, car))
+            frames[:, idx] = rel.swapaxes(0, 1)
+    return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
+
+
+def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised) -> RigPose:
+    """`finish` of one frame, the same values in fewer numpy calls: the joints' padded product
+    (`joint_table`) with its heads added in place and gathered in one `take` (`one_joints`),
+    the realised frames written into a stack whose last row is NaN and gathered in one `take`."""
+    bones, local, jrows = rig.one_joints
+    ride = np.matmul(P.take(bones, axis=0), local)  # (G, 1, 3, K): P_car offset, as `stacks_mul`
+    ride += H.take(bones, axis=0)[..., None]  # H + P o (the same sum)
+    joints = np.matmul(ride.take(jrows), rig.lin_t)  # `to_world` of the (J, 3) rows
+    joints += rig.shift
+    joints = joints.reshape(1, -1, 3)
+    if realised is False or realised is None:
+        frames = None
+    else:
+        idx, car_rel, car, _ = rig.realised_rows(realised)
+        rows = np.empty((len(idx) + 1, 1, 3, 3))
+        rows[-1] = np.nan
+        if len(idx):
+            if rig.w_identity:
+                np.matmul(P.take(car, axis=0), car_rel[:, None], out=rows[:-1])
+            else:
+                rows[:-1] = rig.to_world_rot(stacks_mul(P, car_rel, car))
+        frames = rows.take(rig.realised_one(realised), axis=0).reshape(1, len(BONES), 3, 3)
+    return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
+
+
+def evaluate(rig: RigPlan, basis: np.ndarray, root_location: np.ndarray, locations: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Blender's pose evaluation: bones-first pose rotations P and heads H from pose-bone
+    quaternions (F, N, 4) and the root bone's location (F, 3); `locations` (F, N, 3), when given,
+    are every bone's pose location (the root's included)."""
+    nf, n = basis.shape[:2]
+    B = quat_to_matrix(basis).swapaxes(0, 1)
+    P = np.empty((n, nf, 3, 3))
+    H = np.empty((n, nf, 3))
+    zero = np.zeros((nf, 3))
+    for i in range(n):
+        p = rig.parent[i]
+        if locations is not None:
+            loc = locations[:, i]
+        else:
+            loc = root_location if i == rig.root else zero
+        if p < 0:
+            P[i] = mul_stack(rig.rest[i], B[i])
+            H[i] = rig.head[i] + loc @ rig.rest[i].T
+        else:
+            rel = rig.rest[p].T @ rig.rest[i]
+            pr = stack_mul(P[p], rel)
+            P[i] = pr @ B[i]
+            H[i] = H[p] + stack_apply(P[p], rig.rest[p].T @ (rig.head[i] - rig.head[p])) \
+                + (pr @ loc[..., None])[..., 0]
+    return P, H
