@@ -56,7 +56,8 @@ MODULES = {_module_name(p): p for p in sorted(ADDON.rglob("*.py"))}
 
 
 def _imports(path: pathlib.Path):
-    """(imported module, line, inside a function?) for every import of the file."""
+    """(imported module, line, inside a function?) for every import of the file, named from the
+    extension's root (`..bodycal_addon.blender` in operators/x.py is `bodycal_addon.blender`)."""
     name = _module_name(path)
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
     tree = ast.parse(path.read_text())
@@ -72,8 +73,8 @@ def _imports(path: pathlib.Path):
             else:
                 base = node.module or ""
             for alias in node.names:
-                full = f"{base}.{alias.name}"
-                yield (full if full in MODULES else base), node.lineno, id(node) in nested
+                full = f"{base}.{alias.name}" if base else alias.name  # `from .. import sample_rigs`
+                yield (full if full in MODULES or not base else base), node.lineno, id(node) in nested
 
 
 def _package(module: str) -> str | None:
@@ -116,29 +117,9 @@ UI_MAY_IMPORT = {
 UI_FILES = sorted(p for tree in UI_PACKAGES for p in (ADDON.parent / tree).rglob("*.py"))
 
 
-def _ui_imports(path: pathlib.Path):
-    """(imported module, line, inside a function?) for every import of a sidebar file, named from
-    the extension's root (`..bodycal_addon.blender` in operators/x.py is `bodycal_addon.blender`)."""
-    package = path.relative_to(ADDON.parent).parent.parts
-    tree = ast.parse(path.read_text())
-    nested = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
-              for n in ast.walk(f) if n is not f}
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                yield alias.name, node.lineno, id(node) in nested
-        elif isinstance(node, ast.ImportFrom):
-            base = list(package[: len(package) - node.level + 1]) if node.level else []
-            if node.module:
-                yield ".".join(base + [node.module]), node.lineno, id(node) in nested
-            else:
-                for alias in node.names:
-                    yield ".".join(base + [alias.name]), node.lineno, id(node) in nested
-
-
 @pytest.mark.parametrize("path", UI_FILES, ids=lambda p: str(p.relative_to(ADDON.parent)))
 def test_the_sidebar_goes_through_blender_only(path):
-    for target, line, in_function in _ui_imports(path):
+    for target, line, in_function in _imports(path):
         top = target.split(".")[0]
         where = f"{path.relative_to(ADDON.parent)}:{line} imports {target}"
         assert not in_function, f"{where} inside a function"
