@@ -260,6 +260,22 @@ def _start_workers(session, names, deadline):
         time.sleep(0.01)
 
 
+def _stream_until_posed(session, source, rec, name, deadline):
+    """Frames delivered (a little apart: a guard only, nothing is timed) until follower `name`'s
+    newest pose is a pose; the updates' notes and that follower's poses."""
+    notes, poses, k = [], [], 0
+    while not poses or poses[-1] is None:
+        assert time.monotonic() < deadline, notes
+        source.deliver(frame_of(rec, k))
+        k += 1
+        time.sleep(0.02)
+        update = session.pump()
+        if update is not None:
+            notes += update.notes
+            poses += [update.poses[name]] if name in update.pushed else []
+    return notes, poses
+
+
 def _stream_until_solving(session, source, rec, names, solved: int, deadline, k=0):
     """Frames delivered until each named follower has solved `solved` of them; the updates. Each
     frame's results are waited for from the followers solving already, so every frame is handed to
@@ -396,18 +412,8 @@ def test_a_worker_that_cannot_start_is_one_line_and_the_avatar_is_solved_here(ta
     source = Source()
     session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
     follower = session.follow("a", user, procedural_avatar(), worker=True, executable=str(tmp_path / "no-python"))
-    notes, poses, k = [], [], 0
-    try:
-        deadline = time.monotonic() + 60.0
-        while not poses or poses[-1] is None:  # the start fails on its thread; the avatar is then solved here
-            assert time.monotonic() < deadline, notes
-            source.deliver(frame_of(rec, k))
-            k += 1
-            time.sleep(0.02)
-            update = session.pump()
-            if update is not None:
-                notes += update.notes
-                poses += [update.poses["a"]] if "a" in update.pushed else []
+    try:  # the start fails on its thread; the avatar is then solved here
+        notes, poses = _stream_until_posed(session, source, rec, "a", time.monotonic() + 60.0)
     finally:
         session.stop()
     assert len(notes) == 1 and notes[0].startswith("a: no worker process (FileNotFoundError") and \
@@ -425,16 +431,7 @@ def test_a_model_json_cannot_carry_is_one_line_and_the_avatar_is_solved_here(tak
     try:
         deadline = time.monotonic() + 120.0
         _start_workers(session, ["a"], deadline)
-        notes, poses, k = [], [], 0
-        while not poses or poses[-1] is None:
-            assert time.monotonic() < deadline, notes
-            source.deliver(frame_of(rec, k))
-            k += 1
-            time.sleep(0.02)
-            update = session.pump()
-            if update is not None:
-                notes += update.notes
-                poses += [update.poses["a"]] if "a" in update.pushed else []
+        notes, poses = _stream_until_posed(session, source, rec, "a", deadline)
         assert len(notes) == 1 and notes[0].startswith("a: its models could not be sent to its worker"), notes
         assert not follower.in_worker
     finally:
