@@ -10,6 +10,7 @@ import bpy
 import numpy as np
 import pytest
 from repo_paths import REPO
+from rig_edits import constrain_forearm_to_an_unkeyed_control
 
 from bodycal_addon.blender import avatar_rig, blendfile, mesh_metrics, rig_output, session
 from bodycal_addon.blender.fcurves import object_fcurves
@@ -346,15 +347,7 @@ def test_a_bake_that_does_not_move_the_deforming_bones_is_an_error_and_leaves_no
     from sample_rigs import build_procedural_avatar
 
     arm, _mesh, _spec = build_procedural_avatar()
-    bpy.context.view_layer.objects.active = arm
-    bpy.ops.object.mode_set(mode="EDIT")
-    src = arm.data.edit_bones["lowerarm_r"]
-    ctrl = arm.data.edit_bones.new("ctrl_lowerarm_r")
-    ctrl.head, ctrl.tail, ctrl.roll, ctrl.parent = src.head, src.tail, src.roll, src.parent
-    bpy.ops.object.mode_set(mode="OBJECT")
-    arm.data.bones["ctrl_lowerarm_r"].use_deform = False
-    c = arm.pose.bones["lowerarm_r"].constraints.new("COPY_TRANSFORMS")
-    c.target, c.subtarget = arm, "ctrl_lowerarm_r"
+    constrain_forearm_to_an_unkeyed_control(arm)
     mine = bpy.data.actions.new("animator's")
     arm.animation_data_create().action = mine
     before = set(bpy.data.actions)

@@ -20,6 +20,7 @@ import bpy
 import numpy as np
 import pytest
 from repo_paths import REPO
+from rig_edits import constrain_forearm_to_an_unkeyed_control
 
 from bodycal_addon.blender import calibration_scene, recording_scene, review, review_plots, session
 from bodycal_addon.blender.bake import BakeOptions
@@ -47,20 +48,6 @@ def _png_size(path: Path) -> tuple[int, int]:
     return struct.unpack(">II", data[16:24])
 
 
-def _constrained_forearm(arm):
-    """The right forearm, which the mesh follows, copies an unkeyed control bone: a bake's keys do
-    not move it, and the bake's check on the evaluated rig refuses it (blender/bake_check.py)."""
-    bpy.context.view_layer.objects.active = arm
-    bpy.ops.object.mode_set(mode="EDIT")
-    src = arm.data.edit_bones["lowerarm_r"]
-    ctrl = arm.data.edit_bones.new("ctrl_lowerarm_r")
-    ctrl.head, ctrl.tail, ctrl.roll, ctrl.parent = src.head, src.tail, src.roll, src.parent
-    bpy.ops.object.mode_set(mode="OBJECT")
-    arm.data.bones["ctrl_lowerarm_r"].use_deform = False
-    c = arm.pose.bones["lowerarm_r"].constraints.new("COPY_TRANSFORMS")
-    c.target, c.subtarget = arm, "ctrl_lowerarm_r"
-
-
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
     """A take of the contact motions (clap, hand on belly, on the head) and a walk, its performer's
@@ -75,7 +62,7 @@ def inputs(tmp_path_factory):
     bpy.ops.wm.read_homefile(use_empty=True)
     arm, _mesh, _spec = rigs.build_procedural_avatar()
     bpy.ops.wm.save_as_mainfile(filepath=str(d / "procedural.blend"))
-    _constrained_forearm(arm)
+    constrain_forearm_to_an_unkeyed_control(arm)
     bpy.ops.wm.save_as_mainfile(filepath=str(d / "controlled.blend"))
     bpy.ops.wm.read_homefile(use_empty=True)
     return d
