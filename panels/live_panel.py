@@ -154,6 +154,8 @@ def draw_followers(layout, context, session) -> None:
             continue
         write = f" write {np.median(f.write_ms):.2f} ms," if f.write_ms else ""
         where = " (worker process)" if follower.in_worker else ""
+        if getattr(follower, "kernels", "") == "numpy":  # a worker without mathutils: several times slower
+            where = " (worker process, numpy kernels: no mathutils there)"
         wrapped_label(box, context, f"{name}{where}:{write} {follower.stats.line()}", icon="ARMATURE_DATA")
     row = col.row(align=True)
     row.operator("bodycal.follow_live", text="Follow Again", icon="FILE_REFRESH")

@@ -41,6 +41,7 @@ from ..body.animation import AvatarAnimation
 from ..body.bodymodel import BodyModel
 from ..core.errors import BodyCalError
 from ..live.session import LiveSession, LiveUpdate
+from ..live.worker import blender_command
 from ..output.armature_space import ArmatureSpacePlan, keyed_in_armature_space
 from ..output.root_motion import apply_root_motion, check_root_motion
 from ..recording.filters import OneEuro
@@ -154,6 +155,13 @@ def disconnect():
 # --- follow --------------------------------------------------------------------------------------------
 
 
+def worker_command() -> list[str] | None:
+    """The program a follower's worker process runs: Blender itself in the background inside
+    Blender (its own Python, `sys.executable` there, has no mathutils: live/worker.py), the
+    interpreter in the bpy module (`bpy.app.binary_path` empty) or a plain Python (None)."""
+    return blender_command(bpy.app.binary_path) if bpy.app.binary_path else None
+
+
 def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro | None = None,
            plant_feet: bool = True, placement: str = "object", root_motion: str = "root",
            worker: bool = True, seat_height: float | None = None) -> Following:
@@ -168,7 +176,7 @@ def follow(arm, user: BodyModel, method: str = "egocentric", *, smooth: OneEuro 
     target = prepare_target(arm)
     stop_following(arm.name)  # a second Follow: put back as it was before the first
     live.follow(arm.name, user, target.avatar, method, smooth=smooth, plant_feet=plant_feet, placement=placement,
-                seat_height=seat_height, worker=worker)
+                seat_height=seat_height, worker=worker, command=worker_command())
     saved = PoseState.capture(arm)
     saved.detach(arm)
     bone_map = naming.BoneMap.from_dict(target.avatar.extra["rig"]["bone_map"])

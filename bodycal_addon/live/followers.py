@@ -310,9 +310,10 @@ class WorkerFollower(Follower):
     on solving in this process (the session's solving thread). `on_change` is called (on the
     process's starting thread) once the process is up or could not start."""
 
-    def __init__(self, *args, executable: str | None = None, on_change=None, **kwargs):
+    def __init__(self, *args, command: list[str] | None = None, on_change=None, **kwargs):
         super().__init__(*args, **kwargs)
-        self.process: SolverProcess | None = SolverProcess(self.name, executable, on_change=on_change)
+        self.process: SolverProcess | None = SolverProcess(self.name, command, on_change=on_change)
+        self.kernels = ""  # what the worker solves one frame with ("mathutils" or "numpy"), once ready
         self.solving = False  # a pose has come: each frame's answer is due within ANSWER_S
         self._layout: RigLayout | None = None
         self._prepare_sent = False
@@ -444,6 +445,7 @@ class WorkerFollower(Follower):
         kind = reply[0]
         if kind == "ready":
             self._layout = RigLayout(reply[1]["armature"], tuple(reply[1]["names"]), int(reply[1]["root"]))
+            self.kernels = reply[1].get("kernels", "")
             return
         if kind == "error":
             if what == "prepare":  # this process makes the same solver and says what is wrong with it

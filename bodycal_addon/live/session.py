@@ -234,15 +234,16 @@ class LiveSession:
 
     def follow(self, name: str, user: BodyModel, avatar: BodyModel, method: str = "egocentric", *,
                smooth: OneEuro | None = None, plant_feet: bool = True, placement: str = "object",
-               seat_height: float | None = None, worker: bool = False, executable: str | None = None) -> Follower:
+               seat_height: float | None = None, worker: bool = False, command: list[str] | None = None) -> Follower:
         """`name` follows from the next frame (replacing a follower of that name). `smooth` is the
         whole-take One Euro configuration: it runs forward here (`forward_filter`). `worker`: solved
-        in a process of its own (`WorkerFollower`; `executable` the Python it runs, this one by
-        default), else on the session's solving thread. `seat_height`: the performer seated (a kit
-        without foot trackers: the estimated pelvis on the seat, lower_body)."""
+        in a process of its own (`WorkerFollower`; `command` the program that runs it,
+        worker.python_command() by default), else on the session's solving thread. `seat_height`:
+        the performer seated (a kit without foot trackers: the estimated pelvis on the seat,
+        lower_body)."""
         options = dict(smooth=forward_filter(smooth), plant_feet=plant_feet, placement=placement,
                        seat_height=seat_height)
-        follower = (WorkerFollower(name, user, avatar, method, executable=executable, on_change=self._wake,
+        follower = (WorkerFollower(name, user, avatar, method, command=command, on_change=self._wake,
                                    **options) if worker else Follower(name, user, avatar, method, **options))
         self.unfollow(name)
         with self._lock:

@@ -3,7 +3,7 @@ several cores). No bpy, no python-osc: the worker imports numpy and the engine's
 
     process = SolverProcess("avatar")        # started on a thread: `connection` is None until it is up
     process.connection.send(prepare_message(user, avatar, "egocentric", devices, markers, ...))
-    process.connection.recv()                # ("ready", {"armature", "names", "root"}) or ("error", line)
+    process.connection.recv()                # ("ready", {"armature", "names", "root", "kernels"}) or ("error", line)
     process.connection.send(frame_message(t, positions, rotations, valid, points, seen))
     process.connection.recv()                # ("pose", ...) / ("none", ...) / ("error", line): `solved_from`
     process.close()                          # the worker ends; killed if it does not within CLOSE_S
@@ -13,10 +13,13 @@ The parent runs inside Blender as often as not, where the extension is the dynam
 would name it. So nothing crosses as an engine object: the models go as their FORMATS.md JSON
 (`BodyModel.to_json(exact=True)`: every float64 as it is, so the worker solves what this process
 would, bit for bit), the settings and devices as builtins, the frames and poses as numpy arrays. The
-child is `sys.executable` (Blender's own Python in Blender 4.2+, the interpreter elsewhere) run
-isolated (`-I`) with `BOOTSTRAP`: it puts the folder holding `bodycal_addon` on `sys.path` and
-imports this module from there, so `bodycal_addon` is a top-level package in the child (the
-engine's imports are relative).
+child runs `BOOTSTRAP`, the folder holding `bodycal_addon` its last argument: it puts that folder on
+`sys.path` and imports this module from there, so `bodycal_addon` is a top-level package in the
+child (the engine's imports are relative). Which program runs it (`python_command`,
+`blender_command`): inside Blender, Blender itself in the background with its factory settings
+(Blender's own Python, `sys.executable` there, has no `mathutils`: a frame would take the numpy
+kernels, several times the instructions, core/one_frame.py); elsewhere the interpreter, isolated
+(`-I`). The worker says which kernels it solves with ("ready": `kernels`).
 
 The two ends meet on a `multiprocessing.connection` Listener the child opens (a Unix socket in
 the abstract namespace on Linux, one in a private temporary folder on macOS, a named pipe on
@@ -50,6 +53,7 @@ except ImportError:  # pragma: no cover - Windows
     resource = None
 
 from ..body.bodymodel import BodyModel
+from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..recording.filters import OneEuro
 from ..recording.model import Device
@@ -62,8 +66,9 @@ START_S = 60.0  # a worker not up by then (a cold disk, a stuck import) is kille
 CLOSE_S = 2.0  # a worker not gone this long after its stdin closed is killed
 ONE_BLAS_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")  # a worker per core
 
-# Run as `python -I -c BOOTSTRAP ENGINE_DIR`: the parent's key first, then the watch on stdin, before
-# the engine's imports (a worker closed while it imports numpy ends at once).
+# Run as `python -I -c BOOTSTRAP ENGINE_DIR` (or by Blender: `blender_command`): the parent's key
+# first, then the watch on stdin, before the engine's imports (a worker closed while it imports numpy
+# ends at once).
 BOOTSTRAP = """\
 import os, sys, threading
 key = sys.stdin.buffer.readline()
@@ -71,7 +76,7 @@ def _watch():
     sys.stdin.buffer.read()
     os._exit(0)
 threading.Thread(target=_watch, daemon=True).start()
-sys.path.insert(0, sys.argv[1])
+sys.path.insert(0, sys.argv[-1])
 try:
     from bodycal_addon.live.worker import serve
     serve(key)
@@ -90,10 +95,10 @@ class SolverProcess:
     `multiprocessing.connection.Connection` once the worker is up, None before; `error` says in
     one line why it could not start."""
 
-    def __init__(self, name: str, executable: str | None = None, on_change=None):
+    def __init__(self, name: str, command: list[str] | None = None, on_change=None):
         self.name = name
         self.on_change = on_change  # called once the worker is up or could not start (its starting thread)
-        self.executable = executable or sys.executable
+        self.command = list(command) if command else python_command()
         self.connection = None
         self.error = ""
         self.pid: int | None = None
@@ -117,7 +122,7 @@ class SolverProcess:
                 if self._closed:
                     return
                 self._proc = subprocess.Popen(
-                    [self.executable, "-I", "-c", BOOTSTRAP, str(ENGINE_DIR)], stdin=subprocess.PIPE,
+                    self.command, stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE, env=env, creationflags=getattr(subprocess, "CREATE_NO_WINDOW", 0))
                 self.pid = self._proc.pid
             watchdog = threading.Timer(START_S, self._proc.kill)
@@ -125,9 +130,8 @@ class SolverProcess:
             watchdog.start()
             self._proc.stdin.write(authkey.hex().encode() + b"\n")
             self._proc.stdin.flush()
-            line = self._proc.stdout.readline()  # the address, or why not (EOF: it ended)
+            said = _first_said(self._proc.stdout)  # the address, or why not ({}: it ended)
             self._proc.stdout.close()
-            said = json.loads(line) if line.strip() else {}
             if "address" not in said:
                 code = self._proc.wait(timeout=CLOSE_S)
                 raise BodyCalError(said.get("error") or f"it ended before it was ready (exit code {code})")
@@ -175,6 +179,30 @@ class SolverProcess:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def python_command(executable: str | None = None) -> list[str]:
+    """The worker run by a Python interpreter (this one by default), isolated from the user's site."""
+    return [executable or sys.executable, "-I", "-c", BOOTSTRAP, str(ENGINE_DIR)]
+
+
+def blender_command(binary: str) -> list[str]:
+    """The worker run by Blender's own program in the background (BLENDER_NOTES.md "A worker
+    process"): its Python has the built-in `mathutils` the one-frame kernels use. Factory settings:
+    no user add-on, startup file or preference runs in it; no .blend is opened."""
+    return [binary, "--background", "--factory-startup", "-noaudio", "--python-expr", BOOTSTRAP,
+            "--", str(ENGINE_DIR)]
+
+
+def _first_said(stdout, lines: int = 200) -> dict:
+    """The child's first JSON line on `stdout` (Blender prints its banner first), {} at its end."""
+    for _ in range(lines):
+        line = stdout.readline()
+        if not line:
+            return {}
+        if line.lstrip().startswith(b"{"):
+            return json.loads(line)
+    return {}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -242,7 +270,8 @@ class _Worker:
                                  smooth=smooth, plant_feet=spec["plant_feet"], placement=spec["placement"],
                                  seat_height=spec.get("seat_height"))
         rig = AvatarRig.from_model(avatar)  # what the parent's pose writer needs: names, root, armature
-        return ("ready", {"armature": rig.armature, "names": list(rig.names), "root": int(rig.root)})
+        return ("ready", {"armature": rig.armature, "names": list(rig.names), "root": int(rig.root),
+                          "kernels": "mathutils" if one_frame.ENABLED else "numpy"})
 
     def push(self, t, positions, rotations, valid, points, seen) -> tuple:
         if self.solver is None:

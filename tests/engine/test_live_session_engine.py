@@ -6,6 +6,7 @@ ends, hangs or cannot start said in one line, none left running after Stop."""
 
 import ast
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,11 +16,12 @@ import numpy as np
 import pytest
 from processes import still_alive
 
+from bodycal_addon.core import one_frame
 from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.live.followers import RigLayout
 from bodycal_addon.live.session import LiveSession
 from bodycal_addon.live.solver import LiveSolver
-from bodycal_addon.live.worker import ENGINE_DIR
+from bodycal_addon.live.worker import ENGINE_DIR, blender_command, python_command
 from bodycal_addon.recording.live.source import LatestSlot, LiveFrame, SourceStats
 from bodycal_addon.recording.model import Device
 from bodycal_dev import synthetic
@@ -411,7 +413,8 @@ def test_a_worker_that_cannot_start_is_one_line_and_the_avatar_is_solved_here(ta
     rec, user = take
     source = Source()
     session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
-    follower = session.follow("a", user, procedural_avatar(), worker=True, executable=str(tmp_path / "no-python"))
+    follower = session.follow("a", user, procedural_avatar(), worker=True,
+                              command=python_command(str(tmp_path / "no-python")))
     try:  # the start fails on its thread; the avatar is then solved here
         notes, poses = _stream_until_posed(session, source, rec, "a", time.monotonic() + 60.0)
     finally:
@@ -436,6 +439,67 @@ def test_a_model_json_cannot_carry_is_one_line_and_the_avatar_is_solved_here(tak
         assert not follower.in_worker
     finally:
         session.stop()
+
+
+FAKE_BLENDER = """\
+import sys
+print("Blender 4.5.15 LTS (hash 0000000 built 2025-01-01 00:00:00)")  # Blender's banner, first on stdout
+print("Read prefs: none (factory settings)", flush=True)
+argv = sys.argv
+assert {"--background", "--factory-startup"} <= set(argv) and argv[-2] == "--", argv
+expr = argv[argv.index("--python-expr") + 1]
+exec(compile(expr, "<python-expr>", "exec"), {"__name__": "__main__"})  # sys.argv: the whole command line
+"""
+
+
+def _blender_posed(take, command, deadline_s=120.0):
+    """A follower whose worker `command` runs: its first pose and this process's LiveSolver's."""
+    rec, user = take
+    avatar = procedural_avatar()
+    source = Source()
+    session = LiveSession(source, roles={d.name: d.role for d in rec.devices if d.role})
+    follower = session.follow("a", user, avatar, "egocentric", worker=True, command=command)
+    try:
+        deadline = time.monotonic() + deadline_s
+        _start_workers(session, ["a"], deadline)
+        updates, _k = _stream_until_solving(session, source, rec, ["a"], 3, deadline)
+    finally:
+        session.stop()
+    posed = [u for u in updates if u.poses.get("a") is not None]
+    assert posed and follower.in_worker and not follower.note, follower.note
+    devices = [Device(n, session.kinds[n], session.roles[n]) for n in follower.order]
+    ref = LiveSolver(user, avatar, "egocentric", devices=devices, marker_names=list(follower.marker_order))
+    last = posed[-1].frame_of("a").index
+    for j in follower.stats.indices:  # every frame its worker was sent, up to the last posed
+        want = ref.push_newer(*follower.arrays(frame_of(rec, j, markers=True)))
+        if j == last:
+            return follower, posed[-1].poses["a"], want
+    raise AssertionError(f"frame {last} was not sent to the worker")
+
+
+def test_a_worker_run_by_blenders_program_reads_past_its_banner(take, tmp_path):
+    """Inside Blender the worker is Blender itself in the background (`blender_command`: its own
+    Python has no mathutils): Blender prints its banner on stdout before the worker says where it
+    listens, and its Python's `sys.argv` is Blender's whole command line, the engine folder last.
+    A stand-in program that behaves so (the banner, the command line) gives the poses a Python
+    worker gives, and the worker says which kernels it solves with."""
+    fake = tmp_path / "blender"
+    fake.write_text(f"#!{sys.executable}\n" + FAKE_BLENDER)
+    fake.chmod(0o755)
+    follower, got, want = _blender_posed(take, blender_command(str(fake)))
+    np.testing.assert_array_equal(got.basis, want.basis)
+    np.testing.assert_array_equal(got.joints, want.joints)
+    assert follower.kernels == ("mathutils" if one_frame.ENABLED else "numpy")
+
+
+@pytest.mark.skipif(shutil.which("blender") is None, reason="no Blender program on PATH (a developer's check)")
+def test_a_worker_run_by_a_real_blender_solves_with_its_mathutils(take):
+    """With a Blender program installed (Debian's 3.4.1 was used here), its worker has Blender's
+    built-in mathutils, and its poses are this process's to float32's rounding."""
+    follower, got, want = _blender_posed(take, blender_command(shutil.which("blender")))
+    assert follower.kernels == "mathutils"
+    np.testing.assert_allclose(got.joints, want.joints, atol=1e-5)
+    np.testing.assert_allclose(got.basis, want.basis, atol=1e-5)
 
 
 def test_the_worker_imports_numpy_and_the_engine_only():
