@@ -24,7 +24,10 @@ on the way when it starts on the wrong side, after a turn). The swing lasts `SWI
 speed, pendulum-scaled by the leg's length; quicker, down to `SHORTEST_SWING_S`, when the standing
 foot would otherwise run out of reach before it lands), lifts `LIFT_PER_LENGTH` of its length
 (within `LIFT`), on a minimum-jerk path;
-both feet then stand at least `DWELL_S`. While the body is off the floor (`BodyPath.lift`) both
+both feet then stand at least `DOUBLE_SUPPORT` of the swing (a gait's double support: of its cycle
+the stance takes 60 %, the swing 40 %, so each time both feet stand is 10 %, a quarter of a swing;
+Perry & Burnfield 2010). A walk's capture point stays ahead of the feet (walking is a fall caught
+step by step), so this sets a walk's cadence. While the body is off the floor (`BodyPath.lift`) both
 feet hang under it, carried with the pelvis, and land where they are.
 
 Offline the same code sees the whole path (each step's landing looks ahead); live it sees the
@@ -54,7 +57,7 @@ SWING_S = (0.45, 0.36)  # at rest, at FAST_MPS and beyond, for a 0.85 m leg
 FAST_MPS = 1.6
 LIFT_PER_LENGTH = 0.15
 LIFT = (0.012, 0.05)  # x stature
-DWELL_S = 0.06
+DOUBLE_SUPPORT = 0.25  # x the swing: both feet stand after a step (a gait's stance 60 %, swing 40 %)
 BOTTOM = 0.01  # x stature: a kneel's pelvis this close to its lowest is down (kneel.py)
 TURN_COST_M = 0.25  # metres of misplacement a radian of a foot's misturn is worth in choosing the foot
 
@@ -356,7 +359,7 @@ class Stepper:
         if until == k1:
             self.feet[foot], self.headings[foot], self.pitches[foot] = p1, h1, pitch1
             self.swing = None
-            self.ready_at = k1 + int(round(DWELL_S * self.fps))
+            self.ready_at = k1 + int(round(DOUBLE_SUPPORT * (k1 - k0)))
         return until
 
     def _airborne(self, path, k, stop, out_pos, out_heading) -> int:
