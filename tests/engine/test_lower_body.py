@@ -381,3 +381,75 @@ def test_without_a_t_pose_the_controller_lies_along_the_hand_that_holds_it(take)
         along = pose.frames[:, BI[f"hand_{s}"]][:, :, 1]  # a bone's Y runs along it
         angle = np.degrees(np.arccos(np.clip((to_grip * along).sum(axis=1), -1.0, 1.0)))
         assert np.percentile(angle, 95) < 10.0, (s, np.percentile(angle, [50, 95]))
+
+
+# --- a kneel steps its feet into place: no planted foot slides --------------------------------------
+
+ON_FLOOR_M = 0.002  # an ankle this close to its lowest height stands on the floor (a lifted swing clears it)
+
+
+def _floor_slide_mps(ankles: np.ndarray, balls: np.ndarray, fps: float) -> float:
+    """The fastest a foot moves over the floor between two frames its ankle (F, 3) stands on the
+    floor (within `ON_FLOOR_M` of its lowest): the slower of its ankle and its ball (F, 3), so a
+    heel rising about the ball (heel.py) is not a slide, a foot moving along the floor is."""
+    on = ankles[:, 2] < ankles[:, 2].min() + ON_FLOOR_M
+    both = on[1:] & on[:-1]
+    v = np.minimum(*(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1) for p in (ankles, balls))) * fps
+    return float(v[both].max()) if both.any() else 0.0
+
+
+def _accel(x: np.ndarray, fps: float) -> np.ndarray:
+    return np.linalg.norm(np.diff(x, 2, axis=0), axis=1) * fps * fps
+
+
+def _kneel_heights(user, n=540):
+    """Head heights: standing, down into a kneel (the pelvis at its lowest) held, and up again."""
+    z0 = user.extra["tpose"]["head"][2]
+    u = np.clip(np.sin(np.pi * np.arange(n) / n) * 1.6, 0, 1)
+    return z0 - (z0 - 0.6) * u * u * (3 - 2 * u)
+
+
+def test_a_kneel_steps_the_feet_into_place_and_never_slides_a_planted_foot(user):
+    """Going down onto one knee and up again the feet lift, move and plant (as steps do): no foot
+    moves over the floor while on it, and no ankle jerks (issue 39: the knee's foot used to slide
+    back with the pelvis's height and turn back within 40 ms)."""
+    take = _head_take(user, _kneel_heights(user))
+    full = lower_body.complete(take, user)
+    pose = animate_user(full, user)
+    shape = lower_body.LowerBodyShape.of(user)
+    low = int(np.argmin(pose.joints[:, JI["pelvis"], 2]))
+    knees = pose.joints[low, [JI["knee_l"], JI["knee_r"]], 2]
+    assert knees.min() < 0.12 and knees.max() > 0.25  # one knee down, the other up
+    for s in "lr":
+        ankle = pose.joints[:, JI[f"ankle_{s}"]]
+        assert _floor_slide_mps(ankle, pose.joints[:, JI[f"toe_{s}"]], FPS) < 0.05, s
+        # a swing's own (min-jerk over a stride within a leg, in a swing of at least SHORTEST_SWING_S)
+        assert _accel(ankle, FPS).max() < 5.8 * shape.leg / stepping.SHORTEST_SWING_S ** 2, s
+    # the stream (forward only) kneels the same way
+    live = lower_body.LiveLowerBody(user, ("pelvis", "foot_l", "foot_r"), FPS)
+    streamed = [live.frame(t, p[0], tf.quat_to_matrix(q[0])) for t, p, q in zip(take.time, take.positions,
+                                                                                take.rotations)]
+    poses = {r: (np.array([f[r][0] for f in streamed]), np.array([f[r][1] for f in streamed])) for r in streamed[0]}
+    pose = animate_user(lower_body.with_devices(take, tuple(poses), poses, "streamed"), user)
+    for s in "lr":
+        assert _floor_slide_mps(pose.joints[:, JI[f"ankle_{s}"]], pose.joints[:, JI[f"toe_{s}"]], FPS) < 0.05, s
+
+
+def test_the_real_kneel_plants_its_feet(tmp_path):
+    """The real A-Frame take `tracked` kneels on its left knee (frames 2280-2330): the feet the
+    user sees (the user animation's ankles, the default smoothing) never slide over the floor and
+    their acceleration stays a step's (the old blend: 545 m/s^2 at frame 2299, back and forth)."""
+    from bodycal_addon.recording import io as recording_io
+    from bodycal_addon.recording.filters import DEFAULT_FILTER, filter_recording
+
+    rec = recording_io.load_recording(paths.data_dir() / "real_vr" / "aframe_vive" / "tracked-recording.json")
+    user = calibrate_user(rec)
+    full = lower_body.complete(filter_recording(rec, DEFAULT_FILTER), user)
+    pose = animate_user(full, user)
+    shape = lower_body.LowerBodyShape.of(user)
+    fps = rec.fps
+    assert kneel.kneel_weight(shape, pose.joints[2280:2400, JI["pelvis"], 2]).max() == pytest.approx(1.0)
+    for s in "lr":
+        ankle = pose.joints[:, JI[f"ankle_{s}"]]
+        assert _floor_slide_mps(ankle, pose.joints[:, JI[f"toe_{s}"]], fps) < 0.05, s
+        assert _accel(ankle[2200:2500], fps).max() < 5.8 * shape.leg / stepping.SHORTEST_SWING_S ** 2, s

@@ -20,7 +20,7 @@ from ..trackers import forward_fill
 from .body_path import BodyPath, LivePath, gaussian, offline_path, tracked_path
 from .chest import chest_turn
 from .heel import heel_rise
-from .kneel import Kneeling, pitch_down
+from .kneel import pitch_down
 from .shape import LowerBodyShape, body_axes, lean
 from .stepping import Stepper
 
@@ -64,10 +64,9 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     else:
         pos, rot = filled_pose(recording, "pelvis")
         path = tracked_path(shape, t, pos, rot, _pelvis_local(user), _tracker_ref(user, "pelvis"))
-    feet, headings = np.empty((len(t), 2, 3)), np.empty((len(t), 2))
+    feet, headings, pitches = np.empty((len(t), 2, 3)), np.empty((len(t), 2)), np.zeros((len(t), 2))
     stepper = Stepper(shape, recording.fps or 90.0)
-    stepper.advance(path, 0, len(t), feet, headings, available=len(t))
-    pitches = Kneeling(shape).apply(path, feet, headings)
+    stepper.advance(path, 0, len(t), feet, headings, available=len(t), out_pitch=pitches)
     heel_rise(shape, hips_of(shape, path), feet, headings, pitches)
     turn = 0.0
     if "chest" in roles:
@@ -141,7 +140,6 @@ class LiveLowerBody:
         self.shape = LowerBodyShape.of(user)
         self.path = LivePath(self.shape, seat_height)
         self.stepper = Stepper(self.shape, fps)
-        self.kneeling = Kneeling(self.shape)
         self._k = 0
         self._last_pelvis = None
         self._turn, self._t = 0.0, None  # the chest's turn (forward exponential), the last frame's time
@@ -154,10 +152,10 @@ class LiveLowerBody:
             step = self.path.step(t, np.asarray(head_pos, float), np.asarray(head_rot, float))
         else:
             step = self._tracked(t, np.asarray(pelvis_pos, float), np.asarray(pelvis_rot, float))
-        feet, headings = np.empty((1, 2, 3)), np.empty((1, 2))
-        self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k)
+        feet, headings, pitches = np.empty((1, 2, 3)), np.empty((1, 2)), np.zeros((1, 2))
+        self.stepper.advance(step, self._k, self._k + 1, feet, headings, available=self._k + 1, base=self._k,
+                             out_pitch=pitches)
         self._k += 1
-        pitches = self.kneeling.apply(step, feet, headings)
         heel_rise(self.shape, hips_of(self.shape, step), feet, headings, pitches)
         if "chest" in self.roles and hands is not None:
             w = np.array([np.asarray(p, float) + np.asarray(r, float) @ local

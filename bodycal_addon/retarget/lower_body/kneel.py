@@ -1,89 +1,62 @@
 """Kneeling on one knee (DESIGN.md §6 "A lower body from head and hands"): a pelvis lower than a
 crouch takes (`KNEEL_FROM` of its standing height) puts one knee on the floor, the shin along it
 and the foot's toes tucked under, and the other foot flat in front, its shin upright under the
-knee (`FRONT_FOOT` of the thigh ahead of its hip). It blends in over `KNEEL_BLEND` of the standing
-height, so a crouch that deepens turns into a kneel, and back.
+knee (`FRONT_FOOT` of the thigh ahead of its hip).
 
-The knee that goes down is the one whose foot stood further back when the kneel began.
+The feet get there by steps (stepping.py: lifted, moved, planted, never slid along the floor):
+from a balanced stance the foot that stood further back steps back to its kneeling place, then the
+other steps to its place in front. Once the pelvis rises (`RISE` above its lowest, or back above
+`KNEEL_FROM`) or the body moves on (its capture point out of the feet's support), the feet step
+as a standing body's, the knee's foot first due. This module says where the kneeling feet stand.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .body_path import BodyPath
 from .shape import LowerBodyShape, body_axes
 
 KNEEL_FROM = 0.6  # x the standing pelvis height
-KNEEL_BLEND = 0.12  # x the standing pelvis height
+KNEEL_BLEND = 0.12  # x the standing pelvis height: `kneel_weight` from 0 to 1 below KNEEL_FROM
 KNEE_ABOVE_FLOOR = 0.03  # x stature: the knee joint's centre when the knee rests on the floor
 TOES_DOWN = np.radians(60.0)
 FRONT_FOOT = 0.9  # x the thigh: the front foot ahead of its hip
+RISE = 0.06  # x the standing pelvis height: kneeling, a pelvis risen this far above its lowest stands up
 
 
 def kneel_weight(shape: LowerBodyShape, pelvis_z: np.ndarray) -> np.ndarray:
-    """(F,) 0 standing or crouching, 1 kneeling, smooth between."""
+    """(F,) 0 standing or crouching, 1 kneeling (the pelvis `KNEEL_BLEND` below `KNEEL_FROM`),
+    smooth between; above 0 a kneel is due."""
     u = np.clip((KNEEL_FROM * shape.pelvis_height - pelvis_z) / (KNEEL_BLEND * shape.pelvis_height), 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
 
 
-class Kneeling:
-    """Applies the kneel to the feet a `Stepper` planted: `apply` changes `feet` (F, 2, 3) in
-    place over the frames of `path` and returns the feet's pitch toes down (F, 2); the choice of
-    knee carries over calls (live: one frame at a time)."""
+def knee_foot(feet: np.ndarray, pelvis: np.ndarray, heading: float) -> int:
+    """The foot (0 left, 1 right) whose knee goes down: the one further back, `feet` (2, 3)."""
+    forward = body_axes(heading)[:2, 1]
+    return int(np.argmin((feet[:, :2] - pelvis[:2]) @ forward))
 
-    def __init__(self, shape: LowerBodyShape):
-        self.shape = shape
-        self.knee: int | None = None  # the foot kneeling (0 left, 1 right) while a kneel lasts
 
-    def apply(self, path: BodyPath, feet: np.ndarray, headings: np.ndarray) -> np.ndarray:
-        shape = self.shape
-        w = kneel_weight(shape, path.pelvis[:, 2])
-        pitch = np.zeros(feet.shape[:2])
-        if not w.any():
-            self.knee = None
-            return pitch
-        axes = body_axes(path.heading)
-        forward = axes[:, :, 1]
-        if len(w) == 1:  # live: one frame
-            which = np.array([self._choose(feet[0], path.pelvis[0], forward[0], w[0])])
-        else:
-            which = self._episodes(w, feet, path.pelvis, forward)
-        rows = np.arange(len(w))
-        hip = path.pelvis + np.einsum("fij,fj->fi", axes, shape.hip[which])
-        knee_z = KNEE_ABOVE_FLOOR * shape.stature
-        reach = np.sqrt(np.maximum(shape.thigh ** 2 - (hip[:, 2] - knee_z) ** 2, 0.0))
-        knee = hip + forward * reach[:, None]
-        knee[:, 2] = knee_z
-        back = np.sqrt(max(shape.shin ** 2 - (shape.ankle_height - knee_z) ** 2, 0.0))
-        ankle = knee - forward * back
-        ankle[:, 2] = shape.ankle_height
-        planted = feet[rows, which]
-        feet[rows, which] = planted + w[:, None] * (ankle - planted)
-        pitch[rows, which] = w * TOES_DOWN
-        other = 1 - which
-        hip = path.pelvis + np.einsum("fij,fj->fi", axes, shape.hip[other])
-        front = hip + forward * FRONT_FOOT * shape.thigh
-        front[:, 2] = shape.ankle_height
-        planted = feet[rows, other]
-        feet[rows, other] = planted + w[:, None] * (front - planted)
-        return pitch
+def kneeling_places(shape: LowerBodyShape, pelvis: np.ndarray, heading: float,
+                    knee: int) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) the ankle of the knee's foot, its knee on the floor with the pelvis at `pelvis` (3,)
+    turned to `heading` (the kneel's deepest: higher, the knee stays above the floor), and (3,)
+    the other ankle in front."""
+    axes = body_axes(heading)
+    forward = axes[:, 1]
+    hip = pelvis + axes @ shape.hip[knee]
+    reach = np.sqrt(max(shape.thigh ** 2 - (hip[2] - KNEE_ABOVE_FLOOR * shape.stature) ** 2, 0.0))
+    ankle = hip + forward * (reach - shin_on_floor(shape))
+    ankle[2] = shape.ankle_height
+    front = pelvis + axes @ shape.hip[1 - knee] + forward * FRONT_FOOT * shape.thigh
+    front[2] = shape.ankle_height
+    return ankle, front
 
-    def _choose(self, feet, pelvis, forward, w) -> int:
-        if w <= 0.0:
-            self.knee = None
-        elif self.knee is None:
-            self.knee = int(np.argmin((feet[:, :2] - pelvis[:2]) @ forward[:2]))
-        return 0 if self.knee is None else self.knee
 
-    def _episodes(self, w, feet, pelvis, forward) -> np.ndarray:
-        """(F,) the kneeling foot of each run of frames with a kneel (0 elsewhere)."""
-        which = np.zeros(len(w), np.intp)
-        on = np.concatenate([[0], (w > 0).astype(np.int8), [0]])
-        edges = np.flatnonzero(np.diff(on))
-        for a, b in zip(edges[::2], edges[1::2]):  # a loop over kneels, not frames
-            which[a:b] = int(np.argmin((feet[a, :, :2] - pelvis[a, :2]) @ forward[a, :2]))
-        return which
+def shin_on_floor(shape: LowerBodyShape) -> float:
+    """How far ahead of its ankle a kneeling knee rests on the floor, over the floor."""
+    knee_z = KNEE_ABOVE_FLOOR * shape.stature
+    return float(np.sqrt(max(shape.shin ** 2 - (shape.ankle_height - knee_z) ** 2, 0.0)))
 
 
 def pitch_down(angle) -> np.ndarray:

@@ -10,7 +10,12 @@ over the stretch both feet stand (a loop over steps, not frames):
 - reach: a hip is further from its ankle, over the floor, than `REACH` of the leg (the leg then
   slants about 30 degrees), or so far behind that its heel, rising on the ball to keep it in
   reach (heel.py), rises more than `RISE_STEP` (a toe-off);
-- crossing: the feet, seen across the body, closer than `MIN_WIDTH` or on the wrong sides.
+- crossing: the feet, seen across the body, closer than `MIN_WIDTH` or on the wrong sides;
+- a kneel: the pelvis below `kneel.KNEEL_FROM` of its standing height (kneel.py). The foot further
+  back steps to its kneeling place (toes tucked, pitched `kneel.TOES_DOWN`), then the other to its
+  place in front; while the body kneels no other step is due; once the pelvis is back above that
+  height the feet step as a standing body's, the knee's foot (its toes still tucked) due to step.
+  A kneel's feet step like any others (lifted, moved, planted): a planted foot never slides.
 Then the foot further from where it should stand steps: it lands where the body will be once the
 step is done (offline the body path at that frame; live its velocity carried forward), under its
 hip and `LEAD_S` of the body's velocity ahead, turned with the body (no more than `SPLAY` from the
@@ -19,7 +24,10 @@ on the way when it starts on the wrong side, after a turn). The swing lasts `SWI
 speed, pendulum-scaled by the leg's length; quicker, down to `SHORTEST_SWING_S`, when the standing
 foot would otherwise run out of reach before it lands), lifts `LIFT_PER_LENGTH` of its length
 (within `LIFT`), on a minimum-jerk path;
-both feet then stand at least `DWELL_S`. While the body is off the floor (`BodyPath.lift`) both
+both feet then stand at least `DOUBLE_SUPPORT` of the swing (a gait's double support: of its cycle
+the stance takes 60 %, the swing 40 %, so each time both feet stand is 10 %, a quarter of a swing;
+Perry & Burnfield 2010). A walk's capture point stays ahead of the feet (walking is a fall caught
+step by step), so this sets a walk's cadence. While the body is off the floor (`BodyPath.lift`) both
 feet hang under it, carried with the pelvis, and land where they are.
 
 Offline the same code sees the whole path (each step's landing looks ahead); live it sees the
@@ -30,8 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import heel
-from .body_path import BodyPath
+from . import heel, kneel
+from .body_path import LOWEST_PELVIS, BodyPath
 from .shape import LowerBodyShape, body_axes, wrap
 
 G = 9.81
@@ -49,7 +57,8 @@ SWING_S = (0.45, 0.36)  # at rest, at FAST_MPS and beyond, for a 0.85 m leg
 FAST_MPS = 1.6
 LIFT_PER_LENGTH = 0.15
 LIFT = (0.012, 0.05)  # x stature
-DWELL_S = 0.06
+DOUBLE_SUPPORT = 0.25  # x the swing: both feet stand after a step (a gait's stance 60 %, swing 40 %)
+BOTTOM = 0.01  # x stature: a kneel's pelvis this close to its lowest is down (kneel.py)
 TURN_COST_M = 0.25  # metres of misplacement a radian of a foot's misturn is worth in choosing the foot
 
 
@@ -59,15 +68,20 @@ def min_jerk(u: np.ndarray) -> np.ndarray:
 
 class Stepper:
     """The feet of `shape`'s body along a `BodyPath`, planted and stepping (the module docstring).
-    `advance` fills frames [start, stop) of `out_pos` (., 2, 3) ankles and `out_heading` (., 2)
-    feet headings, from the path's frames up to `available` (offline: all; live: `stop`); the
-    path's and the outputs' first row is frame `base` (live: the frame itself)."""
+    `advance` fills frames [start, stop) of `out_pos` (., 2, 3) ankles, `out_heading` (., 2)
+    feet headings and `out_pitch` (., 2) their toes-down pitch (a kneel), from the path's frames up
+    to `available` (offline: all; live: `stop`); the path's and the outputs' first row is frame
+    `base` (live: the frame itself)."""
 
     def __init__(self, shape: LowerBodyShape, fps: float):
         self.shape, self.fps = shape, float(fps)
         self.feet: np.ndarray | None = None  # (2, 3) planted ankles
         self.headings = np.zeros(2)
-        self.swing: tuple | None = None  # (foot, k0, k1, p0, p1, heading0, heading1, height, bow out)
+        self.pitches = np.zeros(2)  # the planted feet's toes-down pitch (a kneeling foot's)
+        self.swing: tuple | None = None  # (foot, k0, k1, p0, p1, heading0, heading1, height, bow out, pitch0, pitch1)
+        self.kneel: int | None = None  # the knee's foot while the body kneels (or steps into it)
+        self.front_due = False  # kneeling, the front foot's step still to come
+        self.kneel_low = 0.0  # kneeling, the pelvis's lowest so far
         self.air: tuple | None = None  # (the pelvis over the floor at take-off, the feet's carry so far)
         self.ready_at = 0
         self.steps = 0
@@ -89,15 +103,18 @@ class Stepper:
     # --- the loop over steps ----------------------------------------------------------------------
 
     def advance(self, path: BodyPath, start: int, stop: int, out_pos: np.ndarray, out_heading: np.ndarray,
-                available: int | None = None, base: int = 0) -> None:
+                available: int | None = None, base: int = 0, out_pitch: np.ndarray | None = None) -> None:
         available = stop if available is None else available
         self.base = base
+        self.out_pitch = np.zeros(out_heading.shape) if out_pitch is None else out_pitch
         if self.feet is None:
             self.start(path, start - base)
         k = start
         while k < stop:
             if self.swing is not None:
-                k = self._swing(k, stop, out_pos, out_heading)
+                k0, k = k, self._swing(k, stop, out_pos, out_heading)
+                if self.kneel is not None:
+                    self.kneel_low = min(self.kneel_low, float(path.pelvis[k0 - base:k - base, 2].min()))
             elif self.air is not None or path.lift[k - base] > 0.0:
                 k = self._airborne(path, k, stop, out_pos, out_heading)
             else:
@@ -115,22 +132,55 @@ class Stepper:
         until = k + int(hit[0]) if len(hit) else end
         out_pos[k - b:until - b] = self.feet
         out_heading[k - b:until - b] = self.headings
+        self.out_pitch[k - b:until - b] = self.pitches
+        if self.kneel is not None and until > k:
+            self.kneel_low = min(self.kneel_low, float(path.pelvis[k - b:until - b, 2].min()))
         if until < end:
             self._plan(path, until, available)
         return until
 
     def triggers(self, path: BodyPath, i: int, end: int) -> np.ndarray:
         """(end - i,) bool: a step is due at the path's rows [i, end) with the feet where they stand."""
-        shape, feet = self.shape, self.feet
         if end <= i:
             return np.zeros(0, bool)
-        pelvis, velocity, heading = path.pelvis[i:end], path.velocity[i:end], path.heading[i:end]
-        capture = pelvis[:, :2] + velocity / np.sqrt(G / max(shape.pelvis_height, 0.3))
+        z = path.pelvis[i:end, 2]
+        if self.kneel is not None:  # kneeling: the front foot's step; up as the pelvis rises or the body moves on
+            return self._rising(z) | self.front_due | self._off_kneeling_support(path, i, end)
+        pitched = self.pitches.any()  # up from a kneel, the toes still tucked: that foot steps too
+        return self._standing_triggers(path, i, end) | (kneel.kneel_weight(self.shape, z) > 0.0) | pitched
+
+    def _off_support(self, path: BodyPath, i: int, end: int) -> np.ndarray:
+        """(end - i,) bool: the capture point (the module docstring) out of the feet's support."""
+        shape, feet = self.shape, self.feet
+        capture = path.pelvis[i:end, :2] + path.velocity[i:end] / np.sqrt(G / max(shape.pelvis_height, 0.3))
         middles = feet[:, :2] + 0.4 * shape.foot_length * np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
         a, b = middles
         ab = b - a
         u = np.clip(((capture - a) @ ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
-        off_support = np.linalg.norm(capture - (a + u[:, None] * ab), axis=1) > SUPPORT_REACH * shape.stature
+        return np.linalg.norm(capture - (a + u[:, None] * ab), axis=1) > SUPPORT_REACH * shape.stature
+
+    def _off_kneeling_support(self, path: BodyPath, i: int, end: int) -> np.ndarray:
+        """(end - i,) bool: kneeling, the capture point further than `SUPPORT_REACH` outside the
+        triangle the body kneels on: the knee's foot, its knee on the floor, the front foot's middle."""
+        shape, feet, knee = self.shape, self.feet, self.kneel
+        capture = path.pelvis[i:end, :2] + path.velocity[i:end] / np.sqrt(G / max(shape.pelvis_height, 0.3))
+        along = np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
+        corners = np.stack([feet[knee, :2], feet[knee, :2] + along[knee] * kneel.shin_on_floor(shape),
+                            feet[1 - knee, :2] + 0.4 * shape.foot_length * along[1 - knee]])
+        edges = np.roll(corners, -1, axis=0) - corners  # (3, 2)
+        rel = capture[:, None] - corners  # (F, 3, 2)
+        cross = edges[:, 0] * rel[..., 1] - edges[:, 1] * rel[..., 0]
+        inside = (cross >= 0.0).all(axis=1) | (cross <= 0.0).all(axis=1)
+        u = np.clip(np.einsum("fei,ei->fe", rel, edges) / np.maximum(np.einsum("ei,ei->e", edges, edges), 1e-12),
+                    0.0, 1.0)
+        gap = np.linalg.norm(rel - u[..., None] * edges, axis=2).min(axis=1)
+        return ~inside & (gap > SUPPORT_REACH * shape.stature)
+
+    def _standing_triggers(self, path: BodyPath, i: int, end: int) -> np.ndarray:
+        """(end - i,) bool: a standing body's step due: balance, a turn, reach or crossing."""
+        shape, feet = self.shape, self.feet
+        pelvis, heading = path.pelvis[i:end], path.heading[i:end]
+        off_support = self._off_support(path, i, end)
         turned = (np.abs(wrap(heading[:, None] + shape.foot_turn - self.headings)) > TURN_STEP).any(axis=1)
         axes = body_axes(heading)
         hips = pelvis[:, None] + np.einsum("fij,sj->fsi", axes, shape.hip)
@@ -148,6 +198,15 @@ class Stepper:
         speed = float(np.linalg.norm(path.velocity[i]))
         seconds = np.interp(speed, (0.0, FAST_MPS), SWING_S) * np.sqrt(shape.leg / 0.85)
         n = max(2, int(round(seconds * self.fps)))
+        if self.kneel is None:  # a kneel from a balanced stance; a body moving on steps as it walks
+            if kneel.kneel_weight(shape, path.pelvis[i, 2]) > 0.0 and not self._standing_triggers(path, i, i + 1)[0]:
+                self._plan_kneel(path, k, n, available)
+                return
+        elif self.front_due and not (self._rising(path.pelvis[i:i + 1, 2])
+                                     | self._off_kneeling_support(path, i, i + 1))[0]:
+            self._plan_kneel(path, k, n, available)
+            return
+        self.kneel = None  # up from a kneel: the steps as standing, the pitched foot's first due (triggers)
         pelvis, heading, velocity = self._landing(path, k, n, available)
         ideal, headings = self.ideal(pelvis, heading, velocity)
         miss = np.linalg.norm((ideal - self.feet)[:, :2], axis=1) + TURN_COST_M * np.abs(wrap(headings - self.headings))
@@ -171,8 +230,55 @@ class Stepper:
         turned = other + np.clip(wrap(headings[foot] - other), -SPLAY, SPLAY)
         self.swing = (foot, k, k1, self.feet[foot].copy(), target, self.headings[foot],
                       self.headings[foot] + wrap(turned - self.headings[foot]), height,
-                      self._around(foot, target, heading))
+                      self._around(foot, target, heading), self.pitches[foot], 0.0)
         self.steps += 1
+
+    def _plan_kneel(self, path: BodyPath, k: int, n: int, available: int) -> None:
+        """Plans a kneel's step due at frame k (a swing of `n` frames): down (the foot further back
+        to its kneeling place), then the front foot's."""
+        shape, i = self.shape, k - self.base
+        pelvis, heading, _ = self._landing(path, k, n, available)
+        if self.kneel is None:  # down: the knee of the foot further back
+            foot = self.kneel = kneel.knee_foot(self.feet, path.pelvis[i], path.heading[i])
+            self.front_due, self.kneel_low = True, float(path.pelvis[i, 2])
+            target, _ = kneel.kneeling_places(shape, *self._deepest(path, i, (pelvis, heading)), foot)
+            pitch = kneel.TOES_DOWN
+        else:  # the front foot
+            foot, self.front_due = 1 - self.kneel, False
+            target = kneel.kneeling_places(shape, pelvis, heading, self.kneel)[1]
+            pitch = 0.0
+            if np.linalg.norm((target - self.feet[foot])[:2]) < 0.01 * shape.stature:
+                return  # it stands there already
+        length = float(np.linalg.norm((target - self.feet[foot])[:2]))
+        lo, hi = LIFT
+        height = float(np.clip(LIFT_PER_LENGTH * length, lo * shape.stature, hi * shape.stature))
+        turned = heading + shape.foot_turn[foot]
+        self.swing = (foot, k, k + n, self.feet[foot].copy(), target, self.headings[foot],
+                      self.headings[foot] + wrap(turned - self.headings[foot]), height,
+                      self._around(foot, target, heading), self.pitches[foot], pitch)
+        self.steps += 1
+
+    def _rising(self, z: np.ndarray) -> np.ndarray:
+        """(F,) bool: kneeling, the pelvis at heights `z` (F,) on its way up: risen `kneel.RISE` above
+        its lowest so far, or out of the kneel's heights (standing up starts as the pelvis rises)."""
+        low = np.minimum.accumulate(np.minimum(z, self.kneel_low))
+        return (z > low + kneel.RISE * self.shape.pelvis_height) | (kneel.kneel_weight(self.shape, z) <= 0.0)
+
+    def _deepest(self, path: BodyPath, i: int, landing: tuple) -> tuple:
+        """(pelvis (3,), heading) at the deepest of the kneel starting at the path's row i: offline
+        the path's at the middle of the frames its pelvis is within `BOTTOM` of its lowest before
+        it rises above `kneel.KNEEL_FROM` (a kneel held; the pelvis still settles as it gets
+        there); live (the path not known
+        past the present) the `landing` pelvis as low as it can come down (`LOWEST_PELVIS`), so the
+        knee never goes through the floor."""
+        z = path.pelvis[i:, 2]
+        up = np.flatnonzero(kneel.kneel_weight(self.shape, z) <= 0.0)
+        if len(z) > 1:  # the path ahead is known: the middle of its time at the bottom
+            z = z[:up[0]] if len(up) else z
+            j = i + int(np.median(np.flatnonzero(z <= z.min() + BOTTOM * self.shape.stature)))
+            return path.pelvis[j], path.heading[j]
+        pelvis, heading = landing
+        return np.array([pelvis[0], pelvis[1], LOWEST_PELVIS * self.shape.pelvis_height]), heading
 
     def _landing(self, path: BodyPath, k: int, n: int, available: int):
         """(pelvis, heading, velocity) when a swing of `n` frames from frame k lands: offline the
@@ -236,21 +342,24 @@ class Stepper:
         return right * side * max(0.0, need - min(start, end))
 
     def _swing(self, k, stop, out_pos, out_heading) -> int:
-        foot, k0, k1, p0, p1, h0, h1, height, around = self.swing
+        foot, k0, k1, p0, p1, h0, h1, height, around, pitch0, pitch1 = self.swing
         until = min(k1, stop)
         u = (np.arange(k, until) - k0) / max(k1 - k0, 1)
         s = min_jerk(u)
-        pos = p0 + s[:, None] * (p1 - p0) + np.sin(np.pi * u)[:, None] * around
+        # the bow out starts and ends at rest (sin squared): a foot leaves and meets the floor without sliding
+        pos = p0 + s[:, None] * (p1 - p0) + (np.sin(np.pi * u) ** 2)[:, None] * around
         pos[:, 2] += height * np.sin(np.pi * u)
         rows = slice(k - self.base, until - self.base)
         out_pos[rows] = self.feet
         out_pos[rows, foot] = pos
         out_heading[rows] = self.headings
         out_heading[rows, foot] = h0 + s * (h1 - h0)
+        self.out_pitch[rows] = self.pitches
+        self.out_pitch[rows, foot] = pitch0 + s * (pitch1 - pitch0)
         if until == k1:
-            self.feet[foot], self.headings[foot] = p1, h1
+            self.feet[foot], self.headings[foot], self.pitches[foot] = p1, h1, pitch1
             self.swing = None
-            self.ready_at = k1 + int(round(DWELL_S * self.fps))
+            self.ready_at = k1 + int(round(DOUBLE_SUPPORT * (k1 - k0)))
         return until
 
     def _airborne(self, path, k, stop, out_pos, out_heading) -> int:
@@ -268,6 +377,7 @@ class Stepper:
         out_pos[rows, :, :2] += carried[:, None]
         out_pos[rows, :, 2] += path.lift[rows, None]
         out_heading[rows] = self.headings
+        self.out_pitch[rows] = self.pitches
         if len(carried):
             carried_last = carried[-1]
         self.air = (takeoff, carried_last)
