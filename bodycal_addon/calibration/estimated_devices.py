@@ -40,11 +40,12 @@ WHAT = {"pelvis": "the pelvis, estimated from the head and hands",
         "foot_r": "the right foot, estimated from the head and hands"}
 UP = np.array([0.0, 0.0, 1.0])
 # Decision: the estimated pelvis and feet follow the HMD only while the skull base is within this
-# much of the stature below its reference height (a walk's bob, a relaxed stance: the
-# drop the lower-body model gives the knees, `body_path.KNEES_FIRST`); lower, the performer bends or crouches over feet that
-# stay put (the touches of the knees, ankles and soles), and they keep their pose of the last frame
-# the head was up. Carried down with the head, an ankle touched bent over sat 1.04 m up in its foot's
-# frame and the knee 46 cm off (the synthetic minimal protocol, HMD and controllers kept).
+# much of the stature below its reference height (standing, a relaxed stance); lower, the performer
+# bends or crouches over feet that stay put (the touches of the knees, ankles and soles), and they
+# keep their pose of the last frame the head was up; the feet stay on the floor throughout. Carried
+# down with the head, an ankle touched bent over sat 1.04 m up in its foot's frame and the knee
+# 46 cm off (the synthetic minimal protocol, HMD and controllers kept). The head moves back as a
+# crouch begins: held from 0.05 H down the ankles were 64-68 mm off, from 0.03 H 38-42, 0.02 H 23-33.
 BENT_DROP = 0.02  # x stature
 HELD_ROLES = ("pelvis", "foot_l", "foot_r")
 _SIGN = {"l": 1.0, "r": -1.0}  # toward the body's left
