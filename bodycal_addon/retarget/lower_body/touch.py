@@ -8,7 +8,8 @@ head's sway. While a hand rests in front of the lower trunk (still in the room, 
 on the belly or a hip is in, for a while) the pelvis keeps its offset from that hand over the floor,
 the offset the head's pelvis had from it on average over the rest: the body under the head on
 average, the hand on the body throughout; the spine bends between the pelvis and the skull base
-(the spine IK aims at the skull base as always). Blended in and out at the rest's ends.
+(the spine IK aims at the skull base as always). Held through the whole rest (a hand comes to
+rest as it touches), blended in before it and out after it.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from .shape import LowerBodyShape, body_axes
 REST_SPEED = 0.08  # m/s: a hand this slow in the room (smoothed over SPEED_SMOOTH_S) rests
 SPEED_SMOOTH_S = 0.15
 REST_MIN_S = 0.6  # a rest shorter than this is a hand passing by
-BLEND_S = 0.3  # the hold's blend in and out at a rest's ends
+BLEND_S = 0.3  # the hold's blend in before a rest and out after it
 # The zone in front of the lower trunk (body axes from the head's pelvis, x stature): across the
 # body, in front of the hip joints to a forearm's length, from the hips up to below the chest.
 ACROSS = 0.12
@@ -45,13 +46,19 @@ def hold_pelvis(shape: LowerBodyShape, time: np.ndarray, path: BodyPath, wrists:
         speed = gaussian(np.linalg.norm(np.gradient(w, time, axis=0), axis=1), SPEED_SMOOTH_S * fps)
         rest = ((np.abs(local[:, 0]) < ACROSS * H) & (local[:, 1] > FORWARD[0] * H) & (local[:, 1] < FORWARD[1] * H)
                 & (local[:, 2] > UP[0] * H) & (local[:, 2] < UP[1] * H) & (speed < REST_SPEED))
+        blend = max(int(round(BLEND_S * fps)), 1)
         for a, b in _runs(rest, int(round(REST_MIN_S * fps))):
             # the offset in body axes, the head's pelvis's from the hand on average over the rest
             off = local[a:b].mean(axis=0)
-            held = w[a:b] - np.einsum("fij,j->fi", axes[a:b], off)
-            ramp = _ramp(b - a, int(round(BLEND_S * fps)))
-            weight[a:b] += ramp
-            target[a:b] += ramp[:, None] * held[:, :2]
+            held = (w[a:b] - np.einsum("fij,j->fi", axes[a:b], off))[:, :2]
+            # held through the whole rest (a hand comes to rest as it touches), blended in before
+            # it and out after it from where the hold begins and ends
+            a0, b1 = max(a - blend, 0), min(b + blend, F)
+            ramp = np.concatenate([_smoothstep((np.arange(a0, a) - (a - blend) + 0.5) / blend), np.ones(b - a),
+                                   _smoothstep(((b + blend) - np.arange(b, b1) - 0.5) / blend)])
+            value = np.concatenate([np.repeat(held[:1], a - a0, axis=0), held, np.repeat(held[-1:], b1 - b, axis=0)])
+            weight[a0:b1] += ramp
+            target[a0:b1] += ramp[:, None] * value
     on = weight > 0
     if not on.any():
         return path
@@ -69,8 +76,6 @@ def _runs(mask: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True) if b - a >= max(min_len, 1)]
 
 
-def _ramp(n: int, blend: int) -> np.ndarray:
-    """(n,) 0 -> 1 -> 0, smoothstep over `blend` frames at each end (at most half the run)."""
-    blend = max(min(blend, n // 2), 1)
-    t = np.clip(np.minimum(np.arange(n) + 0.5, n - np.arange(n) - 0.5) / blend, 0.0, 1.0)
+def _smoothstep(t: np.ndarray) -> np.ndarray:
+    t = np.clip(t, 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
