@@ -257,8 +257,15 @@ def _legs_from_touches(placing: _Placement) -> None:
     for _ in range(lengths.SETTLE_PASSES if moved else 1):
         found = {}
         for s, pair in pairs.items():
-            l1 = lengths.length_to(session, pair, "pelvis", state.local[f"hip_{s}"]["pelvis"], radius)
             l2 = lengths.length_to(session, pair, f"foot_{s}", ankle_local[s], radius)
+            if "pelvis" in session.estimated:
+                # Decision: an estimated pelvis does not follow a performer crouching to touch a
+                # knee (it stays where it stood, estimated_devices.BENT_DROP), so the thigh is what
+                # closes the table's hip height over the measured shin (the feet do stay put).
+                l1 = None if l2 is None else lengths.upper_closing_reach(
+                    l2, float(np.linalg.norm(w[f"hip_{s}"] - w[f"ankle_{s}"])), R["reference_bend_deg"])
+            else:
+                l1 = lengths.length_to(session, pair, "pelvis", state.local[f"hip_{s}"]["pelvis"], radius)
             if l1 is not None and l2 is not None:
                 found[s] = (l1, l2)
         heights = []

@@ -10,7 +10,9 @@ carries the shoulders) stands at the skull base with the same axes; an estimated
 the ankle, its axes the foot's (x its right, y along the foot, z up, level). During the calibration they are
 carried rigidly by the HMD's position and its turn about the vertical (`attach`), so that the
 touches a kit of HMD and controllers can make (the torso, the hips, the knees, the soles, with
-the performer standing) ride on them like on any tracker; at retarget time the lower-body model
+the performer standing) ride on them like on any tracker; the pelvis and the feet stay where they
+stood while the head is lowered (`BENT_DROP`: a performer bends to touch a knee, an ankle or a
+sole without moving the feet); at retarget time the lower-body model
 (`retarget/lower_body`) moves them. What they carry is estimated, never measured: the report, the
 model file (`extra["estimated_devices"]`, `calibration["estimated"]`) and the Calibration panel
 say so.
@@ -37,6 +39,15 @@ WHAT = {"pelvis": "the pelvis, estimated from the head and hands",
         "foot_l": "the left foot, estimated from the head and hands",
         "foot_r": "the right foot, estimated from the head and hands"}
 UP = np.array([0.0, 0.0, 1.0])
+# Decision: the estimated pelvis and feet follow the HMD only while the skull base is within this
+# much of the stature below its reference height (standing, a relaxed stance); lower, the performer
+# bends or crouches over feet that stay put (the touches of the knees, ankles and soles), and they
+# keep their pose of the last frame the head was up; the feet stay on the floor throughout. Carried
+# down with the head, an ankle touched bent over sat 1.04 m up in its foot's frame and the knee
+# 46 cm off (the synthetic minimal protocol, HMD and controllers kept). The head moves back as a
+# crouch begins: held from 0.05 H down the ankles were 64-68 mm off, from 0.03 H 38-42, 0.02 H 23-33.
+BENT_DROP = 0.02  # x stature
+HELD_ROLES = ("pelvis", "foot_l", "foot_r")
 _SIGN = {"l": 1.0, "r": -1.0}  # toward the body's left
 
 
@@ -90,7 +101,7 @@ def attach(session: Session) -> None:
     roles = missing(session)
     if not roles or not session.has("head"):
         return
-    body, axes, _ = provisional_body(session)
+    body, axes, H = provisional_body(session)
     hp, hq, hv = session.rec.pose("head")
     ref_p, ref_q = session.ref_pose("head")
     ref_r = tf.quat_to_matrix(ref_q)
@@ -101,9 +112,24 @@ def attach(session: Session) -> None:
     z, o = np.zeros_like(turn), np.ones_like(turn)
     yaw = np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
     neck = np.asarray(hp, float) + np.einsum("fij,j->fi", rel, body["skull_base"] - ref_p)
+    held = _last_upright(neck[:, 2] >= body["skull_base"][2] - BENT_DROP * H)
     for role in roles:
         origin = body["skull_base"] if role == "chest" else body["pelvis"] if role == "pelvis" else \
             body[f"ankle_{role[-1]}"]
         pos = neck + np.einsum("fij,j->fi", yaw, origin - body["skull_base"])
         quat = tf.matrix_to_quat(yaw @ axes)
+        if role in HELD_ROLES:
+            pos, quat = pos[held], quat[held]
+        if role.startswith("foot_"):  # on the floor, whatever the head's height
+            pos[:, 2] = origin[2]
         session.estimate(role, origin, tf.matrix_to_quat(axes), (pos, quat, np.asarray(hv, bool)))
+
+
+def _last_upright(up: np.ndarray) -> np.ndarray:
+    """(F,) for every frame the last frame at or before it whose `up` is true (before the first,
+    the first; none at all: every frame itself)."""
+    idx = np.arange(len(up))
+    if not up.any():
+        return idx
+    last = np.maximum.accumulate(np.where(up, idx, -1))
+    return np.where(last < 0, int(np.argmax(up)), last)

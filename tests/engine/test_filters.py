@@ -156,10 +156,20 @@ def test_a_clap_is_not_rounded_off(monkeypatch):
     assert nearest[0.0] - raw > 0.006, nearest
 
 
-def test_without_a_pelvis_tracker_every_device_is_smoothed_in_the_room():
+def test_without_a_pelvis_tracker_every_device_is_smoothed_in_the_room_the_hands_with_the_contact_term():
+    """No body part to smooth on (a headset's kit): the room, and a clap is still not rounded off."""
     rec, *_ = _body()
     rec.devices[0].role = None
-    out = F.filter_recording(rec, F.OneEuro())
+    cfg = F.OneEuro()
+    out = F.filter_recording(rec, cfg)
     room = F.filter_recording(rec, F.OneEuro(anchored=False))
-    np.testing.assert_array_equal(out.positions, room.positions)
-    assert "no pelvis tracker" in out.notes[-1]
+    hands = [i for i, d in enumerate(rec.devices) if d.role in ("hand_l", "hand_r")]
+    others = [i for i in range(len(rec.devices)) if i not in hands]
+    assert len(hands) == 2
+    np.testing.assert_array_equal(out.positions[:, others], room.positions[:, others])
+    np.testing.assert_array_equal(out.rotations, room.rotations)
+    np.testing.assert_array_equal(out.positions[:, hands], F.smooth_positions(
+        rec.time, rec.positions[:, hands], cfg.min_cutoff, cfg.beta, cfg.d_cutoff, cfg.two_pass,
+        F.contact_cutoff(rec, hands)))
+    assert not np.array_equal(out.positions[:, hands], room.positions[:, hands])  # the hands do meet here
+    assert "no pelvis tracker" in out.notes[-1] and "the hands with the contact term" in out.notes[-1]

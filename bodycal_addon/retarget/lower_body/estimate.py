@@ -23,6 +23,7 @@ from .heel import heel_rise
 from .kneel import pitch_down
 from .shape import LowerBodyShape, body_axes, lean
 from .stepping import Stepper
+from .touch import hold_pelvis
 
 KIND = "estimated"
 CHEST_SMOOTH_S = 0.08  # the chest's turn smoothed over this, both ways, on a whole take
@@ -61,6 +62,8 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     t = np.asarray(recording.time, float)
     if "pelvis" in roles:
         path = offline_path(shape, t, *filled_pose(recording, "head"), seat_height=seat_height)
+        if seat_height is None:  # a hand resting on the belly holds the pelvis (touch.py)
+            path = hold_pelvis(shape, t, path, wrists(recording, shape))
     else:
         pos, rot = filled_pose(recording, "pelvis")
         path = tracked_path(shape, t, pos, rot, _pelvis_local(user), _tracker_ref(user, "pelvis"))
