@@ -53,8 +53,8 @@ def solve(plan: BasisPlan, P):
     basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
     # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
     n, nf = basis_t.shape[:2]
-    # quat_from_rows' values (pose_kernels.quat_from_entries: fewer numpy calls)
-    return pose_kernels.quat_from_entries(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+    # quat_from_rows' values (pose_kernels.quat_of_few: one product for every candidate)
+    return pose_kernels.quat_of_few(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
 
 
 def _solve_many(plan: BasisPlan, P):
