@@ -1,7 +1,9 @@
 """Array kernels of the rig posing (`avatar_pose.AvatarRig`) for long stacks (a bake's chunks): the
 same operations in the same order as the general helpers of `core.transforms` they stand for, so
 the same bits, with fewer passes over memory (no transposed copies of whole stacks, no strided
-products over them, no stacked argmax). DESIGN.md "Prepared solver"."""
+products over them, no stacked argmax). DESIGN.md "Prepared solver". Also a few frames' kernels
+(a live frame's: `quat_of_few`, `few_matmul`), fewer instructions for the same values to the
+sums' rounding."""
 
 from __future__ import annotations
 
