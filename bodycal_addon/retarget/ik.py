@@ -235,7 +235,7 @@ def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_
     U, K = ([Vector(v) for v in np.asarray(a, float).reshape(-1, 3).tolist()] if a is not None else None
             for a in (user_swivel_dir, flex_axis_hint))
     L1, L2 = l1.tolist(), l2.tolist()
-    mids, ends, rot1, rot2, swivels, ts, ds, dists = [], [], [], [], [], [], [], []
+    rows = []  # per item: mid, end, rot1's and rot2's entries, swivel, t, d, dist (one array at the end)
     for i, (t0, t1, t2) in enumerate(T):
         fallback = _DOWN if P is None else _m_unit(P[i], _DOWN)[0]
         # the root-target distance in float64 (`_dot`'s sum): near a straight limb the bend's
@@ -269,17 +269,12 @@ def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_
         x = swivel.cross(axis).normalized()  # unit in float32 too (swivel is perpendicular to axis)
         y1 = _m_unit(mid, axis)[0]
         y2 = _m_unit(end - mid, axis)[0]
-        rot1.append(_m_columns(x, y1, x.cross(y1)))
-        rot2.append(_m_columns(x, y2, x.cross(y2)))
-        mids.append(mid[:])
-        ends.append(end[:])
-        swivels.append(swivel[:])
-        ts.append(t)
-        ds.append(d)
-        dists.append(dist)
-    return TwoBoneResult(root + np.array(mids), root + np.array(ends), np.array(rot1).reshape(-1, 3, 3),
-                         np.array(rot2).reshape(-1, 3, 3), np.array(ts), np.array(swivels),
-                         (l1, l2, np.array(ds), np.array(dists)))
+        rows.append([*mid, *end, *_m_columns(x, y1, x.cross(y1)), *_m_columns(x, y2, x.cross(y2)), *swivel,
+                     t, d, dist])
+    out = np.array(rows)
+    return TwoBoneResult(root + out[:, 0:3], root + out[:, 3:6], out[:, 6:15].reshape(-1, 3, 3),
+                         out[:, 15:24].reshape(-1, 3, 3), out[:, 27], out[:, 24:27],
+                         (l1, l2, out[:, 28], out[:, 29]))
 
 
 def _m_columns(x, y, z) -> list:

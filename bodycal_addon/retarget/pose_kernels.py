@@ -1,7 +1,9 @@
 """Array kernels of the rig posing (`avatar_pose.AvatarRig`) for long stacks (a bake's chunks): the
 same operations in the same order as the general helpers of `core.transforms` they stand for, so
 the same bits, with fewer passes over memory (no transposed copies of whole stacks, no strided
-products over them, no stacked argmax). DESIGN.md "Prepared solver"."""
+products over them, no stacked argmax). DESIGN.md "Prepared solver". Also a few frames' kernels
+(a live frame's: `quat_of_few`, `few_matmul`), fewer instructions for the same values to the
+sums' rounding."""
 
 from __future__ import annotations
 
@@ -71,3 +73,52 @@ def quat_from_entries(comp: np.ndarray) -> np.ndarray:
     q /= np.sqrt((q * q).sum(0))
     q *= np.where(q[0] < 0, -1.0, 1.0)
     return q
+
+
+def _shepperd_affine() -> np.ndarray:
+    """(20, 10): rows 4k..4k+3 are SHEPPERD_CANDIDATES[k] as an affine map of (1, m00, ..., m22),
+    rows 16-19 the trace, m00, m11 and m22 whose largest picks the candidate."""
+    out = np.zeros((20, 10))
+    for k, cand in enumerate(SHEPPERD_CANDIDATES):
+        base = np.array(cand(*np.zeros(9)), float)
+        out[4 * k:4 * k + 4, 0] = base
+        for e in range(9):
+            unit = np.zeros(9)
+            unit[e] = 1.0
+            out[4 * k:4 * k + 4, 1 + e] = np.array(cand(*unit), float) - base
+    out[16, [1, 5, 9]] = 1.0
+    out[17, 1], out[18, 5], out[19, 9] = 1.0, 1.0, 1.0
+    out.setflags(write=False)
+    return out
+
+
+_SHEPPERD_AFFINE = _shepperd_affine()
+
+
+def quat_of_few(comp: np.ndarray) -> np.ndarray:
+    """`quat_from_entries` (Shepperd's method on entry rows (9, M) -> (4, M), w >= 0) of a few
+    matrices (a live frame's bones): all four candidates and the four pickers of every item in ONE
+    product by a constant affine map, the pick by argmax (the first largest, NaN included, as
+    `quat_from_entries` takes it). Decision (speed): the masked candidates' gathers and scatters
+    were 470,000 instructions for one frame's 53 bones, this about a tenth; the sums are the same
+    terms in BLAS's order (the last bit may differ, ~1e-16)."""
+    m = comp.shape[1]
+    aug = np.empty((10, m))
+    aug[0] = 1.0
+    aug[1:] = comp
+    cand = _SHEPPERD_AFFINE @ aug  # (20, M)
+    q = cand[:16].reshape(4, 4, m)[cand[16:].argmax(0), :, np.arange(m)]  # (M, 4)
+    q /= np.sqrt((q * q).sum(1))[:, None]
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return q.T
+
+
+def few_matmul(a: np.ndarray, b: np.ndarray, shape: tuple) -> np.ndarray:
+    """np.matmul(a, b) of stacks of a few small matrices (a live frame's bones), the result of
+    shape `shape` written into a strided buffer (a view whose last axis steps two items).
+    Decision (speed, measured in instructions): numpy hands each product of a stack to BLAS when
+    the operands and the output are laid out as BLAS takes them, about 1,500 instructions a 3x3
+    product (76,000 for 50); an output BLAS cannot take sends the whole stack through numpy's own
+    loop, 35,000. Its sums are the plain (a_i0 b_0k + a_i1 b_1k) + a_i2 b_2k (BLAS's may fuse a
+    multiply-add): the last bit may differ from the BLAS product (~1e-16)."""
+    return np.matmul(a, b, out=np.empty(shape + (2,))[..., 0])

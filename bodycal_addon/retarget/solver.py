@@ -38,6 +38,7 @@ STANCES = ("whole", "causal")  # the feet plan: from the whole take (a bake), or
 
 
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
+_CLAVICLE_ROWS = np.array([BI[f"clavicle_{s}"] for s in sk.SIDES], int)
 LIMBS = {  # limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
     "leg": ("hip", "knee", "ankle", "thigh", "shin"),
@@ -268,20 +269,17 @@ class PreparedSolver:
             else:
                 frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
-            for s in sk.SIDES:
-                c = BI[f"clavicle_{s}"]
-                frames[:, c] = matmul_stack(matmul_stack(frames[:, v5], up.frames[:, v5].swapaxes(-1, -2)),
-                                            up.frames[:, c])
+            turn = matmul_stack(frames[:, v5], up.frames[:, v5].swapaxes(-1, -2))  # the vertebra's, both sides'
+            frames[:, _CLAVICLE_ROWS] = matmul_stack(turn[:, None], up.frames[:, _CLAVICLE_ROWS])
         # The limbs hang from the trunk as solved now (or as given).
         items, names, rows = self._limb_items(tuple(targets))
         at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints.take(rows, axis=1)
         reached = self._limbs(up, frames, targets, items, at, {} if user_side is None else user_side)
         grip = [side for side in sk.SIDES if hands is not None and side in hands]
         if grip:
-            held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
-            hand_frames = np.stack([frames[:, BI[f"hand_{side}"]] for side in grip])
-            rel = stacks_mul(hand_frames, np.array([fr for _, _, fr in held]), [grip.index(x) for x, _, _ in held])
-            frames[:, [BI[b] for _, b, _ in held]] = rel.swapaxes(0, 1)
+            hand_rows, fixed, rows, bones = self._grip_plan(hands, tuple(grip))
+            rel = stacks_mul(frames.take(hand_rows, axis=1).swapaxes(0, 1), fixed, rows)
+            frames[:, bones] = rel.swapaxes(0, 1)
         wrists = {side: reached[side, "arm"] for side in sk.SIDES
                   if side not in grip and (side, "arm") in reached and self.has_fingers[side]}
         if wrists:
@@ -293,7 +291,7 @@ class PreparedSolver:
         their effector targets, all at once (those with an intermediate target, then those
         without); `frames` updated. Returns {(side, limb): the effector reached (F, 3)}.
         `user_side` keeps what the IK reads of the user per limb set (see solve_ik)."""
-        rig, nf = self.rig, frames.shape[0]
+        nf = frames.shape[0]
         reached = {}
         for group, limbs, eff_names, pole_names in self._limb_groups(tuple(items), tuple(targets)):
             root = at.take(group, axis=1).swapaxes(0, 1).reshape(-1, 3)
@@ -304,13 +302,11 @@ class PreparedSolver:
                 # Appendix E: swivel blended between the mapped intermediate target and the user's.
                 # The hinge's axis: a character's upper bones twist on their own (a user's share
                 # the hinge's right), so its hinge is the intermediate bone's +X.
-                hinge = np.concatenate([up.frames[:, BI[f"{mb if self.character else ab}_{s}"]][..., :, 0]
-                                        for s, _, _, _, ab, mb in limbs])
-                swivel = self._user_swivel(up, [(f"{a}_{s}", f"{m}_{s}", f"{e}_{s}") for s, a, m, e, _, _ in limbs])
-                user_side[key] = (np.repeat([rig.lengths[BI[f"{ab}_{s}"]] for s, _, _, _, ab, _ in limbs], nf),
-                                  np.repeat([rig.lengths[BI[f"{mb}_{s}"]] for s, _, _, _, _, mb in limbs], nf),
-                                  swivel, hinge, np.array([BI[f"{ab}_{s}"] for s, _, _, _, ab, _ in limbs]),
-                                  np.array([BI[f"{mb}_{s}"] for s, _, _, _, _, mb in limbs]))
+                lengths1, lengths2, hinge_rows, joint_rows, upper, lower = self._limb_constants(limbs)
+                if nf > 1:
+                    lengths1, lengths2 = np.repeat(lengths1, nf), np.repeat(lengths2, nf)
+                hinge = up.frames.take(hinge_rows, axis=1)[..., 0].swapaxes(0, 1).reshape(-1, 3)
+                user_side[key] = (lengths1, lengths2, self._user_swivel(up, joint_rows), hinge, upper, lower)
             l1, l2, swivel, hinge, upper, lower = user_side[key]
             tb = ik.two_bone(root, l1, l2, eff, pole, swivel, hinge, size_ratio=self.k)
             frames[:, upper] = tb.rot1.reshape(len(limbs), nf, 3, 3).swapaxes(0, 1)
@@ -318,6 +314,19 @@ class PreparedSolver:
             for i, k in enumerate(group.tolist()):
                 reached[items[k]] = tb.end[i * nf:(i + 1) * nf]
         return reached
+
+    def _grip_plan(self, hands: dict, grip: tuple) -> tuple:
+        """`solve_ik`'s held fingers of the hands `grip` ({side: {canonical bone: its frame in the
+        hand's}} `hands`, a method's constants), once per such set: the hands' canonical bones,
+        the fingers' frames in them stacked, each finger's hand (its row in `grip`), the fingers'
+        canonical bones."""
+        cache = self.__dict__.setdefault("_grip_plans", {})
+        key = (id(hands), grip)
+        if key not in cache:
+            held = [(side, b, fr) for side in grip for b, fr in hands[side].items()]
+            cache[key] = (np.array([BI[f"hand_{side}"] for side in grip], int), np.array([fr for _, _, fr in held]),
+                          [grip.index(x) for x, _, _ in held], np.array([BI[b] for _, b, _ in held], int), hands)
+        return cache[key][:4]
 
     def _limb_items(self, names: tuple) -> tuple:
         """(the limbs [(side, limb)] whose effector has a target among `names`, their roots' joints,
@@ -350,19 +359,34 @@ class PreparedSolver:
             cache[items, names] = out
         return cache[items, names]
 
-    @staticmethod
-    def _user_swivel(up, limbs: list[tuple[str, str, str]]) -> np.ndarray:
-        """The user's swivel of the limbs [(anchor, intermediate, effector)], stacked (K F, 3): the
-        intermediate joint's offset from the user's own anchor-effector axis. Measured from the
-        avatar's axis instead, the offset would also hold the angle between the two axes (the
-        mapping moves the effector), whose direction turns with every millimetre of target noise
-        when the limb is nearly straight: the upper arm's roll then jittered three times the user's."""
-        def joints(k):
-            return np.concatenate([up.joints[:, JI[j[k]]] for j in limbs])
+    def _limb_constants(self, limbs: tuple) -> tuple:
+        """What `_limbs` reads of the rig and the skeleton for the limbs `limbs`, once per set: the
+        anchored and the intermediate bones' lengths (K,), the canonical bones whose +X is each
+        limb's hinge, the (anchor, intermediate, effector) joints' rows (3, K), the anchored and the
+        intermediate bones' rows."""
+        cache = self.__dict__.setdefault("_limb_constant_cache", {})
+        if limbs not in cache:
+            rig = self.rig
+            cache[limbs] = (np.array([rig.lengths[BI[f"{ab}_{s}"]] for s, _, _, _, ab, _ in limbs]),
+                            np.array([rig.lengths[BI[f"{mb}_{s}"]] for s, _, _, _, _, mb in limbs]),
+                            np.array([BI[f"{mb if self.character else ab}_{s}"] for s, _, _, _, ab, mb in limbs]),
+                            np.array([[JI[f"{limb[k]}_{limb[0]}"] for limb in limbs] for k in (1, 2, 3)]),
+                            np.array([BI[f"{ab}_{s}"] for s, _, _, _, ab, _ in limbs]),
+                            np.array([BI[f"{mb}_{s}"] for s, _, _, _, _, mb in limbs]))
+        return cache[limbs]
 
-        root = joints(0)
-        axis = normalize(joints(2) - root)
-        v = joints(1) - root
+    @staticmethod
+    def _user_swivel(up, rows: np.ndarray) -> np.ndarray:
+        """The user's swivel of the limbs whose (anchor, intermediate, effector) joints are the
+        rows `rows` (3, K), stacked (K F, 3): the intermediate joint's offset from the user's own
+        anchor-effector axis. Measured from the avatar's axis instead, the offset would also hold
+        the angle between the two axes (the mapping moves the effector), whose direction turns
+        with every millimetre of target noise when the limb is nearly straight: the upper arm's
+        roll then jittered three times the user's."""
+        joints = up.joints.take(rows, axis=1)  # (F, 3, K, 3)
+        root, mid, eff = (joints[:, k].swapaxes(0, 1).reshape(-1, 3) for k in range(3))
+        axis = normalize(eff - root)
+        v = mid - root
         return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
 
     def _fingers(self, frames, wrists: dict, targets: dict) -> None:

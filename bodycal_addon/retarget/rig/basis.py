@@ -48,13 +48,18 @@ def solve(plan: BasisPlan, P):
         return _solve_many(plan, P)
     # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
     rel_t = transposed(P)
-    rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
-    # basis^T = X^T (M^-1 M_p)^T for each bone, one stacked product (as mul_stack, bone by bone)
-    basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
+    n, nf = P.shape[:2]
+    if nf < STACKED_FRAMES:  # a few frames: numpy's own loop for the stacked products (pose_kernels.few_matmul)
+        rel_t[kids] = pose_kernels.few_matmul(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0),
+                                              (len(kids), nf, 3, 3))
+        basis_t = pose_kernels.few_matmul(rel_t, fixed[:, None], (n, nf, 3, 3))
+    else:
+        rel_t[kids] = matmul_stack(P.take(kids, axis=0).swapaxes(-1, -2), P.take(parents, axis=0))
+        # basis^T = X^T (M^-1 M_p)^T for each bone, one stacked product (as mul_stack, bone by bone)
+        basis_t = stacks_mul(rel_t, fixed)  # (N, F, 3, 3)
     # the quaternions from basis entries' rows, frames first: basis[f, n, i, j] = basis_t[n, f, j, i]
-    n, nf = basis_t.shape[:2]
-    # quat_from_rows' values (pose_kernels.quat_from_entries: fewer numpy calls)
-    return pose_kernels.quat_from_entries(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
+    # quat_from_rows' values (pose_kernels.quat_of_few: one product for every candidate)
+    return pose_kernels.quat_of_few(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
 
 
 def _solve_many(plan: BasisPlan, P):

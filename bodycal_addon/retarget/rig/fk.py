@@ -27,6 +27,7 @@ from ...core.transforms import (
     stacks_apply,
     stacks_mul,
 )
+from .. import pose_kernels
 from .chain import ChainAim, ChainMemo
 from .plan import RigPlan
 from .pose_plan import PosePlan
@@ -128,17 +129,20 @@ def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
         # A few frames: the driven bones' and the chain vertebrae's products in one stacked
         # product (each its own BLAS call either way, so the same bits)
         rows, fixed = plan.driven_and_chain
-        both = np.matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed)
-        P[plan.driven] = rig.from_world(both[:len(plan.driven)])
-        return rig.from_world(both[len(plan.driven):])
+        both = pose_kernels.few_matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed, (len(rows), nf, 3, 3))
+        if not rig.w_identity:  # `from_world`'s W^-1 of them all, one product
+            both = pose_kernels.few_matmul(rig.w_rot.T, both, both.shape)
+        P[plan.driven] = both[:len(plan.driven)]
+        return both[len(plan.driven):]
     if nf >= STACKED_FRAMES and rig.w_identity:
         # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
         # call bone by bone, without its stack to copy into P)
         for b, c, fixed in zip(plan.driven.tolist(), plan.canon.tolist(), plan.fixed):
             np.matmul(frames[:, c].reshape(-1, 3), fixed, out=P[b].reshape(-1, 3))
     elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
-        P[plan.driven] = rig.from_world(np.matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0),
-                                                  plan.fixed[:, None]))
+        rel = pose_kernels.few_matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0), plan.fixed[:, None],
+                                      (len(plan.canon), nf, 3, 3))
+        P[plan.driven] = rel if rig.w_identity else pose_kernels.few_matmul(rig.w_rot.T, rel, rel.shape)
     elif len(plan.driven):
         P[plan.driven] = rig.from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
     if chain is not None:
@@ -250,7 +254,7 @@ def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised) -> RigPose:
     (`joint_table`) with its heads added in place and gathered in one `take` (`one_joints`),
     the realised frames written into a stack whose last row is NaN and gathered in one `take`."""
     bones, local, jrows = rig.one_joints
-    ride = np.matmul(P.take(bones, axis=0), local)  # (G, 1, 3, K): P_car offset, as `stacks_mul`
+    ride = pose_kernels.few_matmul(P.take(bones, axis=0), local, (len(bones), 1, 3, local.shape[-1]))  # P_car offset
     ride += H.take(bones, axis=0)[..., None]  # H + P o (the same sum)
     joints = np.matmul(ride.take(jrows), rig.lin_t)  # `to_world` of the (J, 3) rows
     joints += rig.shift
@@ -259,13 +263,14 @@ def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised) -> RigPose:
         frames = None
     else:
         idx, car_rel, car, _ = rig.realised_rows(realised)
-        rows = np.empty((len(idx) + 1, 1, 3, 3))
+        rows = np.empty((len(idx) + 1, 1, 3, 3, 2))[..., 0]  # strided: numpy's own loop (pose_kernels.few_matmul)
         rows[-1] = np.nan
         if len(idx):
             if rig.w_identity:
                 np.matmul(P.take(car, axis=0), car_rel[:, None], out=rows[:-1])
-            else:
-                rows[:-1] = rig.to_world_rot(stacks_mul(P, car_rel, car))
+            else:  # W (P_car rel), `to_world_rot`'s product
+                rel = pose_kernels.few_matmul(P.take(car, axis=0), car_rel[:, None], (len(car), 1, 3, 3))
+                np.matmul(rig.w_rot, rel, out=rows[:-1])
         frames = rows.take(rig.realised_one(realised), axis=0).reshape(1, len(BONES), 3, 3)
     return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
 
