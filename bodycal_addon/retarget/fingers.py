@@ -286,7 +286,8 @@ class FingerSet:
         pts, frs = one_frame.finger_frames(self.one_frame_items, np.asarray(mcp, float).tolist(),
                                            np.asarray(ref_rot, float).tolist(), np.asarray(tip_target, float).tolist(),
                                            radius, joints)
-        return (np.array(pts) if joints else None), np.array(frs)
+        n = self.n
+        return (np.array(pts).reshape(n, 3, 3) if joints else None), np.array(frs).reshape(n, 3, 3, 3)
 
     @property
     def constants(self) -> SimpleNamespace:
