@@ -60,7 +60,7 @@ def vector_array(vs: list) -> np.ndarray:
     return np.array([v[:] for v in vs], float).reshape(len(vs), 3)
 
 
-# --- The fingers of one frame (issue 41; fingers.FingerSet, DESIGN.md "Prepared solver") -----------
+# --- The fingers of one frame (fingers.FingerSet, DESIGN.md "Prepared solver") -----------
 # A finger of one frame is a dozen scalars (eq. 3-4's flexion, the target's yaw and pitch) and a
 # few 3x3 products: in Python floats (float64: numpy's values to its rounding, ~1e-15) one finger
 # costs less than one numpy call on the stacked items. Each finger's constants come as one tuple
