@@ -40,6 +40,7 @@ from ..core.geometry import two_bone_mid
 from ..core.one_frame import Matrix, Vector
 from ..core.transforms import (
     EPS,
+    all_true,
     cross,
     frame_from_axes,
     matmul_stack,
@@ -187,6 +188,7 @@ class UserAnimator:
             self.reader.read(0, 0)  # the roles as far as the recording goes
             self._plan = self._make_plan()
             self._tables = self._make_tables(self._plan)
+            self._one = None  # the one-frame tables (`_one_frame_tables`), made again on first use
             self._version = self.reader.version
         return self._plan
 
@@ -334,6 +336,102 @@ class UserAnimator:
                     plan.tips.append((s, f, col))
         plan.hands[s] = (names, np.array(vecs), np.array(bones), np.array(fixed))
 
+    def _one_frame_tables(self, plan: _Plan) -> dict:
+        """The plan for ONE frame (`_animate_one`), once per plan. Every product of a tracker's
+        rotation with a constant (the products, the rigid frames' columns, and those of the hands'
+        finger joints and frames and of the toes rigid on the foot, their two constants multiplied
+        together) is one row of `V` (C, 3), `roles` (C,) its tracker: one product of the rotations
+        gathered by `roles` with them (einsum: one call, where a stacked matmul makes a BLAS call
+        per product) gives them all. Every joint of the trackers alone (the mean of
+        its estimates; the hands' and toes' joints their wrist's or ankle's plus a product) is a
+        weighted sum of at most `TERMS` of the trackers' positions and those products."""
+        tab, nr = self._tables, len(self.reader.roles)
+        roles, vecs = [], []
+
+        def column(row: int, v) -> int:
+            roles.append(row)
+            vecs.append(np.asarray(v, float))
+            return nr + len(vecs) - 1  # its row in (the positions, the products)
+
+        vec_at = [column(r, v) for r, v in zip(tab["vec_rows"], plan.vec)]
+        rigid_at = [[column(r, m[:, i]) for i in range(3)] for r, m in zip(tab["rigid_rows"], plan.rigid_fixed)]
+        terms: dict[str, list] = {}  # joint -> [(row in (positions, products), weight)]
+        for j, ests in plan.joints.items():
+            k = len(ests)
+            terms[j] = [(t, 1.0 / k) for e in ests for t in (int(tab["est_rows"][e]), vec_at[int(tab["est_vec"][e])])]
+        frame_bones, frame_cols = [], []
+        for b, key in zip(_RIGID_BONES, _RIGID_KEYS.values()):
+            frame_bones.append(BI[b])
+            frame_cols.append(rigid_at[plan.rigid[key]])
+        for s in sk.SIDES:
+            names, hand_vecs, bones, fixed = plan.hands[s]
+            h = plan.rigid[f"hand_{s}", "hand"]
+            row, carry = tab["rigid_rows"][h], plan.rigid_fixed[h]
+            for n, v in zip(names, hand_vecs):
+                terms[n] = terms[f"wrist_{s}"] + [(column(row, carry @ v), 1.0)]
+            for b, m in zip(bones, fixed):
+                frame_bones.append(int(b))
+                frame_cols.append([column(row, (carry @ m)[:, i]) for i in range(3)])
+            toe = plan.toes[s]
+            if toe[0] == "rigid":
+                terms[f"toe_{s}"] = terms[f"ankle_{s}"] + [
+                    (column(tab["rigid_rows"][toe[1]], plan.rigid_fixed[toe[1]] @ toe[2]), 1.0)]
+        frame_cols.append(rigid_at[plan.rigid["pelvis", "sacrum"]])  # the sacrum's rigid frame, last
+        width = max(len(t) for t in terms.values())
+        rows, weights = np.zeros((len(terms), width), int), np.zeros((len(terms), width))
+        for i, ts in enumerate(terms.values()):  # padded with weight 0 on the first position
+            rows[i, :len(ts)] = [t for t, _ in ts]
+            weights[i, :len(ts)] = [w for _, w in ts]
+        rights = [vec_at[k] if kind == "vec" else rigid_at[k][0] for _, _, _, (kind, k), _ in plan.limbs]
+        multi = sorted({int(tab["est_rows"][e]) for ests in plan.joints.values() if len(ests) > 1 for e in ests})
+        return {"V": np.array(vecs), "roles": np.array(roles, int), "terms": rows, "weights": weights,
+                "rows": np.array([JI[j] for j in terms], int), "frame_bones": np.array(frame_bones, int),
+                "frame_cols": np.array(frame_cols, int), "rights": np.array(rights, int),
+                "hint_rows": np.repeat(np.arange(len(rights)), 2), "multi": np.array(multi, int) if multi else None}
+
+    def _animate_one(self, plan: _Plan, start: int, tr: Trackers) -> UserPose | None:
+        """`animate` of ONE frame with few numpy calls (`_one_frame_tables`: the products in one
+        stacked product, the trackers' joints in one weighted sum, the frames rigid on a device in
+        one gather), then the same passes as a block's (the limbs without a tracker, the trunk, the
+        fingers, the bones built from their axes): the block's values to float64's rounding. None
+        (the block's path then) where a joint's estimates are not all tracked this frame (their
+        mean is then over those tracked, `_mean_estimates`)."""
+        one = self._one
+        if one is None:
+            one = self._one = self._one_frame_tables(plan)
+        if one["multi"] is not None and tr.tracked is not None and not all_true(tr.tracked.take(one["multi"], 0)):
+            return None
+        tab = self._tables
+        # (the positions, the products R_T(t) v) (R + C, 3)
+        X = np.concatenate((tr.positions[:, 0], np.einsum("cij,cj->ci", tr.rotations[:, 0].take(one["roles"], axis=0),
+                                                          one["V"])))
+        pos = np.empty((1, len(JOINTS), 3))
+        pos[0, one["rows"]] = np.einsum("jt,jti->ji", one["weights"], X.take(one["terms"], axis=0))
+        Fr = np.empty((1, len(BONES), 3, 3))
+        rigid = X.take(one["frame_cols"], axis=0).swapaxes(1, 2)  # (n, 3, 3): columns laid out
+        Fr[0, one["frame_bones"]] = rigid[:-1]
+        P = _Joints(pos)
+        self._reach_shoulders(plan, P)
+        rights = X.take(one["rights"], axis=0)  # (limbs, 3) the hinges' rights
+        for i, (s, _, (a, m, e, _, _), _, tracked) in enumerate(plan.limbs):
+            if not tracked:  # no tracker carries it: two-bone from the user's lengths (`_limbs`)
+                P[f"{m}_{s}"] = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], self.rest_pos, a, m, e, s,
+                                              rights[i:i + 1])
+        trunk: list = []
+        self._trunk(P, Fr, rigid[-1:], trunk)
+        if plan.tips:
+            tips = self.reader.markers(tab["tip_columns"], start, start + 1)
+            pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
+        sacrum_x = Fr[:, BI["sacrum"], :, 0]
+        hints = np.concatenate([rights.take(one["hint_rows"], axis=0)] + trunk + [sacrum_x] * len(_SHORTCUTS))
+        ys = pos[0].take(tab["axes_tails"], axis=0) - pos[0].take(tab["axes_heads"], axis=0)
+        Fr[0, tab["axes_rows"]] = frame_from_axes(ys, hints)
+        if not math.isfinite(pos.sum() + Fr.sum()):  # (a sum of finite values overflows only beyond 1e300)
+            raise BodyCalError("the user animation has non-finite values",
+                               source=self.recording.source or self.recording.name,
+                               hint="check the recording for broken device poses")
+        return UserPose(self.recording.time[start:start + 1], pos, Fr, tr.valid, tr.notes)
+
     # --- per block of frames ------------------------------------------------------------------
 
     def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None) -> UserPose:
@@ -343,6 +441,10 @@ class UserAnimator:
         tab = self._tables
         stop = self.recording.frame_count if stop is None else stop
         tr = self.reader.read(start, stop) if trackers is None else trackers
+        if stop - start == 1 and one_frame.ENABLED:
+            pose = self._animate_one(plan, start, tr)
+            if pose is not None:
+                return pose
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
         est = tr.positions.take(tab["est_rows"], axis=0) + prod.take(tab["est_vec"], axis=0)
         rigid = stacks_mul(tr.rotations, tab["rigid"], tab["rigid_rows"])
@@ -572,6 +674,12 @@ def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], 
         phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
         sets["joints"] = np.array([[JI[j] for j in n] for n in names], int)
     joints = sets["joints"]
+    if F == 1 and one_frame.ENABLED:  # one frame: each finger in Python floats (fingers.FingerSet.pose_one_frame)
+        pts, frs = sets[F].pose_one_frame(P.pos[0].take(joints[:, 0], axis=0), Fr[0].take(phalanges[:, 0], axis=0),
+                                          tips[:, 0], radius=radius if any(radius) else None)
+        P.pos[0, joints[:, 1:]] = pts
+        Fr[0, phalanges] = frs
+        return
     mcp = P.pos.take(joints[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3)  # (K F, 3)
     ref = Fr.take(phalanges[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3, 3)  # (K F, 3, 3) the first phalanges
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the

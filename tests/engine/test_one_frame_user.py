@@ -1,0 +1,154 @@
+"""The user animation and the fingers of ONE frame (issue 41; DESIGN.md "Prepared solver"): the
+one-frame path (`UserAnimator._animate_one`: every tracker-rotation product in one call, the
+trackers' joints in one weighted sum; `FingerSet.pose_one_frame`: a finger in Python floats) gives
+the block's values to float64's rounding, on both tracker profiles (the minimal one's elbows and
+knees from two bones, shoulders reaching, toes rigid on the foot) and through dropouts (a joint's
+mean over the trackers tracking it); the numpy fallback (no mathutils) is the block's path."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from bodycal_addon.body.skeleton import BONES
+from bodycal_addon.core import one_frame
+from bodycal_addon.core.transforms import quat_normalize, quat_to_matrix
+from bodycal_addon.retarget import fingers
+from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import synthetic
+from bodycal_dev.retarget_fixtures import one_frame_atol
+
+_CONDITIONED = [k for k, b in enumerate(BONES) if not b.shortcut]  # bones whose x hint is off their axis
+
+
+@pytest.fixture(scope="module", params=["full", "minimal"])
+def take(request):
+    perf = synthetic.make_performer(seed=3)
+    rec, truth = synthetic.record_session(perf, profile=request.param, motions=("clap", "hand_on_head"),
+                                          calibration=False, motion_seconds=1.0, dropout_rate=0.02, seed=3)
+    if request.param == "full":
+        return rec, truth.body_model()
+    # six devices, the elbows, knees and toes known in none of them (as a six-device calibration
+    # leaves them): the elbows and knees from two bones, the shoulders reaching for far wrists,
+    # the toes rigid on the foot
+    user = copy.deepcopy(truth.body_model())
+    for j in ("elbow_l", "elbow_r", "knee_l", "knee_r", "toe_l", "toe_r"):
+        user.joints[j].frames = {}
+    return rec, user
+
+
+def _one_frame_and_block_path(anim, f, monkeypatch):
+    """(one frame by `_animate_one`, the same frame by the block's path)."""
+    one = anim.animate(f, f + 1)
+    with monkeypatch.context() as m:
+        m.setattr(ua.UserAnimator, "_animate_one", lambda *a: None)
+        block = anim.animate(f, f + 1)
+    return one, block
+
+
+def test_one_frame_user_animation_is_the_blocks(take, monkeypatch):
+    rec, user = take
+    anim = ua.UserAnimator(rec, user)
+    plan = anim.plan
+    if "full" in rec.name:  # fingertip markers: the fingers take their one-frame path
+        assert plan.tips
+    else:
+        assert not any(tracked for *_, tracked in plan.limbs) and plan.reaching == ["l", "r"]
+        assert {t[0] for t in plan.toes.values()} == {"rigid"}
+    whole = anim.animate(0, rec.frame_count)
+    used = 0
+    for f in range(0, rec.frame_count, 5):
+        one, block = _one_frame_and_block_path(anim, f, monkeypatch)
+        used += anim._one is not None
+        # the same arithmetic as the block's, reassociated: within the numpy path's pin tolerance
+        # (measured: joints 4e-15, frames 1e-11; the hip shortcuts 6e-9, see below)
+        np.testing.assert_allclose(one.joints, block.joints, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(one.frames[:, _CONDITIONED], block.frames[:, _CONDITIONED], rtol=0, atol=1e-9)
+        # and the bake's, within the one-frame tolerances (the trunk's mathutils kernels: float32),
+        # but for the shortcut bones: a hip bone lies along the sacrum's lateral, its x hint, so its
+        # x is the hint's float32 residue (measured on main too: hip_l 0.036 off on this take's
+        # frame 730, six devices)
+        np.testing.assert_allclose(one.joints[0], whole.joints[f], rtol=0, atol=one_frame_atol("joints"))
+        np.testing.assert_allclose(one.frames[0, _CONDITIONED], whole.frames[f, _CONDITIONED], rtol=0,
+                                   atol=one_frame_atol("basis"))
+        assert one.valid[0] == whole.valid[f]
+    assert used
+
+
+def test_one_frame_path_is_taken_and_steps_aside_for_a_partly_tracked_joint(take, monkeypatch):
+    # Where one of a joint's estimates is not tracked this frame, the joint is the mean of those
+    # tracked: the block's path computes it (`_animate_one` returns None), so the values match.
+    rec, user = take
+    anim = ua.UserAnimator(rec, user)
+    calls = {"one": 0, "fell_back": 0}
+    original = ua.UserAnimator._animate_one
+
+    def counting(self, *a):
+        out = original(self, *a)
+        calls["one" if out is not None else "fell_back"] += 1
+        return out
+
+    monkeypatch.setattr(ua.UserAnimator, "_animate_one", counting)
+    whole = anim.animate(0, rec.frame_count)
+    tr = anim.reader.read()
+    multi = anim._one_frame_tables(anim.plan)["multi"]
+    partly = np.flatnonzero(~tr.tracked.take(multi, axis=0).all(0)) if multi is not None else np.array([], int)
+    for f in list(partly[:5]) + [0, rec.frame_count // 2]:
+        got = anim.animate(int(f), int(f) + 1)
+        np.testing.assert_allclose(got.joints[0], whole.joints[f], rtol=0, atol=one_frame_atol("joints"))
+        np.testing.assert_allclose(got.frames[0, _CONDITIONED], whole.frames[f, _CONDITIONED], rtol=0,
+                                   atol=one_frame_atol("basis"))
+    assert calls["one"] >= 2
+    assert calls["fell_back"] == min(len(partly), 5)
+
+
+def test_numpy_fallback_is_the_blocks_path(take, monkeypatch):
+    rec, user = take
+    anim = ua.UserAnimator(rec, user)
+    whole = anim.animate(0, rec.frame_count)
+    monkeypatch.setattr(one_frame, "ENABLED", False)
+    for f in range(3, rec.frame_count, 17):
+        got = anim.animate(f, f + 1)
+        np.testing.assert_allclose(got.joints[0], whole.joints[f], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got.frames[0], whole.frames[f], rtol=0, atol=1e-9)
+    assert anim._one is None  # never made: the fallback is the block's path
+
+
+@pytest.mark.parametrize("roll", [None, 0.0, -0.6])
+def test_finger_of_one_frame_is_finger_sets_pose(roll):
+    # Targets anywhere around the MCP, so every clamp is met (yaw and pitch beyond both limits,
+    # pitch across the ±180° seam, flexion capped and straight), thumbs rolled or not.
+    rng = np.random.default_rng(7)
+    n = 400
+    thumb = np.arange(n) % 5 == 0
+    fs = fingers.FingerSet(rng.uniform(.02, .05, n), rng.uniform(.02, .04, n), rng.uniform(.015, .03, n),
+                           thumb=thumb, roll=roll)
+    mcp = rng.normal(size=(n, 3))
+    ref = quat_to_matrix(quat_normalize(rng.normal(size=(n, 4))))
+    tip = mcp + rng.normal(scale=0.07, size=(n, 3))
+    tip[::7] = mcp[::7] + ref[::7, :, 1] * 0.2  # straight ahead, out of reach: straight fingers
+    want = fs.pose(mcp, ref, tip)
+    yaw_lo, yaw_hi = np.broadcast_to(fs.yaw_lo, (n,)), np.broadcast_to(fs.yaw_hi, (n,))
+    pitch_lo, pitch_hi = np.broadcast_to(fs.pitch_lo, (n,)), np.broadcast_to(fs.pitch_hi, (n,))
+    assert (want.yaw == yaw_lo).any() and (want.yaw == yaw_hi).any()
+    assert (want.pitch == pitch_lo).any() and (want.pitch == pitch_hi).any()
+    assert (want.flexion == fingers.FLEXION_CAP).any() and (want.flexion < 0.05).any()
+    points, frames = fs.pose_one_frame(mcp, ref, tip)
+    np.testing.assert_allclose(frames, want.rotations, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(points, want.joints[:, 1:], rtol=0, atol=1e-12)
+    assert fs.pose_one_frame(mcp, ref, tip, joints=False)[0] is None
+    # the fingertip LED one radius off the tip joint (user_animation.pose_user_fingers)
+    radius = rng.uniform(0.0, 0.01, n)
+    radius[::3] = 0.0
+    aim = tip + radius[:, None] * fs.distal_z(mcp, ref, tip)
+    want = fs.pose(mcp, ref, aim)
+    points, frames = fs.pose_one_frame(mcp, ref, tip, radius=radius.tolist())
+    np.testing.assert_allclose(frames, want.rotations, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(points, want.joints[:, 1:], rtol=0, atol=1e-12)
+
+
+def test_finger_kernel_constants_are_the_fingers_module_s():
+    assert one_frame.FINGER_X_CLAMP == fingers.X_CLAMP
+    assert one_frame.FINGER_FLEXION_CAP == fingers.FLEXION_CAP
