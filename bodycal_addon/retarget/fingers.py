@@ -27,7 +27,6 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..core import one_frame
 from ..core.transforms import all_true, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
@@ -260,34 +259,6 @@ class FingerSet:
         np.arctan2(-(ls[0] + ls[1]), self.l1 + lc[0] + lc[1], out=angles[2])
         base = matmul_stack(ref, _rx_rz_rx_of(angles))
         return mcp, base, cos, sin, alpha, yaw, pitch
-
-    @property
-    def one_frame_items(self) -> list[tuple]:
-        """Each item's constants as one tuple of Python floats (`core.one_frame.finger_frames`):
-        l1, l2, l3, eq. 3-4's c0, b², 4a, -b and 2a, the yaw and pitch limits, half the pitch's
-        excluded arc, and the thumb's roll (3x3 rows, or None), once."""
-        items = self.__dict__.get("_one_frame_items")
-        if items is None:
-            n = self.n
-            cols = [np.broadcast_to(np.asarray(v, float), (n,)).tolist()
-                    for v in (self.l1, self.l2, self.l3, self.c0, self.bb, self.a4, self.minus_b, self.den,
-                              self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi, self.half_excluded)]
-            roll = [None] * n
-            if self.roll is not None:
-                for i in (range(n) if self.roll_rows is None else self.roll_rows.tolist()):
-                    roll[i] = self.roll.tolist()
-            items = self._one_frame_items = [(*(c[i] for c in cols), roll[i]) for i in range(n)]
-        return items
-
-    def pose_one_frame(self, mcp, ref_rot, tip_target, joints: bool = True, radius=None) -> tuple:
-        """`pose` of the items of ONE frame in Python floats (`core.one_frame.finger_frames`, numpy's
-        values to its rounding): (joints (n, 3, 3) after the MCP, None without `joints`; frames
-        (n, 3, 3, 3)). `radius` (n,): aim the tip joint one radius off the LED (`distal_z`)."""
-        pts, frs = one_frame.finger_frames(self.one_frame_items, np.asarray(mcp, float).tolist(),
-                                           np.asarray(ref_rot, float).tolist(), np.asarray(tip_target, float).tolist(),
-                                           radius, joints)
-        n = self.n
-        return (np.array(pts).reshape(n, 3, 3) if joints else None), np.array(frs).reshape(n, 3, 3, 3)
 
     @property
     def constants(self) -> SimpleNamespace:

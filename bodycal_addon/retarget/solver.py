@@ -23,7 +23,6 @@ from ..body.rest_frames import complete_joints, model_rest_frames
 from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
-from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.transforms import matmul_stack, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
@@ -397,14 +396,11 @@ class PreparedSolver:
         plan = self._finger_plan(sides, tuple(targets), nf)
         if plan is None:
             return
-        items, hand_bones, rows, mcp_local, base_rest, bones, chain, phalanges = plan
+        items, hand_bones, rows, mcp_local, base_rest, bones, chain = plan
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        if nf == 1 and one_frame.ENABLED:  # one frame: each finger in Python floats (FingerSet.pose_one_frame)
-            frames[0, phalanges] = chain.pose_one_frame(mcp, ref, tip, joints=False)[1]
-            return
         _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chain, joints=False)  # its frames only
         for i in (1, 2, 3):
             frames[:, bones[i - 1]] = fr[i - 1].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
@@ -414,7 +410,7 @@ class PreparedSolver:
         hands `sides`, once per such set and frame count: the fingers [(side, finger)], the hands'
         canonical bones, each finger's hand (its row in `sides`), its `_finger_rest` constants
         stacked (MCP offsets, first phalanx rest frames), the canonical bones of phalanges 1, 2, 3,
-        the fingers' `FingerSet`, and those bones by finger (K, 3); None: no finger has a target."""
+        and the fingers' `FingerSet`; None: no finger has a target."""
         cache = self.__dict__.setdefault("_finger_plans", {})
         key = (sides, names, nf)
         if key not in cache:
@@ -428,8 +424,7 @@ class PreparedSolver:
             cache[key] = (items, np.array([BI[f"hand_{s}"] for s in sides], int),
                           np.array([sides.index(s) for s, _ in items], int), mcp_local, base_rest,
                           [np.array([BI[f"{f}_{i}_{s}"] for s, f in items], int) for i in (1, 2, 3)],
-                          finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)),
-                          np.array([[BI[f"{f}_{i}_{s}"] for i in (1, 2, 3)] for s, f in items], int))
+                          finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)))
         return cache[key]
 
     @property

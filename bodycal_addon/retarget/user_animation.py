@@ -674,12 +674,6 @@ def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], 
         phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
         sets["joints"] = np.array([[JI[j] for j in n] for n in names], int)
     joints = sets["joints"]
-    if F == 1 and one_frame.ENABLED:  # one frame: each finger in Python floats (fingers.FingerSet.pose_one_frame)
-        pts, frs = sets[F].pose_one_frame(P.pos[0].take(joints[:, 0], axis=0), Fr[0].take(phalanges[:, 0], axis=0),
-                                          tips[:, 0], radius=radius if any(radius) else None)
-        P.pos[0, joints[:, 1:]] = pts
-        Fr[0, phalanges] = frs
-        return
     mcp = P.pos.take(joints[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3)  # (K F, 3)
     ref = Fr.take(phalanges[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3, 3)  # (K F, 3, 3) the first phalanges
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the

@@ -1,6 +1,6 @@
-"""The user animation and the fingers of ONE frame (issue 41; DESIGN.md "Prepared solver"): the
+"""The user animation of ONE frame (issue 41; DESIGN.md "Prepared solver"): the
 one-frame path (`UserAnimator._animate_one`: every tracker-rotation product in one call, the
-trackers' joints in one weighted sum; `FingerSet.pose_one_frame`: a finger in Python floats) gives
+trackers' joints in one weighted sum) gives
 the block's values to float64's rounding, on both tracker profiles (the minimal one's elbows and
 knees from two bones, shoulders reaching, toes rigid on the foot) and through dropouts (a joint's
 mean over the trackers tracking it); the numpy fallback (no mathutils) is the block's path."""
@@ -14,8 +14,6 @@ import pytest
 
 from bodycal_addon.body.skeleton import BONES
 from bodycal_addon.core import one_frame
-from bodycal_addon.core.transforms import quat_normalize, quat_to_matrix
-from bodycal_addon.retarget import fingers
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_dev import synthetic
 from bodycal_dev.retarget_fixtures import one_frame_atol
@@ -52,7 +50,7 @@ def test_one_frame_user_animation_is_the_blocks(take, monkeypatch):
     rec, user = take
     anim = ua.UserAnimator(rec, user)
     plan = anim.plan
-    if "full" in rec.name:  # fingertip markers: the fingers take their one-frame path
+    if "full" in rec.name:  # fingertip markers: the fingers posed within the one-frame path
         assert plan.tips
     else:
         assert not any(tracked for *_, tracked in plan.limbs) and plan.reaching == ["l", "r"]
@@ -114,41 +112,3 @@ def test_numpy_fallback_is_the_blocks_path(take, monkeypatch):
         np.testing.assert_allclose(got.joints[0], whole.joints[f], rtol=0, atol=1e-9)
         np.testing.assert_allclose(got.frames[0], whole.frames[f], rtol=0, atol=1e-9)
     assert anim._one is None  # never made: the fallback is the block's path
-
-
-@pytest.mark.parametrize("roll", [None, 0.0, -0.6])
-def test_finger_of_one_frame_is_finger_sets_pose(roll):
-    # Targets anywhere around the MCP, so every clamp is met (yaw and pitch beyond both limits,
-    # pitch across the ±180° seam, flexion capped and straight), thumbs rolled or not.
-    rng = np.random.default_rng(7)
-    n = 400
-    thumb = np.arange(n) % 5 == 0
-    fs = fingers.FingerSet(rng.uniform(.02, .05, n), rng.uniform(.02, .04, n), rng.uniform(.015, .03, n),
-                           thumb=thumb, roll=roll)
-    mcp = rng.normal(size=(n, 3))
-    ref = quat_to_matrix(quat_normalize(rng.normal(size=(n, 4))))
-    tip = mcp + rng.normal(scale=0.07, size=(n, 3))
-    tip[::7] = mcp[::7] + ref[::7, :, 1] * 0.2  # straight ahead, out of reach: straight fingers
-    want = fs.pose(mcp, ref, tip)
-    yaw_lo, yaw_hi = np.broadcast_to(fs.yaw_lo, (n,)), np.broadcast_to(fs.yaw_hi, (n,))
-    pitch_lo, pitch_hi = np.broadcast_to(fs.pitch_lo, (n,)), np.broadcast_to(fs.pitch_hi, (n,))
-    assert (want.yaw == yaw_lo).any() and (want.yaw == yaw_hi).any()
-    assert (want.pitch == pitch_lo).any() and (want.pitch == pitch_hi).any()
-    assert (want.flexion == fingers.FLEXION_CAP).any() and (want.flexion < 0.05).any()
-    points, frames = fs.pose_one_frame(mcp, ref, tip)
-    np.testing.assert_allclose(frames, want.rotations, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(points, want.joints[:, 1:], rtol=0, atol=1e-12)
-    assert fs.pose_one_frame(mcp, ref, tip, joints=False)[0] is None
-    # the fingertip LED one radius off the tip joint (user_animation.pose_user_fingers)
-    radius = rng.uniform(0.0, 0.01, n)
-    radius[::3] = 0.0
-    aim = tip + radius[:, None] * fs.distal_z(mcp, ref, tip)
-    want = fs.pose(mcp, ref, aim)
-    points, frames = fs.pose_one_frame(mcp, ref, tip, radius=radius.tolist())
-    np.testing.assert_allclose(frames, want.rotations, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(points, want.joints[:, 1:], rtol=0, atol=1e-12)
-
-
-def test_finger_kernel_constants_are_the_fingers_module_s():
-    assert one_frame.FINGER_X_CLAMP == fingers.X_CLAMP
-    assert one_frame.FINGER_FLEXION_CAP == fingers.FLEXION_CAP
