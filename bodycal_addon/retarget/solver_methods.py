@@ -30,8 +30,8 @@ from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.transforms import normalize, quat_to_matrix, stack_apply, stack_mul
 from . import egocentric as ego
-from .egocentric.one_frame import FlatSurface, OneFrameMapping
 from . import offsets as ofs
+from .egocentric.one_frame import FlatSurface, OneFrameMapping
 from .methods import methods_for
 from .trackers import read_trackers
 from .user_animation import sacrum_toward_hip_line
