@@ -33,7 +33,7 @@ from ...body.skeleton import JOINT_INDEX as JI
 from ...core.transforms import EPS
 from .graph import GRAPH_BONES, kinematic_path, own_chain_elements
 from .mapping import SUPPORT_BLEND
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, _closest_on_triangles, dot3
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, _closest_on_triangles
 from .surface import SurfacePoser
 from .weights import MIN_DISTANCE
 
@@ -41,6 +41,7 @@ F32 = np.float32
 _BONE_HEADS = np.array([JI[sk.BONE_BY_NAME[b].head] for b in GRAPH_BONES], int)
 _BONE_TAILS = np.array([JI[sk.BONE_BY_NAME[b].tail] for b in GRAPH_BONES], int)
 _ANKLES = np.array([JI[f"ankle_{s}"] for s in sk.SIDES], int)
+_YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])  # components rolled (a cross product's)
 
 
 @dataclass
@@ -81,7 +82,7 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, norma
         tri = pts.transpose(1, 0, 2).reshape(3, -1).take(poser.pad_tri.T, axis=1)  # (3, corner, T), float64
         if normals:
             e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-            n = e1[[1, 2, 0]] * e2[[2, 0, 1]] - e1[[2, 0, 1]] * e2[[1, 2, 0]]  # np.cross's products
+            n = e1.take(_YZX, axis=0) * e2.take(_ZXY, axis=0) - e1.take(_ZXY, axis=0) * e2.take(_YZX, axis=0)  # cross
             nn = np.sqrt(dot3(n, n))
             tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15).astype(F32)
         tri = tri.astype(F32)
@@ -91,6 +92,23 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, norma
     head = vecs[:, :C]
     return FlatSurface(head, vecs[:, C:2 * C] - head, rots[:, :, :C], vecs[:, 2 * C:2 * C + S], rots[:, :, C:], tri,
                        tri_normal, vecs[:, 2 * C + S:])
+
+
+def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`projection.dot3` (components first, (3, N)) in two numpy calls: the reduction over the first
+    axis adds the three products in the same order, a0 b0 + a1 b1 + a2 b2 (dot3 makes eleven
+    calls: six subscripts, three products, two sums)."""
+    return np.add.reduce(a * b, axis=0)
+
+
+def _apply(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R v for per-pair frames (3, 3, N) and vectors (3, N), in three numpy calls."""
+    return np.add.reduce(rot * v[None], axis=1)
+
+
+def _apply_t(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R^T v (world -> bone frame)."""
+    return np.add.reduce(rot * v[:, None], axis=0)
 
 
 def _unit(w: np.ndarray, fallback) -> tuple[np.ndarray, np.ndarray]:
@@ -165,7 +183,7 @@ def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
     corners = s.tri.take(pr.tri_t, axis=2)  # (3, corner, N)
     ta = corners[:, 0]
     tab, tac, tap = corners[:, 1] - ta, corners[:, 2] - ta, pts.take(pr.tri_p, axis=1) - ta
-    bv, bw = _closest_on_triangles(tap, tab, tac)
+    bv, bw = _closest_on_triangles(tap, tab, tac, dot3)
     tv = tap - bv * tab - bw * tac
     return bv, bw, tv, dot3(tv, tv)
 
@@ -185,11 +203,11 @@ class FrameUser:
     none: np.ndarray | None  # (P,) targets with no element of weight (None: there are none)
     lam_gf: np.ndarray  # (P,) the floor's λg
     vhat: np.ndarray  # (3, N)
-    dots: np.ndarray  # (K,) |v̂·b_k| of every chain's bones
+    dots: np.ndarray  # (N, NB) |v̂·b_k| of each chain's bones (0: not on its path)
     tau: np.ndarray  # (N,) τ
     tau_ok: np.ndarray
     ulen: np.ndarray  # (NB,) the user's bone lengths
-    floor_uz: np.ndarray  # |b_z| of the bones from each ankle to each target
+    floor_uz: np.ndarray  # (NB,) |b_z| of the user's bones
     floor_tau: np.ndarray  # (2P,)
     floor_ok: np.ndarray
     w_left: float
@@ -228,20 +246,20 @@ class OneFrameMapping:
                             user_poser.sph_radius[self.palm_pairs.sph_e].astype(F32))
         # each pair's chain: its element's root joint, and the (pair, bone) entries of the path from
         # it to the target (eq. 2)
+        # it to the target (eq. 2), as a (pair, bone) mask: a chain's sum over its bones is one row of
+        # a product with every bone (a few thousand (pair, bone) entries gathered one by one cost
+        # more than the dense product of every pair with every bone, ~20,000 multiply-adds)
         roots = list(user_poser.element_roots)
         self.root_joint = np.array([JI[roots[e]] for e in pr.element], int)
-        ent = [(k, b) for k, (p, e) in enumerate(zip(pr.point, pr.element))
-               for b in kinematic_path(roots[e], self.names[p])]
-        self.ent_pair = np.array([k for k, _ in ent], int)
-        self.ent_bone = np.array([b for _, b in ent], int)
+        self.path_mask = np.zeros((len(pr.point), len(GRAPH_BONES)), F32)
+        for k, (p, e) in enumerate(zip(pr.point, pr.element)):
+            self.path_mask[k, list(kinematic_path(roots[e], self.names[p]))] = 1.0
         # the floor's paths: from each ankle (left, then right) to each target
-        fl = [(side * P + p, b) for side, s in enumerate(sk.SIDES) for p, n in enumerate(self.names)
-              for b in kinematic_path(f"ankle_{s}", n)]
-        self.floor_row = np.array([r for r, _ in fl], int)
-        self.floor_bone = np.array([b for _, b in fl], int)
-        N = len(pr.point)
+        self.floor_mask = np.zeros((2 * P, len(GRAPH_BONES)), F32)
+        for side, s in enumerate(sk.SIDES):
+            for p, n in enumerate(self.names):
+                self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
         self.sums = np.concatenate([pr.point, pr.point + P, pr.point + 2 * P])  # x, y, z sums' bins
-        self.n_pairs = N
 
     # --- the surfaces ---------------------------------------------------------------------------
 
@@ -277,10 +295,10 @@ class OneFrameMapping:
         cap_v = (n - r) * d
         cos_ax = dot3(d, ab) / np.sqrt(abab)
         cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
-        cap_dir = rot[0] * d[0] + rot[1] * d[1] + rot[2] * d[2]  # R^T d
+        cap_dir = _apply_t(rot, d)
         sd, sn, srot = _sphere(pr, p3, us)
         sph_v = (sn - self.radius[0][1]) * sd
-        sph_dir = srot[0] * sd[0] + srot[1] * sd[1] + srot[2] * sd[2]
+        sph_dir = _apply_t(srot, sd)
         mesh_v, tri, bary, mesh_factor = self._meshes(p3, us)
         v = np.concatenate([cap_v, sph_v, mesh_v], axis=1)
         x = p3.take(pr.point, axis=1) - v
@@ -298,13 +316,13 @@ class OneFrameMapping:
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32)
-        dots = np.abs(dot3(vhat.take(self.ent_pair, axis=1), ub.take(self.ent_bone, axis=1)))
-        tau = np.bincount(self.ent_pair, dots, minlength=self.n_pairs) + np.abs(
-            dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
+        dots = np.abs(vhat.T @ ub)  # (N, NB) every pair's v̂ against every bone
+        dots *= self.path_mask  # each chain's own bones
+        tau = dots.sum(axis=1) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
         # the floor's user side (mapping._floor_user): both ankles' paths
         ankles = us.joints[2].take(_ANKLES).astype(float)
-        uz = np.abs(ub[2].take(self.floor_bone))
-        floor_tau = np.bincount(self.floor_row, uz, minlength=2 * P) + np.abs(ankles).repeat(P)
+        uz = np.abs(ub[2])
+        floor_tau = self.floor_mask @ uz + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
         return FrameUser(p3, t, cap_dir, sph_dir, tri, bary, v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
@@ -339,11 +357,9 @@ class OneFrameMapping:
         # x' re-posed (projection.repose_components): capsule, sphere, barycentric
         rot = av.cap_rot.take(pr.cap_e, axis=2)
         cap = (av.cap_head.take(pr.cap_e, axis=1) + u.t * av.cap_axis.take(pr.cap_e, axis=1)
-               + (rad[0] + u.t * rad[1]) * (rot[:, 0] * u.cap_dir[0] + rot[:, 1] * u.cap_dir[1]
-                                            + rot[:, 2] * u.cap_dir[2]))
+               + (rad[0] + u.t * rad[1]) * _apply(rot, u.cap_dir))
         srot = av.sph_rot.take(pr.sph_e, axis=2)
-        sph = av.sph_center.take(pr.sph_e, axis=1) + sph_rad * (srot[:, 0] * u.sph_dir[0] + srot[:, 1] * u.sph_dir[1]
-                                                                + srot[:, 2] * u.sph_dir[2])
+        sph = av.sph_center.take(pr.sph_e, axis=1) + sph_rad * _apply(srot, u.sph_dir)
         corners = av.tri.take(u.tri, axis=2)  # (3, corner, Nm)
         mesh = u.bary[0] * corners[:, 0] + u.bary[1] * corners[:, 1] + u.bary[2] * corners[:, 2]
         x_av = np.concatenate([cap, sph, mesh], axis=1)
@@ -351,16 +367,14 @@ class OneFrameMapping:
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = np.bincount(self.ent_pair, u.dots * lratio.take(self.ent_bone), minlength=self.n_pairs) + np.abs(
-            dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
+        tau_a = u.dots @ lratio + np.abs(dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
         ratio = np.divide(tau_a, u.tau, out=np.ones_like(tau_a), where=u.tau_ok)
         est = x_av + u.v * ratio  # (3, N)
         out = np.bincount(self.sums, est.reshape(-1) * u.weights, minlength=3 * P).reshape(3, P)
         if u.none is not None:  # no element with weight: the user's horizontal position
             out[:2] = np.where(u.none, u.pts[:2], out[:2])
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
-        tfa = np.bincount(self.floor_row, u.floor_uz * lratio.take(self.floor_bone), minlength=2 * P) + np.abs(
-            j[2].take(_ANKLES).astype(float)).repeat(P)
+        tfa = self.floor_mask @ (u.floor_uz * lratio) + np.abs(j[2].take(_ANKLES).astype(float)).repeat(P)
         ratios = np.divide(tfa, u.floor_tau, out=np.ones_like(tfa), where=u.floor_ok)
         out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
         return out.T
