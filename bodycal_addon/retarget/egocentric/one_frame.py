@@ -7,8 +7,8 @@ Why a second implementation: a live frame or a preview's is a few hundred pairs,
 per-call cost (several thousand instructions) is the whole cost; the bake's kernels keep a frame
 axis, a group axis and a padded element axis for every target (their sums run over the same
 elements in the same order as the bake's, bit for bit), so one frame paid for their bookkeeping.
-Here every stage is one call over all pairs: the pairs of every target side by side (capsules,
-then the sphere, then the meshes), each target's sums by `np.bincount` over its own pairs (in
+Here every stage is one call over all pairs: the pairs of every target side by side (capsules
+and the sphere, then the meshes), each target's sums by `np.bincount` over its own pairs (in
 float64), each chain's sum over its bones by `np.bincount` over (pair, bone) entries, and the
 pairs a target excludes (its own chain, a stage's elements) not computed at all (their weight is
 zero, eq. 1).
@@ -46,16 +46,19 @@ _YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])  # components rolled (a cr
 
 @dataclass
 class FlatSurface:
-    """One frame of a posed surface, float32, components first: capsules' heads and axes (3, C),
-    their frames (3, 3, C) (R_ij at [i, j]), the sphere centres (3, S) and frames, the triangles'
-    corners (3, 3, T) (component, corner, triangle), their unit normals (3, T) (None: not made),
-    every canonical joint (3, J)."""
+    """One frame of a posed surface, float32, components first: the capsules' heads and axes, then
+    the spheres' centres and a zero axis (3, C + S), their frames (3, 3, C + S) (R_ij at [i, j]),
+    the triangles' corners (3, 3, T) (component, corner, triangle), their unit normals (3, T)
+    (None: not made), every canonical joint (3, J).
+
+    Decision: a sphere is a capsule of no length (t = 0, |sin| = 1: the sphere's projection and
+    factor), whose frame's columns are rolled (y, z, x) so that its first column is the bone's +Y,
+    the sphere's fallback direction at its centre; its direction is kept and re-posed in that
+    rolled frame on both bodies (R' P (R P)^T = R' R^T): one kernel for both, and fewer calls."""
 
     cap_head: np.ndarray
     cap_axis: np.ndarray
     cap_rot: np.ndarray
-    sph_center: np.ndarray
-    sph_rot: np.ndarray
     tri: np.ndarray
     tri_normal: np.ndarray | None
     joints: np.ndarray
@@ -73,8 +76,8 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, norma
     sph_center = joints.take(poser.sph_head, axis=0) + np.matmul(sph_rot, poser.sph_local[:, :, None])[:, :, 0]
     C, S = len(head), len(sph_center)
     # the points' vectors and the joints in one conversion, components first
-    vecs = np.concatenate([head, tail, sph_center, joints]).T.astype(F32)
-    rots = np.concatenate([cap_rot, sph_rot]).transpose(1, 2, 0).astype(F32)
+    vecs = np.concatenate([head, sph_center, tail, sph_center, joints]).T.astype(F32)
+    rots = np.concatenate([cap_rot, sph_rot.take(_YZX, axis=2)]).transpose(1, 2, 0).astype(F32)
     tri = tri_normal = None
     if poser.point_count:
         pts = joints.take(poser.pad_heads, axis=0)[:, :, None] + np.matmul(frames.take(poser.pad_bones, axis=0),
@@ -89,9 +92,9 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, norma
     else:
         tri = np.zeros((3, 3, 0), F32)
         tri_normal = np.zeros((3, 0), F32) if normals else None
-    head = vecs[:, :C]
-    return FlatSurface(head, vecs[:, C:2 * C] - head, rots[:, :, :C], vecs[:, 2 * C:2 * C + S], rots[:, :, C:], tri,
-                       tri_normal, vecs[:, 2 * C + S:])
+    n = C + S
+    head = vecs[:, :n]
+    return FlatSurface(head, vecs[:, n:2 * n] - head, rots, tri, tri_normal, vecs[:, 2 * n:])
 
 
 def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -122,20 +125,19 @@ def _unit(w: np.ndarray, fallback) -> tuple[np.ndarray, np.ndarray]:
 
 class _Pairs:
     """The (point, element) pairs of a few points on a surface layout, each point on the elements
-    it is not excluded from: capsule pairs, sphere pairs, mesh pairs (in that order: the pair
+    it is not excluded from: capsule and sphere pairs (FlatSurface), then mesh pairs (the pair
     order of every flat array), and each mesh pair's triangles (consecutive)."""
 
     def __init__(self, excluded: list[frozenset], ids: list[str], counts: tuple, mesh_slices: list):
         C, S, M = counts
         kept = [[e for e in range(len(ids)) if ids[e] not in ex] for ex in excluded]
         self.empty = any(not k for k in kept)
-        by_type = ([(p, e) for p, k in enumerate(kept) for e in k if e < C],
-                   [(p, e - C) for p, k in enumerate(kept) for e in k if C <= e < C + S],
+        by_type = ([(p, e) for p, k in enumerate(kept) for e in k if e < C + S],
                    [(p, e - C - S) for p, k in enumerate(kept) for e in k if e >= C + S])
-        (self.cap_p, self.cap_e), (self.sph_p, self.sph_e), (self.mesh_p, self.mesh_m) = (
+        (self.cap_p, self.cap_e), (self.mesh_p, self.mesh_m) = (
             (np.array([a for a, _ in rows], int), np.array([b for _, b in rows], int)) for rows in by_type)
-        self.element = np.concatenate([self.cap_e, self.sph_e + C, self.mesh_m + C + S])  # each pair's element
-        self.point = np.concatenate([self.cap_p, self.sph_p, self.mesh_p])  # each pair's point
+        self.element = np.concatenate([self.cap_e, self.mesh_m + C + S])  # each pair's element
+        self.point = np.concatenate([self.cap_p, self.mesh_p])  # each pair's point
         # the triangles of each mesh pair, consecutive: (point, triangle), each one's mesh pair
         tri_p, tri_t, tri_of, starts = [], [], [], []
         for k, (p, m) in enumerate(zip(self.mesh_p, self.mesh_m)):
@@ -153,14 +155,15 @@ class _Pairs:
             n = (len(tri_t) if k + 1 == len(starts) else starts[k + 1]) - s
             self.tri_rows[k, :n] = np.arange(s, s + n)
         # every pair's values grouped by point (np.minimum.reduceat's segments: the palms' nearest)
-        every = np.concatenate([self.cap_p, self.sph_p, self.tri_p])
+        every = np.concatenate([self.cap_p, self.tri_p])
         self.by_point = np.argsort(every, kind="stable")
         self.point_starts = np.searchsorted(every[self.by_point], np.arange(len(excluded)))
 
 
 def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
-    """The capsule pairs' t (axial fraction), unit direction from the axis d and its norm n, the
-    axis ab and |ab|^2 (`projection.project_components`'s capsule part)."""
+    """The capsule (and sphere) pairs' t (axial fraction), unit direction from the axis d and its
+    norm n, the radius there r, the axis ab, |ab|^2 and the frames (`projection.project_components`'
+    capsule and sphere parts)."""
     p = pts.take(pr.cap_p, axis=1)
     a, ab = s.cap_head.take(pr.cap_e, axis=1), s.cap_axis.take(pr.cap_e, axis=1)
     rot = s.cap_rot.take(pr.cap_e, axis=2)
@@ -170,12 +173,6 @@ def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
     d, n = _unit(ap - t * ab, rot[:, 0])  # on the axis: the bone's +X
     r = radius[0] + t * radius[1]
     return t, d, n, r, ab, abab, rot
-
-
-def _sphere(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
-    rot = s.sph_rot.take(pr.sph_e, axis=2)
-    sd, sn = _unit(pts.take(pr.sph_p, axis=1) - s.sph_center.take(pr.sph_e, axis=1), rot[:, 1])
-    return sd, sn, rot
 
 
 def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
@@ -194,8 +191,7 @@ class FrameUser:
 
     pts: np.ndarray  # (3, P) the targets
     t: np.ndarray  # capsule pairs' axial fraction
-    cap_dir: np.ndarray  # (3, Nc) in the bone frame
-    sph_dir: np.ndarray  # (3, Ns) in the bone frame
+    cap_dir: np.ndarray  # (3, Nc) in the bone frame (a sphere's: its rolled frame)
     tri: np.ndarray  # mesh pairs' closest triangle
     bary: np.ndarray  # (3, Nm) its barycentric coordinates
     v: np.ndarray  # (3, N) p - x of every pair
@@ -238,12 +234,11 @@ class OneFrameMapping:
         self.palm_pairs = _Pairs([own_chain_elements(f"wrist_{s}") for s in palms], ids, layout,
                                  user_poser.mesh_slices)
         P = len(self.names)
-        # capsule radii per pair (head, tail - head), sphere radii, both bodies
-        self.radius = [(np.stack([ps.cap_radius[pr.cap_e, 0], ps.cap_radius[pr.cap_e, 1] - ps.cap_radius[pr.cap_e, 0]])
-                        .astype(F32), ps.sph_radius[pr.sph_e].astype(F32)) for ps in self.posers]
-        self.palm_radius = (np.stack([user_poser.cap_radius[self.palm_pairs.cap_e, 0],
-                                      np.diff(user_poser.cap_radius[self.palm_pairs.cap_e], axis=1)[:, 0]]).astype(F32),
-                            user_poser.sph_radius[self.palm_pairs.sph_e].astype(F32))
+        # capsule and sphere radii per pair (at the head, tail - head), both bodies
+        radii = [np.concatenate([ps.cap_radius, np.repeat(ps.sph_radius[:, None], 2, axis=1)]) for ps in self.posers]
+        self.radius = [np.stack([r[pr.cap_e, 0], r[pr.cap_e, 1] - r[pr.cap_e, 0]]).astype(F32) for r in radii]
+        pe = self.palm_pairs.cap_e
+        self.palm_radius = np.stack([radii[0][pe, 0], radii[0][pe, 1] - radii[0][pe, 0]]).astype(F32)
         # each pair's chain: its element's root joint, and the (pair, bone) entries of the path from
         # it to the target (eq. 2)
         # it to the target (eq. 2), as a (pair, bone) mask: a chain's sum over its bones is one row of
@@ -277,10 +272,9 @@ class OneFrameMapping:
         triangle's on a mesh)."""
         pr = self.palm_pairs
         pts = palms.T.astype(F32)
-        t, _, n, r, *_ = _capsules(pr, pts, us, self.palm_radius[0])
-        _, sn, _ = _sphere(pr, pts, us)
+        t, _, n, r, *_ = _capsules(pr, pts, us, self.palm_radius)
         td2 = _triangles(pr, pts, us)[3]
-        every = np.concatenate([np.abs(n - r), np.abs(sn - self.palm_radius[1]), np.sqrt(td2)])
+        every = np.concatenate([np.abs(n - r), np.sqrt(td2)])
         return np.minimum.reduceat(every.take(pr.by_point), pr.point_starts).astype(float)
 
     # --- the user's side ------------------------------------------------------------------------
@@ -291,19 +285,16 @@ class OneFrameMapping:
         pr, P = self.pairs, len(self.names)
         p3 = pts.T.astype(F32)
         # Projections (projection.project_components)
-        t, d, n, r, ab, abab, rot = _capsules(pr, p3, us, self.radius[0][0])
+        t, d, n, r, ab, abab, rot = _capsules(pr, p3, us, self.radius[0])
         cap_v = (n - r) * d
         cos_ax = dot3(d, ab) / np.sqrt(abab)
         cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
         cap_dir = _apply_t(rot, d)
-        sd, sn, srot = _sphere(pr, p3, us)
-        sph_v = (sn - self.radius[0][1]) * sd
-        sph_dir = _apply_t(srot, sd)
         mesh_v, tri, bary, mesh_factor = self._meshes(p3, us)
-        v = np.concatenate([cap_v, sph_v, mesh_v], axis=1)
+        v = np.concatenate([cap_v, mesh_v], axis=1)
         x = p3.take(pr.point, axis=1) - v
         dist2 = dot3(v, v)
-        factor = np.concatenate([cap_factor, np.ones(len(pr.sph_p), F32), mesh_factor])
+        factor = np.concatenate([cap_factor, mesh_factor])
         # Weights (weights.raw_weights, normalise_weights), each target's sums over its own pairs
         lam_raw = factor / np.maximum(dist2, MIN_DISTANCE ** 2)
         h = p3[2].astype(float)
@@ -324,7 +315,7 @@ class OneFrameMapping:
         uz = np.abs(ub[2])
         floor_tau = self.floor_mask @ uz + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
-        return FrameUser(p3, t, cap_dir, sph_dir, tri, bary, v,
+        return FrameUser(p3, t, cap_dir, tri, bary, v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
                          np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left))
 
@@ -353,16 +344,14 @@ class OneFrameMapping:
     def map(self, u: FrameUser, av: FlatSurface) -> np.ndarray:
         """(P, 3) float64: every target mapped onto the avatar posed as `av` (`PreparedTargets.map`)."""
         pr, P = self.pairs, len(self.names)
-        rad, sph_rad = self.radius[1]
-        # x' re-posed (projection.repose_components): capsule, sphere, barycentric
+        rad = self.radius[1]
+        # x' re-posed (projection.repose_components): capsule (and sphere), barycentric
         rot = av.cap_rot.take(pr.cap_e, axis=2)
         cap = (av.cap_head.take(pr.cap_e, axis=1) + u.t * av.cap_axis.take(pr.cap_e, axis=1)
                + (rad[0] + u.t * rad[1]) * _apply(rot, u.cap_dir))
-        srot = av.sph_rot.take(pr.sph_e, axis=2)
-        sph = av.sph_center.take(pr.sph_e, axis=1) + sph_rad * _apply(srot, u.sph_dir)
         corners = av.tri.take(u.tri, axis=2)  # (3, corner, Nm)
         mesh = u.bary[0] * corners[:, 0] + u.bary[1] * corners[:, 1] + u.bary[2] * corners[:, 2]
-        x_av = np.concatenate([cap, sph, mesh], axis=1)
+        x_av = np.concatenate([cap, mesh], axis=1)
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
