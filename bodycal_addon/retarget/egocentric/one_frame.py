@@ -76,8 +76,8 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, norma
     sph_center = joints.take(poser.sph_head, axis=0) + np.matmul(sph_rot, poser.sph_local[:, :, None])[:, :, 0]
     C, S = len(head), len(sph_center)
     # the points' vectors and the joints in one conversion, components first
-    vecs = np.concatenate([head, sph_center, tail, sph_center, joints]).T.astype(F32)
-    rots = np.concatenate([cap_rot, sph_rot.take(_YZX, axis=2)]).transpose(1, 2, 0).astype(F32)
+    vecs = np.concatenate([head, sph_center, tail, sph_center, joints]).T.astype(F32, order="C")
+    rots = np.concatenate([cap_rot, sph_rot.take(_YZX, axis=2)]).transpose(1, 2, 0).astype(F32, order="C")
     tri = tri_normal = None
     if poser.point_count:
         pts = joints.take(poser.pad_heads, axis=0)[:, :, None] + np.matmul(frames.take(poser.pad_bones, axis=0),
@@ -199,7 +199,7 @@ class FrameUser:
     none: np.ndarray | None  # (P,) targets with no element of weight (None: there are none)
     lam_gf: np.ndarray  # (P,) the floor's λg
     vhat: np.ndarray  # (3, N)
-    dots: np.ndarray  # (N, NB) |v̂·b_k| of each chain's bones (0: not on its path)
+    dots: np.ndarray  # (NB, N) |v̂·b_k| of each chain's bones (0: not on its path)
     tau: np.ndarray  # (N,) τ
     tau_ok: np.ndarray
     ulen: np.ndarray  # (NB,) the user's bone lengths
@@ -246,9 +246,9 @@ class OneFrameMapping:
         # more than the dense product of every pair with every bone, ~20,000 multiply-adds)
         roots = list(user_poser.element_roots)
         self.root_joint = np.array([JI[roots[e]] for e in pr.element], int)
-        self.path_mask = np.zeros((len(pr.point), len(GRAPH_BONES)), F32)
+        self.path_mask = np.zeros((len(GRAPH_BONES), len(pr.point)), F32)  # (bone, pair): rows are contiguous
         for k, (p, e) in enumerate(zip(pr.point, pr.element)):
-            self.path_mask[k, list(kinematic_path(roots[e], self.names[p]))] = 1.0
+            self.path_mask[list(kinematic_path(roots[e], self.names[p])), k] = 1.0
         # the floor's paths: from each ankle (left, then right) to each target
         self.floor_mask = np.zeros((2 * P, len(GRAPH_BONES)), F32)
         for side, s in enumerate(sk.SIDES):
@@ -271,7 +271,7 @@ class OneFrameMapping:
         its own arm and hand (`project`'s |v|: |n - r| on a capsule or the sphere, the closest
         triangle's on a mesh)."""
         pr = self.palm_pairs
-        pts = palms.T.astype(F32)
+        pts = palms.T.astype(F32, order="C")
         t, _, n, r, *_ = _capsules(pr, pts, us, self.palm_radius)
         td2 = _triangles(pr, pts, us)[3]
         every = np.concatenate([np.abs(n - r), np.sqrt(td2)])
@@ -283,7 +283,7 @@ class OneFrameMapping:
         """The user's side of one frame: targets `pts` (P, 3) and the user's GRAPH_BONES vectors
         `bones` (NB, 3) (tail - head) on the user's surface `us` (`prepare_targets`' work)."""
         pr, P = self.pairs, len(self.names)
-        p3 = pts.T.astype(F32)
+        p3 = pts.T.astype(F32, order="C")
         # Projections (projection.project_components)
         t, d, n, r, ab, abab, rot = _capsules(pr, p3, us, self.radius[0])
         cap_v = (n - r) * d
@@ -306,10 +306,10 @@ class OneFrameMapping:
         weights = np.concatenate([lam, lam, lam_raw / sg.take(pr.point)])
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
-        ub = bones.T.astype(F32)
-        dots = np.abs(vhat.T @ ub)  # (N, NB) every pair's v̂ against every bone
+        ub = bones.T.astype(F32, order="C")
+        dots = np.abs(ub.T @ vhat)  # (NB, N) every bone against every pair's v̂
         dots *= self.path_mask  # each chain's own bones
-        tau = dots.sum(axis=1) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
+        tau = np.add.reduce(dots, axis=0) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
         # the floor's user side (mapping._floor_user): both ankles' paths
         ankles = us.joints[2].take(_ANKLES).astype(float)
         uz = np.abs(ub[2])
@@ -356,7 +356,7 @@ class OneFrameMapping:
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = u.dots @ lratio + np.abs(dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
+        tau_a = lratio @ u.dots + np.abs(dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
         ratio = np.divide(tau_a, u.tau, out=np.ones_like(tau_a), where=u.tau_ok)
         est = x_av + u.v * ratio  # (3, N)
         out = np.bincount(self.sums, est.reshape(-1) * u.weights, minlength=3 * P).reshape(3, P)
