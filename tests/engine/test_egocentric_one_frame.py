@@ -131,3 +131,27 @@ def test_a_layout_it_does_not_fit_takes_the_bake_s_kernels(hop_solver):
     # a target with no element to map onto (the bake's kernels keep its user's position)
     every = tuple(frozenset(method.ids) if n == "skull_base" else frozenset() for n in method.mapped)
     assert OneFrameMapping.build(method.mapped, user, avatar, every) is None
+
+
+def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
+    # The regions tested as rows of one comparison and picked by one argmax: the same barycentric
+    # coordinates as `projection._closest_on_triangles`, every bit, over points near and far from
+    # triangles of every shape (flattened to a line, a point on an edge's line, corners).
+    from bodycal_addon.retarget.egocentric import one_frame as of
+    from bodycal_addon.retarget.egocentric.projection import _closest_on_triangles
+
+    rng = np.random.default_rng(41)
+    for trial in range(60):
+        n = 400
+        ap = (rng.standard_normal((3, n)) * rng.uniform(0.01, 2.0)).astype(np.float32)
+        ab = (rng.standard_normal((3, n)) * 0.1).astype(np.float32)
+        ac = (rng.standard_normal((3, n)) * 0.1).astype(np.float32)
+        if trial % 3 == 0:
+            ac = 2 * ab  # a degenerate triangle
+        if trial % 5 == 0:
+            ap = ab * rng.uniform(-1.0, 2.0, n).astype(np.float32)  # on the line of AB
+        if trial % 7 == 0:
+            ap = np.where(rng.random(n) < 0.5, ab, ac)  # on a corner
+        want, got = _closest_on_triangles(ap, ab, ac), of._closest_on_triangles_one(ap, ab, ac)
+        for w, g in zip(want, got):
+            np.testing.assert_array_equal(g, w)

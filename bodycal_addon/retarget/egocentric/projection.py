@@ -95,16 +95,15 @@ def _rows_dot(rc, v, transpose):
     return out
 
 
-def _closest_on_triangles(ap, ab, ac, dot=dot3):
+def _closest_on_triangles(ap, ab, ac):
     """Ericson's closest point on a triangle (Real-Time Collision Detection 5.1.5), branch-free
     over arrays in components-first layout: ap = p - a (3, F, P, T), ab, ac (3, F, 1, T).
-    Returns the barycentric weights (v, w) of b and c, (F, P, T). `dot`: the dot product over the
-    first axis (one frame's takes fewer calls, egocentric/one_frame.py)."""
-    d1 = dot(ab, ap)
-    d2 = dot(ac, ap)
-    abab = dot(ab, ab)
-    acac = dot(ac, ac)
-    abac = dot(ab, ac)
+    Returns the barycentric weights (v, w) of b and c, (F, P, T)."""
+    d1 = dot3(ab, ap)
+    d2 = dot3(ac, ap)
+    abab = dot3(ab, ab)
+    acac = dot3(ac, ac)
+    abac = dot3(ab, ac)
     d3, d4 = d1 - abab, d2 - abac  # (p - b).ab, (p - b).ac
     d5, d6 = d1 - abac, d2 - acac  # (p - c).ab, (p - c).ac
     vc = d1 * d4 - d3 * d2
