@@ -73,7 +73,7 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, norma
         head = head + np.einsum("cij,cj->ci", cap_rot, poser.cap_off[:, 0])
         tail = tail + np.einsum("cij,cj->ci", cap_rot, poser.cap_off[:, 1])
     sph_rot = frames.take(poser.sph_bone, axis=0)
-    sph_center = joints.take(poser.sph_head, axis=0) + np.matmul(sph_rot, poser.sph_local[:, :, None])[:, :, 0]
+    sph_center = joints.take(poser.sph_head, axis=0) + np.einsum("sij,sj->si", sph_rot, poser.sph_local)
     C, S = len(head), len(sph_center)
     # the points' vectors and the joints in one conversion, components first
     vecs = np.concatenate([head, sph_center, tail, sph_center, joints]).T.astype(F32, order="C")
@@ -341,13 +341,15 @@ class OneFrameMapping:
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
-        dots = np.abs(ub.T @ vhat)  # (NB, N) every bone against every pair's v̂
+        # (no BLAS product: its last bit follows the operands' alignment, and a worker process must
+        # give this process's pose bit for bit)
+        dots = np.abs(np.add.reduce(ub[:, :, None] * vhat[:, None], axis=0))  # (NB, N) every bone against every v̂
         dots *= self.path_mask  # each chain's own bones
         tau = np.add.reduce(dots, axis=0) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
         # the floor's user side (mapping._floor_user): both ankles' paths
         ankles = us.joints[2].take(_ANKLES).astype(float)
         uz = np.abs(ub[2])
-        floor_tau = self.floor_mask @ uz + np.abs(ankles).repeat(P)
+        floor_tau = np.add.reduce(self.floor_mask * uz, axis=1) + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
         return FrameUser(p3, t, cap_dir, tri, bary, v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
@@ -390,14 +392,16 @@ class OneFrameMapping:
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = lratio @ u.dots + np.abs(dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
+        tau_a = np.add.reduce(u.dots * lratio[:, None], axis=0) + np.abs(
+            dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
         ratio = np.divide(tau_a, u.tau, out=np.ones_like(tau_a), where=u.tau_ok)
         est = x_av + u.v * ratio  # (3, N)
         out = np.bincount(self.sums, est.reshape(-1) * u.weights, minlength=3 * P).reshape(3, P)
         if u.none is not None:  # no element with weight: the user's horizontal position
             out[:2] = np.where(u.none, u.pts[:2], out[:2])
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
-        tfa = self.floor_mask @ (u.floor_uz * lratio) + np.abs(j[2].take(_ANKLES).astype(float)).repeat(P)
+        tfa = np.add.reduce(self.floor_mask * (u.floor_uz * lratio), axis=1) + np.abs(
+            j[2].take(_ANKLES).astype(float)).repeat(P)
         ratios = np.divide(tfa, u.floor_tau, out=np.ones_like(tfa), where=u.floor_ok)
         out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
         return out.T
