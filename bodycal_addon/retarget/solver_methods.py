@@ -171,8 +171,10 @@ class Egocentric(Method):
             self.posers["avatar_trunk"] = ego.SurfacePoser(self.avatar_s, self.trunk_ids)
         # One frame (a live frame, a preview's) maps its targets over flat arrays of the pairs that
         # carry weight (egocentric/one_frame.py), to float32's rounding of these kernels' values
-        # where one frame may (core/one_frame.ENABLED); made on first use (`one_frame`).
-        self._one_frame = None  # built on the first single frame (a bake never needs it)
+        # where one frame may (core/one_frame.ENABLED); None: this layout takes these kernels. Made
+        # here, not on a first frame: a live stream's first frame would wait ~20 ms for it.
+        self.one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
+                                               self.trunk_exclude, tuple(self.palm_local))
         # the rows of `mapped` of each stage's targets: {False: the arms', True: the trunk's}
         self.rows = {stage: np.array([self.mapped.index(n) for n in names if n in self.mapped], int)
                      for stage, names in ((True, self.lower), (False, self.upper))}
@@ -192,7 +194,7 @@ class Egocentric(Method):
         ub = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]  # (F, NB, 3)
         lower, upper = self.lower, self.upper
         # one frame over the pairs' flat arrays (OneFrameMapping), or these kernels over frames
-        one = self.one_frame if one_frame.ENABLED and len(up.joints) == 1 else None
+        one = self.one_frame if self.one_frame is not None and one_frame.ENABLED and len(up.joints) == 1 else None
         us = one.user_surface(up.joints[0], user_frames[0]) if one else posers["user"].pose(up.joints, user_frames)
         pts = np.take(up.joints, self.mapped_joints, axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
@@ -247,15 +249,6 @@ class Egocentric(Method):
         frames = arm_frames
         targets.update(arm_targets)
         return run.rig.solve(frames, pelvis, realised=False), targets
-
-    @property
-    def one_frame(self) -> OneFrameMapping | None:
-        """One frame's mapping (egocentric/one_frame.py) of this method's targets and surfaces,
-        made on first use; None where their layout does not fit it."""
-        if self._one_frame is None:
-            self._one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
-                                                    self.trunk_exclude, tuple(self.palm_local)) or False
-        return self._one_frame or None
 
     def palm_weights(self, us, pts, levers: dict) -> np.ndarray:
         """(F, hands) how much each hand is mapped through its palm's centre rather than its wrist:
