@@ -9,13 +9,14 @@ axis, a group axis and a padded element axis for every target (their sums run ov
 elements in the same order as the bake's, bit for bit), so one frame paid for their bookkeeping.
 Here every stage is one call over all pairs: the pairs of every target side by side (capsules
 and the sphere, then the meshes), each target's sums by `np.bincount` over its own pairs (in
-float64), each chain's sum over its bones by `np.bincount` over (pair, bone) entries, and the
-pairs a target excludes (its own chain, a stage's elements) not computed at all (their weight is
+float64), each chain's sum over its bones as rows of a (bone, pair) mask (no BLAS product: its
+last bit follows the operands' alignment, and a live worker process must give this process's pose
+bit for bit), and the pairs a target excludes (its own chain, a stage's elements) not computed at all (their weight is
 zero, eq. 1).
 
 Decision (precision): the mapping runs in float32 as the bake's does (solver_methods.MAPPING_DTYPE)
 but its sums are float64 and run in pair order, not the bake's: one frame agrees with the bake's
-targets to float32's rounding (measured on the pinned takes: tests/engine/test_egocentric_one_frame.py),
+targets to float32's rounding (measured on a CMU take: tests/engine/test_egocentric_one_frame.py),
 as the other one-frame kernels do (core/one_frame.py). So it is taken where one frame may differ by
 that rounding (`one_frame.ENABLED`); the numpy fallback keeps the bake's own kernels, bit for bit.
 The layout is refused (`OneFrameMapping.build` gives None: the bake's kernels then) where its
