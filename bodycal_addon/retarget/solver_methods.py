@@ -26,10 +26,12 @@ from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import BONES, SPINE_BONES
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.surface_layout import bone_frame
+from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.transforms import normalize, quat_to_matrix, stack_apply, stack_mul
 from . import egocentric as ego
 from . import offsets as ofs
+from .egocentric.one_frame import FlatSurface, OneFrameMapping
 from .methods import methods_for
 from .trackers import read_trackers
 from .user_animation import sacrum_toward_hip_line
@@ -167,6 +169,15 @@ class Egocentric(Method):
                                                                                  ("avatar", self.avatar_s))}
         if self.trunk_ids:
             self.posers["avatar_trunk"] = ego.SurfacePoser(self.avatar_s, self.trunk_ids)
+        # One frame (a live frame, a preview's) maps its targets over flat arrays of the pairs that
+        # carry weight (egocentric/one_frame.py), to float32's rounding of these kernels' values
+        # where one frame may (core/one_frame.ENABLED); None: this layout takes these kernels. Made
+        # here, not on a first frame: a live stream's first frame would wait ~20 ms for it.
+        self.one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
+                                               self.trunk_exclude, tuple(self.palm_local))
+        # the rows of `mapped` of each stage's targets: {False: the arms', True: the trunk's}
+        self.rows = {stage: np.array([self.mapped.index(n) for n in names if n in self.mapped], int)
+                     for stage, names in ((True, self.lower), (False, self.upper))}
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
@@ -182,7 +193,9 @@ class Egocentric(Method):
         # taken as posed, like the avatar's own (a vertebra spanning two spine bones stretches).
         ub = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]  # (F, NB, 3)
         lower, upper = self.lower, self.upper
-        us = posers["user"].pose(up.joints, user_frames)
+        # one frame over the pairs' flat arrays (OneFrameMapping), or these kernels over frames
+        one = self.one_frame if self.one_frame is not None and one_frame.ENABLED and len(up.joints) == 1 else None
+        us = one.user_surface(up.joints[0], user_frames[0]) if one else posers["user"].pose(up.joints, user_frames)
         pts = np.take(up.joints, self.mapped_joints, axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and
         # the wrist target is that point minus the avatar's own palm offset (the hand's orientation
@@ -194,12 +207,21 @@ class Egocentric(Method):
         for i, s in enumerate(levers):
             pts[:, self.wrist_rows[s]] += palm[:, i, None] * levers[s]
         # The user's side of every target, once: the same for the trunk's map and the arms' passes.
-        user_side = ego.prepare_targets(pts, self.mapped, us, user_bones=ub, dtype=MAPPING_DTYPE,
-                                        exclude=self.trunk_exclude)
+        if one:
+            user_side = one.prepare(us, pts[0], ub[0])
+
+            def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): every target mapped, these taken
+                return one.map(user_side, one.avatar_surface(pose.joints[0], pose.frames[0])).take(
+                    self.rows[names is lower], axis=0)[None]
+        else:
+            user_side = ego.prepare_targets(pts, self.mapped, us, user_bones=ub, dtype=MAPPING_DTYPE,
+                                            exclude=self.trunk_exclude)
+
+            def mapped(pose, names, poser="avatar"):
+                return user_side.map(posers[poser].pose(pose.joints, pose.frames, normals=False), targets=names)
         targets = {}
         if self.trunk_ids:
-            poser = posers["avatar" if user_side.whole is not None else "avatar_trunk"]
-            tg = user_side.map(poser.pose(fk.joints, fk.frames, normals=False), targets=lower)
+            tg = mapped(fk, lower, "avatar" if one or user_side.whole is not None else "avatar_trunk")
             targets.update({n: tg[:, i] for i, n in enumerate(lower)})
         ankles = {f"ankle_{s}": fk.joints[:, JI[f"ankle_{s}"]] for s in sk.SIDES}
         targets, pelvis, _ = run.plant(targets, up.frames, pelvis, start, stop, ankles)
@@ -210,7 +232,7 @@ class Egocentric(Method):
         pose, tg = mid, None
         arms_user = {}  # what the arms' IK reads of the user, the same every pass
         for k in range(ARM_PASSES):
-            ta = user_side.map(posers["avatar"].pose(pose.joints, pose.frames, normals=False), targets=upper)
+            ta = mapped(pose, upper)
             if tg is None:
                 tg = ta
             else:
@@ -235,11 +257,14 @@ class Egocentric(Method):
         if not levers:
             return np.ones((len(pts), 0))
         palms = np.stack([pts[:, self.wrist_rows[s]] + lever for s, lever in levers.items()], axis=1)
-        ids = tuple(us.element_ids)
-        if ids not in self._own_hands:
-            self._own_hands[ids] = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in ids]
-                                             for s in levers])
-        near = np.where(self._own_hands[ids], np.inf, ego.project(palms, us).dist).min(axis=-1)
+        if isinstance(us, FlatSurface):  # one frame (OneFrameMapping: the same nearest, over its pairs)
+            near = self.one_frame.palm_distances(us, palms[0])[None]
+        else:
+            ids = tuple(us.element_ids)
+            if ids not in self._own_hands:
+                self._own_hands[ids] = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in ids]
+                                                 for s in levers])
+            near = np.where(self._own_hands[ids], np.inf, ego.project(palms, us).dist).min(axis=-1)
         t = np.clip((near - PALM_NEAR) / (PALM_FAR - PALM_NEAR), 0.0, 1.0)
         return 1.0 - t * t * (3.0 - 2.0 * t)
 

@@ -1,7 +1,8 @@
 """Egocentric self-contact mapping (Delahaye 2023, appendix C; DESIGN.md §5), numpy only, vectorised
 over a leading frame axis. The package: `graph` (kinematic tree, paths, own-chain exclusions),
 `surface` (posing the surface elements), `projection` (projection kernels), `weights`,
-`mapping` (planning and the retro-projection). This module only re-exports their public names.
+`mapping` (planning and the retro-projection), `one_frame` (one frame's mapping over flat pairs).
+This module only re-exports their public names.
 
 Three steps, each a public function:
 
@@ -63,7 +64,8 @@ group's, bit for bit, in a third of the numpy calls. The user's side is prepared
 (`prepare_targets`, several stages' targets at once with `exclude`) and mapped onto each avatar
 pose (`map(targets=...)`); the pipeline computes it in float32 (`dtype`). A few frames' surfaces
 pose every mesh point in one padded product (`SurfacePoser`, surface.FEW_FRAMES) (DESIGN.md
-"Prepared solver").
+"Prepared solver"). One frame where it may differ by float32's rounding (`core/one_frame.ENABLED`)
+takes `one_frame.OneFrameMapping`: the same mapping over flat arrays of the pairs that carry weight.
 """
 
 from .graph import GRAPH_BONES, GRAPH_INDEX, GRAPH_NODES, TORSO_ROOT, element_root, kinematic_path, own_chain_elements

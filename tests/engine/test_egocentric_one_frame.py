@@ -1,0 +1,157 @@
+"""One frame's egocentric mapping over flat pair arrays (`egocentric/one_frame.py`, DESIGN.md
+"Prepared solver"): on motion the synthetic performer did not make (CMU 131_03, start, hop, stop,
+recorded through `evaluation/`, calibrated, onto the procedural avatar at a child's size), fed the
+very inputs the bake's kernels (`prepare_targets`, `PreparedTargets.map`, `project`) got in each
+frame's solve, it gives their values to float32's rounding: every target of every stage and pass,
+and the palms' nearest distances. The solve takes it for one frame where one frame may differ by
+that rounding (mathutils on), and the bake's kernels otherwise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from outside_takes import clip_performer, outside_recording
+
+from bodycal_addon.calibration import calibrate_user
+from bodycal_addon.core import one_frame
+from bodycal_addon.retarget import egocentric as ego
+from bodycal_addon.retarget import pipeline as pl
+from bodycal_addon.retarget.egocentric import mapping
+from bodycal_addon.retarget.egocentric.one_frame import OneFrameMapping
+from bodycal_dev import retarget_fixtures as rt
+
+HOP = "131_03_start_hop_stop.bvh"
+# Measured on this take (every 7th frame): at most 6.7e-7 m on a target (float32's step at 1 m is
+# 6e-8; the bake's sums round in float32, these in float64), 2.5e-7 m on a palm's distance (float32's
+# against `project`'s float64).
+TARGET_ATOL = 1.5e-6
+DISTANCE_ATOL = 5e-7
+
+
+@pytest.fixture(scope="module")
+def hop_solver(data_dir, tmp_path_factory):
+    perf = clip_performer(data_dir, HOP, "cmu_bvh_fast_arms")
+    rec, _ = outside_recording(perf, tmp_path_factory.mktemp("ego_one_frame"), "full", seed=0, up="Z")
+    return pl.prepare_recording(rec, calibrate_user(rec), rt.procedural_avatar(scale=0.75), "egocentric").solver
+
+
+def _bake_kernels_of(solver, f: int, monkeypatch) -> dict:
+    """What the bake's kernels got and gave in frame f's solve (numpy's path): the surfaces'
+    joints and frames by the posed surface they made, prepare_targets' targets and bones, and
+    each map's avatar surface, target names and result."""
+    seen = {"poses": {}, "maps": []}
+    pose, prepare, mapped = ego.SurfacePoser.pose, ego.prepare_targets, mapping.PreparedTargets.map
+
+    def posing(self, joints, frames, normals=True):
+        out = pose(self, joints, frames, normals)
+        seen["poses"][id(out)] = (joints.copy(), frames.copy(), out)  # (a pose's arrays change later)
+        return out
+
+    def preparing(pts, names, us, user_bones=None, **kw):
+        seen["prepare"] = (pts.copy(), list(names), us, user_bones)
+        return prepare(pts, names, us, user_bones=user_bones, **kw)
+
+    def mapping_(self, av, avatar_bones=None, **kw):
+        out = mapped(self, av, avatar_bones, **kw)
+        seen["maps"].append((av, kw.get("targets"), out.copy()))  # (the chunk changes it later)
+        return out
+
+    monkeypatch.setattr(one_frame, "ENABLED", False)
+    monkeypatch.setattr(ego.SurfacePoser, "pose", posing)
+    monkeypatch.setattr(ego, "prepare_targets", preparing)
+    monkeypatch.setattr(mapping.PreparedTargets, "map", mapping_)
+    try:
+        solver.solve(f, f + 1)
+    finally:
+        monkeypatch.undo()
+    return seen
+
+
+def test_one_frame_maps_every_target_as_the_bake_s_kernels_do(hop_solver, monkeypatch):
+    method = hop_solver.impl
+    fm = method.one_frame
+    assert fm is not None  # the procedural avatar's layout takes it
+    worst, maps = 0.0, 0
+    for f in range(0, hop_solver.frame_count, 7):
+        seen = _bake_kernels_of(hop_solver, f, monkeypatch)
+        pts, names, us, ub = seen["prepare"]
+        assert names == method.mapped
+        joints, frames, _ = seen["poses"][id(us)]
+        user_side = fm.prepare(fm.user_surface(joints[0], frames[0]), pts[0], ub[0])
+        for av, targets, want in seen["maps"]:
+            a_joints, a_frames, _ = seen["poses"][id(av)]
+            got = fm.map(user_side, fm.avatar_surface(a_joints[0], a_frames[0]))[[names.index(n) for n in targets]]
+            assert got.shape == want[0].shape and np.isfinite(got).all()
+            worst = max(worst, float(np.abs(got - want[0]).max()))
+            maps += 1
+    assert maps == 3 * len(range(0, hop_solver.frame_count, 7))  # the trunk's map and the arms' two
+    assert worst <= TARGET_ATOL, worst
+
+
+def test_one_frame_s_palm_distances_are_project_s(hop_solver, monkeypatch):
+    # Each palm's nearest element not on its own arm and hand, against the bake's `project` over
+    # every element: the frames' wrists and fingertips taken as palm centres, and each moved 3 cm
+    # along every axis (on, near and off the body).
+    method = hop_solver.impl
+    fm = method.one_frame
+    sides = list(method.palm_local)
+    own = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in method.ids] for s in sides])
+    worst = 0.0
+    for f in range(0, hop_solver.frame_count, 23):
+        seen = _bake_kernels_of(hop_solver, f, monkeypatch)
+        pts, names, us, _ = seen["prepare"]
+        joints, frames, _ = seen["poses"][id(us)]
+        flat = fm.user_surface(joints[0], frames[0])
+        for row in ("wrist", "tip_index", "tip_thumb"):
+            base = np.stack([pts[0, names.index(f"{row}_{s}")] for s in sides])
+            for shift in np.vstack([np.zeros(3), 0.03 * np.eye(3), -0.03 * np.eye(3)]):
+                palms = base + shift
+                want = np.where(own, np.inf, ego.project(palms[None], us).dist[0]).min(axis=-1)
+                worst = max(worst, float(np.abs(fm.palm_distances(flat, palms) - want).max()))
+    assert worst <= DISTANCE_ATOL, worst
+
+
+def test_the_solve_takes_it_for_one_frame_where_mathutils_is_on(hop_solver, monkeypatch):
+    calls = []
+    mapped = OneFrameMapping.map
+    monkeypatch.setattr(OneFrameMapping, "map", lambda self, u, av: calls.append(1) or mapped(self, u, av))
+    for enabled, frames, want in ((True, 1, 3), (False, 1, 0), (True, 2, 0)):
+        monkeypatch.setattr(one_frame, "ENABLED", enabled)
+        calls.clear()
+        hop_solver.solve(40, 40 + frames)
+        assert len(calls) == want, (enabled, frames)
+
+
+def test_a_layout_it_does_not_fit_takes_the_bake_s_kernels(hop_solver):
+    method = hop_solver.impl
+    user, avatar = method.posers["user"], method.posers["avatar"]
+    assert OneFrameMapping.build(method.mapped, user, avatar, method.trunk_exclude, ("l", "r")) is not None
+    # the two bodies' elements differ
+    assert OneFrameMapping.build(method.mapped, user, method.posers["avatar_trunk"]) is None
+    # a target with no element to map onto (the bake's kernels keep its user's position)
+    every = tuple(frozenset(method.ids) if n == "skull_base" else frozenset() for n in method.mapped)
+    assert OneFrameMapping.build(method.mapped, user, avatar, every) is None
+
+
+def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
+    # The regions tested as rows of one comparison and picked by one argmax: the same barycentric
+    # coordinates as `projection._closest_on_triangles`, every bit, over points near and far from
+    # triangles of every shape (flattened to a line, a point on an edge's line, corners).
+    from bodycal_addon.retarget.egocentric import one_frame as of
+    from bodycal_addon.retarget.egocentric.projection import _closest_on_triangles
+
+    rng = np.random.default_rng(41)
+    for trial in range(60):
+        n = 400
+        ap = (rng.standard_normal((3, n)) * rng.uniform(0.01, 2.0)).astype(np.float32)
+        ab = (rng.standard_normal((3, n)) * 0.1).astype(np.float32)
+        ac = (rng.standard_normal((3, n)) * 0.1).astype(np.float32)
+        if trial % 3 == 0:
+            ac = 2 * ab  # a degenerate triangle
+        if trial % 5 == 0:
+            ap = ab * rng.uniform(-1.0, 2.0, n).astype(np.float32)  # on the line of AB
+        if trial % 7 == 0:
+            ap = np.where(rng.random(n) < 0.5, ab, ac)  # on a corner
+        want, got = _closest_on_triangles(ap, ab, ac), of._closest_on_triangles_one(ap, ab, ac)
+        for w, g in zip(want, got):
+            np.testing.assert_array_equal(g, w)
