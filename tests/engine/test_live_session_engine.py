@@ -6,7 +6,6 @@ ends, hangs or cannot start said in one line, none left running after Stop."""
 
 import ast
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -490,31 +489,6 @@ def test_a_worker_run_by_blenders_program_reads_past_its_banner(take, tmp_path):
     np.testing.assert_array_equal(got.basis, want.basis)
     np.testing.assert_array_equal(got.joints, want.joints)
     assert follower.kernels == ("mathutils" if one_frame.ENABLED else "numpy")
-
-
-def _installed_blenders_numpy() -> str | None:
-    """The numpy major version of the Blender program on PATH, None without one."""
-    if shutil.which("blender") is None:
-        return None
-    out = subprocess.run([shutil.which("blender"), "--background", "--factory-startup", "--python-expr",
-                          "import numpy; print('numpy', numpy.__version__)"], capture_output=True, text=True,
-                         timeout=120)
-    said = [line.split()[1] for line in out.stdout.splitlines() if line.startswith("numpy ")]
-    return said[0].split(".")[0] if said else None
-
-
-def test_a_worker_run_by_a_real_blender_solves_with_its_mathutils(take):
-    """With a Blender program installed (Debian's 3.4.1 was used here), its worker has Blender's
-    built-in mathutils, and its poses are this process's to float32's rounding. A developer's
-    check: skipped without a Blender program, or when its numpy is another major version than this
-    interpreter's (arrays pickled by numpy 2 do not load in numpy 1; inside Blender the parent and
-    its workers are the same program, so they never differ)."""
-    if _installed_blenders_numpy() != np.__version__.split(".")[0]:
-        pytest.skip("no Blender program on PATH with this interpreter's numpy major version")
-    follower, got, want = _blender_posed(take, blender_command(shutil.which("blender")))
-    assert follower.kernels == "mathutils"
-    np.testing.assert_allclose(got.joints, want.joints, atol=1e-5)
-    np.testing.assert_allclose(got.basis, want.basis, atol=1e-5)
 
 
 def test_the_worker_imports_numpy_and_the_engine_only():
