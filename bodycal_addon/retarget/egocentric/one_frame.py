@@ -34,7 +34,7 @@ from ...body.skeleton import JOINT_INDEX as JI
 from ...core.transforms import EPS
 from .graph import GRAPH_BONES, kinematic_path, own_chain_elements
 from .mapping import SUPPORT_BLEND
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, ericson_terms, safe_divide
 from .surface import SurfacePoser
 from .weights import MIN_DISTANCE
 
@@ -68,13 +68,7 @@ class FlatSurface:
 def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, normals: bool) -> FlatSurface:
     """`SurfacePoser.pose` of one frame (joints (J, 3), bone frames (B, 3, 3), float64), as a
     FlatSurface: posed in float64 as the poser does, then converted once."""
-    cap_rot = frames.take(poser.cap_bone, axis=0)
-    head, tail = joints.take(poser.cap_ends[0], axis=0), joints.take(poser.cap_ends[1], axis=0)
-    if poser.cap_offset:  # axes off the bone line (bodymodel: axis_head / axis_tail)
-        head = head + np.einsum("cij,cj->ci", cap_rot, poser.cap_off[:, 0])
-        tail = tail + np.einsum("cij,cj->ci", cap_rot, poser.cap_off[:, 1])
-    sph_rot = frames.take(poser.sph_bone, axis=0)
-    sph_center = joints.take(poser.sph_head, axis=0) + np.einsum("sij,sj->si", sph_rot, poser.sph_local)
+    head, tail, cap_rot, sph_center, sph_rot = poser.placed(joints, frames)
     C, S = len(head), len(sph_center)
     # the points' vectors and the joints in one conversion, components first
     vecs = np.concatenate([head, sph_center, tail, sph_center, joints]).T.astype(F32, order="C")
@@ -187,26 +181,18 @@ def _closest_on_triangles_one(ap: np.ndarray, ab: np.ndarray, ac: np.ndarray):
     """`projection._closest_on_triangles` for one frame's pairs (3, N): the same values (the same
     products, quotients and regions), each region's test one row of one comparison and the first
     region that holds picked by one argmax, in a third of its numpy calls."""
-    d1, d2 = dot3(ab, ap), dot3(ac, ap)
-    abab, acac, abac = dot3(ab, ab), dot3(ac, ac), dot3(ab, ac)
-    d3, d4 = d1 - abab, d2 - abac
-    d5, d6 = d1 - abac, d2 - acac
-    vc = d1 * d4 - d3 * d2
-    vb = d5 * d2 - d1 * d6
-    va = d3 * d6 - d5 * d4
-
-    def safe(num, den):
-        return num / np.where(den != 0, den, 1.0)
-
+    d1, d2, d3, d4, d5, d6, va, vb, vc = ericson_terms(ap, ab, ac, dot3)
     denom = va + vb + vc
-    e_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
+    e_bc = safe_divide(d4 - d3, (d4 - d3) + (d5 - d6))
     values = np.array([d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, np.full_like(d1, -1.0)])
     holds = (values.take(_REGION_ROWS, axis=0) * _REGION_SIGNS <= 0).reshape(7, 3, -1).all(axis=1)
     n = d1.shape[0]
     pick = holds.argmax(axis=0) * n + np.arange(n)
     zero, one = np.zeros_like(d1), np.ones_like(d1)
-    bv = np.array([zero, one, safe(d1, d1 - d3), zero, zero, 1 - e_bc, safe(vb, denom)]).reshape(-1).take(pick)
-    bw = np.array([zero, zero, zero, one, safe(d2, d2 - d6), e_bc, safe(vc, denom)]).reshape(-1).take(pick)
+    bv = np.array([zero, one, safe_divide(d1, d1 - d3), zero, zero, 1 - e_bc,
+                   safe_divide(vb, denom)]).reshape(-1).take(pick)
+    bw = np.array([zero, zero, zero, one, safe_divide(d2, d2 - d6), e_bc,
+                   safe_divide(vc, denom)]).reshape(-1).take(pick)
     return bv, bw
 
 

@@ -95,29 +95,39 @@ def _rows_dot(rc, v, transpose):
     return out
 
 
-def _closest_on_triangles(ap, ab, ac):
-    """Ericson's closest point on a triangle (Real-Time Collision Detection 5.1.5), branch-free
-    over arrays in components-first layout: ap = p - a (3, F, P, T), ab, ac (3, F, 1, T).
-    Returns the barycentric weights (v, w) of b and c, (F, P, T)."""
-    d1 = dot3(ab, ap)
-    d2 = dot3(ac, ap)
-    abab = dot3(ab, ab)
-    acac = dot3(ac, ac)
-    abac = dot3(ab, ac)
+def ericson_terms(ap, ab, ac, dot=None) -> tuple:
+    """The dot products and areas Ericson's regions are tested on (Real-Time Collision Detection
+    5.1.5), components first (3, ...): d1..d6 and the barycentric areas va, vb, vc. `dot`: the
+    components-first dot product (`dot3` by default; one frame's takes fewer calls)."""
+    dot = dot or dot3
+    d1 = dot(ab, ap)
+    d2 = dot(ac, ap)
+    abab = dot(ab, ab)
+    acac = dot(ac, ac)
+    abac = dot(ab, ac)
     d3, d4 = d1 - abab, d2 - abac  # (p - b).ab, (p - b).ac
     d5, d6 = d1 - abac, d2 - acac  # (p - c).ab, (p - c).ac
     vc = d1 * d4 - d3 * d2
     vb = d5 * d2 - d1 * d6
     va = d3 * d6 - d5 * d4
+    return d1, d2, d3, d4, d5, d6, va, vb, vc
 
-    def safe(num, den):
-        return num / np.where(den != 0, den, 1.0)
 
+def safe_divide(num, den):
+    """num / den, 0 where den is 0 (a degenerate triangle's region)."""
+    return num / np.where(den != 0, den, 1.0)
+
+
+def _closest_on_triangles(ap, ab, ac):
+    """Ericson's closest point on a triangle (Real-Time Collision Detection 5.1.5), branch-free
+    over arrays in components-first layout: ap = p - a (3, F, P, T), ab, ac (3, F, 1, T).
+    Returns the barycentric weights (v, w) of b and c, (F, P, T)."""
+    d1, d2, d3, d4, d5, d6, va, vb, vc = ericson_terms(ap, ab, ac)
     denom = va + vb + vc
-    inside_v, inside_w = safe(vb, denom), safe(vc, denom)
-    e_ab = safe(d1, d1 - d3)
-    e_ac = safe(d2, d2 - d6)
-    e_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
+    inside_v, inside_w = safe_divide(vb, denom), safe_divide(vc, denom)
+    e_ab = safe_divide(d1, d1 - d3)
+    e_ac = safe_divide(d2, d2 - d6)
+    e_bc = safe_divide(d4 - d3, (d4 - d3) + (d5 - d6))
     # Ericson's early returns in order A, B, AB, C, AC, BC, inside: applied in reverse so the
     # first region that holds wins.
     # (in place on the inside's arrays, this call's own: np.where's selection without its copies)

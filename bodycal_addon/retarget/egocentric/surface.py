@@ -424,18 +424,24 @@ class SurfacePoser:
             g0 += len(rows)
         self.pad_tri = flat[self.tri_rows] if self.point_count else self.tri_rows
 
+    def placed(self, joints: np.ndarray, frames: np.ndarray) -> tuple:
+        """The capsules' heads, tails and frames and the spheres' centres and frames, for joints
+        (..., J, 3) and bone frames (..., B, 3, 3): frames first or one frame alone."""
+        caps_rot = frames.take(self.cap_bone, axis=-3)
+        caps_head, caps_tail = joints.take(self.cap_ends[0], axis=-2), joints.take(self.cap_ends[1], axis=-2)
+        if self.cap_offset:  # axes off the bone line (bodymodel: axis_head / axis_tail)
+            caps_head = caps_head + np.einsum("...cij,cj->...ci", caps_rot, self.cap_off[:, 0])
+            caps_tail = caps_tail + np.einsum("...cij,cj->...ci", caps_rot, self.cap_off[:, 1])
+        sph_rot = frames.take(self.sph_bone, axis=-3)
+        sph_center = joints.take(self.sph_head, axis=-2) + np.einsum("...sij,sj->...si", sph_rot, self.sph_local)
+        return caps_head, caps_tail, caps_rot, sph_center, sph_rot
+
     def pose(self, joints: np.ndarray, frames: np.ndarray, normals: bool = True) -> PosedSurface:
         """The surface posed by canonical joints (F, J, 3) and bone frames (F, B, 3, 3), world.
         `normals` False leaves the triangles' normals out (None: a caller that reads none, as
         `PreparedTargets.map` without `turn_v`)."""
         nf = joints.shape[0]
-        caps_rot = frames.take(self.cap_bone, axis=1)
-        caps_head, caps_tail = joints.take(self.cap_ends[0], axis=1), joints.take(self.cap_ends[1], axis=1)
-        if self.cap_offset:  # axes off the bone line (bodymodel: axis_head / axis_tail)
-            caps_head = caps_head + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 0])
-            caps_tail = caps_tail + np.einsum("fcij,cj->fci", caps_rot, self.cap_off[:, 1])
-        sph_rot = frames.take(self.sph_bone, axis=1)
-        sph_center = joints.take(self.sph_head, axis=1) + np.einsum("fsij,sj->fsi", sph_rot, self.sph_local)
+        caps_head, caps_tail, caps_rot, sph_center, sph_rot = self.placed(joints, frames)
         if not self.point_count:
             tri = np.zeros((nf, 0, 3, 3))
         elif nf < FEW_FRAMES and len(self.point_groups) > 1:
