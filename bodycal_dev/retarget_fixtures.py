@@ -21,7 +21,11 @@ from bodycal_addon.body.rest_frames import complete_joints, model_rest_frames
 from bodycal_addon.body.skeleton import BONE_INDEX as BI
 from bodycal_addon.body.skeleton import BONES, JOINTS, SPINE_JOINTS
 from bodycal_addon.body.skeleton import HINGE_BONES as HINGES
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.core.transforms import normalize
+from bodycal_addon.retarget import avatar_pose as ap
+from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import synthetic
 
 
 def _rig_dict(name, bones, matrix_world, bone_map, rest_pose="T"):
@@ -275,6 +279,18 @@ def plain_and_turned_avatars() -> tuple[BodyModel, BodyModel]:
     pair a rig-posing test checks a result on (a rig whose armature is not the world's)."""
     return procedural_avatar(), procedural_avatar(matrix_world=rigid_matrix_world(30.0, 1.2), arm_drop_deg=30.0)
 
+
+
+def rigs_on_a_take(seed: int, motions: tuple, seconds: float):
+    """For each of `plain_and_turned_avatars`: (its rig, the bone frames a synthetic take of
+    `motions` gives it, the user's pelvis (F, 3)); the take made once, without calibration."""
+    perf = synthetic.make_performer(seed=seed)
+    rec, truth = synthetic.record_session(perf, motions=motions, calibration=False, motion_seconds=seconds)
+    user = truth.body_model()
+    up = ua.animate_user(rec, user)
+    for avatar in plain_and_turned_avatars():
+        rig = ap.AvatarRig.from_model(avatar)
+        yield rig, ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0), up.joints[:, JI["pelvis"]]
 
 # One frame's solve in mathutils (float32, bodycal_addon/core/one_frame.py) against the numpy path's
 # float64 values (DESIGN.md "Prepared solver"). Measured: on the pinned tracker takes

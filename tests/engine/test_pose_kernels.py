@@ -7,16 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodycal_addon.body.rest_frames import model_rest_frames
-from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.core import transforms as tf
-from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import pose_kernels as pk
-from bodycal_addon.retarget import user_animation as ua
 from bodycal_addon.retarget.rig import basis as rig_basis
 from bodycal_addon.retarget.rig import fk as rig_fk
 from bodycal_dev import retarget_fixtures as rt
-from bodycal_dev import synthetic
 
 
 def _same(a, b):
@@ -58,15 +53,8 @@ def test_entry_row_products_are_matmul_stack_to_the_bit():
 
 
 def test_a_bake_chunk_s_basis_is_the_general_formula_s_to_the_bit():
-    perf = synthetic.make_performer(seed=3)
-    rec, truth = synthetic.record_session(perf, motions=("clap", "walk_in_place"), calibration=False,
-                                          motion_seconds=1.5)
-    user = truth.body_model()
-    up = ua.animate_user(rec, user)
-    for avatar in rt.plain_and_turned_avatars():
-        rig = ap.AvatarRig.from_model(avatar)
-        frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
-        P, _ = rig_fk.pose(rig, rig.memo, frames, up.joints[:, JI["pelvis"]])
+    for rig, frames, pelvis in rt.rigs_on_a_take(3, ("clap", "walk_in_place"), 1.5):
+        P, _ = rig_fk.pose(rig, rig.memo, frames, pelvis)
         assert P.shape[1] >= tf.STACKED_FRAMES and P.shape[0] * P.shape[1] >= tf.MANY_PRODUCTS
         # the general formula (`basis.solve` of a few frames): X^T = P_child^T P_parent, times the
         # fixed factors bone by bone, Shepperd's quaternions of the transposed products
@@ -123,15 +111,7 @@ def test_one_frame_rig_solve_is_the_bake_chunk_s_on_a_take(monkeypatch):
     # mathutils' chain aim) against a many-frame chunk's (the bake's kernels) on frames of a take,
     # on a plain and a turned armature: numpy's path within 1e-12, mathutils' within float32's.
     from bodycal_addon.core import one_frame
-    perf = synthetic.make_performer(seed=4)
-    rec, truth = synthetic.record_session(perf, motions=("clap", "walk_in_place"), calibration=False,
-                                          motion_seconds=1.0)
-    user = truth.body_model()
-    up = ua.animate_user(rec, user)
-    for avatar in rt.plain_and_turned_avatars():
-        rig = ap.AvatarRig.from_model(avatar)
-        frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
-        pelvis = up.joints[:, JI["pelvis"]]
+    for rig, frames, pelvis in rt.rigs_on_a_take(4, ("clap", "walk_in_place"), 1.0):
         bake = rig.solve(frames, pelvis)
         assert len(frames) >= rig_fk.FEW_FRAMES
         for on, atol in ((False, 1e-12), (True, 1e-6)):

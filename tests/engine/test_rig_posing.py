@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodycal_addon.body.rest_frames import model_rest_frames
-from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.core import one_frame
-from bodycal_addon.retarget import avatar_pose as ap
 from bodycal_addon.retarget import user_animation as ua
 from bodycal_addon.retarget.rig import fk
 from bodycal_dev import retarget_fixtures as rt
@@ -23,16 +20,9 @@ def test_a_few_frames_pose_as_level_by_level_bit_for_bit(monkeypatch):
     # numpy's paths (one frame's chain aimed in mathutils: test_one_frame.py)
     monkeypatch.setattr(one_frame, "ENABLED", False)
     few_frames = fk.FEW_FRAMES
-    perf = synthetic.make_performer(seed=2)
-    rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
-                                          motion_seconds=1.0)
-    user = truth.body_model()
-    up = ua.animate_user(rec, user)
-    for avatar in rt.plain_and_turned_avatars():
-        rig = ap.AvatarRig.from_model(avatar)
+    for rig, frames, pelvis in rt.rigs_on_a_take(2, ("clap", "hand_on_head"), 1.0):
         assert rig.pose_plan(None).deferred is not None  # the padded pass is taken
-        frames = ap.copy_frames(up.frames, model_rest_frames(user), rig.frames0)
-        pelvis = up.joints[:, JI["pelvis"]] * 1.1
+        pelvis = pelvis * 1.1
         for f in range(0, len(frames) - 3, 7):
             for n in (1, 3):
                 poses = []
