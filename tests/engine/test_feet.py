@@ -146,3 +146,46 @@ def test_the_pivot_hands_over_without_a_step():
         weight, share, _, _ = feet.rolling(heel, ball, n, here, here)
         assert np.abs(np.diff(share)).max() < 0.09, (heel_stop, ball_stop, np.abs(np.diff(share)).max())
         assert share[25] < 0.1 and (heel_stop > 60 or share[70] > 0.9)
+
+
+def _quick_step(move: float, lift: float = 0.02, n: int = 300):
+    """An ankle that stands, lifts `lift` m for 0.2 s while moving `move` m, and stands again (a
+    three-point kit's shuffle: the stepper's lowest lift on a real A-Frame take)."""
+    t = np.arange(n) / FPS
+    u = np.clip((t - 1.0) / 0.2, 0.0, 1.0)
+    x = move * u * u * u * (10 - 15 * u + 6 * u * u)  # minimum jerk
+    z = 0.09 + lift * np.sin(np.pi * u)
+    return t, np.stack([x, np.zeros(n), z], axis=1)
+
+
+def _planned(ankle, t):
+    st = feet.detect(ankle, t, 0.09)
+    none = feet.eased(np.zeros(len(t), bool), 10)
+    heel_at, ball_at = feet.rolling_places(ankle, ankle, st, none)
+    return st, feet.rolling(st, none, feet.blend_frames(FPS), heel_at, ball_at, ankle, ankle)
+
+
+def test_a_quick_short_step_is_a_step_not_a_slide_over_the_floor():
+    """Two stances a short gap apart were one contact: across the gap the foot was held on the
+    floor (weight 1) while its place slid to the next stance's, 12 cm in 0.2 s (the real A-Frame
+    takes grabLeft/grabRight: 11-13 cm, up to 15 mm a frame). A foot that comes down elsewhere
+    steps: the plant lets go across the gap, and a planted foot's place never moves."""
+    t, ankle = _quick_step(0.12)
+    st, (weight, share, heel_at, _) = _planned(ankle, t)
+    assert st.count == 2
+    gap = np.flatnonzero(st.weight < 1.0)  # between the two stances (each eased in and out)
+    assert 0 < len(gap) < 2 * feet.blend_frames(FPS)  # a short gap: what was bridged
+    planted = (weight[1:] >= 1.0) & (weight[:-1] >= 1.0)
+    assert np.abs(np.diff(heel_at, axis=0)[planted]).max() < 1e-9  # no planted frame slides
+    assert weight[gap].min() < 0.5  # the foot lifts as the method lifts it
+
+
+def test_a_foot_lifted_for_a_moment_in_place_stays_one_contact():
+    """The bridge kept where it belongs: a foot lifted 8 cm for 0.2 s and set down where it was is
+    one contact (the ankle does not dip to the method's and back in a few frames)."""
+    t, ankle = _quick_step(0.0, lift=0.08)
+    st, (weight, _, heel_at, _) = _planned(ankle, t)
+    gap = np.flatnonzero(st.weight < 1.0)
+    assert st.count == 2 and 0 < len(gap) < 2 * feet.blend_frames(FPS)
+    assert weight.min() >= 1.0
+    assert np.ptp(heel_at, axis=0).max() < 1e-9
