@@ -26,7 +26,9 @@ offset under the head, a foot stepping when 25 cm from its place), side by side.
 
 Part 2, real: every take of sample_data/real_vr (HMD and two Vive wands, no calibration steps) is
 read, calibrated, retargeted with every method and baked (the bake's verification on the evaluated
-rig): no NaN, verified, the feet on the floor and still while they stand, the controllers within
+rig): no NaN, verified, the feet on the floor and still while they stand, the longest path a heel or
+ball skin point travels over the floor in one stay on it (`metrics.floor_travel_mm`, whatever the
+estimated stance says: a foot held down while it moves skates), the controllers within
 5 mm of their arms' reach (the user's skeleton), the avatar's wrists' acceleration p95 against the
 wrists the controllers carry (scaled by the arms).
 
@@ -279,6 +281,9 @@ def real_part(quick: bool) -> dict:
                 got[f"skin_{s}_mm"] = {"median": round(float(np.median(low)), 1), "worst": round(float(low.min()), 1)}
                 got[f"slide_{s}_p95_mm"] = max(metrics.slide_p95_mm(sk_[part], on, rec.fps) or 0.0
                                                for part in ("heel", "ball"))
+            # what the animator sees whatever the stance: a skin point's longest skate over the floor
+            got["floor_travel_max_mm"] = max(metrics.floor_travel_mm(sk_[part]) for sk_ in skin.values()
+                                             for part in ("heel", "ball"))
             # against the wrist as the controllers carry it (the user's, from the same smoothed devices;
             # the controller's own origin moves less than the wrist it turns about), scaled as the method
             # scales motion (metrics.motion_scale: offsets by the eye heights, the others by the arms)

@@ -132,6 +132,25 @@ def foot_sliding(point, planted) -> np.ndarray:
     return np.where(pl[1:] & pl[:-1], step, np.nan)
 
 
+ON_FLOOR = 0.003  # m: a skin point within this of its own lowest height stands on the floor (`floor_travel_mm`)
+
+
+def floor_travel_mm(point) -> float:
+    """The longest horizontal path (mm) a skin point (F, 3) travels over the floor in one stay on
+    it: consecutive frames within ON_FLOOR of its own lowest height, whatever any stance detection
+    says (a foot held on the floor while it moves skates; a planted one travels ~0)."""
+    p = np.asarray(point, float)
+    if len(p) < 2 or not np.isfinite(p).all():
+        return 0.0
+    on = p[:, 2] <= p[:, 2].min() + ON_FLOOR
+    both = on[1:] & on[:-1]
+    if not both.any():
+        return 0.0
+    step = np.linalg.norm(np.diff(p[:, :2], axis=0), axis=-1)
+    stay = np.cumsum(np.r_[True, both[1:] != both[:-1]])  # a label per run of `both`
+    return round(float(np.bincount(stay[both], step[both]).max()) * 1000.0, 1)
+
+
 def planted_frames(point, speed_threshold: float = 0.05, height_threshold: float = 0.12,
                    dt: float = 1 / 90) -> np.ndarray:
     """Frames where a foot point (F, 3) is planted: low (z below `height_threshold`) and slow

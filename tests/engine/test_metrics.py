@@ -74,6 +74,23 @@ def test_floor_sliding_reach_and_stats():
     assert err == {"knee_l": pytest.approx(0.01)}
 
 
+def test_floor_travel_is_the_longest_skate_in_one_stay_on_the_floor():
+    """Held on the floor (2.5 mm up, within ON_FLOOR of the lowest) while moving 10 cm: 100 mm; the
+    same move lifted 2 cm counts nothing; two stays are not added; a point never down twice: 0."""
+    point = np.zeros((40, 3))
+    point[10:20, 0] = np.linspace(0.0, 0.1, 10)  # skates 10 cm in its first stay
+    point[20:, 0] = 0.1
+    point[10:20, 2] = 0.0025
+    point[25:30, 2] = 0.02  # lifted
+    point[25:30, 0] = np.linspace(0.1, 0.4, 5)  # moves 30 cm in the air
+    point[30:, 0] = 0.4
+    point[33:36, 0] = [0.41, 0.42, 0.43]  # a second, shorter skate: 3 cm there and 3 back
+    assert metrics.floor_travel_mm(point) == pytest.approx(100.0)
+    point[10:20, 2] = 0.02
+    assert metrics.floor_travel_mm(point) == pytest.approx(60.0)
+    assert metrics.floor_travel_mm(np.c_[np.arange(5.0), np.zeros(5), np.arange(5.0)]) == 0.0
+
+
 def test_planted_frames_need_a_low_and_slow_foot():
     t = np.arange(10)
     point = np.zeros((10, 3))
