@@ -140,6 +140,10 @@ def _live_solver_on(follower, frames):
     """A LiveSolver of the follower's models and devices pushed the frames (`frames`: index ->
     LiveFrame) its solver was handed (`FollowerStats.indices`); returns it and its last solved
     frame."""
+    # A worker that answered nothing in ANSWER_S (a machine overloaded) is replaced by a solver in
+    # this process, which starts its state (filters, planted feet) afresh: the replay below, one
+    # solver from the first frame, would then differ for that reason, which is said here instead.
+    assert "from now on" not in (follower.note or ""), follower.note
     session = live.session()
     devices = [Device(n, session.kinds[n], session.roles[n]) for n in follower.order]
     markers = list(follower.marker_order)  # the gloves' markers pose the fingers
