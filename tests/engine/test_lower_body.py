@@ -124,6 +124,25 @@ def test_the_pelvis_follows_the_walker_under_the_head(walk):
     assert np.percentile(np.linalg.norm(d, axis=1), 95) < 0.08
 
 
+def test_the_pelvis_is_compared_with_the_same_landmark_on_both_sides(walk):
+    """bench_three_point compares our pelvis joint with the clip's "pelvis": both must be the middle
+    of the two hip joint centres. Ours: the user skeleton's pelvis joint, its hips beside it (never
+    above or below). The clip's: the middle of its thigh bones' heads, not its root (CMU's root sits
+    on the pelvis about 0.1 m above them, where the hip-joint bones start)."""
+    rec, cap, user = walk
+    pose = animate_user(lower_body.complete(rec, user), user)
+    mid = 0.5 * (pose.joints[:, JI["hip_l"]] + pose.joints[:, JI["hip_r"]])
+    assert np.abs(pose.joints[:, JI["pelvis"]] - mid).max() < 1e-6
+    truth = cap.truth()
+    J = truth["joints"]
+    T = truth["positions"]
+    assert np.abs(T[:, J.index("pelvis")] - 0.5 * (T[:, J.index("hip_l")] + T[:, J.index("hip_r")])).max() < 1e-9
+    perf = clip_performer(paths.data_dir(), "02_01_walk.bvh")
+    _, P = perf.clip.fk()  # the clip's own joints, Z up
+    root_above = P[:, perf.j("pelvis"), 2] - perf.truth_positions(P)[:, J.index("pelvis"), 2]
+    assert np.median(root_above) > 0.08  # the root is another point, well above the hips' middle
+
+
 def test_turning_the_recording_turns_the_estimated_body(walk):
     """An invariant: the same take turned about the vertical and moved on the floor gives the same
     estimated devices, turned and moved (the model has no preferred facing)."""
