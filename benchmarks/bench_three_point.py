@@ -6,7 +6,10 @@ beside, not in the targets) through `evaluation/` (an outside tool's recording: 
 mounting, noise, dropouts, facing) with only the HMD and the controllers, calibrated from those
 three (the session's T-pose and arm circles) and solved; against the clip's full body:
 - the pelvis (the user's skeleton, step 1) against the clip's: median and p95 (mm), and the median
-  of its vertical part (the anthropometric table's hip height against the clip skeleton's);
+  of its vertical part (the anthropometric table's hip height against the clip skeleton's); the
+  same landmark on both sides, the middle of the hip joint centres (`PELVIS_POINT`, printed); the
+  error over the floor, how far the vertical part strays from its median, and the hips' standing
+  height as a fraction of the stature, ours and the clip's;
 - the hands on their devices: how far beyond its arm's reach from the shoulder a controller puts
   the wrist (p95 mm; the estimated arm must reach what the controller holds); and the user's skull
   base and wrists against the clip's (the calibration, median mm);
@@ -54,7 +57,7 @@ import numpy as np  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
-from bodycal_addon.calibration.defaults import RADII  # noqa: E402
+from bodycal_addon.calibration.defaults import EYE_TO_STATURE, RADII  # noqa: E402
 from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording import io as recording_io  # noqa: E402
@@ -76,6 +79,9 @@ KNEE_MAX_DEG = 155.0
 LEGS_APART = 2 * RADII["ankle"]  # x stature
 CONTACT_MOTIONS = ("clap", "hand_on_belly", "hand_on_head", "hands_on_thighs", "squat")
 ESTIMATORS = {"bodycal": lower_body.complete, "vrik_like": vrik_baseline.complete}
+PELVIS_POINT = ("the middle of the two hip joint centres on both sides: ours the user skeleton's pelvis joint "
+                "(its hips beside it), the clip's the heads of its thigh bones (evaluation/performer.py "
+                "truth_positions), not its root, which sits 96-111 mm above them")
 
 
 def _avatar():
@@ -183,10 +189,23 @@ def truth_part(arm, avatar, workdir: Path, quick: bool) -> dict:
             ref = int(round(user.reference_time * FPS))
             moved = np.linalg.norm(d - (pose.joints[ref, JI["pelvis"]] - truth["positions"][ref, Jt["pelvis"]]),
                                    axis=1) * 1000
+            floor = np.linalg.norm(d[:, :2], axis=1) * 1000
+            stature = user.extra["eye_height"] / EYE_TO_STATURE
             fig = {"pelvis_mm": {"median": round(float(np.median(e)), 1), "p95": round(float(np.percentile(e, 95)), 1),
                                  "vertical_median": round(float(np.median(d[:, 2])) * 1000, 1),
+                                 # how far the height's error strays from its constant (the pelvis
+                                 # dropping and rising with the walker's), and the error over the floor
+                                 "vertical_spread_p95": round(float(np.percentile(
+                                     np.abs(d[:, 2] - np.median(d[:, 2])), 95)) * 1000, 1),
+                                 "over_floor_median": round(float(np.median(floor)), 1),
+                                 "over_floor_p95": round(float(np.percentile(floor, 95)), 1),
                                  "motion_median": round(float(np.median(moved)), 1),
                                  "motion_p95": round(float(np.percentile(moved, 95)), 1)},
+                   # the hip joints' height standing (the reference time), x the stature the HMD gives:
+                   # ours the anthropometric table's, the clip's its skeleton's
+                   "hips_height_x_stature": {
+                       "ours": round(float(pose.joints[ref, JI["pelvis"], 2]) / stature, 3),
+                       "clip": round(float(truth["positions"][ref, Jt["pelvis"], 2]) / stature, 3)},
                    "calibrated_mm": {j: round(float(np.median(np.linalg.norm(pose.joints[a:b, JI[j]] - T[:, Jt[j]],
                                                                              axis=1))) * 1000, 1)
                                      for j in ("skull_base", "wrist_l", "wrist_r")},
@@ -346,7 +365,8 @@ def main(quick: bool = False, real_only: bool = False):
         truth = truth_part(arm, avatar, workdir, quick)
         contacts = contact_part(arm, avatar, quick)
     real = real_part(quick)
-    out = {"bench": "three_point", "avatar": AVATAR, "real_avatar": REAL_AVATAR, "truth": truth, "contacts": contacts,
+    out = {"bench": "three_point", "avatar": AVATAR, "real_avatar": REAL_AVATAR, "pelvis_point": PELVIS_POINT,
+           "truth": truth, "contacts": contacts,
            "real": real, "targets": targets(truth, contacts, real), "seconds": round(time.time() - t0, 1)}
     print(json.dumps(out))
     return out

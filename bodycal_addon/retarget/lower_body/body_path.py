@@ -12,7 +12,9 @@ over frames.
   a squat (the knees bend): a bow looks down, a squat keeps the head up (`trunk_lean`). The pelvis takes
   `PELVIS_SHARE` of the lean (lumbopelvic rhythm), the spine the rest (the spine IK, aimed at the
   skull base).
-- Pelvis: the skull base less the trunk turned by the heading and leaned; it drops as the head
+- Pelvis: the skull base less the trunk turned by the heading and leaned toward where the head
+  looks (the head's own heading: a bow after a quick turn bends toward what the eyes look down
+  at, which the smoothed body heading reaches late); it drops as the head
   drops (the knees bend) and rises with it off the floor (`lift`: both feet leave the floor, a hop)
   once above its standing height by more than `LIFT_FROM`.
 - Seated (`seat_height`): the pelvis on the seat under the trunk, moving over the floor only as a
@@ -103,9 +105,19 @@ def trunk_at(shape: LowerBodyShape, phi: np.ndarray) -> np.ndarray:
     return np.stack([np.full_like(phi, r), f + u * np.sin(phi), u * np.cos(phi)], axis=-1)
 
 
-def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """(F, 3) the pelvis: the skull base less the trunk turned and leaned."""
-    return neck - np.einsum("fij,fj->fi", body_axes(heading), trunk_at(shape, phi))
+def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, phi: np.ndarray,
+                 toward: np.ndarray | None = None) -> np.ndarray:
+    """(F, 3) the pelvis: the skull base less the trunk turned by the body's `heading` and leaned
+    by `phi` toward the heading `toward` (F,) (where the head looks: a bow bends toward what the
+    eyes look down at, which a quick turn reaches before the smoothed body heading does), the
+    body's own when None."""
+    v = trunk_at(shape, phi)
+    if toward is None:
+        return neck - np.einsum("fij,fj->fi", body_axes(heading), v)
+    bow = np.zeros_like(v)
+    bow[:, 1] = shape.trunk[2] * np.sin(phi)  # the lean's part of `trunk_at`, along `toward`
+    return (neck - np.einsum("fij,fj->fi", body_axes(heading), v - bow)
+            - np.einsum("fij,fj->fi", body_axes(toward), bow))
 
 
 def pelvis_rotation(heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -138,7 +150,7 @@ def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, 
     heading = clamp_heading(gaussian(head_heading, HEADING_SMOOTH_S * fps), head_heading)
     if seat_height is None:
         phi = trunk_lean(shape, neck[:, 2], pitch)
-        pelvis = pelvis_under(shape, neck, heading, phi)
+        pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
     else:
         pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
     velocity = gaussian(np.gradient(pelvis[:, :2], time, axis=0) if len(time) > 1 else np.zeros((len(time), 2)),
@@ -183,7 +195,7 @@ class LivePath:
         self._heading = heading
         if self.seat_height is None:
             phi = trunk_lean(shape, neck[:, 2], pitch)
-            pelvis = pelvis_under(shape, neck, heading, phi)
+            pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
         else:
             def follow(upright, _self=self, _dt=dt):
                 if _self._seat is None:
