@@ -524,8 +524,10 @@ def _rest_spine_one(data: bytes, shape: tuple) -> tuple:
 def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
     """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame in mathutils
     (float32: core/one_frame.py): the numpy path's steps on single Vectors, each vertebra's turn
-    about a unit axis as a Quaternion (Rodrigues' formula), the scalars in Python floats; the joints
-    relative to the spine's start, added to it in float64 (as `_two_bone_one`'s)."""
+    about a unit axis as a Quaternion (Rodrigues' formula), the scalars in Python floats, and each
+    vertebra's joint and twisted frame in Python floats too (cheaper than a Vector operation per
+    step: DESIGN.md "Prepared solver"); the joints relative to the spine's start, added to it in
+    float64 (as `_two_bone_one`'s)."""
     lengths, seg0, u0, k, ratio = _rest_spine_one(rest_segments.tobytes(), rest_segments.shape)
     rot = Matrix(sacrum_rot[0].tolist())
     ut, reach = _m_unit(Vector((target[0] - start[0]).tolist()) @ rot, u0)  # rot^T (target - start)
