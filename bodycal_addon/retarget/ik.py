@@ -524,8 +524,10 @@ def _rest_spine_one(data: bytes, shape: tuple) -> tuple:
 def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
     """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame in mathutils
     (float32: core/one_frame.py): the numpy path's steps on single Vectors, each vertebra's turn
-    about a unit axis as a Quaternion (Rodrigues' formula), the scalars in Python floats; the joints
-    relative to the spine's start, added to it in float64 (as `_two_bone_one`'s)."""
+    about a unit axis as a Quaternion (Rodrigues' formula), the scalars in Python floats, and each
+    vertebra's joint and twisted frame in Python floats too (cheaper than a Vector operation per
+    step: DESIGN.md "Prepared solver"); the joints relative to the spine's start, added to it in
+    float64 (as `_two_bone_one`'s)."""
     lengths, seg0, u0, k, ratio = _rest_spine_one(rest_segments.tobytes(), rest_segments.shape)
     rot = Matrix(sacrum_rot[0].tolist())
     ut, reach = _m_unit(Vector((target[0] - start[0]).tolist()) @ rot, u0)  # rot^T (target - start)
@@ -540,33 +542,46 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
     # the last rigid turn and the sacrum's frame, one matrix
     world = rot @ Quaternion(turn_axis, math.atan2(sin_t, cdir.dot(ut))).to_matrix()
     stretch = min(max(reach / max(clen, EPS), MIN_SPINE_STRETCH), MAX_SPINE_STRETCH)
-    dirs = [world @ v for v in seg]  # each vertebra's unit direction, world
-    joints = [_ZERO]
-    for v, ln in zip(dirs, lengths):
-        joints.append(joints[-1] + v * (ln * stretch))
+    # From here on each vertebra's few scalars are Python floats (a float operation costs about a
+    # hundred instructions, a mathutils one on a Vector 1,500-2,500: the loops below were two
+    # thirds of the kernel's): its unit direction, world, its top joint relative to the start.
+    dirs = [(world @ v)[:] for v in seg]
+    joints = [0.0, 0.0, 0.0]
+    jx = jy = jz = 0.0
+    for (vx, vy, vz), ln in zip(dirs, lengths):
+        step = ln * stretch
+        jx, jy, jz = jx + vx * step, jy + vy * step, jz + vz * step
+        joints += (jx, jy, jz)
     # the twist: the hip axis turned uniformly about the chord up to the top's right
     y_sac, x_sac = rot.col[1], rot.col[0]
-    chord = _m_unit(joints[-1], y_sac)[0]
+    chord = _m_unit(Vector((jx, jy, jz)), y_sac)[0]
     hip = _m_unit(x_sac - chord * x_sac.dot(chord), lambda: _m_any_perpendicular(chord))[0]
     total = 0.0
     if top_right is not None:
         tr = Vector(np.asarray(top_right, float)[0].tolist())
         top = _m_unit(tr - chord * tr.dot(chord), hip)[0]
         total = math.atan2(hip.cross(top).dot(chord), hip.dot(top))
-    other = chord.cross(hip)
+    (hx, hy, hz), (ox, oy, oz), (cx, cy, cz) = hip[:], chord.cross(hip)[:], chord[:]
     n = len(seg)
-    xs, ys, zs = [], [], []
-    for m, (v, ln) in enumerate(zip(dirs, lengths)):
+    rows = []
+    for m, ((vx, vy, vz), ln) in enumerate(zip(dirs, lengths)):
         ang = total * ((m + 1.0) / n)
-        right = hip * math.cos(ang) + other * math.sin(ang)
+        ca, sa = math.cos(ang), math.sin(ang)
+        r0, r1, r2 = hx * ca + ox * sa, hy * ca + oy * sa, hz * ca + oz * sa  # the right, turned
         # +Y along the vertebra (the chord where it vanishes), +X the right made perpendicular to it
-        y = v.normalized() if ln * stretch * v.length > EPS else chord
-        x = right - y * right.dot(y)
-        size = x.length
-        x = x / size if size > EPS else _m_any_perpendicular(y)
-        xs.append(x[:])
-        ys.append(y[:])
-        zs.append(x.cross(y)[:])
-    rotations = np.empty((1, n, 3, 3))
-    rotations[0, :, :, 0], rotations[0, :, :, 1], rotations[0, :, :, 2] = xs, ys, zs
-    return SpineResult(start[:, None] + np.array([[v[:] for v in joints]]), rotations, sacrum_rot, np.array([delta]))
+        size = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if ln * stretch * size > EPS:
+            y0, y1, y2 = vx / size, vy / size, vz / size
+        else:
+            y0, y1, y2 = cx, cy, cz
+        along = r0 * y0 + r1 * y1 + r2 * y2
+        x0, x1, x2 = r0 - y0 * along, r1 - y1 * along, r2 - y2 * along
+        size = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        if size > EPS:
+            x0, x1, x2 = x0 / size, x1 / size, x2 / size
+        else:
+            x0, x1, x2 = _m_any_perpendicular(Vector((y0, y1, y2)))[:]
+        rows += (x0, y0, x1 * y2 - x2 * y1, x1, y1, x2 * y0 - x0 * y2, x2, y2, x0 * y1 - x1 * y0)
+    rotations = np.array(rows).reshape(1, n, 3, 3)
+    return SpineResult(start[:, None] + np.array(joints).reshape(1, n + 1, 3), rotations, sacrum_rot,
+                       np.array([delta]))

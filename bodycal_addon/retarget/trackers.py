@@ -170,6 +170,11 @@ class _Fill:
         return np.where(idx < 0, self.first.take(columns)[:, None], idx)
 
 
+# One-frame reads of a whole take convert its rotations a block of this many frames at a time
+# (`TrackerReader._whole_rotations`: 1 MB for a dozen devices).
+ROTATION_BLOCK = 1024
+
+
 class TrackerReader:
     """The devices of `recording` by role for `model` (a user model: its `extra["tpose"]` gives the
     reference rotations, else the recording at `model.reference_time`), read a block of frames at
@@ -240,12 +245,17 @@ class TrackerReader:
         key = (start, stop, self.version)
         if self._last is not None and self._last[0] == key:  # the animation's and the method's read
             return self._last[1]
+        rotations = None
         if self._whole is not None:
             pos, quat, tracked, how = (a[start:stop].swapaxes(0, 1) for a in self._whole)
             tracked = tracked.copy()
+            if stop - start == 1:
+                rotations = self._whole_rotations(start)
         else:
             pos, quat, tracked, how = self._read_causal(start, stop)
-        positions, rotations = np.ascontiguousarray(pos), quat_to_matrix(quat)
+        positions = np.ascontiguousarray(pos)
+        if rotations is None:
+            rotations = quat_to_matrix(quat)
         v = rec.valid[start:stop].take(self.devices, axis=1)
         if all_true(v):  # every device tracked (a live frame's usual case)
             valid, partly = np.ones(stop - start, bool), {}
@@ -274,6 +284,18 @@ class TrackerReader:
         if counts[3]:
             parts.append(f"{counts[3]} held at the last valid pose")
         return f"{role}: {lost} frames without tracking: " + ", ".join(parts)
+
+    def _whole_rotations(self, frame: int) -> np.ndarray:
+        """(R, 1, 3, 3) the rotation matrices of one frame of a whole take (a preview's scrubbed
+        frame), from its block of `ROTATION_BLOCK` frames' made at once and kept: one numpy pass
+        a block instead of one a frame (quat_to_matrix's entries are each its own arithmetic, so
+        the same bits)."""
+        b0 = frame - frame % ROTATION_BLOCK
+        held = self.__dict__.get("_rotation_block")
+        if held is None or held[0] != (b0, self.version):
+            quat = self._whole[1][b0:b0 + ROTATION_BLOCK].swapaxes(0, 1)
+            held = self._rotation_block = ((b0, self.version), quat_to_matrix(quat))
+        return held[1][:, frame - b0:frame - b0 + 1].copy()  # the caller owns it (as a fresh one)
 
     def _bridge_whole(self):
         """The whole take's poses of the roles' devices with every gap bridged, ridden or held

@@ -112,3 +112,23 @@ def test_numpy_fallback_is_the_blocks_path(take, monkeypatch):
         np.testing.assert_allclose(got.joints[0], whole.joints[f], rtol=0, atol=1e-9)
         np.testing.assert_allclose(got.frames[0], whole.frames[f], rtol=0, atol=1e-9)
     assert anim._one is None  # never made: the fallback is the block's path
+
+
+def test_one_frame_reads_of_a_whole_take_are_the_blocks_to_the_bit(take, monkeypatch):
+    """A frame read alone from a whole take takes its rotations from a block converted at once
+    (`TrackerReader._whole_rotations`): every field is the block read's, bit for bit, on either
+    side of a block's edge, and a caller writing into them leaves the next read alone."""
+    from bodycal_addon.retarget import trackers as trk
+    rec, user = take
+    monkeypatch.setattr(trk, "ROTATION_BLOCK", 7)  # several blocks in the short take
+    whole = trk.TrackerReader(rec, user).read()
+    reader = trk.TrackerReader(rec, user)
+    assert reader._whole is not None
+    for f in [0, 6, 7, 13, 14, 20, rec.frame_count - 1, 6, 0]:
+        one = reader.read(f, f + 1)
+        assert one.rotations.tobytes() == whole.rotations[:, f:f + 1].tobytes()
+        assert one.positions.tobytes() == whole.positions[:, f:f + 1].tobytes()
+        assert np.array_equal(one.valid, whole.valid[f:f + 1])
+        one.rotations[:] = np.nan  # the caller's own copy
+        reader._last = None
+    assert reader._rotation_block[0][0] == 0  # the last frames read came from the first block
