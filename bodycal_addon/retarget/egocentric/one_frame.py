@@ -149,10 +149,6 @@ class _Pairs:
         for k, s in enumerate(starts):
             n = (len(tri_t) if k + 1 == len(starts) else starts[k + 1]) - s
             self.tri_rows[k, :n] = np.arange(s, s + n)
-        # every pair's values grouped by point (np.minimum.reduceat's segments: the palms' nearest)
-        every = np.concatenate([self.cap_p, self.tri_p])
-        self.by_point = np.argsort(every, kind="stable")
-        self.point_starts = np.searchsorted(every[self.by_point], np.arange(len(excluded)))
 
 
 def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
@@ -233,16 +229,25 @@ class FrameUser:
 class OneFrameMapping:
     """One frame's egocentric mapping of `names` (canonical joints) through the surfaces posed by
     `user_poser` and `avatar_poser` (the same element ids), each target not mapped on its own
-    chain's elements nor on `exclude`'s (per target, element ids); `palms`: the sides whose palm
-    centre's nearest distance `palm_distances` gives (not on its own arm and hand). Made by
-    `build`: None where the layout does not fit (module docstring)."""
+    chain's elements nor on `exclude`'s (per target, element ids); `palms`: the sides whose hand
+    is mapped through its palm's centre where that is near the body (`prepare`). Made by `build`:
+    None where the layout does not fit (module docstring).
+
+    Decision (the palms, DESIGN.md §5 "The hand's point"): each palm centre is one more point of the
+    same pass as the targets, on its own pairs (the elements not on its own arm and hand: its
+    wrist target's), whose nearest distance gives the hand's palm weight w. Where w is 0 or 1 (a
+    hand away from the body or on it: most frames) the wrist target's point is the wrist or the
+    palm centre, both already projected: the other's pairs get weight 0, and the mapping is the
+    one it would be for that point alone (adding zeros leaves each sum as it was). Between them
+    the point is neither, and the pass runs again with the wrists moved. One pass, not two: a
+    pass is ~150 numpy calls whatever its size."""
 
     @classmethod
     def build(cls, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=()):
         if user_poser.element_ids != avatar_poser.element_ids or user_poser.mesh_slices != avatar_poser.mesh_slices:
             return None
         fm = cls(names, user_poser, avatar_poser, exclude, palms)
-        return None if fm.pairs.empty or fm.palm_pairs.empty else fm
+        return None if fm.pairs.empty else fm
 
     def __init__(self, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=()):
         self.names = list(names)
@@ -251,15 +256,25 @@ class OneFrameMapping:
         layout = (user_poser.cap_radius.shape[0], user_poser.sph_radius.shape[0], len(user_poser.mesh_slices))
         excluded = [own_chain_elements(n) | (frozenset(exclude[i]) if exclude else frozenset())
                     for i, n in enumerate(self.names)]
-        self.pairs = pr = _Pairs(excluded, ids, layout, user_poser.mesh_slices)
-        self.palm_pairs = _Pairs([own_chain_elements(f"wrist_{s}") for s in palms], ids, layout,
+        P, H = len(self.names), len(palms)
+        self.wrist_rows = np.array([self.names.index(f"wrist_{s}") for s in palms], int)
+        # the points: the targets, then the palm centres (each on its own arm's exclusions)
+        self.pairs = pr = _Pairs(excluded + [own_chain_elements(f"wrist_{s}") for s in palms], ids, layout,
                                  user_poser.mesh_slices)
-        P = len(self.names)
+        self.row = np.concatenate([np.arange(P), self.wrist_rows]).take(pr.point)  # each pair's target
+        # the palms' pairs grouped by palm (np.minimum.reduceat's segments), and each pair's weight
+        # 1 or 0 for each case: {hands on their palm (bools): weights}, None: the pass with moved wrists
+        palm_pairs = np.flatnonzero(pr.point >= P)
+        self.palm_order = palm_pairs[np.argsort(pr.point[palm_pairs], kind="stable")]
+        self.palm_starts = np.searchsorted(pr.point[self.palm_order], P + np.arange(H))
+        self.active = {None: (pr.point < P).astype(F32)}
+        for case in np.ndindex(*(2,) * H):
+            on = np.array(case, bool)
+            off = np.isin(pr.point, self.wrist_rows[on]) | np.isin(pr.point, P + np.flatnonzero(~on))
+            self.active[tuple(on)] = (~off).astype(F32)
         # capsule and sphere radii per pair (at the head, tail - head), both bodies
         radii = [np.concatenate([ps.cap_radius, np.repeat(ps.sph_radius[:, None], 2, axis=1)]) for ps in self.posers]
         self.radius = [np.stack([r[pr.cap_e, 0], r[pr.cap_e, 1] - r[pr.cap_e, 0]]).astype(F32) for r in radii]
-        pe = self.palm_pairs.cap_e
-        self.palm_radius = np.stack([radii[0][pe, 0], radii[0][pe, 1] - radii[0][pe, 0]]).astype(F32)
         # each pair's chain: its element's root joint, and the (pair, bone) entries of the path from
         # it to the target (eq. 2)
         # it to the target (eq. 2), as a (pair, bone) mask: a chain's sum over its bones is one row of
@@ -268,14 +283,14 @@ class OneFrameMapping:
         roots = list(user_poser.element_roots)
         self.root_joint = np.array([JI[roots[e]] for e in pr.element], int)
         self.path_mask = np.zeros((len(GRAPH_BONES), len(pr.point)), F32)  # (bone, pair): rows are contiguous
-        for k, (p, e) in enumerate(zip(pr.point, pr.element)):
-            self.path_mask[list(kinematic_path(roots[e], self.names[p])), k] = 1.0
+        for k, (r, e) in enumerate(zip(self.row, pr.element)):
+            self.path_mask[list(kinematic_path(roots[e], self.names[r])), k] = 1.0
         # the floor's paths: from each ankle (left, then right) to each target
         self.floor_mask = np.zeros((2 * P, len(GRAPH_BONES)), F32)
         for side, s in enumerate(sk.SIDES):
             for p, n in enumerate(self.names):
                 self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
-        self.sums = np.concatenate([pr.point, pr.point + P, pr.point + 2 * P])  # x, y, z sums' bins
+        self.sums = np.concatenate([self.row, self.row + P, self.row + 2 * P])  # x, y, z sums' bins
 
     # --- the surfaces ---------------------------------------------------------------------------
 
@@ -287,44 +302,55 @@ class OneFrameMapping:
 
     # --- the palms ------------------------------------------------------------------------------
 
-    def palm_distances(self, us: FlatSurface, palms: np.ndarray) -> np.ndarray:
-        """(H,) each palm centre's (H, 3) distance to the nearest element of `us` that is not on
-        its own arm and hand (`project`'s |v|: |n - r| on a capsule or the sphere, the closest
-        triangle's on a mesh)."""
-        pr = self.palm_pairs
-        pts = palms.T.astype(F32, order="C")
-        t, _, n, r, *_ = _capsules(pr, pts, us, self.palm_radius)
-        td2 = _triangles(pr, pts, us)[3]
-        every = np.concatenate([np.abs(n - r), np.sqrt(td2)])
-        return np.minimum.reduceat(every.take(pr.by_point), pr.point_starts).astype(float)
+    def _palm_near(self, n: np.ndarray, r: np.ndarray, td: np.ndarray) -> np.ndarray:
+        """(H,) each palm centre's distance to the nearest element it is paired with (`project`'s
+        |v|: |n - r| on a capsule or the sphere, the closest triangle's on a mesh), from a pass's
+        capsule pairs' n and r and mesh pairs' closest distance td."""
+        every = np.concatenate([np.abs(n - r), td])
+        return np.minimum.reduceat(every.take(self.palm_order), self.palm_starts).astype(float)
 
     # --- the user's side ------------------------------------------------------------------------
 
-    def prepare(self, us: FlatSurface, pts: np.ndarray, bones: np.ndarray) -> FrameUser:
+    def prepare(self, us: FlatSurface, pts: np.ndarray, bones: np.ndarray, levers: np.ndarray,
+                palm_weight) -> tuple[FrameUser, np.ndarray]:
         """The user's side of one frame: targets `pts` (P, 3) and the user's GRAPH_BONES vectors
-        `bones` (NB, 3) (tail - head) on the user's surface `us` (`prepare_targets`' work)."""
+        `bones` (NB, 3) (tail - head) on the user's surface `us` (`prepare_targets`' work), each
+        wrist target moved by w times its hand's `levers` (H, 3) (wrist to palm centre), w the
+        palm's `palm_weight` (of the palms' (H,) nearest distances, (H,) in [0, 1]); and w."""
         pr, P = self.pairs, len(self.names)
-        p3 = pts.T.astype(F32, order="C")
+        palms = pts.take(self.wrist_rows, axis=0) + levers
+        p_all = np.concatenate([pts, palms]).T.astype(F32, order="C")
         # Projections (projection.project_components)
-        t, d, n, r, ab, abab, rot = _capsules(pr, p3, us, self.radius[0])
+        t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
+        mesh_v, tri, bary, mesh_factor, td = self._meshes(p_all, us)
+        w = np.asarray(palm_weight(self._palm_near(n, r, td)), float).reshape(-1) if len(levers) else np.zeros(0)
+        eff = pts.copy()
+        eff[self.wrist_rows] += w[:, None] * levers
+        on = w == 1.0
+        case = tuple(on) if (on | (w == 0.0)).all() else None
+        if case is None:  # a hand between wrist and palm: the pass again, the wrists moved (Decision)
+            p_all = np.concatenate([eff, palms]).T.astype(F32, order="C")
+            t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
+            mesh_v, tri, bary, mesh_factor, _ = self._meshes(p_all, us)
+        active = self.active[case]
+        p3 = eff.T.astype(F32, order="C")
         cap_v = (n - r) * d
         cos_ax = dot3(d, ab) / np.sqrt(abab)
         cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
         cap_dir = _apply_t(rot, d)
-        mesh_v, tri, bary, mesh_factor = self._meshes(p3, us)
         v = np.concatenate([cap_v, mesh_v], axis=1)
-        x = p3.take(pr.point, axis=1) - v
+        x = p_all.take(pr.point, axis=1) - v
         dist2 = dot3(v, v)
         factor = np.concatenate([cap_factor, mesh_factor])
         # Weights (weights.raw_weights, normalise_weights), each target's sums over its own pairs
-        lam_raw = factor / np.maximum(dist2, MIN_DISTANCE ** 2)
+        lam_raw = factor / np.maximum(dist2, MIN_DISTANCE ** 2) * active  # (the other point's pairs: 0)
         h = p3[2].astype(float)
         floor_raw = 1.0 / np.maximum(h * h, MIN_DISTANCE ** 2)
-        s = np.bincount(pr.point, lam_raw, minlength=P)
+        s = np.bincount(self.row, lam_raw, minlength=P)
         sg = s + floor_raw
         none = s <= 0
-        lam = lam_raw / np.where(none, 1.0, s).take(pr.point)
-        weights = np.concatenate([lam, lam, lam_raw / sg.take(pr.point)])
+        lam = lam_raw / np.where(none, 1.0, s).take(self.row)
+        weights = np.concatenate([lam, lam, lam_raw / sg.take(self.row)])
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
@@ -340,15 +366,16 @@ class OneFrameMapping:
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
         return FrameUser(p3, t, cap_dir, tri, bary, v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
-                         np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left))
+                         np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left)), w
 
-    def _meshes(self, p3: np.ndarray, us: FlatSurface):
-        """The mesh pairs' p - x (3, Nm), closest triangle, its barycentric coordinates (3, Nm) and
-        the angular factor: the triangles' own, blended by how near each is to the closest."""
+    def _meshes(self, p3: np.ndarray, us: FlatSurface):  # p3: every point (targets, palms)
+        """The mesh pairs' p - x (3, Nm), closest triangle, its barycentric coordinates (3, Nm), the
+        angular factor (the triangles' own, blended by how near each is to the closest) and the
+        closest triangle's distance."""
         pr = self.pairs
         if not len(pr.tri_starts):
             empty = np.zeros((3, 0), F32)
-            return empty, np.zeros(0, int), empty, np.zeros(0, F32)
+            return empty, np.zeros(0, int), empty, np.zeros(0, F32), np.zeros(0, F32)
         bv, bw, tv, td2 = _triangles(pr, p3, us)
         sel = np.concatenate([td2, np.full(1, np.inf, td2.dtype)]).take(pr.tri_rows).argmin(axis=1) + pr.tri_starts
         mesh_v = tv.take(sel, axis=1)
@@ -358,9 +385,10 @@ class OneFrameMapping:
         wn = np.sqrt(dot3(w, w))
         tri_factor = np.maximum(np.divide(dot3(w, normal), wn, out=np.ones_like(wn), where=wn > EPS), 0.0)
         td = np.sqrt(td2)
-        near = np.exp((td.take(sel).take(pr.tri_of) - td) * (1.0 / FACTOR_BLEND))
+        td_sel = td.take(sel)
+        near = np.exp((td_sel.take(pr.tri_of) - td) * (1.0 / FACTOR_BLEND))
         mesh_factor = np.add.reduceat(near * tri_factor, pr.tri_starts) / np.add.reduceat(near, pr.tri_starts)
-        return mesh_v, pr.tri_t.take(sel), np.stack([1.0 - bv_s - bw_s, bv_s, bw_s]), mesh_factor
+        return mesh_v, pr.tri_t.take(sel), np.stack([1.0 - bv_s - bw_s, bv_s, bw_s]), mesh_factor, td_sel
 
     # --- the avatar's side ----------------------------------------------------------------------
 
