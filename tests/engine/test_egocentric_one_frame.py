@@ -112,7 +112,7 @@ def test_one_frame_s_palm_distances_are_project_s(hop_solver, monkeypatch):
                 palms = base + shift
                 want = np.where(own, np.inf, ego.project(palms[None], us).dist[0]).min(axis=-1)
                 near = []  # what prepare's palm weight is given: the palms' nearest distances
-                fm.prepare(flat, pts[0], ub, palms - wrists, lambda d: near.append(d) or np.zeros_like(d))
+                fm.prepare(flat, pts[0], ub, palms - wrists, lambda d, seen=near: seen.append(d) or np.zeros_like(d))
                 worst = max(worst, float(np.abs(near[0] - want).max()))
     assert worst <= DISTANCE_ATOL, worst
 
@@ -134,7 +134,7 @@ def test_a_hand_on_its_palm_maps_as_its_palm_centre_alone_would(hop_solver, monk
         levers = np.array([[0.02, -0.07, 0.01], [-0.03, -0.06, 0.02]])[:len(sides)]
         for w in ((1.0, 1.0), (0.0, 1.0), (1.0, 0.0), (0.0, 0.0), (0.5, 1.0), (0.25, 0.75)):
             w = np.array(w[:len(sides)])
-            got_side, got_w = fm.prepare(flat, pts[0], ub[0], levers, lambda d: w)
+            got_side, got_w = fm.prepare(flat, pts[0], ub[0], levers, lambda d, w=w: w)
             moved = pts[0].copy()
             moved[rows] += w[:, None] * levers
             want_side, _ = fm.prepare(flat, moved, ub[0], np.zeros_like(levers), np.zeros_like)
@@ -167,11 +167,11 @@ def test_a_layout_it_does_not_fit_takes_the_bake_s_kernels(hop_solver):
 
 
 def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
-    # The regions tested as rows of one comparison and picked by one argmax: the same barycentric
-    # coordinates as `projection._closest_on_triangles`, every bit, over points near and far from
+    # One frame's Ericson terms by its two-call dot product: the same barycentric coordinates as
+    # the bake's `projection.closest_on_triangles`, every bit, over points near and far from
     # triangles of every shape (flattened to a line, a point on an edge's line, corners).
     from bodycal_addon.retarget.egocentric import one_frame as of
-    from bodycal_addon.retarget.egocentric.projection import _closest_on_triangles
+    from bodycal_addon.retarget.egocentric.projection import closest_on_triangles
 
     rng = np.random.default_rng(41)
     for trial in range(60):
@@ -185,6 +185,6 @@ def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
             ap = ab * rng.uniform(-1.0, 2.0, n).astype(np.float32)  # on the line of AB
         if trial % 7 == 0:
             ap = np.where(rng.random(n) < 0.5, ab, ac)  # on a corner
-        want, got = _closest_on_triangles(ap, ab, ac), of._closest_on_triangles_one(ap, ab, ac)
+        want, got = closest_on_triangles(ap, ab, ac), closest_on_triangles(ap, ab, ac, of.dot3)
         for w, g in zip(want, got):
             np.testing.assert_array_equal(g, w)

@@ -34,7 +34,7 @@ from ...body.skeleton import JOINT_INDEX as JI
 from ...core.transforms import EPS
 from .graph import GRAPH_BONES, kinematic_path, own_chain_elements
 from .mapping import SUPPORT_BLEND
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, ericson_terms, safe_divide
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, closest_on_triangles
 from .surface import SurfacePoser
 from .weights import MIN_DISTANCE
 
@@ -166,38 +166,12 @@ def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
     return t, d, n, r, ab, abab, rot
 
 
-# Ericson's regions (projection._closest_on_triangles) as rows "sign * value <= 0", three a region
-# (padded with an always-true row), in his order A, B, AB, C, AC, BC, then inside (always true):
-# the rows' values are d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6 and -1 (_REGION_ROWS indexes them)
-_REGION_ROWS = np.array([0, 1, 9, 2, 7, 9, 6, 0, 2, 3, 8, 9, 5, 1, 3, 4, 7, 8, 9, 9, 9])
-_REGION_SIGNS = np.array([1, 1, 1, -1, 1, 1, 1, -1, 1, -1, 1, 1, 1, -1, 1, 1, -1, -1, 1, 1, 1], np.float32)[:, None]
-
-
-def _closest_on_triangles_one(ap: np.ndarray, ab: np.ndarray, ac: np.ndarray):
-    """`projection._closest_on_triangles` for one frame's pairs (3, N): the same values (the same
-    products, quotients and regions), each region's test one row of one comparison and the first
-    region that holds picked by one argmax, in a third of its numpy calls."""
-    d1, d2, d3, d4, d5, d6, va, vb, vc = ericson_terms(ap, ab, ac, dot3)
-    denom = va + vb + vc
-    e_bc = safe_divide(d4 - d3, (d4 - d3) + (d5 - d6))
-    values = np.array([d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, np.full_like(d1, -1.0)])
-    holds = (values.take(_REGION_ROWS, axis=0) * _REGION_SIGNS <= 0).reshape(7, 3, -1).all(axis=1)
-    n = d1.shape[0]
-    pick = holds.argmax(axis=0) * n + np.arange(n)
-    zero, one = np.zeros_like(d1), np.ones_like(d1)
-    bv = np.array([zero, one, safe_divide(d1, d1 - d3), zero, zero, 1 - e_bc,
-                   safe_divide(vb, denom)]).reshape(-1).take(pick)
-    bw = np.array([zero, zero, zero, one, safe_divide(d2, d2 - d6), e_bc,
-                   safe_divide(vc, denom)]).reshape(-1).take(pick)
-    return bv, bw
-
-
 def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
     """Every triangle pair's barycentric (v, w) of its closest point, p - x and |p - x|^2."""
     corners = s.tri.take(pr.tri_t, axis=2)  # (3, corner, N)
     ta = corners[:, 0]
     tab, tac, tap = corners[:, 1] - ta, corners[:, 2] - ta, pts.take(pr.tri_p, axis=1) - ta
-    bv, bw = _closest_on_triangles_one(tap, tab, tac)
+    bv, bw = closest_on_triangles(tap, tab, tac, dot3)
     tv = tap - bv * tab - bw * tac
     return bv, bw, tv, dot3(tv, tv)
 
@@ -354,9 +328,10 @@ class OneFrameMapping:
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
-        # (no BLAS product: its last bit follows the operands' alignment, and a worker process must
-        # give this process's pose bit for bit)
-        dots = np.abs(np.add.reduce(ub[:, :, None] * vhat[:, None], axis=0))  # (NB, N) every bone against every v̂
+        # (einsum's own loops, not a BLAS product: a BLAS kernel's last bit follows the operands'
+        # alignment, and a worker process must give this process's pose bit for bit; einsum's
+        # loops take half the instructions of a product and a sum over a (3, NB, N) array)
+        dots = np.abs(np.einsum("ck,cn->kn", ub, vhat))  # (NB, N) every bone against every v̂
         dots *= self.path_mask  # each chain's own bones
         tau = np.add.reduce(dots, axis=0) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
         # the floor's user side (mapping._floor_user): both ankles' paths
@@ -407,7 +382,7 @@ class OneFrameMapping:
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = np.add.reduce(u.dots * lratio[:, None], axis=0) + np.abs(
+        tau_a = np.einsum("kn,k->n", u.dots, lratio) + np.abs(
             dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
         ratio = np.divide(tau_a, u.tau, out=np.ones_like(tau_a), where=u.tau_ok)
         est = x_av + u.v * ratio  # (3, N)
