@@ -174,7 +174,8 @@ class Egocentric(Method):
         # where one frame may (core/one_frame.ENABLED); None: this layout takes these kernels. Made
         # here, not on a first frame: a live stream's first frame would wait ~20 ms for it.
         self.one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
-                                               self.trunk_exclude, tuple(self.palm_local))
+                                               self.trunk_exclude, tuple(self.palm_local),
+                                               len(self.lower) if self.trunk_ids else 0)
         # the rows of `mapped` of each stage's targets: {False: the arms', True: the trunk's}
         self.rows = {stage: np.array([self.mapped.index(n) for n in names if n in self.mapped], int)
                      for stage, names in ((True, self.lower), (False, self.upper))}
@@ -210,9 +211,9 @@ class Egocentric(Method):
                                        palm_ramp)
             palm = w[None]
 
-            def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): every target mapped, these taken
-                return one.map(user_side, one.avatar_surface(pose.joints[0], pose.frames[0])).take(
-                    self.rows[names is lower], axis=0)[None]
+            def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): this stage's targets mapped, taken
+                av = one.avatar_surface(pose.joints[0], pose.frames[0])
+                return one.map(user_side, av, int(names is not lower)).take(self.rows[names is lower], axis=0)[None]
         else:
             palm = self.palm_weights(us, pts, levers)
             for i, s in enumerate(levers):

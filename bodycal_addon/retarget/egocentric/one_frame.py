@@ -120,10 +120,13 @@ def _unit(w: np.ndarray, fallback) -> tuple[np.ndarray, np.ndarray]:
 
 class _Pairs:
     """The (point, element) pairs of a few points on a surface layout, each point on the elements
-    it is not excluded from: capsule and sphere pairs (FlatSurface), then mesh pairs (the pair
-    order of every flat array), and each mesh pair's triangles (consecutive)."""
+    it is not excluded from, and each mesh pair's triangles (consecutive). Pairs of a type are
+    in point order: capsule and sphere pairs (FlatSurface), mesh pairs; every flat array over all
+    pairs takes them as two stages, the first `first` points' then the others' (`join`), each a
+    type's then the other's, so that a stage is one slice (`stages`: (every pair's, the capsules',
+    the meshes') slices of each)."""
 
-    def __init__(self, excluded: list[frozenset], ids: list[str], counts: tuple, mesh_slices: list):
+    def __init__(self, excluded: list[frozenset], ids: list[str], counts: tuple, mesh_slices: list, first: int = 0):
         C, S, M = counts
         kept = [[e for e in range(len(ids)) if ids[e] not in ex] for ex in excluded]
         self.empty = any(not k for k in kept)
@@ -131,8 +134,13 @@ class _Pairs:
                    [(p, e - C - S) for p, k in enumerate(kept) for e in k if e >= C + S])
         (self.cap_p, self.cap_e), (self.mesh_p, self.mesh_m) = (
             (np.array([a for a, _ in rows], int), np.array([b for _, b in rows], int)) for rows in by_type)
-        self.element = np.concatenate([self.cap_e, self.mesh_m + C + S])  # each pair's element
-        self.point = np.concatenate([self.cap_p, self.mesh_p])  # each pair's point
+        cl, ml = int(np.sum(self.cap_p < first)), int(np.sum(self.mesh_p < first))
+        nc, nm = len(self.cap_p), len(self.mesh_p)
+        self.cut = cl, ml
+        self.stages = ((slice(0, cl + ml), slice(0, cl), slice(0, ml)),
+                       (slice(cl + ml, nc + nm), slice(cl, nc), slice(ml, nm)))
+        self.element = self.join(self.cap_e, self.mesh_m + C + S)  # each pair's element
+        self.point = self.join(self.cap_p, self.mesh_p)  # each pair's point
         # the triangles of each mesh pair, consecutive: (point, triangle), each one's mesh pair
         tri_p, tri_t, tri_of, starts = [], [], [], []
         for k, (p, m) in enumerate(zip(self.mesh_p, self.mesh_m)):
@@ -149,6 +157,11 @@ class _Pairs:
         for k, s in enumerate(starts):
             n = (len(tri_t) if k + 1 == len(starts) else starts[k + 1]) - s
             self.tri_rows[k, :n] = np.arange(s, s + n)
+
+    def join(self, caps: np.ndarray, meshes: np.ndarray) -> np.ndarray:
+        """Capsule pairs' and mesh pairs' values (..., Nc), (..., Nm) in every pair's order."""
+        cl, ml = self.cut
+        return np.concatenate([caps[..., :cl], meshes[..., :ml], caps[..., cl:], meshes[..., ml:]], axis=-1)
 
 
 def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
@@ -182,11 +195,12 @@ class FrameUser:
 
     pts: np.ndarray  # (3, P) the targets
     t: np.ndarray  # capsule pairs' axial fraction
+    rho: np.ndarray  # the avatar's radius there
     cap_dir: np.ndarray  # (3, Nc) in the bone frame (a sphere's: its rolled frame)
     tri: np.ndarray  # mesh pairs' closest triangle
     bary: np.ndarray  # (3, Nm) its barycentric coordinates
     v: np.ndarray  # (3, N) p - x of every pair
-    weights: np.ndarray  # (3 N,) λ, λ, λg: each pair's weight in the x, y and z sums
+    weights: np.ndarray  # (3, N) λ, λ, λg: each pair's weight in the x, y and z sums
     none: np.ndarray | None  # (P,) targets with no element of weight (None: there are none)
     lam_gf: np.ndarray  # (P,) the floor's λg
     vhat: np.ndarray  # (3, N)
@@ -217,13 +231,14 @@ class OneFrameMapping:
     pass is ~150 numpy calls whatever its size."""
 
     @classmethod
-    def build(cls, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=()):
+    def build(cls, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=(), first=0):
         if user_poser.element_ids != avatar_poser.element_ids or user_poser.mesh_slices != avatar_poser.mesh_slices:
             return None
-        fm = cls(names, user_poser, avatar_poser, exclude, palms)
+        fm = cls(names, user_poser, avatar_poser, exclude, palms, first)
         return None if fm.pairs.empty else fm
 
-    def __init__(self, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=()):
+    def __init__(self, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=(),
+                 first=0):
         self.names = list(names)
         self.posers = user_poser, avatar_poser
         ids = list(user_poser.element_ids)
@@ -234,13 +249,14 @@ class OneFrameMapping:
         self.wrist_rows = np.array([self.names.index(f"wrist_{s}") for s in palms], int)
         # the points: the targets, then the palm centres (each on its own arm's exclusions)
         self.pairs = pr = _Pairs(excluded + [own_chain_elements(f"wrist_{s}") for s in palms], ids, layout,
-                                 user_poser.mesh_slices)
+                                 user_poser.mesh_slices, first)
         self.row = np.concatenate([np.arange(P), self.wrist_rows]).take(pr.point)  # each pair's target
         # the palms' pairs grouped by palm (np.minimum.reduceat's segments), and each pair's weight
         # 1 or 0 for each case: {hands on their palm (bools): weights}, None: the pass with moved wrists
-        palm_pairs = np.flatnonzero(pr.point >= P)
-        self.palm_order = palm_pairs[np.argsort(pr.point[palm_pairs], kind="stable")]
-        self.palm_starts = np.searchsorted(pr.point[self.palm_order], P + np.arange(H))
+        by_type = np.concatenate([pr.cap_p, pr.mesh_p])  # (_palm_near's values are by type)
+        palm_pairs = np.flatnonzero(by_type >= P)
+        self.palm_order = palm_pairs[np.argsort(by_type[palm_pairs], kind="stable")]
+        self.palm_starts = np.searchsorted(by_type[self.palm_order], P + np.arange(H))
         self.active = {None: (pr.point < P).astype(F32)}
         for case in np.ndindex(*(2,) * H):
             on = np.array(case, bool)
@@ -264,7 +280,10 @@ class OneFrameMapping:
         for side, s in enumerate(sk.SIDES):
             for p, n in enumerate(self.names):
                 self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
-        self.sums = np.concatenate([self.row, self.row + P, self.row + 2 * P])  # x, y, z sums' bins
+        # each stage's x, y, z sums' bins, its capsule pairs' elements and its pairs' root joints
+        self.sums = [np.concatenate([self.row[a], self.row[a] + P, self.row[a] + 2 * P]) for a, _, _ in pr.stages]
+        self.stage_cap_e = [pr.cap_e[c] for _, c, _ in pr.stages]
+        self.stage_root = [self.root_joint[a] for a, _, _ in pr.stages]
 
     # --- the surfaces ---------------------------------------------------------------------------
 
@@ -312,10 +331,10 @@ class OneFrameMapping:
         cos_ax = dot3(d, ab) / np.sqrt(abab)
         cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
         cap_dir = _apply_t(rot, d)
-        v = np.concatenate([cap_v, mesh_v], axis=1)
+        v = pr.join(cap_v, mesh_v)
         x = p_all.take(pr.point, axis=1) - v
         dist2 = dot3(v, v)
-        factor = np.concatenate([cap_factor, mesh_factor])
+        factor = pr.join(cap_factor, mesh_factor)
         # Weights (weights.raw_weights, normalise_weights), each target's sums over its own pairs
         lam_raw = factor / np.maximum(dist2, MIN_DISTANCE ** 2) * active  # (the other point's pairs: 0)
         h = p3[2].astype(float)
@@ -324,7 +343,7 @@ class OneFrameMapping:
         sg = s + floor_raw
         none = s <= 0
         lam = lam_raw / np.where(none, 1.0, s).take(self.row)
-        weights = np.concatenate([lam, lam, lam_raw / sg.take(self.row)])
+        weights = np.stack([lam, lam, lam_raw / sg.take(self.row)])
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
@@ -339,7 +358,7 @@ class OneFrameMapping:
         uz = np.abs(ub[2])
         floor_tau = np.add.reduce(self.floor_mask * uz, axis=1) + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
-        return FrameUser(p3, t, cap_dir, tri, bary, v,
+        return FrameUser(p3, t, self.radius[1][0] + t * self.radius[1][1], cap_dir, tri, bary, v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
                          np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left)), w
 
@@ -367,26 +386,30 @@ class OneFrameMapping:
 
     # --- the avatar's side ----------------------------------------------------------------------
 
-    def map(self, u: FrameUser, av: FlatSurface) -> np.ndarray:
-        """(P, 3) float64: every target mapped onto the avatar posed as `av` (`PreparedTargets.map`)."""
-        pr, P = self.pairs, len(self.names)
-        rad = self.radius[1]
+    def map(self, u: FrameUser, av: FlatSurface, stage: int) -> np.ndarray:
+        """(P, 3) float64: the targets of `stage` (0: the first `first`, 1: the others; the rest
+        of the rows are not) mapped onto the avatar posed as `av` (`PreparedTargets.map`): over
+        that stage's pairs alone (one slice: _Pairs), each target's sums in the same order."""
+        P = len(self.names)
+        a, c, m = self.pairs.stages[stage]
         # x' re-posed (projection.repose_components): capsule (and sphere), barycentric
-        rot = av.cap_rot.take(pr.cap_e, axis=2)
-        cap = (av.cap_head.take(pr.cap_e, axis=1) + u.t * av.cap_axis.take(pr.cap_e, axis=1)
-               + (rad[0] + u.t * rad[1]) * _apply(rot, u.cap_dir))
-        corners = av.tri.take(u.tri, axis=2)  # (3, corner, Nm)
-        mesh = u.bary[0] * corners[:, 0] + u.bary[1] * corners[:, 1] + u.bary[2] * corners[:, 2]
+        cap_e = self.stage_cap_e[stage]
+        rot = av.cap_rot.take(cap_e, axis=2)
+        cap = (av.cap_head.take(cap_e, axis=1) + u.t[c] * av.cap_axis.take(cap_e, axis=1)
+               + u.rho[c] * _apply(rot, u.cap_dir[:, c]))
+        corners = av.tri.take(u.tri[m], axis=2)  # (3, corner, Nm)
+        bary = u.bary[:, m]
+        mesh = bary[0] * corners[:, 0] + bary[1] * corners[:, 1] + bary[2] * corners[:, 2]
         x_av = np.concatenate([cap, mesh], axis=1)
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = np.einsum("kn,k->n", u.dots, lratio) + np.abs(
-            dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
-        ratio = np.divide(tau_a, u.tau, out=np.ones_like(tau_a), where=u.tau_ok)
-        est = x_av + u.v * ratio  # (3, N)
-        out = np.bincount(self.sums, est.reshape(-1) * u.weights, minlength=3 * P).reshape(3, P)
+        tau_a = np.einsum("kn,k->n", u.dots[:, a], lratio) + np.abs(
+            dot3(u.vhat[:, a], x_av - j.take(self.stage_root[stage], axis=1)))
+        ratio = np.divide(tau_a, u.tau[a], out=np.ones_like(tau_a), where=u.tau_ok[a])
+        est = x_av + u.v[:, a] * ratio  # (3, N)
+        out = np.bincount(self.sums[stage], (est * u.weights[:, a]).reshape(-1), minlength=3 * P).reshape(3, P)
         if u.none is not None:  # no element with weight: the user's horizontal position
             out[:2] = np.where(u.none, u.pts[:2], out[:2])
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
