@@ -31,7 +31,7 @@ from ..core.errors import BodyCalError
 from ..core.transforms import normalize, quat_to_matrix, stack_apply, stack_mul
 from . import egocentric as ego
 from . import offsets as ofs
-from .egocentric.one_frame import FlatSurface, OneFrameMapping
+from .egocentric.one_frame import OneFrameMapping
 from .methods import methods_for
 from .trackers import read_trackers
 from .user_animation import sacrum_toward_hip_line
@@ -174,7 +174,8 @@ class Egocentric(Method):
         # where one frame may (core/one_frame.ENABLED); None: this layout takes these kernels. Made
         # here, not on a first frame: a live stream's first frame would wait ~20 ms for it.
         self.one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
-                                               self.trunk_exclude, tuple(self.palm_local))
+                                               self.trunk_exclude, tuple(self.palm_local),
+                                               len(self.lower) if self.trunk_ids else 0)
         # the rows of `mapped` of each stage's targets: {False: the arms', True: the trunk's}
         self.rows = {stage: np.array([self.mapped.index(n) for n in names if n in self.mapped], int)
                      for stage, names in ((True, self.lower), (False, self.upper))}
@@ -203,17 +204,20 @@ class Egocentric(Method):
         # it is mapped through the wrist (`palm_weights`): there the two palm offsets, turned
         # with the hand, moved the avatar's wrist by their difference whenever the hand turned.
         levers = {s: stack_apply(user_frames[:, BI[f"hand_{s}"]], u_loc) for s, (u_loc, _) in self.palm_local.items()}
-        palm = self.palm_weights(us, pts, levers)
-        for i, s in enumerate(levers):
-            pts[:, self.wrist_rows[s]] += palm[:, i, None] * levers[s]
-        # The user's side of every target, once: the same for the trunk's map and the arms' passes.
+        # The user's side of every target, once: the same for the trunk's map and the arms' passes
+        # (one frame: the palms' nearest in the same pass as the targets, OneFrameMapping.prepare).
         if one:
-            user_side = one.prepare(us, pts[0], ub[0])
+            user_side, w = one.prepare(us, pts[0], ub[0], np.array([lv[0] for lv in levers.values()]).reshape(-1, 3),
+                                       palm_ramp)
+            palm = w[None]
 
-            def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): every target mapped, these taken
-                return one.map(user_side, one.avatar_surface(pose.joints[0], pose.frames[0])).take(
-                    self.rows[names is lower], axis=0)[None]
+            def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): this stage's targets mapped, taken
+                av = one.avatar_surface(pose.joints[0], pose.frames[0])
+                return one.map(user_side, av, int(names is not lower)).take(self.rows[names is lower], axis=0)[None]
         else:
+            palm = self.palm_weights(us, pts, levers)
+            for i, s in enumerate(levers):
+                pts[:, self.wrist_rows[s]] += palm[:, i, None] * levers[s]
             user_side = ego.prepare_targets(pts, self.mapped, us, user_bones=ub, dtype=MAPPING_DTYPE,
                                             exclude=self.trunk_exclude)
 
@@ -257,16 +261,18 @@ class Egocentric(Method):
         if not levers:
             return np.ones((len(pts), 0))
         palms = np.stack([pts[:, self.wrist_rows[s]] + lever for s, lever in levers.items()], axis=1)
-        if isinstance(us, FlatSurface):  # one frame (OneFrameMapping: the same nearest, over its pairs)
-            near = self.one_frame.palm_distances(us, palms[0])[None]
-        else:
-            ids = tuple(us.element_ids)
-            if ids not in self._own_hands:
-                self._own_hands[ids] = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in ids]
-                                                 for s in levers])
-            near = np.where(self._own_hands[ids], np.inf, ego.project(palms, us).dist).min(axis=-1)
-        t = np.clip((near - PALM_NEAR) / (PALM_FAR - PALM_NEAR), 0.0, 1.0)
-        return 1.0 - t * t * (3.0 - 2.0 * t)
+        ids = tuple(us.element_ids)
+        if ids not in self._own_hands:
+            self._own_hands[ids] = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in ids]
+                                             for s in levers])
+        return palm_ramp(np.where(self._own_hands[ids], np.inf, ego.project(palms, us).dist).min(axis=-1))
+
+
+def palm_ramp(near: np.ndarray) -> np.ndarray:
+    """A hand's palm weight from its palm centre's nearest distance to the body it maps onto: 1
+    within PALM_NEAR, 0 beyond PALM_FAR, a C1 ramp between (Egocentric.palm_weights)."""
+    t = np.clip((near - PALM_NEAR) / (PALM_FAR - PALM_NEAR), 0.0, 1.0)
+    return 1.0 - t * t * (3.0 - 2.0 * t)
 
 
 class ExactOffsets(Method):

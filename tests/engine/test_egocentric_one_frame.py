@@ -72,15 +72,19 @@ def test_one_frame_maps_every_target_as_the_bake_s_kernels_do(hop_solver, monkey
     fm = method.one_frame
     assert fm is not None  # the procedural avatar's layout takes it
     worst, maps = 0.0, 0
+    no_levers = np.zeros((len(method.palm_local), 3))
     for f in range(0, hop_solver.frame_count, 7):
         seen = _bake_kernels_of(hop_solver, f, monkeypatch)
         pts, names, us, ub = seen["prepare"]
         assert names == method.mapped
         joints, frames, _ = seen["poses"][id(us)]
-        user_side = fm.prepare(fm.user_surface(joints[0], frames[0]), pts[0], ub[0])
+        # (the bake's targets have their wrists moved to the palm already: no lever here)
+        user_side, _ = fm.prepare(fm.user_surface(joints[0], frames[0]), pts[0], ub[0], no_levers, np.zeros_like)
         for av, targets, want in seen["maps"]:
             a_joints, a_frames, _ = seen["poses"][id(av)]
-            got = fm.map(user_side, fm.avatar_surface(a_joints[0], a_frames[0]))[[names.index(n) for n in targets]]
+            stage = 0 if list(targets) == method.lower else 1  # the trunk's or the arms' (as the solve maps)
+            got = fm.map(user_side, fm.avatar_surface(a_joints[0], a_frames[0]), stage)[
+                [names.index(n) for n in targets]]
             assert got.shape == want[0].shape and np.isfinite(got).all()
             worst = max(worst, float(np.abs(got - want[0]).max()))
             maps += 1
@@ -99,22 +103,53 @@ def test_one_frame_s_palm_distances_are_project_s(hop_solver, monkeypatch):
     worst = 0.0
     for f in range(0, hop_solver.frame_count, 23):
         seen = _bake_kernels_of(hop_solver, f, monkeypatch)
-        pts, names, us, _ = seen["prepare"]
+        pts, names, us, ub = seen["prepare"]
+        ub = ub[0]
         joints, frames, _ = seen["poses"][id(us)]
         flat = fm.user_surface(joints[0], frames[0])
+        wrists = np.stack([pts[0, names.index(f"wrist_{s}")] for s in sides])
         for row in ("wrist", "tip_index", "tip_thumb"):
             base = np.stack([pts[0, names.index(f"{row}_{s}")] for s in sides])
             for shift in np.vstack([np.zeros(3), 0.03 * np.eye(3), -0.03 * np.eye(3)]):
                 palms = base + shift
                 want = np.where(own, np.inf, ego.project(palms[None], us).dist[0]).min(axis=-1)
-                worst = max(worst, float(np.abs(fm.palm_distances(flat, palms) - want).max()))
+                near = []  # what prepare's palm weight is given: the palms' nearest distances
+                fm.prepare(flat, pts[0], ub, palms - wrists, lambda d, seen=near: seen.append(d) or np.zeros_like(d))
+                worst = max(worst, float(np.abs(near[0] - want).max()))
     assert worst <= DISTANCE_ATOL, worst
+
+
+def test_a_hand_on_its_palm_maps_as_its_palm_centre_alone_would(hop_solver, monkeypatch):
+    # The palms projected in the targets' pass (OneFrameMapping's Decision): a palm weight of 1
+    # maps the wrist target as the palm centre given as that target does, bit for bit (the wrist's
+    # own pairs weigh 0); of 0, as the wrist; between them (the pass again), as the point between.
+    method = hop_solver.impl
+    fm = method.one_frame
+    sides = list(method.palm_local)
+    rows = [method.mapped.index(f"wrist_{s}") for s in sides]
+    for f in range(0, hop_solver.frame_count, 41):
+        seen = _bake_kernels_of(hop_solver, f, monkeypatch)
+        pts, names, us, ub = seen["prepare"]
+        joints, frames, _ = seen["poses"][id(us)]
+        flat = fm.user_surface(joints[0], frames[0])
+        a_joints, a_frames, _ = seen["poses"][id(seen["maps"][-1][0])]
+        levers = np.array([[0.02, -0.07, 0.01], [-0.03, -0.06, 0.02]])[:len(sides)]
+        for w in ((1.0, 1.0), (0.0, 1.0), (1.0, 0.0), (0.0, 0.0), (0.5, 1.0), (0.25, 0.75)):
+            w = np.array(w[:len(sides)])
+            got_side, got_w = fm.prepare(flat, pts[0], ub[0], levers, lambda d, w=w: w)
+            moved = pts[0].copy()
+            moved[rows] += w[:, None] * levers
+            want_side, _ = fm.prepare(flat, moved, ub[0], np.zeros_like(levers), np.zeros_like)
+            np.testing.assert_array_equal(got_w, w)
+            np.testing.assert_array_equal(got_side.pts, want_side.pts)
+            av = fm.avatar_surface(a_joints[0], a_frames[0])
+            np.testing.assert_array_equal(fm.map(got_side, av, 1), fm.map(want_side, av, 1))
 
 
 def test_the_solve_takes_it_for_one_frame_where_mathutils_is_on(hop_solver, monkeypatch):
     calls = []
     mapped = OneFrameMapping.map
-    monkeypatch.setattr(OneFrameMapping, "map", lambda self, u, av: calls.append(1) or mapped(self, u, av))
+    monkeypatch.setattr(OneFrameMapping, "map", lambda self, u, *a: calls.append(1) or mapped(self, u, *a))
     for enabled, frames, want in ((True, 1, 3), (False, 1, 0), (True, 2, 0)):
         monkeypatch.setattr(one_frame, "ENABLED", enabled)
         calls.clear()
@@ -134,11 +169,11 @@ def test_a_layout_it_does_not_fit_takes_the_bake_s_kernels(hop_solver):
 
 
 def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
-    # The regions tested as rows of one comparison and picked by one argmax: the same barycentric
-    # coordinates as `projection._closest_on_triangles`, every bit, over points near and far from
+    # One frame's Ericson terms by its two-call dot product: the same barycentric coordinates as
+    # the bake's `projection.closest_on_triangles`, every bit, over points near and far from
     # triangles of every shape (flattened to a line, a point on an edge's line, corners).
     from bodycal_addon.retarget.egocentric import one_frame as of
-    from bodycal_addon.retarget.egocentric.projection import _closest_on_triangles
+    from bodycal_addon.retarget.egocentric.projection import closest_on_triangles
 
     rng = np.random.default_rng(41)
     for trial in range(60):
@@ -152,6 +187,6 @@ def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
             ap = ab * rng.uniform(-1.0, 2.0, n).astype(np.float32)  # on the line of AB
         if trial % 7 == 0:
             ap = np.where(rng.random(n) < 0.5, ab, ac)  # on a corner
-        want, got = _closest_on_triangles(ap, ab, ac), of._closest_on_triangles_one(ap, ab, ac)
+        want, got = closest_on_triangles(ap, ab, ac), closest_on_triangles(ap, ab, ac, of.dot3)
         for w, g in zip(want, got):
             np.testing.assert_array_equal(g, w)

@@ -34,7 +34,7 @@ from ...body.skeleton import JOINT_INDEX as JI
 from ...core.transforms import EPS
 from .graph import GRAPH_BONES, kinematic_path, own_chain_elements
 from .mapping import SUPPORT_BLEND
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, ericson_terms, safe_divide
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, closest_on_triangles
 from .surface import SurfacePoser
 from .weights import MIN_DISTANCE
 
@@ -120,10 +120,13 @@ def _unit(w: np.ndarray, fallback) -> tuple[np.ndarray, np.ndarray]:
 
 class _Pairs:
     """The (point, element) pairs of a few points on a surface layout, each point on the elements
-    it is not excluded from: capsule and sphere pairs (FlatSurface), then mesh pairs (the pair
-    order of every flat array), and each mesh pair's triangles (consecutive)."""
+    it is not excluded from, and each mesh pair's triangles (consecutive). Pairs of a type are
+    in point order: capsule and sphere pairs (FlatSurface), mesh pairs; every flat array over all
+    pairs takes them as two stages, the first `first` points' then the others' (`join`), each a
+    type's then the other's, so that a stage is one slice (`stages`: (every pair's, the capsules',
+    the meshes') slices of each)."""
 
-    def __init__(self, excluded: list[frozenset], ids: list[str], counts: tuple, mesh_slices: list):
+    def __init__(self, excluded: list[frozenset], ids: list[str], counts: tuple, mesh_slices: list, first: int = 0):
         C, S, M = counts
         kept = [[e for e in range(len(ids)) if ids[e] not in ex] for ex in excluded]
         self.empty = any(not k for k in kept)
@@ -131,8 +134,13 @@ class _Pairs:
                    [(p, e - C - S) for p, k in enumerate(kept) for e in k if e >= C + S])
         (self.cap_p, self.cap_e), (self.mesh_p, self.mesh_m) = (
             (np.array([a for a, _ in rows], int), np.array([b for _, b in rows], int)) for rows in by_type)
-        self.element = np.concatenate([self.cap_e, self.mesh_m + C + S])  # each pair's element
-        self.point = np.concatenate([self.cap_p, self.mesh_p])  # each pair's point
+        cl, ml = int(np.sum(self.cap_p < first)), int(np.sum(self.mesh_p < first))
+        nc, nm = len(self.cap_p), len(self.mesh_p)
+        self.cut = cl, ml
+        self.stages = ((slice(0, cl + ml), slice(0, cl), slice(0, ml)),
+                       (slice(cl + ml, nc + nm), slice(cl, nc), slice(ml, nm)))
+        self.element = self.join(self.cap_e, self.mesh_m + C + S)  # each pair's element
+        self.point = self.join(self.cap_p, self.mesh_p)  # each pair's point
         # the triangles of each mesh pair, consecutive: (point, triangle), each one's mesh pair
         tri_p, tri_t, tri_of, starts = [], [], [], []
         for k, (p, m) in enumerate(zip(self.mesh_p, self.mesh_m)):
@@ -149,10 +157,11 @@ class _Pairs:
         for k, s in enumerate(starts):
             n = (len(tri_t) if k + 1 == len(starts) else starts[k + 1]) - s
             self.tri_rows[k, :n] = np.arange(s, s + n)
-        # every pair's values grouped by point (np.minimum.reduceat's segments: the palms' nearest)
-        every = np.concatenate([self.cap_p, self.tri_p])
-        self.by_point = np.argsort(every, kind="stable")
-        self.point_starts = np.searchsorted(every[self.by_point], np.arange(len(excluded)))
+
+    def join(self, caps: np.ndarray, meshes: np.ndarray) -> np.ndarray:
+        """Capsule pairs' and mesh pairs' values (..., Nc), (..., Nm) in every pair's order."""
+        cl, ml = self.cut
+        return np.concatenate([caps[..., :cl], meshes[..., :ml], caps[..., cl:], meshes[..., ml:]], axis=-1)
 
 
 def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
@@ -170,38 +179,12 @@ def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
     return t, d, n, r, ab, abab, rot
 
 
-# Ericson's regions (projection._closest_on_triangles) as rows "sign * value <= 0", three a region
-# (padded with an always-true row), in his order A, B, AB, C, AC, BC, then inside (always true):
-# the rows' values are d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6 and -1 (_REGION_ROWS indexes them)
-_REGION_ROWS = np.array([0, 1, 9, 2, 7, 9, 6, 0, 2, 3, 8, 9, 5, 1, 3, 4, 7, 8, 9, 9, 9])
-_REGION_SIGNS = np.array([1, 1, 1, -1, 1, 1, 1, -1, 1, -1, 1, 1, 1, -1, 1, 1, -1, -1, 1, 1, 1], np.float32)[:, None]
-
-
-def _closest_on_triangles_one(ap: np.ndarray, ab: np.ndarray, ac: np.ndarray):
-    """`projection._closest_on_triangles` for one frame's pairs (3, N): the same values (the same
-    products, quotients and regions), each region's test one row of one comparison and the first
-    region that holds picked by one argmax, in a third of its numpy calls."""
-    d1, d2, d3, d4, d5, d6, va, vb, vc = ericson_terms(ap, ab, ac, dot3)
-    denom = va + vb + vc
-    e_bc = safe_divide(d4 - d3, (d4 - d3) + (d5 - d6))
-    values = np.array([d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, np.full_like(d1, -1.0)])
-    holds = (values.take(_REGION_ROWS, axis=0) * _REGION_SIGNS <= 0).reshape(7, 3, -1).all(axis=1)
-    n = d1.shape[0]
-    pick = holds.argmax(axis=0) * n + np.arange(n)
-    zero, one = np.zeros_like(d1), np.ones_like(d1)
-    bv = np.array([zero, one, safe_divide(d1, d1 - d3), zero, zero, 1 - e_bc,
-                   safe_divide(vb, denom)]).reshape(-1).take(pick)
-    bw = np.array([zero, zero, zero, one, safe_divide(d2, d2 - d6), e_bc,
-                   safe_divide(vc, denom)]).reshape(-1).take(pick)
-    return bv, bw
-
-
 def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
     """Every triangle pair's barycentric (v, w) of its closest point, p - x and |p - x|^2."""
     corners = s.tri.take(pr.tri_t, axis=2)  # (3, corner, N)
     ta = corners[:, 0]
     tab, tac, tap = corners[:, 1] - ta, corners[:, 2] - ta, pts.take(pr.tri_p, axis=1) - ta
-    bv, bw = _closest_on_triangles_one(tap, tab, tac)
+    bv, bw = closest_on_triangles(tap, tab, tac, dot3)
     tv = tap - bv * tab - bw * tac
     return bv, bw, tv, dot3(tv, tv)
 
@@ -212,11 +195,12 @@ class FrameUser:
 
     pts: np.ndarray  # (3, P) the targets
     t: np.ndarray  # capsule pairs' axial fraction
+    rho: np.ndarray  # the avatar's radius there
     cap_dir: np.ndarray  # (3, Nc) in the bone frame (a sphere's: its rolled frame)
     tri: np.ndarray  # mesh pairs' closest triangle
     bary: np.ndarray  # (3, Nm) its barycentric coordinates
     v: np.ndarray  # (3, N) p - x of every pair
-    weights: np.ndarray  # (3 N,) λ, λ, λg: each pair's weight in the x, y and z sums
+    weights: np.ndarray  # (3, N) λ, λ, λg: each pair's weight in the x, y and z sums
     none: np.ndarray | None  # (P,) targets with no element of weight (None: there are none)
     lam_gf: np.ndarray  # (P,) the floor's λg
     vhat: np.ndarray  # (3, N)
@@ -233,33 +217,54 @@ class FrameUser:
 class OneFrameMapping:
     """One frame's egocentric mapping of `names` (canonical joints) through the surfaces posed by
     `user_poser` and `avatar_poser` (the same element ids), each target not mapped on its own
-    chain's elements nor on `exclude`'s (per target, element ids); `palms`: the sides whose palm
-    centre's nearest distance `palm_distances` gives (not on its own arm and hand). Made by
-    `build`: None where the layout does not fit (module docstring)."""
+    chain's elements nor on `exclude`'s (per target, element ids); `palms`: the sides whose hand
+    is mapped through its palm's centre where that is near the body (`prepare`). Made by `build`:
+    None where the layout does not fit (module docstring).
+
+    Decision (the palms, DESIGN.md §5 "The hand's point"): each palm centre is one more point of the
+    same pass as the targets, on its own pairs (the elements not on its own arm and hand: its
+    wrist target's), whose nearest distance gives the hand's palm weight w. Where w is 0 or 1 (a
+    hand away from the body or on it: most frames) the wrist target's point is the wrist or the
+    palm centre, both already projected: the other's pairs get weight 0, and the mapping is the
+    one it would be for that point alone (adding zeros leaves each sum as it was). Between them
+    the point is neither, and the pass runs again with the wrists moved. One pass, not two: a
+    pass is ~150 numpy calls whatever its size."""
 
     @classmethod
-    def build(cls, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=()):
+    def build(cls, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=(), first=0):
         if user_poser.element_ids != avatar_poser.element_ids or user_poser.mesh_slices != avatar_poser.mesh_slices:
             return None
-        fm = cls(names, user_poser, avatar_poser, exclude, palms)
-        return None if fm.pairs.empty or fm.palm_pairs.empty else fm
+        fm = cls(names, user_poser, avatar_poser, exclude, palms, first)
+        return None if fm.pairs.empty else fm
 
-    def __init__(self, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=()):
+    def __init__(self, names, user_poser: SurfacePoser, avatar_poser: SurfacePoser, exclude=None, palms=(),
+                 first=0):
         self.names = list(names)
         self.posers = user_poser, avatar_poser
         ids = list(user_poser.element_ids)
         layout = (user_poser.cap_radius.shape[0], user_poser.sph_radius.shape[0], len(user_poser.mesh_slices))
         excluded = [own_chain_elements(n) | (frozenset(exclude[i]) if exclude else frozenset())
                     for i, n in enumerate(self.names)]
-        self.pairs = pr = _Pairs(excluded, ids, layout, user_poser.mesh_slices)
-        self.palm_pairs = _Pairs([own_chain_elements(f"wrist_{s}") for s in palms], ids, layout,
-                                 user_poser.mesh_slices)
-        P = len(self.names)
+        P, H = len(self.names), len(palms)
+        self.wrist_rows = np.array([self.names.index(f"wrist_{s}") for s in palms], int)
+        # the points: the targets, then the palm centres (each on its own arm's exclusions)
+        self.pairs = pr = _Pairs(excluded + [own_chain_elements(f"wrist_{s}") for s in palms], ids, layout,
+                                 user_poser.mesh_slices, first)
+        self.row = np.concatenate([np.arange(P), self.wrist_rows]).take(pr.point)  # each pair's target
+        # the palms' pairs grouped by palm (np.minimum.reduceat's segments), and each pair's weight
+        # 1 or 0 for each case: {hands on their palm (bools): weights}, None: the pass with moved wrists
+        by_type = np.concatenate([pr.cap_p, pr.mesh_p])  # (_palm_near's values are by type)
+        palm_pairs = np.flatnonzero(by_type >= P)
+        self.palm_order = palm_pairs[np.argsort(by_type[palm_pairs], kind="stable")]
+        self.palm_starts = np.searchsorted(by_type[self.palm_order], P + np.arange(H))
+        self.active = {None: (pr.point < P).astype(F32)}
+        for case in np.ndindex(*(2,) * H):
+            on = np.array(case, bool)
+            off = np.isin(pr.point, self.wrist_rows[on]) | np.isin(pr.point, P + np.flatnonzero(~on))
+            self.active[tuple(on)] = (~off).astype(F32)
         # capsule and sphere radii per pair (at the head, tail - head), both bodies
         radii = [np.concatenate([ps.cap_radius, np.repeat(ps.sph_radius[:, None], 2, axis=1)]) for ps in self.posers]
         self.radius = [np.stack([r[pr.cap_e, 0], r[pr.cap_e, 1] - r[pr.cap_e, 0]]).astype(F32) for r in radii]
-        pe = self.palm_pairs.cap_e
-        self.palm_radius = np.stack([radii[0][pe, 0], radii[0][pe, 1] - radii[0][pe, 0]]).astype(F32)
         # each pair's chain: its element's root joint, and the (pair, bone) entries of the path from
         # it to the target (eq. 2)
         # it to the target (eq. 2), as a (pair, bone) mask: a chain's sum over its bones is one row of
@@ -268,14 +273,17 @@ class OneFrameMapping:
         roots = list(user_poser.element_roots)
         self.root_joint = np.array([JI[roots[e]] for e in pr.element], int)
         self.path_mask = np.zeros((len(GRAPH_BONES), len(pr.point)), F32)  # (bone, pair): rows are contiguous
-        for k, (p, e) in enumerate(zip(pr.point, pr.element)):
-            self.path_mask[list(kinematic_path(roots[e], self.names[p])), k] = 1.0
+        for k, (r, e) in enumerate(zip(self.row, pr.element)):
+            self.path_mask[list(kinematic_path(roots[e], self.names[r])), k] = 1.0
         # the floor's paths: from each ankle (left, then right) to each target
         self.floor_mask = np.zeros((2 * P, len(GRAPH_BONES)), F32)
         for side, s in enumerate(sk.SIDES):
             for p, n in enumerate(self.names):
                 self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
-        self.sums = np.concatenate([pr.point, pr.point + P, pr.point + 2 * P])  # x, y, z sums' bins
+        # each stage's x, y, z sums' bins, its capsule pairs' elements and its pairs' root joints
+        self.sums = [np.concatenate([self.row[a], self.row[a] + P, self.row[a] + 2 * P]) for a, _, _ in pr.stages]
+        self.stage_cap_e = [pr.cap_e[c] for _, c, _ in pr.stages]
+        self.stage_root = [self.root_joint[a] for a, _, _ in pr.stages]
 
     # --- the surfaces ---------------------------------------------------------------------------
 
@@ -287,50 +295,62 @@ class OneFrameMapping:
 
     # --- the palms ------------------------------------------------------------------------------
 
-    def palm_distances(self, us: FlatSurface, palms: np.ndarray) -> np.ndarray:
-        """(H,) each palm centre's (H, 3) distance to the nearest element of `us` that is not on
-        its own arm and hand (`project`'s |v|: |n - r| on a capsule or the sphere, the closest
-        triangle's on a mesh)."""
-        pr = self.palm_pairs
-        pts = palms.T.astype(F32, order="C")
-        t, _, n, r, *_ = _capsules(pr, pts, us, self.palm_radius)
-        td2 = _triangles(pr, pts, us)[3]
-        every = np.concatenate([np.abs(n - r), np.sqrt(td2)])
-        return np.minimum.reduceat(every.take(pr.by_point), pr.point_starts).astype(float)
+    def _palm_near(self, n: np.ndarray, r: np.ndarray, td: np.ndarray) -> np.ndarray:
+        """(H,) each palm centre's distance to the nearest element it is paired with (`project`'s
+        |v|: |n - r| on a capsule or the sphere, the closest triangle's on a mesh), from a pass's
+        capsule pairs' n and r and mesh pairs' closest distance td."""
+        every = np.concatenate([np.abs(n - r), td])
+        return np.minimum.reduceat(every.take(self.palm_order), self.palm_starts).astype(float)
 
     # --- the user's side ------------------------------------------------------------------------
 
-    def prepare(self, us: FlatSurface, pts: np.ndarray, bones: np.ndarray) -> FrameUser:
+    def prepare(self, us: FlatSurface, pts: np.ndarray, bones: np.ndarray, levers: np.ndarray,
+                palm_weight) -> tuple[FrameUser, np.ndarray]:
         """The user's side of one frame: targets `pts` (P, 3) and the user's GRAPH_BONES vectors
-        `bones` (NB, 3) (tail - head) on the user's surface `us` (`prepare_targets`' work)."""
+        `bones` (NB, 3) (tail - head) on the user's surface `us` (`prepare_targets`' work), each
+        wrist target moved by w times its hand's `levers` (H, 3) (wrist to palm centre), w the
+        palm's `palm_weight` (of the palms' (H,) nearest distances, (H,) in [0, 1]); and w."""
         pr, P = self.pairs, len(self.names)
-        p3 = pts.T.astype(F32, order="C")
+        palms = pts.take(self.wrist_rows, axis=0) + levers
+        p_all = np.concatenate([pts, palms]).T.astype(F32, order="C")
         # Projections (projection.project_components)
-        t, d, n, r, ab, abab, rot = _capsules(pr, p3, us, self.radius[0])
+        t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
+        mesh_v, tri, bary, mesh_factor, td = self._meshes(p_all, us)
+        w = np.asarray(palm_weight(self._palm_near(n, r, td)), float).reshape(-1) if len(levers) else np.zeros(0)
+        eff = pts.copy()
+        eff[self.wrist_rows] += w[:, None] * levers
+        on = w == 1.0
+        case = tuple(on) if (on | (w == 0.0)).all() else None
+        if case is None:  # a hand between wrist and palm: the pass again, the wrists moved (Decision)
+            p_all = np.concatenate([eff, palms]).T.astype(F32, order="C")
+            t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
+            mesh_v, tri, bary, mesh_factor, _ = self._meshes(p_all, us)
+        active = self.active[case]
+        p3 = eff.T.astype(F32, order="C")
         cap_v = (n - r) * d
         cos_ax = dot3(d, ab) / np.sqrt(abab)
         cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
         cap_dir = _apply_t(rot, d)
-        mesh_v, tri, bary, mesh_factor = self._meshes(p3, us)
-        v = np.concatenate([cap_v, mesh_v], axis=1)
-        x = p3.take(pr.point, axis=1) - v
+        v = pr.join(cap_v, mesh_v)
+        x = p_all.take(pr.point, axis=1) - v
         dist2 = dot3(v, v)
-        factor = np.concatenate([cap_factor, mesh_factor])
+        factor = pr.join(cap_factor, mesh_factor)
         # Weights (weights.raw_weights, normalise_weights), each target's sums over its own pairs
-        lam_raw = factor / np.maximum(dist2, MIN_DISTANCE ** 2)
+        lam_raw = factor / np.maximum(dist2, MIN_DISTANCE ** 2) * active  # (the other point's pairs: 0)
         h = p3[2].astype(float)
         floor_raw = 1.0 / np.maximum(h * h, MIN_DISTANCE ** 2)
-        s = np.bincount(pr.point, lam_raw, minlength=P)
+        s = np.bincount(self.row, lam_raw, minlength=P)
         sg = s + floor_raw
         none = s <= 0
-        lam = lam_raw / np.where(none, 1.0, s).take(pr.point)
-        weights = np.concatenate([lam, lam, lam_raw / sg.take(pr.point)])
+        lam = lam_raw / np.where(none, 1.0, s).take(self.row)
+        weights = np.stack([lam, lam, lam_raw / sg.take(self.row)])
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
-        # (no BLAS product: its last bit follows the operands' alignment, and a worker process must
-        # give this process's pose bit for bit)
-        dots = np.abs(np.add.reduce(ub[:, :, None] * vhat[:, None], axis=0))  # (NB, N) every bone against every v̂
+        # (einsum's own loops, not a BLAS product: a BLAS kernel's last bit follows the operands'
+        # alignment, and a worker process must give this process's pose bit for bit; einsum's
+        # loops take half the instructions of a product and a sum over a (3, NB, N) array)
+        dots = np.abs(np.einsum("ck,cn->kn", ub, vhat))  # (NB, N) every bone against every v̂
         dots *= self.path_mask  # each chain's own bones
         tau = np.add.reduce(dots, axis=0) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
         # the floor's user side (mapping._floor_user): both ankles' paths
@@ -338,17 +358,18 @@ class OneFrameMapping:
         uz = np.abs(ub[2])
         floor_tau = np.add.reduce(self.floor_mask * uz, axis=1) + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
-        return FrameUser(p3, t, cap_dir, tri, bary, v,
+        return FrameUser(p3, t, self.radius[1][0] + t * self.radius[1][1], cap_dir, tri, bary, v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
-                         np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left))
+                         np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left)), w
 
-    def _meshes(self, p3: np.ndarray, us: FlatSurface):
-        """The mesh pairs' p - x (3, Nm), closest triangle, its barycentric coordinates (3, Nm) and
-        the angular factor: the triangles' own, blended by how near each is to the closest."""
+    def _meshes(self, p3: np.ndarray, us: FlatSurface):  # p3: every point (targets, palms)
+        """The mesh pairs' p - x (3, Nm), closest triangle, its barycentric coordinates (3, Nm), the
+        angular factor (the triangles' own, blended by how near each is to the closest) and the
+        closest triangle's distance."""
         pr = self.pairs
         if not len(pr.tri_starts):
             empty = np.zeros((3, 0), F32)
-            return empty, np.zeros(0, int), empty, np.zeros(0, F32)
+            return empty, np.zeros(0, int), empty, np.zeros(0, F32), np.zeros(0, F32)
         bv, bw, tv, td2 = _triangles(pr, p3, us)
         sel = np.concatenate([td2, np.full(1, np.inf, td2.dtype)]).take(pr.tri_rows).argmin(axis=1) + pr.tri_starts
         mesh_v = tv.take(sel, axis=1)
@@ -358,32 +379,37 @@ class OneFrameMapping:
         wn = np.sqrt(dot3(w, w))
         tri_factor = np.maximum(np.divide(dot3(w, normal), wn, out=np.ones_like(wn), where=wn > EPS), 0.0)
         td = np.sqrt(td2)
-        near = np.exp((td.take(sel).take(pr.tri_of) - td) * (1.0 / FACTOR_BLEND))
+        td_sel = td.take(sel)
+        near = np.exp((td_sel.take(pr.tri_of) - td) * (1.0 / FACTOR_BLEND))
         mesh_factor = np.add.reduceat(near * tri_factor, pr.tri_starts) / np.add.reduceat(near, pr.tri_starts)
-        return mesh_v, pr.tri_t.take(sel), np.stack([1.0 - bv_s - bw_s, bv_s, bw_s]), mesh_factor
+        return mesh_v, pr.tri_t.take(sel), np.stack([1.0 - bv_s - bw_s, bv_s, bw_s]), mesh_factor, td_sel
 
     # --- the avatar's side ----------------------------------------------------------------------
 
-    def map(self, u: FrameUser, av: FlatSurface) -> np.ndarray:
-        """(P, 3) float64: every target mapped onto the avatar posed as `av` (`PreparedTargets.map`)."""
-        pr, P = self.pairs, len(self.names)
-        rad = self.radius[1]
+    def map(self, u: FrameUser, av: FlatSurface, stage: int) -> np.ndarray:
+        """(P, 3) float64: the targets of `stage` (0: the first `first`, 1: the others; the rest
+        of the rows are not) mapped onto the avatar posed as `av` (`PreparedTargets.map`): over
+        that stage's pairs alone (one slice: _Pairs), each target's sums in the same order."""
+        P = len(self.names)
+        a, c, m = self.pairs.stages[stage]
         # x' re-posed (projection.repose_components): capsule (and sphere), barycentric
-        rot = av.cap_rot.take(pr.cap_e, axis=2)
-        cap = (av.cap_head.take(pr.cap_e, axis=1) + u.t * av.cap_axis.take(pr.cap_e, axis=1)
-               + (rad[0] + u.t * rad[1]) * _apply(rot, u.cap_dir))
-        corners = av.tri.take(u.tri, axis=2)  # (3, corner, Nm)
-        mesh = u.bary[0] * corners[:, 0] + u.bary[1] * corners[:, 1] + u.bary[2] * corners[:, 2]
+        cap_e = self.stage_cap_e[stage]
+        rot = av.cap_rot.take(cap_e, axis=2)
+        cap = (av.cap_head.take(cap_e, axis=1) + u.t[c] * av.cap_axis.take(cap_e, axis=1)
+               + u.rho[c] * _apply(rot, u.cap_dir[:, c]))
+        corners = av.tri.take(u.tri[m], axis=2)  # (3, corner, Nm)
+        bary = u.bary[:, m]
+        mesh = bary[0] * corners[:, 0] + bary[1] * corners[:, 1] + bary[2] * corners[:, 2]
         x_av = np.concatenate([cap, mesh], axis=1)
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
         j = av.joints
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = np.add.reduce(u.dots * lratio[:, None], axis=0) + np.abs(
-            dot3(u.vhat, x_av - j.take(self.root_joint, axis=1)))
-        ratio = np.divide(tau_a, u.tau, out=np.ones_like(tau_a), where=u.tau_ok)
-        est = x_av + u.v * ratio  # (3, N)
-        out = np.bincount(self.sums, est.reshape(-1) * u.weights, minlength=3 * P).reshape(3, P)
+        tau_a = np.einsum("kn,k->n", u.dots[:, a], lratio) + np.abs(
+            dot3(u.vhat[:, a], x_av - j.take(self.stage_root[stage], axis=1)))
+        ratio = np.divide(tau_a, u.tau[a], out=np.ones_like(tau_a), where=u.tau_ok[a])
+        est = x_av + u.v[:, a] * ratio  # (3, N)
+        out = np.bincount(self.sums[stage], (est * u.weights[:, a]).reshape(-1), minlength=3 * P).reshape(3, P)
         if u.none is not None:  # no element with weight: the user's horizontal position
             out[:2] = np.where(u.none, u.pts[:2], out[:2])
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
