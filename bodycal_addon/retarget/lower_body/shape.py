@@ -19,6 +19,9 @@ from ...core import transforms as tf
 from ...core.errors import BodyCalError
 
 SIDES = ("l", "r")
+# The head, arms and trunk: their share of the body's mass and where their mass centre is from the
+# hip joints to the shoulders (Winter 2009, Table 4.1: 0.678; 0.626 of the way up)
+HAT_MASS, HAT_CENTRE = 0.678, 0.626
 FEET = ("foot_l", "foot_r")
 
 
@@ -77,6 +80,14 @@ class LowerBodyShape:
     @property
     def trunk_length(self) -> float:
         return float(np.linalg.norm(self.trunk))
+
+    @property
+    def centre_share(self) -> float:
+        """How far from the pelvis toward the skull base the body's mass centre is over the floor:
+        the head, arms and trunk's centre (`HAT_MASS`, `HAT_CENTRE` of the way up to the shoulders),
+        the legs' under the pelvis."""
+        up = float(self.trunk[2])
+        return HAT_MASS * HAT_CENTRE * (up + float(np.mean(self.shoulders[:, 2]))) / max(up, 1e-9)
 
     @classmethod
     def of(cls, user: BodyModel) -> LowerBodyShape:

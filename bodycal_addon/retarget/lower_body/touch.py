@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .body_path import VELOCITY_SMOOTH_S, BodyPath, gaussian
+from .body_path import BodyPath, gaussian, over_the_floor
 from .shape import LowerBodyShape, body_axes
 
 REST_SPEED = 0.08  # m/s: a hand this slow in the room (smoothed over SPEED_SMOOTH_S) rests
@@ -65,8 +65,9 @@ def hold_pelvis(shape: LowerBodyShape, time: np.ndarray, path: BodyPath, wrists:
     pelvis = path.pelvis.copy()
     share = np.minimum(weight[on], 1.0)
     pelvis[on, :2] = (1 - share)[:, None] * pelvis[on, :2] + share[:, None] * (target[on] / weight[on, None])
-    velocity = gaussian(np.gradient(pelvis[:, :2], time, axis=0), VELOCITY_SMOOTH_S * fps)
-    return BodyPath(path.neck, path.heading, path.lean, pelvis, path.pelvis_rot, path.lift, velocity)
+    velocity, centre, centre_velocity = over_the_floor(shape, time, path.neck, pelvis, on_pelvis=path.centre is None)
+    return BodyPath(path.neck, path.heading, path.lean, pelvis, path.pelvis_rot, path.lift, velocity, centre,
+                    centre_velocity)
 
 
 def _runs(mask: np.ndarray, min_len: int) -> list[tuple[int, int]]:
