@@ -57,7 +57,7 @@ import numpy as np  # noqa: E402
 from bodycal_addon.blender import mesh_metrics  # noqa: E402
 from bodycal_addon.body.skeleton import JOINT_INDEX as JI  # noqa: E402
 from bodycal_addon.calibration import calibrate_user  # noqa: E402
-from bodycal_addon.calibration.defaults import EYE_TO_STATURE, RADII  # noqa: E402
+from bodycal_addon.calibration.defaults import RADII  # noqa: E402
 from bodycal_addon.core import paths  # noqa: E402
 from bodycal_addon.output import metrics  # noqa: E402
 from bodycal_addon.recording import io as recording_io  # noqa: E402
@@ -190,7 +190,7 @@ def truth_part(arm, avatar, workdir: Path, quick: bool) -> dict:
             moved = np.linalg.norm(d - (pose.joints[ref, JI["pelvis"]] - truth["positions"][ref, Jt["pelvis"]]),
                                    axis=1) * 1000
             floor = np.linalg.norm(d[:, :2], axis=1) * 1000
-            stature = user.extra["eye_height"] / EYE_TO_STATURE
+            stature = lower_body.LowerBodyShape.of(user).stature  # what the estimate scales by
             fig = {"pelvis_mm": {"median": round(float(np.median(e)), 1), "p95": round(float(np.percentile(e, 95)), 1),
                                  "vertical_median": round(float(np.median(d[:, 2])) * 1000, 1),
                                  # how far the height's error strays from its constant (the pelvis

@@ -187,6 +187,7 @@ class TrackerReader:
         self.version = 0  # changes whenever the roles change (a device tracked for the first time)
         self._roles: tuple | None = None
         self._last = None  # ((start, stop, version), Trackers) of the last read
+        self._rotation_block = None  # ((first frame, version), matrices) of `_whole_rotations`' block
         self.live = isinstance(recording, LiveRecording)  # it grows: gaps read causally
         self._sync()
 
@@ -291,7 +292,7 @@ class TrackerReader:
         a block instead of one a frame (quat_to_matrix's entries are each its own arithmetic, so
         the same bits)."""
         b0 = frame - frame % ROTATION_BLOCK
-        held = self.__dict__.get("_rotation_block")
+        held = self._rotation_block
         if held is None or held[0] != (b0, self.version):
             quat = self._whole[1][b0:b0 + ROTATION_BLOCK].swapaxes(0, 1)
             held = self._rotation_block = ((b0, self.version), quat_to_matrix(quat))
