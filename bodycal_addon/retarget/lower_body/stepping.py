@@ -318,9 +318,12 @@ class Stepper:
         return pelvis, path.heading[i], path.velocity[i]
 
     def _stance_lasts(self, path: BodyPath, k: int, n: int, foot: int, available: int) -> int:
-        """How many frames from k (up to n) the standing `foot` keeps its hip within the reach its
-        heel can give (`RISE_STEP`, heel.py), the path known (offline); at least `SHORTEST_SWING_S`."""
-        stop = min(k + n, available)
+        """How many frames from k (up to n) a swing may last for the standing `foot` to keep its hip
+        within the reach its heel can give (`RISE_STEP`, heel.py) until it may step itself: through
+        the swing and the `DOUBLE_SUPPORT` after it (a walk at its quickest cadence steps as soon as
+        that allows, the hip walking on from the foot behind meanwhile); the path known (offline);
+        at least `SHORTEST_SWING_S`."""
+        stop = min(k + n + int(round(DOUBLE_SUPPORT * n)), available)
         shortest = max(2, int(round(SHORTEST_SWING_S * self.fps)))
         if stop - k <= shortest:
             return n
@@ -329,7 +332,12 @@ class Stepper:
         angle, _ = heel.rise(self.shape, hips, np.broadcast_to(self.feet, hips.shape),
                              np.broadcast_to(self.headings, hips.shape[:2]))
         out = np.flatnonzero(angle[:, foot] > RISE_STEP)
-        return n if not len(out) else max(shortest, int(out[0]))
+        if not len(out):
+            return n
+        # the swing and its double support end by the frame the standing heel rises past RISE_STEP
+        quick = int(out[0] / (1.0 + DOUBLE_SUPPORT))
+        quick -= quick + int(round(DOUBLE_SUPPORT * quick)) > out[0]
+        return max(shortest, min(n, quick))
 
     def _within_reach(self, target: np.ndarray, foot: int, pelvis: np.ndarray, heading: float) -> np.ndarray:
         """`target` drawn toward its hip, over the floor, until the leg reaches it landing (within
