@@ -26,7 +26,8 @@ hip and `LEAD_S` of the body's velocity ahead, turned with the body (no more tha
 other foot), no further than `MAX_STRIDE` and never across the other foot (bowing out around it
 on the way when it starts on the wrong side, after a turn). The swing lasts `SWING_S` (faster with
 speed, pendulum-scaled by the leg's length; quicker, down to `SHORTEST_SWING_S`, when the standing
-foot would otherwise run out of reach before it lands), lifts `LIFT_PER_LENGTH` of its length
+foot would otherwise run out of reach before it may step itself, after the swing and the
+`DOUBLE_SUPPORT` that follows it), lifts `LIFT_PER_LENGTH` of its length
 (within `LIFT`), on a minimum-jerk path;
 both feet then stand at least `DOUBLE_SUPPORT` of the swing (a gait's double support: of its cycle
 the stance takes 60 %, the swing 40 %, so each time both feet stand is 10 %, a quarter of a swing;
