@@ -19,7 +19,7 @@ from bodycal_addon.core.errors import BodyCalError
 from bodycal_addon.live.solver import LiveSolver
 from bodycal_addon.retarget import lower_body
 from bodycal_addon.retarget import pipeline as pl
-from bodycal_addon.retarget.lower_body import body_path, kneel, stepping
+from bodycal_addon.retarget.lower_body import body_path, heel, kneel, stepping
 from bodycal_addon.retarget.user_animation import animate_user
 from bodycal_dev.retarget_fixtures import procedural_avatar
 from evaluation import measure
@@ -111,6 +111,23 @@ def test_estimated_feet_stand_still_on_the_floor_and_step_as_often_as_the_walker
     source = sum(measure.landings(truth["positions"][a:b, [J.index(f"ankle_{s}"), J.index(f"toe_{s}")]], FPS)
                  for s in "lr")
     assert abs(ours - source) <= max(1, 0.2 * source)
+
+
+@pytest.mark.parametrize("take", ["walk", "start_walk_stop"])
+def test_a_walk_at_its_quickest_cadence_never_leaves_the_foot_behind_out_of_reach(take, request):
+    """A walk's steps follow as quickly as a swing and its double support allow: the hip walks on
+    from the foot behind meanwhile. Its heel rises to keep the hip within reach (heel.py) and the
+    foot lifts once that is past stepping.RISE_STEP; a swing of the other foot is hurried so that
+    foot may lift in time, after the double support too. So the leg is never further from its hip
+    than the heel's reach (before: the leg 27.6 mm past its length on 02_01, its heel risen to heel.MOST)."""
+    rec, cap, user = request.getfixturevalue(take)
+    pose = animate_user(lower_body.complete(rec, user), user)
+    shape = lower_body.LowerBodyShape.of(user)
+    a, b = cap.truth()["motion"]
+    limit = np.maximum(heel.REACH * shape.leg, np.linalg.norm(shape.hip - shape.ankle, axis=1) + heel.SWAY)
+    for i, s in enumerate("lr"):
+        d = np.linalg.norm(pose.joints[a:b, JI[f"hip_{s}"]] - pose.joints[a:b, JI[f"ankle_{s}"]], axis=1)
+        assert d.max() < limit[i] + 0.001, (s, d.max() - limit[i])
 
 
 def test_the_pelvis_follows_the_walker_under_the_head(walk):

@@ -140,3 +140,65 @@ class _Shape:
 
     def __init__(self, stature: float):
         self.stature = stature
+
+
+@pytest.fixture(scope="module")
+def thighs():
+    """The minimal protocol with the leaning squat, the hands resting on the thighs (the feet planted
+    throughout), HMD and controllers kept; its truth and the three-point user."""
+    perf = synthetic.make_performer(height=1.75, build="average", seed=1)
+    rec, truth = synthetic.record_session(perf, profile="minimal", motions=("hands_on_thighs",), seed=1)
+    three = _three(rec)
+    return three, truth, calibrate_user(three)
+
+
+def test_a_squat_with_the_hands_on_the_thighs_keeps_the_feet_where_they_stand(thighs):
+    """Going down into a squat the estimated pelvis goes back as the trunk leans (and first forward,
+    the lean lagging the head): the body's mass centre stays over the feet, and the performer's feet
+    stay planted. So do the estimated ones, and the thighs come under the resting palms (before: the
+    right foot stepped 12 cm back, led by the pelvis's backward speed, its knee and thigh lower, the
+    palm 67 mm off the thigh's skin)."""
+    rec, truth, user = thighs
+    full = lower_body.complete(filter_recording(rec, DEFAULT_FILTER), user)
+    pose = animate_user(full, user)
+    for c in (c for c in truth.contacts if c["motion"] == "hands_on_thighs"):
+        idx, s = np.flatnonzero(c["frames"]), c["effector"][-1]
+        ankle = np.linalg.norm(pose.joints[idx, JI[f"ankle_{s}"]] - truth.joints[idx, JI[f"ankle_{s}"]], axis=1)
+        assert ankle.max() < 0.03, s
+        palm = truth.contact_tracks[(c["effector"], c["target"])][0][idx]
+        hip, knee = pose.joints[idx, JI[f"hip_{s}"]], pose.joints[idx, JI[f"knee_{s}"]]
+        along = np.clip(np.einsum("fi,fi->f", palm - hip, knee - hip) / np.einsum("fi,fi->f", knee - hip, knee - hip),
+                        0.0, 1.0)
+        bone = user.bones[f"thigh_{s}"]
+        skin = np.linalg.norm(palm - (hip + along[:, None] * (knee - hip)), axis=1) - (
+            bone.radius_head + along * (bone.radius_tail - bone.radius_head))
+        assert np.median(skin) < 0.04, s  # the trunk held rigid (4 cm shorter flexed) leaves the rest
+
+
+def test_hands_resting_on_the_thighs_lift_the_pelvis_until_the_thighs_meet_them(thighs):
+    """A leaning squat curls the spine: the pelvis is 4 cm nearer the skull base than the trunk held
+    rigid puts it, and the thighs below the palms resting on them. The estimated pelvis rises along
+    the trunk until the thighs meet the palms (before: the pelvis 39 mm from the performer's, the
+    palms 30 and 23 mm above the thighs' skin). Hands still elsewhere lift nothing."""
+    rec, truth, user = thighs
+    full = lower_body.complete(filter_recording(rec, DEFAULT_FILTER), user)
+    pose = animate_user(full, user)
+    shape = lower_body.LowerBodyShape.of(user)
+    for c in (c for c in truth.contacts if c["motion"] == "hands_on_thighs"):
+        idx, s = np.flatnonzero(c["frames"]), c["effector"][-1]
+        pelvis = np.linalg.norm(pose.joints[idx, JI["pelvis"]] - truth.joints[idx, JI["pelvis"]], axis=1)
+        assert np.median(pelvis) < 0.03
+        palm = truth.contact_tracks[(c["effector"], c["target"])][0][idx]
+        hip, knee = pose.joints[idx, JI[f"hip_{s}"]], pose.joints[idx, JI[f"knee_{s}"]]
+        along = np.clip(np.einsum("fi,fi->f", palm - hip, knee - hip) / np.einsum("fi,fi->f", knee - hip, knee - hip),
+                        0.0, 1.0)
+        skin = np.linalg.norm(palm - (hip + along[:, None] * (knee - hip)), axis=1) - (
+            shape.thigh_radii[0] + along * (shape.thigh_radii[1] - shape.thigh_radii[0]))
+        assert np.median(np.abs(skin)) < 0.015, s
+    # the hands hanging still at the sides while the performer stands (the reference pose) lift nothing
+    hp, hq, _ = full.pose("head")
+    path = body_path.offline_path(shape, full.time, hp, tf.quat_to_matrix(hq))
+    stood = slice(0, int(0.5 * rec.fps))
+    lifted = touch.rest_on_thighs(shape, full.time, path, lower_body.estimate.palms(full, shape),
+                                  lambda p: lower_body.estimate._stand(shape, rec.fps, p))
+    assert np.array_equal(lifted.pelvis[stood], path.pelvis[stood])

@@ -57,6 +57,29 @@ class BodyPath:
     pelvis_rot: np.ndarray
     lift: np.ndarray
     velocity: np.ndarray
+    centre: np.ndarray | None = None  # (F, 2) the body's mass centre over the floor (None: the pelvis)
+    centre_velocity: np.ndarray | None = None  # (F, 2) its velocity (None: the pelvis's)
+
+
+def centre_of(shape: LowerBodyShape, neck: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
+    """(F, 2) the body's mass centre over the floor: `shape.centre_share` of the way from the pelvis
+    to the skull base (a squat's pelvis goes back as its trunk leans forward; its mass centre
+    stays over the feet)."""
+    return pelvis[..., :2] + shape.centre_share * (neck[..., :2] - pelvis[..., :2])
+
+
+def over_the_floor(shape: LowerBodyShape, time: np.ndarray, neck: np.ndarray, pelvis: np.ndarray,
+                   on_pelvis: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(F, 2) the pelvis's velocity over the floor, (F, 2) the body's mass centre there (`on_pelvis`:
+    the pelvis's place, as when seated, the seat bearing the trunk) and (F, 2) its velocity, along a
+    whole take (the velocities smoothed over `VELOCITY_SMOOTH_S` both ways)."""
+    centre = pelvis[:, :2].copy() if on_pelvis else centre_of(shape, neck, pelvis)
+    if len(time) < 2:
+        return np.zeros((len(time), 2)), centre, np.zeros((len(time), 2))
+    fps = (len(time) - 1) / max(time[-1] - time[0], 1e-9)
+    velocity, centre_velocity = (gaussian(np.gradient(x, time, axis=0), VELOCITY_SMOOTH_S * fps)
+                                 for x in (pelvis[:, :2], centre))
+    return velocity, centre, centre_velocity
 
 
 def neck_and_head(shape: LowerBodyShape, head_pos: np.ndarray, head_rot: np.ndarray):
@@ -153,10 +176,10 @@ def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, 
         pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
     else:
         pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
-    velocity = gaussian(np.gradient(pelvis[:, :2], time, axis=0) if len(time) > 1 else np.zeros((len(time), 2)),
-                        VELOCITY_SMOOTH_S * fps)
+    velocity, centre, centre_velocity = over_the_floor(shape, time, neck, pelvis, on_pelvis=seat_height is not None)
     lift = lift_of(shape, pelvis[:, 2]) if seat_height is None else np.zeros(len(time))
-    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, velocity)
+    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, velocity, centre,
+                    centre_velocity)
 
 
 def _seated(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, seat_height: float, follow):
@@ -179,8 +202,9 @@ class LivePath:
         self.shape, self.seat_height = shape, seat_height
         self._heading = None
         self._seat = None
-        self._last = None  # (time, pelvis xy)
+        self._last = None  # (time, pelvis xy, mass centre xy)
         self._velocity = np.zeros(2)
+        self._centre_velocity = np.zeros(2)
 
     def step(self, t: float, head_pos: np.ndarray, head_rot: np.ndarray) -> BodyPath:
         shape = self.shape
@@ -204,12 +228,15 @@ class LivePath:
                     _self._seat += (1.0 - np.exp(-_dt / SEAT_FOLLOW_S)) * (upright[0] - _self._seat)
                 return _self._seat[None].copy()
             pelvis, phi = _seated(shape, neck, heading, self.seat_height, follow)
+        centre = pelvis[0, :2].copy() if self.seat_height is not None else centre_of(shape, neck[0], pelvis[0])
         if self._last is not None:
             a = 1.0 - np.exp(-dt / VELOCITY_SMOOTH_S)
             self._velocity = self._velocity + a * ((pelvis[0, :2] - self._last[1]) / dt - self._velocity)
-        self._last = (t, pelvis[0, :2].copy())
+            self._centre_velocity = self._centre_velocity + a * ((centre - self._last[2]) / dt - self._centre_velocity)
+        self._last = (t, pelvis[0, :2].copy(), centre)
         lift = lift_of(shape, pelvis[:, 2]) if self.seat_height is None else np.zeros(1)
-        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, self._velocity[None].copy())
+        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, self._velocity[None].copy(),
+                        centre[None], self._centre_velocity[None].copy())
 
 
 def tracked_path(shape: LowerBodyShape, time: np.ndarray, tracker_pos: np.ndarray, tracker_rot: np.ndarray,

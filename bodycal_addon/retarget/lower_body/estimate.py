@@ -23,7 +23,7 @@ from .heel import heel_rise
 from .kneel import pitch_down
 from .shape import LowerBodyShape, body_axes, lean
 from .stepping import Stepper
-from .touch import hold_pelvis
+from .touch import hold_pelvis, rest_on_thighs
 
 KIND = "estimated"
 CHEST_SMOOTH_S = 0.08  # the chest's turn smoothed over this, both ways, on a whole take
@@ -62,14 +62,15 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
     t = np.asarray(recording.time, float)
     if "pelvis" in roles:
         path = offline_path(shape, t, *filled_pose(recording, "head"), seat_height=seat_height)
-        if seat_height is None:  # a hand resting on the belly holds the pelvis (touch.py)
+        if seat_height is None:  # hands resting on the belly hold the pelvis, on the thighs lift it (touch.py)
             path = hold_pelvis(shape, t, path, wrists(recording, shape))
+            path = rest_on_thighs(shape, t, path, palms(recording, shape),
+                                  lambda p: _stand(shape, recording.fps or 90.0, p))
     else:
         pos, rot = filled_pose(recording, "pelvis")
         path = tracked_path(shape, t, pos, rot, _pelvis_local(user), _tracker_ref(user, "pelvis"))
-    feet, headings, pitches = np.empty((len(t), 2, 3)), np.empty((len(t), 2)), np.zeros((len(t), 2))
     stepper = Stepper(shape, recording.fps or 90.0)
-    stepper.advance(path, 0, len(t), feet, headings, available=len(t), out_pitch=pitches)
+    feet, headings, pitches = _stand(shape, recording.fps or 90.0, path, stepper)
     heel_rise(shape, hips_of(shape, path), feet, headings, pitches)
     turn = 0.0
     if "chest" in roles:
@@ -82,6 +83,25 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
             + (f" ({stepper.steps} steps)" if "foot_l" in roles else "")
             + (f", seated at {seat_height:.2f} m" if seat_height is not None else ""))
     return with_devices(recording, roles, poses, note)
+
+
+def _stand(shape: LowerBodyShape, fps: float, path: BodyPath, stepper: Stepper | None = None):
+    """(F, 2, 3) ankles, (F, 2) headings and (F, 2) toes-down pitches of the feet along the whole
+    `path` (offline: each step looks ahead)."""
+    F = len(path.heading)
+    feet, headings, pitches = np.empty((F, 2, 3)), np.empty((F, 2)), np.zeros((F, 2))
+    (stepper or Stepper(shape, fps)).advance(path, 0, F, feet, headings, available=F, out_pitch=pitches)
+    return feet, headings, pitches
+
+
+def palms(recording: Recording, shape: LowerBodyShape) -> np.ndarray:
+    """(F, 2, 2, 3) each hand's palm centre and normal (out of the palm) where the hand devices put
+    them (a zero normal where the calibration has no palm)."""
+    out = []
+    for s, (centre, normal) in zip("lr", shape.palms_in_hands):
+        pos, rot = filled_pose(recording, f"hand_{s}")
+        out.append(np.stack([pos + np.einsum("fij,j->fi", rot, centre), np.einsum("fij,j->fi", rot, normal)], 1))
+    return np.stack(out, axis=1)
 
 
 def wrists(recording: Recording, shape: LowerBodyShape) -> np.ndarray:

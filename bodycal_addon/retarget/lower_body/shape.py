@@ -19,6 +19,9 @@ from ...core import transforms as tf
 from ...core.errors import BodyCalError
 
 SIDES = ("l", "r")
+# The head, arms and trunk: their share of the body's mass and where their mass centre is from the
+# hip joints to the shoulders (Winter 2009, Table 4.1: 0.678; 0.626 of the way up)
+HAT_MASS, HAT_CENTRE = 0.678, 0.626
 FEET = ("foot_l", "foot_r")
 
 
@@ -72,11 +75,22 @@ class LowerBodyShape:
     shoulders: np.ndarray  # (2, 3) skull base -> shoulder_l, shoulder_r, body axes
     arms: np.ndarray  # (2,) upper arm + forearm
     wrists_in_hands: np.ndarray  # (2, 3) each wrist in its hand device's frame
+    palms_in_hands: np.ndarray  # (2, 2, 3) each palm's centre and normal (out of the palm) in its hand device's
+    # frame; a zero normal where the calibration has no palm plane
+    thigh_radii: np.ndarray  # (2,) the thigh's capsule radius at the hip and at the knee
     foot_devices: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
     @property
     def trunk_length(self) -> float:
         return float(np.linalg.norm(self.trunk))
+
+    @property
+    def centre_share(self) -> float:
+        """How far from the pelvis toward the skull base the body's mass centre is over the floor:
+        the head, arms and trunk's centre (`HAT_MASS`, `HAT_CENTRE` of the way up to the shoulders),
+        the legs' under the pelvis."""
+        up = float(self.trunk[2])
+        return HAT_MASS * HAT_CENTRE * (up + float(np.mean(self.shoulders[:, 2]))) / max(up, 1e-9)
 
     @classmethod
     def of(cls, user: BodyModel) -> LowerBodyShape:
@@ -124,9 +138,27 @@ class LowerBodyShape:
             arms=np.array([user.bones[f"upperarm_{s}"].length + user.bones[f"forearm_{s}"].length for s in SIDES]),
             wrists_in_hands=np.array([np.asarray(user.joints[f"wrist_{s}"].frames.get(f"hand_{s}", np.zeros(3)),
                                                  float) for s in SIDES]),
+            palms_in_hands=np.array([_palm(extra, s) for s in SIDES]),
+            thigh_radii=np.array([float(np.mean([_radius(user, f"thigh_{s}", end) for s in SIDES]))
+                                  for end in ("radius_head", "radius_tail")]),
             foot_devices=tuple(_on_joint(tpose, f"foot_{s}", w[f"ankle_{s}"], feet_axes[i])
                                for i, s in enumerate(SIDES)),
         )
+
+
+def _palm(extra: dict, s: str) -> np.ndarray:
+    """(2, 3) the palm's centre and normal in its hand device's frame (a zero normal: not known)."""
+    plane = (extra.get("palm_planes") or {}).get(f"hand_{s}")
+    if not isinstance(plane, dict) or "point" not in plane or "normal" not in plane:
+        return np.zeros((2, 3))
+    return np.array([np.asarray(plane["point"], float), np.asarray(plane["normal"], float)])
+
+
+def _radius(user: BodyModel, bone: str, end: str) -> float:
+    """A capsule bone's radius at an end (0 when the model has none)."""
+    info = user.bones.get(bone)
+    value = getattr(info, end, None) if info is not None else None
+    return float(value) if value is not None else 0.0
 
 
 def _on_joint(tpose: dict, role: str, joint: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -3,9 +3,13 @@ hands"): the estimated feet of a kit without foot trackers.
 
 Both feet stand still until one of these, whichever comes first, checked on every frame at once
 over the stretch both feet stand (a loop over steps, not frames):
-- balance: the capture point (the pelvis over the floor plus its velocity over omega = sqrt(g / h),
-  where a body falling like an inverted pendulum comes to rest) leaves the support, the line
-  between the feet's middles widened by `SUPPORT_REACH`;
+- balance: the capture point (the body's mass centre over the floor plus its velocity over
+  omega = sqrt(g / h), where a body falling like an inverted pendulum comes to rest) leaves the
+  support, the line between the feet's middles widened by `SUPPORT_REACH`, and (offline, the path
+  ahead known) is still out of it when a step taken then would land: a body back over its feet by
+  then sways on them. The mass centre is `BodyPath.centre` (body_path.centre_of: between the
+  pelvis and the skull base; a squat's pelvis goes back as the trunk leans, its mass centre stays
+  over the feet), the pelvis where the path has none;
 - a turn: the body's heading is more than `TURN_STEP` off a foot's;
 - reach: a hip is further from its ankle, over the floor, than `REACH` of the leg (the leg then
   slants about 30 degrees), or so far behind that its heel, rising on the ball to keep it in
@@ -22,7 +26,8 @@ hip and `LEAD_S` of the body's velocity ahead, turned with the body (no more tha
 other foot), no further than `MAX_STRIDE` and never across the other foot (bowing out around it
 on the way when it starts on the wrong side, after a turn). The swing lasts `SWING_S` (faster with
 speed, pendulum-scaled by the leg's length; quicker, down to `SHORTEST_SWING_S`, when the standing
-foot would otherwise run out of reach before it lands), lifts `LIFT_PER_LENGTH` of its length
+foot would otherwise run out of reach before it may step itself, after the swing and the
+`DOUBLE_SUPPORT` that follows it), lifts `LIFT_PER_LENGTH` of its length
 (within `LIFT`), on a minimum-jerk path;
 both feet then stand at least `DOUBLE_SUPPORT` of the swing (a gait's double support: of its cycle
 the stance takes 60 %, the swing 40 %, so each time both feet stand is 10 %, a quarter of a swing;
@@ -60,6 +65,11 @@ LIFT = (0.012, 0.05)  # x stature
 DOUBLE_SUPPORT = 0.25  # x the swing: both feet stand after a step (a gait's stance 60 %, swing 40 %)
 BOTTOM = 0.01  # x stature: a kneel's pelvis this close to its lowest is down (kneel.py)
 TURN_COST_M = 0.25  # metres of misplacement a radian of a foot's misturn is worth in choosing the foot
+
+
+def body_velocity(path: BodyPath) -> np.ndarray:
+    """(F, 2) the body's velocity over the floor: its mass centre's (the pelvis's when not known)."""
+    return path.velocity if path.centre_velocity is None else path.centre_velocity
 
 
 def min_jerk(u: np.ndarray) -> np.ndarray:
@@ -149,21 +159,38 @@ class Stepper:
         pitched = self.pitches.any()  # up from a kneel, the toes still tucked: that foot steps too
         return self._standing_triggers(path, i, end) | (kneel.kneel_weight(self.shape, z) > 0.0) | pitched
 
+    def _capture(self, path: BodyPath, i: int, end: int) -> np.ndarray:
+        """(end - i, 2) the capture point of the path's rows [i, end): the body's mass centre over the
+        floor (`body_path.centre_of`) plus its velocity over omega (the module docstring)."""
+        shape = self.shape
+        centre = path.pelvis[i:end, :2] if path.centre is None else path.centre[i:end]
+        return centre + body_velocity(path)[i:end] / np.sqrt(G / max(shape.pelvis_height, 0.3))
+
     def _off_support(self, path: BodyPath, i: int, end: int) -> np.ndarray:
         """(end - i,) bool: the capture point (the module docstring) out of the feet's support."""
         shape, feet = self.shape, self.feet
-        capture = path.pelvis[i:end, :2] + path.velocity[i:end] / np.sqrt(G / max(shape.pelvis_height, 0.3))
+        capture = self._capture(path, i, end)
         middles = feet[:, :2] + 0.4 * shape.foot_length * np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
         a, b = middles
         ab = b - a
         u = np.clip(((capture - a) @ ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
         return np.linalg.norm(capture - (a + u[:, None] * ab), axis=1) > SUPPORT_REACH * shape.stature
 
+    def _off_support_lasting(self, path: BodyPath, i: int, end: int) -> np.ndarray:
+        """(end - i,) bool: the capture point out of the feet's support and, where the path ahead is
+        known (offline), still out when a step taken now would land (a swing at rest): a body back
+        over its feet by then sways on them rather than steps."""
+        n = int(round(SWING_S[0] * np.sqrt(self.shape.leg / 0.85) * self.fps))
+        stop = min(end + n, len(path.pelvis))
+        off = self._off_support(path, i, stop)
+        ahead = np.minimum(np.arange(i, end) + n, stop - 1) - i
+        return off[:end - i] & off[ahead]
+
     def _off_kneeling_support(self, path: BodyPath, i: int, end: int) -> np.ndarray:
         """(end - i,) bool: kneeling, the capture point further than `SUPPORT_REACH` outside the
         triangle the body kneels on: the knee's foot, its knee on the floor, the front foot's middle."""
         shape, feet, knee = self.shape, self.feet, self.kneel
-        capture = path.pelvis[i:end, :2] + path.velocity[i:end] / np.sqrt(G / max(shape.pelvis_height, 0.3))
+        capture = self._capture(path, i, end)
         along = np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
         corners = np.stack([feet[knee, :2], feet[knee, :2] + along[knee] * kneel.shin_on_floor(shape),
                             feet[1 - knee, :2] + 0.4 * shape.foot_length * along[1 - knee]])
@@ -180,7 +207,7 @@ class Stepper:
         """(end - i,) bool: a standing body's step due: balance, a turn, reach or crossing."""
         shape, feet = self.shape, self.feet
         pelvis, heading = path.pelvis[i:end], path.heading[i:end]
-        off_support = self._off_support(path, i, end)
+        off_support = self._off_support_lasting(path, i, end)
         turned = (np.abs(wrap(heading[:, None] + shape.foot_turn - self.headings)) > TURN_STEP).any(axis=1)
         axes = body_axes(heading)
         hips = pelvis[:, None] + np.einsum("fij,sj->fsi", axes, shape.hip)
@@ -292,9 +319,12 @@ class Stepper:
         return pelvis, path.heading[i], path.velocity[i]
 
     def _stance_lasts(self, path: BodyPath, k: int, n: int, foot: int, available: int) -> int:
-        """How many frames from k (up to n) the standing `foot` keeps its hip within the reach its
-        heel can give (`RISE_STEP`, heel.py), the path known (offline); at least `SHORTEST_SWING_S`."""
-        stop = min(k + n, available)
+        """How many frames from k (up to n) a swing may last for the standing `foot` to keep its hip
+        within the reach its heel can give (`RISE_STEP`, heel.py) until it may step itself: through
+        the swing and the `DOUBLE_SUPPORT` after it (a walk at its quickest cadence steps as soon as
+        that allows, the hip walking on from the foot behind meanwhile); the path known (offline);
+        at least `SHORTEST_SWING_S`."""
+        stop = min(k + n + int(round(DOUBLE_SUPPORT * n)), available)
         shortest = max(2, int(round(SHORTEST_SWING_S * self.fps)))
         if stop - k <= shortest:
             return n
@@ -303,7 +333,12 @@ class Stepper:
         angle, _ = heel.rise(self.shape, hips, np.broadcast_to(self.feet, hips.shape),
                              np.broadcast_to(self.headings, hips.shape[:2]))
         out = np.flatnonzero(angle[:, foot] > RISE_STEP)
-        return n if not len(out) else max(shortest, int(out[0]))
+        if not len(out):
+            return n
+        # the swing and its double support end by the frame the standing heel rises past RISE_STEP
+        quick = int(out[0] / (1.0 + DOUBLE_SUPPORT))
+        quick -= quick + int(round(DOUBLE_SUPPORT * quick)) > out[0]
+        return max(shortest, min(n, quick))
 
     def _within_reach(self, target: np.ndarray, foot: int, pelvis: np.ndarray, heading: float) -> np.ndarray:
         """`target` drawn toward its hip, over the floor, until the leg reaches it landing (within
