@@ -212,8 +212,8 @@ class Egocentric(Method):
             palm = w[None]
 
             def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): this stage's targets mapped, taken
-                av = one.avatar_surface(pose.joints[0], pose.frames[0])
-                return one.map(user_side, av, int(names is not lower)).take(self.rows[names is lower], axis=0)[None]
+                return one.map(user_side, pose.joints[0], pose.frames[0], int(names is not lower)).take(
+                    self.rows[names is lower], axis=0)[None]
         else:
             palm = self.palm_weights(us, pts, levers)
             for i, s in enumerate(levers):
