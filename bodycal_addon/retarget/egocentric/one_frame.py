@@ -462,7 +462,7 @@ class OneFrameMapping:
             out[:2] = np.where(u.none, u.pts[:2], out[:2])
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
         tfa = np.add.reduce(self.floor_mask * (u.floor_uz * lratio), axis=1) + np.abs(
-            j[2].take(_ANKLES).astype(float)).repeat(P)
+            j[2].take(_ANKLES)).repeat(P)
         ratios = np.divide(tfa, u.floor_tau, out=np.ones_like(tfa), where=u.floor_ok)
         out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
         return out.T
