@@ -212,8 +212,8 @@ class Egocentric(Method):
             palm = w[None]
 
             def mapped(pose, names, poser="avatar"):  # (1, len(names), 3): this stage's targets mapped, taken
-                av = one.avatar_surface(pose.joints[0], pose.frames[0])
-                return one.map(user_side, av, int(names is not lower)).take(self.rows[names is lower], axis=0)[None]
+                return one.map(user_side, pose.joints[0], pose.frames[0], int(names is not lower)).take(
+                    self.rows[names is lower], axis=0)[None]
         else:
             palm = self.palm_weights(us, pts, levers)
             for i, s in enumerate(levers):
@@ -235,6 +235,10 @@ class Egocentric(Method):
         tips = [i for i, n in enumerate(upper) if n.startswith("tip_")]
         pose, tg = mid, None
         arms_user = {}  # what the arms' IK reads of the user, the same every pass
+        # each wrist target's pull back to the wrist: w times the avatar's palm offset turned with
+        # the hand as `mid` poses it, the same every pass
+        palm_back = {s: palm[:, i, None] * stack_apply(mid.frames[:, BI[f"hand_{s}"]], a_loc)
+                     for i, (s, (_, a_loc)) in enumerate(self.palm_local.items())}
         for k in range(ARM_PASSES):
             ta = mapped(pose, upper)
             if tg is None:
@@ -243,9 +247,8 @@ class Egocentric(Method):
                 tg[:, wrists] = 0.5 * (tg[:, wrists] + ta[:, wrists])
                 tg[:, tips] = ta[:, tips]
             arm_targets = {n: tg[:, i] for i, n in enumerate(upper)}
-            for i, (s, (_, a_loc)) in enumerate(self.palm_local.items()):
-                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - palm[:, i, None] * stack_apply(
-                    mid.frames[:, BI[f"hand_{s}"]], a_loc)
+            for s, back in palm_back.items():
+                arm_targets[f"wrist_{s}"] = arm_targets[f"wrist_{s}"] - back
             arm_frames = run.solve_ik(up, fk, pelvis, arm_targets, frames=frames.copy(), trunk=mid,
                                       user_side=arms_user)
             if k + 1 < ARM_PASSES:

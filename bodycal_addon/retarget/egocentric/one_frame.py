@@ -47,46 +47,46 @@ _YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])  # components rolled (a cr
 
 @dataclass
 class FlatSurface:
-    """One frame of a posed surface, float32, components first: the capsules' heads and axes, then
-    the spheres' centres and a zero axis (3, C + S), their frames (3, 3, C + S) (R_ij at [i, j]),
-    the triangles' corners (3, 3, T) (component, corner, triangle), their unit normals (3, T)
-    (None: not made), every canonical joint (3, J).
+    """One frame of the user's posed surface, float32, components first: the capsules' heads and
+    axes, then the spheres' centres and a zero axis (3, C + S), their frames (3, 3, C + S) (R_ij
+    at [i, j]), the triangles' corners (3, 3, T) (component, corner, triangle), their unit normals
+    (3, T), every canonical joint (3, J).
 
     Decision: a sphere is a capsule of no length (t = 0, |sin| = 1: the sphere's projection and
     factor), whose frame's columns are rolled (y, z, x) so that its first column is the bone's +Y,
     the sphere's fallback direction at its centre; its direction is kept and re-posed in that
-    rolled frame on both bodies (R' P (R P)^T = R' R^T): one kernel for both, and fewer calls."""
+    rolled frame on both bodies (R' P (R P)^T = R' R^T): one kernel for both, and fewer calls
+    (the avatar's columns are gathered in that order: `OneFrameMapping._avatar_gathers`)."""
 
     cap_head: np.ndarray
     cap_axis: np.ndarray
     cap_rot: np.ndarray
     tri: np.ndarray
-    tri_normal: np.ndarray | None
+    tri_normal: np.ndarray
     joints: np.ndarray
 
 
-def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray, normals: bool) -> FlatSurface:
+def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray) -> FlatSurface:
     """`SurfacePoser.pose` of one frame (joints (J, 3), bone frames (B, 3, 3), float64), as a
-    FlatSurface: posed in float64 as the poser does, then converted once."""
+    FlatSurface: posed in float64 as the poser does, then converted once. (The user's: the
+    avatar's side is gathered from its pose for each map, `OneFrameMapping._avatar_points`.)"""
     head, tail, cap_rot, sph_center, sph_rot = poser.placed(joints, frames)
     C, S = len(head), len(sph_center)
     # the points' vectors and the joints in one conversion, components first
     vecs = np.concatenate([head, sph_center, tail, sph_center, joints]).T.astype(F32, order="C")
     rots = np.concatenate([cap_rot, sph_rot.take(_YZX, axis=2)]).transpose(1, 2, 0).astype(F32, order="C")
-    tri = tri_normal = None
     if poser.point_count:
         pts = joints.take(poser.pad_heads, axis=0)[:, :, None] + np.matmul(frames.take(poser.pad_bones, axis=0),
                                                                           poser.pad_local)  # (G, 3, K)
         tri = pts.transpose(1, 0, 2).reshape(3, -1).take(poser.pad_tri.T, axis=1)  # (3, corner, T), float64
-        if normals:
-            e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-            n = e1.take(_YZX, axis=0) * e2.take(_ZXY, axis=0) - e1.take(_ZXY, axis=0) * e2.take(_YZX, axis=0)  # cross
-            nn = np.sqrt(dot3(n, n))
-            tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15).astype(F32)
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        n = e1.take(_YZX, axis=0) * e2.take(_ZXY, axis=0) - e1.take(_ZXY, axis=0) * e2.take(_YZX, axis=0)  # cross
+        nn = np.sqrt(dot3(n, n))
+        tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15).astype(F32)
         tri = tri.astype(F32)
     else:
         tri = np.zeros((3, 3, 0), F32)
-        tri_normal = np.zeros((3, 0), F32) if normals else None
+        tri_normal = np.zeros((3, 0), F32)
     n = C + S
     head = vecs[:, :n]
     return FlatSurface(head, vecs[:, n:2 * n] - head, rots, tri, tri_normal, vecs[:, 2 * n:])
@@ -97,11 +97,6 @@ def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     axis adds the three products in the same order, a0 b0 + a1 b1 + a2 b2 (dot3 makes eleven
     calls: six subscripts, three products, two sums)."""
     return np.add.reduce(a * b, axis=0)
-
-
-def _apply(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R v for per-pair frames (3, 3, N) and vectors (3, N), in three numpy calls."""
-    return np.add.reduce(rot * v[None], axis=1)
 
 
 def _apply_t(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -194,11 +189,9 @@ class FrameUser:
     """The user's side of one frame (OneOneFrameMapping.prepare): what `map` reads for each avatar pose."""
 
     pts: np.ndarray  # (3, P) the targets
-    t: np.ndarray  # capsule pairs' axial fraction
-    rho: np.ndarray  # the avatar's radius there
-    cap_dir: np.ndarray  # (3, Nc) in the bone frame (a sphere's: its rolled frame)
-    tri: np.ndarray  # mesh pairs' closest triangle
-    bary: np.ndarray  # (3, Nm) its barycentric coordinates
+    cap_coef: np.ndarray  # (5, Nc) capsule pairs' x' as a sum of the avatar's pose (`_avatar_points`)
+    mesh_rows: np.ndarray  # (12, Nm) the columns of the pose the mesh pairs' x' sums (closest triangle's)
+    mesh_coef: np.ndarray  # (12, Nm) and their coefficients
     v: np.ndarray  # (3, N) p - x of every pair
     weights: np.ndarray  # (3, N) λ, λ, λg: each pair's weight in the x, y and z sums
     none: np.ndarray | None  # (P,) targets with no element of weight (None: there are none)
@@ -265,6 +258,7 @@ class OneFrameMapping:
         # capsule and sphere radii per pair (at the head, tail - head), both bodies
         radii = [np.concatenate([ps.cap_radius, np.repeat(ps.sph_radius[:, None], 2, axis=1)]) for ps in self.posers]
         self.radius = [np.stack([r[pr.cap_e, 0], r[pr.cap_e, 1] - r[pr.cap_e, 0]]).astype(F32) for r in radii]
+        self._avatar_gathers(avatar_poser)
         # each pair's chain: its element's root joint, and the (pair, bone) entries of the path from
         # it to the target (eq. 2)
         # it to the target (eq. 2), as a (pair, bone) mask: a chain's sum over its bones is one row of
@@ -280,18 +274,69 @@ class OneFrameMapping:
         for side, s in enumerate(sk.SIDES):
             for p, n in enumerate(self.names):
                 self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
-        # each stage's x, y, z sums' bins, its capsule pairs' elements and its pairs' root joints
+        # each stage's x, y, z sums' bins and its pairs' root joints
         self.sums = [np.concatenate([self.row[a], self.row[a] + P, self.row[a] + 2 * P]) for a, _, _ in pr.stages]
-        self.stage_cap_e = [pr.cap_e[c] for _, c, _ in pr.stages]
         self.stage_root = [self.root_joint[a] for a, _, _ in pr.stages]
 
     # --- the surfaces ---------------------------------------------------------------------------
 
     def user_surface(self, joints: np.ndarray, frames: np.ndarray) -> FlatSurface:
-        return pose_flat(self.posers[0], joints, frames, normals=True)
+        return pose_flat(self.posers[0], joints, frames)
 
-    def avatar_surface(self, joints: np.ndarray, frames: np.ndarray) -> FlatSurface:
-        return pose_flat(self.posers[1], joints, frames, normals=False)
+    def _avatar_gathers(self, ap: SurfacePoser) -> None:
+        """What `map` gathers of the avatar's pose for each pair's re-posed x' (Decision in
+        `_avatar_points`): columns of G = (the joints (3, J), then each bone frame's columns
+        (3, 3B)). A capsule pair: its head and tail joints, its bone's three columns (a sphere's
+        rolled, FlatSurface) (5, Nc), and its axis offsets in those columns (head, tail - head:
+        (2, 3, Nc)). A triangle: per corner its bone's head joint and three columns (12, T), and
+        the corner's offset in them (corner, component, T)."""
+        pr, C, J = self.pairs, len(ap.cap_bone), len(sk.JOINTS)
+        e = pr.cap_e
+        cap, sph = e < C, np.maximum(e - C, 0)
+        ce = np.minimum(e, max(C - 1, 0))
+        if C:
+            head, tail, bone = ap.cap_ends[0][ce], ap.cap_ends[1][ce], ap.cap_bone[ce]
+            off = ap.cap_off[ce].transpose(1, 2, 0)  # (2, 3, Nc): head, tail
+        else:
+            head = tail = bone = np.zeros(len(e), int)
+            off = np.zeros((2, 3, len(e)))
+        if len(ap.sph_bone):
+            s_head, s_bone = ap.sph_head[sph], ap.sph_bone[sph]
+            s_off = ap.sph_local[sph].T.take(_YZX, axis=0)  # in the rolled frame
+        else:
+            s_head = s_bone = np.zeros(len(e), int)
+            s_off = np.zeros((3, len(e)))
+        head, tail = np.where(cap, head, s_head), np.where(cap, tail, s_head)
+        cols = 3 * np.where(cap, bone, s_bone)[:, None] + np.where(cap[:, None], np.arange(3), _YZX)
+        self.cap_rows = np.concatenate([head[None], tail[None], J + cols.T])  # (5, Nc)
+        off0 = np.where(cap, off[0], s_off)
+        self.cap_off = np.stack([off0, np.where(cap, off[1], s_off) - off0])  # (2, 3, Nc)
+        K = ap.pad_local.shape[-1] if len(ap.pad_local) else 1
+        q = ap.pad_tri  # (T, 3) each corner's point, g K + k
+        g, k = q // K, q % K
+        b = ap.pad_bones[g] if len(ap.pad_bones) else np.zeros_like(g)
+        rows = np.concatenate([(ap.pad_heads[g] if len(ap.pad_heads) else g)[..., None],
+                               J + 3 * b[..., None] + np.arange(3)], axis=-1)  # (T, 3, 4)
+        self.tri_rows = np.ascontiguousarray(rows.reshape(len(q), 12).T)  # (12, T)
+        local = ap.pad_local[g, :, k] if len(ap.pad_local) else np.zeros(q.shape + (3,))  # (T, corner, 3)
+        self.tri_local = np.ascontiguousarray(local.transpose(1, 2, 0))  # (corner, 3, T)
+
+    def _avatar_points(self, u: FrameUser, joints: np.ndarray, frames: np.ndarray, stage: int) -> np.ndarray:
+        """(3, N) the re-posed x' of `stage`'s pairs (`projection.repose_components`) on the avatar
+        posed as canonical joints (J, 3) and bone frames (B, 3, 3), float64.
+
+        Decision (speed): x' is linear in the pose, a sum of joints and bone-frame columns with the
+        pair's own coefficients (a capsule's 1 - t, t and its offset plus rho times the direction;
+        a triangle's barycentric weights and its corners' offsets), found once on the user's side
+        (`prepare`). So each map gathers those rows of the pose and sums them: two gathers, not
+        the avatar's whole surface posed for each map (25 numpy calls) and re-posed pair by pair."""
+        _, c, m = self.pairs.stages[stage]
+        g = np.concatenate([joints.T, frames.transpose(1, 0, 2).reshape(3, -1)], axis=1)  # components first
+        cap = g.take(self.cap_rows[:, c], axis=1)  # (3, 5, Nc): (component, term, pair)
+        cap *= u.cap_coef[:, c]
+        mesh = g.take(u.mesh_rows[:, m], axis=1)  # (3, 12, Nm)
+        mesh *= u.mesh_coef[:, m]
+        return np.concatenate([np.add.reduce(cap, axis=1), np.add.reduce(mesh, axis=1)], axis=1)
 
     # --- the palms ------------------------------------------------------------------------------
 
@@ -358,7 +403,17 @@ class OneFrameMapping:
         uz = np.abs(ub[2])
         floor_tau = np.add.reduce(self.floor_mask * uz, axis=1) + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
-        return FrameUser(p3, t, self.radius[1][0] + t * self.radius[1][1], cap_dir, tri, bary, v,
+        # x' on the avatar (projection.repose_components) as sums of its pose (_avatar_points):
+        # a capsule's head (1 - t), tail t, and in its bone's columns its offset there plus ρ' d
+        cap_coef = np.empty((5, len(t)))
+        cap_coef[0] = 1.0 - t
+        cap_coef[1] = t
+        cap_coef[2:] = self.cap_off[0] + t * self.cap_off[1] + (self.radius[1][0] + t * self.radius[1][1]) * cap_dir
+        # a triangle's corners: each its bone's head and columns, by the barycentric weight
+        mesh_coef = np.empty((3, 4, len(tri)))  # (corner, head and columns, pair)
+        mesh_coef[:, 0] = bary
+        np.multiply(self.tri_local.take(tri, axis=2), bary[:, None], out=mesh_coef[:, 1:])
+        return FrameUser(p3, cap_coef, self.tri_rows.take(tri, axis=1), mesh_coef.reshape(12, -1), v,
                          weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
                          np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left)), w
 
@@ -386,23 +441,16 @@ class OneFrameMapping:
 
     # --- the avatar's side ----------------------------------------------------------------------
 
-    def map(self, u: FrameUser, av: FlatSurface, stage: int) -> np.ndarray:
+    def map(self, u: FrameUser, joints: np.ndarray, frames: np.ndarray, stage: int) -> np.ndarray:
         """(P, 3) float64: the targets of `stage` (0: the first `first`, 1: the others; the rest
-        of the rows are not) mapped onto the avatar posed as `av` (`PreparedTargets.map`): over
-        that stage's pairs alone (one slice: _Pairs), each target's sums in the same order."""
+        of the rows are not) mapped onto the avatar posed as canonical joints (J, 3) and bone
+        frames (B, 3, 3) (`PreparedTargets.map`): over that stage's pairs alone (one slice:
+        _Pairs), each target's sums in the same order."""
         P = len(self.names)
-        a, c, m = self.pairs.stages[stage]
-        # x' re-posed (projection.repose_components): capsule (and sphere), barycentric
-        cap_e = self.stage_cap_e[stage]
-        rot = av.cap_rot.take(cap_e, axis=2)
-        cap = (av.cap_head.take(cap_e, axis=1) + u.t[c] * av.cap_axis.take(cap_e, axis=1)
-               + u.rho[c] * _apply(rot, u.cap_dir[:, c]))
-        corners = av.tri.take(u.tri[m], axis=2)  # (3, corner, Nm)
-        bary = u.bary[:, m]
-        mesh = bary[0] * corners[:, 0] + bary[1] * corners[:, 1] + bary[2] * corners[:, 2]
-        x_av = np.concatenate([cap, mesh], axis=1)
+        a = self.pairs.stages[stage][0]
+        x_av = self._avatar_points(u, joints, frames, stage)  # x' re-posed
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
-        j = av.joints
+        j = joints.T
         ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
         lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
         tau_a = np.einsum("kn,k->n", u.dots[:, a], lratio) + np.abs(
@@ -414,7 +462,7 @@ class OneFrameMapping:
             out[:2] = np.where(u.none, u.pts[:2], out[:2])
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
         tfa = np.add.reduce(self.floor_mask * (u.floor_uz * lratio), axis=1) + np.abs(
-            j[2].take(_ANKLES).astype(float)).repeat(P)
+            j[2].take(_ANKLES)).repeat(P)
         ratios = np.divide(tfa, u.floor_tau, out=np.ones_like(tfa), where=u.floor_ok)
         out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
         return out.T
