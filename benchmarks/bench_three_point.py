@@ -15,7 +15,8 @@ three (the session's T-pose and arm circles) and solved; against the clip's full
   base and wrists against the clip's (the calibration, median mm);
 - the pelvis's error with the reference time's offset taken out (the model's motion alone);
 - steps: the feet's landings against the clip's (the same rule for both, on the ankle and the
-  ball together: `measure.landings`);
+  ball together: `measure.landings`), and how much the clip's floor rises along the walk (ours is
+  flat: `measure.floor_along`);
 - knees within their range (flexion 0-155 degrees, bending forward) and the legs apart (the
   shins never closer than `LEGS_APART` x stature, the two ankle radii);
 - the feet on the avatar's evaluated mesh (the default settings) while the estimated foot stands:
@@ -108,6 +109,12 @@ def _estimated_stance(full, side: str, a: int, b: int) -> np.ndarray:
     p, _, _ = full.pose(f"foot_{side}")
     v = np.linalg.norm(np.gradient(p[a:b, :2], axis=0), axis=1) * FPS
     return v < 0.02
+
+
+def _floor_rise_mm(T: np.ndarray, Jt: dict) -> float:
+    """How many mm the clip's floor rises along its walk (`measure.floor_along`, the motion's stances)."""
+    _, slope, extent = measure.floor_along([T[:, [Jt[f"ankle_{s}"], Jt[f"toe_{s}"]]] for s in "lr"], FPS)
+    return round(slope * extent * 1000, 1)
 
 
 def _hands_in_reach(user, pose, a: int, b: int) -> float:
@@ -214,6 +221,9 @@ def truth_part(arm, avatar, workdir: Path, quick: bool) -> dict:
                              "truth": sum(measure.landings(T[:, [Jt[f"ankle_{s}"], Jt[f"toe_{s}"]]], FPS)
                                           for s in "lr"),
                              "walk": walk},
+                   # the clip's floor: how much it rises along the walk (its toes' lowest per stance);
+                   # the estimate's floor is flat, the head rising with the clip's lifts its pelvis
+                   "clip_floor_rise_mm": _floor_rise_mm(T, Jt),
                    **_knees_and_legs(pose, a, b, user.extra["eye_height"] / 0.93)}
             anim = pl.retarget(full, user, avatar, "egocentric", placement="performer")
             fig.update(_skin(arm, avatar, anim, full, truth, AvatarRig.from_model(avatar).leg_length() * leg_k))

@@ -4,7 +4,9 @@ with a leading frame axis restricted by the caller to the frames that count (the
 
 - joint-centre error: a calibrated joint's world position at the reference time vs the clip's;
 - sole height during stance: the avatar's lowest sole point in the source's stance frames;
-- hip-line angle: the horizontal angle between the avatar's hip line and the source's.
+- hip-line angle: the horizontal angle between the avatar's hip line and the source's;
+- the floor a clip walks on: how much it rises along the walk (a capture's floor is not always
+  level: the CMU walk 02_01's rises 4-5 cm over its 3.6 m).
 
 The figures a bake's review also flags (foot slide, wrist / ankle acceleration, when a source's
 foot is down, the limb ratios) are the engine's, `bodycal_addon/output/metrics.py`, which the
@@ -54,3 +56,33 @@ def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0
     starts, ends = edges[::2], edges[1::2]
     held = (ends - starts) >= hold_s * fps
     return int(np.sum(held & (starts > 0)))
+
+
+def _stances(foot: np.ndarray, fps: float, speed: float, hold_s: float) -> list[tuple[int, int]]:
+    v = np.linalg.norm(np.gradient(foot[..., :2], axis=0), axis=-1).max(axis=-1) * fps
+    slow = np.concatenate([[0], (v < speed).astype(int), [0]])
+    edges = np.flatnonzero(np.diff(slow))
+    return [(a, b) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= hold_s * fps]
+
+
+def floor_along(feet: list[np.ndarray], fps: float, speed: float = 0.3, hold_s: float = 0.12):
+    """(axis (2,), slope, extent): the floor under a walk, from each foot's points (F, K, 3), the last
+    of them the lowest (the ball): the lowest of that point in every stance (the `landings` rule),
+    its height fitted against the distance along the stances' main direction over the floor
+    (`axis`): `slope` metres up per metre along `axis`, `extent` the metres the stances span along
+    it. (None, 0.0, 0.0) with fewer than three stances."""
+    lows = []
+    for foot in feet:
+        foot = foot.reshape(len(foot), -1, 3)
+        for a, b in _stances(foot, fps, speed, hold_s):
+            lows.append(foot[a + int(np.argmin(foot[a:b, -1, 2])), -1])
+    if len(lows) < 3:
+        return None, 0.0, 0.0
+    lows = np.array(lows)
+    xy = lows[:, :2] - lows[:, :2].mean(axis=0)
+    axis = np.linalg.svd(xy, full_matrices=False)[2][0]
+    along = xy @ axis
+    slope = float(np.polyfit(along, lows[:, 2], 1)[0])
+    if slope < 0.0:  # the axis pointing up the floor: the slope reads as a rise
+        axis, along, slope = -axis, -along, -slope
+    return axis, slope, float(np.ptp(along))

@@ -130,6 +130,60 @@ def test_a_walk_at_its_quickest_cadence_never_leaves_the_foot_behind_out_of_reac
         assert d.max() < limit[i] + 0.001, (s, d.max() - limit[i])
 
 
+def test_on_the_walks_floor_levelled_the_feet_step_as_often_as_the_walker(walk):
+    """The CMU walk 02_01's floor rises 44 mm along its stances (the source's own: its balls'
+    lowest per stance, measure.floor_along), the walker's head rising with it; the estimate's floor
+    is flat (the calibration's), so its pelvis rises above it by as much, the legs straighten, each
+    landing is pulled back within the leg's reach and the foot behind leaves reach sooner (a swing
+    hurried): 7 steps as recorded against the walker's 5. The same take with its floor levelled
+    (the devices lowered by its rise from where the calibration stood) steps within 20 % of the
+    walker, the legs within their heels' reach (DESIGN.md §6 "Feet that step")."""
+    rec, cap, user = walk
+    truth = cap.truth()
+    a, b = truth["motion"]
+    T, J = truth["positions"], truth["joints"]
+    feet = [T[a:b][:, [J.index(f"ankle_{s}"), J.index(f"toe_{s}")]] for s in "lr"]
+    axis, slope, extent = measure.floor_along(feet, FPS)
+    assert 0.03 < slope * extent < 0.06
+    origin = T[int(round(user.reference_time * FPS)), J.index("pelvis"), :2]
+    pos = rec.positions.copy()
+    pos[..., 2] -= slope * ((pos[..., :2] - origin) @ axis)
+    level = replace(rec, positions=pos)
+    level_user = calibrate_user(level)
+    pose = animate_user(lower_body.complete(level, level_user), level_user)
+    ours = sum(measure.landings(pose.joints[a:b][:, [JI[f"ankle_{s}"], JI[f"toe_{s}"]]], FPS) for s in "lr")
+    walker = sum(measure.landings(f, FPS) for f in feet)
+    assert abs(ours - walker) <= 0.2 * walker, (ours, walker)
+    shape = lower_body.LowerBodyShape.of(level_user)
+    limit = np.maximum(heel.REACH * shape.leg, np.linalg.norm(shape.hip - shape.ankle, axis=1) + heel.SWAY)
+    for i, s in enumerate("lr"):
+        d = np.linalg.norm(pose.joints[a:b, JI[f"hip_{s}"]] - pose.joints[a:b, JI[f"ankle_{s}"]], axis=1)
+        assert d.max() < limit[i] + 0.001, (s, d.max() - limit[i])
+
+
+def test_the_floor_along_a_walk_is_measured_whichever_way_it_rises():
+    """measure.floor_along on feet made here: stances on a floor rising 2 % along a walk heading
+    30 degrees off the x axis, read as a rise whichever way the walk goes; a level floor reads 0."""
+    heading = np.radians(30.0)
+    way = np.array([np.cos(heading), np.sin(heading)])
+    frames = np.arange(900)
+    for slope, direction in ((0.02, 1.0), (0.02, -1.0), (0.0, 1.0)):
+        feet = []
+        for side, phase in ((-0.1, 0), (0.1, 90)):  # the two feet a step apart in time, apart across
+            step = np.floor((frames + phase) / 180.0)  # each foot moves once every 2 s, standing 1.5 s
+            u = np.clip(((frames + phase) % 180.0 - 135.0) / 45.0, 0.0, 1.0)
+            along = direction * 1.2 * (step + u)
+            xy = along[:, None] * way + side * np.array([-way[1], way[0]])
+            z = slope * direction * along + 0.03 + 0.05 * np.sin(np.pi * u)
+            ball = np.c_[xy, z]
+            feet.append(np.stack([ball + [0.0, 0.0, 0.07], ball], axis=1))
+        axis, got, extent = measure.floor_along(feet, FPS)
+        assert abs(got - slope) < 1e-6
+        assert extent > 5.0
+        if slope:
+            assert axis @ way * direction > 0.999  # along the walk, pointing up the floor
+
+
 def test_the_pelvis_follows_the_walker_under_the_head(walk):
     rec, cap, user = walk
     pose = animate_user(lower_body.complete(rec, user), user)
