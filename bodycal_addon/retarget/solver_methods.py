@@ -80,6 +80,7 @@ class Method:
     fk_basis = False
     realised: bool | list[int] = False
     uses_fk = True  # reads the rotation copy's pose (`chunk`'s fk; None when not)
+    user_fingers = True  # reads the user's fingers (False: the pose source may leave them unposed)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -307,6 +308,11 @@ class ExactOffsets(Method):
         ref[BI["sacrum"]] = sacrum_toward_hip_line(ref[BI["sacrum"]], run.user_pos["hip_l"], run.user_pos["hip_r"])
         self.ofs = ofs.setup(run.user, run.rig, ref, tpose, run.centre)
         self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
+        # Decision (speed, the same values): the grip sets every finger bone of a hand it closes,
+        # so where it closes each hand that has any finger bone, nothing reads the user's fingers
+        # and the pose source leaves them unposed (their tip markers' pose was a fifth of a
+        # one-frame solve, measured: DESIGN.md "Prepared solver").
+        self.user_fingers = any(run.finger_bones[s] and s not in self.grip for s in sk.SIDES)
 
     def ankle_places(self, trackers) -> dict:
         return self._effector_targets(trackers)[0]

@@ -389,7 +389,7 @@ class UserAnimator:
                 "frame_cols": np.array(frame_cols, int), "rights": np.array(rights, int),
                 "hint_rows": np.repeat(np.arange(len(rights)), 2), "multi": np.array(multi, int) if multi else None}
 
-    def _animate_one(self, plan: _Plan, start: int, tr: Trackers) -> UserPose | None:
+    def _animate_one(self, plan: _Plan, start: int, tr: Trackers, fingers: bool = True) -> UserPose | None:
         """`animate` of ONE frame with few numpy calls (`_one_frame_tables`: the products in one
         stacked product, the trackers' joints in one weighted sum, the frames rigid on a device in
         one gather), then the same passes as a block's (the limbs without a tracker, the trunk, the
@@ -419,7 +419,7 @@ class UserAnimator:
                                               rights[i:i + 1])
         trunk: list = []
         self._trunk(P, Fr, rigid[-1:], trunk)
-        if plan.tips:
+        if plan.tips and fingers:
             tips = self.reader.markers(tab["tip_columns"], start, start + 1)
             pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
         sacrum_x = Fr[:, BI["sacrum"], :, 0]
@@ -434,15 +434,18 @@ class UserAnimator:
 
     # --- per block of frames ------------------------------------------------------------------
 
-    def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None) -> UserPose:
+    def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None,
+                fingers: bool = True) -> UserPose:
         """The canonical joints and bone frames of frames [start, stop); `trackers`: those frames'
-        as `self.reader` reads them, when the caller has them already."""
+        as `self.reader` reads them, when the caller has them already. `fingers` False: the fingers
+        stay rigid on the hand as calibrated (not posed from their tip markers), for a caller that
+        reads none of them (`Method.user_fingers`)."""
         plan = self.plan
         tab = self._tables
         stop = self.recording.frame_count if stop is None else stop
         tr = self.reader.read(start, stop) if trackers is None else trackers
         if stop - start == 1 and one_frame.ENABLED:
-            pose = self._animate_one(plan, start, tr)
+            pose = self._animate_one(plan, start, tr, fingers)
             if pose is not None:
                 return pose
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
@@ -464,7 +467,7 @@ class UserAnimator:
         hints: list = []
         self._limbs(plan, P, prod, rigid, hints)
         self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], hints)
-        self._hands(plan, P, Fr, rigid, start, stop)
+        self._hands(plan, P, Fr, rigid, start, stop, fingers)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         hints += [Fr[:, BI["sacrum"]][..., :, 0]] * len(_SHORTCUTS)
         ys = pos.take(tab["axes_tails"], axis=1) - pos.take(tab["axes_heads"], axis=1)  # (F, bones, 3)
@@ -551,7 +554,8 @@ class UserAnimator:
         P.pos[:, _CLAVICLE_JOINT_ROWS] = res.joints[:, sk.CLAVICLE_VERTEBRA, None]
         hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
 
-    def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int) -> None:
+    def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int,
+               fingers: bool = True) -> None:
         """Hands pass: finger joints and frames rigid on the hand as calibrated, both hands at once,
         then the fingers with a tip marker posed from it, all at once (`pose_user_fingers`;
         forward-filled over its dropouts)."""
@@ -562,7 +566,7 @@ class UserAnimator:
         wrists = P.pos.take(_WRIST_JOINT_ROWS, axis=1).swapaxes(0, 1)  # (2, F, 3)
         P.put(tab["hand_joints"], wrists.take(vec_rows, axis=0) + rel)
         Fr[:, tab["hand_bones"]] = stacks_mul(hands, tab["hand_fixed"], fixed_rows).swapaxes(0, 1)
-        if plan.tips:
+        if plan.tips and fingers:
             tips = self.reader.markers(tab["tip_columns"], start, stop)
             pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
 
