@@ -226,7 +226,8 @@ class PreparedSolver:
     # --- one chunk of frames ------------------------------------------------------------------
 
     def chunk(self, start: int, stop: int):
-        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0), fingers=self.impl.user_fingers)
+        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0), fingers=self.impl.user_fingers,
+                           trunk=self.impl.user_trunk)
         for n in up.notes:
             if n not in self.notes:
                 self.notes.append(n)

@@ -81,6 +81,7 @@ class Method:
     realised: bool | list[int] = False
     uses_fk = True  # reads the rotation copy's pose (`chunk`'s fk; None when not)
     user_fingers = True  # reads the user's fingers (False: the pose source may leave them unposed)
+    user_trunk = True  # reads the user's pelvis, sacrum, vertebrae or clavicles (False: likewise)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -282,6 +283,11 @@ class ExactOffsets(Method):
 
     name = "offsets"
     uses_fk = False  # the limbs hang from the offsets' own trunk, and there is no skull-base IK
+    # Decision (speed, the same values): the offsets set the pelvis, the sacrum, every vertebra and
+    # the clavicles from the trackers themselves (eq. 2-4) and the limbs read the user's limb
+    # joints and hinges only, so the user's trunk pass (the spine IK: a sixth of a one-frame solve,
+    # measured, DESIGN.md "Prepared solver") is not run.
+    user_trunk = False
 
     def __init__(self, run, avatar_pos: dict):
         super().__init__(run, avatar_pos)
