@@ -203,14 +203,11 @@ class FingerSet:
         b = -2.0 * l2 * (l1 + l3)
         self.c0 = l1 * l1 + l2 * l2 + l3 * l3 - 2.0 * l1 * l3
         self.bb, self.a4, self.minus_b = b * b, 4.0 * a, -b
-        # b² - 4ac = (b² - a4 c0) + a4 d²: the part without the distance, once
-        self.disc0 = self.bb - self.a4 * self.c0
         self.den = np.maximum(2.0 * a, 1e-18)
         ylo, yhi, plo, phi = _limits(np.asarray(thumb, bool) if np.ndim(thumb) else bool(thumb))
         self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi = ylo, yhi, plo, phi
         self.half_excluded = (2 * np.pi - (phi - plo)) / 2  # _clamp_angle's excluded arc, halved
         self.lens_rows = np.stack([l1, l2, l3])  # (3, n)
-        self.minus_lens_rows = -self.lens_rows  # (a negation is exact: -(u + v) = (-u) + (-v))
         # the thumbs' roll (appendix D): every item, the thumbs (rows), or none; a roll of zero
         # (a user's thumb, whose frame carries its own) turns nothing
         turn = THUMB_ROLL if roll is None else roll
@@ -238,16 +235,14 @@ class FingerSet:
         k = self.constants
         rel = np.asarray(tip_target, float) - mcp
         local = np.einsum("fji,fj->fi", ref, rel)
-        d2 = np.add.reduce(rel * rel, -1)  # the squared distance (ndarray.sum's reduction)
-        # eq. 3-4 (flexion_from_distance, its constant parts kept: b² - 4ac = disc0 + a4 d²)
-        disc = np.maximum(self.a4 * d2 + self.disc0, k.zero)
+        d = np.sqrt(np.add.reduce(rel * rel, -1))  # np.linalg.norm's sum (ndarray.sum's reduction)
+        # eq. 3-4 (flexion_from_distance, its constant parts kept)
+        disc = np.maximum(self.bb - self.a4 * (self.c0 - d * d), k.zero)
         x = np.minimum(np.maximum((self.minus_b - np.sqrt(disc)) / self.den, k.minus_clamp), k.clamp)
-        # 0, α and 2α: their cosines and sines in two calls (the zero's are 1 and 0 exactly: the
-        # flexed tip's sums below in one reduction each)
-        turns = np.zeros((3, self.n))
-        alpha = np.minimum(k.pi - np.arccos(x), k.cap, out=turns[1])
-        np.multiply(k.two, alpha, out=turns[2])
-        cos3, sin3 = np.cos(turns), np.sin(turns)
+        twice = np.empty((2, self.n))  # α and 2α: their cosines and sines in two calls
+        alpha = np.minimum(k.pi - np.arccos(x), k.cap, out=twice[0])
+        np.multiply(k.two, alpha, out=twice[1])
+        cos, sin = np.cos(twice), np.sin(twice)
         # realign: the target's yaw and pitch clamped, the flexed tip's pitch (its yaw is zero)
         ly, lz = local[..., 1], local[..., 2]
         pitch = np.arctan2(-lz, ly)
@@ -259,13 +254,11 @@ class FingerSet:
         angles = np.empty((3, self.n))  # Rx(-pitch) Rz(-yaw) Rx(flexed pitch)
         np.negative(pitch, out=angles[0])
         np.negative(yaw, out=angles[1])
-        # the flexed tip's pitch: arctan2(-(l2 s1 + l3 s2), (l1 + l2 c1) + l3 c2), each sum one
-        # reduction over the rows in order ((-0 - l2 s1) - l3 s2 and (l1 + l2 c1) + l3 c2: the
-        # same bits as written out)
-        np.arctan2(np.add.reduce(self.minus_lens_rows * sin3, 0), np.add.reduce(self.lens_rows * cos3, 0),
-                   out=angles[2])
+        # the flexed tip's pitch: arctan2(-(l2 s1 + l3 s2), (l1 + l2 c1) + l3 c2)
+        lc, ls = self.lens_rows[1:] * cos, self.lens_rows[1:] * sin  # (l2 c1, l3 c2), (l2 s1, l3 s2)
+        np.arctan2(-(ls[0] + ls[1]), self.l1 + lc[0] + lc[1], out=angles[2])
         base = matmul_stack(ref, _rx_rz_rx_of(angles))
-        return mcp, base, cos3[1:], sin3[1:], alpha, yaw, pitch
+        return mcp, base, cos, sin, alpha, yaw, pitch
 
     @property
     def constants(self) -> SimpleNamespace:
