@@ -121,6 +121,8 @@ class PreparedSolver:
         bm = naming.BoneMap.from_dict(avatar.extra["rig"].get("bone_map", {}))
         self.has_fingers = {s: all(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
                             for s in sk.SIDES}
+        self.finger_bones = {s: any(f"{f}_{i}_{s}" in bm.bones for f in sk.FINGERS for i in (1, 2, 3))
+                             for s in sk.SIDES}  # any finger bone of that hand
         self.impl = METHOD_CLASSES[method](self, avatar_pos)
 
     @property
@@ -224,7 +226,8 @@ class PreparedSolver:
     # --- one chunk of frames ------------------------------------------------------------------
 
     def chunk(self, start: int, stop: int):
-        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0))
+        up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0), fingers=self.impl.user_fingers,
+                           trunk=self.impl.user_trunk)
         for n in up.notes:
             if n not in self.notes:
                 self.notes.append(n)

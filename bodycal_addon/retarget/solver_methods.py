@@ -80,6 +80,8 @@ class Method:
     fk_basis = False
     realised: bool | list[int] = False
     uses_fk = True  # reads the rotation copy's pose (`chunk`'s fk; None when not)
+    user_fingers = True  # reads the user's fingers (False: the pose source may leave them unposed)
+    user_trunk = True  # reads the user's pelvis, sacrum, vertebrae or clavicles (False: likewise)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -284,6 +286,11 @@ class ExactOffsets(Method):
 
     name = "offsets"
     uses_fk = False  # the limbs hang from the offsets' own trunk, and there is no skull-base IK
+    # Decision (speed, the same values): the offsets set the pelvis, the sacrum, every vertebra and
+    # the clavicles from the trackers themselves (eq. 2-4) and the limbs read the user's limb
+    # joints and hinges only, so the user's trunk pass (the spine IK: a sixth of a one-frame solve,
+    # measured, DESIGN.md "Prepared solver") is not run.
+    user_trunk = False
 
     def __init__(self, run, avatar_pos: dict):
         super().__init__(run, avatar_pos)
@@ -310,6 +317,11 @@ class ExactOffsets(Method):
         ref[BI["sacrum"]] = sacrum_toward_hip_line(ref[BI["sacrum"]], run.user_pos["hip_l"], run.user_pos["hip_r"])
         self.ofs = ofs.setup(run.user, run.rig, ref, tpose, run.centre)
         self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
+        # Decision (speed, the same values): the grip sets every finger bone of a hand it closes,
+        # so where it closes each hand that has any finger bone, nothing reads the user's fingers
+        # and the pose source leaves them unposed (their tip markers' pose was a fifth of a
+        # one-frame solve, measured: DESIGN.md "Prepared solver").
+        self.user_fingers = any(run.finger_bones[s] and s not in self.grip for s in sk.SIDES)
 
     def ankle_places(self, trackers) -> dict:
         return self._effector_targets(trackers)[0]

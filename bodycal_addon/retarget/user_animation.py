@@ -389,7 +389,8 @@ class UserAnimator:
                 "frame_cols": np.array(frame_cols, int), "rights": np.array(rights, int),
                 "hint_rows": np.repeat(np.arange(len(rights)), 2), "multi": np.array(multi, int) if multi else None}
 
-    def _animate_one(self, plan: _Plan, start: int, tr: Trackers) -> UserPose | None:
+    def _animate_one(self, plan: _Plan, start: int, tr: Trackers, fingers: bool = True,
+                     trunk: bool = True) -> UserPose | None:
         """`animate` of ONE frame with few numpy calls (`_one_frame_tables`: the products in one
         stacked product, the trackers' joints in one weighted sum, the frames rigid on a device in
         one gather), then the same passes as a block's (the limbs without a tracker, the trunk, the
@@ -417,13 +418,13 @@ class UserAnimator:
             if not tracked:  # no tracker carries it: two-bone from the user's lengths (`_limbs`)
                 P[f"{m}_{s}"] = _two_bone_mid(P[f"{a}_{s}"], P[f"{e}_{s}"], self.rest_pos, a, m, e, s,
                                               rights[i:i + 1])
-        trunk: list = []
-        self._trunk(P, Fr, rigid[-1:], trunk)
-        if plan.tips:
+        hinted: list = []
+        (self._trunk if trunk else _rigid_trunk)(P, Fr, rigid[-1:], hinted)
+        if plan.tips and fingers:
             tips = self.reader.markers(tab["tip_columns"], start, start + 1)
             pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
         sacrum_x = Fr[:, BI["sacrum"], :, 0]
-        hints = np.concatenate([rights.take(one["hint_rows"], axis=0)] + trunk + [sacrum_x] * len(_SHORTCUTS))
+        hints = np.concatenate([rights.take(one["hint_rows"], axis=0)] + hinted + [sacrum_x] * len(_SHORTCUTS))
         ys = pos[0].take(tab["axes_tails"], axis=0) - pos[0].take(tab["axes_heads"], axis=0)
         Fr[0, tab["axes_rows"]] = frame_from_axes(ys, hints)
         if not math.isfinite(pos.sum() + Fr.sum()):  # (a sum of finite values overflows only beyond 1e300)
@@ -434,15 +435,20 @@ class UserAnimator:
 
     # --- per block of frames ------------------------------------------------------------------
 
-    def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None) -> UserPose:
+    def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None,
+                fingers: bool = True, trunk: bool = True) -> UserPose:
         """The canonical joints and bone frames of frames [start, stop); `trackers`: those frames'
-        as `self.reader` reads them, when the caller has them already."""
+        as `self.reader` reads them, when the caller has them already. For a caller that reads
+        none of them (`Method.user_fingers`, `Method.user_trunk`): `fingers` False, the fingers
+        stay rigid on the hand as calibrated (not posed from their tip markers); `trunk` False,
+        the trunk pass is not run (`_rigid_trunk`: the pelvis tracker's estimate, the sacrum rigid
+        on its tracker, the vertebrae and clavicles placeholders at the pelvis)."""
         plan = self.plan
         tab = self._tables
         stop = self.recording.frame_count if stop is None else stop
         tr = self.reader.read(start, stop) if trackers is None else trackers
         if stop - start == 1 and one_frame.ENABLED:
-            pose = self._animate_one(plan, start, tr)
+            pose = self._animate_one(plan, start, tr, fingers, trunk)
             if pose is not None:
                 return pose
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
@@ -463,8 +469,8 @@ class UserAnimator:
         # joint is written after its stage, so the values are each stage's. `hints`: their x hints.
         hints: list = []
         self._limbs(plan, P, prod, rigid, hints)
-        self._trunk(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], hints)
-        self._hands(plan, P, Fr, rigid, start, stop)
+        (self._trunk if trunk else _rigid_trunk)(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], hints)
+        self._hands(plan, P, Fr, rigid, start, stop, fingers)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         hints += [Fr[:, BI["sacrum"]][..., :, 0]] * len(_SHORTCUTS)
         ys = pos.take(tab["axes_tails"], axis=1) - pos.take(tab["axes_heads"], axis=1)  # (F, bones, 3)
@@ -551,7 +557,8 @@ class UserAnimator:
         P.pos[:, _CLAVICLE_JOINT_ROWS] = res.joints[:, sk.CLAVICLE_VERTEBRA, None]
         hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
 
-    def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int) -> None:
+    def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int,
+               fingers: bool = True) -> None:
         """Hands pass: finger joints and frames rigid on the hand as calibrated, both hands at once,
         then the fingers with a tip marker posed from it, all at once (`pose_user_fingers`;
         forward-filled over its dropouts)."""
@@ -562,9 +569,22 @@ class UserAnimator:
         wrists = P.pos.take(_WRIST_JOINT_ROWS, axis=1).swapaxes(0, 1)  # (2, F, 3)
         P.put(tab["hand_joints"], wrists.take(vec_rows, axis=0) + rel)
         Fr[:, tab["hand_bones"]] = stacks_mul(hands, tab["hand_fixed"], fixed_rows).swapaxes(0, 1)
-        if plan.tips:
+        if plan.tips and fingers:
             tips = self.reader.markers(tab["tip_columns"], start, stop)
             pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
+
+
+def _rigid_trunk(P: _Joints, Fr: np.ndarray, sac: np.ndarray, hints: list) -> None:
+    """`UserAnimator._trunk`'s outputs where a caller reads none of them (`animate`'s `trunk`
+    False): the sacrum rigid on the pelvis tracker (`sac`), the vertebrae turned with it, their
+    joints and the clavicles' at the pelvis, the clavicles' x hint the sacrum's lateral (finite
+    values, so the checks and the frames built from axes stand; nothing of the trunk's IK)."""
+    Fr[:, BI["sacrum"]] = sac
+    Fr[:, _SPINE_ROWS] = sac[:, None]
+    at = P["pelvis"][:, None]
+    P.pos[:, _SPINE_JOINT_ROWS] = at
+    P.pos[:, _CLAVICLE_JOINT_ROWS] = at
+    hints += [sac[..., :, 0]] * len(sk.SIDES)
 
 
 class _Joints:
