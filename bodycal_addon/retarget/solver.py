@@ -396,22 +396,27 @@ class PreparedSolver:
         plan = self._finger_plan(sides, tuple(targets), nf)
         if plan is None:
             return
-        items, hand_bones, rows, mcp_local, base_rest, bones, chain = plan
+        items, hand_bones, rows, mcp_local, base_rest, (bones, flat), chain = plan
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        # `pose_finger_chain`'s frames (its rest frame the reference), written at once: item by
-        # item (frames within), phalanges 1, 2, 3 each
+        # `pose_finger_chain`'s frames (its rest frame the reference): one frame's in one scatter
+        # (a view of them, finger by finger, phalanx by phalanx), a block's phalanx by phalanx (an
+        # index over its frames too cost the bake 5 % of this function)
         rots = chain.pose(mcp, ref, tip, joints=False).rotations  # (K F, 3, 3, 3)
-        frames[:, bones] = rots.reshape(len(items), nf, 3, 3, 3).swapaxes(0, 1).reshape(nf, -1, 3, 3)
+        if nf == 1:
+            frames[0, flat] = rots.reshape(-1, 3, 3)
+        else:
+            for i in (0, 1, 2):
+                frames[:, bones[i]] = rots[:, i].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
 
     def _finger_plan(self, sides: tuple, names: tuple, nf: int) -> tuple | None:
         """What `_fingers` gathers for the fingers with a tip target (`names`: the targets') of the
         hands `sides`, once per such set and frame count: the fingers [(side, finger)], the hands'
         canonical bones, each finger's hand (its row in `sides`), its `_finger_rest` constants
         stacked (MCP offsets, first phalanx rest frames), the canonical bones of phalanges 1, 2, 3
-        finger by finger, and the fingers' `FingerSet`; None: no finger has a target."""
+        (three arrays, and finger by finger in one), and the fingers' `FingerSet`; None: no finger has a target."""
         cache = self.__dict__.setdefault("_finger_plans", {})
         key = (sides, names, nf)
         if key not in cache:
@@ -424,7 +429,8 @@ class PreparedSolver:
             mcp_local, base_rest, lens = (np.array([rest[i][k] for i in items]) for k in range(3))
             cache[key] = (items, np.array([BI[f"hand_{s}"] for s in sides], int),
                           np.array([sides.index(s) for s, _ in items], int), mcp_local, base_rest,
-                          np.array([BI[f"{f}_{i}_{s}"] for s, f in items for i in (1, 2, 3)], int),
+                          ([np.array([BI[f"{f}_{i}_{s}"] for s, f in items], int) for i in (1, 2, 3)],
+                           np.array([BI[f"{f}_{i}_{s}"] for s, f in items for i in (1, 2, 3)], int)),
                           finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)))
         return cache[key]
 
