@@ -121,7 +121,7 @@ class TwoBoneResult:
         return iter((self.mid, self.end, self.rot1, self.rot2))
 
 
-FEW_LIMBS = 4  # two_bone of this many items (limbs x frames) or fewer runs in mathutils
+FEW_LIMBS = 4  # two_bone of this many items (limbs x frames) or fewer runs in Python floats
 
 
 def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_axis_hint=None,
@@ -147,8 +147,9 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     `swivel_dir x axis`, so the flexion is positive about +X of both bones (rot2 = rot1 Rx(α)).
 
     Decision (speed): a few items (FEW_LIMBS: a live frame's two arms or legs) are solved in
-    mathutils (`_two_bone_one`, float32: core/one_frame.py), where numpy's per-call overhead was
-    the whole cost."""
+    Python floats (`_two_bone_one`, float64: numpy's values to their sums' rounding), where
+    numpy's per-call overhead was the whole cost (mathutils' float32 Vectors, which it replaced,
+    cost a third more: DESIGN.md "Prepared solver")."""
     root = np.asarray(root, float)
     target = np.asarray(target, float)
     F = root.shape[0]
@@ -205,7 +206,7 @@ def two_bone(root, l1, l2, target, pole_target=None, user_swivel_dir=None, flex_
     return TwoBoneResult(mid, end, rot1, rot2, t, swivel, (l1, l2, d, dist))
 
 
-# --- two_bone of a few items in mathutils (one frame's limbs) -----------------------------------
+# --- one frame: mathutils helpers (the spine's), two_bone of a few items in Python floats ---------
 
 def _m_unit(v, fallback):
     """`_unit` of one mathutils Vector: (unit, norm), `fallback` (a Vector, or a function giving
@@ -222,70 +223,87 @@ def _m_any_perpendicular(axis):
     return _m_unit(ref - axis * ref.dot(axis), _Z)[0]
 
 
+def _f_unit(x, y, z, fallback):
+    """`_unit` of one vector's components: (ux, uy, uz, norm), `fallback` (a triple, or a
+    function giving it) where the norm is EPS or less (NaN included)."""
+    n = math.sqrt((x * x + z * z) + y * y)
+    if n > EPS:
+        return x / n, y / n, z / n, n
+    return (*(fallback() if callable(fallback) else fallback), n)
+
+
+def _f_any_perpendicular(a0, a1, a2):
+    """`_any_perpendicular` of one unit vector's components."""
+    if abs(a0) < 0.9:  # +X made perpendicular
+        return _f_unit(1.0 - a0 * a0, -a1 * a0, -a2 * a0, (0.0, 0.0, 1.0))[:3]
+    return _f_unit(-a0 * a1, 1.0 - a1 * a1, -a2 * a1, (0.0, 0.0, 1.0))[:3]  # +Y
+
+
 def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio):
-    """`two_bone` of a few items (a live frame's two arms or two legs) in mathutils: per item, the
-    numpy path's steps on single Vectors, the scalars in Python floats. Decision (precision): the
-    Vectors are float32 (core/one_frame.py), so they hold the limb relative to its root (the target
-    and pole minus the root, in float64 first) and the joints come back added to the root in
-    float64: float32 rounds a few centimetres' offset far finer than a position metres from the
-    origin (measured: rotation entries within 4e-6 of numpy's where world positions gave 1.4e-5)."""
+    """`two_bone` of a few items (a live frame's two arms or two legs) in Python floats: per item,
+    the numpy path's steps on each vector's three components (float64, as numpy's; a float
+    operation costs about a hundred instructions, a mathutils Vector operation 1,500-2,500).
+    The limb is held relative to its root (the target and pole minus the root) and the joints come
+    back added to the root, as numpy's values to their sums' rounding."""
     root = np.asarray(root, float)
     T = (np.asarray(target, float) - root).tolist()
-    P = None if pole_target is None else [Vector(v) for v in (np.asarray(pole_target, float) - root).tolist()]
-    U, K = ([Vector(v) for v in np.asarray(a, float).reshape(-1, 3).tolist()] if a is not None else None
+    P = None if pole_target is None else (np.asarray(pole_target, float) - root).tolist()
+    U, K = (np.asarray(a, float).reshape(-1, 3).tolist() if a is not None else None
             for a in (user_swivel_dir, flex_axis_hint))
     L1, L2 = l1.tolist(), l2.tolist()
     rows = []  # per item: mid, end, rot1's and rot2's entries, swivel, t, d, dist (one array at the end)
     for i, (t0, t1, t2) in enumerate(T):
-        fallback = _DOWN if P is None else _m_unit(P[i], _DOWN)[0]
-        # the root-target distance in float64 (`_dot`'s sum): near a straight limb the bend's
-        # h = sqrt(l1² - a²) magnifies its rounding (float32's moved a forearm by 6e-4 rad)
-        dist = math.sqrt((t0 * t0 + t2 * t2) + t1 * t1)
-        axis = Vector((t0 / dist, t1 / dist, t2 / dist)) if dist > EPS else fallback
-        a1, a2 = L1[i], L2[i]
-        lo, hi = abs(a1 - a2), a1 + a2
+        fallback = (0.0, 0.0, -1.0) if P is None else _f_unit(*P[i], (0.0, 0.0, -1.0))[:3]
+        a0, a1, a2, dist = _f_unit(t0, t1, t2, fallback)  # the axis
+        b1, b2 = L1[i], L2[i]
+        lo, hi = abs(b1 - b2), b1 + b2
         d = lo if dist < lo else hi if dist > hi else dist
         if K is not None:
-            hint = _m_unit(axis.cross(K[i]), lambda axis=axis: _m_any_perpendicular(axis))[0]
+            k0, k1, k2 = K[i]
+            h0, h1, h2 = _f_unit(a1 * k2 - a2 * k1, a2 * k0 - a0 * k2, a0 * k1 - a1 * k0,
+                                 lambda a=(a0, a1, a2): _f_any_perpendicular(*a))[:3]
         else:
-            hint = _m_any_perpendicular(axis)
-        gamma = hint
+            h0, h1, h2 = _f_any_perpendicular(a0, a1, a2)
+        g0, g1, g2 = h0, h1, h2  # γ
         if U is not None:
-            w = U[i] - axis * U[i].dot(axis)
+            u0, u1, u2 = U[i]
+            s = (u0 * a0 + u2 * a2) + u1 * a1
+            w0, w1, w2 = u0 - s * a0, u1 - s * a1, u2 - s * a2
             if K is not None:
-                w = w + hint * SWIVEL_HINT_WEIGHT
-            gamma = _m_unit(w, hint)[0]
-        if P is not None:
-            beta, r = _m_unit(P[i] - axis * P[i].dot(axis), gamma)
+                w0, w1, w2 = w0 + SWIVEL_HINT_WEIGHT * h0, w1 + SWIVEL_HINT_WEIGHT * h1, w2 + SWIVEL_HINT_WEIGHT * h2
+            g0, g1, g2 = _f_unit(w0, w1, w2, (h0, h1, h2))[:3]
+        if P is not None:  # β and t (eq. 7-8)
+            p0, p1, p2 = P[i]
+            s = (p0 * a0 + p2 * a2) + p1 * a1
+            e0, e1, e2, r = _f_unit(p0 - s * a0, p1 - s * a1, p2 - s * a2, (g0, g1, g2))
             t = min(max((r / size_ratio - BLEND_START) / BLEND_WIDTH, 0.0), 1.0)
+            # δ = t β + (1 - t) γ as angles about the axis, from γ
+            c0, c1, c2 = g1 * e2 - g2 * e1, g2 * e0 - g0 * e2, g0 * e1 - g1 * e0
+            delta = t * math.atan2((c0 * a0 + c2 * a2) + c1 * a1, (g0 * e0 + g2 * e2) + g1 * e1)
         else:
-            beta, t = gamma, 0.0
-        delta = t * math.atan2(gamma.cross(beta).dot(axis), gamma.dot(beta))
-        swivel = gamma * math.cos(delta) + axis.cross(gamma) * math.sin(delta)
-        a = (a1 * a1 - a2 * a2 + d * d) / max(2.0 * d, EPS) if d > EPS else 0.0
-        h = math.sqrt(max(a1 * a1 - a * a, 0.0))
-        mid = axis * a + swivel * h  # from the root
-        end = axis * d
-        x = swivel.cross(axis).normalized()  # unit in float32 too (swivel is perpendicular to axis)
-        y1 = _m_unit(mid, axis)[0]
-        y2 = _m_unit(end - mid, axis)[0]
-        rows.append([*mid, *end, *_m_columns(x, y1, x.cross(y1)), *_m_columns(x, y2, x.cross(y2)), *swivel,
-                     t, d, dist])
+            t = delta = 0.0
+        cs, sn = math.cos(delta), math.sin(delta)
+        o0, o1, o2 = a1 * g2 - a2 * g1, a2 * g0 - a0 * g2, a0 * g1 - a1 * g0  # axis x γ
+        s0, s1, s2 = cs * g0 + sn * o0, cs * g1 + sn * o1, cs * g2 + sn * o2  # the swivel
+        a = (b1 * b1 - b2 * b2 + d * d) / max(2.0 * d, EPS) if d > EPS else 0.0
+        h = math.sqrt(max(b1 * b1 - a * a, 0.0))
+        m0, m1, m2 = a * a0 + h * s0, a * a1 + h * s1, a * a2 + h * s2  # mid, from the root
+        n0, n1, n2 = d * a0, d * a1, d * a2  # end
+        x0, x1, x2 = s1 * a2 - s2 * a1, s2 * a0 - s0 * a2, s0 * a1 - s1 * a0
+        y0, y1, y2 = _f_unit(m0, m1, m2, (a0, a1, a2))[:3]
+        z0, z1, z2 = _f_unit(n0 - m0, n1 - m1, n2 - m2, (a0, a1, a2))[:3]
+        rows.append((m0, m1, m2, n0, n1, n2,
+                     x0, y0, x1 * y2 - x2 * y1, x1, y1, x2 * y0 - x0 * y2, x2, y2, x0 * y1 - x1 * y0,
+                     x0, z0, x1 * z2 - x2 * z1, x1, z1, x2 * z0 - x0 * z2, x2, z2, x0 * z1 - x1 * z0,
+                     s0, s1, s2, t, d, dist))
     out = np.array(rows)
     return TwoBoneResult(root + out[:, 0:3], root + out[:, 3:6], out[:, 6:15].reshape(-1, 3, 3),
                          out[:, 15:24].reshape(-1, 3, 3), out[:, 27], out[:, 24:27],
                          (l1, l2, out[:, 28], out[:, 29]))
 
 
-def _m_columns(x, y, z) -> list:
-    """The row-major entries of the matrix with columns x, y, z (Vectors)."""
-    (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = x[:], y[:], z[:]
-    return [x0, y0, z0, x1, y1, z1, x2, y2, z2]
-
-
 if Vector is not None:  # the constant Vectors (never changed in place)
-    _X, _Y, _Z, _DOWN, _ZERO = (Vector(v) for v in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0),
-                                                   (0.0, 0.0, -1.0), (0.0, 0.0, 0.0)))
+    _X, _Y, _Z = (Vector(v) for v in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
 
 
 # --- spine ----------------------------------------------------------------------------------------

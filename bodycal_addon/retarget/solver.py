@@ -32,7 +32,7 @@ from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
 from .solver_methods import METHOD_CLASSES, surface_correction
-from .user_animation import finger_set, pose_finger_chain
+from .user_animation import finger_set
 
 STANCES = ("whole", "causal")  # the feet plan: from the whole take (a bake), or frame by frame (live)
 
@@ -386,8 +386,8 @@ class PreparedSolver:
         the angle between the two axes (the mapping moves the effector), whose direction turns
         with every millimetre of target noise when the limb is nearly straight: the upper arm's
         roll then jittered three times the user's."""
-        joints = up.joints.take(rows, axis=1)  # (F, 3, K, 3)
-        root, mid, eff = (joints[:, k].swapaxes(0, 1).reshape(-1, 3) for k in range(3))
+        # (3, K F, 3): the anchors, intermediates and effectors, each limb's frames together
+        root, mid, eff = up.joints.take(rows, axis=1).transpose(1, 2, 0, 3).reshape(3, -1, 3)
         axis = normalize(eff - root)
         v = mid - root
         return v - np.einsum("fi,fi->f", v, axis)[:, None] * axis
@@ -399,21 +399,27 @@ class PreparedSolver:
         plan = self._finger_plan(sides, tuple(targets), nf)
         if plan is None:
             return
-        items, hand_bones, rows, mcp_local, base_rest, bones, chain = plan
+        items, hand_bones, rows, mcp_local, base_rest, (bones, flat), chain = plan
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
         tip = np.concatenate([targets[f"tip_{f}_{s}"] for s, f in items])
-        _, fr = pose_finger_chain(mcp, tip, None, [ref], finger_set=chain, joints=False)  # its frames only
-        for i in (1, 2, 3):
-            frames[:, bones[i - 1]] = fr[i - 1].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
+        # `pose_finger_chain`'s frames (its rest frame the reference): one frame's in one scatter
+        # (a view of them, finger by finger, phalanx by phalanx), a block's phalanx by phalanx (an
+        # index over its frames too cost the bake 5 % of this function)
+        rots = chain.pose(mcp, ref, tip, joints=False).rotations  # (K F, 3, 3, 3)
+        if nf == 1:
+            frames[0, flat] = rots.reshape(-1, 3, 3)
+        else:
+            for i in (0, 1, 2):
+                frames[:, bones[i]] = rots[:, i].reshape(len(items), nf, 3, 3).swapaxes(0, 1)
 
     def _finger_plan(self, sides: tuple, names: tuple, nf: int) -> tuple | None:
         """What `_fingers` gathers for the fingers with a tip target (`names`: the targets') of the
         hands `sides`, once per such set and frame count: the fingers [(side, finger)], the hands'
         canonical bones, each finger's hand (its row in `sides`), its `_finger_rest` constants
-        stacked (MCP offsets, first phalanx rest frames), the canonical bones of phalanges 1, 2, 3,
-        and the fingers' `FingerSet`; None: no finger has a target."""
+        stacked (MCP offsets, first phalanx rest frames), the canonical bones of phalanges 1, 2, 3
+        (three arrays, and finger by finger in one), and the fingers' `FingerSet`; None: no finger has a target."""
         cache = self.__dict__.setdefault("_finger_plans", {})
         key = (sides, names, nf)
         if key not in cache:
@@ -426,7 +432,8 @@ class PreparedSolver:
             mcp_local, base_rest, lens = (np.array([rest[i][k] for i in items]) for k in range(3))
             cache[key] = (items, np.array([BI[f"hand_{s}"] for s in sides], int),
                           np.array([sides.index(s) for s, _ in items], int), mcp_local, base_rest,
-                          [np.array([BI[f"{f}_{i}_{s}"] for s, f in items], int) for i in (1, 2, 3)],
+                          ([np.array([BI[f"{f}_{i}_{s}"] for s, f in items], int) for i in (1, 2, 3)],
+                           np.array([BI[f"{f}_{i}_{s}"] for s, f in items for i in (1, 2, 3)], int)),
                           finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)))
         return cache[key]
 

@@ -260,10 +260,11 @@ def test_a_nearly_straight_limb_keeps_its_bend_plane_under_joint_noise():
     assert np.linalg.norm(np.diff(res.mid, axis=0), axis=1).max() < 0.008  # at a 1 cm weight: 13°, 14 mm
 
 
-def test_a_few_limbs_in_mathutils_are_numpy_s_two_bone_to_float32(monkeypatch):
-    # A live frame's limbs (ik.FEW_LIMBS items or fewer) are solved in mathutils (float32,
-    # core/one_frame.py): numpy's two_bone to float32's rounding, degenerate limbs included
-    # (target on the root, pole and user swivel on the axis, hint along the axis, out of reach).
+def test_a_few_limbs_in_python_floats_are_numpy_s_two_bone_to_float64(monkeypatch):
+    # A live frame's limbs (ik.FEW_LIMBS items or fewer) are solved in Python floats (float64,
+    # ik._two_bone_one): numpy's two_bone to its sums' rounding (1e-12, where the mathutils kernel
+    # it replaced held float32's 2e-6), degenerate limbs included (target on the root, pole and
+    # user swivel on the axis, hint along the axis, out of reach).
     rng = np.random.default_rng(7)
     n = 400
     root = rng.normal(size=(n, 3))
@@ -297,13 +298,13 @@ def test_a_few_limbs_in_mathutils_are_numpy_s_two_bone_to_float32(monkeypatch):
             for rot in (few.rot1, few.rot2):
                 np.testing.assert_allclose(rot @ rot.swapaxes(-1, -2), np.broadcast_to(np.eye(3), rot.shape),
                                            atol=ONE_FRAME_ATOL)
-            np.testing.assert_allclose(few.end, whole.end[k:k + 2], rtol=0, atol=1e-6)
+            np.testing.assert_allclose(few.end, whole.end[k:k + 2], rtol=0, atol=1e-12)
             np.testing.assert_array_equal(few.reached, whole.reached[k:k + 2])
             keep = exact[k:k + 2]
             for got, want in ((few.mid, whole.mid), (few.rot1, whole.rot1), (few.rot2, whole.rot2),
                               (few.blend, whole.blend), (few.swivel_dir, whole.swivel_dir),
                               (few.flexion, whole.flexion)):
-                np.testing.assert_allclose(got[keep], want[k:k + 2][keep], rtol=0, atol=ONE_FRAME_ATOL)
+                np.testing.assert_allclose(got[keep], want[k:k + 2][keep], rtol=0, atol=1e-12)
 
 
 def _rotations(rng, n):
