@@ -278,14 +278,18 @@ def _stream_until_posed(session, source, rec, name, deadline):
 
 
 def _stream_until_solving(session, source, rec, names, solved: int, deadline, k=0):
-    """Frames delivered until each named follower has solved `solved` of them; the updates. Each
-    frame's results are waited for from the followers solving already, so every frame is handed to
-    them; while a worker starts or prepares, the test waits a little between frames (a guard only:
-    nothing is timed)."""
+    """Frames delivered until the updates carry `solved` poses of each named follower; the updates.
+    Each frame's results are waited for from the followers solving already, so every frame is
+    handed to them; while a worker starts or prepares, the test waits a little between frames (a
+    guard only: nothing is timed). Counted in the updates, not in the follower's solved frames: a
+    pose solved while a worker prepares may be replaced in its slot before a pump takes it (latest
+    wins, `FollowerStats.unshown`), and under load one was, leaving 11 poses to compare of 12 solved."""
     updates = []
-    while min(session.followers[n].stats.frames for n in names) < solved:
+    shown = dict.fromkeys(names, 0)
+    while min(shown.values()) < solved:
         assert time.monotonic() < deadline and k < rec.frame_count, [session.followers[n].state for n in names]
         source.deliver(frame_of(rec, k, markers=True))
+        seen = len(updates)
         running = [n for n in names if session.followers[n].state == "running"]
         if running:
             _results(session, running, k, deadline, updates)
@@ -294,6 +298,9 @@ def _stream_until_solving(session, source, rec, names, solved: int, deadline, k=
             update = session.pump()
             if update is not None:
                 updates.append(update)
+        for update in updates[seen:]:
+            for n in names:
+                shown[n] += update.poses.get(n) is not None
         k += 1
     return updates, k
 
