@@ -567,6 +567,19 @@ def test_a_kneel_steps_the_feet_into_place_and_never_slides_a_planted_foot(user)
         assert _floor_slide_mps(pose.joints[:, JI[f"ankle_{s}"]], pose.joints[:, JI[f"toe_{s}"]], FPS) < 0.05, s
 
 
+def test_standing_up_from_a_kneel_steps_both_feet_back_under_the_body(user):
+    """Up from a kneel and standing still, the feet stand under the body again, where they stood
+    before it (before: a foot stood where the kneel put it until some other step came, here 13 cm
+    from its place at the end; on the synthetic performer's contact take, once the support reached
+    back to the ankles, the front foot 22 cm ahead for 48 s)."""
+    z0 = user.extra["tpose"]["head"][2]
+    heights = np.concatenate([_kneel_heights(user), np.full(270, z0)])
+    full = lower_body.complete(_head_take(user, heights), user)
+    feet = _feet(full)
+    for s in (0, 1):
+        assert np.linalg.norm(feet[-1, s, :2] - feet[0, s, :2]) < 0.02, "lr"[s]
+
+
 def test_the_real_kneel_plants_its_feet(tmp_path):
     """The real A-Frame take `tracked` kneels on its left knee (frames 2280-2330): the feet the
     user sees (the user animation's ankles, the default smoothing) never slide over the floor and

@@ -113,6 +113,27 @@ def test_a_hand_resting_on_the_belly_holds_the_estimated_pelvis(belly):
     assert np.ptp(path.pelvis[idx, 1]) > 0.03  # it does sway there
 
 
+def test_a_body_swaying_over_its_planted_feet_does_not_step_them(belly):
+    """The performer sways its trunk over planted feet, a hand on the head (the skull base 7 cm back
+    and forth over 4 s), and bows over them in the calibration to touch its knees, ankles and soles:
+    its feet never move. The estimated mass centre, carried with the head, sways 7 cm back; a
+    standing body's stands over the rear of its feet (the synthetic performer's over its ankles),
+    so the support reaches back to the ankles: the estimated feet stay where the performer's stand
+    through the sway (before: a balance step put the left foot 55 mm behind the performer's, where
+    the hands-on-thighs squat then found its thigh)."""
+    rec, truth, user = belly
+    full = lower_body.complete(filter_recording(rec, DEFAULT_FILTER), user)
+    pose = animate_user(full, user)
+    (head,) = [c for c in truth.contacts if c["motion"] == "hand_on_head"]
+    idx = np.flatnonzero(head["frames"])
+    around = np.arange(idx[0] - 90, idx[-1] + 90)  # the sway's first and last second too
+    for s in "lr":
+        feet = full.pose(f"foot_{s}")[0][around]
+        assert np.abs(feet - feet[0]).max() < 1e-9, s
+        ankle = np.linalg.norm(pose.joints[around, JI[f"ankle_{s}"]] - truth.joints[around, JI[f"ankle_{s}"]], axis=1)
+        assert ankle.max() < 0.04, s
+
+
 def test_a_hand_passing_in_front_of_the_belly_does_not_hold_the_pelvis():
     """A rest is a hand still in front of the lower trunk for a while: a hand swinging through the
     zone, or held still out of it, leaves the head's pelvis as it is."""

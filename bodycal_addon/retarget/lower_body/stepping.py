@@ -5,7 +5,8 @@ Both feet stand still until one of these, whichever comes first, checked on ever
 over the stretch both feet stand (a loop over steps, not frames):
 - balance: the capture point (the body's mass centre over the floor plus its velocity over
   omega = sqrt(g / h), where a body falling like an inverted pendulum comes to rest) leaves the
-  support, the line between the feet's middles widened by `SUPPORT_REACH`, and (offline, the path
+  support, the area the feet span from their ankles to their middles widened by `SUPPORT_REACH`
+  (a standing body's mass centre stands over the rear of its feet), and (offline, the path
   ahead known) is still out of it when a step taken then would land: a body back over its feet by
   then sways on them. The mass centre is `BodyPath.centre` (body_path.centre_of: between the
   pelvis and the skull base; a squat's pelvis goes back as the trunk leans, its mass centre stays
@@ -18,7 +19,8 @@ over the stretch both feet stand (a loop over steps, not frames):
 - a kneel: the pelvis below `kneel.KNEEL_FROM` of its standing height (kneel.py). The foot further
   back steps to its kneeling place (toes tucked, pitched `kneel.TOES_DOWN`), then the other to its
   place in front; while the body kneels no other step is due; once the pelvis is back above that
-  height the feet step as a standing body's, the knee's foot (its toes still tucked) due to step.
+  height the feet step as a standing body's, each foot due to step back under the body, the
+  knee's (its toes still tucked) first, the front foot next unless it stands there already.
   A kneel's feet step like any others (lifted, moved, planted): a planted foot never slides.
 Then the foot further from where it should stand steps: it lands where the body will be once the
 step is done (offline the body path at that frame; live its velocity carried forward), under its
@@ -41,6 +43,8 @@ frames so far, one at a time.
 
 from __future__ import annotations
 
+from itertools import combinations
+
 import numpy as np
 
 from . import heel, kneel
@@ -48,7 +52,8 @@ from .body_path import LOWEST_PELVIS, BodyPath
 from .shape import LowerBodyShape, body_axes, wrap
 
 G = 9.81
-SUPPORT_REACH = 0.04  # x stature beyond the line between the feet's middles
+SUPPORT_REACH = 0.04  # x stature beyond the support: the feet from their ankles to their middles
+MIDDLE = 0.4  # x the foot's length (ankle to toe joint): a foot's middle ahead of its ankle
 TURN_STEP = np.radians(35.0)
 SPLAY = np.radians(50.0)  # the most a step turns a foot from the other (their rest turn apart)
 REACH = 0.5
@@ -64,7 +69,26 @@ LIFT_PER_LENGTH = 0.15
 LIFT = (0.012, 0.05)  # x stature
 DOUBLE_SUPPORT = 0.25  # x the swing: both feet stand after a step (a gait's stance 60 %, swing 40 %)
 BOTTOM = 0.01  # x stature: a kneel's pelvis this close to its lowest is down (kneel.py)
+IN_PLACE = 0.01  # x stature: a foot this close to its place needs no step to it
 TURN_COST_M = 0.25  # metres of misplacement a radian of a foot's misturn is worth in choosing the foot
+
+
+def _outside(points: np.ndarray, corners: np.ndarray, reach: float) -> np.ndarray:
+    """(F,) bool: `points` (F, 2) further than `reach` from the convex hull of `corners` (C, 2): out
+    of every triangle of three corners, and that far from every segment between two (outside the
+    hull its nearest point is on an edge, and every other segment lies inside it)."""
+    inside = np.zeros(len(points), bool)
+    gap = np.full(len(points), np.inf)
+    for a, b in combinations(corners, 2):
+        ab = b - a
+        u = np.clip(((points - a) @ ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
+        gap = np.minimum(gap, np.linalg.norm(points - (a + u[:, None] * ab), axis=1))
+    for tri in combinations(corners, 3):
+        edges = np.roll(np.array(tri), -1, axis=0) - tri
+        rel = points[:, None] - np.array(tri)
+        cross = edges[:, 0] * rel[..., 1] - edges[:, 1] * rel[..., 0]
+        inside |= (cross >= 0.0).all(axis=1) | (cross <= 0.0).all(axis=1)
+    return ~inside & (gap > reach)
 
 
 def body_velocity(path: BodyPath) -> np.ndarray:
@@ -91,6 +115,7 @@ class Stepper:
         self.swing: tuple | None = None  # (foot, k0, k1, p0, p1, heading0, heading1, height, bow out, pitch0, pitch1)
         self.kneel: int | None = None  # the knee's foot while the body kneels (or steps into it)
         self.front_due = False  # kneeling, the front foot's step still to come
+        self.rising = 0  # up from a kneel: how many feet are still to step back under the body
         self.kneel_low = 0.0  # kneeling, the pelvis's lowest so far
         self.air: tuple | None = None  # (the pelvis over the floor at take-off, the feet's carry so far)
         self.ready_at = 0
@@ -156,8 +181,9 @@ class Stepper:
         z = path.pelvis[i:end, 2]
         if self.kneel is not None:  # kneeling: the front foot's step; up as the pelvis rises or the body moves on
             return self._rising(z) | self.front_due | self._off_kneeling_support(path, i, end)
-        pitched = self.pitches.any()  # up from a kneel, the toes still tucked: that foot steps too
-        return self._standing_triggers(path, i, end) | (kneel.kneel_weight(self.shape, z) > 0.0) | pitched
+        # up from a kneel, each foot steps back under the body (the knee's, toes still tucked, first)
+        rising = self.pitches.any() or self.rising > 0
+        return self._standing_triggers(path, i, end) | (kneel.kneel_weight(self.shape, z) > 0.0) | rising
 
     def _capture(self, path: BodyPath, i: int, end: int) -> np.ndarray:
         """(end - i, 2) the capture point of the path's rows [i, end): the body's mass centre over the
@@ -167,14 +193,14 @@ class Stepper:
         return centre + body_velocity(path)[i:end] / np.sqrt(G / max(shape.pelvis_height, 0.3))
 
     def _off_support(self, path: BodyPath, i: int, end: int) -> np.ndarray:
-        """(end - i,) bool: the capture point (the module docstring) out of the feet's support."""
+        """(end - i,) bool: the capture point (the module docstring) further than `SUPPORT_REACH`
+        from the feet's support: the quadrilateral of the ankles and the feet's middles (each foot
+        from its ankle forward to `MIDDLE` of its length), the area the feet span between them."""
         shape, feet = self.shape, self.feet
         capture = self._capture(path, i, end)
-        middles = feet[:, :2] + 0.4 * shape.foot_length * np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
-        a, b = middles
-        ab = b - a
-        u = np.clip(((capture - a) @ ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
-        return np.linalg.norm(capture - (a + u[:, None] * ab), axis=1) > SUPPORT_REACH * shape.stature
+        along = np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
+        corners = np.concatenate([feet[:, :2], feet[:, :2] + MIDDLE * shape.foot_length * along])
+        return _outside(capture, corners, SUPPORT_REACH * shape.stature)
 
     def _off_support_lasting(self, path: BodyPath, i: int, end: int) -> np.ndarray:
         """(end - i,) bool: the capture point out of the feet's support and, where the path ahead is
@@ -193,7 +219,7 @@ class Stepper:
         capture = self._capture(path, i, end)
         along = np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
         corners = np.stack([feet[knee, :2], feet[knee, :2] + along[knee] * kneel.shin_on_floor(shape),
-                            feet[1 - knee, :2] + 0.4 * shape.foot_length * along[1 - knee]])
+                            feet[1 - knee, :2] + MIDDLE * shape.foot_length * along[1 - knee]])
         edges = np.roll(corners, -1, axis=0) - corners  # (3, 2)
         rel = capture[:, None] - corners  # (F, 3, 2)
         cross = edges[:, 0] * rel[..., 1] - edges[:, 1] * rel[..., 0]
@@ -233,7 +259,9 @@ class Stepper:
                                      | self._off_kneeling_support(path, i, i + 1))[0]:
             self._plan_kneel(path, k, n, available)
             return
-        self.kneel = None  # up from a kneel: the steps as standing, the pitched foot's first due (triggers)
+        if self.kneel is not None:  # up from a kneel: both feet step under the body, the pitched foot first
+            self.rising = 2
+        self.kneel = None
         pelvis, heading, velocity = self._landing(path, k, n, available)
         ideal, headings = self.ideal(pelvis, heading, velocity)
         miss = np.linalg.norm((ideal - self.feet)[:, :2], axis=1) + TURN_COST_M * np.abs(wrap(headings - self.headings))
@@ -245,6 +273,12 @@ class Stepper:
             ideal, headings = self.ideal(pelvis, heading, velocity)
         k1 = k + n
         target = self._within_reach(self._keep_apart(ideal[foot], foot, heading), foot, pelvis, heading)
+        if self.rising:  # a foot standing up from a kneel that already stands under the body stays
+            self.rising -= 1
+            if not self._standing_triggers(path, i, i + 1)[0] and \
+                    np.linalg.norm((target - self.feet[foot])[:2]) < IN_PLACE * shape.stature:
+                self.rising = 0
+                return
         move = target - self.feet[foot]
         length = float(np.linalg.norm(move[:2]))
         if length > MAX_STRIDE * shape.leg:
@@ -274,7 +308,7 @@ class Stepper:
             foot, self.front_due = 1 - self.kneel, False
             target = kneel.kneeling_places(shape, pelvis, heading, self.kneel)[1]
             pitch = 0.0
-            if np.linalg.norm((target - self.feet[foot])[:2]) < 0.01 * shape.stature:
+            if np.linalg.norm((target - self.feet[foot])[:2]) < IN_PLACE * shape.stature:
                 return  # it stands there already
         length = float(np.linalg.norm((target - self.feet[foot])[:2]))
         lo, hi = LIFT
