@@ -60,21 +60,21 @@ def complete(recording: Recording, user: BodyModel, *, seat_height: float | None
         return recording
     shape = LowerBodyShape.of(user)
     t = np.asarray(recording.time, float)
+    fps = recording.fps or 90.0
     if "pelvis" in roles:
         path = offline_path(shape, t, *filled_pose(recording, "head"), seat_height=seat_height)
         if seat_height is None:  # hands resting on the belly hold the pelvis, on the thighs lift it (touch.py)
             path = hold_pelvis(shape, t, path, wrists(recording, shape))
             path = rest_on_thighs(shape, t, path, palms(recording, shape),
-                                  lambda p: _stand(shape, recording.fps or 90.0, p))
+                                  lambda p: _stand(shape, fps, p))
     else:
         pos, rot = filled_pose(recording, "pelvis")
         path = tracked_path(shape, t, pos, rot, _pelvis_local(user), _tracker_ref(user, "pelvis"))
-    stepper = Stepper(shape, recording.fps or 90.0)
-    feet, headings, pitches = _stand(shape, recording.fps or 90.0, path, stepper)
+    stepper = Stepper(shape, fps)
+    feet, headings, pitches = _stand(shape, fps, path, stepper)
     heel_rise(shape, hips_of(shape, path), feet, headings, pitches)
     turn = 0.0
     if "chest" in roles:
-        fps = recording.fps or 90.0
         turn = gaussian(chest_turn(shape, path.neck, path.heading, path.lean, wrists(recording, shape)),
                         CHEST_SMOOTH_S * fps)
     poses = device_poses(shape, roles, path, feet, headings, pitches, turn)

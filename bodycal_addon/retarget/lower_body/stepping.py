@@ -220,14 +220,7 @@ class Stepper:
         along = np.stack([np.cos(self.headings), np.sin(self.headings)], 1)
         corners = np.stack([feet[knee, :2], feet[knee, :2] + along[knee] * kneel.shin_on_floor(shape),
                             feet[1 - knee, :2] + MIDDLE * shape.foot_length * along[1 - knee]])
-        edges = np.roll(corners, -1, axis=0) - corners  # (3, 2)
-        rel = capture[:, None] - corners  # (F, 3, 2)
-        cross = edges[:, 0] * rel[..., 1] - edges[:, 1] * rel[..., 0]
-        inside = (cross >= 0.0).all(axis=1) | (cross <= 0.0).all(axis=1)
-        u = np.clip(np.einsum("fei,ei->fe", rel, edges) / np.maximum(np.einsum("ei,ei->e", edges, edges), 1e-12),
-                    0.0, 1.0)
-        gap = np.linalg.norm(rel - u[..., None] * edges, axis=2).min(axis=1)
-        return ~inside & (gap > SUPPORT_REACH * shape.stature)
+        return _outside(capture, corners, SUPPORT_REACH * shape.stature)
 
     def _standing_triggers(self, path: BodyPath, i: int, end: int) -> np.ndarray:
         """(end - i,) bool: a standing body's step due: balance, a turn, reach or crossing."""

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...core.geometry import two_bone_mid
 from .body_path import BodyPath, gaussian, lift_of, over_the_floor
 from .shape import LowerBodyShape, body_axes
 
@@ -188,12 +189,5 @@ def _shortening(shape: LowerBodyShape, path: BodyPath, rows: np.ndarray, centre:
 def _knees(shape: LowerBodyShape, hips: np.ndarray, ankles: np.ndarray, forward: np.ndarray):
     """(..., 3) the knees of two-bone legs from `hips` to `ankles` (..., 3) bent toward `forward`,
     and (...,) whether the leg reaches (not stretched past its length)."""
-    d = ankles - hips
-    length = np.linalg.norm(d, axis=-1)
-    reached = length <= shape.thigh + shape.shin
-    span = np.clip(length, abs(shape.thigh - shape.shin) + 1e-6, shape.thigh + shape.shin)
-    along = d / np.maximum(length, 1e-9)[..., None]
-    cos_a = np.clip((shape.thigh ** 2 + span ** 2 - shape.shin ** 2) / (2.0 * shape.thigh * span), -1.0, 1.0)
-    pole = forward - np.einsum("...i,...i->...", forward, along)[..., None] * along
-    pole = pole / np.maximum(np.linalg.norm(pole, axis=-1), 1e-9)[..., None]
-    return hips + shape.thigh * (cos_a[..., None] * along + np.sqrt(1.0 - cos_a ** 2)[..., None] * pole), reached
+    reached = np.linalg.norm(ankles - hips, axis=-1) <= shape.thigh + shape.shin
+    return two_bone_mid(hips, ankles, shape.thigh, shape.shin, forward), reached
