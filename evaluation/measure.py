@@ -49,16 +49,12 @@ def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0
     ankle and the ball, all slower than `speed` m/s over the floor for at least `hold_s`) that
     begin after the clip's first frame. The same rule for the source and a retargeted body, so the
     two counts compare."""
-    foot = foot.reshape(len(foot), -1, 3)
-    v = np.linalg.norm(np.gradient(foot[..., :2], axis=0), axis=-1).max(axis=-1) * fps
-    slow = np.concatenate([[0], (v < speed).astype(int), [0]])
-    edges = np.flatnonzero(np.diff(slow))
-    starts, ends = edges[::2], edges[1::2]
-    held = (ends - starts) >= hold_s * fps
-    return int(np.sum(held & (starts > 0)))
+    return sum(a > 0 for a, _ in _stances(foot.reshape(len(foot), -1, 3), fps, speed, hold_s))
 
 
 def _stances(foot: np.ndarray, fps: float, speed: float, hold_s: float) -> list[tuple[int, int]]:
+    """[(start, stop)] the frames a foot's points (F, K, 3) all stay slower than `speed` m/s over the
+    floor, for at least `hold_s` (`landings`' rule)."""
     v = np.linalg.norm(np.gradient(foot[..., :2], axis=0), axis=-1).max(axis=-1) * fps
     slow = np.concatenate([[0], (v < speed).astype(int), [0]])
     edges = np.flatnonzero(np.diff(slow))
