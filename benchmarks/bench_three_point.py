@@ -224,7 +224,7 @@ def truth_part(arm, avatar, workdir: Path, quick: bool) -> dict:
                    # the clip's floor: how much it rises along the walk (its toes' lowest per stance);
                    # the estimate's floor is flat, the head rising with the clip's lifts its pelvis
                    "clip_floor_rise_mm": _floor_rise_mm(T, Jt),
-                   **_knees_and_legs(pose, a, b, user.extra["eye_height"] / 0.93)}
+                   **_knees_and_legs(pose, a, b, stature)}
             anim = pl.retarget(full, user, avatar, "egocentric", placement="performer")
             fig.update(_skin(arm, avatar, anim, full, truth, AvatarRig.from_model(avatar).leg_length() * leg_k))
             fig["hands_beyond_reach_p95_mm"] = _hands_in_reach(user, pose, a, b)
