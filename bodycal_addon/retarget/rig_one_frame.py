@@ -30,18 +30,21 @@ from ..body.skeleton import SPINE_BONES
 from ..core import one_frame
 from ..core.one_frame import Matrix, Vector
 
-# How a bone's head and rotation are placed (`_Plan.steps`)
+# How a bone's head and rotation are placed (`_Plan.steps`); UNUSED: a joint's carrier whose
+# rotation nothing reads (the joint at its head, no bone posed from it)
 HANG, LOOSE, ROOT = 0, 1, 2
-DRIVEN, FOLLOW, REST, CHAIN = 0, 1, 2, 3
+DRIVEN, FOLLOW, REST, CHAIN, UNUSED = 0, 1, 2, 3, 4
 
 
 @dataclass
 class _Plan:
-    """Per rig and bone subset, once: the canonical bones read (`canon`: their rows in the frames)
-    and per bone, in order, (bone, parent, head kind, its constant, rotation kind, its constant)."""
+    """Per rig and joint list, once: the canonical bones read (`canon`: their rows in the frames),
+    per bone, in order, (bone, parent, head kind, its constant, rotation kind, its constant), and
+    per joint its carrier and its offset on it (None: at the carrier's head)."""
 
     canon: np.ndarray
     steps: list
+    joints: list
 
 
 class ChainOneFrame:
@@ -72,17 +75,28 @@ class ChainOneFrame:
         self.curve_start = Matrix(rig.rest[b].tolist()) if p < 0 else Matrix((rig.rest[p].T @ rig.rest[b]).tolist())
         self.spine_rows = np.array([BI[n] for n in SPINE_BONES], int)
         self.spine_len = rig.lengths[self.spine_rows].tolist()
-        self.plan = self._plan()
+        self.lin = Matrix(rig.lin_t.T.tolist())  # the armature's linear part (positions to the world)
+        self.plans = {}
 
-    def _plan(self) -> _Plan:
+    def _plan(self, joints: tuple) -> _Plan:
         """The steps posing the bones the aims read (the chain, the bone the spine curve starts on,
-        their ancestors), in order, and the canonical bones they read."""
+        their ancestors) and those the canonical `joints` ride on (with theirs), in order, and the
+        canonical bones they read."""
         rig, rows = self.rig, self.rig.bone_rows
         need: set[int] = set()
-        for b in [int(i) for i in self.chain.order] + [self.curve_bone]:
-            while b >= 0 and b not in need:
-                need.add(b)
-                b = int(rig.parent[b])
+
+        def with_ancestors(bones):
+            for b in bones:
+                while b >= 0 and b not in need:
+                    need.add(b)
+                    b = int(rig.parent[b])
+
+        with_ancestors([int(i) for i in self.chain.order] + [self.curve_bone])
+        carried = [(int(rig.joint_bone[JI[j]]), rig.joint_local[JI[j]]) for j in joints]
+        # a rotation is read by the aims, by a child's head, or by a joint off its carrier's head
+        rotated = set(need) | {c for c, off in carried if np.any(off)}
+        with_ancestors([c for c, _ in carried])
+        rotated |= {int(rig.parent[b]) for b in need}
         canon: list[int] = []
 
         def slot(c: int) -> int:
@@ -99,7 +113,9 @@ class ChainOneFrame:
                 hk, hv = HANG, Vector(off.tolist())
             else:
                 hk, hv = LOOSE, Vector(rig.head[b].tolist())
-            if isinstance(drv, (int, np.integer)):
+            if b not in rotated:
+                rk, rv = UNUSED, None
+            elif isinstance(drv, (int, np.integer)):
                 rk, rv = DRIVEN, (slot(int(drv)), Matrix(fixed.tolist()))
             elif drv == "chain":
                 rk, rv = CHAIN, self.chain_row[b]
@@ -110,12 +126,22 @@ class ChainOneFrame:
             steps.append((b, int(p), hk, hv, rk, rv))
         for v in self.chain.vertebra.tolist():
             slot(int(v))
-        return _Plan(np.array(canon, int), steps)
+        return _Plan(np.array(canon, int), steps,
+                     [(c, Vector(off.tolist()) if np.any(off) else None) for c, off in carried])
 
     def aimed(self, frames: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
         """The chain bones' armature-space rotations (n, 1, 3, 3), by their rows in the chain plan,
         of canonical world frames (1, B, 3, 3) with the pelvis joint at `pelvis` (1, 3)."""
-        plan = self.plan
+        return self.aimed_and_joints(frames, pelvis, ())[0]
+
+    def aimed_and_joints(self, frames: np.ndarray, pelvis: np.ndarray, joints: tuple) -> tuple:
+        """(`aimed`'s rotations, the world positions (1, K, 3) of the canonical `joints` (names)
+        in the same pose): the bones they ride on posed in the same bone-by-bone pass as the
+        chain's (a live frame's limb roots, `fk.joint_positions`, in the pass the chain needs
+        anyway, instead of a numpy pose of the trunk after it)."""
+        plan = self.plans.get(joints)
+        if plan is None:
+            plan = self.plans[joints] = self._plan(joints)
         C = [Matrix(m) for m in frames[0].take(plan.canon, axis=0).tolist()]
         if not self.w_identity:
             C = [self.w_t @ m for m in C]  # W^-1 C, the products' left factor (the same product)
@@ -133,11 +159,12 @@ class ChainOneFrame:
                 P[b] = P[p] @ rv
             elif rk == REST:
                 P[b] = rv
-            else:
+            elif rk == CHAIN:
                 P[b] = aim.bone(b, rv, P, H)
             if hk == ROOT:
                 H[b] = at - P[b] @ self.pelvis_at
-        return one_frame.matrix_array(aim.aimed)[:, None]
+        at_joints = [self.lin @ (H[c] if off is None else H[c] + P[c] @ off) + self.shift for c, off in plan.joints]
+        return one_frame.matrix_array(aim.aimed)[:, None], one_frame.vector_array(at_joints)[None]
 
 
 class _Aim:

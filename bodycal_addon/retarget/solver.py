@@ -234,8 +234,9 @@ class PreparedSolver:
         pelvis = root_positions(up.joints[:, JI["pelvis"]], self.k, self.centre)
         # From here on the user's frames are the ones copied onto the avatar (step 2).
         user_frames = up.frames if up.surface_frames is None else up.surface_frames
-        up = type(up)(up.time, up.joints, copy_frames_by(up.frames, self._copy_factor), up.valid,
-                      up.notes)
+        if self.impl.trunk_copied:
+            up = type(up)(up.time, up.joints, copy_frames_by(up.frames, self._copy_factor), up.valid,
+                          up.notes)
         fk = self.rig.solve(up.frames, pelvis, basis=self.impl.fk_basis, realised=self.impl.realised) \
             if self.impl.uses_fk else None
         return self.impl.chunk(up, fk, pelvis, user_frames, start, stop)

@@ -82,6 +82,7 @@ class Method:
     uses_fk = True  # reads the rotation copy's pose (`chunk`'s fk; None when not)
     user_fingers = True  # reads the user's fingers (False: the pose source may leave them unposed)
     user_trunk = True  # reads the user's pelvis, sacrum, vertebrae or clavicles (False: likewise)
+    trunk_copied = True  # reads step 2's copy of the trunk, head and feet (`avatar_pose.DELTA_COPY`; False: not made)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -291,6 +292,10 @@ class ExactOffsets(Method):
     # joints and hinges only, so the user's trunk pass (the spine IK: a sixth of a one-frame solve,
     # measured, DESIGN.md "Prepared solver") is not run.
     user_trunk = False
+    # Decision (speed, the same values): the offsets set every bone step 2's copy turns by the
+    # rest frames (`avatar_pose.DELTA_COPY`: the sacrum, vertebrae, clavicles, head and feet), so
+    # the copy is not made (93,000 instructions of a one-frame solve, measured).
+    trunk_copied = False
 
     def __init__(self, run, avatar_pos: dict):
         super().__init__(run, avatar_pos)

@@ -198,9 +198,20 @@ def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=
 def joint_positions(rig: RigPlan, memo: ChainMemo, frames: np.ndarray, pelvis: np.ndarray,
                     joints: list[str]) -> np.ndarray:
     """(F, len(joints), 3) world positions of a few canonical joints for the pose `pose` would
-    give, posing only the bones they hang from (the IK's limb roots need the trunk only)."""
+    give, posing only the bones they hang from (the IK's limb roots need the trunk only). One
+    frame whose joints hang from the spine chain: placed in the chain's own bone-by-bone pass in
+    mathutils (`rig_one_frame`, float32; the chain's rotations kept in `memo` for the pose after),
+    aimed again whatever `memo` holds, so a frame's joints never depend on the pose before it.
+    Decision (speed, measured in instructions): the numpy pose of the trunk after the chain's
+    pass cost 270,000 instructions of a one-frame offsets solve, the few bones more in that pass
+    about 50,000."""
     bones, carriers, local = rig.joints_plan(tuple(joints))
-    P, H = pose(rig, memo, np.asarray(frames, float), pelvis, bones)
+    frames = np.asarray(frames, float)
+    if len(frames) == 1 and one_frame.ENABLED and rig.pose_plan(bones).chained:
+        held, at = rig.chain_one().aimed_and_joints(frames, np.asarray(pelvis, float), tuple(joints))
+        memo.keep(ChainMemo.key_of(rig.chain, frames, pelvis, b"float32"), held)
+        return at
+    P, H = pose(rig, memo, frames, pelvis, bones)
     out = H[carriers] + stacks_apply(P, local, carriers)  # (K, F, 3)
     return rig.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
 
