@@ -36,6 +36,7 @@ from ..body.skeleton import SPINE_BONES
 from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.transforms import EPS, normalize, quat_between, quat_to_matrix, stack_apply
+from . import pose_kernels
 from .avatar_pose import AvatarRig, copy_frames
 from .user_animation import axis_angle_matrix
 
@@ -110,11 +111,12 @@ def setup(user_model: BodyModel, rig: AvatarRig, ref_frames: np.ndarray, tpose: 
     return OffsetsSetup(s, v0, r0t, r0j, w0, spine0, joints0[JI["pelvis"]], ref, centre, palm)
 
 
-def effector_targets(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
-    """Eq. 2-3 per frame: ({joint: (F, 3) at the AVATAR's scale}, {bone: (F, 3, 3)}). One frame:
-    `_effector_targets_one`."""
-    if len(next(iter(pos.values()))) == 1 and one_frame.ENABLED:
-        return _effector_targets_one(st, pos, rot)
+def effector_targets(st: OffsetsSetup, trackers):
+    """Eq. 2-3 per frame of `trackers` (trackers.Trackers): ({joint: (F, 3) at the AVATAR's
+    scale}, {bone: (F, 3, 3)}). One frame: `_effector_targets_one`."""
+    pos, rot = trackers.pos, trackers.rot
+    if trackers.positions.shape[1] == 1 and one_frame.ENABLED:
+        return _effector_targets_one(st, trackers)
     p, r = {}, {}
     for j, (role, bone) in TRACKED.items():
         rel = rot[role] @ st.r0_tracker[role].T  # R_t(T) R_0(T)^-1
@@ -148,20 +150,22 @@ def _one_constants(st: OffsetsSetup) -> dict:
     return got
 
 
-def _effector_targets_one(st: OffsetsSetup, pos: dict[str, np.ndarray], rot: dict[str, np.ndarray]):
+def _effector_targets_one(st: OffsetsSetup, trackers):
     """`effector_targets` of one frame: the six trackers' products stacked (a few numpy calls
     whatever the count, float64: the bake's values to their sums' rounding): the frames
     R_t(T) R_0(T)^-1 R_0(J), the points x / s + c (1 - 1/s) + R_t(T) R_0(T)^-1 lever (eq. 2 scaled
     about the centre; the hands' §3.4 palm offset, -R_t(J) palm, the same product).
     Decision (speed, measured in instructions): the mathutils kernel it replaced made a Matrix of
     each rotation and read six frames back (Matrix <-> numpy, about 5,000 instructions a
-    matrix each way): 232,000 instructions a frame against 64,000 here."""
+    matrix each way): 232,000 instructions a frame against 120,000 here."""
     one = _one_constants(st)
-    rel = np.matmul(np.concatenate([rot[r] for r in one["roles"]]), one["r0t_inv"])  # R_t(T) R_0(T)^-1
+    rows = one.get(trackers.roles)  # the six trackers' rows among those read
+    if rows is None:
+        rows = one[trackers.roles] = np.array([trackers.roles.index(r) for r in one["roles"]], int)
+    rel = np.matmul(trackers.rotations.take(rows, axis=0)[:, 0], one["r0t_inv"])  # R_t(T) R_0(T)^-1
     R = np.matmul(rel, one["r0j"])[:, None]  # (6, 1, 3, 3)
-    P = np.concatenate([pos[r] for r in one["roles"]]) * one["inv"] + one["shift"]
-    P += np.matmul(rel, one["lever"])[..., 0]
-    P = P[:, None]
+    P = trackers.positions.take(rows, axis=0) * one["inv"] + one["shift"]  # (6, 1, 3)
+    P += np.matmul(rel, one["lever"]).swapaxes(1, 2)
     return dict(zip(one["joints"], P)), dict(zip(one["bones"], R))
 
 
@@ -186,26 +190,35 @@ def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarra
 
 def _spine_frames_one(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarray) -> np.ndarray:
     """`spine_frames` of one frame, float64: the bend w0 -> w_t as `quat_between`'s shortest turn
-    (its half turn for opposite directions) in Python floats, then every vertebra's share of it at
-    once (Rodrigues, R_k = I + sin a_k K + (1 - cos a_k) K^2, on the sacrum's turn: one product of
-    the shares by [D, K D, K^2 D]) and by its T-pose frame: the bake's values to their sums'
-    rounding. Decision (speed, measured in instructions): the mathutils kernel it replaced read its
-    twelve frames back from Matrices (about 10,000 instructions each): 216,000 instructions a
-    frame against 58,000 here."""
+    (its half turn for opposite directions) in Python floats, then every vertebra's share a_k of
+    it at once, R_k D = D + sin a_k K D + (1 - cos a_k) K^2 D (Rodrigues on the sacrum's turn D; K
+    the axis's cross-product matrix): ONE product of the shares' (1, sin, 1 - cos) rows by
+    [D, K D, K^2 D], then each by its T-pose frame: the bake's values to their sums' rounding.
+    Decision (speed, measured in instructions): the mathutils kernel it replaced read its twelve
+    frames back from Matrices (about 10,000 instructions each): 216,000 instructions a frame
+    against 120,000 here."""
     one = _one_constants(st)
-    d_sac = np.matmul(sacrum[0], one["sac_fixed"])
-    a0, a1, a2 = np.matmul(d_sac, one["w0"]).tolist()
-    b0, b1, b2 = (pos["head"][0] - pos["pelvis"][0]).tolist()
-    axis_angle = _turn_between((a0, a1, a2), (b0, b1, b2))
+    D = np.matmul(sacrum[0], one["sac_fixed"])
+    head, pel = pos["head"][0].tolist(), pos["pelvis"][0].tolist()
+    axis_angle = _turn_between(np.matmul(D, one["w0"]).tolist(), [head[0] - pel[0], head[1] - pel[1], head[2] - pel[2]])
     if axis_angle is None:  # no bend: the sacrum's turn alone
-        return np.matmul(d_sac, one["spine0"])[None]
+        return pose_kernels.few_matmul(D, one["spine0"], one["spine0"].shape)[None]
     (x, y, z), angle = axis_angle
-    K = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]
-    K2 = [[x * x - 1.0, x * y, x * z], [x * y, y * y - 1.0, y * z], [x * z, y * z, z * z - 1.0]]  # K K, |axis| = 1
-    terms = np.matmul([K, K2], d_sac)  # K D, K^2 D
-    share = angle * one["frac"]
-    turned = d_sac + (np.sin(share)[:, None, None] * terms[0] + (1.0 - np.cos(share))[:, None, None] * terms[1])
-    return np.matmul(turned, one["spine0"])[None]
+    (d00, d01, d02), (d10, d11, d12), (d20, d21, d22) = D.tolist()
+    k00, k01, k02 = y * d20 - z * d10, y * d21 - z * d11, y * d22 - z * d12  # K D: axis x D's columns
+    k10, k11, k12 = z * d00 - x * d20, z * d01 - x * d21, z * d02 - x * d22
+    k20, k21, k22 = x * d10 - y * d00, x * d11 - y * d01, x * d12 - y * d02
+    terms = np.array([[d00, d01, d02, d10, d11, d12, d20, d21, d22], [k00, k01, k02, k10, k11, k12, k20, k21, k22],
+                      [y * k20 - z * k10, y * k21 - z * k11, y * k22 - z * k12,  # K^2 D: axis x (K D)'s columns
+                       z * k00 - x * k20, z * k01 - x * k21, z * k02 - x * k22,
+                       x * k10 - y * k00, x * k11 - y * k01, x * k12 - y * k02]])
+    shares = np.empty((len(one["frac"]), 3))
+    shares[:, 0] = 1.0
+    a = one["frac"] * angle
+    np.sin(a, out=shares[:, 1])
+    np.subtract(1.0, np.cos(a), out=shares[:, 2])
+    turned = np.matmul(shares, terms).reshape(-1, 3, 3)
+    return pose_kernels.few_matmul(turned, one["spine0"], turned.shape)[None]
 
 
 def _turn_between(a: tuple, b: tuple):

@@ -335,7 +335,7 @@ class ExactOffsets(Method):
         """`offsets.effector_targets` of these trackers, kept for the last trackers read: the chunk
         and its feet plan (a live stream's frame: the same read) ask for the same frames in turn."""
         if getattr(self, "_last_effectors", (None,))[0] is not trackers:
-            self._last_effectors = (trackers, ofs.effector_targets(self.ofs, trackers.pos, trackers.rot))
+            self._last_effectors = (trackers, ofs.effector_targets(self.ofs, trackers))
         return self._last_effectors[1]
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):

@@ -53,26 +53,75 @@ def test_one_frame_s_chain_aim_is_numpy_s(take, monkeypatch):
                                            atol=atol, err_msg=name)
 
 
+def test_one_frame_s_joints_in_the_chain_s_pass_are_numpy_s_and_leave_the_pose_the_same(take, monkeypatch):
+    # A frame's few joints (the IK's limb roots) placed in the spine chain's own mathutils pass
+    # (rig_one_frame.ChainOneFrame.aimed_and_joints): the numpy pose's joints to float32's rounding
+    # (joints at a carrier's head and off it, a rig whose armature is not the world's); the pose
+    # solved after them the numpy path's as well, and the same whether or not the joints came first.
+    rec, user = take
+    up = ua.animate_user(rec, user)
+    lists = (("shoulder_l", "shoulder_r", "hip_l", "hip_r"), ("hip_l",), ("skull_base", "spine_06", "wrist_r"))
+    for avatar in rt.plain_and_turned_avatars():
+        rigs = {on: ap.AvatarRig.from_model(avatar) for on in (False, True)}
+        frames = ap.copy_frames(up.frames, model_rest_frames(user), rigs[True].frames0)
+        pelvis = up.joints[:, JI["pelvis"]] * 1.1
+        for f in range(0, len(frames), 9):
+            for joints in lists:
+                got, poses = {}, {}
+                for on, rig in rigs.items():
+                    monkeypatch.setattr(one_frame, "ENABLED", on)
+                    rig.memo.clear()
+                    got[on] = rig.joint_positions(frames[f:f + 1], pelvis[f:f + 1], list(joints))
+                    poses[on] = rig.solve(frames[f:f + 1], pelvis[f:f + 1])
+                np.testing.assert_allclose(got[True], got[False], rtol=0, atol=1e-6, err_msg=str(joints))
+                np.testing.assert_allclose(poses[True].joints, poses[False].joints, rtol=0, atol=1e-6)
+                rigs[True].memo.clear()
+                alone = rigs[True].solve(frames[f:f + 1], pelvis[f:f + 1])
+                np.testing.assert_array_equal(alone.basis, poses[True].basis)
+                np.testing.assert_array_equal(alone.joints, poses[True].joints)
+
+
 def test_offsets_one_frame_kernels_are_numpy_s(take, monkeypatch):
-    # AvatarGo's effector targets and spine frames of one frame in mathutils: numpy's values to
-    # float32's rounding (measured at most 1.6e-7), over every frame of a take.
+    # AvatarGo's effector targets and spine frames of one frame (a few stacked numpy products and
+    # Python floats, float64): numpy's values to their sums' rounding (measured at most 4.4e-16;
+    # the mathutils kernels they replaced held float32's 1.6e-7), over every frame of a take.
     rec, user = take
     solver = PreparedSolver(RecordingSource(rec, user), rt.procedural_avatar(), "offsets", plant_feet=False)
     st = solver.impl.ofs
-    tr = solver.src.trackers(0, rec.frame_count)
     for f in range(0, rec.frame_count, 5):
-        pos = {k: v[f:f + 1] for k, v in tr.pos.items()}
-        rot = {k: v[f:f + 1] for k, v in tr.rot.items()}
+        tr = solver.src.trackers(f, f + 1)
         sacrum = solver.src.pose(f, f + 1, rest=(solver.user_pos, solver.user_frames0)).frames[:, 0]
         got = {}
         for on in (False, True):
             monkeypatch.setattr(one_frame, "ENABLED", on)
-            got[on] = ofs.effector_targets(st, pos, rot), ofs.spine_frames(st, pos, sacrum)
+            got[on] = ofs.effector_targets(st, tr), ofs.spine_frames(st, tr.pos, sacrum)
         (p0, r0), s0 = got[False]
         (p1, r1), s1 = got[True]
         assert set(p0) == set(p1) and set(r0) == set(r1)
         for k in p0:
-            np.testing.assert_allclose(p1[k], p0[k], rtol=0, atol=1e-6, err_msg=k)
+            np.testing.assert_allclose(p1[k], p0[k], rtol=0, atol=1e-12, err_msg=k)
         for k in r0:
-            np.testing.assert_allclose(r1[k], r0[k], rtol=0, atol=1e-6, err_msg=k)
-        np.testing.assert_allclose(s1, s0, rtol=0, atol=1e-6)
+            np.testing.assert_allclose(r1[k], r0[k], rtol=0, atol=1e-12, err_msg=k)
+        np.testing.assert_allclose(s1, s0, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("bend", ["none", "parallel", "opposite", "no_length"])
+def test_offsets_one_frame_spine_takes_the_bakes_turn_where_it_is_no_turn_or_a_half_turn(take, monkeypatch, bend):
+    # The pelvis-to-head vector along w0 (no bend), along it within rounding, against it (the
+    # bake's quat_between: a half turn about a perpendicular) or of no length: one frame's spine
+    # is the bake's there too.
+    rec, user = take
+    solver = PreparedSolver(RecordingSource(rec, user), rt.procedural_avatar(), "offsets", plant_feet=False)
+    st = solver.impl.ofs
+    sacrum = solver.src.pose(3, 4, rest=(solver.user_pos, solver.user_frames0)).frames[:, 0]
+    w0 = (sacrum[0] @ st.r0_joint["sacrum"].T) @ st.w0
+    w = {"none": w0, "parallel": w0 * 0.7 + 1e-15, "opposite": -w0, "no_length": 0.0 * w0}[bend]
+    pos = {"pelvis": np.array([[0.1, 0.2, 0.9]])}
+    pos["head"] = pos["pelvis"] + w
+    got = {}
+    for on in (False, True):
+        monkeypatch.setattr(one_frame, "ENABLED", on)
+        got[on] = ofs.spine_frames(st, pos, sacrum)
+    np.testing.assert_allclose(got[True], got[False], rtol=0, atol=1e-12)
+    if bend == "opposite":  # a half turn: the top vertebra's frame is not the sacrum's turn alone
+        assert np.abs(got[True][0, -1] - (sacrum[0] @ st.r0_joint["sacrum"].T) @ st.spine0[-1]).max() > 0.5
