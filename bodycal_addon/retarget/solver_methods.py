@@ -321,6 +321,10 @@ class ExactOffsets(Method):
         ref = run.user_frames0.copy()
         ref[BI["sacrum"]] = sacrum_toward_hip_line(ref[BI["sacrum"]], run.user_pos["hip_l"], run.user_pos["hip_r"])
         self.ofs = ofs.setup(run.user, run.rig, ref, tpose, run.centre)
+        # the clavicles turn with the vertebra they hang from: its frame times these (once)
+        v5 = sk.CLAVICLE_VERTEBRA - 1
+        self.clavicles = [(BI[f"clavicle_{s}"], self.ofs.spine0[v5].T @ self.ofs.ref_frames[BI[f"clavicle_{s}"]])
+                          for s in sk.SIDES]
         self.grip = {s: ofs.grip_fingers(run.rig, s) for s in sk.SIDES if run.has_fingers[s]}
         # Decision (speed, the same values): the grip sets every finger bone of a hand it closes,
         # so where it closes each hand that has any finger bone, nothing reads the user's fingers
@@ -347,11 +351,9 @@ class ExactOffsets(Method):
         for bone, fr in r.items():
             frames[:, BI[bone]] = fr
         sf = ofs.spine_frames(st, tr.pos, r["sacrum"])
-        frames[:, [BI[b] for b in SPINE_BONES]] = sf
-        v5 = sk.CLAVICLE_VERTEBRA - 1
-        for s in sk.SIDES:
-            c = BI[f"clavicle_{s}"]
-            frames[:, c] = stack_mul(sf[:, v5], st.spine0[v5].T @ st.ref_frames[c])
+        frames[:, _SPINE_ROWS] = sf
+        for c, fixed in self.clavicles:
+            frames[:, c] = stack_mul(sf[:, sk.CLAVICLE_VERTEBRA - 1], fixed)
         targets = {f"{j}_{s}": p[f"{j}_{s}"] for j in ("wrist", "ankle") for s in sk.SIDES}
         # AvatarGo stands its avatar on the floor: planted feet on it, the pelvis lowered to reach.
         targets, pelvis, _ = run.plant(targets, frames, p["pelvis"], start, stop)
@@ -361,6 +363,7 @@ class ExactOffsets(Method):
         return run.rig.solve(frames, pelvis, realised=False), targets
 
 
+_SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
 METHOD_CLASSES: dict[str, type[Method]] = {m.name: m for m in (Egocentric, ExactOffsets, RotationCopy)}
 METHODS = methods_for("recording")  # every method (a recording takes them all), the default first
 
