@@ -115,7 +115,7 @@ def effector_targets(st: OffsetsSetup, trackers):
     """Eq. 2-3 per frame of `trackers` (trackers.Trackers): ({joint: (F, 3) at the AVATAR's
     scale}, {bone: (F, 3, 3)}). One frame: `_effector_targets_one`."""
     pos, rot = trackers.pos, trackers.rot
-    if trackers.positions.shape[1] == 1 and one_frame.ENABLED:
+    if len(next(iter(pos.values()))) == 1 and one_frame.ENABLED and trackers.rotations is not None:
         return _effector_targets_one(st, trackers)
     p, r = {}, {}
     for j, (role, bone) in TRACKED.items():
