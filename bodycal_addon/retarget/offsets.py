@@ -171,8 +171,8 @@ def _effector_targets_one(st: OffsetsSetup, trackers):
 
 def spine_frames(st: OffsetsSetup, pos: dict[str, np.ndarray], sacrum: np.ndarray) -> np.ndarray:
     """Vertebra frames (F, 12, 3, 3): the T-pose spine turned with the sacrum, then bent by the
-    angle between w0 and w_t (eq. 4), spread evenly over the vertebrae. One frame: the same in
-    mathutils (`_spine_frames_one`)."""
+    angle between w0 and w_t (eq. 4), spread evenly over the vertebrae. One frame: the same in a
+    few numpy calls and Python floats (`_spine_frames_one`)."""
     if len(sacrum) == 1 and one_frame.ENABLED:
         return _spine_frames_one(st, pos, sacrum)
     d_sac = sacrum @ st.r0_joint["sacrum"].T
