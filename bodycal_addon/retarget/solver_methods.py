@@ -271,7 +271,7 @@ class Egocentric(Method):
         if ids not in self._own_hands:
             self._own_hands[ids] = np.array([[eid in ego.own_chain_elements(f"wrist_{s}") for eid in ids]
                                              for s in levers])
-        return palm_ramp(np.where(self._own_hands[ids], np.inf, ego.project(palms, us).dist).min(axis=-1))
+        return palm_ramp(np.where(self._own_hands[ids], np.inf, ego.distances(palms, us)).min(axis=-1))
 
 
 def palm_ramp(near: np.ndarray) -> np.ndarray:

@@ -471,3 +471,17 @@ def test_chain_roots_broadcast_over_a_group_equal_the_gathered_roots():
     assert np.array_equal(egm._from_roots(x, nodes, plan), gathered)
     rows = egm._row_plan(("wrist_r", "ankle_l"), (ids, ids[::-1]), (roots, roots[::-1]), (frozenset(),) * 2)
     assert rows.root_cols is None
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_distances_are_the_projection_s_own_to_the_bit(user, dtype):
+    """`distances` (the palm weights' nearest distance) skips the factors and surface coordinates
+    but gives project's dist bit for bit, on every element type and inside the body too."""
+    joints, rots = _posed(user, 9, 11)
+    us = eg.pose_surface(user, joints, rots).astype(dtype)
+    pts = _targets(joints, 11, spread=0.15).astype(dtype)
+    pts[:, 0] = joints["pelvis"]  # inside the torso
+    got = eg.distances(pts, us)
+    assert got.dtype == dtype and got.shape == pts.shape[:2] + (len(us.element_ids),)
+    assert np.array_equal(got, eg.project(pts, us).dist)
+    assert us.counts[2] and np.all(np.isfinite(got))

@@ -70,13 +70,14 @@ takes `one_frame.OneFrameMapping`: the same mapping over flat arrays of the pair
 
 from .graph import GRAPH_BONES, GRAPH_INDEX, GRAPH_NODES, TORSO_ROOT, element_root, kinematic_path, own_chain_elements
 from .mapping import BLOCK_PAIRS, SUPPORT_BLEND, PreparedTargets, prepare_targets, retarget_points
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, Projections, project, repose
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, Projections, distances, project, repose
 from .surface import JointTable, PosedSurface, SurfacePoser, common_elements, pose_surface
 from .weights import MIN_DISTANCE, normalise_weights, raw_weights
 
 __all__ = [
     "BLOCK_PAIRS", "FACTOR_BLEND", "GRAPH_BONES", "GRAPH_INDEX", "GRAPH_NODES", "MIN_DISTANCE",
     "PENETRATION_TOLERANCE", "SUPPORT_BLEND", "TORSO_ROOT", "JointTable", "PosedSurface", "PreparedTargets",
-    "Projections", "SurfacePoser", "common_elements", "element_root", "kinematic_path", "normalise_weights",
+    "Projections", "SurfacePoser", "common_elements", "distances", "element_root", "kinematic_path",
+    "normalise_weights",
     "own_chain_elements", "pose_surface", "prepare_targets", "project", "raw_weights", "repose", "retarget_points",
 ]

@@ -164,7 +164,10 @@ class ProjectionsCF:
                            m(self.cap_dir, 0, -1), m(self.sph_dir, 0, -1), self.tri_index, m(self.tri_bary, 0, -1))
 
 
-def project_components(p, surface: PosedSurface, tol: float) -> ProjectionsCF:
+def project_components(p, surface: PosedSurface, tol: float, coords: bool = True) -> ProjectionsCF:
+    """Every point of p (F, P, 3) projected on every element of `surface`, components first.
+    `coords=False` gives v and dist only (the rest None): what a nearest distance reads
+    (`distances`), without the angular factors and surface coordinates the mapping needs."""
     F, P = p.shape[:2]
     pc = _comp(p)[..., None]  # (3, F, P, 1)
     C, S, M = surface.counts
@@ -178,8 +181,6 @@ def project_components(p, surface: PosedSurface, tol: float) -> ProjectionsCF:
     d, n = unit_and_norm(ap - t * ab, rc[:, 0], axis=0)  # on the axis: the bone's +X
     r = surface.caps_radius[:, 0] + t * (surface.caps_radius[:, 1] - surface.caps_radius[:, 0])
     cap_v = (n - r) * d
-    cos_ax = dot3(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
-    cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
     # Spheres.
     sc = _comp(surface.sph_center)[:, :, None, :]
     src = _rot_comp(surface.sph_rot)
@@ -203,6 +204,16 @@ def project_components(p, surface: PosedSurface, tol: float) -> ProjectionsCF:
         # The closest triangles' values gathered by one flat index (F P T -> F P M).
         flat = (np.arange(F * P)[:, None] * T + sel.reshape(F * P, M)).reshape(-1)
         mesh_v = tv.reshape(3, -1).take(flat, axis=1).reshape(3, F, P, M)
+    else:
+        sel = np.zeros((F, P, 0), int)
+        mesh_v = np.zeros((3, F, P, 0), pc.dtype)
+    v = np.concatenate([cap_v, sph_v, mesh_v], axis=-1)
+    dist = np.sqrt(dot3(v, v))
+    if not coords:
+        return ProjectionsCF(None, v, dist, *([None] * 6))
+    cos_ax = dot3(d, ab) / np.sqrt(abab)  # v is parallel to d, also when v -> 0
+    cap_factor = np.sqrt(np.minimum(np.maximum(1.0 - cos_ax * cos_ax, 0.0), 1.0))
+    if M:
         bv, bw = bv.reshape(-1).take(flat).reshape(F, P, M), bw.reshape(-1).take(flat).reshape(F, P, M)
         tri_bary = np.stack([1.0 - bv - bw, bv, bw])
         # Decision: the angular factor is every triangle's own, weighted by how close the triangle
@@ -218,12 +229,9 @@ def project_components(p, surface: PosedSurface, tol: float) -> ProjectionsCF:
         near = np.exp((closest - td) * (1.0 / FACTOR_BLEND))
         mesh_factor = np.add.reduceat(near * tri_factor, starts, axis=2) / np.add.reduceat(near, starts, axis=2)
     else:
-        sel = np.zeros((F, P, 0), int)
-        mesh_v = tri_bary = np.zeros((3, F, P, 0), pc.dtype)
+        tri_bary = np.zeros((3, F, P, 0), pc.dtype)
         mesh_factor = np.zeros((F, P, 0), pc.dtype)
-    v = np.concatenate([cap_v, sph_v, mesh_v], axis=-1)
     x = pc - v
-    dist = np.sqrt(dot3(v, v))
     factor = np.concatenate([cap_factor, np.ones((F, P, S), pc.dtype), mesh_factor], axis=-1)
     # Surface coordinates in the bone frames: what re-poses the projection on another body.
     return ProjectionsCF(x, v, dist, factor, t, _apply_t(rc, d), _apply_t(src, sd), sel, tri_bary)
@@ -246,6 +254,12 @@ def project(points: np.ndarray, surface: PosedSurface, penetration_tolerance: fl
             ) -> Projections:
     """Project (F, P, 3) points on every element of `surface` (Delahaye 2023, appendix C, Figure 12)."""
     return project_components(_floating(points), surface, penetration_tolerance).public(surface)
+
+
+def distances(points: np.ndarray, surface: PosedSurface) -> np.ndarray:
+    """(F, P, E) each of (F, P, 3) points' distance to each element of `surface`: `project`'s
+    dist, bit for bit, without the weights' factors and surface coordinates it does not read."""
+    return project_components(_floating(points), surface, PENETRATION_TOLERANCE, coords=False).dist
 
 
 def _triangle_factor(v, normal, tol):
