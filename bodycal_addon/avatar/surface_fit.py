@@ -12,8 +12,8 @@ import numpy as np
 MAD_K = 3.0  # reject beyond 3 scaled MADs (1.4826 MAD estimates sigma for Gaussian noise)
 MIN_MAD = 0.0005  # metres: below half a millimetre of spread, nothing is an outlier
 # A limb's cross-section is not a circle: a thigh's front (the quadriceps) stands 5-8 mm beyond the
-# circle through the rest of its ring on the shared adult (13 % of its 57 mm radius), its inner
-# front as far under it. A hit within this fraction of the radius is the limb's own skin, never an
+# circle through the rest of its ring on the shared child avatar (13 % of its 57 mm radius), its
+# inner front up to 4 mm under it. A hit within this fraction of the radius is the limb's own skin, never an
 # outlier: with the MAD alone (most of the ring round within 1 mm) the thigh's front was dropped,
 # its capsule sat ~8 mm under the skin there, and a palm laid on it sank that deep. A stray hit (a
 # ray through a gap onto the other leg) lands tens of percent off and is still dropped.

@@ -20,7 +20,7 @@ def test_cross_section_finds_an_off_bone_centre_and_rejects_a_stray_hit():
 
 
 def test_a_thigh_whose_front_bulges_keeps_its_front_in_the_fit():
-    # The shared adult's left thigh at half its length (rest pose): round within 1 mm but its front
+    # The shared child avatar's left thigh at half its length (rest pose): round within 1 mm but its front
     # (the quadriceps, 270-300 deg) 5-8 mm beyond the circle through the rest, its inner front 4 mm
     # under it. The MAD of a ring that round dropped the front, and a palm on the thigh sank ~8 mm
     # into the skin; all of it is the thigh's skin, and the circle is every hit's.
