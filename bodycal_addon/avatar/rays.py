@@ -41,14 +41,17 @@ height above the pelvis (midpoint of the hips) as a fraction of the shoulders' h
 projected onto the floor plane (the lowest of the two floor hits).
 
 Capsule radii (DESIGN.md §4): per station, a circle is fitted to the ring's hits in the plane
-across the bone (hits beyond 3 scaled MADs of the radius rejected, `surface_fit.cross_sections`);
+across the bone (hits beyond 3 scaled MADs of the radius rejected, but never one within
+`surface_fit.SKIN_WITHIN` of the radius: that is the limb's own skin; `surface_fit.cross_sections`);
 the station radius is the mean distance of the rest to its centre; head/tail radii and the axis
 offsets (`axis_head` / `axis_tail`: the centres' line, in the bone's frame) come from lines
 through the stations (limbs: extrapolated to the joints within bounds, `surface_fit.linear_radii`;
 phalanges: clamped to the stations' range).
 Stations stay away from the joints, where the neighbouring part (torso, the next phalanx) would be
-hit first. A rest-pose check on the shared avatars found the cross-sections round within ±2.5 %
-once centred, so no angular radius profile is kept.
+hit first. No angular radius profile is kept: most rings are round within ±2.5 % once centred, but
+a thigh's front (the quadriceps) stands up to 13 % of the radius beyond the circle through the rest
+of its ring, and the circle through all of it still leaves that front 4-6 mm under the skin on the
+shared avatars (a palm laid there sinks as deep; DESIGN.md §4).
 """
 
 from __future__ import annotations

@@ -11,6 +11,13 @@ import numpy as np
 
 MAD_K = 3.0  # reject beyond 3 scaled MADs (1.4826 MAD estimates sigma for Gaussian noise)
 MIN_MAD = 0.0005  # metres: below half a millimetre of spread, nothing is an outlier
+# A limb's cross-section is not a circle: a thigh's front (the quadriceps) stands 5-8 mm beyond the
+# circle through the rest of its ring on the shared child avatar (13 % of its 57 mm radius), its
+# inner front up to 4 mm under it. A hit within this fraction of the radius is the limb's own skin, never an
+# outlier: with the MAD alone (most of the ring round within 1 mm) the thigh's front was dropped,
+# its capsule sat ~8 mm under the skin there, and a palm laid on it sank that deep. A stray hit (a
+# ray through a gap onto the other leg) lands tens of percent off and is still dropped.
+SKIN_WITHIN = 0.2
 
 
 def robust_keep(values: np.ndarray) -> np.ndarray:
@@ -117,6 +124,13 @@ def _keep_rows(v, mask):
     return mask & (np.abs(v - med) <= MAD_K * scale)
 
 
+def _section_scale(res, mask, radius):
+    """`_median_scale` of a cross-section's residuals, the scale at least SKIN_WITHIN of its circle's
+    radius over MAD_K (whatever lies within that fraction of the radius is kept)."""
+    med, scale = _median_scale(res, mask)
+    return med, np.maximum(scale, SKIN_WITHIN / MAD_K * radius[:, None])
+
+
 def cross_sections(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Circles through a limb's cross-sections, all stations at once: (S, K, 2) hit points around
     the bone (at the origin), NaN where a ray missed. Algebraic fit, re-weighted (Cauchy) so a
@@ -133,14 +147,15 @@ def cross_sections(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     c, r = _weighted_circles(q, w)
     for _ in range(8):
         res = np.linalg.norm(q - c[:, None], axis=-1) - r[:, None]
-        w = valid / (1.0 + (res / _median_scale(res, valid)[1]) ** 2)
+        w = valid / (1.0 + (res / _section_scale(res, valid, r)[1]) ** 2)
         c_new, r_new = _weighted_circles(q, w)
         done = np.all(np.abs(c_new - c)[enough] < 1e-5) and np.all(np.abs(r_new - r)[enough] < 1e-5)  # 0.01 mm
         c, r = c_new, r_new
         if done:
             break
     res = np.linalg.norm(q - c[:, None], axis=-1) - r[:, None]
-    keep = _keep_rows(res, valid)
+    med, scale = _section_scale(res, valid, r)
+    keep = valid & (np.abs(res - med) <= MAD_K * scale)
     keep = np.where((keep.sum(axis=1) < 3)[:, None], valid, keep)
     c, _ = _weighted_circles(q, keep.astype(float))
     n = np.maximum(keep.sum(axis=1), 1)

@@ -1,6 +1,7 @@
 """The avatar calibration's small fits (bodycal_addon/avatar/surface_fit.py) on exact data."""
 
 import numpy as np
+import pytest
 
 from bodycal_addon.avatar import surface_fit as sf
 
@@ -16,6 +17,23 @@ def test_cross_section_finds_an_off_bone_centre_and_rejects_a_stray_hit():
     (c,), (r,), (keep,) = sf.cross_sections(pts[None])
     np.testing.assert_allclose(c, [0.0, -0.022], atol=1e-9)
     assert abs(r - 0.08) < 1e-9 and not keep[3] and keep.sum() == 11
+
+
+def test_a_thigh_whose_front_bulges_keeps_its_front_in_the_fit():
+    # The shared child avatar's left thigh at half its length (rest pose): round within 1 mm but its front
+    # (the quadriceps, 270-300 deg) 5-8 mm beyond the circle through the rest, its inner front 4 mm
+    # under it. The MAD of a ring that round dropped the front, and a palm on the thigh sank ~8 mm
+    # into the skin; all of it is the thigh's skin, and the circle is every hit's.
+    bulge = np.array([-1.0, -0.6, 0.5, 0.9, -0.3, 0.6, 0.0, -3.7, 1.6, 7.8, 7.7, 2.9]) / 1000
+    a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    pts = np.array([0.002, -0.012]) + (0.056 + bulge)[:, None] * np.stack([np.cos(a), np.sin(a)], -1)
+    (c,), (r,), (keep,) = sf.cross_sections(pts[None])
+    assert keep.all()
+    (c_all,), _ = sf._weighted_circles(pts[None], np.ones((1, 12)))
+    np.testing.assert_allclose(c, c_all, atol=1e-12)
+    assert r == pytest.approx(np.linalg.norm(pts - c_all, axis=1).mean(), abs=1e-12)
+    front = c + r * np.array([0.0, -1.0])  # the circle's front, against the skin hit there
+    assert np.linalg.norm(pts[9] - front) < 0.005
 
 
 def test_cross_section_keeps_the_bone_inside_its_capsule():
