@@ -7,6 +7,8 @@ with a leading frame axis restricted by the caller to the frames that count (the
 - hip-line angle: the horizontal angle between the avatar's hip line and the source's;
 - the floor a clip walks on: how much it rises along the walk (a capture's floor is not always
   level: the CMU walk 02_01's rises 4-5 cm over its 3.6 m).
+- the pelvis's error split in the clip's body frame: its constant forward / left / up, the motion
+  about it, and what its p95 tail is (the trunk's lean the clip has there beyond ours).
 
 The figures a bake's review also flags (foot slide, wrist / ankle acceleration, when a source's
 foot is down, the limb ratios) are the engine's, `bodycal_addon/output/metrics.py`, which the
