@@ -69,3 +69,15 @@ def test_a_bow_past_a_right_angle_is_read_past_it():
     ours_lean = np.degrees(np.arctan2(0.55 * np.sin(bow), 0.55 * np.cos(bow) + 0.3))
     assert got["tail"]["lean_forward_missed_deg"] == pytest.approx(130.0 - ours_lean, abs=0.1)
     assert got["tail"]["moving_share"] == 0.0
+
+
+def test_the_landings_count_is_a_plain_int_the_bench_can_print():
+    """bench_three_point prints its figures with json: a numpy integer there stops the whole run."""
+    import json
+
+    t = np.arange(200) / FPS
+    foot = np.zeros((200, 3))
+    foot[:, 0] = np.where(t < 1.0, 0.0, np.minimum((t - 1.0) * 1.0, 0.5))  # stands, steps 0.5 m, stands
+    count = measure.landings(foot, FPS)
+    assert count == 1 and type(count) is int
+    json.dumps({"steps": count})
