@@ -10,6 +10,9 @@ three (the session's T-pose and arm circles) and solved; against the clip's full
   same landmark on both sides, the middle of the hip joint centres (`PELVIS_POINT`, printed); the
   error over the floor, how far the vertical part strays from its median, and the hips' standing
   height as a fraction of the stature, ours and the clip's;
+- the pelvis's error split in the clip's body frame (`measure.pelvis_split`): its constant part
+  forward / left / up, the motion about it, and what its p95 tail is (the trunk's lean and side
+  tilt the clip has there beyond ours, the share of those frames moving and turning);
 - the hands on their devices: how far beyond its arm's reach from the shoulder a controller puts
   the wrist (p95 mm; the estimated arm must reach what the controller holds); and the user's skull
   base and wrists against the clip's (the calibration, median mm);
@@ -221,6 +224,11 @@ def truth_part(arm, avatar, workdir: Path, quick: bool) -> dict:
                              "truth": sum(measure.landings(T[:, [Jt[f"ankle_{s}"], Jt[f"toe_{s}"]]], FPS)
                                           for s in "lr"),
                              "walk": walk},
+                   # the pelvis's error split in the clip's body frame: its constant, its motion, its tail
+                   "pelvis_split": measure.pelvis_split(
+                       {j: pose.joints[a:b, JI[j]] for j in ("pelvis", "skull_base")},
+                       {j: T[:, Jt[j]] for j in ("pelvis", "skull_base", "hip_l", "hip_r", "ankle_l", "ankle_r",
+                                                 "toe_l", "toe_r")}, FPS),
                    # the clip's floor: how much it rises along the walk (its toes' lowest per stance);
                    # the estimate's floor is flat, the head rising with the clip's lifts its pelvis
                    "clip_floor_rise_mm": _floor_rise_mm(T, Jt),

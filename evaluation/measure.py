@@ -7,6 +7,8 @@ with a leading frame axis restricted by the caller to the frames that count (the
 - hip-line angle: the horizontal angle between the avatar's hip line and the source's;
 - the floor a clip walks on: how much it rises along the walk (a capture's floor is not always
   level: the CMU walk 02_01's rises 4-5 cm over its 3.6 m).
+- the pelvis's error split in the clip's body frame: its constant forward / left / up, the motion
+  about it, and what its p95 tail is (the trunk's lean the clip has there beyond ours).
 
 The figures a bake's review also flags (foot slide, wrist / ankle acceleration, when a source's
 foot is down, the limb ratios) are the engine's, `bodycal_addon/output/metrics.py`, which the
@@ -49,7 +51,7 @@ def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0
     ankle and the ball, all slower than `speed` m/s over the floor for at least `hold_s`) that
     begin after the clip's first frame. The same rule for the source and a retargeted body, so the
     two counts compare."""
-    return sum(a > 0 for a, _ in _stances(foot.reshape(len(foot), -1, 3), fps, speed, hold_s))
+    return int(sum(a > 0 for a, _ in _stances(foot.reshape(len(foot), -1, 3), fps, speed, hold_s)))
 
 
 def _stances(foot: np.ndarray, fps: float, speed: float, hold_s: float) -> list[tuple[int, int]]:
@@ -82,3 +84,52 @@ def floor_along(feet: list[np.ndarray], fps: float, speed: float = 0.3, hold_s: 
     if slope < 0.0:  # the axis pointing up the floor: the slope reads as a rise
         axis, along, slope = -axis, -along, -slope
     return axis, slope, float(np.ptp(along))
+
+
+def pelvis_split(ours: dict, theirs: dict, fps: float) -> dict:
+    """The pelvis's error split in the clip's body frame (forward, left, up). `ours` {pelvis,
+    skull_base} and `theirs` {pelvis, skull_base, hip_l, hip_r, ankle_l, ankle_r, toe_l, toe_r}:
+    (F, 3) joint centres. The frame: the clip's hips' line over the floor, forward the way its toes
+    point. Gives the constant part (the medians, mm: a calibration's table against the clip's
+    skeleton, or a posture held all through), the motion about it (median and p95 of what is left,
+    mm), and what the frames of the tail (the error at or past its p95) are: how much further
+    forward the clip's trunk leans there than ours (degrees from the vertical, pelvis to skull base,
+    past a right angle in a deep bow) and how much further to its left it tilts (degrees out of
+    the plane across its left), the share of them moving (the clip's pelvis over 0.3 m/s) and
+    turning (its hips' line over 60 degrees/s)."""
+    T = {k: np.asarray(v, float) for k, v in theirs.items()}
+    left = T["hip_l"] - T["hip_r"]
+    left[:, 2] = 0.0
+    left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
+    forward = np.stack([-left[:, 1], left[:, 0], np.zeros(len(left))], axis=1)
+    toes = (T["toe_l"] - T["ankle_l"]) + (T["toe_r"] - T["ankle_r"])
+    if np.median(np.einsum("fi,fi->f", toes, forward)) < 0:
+        forward = -forward
+    d = np.asarray(ours["pelvis"], float) - T["pelvis"]
+    parts = np.stack([np.einsum("fi,fi->f", d, forward), np.einsum("fi,fi->f", d, left), d[:, 2]], axis=1)
+    offset = np.median(parts, axis=0)
+    motion = np.linalg.norm(parts - offset, axis=1) * 1000
+    e = np.linalg.norm(d, axis=1)
+    tail = e >= np.percentile(e, 95)
+
+    def lean(trunk):
+        return np.degrees(np.arctan2(np.einsum("fi,fi->f", trunk, forward), trunk[:, 2]))
+
+    def tilt(trunk):
+        return np.degrees(np.arcsin(np.clip(np.einsum("fi,fi->f", trunk, left)
+                                            / np.maximum(np.linalg.norm(trunk, axis=1), 1e-9), -1.0, 1.0)))
+
+    theirs_trunk = T["skull_base"] - T["pelvis"]
+    ours_trunk = np.asarray(ours["skull_base"], float) - np.asarray(ours["pelvis"], float)
+    speed = np.linalg.norm(np.gradient(T["pelvis"][:, :2], axis=0), axis=1) * fps
+    turn = np.abs(np.degrees(np.gradient(np.unwrap(np.arctan2(forward[:, 1], forward[:, 0]))))) * fps
+    lean_missed = (lean(theirs_trunk) - lean(ours_trunk))[tail]
+    tilt_missed = (tilt(theirs_trunk) - tilt(ours_trunk))[tail]
+    return {"offset_mm": {k: round(float(v) * 1000, 1) for k, v in zip(("forward", "left", "up"), offset)},
+            "motion_mm": {"median": round(float(np.median(motion)), 1),
+                          "p95": round(float(np.percentile(motion, 95)), 1)},
+            "tail": {"frames": int(tail.sum()),
+                     "lean_forward_missed_deg": round(float(np.median(lean_missed)), 1),
+                     "tilt_left_missed_deg": round(float(np.median(tilt_missed)), 1),
+                     "moving_share": round(float(np.mean(speed[tail] > 0.3)), 2),
+                     "turning_share": round(float(np.mean(turn[tail] > 60.0)), 2)}}
