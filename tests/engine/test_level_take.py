@@ -1,5 +1,6 @@
 """evaluation/level.py: a clip's sloped floor laid level by one rigid turn of the whole take
-(bench_three_point judges each CMU clip so: DESIGN.md §6 "How the bench judges a walk")."""
+(bench_three_point judges each CMU clip so: DESIGN.md §6 "Feet that step", how the bench judges a
+walk)."""
 
 from __future__ import annotations
 
