@@ -15,6 +15,7 @@ skeleton; the BVH joints are the truth.
 - `touching`: a six-device user's controller pivots and touches on the skin (with a person's
   imprecision), the touching arm placed by inverse kinematics on the clip's bones.
 - `capture`: devices strapped on the body, noise and dropouts, the recording file and its truth.
+- `level`: a clip's sloped floor laid level, one rigid turn of a take's devices and truth alike.
 
 Not part of the extension (excluded from the zip); used by tests and `benchmarks/bench_real_motion.py`.
 """

@@ -51,7 +51,7 @@ def landings(foot: np.ndarray, fps: float, speed: float = 0.3, hold_s: float = 0
     ankle and the ball, all slower than `speed` m/s over the floor for at least `hold_s`) that
     begin after the clip's first frame. The same rule for the source and a retargeted body, so the
     two counts compare."""
-    return int(sum(a > 0 for a, _ in _stances(foot.reshape(len(foot), -1, 3), fps, speed, hold_s)))
+    return int(sum(a > 0 for a, _ in _stances(foot.reshape(len(foot), -1, 3), fps, speed, hold_s)))  # a JSON number
 
 
 def _stances(foot: np.ndarray, fps: float, speed: float, hold_s: float) -> list[tuple[int, int]]:

@@ -52,6 +52,8 @@ FOLLOW = 0.25  # of BLEND_S (3 frames at 90 Hz): how soon a pinned point off its
 SHARE_OUTER = 0.1  # how much the stances' outer weights count in the pivot's share (`pivot_share`)
 FLOOR_BLEND = 0.075  # of the heel's depth under the ankle (6 mm on an adult): how softly `above` keeps the sole up
 SAME_PLACE = 0.01  # m: two contacts a short gap apart are one only if the foot comes down this near where it went up
+DRIFT = 0.03  # m over the floor: an estimated foot's point standing again this far from where its stance came
+# down has stepped (`detect`; a slow short step within the hold's speed and height was one stance at its average)
 PIVOT_HEIGHT = 0.02  # m: the ankle of a foot turning in place stays within this of its height at the reference time
 # (`detect_pivot`; a foot held just off the floor, as in the calibration's knee flexes, keeps it 3-4 cm higher)
 
@@ -87,8 +89,10 @@ def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
-def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
-    """Stance of one foot from the user's ankle (F, 3) carried by its foot tracker."""
+def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float, drift: float | None = None) -> Stance:
+    """Stance of one foot from the user's ankle (F, 3) carried by its foot tracker. With `drift`
+    (m; an estimated foot's, `DRIFT`), a stance is cut where the point stands again that far from
+    where it came down (`_held_in_place`)."""
     F = len(ankle)
     if F < 3:
         return Stance(np.zeros(F), np.full(F, -1), 0, np.zeros(F))
@@ -112,14 +116,47 @@ def detect(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:
         order = np.unique(run_of, return_index=True)
         first[order[0]] = idx[order[1]]
         for_runs = first >= 0
+        shortest = max(2, int(round(MIN_STANCE_S * fps)))
         a, b = first[for_runs], stops[for_runs]
-        keep = (b - a) >= max(2, int(round(MIN_STANCE_S * fps)))
+        if drift is not None:
+            a, b = _held_in_place(smooth[:, :2], enter, a, b, shortest, drift)
+        keep = (b - a) >= shortest
         a, b = a[keep], b[keep]
         d = np.zeros(F + 1, int)
         np.add.at(d, a, 1)
         np.add.at(d, b, -1)
         stance = np.cumsum(d[:-1]) > 0
     return eased(stance, blend_frames(fps))
+
+
+def _held_in_place(xy: np.ndarray, enter: np.ndarray, a: np.ndarray, b: np.ndarray, shortest: int, drift: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Stances [a, b) cut in two where the point (F, 2) over the floor has moved `drift` from where
+    the stance came down and then stands again, slow and low (`enter`), for at least `shortest`
+    frames before the stance ends: the foot stepped inside one stance's hold. A three-point kit's
+    stepper lifts a foot 2 cm: a short step at under 0.4 m/s stays within the hysteresis's hold,
+    and held as one stance it was placed at its average, the avatar's foot standing still (and
+    turning on its heel) while the performer's stepped. A point that drifts off as its foot leaves
+    (a heel rising at toe-off) stands nowhere again and keeps its stance as it was. Only for an
+    estimated foot, which moves only when the stepper steps it: a tracked foot's points drift
+    within what the hold calls one stance (the foot rolling, a slow shuffle: up to 25 cm in the CMU
+    sessions' calibrations), and cutting those is another question (not measured). A loop over the
+    stances and their cuts, not over frames."""
+    starts = np.flatnonzero(enter)
+    out_a, out_b = [], []
+    for s, e in zip(a.tolist(), b.tolist(), strict=True):
+        while True:
+            far = np.flatnonzero(np.linalg.norm(xy[s:e] - xy[s], axis=1) > drift)
+            k = np.searchsorted(starts, s + int(far[0])) if len(far) else len(starts)
+            again = int(starts[k]) if k < len(starts) else e
+            if again >= e or e - again < shortest:
+                out_a.append(s)
+                out_b.append(e)
+                break
+            out_a.append(s)
+            out_b.append(s + int(far[0]))
+            s = again
+    return np.array(out_a, int), np.array(out_b, int)
 
 
 def detect_pivot(ankle: np.ndarray, time: np.ndarray, ref_height: float) -> Stance:

@@ -28,6 +28,7 @@ from ..core.transforms import matmul_stack, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
+from .lower_body.estimate import KIND as ESTIMATED
 from .methods import check_method
 from .placement import check_placement, play_area_to_world, transformed_avatar
 from .pose_source import PoseSource
@@ -498,6 +499,12 @@ class FeetPlan:
         rest = copy_frames(solver.user_frames0[None], solver.user_frames0, solver.rig.frames0)[0, BI[f"foot_{s}"]]
         return ankle, np.stack([heel, ball]), np.stack([c.heel, c.ball]) @ rest.T
 
+    def _estimated(self, s: str) -> bool:
+        """The recording's foot device on side `s` is the lower body's estimate (no foot tracker)."""
+        rec = self.solver.src.recording
+        devices = getattr(rec, "devices", None) or []
+        return any(d.role == f"foot_{s}" and d.kind == ESTIMATED for d in devices)
+
     def _extend(self, stop: int) -> None:
         """Plan the frames [done, stop)."""
         solver, start = self.solver, self.done
@@ -518,7 +525,8 @@ class FeetPlan:
             own = feet.foot_points(ankles[s], turn, rest_ankle, performer)  # (F, 2, 3) the performer's
             theirs = reference[:, None] + np.einsum("fij,pj->fpi", turn, avatar)  # the avatar's, there
             if whole:
-                heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2])) for i in (0, 1))
+                drift = feet.DRIFT if self._estimated(s) else None  # the stepper's foot: it moves only to step
+                heel, ball = (feet.detect(own[:, i], src.time, float(performer[i, 2]), drift) for i in (0, 1))
                 fps = (len(src.time) - 1) / max(float(src.time[-1] - src.time[0]), 1e-9)  # as `detect` takes it
                 # a foot turning in place about its ankle stands on its heel (feet.with_pivots)
                 heel = feet.with_pivots(heel, ball, feet.detect_pivot(ankles[s], src.time, float(rest_ankle[2])),
