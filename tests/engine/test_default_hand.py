@@ -13,8 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bodycal_addon.calibration import calibrate_user
-from bodycal_addon.calibration import defaults
+from bodycal_addon.calibration import calibrate_user, defaults
 from bodycal_addon.recording import io as rio
 from bodycal_addon.retarget import pipeline as pl
 from bodycal_dev import retarget_fixtures as rt
