@@ -1,6 +1,6 @@
 """The default hand of a user whose kit does not measure it (no palm touches; DESIGN.md §3
-"Defaults"): `defaults.hand_axes` gives the hand's direction, its palm's normal and its thumb's
-side, from which the finger joints and the palm surface are laid out. Whatever way the hand
+"The default hand"): `defaults.hand_axes` gives the hand's direction, its palm's normal and its
+thumb's side, from which the finger joints and the palm surface are laid out. Whatever way the hand
 pointed at the reference moment, they are a left or a right hand, never its mirror image: on a
 mirrored hand the palm mesh lies on the back of the hand, and the egocentric method maps a
 touching palm through a point on the wrong side of the hand (the real Beat Saber replay's two
