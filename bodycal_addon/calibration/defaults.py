@@ -555,10 +555,13 @@ def hand_axes(session: Session, state: State, body: BodyFrame, s: str, w: dict) 
         n = -body.left * sign
     n = n - (n @ along) * along
     n = n / max(np.linalg.norm(n), 1e-9)
-    # thumb side: palm down with the fingers pointing away from the body, the thumb is forward
+    # thumb side: palm down with the fingers pointing away from the body, the thumb is forward.
+    # Decision: the thumb follows from the palm's normal and the hand's direction by the side's
+    # handedness, and nothing turns it alone: a thumb turned forward without its palm made the hand
+    # its mirror image (the palm mesh on the back of the hand) wherever the hand pointed up, or
+    # forward with the palm toward the body, at the reference moment (a real Beat Saber replay's two
+    # hands, an A-Frame take's left one). In a T-pose or hanging down the thumb is forward anyway.
     thumb = np.cross(n, along) * sign
-    if thumb @ body.forward < 0 and plane is None:
-        thumb = -thumb
     return along, n, thumb
 
 
