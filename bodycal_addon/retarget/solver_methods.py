@@ -82,6 +82,7 @@ class Method:
     uses_fk = True  # reads the rotation copy's pose (`chunk`'s fk; None when not)
     user_fingers = True  # reads the user's fingers (False: the pose source may leave them unposed)
     user_trunk = True  # reads the user's pelvis, sacrum, vertebrae or clavicles (False: likewise)
+    user_finger_joints = True  # reads the joints of the user's fingers (False: likewise; their frames posed)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -98,6 +99,7 @@ class RotationCopy(Method):
 
     name = "rotations"
     fk_basis = True
+    user_finger_joints = False  # the fingers' frames are copied; their joints are the avatar's FK
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         run = self.run
