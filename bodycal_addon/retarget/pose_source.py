@@ -45,10 +45,11 @@ class PoseSource(Protocol):
     def frame_count(self) -> int: ...
 
     def pose(self, start: int, stop: int, rest: tuple[dict, np.ndarray], fingers: bool = True,
-             trunk: bool = True) -> UserPose:
+             trunk: bool = True, finger_joints: bool = True) -> UserPose:
         """Canonical joints and bone frames of frames [start, stop), in the play area. `fingers`,
         `trunk` False: the caller reads none of the fingers', the trunk's joints and frames (a
-        source may then leave them unposed; `UserAnimator.animate`)."""
+        source may then leave them unposed; `UserAnimator.animate`); `finger_joints` False: none
+        of the fingers' joints (their frames, yes)."""
 
     def ankle(self, side: str, start: int = 0, stop: int | None = None) -> np.ndarray | None:
         """(F, 3) the performer's ankle over frames [start, stop) (default the whole take; None:
@@ -96,10 +97,11 @@ class RecordingSource:
             self._reader = TrackerReader(self.recording, self.model)
         return self._reader
 
-    def pose(self, start, stop, rest, fingers=True, trunk=True):
+    def pose(self, start, stop, rest, fingers=True, trunk=True, finger_joints=True):
         if self._animator is None:
             self._animator = UserAnimator(self.recording, self.model, rest, self.reader)
-        return self._animator.animate(start, stop, self.trackers(start, stop), fingers=fingers, trunk=trunk)
+        return self._animator.animate(start, stop, self.trackers(start, stop), fingers=fingers, trunk=trunk,
+                                      finger_joints=finger_joints)
 
     def trackers(self, start=0, stop=None):
         if start or stop is not None:
@@ -173,7 +175,7 @@ class AnimationSource:
         return self.rig.fk(self.basis[start:stop], self.locations[start:stop, self.rig.root],
                            locations=self.locations[start:stop], realised=realised)
 
-    def pose(self, start, stop, rest=None, fingers=True, trunk=True):  # (a character's pose is its animation's)
+    def pose(self, start, stop, rest=None, fingers=True, trunk=True, finger_joints=True):  # (its animation's)
         fk = self._fk(start, stop)
         frames = fk.frames.copy()
         idx = [BI[b] for b in SPINE_BONES]

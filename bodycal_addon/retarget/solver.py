@@ -228,7 +228,7 @@ class PreparedSolver:
 
     def chunk(self, start: int, stop: int):
         up = self.src.pose(start, stop, rest=(self.user_pos, self.user_frames0), fingers=self.impl.user_fingers,
-                           trunk=self.impl.user_trunk)
+                           trunk=self.impl.user_trunk, finger_joints=self.impl.user_finger_joints)
         for n in up.notes:
             if n not in self.notes:
                 self.notes.append(n)

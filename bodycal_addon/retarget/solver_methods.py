@@ -83,6 +83,7 @@ class Method:
     user_fingers = True  # reads the user's fingers (False: the pose source may leave them unposed)
     user_trunk = True  # reads the user's pelvis, sacrum, vertebrae or clavicles (False: likewise)
     trunk_copied = True  # reads step 2's copy of the trunk, head and feet (`avatar_pose.DELTA_COPY`; False: not made)
+    user_finger_joints = True  # reads the joints of the user's fingers (False: likewise; their frames posed)
 
     def __init__(self, run, avatar_pos: dict):
         self.run = run
@@ -99,6 +100,7 @@ class RotationCopy(Method):
 
     name = "rotations"
     fk_basis = True
+    user_finger_joints = False  # the fingers' frames are copied; their joints are the avatar's FK
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         run = self.run

@@ -390,7 +390,7 @@ class UserAnimator:
                 "hint_rows": np.repeat(np.arange(len(rights)), 2), "multi": np.array(multi, int) if multi else None}
 
     def _animate_one(self, plan: _Plan, start: int, tr: Trackers, fingers: bool = True,
-                     trunk: bool = True) -> UserPose | None:
+                     trunk: bool = True, finger_joints: bool = True) -> UserPose | None:
         """`animate` of ONE frame with few numpy calls (`_one_frame_tables`: the products in one
         stacked product, the trackers' joints in one weighted sum, the frames rigid on a device in
         one gather), then the same passes as a block's (the limbs without a tracker, the trunk, the
@@ -422,7 +422,7 @@ class UserAnimator:
         (self._trunk if trunk else _rigid_trunk)(P, Fr, rigid[-1:], hinted)
         if plan.tips and fingers:
             tips = self.reader.markers(tab["tip_columns"], start, start + 1)
-            pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
+            pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"], finger_joints)
         sacrum_x = Fr[:, BI["sacrum"], :, 0]
         hints = np.concatenate([rights.take(one["hint_rows"], axis=0)] + hinted + [sacrum_x] * len(_SHORTCUTS))
         ys = pos[0].take(tab["axes_tails"], axis=0) - pos[0].take(tab["axes_heads"], axis=0)
@@ -436,19 +436,21 @@ class UserAnimator:
     # --- per block of frames ------------------------------------------------------------------
 
     def animate(self, start: int = 0, stop: int | None = None, trackers: Trackers | None = None,
-                fingers: bool = True, trunk: bool = True) -> UserPose:
+                fingers: bool = True, trunk: bool = True, finger_joints: bool = True) -> UserPose:
         """The canonical joints and bone frames of frames [start, stop); `trackers`: those frames'
         as `self.reader` reads them, when the caller has them already. For a caller that reads
         none of them (`Method.user_fingers`, `Method.user_trunk`): `fingers` False, the fingers
         stay rigid on the hand as calibrated (not posed from their tip markers); `trunk` False,
         the trunk pass is not run (`_rigid_trunk`: the pelvis tracker's estimate, the sacrum rigid
-        on its tracker, the vertebrae and clavicles placeholders at the pelvis)."""
+        on its tracker, the vertebrae and clavicles placeholders at the pelvis); `finger_joints`
+        False, the fingers' frames are posed from their tip markers but their joints after the MCP
+        stay rigid on the hand as calibrated (the rotation copy reads the frames only)."""
         plan = self.plan
         tab = self._tables
         stop = self.recording.frame_count if stop is None else stop
         tr = self.reader.read(start, stop) if trackers is None else trackers
         if stop - start == 1 and one_frame.ENABLED:
-            pose = self._animate_one(plan, start, tr, fingers, trunk)
+            pose = self._animate_one(plan, start, tr, fingers, trunk, finger_joints)
             if pose is not None:
                 return pose
         prod = stacks_apply(tr.rotations, tab["vec"], tab["vec_rows"])
@@ -470,7 +472,7 @@ class UserAnimator:
         hints: list = []
         self._limbs(plan, P, prod, rigid, hints)
         (self._trunk if trunk else _rigid_trunk)(P, Fr, rigid[plan.rigid["pelvis", "sacrum"]], hints)
-        self._hands(plan, P, Fr, rigid, start, stop, fingers)
+        self._hands(plan, P, Fr, rigid, start, stop, fingers, finger_joints)
         # shortcut bones (and hips): rigid in the sacrum's lateral, for the mapping's paths
         hints += [Fr[:, BI["sacrum"]][..., :, 0]] * len(_SHORTCUTS)
         ys = pos.take(tab["axes_tails"], axis=1) - pos.take(tab["axes_heads"], axis=1)  # (F, bones, 3)
@@ -558,7 +560,7 @@ class UserAnimator:
         hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
 
     def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int,
-               fingers: bool = True) -> None:
+               fingers: bool = True, finger_joints: bool = True) -> None:
         """Hands pass: finger joints and frames rigid on the hand as calibrated, both hands at once,
         then the fingers with a tip marker posed from it, all at once (`pose_user_fingers`;
         forward-filled over its dropouts)."""
@@ -571,7 +573,8 @@ class UserAnimator:
         Fr[:, tab["hand_bones"]] = stacks_mul(hands, tab["hand_fixed"], fixed_rows).swapaxes(0, 1)
         if plan.tips and fingers:
             tips = self.reader.markers(tab["tip_columns"], start, stop)
-            pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"])
+            pose_user_fingers(P, Fr, tab["tips"], tips, self.rest_pos, self.model.bones, tab["fingers"],
+                              finger_joints)
 
 
 def _rigid_trunk(P: _Joints, Fr: np.ndarray, sac: np.ndarray, hints: list) -> None:
@@ -678,12 +681,12 @@ def finger_constants(which: list[tuple[str, str]], rest_pos: dict, model_bones: 
 
 
 def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], tips: np.ndarray, rest_pos: dict,
-                      model_bones: dict, constants: tuple | None = None) -> None:
+                      model_bones: dict, constants: tuple | None = None, joints: bool = True) -> None:
     """Finger joints and phalanx frames from fingertip markers (appendix D, eq. 3-4 and the yaw/pitch
     realignment, `fingers.pose_finger`), every finger of `which` [(side, finger)] at once: `tips`
     (K, F, 3) their markers; P (the block's joints) and Fr hold the fingers rigid on the hand (their
     MCPs and rest phalanx frames) and are updated. `constants`: `finger_constants(which, ...)`, when the caller
-    keeps them."""
+    keeps them. `joints` False: the phalanx frames only (the joints after the MCP left as they were)."""
     K, F = tips.shape[:2]
     names, bones, lens, radius, sets = constants or finger_constants(which, rest_pos, model_bones)
     if F not in sets:
@@ -693,8 +696,8 @@ def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], 
     if phalanges is None:  # (K, 3) the fingers' phalanges; their joints, (K,) the MCP, (K, 3) the rest
         phalanges = sets["phalanges"] = np.array(bones, int).reshape(K, -1)
         sets["joints"] = np.array([[JI[j] for j in n] for n in names], int)
-    joints = sets["joints"]
-    mcp = P.pos.take(joints[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3)  # (K F, 3)
+    rows = sets["joints"]
+    mcp = P.pos.take(rows[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3)  # (K F, 3)
     ref = Fr.take(phalanges[:, 0], axis=1).swapaxes(0, 1).reshape(-1, 3, 3)  # (K F, 3, 3) the first phalanges
     # The fingertip LED sits on the nail, one finger radius off the tip joint on the back of the
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead
@@ -702,9 +705,10 @@ def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], 
     aim = tips.reshape(-1, 3)
     if any(radius):
         aim = aim + sets[F, "radius"] * sets[F].distal_z(mcp, ref, aim)
-    fp = sets[F].pose(mcp, ref, aim)
+    fp = sets[F].pose(mcp, ref, aim, joints=joints)
     # every finger's joints after the MCP and its phalanges, one assignment each
-    P.pos[:, joints[:, 1:]] = fp.joints.reshape(K, F, 4, 3)[:, :, 1:].swapaxes(0, 1)
+    if joints:
+        P.pos[:, rows[:, 1:]] = fp.joints.reshape(K, F, 4, 3)[:, :, 1:].swapaxes(0, 1)
     Fr[:, phalanges] = fp.rotations.reshape(K, F, 3, 3, 3).swapaxes(0, 1)
 
 

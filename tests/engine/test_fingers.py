@@ -150,6 +150,10 @@ def test_rx_rz_rx_a_few_rows_at_a_time_is_entry_by_entry_to_the_bit():
     got = fg._rx_rz_rx(*angles)
     want = np.array([_rx_rz_rx_entry_by_entry(*angles[:, i]) for i in range(angles.shape[1])])
     assert got.tobytes() == want.tobytes()
+    # a few items at a time (a live frame's fingers) take the gathered products: the same bits
+    for part in np.array_split(np.arange(300), 30):
+        assert len(part) < fg.FEW_ITEMS
+        assert fg._rx_rz_rx(*angles[:, part]).tobytes() == want[part].tobytes()
 
 
 def test_a_few_fingers_pose_as_many_do_and_the_distal_axis_alone_is_the_pose_s():
