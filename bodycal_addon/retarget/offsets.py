@@ -146,7 +146,7 @@ def _one_constants(st: OffsetsSetup) -> dict:
             "r0j": np.stack([st.r0_joint[b] for _, b in TRACKED.values()]),
             "lever": np.stack(lever)[..., None], "inv": inv, "shift": st.centre * (1.0 - inv),
             "sac_fixed": st.r0_joint["sacrum"].T, "w0": st.w0, "spine0": st.spine0,
-            "frac": (np.arange(n) + 1.0) / n}
+            "frac": (np.arange(n) + 1.0) / n, "rows": {}}
     return got
 
 
@@ -159,9 +159,9 @@ def _effector_targets_one(st: OffsetsSetup, trackers):
     each rotation and read six frames back (Matrix <-> numpy, about 5,000 instructions a
     matrix each way): 232,000 instructions a frame against 109,000 here."""
     one = _one_constants(st)
-    rows = one.get(trackers.roles)  # the six trackers' rows among those read
+    rows = one["rows"].get(trackers.roles)  # the six trackers' rows among those read, per roles read
     if rows is None:
-        rows = one[trackers.roles] = np.array([trackers.roles.index(r) for r in one["roles"]], int)
+        rows = one["rows"][trackers.roles] = np.array([trackers.roles.index(r) for r in one["roles"]], int)
     rel = np.matmul(trackers.rotations.take(rows, axis=0)[:, 0], one["r0t_inv"])  # R_t(T) R_0(T)^-1
     R = np.matmul(rel, one["r0j"])[:, None]  # (6, 1, 3, 3)
     P = trackers.positions.take(rows, axis=0) * one["inv"] + one["shift"]  # (6, 1, 3)
