@@ -240,20 +240,37 @@ def _f_any_perpendicular(a0, a1, a2):
 
 
 def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_hint, size_ratio):
-    """`two_bone` of a few items (a live frame's two arms or two legs) in Python floats: per item,
-    the numpy path's steps on each vector's three components (float64, as numpy's; a float
-    operation costs about a hundred instructions, a mathutils Vector operation 1,500-2,500).
-    The limb is held relative to its root (the target and pole minus the root) and the joints come
-    back added to the root, as numpy's values to their sums' rounding."""
-    root = np.asarray(root, float)
-    T = (np.asarray(target, float) - root).tolist()
-    P = None if pole_target is None else (np.asarray(pole_target, float) - root).tolist()
-    U, K = (np.asarray(a, float).reshape(-1, 3).tolist() if a is not None else None
-            for a in (user_swivel_dir, flex_axis_hint))
-    L1, L2 = l1.tolist(), l2.tolist()
-    rows = []  # per item: mid, end, rot1's and rot2's entries, swivel, t, d, dist (one array at the end)
-    for i, (t0, t1, t2) in enumerate(T):
-        fallback = (0.0, 0.0, -1.0) if P is None else _f_unit(*P[i], (0.0, 0.0, -1.0))[:3]
+    """`two_bone` of a few items (a live frame's two arms or two legs) in Python floats
+    (`two_bone_floats`), its arrays in and out."""
+    R = np.asarray(root, float).tolist()
+    U, K, T, P = (np.asarray(a, float).reshape(-1, 3).tolist() if a is not None else None
+                  for a in (user_swivel_dir, flex_axis_hint, target, pole_target))
+    out = np.array(two_bone_floats(R, l1.tolist(), l2.tolist(), T, P, U, K, size_ratio))
+    return TwoBoneResult(out[:, 0:3], out[:, 3:6], out[:, 6:15].reshape(-1, 3, 3),
+                         out[:, 15:24].reshape(-1, 3, 3), out[:, 27], out[:, 24:27],
+                         (l1, l2, out[:, 28], out[:, 29]))
+
+
+def two_bone_floats(R, L1, L2, T, P, U, K, size_ratio) -> list:
+    """`two_bone` of a few items in Python floats: each argument a list of Python floats per item
+    (R roots, T targets, P pole targets, U the user's swivels, K hinge hints: triples, each list or
+    None as `two_bone`'s; L1, L2 the lengths). Per item, the numpy path's steps on each vector's
+    three components (float64, as numpy's; a float operation costs about a hundred instructions, a
+    mathutils Vector operation 1,500-2,500). The limb is held relative to its root (the target and
+    pole minus the root) and the joints come back added to the root: numpy's values to their sums'
+    rounding. Returns per item a tuple of 30 floats: mid (3), end (3), rot1's and rot2's entries
+    (9 each, row-major), the swivel direction (3), t, the clamped distance d and the unclamped one
+    (a live frame's solver writes the frames straight from these: `PreparedSolver._limbs_one`)."""
+    rows = []
+    for i, (r0, r1, r2) in enumerate(R):
+        t0, t1, t2 = T[i]
+        t0, t1, t2 = t0 - r0, t1 - r1, t2 - r2
+        if P is None:
+            fallback = (0.0, 0.0, -1.0)
+        else:
+            p0, p1, p2 = P[i]
+            p0, p1, p2 = p0 - r0, p1 - r1, p2 - r2
+            fallback = _f_unit(p0, p1, p2, (0.0, 0.0, -1.0))[:3]
         a0, a1, a2, dist = _f_unit(t0, t1, t2, fallback)  # the axis
         b1, b2 = L1[i], L2[i]
         lo, hi = abs(b1 - b2), b1 + b2
@@ -273,7 +290,6 @@ def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_
                 w0, w1, w2 = w0 + SWIVEL_HINT_WEIGHT * h0, w1 + SWIVEL_HINT_WEIGHT * h1, w2 + SWIVEL_HINT_WEIGHT * h2
             g0, g1, g2 = _f_unit(w0, w1, w2, (h0, h1, h2))[:3]
         if P is not None:  # β and t (eq. 7-8)
-            p0, p1, p2 = P[i]
             s = (p0 * a0 + p2 * a2) + p1 * a1
             e0, e1, e2, r = _f_unit(p0 - s * a0, p1 - s * a1, p2 - s * a2, (g0, g1, g2))
             t = min(max((r / size_ratio - BLEND_START) / BLEND_WIDTH, 0.0), 1.0)
@@ -292,14 +308,11 @@ def _two_bone_one(root, l1, l2, target, pole_target, user_swivel_dir, flex_axis_
         x0, x1, x2 = s1 * a2 - s2 * a1, s2 * a0 - s0 * a2, s0 * a1 - s1 * a0
         y0, y1, y2 = _f_unit(m0, m1, m2, (a0, a1, a2))[:3]
         z0, z1, z2 = _f_unit(n0 - m0, n1 - m1, n2 - m2, (a0, a1, a2))[:3]
-        rows.append((m0, m1, m2, n0, n1, n2,
+        rows.append((r0 + m0, r1 + m1, r2 + m2, r0 + n0, r1 + n1, r2 + n2,
                      x0, y0, x1 * y2 - x2 * y1, x1, y1, x2 * y0 - x0 * y2, x2, y2, x0 * y1 - x1 * y0,
                      x0, z0, x1 * z2 - x2 * z1, x1, z1, x2 * z0 - x0 * z2, x2, z2, x0 * z1 - x1 * z0,
                      s0, s1, s2, t, d, dist))
-    out = np.array(rows)
-    return TwoBoneResult(root + out[:, 0:3], root + out[:, 3:6], out[:, 6:15].reshape(-1, 3, 3),
-                         out[:, 15:24].reshape(-1, 3, 3), out[:, 27], out[:, 24:27],
-                         (l1, l2, out[:, 28], out[:, 29]))
+    return rows
 
 
 if Vector is not None:  # the constant Vectors (never changed in place)

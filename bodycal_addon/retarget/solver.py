@@ -12,6 +12,7 @@ whole file, or a live buffer that grows as frames arrive), or another character'
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,8 +24,9 @@ from ..body.rest_frames import complete_joints, model_rest_frames
 from ..body.skeleton import BONE_INDEX as BI
 from ..body.skeleton import JOINT_INDEX as JI
 from ..body.skeleton import SPINE_BONES, SPINE_JOINTS
+from ..core import one_frame
 from ..core.errors import BodyCalError
-from ..core.transforms import matmul_stack, normalize, stacks_apply, stacks_mul
+from ..core.transforms import EPS, matmul_stack, normalize, stacks_apply, stacks_mul
 from ..recording.model import Recording
 from . import feet, ik
 from .avatar_pose import AvatarRig, copy_factor, copy_frames, copy_frames_by, root_centre, root_positions, root_scale
@@ -297,6 +299,8 @@ class PreparedSolver:
         without); `frames` updated. Returns {(side, limb): the effector reached (F, 3)}.
         `user_side` keeps what the IK reads of the user per limb set (see solve_ik)."""
         nf = frames.shape[0]
+        if nf == 1 and len(items) <= ik.FEW_LIMBS and one_frame.ENABLED:
+            return self._limbs_one(up, frames, targets, items, at, user_side)
         reached = {}
         for group, limbs, eff_names, pole_names in self._limb_groups(tuple(items), tuple(targets)):
             root = at.take(group, axis=1).swapaxes(0, 1).reshape(-1, 3)
@@ -319,6 +323,50 @@ class PreparedSolver:
             for i, k in enumerate(group.tolist()):
                 reached[items[k]] = tb.end[i * nf:(i + 1) * nf]
         return reached
+
+    def _limbs_one(self, up, frames, targets, items, at, user_side: dict) -> dict:
+        """`_limbs` of one frame (a live frame's, up to `ik.FEW_LIMBS` limbs): the same steps in
+        Python floats (`ik.two_bone_floats`, the user's swivel in `_user_swivel_one`), read out of
+        the arrays once and the bone frames written back in one scatter per limb set, where numpy's
+        calls on a few items (several thousand instructions each, whatever the count) were most of
+        the cost. The same values as the numpy path's kernel to its sums' rounding."""
+        reached = {}
+        at0 = at[0].tolist()
+        for group, limbs, eff_names, pole_names in self._limb_groups(tuple(items), tuple(targets)):
+            key = ("one", limbs)
+            if key not in user_side:
+                lengths1, lengths2, hinge_rows, joint_rows, upper, lower = self._limb_constants(limbs)
+                hinge = up.frames[0].take(hinge_rows, axis=0)[:, :, 0].tolist()
+                user_side[key] = (lengths1.tolist(), lengths2.tolist(), self._user_swivel_one(up, joint_rows),
+                                  hinge, np.concatenate([upper, lower]), group.tolist())
+            l1, l2, swivel, hinge, bones, rows = user_side[key]
+            eff = np.concatenate([targets[n] for n in eff_names]).tolist()
+            pole = np.concatenate([targets[n] for n in pole_names]).tolist() if pole_names else None
+            out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, eff, pole, swivel, hinge, self.k)
+            # the anchored bones' frames, then the intermediate ones' (`bones`' order)
+            frames[0, bones] = np.array([r[6:15] for r in out] + [r[15:24] for r in out]).reshape(-1, 3, 3)
+            for k, r in zip(rows, out):
+                reached[items[k]] = np.array([r[3:6]])
+        return reached
+
+    @staticmethod
+    def _user_swivel_one(up, rows: np.ndarray) -> list:
+        """`_user_swivel` of one frame in Python floats, per limb a triple (`normalize`'s sums in
+        their order, `einsum`'s dot product (0 + 2) + 1)."""
+        pts = up.joints[0].take(rows.T.ravel(), axis=0).tolist()  # limb by limb: anchor, mid, effector
+        out = []
+        for i in range(0, len(pts), 3):
+            (r0, r1, r2), (m0, m1, m2), (e0, e1, e2) = pts[i:i + 3]
+            a0, a1, a2 = e0 - r0, e1 - r1, e2 - r2
+            n = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+            if n > EPS:
+                a0, a1, a2 = a0 / n, a1 / n, a2 / n
+            else:
+                a0 = a1 = a2 = 0.0
+            v0, v1, v2 = m0 - r0, m1 - r1, m2 - r2
+            s = (v0 * a0 + v2 * a2) + v1 * a1
+            out.append((v0 - s * a0, v1 - s * a1, v2 - s * a2))
+        return out
 
     def _grip_plan(self, hands: dict, grip: tuple) -> tuple:
         """`solve_ik`'s held fingers of the hands `grip` ({side: {canonical bone: its frame in the
