@@ -261,53 +261,70 @@ def two_bone_floats(R, L1, L2, T, P, U, K, size_ratio) -> list:
     rounding. Returns per item a tuple of 30 floats: mid (3), end (3), rot1's and rot2's entries
     (9 each, row-major), the swivel direction (3), t, the clamped distance d and the unclamped one
     (a live frame's solver writes the frames straight from these: `PreparedSolver._limbs_one`)."""
+    # `_f_unit`'s norms written in line (a call and its tuples cost more than the sums), each
+    # falling back where its norm is EPS or less, NaN included (`not n > EPS`)
+    sqrt, atan2, cos, sin = math.sqrt, math.atan2, math.cos, math.sin
     rows = []
     for i, (r0, r1, r2) in enumerate(R):
         t0, t1, t2 = T[i]
         t0, t1, t2 = t0 - r0, t1 - r1, t2 - r2
-        if P is None:
-            fallback = (0.0, 0.0, -1.0)
+        dist = sqrt((t0 * t0 + t2 * t2) + t1 * t1)
+        if dist > EPS:  # the axis
+            a0, a1, a2 = t0 / dist, t1 / dist, t2 / dist
+        elif P is None:
+            a0, a1, a2 = 0.0, 0.0, -1.0
         else:
             p0, p1, p2 = P[i]
-            p0, p1, p2 = p0 - r0, p1 - r1, p2 - r2
-            fallback = _f_unit(p0, p1, p2, (0.0, 0.0, -1.0))[:3]
-        a0, a1, a2, dist = _f_unit(t0, t1, t2, fallback)  # the axis
+            a0, a1, a2 = _f_unit(p0 - r0, p1 - r1, p2 - r2, (0.0, 0.0, -1.0))[:3]
         b1, b2 = L1[i], L2[i]
         lo, hi = abs(b1 - b2), b1 + b2
         d = lo if dist < lo else hi if dist > hi else dist
         if K is not None:
             k0, k1, k2 = K[i]
-            h0, h1, h2 = _f_unit(a1 * k2 - a2 * k1, a2 * k0 - a0 * k2, a0 * k1 - a1 * k0,
-                                 lambda a=(a0, a1, a2): _f_any_perpendicular(*a))[:3]
+            h0, h1, h2 = a1 * k2 - a2 * k1, a2 * k0 - a0 * k2, a0 * k1 - a1 * k0
+            n = sqrt((h0 * h0 + h2 * h2) + h1 * h1)
+            if n > EPS:
+                h0, h1, h2 = h0 / n, h1 / n, h2 / n
+            else:
+                h0, h1, h2 = _f_any_perpendicular(a0, a1, a2)
         else:
             h0, h1, h2 = _f_any_perpendicular(a0, a1, a2)
-        g0, g1, g2 = h0, h1, h2  # γ
-        if U is not None:
+        if U is not None:  # γ
             u0, u1, u2 = U[i]
             s = (u0 * a0 + u2 * a2) + u1 * a1
             w0, w1, w2 = u0 - s * a0, u1 - s * a1, u2 - s * a2
             if K is not None:
                 w0, w1, w2 = w0 + SWIVEL_HINT_WEIGHT * h0, w1 + SWIVEL_HINT_WEIGHT * h1, w2 + SWIVEL_HINT_WEIGHT * h2
-            g0, g1, g2 = _f_unit(w0, w1, w2, (h0, h1, h2))[:3]
+            n = sqrt((w0 * w0 + w2 * w2) + w1 * w1)
+            g0, g1, g2 = (w0 / n, w1 / n, w2 / n) if n > EPS else (h0, h1, h2)
+        else:
+            g0, g1, g2 = h0, h1, h2
         if P is not None:  # β and t (eq. 7-8)
+            p0, p1, p2 = P[i]
+            p0, p1, p2 = p0 - r0, p1 - r1, p2 - r2
             s = (p0 * a0 + p2 * a2) + p1 * a1
-            e0, e1, e2, r = _f_unit(p0 - s * a0, p1 - s * a1, p2 - s * a2, (g0, g1, g2))
+            e0, e1, e2 = p0 - s * a0, p1 - s * a1, p2 - s * a2
+            r = sqrt((e0 * e0 + e2 * e2) + e1 * e1)
+            e0, e1, e2 = (e0 / r, e1 / r, e2 / r) if r > EPS else (g0, g1, g2)
             t = min(max((r / size_ratio - BLEND_START) / BLEND_WIDTH, 0.0), 1.0)
             # δ = t β + (1 - t) γ as angles about the axis, from γ
             c0, c1, c2 = g1 * e2 - g2 * e1, g2 * e0 - g0 * e2, g0 * e1 - g1 * e0
-            delta = t * math.atan2((c0 * a0 + c2 * a2) + c1 * a1, (g0 * e0 + g2 * e2) + g1 * e1)
+            delta = t * atan2((c0 * a0 + c2 * a2) + c1 * a1, (g0 * e0 + g2 * e2) + g1 * e1)
         else:
             t = delta = 0.0
-        cs, sn = math.cos(delta), math.sin(delta)
+        cs, sn = cos(delta), sin(delta)
         o0, o1, o2 = a1 * g2 - a2 * g1, a2 * g0 - a0 * g2, a0 * g1 - a1 * g0  # axis x γ
         s0, s1, s2 = cs * g0 + sn * o0, cs * g1 + sn * o1, cs * g2 + sn * o2  # the swivel
         a = (b1 * b1 - b2 * b2 + d * d) / max(2.0 * d, EPS) if d > EPS else 0.0
-        h = math.sqrt(max(b1 * b1 - a * a, 0.0))
+        h = sqrt(max(b1 * b1 - a * a, 0.0))
         m0, m1, m2 = a * a0 + h * s0, a * a1 + h * s1, a * a2 + h * s2  # mid, from the root
         n0, n1, n2 = d * a0, d * a1, d * a2  # end
         x0, x1, x2 = s1 * a2 - s2 * a1, s2 * a0 - s0 * a2, s0 * a1 - s1 * a0
-        y0, y1, y2 = _f_unit(m0, m1, m2, (a0, a1, a2))[:3]
-        z0, z1, z2 = _f_unit(n0 - m0, n1 - m1, n2 - m2, (a0, a1, a2))[:3]
+        n = sqrt((m0 * m0 + m2 * m2) + m1 * m1)
+        y0, y1, y2 = (m0 / n, m1 / n, m2 / n) if n > EPS else (a0, a1, a2)
+        z0, z1, z2 = n0 - m0, n1 - m1, n2 - m2
+        n = sqrt((z0 * z0 + z2 * z2) + z1 * z1)
+        z0, z1, z2 = (z0 / n, z1 / n, z2 / n) if n > EPS else (a0, a1, a2)
         rows.append((r0 + m0, r1 + m1, r2 + m2, r0 + n0, r1 + n1, r2 + n2,
                      x0, y0, x1 * y2 - x2 * y1, x1, y1, x2 * y0 - x0 * y2, x2, y2, x0 * y1 - x1 * y0,
                      x0, z0, x1 * z2 - x2 * z1, x1, z1, x2 * z0 - x0 * z2, x2, z2, x0 * z1 - x1 * z0,
