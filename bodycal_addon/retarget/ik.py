@@ -492,10 +492,10 @@ def spine(pelvis, sacrum_rot, sacrum_length, lengths, skull_base, top_right=None
     pelvis = np.asarray(pelvis, float)
     sacrum_rot = np.asarray(sacrum_rot, float)
     target = np.asarray(skull_base, float)
+    if rest_segments is not None and len(pelvis) == 1 and one_frame.ENABLED:  # one frame: mathutils
+        return _spine_one(pelvis, sacrum_rot, sacrum_length, np.asarray(rest_segments, float), target, top_right)
     start = pelvis + sacrum_length * sacrum_rot[..., 1]
     if rest_segments is not None:
-        if len(start) == 1 and one_frame.ENABLED:  # one frame: mathutils
-            return _spine_one(start, sacrum_rot, np.asarray(rest_segments, float), target, top_right)
         joints, theta = bend_rest_spine(start, sacrum_rot, np.asarray(rest_segments, float), target)
         two_pass = False
     else:
@@ -569,7 +569,7 @@ def _rest_spine_one(data: bytes, shape: tuple) -> tuple:
     return lengths.tolist(), [Vector(v) for v in seg0.tolist()], Vector(u0.tolist()), k.tolist(), ratio
 
 
-def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResult:
+def _spine_one(pelvis, sacrum_rot, sacrum_length, rest_segments, target, top_right) -> SpineResult:
     """`spine` with `rest_segments` (`bend_rest_spine`, then the twist) of ONE frame in mathutils
     (float32: core/one_frame.py): the numpy path's steps on single Vectors, each vertebra's turn
     about a unit axis as a Quaternion (Rodrigues' formula), the scalars in Python floats, and each
@@ -577,8 +577,12 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
     step: DESIGN.md "Prepared solver"); the joints relative to the spine's start, added to it in
     float64 (as `_two_bone_one`'s)."""
     lengths, seg0, u0, k, ratio = _rest_spine_one(rest_segments.tobytes(), rest_segments.shape)
-    rot = Matrix(sacrum_rot[0].tolist())
-    ut, reach = _m_unit(Vector((target[0] - start[0]).tolist()) @ rot, u0)  # rot^T (target - start)
+    sac = sacrum_rot[0].tolist()
+    rot = Matrix(sac)
+    # the spine's start (`spine`'s pelvis + sacrum_length +Y, float64 as numpy's) and the target
+    (p0, p1, p2), (g0, g1, g2), sl = pelvis[0].tolist(), target[0].tolist(), float(sacrum_length)
+    s0, s1, s2 = p0 + sl * sac[0][1], p1 + sl * sac[1][1], p2 + sl * sac[2][1]
+    ut, reach = _m_unit(Vector((g0 - s0, g1 - s1, g2 - s2)) @ rot, u0)  # rot^T (target - start)
     axis, sin_phi = _m_unit(u0.cross(ut), lambda: _m_any_perpendicular(u0))
     delta = math.atan2(sin_phi, u0.dot(ut)) * ratio[0] / ratio[1]
     seg = [Quaternion(axis, delta * kk) @ v for v, kk in zip(seg0, k)]
@@ -594,12 +598,12 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
     # hundred instructions, a mathutils one on a Vector 1,500-2,500: the loops below were two
     # thirds of the kernel's): its unit direction, world, its top joint relative to the start.
     dirs = [(world @ v)[:] for v in seg]
-    joints = [0.0, 0.0, 0.0]
+    joints = [s0, s1, s2]  # the start plus each joint relative to it (float64, as numpy's sum)
     jx = jy = jz = 0.0
     for (vx, vy, vz), ln in zip(dirs, lengths):
         step = ln * stretch
         jx, jy, jz = jx + vx * step, jy + vy * step, jz + vz * step
-        joints += (jx, jy, jz)
+        joints += (s0 + jx, s1 + jy, s2 + jz)
     # the twist: the hip axis turned uniformly about the chord up to the top's right
     y_sac, x_sac = rot.col[1], rot.col[0]
     chord = _m_unit(Vector((jx, jy, jz)), y_sac)[0]
@@ -631,5 +635,5 @@ def _spine_one(start, sacrum_rot, rest_segments, target, top_right) -> SpineResu
             x0, x1, x2 = _m_any_perpendicular(Vector((y0, y1, y2)))[:]
         rows += (x0, y0, x1 * y2 - x2 * y1, x1, y1, x2 * y0 - x0 * y2, x2, y2, x0 * y1 - x1 * y0)
     rotations = np.array(rows).reshape(1, n, 3, 3)
-    return SpineResult(start[:, None] + np.array(joints).reshape(1, n + 1, 3), rotations, sacrum_rot,
+    return SpineResult(np.array(joints).reshape(1, n + 1, 3), rotations, sacrum_rot,
                        np.array([delta]))
