@@ -257,7 +257,7 @@ class PreparedSolver:
         # clavicles keep their pose relative to vertebra 5.
         if "skull_base" in targets:
             spine_idx = _SPINE_ROWS
-            top_right = normalize(up.joints[:, JI["shoulder_l"]] - up.joints[:, JI["shoulder_r"]])
+            top_right = _top_right(up.joints)
 
             def solve_spine(aim):
                 return ik.spine(pelvis, fk.frames[:, BI["sacrum"]], rig.lengths[BI["sacrum"]], None, aim,
@@ -276,8 +276,12 @@ class PreparedSolver:
             else:
                 frames[:, spine_idx] = res.rotations
             v5 = BI[f"spine_{sk.CLAVICLE_VERTEBRA:02d}"]
-            turn = matmul_stack(frames[:, v5], up.frames[:, v5].swapaxes(-1, -2))  # the vertebra's, both sides'
-            frames[:, _CLAVICLE_ROWS] = matmul_stack(turn[:, None], up.frames[:, _CLAVICLE_ROWS])
+            if len(frames) == 1:  # one frame: the same products, without the stacks' bookkeeping
+                turn = frames[0, v5] @ up.frames[0, v5].T
+                frames[0, _CLAVICLE_ROWS] = turn @ up.frames[0].take(_CLAVICLE_ROWS, axis=0)
+            else:
+                turn = matmul_stack(frames[:, v5], up.frames[:, v5].swapaxes(-1, -2))  # the vertebra's, both sides'
+                frames[:, _CLAVICLE_ROWS] = matmul_stack(turn[:, None], up.frames[:, _CLAVICLE_ROWS])
         # The limbs hang from the trunk as solved now (or as given).
         items, names, rows = self._limb_items(tuple(targets))
         at = rig.joint_positions(frames, pelvis, names) if trunk is None else trunk.joints.take(rows, axis=1)
@@ -502,6 +506,20 @@ class PreparedSolver:
                     out[s, f] = (c0h.T @ (p0[0] - w0), c0h.T @ rig.frames0[BI[f"{f}_1_{s}"]], lens)
             self._fingers_at_rest = out
         return self._fingers_at_rest
+
+
+def _top_right(joints: np.ndarray) -> np.ndarray:
+    """(F, 3) the unit direction from the right shoulder to the left (`normalize`'s; the spine's
+    twist at the top); one frame's in Python floats (`normalize`'s sum in its order, the same bits)."""
+    if len(joints) != 1:
+        return normalize(joints[:, JI["shoulder_l"]] - joints[:, JI["shoulder_r"]])
+    (l0, l1, l2), (r0, r1, r2) = joints[0].take(_SHOULDER_ROWS, axis=0).tolist()
+    v0, v1, v2 = l0 - r0, l1 - r1, l2 - r2
+    n = math.sqrt((v0 * v0 + v1 * v1) + v2 * v2)
+    return np.array([[v0 / n, v1 / n, v2 / n] if n > EPS else [0.0, 0.0, 0.0]])
+
+
+_SHOULDER_ROWS = np.array([JI["shoulder_l"], JI["shoulder_r"]], int)
 
 
 class FeetPlan:
