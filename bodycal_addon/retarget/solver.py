@@ -454,6 +454,14 @@ class PreparedSolver:
         if plan is None:
             return
         items, hand_bones, rows, mcp_local, base_rest, (bones, flat), chain = plan
+        if nf == 1:  # one frame: each finger's hand gathered once, the same products
+            item_hands, mcp_cols, tip_names = self._finger_one(plan)
+            hands = frames[0].take(item_hands, axis=0)  # (K, 3, 3)
+            mcp = np.concatenate([wrists[s] for s in sides]).take(rows, axis=0) + (hands @ mcp_cols)[..., 0]
+            rots = chain.pose(mcp, hands @ base_rest, np.concatenate([targets[n] for n in tip_names]),
+                              joints=False).rotations
+            frames[0, flat] = rots.reshape(-1, 3, 3)
+            return
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
         ref = stacks_mul(hands, base_rest, rows).reshape(-1, 3, 3)
@@ -490,6 +498,16 @@ class PreparedSolver:
                            np.array([BI[f"{f}_{i}_{s}"] for s, f in items for i in (1, 2, 3)], int)),
                           finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)))
         return cache[key]
+
+    def _finger_one(self, plan: tuple) -> tuple:
+        """What `_fingers` of one frame reads of a finger plan, once per plan: each finger's hand
+        bone, the MCP offsets as columns (K, 3, 1), the tip targets' names."""
+        cache = self.__dict__.setdefault("_finger_ones", {})
+        if id(plan) not in cache:
+            items, hand_bones, rows, mcp_local = plan[:4]
+            cache[id(plan)] = (hand_bones[rows], np.ascontiguousarray(mcp_local[..., None]),
+                               [f"tip_{f}_{s}" for s, f in items], plan)
+        return cache[id(plan)][:3]
 
     @property
     def _finger_rest(self) -> dict:
