@@ -564,9 +564,12 @@ def _twist_vertebrae(joints, chord, hip, other, ang):
 @lru_cache(maxsize=16)
 def _rest_spine_one(data: bytes, shape: tuple) -> tuple:
     """`_rest_spine` for `_spine_one`, once per spine: the lengths and segment numbers as Python
-    floats, the unit directions and the rest chord's as mathutils Vectors (never changed in place)."""
+    floats, the unit directions and the rest chord's as mathutils Vectors (never changed in place),
+    and each vertebra's share of the twist, (m + 1) / n."""
     lengths, seg0, u0, k, ratio = _rest_spine(data, shape)
-    return lengths.tolist(), [Vector(v) for v in seg0.tolist()], Vector(u0.tolist()), k.tolist(), ratio
+    n = len(lengths)
+    return (lengths.tolist(), [Vector(v) for v in seg0.tolist()], Vector(u0.tolist()), k.tolist(), ratio,
+            [(m + 1.0) / n for m in range(n)])
 
 
 def _spine_one(pelvis, sacrum_rot, sacrum_length, rest_segments, target, top_right) -> SpineResult:
@@ -576,7 +579,7 @@ def _spine_one(pelvis, sacrum_rot, sacrum_length, rest_segments, target, top_rig
     vertebra's joint and twisted frame in Python floats too (cheaper than a Vector operation per
     step: DESIGN.md "Prepared solver"); the joints relative to the spine's start, added to it in
     float64 (as `_two_bone_one`'s)."""
-    lengths, seg0, u0, k, ratio = _rest_spine_one(rest_segments.tobytes(), rest_segments.shape)
+    lengths, seg0, u0, k, ratio, shares = _rest_spine_one(rest_segments.tobytes(), rest_segments.shape)
     sac = sacrum_rot[0].tolist()
     rot = Matrix(sac)
     # the spine's start (`spine`'s pelvis + sacrum_length +Y, float64 as numpy's) and the target
@@ -616,19 +619,20 @@ def _spine_one(pelvis, sacrum_rot, sacrum_length, rest_segments, target, top_rig
     (hx, hy, hz), (ox, oy, oz), (cx, cy, cz) = hip[:], chord.cross(hip)[:], chord[:]
     n = len(seg)
     rows = []
-    for m, ((vx, vy, vz), ln) in enumerate(zip(dirs, lengths)):
-        ang = total * ((m + 1.0) / n)
-        ca, sa = math.cos(ang), math.sin(ang)
+    cos, sin, sqrt = math.cos, math.sin, math.sqrt
+    for (vx, vy, vz), ln, share in zip(dirs, lengths, shares):
+        ang = total * share
+        ca, sa = cos(ang), sin(ang)
         r0, r1, r2 = hx * ca + ox * sa, hy * ca + oy * sa, hz * ca + oz * sa  # the right, turned
         # +Y along the vertebra (the chord where it vanishes), +X the right made perpendicular to it
-        size = math.sqrt(vx * vx + vy * vy + vz * vz)
+        size = sqrt(vx * vx + vy * vy + vz * vz)
         if ln * stretch * size > EPS:
             y0, y1, y2 = vx / size, vy / size, vz / size
         else:
             y0, y1, y2 = cx, cy, cz
         along = r0 * y0 + r1 * y1 + r2 * y2
         x0, x1, x2 = r0 - y0 * along, r1 - y1 * along, r2 - y2 * along
-        size = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        size = sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         if size > EPS:
             x0, x1, x2 = x0 / size, x1 / size, x2 / size
         else:
