@@ -337,20 +337,22 @@ class PreparedSolver:
         reached = {}
         at0 = at[0].tolist()
         for group, limbs, eff_names, pole_names in self._limb_groups(tuple(items), tuple(targets)):
-            key = ("one", limbs)
+            key = ("one", limbs, bool(pole_names))
             if key not in user_side:
                 lengths1, lengths2, hinge_rows, joint_rows, upper, lower = self._limb_constants(limbs)
                 hinge = up.frames[0].take(hinge_rows, axis=0)[:, :, 0].tolist()
                 user_side[key] = (lengths1.tolist(), lengths2.tolist(), self._user_swivel_one(up, joint_rows),
-                                  hinge, np.concatenate([upper, lower]), group.tolist())
-            l1, l2, swivel, hinge, bones, rows = user_side[key]
-            eff = np.concatenate([targets[n] for n in eff_names]).tolist()
-            pole = np.concatenate([targets[n] for n in pole_names]).tolist() if pole_names else None
-            out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, eff, pole, swivel, hinge, self.k)
+                                  hinge, np.concatenate([upper, lower]), group.tolist(), eff_names + pole_names)
+            l1, l2, swivel, hinge, bones, rows, names = user_side[key]
+            aims = np.concatenate([targets[n] for n in names]).tolist()  # the effectors', then the poles'
+            K = len(rows)
+            out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, aims[:K], aims[K:] if pole_names else None,
+                                     swivel, hinge, self.k)
             # the anchored bones' frames, then the intermediate ones' (`bones`' order)
             frames[0, bones] = np.array([r[6:15] for r in out] + [r[15:24] for r in out]).reshape(-1, 3, 3)
-            for k, r in zip(rows, out):
-                reached[items[k]] = np.array([r[3:6]])
+            ends = np.array([r[3:6] for r in out])
+            for i, k in enumerate(rows):
+                reached[items[k]] = ends[i:i + 1]
         return reached
 
     @staticmethod
