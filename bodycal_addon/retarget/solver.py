@@ -336,24 +336,45 @@ class PreparedSolver:
         the cost. The same values as the numpy path's kernel to its sums' rounding."""
         reached = {}
         at0 = at[0].tolist()
+        # the bone frames written into `frames` seen flat (a view: `solve_ik`'s own copy), or by index
+        flat = frames.reshape(-1) if frames.flags.c_contiguous else None
         for group, limbs, eff_names, pole_names in self._limb_groups(tuple(items), tuple(targets)):
-            key = ("one", limbs, bool(pole_names))
+            l1, l2, hinge_rows, joint_rows, bones, entries, rows, names = self._limb_one_constants(
+                limbs, group, eff_names + pole_names)
+            key = ("one", limbs)
             if key not in user_side:
-                lengths1, lengths2, hinge_rows, joint_rows, upper, lower = self._limb_constants(limbs)
-                hinge = up.frames[0].take(hinge_rows, axis=0)[:, :, 0].tolist()
-                user_side[key] = (lengths1.tolist(), lengths2.tolist(), self._user_swivel_one(up, joint_rows),
-                                  hinge, np.concatenate([upper, lower]), group.tolist(), eff_names + pole_names)
-            l1, l2, swivel, hinge, bones, rows, names = user_side[key]
+                user_side[key] = (self._user_swivel_one(up, joint_rows),
+                                  up.frames[0].take(hinge_rows, axis=0)[:, :, 0].tolist())
+            swivel, hinge = user_side[key]
             aims = np.concatenate([targets[n] for n in names]).tolist()  # the effectors', then the poles'
             K = len(rows)
             out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, aims[:K], aims[K:] if pole_names else None,
                                      swivel, hinge, self.k)
             # the anchored bones' frames, then the intermediate ones' (`bones`' order)
-            frames[0, bones] = np.array([r[6:15] for r in out] + [r[15:24] for r in out]).reshape(-1, 3, 3)
+            values = [v for r in out for v in r[6:15]] + [v for r in out for v in r[15:24]]
+            if flat is not None:
+                flat[entries] = values
+            else:
+                frames[0, bones] = np.array(values).reshape(-1, 3, 3)
             ends = np.array([r[3:6] for r in out])
             for i, k in enumerate(rows):
                 reached[items[k]] = ends[i:i + 1]
         return reached
+
+    def _limb_one_constants(self, limbs: tuple, group: np.ndarray, names: list) -> tuple:
+        """What `_limbs_one` reads of the rig and the skeleton for the limbs `limbs` (the `_limb_groups`
+        plan whose rows in `items` are `group`), once per plan:
+        their lengths as floats, the hinges' and joints' rows (`_limb_constants`), the anchored then
+        the intermediate bones and their frames' entries in one frame's flat (B, 3, 3) block, the
+        limbs' rows in `items` and the effector then intermediate targets' names."""
+        cache = self.__dict__.setdefault("_limb_one_cache", {})
+        key = id(group)  # one of `_limb_groups`' plans (kept there, and here with its constants)
+        if key not in cache:
+            lengths1, lengths2, hinge_rows, joint_rows, upper, lower = self._limb_constants(limbs)
+            bones = np.concatenate([upper, lower])
+            cache[key] = (lengths1.tolist(), lengths2.tolist(), hinge_rows, joint_rows, bones,
+                          (bones[:, None] * 9 + np.arange(9)).ravel(), group.tolist(), list(names), group)
+        return cache[key][:8]
 
     @staticmethod
     def _user_swivel_one(up, rows: np.ndarray) -> list:
