@@ -346,12 +346,16 @@ class PreparedSolver:
                 user_side[key] = (self._user_swivel_one(up, joint_rows),
                                   up.frames[0].take(hinge_rows, axis=0)[:, :, 0].tolist())
             swivel, hinge = user_side[key]
-            aims = np.concatenate([targets[n] for n in names]).tolist()  # the effectors', then the poles'
+            aims = [targets[n].tolist()[0] for n in names]  # the effectors', then the poles' (each (1, 3))
             K = len(rows)
             out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, aims[:K], aims[K:] if pole_names else None,
                                      swivel, hinge, self.k)
             # the anchored bones' frames, then the intermediate ones' (`bones`' order)
-            values = [v for r in out for v in r[6:15]] + [v for r in out for v in r[15:24]]
+            values = []
+            for r in out:
+                values += r[6:15]
+            for r in out:
+                values += r[15:24]
             if flat is not None:
                 flat[entries] = values
             else:
