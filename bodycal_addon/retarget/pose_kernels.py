@@ -113,6 +113,29 @@ def quat_of_few(comp: np.ndarray) -> np.ndarray:
     return q.T
 
 
+def quat_of_rows(aug: np.ndarray) -> np.ndarray:
+    """`quat_of_few` of a few matrices whose entry rows come after a row of ones (10, M) (one
+    frame's basis writes them there), as (M, 4) quaternion rows: its values, the same products
+    and picks."""
+    m = aug.shape[1]
+    cand = _SHEPPERD_AFFINE @ aug  # (20, M)
+    q = cand[:16].reshape(4, 4, m)[cand[16:].argmax(0), :, _arange(m)]  # (M, 4)
+    q /= np.sqrt((q * q).sum(1))[:, None]
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return q
+
+
+_ARANGES: dict = {}
+
+
+def _arange(m: int) -> np.ndarray:
+    """np.arange(m), made once per m (a frame's fancy index)."""
+    r = _ARANGES.get(m)
+    if r is None:
+        r = _ARANGES[m] = np.arange(m)
+    return r
+
+
 def few_matmul(a: np.ndarray, b: np.ndarray, shape: tuple) -> np.ndarray:
     """np.matmul(a, b) of stacks of a few small matrices (a live frame's bones), the result of
     shape `shape` written into a strided buffer (a view whose last axis steps two items).

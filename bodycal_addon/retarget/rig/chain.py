@@ -15,6 +15,7 @@ from ...body.skeleton import BONE_INDEX as BI
 from ...body.skeleton import JOINT_INDEX as JI
 from ...body.skeleton import SPINE_BONES, SPINE_JOINTS
 from ...core.transforms import quat_between, quat_to_matrix, stacks_apply, stacks_mul
+from .pose_plan import rows_of
 
 
 @dataclass
@@ -36,6 +37,7 @@ class ChainPlan:
         self.w0 = (1 - self.t)[:, None, None]  # the target's weights on the curve points k, k + 1
         self.w1 = self.t[:, None, None]
         self.k1 = self.k + 1
+        self.rows = None if self.order is None else rows_of(self.order)  # where P takes the bones (`fk.pose_flat`)
 
     @classmethod
     def of(cls, rig) -> ChainPlan:

@@ -76,7 +76,7 @@ def pose(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=Fals
     delta = _driven(rig, plan, chain if chain is not None and held is None else None, frames, P)
     aiming = None if delta is None else ChainAim(rig, delta, frames, nf)
     if flat:
-        return pose_flat(rig, plan, None if chain is None else chain.order, held, P, H, pelvis, HT)
+        return pose_flat(rig, plan, None if chain is None else chain.rows, held, P, H, pelvis, HT)
     many = nf >= STACKED_FRAMES  # one BLAS call per bone on (3F, 3) rows, as stacks_mul and stacks_apply
     for lv in plan.few if few else plan.levels:
         if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
@@ -112,7 +112,7 @@ def _pose_buffers(n: int, plan: PosePlan, nf: int, few: bool, flat: bool) -> tup
     the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H)."""
     P = np.empty((n, nf, 3, 3))
     if few and nf < STACKED_FRAMES:
-        late = (plan.flat if flat else plan.deferred)[-4]
+        late = (plan.flat if flat else plan.deferred)[-5]
         HT = np.empty((n + len(late) + 1, nf, 3))
         HT[-1] = 0.0
         return P, HT[:n], HT
@@ -132,7 +132,7 @@ def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
         both = pose_kernels.few_matmul(frames.swapaxes(0, 1).take(rows, axis=0), fixed, (len(rows), nf, 3, 3))
         if not rig.w_identity:  # `from_world`'s W^-1 of them all, one product
             both = pose_kernels.few_matmul(rig.w_rot.T, both, both.shape)
-        P[plan.driven] = both[:len(plan.driven)]
+        P[plan.driven_rows] = both[:len(plan.driven)]
         return both[len(plan.driven):]
     if nf >= STACKED_FRAMES and rig.w_identity:
         # Many frames: each driven bone's product written where it goes (`stacks_mul`'s BLAS
@@ -142,7 +142,7 @@ def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
     elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
         rel = pose_kernels.few_matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0), plan.fixed[:, None],
                                       (len(plan.canon), nf, 3, 3))
-        P[plan.driven] = rel if rig.w_identity else pose_kernels.few_matmul(rig.w_rot.T, rel, rel.shape)
+        P[plan.driven_rows] = rel if rig.w_identity else pose_kernels.few_matmul(rig.w_rot.T, rel, rel.shape)
     elif len(plan.driven):
         P[plan.driven] = rig.from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
     if chain is not None:
@@ -152,24 +152,35 @@ def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
 
 def _place_root(rig: RigPlan, P, H, pelvis) -> None:
     """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
-    products, called directly."""
+    products, called directly. One frame's in Python floats: the same terms in the same order
+    (three numpy products on a (1, 3) row cost about 40,000 instructions, these about a fifth)."""
     nf = P.shape[1]
+    if nf == 1:
+        d = [a - b for a, b in zip(np.ravel(pelvis).tolist(), rig.one_root[0])]
+        at = [(d[0] * c0 + d[1] * c1) + d[2] * c2 for c0, c1, c2 in rig.one_root[1]]
+        r0, r1, r2 = rig.one_root[2]
+        H[rig.root, 0] = [a - ((r[0] * r0 + r[1] * r1) + r[2] * r2) for a, r in zip(at, P[rig.root, 0].tolist())]
+        return
     at = (np.asarray(pelvis, float) - rig.shift).reshape(-1, 3) @ rig.inv_t
     np.subtract(at.reshape(nf, 3), (P[rig.root].reshape(-1, 3) @ rig.pelvis_at).reshape(nf, 3), out=H[rig.root])
 
 
 def _deferred_heads(table_plan, P, H, HT) -> None:
-    """The heads of `table_plan` (rows, parents, offsets, the padded sum table) in one padded
-    pass: each its anchor's head plus the offsets down its path, in order. A few frames' (HT:
-    H with rows after it) take their offsets' products written after H and a zero row."""
-    late, par, off, table = table_plan
+    """The heads of `table_plan` (rows, parents, offsets, the padded sum table, where they go) in
+    one padded pass: each its anchor's head plus the offsets down its path, in order. A few
+    frames' (HT: H with rows after it) take their offsets' products written after H and a zero
+    row; consecutive rows take their sums in place."""
+    late, par, off, table, at = table_plan
     if HT is None:
         terms = np.concatenate([H, stacks_apply(P, off, par), np.zeros((1,) + H.shape[1:])])
     else:
         n = len(H)
         np.matmul(P.take(par, axis=0), off[:, None, :, None], out=HT[n:-1].reshape(len(late), -1, 3, 1))
         terms = HT
-    H[late] = np.add.reduce(terms.take(table, axis=0), axis=0)  # over the path, in order
+    if isinstance(at, slice):  # over the path, in order
+        np.add.reduce(terms.take(table, axis=0), axis=0, out=H[at])
+    else:
+        H[at] = np.add.reduce(terms.take(table, axis=0), axis=0)
 
 
 def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=None):
@@ -177,8 +188,8 @@ def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=
     rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
     later poses hold the chain's rotations, so nothing is aimed level by level; each head is
     the same sum in the same order as level by level, (H_anchor + c_1) + c_2 + ..."""
-    rest, rest_at, loose, loose_at, follows, late, par, off, table = plan.flat
-    if len(rest):
+    rest, rest_at, loose, loose_at, follows, late, par, off, table, at = plan.flat
+    if len(rest_at):
         P[rest] = rest_at
     if chain_bones is not None:
         P[chain_bones] = held
@@ -187,11 +198,11 @@ def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=
             P[bones_f] = np.matmul(P.take(par_f, axis=0), fixed_f[:, None])
         else:
             P[bones_f] = stacks_mul(P, fixed_f, par_f)
-    if len(loose):
+    if len(loose_at):
         H[loose] = loose_at
     if plan.has_root:
         _place_root(rig, P, H, pelvis)
-    _deferred_heads((late, par, off, table), P, H, HT)
+    _deferred_heads((late, par, off, table, at), P, H, HT)
     return P, H
 
 
@@ -261,12 +272,14 @@ def finish(rig: RigPlan, basis, P, H, root_loc, realised=True) -> RigPose:
 
 def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised) -> RigPose:
     """`finish` of one frame, the same values in fewer numpy calls: the joints' padded product
-    (`joint_table`) with its heads added in place and gathered in one `take` (`one_joints`),
+    (`joint_table`) gathered in one `take` (`one_joints`), their carriers' heads added on the
+    gathered (J, 3) rows (a broadcast add over the padded product cost 35,000 instructions),
     the realised frames written into a stack whose last row is NaN and gathered in one `take`."""
     bones, local, jrows = rig.one_joints
     ride = pose_kernels.few_matmul(P.take(bones, axis=0), local, (len(bones), 1, 3, local.shape[-1]))  # P_car offset
-    ride += H.take(bones, axis=0)[..., None]  # H + P o (the same sum)
-    joints = np.matmul(ride.take(jrows), rig.lin_t)  # `to_world` of the (J, 3) rows
+    at = ride.take(jrows)  # (J, 3) each joint's P_car o
+    at += H.reshape(-1, 3).take(rig.joint_bone, axis=0)  # H + P o (the same sum, on the joints' rows)
+    joints = np.matmul(at, rig.lin_t)  # `to_world` of the (J, 3) rows
     joints += rig.shift
     joints = joints.reshape(1, -1, 3)
     if realised is False or realised is None:

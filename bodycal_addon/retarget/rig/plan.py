@@ -91,12 +91,16 @@ class RigPlan:
     # one frame's (`fk.finish_one`): the joint table's bones, its offsets (G, 1, 3, K), each joint's
     # three entries in the (G, 1, 3, K) product
     one_joints: tuple = field(init=False, repr=False)
+    # one frame's root placement in Python floats (`fk._place_root`): the armature's translation,
+    # W^-1's rows and `pelvis_at`, as lists
+    one_root: tuple = field(init=False, repr=False)
 
     def __post_init__(self):
         self.shift, self.lin_t, self.inv_t = self.world[:3, 3], self.world[:3, :3].T, self.w_inv.T
         self.w_identity = bool(np.allclose(self.w_rot, np.eye(3), atol=EPS))
         self.bone_rows = _bone_rows(self)
         self.pelvis_at = self._pelvis_local()
+        self.one_root = (self.shift.tolist(), self.w_inv.tolist(), self.pelvis_at.tolist())
         b = self.joint_bone[JI["spine_root"]]
         p = self.parent[b]
         self.start_rel = self.rest[p].T @ self.rest[b] if p >= 0 else None

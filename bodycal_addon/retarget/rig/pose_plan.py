@@ -54,6 +54,7 @@ class PosePlan:
     # With a chain, a few frames' driven bones and the chain's vertebrae in one product: (the
     # canonical bones read by the driven bones then by the vertebrae, their fixed factors (K, 1, 3, 3))
     driven_and_chain: tuple | None = None
+    driven_rows: slice | np.ndarray | None = None  # `driven` as P's rows take them (`rows_of`)
 
 
 def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
@@ -77,6 +78,7 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
     plan = PosePlan(np.array(driven, int), np.array([rows[i][1] for i in driven], int),
                     np.array([rows[i][3] for i in driven], float).reshape(-1, 3, 3), levels, chained,
                     rig.root in keep)
+    plan.driven_rows = rows_of(plan.driven)
     if chained:
         plan.driven_and_chain = (np.concatenate([plan.canon, rig.chain.vertebra]),
                                  np.concatenate([plan.fixed, rig.chain.fixed])[:, None])
@@ -94,7 +96,8 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
         follows = [(lv.follow, lv.follow_par, lv.follow_fixed) for lv in levels if len(lv.follow)]
         rest = np.array([i for lv in levels for i in lv.rest.tolist()], int)
         loose = np.array([i for lv in levels for i in lv.loose.tolist()], int)
-        plan.flat = (rest, rig.rest[rest][:, None], loose, rig.head[loose][:, None], follows,
+        follows = [(rows_of(b), p, f) for b, p, f in follows]
+        plan.flat = (rows_of(rest), rig.rest[rest][:, None], rows_of(loose), rig.head[loose][:, None], follows,
                      *_head_table(rig, hanging))
     return plan
 
@@ -127,7 +130,8 @@ def _head_table(rig, late: list[int]) -> tuple:
     """For the heads of bones `late`, placed in one pass (`fk.pose`): (the bones, their parents,
     the offsets in the parents' rest frames, the padded sum table: per bone its anchor's row in
     H (the nearest ancestor not in `late`) and its path's offsets' rows after H's, top down,
-    padded with the row of a zero)."""
+    padded with the row of a zero; where they go in H: a slice when they are consecutive rows
+    (the sums written there, no gathered copy to scatter), else the bones)."""
     rows = rig.bone_rows
     row = {b: k for k, b in enumerate(late)}
     n = len(rig.names)
@@ -140,5 +144,16 @@ def _head_table(rig, late: list[int]) -> tuple:
     width = max(len(p) for _, p in paths)
     zero = n + len(late)
     table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in paths], int).T  # (1 + width, D)
+    at = rows_of(late)
     return (np.array(late, int), np.array([rows[i][0] for i in late], int),
-            np.array([rows[i][2] for i in late], float).reshape(-1, 3), table)
+            np.array([rows[i][2] for i in late], float).reshape(-1, 3), table, at)
+
+
+def rows_of(bones) -> slice | np.ndarray:
+    """Where the rows of ascending `bones` are written (P[rows] = ...): a slice when they are
+    consecutive, else their indices. Decision (speed): a few frames' scatter by an index array
+    costs about 16,000 instructions, a slice's copy a fifth of that."""
+    bones = [int(b) for b in bones]
+    if bones and bones == list(range(bones[0], bones[-1] + 1)):
+        return slice(bones[0], bones[-1] + 1)
+    return np.array(bones, int)
