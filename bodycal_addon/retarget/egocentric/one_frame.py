@@ -384,10 +384,14 @@ class OneFrameMapping:
         t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
         mesh_v, tri, bary, mesh_factor, td = self._meshes(p_all, us)
         w = np.asarray(palm_weight(self._palm_near(n, r, td)), float).reshape(-1) if len(levers) else np.zeros(0)
-        eff = pts.copy()
-        eff[self.wrist_rows] += w[:, None] * levers
-        on = w == 1.0
-        case = tuple(on) if (on | (w == 0.0)).all() else None
+        # (a hand's weight is 0 or 1 in most frames: their case in Python, the wrists moved only
+        # where a weight is not 0)
+        ws = w.tolist()
+        eff = pts
+        if any(ws):
+            eff = pts.copy()
+            eff[self.wrist_rows] += w[:, None] * levers
+        case = tuple(x == 1.0 for x in ws) if all(x == 0.0 or x == 1.0 for x in ws) else None
         if case is None:  # a hand between wrist and palm: the pass again, the wrists moved (Decision)
             p_all = np.concatenate([eff, palms]).T.astype(F32, order="C")
             t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
@@ -409,8 +413,10 @@ class OneFrameMapping:
         s = np.bincount(self.row, lam_raw, minlength=P)
         sg = s + floor_raw
         none = s <= 0
-        lam = lam_raw / np.where(none, 1.0, s).take(self.row)
-        weights = np.stack([lam, lam, lam_raw / sg.take(self.row)])
+        weights = np.empty((3, len(lam_raw)))  # (np.stack's own Python costs more than its copies)
+        np.divide(lam_raw, np.where(none, 1.0, s).take(self.row), out=weights[0])
+        weights[1] = weights[0]
+        np.divide(lam_raw, sg.take(self.row), out=weights[2])
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
