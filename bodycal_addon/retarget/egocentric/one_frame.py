@@ -444,11 +444,12 @@ class OneFrameMapping:
         np.multiply(self.tri_local.take(tri, axis=2), bary[:, None], out=mesh_coef[:, 1:])
         mesh_coef = mesh_coef.reshape(12, -1)
         mesh_rows = self.tri_rows.take(tri, axis=1)  # (12, Nm)
-        v64, vhat64, tau64 = v.astype(float), vhat.astype(float), tau.astype(float)
+        v64, vhat64, tau64, tau_ok = v.astype(float), vhat.astype(float), tau.astype(float), _if_any_not(tau > EPS)
         # (each stage's dots contiguous, float64: einsum's loops over them take a quarter of its
         # loops casting a strided float32 slice, measured)
         stages = [StageUser(cap_coef[:, c], mesh_rows[:, m], mesh_coef[:, m], v64[:, a], weights[:, a], vhat64[:, a],
-                            dots[:, a].astype(float), tau64[a], _if_any_not(tau[a] > EPS)) for a, c, m in pr.stages]
+                            dots[:, a].astype(float), tau64[a], None if tau_ok is None else tau_ok[a])
+                  for a, c, m in pr.stages]
         ulen = np.sqrt(dot3(ub, ub)).astype(float)
         none_xy = np.where(none, p3[:2], 0.0) if none.any() else None
         return FrameUser(p3, stages, none_xy, floor_raw / sg, ulen, _if_any_not(ulen > EPS), floor_uz.astype(float),
