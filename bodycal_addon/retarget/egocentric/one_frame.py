@@ -432,6 +432,15 @@ class OneFrameMapping:
         floor_uz = self.floor_mask * np.abs(ub[2])  # (exact: the mask's ones and zeros)
         floor_tau = np.add.reduce(floor_uz, axis=1) + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
+        stages = self._stage_sides(t, cap_dir, tri, bary, v, weights, vhat, dots, tau)
+        ulen = np.sqrt(dot3(ub, ub)).astype(float)
+        none_xy = np.where(none, p3[:2], 0.0) if none.any() else None
+        return FrameUser(p3, stages, none_xy, floor_raw / sg, ulen, _if_any_not(ulen > EPS), floor_uz.astype(float),
+                         floor_tau, _if_any_not(floor_tau > EPS), float(w_left)), w
+
+    def _stage_sides(self, t, cap_dir, tri, bary, v, weights, vhat, dots, tau) -> list:
+        """Each stage's `StageUser` from the user's side of every pair (`prepare`)."""
+        pr = self.pairs
         # x' on the avatar (projection.repose_components) as sums of its pose (_avatar_points):
         # a capsule's head (1 - t), tail t, and in its bone's columns its offset there plus ρ' d
         cap_coef = np.empty((5, len(t)))
@@ -450,10 +459,7 @@ class OneFrameMapping:
         stages = [StageUser(cap_coef[:, c], mesh_rows[:, m], mesh_coef[:, m], v64[:, a], weights[:, a], vhat64[:, a],
                             dots[:, a].astype(float), tau64[a], None if tau_ok is None else tau_ok[a])
                   for a, c, m in pr.stages]
-        ulen = np.sqrt(dot3(ub, ub)).astype(float)
-        none_xy = np.where(none, p3[:2], 0.0) if none.any() else None
-        return FrameUser(p3, stages, none_xy, floor_raw / sg, ulen, _if_any_not(ulen > EPS), floor_uz.astype(float),
-                         floor_tau, _if_any_not(floor_tau > EPS), float(w_left)), w
+        return stages
 
     def _meshes(self, p3: np.ndarray, us: FlatSurface):  # p3: every point (targets, palms)
         """The mesh pairs' p - x (3, Nm), closest triangle, its barycentric coordinates (3, Nm), the
