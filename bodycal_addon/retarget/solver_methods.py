@@ -279,6 +279,14 @@ class Egocentric(Method):
 def palm_ramp(near: np.ndarray) -> np.ndarray:
     """A hand's palm weight from its palm centre's nearest distance to the body it maps onto: 1
     within PALM_NEAR, 0 beyond PALM_FAR, a C1 ramp between (Egocentric.palm_weights)."""
+    if near.ndim == 1 and near.size <= 2:
+        # one frame's hands (OneFrameMapping.prepare): Python floats, the same double operations
+        # in the same order (np.clip's min and max), without six numpy calls on two values
+        ramp = []
+        for d in near.tolist():
+            t = min(max((d - PALM_NEAR) / (PALM_FAR - PALM_NEAR), 0.0), 1.0)
+            ramp.append(1.0 - t * t * (3.0 - 2.0 * t))
+        return np.array(ramp)
     t = np.clip((near - PALM_NEAR) / (PALM_FAR - PALM_NEAR), 0.0, 1.0)
     return 1.0 - t * t * (3.0 - 2.0 * t)
 

@@ -185,26 +185,46 @@ def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
 
 
 @dataclass
-class FrameUser:
-    """The user's side of one frame (OneOneFrameMapping.prepare): what `map` reads for each avatar pose."""
+class StageUser:
+    """What `map` reads of one stage's pairs (`_Pairs.stages`: one slice of every pair's arrays).
+    Decision (speed): float64 where `map` computes in float64 (cast once here, not in each map:
+    a ufunc over mixed dtypes casts through buffers, several times a same-dtype one's cost)."""
 
-    pts: np.ndarray  # (3, P) the targets
     cap_coef: np.ndarray  # (5, Nc) capsule pairs' x' as a sum of the avatar's pose (`_avatar_points`)
     mesh_rows: np.ndarray  # (12, Nm) the columns of the pose the mesh pairs' x' sums (closest triangle's)
     mesh_coef: np.ndarray  # (12, Nm) and their coefficients
-    v: np.ndarray  # (3, N) p - x of every pair
+    v: np.ndarray  # (3, N) p - x
     weights: np.ndarray  # (3, N) λ, λ, λg: each pair's weight in the x, y and z sums
-    none: np.ndarray | None  # (P,) targets with no element of weight (None: there are none)
-    lam_gf: np.ndarray  # (P,) the floor's λg
     vhat: np.ndarray  # (3, N)
     dots: np.ndarray  # (NB, N) |v̂·b_k| of each chain's bones (0: not on its path)
     tau: np.ndarray  # (N,) τ
-    tau_ok: np.ndarray
+    tau_ok: np.ndarray | None  # τ > EPS (None: every τ is)
+
+
+@dataclass
+class FrameUser:
+    """The user's side of one frame (OneFrameMapping.prepare): what `map` reads for each avatar pose."""
+
+    pts: np.ndarray  # (3, P) the targets
+    stages: list  # [StageUser] per stage
+    none_xy: np.ndarray | None  # (2, P) the user's x, y of the targets with no element of weight, else 0 (None: none)
+    lam_gf: np.ndarray  # (P,) the floor's λg
     ulen: np.ndarray  # (NB,) the user's bone lengths
-    floor_uz: np.ndarray  # (NB,) |b_z| of the user's bones
+    ulen_ok: np.ndarray | None  # ulen > EPS (None: every length is)
+    floor_uz: np.ndarray  # (2P, NB) |b_z| of the user's bones on each ankle's path to each target (0: off it)
     floor_tau: np.ndarray  # (2P,)
-    floor_ok: np.ndarray
+    floor_ok: np.ndarray | None  # floor_tau > EPS (None: every one is)
     w_left: float
+
+
+def _if_any_not(ok: np.ndarray) -> np.ndarray | None:
+    """`ok`, or None where it holds everywhere (`map` then divides without a mask)."""
+    return None if ok.all() else ok
+
+
+def _ratio(a: np.ndarray, b: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
+    """a / b, 1 where not `ok` (None: a / b everywhere; the same values, without `where`'s masked loop)."""
+    return a / b if ok is None else np.divide(a, b, out=np.ones_like(a), where=ok)
 
 
 class OneFrameMapping:
@@ -277,6 +297,7 @@ class OneFrameMapping:
         # each stage's x, y, z sums' bins and its pairs' root joints
         self.sums = [np.concatenate([self.row[a], self.row[a] + P, self.row[a] + 2 * P]) for a, _, _ in pr.stages]
         self.stage_root = [self.root_joint[a] for a, _, _ in pr.stages]
+        self.stage_cap_rows = [np.ascontiguousarray(self.cap_rows[:, c]) for _, c, _ in pr.stages]
 
     # --- the surfaces ---------------------------------------------------------------------------
 
@@ -321,7 +342,7 @@ class OneFrameMapping:
         local = ap.pad_local[g, :, k] if len(ap.pad_local) else np.zeros(q.shape + (3,))  # (T, corner, 3)
         self.tri_local = np.ascontiguousarray(local.transpose(1, 2, 0))  # (corner, 3, T)
 
-    def _avatar_points(self, u: FrameUser, joints: np.ndarray, frames: np.ndarray, stage: int) -> np.ndarray:
+    def _avatar_points(self, u: StageUser, joints: np.ndarray, frames: np.ndarray, stage: int) -> np.ndarray:
         """(3, N) the re-posed x' of `stage`'s pairs (`projection.repose_components`) on the avatar
         posed as canonical joints (J, 3) and bone frames (B, 3, 3), float64.
 
@@ -329,13 +350,14 @@ class OneFrameMapping:
         pair's own coefficients (a capsule's 1 - t, t and its offset plus rho times the direction;
         a triangle's barycentric weights and its corners' offsets), found once on the user's side
         (`prepare`). So each map gathers those rows of the pose and sums them: two gathers, not
-        the avatar's whole surface posed for each map (25 numpy calls) and re-posed pair by pair."""
-        _, c, m = self.pairs.stages[stage]
+        the avatar's whole surface posed for each map (25 numpy calls) and re-posed pair by pair.
+        (One gather of every term and a bincount of each pair's: 40 % more instructions, measured:
+        a gather or a bincount costs per item, ~10-30 instructions, not per call.)"""
         g = np.concatenate([joints.T, frames.transpose(1, 0, 2).reshape(3, -1)], axis=1)  # components first
-        cap = g.take(self.cap_rows[:, c], axis=1)  # (3, 5, Nc): (component, term, pair)
-        cap *= u.cap_coef[:, c]
-        mesh = g.take(u.mesh_rows[:, m], axis=1)  # (3, 12, Nm)
-        mesh *= u.mesh_coef[:, m]
+        cap = g.take(self.stage_cap_rows[stage], axis=1)  # (3, 5, Nc): (component, term, pair)
+        cap *= u.cap_coef
+        mesh = g.take(u.mesh_rows, axis=1)  # (3, 12, Nm)
+        mesh *= u.mesh_coef
         return np.concatenate([np.add.reduce(cap, axis=1), np.add.reduce(mesh, axis=1)], axis=1)
 
     # --- the palms ------------------------------------------------------------------------------
@@ -362,10 +384,14 @@ class OneFrameMapping:
         t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
         mesh_v, tri, bary, mesh_factor, td = self._meshes(p_all, us)
         w = np.asarray(palm_weight(self._palm_near(n, r, td)), float).reshape(-1) if len(levers) else np.zeros(0)
-        eff = pts.copy()
-        eff[self.wrist_rows] += w[:, None] * levers
-        on = w == 1.0
-        case = tuple(on) if (on | (w == 0.0)).all() else None
+        # (a hand's weight is 0 or 1 in most frames: their case in Python, the wrists moved only
+        # where a weight is not 0)
+        ws = w.tolist()
+        eff = pts
+        if any(ws):
+            eff = pts.copy()
+            eff[self.wrist_rows] += w[:, None] * levers
+        case = tuple(x == 1.0 for x in ws) if all(x == 0.0 or x == 1.0 for x in ws) else None
         if case is None:  # a hand between wrist and palm: the pass again, the wrists moved (Decision)
             p_all = np.concatenate([eff, palms]).T.astype(F32, order="C")
             t, d, n, r, ab, abab, rot = _capsules(pr, p_all, us, self.radius[0])
@@ -387,22 +413,34 @@ class OneFrameMapping:
         s = np.bincount(self.row, lam_raw, minlength=P)
         sg = s + floor_raw
         none = s <= 0
-        lam = lam_raw / np.where(none, 1.0, s).take(self.row)
-        weights = np.stack([lam, lam, lam_raw / sg.take(self.row)])
+        weights = np.empty((3, len(lam_raw)))  # (np.stack's own Python costs more than its copies)
+        np.divide(lam_raw, np.where(none, 1.0, s).take(self.row), out=weights[0])
+        weights[1] = weights[0]
+        np.divide(lam_raw, sg.take(self.row), out=weights[2])
         # τ (eq. 2): Σ_k |v̂·b_k| over the chain's bones + |v̂·(x - r)|
         vhat, _ = _unit(v, 0.0)
         ub = bones.T.astype(F32, order="C")
         # (einsum's own loops, not a BLAS product: a BLAS kernel's last bit follows the operands'
         # alignment, and a worker process must give this process's pose bit for bit; einsum's
-        # loops take half the instructions of a product and a sum over a (3, NB, N) array)
+        # loops take half the instructions of a product and a sum over a (3, NB, N) array; the
+        # (pair, bone) entries of the chains alone, gathered, take more: a gather costs per item)
         dots = np.abs(np.einsum("ck,cn->kn", ub, vhat))  # (NB, N) every bone against every v̂
         dots *= self.path_mask  # each chain's own bones
         tau = np.add.reduce(dots, axis=0) + np.abs(dot3(vhat, x - us.joints.take(self.root_joint, axis=1)))
         # the floor's user side (mapping._floor_user): both ankles' paths
         ankles = us.joints[2].take(_ANKLES).astype(float)
-        uz = np.abs(ub[2])
-        floor_tau = np.add.reduce(self.floor_mask * uz, axis=1) + np.abs(ankles).repeat(P)
+        floor_uz = self.floor_mask * np.abs(ub[2])  # (exact: the mask's ones and zeros)
+        floor_tau = np.add.reduce(floor_uz, axis=1) + np.abs(ankles).repeat(P)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
+        stages = self._stage_sides(t, cap_dir, tri, bary, v, weights, vhat, dots, tau)
+        ulen = np.sqrt(dot3(ub, ub)).astype(float)
+        none_xy = np.where(none, p3[:2], 0.0) if none.any() else None
+        return FrameUser(p3, stages, none_xy, floor_raw / sg, ulen, _if_any_not(ulen > EPS), floor_uz.astype(float),
+                         floor_tau, _if_any_not(floor_tau > EPS), float(w_left)), w
+
+    def _stage_sides(self, t, cap_dir, tri, bary, v, weights, vhat, dots, tau) -> list:
+        """Each stage's `StageUser` from the user's side of every pair (`prepare`)."""
+        pr = self.pairs
         # x' on the avatar (projection.repose_components) as sums of its pose (_avatar_points):
         # a capsule's head (1 - t), tail t, and in its bone's columns its offset there plus ρ' d
         cap_coef = np.empty((5, len(t)))
@@ -413,9 +451,15 @@ class OneFrameMapping:
         mesh_coef = np.empty((3, 4, len(tri)))  # (corner, head and columns, pair)
         mesh_coef[:, 0] = bary
         np.multiply(self.tri_local.take(tri, axis=2), bary[:, None], out=mesh_coef[:, 1:])
-        return FrameUser(p3, cap_coef, self.tri_rows.take(tri, axis=1), mesh_coef.reshape(12, -1), v,
-                         weights, none if none.any() else None, floor_raw / sg, vhat, dots, tau, tau > EPS,
-                         np.sqrt(dot3(ub, ub)), uz, floor_tau, floor_tau > EPS, float(w_left)), w
+        mesh_coef = mesh_coef.reshape(12, -1)
+        mesh_rows = self.tri_rows.take(tri, axis=1)  # (12, Nm)
+        v64, vhat64, tau64, tau_ok = v.astype(float), vhat.astype(float), tau.astype(float), _if_any_not(tau > EPS)
+        # (each stage's dots contiguous, float64: einsum's loops over them take a quarter of its
+        # loops casting a strided float32 slice, measured)
+        stages = [StageUser(cap_coef[:, c], mesh_rows[:, m], mesh_coef[:, m], v64[:, a], weights[:, a], vhat64[:, a],
+                            dots[:, a].astype(float), tau64[a], None if tau_ok is None else tau_ok[a])
+                  for a, c, m in pr.stages]
+        return stages
 
     def _meshes(self, p3: np.ndarray, us: FlatSurface):  # p3: every point (targets, palms)
         """The mesh pairs' p - x (3, Nm), closest triangle, its barycentric coordinates (3, Nm), the
@@ -447,22 +491,20 @@ class OneFrameMapping:
         frames (B, 3, 3) (`PreparedTargets.map`): over that stage's pairs alone (one slice:
         _Pairs), each target's sums in the same order."""
         P = len(self.names)
-        a = self.pairs.stages[stage][0]
-        x_av = self._avatar_points(u, joints, frames, stage)  # x' re-posed
+        su = u.stages[stage]
+        x_av = self._avatar_points(su, joints, frames, stage)  # x' re-posed
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
-        j = joints.T
-        ab = j.take(_BONE_TAILS, axis=1) - j.take(_BONE_HEADS, axis=1)
-        lratio = np.divide(np.sqrt(dot3(ab, ab)), u.ulen, out=np.ones_like(u.ulen), where=u.ulen > EPS)
-        tau_a = np.einsum("kn,k->n", u.dots[:, a], lratio) + np.abs(
-            dot3(u.vhat[:, a], x_av - j.take(self.stage_root[stage], axis=1)))
-        ratio = np.divide(tau_a, u.tau[a], out=np.ones_like(tau_a), where=u.tau_ok[a])
-        est = x_av + u.v[:, a] * ratio  # (3, N)
-        out = np.bincount(self.sums[stage], (est * u.weights[:, a]).reshape(-1), minlength=3 * P).reshape(3, P)
-        if u.none is not None:  # no element with weight: the user's horizontal position
-            out[:2] = np.where(u.none, u.pts[:2], out[:2])
+        ab = joints.take(_BONE_TAILS, axis=0) - joints.take(_BONE_HEADS, axis=0)  # (NB, 3)
+        lratio = _ratio(np.sqrt(np.add.reduce(ab * ab, axis=1)), u.ulen, u.ulen_ok)
+        tau_a = np.einsum("kn,k->n", su.dots, lratio) + np.abs(
+            dot3(su.vhat, x_av - joints.take(self.stage_root[stage], axis=0).T))
+        est = x_av + su.v * _ratio(tau_a, su.tau, su.tau_ok)  # (3, N)
+        est *= su.weights
+        out = np.bincount(self.sums[stage], est.reshape(-1), minlength=3 * P).reshape(3, P)
+        if u.none_xy is not None:  # no element with weight (a sum of zeros): the user's horizontal position
+            out[:2] += u.none_xy
         # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
-        tfa = np.add.reduce(self.floor_mask * (u.floor_uz * lratio), axis=1) + np.abs(
-            j[2].take(_ANKLES)).repeat(P)
-        ratios = np.divide(tfa, u.floor_tau, out=np.ones_like(tfa), where=u.floor_ok)
+        tfa = np.add.reduce(u.floor_uz * lratio, axis=1) + np.abs(joints[_ANKLES, 2]).repeat(P)
+        ratios = _ratio(tfa, u.floor_tau, u.floor_ok)
         out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
         return out.T
