@@ -477,11 +477,23 @@ class CausalStance:
     So a foot is planted MIN_STANCE_S plus about half of BLEND_S later than a bake plants it, and
     held as long after it lifts (benchmarks/bench_live_solver.py measures both). `update` takes
     the frames in order, any number at a time: the result does not depend on how the take is
-    split (the state carried from one block to the next is the frame-by-frame state)."""
+    split (the state carried from one block to the next is the frame-by-frame state).
 
-    def __init__(self, ref_height: float, fps: float):
+    With `drift` (m; an estimated foot's, `DRIFT`, as `detect`'s) a stance ends on the frame its
+    averaged point is that far over the floor from where the stance came down, moving (not slow
+    and low: a point that gets there slow and low goes on standing, measured from there, as in
+    `detect`), and the next stance begins where the point is slow and low again (after at least
+    one frame out of it, so the plant eases out from the old place and into the new one). `detect`
+    cuts there only if the point then stands again for MIN_STANCE_S before the hold ends
+    (`_held_in_place`), which a stream cannot know yet: a point that drifts off and never stands
+    again (a foot leaving) is released here at the drift rather than where its hold ends
+    (DESIGN.md §6 "Planted feet")."""
+
+    def __init__(self, ref_height: float, fps: float, drift: float | None = None):
         fps = float(fps) if fps and np.isfinite(fps) and fps > 0 else 90.0
         self.ref_height = float(ref_height)
+        self.drift = None if drift is None else float(drift)
+        self._origin = (0.0, 0.0)  # the averaged point's xy where the stance it is in came down (with `drift`)
         self.n_smooth = max(1, int(round(SMOOTH_S * fps)))
         self.n_min = max(2, int(round(MIN_STANCE_S * fps)))
         self.n_blend = max(1, int(round(BLEND_S * fps)))
@@ -499,8 +511,8 @@ class CausalStance:
         k = len(time)
         if not k:
             return np.zeros(0), np.zeros((0, 2))
-        enter, hold = self._measures(ankle, time)
-        stance, starts = self._stances(enter, hold)
+        enter, hold, xy = self._measures(ankle, time)
+        stance, starts = self._stances(enter, hold) if self.drift is None else self._drifting(enter, hold, xy)
         weight, planted = np.zeros(k), np.full((k, 2), np.nan)
         self.lead = np.zeros(k)  # the weight while a stance holds, 0 while it eases out (feet.rolling's lead)
         for i in range(k):  # a few frames at a time in a stream; only the stance bookkeeping is per frame
@@ -508,8 +520,9 @@ class CausalStance:
         self.frames += k
         return weight, planted
 
-    def _measures(self, ankle, time) -> tuple[np.ndarray, np.ndarray]:
-        """(enter, hold) per frame: the averaged ankle slow and low (to enter a stance, to stay in)."""
+    def _measures(self, ankle, time) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(enter, hold, xy) per frame: the averaged ankle slow and low (to enter a stance, to stay
+        in), and where it is over the floor (K, 2)."""
         n = self.n_smooth
         tail = np.repeat(ankle[:1], n - 1, axis=0) if self._tail is None else self._tail
         padded = np.concatenate([tail, ankle])
@@ -529,7 +542,8 @@ class CausalStance:
         speed = np.sqrt(np.add.reduce(step * step, axis=1)) / np.where(dt > 0, dt, 1.0)  # np.linalg.norm's
         self._last = (time[-1], smooth[-1])
         height = smooth[:, 2] - self.ref_height
-        return (speed < STANCE_SPEED) & (height < STANCE_HEIGHT), (speed < EXIT_SPEED) & (height < EXIT_HEIGHT)
+        return (speed < STANCE_SPEED) & (height < STANCE_HEIGHT), (speed < EXIT_SPEED) & (height < EXIT_HEIGHT), \
+            smooth[:, :2]
 
     def _stances(self, enter, hold) -> tuple[np.ndarray, np.ndarray]:
         """(in a stance, the frame it started) per frame, with `detect`'s hysteresis: a run of `hold`
@@ -557,6 +571,34 @@ class CausalStance:
             stance[first:b] = True
             starts[first:b] = start
         self._start = int(starts[-1]) if stance[-1] else None
+        return stance, starts
+
+    def _drifting(self, enter, hold, xy) -> tuple[np.ndarray, np.ndarray]:
+        """`_stances` with the drift cut, frame by frame (the cut moves where the next stance may
+        begin): a stance ends on the first frame its point is `drift` from where it came down
+        unless the point is slow and low there (`detect` then cuts it in two stances that touch:
+        one stance, measured from there on), and a new one begins on a later `enter` frame of the
+        same hold."""
+        k = len(hold)
+        stance, starts = np.zeros(k, bool), np.full(k, -1)
+        start, (ox, oy), d2 = self._start, self._origin, self.drift * self.drift
+        for i in range(k):  # Python floats: a stream's frame is one of these (no numpy call per frame)
+            x, y = float(xy[i, 0]), float(xy[i, 1])
+            if not hold[i]:
+                start = None
+                continue
+            if start is not None:
+                if (x - ox) * (x - ox) + (y - oy) * (y - oy) > d2:
+                    if not enter[i]:  # it has stepped: out for this frame
+                        start = None
+                        continue
+                    ox, oy = x, y  # still slow and low there: `detect`'s two stances touch, and are one
+            elif enter[i]:
+                start, ox, oy = self.frames + i, x, y
+            else:
+                continue
+            stance[i], starts[i] = True, start
+        self._start, self._origin = start, (ox, oy)
         return stance, starts
 
     def _step(self, i, in_stance, start, reference, weight, planted) -> None:

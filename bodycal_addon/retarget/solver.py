@@ -592,7 +592,9 @@ class FeetPlan:
             rec = src.recording  # a live recording's nominal rate, else the take's
             fps = getattr(rec, "rate", None) or (rec.fps if rec is not None else (len(src.time) - 1) / max(
                 float(src.time[-1] - src.time[0]), 1e-9))
-            self.stance = {(s, k): feet.CausalStance(float(self.rest[s][1][i, 2]), fps)
+            # an estimated foot's stances cut where its point has stepped, as the bake's (`feet.DRIFT`)
+            self.stance = {(s, k): feet.CausalStance(float(self.rest[s][1][i, 2]), fps,
+                                                     feet.DRIFT if self._estimated(s) else None)
                            for s in self.sides for i, k in enumerate(("heel", "ball"))}
         else:
             self._extend(src.frame_count)

@@ -208,3 +208,54 @@ def test_a_slow_short_step_is_a_step_though_the_foot_never_leaves_the_stance_s_b
     before, after = t < 0.9, t > 1.7
     assert np.abs(heel_at[before, 0]).max() < 0.005
     assert np.abs(heel_at[after, 0] - 0.074).max() < 0.005
+
+
+def test_live_an_estimated_foot_s_slow_short_step_releases_and_replants():
+    """The same slow short step streamed (`CausalStance`, forward only): without the drift cut the
+    live stance held the foot where it came down for as long as the hold lasted, 74 mm behind the
+    performer's after the step (a three-point avatar's foot left behind, then dragged when the hold
+    ended). With an estimated foot's DRIFT it lets go once the point has moved DRIFT and plants
+    again where the foot stands, as the bake does; a planted place never moves."""
+    t, ankle = _quick_step(0.074, lift=0.023, swing_s=0.5)
+    weight, at = feet.CausalStance(0.09, FPS).update(ankle, t, ankle)
+    held = t > 0.5  # planted MIN_STANCE_S and an easing after the take's start
+    assert weight[held].min() >= 1.0 and np.abs(at[held, 0]).max() < 0.005  # a tracked foot's as before
+    weight, at = feet.CausalStance(0.09, FPS, feet.DRIFT).update(ankle, t, ankle)
+    foot = ankle[:, 0] + weight * (np.nan_to_num(at[:, 0]) - ankle[:, 0])
+    _, (bake_w, _, bake_at, _) = _planned(ankle, t, feet.DRIFT)
+    bake = ankle[:, 0] + bake_w * (np.nan_to_num(bake_at[:, 0]) - ankle[:, 0])
+    after = t > 1.8  # both planted again where the foot stands
+    assert weight[after].min() >= 1.0 and bake_w[after].min() >= 1.0
+    assert np.abs(foot[after] - ankle[after, 0]).max() < 0.002
+    assert np.abs(foot[after] - bake[after]).max() < 0.002
+    assert weight[(t > 1.1) & (t < 1.7)].min() < 0.5  # released in between (the foot moves as the method's)
+    planted = (weight[1:] >= 1.0) & (weight[:-1] >= 1.0)
+    assert np.abs(np.diff(at[:, 0])[planted]).max() < 1e-12
+    assert np.abs(np.diff(weight)).max() < 0.2  # eased out and in, never switched
+    # forward only: one frame at a time is the whole take's, and the frames before the step do not
+    # depend on it
+    one = feet.CausalStance(0.09, FPS, feet.DRIFT)
+    parts = [one.update(ankle[f:f + 1], t[f:f + 1], ankle[f:f + 1]) for f in range(len(t))]
+    np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), weight)
+    np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), at)
+    still = ankle.copy()
+    still[:, 0] = 0.0
+    early = t < 1.0
+    np.testing.assert_array_equal(feet.CausalStance(0.09, FPS, feet.DRIFT).update(still, t, still)[0][early],
+                                  weight[early])
+
+
+def test_live_the_drift_cut_leaves_what_the_bake_does_not_cut_as_it_was():
+    """A walk's steps leave the hold (faster than EXIT_SPEED): nothing to cut. A foot that moves
+    4.4 cm never faster than STANCE_SPEED (a real A-Frame take's estimated foot, `tracked`: 0.18
+    m/s) is slow and low where it is DRIFT away, and the bake's two stances touch there: one
+    stance, as the stream's (cut, the avatar's foot skimmed the floor 27 mm there, 7 mm held)."""
+    walk = _walk()
+    slow = _quick_step(0.044, lift=0.022, swing_s=0.6)
+    assert 1.875 * 0.044 / 0.6 < feet.STANCE_SPEED  # the minimum-jerk step's peak speed
+    assert feet.detect(slow[1], slow[0], 0.09, feet.DRIFT).count == 1
+    for t, ankle in (walk, slow):
+        plain = feet.CausalStance(0.09, FPS).update(ankle, t, ankle)
+        cut = feet.CausalStance(0.09, FPS, feet.DRIFT).update(ankle, t, ankle)
+        np.testing.assert_array_equal(cut[0], plain[0])
+        np.testing.assert_array_equal(cut[1], plain[1])

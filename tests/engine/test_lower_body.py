@@ -415,6 +415,32 @@ def test_live_frames_get_the_estimated_devices_as_they_come(walk):
         assert np.median(np.linalg.norm(a - b, axis=1)) < 0.02, role  # the performer stands here
 
 
+def test_live_an_estimated_foot_stands_where_the_bake_plants_it_after_a_slow_short_step():
+    """The real take simsaber (a Beat Saber replay, three points): the stepper moves the right foot
+    7.4 cm in 0.5 s, inside one stance's hold; the bake cuts that stance where the foot has moved
+    `feet.DRIFT` (FeetPlan, an estimated foot). The stance found frame by frame (a stream's) held
+    the foot where it came down, 128 mm from the bake's place; it cuts the same step now, and
+    wherever both plant the foot they plant it within 2 mm of each other."""
+    from bodycal_addon.recording import io as recording_io
+    from bodycal_addon.retarget import feet
+    from bodycal_addon.retarget.pose_source import RecordingSource
+    from bodycal_addon.retarget.solver import PreparedSolver
+
+    rec = recording_io.load_recording(paths.data_dir() / "real_vr" / "beat_saber" / "simsaber_sample.bsor")
+    user = calibrate_user(rec)
+    full = lower_body.complete(rec, user)
+    avatar = procedural_avatar()
+    bake = PreparedSolver(RecordingSource(full, user), avatar, "offsets").feet.rows(0, full.frame_count)
+    live = PreparedSolver(RecordingSource(full, user), avatar, "offsets", stance="causal")
+    rows = live.feet.rows(0, full.frame_count)
+    for s in "lr":
+        both = (bake[s][0] >= 1.0) & (rows[s][0] >= 1.0)
+        assert both.mean() > 0.95
+        for place in (2, 3):  # the heel's and the ball's
+            assert np.linalg.norm(bake[s][place][both] - rows[s][place][both], axis=1).max() < 0.002, (s, place)
+    assert {st.drift for st in live.feet.stance.values()} == {feet.DRIFT}  # both feet estimated
+
+
 def test_avatargos_six_devices_and_protocol_calibrate_without_a_flag(tmp_path):
     """AvatarGo's own protocol (six devices: T-pose, swings, flexes) measures 5 of the 14 body
     joints; it used to be refused as "mostly guessed" unless --allow-defaults, although Exact

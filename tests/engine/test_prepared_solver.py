@@ -245,3 +245,4 @@ def test_causal_planting_frame_by_frame_is_the_causal_plan_of_the_whole_take(tak
     for x, y, kind in zip(whole[:3], frames[:3], ("basis", "root", "joints")):
         np.testing.assert_allclose(y, x, rtol=0, atol=one_frame_atol(kind))  # one frame in mathutils: float32
     np.testing.assert_array_equal(a.feet.weight["l"], b.feet.weight["l"])
+    assert all(st.drift is None for st in a.feet.stance.values())  # tracked feet: no drift cut (an estimated one's)
