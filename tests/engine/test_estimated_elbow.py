@@ -1,6 +1,6 @@
 """The elbow a kit without elbow trackers estimates (HMD and controllers, or six devices): its swivel
-about the shoulder-wrist line comes from the hand's place relative to the shoulder (Parger 2018,
-§4.2; `user_animation.estimated_elbow_right`), not from the controller's roll, which a real elbow
+about the shoulder-wrist line comes from the hand's place relative to the shoulder (Parger 2018;
+`user_animation.estimated_elbow_right`), not from the controller's roll, which a real elbow
 does not follow. Measured against the source's own elbow: a CMU clip recorded with three devices
 by evaluation/ (code that shares nothing with the synthetic performer), and a controller rolled
 in place about its wrist."""
