@@ -371,52 +371,16 @@ class FingerSet:
         radii = [None] * len(mcps) if radius is None else np.asarray(radius, float).ravel().tolist()
         rot_rows, joint_rows = [], []
         for k, m, r, t, rad in zip(consts, mcps, refs, tips, radii):
-            c0, bb, a4, minus_b, den, l1, l2, l3, ylo, yhi, plo, phi, half = k
+            l1, l2, l3 = k[5:8]
             m0, m1, m2 = m
             r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
             t0, t1, t2 = t
-            for last in ((False, True) if rad is not None else (True,)):
-                x0, x1, x2 = t0 - m0, t1 - m1, t2 - m2
-                lx = (r00 * x0 + r10 * x1) + r20 * x2  # ref^T rel
-                ly = (r01 * x0 + r11 * x1) + r21 * x2
-                lz = (r02 * x0 + r12 * x1) + r22 * x2
-                dd = (x0 * x0 + x1 * x1) + x2 * x2
-                d = _sqrt(dd)
-                disc = bb - a4 * (c0 - d * d)  # eq. 3-4 (flexion_from_distance)
-                if disc < 0.0:
-                    disc = 0.0
-                x = (minus_b - _sqrt(disc)) / den
-                x = -X_CLAMP if x < -X_CLAMP else x
-                x = X_CLAMP if x > X_CLAMP else x
-                alpha = _PI - _acos(x)
-                alpha = FLEXION_CAP if alpha > FLEXION_CAP else alpha
-                c1, s1, c2, s2 = _cos(alpha), _sin(alpha), _cos(2.0 * alpha), _sin(2.0 * alpha)
-                pitch = _atan2(-lz, ly)  # realign: the target's yaw and pitch clamped
-                yaw = _atan2(lx, _hypot(ly, lz))
-                yaw = ylo if yaw < ylo else yaw
-                yaw = yhi if yaw > yhi else yaw
-                if not plo <= pitch <= phi:
-                    pitch = phi if (pitch - phi) % _TWO_PI < half else plo
-                flexed = _atan2(-(l2 * s1 + l3 * s2), (l1 + l2 * c1) + l3 * c2)
-                ca, sa, cb, sb = _cos(-pitch), _sin(-pitch), _cos(-yaw), _sin(-yaw)
-                cc, sc = _cos(flexed), _sin(flexed)
-                # Rx(-pitch) Rz(-yaw) Rx(flexed): rows (cb, -sb cc, sb sc), ca r1 - sa r2, sa r1 + ca r2
-                # of r1 = (sb, cb cc, -cb sc), r2 = (0, sc, cc)
-                q01, q02 = -sb * cc, sb * sc
-                u1, u2 = cb * cc, -cb * sc
-                q10, q11, q12 = ca * sb, ca * u1 - sa * sc, ca * u2 - sa * cc
-                q20, q21, q22 = sa * sb, sa * u1 + ca * sc, sa * u2 + ca * cc
-                # the first phalanx: ref @ Q, by columns y, z (x below, the last pass only)
-                by0 = (r00 * q01 + r01 * q11) + r02 * q21
-                by1 = (r10 * q01 + r11 * q11) + r12 * q21
-                by2 = (r20 * q01 + r21 * q11) + r22 * q21
-                bz0 = (r00 * q02 + r01 * q12) + r02 * q22
-                bz1 = (r10 * q02 + r11 * q12) + r12 * q22
-                bz2 = (r20 * q02 + r21 * q12) + r22 * q22
-                if not last:  # the LED one radius off the distal phalanx's -Z: aim at the joint
-                    t0 = t0 + rad * (c2 * bz0 - s2 * by0)
-                    t1 = t1 + rad * (c2 * bz1 - s2 * by1)
-                    t2 = t2 + rad * (c2 * bz2 - s2 * by2)
+            if rad is not None:  # the LED one radius off the distal phalanx's -Z: aim at the joint
+                _, _, c2, s2, _, _, _, by0, by1, by2, bz0, bz1, bz2 = _first_phalanx(k, m0, m1, m2, r, t0, t1, t2)
+                t0 = t0 + rad * (c2 * bz0 - s2 * by0)
+                t1 = t1 + rad * (c2 * bz1 - s2 * by1)
+                t2 = t2 + rad * (c2 * bz2 - s2 * by2)
+            c1, s1, c2, s2, cb, q10, q20, by0, by1, by2, bz0, bz1, bz2 = _first_phalanx(k, m0, m1, m2, r, t0, t1, t2)
             bx0 = (r00 * cb + r01 * q10) + r02 * q20
             bx1 = (r10 * cb + r11 * q10) + r12 * q20
             bx2 = (r20 * cb + r21 * q10) + r22 * q20
@@ -442,6 +406,52 @@ class FingerSet:
         _, base, cos, sin = self._realigned(mcp, ref_rot, tip_target)[:4]
         b = base.transpose(2, 1, 0)  # columns, (row, item) each
         return (cos[1] * b[2] - sin[1] * b[1]).T
+
+
+def _first_phalanx(k, m0, m1, m2, r, t0, t1, t2) -> tuple:
+    """`FingerSet.pose_floats`' realignment of one item: its constants `k`, MCP, reference frame
+    (nine floats, rows) and target -> the cosines and sines of α and 2α, Rx Rz Rx's entries that
+    make the first phalanx's x column (cb, q10, q20) and that phalanx's y and z columns."""
+    c0, bb, a4, minus_b, den, l1, l2, l3, ylo, yhi, plo, phi, half = k
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    x0, x1, x2 = t0 - m0, t1 - m1, t2 - m2
+    lx = (r00 * x0 + r10 * x1) + r20 * x2  # ref^T rel
+    ly = (r01 * x0 + r11 * x1) + r21 * x2
+    lz = (r02 * x0 + r12 * x1) + r22 * x2
+    dd = (x0 * x0 + x1 * x1) + x2 * x2
+    d = _sqrt(dd)
+    disc = bb - a4 * (c0 - d * d)  # eq. 3-4 (flexion_from_distance)
+    if disc < 0.0:
+        disc = 0.0
+    x = (minus_b - _sqrt(disc)) / den
+    x = -X_CLAMP if x < -X_CLAMP else x
+    x = X_CLAMP if x > X_CLAMP else x
+    alpha = _PI - _acos(x)
+    alpha = FLEXION_CAP if alpha > FLEXION_CAP else alpha
+    c1, s1, c2, s2 = _cos(alpha), _sin(alpha), _cos(2.0 * alpha), _sin(2.0 * alpha)
+    pitch = _atan2(-lz, ly)  # realign: the target's yaw and pitch clamped
+    yaw = _atan2(lx, _hypot(ly, lz))
+    yaw = ylo if yaw < ylo else yaw
+    yaw = yhi if yaw > yhi else yaw
+    if not plo <= pitch <= phi:
+        pitch = phi if (pitch - phi) % _TWO_PI < half else plo
+    flexed = _atan2(-(l2 * s1 + l3 * s2), (l1 + l2 * c1) + l3 * c2)
+    ca, sa, cb, sb = _cos(-pitch), _sin(-pitch), _cos(-yaw), _sin(-yaw)
+    cc, sc = _cos(flexed), _sin(flexed)
+    # Rx(-pitch) Rz(-yaw) Rx(flexed): rows (cb, -sb cc, sb sc), ca r1 - sa r2, sa r1 + ca r2
+    # of r1 = (sb, cb cc, -cb sc), r2 = (0, sc, cc)
+    q01, q02 = -sb * cc, sb * sc
+    u1, u2 = cb * cc, -cb * sc
+    q10, q11, q12 = ca * sb, ca * u1 - sa * sc, ca * u2 - sa * cc
+    q20, q21, q22 = sa * sb, sa * u1 + ca * sc, sa * u2 + ca * cc
+    # the first phalanx: ref @ Q, its columns y, z (the caller makes x where it needs it)
+    by0 = (r00 * q01 + r01 * q11) + r02 * q21
+    by1 = (r10 * q01 + r11 * q11) + r12 * q21
+    by2 = (r20 * q01 + r21 * q11) + r22 * q21
+    bz0 = (r00 * q02 + r01 * q12) + r02 * q22
+    bz1 = (r10 * q02 + r11 * q12) + r12 * q22
+    bz2 = (r20 * q02 + r21 * q12) + r22 * q22
+    return c1, s1, c2, s2, cb, q10, q20, by0, by1, by2, bz0, bz1, bz2
 
 
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:
