@@ -21,6 +21,7 @@ yaw limits from frame to frame. In this order the pole is at yaw ±90°, far out
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 from types import SimpleNamespace
@@ -34,6 +35,9 @@ X_CLAMP = 0.9999  # eq. 4
 # Appendix D, from [Ari18]: (yaw min, yaw max), (pitch min, pitch max), degrees.
 LIMITS = {"finger": ((-15.0, 15.0), (-85.0, 10.0)), "thumb": ((-30.0, 40.0), (-15.0, 15.0))}
 THUMB_ROLL = np.deg2rad(45.0)
+# `FingerSet.pose_floats`' math, bound once (a module global's lookup costs less than an attribute's)
+_sqrt, _acos, _cos, _sin, _atan2, _hypot = math.sqrt, math.acos, math.cos, math.sin, math.atan2, math.hypot
+_PI, _TWO_PI = math.pi, 2 * math.pi
 FEW_ITEMS = 64  # FingerSet.constants: items (fingers x frames) up to which its scalars are arrays
 
 
@@ -338,12 +342,116 @@ class FingerSet:
         points[:, 1:] = (mcp.T + reach).transpose(2, 0, 1)
         return FingerPose(points, rots, alpha, yaw, pitch)
 
+    def pose_floats(self, mcp, ref_rot, tip_target, joints: bool = True, radius=None) -> tuple:
+        """`pose` of a few items (a live frame's fingers) in Python floats, item by item: the
+        same steps in float64 (numpy's cosines and BLAS's fused products may differ in the last
+        bit: the same values to float64's rounding, not to the bit). `radius` (n,): each tip
+        target is a fingertip LED one radius off the tip joint on the back of the distal phalanx,
+        aimed as `distal_z` and `pose` do it in two numpy passes (pose_user_fingers). Returns
+        (joints (n, 4, 3) or None, rotations (n, 3, 3, 3)). Decision (speed): numpy's per-call
+        cost on ten items made the user's fingers half of a one-frame user animation (937,000
+        instructions of an egocentric frame, callgrind); these loops cost a fifth of it."""
+        ref = np.asarray(ref_rot, float)
+        if self.roll is not None:
+            if self.roll_rows is None:
+                ref = stack_mul(ref, self.roll)
+            else:
+                ref = ref.copy()
+                ref[self.roll_rows] = stack_mul(ref.take(self.roll_rows, axis=0), self.roll)
+        consts = self.__dict__.get("_floats")
+        if consts is None:
+            n = self.n
+            cols = [np.broadcast_to(np.asarray(v, float), (n,)).tolist() for v in (
+                self.c0, self.bb, self.a4, self.minus_b, self.den, self.l1, self.l2, self.l3,
+                self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi, self.half_excluded)]
+            consts = self._floats = list(zip(*cols))
+        mcps = np.asarray(mcp, float).tolist()
+        refs = ref.reshape(-1, 9).tolist()
+        tips = np.asarray(tip_target, float).tolist()
+        radii = [None] * len(mcps) if radius is None else np.asarray(radius, float).ravel().tolist()
+        rot_rows, joint_rows = [], []
+        for k, m, r, t, rad in zip(consts, mcps, refs, tips, radii):
+            l1, l2, l3 = k[5:8]
+            m0, m1, m2 = m
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+            t0, t1, t2 = t
+            if rad is not None:  # the LED one radius off the distal phalanx's -Z: aim at the joint
+                _, _, c2, s2, _, _, _, by0, by1, by2, bz0, bz1, bz2 = _first_phalanx(k, m0, m1, m2, r, t0, t1, t2)
+                t0 = t0 + rad * (c2 * bz0 - s2 * by0)
+                t1 = t1 + rad * (c2 * bz1 - s2 * by1)
+                t2 = t2 + rad * (c2 * bz2 - s2 * by2)
+            c1, s1, c2, s2, cb, q10, q20, by0, by1, by2, bz0, bz1, bz2 = _first_phalanx(k, m0, m1, m2, r, t0, t1, t2)
+            bx0 = (r00 * cb + r01 * q10) + r02 * q20
+            bx1 = (r10 * cb + r11 * q10) + r12 * q20
+            bx2 = (r20 * cb + r21 * q10) + r22 * q20
+            # phalanges 2 and 3: the first turned by Rx(α), Rx(2α): columns x, c y + s z, c z - s y
+            y10, y11, y12 = c1 * by0 + s1 * bz0, c1 * by1 + s1 * bz1, c1 * by2 + s1 * bz2
+            y20, y21, y22 = c2 * by0 + s2 * bz0, c2 * by1 + s2 * bz1, c2 * by2 + s2 * bz2
+            rot_rows += (bx0, by0, bz0, bx1, by1, bz1, bx2, by2, bz2,
+                         bx0, y10, c1 * bz0 - s1 * by0, bx1, y11, c1 * bz1 - s1 * by1, bx2, y12, c1 * bz2 - s1 * by2,
+                         bx0, y20, c2 * bz0 - s2 * by0, bx1, y21, c2 * bz1 - s2 * by1, bx2, y22, c2 * bz2 - s2 * by2)
+            if joints:  # the segments summed from the MCP one after the other
+                e0, e1, e2 = by0 * l1, by1 * l1, by2 * l1
+                f0, f1, f2 = y10 * l2 + e0, y11 * l2 + e1, y12 * l2 + e2
+                g0, g1, g2 = y20 * l3 + f0, y21 * l3 + f1, y22 * l3 + f2
+                joint_rows += (m0, m1, m2, m0 + e0, m1 + e1, m2 + e2, m0 + f0, m1 + f1, m2 + f2,
+                               m0 + g0, m1 + g1, m2 + g2)
+        n = len(mcps)
+        rots = np.fromiter(rot_rows, float, 27 * n).reshape(n, 3, 3, 3)  # (np.array's discovery: 1.5x)
+        return (np.fromiter(joint_rows, float, 12 * n).reshape(n, 4, 3) if joints else None), rots
+
     def distal_z(self, mcp, ref_rot, tip_target) -> np.ndarray:
         """(n, 3) the distal phalanx's +Z (the third column of `pose(...).rotations[:, 2]`, the same
         values) without the rest of the pose: the fingertip LED's offset is all a first pose reads."""
         _, base, cos, sin = self._realigned(mcp, ref_rot, tip_target)[:4]
         b = base.transpose(2, 1, 0)  # columns, (row, item) each
         return (cos[1] * b[2] - sin[1] * b[1]).T
+
+
+def _first_phalanx(k, m0, m1, m2, r, t0, t1, t2) -> tuple:
+    """`FingerSet.pose_floats`' realignment of one item: its constants `k`, MCP, reference frame
+    (nine floats, rows) and target -> the cosines and sines of α and 2α, Rx Rz Rx's entries that
+    make the first phalanx's x column (cb, q10, q20) and that phalanx's y and z columns."""
+    c0, bb, a4, minus_b, den, l1, l2, l3, ylo, yhi, plo, phi, half = k
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    x0, x1, x2 = t0 - m0, t1 - m1, t2 - m2
+    lx = (r00 * x0 + r10 * x1) + r20 * x2  # ref^T rel
+    ly = (r01 * x0 + r11 * x1) + r21 * x2
+    lz = (r02 * x0 + r12 * x1) + r22 * x2
+    dd = (x0 * x0 + x1 * x1) + x2 * x2
+    d = _sqrt(dd)
+    disc = bb - a4 * (c0 - d * d)  # eq. 3-4 (flexion_from_distance)
+    if disc < 0.0:
+        disc = 0.0
+    x = (minus_b - _sqrt(disc)) / den
+    x = -X_CLAMP if x < -X_CLAMP else x
+    x = X_CLAMP if x > X_CLAMP else x
+    alpha = _PI - _acos(x)
+    alpha = FLEXION_CAP if alpha > FLEXION_CAP else alpha
+    c1, s1, c2, s2 = _cos(alpha), _sin(alpha), _cos(2.0 * alpha), _sin(2.0 * alpha)
+    pitch = _atan2(-lz, ly)  # realign: the target's yaw and pitch clamped
+    yaw = _atan2(lx, _hypot(ly, lz))
+    yaw = ylo if yaw < ylo else yaw
+    yaw = yhi if yaw > yhi else yaw
+    if not plo <= pitch <= phi:
+        pitch = phi if (pitch - phi) % _TWO_PI < half else plo
+    flexed = _atan2(-(l2 * s1 + l3 * s2), (l1 + l2 * c1) + l3 * c2)
+    ca, sa, cb, sb = _cos(-pitch), _sin(-pitch), _cos(-yaw), _sin(-yaw)
+    cc, sc = _cos(flexed), _sin(flexed)
+    # Rx(-pitch) Rz(-yaw) Rx(flexed): rows (cb, -sb cc, sb sc), ca r1 - sa r2, sa r1 + ca r2
+    # of r1 = (sb, cb cc, -cb sc), r2 = (0, sc, cc)
+    q01, q02 = -sb * cc, sb * sc
+    u1, u2 = cb * cc, -cb * sc
+    q10, q11, q12 = ca * sb, ca * u1 - sa * sc, ca * u2 - sa * cc
+    q20, q21, q22 = sa * sb, sa * u1 + ca * sc, sa * u2 + ca * cc
+    # the first phalanx: ref @ Q, its columns y, z (the caller makes x where it needs it)
+    by0 = (r00 * q01 + r01 * q11) + r02 * q21
+    by1 = (r10 * q01 + r11 * q11) + r12 * q21
+    by2 = (r20 * q01 + r21 * q11) + r22 * q21
+    bz0 = (r00 * q02 + r01 * q12) + r02 * q22
+    bz1 = (r10 * q02 + r11 * q12) + r12 * q22
+    bz2 = (r20 * q02 + r21 * q12) + r22 * q22
+    return c1, s1, c2, s2, cb, q10, q20, by0, by1, by2, bz0, bz1, bz2
 
 
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:

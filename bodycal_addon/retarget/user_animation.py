@@ -776,13 +776,17 @@ def pose_user_fingers(P: _Joints, Fr: np.ndarray, which: list[tuple[str, str]], 
     # distal phalanx (-Z of its frame): once its orientation is known, aim at the joint instead
     # (of the first pose only that +Z is read).
     aim = tips.reshape(-1, 3)
-    if any(radius):
-        aim = aim + sets[F, "radius"] * sets[F].distal_z(mcp, ref, aim)
-    fp = sets[F].pose(mcp, ref, aim, joints=joints)
+    if F == 1:  # one frame (a live solve's): both passes item by item in Python floats
+        points, rotations = sets[F].pose_floats(mcp, ref, aim, joints, sets[F, "radius"] if any(radius) else None)
+    else:
+        if any(radius):
+            aim = aim + sets[F, "radius"] * sets[F].distal_z(mcp, ref, aim)
+        fp = sets[F].pose(mcp, ref, aim, joints=joints)
+        points, rotations = fp.joints, fp.rotations
     # every finger's joints after the MCP and its phalanges, one assignment each
     if joints:
-        P.pos[:, rows[:, 1:]] = fp.joints.reshape(K, F, 4, 3)[:, :, 1:].swapaxes(0, 1)
-    Fr[:, phalanges] = fp.rotations.reshape(K, F, 3, 3, 3).swapaxes(0, 1)
+        P.pos[:, rows[:, 1:]] = points.reshape(K, F, 4, 3)[:, :, 1:].swapaxes(0, 1)
+    Fr[:, phalanges] = rotations.reshape(K, F, 3, 3, 3).swapaxes(0, 1)
 
 
 def finger_set(lens, thumb) -> fingers.FingerSet:

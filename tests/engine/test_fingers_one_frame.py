@@ -1,0 +1,61 @@
+"""A live frame's fingers in Python floats (`fingers.FingerSet.pose_floats`, issue 41): the
+numpy passes' values (`distal_z` then `pose`, the fingertip LED's offset aimed at the tip joint)
+to float64's rounding, thumbs rolled or not, targets beyond every limit, joints or frames only;
+and the user animation's one frame, which takes it, gives the block's fingers."""
+
+import numpy as np
+import pytest
+from retarget_bodies import random_rotations
+
+from bodycal_addon.body.skeleton import JOINT_INDEX as JI
+from bodycal_addon.core import one_frame
+from bodycal_addon.retarget import fingers as fg
+from bodycal_addon.retarget import user_animation as ua
+from bodycal_dev import synthetic
+
+
+@pytest.mark.parametrize("roll", [fg.THUMB_ROLL, 0.0, None])
+def test_floats_pose_a_few_fingers_as_the_numpy_passes_do(roll):
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for _ in range(40):
+        n = 10
+        lens = rng.uniform(0.015, 0.05, (3, n))
+        thumb = rng.random(n) < 0.3
+        ref = random_rotations(rng, n)
+        mcp = rng.normal(size=(n, 3)) * 0.1
+        # close, mid and far targets: flexions capped and pitches beyond their limits too
+        tip = mcp + rng.normal(size=(n, 3)) * rng.choice([0.002, 0.03, 0.08], size=(n, 1))
+        fs = fg.FingerSet(*lens, thumb=thumb, roll=roll)
+        radius = rng.uniform(0.0, 0.01, (n, 1))
+        for rad in (None, radius):
+            aim = tip if rad is None else tip + rad * fs.distal_z(mcp, ref, tip)
+            want = fs.pose(mcp, ref, aim)
+            joints, rotations = fs.pose_floats(mcp, ref, tip, radius=rad)
+            worst = max(worst, np.abs(joints - want.joints).max(), np.abs(rotations - want.rotations).max())
+            none, frames = fs.pose_floats(mcp, ref, tip, joints=False, radius=rad)
+            assert none is None and frames.tobytes() == rotations.tobytes()
+    assert worst < 1e-12, worst
+
+
+def test_one_frame_s_user_fingers_are_the_block_s(monkeypatch):
+    # the trunk's one-frame kernels (mathutils, float32) switched off: one frame's values are then
+    # float64's throughout, and its fingers (posed from the floats) the whole take's numpy passes'
+    monkeypatch.setattr(one_frame, "ENABLED", False)
+    perf = synthetic.make_performer(seed=4)
+    rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
+                                          motion_seconds=0.5, seed=4)
+    anim = ua.UserAnimator(rec, truth.body_model())
+    assert anim.plan.tips  # fingertip markers: the one-frame pose takes the floats
+    whole = anim.animate(0, rec.frame_count)
+    names, bones = anim._tables["fingers"][:2]
+    bones = np.array(bones).ravel()
+    joints = np.array([JI[j] for n in names for j in n])
+    calls = []
+    floats = fg.FingerSet.pose_floats
+    monkeypatch.setattr(fg.FingerSet, "pose_floats", lambda *a, **k: calls.append(1) or floats(*a, **k))
+    for f in range(0, rec.frame_count, 7):
+        one = anim.animate(f, f + 1)
+        assert calls.pop()  # taken by the one frame
+        np.testing.assert_allclose(one.joints[0, joints], whole.joints[f, joints], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(one.frames[0, bones], whole.frames[f, bones], rtol=0, atol=1e-9)
