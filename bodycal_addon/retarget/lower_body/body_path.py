@@ -12,6 +12,13 @@ over frames.
   a squat (the knees bend): a bow looks down, a squat keeps the head up (`trunk_lean`). The pelvis takes
   `PELVIS_SHARE` of the lean (lumbopelvic rhythm), the spine the rest (the spine IK, aimed at the
   skull base).
+- Bow or squat (`bow_weight`): a lean that starts where the head stood upright (an episode: the
+  head pitched past `LOOK_DOWN` or low) is a bow, a hinge at hips that stay at their standing height
+  over the feet (`hinge_lean`), once the head has both looked back under the body (pitched past
+  the vertical, `HINGE_PITCH`) and travelled forward further than a body balanced over the feet it
+  stood on can carry it by leaning (`balanced_reach`: the mass centre stays over the support, so the
+  hips go back as the trunk leans, `centre_of`). A squat's head stays within that reach. Offline
+  the episode's whole course decides (looking ahead), live the episode so far (forward only).
 - Pelvis: the skull base less the trunk turned by the heading and leaned toward where the head
   looks (the head's own heading: a bow after a quick turn bends toward what the eyes look down
   at, which the smoothed body heading reaches late); it drops as the head
@@ -42,6 +49,10 @@ LIFT_FROM = 0.02  # x stature above the standing pelvis height
 HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
 SEAT_FOLLOW_S = 1.5
 VELOCITY_SMOOTH_S = 0.06
+HINGE_PITCH = np.radians((80.0, 100.0))  # the head's pitch down over which a bow's tell ramps in (about the
+# vertical: the eyes look back under the body, toward feet the head has gone far ahead of)
+HINGE_NEARER = (0.5, 1.0)  # of the way from the squat's balanced travel to the bow's: the ramp of its tell
+HINGE_GAP = 0.1  # x `balanced_reach`: the least gap between the two travels (where they agree)
 
 
 @dataclass
@@ -99,6 +110,70 @@ def neck_and_head(shape: LowerBodyShape, head_pos: np.ndarray, head_rot: np.ndar
 def clamp_heading(body: np.ndarray, head: np.ndarray) -> np.ndarray:
     """The body's heading kept within MAX_NECK_TWIST of the head's."""
     return head + np.clip(wrap(body - head), -MAX_NECK_TWIST, MAX_NECK_TWIST)
+
+
+def leaning(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
+    """(F,) bool: the frames of a lean or a drop (an episode `bow_weight` reads): the head pitched
+    down past `LOOK_DOWN` or its skull base more than `KNEES_FIRST` below its standing height."""
+    standing = shape.pelvis_height + shape.trunk[2]
+    return (pitch_down > LOOK_DOWN) | (neck_z < standing - KNEES_FIRST * shape.stature)
+
+
+def balanced_reach(shape: LowerBodyShape) -> float:
+    """How far forward of where it stood upright a body balanced over the same feet carries its
+    skull base per unit of sin(lean), squat or bow alike: its mass centre (`centre_of`) stays over
+    the feet, so the pelvis goes back `centre_share` of the trunk's horizontal reach u sin(lean)
+    and the head forward the rest, (1 - centre_share) u sin(lean)."""
+    return (1.0 - shape.centre_share) * float(shape.trunk[2])
+
+
+def hinge_tell(shape: LowerBodyShape, travel: np.ndarray, pitch_down: np.ndarray, squat: np.ndarray,
+               bow: np.ndarray) -> np.ndarray:
+    """(F,) 0..1 how surely a frame is a bow: the head pitched past the vertical (`HINGE_PITCH`)
+    and its skull base carried forward since its episode began (`travel`, m) nearer the bow's
+    balanced travel than the squat's (`balanced_reach` times the sine of each reading's lean,
+    `squat` and `bow`; `HINGE_NEARER` of the way, the gap between them at least `HINGE_GAP` of the
+    reach: where the two agree, a head well beyond the squat's is the bow's)."""
+    reach = max(balanced_reach(shape), 1e-9)
+    at_squat = reach * np.sin(squat)
+    gap = np.maximum(reach * np.sin(bow) - at_squat, HINGE_GAP * reach)
+    return _ramp(pitch_down, *HINGE_PITCH) * _ramp((travel - at_squat) / gap, *HINGE_NEARER)
+
+
+def _ramp(x, lo, hi):
+    u = np.clip((np.asarray(x, float) - lo) / (hi - lo), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def bow_weight(shape: LowerBodyShape, neck: np.ndarray, pitch_down: np.ndarray, squat: np.ndarray) -> np.ndarray:
+    """(F,) 0 a squat, 1 a bow, along a whole take (the module docstring): per episode (`leaning`),
+    its surest frame's `hinge_tell` (`squat` (F,) the lean `trunk_lean` reads), the head's travel
+    measured from the skull base at the frame before the episode (the take's first if it begins
+    leaning). Looks ahead: the whole episode is a bow once any of it is (`LivePath`: so far)."""
+    on = leaning(shape, neck[:, 2], pitch_down)
+    n = len(on)
+    if not on.any():
+        return np.zeros(n)
+    frames = np.arange(n)
+    before = np.maximum.accumulate(np.where(on, 0, frames))  # each frame's last upright frame
+    travel = np.linalg.norm(neck[:, :2] - neck[before, :2], axis=1)
+    tell = np.where(on, hinge_tell(shape, travel, pitch_down, squat, hinge_lean(shape, neck[:, 2])), 0.0)
+    episode = np.cumsum(~on)
+    most = np.zeros(episode[-1] + 1)
+    np.maximum.at(most, episode, tell)
+    return np.where(on, most[episode], 0.0)
+
+
+def hinge_lean(shape: LowerBodyShape, neck_z: np.ndarray) -> np.ndarray:
+    """(F,) the lean of a bow: the hips at their standing height, the trunk bent down to the skull
+    base (legs straight, no knees first: the knees are what a bow does not bend), within MAX_LEAN."""
+    return np.minimum(np.arccos(np.clip((neck_z - shape.pelvis_height) / shape.trunk[2], -1.0, 1.0)), MAX_LEAN)
+
+
+def bowed(shape: LowerBodyShape, neck_z: np.ndarray, squat: np.ndarray, weight) -> np.ndarray:
+    """(F,) the lean `squat` (`trunk_lean`) taken `weight` (F,) of the way to the bow's (`hinge_lean`,
+    never less)."""
+    return squat + weight * np.maximum(hinge_lean(shape, neck_z) - squat, 0.0)
 
 
 def trunk_lean(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
@@ -172,7 +247,8 @@ def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, 
     neck, head_heading, pitch = neck_and_head(shape, head_pos, head_rot)
     heading = clamp_heading(gaussian(head_heading, HEADING_SMOOTH_S * fps), head_heading)
     if seat_height is None:
-        phi = trunk_lean(shape, neck[:, 2], pitch)
+        squat = trunk_lean(shape, neck[:, 2], pitch)
+        phi = bowed(shape, neck[:, 2], squat, bow_weight(shape, neck, pitch, squat))
         pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
     else:
         pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
@@ -205,6 +281,20 @@ class LivePath:
         self._last = None  # (time, pelvis xy, mass centre xy)
         self._velocity = np.zeros(2)
         self._centre_velocity = np.zeros(2)
+        self._upright = None  # the skull base over the floor at the last frame before the episode (`bow_weight`)
+        self._bow = 0.0  # the episode's bow weight so far
+
+    def _bow_so_far(self, neck: np.ndarray, pitch: np.ndarray, squat: np.ndarray) -> float:
+        """`bow_weight` forward only: the most sure frame of the episode so far."""
+        if not leaning(self.shape, neck[2:3], pitch)[0]:
+            self._upright, self._bow = neck[:2].copy(), 0.0
+            return 0.0
+        if self._upright is None:  # the stream begins leaning: its first frame stands for upright
+            self._upright = neck[:2].copy()
+        travel = np.linalg.norm(neck[:2] - self._upright)[None]
+        tell = hinge_tell(self.shape, travel, pitch, squat, hinge_lean(self.shape, neck[2:3]))
+        self._bow = max(self._bow, float(tell[0]))
+        return self._bow
 
     def step(self, t: float, head_pos: np.ndarray, head_rot: np.ndarray) -> BodyPath:
         shape = self.shape
@@ -218,7 +308,8 @@ class LivePath:
         heading = clamp_heading(heading, head_heading)
         self._heading = heading
         if self.seat_height is None:
-            phi = trunk_lean(shape, neck[:, 2], pitch)
+            squat = trunk_lean(shape, neck[:, 2], pitch)
+            phi = bowed(shape, neck[:, 2], squat, self._bow_so_far(neck[0], pitch, squat))
             pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
         else:
             def follow(upright, _self=self, _dt=dt):
