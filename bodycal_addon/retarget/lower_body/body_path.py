@@ -45,6 +45,7 @@ LEAN_PER_PITCH = 0.7
 MAX_LEAN = np.radians(110.0)
 LOWEST_PELVIS = 0.35  # x the standing pelvis height: kneeling, sitting back on a heel
 PELVIS_SHARE = 0.35
+BOW_SPINE = np.radians(45.0)  # a bow's spine bends this much at most; its hips (the pelvis) take the rest
 LIFT_FROM = 0.02  # x stature above the standing pelvis height
 HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
 SEAT_FOLLOW_S = 1.5
@@ -218,9 +219,11 @@ def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, p
             - np.einsum("fij,fj->fi", body_axes(toward), bow))
 
 
-def pelvis_rotation(heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) the estimated pelvis device's rotation: the body's axes tilted by its share."""
-    return body_axes(heading) @ lean(PELVIS_SHARE * phi)
+def pelvis_rotation(heading: np.ndarray, phi: np.ndarray, bow=0.0) -> np.ndarray:
+    """(F, 3, 3) the estimated pelvis device's rotation: the body's axes tilted by its share, in a
+    bow (`bow` (F,) its weight) all the lean past `BOW_SPINE` (a hinge bends at the hips)."""
+    tilt = PELVIS_SHARE * phi
+    return body_axes(heading) @ lean(tilt + bow * np.maximum(phi - BOW_SPINE - tilt, 0.0))
 
 
 def lift_of(shape: LowerBodyShape, pelvis_z: np.ndarray) -> np.ndarray:
@@ -248,13 +251,15 @@ def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, 
     heading = clamp_heading(gaussian(head_heading, HEADING_SMOOTH_S * fps), head_heading)
     if seat_height is None:
         squat = trunk_lean(shape, neck[:, 2], pitch)
-        phi = bowed(shape, neck[:, 2], squat, bow_weight(shape, neck, pitch, squat))
+        bow = bow_weight(shape, neck, pitch, squat)
+        phi = bowed(shape, neck[:, 2], squat, bow)
         pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
     else:
+        bow = 0.0
         pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
     velocity, centre, centre_velocity = over_the_floor(shape, time, neck, pelvis, on_pelvis=seat_height is not None)
     lift = lift_of(shape, pelvis[:, 2]) if seat_height is None else np.zeros(len(time))
-    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, velocity, centre,
+    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi, bow), lift, velocity, centre,
                     centre_velocity)
 
 
@@ -307,9 +312,11 @@ class LivePath:
             heading = self._heading + a * wrap(head_heading - self._heading)
         heading = clamp_heading(heading, head_heading)
         self._heading = heading
+        bow = 0.0
         if self.seat_height is None:
             squat = trunk_lean(shape, neck[:, 2], pitch)
-            phi = bowed(shape, neck[:, 2], squat, self._bow_so_far(neck[0], pitch, squat))
+            bow = self._bow_so_far(neck[0], pitch, squat)
+            phi = bowed(shape, neck[:, 2], squat, bow)
             pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
         else:
             def follow(upright, _self=self, _dt=dt):
@@ -326,7 +333,8 @@ class LivePath:
             self._centre_velocity = self._centre_velocity + a * ((centre - self._last[2]) / dt - self._centre_velocity)
         self._last = (t, pelvis[0, :2].copy(), centre)
         lift = lift_of(shape, pelvis[:, 2]) if self.seat_height is None else np.zeros(1)
-        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, self._velocity[None].copy(),
+        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi, bow), lift,
+                        self._velocity[None].copy(),
                         centre[None], self._centre_velocity[None].copy())
 
 
