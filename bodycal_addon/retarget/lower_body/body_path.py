@@ -18,7 +18,8 @@ over frames.
   the vertical, `HINGE_PITCH`) and travelled forward further than a body balanced over the feet it
   stood on can carry it by leaning (`balanced_reach`: the mass centre stays over the support, so the
   hips go back as the trunk leans, `centre_of`). A squat's head stays within that reach. Offline
-  the episode's whole course decides (looking ahead), live the episode so far (forward only).
+  the episode's whole course decides (looking ahead), live the episode so far (forward only). A
+  bow bends at the hips: its pelvis takes the lean past `BOW_SPINE`.
 - Pelvis: the skull base less the trunk turned by the heading and leaned toward where the head
   looks (the head's own heading: a bow after a quick turn bends toward what the eyes look down
   at, which the smoothed body heading reaches late); it drops as the head
