@@ -55,6 +55,7 @@ HINGE_PITCH = np.radians((80.0, 100.0))  # the head's pitch down over which a bo
 # vertical: the eyes look back under the body, toward feet the head has gone far ahead of)
 HINGE_NEARER = (0.5, 1.0)  # of the way from the squat's balanced travel to the bow's: the ramp of its tell
 HINGE_GAP = 0.1  # x `balanced_reach`: the least gap between the two travels (where they agree)
+DEPTH_PITCH = np.radians(20.0)  # past `LOOK_DOWN`: a bow's weight fades in over this pitch (`depth`)
 
 
 @dataclass
@@ -121,6 +122,15 @@ def leaning(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -
     return (pitch_down > LOOK_DOWN) | (neck_z < standing - KNEES_FIRST * shape.stature)
 
 
+def depth(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
+    """(F,) 0..1 how far into its episode (`leaning`) a frame is: 0 at its edges (the head back at
+    `LOOK_DOWN` and the skull base `KNEES_FIRST` low), 1 from `LOOK_DOWN` + `DEPTH_PITCH` or
+    twice `KNEES_FIRST` low; a bow's weight fades in and out with it (no jump at the edges)."""
+    standing = shape.pelvis_height + shape.trunk[2]
+    drop = (standing - neck_z) / (KNEES_FIRST * shape.stature)
+    return np.maximum(_ramp(pitch_down, LOOK_DOWN, LOOK_DOWN + DEPTH_PITCH), _ramp(drop, 1.0, 2.0))
+
+
 def balanced_reach(shape: LowerBodyShape) -> float:
     """How far forward of where it stood upright a body balanced over the same feet carries its
     skull base per unit of sin(lean), squat or bow alike: its mass centre (`centre_of`) stays over
@@ -151,7 +161,8 @@ def bow_weight(shape: LowerBodyShape, neck: np.ndarray, pitch_down: np.ndarray, 
     """(F,) 0 a squat, 1 a bow, along a whole take (the module docstring): per episode (`leaning`),
     its surest frame's `hinge_tell` (`squat` (F,) the lean `trunk_lean` reads), the head's travel
     measured from the skull base at the frame before the episode (the take's first if it begins
-    leaning). Looks ahead: the whole episode is a bow once any of it is (`LivePath`: so far)."""
+    leaning), faded in and out at the episode's edges (`depth`). Looks ahead: the whole episode is
+    a bow once any of it is (`LivePath`: so far)."""
     on = leaning(shape, neck[:, 2], pitch_down)
     n = len(on)
     if not on.any():
@@ -163,7 +174,7 @@ def bow_weight(shape: LowerBodyShape, neck: np.ndarray, pitch_down: np.ndarray, 
     episode = np.cumsum(~on)
     most = np.zeros(episode[-1] + 1)
     np.maximum.at(most, episode, tell)
-    return np.where(on, most[episode], 0.0)
+    return np.where(on, most[episode], 0.0) * depth(shape, neck[:, 2], pitch_down)
 
 
 def hinge_lean(shape: LowerBodyShape, neck_z: np.ndarray) -> np.ndarray:
@@ -300,7 +311,7 @@ class LivePath:
         travel = np.linalg.norm(neck[:2] - self._upright)[None]
         tell = hinge_tell(self.shape, travel, pitch, squat, hinge_lean(self.shape, neck[2:3]))
         self._bow = max(self._bow, float(tell[0]))
-        return self._bow
+        return self._bow * float(depth(self.shape, neck[2:3], pitch)[0])
 
     def step(self, t: float, head_pos: np.ndarray, head_rot: np.ndarray) -> BodyPath:
         shape = self.shape
