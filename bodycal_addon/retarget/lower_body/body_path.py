@@ -19,7 +19,8 @@ over frames.
   stood on can carry it by leaning (`balanced_reach`: the mass centre stays over the support, so the
   hips go back as the trunk leans, `centre_of`). A squat's head stays within that reach. Offline
   the episode's whole course decides (looking ahead), live the episode so far (forward only). A
-  bow bends at the hips: its pelvis takes the lean past `BOW_SPINE`.
+  bow bends at the hips: its pelvis takes the lean past `BOW_SPINE`, and its hips stay over the
+  planted feet while the head swings ahead (`bow_follow`).
 - Pelvis: the skull base less the trunk turned by the heading and leaned toward where the head
   looks (the head's own heading: a bow after a quick turn bends toward what the eyes look down
   at, which the smoothed body heading reaches late); it drops as the head
@@ -46,7 +47,9 @@ LEAN_PER_PITCH = 0.7
 MAX_LEAN = np.radians(110.0)
 LOWEST_PELVIS = 0.35  # x the standing pelvis height: kneeling, sitting back on a heel
 PELVIS_SHARE = 0.35
-BOW_SPINE = np.radians(45.0)  # a bow's spine bends this much at most; its hips (the pelvis) take the rest
+BOW_SPINE = 0.0  # a bow's spine bends this much at most; its hips (the pelvis) take the rest (a hip hinge
+# keeps the spine neutral: all the lean at the hips)
+BOW_FOLLOW_S = 0.5  # a bow's pelvis follows its place over the floor this slowly (`bow_follow`)
 LIFT_FROM = 0.02  # x stature above the standing pelvis height
 HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
 SEAT_FOLLOW_S = 1.5
@@ -231,6 +234,19 @@ def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, p
             - np.einsum("fij,fj->fi", body_axes(toward), bow))
 
 
+def bow_follow(under: np.ndarray, slow: np.ndarray, bow) -> np.ndarray:
+    """(F, 2) a bow's pelvis over the floor: `bow` (F,) of the way from where the trunk puts it under
+    the head (`under`, `pelvis_under`) to where a whole bow's (`bowed`, weight 1) puts it followed
+    slowly (`slow`, `BOW_FOLLOW_S`; offline both ways, live forward only from the frame the
+    bow is told). Its
+    legs straight and planted, a bow's hips stay over the standing foot while the head spots and
+    swings ahead (the CMU dancer's head turns ~30 degrees ahead of its trunk as it spins): the trunk's
+    0.5 m reach turned with the head swung the pelvis at 2 m/s, its planted foot out of reach
+    on its toes (heel.py)."""
+    w = np.asarray(bow, float)[..., None]
+    return under + w * (slow - under)
+
+
 def pelvis_rotation(heading: np.ndarray, phi: np.ndarray, bow=0.0) -> np.ndarray:
     """(F, 3, 3) the estimated pelvis device's rotation: the body's axes tilted by its share, in a
     bow (`bow` (F,) its weight) all the lean past `BOW_SPINE` (a hinge bends at the hips)."""
@@ -266,6 +282,9 @@ def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, 
         bow = bow_weight(shape, neck, pitch, squat)
         phi = bowed(shape, neck[:, 2], squat, bow)
         pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
+        if bow.any():
+            hinged = pelvis_under(shape, neck, heading, bowed(shape, neck[:, 2], squat, 1.0), head_heading)[:, :2]
+            pelvis[:, :2] = bow_follow(pelvis[:, :2], gaussian(hinged, BOW_FOLLOW_S * fps), bow)
     else:
         bow = 0.0
         pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
@@ -300,6 +319,7 @@ class LivePath:
         self._centre_velocity = np.zeros(2)
         self._upright = None  # the skull base over the floor at the last frame before the episode (`bow_weight`)
         self._bow = 0.0  # the episode's bow weight so far
+        self._slow = None  # the pelvis over the floor followed by `BOW_FOLLOW_S` (`bow_follow`)
 
     def _bow_so_far(self, neck: np.ndarray, pitch: np.ndarray, squat: np.ndarray) -> float:
         """`bow_weight` forward only: the most sure frame of the episode so far."""
@@ -330,6 +350,13 @@ class LivePath:
             bow = self._bow_so_far(neck[0], pitch, squat)
             phi = bowed(shape, neck[:, 2], squat, bow)
             pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
+            if bow > 0.0:  # followed from where the whole bow puts it when the bow is told
+                hinged = pelvis_under(shape, neck, heading, bowed(shape, neck[:, 2], squat, 1.0), head_heading)[0, :2]
+                a = 1.0 if self._slow is None else 1.0 - np.exp(-dt / BOW_FOLLOW_S)
+                self._slow = hinged if self._slow is None else self._slow + a * (hinged - self._slow)
+                pelvis[0, :2] = bow_follow(pelvis[0, :2], self._slow, bow)
+            else:
+                self._slow = None
         else:
             def follow(upright, _self=self, _dt=dt):
                 if _self._seat is None:
