@@ -103,7 +103,8 @@ def test_a_squat_looking_under_itself_stays_a_squat(user):
     neck, _, pitch = body_path.neck_and_head(shape, *lower_body.filled_pose(take, "head"))
     squat = body_path.trunk_lean(shape, neck[:, 2], pitch)
     assert body_path.bow_weight(shape, neck, pitch, squat).max() == 0.0
-    assert np.abs(offline.lean - squat).max() == 0.0
+    # rounding: the skull base computed twice differs in its last bit now and then (measured 2.2e-16)
+    assert np.abs(offline.lean - squat).max() < 1e-12
     assert offline.pelvis[held, 2].max() < shape.pelvis_height - 0.2
     assert live_pelvis[held, 2].max() < shape.pelvis_height - 0.2
 
