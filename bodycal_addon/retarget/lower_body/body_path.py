@@ -12,6 +12,15 @@ over frames.
   a squat (the knees bend): a bow looks down, a squat keeps the head up (`trunk_lean`). The pelvis takes
   `PELVIS_SHARE` of the lean (lumbopelvic rhythm), the spine the rest (the spine IK, aimed at the
   skull base).
+- Bow or squat (`bow_weight`): a lean that starts where the head stood upright (an episode: the
+  head pitched past `LOOK_DOWN` or low) is a bow, a hinge at hips that stay at their standing height
+  over the feet (`hinge_lean`), once the head has both looked back under the body (pitched past
+  the vertical, `HINGE_PITCH`) and travelled forward further than a body balanced over the feet it
+  stood on can carry it by leaning (`balanced_reach`: the mass centre stays over the support, so the
+  hips go back as the trunk leans, `centre_of`). A squat's head stays within that reach. Offline
+  the episode's whole course decides (looking ahead), live the episode so far (forward only). A
+  bow bends at the hips: its pelvis takes the lean past `BOW_SPINE`, and its hips stay over the
+  planted feet while the head swings ahead (`bow_follow`).
 - Pelvis: the skull base less the trunk turned by the heading and leaned toward where the head
   looks (the head's own heading: a bow after a quick turn bends toward what the eyes look down
   at, which the smoothed body heading reaches late); it drops as the head
@@ -38,10 +47,18 @@ LEAN_PER_PITCH = 0.7
 MAX_LEAN = np.radians(110.0)
 LOWEST_PELVIS = 0.35  # x the standing pelvis height: kneeling, sitting back on a heel
 PELVIS_SHARE = 0.35
+BOW_SPINE = 0.0  # a bow's spine bends this much at most; its hips (the pelvis) take the rest (a hip hinge
+# keeps the spine neutral: all the lean at the hips)
+BOW_FOLLOW_S = 0.5  # a bow's pelvis follows its place over the floor this slowly (`bow_follow`)
 LIFT_FROM = 0.02  # x stature above the standing pelvis height
 HIP_ABOVE_SEAT = 0.055  # x stature: the hip joints above the seat (the ischial tuberosities below them)
 SEAT_FOLLOW_S = 1.5
 VELOCITY_SMOOTH_S = 0.06
+HINGE_PITCH = np.radians((80.0, 100.0))  # the head's pitch down over which a bow's tell ramps in (about the
+# vertical: the eyes look back under the body, toward feet the head has gone far ahead of)
+HINGE_NEARER = (0.5, 1.0)  # of the way from the squat's balanced travel to the bow's: the ramp of its tell
+HINGE_GAP = 0.1  # x `balanced_reach`: the least gap between the two travels (where they agree)
+DEPTH_PITCH = np.radians(20.0)  # past `LOOK_DOWN`: a bow's weight fades in over this pitch (`depth`)
 
 
 @dataclass
@@ -101,6 +118,80 @@ def clamp_heading(body: np.ndarray, head: np.ndarray) -> np.ndarray:
     return head + np.clip(wrap(body - head), -MAX_NECK_TWIST, MAX_NECK_TWIST)
 
 
+def leaning(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
+    """(F,) bool: the frames of a lean or a drop (an episode `bow_weight` reads): the head pitched
+    down past `LOOK_DOWN` or its skull base more than `KNEES_FIRST` below its standing height."""
+    standing = shape.pelvis_height + shape.trunk[2]
+    return (pitch_down > LOOK_DOWN) | (neck_z < standing - KNEES_FIRST * shape.stature)
+
+
+def depth(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
+    """(F,) 0..1 how far into its episode (`leaning`) a frame is: 0 at its edges (the head back at
+    `LOOK_DOWN` and the skull base `KNEES_FIRST` low), 1 from `LOOK_DOWN` + `DEPTH_PITCH` or
+    twice `KNEES_FIRST` low; a bow's weight fades in and out with it (no jump at the edges)."""
+    standing = shape.pelvis_height + shape.trunk[2]
+    drop = (standing - neck_z) / (KNEES_FIRST * shape.stature)
+    return np.maximum(_ramp(pitch_down, LOOK_DOWN, LOOK_DOWN + DEPTH_PITCH), _ramp(drop, 1.0, 2.0))
+
+
+def balanced_reach(shape: LowerBodyShape) -> float:
+    """How far forward of where it stood upright a body balanced over the same feet carries its
+    skull base per unit of sin(lean), squat or bow alike: its mass centre (`centre_of`) stays over
+    the feet, so the pelvis goes back `centre_share` of the trunk's horizontal reach u sin(lean)
+    and the head forward the rest, (1 - centre_share) u sin(lean)."""
+    return (1.0 - shape.centre_share) * float(shape.trunk[2])
+
+
+def hinge_tell(shape: LowerBodyShape, travel: np.ndarray, pitch_down: np.ndarray, squat: np.ndarray,
+               bow: np.ndarray) -> np.ndarray:
+    """(F,) 0..1 how surely a frame is a bow: the head pitched past the vertical (`HINGE_PITCH`)
+    and its skull base carried forward since its episode began (`travel`, m) nearer the bow's
+    balanced travel than the squat's (`balanced_reach` times the sine of each reading's lean,
+    `squat` and `bow`; `HINGE_NEARER` of the way, the gap between them at least `HINGE_GAP` of the
+    reach: where the two agree, a head well beyond the squat's is the bow's)."""
+    reach = max(balanced_reach(shape), 1e-9)
+    at_squat = reach * np.sin(squat)
+    gap = np.maximum(reach * np.sin(bow) - at_squat, HINGE_GAP * reach)
+    return _ramp(pitch_down, *HINGE_PITCH) * _ramp((travel - at_squat) / gap, *HINGE_NEARER)
+
+
+def _ramp(x, lo, hi):
+    u = np.clip((np.asarray(x, float) - lo) / (hi - lo), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def bow_weight(shape: LowerBodyShape, neck: np.ndarray, pitch_down: np.ndarray, squat: np.ndarray) -> np.ndarray:
+    """(F,) 0 a squat, 1 a bow, along a whole take (the module docstring): per episode (`leaning`),
+    its surest frame's `hinge_tell` (`squat` (F,) the lean `trunk_lean` reads), the head's travel
+    measured from the skull base at the frame before the episode (the take's first if it begins
+    leaning), faded in and out at the episode's edges (`depth`). Looks ahead: the whole episode is
+    a bow once any of it is (`LivePath`: so far)."""
+    on = leaning(shape, neck[:, 2], pitch_down)
+    n = len(on)
+    if not on.any():
+        return np.zeros(n)
+    frames = np.arange(n)
+    before = np.maximum.accumulate(np.where(on, 0, frames))  # each frame's last upright frame
+    travel = np.linalg.norm(neck[:, :2] - neck[before, :2], axis=1)
+    tell = np.where(on, hinge_tell(shape, travel, pitch_down, squat, hinge_lean(shape, neck[:, 2])), 0.0)
+    episode = np.cumsum(~on)
+    most = np.zeros(episode[-1] + 1)
+    np.maximum.at(most, episode, tell)
+    return np.where(on, most[episode], 0.0) * depth(shape, neck[:, 2], pitch_down)
+
+
+def hinge_lean(shape: LowerBodyShape, neck_z: np.ndarray) -> np.ndarray:
+    """(F,) the lean of a bow: the hips at their standing height, the trunk bent down to the skull
+    base (legs straight, no knees first: the knees are what a bow does not bend), within MAX_LEAN."""
+    return np.minimum(np.arccos(np.clip((neck_z - shape.pelvis_height) / shape.trunk[2], -1.0, 1.0)), MAX_LEAN)
+
+
+def bowed(shape: LowerBodyShape, neck_z: np.ndarray, squat: np.ndarray, weight) -> np.ndarray:
+    """(F,) the lean `squat` (`trunk_lean`) taken `weight` (F,) of the way to the bow's (`hinge_lean`,
+    never less)."""
+    return squat + weight * np.maximum(hinge_lean(shape, neck_z) - squat, 0.0)
+
+
 def trunk_lean(shape: LowerBodyShape, neck_z: np.ndarray, pitch_down: np.ndarray) -> np.ndarray:
     """(F,) the trunk's forward lean (the module docstring): `LEAN_PER_PITCH` of the head's pitch
     down beyond `LOOK_DOWN` (the eyes and the neck take that much), and no more than a bow with
@@ -143,9 +234,24 @@ def pelvis_under(shape: LowerBodyShape, neck: np.ndarray, heading: np.ndarray, p
             - np.einsum("fij,fj->fi", body_axes(toward), bow))
 
 
-def pelvis_rotation(heading: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """(F, 3, 3) the estimated pelvis device's rotation: the body's axes tilted by its share."""
-    return body_axes(heading) @ lean(PELVIS_SHARE * phi)
+def bow_follow(under: np.ndarray, slow: np.ndarray, bow) -> np.ndarray:
+    """(F, 2) a bow's pelvis over the floor: `bow` (F,) of the way from where the trunk puts it under
+    the head (`under`, `pelvis_under`) to where a whole bow's (`bowed`, weight 1) puts it followed
+    slowly (`slow`, `BOW_FOLLOW_S`; offline both ways, live forward only from the frame the
+    bow is told). Its
+    legs straight and planted, a bow's hips stay over the standing foot while the head spots and
+    swings ahead (the CMU dancer's head turns ~30 degrees ahead of its trunk as it spins): the trunk's
+    0.5 m reach turned with the head swung the pelvis at 2 m/s, its planted foot out of reach
+    on its toes (heel.py)."""
+    w = np.asarray(bow, float)[..., None]
+    return under + w * (slow - under)
+
+
+def pelvis_rotation(heading: np.ndarray, phi: np.ndarray, bow=0.0) -> np.ndarray:
+    """(F, 3, 3) the estimated pelvis device's rotation: the body's axes tilted by its share, in a
+    bow (`bow` (F,) its weight) all the lean past `BOW_SPINE` (a hinge bends at the hips)."""
+    tilt = PELVIS_SHARE * phi
+    return body_axes(heading) @ lean(tilt + bow * np.maximum(phi - BOW_SPINE - tilt, 0.0))
 
 
 def lift_of(shape: LowerBodyShape, pelvis_z: np.ndarray) -> np.ndarray:
@@ -172,13 +278,19 @@ def offline_path(shape: LowerBodyShape, time: np.ndarray, head_pos: np.ndarray, 
     neck, head_heading, pitch = neck_and_head(shape, head_pos, head_rot)
     heading = clamp_heading(gaussian(head_heading, HEADING_SMOOTH_S * fps), head_heading)
     if seat_height is None:
-        phi = trunk_lean(shape, neck[:, 2], pitch)
+        squat = trunk_lean(shape, neck[:, 2], pitch)
+        bow = bow_weight(shape, neck, pitch, squat)
+        phi = bowed(shape, neck[:, 2], squat, bow)
         pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
+        if bow.any():
+            hinged = pelvis_under(shape, neck, heading, bowed(shape, neck[:, 2], squat, 1.0), head_heading)[:, :2]
+            pelvis[:, :2] = bow_follow(pelvis[:, :2], gaussian(hinged, BOW_FOLLOW_S * fps), bow)
     else:
+        bow = 0.0
         pelvis, phi = _seated(shape, neck, heading, seat_height, lambda x: gaussian(x, SEAT_FOLLOW_S * fps))
     velocity, centre, centre_velocity = over_the_floor(shape, time, neck, pelvis, on_pelvis=seat_height is not None)
     lift = lift_of(shape, pelvis[:, 2]) if seat_height is None else np.zeros(len(time))
-    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, velocity, centre,
+    return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi, bow), lift, velocity, centre,
                     centre_velocity)
 
 
@@ -205,6 +317,21 @@ class LivePath:
         self._last = None  # (time, pelvis xy, mass centre xy)
         self._velocity = np.zeros(2)
         self._centre_velocity = np.zeros(2)
+        self._upright = None  # the skull base over the floor at the last frame before the episode (`bow_weight`)
+        self._bow = 0.0  # the episode's bow weight so far
+        self._slow = None  # the pelvis over the floor followed by `BOW_FOLLOW_S` (`bow_follow`)
+
+    def _bow_so_far(self, neck: np.ndarray, pitch: np.ndarray, squat: np.ndarray) -> float:
+        """`bow_weight` forward only: the most sure frame of the episode so far."""
+        if not leaning(self.shape, neck[2:3], pitch)[0]:
+            self._upright, self._bow = neck[:2].copy(), 0.0
+            return 0.0
+        if self._upright is None:  # the stream begins leaning: its first frame stands for upright
+            self._upright = neck[:2].copy()
+        travel = np.linalg.norm(neck[:2] - self._upright)[None]
+        tell = hinge_tell(self.shape, travel, pitch, squat, hinge_lean(self.shape, neck[2:3]))
+        self._bow = max(self._bow, float(tell[0]))
+        return self._bow * float(depth(self.shape, neck[2:3], pitch)[0])
 
     def step(self, t: float, head_pos: np.ndarray, head_rot: np.ndarray) -> BodyPath:
         shape = self.shape
@@ -217,9 +344,19 @@ class LivePath:
             heading = self._heading + a * wrap(head_heading - self._heading)
         heading = clamp_heading(heading, head_heading)
         self._heading = heading
+        bow = 0.0
         if self.seat_height is None:
-            phi = trunk_lean(shape, neck[:, 2], pitch)
+            squat = trunk_lean(shape, neck[:, 2], pitch)
+            bow = self._bow_so_far(neck[0], pitch, squat)
+            phi = bowed(shape, neck[:, 2], squat, bow)
             pelvis = pelvis_under(shape, neck, heading, phi, head_heading)
+            if bow > 0.0:  # followed from where the whole bow puts it when the bow is told
+                hinged = pelvis_under(shape, neck, heading, bowed(shape, neck[:, 2], squat, 1.0), head_heading)[0, :2]
+                a = 1.0 if self._slow is None else 1.0 - np.exp(-dt / BOW_FOLLOW_S)
+                self._slow = hinged if self._slow is None else self._slow + a * (hinged - self._slow)
+                pelvis[0, :2] = bow_follow(pelvis[0, :2], self._slow, bow)
+            else:
+                self._slow = None
         else:
             def follow(upright, _self=self, _dt=dt):
                 if _self._seat is None:
@@ -235,7 +372,8 @@ class LivePath:
             self._centre_velocity = self._centre_velocity + a * ((centre - self._last[2]) / dt - self._centre_velocity)
         self._last = (t, pelvis[0, :2].copy(), centre)
         lift = lift_of(shape, pelvis[:, 2]) if self.seat_height is None else np.zeros(1)
-        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi), lift, self._velocity[None].copy(),
+        return BodyPath(neck, heading, phi, pelvis, pelvis_rotation(heading, phi, bow), lift,
+                        self._velocity[None].copy(),
                         centre[None], self._centre_velocity[None].copy())
 
 
