@@ -73,7 +73,7 @@ SHOULDER_REACH = math.radians(25.0)
 ELBOW_HAND_REST = (0.4, -0.6, 0.7)
 ELBOW_POLE = (0.3, -1.0, -2.0)
 ELBOW_HAND_ROLL = 0.3
-# Where that undefined direction goes instead (issue 39): a hand behind and above its shoulder,
+# Where that undefined direction goes instead: a hand behind and above its shoulder,
 # opposite ELBOW_HAND_REST, is where the real takes' hands went (within 30 degrees of it: 10 % of
 # the `tracked` take's frames, 8 % of simsaber's, 4 % of grabLeft's; a Beat Saber player's hand near
 # the shoulder), and each pass flipped the elbow: simsaber's rotation copy's wrist 1.50x the
@@ -725,7 +725,7 @@ def estimated_elbow_right(shoulder, wrist, left, side_sign, neck, pelvis, hand_r
     arm, -1 right; up from the pelvis to the neck; each vector (out, up, forward)): with the hand
     along ELBOW_HAND_REST the elbow points along ELBOW_POLE; elsewhere that pole swung by the
     shortest turn from ELBOW_HAND_REST to the shoulder-wrist axis, so the swivel is smooth
-    everywhere but behind and above the shoulder, where no hand goes (a fixed pole seen square to
+    everywhere but straight behind the shoulder (ELBOW_UNDEFINED, where no hand goes) (a fixed pole seen square to
     the axis flips where the axis passes it, or its opposite: a hand raised forward). Plus
     ELBOW_HAND_ROLL of the swivel the hand device's `hand_right` gives. Of the current frame
     only: a live frame and a bake agree."""
