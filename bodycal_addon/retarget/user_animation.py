@@ -73,6 +73,18 @@ SHOULDER_REACH = math.radians(25.0)
 ELBOW_HAND_REST = (0.4, -0.6, 0.7)
 ELBOW_POLE = (0.3, -1.0, -2.0)
 ELBOW_HAND_ROLL = 0.3
+# Where that undefined direction goes instead: a hand behind and above its shoulder,
+# opposite ELBOW_HAND_REST, is where the real takes' hands went (within 30 degrees of it: 10 % of
+# the `tracked` take's frames, 8 % of simsaber's, 4 % of grabLeft's; a Beat Saber player's hand near
+# the shoulder), and each pass flipped the elbow: simsaber's rotation copy's wrist 1.50x the
+# controllers'. Straight behind the shoulder, toward the back and a little down (within 30 degrees:
+# no frame of four takes, 0.01-0.06 % of the other two and the CMU clips) a hand hardly goes. Near
+# the arc between the two the swivel is the pole swung from the opposite of ELBOW_UNDEFINED
+# (defined there), turned into the one swung from ELBOW_HAND_REST by the shorter way between
+# ELBOW_BLEND (angles from the arc's middle; the two never point opposite there, 123 degrees apart
+# at most): everywhere else the swivel is what it was.
+ELBOW_UNDEFINED = (-0.5, -0.1, -0.85)
+ELBOW_BLEND = (math.radians(35.0), math.radians(55.0))
 
 
 def _elbow_frame(rest, pole) -> tuple[np.ndarray, np.ndarray]:
@@ -83,7 +95,19 @@ def _elbow_frame(rest, pole) -> tuple[np.ndarray, np.ndarray]:
     return rest, pole / np.linalg.norm(pole)
 
 
+def _moved_frame(rest, pole, undefined) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(anchor, its pole, the arc's middle): the hand direction opposite `undefined`, the pole
+    carried there by the shortest turn from `rest` (swinging it back gives `pole` again: the turns
+    from u to v and from v to u are one turn's two senses), and the middle of the arc from
+    -`rest` to `undefined`."""
+    anchor = -np.asarray(undefined, float) / np.linalg.norm(undefined)
+    c, k = rest @ anchor, np.cross(rest, anchor)
+    middle = undefined / np.linalg.norm(undefined) - rest
+    return anchor, pole * c + np.cross(k, pole) + k * (k @ pole) / (1.0 + c), middle / np.linalg.norm(middle)
+
+
 _ELBOW_FRAME = _elbow_frame(ELBOW_HAND_REST, ELBOW_POLE)
+_ELBOW_MOVED = _moved_frame(*_ELBOW_FRAME, ELBOW_UNDEFINED)
 LIMB_SEGMENTS = {  # side-less limb: (anchor, intermediate, effector, anchored bone, intermediate bone)
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
     "leg": ("hip", "knee", "ankle", "thigh", "shin"),
@@ -701,7 +725,7 @@ def estimated_elbow_right(shoulder, wrist, left, side_sign, neck, pelvis, hand_r
     arm, -1 right; up from the pelvis to the neck; each vector (out, up, forward)): with the hand
     along ELBOW_HAND_REST the elbow points along ELBOW_POLE; elsewhere that pole swung by the
     shortest turn from ELBOW_HAND_REST to the shoulder-wrist axis, so the swivel is smooth
-    everywhere but behind and above the shoulder, where no hand goes (a fixed pole seen square to
+    everywhere but straight behind the shoulder (ELBOW_UNDEFINED, where no hand goes) (a fixed pole seen square to
     the axis flips where the axis passes it, or its opposite: a hand raised forward). Plus
     ELBOW_HAND_ROLL of the swivel the hand device's `hand_right` gives. Of the current frame
     only: a live frame and a bake agree."""
@@ -711,17 +735,31 @@ def estimated_elbow_right(shoulder, wrist, left, side_sign, neck, pelvis, hand_r
     up = normalize(up - np.einsum("fi,fi->f", up, left)[:, None] * left)
     forward = cross(left, up)
     rest, pole = (_in_shoulders(v, side_sign, left, up, forward) for v in _ELBOW_FRAME)
-    # the pole turned by the shortest turn from `rest` to `axis` (Rodrigues, with the turn's
-    # axis k = rest x axis unnormalised: v cos + k x v + k (k.v) / (1 + cos))
-    c = np.einsum("fi,fi->f", rest, axis)
-    k = cross(rest, axis)
-    swivel = pole * c[:, None] + cross(k, pole) + k * (np.einsum("fi,fi->f", k, pole)
-                                                       / np.maximum(1.0 + c, 1e-9))[:, None]
+    anchor, anchor_pole, middle = (_in_shoulders(v, side_sign, left, up, forward) for v in _ELBOW_MOVED)
+    swivel = _swung(pole, rest, axis)
+    # near the undefined direction the pole swung from the anchor, turned back toward `swivel` by
+    # the share `w` of the shorter angle between them (about the axis both are square to)
+    moved = _swung(anchor_pole, anchor, axis)
+    apart = np.arccos(np.clip(np.einsum("fi,fi->f", axis, middle), -1.0, 1.0))
+    w = np.clip((apart - ELBOW_BLEND[0]) / (ELBOW_BLEND[1] - ELBOW_BLEND[0]), 0.0, 1.0)
+    turn = (w * w * (3.0 - 2.0 * w)) * np.arctan2(np.einsum("fi,fi->f", axis, cross(moved, swivel)),
+                                                  np.einsum("fi,fi->f", moved, swivel))
+    swivel = moved * np.cos(turn)[:, None] + cross(axis, moved) * np.sin(turn)[:, None]
     if ELBOW_HAND_ROLL:
         hand = cross(axis, hand_right)  # the swivel the hand's right gives (`_two_bone_mid`)
         swivel = normalize(swivel) + ELBOW_HAND_ROLL * normalize(
             hand - np.einsum("fi,fi->f", hand, axis)[:, None] * axis)
     return cross(swivel, axis)
+
+
+def _swung(pole, rest, axis):
+    """`pole` (square to `rest`) turned by the shortest turn from `rest` to `axis` (Rodrigues, with
+    the turn's axis k = rest x axis unnormalised: v cos + k x v + k (k.v) / (1 + cos)); undefined
+    where `axis` is opposite `rest`."""
+    c = np.einsum("fi,fi->f", rest, axis)
+    k = cross(rest, axis)
+    return pole * c[:, None] + cross(k, pole) + k * (np.einsum("fi,fi->f", k, pole)
+                                                     / np.maximum(1.0 + c, 1e-9))[:, None]
 
 
 def _in_shoulders(v, side_sign, left, up, forward):

@@ -92,3 +92,37 @@ def test_a_controller_rolled_in_place_does_not_swing_the_elbow(cmu_three):
     assert np.percentile(turned, 95) < 20.0, np.percentile(turned, 95)
     # the left arm is another arm
     np.testing.assert_allclose(rolled.joint("elbow_l"), pose.joint("elbow_l"), atol=1e-5)
+
+
+@pytest.mark.parametrize("roll_deg", [0.0, 60.0, 120.0, 180.0, 240.0, 300.0])
+def test_a_hand_passing_behind_and_above_its_shoulder_does_not_flip_the_elbow(roll_deg):
+    """The swivel's one undefined direction (the hand opposite ELBOW_HAND_REST: behind and above
+    the shoulder, where a Beat Saber player's hand goes near the shoulder): a hand sweeping through
+    it in 0.5-degree steps, along great circles of eight headings, turns the swivel smoothly
+    (before: the shortest-turn pole flipped there, up to 180 degrees in one step, and the rotation
+    copy's wrist on the real simsaber take rose to 1.50x the controllers')."""
+    from bodycal_addon.retarget import user_animation as ua
+
+    rest = np.asarray(ua.ELBOW_HAND_REST, float)
+    rest /= np.linalg.norm(rest)
+    back = -rest  # (out, up, forward) in the shoulders' frame, the left arm: world x left, z up, -y forward
+    worst = 0.0
+    for heading in np.radians(np.arange(0.0, 180.0, 22.5)):
+        side = np.cross(back, [0.0, 1.0, 0.0])
+        side /= np.linalg.norm(side)
+        side = np.cos(heading) * side + np.sin(heading) * np.cross(back, side)
+        t = np.radians(np.arange(-40.0, 40.0, 0.5))[:, None]
+        local = np.cos(t) * back + np.sin(t) * side  # through `back` at t = 0
+        wrist = np.stack([local[:, 0], -local[:, 2], local[:, 1]], axis=1) * 0.5
+        f = len(wrist)
+        # the hand's right: square to the forearm, turned by `roll_deg` about it
+        ref = np.cross(wrist, [0.0, 0.0, 1.0])
+        ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+        ax = wrist / np.linalg.norm(wrist, axis=1, keepdims=True)
+        r = np.radians(roll_deg)
+        hand_right = np.cos(r) * ref + np.sin(r) * np.cross(ax, ref)
+        right = ua.estimated_elbow_right(np.zeros((f, 3)), wrist, np.tile([1.0, 0.0, 0.0], (f, 1)), 1.0,
+                                         np.tile([0.0, 0.0, 0.5], (f, 1)), np.zeros((f, 3)), hand_right)
+        right /= np.linalg.norm(right, axis=1, keepdims=True)
+        worst = max(worst, float(_angle_deg(right[1:], right[:-1]).max()))
+    assert worst < 10.0, f"the elbow's swivel turned {worst:.0f} degrees in one 0.5-degree step"
