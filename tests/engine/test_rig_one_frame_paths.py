@@ -1,4 +1,4 @@
-"""One frame's rig paths (DESIGN.md "Prepared solver", rig50): the basis of every bone in one
+"""One frame's rig paths (DESIGN.md "Prepared solver"): the basis of every bone in one
 product pass (`basis._solve_one`), the root placed and its location read in Python floats
 (`fk._place_root`, `basis._root_location_one`), consecutive rows written as slices
 (`pose_plan.rows_of`) give the values a pose of more frames gives that frame: bit for bit where
