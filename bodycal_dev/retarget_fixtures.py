@@ -281,12 +281,18 @@ def plain_and_turned_avatars() -> tuple[BodyModel, BodyModel]:
 
 
 
+def synthetic_take(seed: int, motions: tuple = ("clap", "hand_on_head"), seconds: float = 1.0):
+    """(the recording, the performer's body model) of a synthetic take of `motions`, without
+    calibration (the performer's truth stands for it)."""
+    perf = synthetic.make_performer(seed=seed)
+    rec, truth = synthetic.record_session(perf, motions=motions, calibration=False, motion_seconds=seconds)
+    return rec, truth.body_model()
+
+
 def rigs_on_a_take(seed: int, motions: tuple, seconds: float):
     """For each of `plain_and_turned_avatars`: (its rig, the bone frames a synthetic take of
     `motions` gives it, the user's pelvis (F, 3)); the take made once, without calibration."""
-    perf = synthetic.make_performer(seed=seed)
-    rec, truth = synthetic.record_session(perf, motions=motions, calibration=False, motion_seconds=seconds)
-    user = truth.body_model()
+    rec, user = synthetic_take(seed, motions, seconds)
     up = ua.animate_user(rec, user)
     for avatar in plain_and_turned_avatars():
         rig = ap.AvatarRig.from_model(avatar)

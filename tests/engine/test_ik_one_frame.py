@@ -15,7 +15,6 @@ from bodycal_addon.retarget import solver as solver_module
 from bodycal_addon.retarget.pose_source import RecordingSource
 from bodycal_addon.retarget.solver import PreparedSolver
 from bodycal_dev import retarget_fixtures as rt
-from bodycal_dev import synthetic
 
 
 class _Up:
@@ -42,10 +41,7 @@ def test_the_user_s_swivel_and_the_shoulders_of_one_frame_are_numpy_s_to_the_bit
 
 @pytest.fixture(scope="module")
 def take():
-    perf = synthetic.make_performer(seed=4)
-    rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
-                                          motion_seconds=1.0)
-    return rec, truth.body_model()
+    return rt.synthetic_take(seed=4)
 
 
 @pytest.mark.parametrize("method", ["egocentric", "offsets"])  # (the rotation copy has no limb IK)

@@ -17,7 +17,6 @@ from bodycal_addon.retarget import user_animation as ua
 from bodycal_addon.retarget.pose_source import RecordingSource
 from bodycal_addon.retarget.solver import PreparedSolver
 from bodycal_dev import retarget_fixtures as rt
-from bodycal_dev import synthetic
 
 
 def test_mathutils_is_there_and_single_precision():
@@ -27,10 +26,7 @@ def test_mathutils_is_there_and_single_precision():
 
 @pytest.fixture(scope="module")
 def take():
-    perf = synthetic.make_performer(seed=2)
-    rec, truth = synthetic.record_session(perf, motions=("clap", "hand_on_head"), calibration=False,
-                                          motion_seconds=1.0)
-    return rec, truth.body_model()
+    return rt.synthetic_take(seed=2)
 
 
 def test_one_frame_s_chain_aim_is_numpy_s(take, monkeypatch):
