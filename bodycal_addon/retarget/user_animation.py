@@ -95,15 +95,24 @@ def _elbow_frame(rest, pole) -> tuple[np.ndarray, np.ndarray]:
     return rest, pole / np.linalg.norm(pole)
 
 
+def _swung(pole, rest, axis):
+    """`pole` (square to `rest`) turned by the shortest turn from `rest` to `axis` (Rodrigues, with
+    the turn's axis k = rest x axis unnormalised: v cos + k x v + k (k.v) / (1 + cos)); undefined
+    where `axis` is opposite `rest`."""
+    c = np.einsum("fi,fi->f", rest, axis)
+    k = cross(rest, axis)
+    return pole * c[:, None] + cross(k, pole) + k * (np.einsum("fi,fi->f", k, pole)
+                                                     / np.maximum(1.0 + c, 1e-9))[:, None]
+
+
 def _moved_frame(rest, pole, undefined) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(anchor, its pole, the arc's middle): the hand direction opposite `undefined`, the pole
     carried there by the shortest turn from `rest` (swinging it back gives `pole` again: the turns
     from u to v and from v to u are one turn's two senses), and the middle of the arc from
     -`rest` to `undefined`."""
     anchor = -np.asarray(undefined, float) / np.linalg.norm(undefined)
-    c, k = rest @ anchor, np.cross(rest, anchor)
     middle = undefined / np.linalg.norm(undefined) - rest
-    return anchor, pole * c + np.cross(k, pole) + k * (k @ pole) / (1.0 + c), middle / np.linalg.norm(middle)
+    return anchor, _swung(pole[None], rest[None], anchor[None])[0], middle / np.linalg.norm(middle)
 
 
 _ELBOW_FRAME = _elbow_frame(ELBOW_HAND_REST, ELBOW_POLE)
@@ -112,8 +121,6 @@ LIMB_SEGMENTS = {  # side-less limb: (anchor, intermediate, effector, anchored b
     "arm": ("shoulder", "elbow", "wrist", "upperarm", "forearm"),
     "leg": ("hip", "knee", "ankle", "thigh", "shin"),
 }
-
-
 
 
 @dataclass
@@ -750,16 +757,6 @@ def estimated_elbow_right(shoulder, wrist, left, side_sign, neck, pelvis, hand_r
         swivel = normalize(swivel) + ELBOW_HAND_ROLL * normalize(
             hand - np.einsum("fi,fi->f", hand, axis)[:, None] * axis)
     return cross(swivel, axis)
-
-
-def _swung(pole, rest, axis):
-    """`pole` (square to `rest`) turned by the shortest turn from `rest` to `axis` (Rodrigues, with
-    the turn's axis k = rest x axis unnormalised: v cos + k x v + k (k.v) / (1 + cos)); undefined
-    where `axis` is opposite `rest`."""
-    c = np.einsum("fi,fi->f", rest, axis)
-    k = cross(rest, axis)
-    return pole * c[:, None] + cross(k, pole) + k * (np.einsum("fi,fi->f", k, pole)
-                                                     / np.maximum(1.0 + c, 1e-9))[:, None]
 
 
 def _in_shoulders(v, side_sign, left, up, forward):
