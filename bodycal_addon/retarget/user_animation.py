@@ -37,7 +37,6 @@ from ..calibration.coverage import ANIMATED_ROLES
 from ..core import one_frame
 from ..core.errors import BodyCalError
 from ..core.geometry import two_bone_mid
-from ..core.one_frame import Matrix, Vector
 from ..core.transforms import (
     EPS,
     all_true,
@@ -235,6 +234,7 @@ class UserAnimator:
         self.sac_len = float(np.linalg.norm(rest_pos["spine_root"] - rest_pos["pelvis"]))
         rest_spine = np.stack([rest_pos[j] for j in SPINE_JOINTS])
         self.rest_segments = np.diff(rest_spine, axis=0) @ C0[BI["sacrum"]]
+        self._hip_offset_floats = self.hip_offset.tolist()  # (`_trunk_one`)
 
     @property
     def plan(self) -> _Plan:
@@ -614,6 +614,8 @@ class UserAnimator:
         """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
         hip line, the spine aimed at the skull base with its twist shared hips -> shoulders -> head
         (`ik.spine`), and the clavicles (their x hint: built by `animate`). Needs the limbs and head."""
+        if len(sac) == 1 and one_frame.ENABLED:
+            return self._trunk_one(P, Fr, sac, hints)
         hip_l, hip_r = P["hip_l"], P["hip_r"]
         sac = sacrum_toward_hip_line(sac, hip_l, hip_r)
         from_hips = 0.5 * (hip_l + hip_r) + stack_apply(sac, self.hip_offset)
@@ -626,6 +628,36 @@ class UserAnimator:
         P.pos[:, _SPINE_JOINT_ROWS] = res.joints
         Fr[:, _SPINE_ROWS] = res.rotations
         P.pos[:, _CLAVICLE_JOINT_ROWS] = res.joints[:, sk.CLAVICLE_VERTEBRA, None]
+        hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
+
+    def _trunk_one(self, P: _Joints, Fr: np.ndarray, sac: np.ndarray, hints: list) -> None:
+        """`_trunk` of ONE frame: its few vectors (the sacrum turned toward the hip line, the hips'
+        and the tracker's pelvis, the shoulders' line) in Python floats, float64, read out in one
+        call and handed to the spine IK in one array (each numpy call on a single vector costs
+        5,000-10,000 instructions, a float operation about 130), the spine IK (`ik.spine`) as the
+        block's; the sums in numpy's order."""
+        pos = P.pos[0]
+        hl, hr, pe, sl, sr = pos.take(_TRUNK_ROWS, axis=0).tolist()
+        rows = _sacrum_turned(sac[0].tolist(), hl, hr)
+        if rows is None:  # a vanishing hip line: numpy's fallbacks
+            rows = sacrum_toward_hip_line(sac, P["hip_l"], P["hip_r"])[0].tolist()
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rows
+        o0, o1, o2 = self._hip_offset_floats
+        # the hips' pelvis, 0.5 (hip_l + hip_r) + sacrum offset, and the tracker's, averaged
+        pelvis = [0.5 * (pe[0] + (0.5 * (hl[0] + hr[0]) + ((a0 * o0 + a1 * o1) + a2 * o2))),
+                  0.5 * (pe[1] + (0.5 * (hl[1] + hr[1]) + ((b0 * o0 + b1 * o1) + b2 * o2))),
+                  0.5 * (pe[2] + (0.5 * (hl[2] + hr[2]) + ((c0 * o0 + c1 * o1) + c2 * o2)))]
+        t0, t1, t2 = sl[0] - sr[0], sl[1] - sr[1], sl[2] - sr[2]  # the shoulders' line, normalised
+        size = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        top = [t0 / size, t1 / size, t2 / size] if size > EPS else [0.0, 0.0, 0.0]
+        arr = np.array([pelvis, top, *rows])  # (5, 3): pelvis, the top's right, the sacrum's rows
+        pos[JI["pelvis"]] = arr[0]
+        res = ik.spine(arr[0:1], arr[None, 2:], self.sac_len, None, pos[None, JI["skull_base"]],
+                       top_right=arr[1:2], two_pass=False, rest_segments=self.rest_segments)
+        Fr[0, BI["sacrum"]] = arr[2:]
+        pos[_SPINE_JOINT_ROWS] = res.joints[0]
+        Fr[0, _SPINE_ROWS] = res.rotations[0]
+        pos[_CLAVICLE_JOINT_ROWS] = res.joints[0, sk.CLAVICLE_VERTEBRA]
         hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
 
     def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int,
@@ -682,6 +714,7 @@ _SHORTCUTS = [b for b in BONES if b.shortcut]
 _SPINE_ROWS = np.array([BI[b] for b in SPINE_BONES], int)
 _SPINE_JOINT_ROWS = np.array([JI[j] for j in SPINE_JOINTS], int)
 _CLAVICLE_JOINT_ROWS = np.array([JI[f"clavicle_{s}"] for s in sk.SIDES], int)
+_TRUNK_ROWS = np.array([JI[j] for j in ("hip_l", "hip_r", "pelvis", "shoulder_l", "shoulder_r")], int)
 _WRIST_JOINT_ROWS = np.array([JI[f"wrist_{s}"] for s in sk.SIDES], int)
 _CLAVICLE_SPINE_ROW = SPINE_BONES.index(f"spine_{sk.CLAVICLE_VERTEBRA:02d}")  # the vertebra the clavicles hang from
 # the frames rigid on a device (R_T(t) R_T0^-1 C0), as they are: bone -> its rigid frame's key in _Plan.rigid
@@ -694,18 +727,43 @@ def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndar
     """The sacrum frame (..., 3, 3) turned so its lateral axis lies half way to the hip line
     (Delahaye 2023, appendix D "Trunk animation"): the pelvis tracker's mounting and the fitted
     hip centres each carry their own error, and their average is never worse than the worse of them.
-    One frame: the same steps in mathutils (core/one_frame.py), where neither vector vanishes."""
+    One frame: the same turn in Python floats (`_sacrum_turned`), where neither vector vanishes."""
     if sacrum.shape[:-2] == (1,) and one_frame.ENABLED:
-        x = Vector(sacrum[0, :, 0].tolist())
-        line = Vector((hip_l[0] - hip_r[0]).tolist())
-        if line.length > EPS:
-            toward = x + line.normalized()
-            if toward.length > EPS:
-                fix = x.rotation_difference(toward).to_matrix()
-                return one_frame.matrix_array([fix @ Matrix(sacrum[0].tolist())])
+        rows = _sacrum_turned(sacrum[0].tolist(), hip_l[0].tolist(), hip_r[0].tolist())
+        if rows is not None:
+            return np.array(rows)[None]
     x_rigid = sacrum[..., :, 0]
     toward = normalize(x_rigid + normalize(hip_l - hip_r))
     return matmul_stack(quat_to_matrix(quat_between(x_rigid, toward)), sacrum)
+
+
+def _sacrum_turned(rows: list, hip_l: list, hip_r: list) -> list | None:
+    """`sacrum_toward_hip_line` of one frame in Python floats (float64): the sacrum's rows (3
+    lists) turned by the shortest turn from its lateral x to t = x + the hip line's unit vector,
+    normalised (R = c I + [k]x + k k^T / (1 + c), k = x̂ x t̂, c = x̂ . t̂; t̂ bisects x̂ and the
+    line, so c >= 0). None where the line or t vanishes (numpy's fallbacks then)."""
+    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = rows
+    sqrt = math.sqrt
+    n = sqrt((s00 * s00 + s10 * s10) + s20 * s20)
+    l0, l1, l2 = hip_l[0] - hip_r[0], hip_l[1] - hip_r[1], hip_l[2] - hip_r[2]
+    m = sqrt((l0 * l0 + l1 * l1) + l2 * l2)
+    if m <= EPS or n <= EPS:
+        return None
+    x0, x1, x2 = s00 / n, s10 / n, s20 / n
+    t0, t1, t2 = x0 + l0 / m, x1 + l1 / m, x2 + l2 / m
+    m = sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+    if m <= EPS:
+        return None
+    t0, t1, t2 = t0 / m, t1 / m, t2 / m
+    k0, k1, k2 = x1 * t2 - x2 * t1, x2 * t0 - x0 * t2, x0 * t1 - x1 * t0
+    c = (x0 * t0 + x1 * t1) + x2 * t2
+    e = 1.0 / (1.0 + c)
+    r00, r01, r02 = c + k0 * k0 * e, k0 * k1 * e - k2, k0 * k2 * e + k1
+    r10, r11, r12 = k1 * k0 * e + k2, c + k1 * k1 * e, k1 * k2 * e - k0
+    r20, r21, r22 = k2 * k0 * e - k1, k2 * k1 * e + k0, c + k2 * k2 * e
+    return [[r00 * s00 + r01 * s10 + r02 * s20, r00 * s01 + r01 * s11 + r02 * s21, r00 * s02 + r01 * s12 + r02 * s22],
+            [r10 * s00 + r11 * s10 + r12 * s20, r10 * s01 + r11 * s11 + r12 * s21, r10 * s02 + r11 * s12 + r12 * s22],
+            [r20 * s00 + r21 * s10 + r22 * s20, r20 * s01 + r21 * s11 + r22 * s21, r20 * s02 + r21 * s12 + r22 * s22]]
 
 
 def _shoulder_toward(mid: np.ndarray, sh: np.ndarray, wr: np.ndarray, reach: float) -> np.ndarray:
