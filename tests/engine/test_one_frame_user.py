@@ -132,3 +132,39 @@ def test_one_frame_reads_of_a_whole_take_are_the_blocks_to_the_bit(take, monkeyp
         one.rotations[:] = np.nan  # the caller's own copy
         reader._last = None
     assert reader._rotation_block[0][0] == 0  # the last frames read came from the first block
+
+
+def test_one_frame_trunk_in_floats_is_numpys():
+    # The sacrum turned toward the hip line of one frame (`_sacrum_turned`, Python floats) is the
+    # numpy path's (two frames at once) to float64's rounding, turned hips and a sacrum far from
+    # them included; the mathutils turn it replaced was float32's (about 1e-7 off).
+    from bodycal_addon.core.transforms import quat_to_matrix
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(200, 4))
+    sac = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+    hip_l, hip_r = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
+    worst = 0.0
+    for f in range(0, 200, 2):
+        block = ua.sacrum_toward_hip_line(sac[f:f + 2], hip_l[f:f + 2], hip_r[f:f + 2])
+        for k in (0, 1):
+            one = ua.sacrum_toward_hip_line(sac[f + k:f + k + 1], hip_l[f + k:f + k + 1], hip_r[f + k:f + k + 1])
+            worst = max(worst, float(np.abs(one[0] - block[k]).max()))
+    assert worst < 1e-12, worst
+
+
+def test_one_frame_pelvis_is_the_blocks_in_float64(take, monkeypatch):
+    # The trunk of one frame (`UserAnimator._trunk_one`): the pelvis (the tracker's estimate and the
+    # hips' through the turned sacrum) and the sacrum's frame are the block path's float64 values
+    # (the spine's joints and vertebrae stay the mathutils kernel's: the pins' tolerance).
+    if one_frame.ENABLED is False:
+        pytest.skip("no mathutils")
+    rec, user = take
+    anim = ua.UserAnimator(rec, user)
+    whole = anim.animate(0, rec.frame_count)
+    pelvis, sacrum = ua.JI["pelvis"], ua.BI["sacrum"]
+    for f in range(0, rec.frame_count, 7):
+        one = anim.animate(f, f + 1)
+        if not whole.valid[f]:
+            continue
+        np.testing.assert_allclose(one.joints[0, pelvis], whole.joints[f, pelvis], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(one.frames[0, sacrum], whole.frames[f, sacrum], rtol=0, atol=1e-12)
