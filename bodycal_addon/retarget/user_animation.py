@@ -61,12 +61,13 @@ ARM_REACH = 0.98  # x the arm: the wrist within this of its shoulder keeps the e
 # bend, which the estimated trunk does not make (a Beat Saber player's low swings: with 8° down,
 # 21 % of the frames stayed out of reach, p95 45 mm).
 SHOULDER_REACH = math.radians(25.0)
-# The elbow's flexion at most (its range of motion, about 150 degrees: Soucie 2011): a hand nearer
-# its shoulder than the arm folds that far turns the shoulder away from it (`_reach_shoulders`,
-# within SHOULDER_REACH), as a hand beyond reach turns it toward it. Without it a Beat Saber
-# player's hands held beside the head (a third of simsaber's frames, 5-10 cm from the estimated
-# shoulder) folded the two-bone elbow shut onto the shoulder-wrist line, which whirls as the hand
-# moves by centimetres: the rotation copy's wrist 1.39x the controllers', 1.30 with the limit.
+# The elbow's flexion at most (its range of motion: active 146 degrees on average, passive 3-5
+# more, Zwerus 2017): a hand nearer its shoulder than the arm folds that far turns the shoulder
+# away from it (`_reach_shoulders`, within SHOULDER_REACH), as a hand beyond reach turns it toward
+# it. Without it a Beat Saber player's hands held beside the head (a third of simsaber's frames,
+# 5-10 cm from the estimated shoulders) folded the two-bone elbow shut (180 degrees) onto the
+# shoulder-wrist line, which whirls as the hand moves by centimetres: the rotation copy's wrist
+# 1.39x the controllers', 1.30x with the limit.
 ELBOW_FLEX_MAX = math.radians(150.0)
 # The estimated elbow's swivel (`estimated_elbow_right`; Parger 2018), vectors (out, up,
 # forward) in the shoulders' frame: the hand's rest direction from its shoulder (forward and
