@@ -55,6 +55,9 @@ class PosePlan:
     # canonical bones read by the driven bones then by the vertebrae, their fixed factors (K, 1, 3, 3))
     driven_and_chain: tuple | None = None
     driven_rows: slice | np.ndarray | None = None  # `driven` as P's rows take them (`rows_of`)
+    # `flat`'s rest matrices and loose heads turned by the armature's rotation, W M_A and W h
+    # (one frame of a turned armature, `fk.posed`)
+    flat_turned: tuple | None = None
 
 
 def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
@@ -99,6 +102,7 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
         follows = [(rows_of(b), p, f) for b, p, f in follows]
         plan.flat = (rows_of(rest), rig.rest[rest][:, None], rows_of(loose), rig.head[loose][:, None], follows,
                      *_head_table(rig, hanging))
+        plan.flat_turned = (np.matmul(rig.w_rot, plan.flat[1]), plan.flat[3] @ rig.w_rot.T)
     return plan
 
 
