@@ -80,7 +80,7 @@ def test_a_turned_armature_s_frame_posed_in_its_turned_space_is_the_armature_spa
         for f in range(0, len(frames) - 3, 7):
             one_f, one_p = frames[f:f + 1], pelvis[f:f + 1]
             rig.memo.clear()
-            P1, H1, turned = rig_fk.posed(rig, rig.memo, one_f, one_p)
+            P1, H1, turned, _ = rig_fk.posed(rig, rig.memo, one_f, one_p)
             assert turned == (not rig.w_identity and one_frame.ENABLED)
             if not turned:
                 continue
