@@ -12,6 +12,7 @@ import numpy as np
 
 from ...core.transforms import MANY_PRODUCTS, STACKED_FRAMES, matmul_stack, stacks_mul, transposed
 from .. import pose_kernels
+from .pose_plan import rows_of
 
 
 @dataclass
@@ -28,15 +29,17 @@ class BasisPlan:
     root_rest: np.ndarray  # (3, 3) its M
     # with a parent: (M_i^-1 M_p)^T and M_i^-1 (h_i - h_p) (None: a parentless root)
     root_rel: tuple | None
-    # one frame's (`_solve_one`): per bone its parent's row in P with one identity row after it
-    # (a parentless bone's), and the fixed left factors M^-1 M_p (M^-1 parentless), (N, 3, 3)
-    one_parent: np.ndarray | None = None
+    # one frame's (`_solve_one`): the fixed left factors M^-1 M_p (M^-1 parentless), (N, 3, 3)
     one_fixed: np.ndarray | None = None
     one_root: tuple | None = None
+    # and per bone its parent's row in P (a parentless bone's its own, written over with the
+    # identity: a slice's copy, where an identity row concatenated after P cost 10,000 more)
+    one_gather: np.ndarray | None = None
+    one_parentless: slice | np.ndarray | None = None
 
     def __post_init__(self):
-        n = len(self.rows)
-        self.one_parent = np.array([n if r < 0 else int(self.parents[r]) for r in self.rows], int)
+        self.one_gather = np.array([b if r < 0 else int(self.parents[r]) for b, r in enumerate(self.rows)], int)
+        self.one_parentless = rows_of([b for b, r in enumerate(self.rows) if r < 0])
         self.one_fixed = np.ascontiguousarray(self.fixed.swapaxes(-1, -2))
         # one frame's root location in floats (`_root_location_one`): (columns, constant) as lists
         if self.root_rel is None:
@@ -82,7 +85,7 @@ def solve(plan: BasisPlan, P, turn=None):
 
 def _solve_one(plan: BasisPlan, P, turn=None):
     """`solve` of one frame, the same products in fewer numpy calls: every bone's X = P_p^T P
-    at once (a parentless bone's parent an identity row after P's), basis = (M^-1 M_p) X written
+    at once (a parentless bone's parent the identity), basis = (M^-1 M_p) X written
     straight into the entry rows the quaternions are read from (`pose_kernels.quat_of_rows`).
     The same terms in the same order as `solve`'s transposed products (a parentless bone's
     1 x + 0 y + 0 z may turn a -0.0 into 0.0). Decision (speed, measured in instructions): one
@@ -91,7 +94,8 @@ def _solve_one(plan: BasisPlan, P, turn=None):
     row is W instead of the identity (W^T P' = P)."""
     n = P.shape[0]
     a = P.reshape(n, 3, 3)
-    par = np.concatenate((a, _EYE if turn is None else turn[None])).take(plan.one_parent, axis=0)
+    par = a.take(plan.one_gather, axis=0)  # the parents' rows, a parentless bone's the identity (W)
+    par[plan.one_parentless] = _EYE if turn is None else turn
     rel = pose_kernels.few_matmul(par.swapaxes(-1, -2), a, (n, 3, 3))
     aug = np.empty((10, n))  # a ones row, then the basis entries m00, m01, ..., m22 of every bone
     aug[0] = 1.0
