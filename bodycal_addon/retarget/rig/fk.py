@@ -148,7 +148,7 @@ def posed(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=Fal
 def _pose_buffers(n: int, plan: PosePlan, nf: int, few: bool, flat: bool, joints=None) -> tuple:
     """(P, H, HT): a few frames' heads H are the first rows of HT, whose rows after them take
     the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H);
-    with `joints` (`PosePlan.flat_joints`), the joints' rows and terms too."""
+    with `joints` (`PosePlan.flat_joints`), the joints' offsets' terms too."""
     P = np.empty((n, nf, 3, 3))
     if joints is not None:
         HT = np.empty((joints[-1], nf, 3))
@@ -197,7 +197,7 @@ def _place_root(rig: RigPlan, P, H, pelvis, turned=False) -> None:
     """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
     products, called directly. One frame's in Python floats: the same terms in the same order
     (three numpy products on a (1, 3) row cost about 40,000 instructions, these about a fifth);
-    `turned`, W H_root, W W^-1 (`_turned_one`'s) in place of W^-1."""
+    `turned`, W H_root, W W^-1 (`RigPlan.turned_one`'s) in place of W^-1."""
     nf = P.shape[1]
     if nf == 1:
         shift, rows, (r0, r1, r2) = rig.turned_one.root if turned else rig.one_root
@@ -254,7 +254,10 @@ def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=
     if joints is not None:  # the joints' offsets P_car o_j in the heads' offsets' product
         par, off4, table, at, _, _ = joints
         np.matmul(P.take(par, axis=0), off4, out=HT[len(H):-1].reshape(len(par), -1, 3, 1))
-        np.add.reduce(HT.take(table, axis=0), axis=0, out=H[at])
+        if isinstance(at, slice):  # over the path, in order (`_deferred_heads`)
+            np.add.reduce(HT.take(table, axis=0), axis=0, out=H[at])
+        else:
+            H[at] = np.add.reduce(HT.take(table, axis=0), axis=0)
         return P, H
     _deferred_heads((late, par, off, table, at), P, H, HT)
     return P, H
