@@ -2,7 +2,8 @@
 product pass (`basis._solve_one`), the root placed and its location read in Python floats
 (`fk._place_root`, `basis._root_location_one`), consecutive rows written as slices
 (`pose_plan.rows_of`) give the values a pose of more frames gives that frame: bit for bit where
-the armature is not turned, to the sums' rounding where it is (its W^-1 products' order)."""
+the armature is not turned, to the sums' rounding where it is (its W^-1 products' order). One
+frame of a turned armature, posed in its turned space (`fk.posed`), gives the armature-space pose."""
 
 from __future__ import annotations
 
