@@ -22,13 +22,13 @@ yaw limits from frame to frame. In this order the pole is at yaw ±90°, far out
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass
 from functools import lru_cache
 from types import SimpleNamespace
 
 import numpy as np
 
+from ..core.one_frame import float_array
 from ..core.transforms import all_true, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
@@ -375,15 +375,14 @@ class FingerSet:
         n = len(local)
         q_rows, j_rows = _local_phalanges(consts, local, radii, joints)
         # back to the world: each phalanx's frame is ref @ (its frame in ref), an item's three in
-        # one (3, 3) x (3, 9) product (three 3x3 products cost twice as much); the floats into numpy
-        # by struct's packing (~100 instructions a value, np.fromiter ~250)
-        side = np.matmul(ref, np.frombuffer(_packer(27 * n).pack(*q_rows)).reshape(n, 3, 9))
+        # one (3, 3) x (3, 9) product (three 3x3 products cost twice as much)
+        side = np.matmul(ref, float_array(q_rows).reshape(n, 3, 9))
         rots = side.reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)  # (item, phalanx, row, column): a view
         if not joints:
             return None, rots
         points = np.empty((n, 4, 3))
         points[:, 0] = mcp
-        reach = np.frombuffer(_packer(9 * n).pack(*j_rows)).reshape(n, 3, 3)  # (item, joint, local xyz)
+        reach = float_array(j_rows).reshape(n, 3, 3)  # (item, joint, local xyz)
         np.add(mcp[:, None], np.matmul(reach, ref.swapaxes(-1, -2)), out=points[:, 1:])
         return points, rots
 
@@ -393,12 +392,6 @@ class FingerSet:
         _, base, cos, sin = self._realigned(mcp, ref_rot, tip_target)[:4]
         b = base.transpose(2, 1, 0)  # columns, (row, item) each
         return (cos[1] * b[2] - sin[1] * b[1]).T
-
-
-@lru_cache(maxsize=8)
-def _packer(count: int) -> struct.Struct:
-    """A `struct.Struct` packing `count` floats (float64), once per count."""
-    return struct.Struct(f"{count}d")
 
 
 def _local_phalanges(consts: list, local: list, radii: list | None, joints: bool) -> tuple:

@@ -350,17 +350,21 @@ class PreparedSolver:
             K = len(rows)
             out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, aims[:K], aims[K:] if pole_names else None,
                                      swivel, hinge, self.k)
-            # the anchored bones' frames, then the intermediate ones' (`bones`' order)
+            # the anchored bones' frames, then the intermediate ones' (`bones`' order), then the
+            # effectors reached, into numpy at once
             values = []
             for r in out:
                 values += r[6:15]
             for r in out:
                 values += r[15:24]
+            for r in out:
+                values += r[3:6]
+            values = one_frame.float_array(values)
             if flat is not None:
-                flat[entries] = values
+                flat[entries] = values[:18 * K]
             else:
-                frames[0, bones] = np.array(values).reshape(-1, 3, 3)
-            ends = np.array([r[3:6] for r in out])
+                frames[0, bones] = values[:18 * K].reshape(-1, 3, 3)
+            ends = values[18 * K:].reshape(K, 3)
             for i, k in enumerate(rows):
                 reached[items[k]] = ends[i:i + 1]
         return reached
