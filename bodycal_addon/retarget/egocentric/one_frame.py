@@ -34,7 +34,7 @@ from ...body.skeleton import JOINT_INDEX as JI
 from ...core.transforms import EPS
 from .graph import GRAPH_BONES, kinematic_path, own_chain_elements
 from .mapping import SUPPORT_BLEND
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, closest_on_triangles
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE
 from .surface import SurfacePoser
 from .weights import MIN_DISTANCE
 
@@ -49,8 +49,12 @@ _YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])  # components rolled (a cr
 class FlatSurface:
     """One frame of the user's posed surface, float32, components first: the capsules' heads and
     axes, then the spheres' centres and a zero axis (3, C + S), their frames (3, 3, C + S) (R_ij
-    at [i, j]), the triangles' corners (3, 3, T) (component, corner, triangle), their unit normals
-    (3, T), every canonical joint (3, J).
+    at [i, j]), each triangle's rows `_triangles` reads (`tri`: its first corner, both edges from
+    it, their three dot products, its unit normal), every canonical joint (3, J).
+
+    Decision (speed, the same values): what Ericson's closest point reads of a triangle alone (its
+    edges and their dot products, float32 as each pair computed them) is computed once a triangle
+    here and gathered with its corner and normal in one take, not again for each of its pairs.
 
     Decision: a sphere is a capsule of no length (t = 0, |sin| = 1: the sphere's projection and
     factor), whose frame's columns are rolled (y, z, x) so that its first column is the bone's +Y,
@@ -61,8 +65,7 @@ class FlatSurface:
     cap_head: np.ndarray
     cap_axis: np.ndarray
     cap_rot: np.ndarray
-    tri: np.ndarray
-    tri_normal: np.ndarray
+    tri: np.ndarray  # (15, T) per triangle: corner a, ab, ac (3 rows each), |ab|², |ac|², ab·ac, unit normal
     joints: np.ndarray
 
 
@@ -82,14 +85,19 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray) -> Fl
         e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
         n = e1.take(_YZX, axis=0) * e2.take(_ZXY, axis=0) - e1.take(_ZXY, axis=0) * e2.take(_YZX, axis=0)  # cross
         nn = np.sqrt(dot3(n, n))
-        tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15).astype(F32)
         tri = tri.astype(F32)
+        pack = np.empty((15, tri.shape[-1]), F32)
+        pack[0:3] = tri[:, 0]
+        edges = pack[3:9].reshape(2, 3, -1)  # ab, ac
+        np.subtract(tri[:, 1:].swapaxes(0, 1), tri[:, 0], out=edges)
+        np.add.reduce(edges * edges, axis=1, out=pack[9:11])  # |ab|², |ac|² (dot3's order)
+        np.add.reduce(edges[0] * edges[1], axis=0, out=pack[11])  # ab·ac
+        pack[12:15] = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
     else:
-        tri = np.zeros((3, 3, 0), F32)
-        tri_normal = np.zeros((3, 0), F32)
+        pack = np.zeros((15, 0), F32)
     n = C + S
     head = vecs[:, :n]
-    return FlatSurface(head, vecs[:, n:2 * n] - head, rots, tri, tri_normal, vecs[:, 2 * n:])
+    return FlatSurface(head, vecs[:, n:2 * n] - head, rots, pack, vecs[:, 2 * n:])
 
 
 def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -175,13 +183,74 @@ def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
 
 
 def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
-    """Every triangle pair's barycentric (v, w) of its closest point, p - x and |p - x|^2."""
-    corners = s.tri.take(pr.tri_t, axis=2)  # (3, corner, N)
-    ta = corners[:, 0]
-    tab, tac, tap = corners[:, 1] - ta, corners[:, 2] - ta, pts.take(pr.tri_p, axis=1) - ta
-    bv, bw = closest_on_triangles(tap, tab, tac, dot3)
+    """Every triangle pair's barycentric (v, w) of its closest point, p - x, |p - x|^2 and its
+    triangle's unit normal."""
+    tri = s.tri.take(pr.tri_t, axis=1)  # (15, N): FlatSurface.tri's rows
+    tab, tac = tri[3:6], tri[6:9]
+    tap = pts.take(pr.tri_p, axis=1) - tri[0:3]
+    bv, bw = _closest_on_triangles(tap, tri[3:9].reshape(2, 3, -1), tri[9], tri[10], tri[11])
     tv = tap - bv * tab - bw * tac
-    return bv, bw, tv, dot3(tv, tv)
+    return bv, bw, tv, dot3(tv, tv), tri[12:15]
+
+
+# Ericson's regions (`projection.closest_on_triangles`), one frame: each region's tests as rows
+# `x <= 0` of _closest_on_triangles' `terms` (d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, then
+# the same negated (x >= 0), then a zero: a test that holds), in Ericson's order A, B, AB, C, AC,
+# BC; the first region that holds wins (his early returns), else the inside.
+_REGION_TESTS = np.array([[0, 11, 6, 12, 5, 4],  # A: d1 <= 0, B: d3 >= 0, AB: vc <= 0, C: d6 >= 0, ...
+                          [1, 7, 9, 8, 10, 16],  # A: d2 <= 0, B: d4 - d3 <= 0, AB: d1 >= 0, ...
+                          [18, 18, 2, 18, 3, 17]]).reshape(-1)  # AB: d3 <= 0, AC: d6 <= 0, BC: d5 - d6 >= 0
+# each region's (v, w) as rows of `vals`: 0 the inside's v, 1 its w, 2 e_ab, 3 e_ac, 4 e_bc,
+# 5 1 - e_bc, 6 zero, 7 one
+_REGION_VALUES = np.array([[6, 7, 2, 6, 6, 5, 0],
+                           [6, 6, 6, 7, 3, 4, 1]])
+_DIV_ROWS = np.array([5, 6, 0, 1, 7])  # the divisions' numerators: vb, vc, d1, d2, d4 - d3
+
+
+def _closest_on_triangles(ap, edges, abab, acac, abac):
+    """`projection.closest_on_triangles` of one frame's triangle pairs (3, N), the same values
+    (the same float32 operations on each pair, each region's the same), from `edges` (ab, ac)
+    (2, 3, N) and the triangles' dot products (FlatSurface.tri): in about 30 numpy calls, not
+    60 (each region's test three calls and two putmasks there): every region's tests in one
+    comparison, the first that holds by one argmax."""
+    N = ap.shape[1]
+    terms = np.empty((19, N), F32)  # d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, the same negated, 0
+    terms[18] = 0.0  # (np.zeros of the whole costs more than its rows written)
+    d12 = terms[0:2]
+    np.add.reduce(edges * ap, axis=1, out=d12)  # ab·ap, ac·ap
+    d1, d2, d3, d6 = terms[0], terms[1], terms[2], terms[3]
+    np.subtract(d1, abab, out=d3)
+    np.subtract(d2, acac, out=d6)
+    d4, d5 = d2 - abac, d1 - abac
+    np.subtract(d3 * d6, d5 * d4, out=terms[4])  # va
+    np.subtract(d5 * d2, d1 * d6, out=terms[5])  # vb
+    np.subtract(d1 * d4, d3 * d2, out=terms[6])  # vc
+    np.subtract(d4, d3, out=terms[7])
+    np.subtract(d5, d6, out=terms[8])
+    np.negative(terms[0:9], out=terms[9:18])
+    tests = terms.take(_REGION_TESTS, axis=0) <= 0
+    holds = np.ones((N, 7), bool)  # (pair, region): argmax over a row takes the first that holds
+    cond = holds[:, :6].T
+    np.logical_and(tests[0:6], tests[6:12], out=cond)
+    cond &= tests[12:18]
+    # the divisions (safe_divide's: num / den, den 1 where it is 0): vb, vc by va + vb + vc,
+    # d1 by d1 - d3, d2 by d2 - d6, d4 - d3 by (d4 - d3) + (d5 - d6)
+    den = np.empty((5, N), F32)
+    np.add(terms[4], terms[5], out=den[0])
+    den[0] += terms[6]
+    den[1] = den[0]
+    np.subtract(d12, terms[2:4], out=den[2:4])
+    np.add(terms[7], terms[8], out=den[4])
+    vals = np.empty((8, N), F32)
+    np.divide(terms.take(_DIV_ROWS, axis=0), den if den.all() else np.where(den != 0, den, F32(1.0)), out=vals[:5])
+    np.subtract(F32(1.0), vals[4], out=vals[5])
+    vals[6] = 0.0
+    vals[7] = 1.0
+    pick = _REGION_VALUES.take(holds.argmax(axis=1), axis=1)
+    pick *= N
+    pick += np.arange(N)
+    bv, bw = vals.take(pick)
+    return bv, bw
 
 
 @dataclass
@@ -469,11 +538,10 @@ class OneFrameMapping:
         if not len(pr.tri_starts):
             empty = np.zeros((3, 0), F32)
             return empty, np.zeros(0, int), empty, np.zeros(0, F32), np.zeros(0, F32)
-        bv, bw, tv, td2 = _triangles(pr, p3, us)
+        bv, bw, tv, td2, normal = _triangles(pr, p3, us)
         sel = np.concatenate([td2, np.full(1, np.inf, td2.dtype)]).take(pr.tri_rows).argmin(axis=1) + pr.tri_starts
         mesh_v = tv.take(sel, axis=1)
         bv_s, bw_s = bv.take(sel), bw.take(sel)
-        normal = us.tri_normal.take(pr.tri_t, axis=1)
         w = tv + PENETRATION_TOLERANCE * normal
         wn = np.sqrt(dot3(w, w))
         tri_factor = np.maximum(np.divide(dot3(w, normal), wn, out=np.ones_like(wn), where=wn > EPS), 0.0)
