@@ -280,7 +280,8 @@ class FrameUser:
     lam_gf: np.ndarray  # (P,) the floor's λg
     ulen: np.ndarray  # (NB,) the user's bone lengths
     ulen_ok: np.ndarray | None  # ulen > EPS (None: every length is)
-    floor_uz: np.ndarray  # (2P, NB) |b_z| of the user's bones on each ankle's path to each target (0: off it)
+    floor_uz: np.ndarray  # (2P, NB) |b_z| of the user's bones on each ankle's path to each target (0: off it),
+    # by stage: each stage's targets from the left ankle, then from the right (OneFrameMapping.floor_mask)
     floor_tau: np.ndarray  # (2P,)
     floor_ok: np.ndarray | None  # floor_tau > EPS (None: every one is)
     w_left: float
@@ -358,11 +359,14 @@ class OneFrameMapping:
         self.path_mask = np.zeros((len(GRAPH_BONES), len(pr.point)), F32)  # (bone, pair): rows are contiguous
         for k, (r, e) in enumerate(zip(self.row, pr.element)):
             self.path_mask[list(kinematic_path(roots[e], self.names[r])), k] = 1.0
-        # the floor's paths: from each ankle (left, then right) to each target
+        # the floor's paths: from each ankle to each target, stage by stage (each stage's rows one
+        # slice: its targets from the left ankle, then from the right)
+        self.stage_targets = [slice(0, first), slice(first, P)]
+        order = [(side, p) for st in self.stage_targets for side in range(2) for p in range(st.start, st.stop)]
         self.floor_mask = np.zeros((2 * P, len(GRAPH_BONES)), F32)
-        for side, s in enumerate(sk.SIDES):
-            for p, n in enumerate(self.names):
-                self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
+        for k, (side, p) in enumerate(order):
+            self.floor_mask[k, list(kinematic_path(f"ankle_{sk.SIDES[side]}", self.names[p]))] = 1.0
+        self.floor_side = np.array([side for side, _ in order], int)
         # each stage's x, y, z sums' bins and its pairs' root joints
         self.sums = [np.concatenate([self.row[a], self.row[a] + P, self.row[a] + 2 * P]) for a, _, _ in pr.stages]
         self.stage_root = [self.root_joint[a] for a, _, _ in pr.stages]
@@ -411,9 +415,10 @@ class OneFrameMapping:
         local = ap.pad_local[g, :, k] if len(ap.pad_local) else np.zeros(q.shape + (3,))  # (T, corner, 3)
         self.tri_local = np.ascontiguousarray(local.transpose(1, 2, 0))  # (corner, 3, T)
 
-    def _avatar_points(self, u: StageUser, joints: np.ndarray, frames: np.ndarray, stage: int) -> np.ndarray:
+    def _avatar_points(self, u: StageUser, g: np.ndarray, stage: int) -> np.ndarray:
         """(3, N) the re-posed x' of `stage`'s pairs (`projection.repose_components`) on the avatar
-        posed as canonical joints (J, 3) and bone frames (B, 3, 3), float64.
+        posed as canonical joints (J, 3) and bone frames (B, 3, 3), float64, given as `g`: the
+        joints, then each frame's columns, components first (3, J + 3B) (`map`).
 
         Decision (speed): x' is linear in the pose, a sum of joints and bone-frame columns with the
         pair's own coefficients (a capsule's 1 - t, t and its offset plus rho times the direction;
@@ -422,7 +427,6 @@ class OneFrameMapping:
         the avatar's whole surface posed for each map (25 numpy calls) and re-posed pair by pair.
         (One gather of every term and a bincount of each pair's: 40 % more instructions, measured:
         a gather or a bincount costs per item, ~10-30 instructions, not per call.)"""
-        g = np.concatenate([joints.T, frames.transpose(1, 0, 2).reshape(3, -1)], axis=1)  # components first
         cap = g.take(self.stage_cap_rows[stage], axis=1)  # (3, 5, Nc): (component, term, pair)
         cap *= u.cap_coef
         mesh = g.take(u.mesh_rows, axis=1)  # (3, 12, Nm)
@@ -499,7 +503,7 @@ class OneFrameMapping:
         # the floor's user side (mapping._floor_user): both ankles' paths
         ankles = us.joints[2].take(_ANKLES).astype(float)
         floor_uz = self.floor_mask * np.abs(ub[2])  # (exact: the mask's ones and zeros)
-        floor_tau = np.add.reduce(floor_uz, axis=1) + np.abs(ankles).repeat(P)
+        floor_tau = np.add.reduce(floor_uz, axis=1) + np.abs(ankles).take(self.floor_side)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
         stages = self._stage_sides(t, cap_dir, tri, bary, v, weights, vhat, dots, tau)
         ulen = np.sqrt(dot3(ub, ub)).astype(float)
@@ -560,19 +564,23 @@ class OneFrameMapping:
         _Pairs), each target's sums in the same order."""
         P = len(self.names)
         su = u.stages[stage]
-        x_av = self._avatar_points(su, joints, frames, stage)  # x' re-posed
+        g = np.concatenate([joints.T, frames.transpose(1, 0, 2).reshape(3, -1)], axis=1)  # _avatar_points
+        x_av = self._avatar_points(su, g, stage)  # x' re-posed
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
         ab = joints.take(_BONE_TAILS, axis=0) - joints.take(_BONE_HEADS, axis=0)  # (NB, 3)
         lratio = _ratio(np.sqrt(np.add.reduce(ab * ab, axis=1)), u.ulen, u.ulen_ok)
-        tau_a = np.einsum("kn,k->n", su.dots, lratio) + np.abs(
-            dot3(su.vhat, x_av - joints.take(self.stage_root[stage], axis=0).T))
+        roots = g.take(self.stage_root[stage], axis=1)  # r' of each pair's chain
+        tau_a = np.einsum("kn,k->n", su.dots, lratio) + np.abs(dot3(su.vhat, x_av - roots))
         est = x_av + su.v * _ratio(tau_a, su.tau, su.tau_ok)  # (3, N)
         est *= su.weights
         out = np.bincount(self.sums[stage], est.reshape(-1), minlength=3 * P).reshape(3, P)
         if u.none_xy is not None:  # no element with weight (a sum of zeros): the user's horizontal position
             out[:2] += u.none_xy
-        # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
-        tfa = np.add.reduce(u.floor_uz * lratio, axis=1) + np.abs(joints[_ANKLES, 2]).repeat(P)
-        ratios = _ratio(tfa, u.floor_tau, u.floor_ok)
-        out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
+        # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended (this
+        # stage's targets alone: the floor's rows by stage, FrameUser.floor_uz)
+        st = self.stage_targets[stage]
+        Ps, rows = st.stop - st.start, slice(2 * st.start, 2 * st.stop)
+        tfa = np.add.reduce(u.floor_uz[rows] * lratio, axis=1) + np.abs(joints[_ANKLES, 2]).repeat(Ps)
+        ratios = _ratio(tfa, u.floor_tau[rows], None if u.floor_ok is None else u.floor_ok[rows])
+        out[2, st] += u.pts[2, st] * (ratios[Ps:] + u.w_left * (ratios[:Ps] - ratios[Ps:])) * u.lam_gf[st]
         return out.T
