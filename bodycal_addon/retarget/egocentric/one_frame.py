@@ -519,7 +519,13 @@ class OneFrameMapping:
         cap_coef = np.empty((5, len(t)))
         cap_coef[0] = 1.0 - t
         cap_coef[1] = t
-        cap_coef[2:] = self.cap_off[0] + t * self.cap_off[1] + (self.radius[1][0] + t * self.radius[1][1]) * cap_dir
+        # (its offset plus ρ' d, in place: off0 + t off1, then ρ' = r0' + t Δr' in float32 times d)
+        rho = self.radius[1][1] * t
+        rho += self.radius[1][0]
+        rho_d = cap_dir * rho
+        np.multiply(self.cap_off[1], t, out=cap_coef[2:])
+        cap_coef[2:] += self.cap_off[0]
+        cap_coef[2:] += rho_d
         # a triangle's corners: each its bone's head and columns, by the barycentric weight
         mesh_coef = np.empty((3, 4, len(tri)))  # (corner, head and columns, pair)
         mesh_coef[:, 0] = bary
