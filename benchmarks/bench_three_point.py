@@ -12,7 +12,9 @@ three (the session's T-pose and arm circles) and solved; against the clip's full
   height as a fraction of the stature, ours and the clip's;
 - the pelvis's error split in the clip's body frame (`measure.pelvis_split`): its constant part
   forward / left / up, the motion about it, and what its p95 tail is (the trunk's lean and side
-  tilt the clip has there beyond ours, the share of those frames moving and turning);
+  tilt the clip has there beyond ours, the share of those frames moving and turning), and the error
+  by its source (`by_source`: with the clip's trunk length, what the path's lean leaves; with the
+  clip's trunk direction, what the calibration's proportions leave);
 - the hands on their devices: how far beyond its arm's reach from the shoulder a controller puts
   the wrist (p95 mm; the estimated arm must reach what the controller holds); and the user's skull
   base and wrists against the clip's (the calibration, median mm);

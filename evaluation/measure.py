@@ -96,7 +96,10 @@ def pelvis_split(ours: dict, theirs: dict, fps: float) -> dict:
     forward the clip's trunk leans there than ours (degrees from the vertical, pelvis to skull base,
     past a right angle in a deep bow) and how much further to its left it tilts (degrees out of
     the plane across its left), the share of them moving (the clip's pelvis over 0.3 m/s) and
-    turning (its hips' line over 60 degrees/s)."""
+    turning (its hips' line over 60 degrees/s). And the error split by its source (`by_source`,
+    median and p95 mm): the pelvis our skull base and our trunk would give with the clip's trunk
+    length (only the direction ours: what the path model's lean, tilt and turn leave) and with the
+    clip's trunk direction (only the length ours: what the calibration's proportions leave)."""
     T = {k: np.asarray(v, float) for k, v in theirs.items()}
     left = T["hip_l"] - T["hip_r"]
     left[:, 2] = 0.0
@@ -125,6 +128,15 @@ def pelvis_split(ours: dict, theirs: dict, fps: float) -> dict:
     turn = np.abs(np.degrees(np.gradient(np.unwrap(np.arctan2(forward[:, 1], forward[:, 0]))))) * fps
     lean_missed = (lean(theirs_trunk) - lean(ours_trunk))[tail]
     tilt_missed = (tilt(theirs_trunk) - tilt(ours_trunk))[tail]
+    ours_length = np.linalg.norm(ours_trunk, axis=1, keepdims=True)
+    theirs_length = np.linalg.norm(theirs_trunk, axis=1, keepdims=True)
+
+    def stats(trunk):  # the pelvis our skull base and this trunk give, against the clip's (mm)
+        x = np.linalg.norm(np.asarray(ours["skull_base"], float) - trunk - T["pelvis"], axis=1) * 1000
+        return {"median": round(float(np.median(x)), 1), "p95": round(float(np.percentile(x, 95)), 1)}
+
+    by_source = {"path_only": stats(ours_trunk / np.maximum(ours_length, 1e-9) * theirs_length),
+                 "calibration_only": stats(theirs_trunk / np.maximum(theirs_length, 1e-9) * ours_length)}
     return {"offset_mm": {k: round(float(v) * 1000, 1) for k, v in zip(("forward", "left", "up"), offset)},
             "motion_mm": {"median": round(float(np.median(motion)), 1),
                           "p95": round(float(np.percentile(motion, 95)), 1)},
@@ -132,4 +144,5 @@ def pelvis_split(ours: dict, theirs: dict, fps: float) -> dict:
                      "lean_forward_missed_deg": round(float(np.median(lean_missed)), 1),
                      "tilt_left_missed_deg": round(float(np.median(tilt_missed)), 1),
                      "moving_share": round(float(np.mean(speed[tail] > 0.3)), 2),
-                     "turning_share": round(float(np.mean(turn[tail] > 60.0)), 2)}}
+                     "turning_share": round(float(np.mean(turn[tail] > 60.0)), 2)},
+            "by_source": by_source}

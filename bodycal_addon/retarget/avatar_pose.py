@@ -56,11 +56,12 @@ class AvatarRig(RigPlan):
         Speed: the pose is built bone by bone in a bones-first layout, and every product is a
         stack of 3x3 matrices times ONE fixed matrix, which is one BLAS call on the stack seen as
         (3F, 3) rows (numpy's stacked matmul makes one call per 3x3 product, ~10x slower)."""
-        P, H = rig_fk.pose(self, self.memo, np.asarray(frames, float), pelvis, float64=float64)
+        P, H, turned, joints = rig_fk.posed(self, self.memo, np.asarray(frames, float), pelvis, float64=float64)
         if not basis:
-            return rig_fk.finish(self, None, P, H, None, realised)
-        return rig_fk.finish(self, rig_basis.solve(self.basis_plan, P), P, H,
-                             rig_basis.root_location(self.basis_plan, P, H), realised)
+            return rig_fk.finish(self, None, P, H, None, realised, turned, joints)
+        turn = self.w_rot if turned else None
+        return rig_fk.finish(self, rig_basis.solve(self.basis_plan, P, turn), P, H,
+                             rig_basis.root_location(self.basis_plan, P, H, turn), realised, turned, joints)
 
     def joint_positions(self, frames: np.ndarray, pelvis: np.ndarray, joints: list[str]) -> np.ndarray:
         """(F, len(joints), 3) world positions of a few canonical joints for the pose `solve` would

@@ -28,6 +28,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from ..core.one_frame import float_array
 from ..core.transforms import all_true, matmul_stack, stack_mul
 
 FLEXION_CAP = np.pi / 2  # appendix D: α never exceeds 90°
@@ -343,14 +344,18 @@ class FingerSet:
         return FingerPose(points, rots, alpha, yaw, pitch)
 
     def pose_floats(self, mcp, ref_rot, tip_target, joints: bool = True, radius=None) -> tuple:
-        """`pose` of a few items (a live frame's fingers) in Python floats, item by item: the
-        same steps in float64 (numpy's cosines and BLAS's fused products may differ in the last
-        bit: the same values to float64's rounding, not to the bit). `radius` (n,): each tip
-        target is a fingertip LED one radius off the tip joint on the back of the distal phalanx,
-        aimed as `distal_z` and `pose` do it in two numpy passes (pose_user_fingers). Returns
-        (joints (n, 4, 3) or None, rotations (n, 3, 3, 3)). Decision (speed): numpy's per-call
-        cost on ten items made the user's fingers half of a one-frame user animation (937,000
-        instructions of an egocentric frame, callgrind); these loops cost a fifth of it."""
+        """`pose` of a few items (a live frame's fingers, the user's and the avatar's) in Python
+        floats where numpy's per-call cost on ten items was the cost: the same steps in float64
+        (numpy's cosines and BLAS's sums may differ in the last bits: the same values to float64's
+        rounding, not to the bit). Each item's target is taken into its reference frame in one
+        numpy call, each item's three phalanx frames are found in that frame item by item
+        (`_local_phalanges`: Rx Rz Rx and the flexions, no 3x3 product), and turned back to the
+        world in one stacked product. `radius` (n,): each tip target is a fingertip LED one radius
+        off the tip joint on the back of the distal phalanx, aimed as `distal_z` and `pose` do it
+        in two numpy passes (pose_user_fingers; in the reference frame the LED's offset is the
+        distal phalanx's local -Z, no product). Returns (joints (n, 4, 3) or None, rotations
+        (n, 3, 3, 3), a view of an (n, 3, 9) array)."""
+        mcp = np.asarray(mcp, float)
         ref = np.asarray(ref_rot, float)
         if self.roll is not None:
             if self.roll_rows is None:
@@ -365,40 +370,21 @@ class FingerSet:
                 self.c0, self.bb, self.a4, self.minus_b, self.den, self.l1, self.l2, self.l3,
                 self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi, self.half_excluded)]
             consts = self._floats = list(zip(*cols))
-        mcps = np.asarray(mcp, float).tolist()
-        refs = ref.reshape(-1, 9).tolist()
-        tips = np.asarray(tip_target, float).tolist()
-        radii = [None] * len(mcps) if radius is None else np.asarray(radius, float).ravel().tolist()
-        rot_rows, joint_rows = [], []
-        for k, m, r, t, rad in zip(consts, mcps, refs, tips, radii):
-            l1, l2, l3 = k[5:8]
-            m0, m1, m2 = m
-            r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-            t0, t1, t2 = t
-            if rad is not None:  # the LED one radius off the distal phalanx's -Z: aim at the joint
-                _, _, c2, s2, _, _, _, by0, by1, by2, bz0, bz1, bz2 = _first_phalanx(k, m0, m1, m2, r, t0, t1, t2)
-                t0 = t0 + rad * (c2 * bz0 - s2 * by0)
-                t1 = t1 + rad * (c2 * bz1 - s2 * by1)
-                t2 = t2 + rad * (c2 * bz2 - s2 * by2)
-            c1, s1, c2, s2, cb, q10, q20, by0, by1, by2, bz0, bz1, bz2 = _first_phalanx(k, m0, m1, m2, r, t0, t1, t2)
-            bx0 = (r00 * cb + r01 * q10) + r02 * q20
-            bx1 = (r10 * cb + r11 * q10) + r12 * q20
-            bx2 = (r20 * cb + r21 * q10) + r22 * q20
-            # phalanges 2 and 3: the first turned by Rx(α), Rx(2α): columns x, c y + s z, c z - s y
-            y10, y11, y12 = c1 * by0 + s1 * bz0, c1 * by1 + s1 * bz1, c1 * by2 + s1 * bz2
-            y20, y21, y22 = c2 * by0 + s2 * bz0, c2 * by1 + s2 * bz1, c2 * by2 + s2 * bz2
-            rot_rows += (bx0, by0, bz0, bx1, by1, bz1, bx2, by2, bz2,
-                         bx0, y10, c1 * bz0 - s1 * by0, bx1, y11, c1 * bz1 - s1 * by1, bx2, y12, c1 * bz2 - s1 * by2,
-                         bx0, y20, c2 * bz0 - s2 * by0, bx1, y21, c2 * bz1 - s2 * by1, bx2, y22, c2 * bz2 - s2 * by2)
-            if joints:  # the segments summed from the MCP one after the other
-                e0, e1, e2 = by0 * l1, by1 * l1, by2 * l1
-                f0, f1, f2 = y10 * l2 + e0, y11 * l2 + e1, y12 * l2 + e2
-                g0, g1, g2 = y20 * l3 + f0, y21 * l3 + f1, y22 * l3 + f2
-                joint_rows += (m0, m1, m2, m0 + e0, m1 + e1, m2 + e2, m0 + f0, m1 + f1, m2 + f2,
-                               m0 + g0, m1 + g1, m2 + g2)
-        n = len(mcps)
-        rots = np.fromiter(rot_rows, float, 27 * n).reshape(n, 3, 3, 3)  # (np.array's discovery: 1.5x)
-        return (np.fromiter(joint_rows, float, 12 * n).reshape(n, 4, 3) if joints else None), rots
+        local = np.einsum("fji,fj->fi", ref, np.asarray(tip_target, float) - mcp).tolist()  # ref^T (tip - mcp)
+        radii = None if radius is None else np.asarray(radius, float).ravel().tolist()
+        n = len(local)
+        q_rows, j_rows = _local_phalanges(consts, local, radii, joints)
+        # back to the world: each phalanx's frame is ref @ (its frame in ref), an item's three in
+        # one (3, 3) x (3, 9) product (three 3x3 products cost twice as much)
+        side = np.matmul(ref, float_array(q_rows).reshape(n, 3, 9))
+        rots = side.reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)  # (item, phalanx, row, column): a view
+        if not joints:
+            return None, rots
+        points = np.empty((n, 4, 3))
+        points[:, 0] = mcp
+        reach = float_array(j_rows).reshape(n, 3, 3)  # (item, joint, local xyz)
+        np.add(mcp[:, None], np.matmul(reach, ref.swapaxes(-1, -2)), out=points[:, 1:])
+        return points, rots
 
     def distal_z(self, mcp, ref_rot, tip_target) -> np.ndarray:
         """(n, 3) the distal phalanx's +Z (the third column of `pose(...).rotations[:, 2]`, the same
@@ -408,50 +394,56 @@ class FingerSet:
         return (cos[1] * b[2] - sin[1] * b[1]).T
 
 
-def _first_phalanx(k, m0, m1, m2, r, t0, t1, t2) -> tuple:
-    """`FingerSet.pose_floats`' realignment of one item: its constants `k`, MCP, reference frame
-    (nine floats, rows) and target -> the cosines and sines of α and 2α, Rx Rz Rx's entries that
-    make the first phalanx's x column (cb, q10, q20) and that phalanx's y and z columns."""
-    c0, bb, a4, minus_b, den, l1, l2, l3, ylo, yhi, plo, phi, half = k
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-    x0, x1, x2 = t0 - m0, t1 - m1, t2 - m2
-    lx = (r00 * x0 + r10 * x1) + r20 * x2  # ref^T rel
-    ly = (r01 * x0 + r11 * x1) + r21 * x2
-    lz = (r02 * x0 + r12 * x1) + r22 * x2
-    dd = (x0 * x0 + x1 * x1) + x2 * x2
-    d = _sqrt(dd)
-    disc = bb - a4 * (c0 - d * d)  # eq. 3-4 (flexion_from_distance)
-    if disc < 0.0:
-        disc = 0.0
-    x = (minus_b - _sqrt(disc)) / den
-    x = -X_CLAMP if x < -X_CLAMP else x
-    x = X_CLAMP if x > X_CLAMP else x
-    alpha = _PI - _acos(x)
-    alpha = FLEXION_CAP if alpha > FLEXION_CAP else alpha
-    c1, s1, c2, s2 = _cos(alpha), _sin(alpha), _cos(2.0 * alpha), _sin(2.0 * alpha)
-    pitch = _atan2(-lz, ly)  # realign: the target's yaw and pitch clamped
-    yaw = _atan2(lx, _hypot(ly, lz))
-    yaw = ylo if yaw < ylo else yaw
-    yaw = yhi if yaw > yhi else yaw
-    if not plo <= pitch <= phi:
-        pitch = phi if (pitch - phi) % _TWO_PI < half else plo
-    flexed = _atan2(-(l2 * s1 + l3 * s2), (l1 + l2 * c1) + l3 * c2)
-    ca, sa, cb, sb = _cos(-pitch), _sin(-pitch), _cos(-yaw), _sin(-yaw)
-    cc, sc = _cos(flexed), _sin(flexed)
-    # Rx(-pitch) Rz(-yaw) Rx(flexed): rows (cb, -sb cc, sb sc), ca r1 - sa r2, sa r1 + ca r2
-    # of r1 = (sb, cb cc, -cb sc), r2 = (0, sc, cc)
-    q01, q02 = -sb * cc, sb * sc
-    u1, u2 = cb * cc, -cb * sc
-    q10, q11, q12 = ca * sb, ca * u1 - sa * sc, ca * u2 - sa * cc
-    q20, q21, q22 = sa * sb, sa * u1 + ca * sc, sa * u2 + ca * cc
-    # the first phalanx: ref @ Q, its columns y, z (the caller makes x where it needs it)
-    by0 = (r00 * q01 + r01 * q11) + r02 * q21
-    by1 = (r10 * q01 + r11 * q11) + r12 * q21
-    by2 = (r20 * q01 + r21 * q11) + r22 * q21
-    bz0 = (r00 * q02 + r01 * q12) + r02 * q22
-    bz1 = (r10 * q02 + r11 * q12) + r12 * q22
-    bz2 = (r20 * q02 + r21 * q12) + r22 * q22
-    return c1, s1, c2, s2, cb, q10, q20, by0, by1, by2, bz0, bz1, bz2
+def _local_phalanges(consts: list, local: list, radii: list | None, joints: bool) -> tuple:
+    """`FingerSet.pose_floats`' items in Python floats: per item its constants (`consts`), its
+    target in its reference frame (`local`, a triple) and its LED's radius (`radii`, or None) ->
+    the three phalanx frames in the reference frame side by side (27 floats: a (3, 9) matrix's
+    rows, each the three frames' rows) and, with `joints`, the PIP, DIP and tip from the MCP in
+    it (9 floats). `pose`'s steps on one item: eq. 3-4's flexion, the clamped yaw and pitch,
+    Q = Rx(-pitch) Rz(-yaw) Rx(flexed pitch) the first phalanx's frame, phalanx k Q Rx(k α)
+    (columns x, c y + s z, c z - s y)."""
+    q_rows, j_rows = [], []
+    for k, (lx, ly, lz), rad in zip(consts, local, radii or [None] * len(local)):
+        c0, bb, a4, minus_b, den, l1, l2, l3, ylo, yhi, plo, phi, half = k
+        while True:  # twice with an LED: the aim moved to the tip joint once the distal frame is known
+            dd = (lx * lx + ly * ly) + lz * lz  # eq. 3-4 (flexion_from_distance)
+            disc = bb - a4 * (c0 - dd)
+            x = (minus_b - _sqrt(0.0 if disc < 0.0 else disc)) / den
+            x = -X_CLAMP if x < -X_CLAMP else X_CLAMP if x > X_CLAMP else x
+            alpha = _PI - _acos(x)
+            alpha = FLEXION_CAP if alpha > FLEXION_CAP else alpha
+            c1, s1, c2, s2 = _cos(alpha), _sin(alpha), _cos(2.0 * alpha), _sin(2.0 * alpha)
+            pitch = _atan2(-lz, ly)  # realign: the target's yaw and pitch clamped
+            yaw = _atan2(lx, _hypot(ly, lz))
+            yaw = ylo if yaw < ylo else yhi if yaw > yhi else yaw
+            if not plo <= pitch <= phi:
+                pitch = phi if (pitch - phi) % _TWO_PI < half else plo
+            flexed = _atan2(-(l2 * s1 + l3 * s2), (l1 + l2 * c1) + l3 * c2)
+            ca, sa, cb, sb = _cos(-pitch), _sin(-pitch), _cos(-yaw), _sin(-yaw)
+            cc, sc = _cos(flexed), _sin(flexed)
+            # Rx(-pitch) Rz(-yaw) Rx(flexed): rows (cb, -sb cc, sb sc), ca r1 - sa r2, sa r1 + ca r2
+            # of r1 = (sb, cb cc, -cb sc), r2 = (0, sc, cc)
+            q01, q02 = -sb * cc, sb * sc
+            u1, u2 = cb * cc, -cb * sc
+            q10, q11, q12 = ca * sb, ca * u1 - sa * sc, ca * u2 - sa * cc
+            q20, q21, q22 = sa * sb, sa * u1 + ca * sc, sa * u2 + ca * cc
+            if rad is None:
+                break
+            # the LED one radius off the distal phalanx's -Z: aim at the joint (its +Z, c2 z - s2 y)
+            lx, ly = lx + rad * (c2 * q02 - s2 * q01), ly + rad * (c2 * q12 - s2 * q11)
+            lz = lz + rad * (c2 * q22 - s2 * q21)
+            rad = None
+        # phalanges 2 and 3: the first turned by Rx(α), Rx(2α)
+        y10, y11, y12 = c1 * q01 + s1 * q02, c1 * q11 + s1 * q12, c1 * q21 + s1 * q22
+        y20, y21, y22 = c2 * q01 + s2 * q02, c2 * q11 + s2 * q12, c2 * q21 + s2 * q22
+        q_rows += (cb, q01, q02, cb, y10, c1 * q02 - s1 * q01, cb, y20, c2 * q02 - s2 * q01,
+                   q10, q11, q12, q10, y11, c1 * q12 - s1 * q11, q10, y21, c2 * q12 - s2 * q11,
+                   q20, q21, q22, q20, y12, c1 * q22 - s1 * q21, q20, y22, c2 * q22 - s2 * q21)
+        if joints:  # the segments summed from the MCP one after the other
+            e0, e1, e2 = q01 * l1, q11 * l1, q21 * l1
+            f0, f1, f2 = y10 * l2 + e0, y11 * l2 + e1, y12 * l2 + e2
+            j_rows += (e0, e1, e2, f0, f1, f2, y20 * l3 + f0, y21 * l3 + f1, y22 * l3 + f2)
+    return q_rows, j_rows
 
 
 def pose_finger(mcp, ref_rot, l1, l2, l3, tip_target, thumb: bool = False, roll: float | None = None) -> FingerPose:

@@ -25,6 +25,7 @@ the engine's joints and targets are carried back into the world.
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 
@@ -133,7 +134,7 @@ def transformed_avatar(model: BodyModel, m: np.ndarray) -> BodyModel:
         raise BodyCalError("the avatar can only be moved, turned and uniformly scaled", source=model.name,
                            field="extra.rig.matrix_world", hint="calibrate the avatar again where it stands")
     rot, s, t = parts
-    out = copy.deepcopy(model)
+    out = _copied(model)
     for j in out.joints.values():
         j.world = rot @ (s * np.asarray(j.world, float)) + t
     for b in out.bones.values():
@@ -155,6 +156,24 @@ def transformed_avatar(model: BodyModel, m: np.ndarray) -> BodyModel:
             p.local = np.asarray(p.local, float) * s
     if isinstance(out.extra.get("rig"), dict):
         out.extra["rig"]["matrix_world"] = (np.asarray(m, float) @ rig_matrix(model)).tolist()
+    return out
+
+
+def _copied(model: BodyModel) -> BodyModel:
+    """A copy of `model` that shares nothing mutable with it, as copy.deepcopy's. Decision (speed):
+    each joint, bone, element and point a new object and their arrays copied by numpy, not through
+    copy.deepcopy's Python walk: `transformed_avatar` of the bench avatar 20.2 -> 12.7 M instructions,
+    once in every solver's set-up."""
+    out = copy.copy(model)
+    deep = copy.deepcopy
+    out.joints = {k: dataclasses.replace(j, world=np.array(j.world), local=deep(j.local), frames=deep(j.frames))
+                  for k, j in model.joints.items()}
+    out.bones = {k: dataclasses.replace(b, right=deep(b.right), extra=deep(b.extra)) for k, b in model.bones.items()}
+    out.surface = [dataclasses.replace(e, center=deep(e.center), triangles=list(e.triangles), extra=deep(e.extra),
+                                       points={k: dataclasses.replace(p, local=np.array(p.local))
+                                               for k, p in e.points.items()})
+                   for e in model.surface]
+    out.offsets, out.calibration, out.extra = deep(model.offsets), deep(model.calibration), deep(model.extra)
     return out
 
 

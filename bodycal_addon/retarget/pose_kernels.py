@@ -120,8 +120,13 @@ def quat_of_rows(aug: np.ndarray) -> np.ndarray:
     m = aug.shape[1]
     cand = _SHEPPERD_AFFINE @ aug  # (20, M)
     q = cand[:16].reshape(4, 4, m)[cand[16:].argmax(0), :, _arange(m)]  # (M, 4)
-    q /= np.sqrt((q * q).sum(1))[:, None]
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    # w >= 0 and unit length in one division: q / -|q| is -(q / |q|) to the bit (a sign is exact),
+    # and w's sign is the same before and after the division by |q| > 0 (NaN: neither flips).
+    # Decision (speed): the sign as a second pass (a where and a product) cost 42,000
+    # instructions a frame's 53 bones, the negated norms' masked pass a fraction of it.
+    norm = np.sqrt((q * q).sum(1))
+    np.negative(norm, out=norm, where=q[:, 0] < 0)
+    q /= norm[:, None]
     return q
 
 

@@ -11,6 +11,9 @@ its rest head; the root bone placed from the pelvis once posed), then its rotati
 W^-1 C_c (C_c0^-1 W M_A); following its parent, P_p (M_p^-1 M_A); parentless and undriven, M_A;
 a chain bone, its vertebra's twist turned to aim at the curve (`rig/chain.py` `ChainAim`'s steps).
 The values are the numpy path's to float32's rounding (mathutils' precision: one_frame.py).
+A turned armature's are posed in its turned space, W P and W H (`rig/plan.py` `TurnedOne`): the
+canonical frames taken as they are (no W^-1 C), the rest matrices, loose heads and the maps
+between positions and the armature turned once here; the aimed rotations handed back are W R.
 
 Decision (speed, measured in instructions): only the chain is aimed here. A whole rig pose of one
 frame in mathutils (bone by bone: 53 bones, their quaternions and 72 joints) took 1.71 M
@@ -47,6 +50,17 @@ class _Plan:
     joints: list
 
 
+class _Turn:
+    """W @ m for the armature's rotation W, m itself where the armature is not turned (the same
+    bits as before it was turned)."""
+
+    def __init__(self, w_rot):
+        self.w_rot = w_rot
+
+    def __matmul__(self, m):
+        return m if self.w_rot is None else self.w_rot @ m
+
+
 class ChainOneFrame:
     """One rig's spine chain aimed for one frame: its constants as mathutils objects, made once
     (`RigPlan.chain_one`)."""
@@ -54,11 +68,10 @@ class ChainOneFrame:
     def __init__(self, rig):
         self.rig = rig
         self.root = rig.root
-        self.w_identity = rig.w_identity
-        self.w_t = Matrix(rig.w_rot.T.tolist())  # W^-1 of a rotation
-        self.w = Matrix(rig.w_rot.tolist())
+        # a turned armature is posed in its turned space (W P, W H): its constants turned by W
+        self.turn = turn = _Turn(None if rig.w_identity else rig.w_rot)
         self.shift = Vector(rig.world[:3, 3].tolist())
-        self.inv = Matrix(rig.w_inv.tolist())
+        self.inv = Matrix((turn @ rig.w_inv).tolist())
         self.pelvis_at = Vector(rig.pelvis_at.tolist())
         ch = rig.chain
         self.chain = ch
@@ -72,17 +85,17 @@ class ChainOneFrame:
         b = self.curve_bone = int(rig.joint_bone[j0])
         self.curve_local = Vector(rig.joint_local[j0].tolist())
         p = int(rig.parent[b])
-        self.curve_start = Matrix(rig.rest[b].tolist()) if p < 0 else Matrix((rig.rest[p].T @ rig.rest[b]).tolist())
+        self.curve_start = Matrix((turn @ rig.rest[b] if p < 0 else rig.rest[p].T @ rig.rest[b]).tolist())
         spine_rows = np.array([BI[n] for n in SPINE_BONES], int)
         # the vertebrae's +Y entries in a frame's flat (B 3 3) row-major entries, their lengths
         self.spine_y = (spine_rows[:, None] * 9 + np.array([1, 4, 7])).ravel()
         self.spine_len = rig.lengths[spine_rows][:, None]
-        self.w_inv_m = Matrix(rig.w_inv.tolist())
+        self.w_inv_m = Matrix((turn @ rig.w_inv).tolist())
         # per chain bone, its target's curve points k, k + 1 as rows of the running sum (-1: the
         # curve's start, no step yet) and their weights
         self.chain_pick = [(int(k) - 1, int(k), float(w0), float(w1)) for w0, w1, k in
                            zip(ch.w0[:, 0, 0].tolist(), ch.w1[:, 0, 0].tolist(), ch.k.tolist())]
-        self.lin = Matrix(rig.lin_t.T.tolist())  # the armature's linear part (positions to the world)
+        self.lin = Matrix((turn @ rig.lin_t).T.tolist())  # the armature's linear part (turned positions to the world)
         self.plans = {}
 
     def _plan(self, joints: tuple) -> _Plan:
@@ -119,7 +132,7 @@ class ChainOneFrame:
             elif p >= 0:
                 hk, hv = HANG, Vector(off.tolist())
             else:
-                hk, hv = LOOSE, Vector(rig.head[b].tolist())
+                hk, hv = LOOSE, Vector((self.turn @ rig.head[b]).tolist())
             if b not in rotated:
                 rk, rv = UNUSED, None
             elif isinstance(drv, (int, np.integer)):
@@ -129,7 +142,7 @@ class ChainOneFrame:
             elif p >= 0:
                 rk, rv = FOLLOW, Matrix(fixed.tolist())
             else:
-                rk, rv = REST, Matrix(rig.rest[b].tolist())
+                rk, rv = REST, Matrix((self.turn @ rig.rest[b]).tolist())
             steps.append((b, int(p), hk, hv, rk, rv))
         for v in self.chain.vertebra.tolist():
             slot(int(v))
@@ -137,8 +150,9 @@ class ChainOneFrame:
                      [(c, Vector(off.tolist()) if np.any(off) else None) for c, off in carried])
 
     def aimed(self, frames: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
-        """The chain bones' armature-space rotations (n, 1, 3, 3), by their rows in the chain plan,
-        of canonical world frames (1, B, 3, 3) with the pelvis joint at `pelvis` (1, 3)."""
+        """The chain bones' armature-space rotations (n, 1, 3, 3) (a turned armature's turned,
+        W R), by their rows in the chain plan, of canonical world frames (1, B, 3, 3) with the
+        pelvis joint at `pelvis` (1, 3)."""
         return self.aimed_and_joints(frames, pelvis, ())[0]
 
     def aimed_and_joints(self, frames: np.ndarray, pelvis: np.ndarray, joints: tuple) -> tuple:
@@ -149,9 +163,7 @@ class ChainOneFrame:
         plan = self.plans.get(joints)
         if plan is None:
             plan = self.plans[joints] = self._plan(joints)
-        C = [Matrix(m) for m in frames[0].take(plan.canon, axis=0).tolist()]
-        if not self.w_identity:
-            C = [self.w_t @ m for m in C]  # W^-1 C, the products' left factor (the same product)
+        C = [Matrix(m) for m in frames[0].take(plan.canon, axis=0).tolist()]  # (turned: no W^-1 C)
         P, H = {}, {}
         aim = _Aim(self, C, plan, frames)
         at = self.inv @ (Vector(pelvis[0].tolist()) - self.shift)
@@ -170,8 +182,15 @@ class ChainOneFrame:
                 P[b] = aim.bone(b, rv, P, H)
             if hk == ROOT:
                 H[b] = at - P[b] @ self.pelvis_at
+        aimed = one_frame.matrix_array(aim.aimed)[:, None]
+        if not plan.joints:  # `aimed`'s (making an empty array of no joints cost 9,000 instructions)
+            return aimed, _NO_JOINTS
         at_joints = [self.lin @ (H[c] if off is None else H[c] + P[c] @ off) + self.shift for c, off in plan.joints]
-        return one_frame.matrix_array(aim.aimed)[:, None], one_frame.vector_array(at_joints)[None]
+        return aimed, one_frame.vector_array(at_joints)[None]
+
+
+_NO_JOINTS = np.empty((1, 0, 3))
+_NO_JOINTS.setflags(write=False)
 
 
 class _Aim:
@@ -182,7 +201,8 @@ class _Aim:
     def __init__(self, one: ChainOneFrame, C: list, plan: _Plan, frames):
         self.one, self.frames = one, frames
         pos = {c: k for k, c in enumerate(plan.canon.tolist())}
-        # W^-1 C_v (C_v0^-1 W) (C is W^-1 C already), the twist, the aim point, its target's offset
+        # C_v (C_v0^-1 W) (W times the vertebra's turn since rest W^-1 C_v C_v0^-1 W, the turned
+        # space's; unturned, W = I), the twist, the aim point, its target's offset
         self.delta = [C[pos[v]] @ f for v, f in zip(one.chain.vertebra.tolist(), one.chain_fixed)]
         self.twist = [d @ r for d, r in zip(self.delta, one.chain_rest)]
         self.aim = [t @ a for t, a in zip(self.twist, one.chain_aim)]

@@ -350,17 +350,21 @@ class PreparedSolver:
             K = len(rows)
             out = ik.two_bone_floats([at0[k] for k in rows], l1, l2, aims[:K], aims[K:] if pole_names else None,
                                      swivel, hinge, self.k)
-            # the anchored bones' frames, then the intermediate ones' (`bones`' order)
+            # the anchored bones' frames, then the intermediate ones' (`bones`' order), then the
+            # effectors reached, into numpy at once
             values = []
             for r in out:
                 values += r[6:15]
             for r in out:
                 values += r[15:24]
+            for r in out:
+                values += r[3:6]
+            values = one_frame.float_array(values)
             if flat is not None:
-                flat[entries] = values
+                flat[entries] = values[:18 * K]
             else:
-                frames[0, bones] = np.array(values).reshape(-1, 3, 3)
-            ends = np.array([r[3:6] for r in out])
+                frames[0, bones] = values[:18 * K].reshape(-1, 3, 3)
+            ends = values[18 * K:].reshape(K, 3)
             for i, k in enumerate(rows):
                 reached[items[k]] = ends[i:i + 1]
         return reached
@@ -482,12 +486,11 @@ class PreparedSolver:
             return
         items, hand_bones, rows, mcp_local, base_rest, (bones, flat), chain = plan
         if nf == 1:  # one frame: each finger's hand gathered once, the same products
-            item_hands, mcp_cols, tip_names = self._finger_one(plan)
+            item_hands, mcp_cols, tip_names, phalanges = self._finger_one(plan)
             hands = frames[0].take(item_hands, axis=0)  # (K, 3, 3)
             mcp = np.concatenate([wrists[s] for s in sides]).take(rows, axis=0) + (hands @ mcp_cols)[..., 0]
-            rots = chain.pose(mcp, hands @ base_rest, np.concatenate([targets[n] for n in tip_names]),
-                              joints=False).rotations
-            frames[0, flat] = rots.reshape(-1, 3, 3)
+            frames[0, phalanges] = chain.pose_floats(mcp, hands @ base_rest,
+                                                     np.concatenate([targets[n] for n in tip_names]), joints=False)[1]
             return
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
@@ -528,13 +531,14 @@ class PreparedSolver:
 
     def _finger_one(self, plan: tuple) -> tuple:
         """What `_fingers` of one frame reads of a finger plan, once per plan: each finger's hand
-        bone, the MCP offsets as columns (K, 3, 1), the tip targets' names."""
+        bone, the MCP offsets as columns (K, 3, 1), the tip targets' names, the phalanges' canonical
+        bones (K, 3)."""
         cache = self.__dict__.setdefault("_finger_ones", {})
         if id(plan) not in cache:
             items, hand_bones, rows, mcp_local = plan[:4]
             cache[id(plan)] = (hand_bones[rows], np.ascontiguousarray(mcp_local[..., None]),
-                               [f"tip_{f}_{s}" for s, f in items], plan)
-        return cache[id(plan)][:3]
+                               [f"tip_{f}_{s}" for s, f in items], plan[5][1].reshape(-1, 3), plan)
+        return cache[id(plan)][:4]
 
     @property
     def _finger_rest(self) -> dict:

@@ -60,6 +60,14 @@ ARM_REACH = 0.98  # x the arm: the wrist within this of its shoulder keeps the e
 # bend, which the estimated trunk does not make (a Beat Saber player's low swings: with 8° down,
 # 21 % of the frames stayed out of reach, p95 45 mm).
 SHOULDER_REACH = math.radians(25.0)
+# The elbow's flexion at most (its range of motion: active 146 degrees on average, passive 3-5
+# more, Zwerus 2017): a hand nearer its shoulder than the arm folds that far turns the shoulder
+# away from it (`_reach_shoulders`, within SHOULDER_REACH), as a hand beyond reach turns it toward
+# it. Without it a Beat Saber player's hands held beside the head (a third of simsaber's frames,
+# 5-10 cm from the estimated shoulders) folded the two-bone elbow shut (180 degrees) onto the
+# shoulder-wrist line, which whirls as the hand moves by centimetres: the rotation copy's wrist
+# 1.39x the controllers', 1.30x with the limit.
+ELBOW_FLEX_MAX = math.radians(150.0)
 # The estimated elbow's swivel (`estimated_elbow_right`; Parger 2018), vectors (out, up,
 # forward) in the shoulders' frame: the hand's rest direction from its shoulder (forward and
 # down; its opposite, behind and above the shoulder, the one direction where the swivel is not
@@ -588,8 +596,9 @@ class UserAnimator:
     def _reach_shoulders(self, plan: _Plan, P: _Joints) -> None:
         """Shoulder pass, for shoulders no arm tracker carries: a wrist beyond `ARM_REACH` of its
         arm turns its shoulder toward it about the shoulders' middle (the shoulder girdle's
-        protraction and elevation, and a side bend), at most `SHOULDER_REACH`; the frames within
-        reach keep their shoulder to the bit. A Beat Saber player's controllers are beyond the arms of a rigid
+        protraction and elevation, and a side bend), at most `SHOULDER_REACH`; a wrist nearer than
+        the arm folds (`ELBOW_FLEX_MAX`) turns it away as far; the frames between keep their
+        shoulder to the bit. A Beat Saber player's controllers are beyond the arms of a rigid
         trunk on 36 % of the frames (p95 74 mm); the shoulder's turn leaves 1.5 % (DESIGN.md §6
         "A lower body from head and hands")."""
         if not plan.reaching:
@@ -598,12 +607,22 @@ class UserAnimator:
         moved = {}
         for s in plan.reaching:
             sh, wr = P[f"shoulder_{s}"], P[f"wrist_{s}"]
-            reach = ARM_REACH * self._arm_length(s)
-            far = np.einsum("fi,fi->f", wr - sh, wr - sh) > reach * reach
-            if far.any():
-                moved[s] = (far, _shoulder_toward(mid[far], sh[far], wr[far], reach))
-        for s, (far, value) in moved.items():
-            P.pos[far, JI[f"shoulder_{s}"]] = value
+            reach, fold = ARM_REACH * self._arm_length(s), self._fold_distance(s)
+            d2 = np.einsum("fi,fi->f", wr - sh, wr - sh)
+            far = d2 > reach * reach
+            out = far | (d2 < fold * fold)
+            if out.any():
+                moved[s] = (out, _shoulder_toward(mid[out], sh[out], wr[out], np.where(far[out], reach, fold)))
+        for s, (out, value) in moved.items():
+            P.pos[out, JI[f"shoulder_{s}"]] = value
+
+    def _fold_distance(self, s: str) -> float:
+        """The wrist's distance from its shoulder with the elbow flexed ELBOW_FLEX_MAX (the law of
+        cosines over the user's two arm bones)."""
+        r = self.rest_pos
+        l1, l2 = (float(np.linalg.norm(r[b] - r[a]))
+                  for a, b in ((f"shoulder_{s}", f"elbow_{s}"), (f"elbow_{s}", f"wrist_{s}")))
+        return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(ELBOW_FLEX_MAX))
 
     def _arm_length(self, s: str) -> float:
         r = self.rest_pos
@@ -766,10 +785,10 @@ def _sacrum_turned(rows: list, hip_l: list, hip_r: list) -> list | None:
             [r20 * s00 + r21 * s10 + r22 * s20, r20 * s01 + r21 * s11 + r22 * s21, r20 * s02 + r21 * s12 + r22 * s22]]
 
 
-def _shoulder_toward(mid: np.ndarray, sh: np.ndarray, wr: np.ndarray, reach: float) -> np.ndarray:
+def _shoulder_toward(mid: np.ndarray, sh: np.ndarray, wr: np.ndarray, reach) -> np.ndarray:
     """(F, 3) the shoulders `sh` turned about `mid` in the plane of `mid`, `sh` and the wrists
-    `wr`, toward them, as far as brings them within `reach` (the law of cosines), at most
-    `SHOULDER_REACH`."""
+    `wr` as far as brings them `reach` (a float or (F,)) from the wrists (the law of cosines):
+    toward wrists further, away from nearer ones, at most `SHOULDER_REACH`."""
     a, b = sh - mid, wr - mid
     na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
     ua = a / np.maximum(na, 1e-9)[:, None]
@@ -778,7 +797,8 @@ def _shoulder_toward(mid: np.ndarray, sh: np.ndarray, wr: np.ndarray, reach: flo
     e = b / np.maximum(nb, 1e-9)[:, None] - cos_ab[:, None] * ua  # toward the wrist, square to the shoulder
     ne = np.linalg.norm(e, axis=1)
     e = e / np.maximum(ne, 1e-9)[:, None]
-    theta = np.clip(np.arccos(cos_ab) - np.arccos(kappa), 0.0, np.where(ne > 1e-9, SHOULDER_REACH, 0.0))
+    cap = np.where(ne > 1e-9, SHOULDER_REACH, 0.0)
+    theta = np.clip(np.arccos(cos_ab) - np.arccos(kappa), -cap, cap)
     return mid + na[:, None] * (np.cos(theta)[:, None] * ua + np.sin(theta)[:, None] * e)
 
 

@@ -485,3 +485,31 @@ def test_distances_are_the_projection_s_own_to_the_bit(user, dtype):
     assert got.dtype == dtype and got.shape == pts.shape[:2] + (len(us.element_ids),)
     assert np.array_equal(got, eg.project(pts, us).dist)
     assert us.counts[2] and np.all(np.isfinite(got))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_blocks_of_any_size_map_to_the_bit(user, monkeypatch, dtype):
+    # The bake maps its frames in blocks of BLOCK_PAIRS frames x targets x elements (a speed
+    # choice, docs/PERFORMANCE.md "Bake"): every operation is per pair or per target row, so the
+    # block size must change no value, weights and ratios included.
+    from bodycal_addon.retarget.egocentric import mapping as egm
+
+    frames = 150
+    avatar = rb.scale_model(user, 1.2)
+    joints, rots = _posed(user, frames, 7)
+    us = eg.pose_surface(user, joints, rots)
+    av = eg.pose_surface(avatar, {k: v * 1.2 + 0.01 for k, v in joints.items()}, rots)
+    pts = _targets(joints, 7, spread=0.1)
+    pairs = frames * len(TARGETS) * len(us.element_ids)
+    results = []
+    for block_pairs in (2_000, pairs // 3, 10 * pairs):  # blocks of the 32-frame minimum, three, one
+        monkeypatch.setattr(egm, "BLOCK_PAIRS", block_pairs)
+        for turn_v in (False, True):
+            details = {}
+            out = eg.retarget_points(pts, TARGETS, us, av, turn_v=turn_v, dtype=dtype, details=details)
+            results.append((block_pairs, turn_v, out, details))
+    for block_pairs, turn_v, out, details in results[2:]:
+        ref = results[int(turn_v)]
+        np.testing.assert_array_equal(out, ref[2], err_msg=f"{block_pairs} {turn_v}")
+        for name in details:
+            np.testing.assert_array_equal(details[name], ref[3][name], err_msg=f"{name} {block_pairs}")

@@ -169,13 +169,16 @@ def test_a_layout_it_does_not_fit_takes_the_bake_s_kernels(hop_solver):
 
 
 def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
-    # One frame's Ericson terms by its two-call dot product: the same barycentric coordinates as
-    # the bake's `projection.closest_on_triangles`, every bit, over points near and far from
-    # triangles of every shape (flattened to a line, a point on an edge's line, corners).
+    # One frame's Ericson kernel (its regions' tests in one comparison, the first that holds by
+    # an argmax, the triangles' dot products made once a triangle): the same barycentric
+    # coordinates as the bake's `projection.closest_on_triangles`, every bit, over points near and
+    # far from triangles of every shape (flattened to a line or a point, a point on an edge's
+    # line, corners), so every region and its ties (a term exactly 0, two terms equal) are met.
     from bodycal_addon.retarget.egocentric import one_frame as of
     from bodycal_addon.retarget.egocentric.projection import closest_on_triangles
 
     rng = np.random.default_rng(41)
+    regions = set()
     for trial in range(60):
         n = 400
         ap = (rng.standard_normal((3, n)) * rng.uniform(0.01, 2.0)).astype(np.float32)
@@ -183,13 +186,20 @@ def test_one_frame_s_closest_points_on_triangles_are_ericson_s_bit_for_bit():
         ac = (rng.standard_normal((3, n)) * 0.1).astype(np.float32)
         if trial % 3 == 0:
             ac = 2 * ab  # a degenerate triangle
+        if trial % 11 == 0:
+            ab = ac = np.zeros_like(ab)  # a triangle shrunk to a point
         if trial % 5 == 0:
             ap = ab * rng.uniform(-1.0, 2.0, n).astype(np.float32)  # on the line of AB
         if trial % 7 == 0:
             ap = np.where(rng.random(n) < 0.5, ab, ac)  # on a corner
-        want, got = closest_on_triangles(ap, ab, ac), closest_on_triangles(ap, ab, ac, of.dot3)
+        edges = np.stack([ab, ac])
+        dots = [of.dot3(x, y) for x, y in ((ab, ab), (ac, ac), (ab, ac))]
+        want, got = closest_on_triangles(ap, ab, ac), of._closest_on_triangles(ap, edges, *dots)
         for w, g in zip(want, got):
             np.testing.assert_array_equal(g, w)
+        regions |= set(zip(want[0].tolist(), want[1].tolist())) & {(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)}
+        regions.add("inside" if ((want[0] > 0) & (want[1] > 0) & (want[0] + want[1] < 1)).any() else "none")
+    assert regions >= {(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), "inside"}
 
 
 def test_an_avatar_whose_capsules_sit_off_the_bone_line_maps_as_the_bake_s_kernels_do(hop_solver, monkeypatch):

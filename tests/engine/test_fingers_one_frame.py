@@ -1,7 +1,8 @@
-"""A live frame's fingers in Python floats (`fingers.FingerSet.pose_floats`, issue 41): the
-numpy passes' values (`distal_z` then `pose`, the fingertip LED's offset aimed at the tip joint)
-to float64's rounding, thumbs rolled or not, targets beyond every limit, joints or frames only;
-and the user animation's one frame, which takes it, gives the block's fingers."""
+"""A live frame's fingers in Python floats (`fingers.FingerSet.pose_floats`, issue 41), the user's
+and the avatar's finger IK alike: the numpy passes' values (`distal_z` then `pose`, the
+fingertip LED's offset aimed at the tip joint) to float64's rounding, thumbs rolled or not,
+targets beyond every limit, joints or frames only; the user animation's one frame, which takes
+it, gives the block's fingers; one egocentric frame's solve is the numpy passes'."""
 
 import numpy as np
 import pytest
@@ -11,6 +12,9 @@ from bodycal_addon.body.skeleton import JOINT_INDEX as JI
 from bodycal_addon.core import one_frame
 from bodycal_addon.retarget import fingers as fg
 from bodycal_addon.retarget import user_animation as ua
+from bodycal_addon.retarget.pose_source import RecordingSource
+from bodycal_addon.retarget.solver import PreparedSolver
+from bodycal_dev import retarget_fixtures as rt
 from bodycal_dev import synthetic
 
 
@@ -59,3 +63,34 @@ def test_one_frame_s_user_fingers_are_the_block_s(monkeypatch):
         assert calls.pop()  # taken by the one frame
         np.testing.assert_allclose(one.joints[0, joints], whole.joints[f, joints], rtol=0, atol=1e-9)
         np.testing.assert_allclose(one.frames[0, bones], whole.frames[f, bones], rtol=0, atol=1e-9)
+
+
+def _numpy_passes(self, mcp, ref, tip, joints=True, radius=None):
+    """`FingerSet.pose_floats` as the numpy passes compute it (`distal_z` then `pose`)."""
+    aim = tip if radius is None else tip + radius * self.distal_z(mcp, ref, tip)
+    fp = self.pose(mcp, ref, aim, joints=joints)
+    return fp.joints, fp.rotations
+
+
+def test_one_egocentric_frame_s_fingers_user_and_avatar_are_the_numpy_passes(monkeypatch):
+    # The same one-frame solves with every finger (the user's and the avatar's two arm passes')
+    # posed by the float kernel and by the numpy passes; everything else the same kernels.
+    rec, user = rt.synthetic_take(seed=4)
+    avatar = rt.plain_and_turned_avatars()[1]
+    floats = fg.FingerSet.pose_floats
+    avatar_calls = []
+
+    def counted(self, mcp, ref, tip, joints=True, radius=None):
+        avatar_calls.append(not joints)  # the avatar's IK reads the frames only
+        return floats(self, mcp, ref, tip, joints, radius)
+
+    poses = {}
+    for kernel in (counted, _numpy_passes):
+        monkeypatch.setattr(fg.FingerSet, "pose_floats", kernel)
+        solver = PreparedSolver(RecordingSource(rec, user), avatar, "egocentric", plant_feet=False)
+        poses[kernel] = [solver.solve(f, f + 1) for f in range(0, len(rec.time), 9)]
+    assert sum(avatar_calls) >= 2 * len(poses[counted])  # both arm passes took the floats every frame
+    worst = 0.0
+    for a, b in zip(poses[counted], poses[_numpy_passes]):
+        worst = max(worst, np.abs(a.joints - b.joints).max(), np.abs(a.basis - b.basis).max())
+    assert worst < 1e-9, worst

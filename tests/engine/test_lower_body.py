@@ -491,8 +491,8 @@ def test_a_controller_beyond_the_arm_turns_its_shoulder_toward_it(monkeypatch):
     """A real Beat Saber replay (three points, no calibration steps): the player's controllers are
     beyond the arms of a rigid trunk on a third of the frames; the shoulder girdle turns each
     shoulder toward its hand (up to 25°) so the arms reach them, the
-    shoulders as far from their middle as ever, and where the hands are within reach the
-    shoulders are the rigid trunk's to the bit."""
+    shoulders as far from their middle as ever, and where the hands are within reach (and not
+    nearer than the arm folds) the shoulders are the rigid trunk's to the bit."""
     from bodycal_addon.recording import io as recording_io
     from bodycal_addon.retarget import user_animation as ua
 
@@ -508,6 +508,10 @@ def test_a_controller_beyond_the_arm_turns_its_shoulder_toward_it(monkeypatch):
     J, R = pose.joints, rigid.joints
     rmid = 0.5 * (R[:, JI["shoulder_l"]] + R[:, JI["shoulder_r"]])
     inside = (_over_reach_mm(user, rigid, ua.ARM_REACH).reshape(2, -1) == 0).all(axis=0)
+    animator = ua.UserAnimator(full, user)
+    for s in "lr":  # nor nearer than the arm folds (test_folded_arm.py)
+        d = np.linalg.norm(rigid.joints[:, JI[f"wrist_{s}"]] - rigid.joints[:, JI[f"shoulder_{s}"]], axis=1)
+        inside &= d >= animator._fold_distance(s)
     for s in "lr":
         row = JI[f"shoulder_{s}"]
         half = np.linalg.norm(R[:, row] - rmid, axis=1)

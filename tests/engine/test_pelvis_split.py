@@ -81,3 +81,20 @@ def test_the_landings_count_is_a_plain_int_the_bench_can_print():
     count = measure.landings(foot, FPS)
     assert count == 1 and type(count) is int
     json.dumps({"steps": count})
+
+
+def test_the_error_is_split_into_the_calibrations_length_and_the_paths_direction():
+    """Our trunk 50 mm longer than the clip's (the calibration's proportions), then also leaning
+    10 degrees less (the path): with the clip's trunk length the first error is gone and the second
+    left whole; with the clip's trunk direction the reverse."""
+    theirs, fwd, _ = _clip(120.0, frames=150, turn_deg_s=30.0)
+    skull = theirs["skull_base"]
+    longer = {"pelvis": theirs["pelvis"] - np.array([0.0, 0.0, 0.05]), "skull_base": skull}
+    got = measure.pelvis_split(longer, theirs, FPS)["by_source"]
+    assert got["path_only"]["p95"] < 0.05
+    assert got["calibration_only"]["median"] == pytest.approx(50.0, abs=0.05)
+    lean = np.radians(10.0)
+    theirs["pelvis"] = skull - 0.55 * (np.cos(lean) * np.array([0.0, 0.0, 1.0]) + np.sin(lean) * fwd)
+    got = measure.pelvis_split(longer, theirs, FPS)["by_source"]
+    assert got["path_only"]["median"] == pytest.approx(0.55 * 2 * np.sin(lean / 2) * 1000, rel=1e-3)
+    assert got["calibration_only"]["median"] == pytest.approx(50.0, abs=0.05)

@@ -2,7 +2,8 @@
 product pass (`basis._solve_one`), the root placed and its location read in Python floats
 (`fk._place_root`, `basis._root_location_one`), consecutive rows written as slices
 (`pose_plan.rows_of`) give the values a pose of more frames gives that frame: bit for bit where
-the armature is not turned, to the sums' rounding where it is (its W^-1 products' order)."""
+the armature is not turned, to the sums' rounding where it is (its W^-1 products' order). One
+frame of a turned armature, posed in its turned space (`fk.posed`), gives the armature-space pose."""
 
 from __future__ import annotations
 
@@ -64,3 +65,42 @@ def test_rows_of_is_a_slice_only_for_consecutive_rows():
     a[rows_of([2, 3])] = 1.0
     a[rows_of([5, 7])] = 2.0
     assert a.tolist() == [0, 0, 1, 1, 0, 2, 0, 2]
+
+
+def test_a_turned_armature_s_frame_posed_in_its_turned_space_is_the_armature_space_pose():
+    """One frame of a turned armature (mathutils' chain) is posed as W P and W H (`fk.posed`,
+    `plan.TurnedOne`): its basis, root location, joints, realised frames and (read back) its
+    rotations and heads are those of the same pose in the armature's space, which a two-frame
+    pose holding the same chain rotations gives (to the sums' rounding); an unturned armature
+    is never posed turned."""
+    from bodycal_addon.retarget.rig import fk as rig_fk
+    from bodycal_addon.retarget.rig.chain import ChainMemo
+
+    turned_rigs = 0
+    for rig, frames, pelvis in rt.rigs_on_a_take(5, ("clap", "hand_on_head"), 1.0):
+        for f in range(0, len(frames) - 3, 7):
+            one_f, one_p = frames[f:f + 1], pelvis[f:f + 1]
+            rig.memo.clear()
+            P1, H1, turned, _ = rig_fk.posed(rig, rig.memo, one_f, one_p)
+            assert turned == (not rig.w_identity and one_frame.ENABLED)
+            if not turned:
+                continue
+            turned_rigs += 1
+            rig.memo.clear()
+            one = rig.solve(one_f, one_p, realised=True)
+            held = np.matmul(rig.w_rot.T, rig.memo.rotations)  # the chain's rotations, armature space
+            # the same pose in the armature's space: two frames (numpy's flat pass) holding that chain
+            two_f, two_p = np.concatenate([one_f, one_f]), np.concatenate([one_p, one_p])
+            memo = ChainMemo()
+            memo.keep(ChainMemo.key_of(rig.chain, two_f, two_p), np.concatenate([held, held], axis=1))
+            P2, H2 = rig_fk.pose(rig, memo, two_f, two_p)
+            assert memo.rotations is not None
+            two = rig_fk.finish(rig, rig_basis.solve(rig.basis_plan, P2), P2, H2,
+                                rig_basis.root_location(rig.basis_plan, P2, H2), True)
+            for name in ("basis", "root_location", "joints", "frames", "rotations", "heads"):
+                a, b = getattr(one, name), getattr(two, name)[:1]
+                assert a.shape == b.shape, name
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-13, err_msg=name)
+            # and the armature-space pose `pose` hands back is the turned one turned back
+            np.testing.assert_allclose(np.matmul(rig.w_rot.T, P1), P2[:, :1], rtol=0, atol=1e-13)
+    assert turned_rigs > 0

@@ -52,7 +52,7 @@ Conventions and decisions (each one named in the code where it applies):
   re-posed in its bone's frame scaled by the bone length ratio instead of by barycentrics.
 
 Speed: the hot path keeps vector components first ((3, F, P, E) arrays) and runs blocks of
-BLOCK_PAIRS frames x targets x elements so the temporaries stay in the CPU caches; everything
+BLOCK_PAIRS frames x targets x elements (fewer, larger numpy calls); everything
 frame-independent (exclusions, kinematic paths as index arrays sorted by length) is computed once
 per target/element set; targets that exclude the same elements are mapped on the others only,
 but a few frames (up to MERGED_PAIRS frames x targets x elements: a live frame) are projected and

@@ -187,7 +187,10 @@ def retarget_points(user_pts: np.ndarray, target_names: list[str], user_surface:
     return prepared.map(avatar_surface, avatar_bones, turn_v=turn_v, details=details)
 
 
-BLOCK_PAIRS = 20_000  # frames x targets x elements per block: its temporaries stay in the L2 cache
+# frames x targets x elements per block. Decision (speed, the same values: every operation is per
+# pair or per target row): fewer, larger numpy calls; the quick take's bake 20,000 -> 160,000 took
+# 0.90-0.95 of the CPU time and fewer instructions (docs/PERFORMANCE.md "Bake"); 400,000 was slower
+BLOCK_PAIRS = 160_000
 
 
 @dataclass
@@ -548,7 +551,9 @@ def _prepare_block(start, stop, p, plan: _Plan, us: PosedSurface, ub, nodes_u, f
             n = len(bones)
             dots.append(np.abs(dot3(vt[:, :n], ub.take(bones, axis=1))))
             tau[:n] += dots[-1]
-    tau = tau.T.take(plan.unorder, axis=1)  # (F, N) contiguous (a transposed view made every use strided)
+    # (F, N) contiguous (a transposed view made every use strided): the rows put back in order, then
+    # transposed (`_unordered_t`)
+    tau = _unordered_t(tau, plan)
     tau += np.abs(dot3(vhat, _from_roots(pr.x, nodes_u, plan)))
     pr.dist = pr.factor = None  # spent on the weights
     none = lam.sum(-1) <= 0  # no element with weight (all excluded)
@@ -578,7 +583,14 @@ def _bone_tau(b: _UserBlock, plan: _Plan, lratio) -> np.ndarray:
         out = np.zeros(b.tau.shape[::-1], b.tau.dtype)
         for bones, d in zip(plan.slot_bones, b.dots):
             out[:len(bones)] += d * lratio.take(bones, axis=0)
-    return out.T.take(plan.unorder, axis=1)
+    return _unordered_t(out, plan)
+
+
+def _unordered_t(a: np.ndarray, plan: _Plan) -> np.ndarray:
+    """(N, F) rows in `plan.order` -> (F, N) contiguous in the chains' order. Decision (speed, the
+    same values): the rows gathered whole, then one transposed copy; `a.T.take(unorder, axis=1)`
+    copied the transpose and then gathered it item by item."""
+    return np.ascontiguousarray(a.take(plan.unorder, axis=0).T)
 
 
 def _map_block(b: _UserBlock, plan: _Plan, av: PosedSurface, ub, lratio, bone_tau_a, nodes_a, floor, turn_v,

@@ -34,7 +34,7 @@ from ...body.skeleton import JOINT_INDEX as JI
 from ...core.transforms import EPS
 from .graph import GRAPH_BONES, kinematic_path, own_chain_elements
 from .mapping import SUPPORT_BLEND
-from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE, closest_on_triangles
+from .projection import FACTOR_BLEND, PENETRATION_TOLERANCE
 from .surface import SurfacePoser
 from .weights import MIN_DISTANCE
 
@@ -49,8 +49,12 @@ _YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])  # components rolled (a cr
 class FlatSurface:
     """One frame of the user's posed surface, float32, components first: the capsules' heads and
     axes, then the spheres' centres and a zero axis (3, C + S), their frames (3, 3, C + S) (R_ij
-    at [i, j]), the triangles' corners (3, 3, T) (component, corner, triangle), their unit normals
-    (3, T), every canonical joint (3, J).
+    at [i, j]), each triangle's rows `_triangles` reads (`tri`: its first corner, both edges from
+    it, their three dot products, its unit normal), every canonical joint (3, J).
+
+    Decision (speed, the same values): what Ericson's closest point reads of a triangle alone (its
+    edges and their dot products, float32 as each pair computed them) is computed once a triangle
+    here and gathered with its corner and normal in one take, not again for each of its pairs.
 
     Decision: a sphere is a capsule of no length (t = 0, |sin| = 1: the sphere's projection and
     factor), whose frame's columns are rolled (y, z, x) so that its first column is the bone's +Y,
@@ -61,8 +65,7 @@ class FlatSurface:
     cap_head: np.ndarray
     cap_axis: np.ndarray
     cap_rot: np.ndarray
-    tri: np.ndarray
-    tri_normal: np.ndarray
+    tri: np.ndarray  # (15, T) per triangle: corner a, ab, ac (3 rows each), |ab|², |ac|², ab·ac, unit normal
     joints: np.ndarray
 
 
@@ -82,14 +85,19 @@ def pose_flat(poser: SurfacePoser, joints: np.ndarray, frames: np.ndarray) -> Fl
         e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
         n = e1.take(_YZX, axis=0) * e2.take(_ZXY, axis=0) - e1.take(_ZXY, axis=0) * e2.take(_YZX, axis=0)  # cross
         nn = np.sqrt(dot3(n, n))
-        tri_normal = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15).astype(F32)
         tri = tri.astype(F32)
+        pack = np.empty((15, tri.shape[-1]), F32)
+        pack[0:3] = tri[:, 0]
+        edges = pack[3:9].reshape(2, 3, -1)  # ab, ac
+        np.subtract(tri[:, 1:].swapaxes(0, 1), tri[:, 0], out=edges)
+        np.add.reduce(edges * edges, axis=1, out=pack[9:11])  # |ab|², |ac|² (dot3's order)
+        np.add.reduce(edges[0] * edges[1], axis=0, out=pack[11])  # ab·ac
+        pack[12:15] = np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-15)
     else:
-        tri = np.zeros((3, 3, 0), F32)
-        tri_normal = np.zeros((3, 0), F32)
+        pack = np.zeros((15, 0), F32)
     n = C + S
     head = vecs[:, :n]
-    return FlatSurface(head, vecs[:, n:2 * n] - head, rots, tri, tri_normal, vecs[:, 2 * n:])
+    return FlatSurface(head, vecs[:, n:2 * n] - head, rots, pack, vecs[:, 2 * n:])
 
 
 def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -175,13 +183,74 @@ def _capsules(pr: _Pairs, pts: np.ndarray, s: FlatSurface, radius: np.ndarray):
 
 
 def _triangles(pr: _Pairs, pts: np.ndarray, s: FlatSurface):
-    """Every triangle pair's barycentric (v, w) of its closest point, p - x and |p - x|^2."""
-    corners = s.tri.take(pr.tri_t, axis=2)  # (3, corner, N)
-    ta = corners[:, 0]
-    tab, tac, tap = corners[:, 1] - ta, corners[:, 2] - ta, pts.take(pr.tri_p, axis=1) - ta
-    bv, bw = closest_on_triangles(tap, tab, tac, dot3)
+    """Every triangle pair's barycentric (v, w) of its closest point, p - x, |p - x|^2 and its
+    triangle's unit normal."""
+    tri = s.tri.take(pr.tri_t, axis=1)  # (15, N): FlatSurface.tri's rows
+    tab, tac = tri[3:6], tri[6:9]
+    tap = pts.take(pr.tri_p, axis=1) - tri[0:3]
+    bv, bw = _closest_on_triangles(tap, tri[3:9].reshape(2, 3, -1), tri[9], tri[10], tri[11])
     tv = tap - bv * tab - bw * tac
-    return bv, bw, tv, dot3(tv, tv)
+    return bv, bw, tv, dot3(tv, tv), tri[12:15]
+
+
+# Ericson's regions (`projection.closest_on_triangles`), one frame: each region's tests as rows
+# `x <= 0` of _closest_on_triangles' `terms` (d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, then
+# the same negated (x >= 0), then a zero: a test that holds), in Ericson's order A, B, AB, C, AC,
+# BC; the first region that holds wins (his early returns), else the inside.
+_REGION_TESTS = np.array([[0, 11, 6, 12, 5, 4],  # A: d1 <= 0, B: d3 >= 0, AB: vc <= 0, C: d6 >= 0, ...
+                          [1, 7, 9, 8, 10, 16],  # A: d2 <= 0, B: d4 - d3 <= 0, AB: d1 >= 0, ...
+                          [18, 18, 2, 18, 3, 17]]).reshape(-1)  # AB: d3 <= 0, AC: d6 <= 0, BC: d5 - d6 >= 0
+# each region's (v, w) as rows of `vals`: 0 the inside's v, 1 its w, 2 e_ab, 3 e_ac, 4 e_bc,
+# 5 1 - e_bc, 6 zero, 7 one
+_REGION_VALUES = np.array([[6, 7, 2, 6, 6, 5, 0],
+                           [6, 6, 6, 7, 3, 4, 1]])
+_DIV_ROWS = np.array([5, 6, 0, 1, 7])  # the divisions' numerators: vb, vc, d1, d2, d4 - d3
+
+
+def _closest_on_triangles(ap, edges, abab, acac, abac):
+    """`projection.closest_on_triangles` of one frame's triangle pairs (3, N), the same values
+    (the same float32 operations on each pair, each region's the same), from `edges` (ab, ac)
+    (2, 3, N) and the triangles' dot products (FlatSurface.tri): in about 30 numpy calls, not
+    60 (each region's test three calls and two putmasks there): every region's tests in one
+    comparison, the first that holds by one argmax."""
+    N = ap.shape[1]
+    terms = np.empty((19, N), F32)  # d1, d2, d3, d6, va, vb, vc, d4 - d3, d5 - d6, the same negated, 0
+    terms[18] = 0.0  # (np.zeros of the whole costs more than its rows written)
+    d12 = terms[0:2]
+    np.add.reduce(edges * ap, axis=1, out=d12)  # ab·ap, ac·ap
+    d1, d2, d3, d6 = terms[0], terms[1], terms[2], terms[3]
+    np.subtract(d1, abab, out=d3)
+    np.subtract(d2, acac, out=d6)
+    d4, d5 = d2 - abac, d1 - abac
+    np.subtract(d3 * d6, d5 * d4, out=terms[4])  # va
+    np.subtract(d5 * d2, d1 * d6, out=terms[5])  # vb
+    np.subtract(d1 * d4, d3 * d2, out=terms[6])  # vc
+    np.subtract(d4, d3, out=terms[7])
+    np.subtract(d5, d6, out=terms[8])
+    np.negative(terms[0:9], out=terms[9:18])
+    tests = terms.take(_REGION_TESTS, axis=0) <= 0
+    holds = np.ones((N, 7), bool)  # (pair, region): argmax over a row takes the first that holds
+    cond = holds[:, :6].T
+    np.logical_and(tests[0:6], tests[6:12], out=cond)
+    cond &= tests[12:18]
+    # the divisions (safe_divide's: num / den, den 1 where it is 0): vb, vc by va + vb + vc,
+    # d1 by d1 - d3, d2 by d2 - d6, d4 - d3 by (d4 - d3) + (d5 - d6)
+    den = np.empty((5, N), F32)
+    np.add(terms[4], terms[5], out=den[0])
+    den[0] += terms[6]
+    den[1] = den[0]
+    np.subtract(d12, terms[2:4], out=den[2:4])
+    np.add(terms[7], terms[8], out=den[4])
+    vals = np.empty((8, N), F32)
+    np.divide(terms.take(_DIV_ROWS, axis=0), den if den.all() else np.where(den != 0, den, F32(1.0)), out=vals[:5])
+    np.subtract(F32(1.0), vals[4], out=vals[5])
+    vals[6] = 0.0
+    vals[7] = 1.0
+    pick = _REGION_VALUES.take(holds.argmax(axis=1), axis=1)
+    pick *= N
+    pick += np.arange(N)
+    bv, bw = vals.take(pick)
+    return bv, bw
 
 
 @dataclass
@@ -211,7 +280,8 @@ class FrameUser:
     lam_gf: np.ndarray  # (P,) the floor's λg
     ulen: np.ndarray  # (NB,) the user's bone lengths
     ulen_ok: np.ndarray | None  # ulen > EPS (None: every length is)
-    floor_uz: np.ndarray  # (2P, NB) |b_z| of the user's bones on each ankle's path to each target (0: off it)
+    floor_uz: np.ndarray  # (2P, NB) |b_z| of the user's bones on each ankle's path to each target (0: off it),
+    # by stage: each stage's targets from the left ankle, then from the right (OneFrameMapping.floor_mask)
     floor_tau: np.ndarray  # (2P,)
     floor_ok: np.ndarray | None  # floor_tau > EPS (None: every one is)
     w_left: float
@@ -289,11 +359,14 @@ class OneFrameMapping:
         self.path_mask = np.zeros((len(GRAPH_BONES), len(pr.point)), F32)  # (bone, pair): rows are contiguous
         for k, (r, e) in enumerate(zip(self.row, pr.element)):
             self.path_mask[list(kinematic_path(roots[e], self.names[r])), k] = 1.0
-        # the floor's paths: from each ankle (left, then right) to each target
+        # the floor's paths: from each ankle to each target, stage by stage (each stage's rows one
+        # slice: its targets from the left ankle, then from the right)
+        self.stage_targets = [slice(0, first), slice(first, P)]
+        order = [(side, p) for st in self.stage_targets for side in range(2) for p in range(st.start, st.stop)]
         self.floor_mask = np.zeros((2 * P, len(GRAPH_BONES)), F32)
-        for side, s in enumerate(sk.SIDES):
-            for p, n in enumerate(self.names):
-                self.floor_mask[side * P + p, list(kinematic_path(f"ankle_{s}", n))] = 1.0
+        for k, (side, p) in enumerate(order):
+            self.floor_mask[k, list(kinematic_path(f"ankle_{sk.SIDES[side]}", self.names[p]))] = 1.0
+        self.floor_side = np.array([side for side, _ in order], int)
         # each stage's x, y, z sums' bins and its pairs' root joints
         self.sums = [np.concatenate([self.row[a], self.row[a] + P, self.row[a] + 2 * P]) for a, _, _ in pr.stages]
         self.stage_root = [self.root_joint[a] for a, _, _ in pr.stages]
@@ -342,9 +415,10 @@ class OneFrameMapping:
         local = ap.pad_local[g, :, k] if len(ap.pad_local) else np.zeros(q.shape + (3,))  # (T, corner, 3)
         self.tri_local = np.ascontiguousarray(local.transpose(1, 2, 0))  # (corner, 3, T)
 
-    def _avatar_points(self, u: StageUser, joints: np.ndarray, frames: np.ndarray, stage: int) -> np.ndarray:
+    def _avatar_points(self, u: StageUser, g: np.ndarray, stage: int) -> np.ndarray:
         """(3, N) the re-posed x' of `stage`'s pairs (`projection.repose_components`) on the avatar
-        posed as canonical joints (J, 3) and bone frames (B, 3, 3), float64.
+        posed as canonical joints (J, 3) and bone frames (B, 3, 3), float64, given as `g`: the
+        joints, then each frame's columns, components first (3, J + 3B) (`map`).
 
         Decision (speed): x' is linear in the pose, a sum of joints and bone-frame columns with the
         pair's own coefficients (a capsule's 1 - t, t and its offset plus rho times the direction;
@@ -353,7 +427,6 @@ class OneFrameMapping:
         the avatar's whole surface posed for each map (25 numpy calls) and re-posed pair by pair.
         (One gather of every term and a bincount of each pair's: 40 % more instructions, measured:
         a gather or a bincount costs per item, ~10-30 instructions, not per call.)"""
-        g = np.concatenate([joints.T, frames.transpose(1, 0, 2).reshape(3, -1)], axis=1)  # components first
         cap = g.take(self.stage_cap_rows[stage], axis=1)  # (3, 5, Nc): (component, term, pair)
         cap *= u.cap_coef
         mesh = g.take(u.mesh_rows, axis=1)  # (3, 12, Nm)
@@ -430,7 +503,7 @@ class OneFrameMapping:
         # the floor's user side (mapping._floor_user): both ankles' paths
         ankles = us.joints[2].take(_ANKLES).astype(float)
         floor_uz = self.floor_mask * np.abs(ub[2])  # (exact: the mask's ones and zeros)
-        floor_tau = np.add.reduce(floor_uz, axis=1) + np.abs(ankles).repeat(P)
+        floor_tau = np.add.reduce(floor_uz, axis=1) + np.abs(ankles).take(self.floor_side)
         w_left = 0.5 + 0.5 * np.tanh((ankles[1] - ankles[0]) / SUPPORT_BLEND)
         stages = self._stage_sides(t, cap_dir, tri, bary, v, weights, vhat, dots, tau)
         ulen = np.sqrt(dot3(ub, ub)).astype(float)
@@ -446,7 +519,13 @@ class OneFrameMapping:
         cap_coef = np.empty((5, len(t)))
         cap_coef[0] = 1.0 - t
         cap_coef[1] = t
-        cap_coef[2:] = self.cap_off[0] + t * self.cap_off[1] + (self.radius[1][0] + t * self.radius[1][1]) * cap_dir
+        # (its offset plus ρ' d, in place: off0 + t off1, then ρ' = r0' + t Δr' in float32 times d)
+        rho = self.radius[1][1] * t
+        rho += self.radius[1][0]
+        rho_d = cap_dir * rho
+        np.multiply(self.cap_off[1], t, out=cap_coef[2:])
+        cap_coef[2:] += self.cap_off[0]
+        cap_coef[2:] += rho_d
         # a triangle's corners: each its bone's head and columns, by the barycentric weight
         mesh_coef = np.empty((3, 4, len(tri)))  # (corner, head and columns, pair)
         mesh_coef[:, 0] = bary
@@ -469,11 +548,10 @@ class OneFrameMapping:
         if not len(pr.tri_starts):
             empty = np.zeros((3, 0), F32)
             return empty, np.zeros(0, int), empty, np.zeros(0, F32), np.zeros(0, F32)
-        bv, bw, tv, td2 = _triangles(pr, p3, us)
+        bv, bw, tv, td2, normal = _triangles(pr, p3, us)
         sel = np.concatenate([td2, np.full(1, np.inf, td2.dtype)]).take(pr.tri_rows).argmin(axis=1) + pr.tri_starts
         mesh_v = tv.take(sel, axis=1)
         bv_s, bw_s = bv.take(sel), bw.take(sel)
-        normal = us.tri_normal.take(pr.tri_t, axis=1)
         w = tv + PENETRATION_TOLERANCE * normal
         wn = np.sqrt(dot3(w, w))
         tri_factor = np.maximum(np.divide(dot3(w, normal), wn, out=np.ones_like(wn), where=wn > EPS), 0.0)
@@ -492,19 +570,23 @@ class OneFrameMapping:
         _Pairs), each target's sums in the same order."""
         P = len(self.names)
         su = u.stages[stage]
-        x_av = self._avatar_points(su, joints, frames, stage)  # x' re-posed
+        g = np.concatenate([joints.T, frames.transpose(1, 0, 2).reshape(3, -1)], axis=1)  # _avatar_points
+        x_av = self._avatar_points(su, g, stage)  # x' re-posed
         # τ' = Σ_k |v̂·b_k| L'_k/L_k + |v̂·(x' - r')| (eq. 2)
         ab = joints.take(_BONE_TAILS, axis=0) - joints.take(_BONE_HEADS, axis=0)  # (NB, 3)
         lratio = _ratio(np.sqrt(np.add.reduce(ab * ab, axis=1)), u.ulen, u.ulen_ok)
-        tau_a = np.einsum("kn,k->n", su.dots, lratio) + np.abs(
-            dot3(su.vhat, x_av - joints.take(self.stage_root[stage], axis=0).T))
+        roots = g.take(self.stage_root[stage], axis=1)  # r' of each pair's chain
+        tau_a = np.einsum("kn,k->n", su.dots, lratio) + np.abs(dot3(su.vhat, x_av - roots))
         est = x_av + su.v * _ratio(tau_a, su.tau, su.tau_ok)  # (3, N)
         est *= su.weights
         out = np.bincount(self.sums[stage], est.reshape(-1), minlength=3 * P).reshape(3, P)
         if u.none_xy is not None:  # no element with weight (a sum of zeros): the user's horizontal position
             out[:2] += u.none_xy
-        # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended
-        tfa = np.add.reduce(u.floor_uz * lratio, axis=1) + np.abs(joints[_ANKLES, 2]).repeat(P)
-        ratios = _ratio(tfa, u.floor_tau, u.floor_ok)
-        out[2] += u.pts[2] * (ratios[P:] + u.w_left * (ratios[:P] - ratios[P:])) * u.lam_gf
+        # the floor: h' = h τ'/τ along the path from the supporting ankle, both feet blended (this
+        # stage's targets alone: the floor's rows by stage, FrameUser.floor_uz)
+        st = self.stage_targets[stage]
+        Ps, rows = st.stop - st.start, slice(2 * st.start, 2 * st.stop)
+        tfa = np.add.reduce(u.floor_uz[rows] * lratio, axis=1) + np.abs(joints[_ANKLES, 2]).repeat(Ps)
+        ratios = _ratio(tfa, u.floor_tau[rows], None if u.floor_ok is None else u.floor_ok[rows])
+        out[2, st] += u.pts[2, st] * (ratios[Ps:] + u.w_left * (ratios[:Ps] - ratios[Ps:])) * u.lam_gf[st]
         return out.T

@@ -12,6 +12,7 @@ import numpy as np
 
 from ...core.transforms import MANY_PRODUCTS, STACKED_FRAMES, matmul_stack, stacks_mul, transposed
 from .. import pose_kernels
+from .pose_plan import rows_of
 
 
 @dataclass
@@ -28,15 +29,17 @@ class BasisPlan:
     root_rest: np.ndarray  # (3, 3) its M
     # with a parent: (M_i^-1 M_p)^T and M_i^-1 (h_i - h_p) (None: a parentless root)
     root_rel: tuple | None
-    # one frame's (`_solve_one`): per bone its parent's row in P with one identity row after it
-    # (a parentless bone's), and the fixed left factors M^-1 M_p (M^-1 parentless), (N, 3, 3)
-    one_parent: np.ndarray | None = None
+    # one frame's (`_solve_one`): the fixed left factors M^-1 M_p (M^-1 parentless), (N, 3, 3)
     one_fixed: np.ndarray | None = None
     one_root: tuple | None = None
+    # and per bone its parent's row in P (a parentless bone's its own, written over with the
+    # identity: a slice's copy, where an identity row concatenated after P cost 10,000 more)
+    one_gather: np.ndarray | None = None
+    one_parentless: slice | np.ndarray | None = None
 
     def __post_init__(self):
-        n = len(self.rows)
-        self.one_parent = np.array([n if r < 0 else int(self.parents[r]) for r in self.rows], int)
+        self.one_gather = np.array([b if r < 0 else int(self.parents[r]) for b, r in enumerate(self.rows)], int)
+        self.one_parentless = rows_of([b for b, r in enumerate(self.rows) if r < 0])
         self.one_fixed = np.ascontiguousarray(self.fixed.swapaxes(-1, -2))
         # one frame's root location in floats (`_root_location_one`): (columns, constant) as lists
         if self.root_rel is None:
@@ -56,11 +59,12 @@ class BasisPlan:
         return cls(kids, parent[kids], np.ascontiguousarray(fixed), rows, int(root), int(p), head[i], rest[i], root_rel)
 
 
-def solve(plan: BasisPlan, P):
-    """Pose-bone quaternions (F, N, 4) from bones-first armature-space pose rotations P (N, F, 3, 3)."""
+def solve(plan: BasisPlan, P, turn=None):
+    """Pose-bone quaternions (F, N, 4) from bones-first armature-space pose rotations P (N, F, 3, 3)
+    (`turn`: one frame's turned rotations W P, with the armature's rotation W, `fk.posed`)."""
     kids, parents, fixed = plan.kids, plan.parents, plan.fixed
     if P.shape[1] == 1:
-        return _solve_one(plan, P)
+        return _solve_one(plan, P, turn)
     if P.shape[1] >= STACKED_FRAMES and len(kids) * P.shape[1] >= MANY_PRODUCTS:
         return _solve_many(plan, P)
     # X = P_parent^-1 P_child, built transposed (X^T = P_child^T P_parent: the same products)
@@ -79,16 +83,19 @@ def solve(plan: BasisPlan, P):
     return pose_kernels.quat_of_few(basis_t.transpose(3, 2, 1, 0).reshape(9, nf * n)).T.reshape(nf, n, 4)
 
 
-def _solve_one(plan: BasisPlan, P):
+def _solve_one(plan: BasisPlan, P, turn=None):
     """`solve` of one frame, the same products in fewer numpy calls: every bone's X = P_p^T P
-    at once (a parentless bone's parent an identity row after P's), basis = (M^-1 M_p) X written
+    at once (a parentless bone's parent the identity), basis = (M^-1 M_p) X written
     straight into the entry rows the quaternions are read from (`pose_kernels.quat_of_rows`).
     The same terms in the same order as `solve`'s transposed products (a parentless bone's
     1 x + 0 y + 0 z may turn a -0.0 into 0.0). Decision (speed, measured in instructions): one
-    frame's basis took 304,000 instructions, mostly numpy's per-call cost on 53 bones."""
+    frame's basis took 304,000 instructions, mostly numpy's per-call cost on 53 bones. Turned
+    rotations P' = W P (`turn` W): a child's P'_p^T P' is P_p^T P, and a parentless bone's parent
+    row is W instead of the identity (W^T P' = P)."""
     n = P.shape[0]
     a = P.reshape(n, 3, 3)
-    par = np.concatenate((a, _EYE)).take(plan.one_parent, axis=0)
+    par = a.take(plan.one_gather, axis=0)  # the parents' rows, a parentless bone's the identity (W)
+    par[plan.one_parentless] = _EYE if turn is None else turn
     rel = pose_kernels.few_matmul(par.swapaxes(-1, -2), a, (n, 3, 3))
     aug = np.empty((10, n))  # a ones row, then the basis entries m00, m01, ..., m22 of every bone
     aug[0] = 1.0
@@ -120,12 +127,13 @@ def _solve_many(plan: BasisPlan, P):
     return q.reshape(4, n, nf).transpose(2, 1, 0)
 
 
-def root_location(plan: BasisPlan, P, H):
+def root_location(plan: BasisPlan, P, H, turn=None):
     """(F, 3) the root bone's pose location (its rest frame) from bones-first pose rotations P and
-    heads H: where its head sits against where its parent's pose puts its rest head."""
+    heads H: where its head sits against where its parent's pose puts its rest head (`turn`: one
+    frame's turned W P and W H, `solve`)."""
     i, p = plan.root, plan.root_parent
     if P.shape[1] == 1:
-        return _root_location_one(plan, P, H)
+        return _root_location_one(plan, P, H, turn)
     if p < 0:
         return (H[i] - plan.root_head) @ plan.root_rest
     rel_t, rest_off = plan.root_rel
@@ -133,13 +141,16 @@ def root_location(plan: BasisPlan, P, H):
     return local @ rel_t - rest_off
 
 
-def _root_location_one(plan: BasisPlan, P, H) -> np.ndarray:
+def _root_location_one(plan: BasisPlan, P, H, turn=None) -> np.ndarray:
     """`root_location` of one frame in Python floats, the same terms in the same order (its
-    numpy products on (1, 3) rows cost about 35,000 instructions, mostly per call)."""
+    numpy products on (1, 3) rows cost about 35,000 instructions, mostly per call). Turned (W P,
+    W H): a parented root's P_p^T (H - H_p) is the same; a parentless one's head turned back."""
     i, p = plan.root, plan.root_parent
     cols, const = plan.one_root
     head = H[i, 0].tolist()
     if p < 0:
+        if turn is not None:
+            head = (H[i, 0] @ turn).tolist()
         d = [a - b for a, b in zip(head, const)]
         return np.array([[(d[0] * c[0] + d[1] * c[1]) + d[2] * c[2] for c in cols]])
     d = [a - b for a, b in zip(head, H[p, 0].tolist())]

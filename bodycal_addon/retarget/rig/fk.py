@@ -42,6 +42,26 @@ class RigPose:
     joints: np.ndarray  # (F, J, 3) canonical joints, world
     frames: np.ndarray  # (F, B, 3, 3) canonical bone frames, world, as the rig realises them
 
+    @classmethod
+    def turned(cls, w_rot: np.ndarray, basis, P, H, root_location, joints, frames) -> RigPose:
+        """The pose of one frame posed in the turned armature's space (`posed`: P' = W P,
+        H' = W H): its armature-space `rotations` and `heads` are made when first read (a
+        solve reads the joints, frames and basis only)."""
+        pose = cls.__new__(cls)
+        pose.basis, pose.root_location, pose.joints, pose.frames = basis, root_location, joints, frames
+        pose._turned = (w_rot, P, H)
+        return pose
+
+    def __getattr__(self, name):  # only for the fields a turned pose makes when read
+        turned = self.__dict__.get("_turned")
+        if turned is None or name not in ("rotations", "heads"):
+            raise AttributeError(name)
+        w_rot, P, H = turned
+        self.rotations = np.matmul(w_rot.T, P).swapaxes(0, 1)  # W^-1 P'
+        self.heads = (H @ w_rot).swapaxes(0, 1)  # W^-1 H' (rows)
+        del self._turned
+        return getattr(self, name)
+
 
 # Poses of fewer frames than this place the heads the spine chain does not read in one padded
 # pass after the levels (PosePlan.deferred: a few numpy calls instead of a few per level, where
@@ -52,12 +72,25 @@ FEW_FRAMES = 16
 
 
 def pose(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=False):
+    """`posed`'s rotations and heads in the armature's space."""
+    P, H, turned, _ = posed(rig, memo, frames, pelvis, bones, float64)
+    if turned:  # W^-1 P', W^-1 H'
+        return np.matmul(rig.w_rot.T, P), H @ rig.w_rot
+    return P, H
+
+
+def posed(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=False):
     """Bones-first armature-space pose rotations P (N, F, 3, 3) and heads H (N, F, 3) of
     `bones` (ascending; default all, the others left unset) realising canonical world frames
     (F, B, 3, 3) with the canonical pelvis joint at `pelvis` (F, 3, world), a depth of the
     hierarchy at a time (`pose_plan`): each step is one stacked product over the bones of that
     depth. The chain's rotations are `memo`'s when its inputs are the last pose's (`ChainMemo`);
-    one frame's chain is aimed in mathutils (float32, `rig_one_frame`) unless `float64`."""
+    one frame's chain is aimed in mathutils (float32, `rig_one_frame`) unless `float64`.
+    Returns (P, H, turned, joints): turned, one frame of a turned armature posed in its turned
+    space, P' = W P and H' = W H (`plan.TurnedOne`), which `finish`, `basis.solve` and
+    `basis.root_location` take as they are; joints, one frame's canonical joints' offsets on
+    their carriers P_car o_j (J, 1, 3), turned in the heads' product (`PosePlan.flat_joints`;
+    else None), which `finish` adds to the carriers' heads."""
     nf = frames.shape[0]
     plan = rig.pose_plan(None if bones is None else tuple(bones))
     chain = rig.chain if plan.chained else None
@@ -72,11 +105,16 @@ def pose(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=Fals
         memo.keep(key, held)
     few = plan.deferred is not None and nf < FEW_FRAMES
     flat = few and (chain is None or held is not None)
-    P, H, HT = _pose_buffers(len(rig.names), plan, nf, few, flat)
-    delta = _driven(rig, plan, chain if chain is not None and held is None else None, frames, P)
+    turned = flat and nf == 1 and not rig.w_identity and (chain is None or float32)
+    if float32 and held is not None and not turned and not rig.w_identity:
+        held = np.matmul(rig.w_rot.T, held)  # the one-frame chain's turned rotations, W^-1 R'
+    joints = plan.flat_joints if flat and nf == 1 else None
+    P, H, HT = _pose_buffers(len(rig.names), plan, nf, few, flat, joints)
+    delta = _driven(rig, plan, chain if chain is not None and held is None else None, frames, P, turned)
     aiming = None if delta is None else ChainAim(rig, delta, frames, nf)
     if flat:
-        return pose_flat(rig, plan, None if chain is None else chain.rows, held, P, H, pelvis, HT)
+        P, H = pose_flat(rig, plan, None if chain is None else chain.rows, held, P, H, pelvis, HT, turned, joints)
+        return P, H, turned, None if joints is None else HT[joints[4]]
     many = nf >= STACKED_FRAMES  # one BLAS call per bone on (3F, 3) rows, as stacks_mul and stacks_apply
     for lv in plan.few if few else plan.levels:
         if len(lv.heads) and many:  # `stacks_apply`'s product bone by bone, where it goes, plus H_p
@@ -104,13 +142,18 @@ def pose(rig: RigPlan, memo: ChainMemo, frames, pelvis, bones=None, float64=Fals
         _deferred_heads(plan.deferred, P, H, HT)
     if aiming is not None and aiming.count == len(chain.index):
         memo.keep(key, aiming.aimed)
-    return P, H
+    return P, H, False, None
 
 
-def _pose_buffers(n: int, plan: PosePlan, nf: int, few: bool, flat: bool) -> tuple:
+def _pose_buffers(n: int, plan: PosePlan, nf: int, few: bool, flat: bool, joints=None) -> tuple:
     """(P, H, HT): a few frames' heads H are the first rows of HT, whose rows after them take
-    the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H)."""
+    the one padded pass's offsets and its zero (`_deferred_heads`: no concatenated copy of H);
+    with `joints` (`PosePlan.flat_joints`), the joints' offsets' terms too."""
     P = np.empty((n, nf, 3, 3))
+    if joints is not None:
+        HT = np.empty((joints[-1], nf, 3))
+        HT[-1] = 0.0
+        return P, HT[:n], HT
     if few and nf < STACKED_FRAMES:
         late = (plan.flat if flat else plan.deferred)[-5]
         HT = np.empty((n + len(late) + 1, nf, 3))
@@ -119,10 +162,10 @@ def _pose_buffers(n: int, plan: PosePlan, nf: int, few: bool, flat: bool) -> tup
     return P, np.empty((n, nf, 3)), None
 
 
-def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
+def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P, turned=False):
     """The driven bones' rotations into P, W^-1 C(t) (C0^-1 W M_A) (the canonical bone's rotation
-    since rest, on the bone's rest), and with a `chain` to aim, its vertebrae's turns since rest
-    W^-1 C(t) C0^-1 W (returned; else None)."""
+    since rest, on the bone's rest; `turned`: C(t) (C0^-1 W M_A), no W^-1), and with a `chain` to
+    aim, its vertebrae's turns since rest W^-1 C(t) C0^-1 W (returned; else None)."""
     nf = frames.shape[0]
     delta = None
     if chain is not None and nf < STACKED_FRAMES and len(plan.driven):
@@ -142,7 +185,7 @@ def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
     elif len(plan.driven) and nf < STACKED_FRAMES:  # `stacks_mul`'s stacked product, called directly
         rel = pose_kernels.few_matmul(frames.swapaxes(0, 1).take(plan.canon, axis=0), plan.fixed[:, None],
                                       (len(plan.canon), nf, 3, 3))
-        P[plan.driven_rows] = rel if rig.w_identity else pose_kernels.few_matmul(rig.w_rot.T, rel, rel.shape)
+        P[plan.driven_rows] = rel if rig.w_identity or turned else pose_kernels.few_matmul(rig.w_rot.T, rel, rel.shape)
     elif len(plan.driven):
         P[plan.driven] = rig.from_world(stacks_mul(frames.swapaxes(0, 1), plan.fixed, plan.canon))
     if chain is not None:
@@ -150,15 +193,16 @@ def _driven(rig: RigPlan, plan: PosePlan, chain, frames, P):
     return delta
 
 
-def _place_root(rig: RigPlan, P, H, pelvis) -> None:
+def _place_root(rig: RigPlan, P, H, pelvis, turned=False) -> None:
     """H_root = W^-1 (pelvis - t) - P_root pelvis_local: `to_armature` and `stack_apply`'s
     products, called directly. One frame's in Python floats: the same terms in the same order
-    (three numpy products on a (1, 3) row cost about 40,000 instructions, these about a fifth)."""
+    (three numpy products on a (1, 3) row cost about 40,000 instructions, these about a fifth);
+    `turned`, W H_root, W W^-1 (`RigPlan.turned_one`'s) in place of W^-1."""
     nf = P.shape[1]
     if nf == 1:
-        d = [a - b for a, b in zip(np.ravel(pelvis).tolist(), rig.one_root[0])]
-        at = [(d[0] * c0 + d[1] * c1) + d[2] * c2 for c0, c1, c2 in rig.one_root[1]]
-        r0, r1, r2 = rig.one_root[2]
+        shift, rows, (r0, r1, r2) = rig.turned_one.root if turned else rig.one_root
+        d = [a - b for a, b in zip(np.ravel(pelvis).tolist(), shift)]
+        at = [(d[0] * c0 + d[1] * c1) + d[2] * c2 for c0, c1, c2 in rows]
         H[rig.root, 0] = [a - ((r[0] * r0 + r[1] * r1) + r[2] * r2) for a, r in zip(at, P[rig.root, 0].tolist())]
         return
     at = (np.asarray(pelvis, float) - rig.shift).reshape(-1, 3) @ rig.inv_t
@@ -183,12 +227,17 @@ def _deferred_heads(table_plan, P, H, HT) -> None:
         H[at] = np.add.reduce(terms.take(table, axis=0), axis=0)
 
 
-def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=None):
+def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=None, turned=False, joints=None):
     """`pose`'s few frames whose chain needs no aiming, the driven bones posed: every other
     rotation, then every head in one padded pass. Decision (speed, the same values): a solve's
     later poses hold the chain's rotations, so nothing is aimed level by level; each head is
-    the same sum in the same order as level by level, (H_anchor + c_1) + c_2 + ..."""
+    the same sum in the same order as level by level, (H_anchor + c_1) + c_2 + ... `turned`:
+    one frame in the turned armature's space (`posed`), the rest bones and loose heads turned.
+    `joints` (one frame, `PosePlan.flat_joints`): the canonical joints' offsets on their carriers
+    turned in the heads' product (`posed`)."""
     rest, rest_at, loose, loose_at, follows, late, par, off, table, at = plan.flat
+    if turned:
+        rest_at, loose_at = plan.flat_turned
     if len(rest_at):
         P[rest] = rest_at
     if chain_bones is not None:
@@ -201,7 +250,15 @@ def pose_flat(rig: RigPlan, plan: PosePlan, chain_bones, held, P, H, pelvis, HT=
     if len(loose_at):
         H[loose] = loose_at
     if plan.has_root:
-        _place_root(rig, P, H, pelvis)
+        _place_root(rig, P, H, pelvis, turned)
+    if joints is not None:  # the joints' offsets P_car o_j in the heads' offsets' product
+        par, off4, table, at, _, _ = joints
+        np.matmul(P.take(par, axis=0), off4, out=HT[len(H):-1].reshape(len(par), -1, 3, 1))
+        if isinstance(at, slice):  # over the path, in order (`_deferred_heads`)
+            np.add.reduce(HT.take(table, axis=0), axis=0, out=H[at])
+        else:
+            H[at] = np.add.reduce(HT.take(table, axis=0), axis=0)
+        return P, H
     _deferred_heads((late, par, off, table, at), P, H, HT)
     return P, H
 
@@ -221,18 +278,21 @@ def joint_positions(rig: RigPlan, memo: ChainMemo, frames: np.ndarray, pelvis: n
         held, at = rig.chain_one().aimed_and_joints(frames, np.asarray(pelvis, float), tuple(joints))
         memo.keep(ChainMemo.key_of(rig.chain, frames, pelvis, b"float32"), held)
         return at
-    P, H = pose(rig, memo, frames, pelvis, bones)
+    P, H, turned, _ = posed(rig, memo, frames, pelvis, bones)
     out = H[carriers] + stacks_apply(P, local, carriers)  # (K, F, 3)
+    if turned:  # W^-1 of the turned rows folded into `to_world`'s product
+        return (out.reshape(-1, 3) @ rig.turned_one.lin_t + rig.shift).reshape(1, -1, 3)
     return rig.to_world(np.ascontiguousarray(out.swapaxes(0, 1)))
 
 
-def finish(rig: RigPlan, basis, P, H, root_loc, realised=True) -> RigPose:
+def finish(rig: RigPlan, basis, P, H, root_loc, realised=True, turned=False, joints=None) -> RigPose:
     """The RigPose of bones-first pose rotations P (N, F, 3, 3) and heads H (N, F, 3): the
     canonical joints riding on their bones and the realised canonical frames (True: all, a list
-    of canonical bone indices: those, the others NaN; False or None: none)."""
+    of canonical bone indices: those, the others NaN; False or None: none). `turned`: one
+    frame's P' = W P, H' = W H (`posed`); `joints`: one frame's joints' P_car o_j (`posed`)."""
     nf = P.shape[1]
     if nf == 1:
-        return _finish_one(rig, basis, P, H, root_loc, realised)
+        return _finish_one(rig, basis, P, H, root_loc, realised, turned, joints)
     if nf < FEW_FRAMES:  # every carrier at once, its joints padded to the most any bone carries
         bones, local, order = rig.joint_table
         rel = stacks_mul(P, local, bones)  # (G, F, 3, K)
@@ -270,16 +330,21 @@ def finish(rig: RigPlan, basis, P, H, root_loc, realised=True) -> RigPose:
     return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
 
 
-def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised) -> RigPose:
+def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised, turned=False, ride=None) -> RigPose:
     """`finish` of one frame, the same values in fewer numpy calls: the joints' padded product
     (`joint_table`) gathered in one `take` (`one_joints`), their carriers' heads added on the
     gathered (J, 3) rows (a broadcast add over the padded product cost 35,000 instructions),
-    the realised frames written into a stack whose last row is NaN and gathered in one `take`."""
-    bones, local, jrows = rig.one_joints
-    ride = pose_kernels.few_matmul(P.take(bones, axis=0), local, (len(bones), 1, 3, local.shape[-1]))  # P_car offset
-    at = ride.take(jrows)  # (J, 3) each joint's P_car o
-    at += H.reshape(-1, 3).take(rig.joint_bone, axis=0)  # H + P o (the same sum, on the joints' rows)
-    joints = np.matmul(at, rig.lin_t)  # `to_world` of the (J, 3) rows
+    the realised frames written into a stack whose last row is NaN and gathered in one `take`.
+    `turned` (P' = W P, H' = W H): the joints W^-1's folded into `to_world`'s product, the
+    frames W P_car rel = P' rel, no W product. `ride`: the joints' P_car o `posed` turned."""
+    if ride is None:
+        bones, local, jrows = rig.one_joints
+        ride = pose_kernels.few_matmul(P.take(bones, axis=0), local, (len(bones), 1, 3, local.shape[-1]))  # P_car o
+        at = ride.take(jrows)  # (J, 3) each joint's P_car o
+        at += H.reshape(-1, 3).take(rig.joint_bone, axis=0)  # H + P o (the same sum, on the joints' rows)
+    else:
+        at = ride.reshape(-1, 3) + H.reshape(-1, 3).take(rig.joint_bone, axis=0)
+    joints = np.matmul(at.reshape(-1, 3), rig.turned_one.lin_t if turned else rig.lin_t)  # `to_world` of the rows
     joints += rig.shift
     joints = joints.reshape(1, -1, 3)
     if realised is False or realised is None:
@@ -289,12 +354,14 @@ def _finish_one(rig: RigPlan, basis, P, H, root_loc, realised) -> RigPose:
         rows = np.empty((len(idx) + 1, 1, 3, 3, 2))[..., 0]  # strided: numpy's own loop (pose_kernels.few_matmul)
         rows[-1] = np.nan
         if len(idx):
-            if rig.w_identity:
+            if rig.w_identity or turned:
                 np.matmul(P.take(car, axis=0), car_rel[:, None], out=rows[:-1])
             else:  # W (P_car rel), `to_world_rot`'s product
                 rel = pose_kernels.few_matmul(P.take(car, axis=0), car_rel[:, None], (len(car), 1, 3, 3))
                 np.matmul(rig.w_rot, rel, out=rows[:-1])
         frames = rows.take(rig.realised_one(realised), axis=0).reshape(1, len(BONES), 3, 3)
+    if turned:
+        return RigPose.turned(rig.w_rot, basis, P, H, root_loc, joints, frames)
     return RigPose(basis, P.swapaxes(0, 1), H.swapaxes(0, 1), root_loc, joints, frames)
 
 

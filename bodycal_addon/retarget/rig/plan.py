@@ -36,6 +36,21 @@ from .chain import ChainPlan
 from .pose_plan import PosePlan, build_pose_plan
 
 
+@dataclass(frozen=True)
+class TurnedOne:
+    """One frame's constants in a turned armature's own turned space (`RigPlan.turned_one`).
+
+    Decision (speed, measured in instructions): every one-frame product carried the armature's
+    rotation W (the driven bones' W^-1 C, the realised frames' W P, the chain's W^-1 C), a
+    stacked product over ~50 bones each, ~40,000 instructions a call. Posed as P' = W P and
+    H' = W H, the driven bones are C (C0^-1 W M_A), each child's rule is unchanged (W P_p M_p^-1
+    M_c), the basis's P_p^T P_c is unchanged, and W^-1 is left to these constants and to the
+    pose's rotations and heads when read (`fk.RigPose.turned`)."""
+
+    root: tuple  # `RigPlan.one_root` with W W^-1's rows
+    lin_t: np.ndarray  # (3, 3) W lin^T: turned rows to the world (plus the shift)
+
+
 @dataclass(eq=False)
 class RigPlan:
     model: BodyModel
@@ -94,6 +109,9 @@ class RigPlan:
     # one frame's root placement in Python floats (`fk._place_root`): the armature's translation,
     # W^-1's rows and `pelvis_at`, as lists
     one_root: tuple = field(init=False, repr=False)
+    # one frame of a turned armature posed in its turned space (`fk.posed`: P' = W P, H' = W H):
+    # `one_root` with W W^-1 for W^-1, and the joints' `to_world` factor W^-1 folded in, W lin^T
+    turned_one: TurnedOne = field(init=False, repr=False)
 
     def __post_init__(self):
         self.shift, self.lin_t, self.inv_t = self.world[:3, 3], self.world[:3, :3].T, self.w_inv.T
@@ -101,6 +119,8 @@ class RigPlan:
         self.bone_rows = _bone_rows(self)
         self.pelvis_at = self._pelvis_local()
         self.one_root = (self.shift.tolist(), self.w_inv.tolist(), self.pelvis_at.tolist())
+        self.turned_one = TurnedOne((self.shift.tolist(), (self.w_rot @ self.w_inv).tolist(), self.pelvis_at.tolist()),
+                                    self.w_rot @ self.lin_t)
         b = self.joint_bone[JI["spine_root"]]
         p = self.parent[b]
         self.start_rel = self.rest[p].T @ self.rest[b] if p >= 0 else None

@@ -55,6 +55,12 @@ class PosePlan:
     # canonical bones read by the driven bones then by the vertebrae, their fixed factors (K, 1, 3, 3))
     driven_and_chain: tuple | None = None
     driven_rows: slice | np.ndarray | None = None  # `driven` as P's rows take them (`rows_of`)
+    # `flat`'s rest matrices and loose heads turned by the armature's rotation, W M_A and W h
+    # (one frame of a turned armature, `fk.posed`)
+    flat_turned: tuple | None = None
+    # One frame of every bone (`fk.pose_flat`): `flat`'s heads, their offsets' product also turning
+    # the canonical joints' offsets on their carriers (`_joint_head_table`)
+    flat_joints: tuple | None = None
 
 
 def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
@@ -99,6 +105,9 @@ def build_pose_plan(rig, bones: tuple | None) -> PosePlan:
         follows = [(rows_of(b), p, f) for b, p, f in follows]
         plan.flat = (rows_of(rest), rig.rest[rest][:, None], rows_of(loose), rig.head[loose][:, None], follows,
                      *_head_table(rig, hanging))
+        plan.flat_turned = (np.matmul(rig.w_rot, plan.flat[1]), plan.flat[3] @ rig.w_rot.T)
+        if bones is None:
+            plan.flat_joints = _joint_head_table(rig, hanging)
     return plan
 
 
@@ -147,6 +156,34 @@ def _head_table(rig, late: list[int]) -> tuple:
     at = rows_of(late)
     return (np.array(late, int), np.array([rows[i][0] for i in late], int),
             np.array([rows[i][2] for i in late], float).reshape(-1, 3), table, at)
+
+
+def _joint_head_table(rig, late: list[int]) -> tuple:
+    """`_head_table` of the heads of bones `late` whose offsets' products also turn the canonical
+    joints' offsets on their carriers, P_car o_j, for one frame's pass (`fk.pose_flat`), which
+    `fk.finish` adds to the carriers' heads. The buffer's rows (`fk._pose_buffers`): the heads H
+    (N), the bones' offset terms (L), the joints' (J), a zero. (the terms' parents and offsets
+    (L + J, 1, 3, 1), the padded table, where the sums go, the joints' terms' rows, the buffer's
+    length). Decision (speed, measured in instructions): `finish` turned the joints' offsets in
+    a product of its own over their carriers, padded to five joints a bone, and gathered them
+    (~50,000 a pose); the heads' product takes them for a few thousand. Also measured: the
+    joints summed in the heads' padded pass (their carriers' paths and one more term) cost more
+    than it saved (a table of 123 columns against 51: +65,000, -84,000)."""
+    n, nj, nl = len(rig.names), len(rig.joint_bone), len(late)
+    rows = rig.bone_rows
+    row = {b: k for k, b in enumerate(late)}
+    zero = n + nl + nj
+    cols = []
+    for b in late:
+        path = [b]
+        while rig.parent[path[-1]] in row:
+            path.append(int(rig.parent[path[-1]]))
+        cols.append((int(rig.parent[path[-1]]), [n + row[k] for k in reversed(path)]))
+    width = max(len(p) for _, p in cols)
+    table = np.array([[a] + p + [zero] * (width - len(p)) for a, p in cols], int).T
+    par = np.array([rows[i][0] for i in late] + rig.joint_bone.tolist(), int)
+    off = np.concatenate([np.array([rows[i][2] for i in late], float).reshape(-1, 3), rig.joint_local])
+    return par, off[:, None, :, None], table, rows_of(late), slice(n + nl, zero), zero + 1
 
 
 def rows_of(bones) -> slice | np.ndarray:
