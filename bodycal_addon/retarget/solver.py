@@ -485,12 +485,17 @@ class PreparedSolver:
         if plan is None:
             return
         items, hand_bones, rows, mcp_local, base_rest, (bones, flat), chain = plan
-        if nf == 1:  # one frame: each finger's hand gathered once, the same products
-            item_hands, mcp_cols, tip_names, phalanges = self._finger_one(plan)
-            hands = frames[0].take(item_hands, axis=0)  # (K, 3, 3)
-            mcp = np.concatenate([wrists[s] for s in sides]).take(rows, axis=0) + (hands @ mcp_cols)[..., 0]
-            frames[0, phalanges] = chain.pose_floats(mcp, hands @ base_rest,
-                                                     np.concatenate([targets[n] for n in tip_names]), joints=False)[1]
+        if nf == 1:  # one frame: each finger's hand gathered once; the MCPs never formed
+            item_hands, mcp_in_ref, tip_names, phalanges = self._finger_one(plan)
+            ref = frames[0].take(item_hands, axis=0) @ base_rest  # (K, 3, 3) the reference frames
+            # ref^T (tip - mcp) with mcp = wrist + hand @ offset, ref = hand @ rest: ref^T (tip - wrist)
+            # less rest^T offset, a constant (the finger set rolls nothing: its thumbs' frames carry
+            # it); tip - wrist taken out of place, in float64 as tip - mcp was (a float32 target's
+            # difference in place moved a finger by 3e-7)
+            wrist = np.concatenate([wrists[s] for s in sides]).take(rows, axis=0)
+            local = np.einsum("fji,fj->fi", ref, np.concatenate([targets[n] for n in tip_names]) - wrist)
+            local -= mcp_in_ref
+            frames[0, phalanges] = chain.frames_floats(ref, local)
             return
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
@@ -531,12 +536,13 @@ class PreparedSolver:
 
     def _finger_one(self, plan: tuple) -> tuple:
         """What `_fingers` of one frame reads of a finger plan, once per plan: each finger's hand
-        bone, the MCP offsets as columns (K, 3, 1), the tip targets' names, the phalanges' canonical
-        bones (K, 3)."""
+        bone, the MCP offsets in the reference frames (K, 3: rest^T offset, the hand's turn
+        cancelled), the tip targets' names, the phalanges' canonical bones (K, 3)."""
         cache = self.__dict__.setdefault("_finger_ones", {})
         if id(plan) not in cache:
-            items, hand_bones, rows, mcp_local = plan[:4]
-            cache[id(plan)] = (hand_bones[rows], np.ascontiguousarray(mcp_local[..., None]),
+            items, hand_bones, rows, mcp_local, base_rest = plan[:5]
+            assert plan[6].roll is None  # frames_floats takes the reference frames as given
+            cache[id(plan)] = (hand_bones[rows], np.einsum("fji,fj->fi", base_rest, mcp_local),
                                [f"tip_{f}_{s}" for s, f in items], plan[5][1].reshape(-1, 3), plan)
         return cache[id(plan)][:4]
 
