@@ -365,12 +365,12 @@ class FingerSet:
                 ref[self.roll_rows] = stack_mul(ref.take(self.roll_rows, axis=0), self.roll)
         consts = self._float_constants()
         local = np.einsum("fji,fj->fi", ref, np.asarray(tip_target, float) - mcp)  # ref^T (tip - mcp)
-        if radius is None and not joints:
-            return None, self.frames_floats(ref, local)
-        radii = None if radius is None else np.asarray(radius, float).ravel().tolist()
         n = len(local)
+        if radius is None and not joints:
+            return None, self.frames_floats(ref, local).reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)
+        radii = None if radius is None else np.asarray(radius, float).ravel().tolist()
         q_rows, j_rows = _local_phalanges(consts, local.tolist(), radii, joints)
-        rots = _to_world(ref, q_rows, n)
+        rots = _to_world(ref, q_rows, n).reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)  # (item, phalanx, row, column)
         if not joints:
             return None, rots
         points = np.empty((n, 4, 3))
@@ -395,7 +395,9 @@ class FingerSet:
         reference frame already: `ref` (n, 3, 3) the reference frames, rolled (a set whose roll is
         None takes them as given), `local` (n, 3) ref^T (tip - mcp). The avatar's one-frame finger
         IK finds `local` from the wrist without forming the MCPs (their offsets in the reference
-        frame are constants). Returns the rotations (n, 3, 3, 3), a view."""
+        frame are constants). Returns an item's three phalanx frames side by side, (n, 3, 9)
+        contiguous: [item, row, 3 phalanx + column] (a caller scatters it flat: a transposed
+        view's scatter cost twice a flat one's)."""
         local = local.tolist() if isinstance(local, np.ndarray) else local
         return _to_world(ref, _local_phalanges(self._float_constants(), local, None, False)[0], len(local))
 
@@ -410,9 +412,8 @@ class FingerSet:
 def _to_world(ref, q_rows: list, n: int) -> np.ndarray:
     """`_local_phalanges`' frames back to the world: each phalanx's frame is ref @ (its frame in
     ref), an item's three in one (3, 3) x (3, 9) product (three 3x3 products cost twice as much).
-    Returns (item, phalanx, row, column), a view."""
-    side = np.matmul(ref, float_array(q_rows).reshape(n, 3, 9))
-    return side.reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)
+    Returns (n, 3, 9): [item, row, 3 phalanx + column]."""
+    return np.matmul(ref, float_array(q_rows).reshape(n, 3, 9))
 
 
 def _local_phalanges(consts: list, local: list, radii: list | None, joints: bool) -> tuple:

@@ -55,10 +55,12 @@ def test_frames_from_local_targets_are_pose_floats_frames():
     mcp = wrist + np.einsum("fij,fj->fi", hands, offset)
     tip = mcp + rng.normal(size=(n, 3)) * rng.choice([0.002, 0.03, 0.08], size=(n, 1))
     want = fs.pose_floats(mcp, ref, tip, joints=False)[1]
-    same = fs.frames_floats(ref, np.einsum("fji,fj->fi", ref, tip - mcp))
-    assert same.tobytes() == want.tobytes()
+    def frames(local):  # (item, phalanx, row, column) as pose_floats gives them
+        return fs.frames_floats(ref, local).reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)
+
+    assert frames(np.einsum("fji,fj->fi", ref, tip - mcp)).tobytes() == want.tobytes()
     from_wrist = np.einsum("fji,fj->fi", ref, tip - wrist) - np.einsum("fji,fj->fi", rest, offset)
-    assert np.abs(fs.frames_floats(ref, from_wrist) - want).max() < 1e-12
+    assert np.abs(frames(from_wrist) - want).max() < 1e-12
 
 
 def test_one_frame_s_user_fingers_are_the_block_s(monkeypatch):
@@ -103,8 +105,9 @@ def test_one_egocentric_frame_s_fingers_user_and_avatar_are_the_numpy_passes(mon
         avatar_calls.append(True)  # the avatar's IK: its targets in the reference frames already
         return local_floats(self, ref, local)
 
-    def local_numpy(self, ref, local):  # the numpy pass from an MCP at the origin
-        return self.pose(np.zeros_like(local), ref, np.einsum("fij,fj->fi", ref, local), joints=False).rotations
+    def local_numpy(self, ref, local):  # the numpy pass from an MCP at the origin, frames side by side
+        rots = self.pose(np.zeros_like(local), ref, np.einsum("fij,fj->fi", ref, local), joints=False).rotations
+        return rots.transpose(0, 2, 1, 3).reshape(len(local), 3, 9)
 
     poses = {}
     for kernel, local_kernel in ((floats, counted), (_numpy_passes, local_numpy)):
