@@ -363,21 +363,14 @@ class FingerSet:
             else:
                 ref = ref.copy()
                 ref[self.roll_rows] = stack_mul(ref.take(self.roll_rows, axis=0), self.roll)
-        consts = self.__dict__.get("_floats")
-        if consts is None:
-            n = self.n
-            cols = [np.broadcast_to(np.asarray(v, float), (n,)).tolist() for v in (
-                self.c0, self.bb, self.a4, self.minus_b, self.den, self.l1, self.l2, self.l3,
-                self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi, self.half_excluded)]
-            consts = self._floats = list(zip(*cols))
-        local = np.einsum("fji,fj->fi", ref, np.asarray(tip_target, float) - mcp).tolist()  # ref^T (tip - mcp)
-        radii = None if radius is None else np.asarray(radius, float).ravel().tolist()
+        consts = self._float_constants()
+        local = np.einsum("fji,fj->fi", ref, np.asarray(tip_target, float) - mcp)  # ref^T (tip - mcp)
         n = len(local)
-        q_rows, j_rows = _local_phalanges(consts, local, radii, joints)
-        # back to the world: each phalanx's frame is ref @ (its frame in ref), an item's three in
-        # one (3, 3) x (3, 9) product (three 3x3 products cost twice as much)
-        side = np.matmul(ref, float_array(q_rows).reshape(n, 3, 9))
-        rots = side.reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)  # (item, phalanx, row, column): a view
+        if radius is None and not joints:
+            return None, self.frames_floats(ref, local).reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)
+        radii = None if radius is None else np.asarray(radius, float).ravel().tolist()
+        q_rows, j_rows = _local_phalanges(consts, local.tolist(), radii, joints)
+        rots = _to_world(ref, q_rows, n).reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)  # (item, phalanx, row, column)
         if not joints:
             return None, rots
         points = np.empty((n, 4, 3))
@@ -386,12 +379,41 @@ class FingerSet:
         np.add(mcp[:, None], np.matmul(reach, ref.swapaxes(-1, -2)), out=points[:, 1:])
         return points, rots
 
+    def _float_constants(self) -> list:
+        """`_local_phalanges`' constants, item by item, once per set."""
+        consts = self.__dict__.get("_floats")
+        if consts is None:
+            n = self.n
+            cols = [np.broadcast_to(np.asarray(v, float), (n,)).tolist() for v in (
+                self.c0, self.bb, self.a4, self.minus_b, self.den, self.l1, self.l2, self.l3,
+                self.yaw_lo, self.yaw_hi, self.pitch_lo, self.pitch_hi, self.half_excluded)]
+            consts = self._floats = list(zip(*cols))
+        return consts
+
+    def frames_floats(self, ref, local) -> np.ndarray:
+        """`pose_floats(...)[1]` (no joints, no LED) of a caller that has each item's target in its
+        reference frame already: `ref` (n, 3, 3) the reference frames, rolled (a set whose roll is
+        None takes them as given), `local` (n, 3) ref^T (tip - mcp). The avatar's one-frame finger
+        IK finds `local` from the wrist without forming the MCPs (their offsets in the reference
+        frame are constants). Returns an item's three phalanx frames side by side, (n, 3, 9)
+        contiguous: [item, row, 3 phalanx + column] (a caller scatters it flat: a transposed
+        view's scatter cost twice a flat one's)."""
+        local = local.tolist() if isinstance(local, np.ndarray) else local
+        return _to_world(ref, _local_phalanges(self._float_constants(), local, None, False)[0], len(local))
+
     def distal_z(self, mcp, ref_rot, tip_target) -> np.ndarray:
         """(n, 3) the distal phalanx's +Z (the third column of `pose(...).rotations[:, 2]`, the same
         values) without the rest of the pose: the fingertip LED's offset is all a first pose reads."""
         _, base, cos, sin = self._realigned(mcp, ref_rot, tip_target)[:4]
         b = base.transpose(2, 1, 0)  # columns, (row, item) each
         return (cos[1] * b[2] - sin[1] * b[1]).T
+
+
+def _to_world(ref, q_rows: list, n: int) -> np.ndarray:
+    """`_local_phalanges`' frames back to the world: each phalanx's frame is ref @ (its frame in
+    ref), an item's three in one (3, 3) x (3, 9) product (three 3x3 products cost twice as much).
+    Returns (n, 3, 9): [item, row, 3 phalanx + column]."""
+    return np.matmul(ref, float_array(q_rows).reshape(n, 3, 9))
 
 
 def _local_phalanges(consts: list, local: list, radii: list | None, joints: bool) -> tuple:

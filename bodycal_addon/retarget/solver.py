@@ -485,12 +485,18 @@ class PreparedSolver:
         if plan is None:
             return
         items, hand_bones, rows, mcp_local, base_rest, (bones, flat), chain = plan
-        if nf == 1:  # one frame: each finger's hand gathered once, the same products
-            item_hands, mcp_cols, tip_names, phalanges = self._finger_one(plan)
-            hands = frames[0].take(item_hands, axis=0)  # (K, 3, 3)
-            mcp = np.concatenate([wrists[s] for s in sides]).take(rows, axis=0) + (hands @ mcp_cols)[..., 0]
-            frames[0, phalanges] = chain.pose_floats(mcp, hands @ base_rest,
-                                                     np.concatenate([targets[n] for n in tip_names]), joints=False)[1]
+        if nf == 1:  # one frame: each finger's hand gathered once; the MCPs never formed
+            item_hands, mcp_in_ref, tip_names, at = self._finger_one(plan)
+            ref = frames[0].take(item_hands, axis=0) @ base_rest  # (K, 3, 3) the reference frames
+            # ref^T (tip - mcp) with mcp = wrist + hand @ offset, ref = hand @ rest: ref^T (tip - wrist)
+            # less rest^T offset, a constant (the finger set rolls nothing: its thumbs' frames carry
+            # it); tip - wrist taken out of place, in float64 as tip - mcp was (a float32 target's
+            # difference in place moved a finger by 3e-7)
+            # (an item's (1, 3) x (3, 3) product: the einsum's terms, 4 k fewer instructions a call)
+            wrist = np.concatenate([wrists[s] for s in sides]).take(rows, axis=0)
+            local = np.matmul((np.concatenate([targets[n] for n in tip_names]) - wrist)[:, None], ref)[:, 0]
+            local -= mcp_in_ref
+            np.put(frames, at, chain.frames_floats(ref, local))  # flat: the frames' entries in its order
             return
         hands = frames.take(hand_bones, axis=1).swapaxes(0, 1)  # (S, F, 3, 3)
         mcp = np.concatenate([wrists[s] for s, _ in items]) + stacks_apply(hands, mcp_local, rows).reshape(-1, 3)
@@ -529,15 +535,25 @@ class PreparedSolver:
                           finger_set(np.repeat(lens, nf, axis=0).T, np.repeat([f == "thumb" for _, f in items], nf)))
         return cache[key]
 
+    @staticmethod
+    def _finger_scatter(phalanges: np.ndarray) -> np.ndarray:
+        """The flat positions in a one-frame (1, bones, 3, 3) array of (K, 3, 9) [item, row,
+        3 phalanx + column] entries, `phalanges` (K, 3) their canonical bones."""
+        rows, cols = np.arange(3)[None, :, None, None], np.arange(3)[None, None, None, :]
+        return (9 * phalanges[:, None, :, None] + 3 * rows + cols).ravel()
+
     def _finger_one(self, plan: tuple) -> tuple:
         """What `_fingers` of one frame reads of a finger plan, once per plan: each finger's hand
-        bone, the MCP offsets as columns (K, 3, 1), the tip targets' names, the phalanges' canonical
-        bones (K, 3)."""
+        bone, the MCP offsets in the reference frames (K, 3: rest^T offset, the hand's turn
+        cancelled), the tip targets' names, and where `FingerSet.frames_floats`' (K, 3, 9) entries
+        go in the frames (1, bones, 3, 3) flattened: phalanx p's (row, column) at 9 bone + 3 row + column."""
         cache = self.__dict__.setdefault("_finger_ones", {})
         if id(plan) not in cache:
-            items, hand_bones, rows, mcp_local = plan[:4]
-            cache[id(plan)] = (hand_bones[rows], np.ascontiguousarray(mcp_local[..., None]),
-                               [f"tip_{f}_{s}" for s, f in items], plan[5][1].reshape(-1, 3), plan)
+            items, hand_bones, rows, mcp_local, base_rest = plan[:5]
+            assert plan[6].roll is None  # frames_floats takes the reference frames as given
+            cache[id(plan)] = (hand_bones[rows], np.einsum("fji,fj->fi", base_rest, mcp_local),
+                               [f"tip_{f}_{s}" for s, f in items],
+                               self._finger_scatter(plan[5][1].reshape(-1, 3)), plan)
         return cache[id(plan)][:4]
 
     @property

@@ -42,6 +42,27 @@ def test_floats_pose_a_few_fingers_as_the_numpy_passes_do(roll):
     assert worst < 1e-12, worst
 
 
+def test_frames_from_local_targets_are_pose_floats_frames():
+    # `frames_floats` (the avatar's one frame: targets taken into the reference frames by its
+    # caller) is `pose_floats`' frames for the same local targets, to the bit; from a target formed
+    # as the avatar's caller does (wrist, offset in the rest frame), float64's rounding
+    rng = np.random.default_rng(5)
+    n = 10
+    fs = fg.FingerSet(*rng.uniform(0.015, 0.05, (3, n)), thumb=rng.random(n) < 0.3, roll=0.0)
+    hands, rest = random_rotations(rng, n), random_rotations(rng, n)
+    wrist, offset = rng.normal(size=(n, 3)) * 0.1, rng.normal(size=(n, 3)) * 0.03
+    ref = hands @ rest
+    mcp = wrist + np.einsum("fij,fj->fi", hands, offset)
+    tip = mcp + rng.normal(size=(n, 3)) * rng.choice([0.002, 0.03, 0.08], size=(n, 1))
+    want = fs.pose_floats(mcp, ref, tip, joints=False)[1]
+    def frames(local):  # (item, phalanx, row, column) as pose_floats gives them
+        return fs.frames_floats(ref, local).reshape(n, 3, 3, 3).transpose(0, 2, 1, 3)
+
+    assert frames(np.einsum("fji,fj->fi", ref, tip - mcp)).tobytes() == want.tobytes()
+    from_wrist = np.einsum("fji,fj->fi", ref, tip - wrist) - np.einsum("fji,fj->fi", rest, offset)
+    assert np.abs(frames(from_wrist) - want).max() < 1e-12
+
+
 def test_one_frame_s_user_fingers_are_the_block_s(monkeypatch):
     # the trunk's one-frame kernels (mathutils, float32) switched off: one frame's values are then
     # float64's throughout, and its fingers (posed from the floats) the whole take's numpy passes'
@@ -77,20 +98,25 @@ def test_one_egocentric_frame_s_fingers_user_and_avatar_are_the_numpy_passes(mon
     # posed by the float kernel and by the numpy passes; everything else the same kernels.
     rec, user = rt.synthetic_take(seed=4)
     avatar = rt.plain_and_turned_avatars()[1]
-    floats = fg.FingerSet.pose_floats
+    floats, local_floats = fg.FingerSet.pose_floats, fg.FingerSet.frames_floats
     avatar_calls = []
 
-    def counted(self, mcp, ref, tip, joints=True, radius=None):
-        avatar_calls.append(not joints)  # the avatar's IK reads the frames only
-        return floats(self, mcp, ref, tip, joints, radius)
+    def counted(self, ref, local):
+        avatar_calls.append(True)  # the avatar's IK: its targets in the reference frames already
+        return local_floats(self, ref, local)
+
+    def local_numpy(self, ref, local):  # the numpy pass from an MCP at the origin, frames side by side
+        rots = self.pose(np.zeros_like(local), ref, np.einsum("fij,fj->fi", ref, local), joints=False).rotations
+        return rots.transpose(0, 2, 1, 3).reshape(len(local), 3, 9)
 
     poses = {}
-    for kernel in (counted, _numpy_passes):
+    for kernel, local_kernel in ((floats, counted), (_numpy_passes, local_numpy)):
         monkeypatch.setattr(fg.FingerSet, "pose_floats", kernel)
+        monkeypatch.setattr(fg.FingerSet, "frames_floats", local_kernel)
         solver = PreparedSolver(RecordingSource(rec, user), avatar, "egocentric", plant_feet=False)
         poses[kernel] = [solver.solve(f, f + 1) for f in range(0, len(rec.time), 9)]
-    assert sum(avatar_calls) >= 2 * len(poses[counted])  # both arm passes took the floats every frame
+    assert sum(avatar_calls) >= 2 * len(poses[floats])  # both arm passes took the floats every frame
     worst = 0.0
-    for a, b in zip(poses[counted], poses[_numpy_passes]):
+    for a, b in zip(poses[floats], poses[_numpy_passes]):
         worst = max(worst, np.abs(a.joints - b.joints).max(), np.abs(a.basis - b.basis).max())
     assert worst < 1e-9, worst
