@@ -57,15 +57,23 @@ def surface_correction(model: BodyModel, frames0: np.ndarray, pos: dict) -> np.n
     model's own `right`; the engine's frames fix the right by one rule. Posing with C(t) corr
     places them as the model defined them."""
     out = np.broadcast_to(np.eye(3), (len(BONES), 3, 3)).copy()
-    for i, b in enumerate(BONES):
-        info = model.bones.get(b.name)
-        if info is None or info.right is None:
-            continue
-        cm = bone_frame(pos[b.head], pos[b.tail], np.asarray(info.right, float))
-        if np.isfinite(cm).all() and abs(np.linalg.det(cm) - 1) < 1e-3:
-            out[i] = frames0[i].T @ cm
+    # Decision (speed): every bone's frame in one pass (element-wise, the same values as bone by
+    # bone); the loop of numpy calls over 72 bones was ~3x an egocentric bake's set-up calls' cost.
+    rows = [i for i, b in enumerate(BONES) if (info := model.bones.get(b.name)) is not None and info.right is not None]
+    if not rows:
+        return out
+    chosen = [BONES[i] for i in rows]
+    cm = bone_frame(np.array([pos[b.head] for b in chosen], float), np.array([pos[b.tail] for b in chosen], float),
+                    np.array([model.bones[b.name].right for b in chosen], float))
+    ok = np.isfinite(cm).all(axis=(1, 2))
+    ok[ok] = abs(np.linalg.det(cm[ok]) - 1) < 1e-3
+    keep = np.array(rows)[ok]
+    out[keep] = frames0[keep].transpose(0, 2, 1) @ cm[ok]
     return out
 
+
+
+_UNBUILT = object()  # a lazily made attribute not made yet (None is a made "no")
 
 
 # --- the methods: one class each, the same stages -------------------------------------------------
@@ -175,16 +183,24 @@ class Egocentric(Method):
                                                                                  ("avatar", self.avatar_s))}
         if self.trunk_ids:
             self.posers["avatar_trunk"] = ego.SurfacePoser(self.avatar_s, self.trunk_ids)
-        # One frame (a live frame, a preview's) maps its targets over flat arrays of the pairs that
-        # carry weight (egocentric/one_frame.py), to float32's rounding of these kernels' values
-        # where one frame may (core/one_frame.ENABLED); None: this layout takes these kernels. Made
-        # here, not on a first frame: a live stream's first frame would wait ~20 ms for it.
-        self.one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
-                                               self.trunk_exclude, tuple(self.palm_local),
-                                               len(self.lower) if self.trunk_ids else 0)
+        self._one_frame = _UNBUILT  # `one_frame`, made on the first one-frame solve
         # the rows of `mapped` of each stage's targets: {False: the arms', True: the trunk's}
         self.rows = {stage: np.array([self.mapped.index(n) for n in names if n in self.mapped], int)
                      for stage, names in ((True, self.lower), (False, self.upper))}
+
+    @property
+    def one_frame(self) -> OneFrameMapping | None:
+        """One frame (a live frame, a preview's) maps its targets over flat arrays of the pairs
+        that carry weight (egocentric/one_frame.py), to float32's rounding of these kernels' values
+        where one frame may (core/one_frame.ENABLED); None: this layout takes these kernels.
+        Decision (speed): made on the first one-frame solve, not in `__init__`: a bake never
+        solves one frame, and building it was about 17 M instructions of every bake's set-up; a
+        live stream's first frame waits for it instead (about 20 ms)."""
+        if self._one_frame is _UNBUILT:
+            self._one_frame = OneFrameMapping.build(self.mapped, self.posers["user"], self.posers["avatar"],
+                                                    self.trunk_exclude, tuple(self.palm_local),
+                                                    len(self.lower) if self.trunk_ids else 0)
+        return self._one_frame
 
     def chunk(self, up, fk, pelvis, user_frames, start, stop):
         """Steps 3-4 in two stages (Decision): the trunk and legs first, mapped against the body
@@ -201,7 +217,7 @@ class Egocentric(Method):
         ub = tails - heads if run.character else normalize(tails - heads) * self.user_lengths[:, None]  # (F, NB, 3)
         lower, upper = self.lower, self.upper
         # one frame over the pairs' flat arrays (OneFrameMapping), or these kernels over frames
-        one = self.one_frame if self.one_frame is not None and one_frame.ENABLED and len(up.joints) == 1 else None
+        one = self.one_frame if one_frame.ENABLED and len(up.joints) == 1 else None
         us = one.user_surface(up.joints[0], user_frames[0]) if one else posers["user"].pose(up.joints, user_frames)
         pts = np.take(up.joints, self.mapped_joints, axis=1)
         # Decision: the hand is mapped through the centre of its palm, the part that touches, and

@@ -133,14 +133,25 @@ def closest_on_triangles(ap, ab, ac, dot=None):
     # first region that holds wins.
     # (in place on the inside's arrays, this call's own: np.where's selection without its copies)
     bv, bw = inside_v, inside_w
-    for cond, cv, cw in (((va <= 0) & (d4 >= d3) & (d5 >= d6), 1 - e_bc, e_bc),
-                         ((vb <= 0) & (d2 >= 0) & (d6 <= 0), 0.0, e_ac),
-                         ((d6 >= 0) & (d5 <= d6), 0.0, 1.0),
-                         ((vc <= 0) & (d1 >= 0) & (d3 <= 0), e_ab, 0.0),
-                         ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),
-                         ((d1 <= 0) & (d2 <= 0), 0.0, 0.0)):
-        np.putmask(bv, cond, cv)
-        np.putmask(bw, cond, cw)
+    bc = (va <= 0) & (d4 >= d3) & (d5 >= d6)
+    ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    c = (d6 >= 0) & (d5 <= d6)
+    ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    b = (d3 >= 0) & (d4 <= d3)
+    a = (d1 <= 0) & (d2 <= 0)
+    # Decision (speed): consecutive regions that set the same constant are one pass on their
+    # masks' union (the same values: 9 float passes instead of 12, the 3 unions on bytes).
+    np.putmask(bv, bc, 1 - e_bc)
+    np.putmask(bw, bc, e_bc)
+    np.putmask(bw, ac, e_ac)
+    np.putmask(bw, c, 1.0)
+    np.putmask(bv, np.bitwise_or(ac, c, out=ac), 0.0)  # AC then C: v = 0
+    np.putmask(bv, ab, e_ab)
+    np.putmask(bv, b, 1.0)
+    np.putmask(bv, a, 0.0)
+    ab |= b
+    ab |= a
+    np.putmask(bw, ab, 0.0)  # AB, B then A: w = 0
     return bv, bw
 
 
