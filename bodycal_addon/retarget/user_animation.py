@@ -250,7 +250,7 @@ class UserAnimator:
             self.reader.read(0, 0)  # the roles as far as the recording goes
             self._plan = self._make_plan()
             self._tables = self._make_tables(self._plan)
-            self._one = None  # the one-frame tables (`_one_frame_tables`), made again on first use
+            self._one = {}  # the one-frame tables (`_one_frame_tables`) by what the tips pose, made on first use
             self._version = self.reader.version
         return self._plan
 
@@ -398,7 +398,7 @@ class UserAnimator:
                     plan.tips.append((s, f, col))
         plan.hands[s] = (names, np.array(vecs), np.array(bones), np.array(fixed))
 
-    def _one_frame_tables(self, plan: _Plan) -> dict:
+    def _one_frame_tables(self, plan: _Plan, posed: tuple = (False, False)) -> dict:
         """The plan for ONE frame (`_animate_one`), once per plan. Every product of a tracker's
         rotation with a constant (the products, the rigid frames' columns, and those of the hands'
         finger joints and frames and of the toes rigid on the foot, their two constants multiplied
@@ -406,8 +406,14 @@ class UserAnimator:
         gathered by `roles` with them (einsum: one call, where a stacked matmul makes a BLAS call
         per product) gives them all. Every joint of the trackers alone (the mean of
         its estimates; the hands' and toes' joints their wrist's or ankle's plus a product) is a
-        weighted sum of at most `TERMS` of the trackers' positions and those products."""
+        weighted sum of at most `TERMS` of the trackers' positions and those products.
+        `posed` (frames, joints): whether `pose_user_fingers` then overwrites the tipped fingers'
+        second and third phalanges' frames, and their joints after the MCP: those are not computed
+        (their rows are left unset; the first phalanx's frame and the MCP, which it reads, are)."""
         tab, nr = self._tables, len(self.reader.roles)
+        tipped = {(s, f) for s, f, _ in plan.tips}
+        skip_bones = {BI[f"{f}_{i}_{s}"] for s, f in tipped for i in (2, 3)} if posed[0] else set()
+        skip_joints = ({f"{j}_{f}_{s}" for s, f in tipped for j in sk.FINGER_JOINTS[1:]} if posed[1] else set())
         roles, vecs = [], []
 
         def column(row: int, v) -> int:
@@ -430,8 +436,11 @@ class UserAnimator:
             h = plan.rigid[f"hand_{s}", "hand"]
             row, carry = tab["rigid_rows"][h], plan.rigid_fixed[h]
             for n, v in zip(names, hand_vecs):
-                terms[n] = terms[f"wrist_{s}"] + [(column(row, carry @ v), 1.0)]
+                if n not in skip_joints:
+                    terms[n] = terms[f"wrist_{s}"] + [(column(row, carry @ v), 1.0)]
             for b, m in zip(bones, fixed):
+                if int(b) in skip_bones:
+                    continue
                 frame_bones.append(int(b))
                 frame_cols.append([column(row, (carry @ m)[:, i]) for i in range(3)])
             toe = plan.toes[s]
@@ -459,9 +468,10 @@ class UserAnimator:
         fingers, the bones built from their axes): the block's values to float64's rounding. None
         (the block's path then) where a joint's estimates are not all tracked this frame (their
         mean is then over those tracked, `_mean_estimates`)."""
-        one = self._one
+        posed = (bool(plan.tips) and fingers, bool(plan.tips) and fingers and finger_joints)
+        one = self._one.get(posed)
         if one is None:
-            one = self._one = self._one_frame_tables(plan)
+            one = self._one[posed] = self._one_frame_tables(plan, posed)
         if one["multi"] is not None and tr.tracked is not None and not all_true(tr.tracked.take(one["multi"], 0)):
             return None
         tab = self._tables

@@ -59,7 +59,7 @@ def test_one_frame_user_animation_is_the_blocks(take, monkeypatch):
     used = 0
     for f in range(0, rec.frame_count, 5):
         one, block = _one_frame_and_block_path(anim, f, monkeypatch)
-        used += anim._one is not None
+        used += bool(anim._one)
         # the same arithmetic as the block's, reassociated: within the numpy path's pin tolerance
         # (measured: joints 4e-15, frames 1e-11; the hip shortcuts 6e-9, see below)
         np.testing.assert_allclose(one.joints, block.joints, rtol=0, atol=1e-9)
@@ -73,6 +73,28 @@ def test_one_frame_user_animation_is_the_blocks(take, monkeypatch):
                                    atol=one_frame_atol("basis"))
         assert one.valid[0] == whole.valid[f]
     assert used
+
+
+@pytest.mark.parametrize("fingers, finger_joints", [(True, True), (True, False), (False, True)])
+def test_one_frame_leaves_out_what_the_tips_pose_and_keeps_the_values(take, monkeypatch, fingers, finger_joints):
+    # The tipped fingers' second and third phalanges' frames (and, when the joints are posed, their
+    # joints after the MCP) are overwritten by `pose_user_fingers`: the one-frame tables leave
+    # their products out, and every value read is still the block's, whatever the callers' flags.
+    rec, user = take
+    anim = ua.UserAnimator(rec, user)
+    plan = anim.plan
+    for f in range(0, rec.frame_count, 23):
+        one = anim.animate(f, f + 1, fingers=fingers, finger_joints=finger_joints)
+        with monkeypatch.context() as m:
+            m.setattr(ua.UserAnimator, "_animate_one", lambda *a, **k: None)
+            block = anim.animate(f, f + 1, fingers=fingers, finger_joints=finger_joints)
+        np.testing.assert_allclose(one.joints, block.joints, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(one.frames[:, _CONDITIONED], block.frames[:, _CONDITIONED], rtol=0, atol=1e-9)
+    posed = (bool(plan.tips) and fingers, bool(plan.tips) and fingers and finger_joints)
+    assert list(anim._one) == [posed]
+    left_out = len(anim._one_frame_tables(plan)["V"]) - len(anim._one[posed]["V"])
+    assert left_out == len(plan.tips) * (6 * posed[0] + 3 * posed[1])
+    assert ("full" in rec.name) == bool(plan.tips)
 
 
 def test_one_frame_path_is_taken_and_steps_aside_for_a_partly_tracked_joint(take, monkeypatch):
@@ -111,7 +133,7 @@ def test_numpy_fallback_is_the_blocks_path(take, monkeypatch):
         got = anim.animate(f, f + 1)
         np.testing.assert_allclose(got.joints[0], whole.joints[f], rtol=0, atol=1e-9)
         np.testing.assert_allclose(got.frames[0], whole.frames[f], rtol=0, atol=1e-9)
-    assert anim._one is None  # never made: the fallback is the block's path
+    assert not anim._one  # none made: the fallback is the block's path
 
 
 def test_one_frame_reads_of_a_whole_take_are_the_blocks_to_the_bit(take, monkeypatch):
