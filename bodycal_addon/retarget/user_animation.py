@@ -629,15 +629,22 @@ class UserAnimator:
     def _fold_distance(self, s: str) -> float:
         """The wrist's distance from its shoulder with the elbow flexed ELBOW_FLEX_MAX (the law of
         cosines over the user's two arm bones)."""
-        r = self.rest_pos
-        l1, l2 = (float(np.linalg.norm(r[b] - r[a]))
-                  for a, b in ((f"shoulder_{s}", f"elbow_{s}"), (f"elbow_{s}", f"wrist_{s}")))
+        l1, l2 = self._arm_bones(s)
         return math.sqrt(l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(ELBOW_FLEX_MAX))
 
     def _arm_length(self, s: str) -> float:
-        r = self.rest_pos
-        upper, fore = r[f"elbow_{s}"] - r[f"shoulder_{s}"], r[f"wrist_{s}"] - r[f"elbow_{s}"]
-        return float(np.linalg.norm(upper) + np.linalg.norm(fore))
+        upper, fore = self._arm_bones(s)
+        return upper + fore
+
+    def _arm_bones(self, s: str) -> tuple[float, float]:
+        """The user's upper arm and forearm lengths at rest, once a side (a three-point frame's
+        shoulder pass reads them for each reaching side)."""
+        cache = self.__dict__.setdefault("_arm_bone_lengths", {})
+        if s not in cache:
+            r = self.rest_pos
+            cache[s] = tuple(float(np.linalg.norm(r[b] - r[a]))
+                             for a, b in ((f"shoulder_{s}", f"elbow_{s}"), (f"elbow_{s}", f"wrist_{s}")))
+        return cache[s]
 
     def _trunk(self, P: _Joints, Fr: np.ndarray, sac: np.ndarray, hints: list) -> None:
         """Trunk pass (appendix D "Trunk animation"): the sacrum's lateral and origin averaged with the
