@@ -660,11 +660,7 @@ class UserAnimator:
         res = ik.spine(pelvis, sac, self.sac_len, None, np.ascontiguousarray(P["skull_base"]),
                        top_right=normalize(P["shoulder_l"] - P["shoulder_r"]), two_pass=False,
                        rest_segments=self.rest_segments)
-        Fr[:, BI["sacrum"]] = res.sacrum_rot
-        P.pos[:, _SPINE_JOINT_ROWS] = res.joints
-        Fr[:, _SPINE_ROWS] = res.rotations
-        P.pos[:, _CLAVICLE_JOINT_ROWS] = res.joints[:, sk.CLAVICLE_VERTEBRA, None]
-        hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
+        _spine_written(P, Fr, res, hints)
 
     def _trunk_one(self, P: _Joints, Fr: np.ndarray, sac: np.ndarray, hints: list) -> None:
         """`_trunk` of ONE frame: its few vectors (the sacrum turned toward the hip line, the hips'
@@ -690,11 +686,7 @@ class UserAnimator:
         pos[JI["pelvis"]] = arr[0]
         res = ik.spine(arr[0:1], arr[None, 2:], self.sac_len, None, pos[None, JI["skull_base"]],
                        top_right=arr[1:2], two_pass=False, rest_segments=self.rest_segments)
-        Fr[0, BI["sacrum"]] = arr[2:]
-        pos[_SPINE_JOINT_ROWS] = res.joints[0]
-        Fr[0, _SPINE_ROWS] = res.rotations[0]
-        pos[_CLAVICLE_JOINT_ROWS] = res.joints[0, sk.CLAVICLE_VERTEBRA]
-        hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
+        _spine_written(P, Fr, res, hints)
 
     def _hands(self, plan: _Plan, P: _Joints, Fr: np.ndarray, rigid: np.ndarray, start: int, stop: int,
                fingers: bool = True, finger_joints: bool = True) -> None:
@@ -757,6 +749,16 @@ _CLAVICLE_SPINE_ROW = SPINE_BONES.index(f"spine_{sk.CLAVICLE_VERTEBRA:02d}")  # 
 _RIGID_KEYS = {"head": ("head", "head"), **{f"{part}_{s}": (f"{part}_{s}", part) for s in sk.SIDES
                                             for part in ("foot", "hand")}}
 _RIGID_BONES = list(_RIGID_KEYS)
+
+
+def _spine_written(P: _Joints, Fr: np.ndarray, res, hints: list) -> None:
+    """The trunk pass's spine IK result (`ik.spine`, one pass: its sacrum the one it was given)
+    written into the joints and frames, and the clavicles' x hint."""
+    Fr[:, BI["sacrum"]] = res.sacrum_rot
+    P.pos[:, _SPINE_JOINT_ROWS] = res.joints
+    Fr[:, _SPINE_ROWS] = res.rotations
+    P.pos[:, _CLAVICLE_JOINT_ROWS] = res.joints[:, sk.CLAVICLE_VERTEBRA, None]
+    hints += [res.rotations[:, _CLAVICLE_SPINE_ROW][..., :, 2]] * len(sk.SIDES)
 
 
 def sacrum_toward_hip_line(sacrum: np.ndarray, hip_l: np.ndarray, hip_r: np.ndarray) -> np.ndarray:

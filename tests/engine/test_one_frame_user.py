@@ -178,8 +178,7 @@ def test_one_frame_pelvis_is_the_blocks_in_float64(take, monkeypatch):
     # The trunk of one frame (`UserAnimator._trunk_one`): the pelvis (the tracker's estimate and the
     # hips' through the turned sacrum) and the sacrum's frame are the block path's float64 values
     # (the spine's joints and vertebrae stay the mathutils kernel's: the pins' tolerance).
-    if one_frame.ENABLED is False:
-        pytest.skip("no mathutils")
+    assert one_frame.ENABLED, "the engine lane installs mathutils (requirements-dev.txt)"
     rec, user = take
     anim = ua.UserAnimator(rec, user)
     whole = anim.animate(0, rec.frame_count)
